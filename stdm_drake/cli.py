@@ -1,0 +1,48 @@
+"""The `stdm-drake` command line: one subcommand per stage of the data flow.
+
+Each subcommand lives in its stage's module, which provides `add_arguments(parser)` and
+`run(args) -> int`; modules are imported only when their command runs, so `stdm-drake collect`
+does not pay for importing PyTorch and `stdm-drake train` does not pay for Drake.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+# name -> (module, one-line help)
+COMMANDS = {
+    "collect": ("stdm_drake.collect", "simulate the UR-10 under a data protocol and write a dataset"),
+    "inspect": ("stdm_drake.inspect", "print a summary of a dataset file"),
+}
+
+
+def main(argv: list[str] | None = None) -> int:
+    os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+    argv = sys.argv[1:] if argv is None else list(argv)
+    parser = argparse.ArgumentParser(prog="stdm-drake", description=__doc__.splitlines()[0])
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (_, help_text) in COMMANDS.items():
+        subparsers.add_parser(name, help=help_text, add_help=False)
+    if not argv or argv[0] not in COMMANDS:
+        parser.parse_args(argv or ["--help"])
+        return 2
+    name = argv[0]
+    module = importlib.import_module(COMMANDS[name][0])
+    command_parser = argparse.ArgumentParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
+    module.add_arguments(command_parser)
+    args = command_parser.parse_args(argv[1:])
+    try:
+        return int(module.run(args) or 0)
+    except (ValueError, FileNotFoundError) as error:  # InputError is a ValueError
+        message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        print(f"stdm-drake {name}: error: {message}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"stdm-drake {name}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

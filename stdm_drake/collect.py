@@ -1,0 +1,460 @@
+"""Collect UR-10 datasets in Drake under the paper's two data protocols.
+
+- excitation (paper V.A.2, eq. 10): per-joint random sine torques A sin(f t + phi) + B added to
+  gravity compensation; the action recorded is the total torque applied.
+- tracking (paper V.B.1): task-space plans from `stdm_drake.plan`, tracked by a joint-space
+  controller (`stdm_drake.control`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
+  are recorded as the "real robot" derivative targets.
+
+Every trajectory is simulated sample by sample: at t_k the controller sees the measurement y_k,
+returns a_k, and a_k is held while the discrete plant integrates to t_k+1 at its own step, so
+x_k+1 is exactly a function of (x_k, a_k). Trajectory i draws its randomness from
+numpy.random.default_rng([seed, i]), so a dataset does not depend on how many worker processes
+collected it.
+"""
+
+import argparse
+import concurrent.futures
+import dataclasses
+import multiprocessing
+import os
+import pathlib
+import sys
+from importlib import metadata as importlib_metadata
+
+import numpy as np
+
+from stdm_drake.config import load_yaml_config
+from stdm_drake.control import (ControllerConfig, JointSensor, SampledJointController, SensorConfig,
+                                load_controller_config)
+from stdm_drake.dataset import write_dataset
+from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.robot import (CONTROLLERS_DIR, JOINT_NAMES, NUM_JOINTS, TRAJECTORIES_DIR, Dynamics, PlantConfig,
+                              SelfCollisionChecker, joint_limits, make_plant, model_sha256)
+
+DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
+DEFAULT_CONFIGS = {
+    "excitation": TRAJECTORIES_DIR / "excitation.yaml",
+    "tracking": TRAJECTORIES_DIR / "tracking.yaml",
+}
+DEFAULT_CONTROLLER = CONTROLLERS_DIR / "pid.yaml"
+DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
+PAPER_COUNTS = {"excitation": 200, "tracking": 100}
+
+
+@dataclasses.dataclass
+class ExcitationConfig:
+    """Random sine torques (paper eq. 10) on top of gravity compensation, per joint.
+
+    tau_i(t) = g_i(q_k) + A_i sin(f_i t + phi_i) + B_i with A_i ~ U[0, amplitude_max_i] N m,
+    f_i ~ U[frequency_range] rad/s, B_i ~ U[-offset_max_i, offset_max_i] N m,
+    phi_i ~ U[phase_range] rad; t is the time since the trajectory's start.
+    q0 ~ U[initial_position_lower, initial_position_upper] rad, v0 = 0.
+    A trajectory is resampled when it comes within position_margin (rad) of a joint limit,
+    exceeds velocity_fraction of a velocity limit, or (check_self_collision) makes two
+    non-adjacent links touch; after max_attempts failed attempts collection stops with an error.
+    """
+    num_steps: int = 50
+    amplitude_max: list[float] = dataclasses.field(default_factory=lambda: [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015])
+    offset_max: list[float] = dataclasses.field(default_factory=lambda: [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015])
+    frequency_range: list[float] = dataclasses.field(default_factory=lambda: [1.0, 10.0])
+    phase_range: list[float] = dataclasses.field(default_factory=lambda: [-1.0, 1.0])
+    gravity_compensation: bool = True
+    initial_position_lower: list[float] = dataclasses.field(
+        default_factory=lambda: [-3.1, -2.6, -2.6, -3.1, -3.1, -3.1])
+    initial_position_upper: list[float] = dataclasses.field(
+        default_factory=lambda: [3.1, -0.5, 2.6, 3.1, 3.1, 3.1])
+    position_margin: float = 0.05
+    velocity_fraction: float = 1.0
+    check_self_collision: bool = True
+    max_attempts: int = 200
+
+    def validate(self) -> None:
+        for name in ("amplitude_max", "offset_max", "initial_position_lower", "initial_position_upper"):
+            values = np.asarray(getattr(self, name), dtype=float)
+            if values.shape != (NUM_JOINTS,) or not np.all(np.isfinite(values)):
+                raise InputError(f"excitation {name} must be {NUM_JOINTS} finite numbers, got {getattr(self, name)}")
+        for name in ("frequency_range", "phase_range"):
+            low_high = getattr(self, name)
+            if len(low_high) != 2 or not low_high[0] <= low_high[1]:
+                raise InputError(f"excitation {name} must be [low, high] with low <= high, got {low_high}")
+        if np.any(np.asarray(self.amplitude_max) < 0) or np.any(np.asarray(self.offset_max) < 0):
+            raise InputError("excitation amplitude_max and offset_max must be >= 0")
+        if np.any(np.asarray(self.initial_position_lower) > np.asarray(self.initial_position_upper)):
+            raise InputError("excitation initial_position_lower must be <= initial_position_upper")
+        if self.num_steps < 2 or self.max_attempts < 1:
+            raise InputError("excitation num_steps must be >= 2 and max_attempts >= 1")
+
+
+@dataclasses.dataclass
+class CollectionSettings:
+    """What every protocol shares: sample period (s), plant, sensor and tracking controller."""
+    sample_period: float = DEFAULT_SAMPLE_PERIOD
+    plant: PlantConfig = dataclasses.field(default_factory=PlantConfig)
+    sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig)
+    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
+
+    def substeps(self) -> int:
+        """Plant steps per sample period; the period must be a whole multiple of the plant step."""
+        if not self.sample_period > 0:
+            raise InputError(f"sample period must be > 0 s, got {self.sample_period}")
+        if self.plant.time_step <= 0:
+            raise InputError("collection needs a discrete plant (time_step > 0)")
+        ratio = self.sample_period / self.plant.time_step
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise InputError(f"sample period {self.sample_period} s is not a whole multiple of the plant "
+                             f"step {self.plant.time_step} s")
+        return int(round(ratio))
+
+
+class SimulationRig:
+    """The collection diagram (plant + scene graph) and a simulator stepped sample by sample.
+
+    Each trajectory starts from a fresh default context at t = 0, so its data depend only on its
+    own inputs, not on what the rig simulated before (or in which worker process).
+    """
+
+    def __init__(self, settings: CollectionSettings):
+        from pydrake.systems.analysis import Simulator
+        from pydrake.systems.framework import DiagramBuilder
+
+        self.settings = settings
+        settings.substeps()
+        builder = DiagramBuilder()
+        self.plant, _ = make_plant(settings.plant, builder=builder)
+        builder.ExportInput(self.plant.get_actuation_input_port(), "actuation")
+        self.diagram = builder.Build()
+        self.simulator = Simulator(self.diagram)
+        self.context = self.simulator.get_mutable_context()
+        self.plant_context = self.plant.GetMyContextFromRoot(self.context)
+        self.actuation = self.diagram.get_input_port(0)
+        self.limits = joint_limits(self.plant)
+        self.dynamics = Dynamics()
+        self.collision_checker = SelfCollisionChecker()
+        self.controller = SampledJointController(settings.controller, settings.sample_period)
+
+    def run(self, q0: np.ndarray, num_steps: int, control, sensor: JointSensor) -> dict:
+        """Simulate one trajectory from rest at q0 (6,) rad for num_steps sample periods.
+
+        control(k, t, q_measured, v_measured) -> torque (6,) N m for [t_k, t_k+1); t = k * period;
+        the controller gets the raw measurement, the dataset records q_measured and the filtered v.
+        Returns the arrays of one dataset trajectory (see stdm_drake.dataset).
+        """
+        dt = self.settings.sample_period
+        self.diagram.SetDefaultContext(self.context)
+        self.context.SetTime(0.0)
+        self.plant.SetPositionsAndVelocities(self.plant_context, np.concatenate([q0, np.zeros(NUM_JOINTS)]))
+        self.actuation.FixValue(self.context, np.zeros(NUM_JOINTS))
+        self.simulator.Initialize()
+        q_true, v_true, q_meas, v_meas, tau = [], [], [], [], []
+        for k in range(num_steps + 1):
+            x = self.plant.GetPositionsAndVelocities(self.plant_context)
+            q_true.append(x[:NUM_JOINTS])
+            v_true.append(x[NUM_JOINTS:])
+            q_k, v_k, v_filtered = sensor.measure(q_true[-1], v_true[-1])
+            q_meas.append(q_k)
+            v_meas.append(v_filtered)
+            tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
+            tau.append(tau_k)
+            if k < num_steps:
+                self.actuation.FixValue(self.context, tau_k)
+                self.simulator.AdvanceTo((k + 1) * dt)
+        acceleration = self.dynamics.acceleration
+        qdd = [acceleration(q_true[k], v_true[k], tau[k]) for k in range(num_steps + 1)]
+        qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], tau[k]) for k in range(num_steps)]
+        return dict(q=np.array(q_meas), v=np.array(v_meas), tau=np.array(tau[:-1]), tau_next=tau[-1],
+                    q_true=np.array(q_true), v_true=np.array(v_true), qdd=np.array(qdd), qdd_end=np.array(qdd_end))
+
+    def limit_violation(self, traj: dict, position_margin: float, velocity_fraction: float,
+                        check_self_collision: bool) -> str | None:
+        """Why the trajectory is unusable (first reason found), or None if it is fine."""
+        lower = self.limits.position_lower + position_margin
+        upper = self.limits.position_upper - position_margin
+        q, v = traj["q_true"], traj["v_true"]
+        for name, bad in (("position", (q < lower) | (q > upper)),
+                          ("velocity", np.abs(v) > velocity_fraction * self.limits.velocity)):
+            if bad.any():
+                step, joint = np.argwhere(bad)[0]
+                return f"{JOINT_NAMES[joint]} {name} limit at step {step}"
+        if check_self_collision:
+            for step, q_step in enumerate(q):
+                if not self.collision_checker.is_collision_free(q_step):
+                    links = self.collision_checker.colliding_links(q_step)
+                    return f"self-collision {links[0][0]}/{links[0][1]} at step {step}"
+        return None
+
+
+def excitation_trajectory(rig: SimulationRig, config: ExcitationConfig, rng: np.random.Generator) -> dict:
+    """Sample eq. (10) parameters and q0 until a trajectory stays inside the limits."""
+    lower, upper = np.asarray(config.initial_position_lower), np.asarray(config.initial_position_upper)
+    reasons: dict[str, int] = {}
+    sensor_config = rig.settings.sensor
+    for _ in range(config.max_attempts):
+        amplitude = rng.uniform(0.0, config.amplitude_max)
+        frequency = rng.uniform(*config.frequency_range, size=NUM_JOINTS)
+        offset = rng.uniform(-np.asarray(config.offset_max), config.offset_max)
+        phase = rng.uniform(*config.phase_range, size=NUM_JOINTS)
+        q0 = rng.uniform(lower, upper)
+        if config.check_self_collision and not rig.collision_checker.is_collision_free(q0):
+            reasons["initial self-collision"] = reasons.get("initial self-collision", 0) + 1
+            continue
+
+        def control(k, t, q, v):
+            tau = amplitude * np.sin(frequency * t + phase) + offset
+            return tau + rig.dynamics.gravity_torque(q) if config.gravity_compensation else tau
+
+        traj = rig.run(q0, config.num_steps, control, JointSensor(sensor_config, rng))
+        reason = rig.limit_violation(traj, config.position_margin, config.velocity_fraction,
+                                     config.check_self_collision)
+        if reason is None:
+            traj["excitation"] = np.concatenate([amplitude, frequency, offset, phase])
+            return traj
+        key = reason.split(" at step")[0]
+        reasons[key] = reasons.get(key, 0) + 1
+    summary = ", ".join(f"{name} x{count}" for name, count in sorted(reasons.items(), key=lambda item: -item[1]))
+    raise InputError(f"excitation: no trajectory within limits after {config.max_attempts} attempts "
+                     f"({summary}); lower the torque ranges")
+
+
+@dataclasses.dataclass
+class PlanSamples:
+    """A plan sampled at the data rate: q (T+1, 6) rad, qd (T+1, 6) rad/s, qdd (T+1, 6) rad/s^2."""
+    q: np.ndarray
+    qd: np.ndarray
+    qdd: np.ndarray
+
+
+def tracking_trajectory(rig: SimulationRig, plan: PlanSamples, rng: np.random.Generator) -> dict:
+    """Track one planned trajectory from rest at its start with the configured controller."""
+    controller = rig.controller
+    controller.reset()
+
+    def control(k, t, q, v):
+        return controller.torque(q, v, plan.q[k], plan.qd[k], plan.qdd[k])
+
+    traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng))
+    reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
+    if reason is not None:
+        raise PlanningError(f"tracking left the limits ({reason}); check the controller gains")
+    traj.update(q_planned=plan.q, v_planned=plan.qd, qdd_planned=plan.qdd)
+    return traj
+
+
+# ---- worker processes -------------------------------------------------------------------------
+
+_WORKER_RIG: SimulationRig | None = None
+
+
+def _init_worker(settings: CollectionSettings) -> None:
+    global _WORKER_RIG
+    os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+    _WORKER_RIG = SimulationRig(settings)
+
+
+def _collect_one(job: tuple) -> dict:
+    protocol, index, seed, payload = job
+    rng = np.random.default_rng([seed, index])
+    if protocol == "excitation":
+        return excitation_trajectory(_WORKER_RIG, payload, rng)
+    return tracking_trajectory(_WORKER_RIG, payload, rng)
+
+
+@dataclasses.dataclass
+class CollectionRequest:
+    """One dataset to collect. config: ExcitationConfig or the tracking spec pair."""
+    protocol: str
+    count: int
+    seed: int
+    settings: CollectionSettings
+    excitation: ExcitationConfig | None = None
+    tracking_spec: tuple | None = None
+    workers: int = 1
+
+
+def plan_tracking_jobs(request: CollectionRequest) -> tuple[list, list[int]]:
+    """Plans for the tracking protocol: (plans, groups), sampled deterministically from the seed."""
+    from stdm_drake import plan as planning
+
+    sampling, planner = request.tracking_spec
+    kinematics = planning.RobotKinematics()
+    checker = SelfCollisionChecker()
+    rng = np.random.default_rng([request.seed, 2**31])  # separate stream from the per-trajectory ones
+    sampled = planning.sample_task_plans(kinematics, sampling, planner, request.settings.sample_period, rng,
+                                         is_collision_free=checker.is_collision_free)
+    if request.count > len(sampled):
+        raise InputError(f"tracking spec yields {len(sampled)} plans "
+                         f"({len(sampling.initial_poses)} poses x {sampling.num_final_per_initial}), "
+                         f"{request.count} requested")
+    chosen = _round_robin([group for group, _ in sampled], request.count)
+    plans = [PlanSamples(q=sampled[i][1].q, qd=sampled[i][1].qd, qdd=sampled[i][1].qdd) for i in chosen]
+    return plans, [sampled[i][0] for i in chosen]
+
+
+def _round_robin(groups: list[int], count: int) -> list[int]:
+    """First `count` indices taking one per group in turn (so a small count covers every group)."""
+    by_group: dict[int, list[int]] = {}
+    for index, group in enumerate(groups):
+        by_group.setdefault(group, []).append(index)
+    chosen, depth = [], 0
+    while len(chosen) < count:
+        for members in by_group.values():
+            if depth < len(members) and len(chosen) < count:
+                chosen.append(members[depth])
+        depth += 1
+    return sorted(chosen)
+
+
+def collect(request: CollectionRequest, progress: bool = True, on_trajectory=None) -> tuple[list[dict], list[int], dict]:
+    """Simulate `request.count` trajectories; returns (trajectories, groups, metadata).
+
+    on_trajectory(traj): called with each finished trajectory, in order (e.g. to show it in Meshcat).
+    """
+    from tqdm import tqdm
+
+    if request.protocol not in DEFAULT_CONFIGS:
+        raise InputError(f"protocol must be one of {tuple(DEFAULT_CONFIGS)}, got {request.protocol!r}")
+    if request.count < 1:
+        raise InputError(f"count must be >= 1, got {request.count}")
+    settings = request.settings
+    settings.substeps()
+    settings.sensor.validate()
+    settings.controller.validate()
+    if request.protocol == "excitation":
+        request.excitation.validate()
+        payloads, groups = [request.excitation] * request.count, [0] * request.count
+    else:
+        payloads, groups = plan_tracking_jobs(request)
+    jobs = [(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
+    bar = tqdm(total=len(jobs), desc=f"collect {request.protocol}", unit="traj", disable=not progress,
+               file=sys.stderr)
+    workers = max(1, min(request.workers, len(jobs)))
+    trajectories = []
+
+    def finished(traj):
+        trajectories.append(traj)
+        if on_trajectory is not None:
+            on_trajectory(traj)
+        bar.update()
+
+    if workers == 1:
+        _init_worker(settings)
+        for job in jobs:
+            finished(_collect_one(job))
+    else:
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
+                                                    initargs=(settings,)) as pool:
+            for traj in pool.map(_collect_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))):
+                finished(traj)
+    bar.close()
+    metadata = _metadata(request)
+    if request.protocol == "excitation":
+        metadata["excitation_parameters"] = [traj.pop("excitation").tolist() for traj in trajectories]
+    return trajectories, groups, metadata
+
+
+def _package_versions() -> dict:
+    versions = {}
+    for name in ("stdm-drake", "drake", "numpy", "h5py", "ruckig", "toppra"):
+        try:
+            versions[name] = importlib_metadata.version(name)
+        except importlib_metadata.PackageNotFoundError:
+            versions[name] = None
+    versions["python"] = ".".join(map(str, sys.version_info[:3]))
+    return versions
+
+
+def _metadata(request: CollectionRequest) -> dict:
+    settings = request.settings
+    metadata = dict(
+        protocol=request.protocol, sample_period=settings.sample_period, seed=request.seed,
+        num_trajectories=request.count, robot_model_sha256=model_sha256(), joint_names=list(JOINT_NAMES),
+        plant=dataclasses.asdict(settings.plant), sensor=dataclasses.asdict(settings.sensor),
+        package_versions=_package_versions(),
+        torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")
+    if request.protocol == "excitation":
+        metadata["excitation"] = dataclasses.asdict(request.excitation)
+        metadata["excitation_parameters_columns"] = "amplitude (6) N m, frequency (6) rad/s, offset (6) N m, phase (6) rad"
+    else:
+        sampling, planner = request.tracking_spec
+        metadata["controller"] = dataclasses.asdict(settings.controller)
+        metadata["planner"] = dataclasses.asdict(planner)
+        metadata["task_space_sampling"] = dataclasses.asdict(sampling)
+    return metadata
+
+
+# ---- command line ------------------------------------------------------------------------------
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--protocol", choices=tuple(DEFAULT_CONFIGS), default="tracking",
+                        help="data protocol (default: tracking)")
+    parser.add_argument("--config", type=pathlib.Path,
+                        help="protocol YAML (default: trajectories/excitation.yaml or trajectories/tracking.yaml)")
+    parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
+                        help="tracking controller gains YAML (default: controllers/pid.yaml)")
+    parser.add_argument("--sensor", type=pathlib.Path,
+                        help="sensor noise/filter YAML (default: controllers/sensor.yaml for tracking, "
+                             "an ideal sensor for excitation)")
+    parser.add_argument("--count", type=int, help="number of trajectories (default: the paper's, 200 / 100)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (same seed -> same file)")
+    parser.add_argument("--sample-period", type=float, default=DEFAULT_SAMPLE_PERIOD,
+                        help="data sample period in s (default 0.01; the learned model steps at this period)")
+    parser.add_argument("--plant-time-step", type=float, default=PlantConfig.time_step,
+                        help="discrete plant step in s (default 0.001)")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                        help="worker processes (default: min(2, cores)); the data do not depend on it")
+    parser.add_argument("--meshcat", action="store_true",
+                        help="show each trajectory in Meshcat as it is collected (prints the URL)")
+    parser.add_argument("--html", type=pathlib.Path,
+                        help="save a standalone Meshcat HTML file that replays every collected trajectory")
+    parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def request_from_args(args: argparse.Namespace) -> CollectionRequest:
+    """Read every config file the arguments name (errors before any simulation starts)."""
+    config_path = args.config or DEFAULT_CONFIGS[args.protocol]
+    sensor = SensorConfig()
+    sensor_path = args.sensor or (DEFAULT_SENSOR if args.protocol == "tracking" else None)
+    if sensor_path is not None:
+        sensor = load_yaml_config(sensor_path, SensorConfig)
+    settings = CollectionSettings(sample_period=args.sample_period,
+                                  plant=PlantConfig(time_step=args.plant_time_step), sensor=sensor,
+                                  controller=load_controller_config(args.controller))
+    request = CollectionRequest(protocol=args.protocol, count=args.count or PAPER_COUNTS[args.protocol],
+                                seed=args.seed, settings=settings, workers=args.workers)
+    if args.protocol == "excitation":
+        request.excitation = load_yaml_config(config_path, ExcitationConfig)
+        try:
+            request.excitation.validate()
+        except InputError as error:
+            raise InputError(f"{config_path}: {error}") from None
+    else:
+        from stdm_drake.plan import load_tracking_spec
+        request.tracking_spec = load_tracking_spec(config_path)
+    return request
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    request = request_from_args(args)
+    recorder = None
+    if args.meshcat or args.html:
+        from stdm_drake.visualize import TrajectoryRecorder
+        recorder = TrajectoryRecorder(request.settings.sample_period)
+        if args.meshcat:
+            print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)
+    started = time.perf_counter()
+    trajectories, groups, metadata = collect(
+        request, progress=not args.quiet,
+        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj["q_true"]))
+    elapsed = time.perf_counter() - started
+    path = write_dataset(args.output, trajectories, groups, metadata)
+    simulated = sum(len(t["tau"]) for t in trajectories) * request.settings.sample_period
+    print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
+          f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
+    if args.html:
+        recorder.write_html(args.html)
+        print(f"wrote {args.html}")
+    return 0

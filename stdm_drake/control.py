@@ -1,0 +1,137 @@
+"""Joint-space tracking controllers and the joint sensor model, run as sampled-data systems.
+
+A real robot's controller runs at its control rate and holds its torque in between (zero-order
+hold). stdm-drake does the same: the control law is evaluated once per sample period on the
+measured state, and the torque is held while the plant integrates at its finer step. The
+control laws are Drake's own systems, evaluated in their own contexts:
+
+- "pid": `PidController` (kp, ki, kd) on [q, v] error plus gravity feed-forward g(q_measured);
+- "inverse_dynamics": `InverseDynamicsController` (computed torque with PID on the error and the
+  planned acceleration as reference).
+
+The integral of the position error is kept by the sampled loop (rectangle rule at the sample
+period) and written into the Drake controller's context before each evaluation.
+"""
+
+import dataclasses
+
+import numpy as np
+from pydrake.systems.controllers import InverseDynamicsController, PidController
+
+from stdm_drake.config import load_yaml_config
+from stdm_drake.errors import InputError
+from stdm_drake.robot import NUM_JOINTS, Dynamics, joint_limits
+
+CONTROLLER_KINDS = ("pid", "inverse_dynamics")
+
+
+@dataclasses.dataclass
+class ControllerConfig:
+    """Gains of the joint-space tracking controller (per joint, shoulder_pan .. wrist_3).
+
+    pid: kp N m/rad, ki N m/(rad s), kd N m s/rad.
+    inverse_dynamics: kp 1/s^2, ki 1/s^3, kd 1/s (they scale the mass matrix).
+    """
+    kind: str = "pid"
+    kp: list[float] = dataclasses.field(default_factory=lambda: [1250.0, 2500.0, 690.0, 24.5, 5.3, 0.42])
+    ki: list[float] = dataclasses.field(default_factory=lambda: [2500.0, 5000.0, 1380.0, 49.0, 10.6, 0.84])
+    kd: list[float] = dataclasses.field(default_factory=lambda: [100.0, 200.0, 55.0, 1.4, 0.3, 0.024])
+    gravity_feedforward: bool = True
+
+    def validate(self) -> None:
+        if self.kind not in CONTROLLER_KINDS:
+            raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
+        for name in ("kp", "ki", "kd"):
+            gains = np.asarray(getattr(self, name), dtype=float)
+            if gains.shape != (NUM_JOINTS,) or not np.all(np.isfinite(gains)) or np.any(gains < 0):
+                raise InputError(f"controller gain {name} must be {NUM_JOINTS} finite non-negative numbers, "
+                                 f"got {getattr(self, name)}")
+
+
+def load_controller_config(path) -> ControllerConfig:
+    config = load_yaml_config(path, ControllerConfig)
+    try:
+        config.validate()
+    except InputError as error:
+        raise InputError(f"{path}: {error}") from None
+    return config
+
+
+@dataclasses.dataclass
+class SensorConfig:
+    """Joint encoder model: white noise on q and v, then a causal moving average of v.
+
+    position_noise_std rad; velocity_noise_std rad/s; velocity_filter_window samples (1 = off).
+    """
+    position_noise_std: float = 0.0
+    velocity_noise_std: float = 0.0
+    velocity_filter_window: int = 1
+
+    def validate(self) -> None:
+        if not (self.position_noise_std >= 0 and self.velocity_noise_std >= 0):
+            raise InputError("sensor noise standard deviations must be >= 0")
+        if self.velocity_filter_window < 1:
+            raise InputError(f"velocity_filter_window must be >= 1, got {self.velocity_filter_window}")
+
+
+class JointSensor:
+    """Sampled joint measurements of one trajectory.
+
+    `measure` returns the raw reading (q + n_q, v + n_v), which the servo controller uses, and
+    the filtered velocity MA_w(v + n_v), which is what gets recorded (as on the real robot,
+    where the average filter served the logged data, not the joint servo loop).
+    """
+
+    def __init__(self, config: SensorConfig, rng: np.random.Generator):
+        config.validate()
+        self.config = config
+        self.rng = rng
+        self._velocity_history: list[np.ndarray] = []
+
+    def measure(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """q, v: (6,) true state -> (q_measured, v_measured, v_filtered), each (6,)."""
+        c = self.config
+        q_measured = q + c.position_noise_std * self.rng.standard_normal(NUM_JOINTS) if c.position_noise_std else q.copy()
+        v_noisy = v + c.velocity_noise_std * self.rng.standard_normal(NUM_JOINTS) if c.velocity_noise_std else v.copy()
+        self._velocity_history.append(v_noisy)
+        del self._velocity_history[:-c.velocity_filter_window]
+        return q_measured, v_noisy, np.mean(self._velocity_history, axis=0)
+
+
+class SampledJointController:
+    """Drake's PID or inverse-dynamics controller evaluated once per sample period.
+
+    `torque(q, v, q_d, v_d, qdd_d)` returns the torque (6,) N m to hold over the next sample
+    period, clamped to the effort limits, and advances the error integral by one period.
+    """
+
+    def __init__(self, config: ControllerConfig, sample_period: float):
+        config.validate()
+        self.config = config
+        self.sample_period = sample_period
+        self.dynamics = Dynamics()
+        self.effort_limit = joint_limits(self.dynamics.plant).effort
+        kp, ki, kd = (np.asarray(getattr(config, name), dtype=float) for name in ("kp", "ki", "kd"))
+        if config.kind == "pid":
+            self._system = PidController(kp=kp, ki=ki, kd=kd)
+        else:
+            self._system = InverseDynamicsController(
+                self.dynamics.plant, kp=kp, ki=ki, kd=kd, has_reference_acceleration=True)
+        self._context = self._system.CreateDefaultContext()
+        self._integral = np.zeros(NUM_JOINTS)
+
+    def reset(self) -> None:
+        self._integral[:] = 0.0
+
+    def torque(self, q, v, q_d, v_d, qdd_d) -> np.ndarray:
+        system, context = self._system, self._context
+        context.SetContinuousState(self._integral)
+        system.get_input_port_estimated_state().FixValue(context, np.concatenate([q, v]))
+        system.get_input_port_desired_state().FixValue(context, np.concatenate([q_d, v_d]))
+        if self.config.kind == "inverse_dynamics":
+            system.get_input_port_desired_acceleration().FixValue(context, qdd_d)
+        tau = np.array(system.get_output_port_control().Eval(context))
+        if self.config.kind == "pid" and self.config.gravity_feedforward:
+            tau += self.dynamics.gravity_torque(q)
+        self._integral += (q_d - q) * self.sample_period
+        return np.clip(tau, -self.effort_limit, self.effort_limit)

@@ -1,0 +1,26 @@
+"""Shared test setup: offline Drake, small datasets collected once per session."""
+import os
+
+os.environ["DRAKE_ALLOW_NETWORK"] = "meshcat"  # a remote package fails at once; local Meshcat works
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def excitation_dataset(tmp_path_factory):
+    """Path of a 4-trajectory excitation dataset (seed 3)."""
+    from stdm_drake.cli import main
+    path = tmp_path_factory.mktemp("data") / "excitation.h5"
+    assert main(["collect", "--protocol", "excitation", "--count", "4", "--seed", "3", "--workers", "1",
+                 "--quiet", "-o", str(path)]) == 0
+    return path
+
+
+@pytest.fixture(scope="session")
+def tracking_dataset(tmp_path_factory):
+    """Path of an 8-trajectory tracking dataset (2 per initial pose, seed 5)."""
+    from stdm_drake.cli import main
+    path = tmp_path_factory.mktemp("data") / "tracking.h5"
+    assert main(["collect", "--protocol", "tracking", "--count", "8", "--seed", "5", "--workers", "1",
+                 "--quiet", "-o", str(path)]) == 0
+    return path

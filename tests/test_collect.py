@@ -1,0 +1,161 @@
+"""Data collection: zero-order-hold exactness, protocols, determinism, CLI and bad input."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from stdm_drake.cli import main
+from stdm_drake.collect import CollectionSettings, SimulationRig
+from stdm_drake.control import JointSensor, SensorConfig
+from stdm_drake.dataset import load_dataset
+from stdm_drake.inspect import tracking_errors
+
+
+def test_next_state_is_a_function_of_state_and_held_torque(excitation_dataset):
+    """Re-simulating one sample period from (x_k, a_k) on a fresh rig reproduces x_k+1 exactly."""
+    dataset = load_dataset(excitation_dataset)
+    rig = SimulationRig(CollectionSettings())
+    traj = dataset.trajectory(1)
+    for k in (0, 17, 49):
+        x_k = np.concatenate([traj["q_true"][k], traj["v_true"][k]])
+        rig.diagram.SetDefaultContext(rig.context)
+        rig.context.SetTime(0.0)
+        rig.plant.SetPositionsAndVelocities(rig.plant_context, x_k)
+        rig.actuation.FixValue(rig.context, traj["tau"][k])
+        rig.simulator.Initialize()
+        rig.simulator.AdvanceTo(dataset.sample_period)
+        x_next = rig.plant.GetPositionsAndVelocities(rig.plant_context)
+        np.testing.assert_allclose(x_next[:6], traj["q_true"][k + 1], atol=1e-12)
+        np.testing.assert_allclose(x_next[6:], traj["v_true"][k + 1], atol=1e-10)
+
+
+def test_excitation_dataset_contents(excitation_dataset):
+    dataset = load_dataset(excitation_dataset)
+    assert dataset.protocol == "excitation" and dataset.num_trajectories == 4
+    assert dataset.sample_period == 0.01 and dataset.metadata["plant"]["time_step"] == 0.001
+    params = np.array(dataset.metadata["excitation_parameters"])
+    assert params.shape == (4, 24)
+    for i in range(4):
+        traj = dataset.trajectory(i)
+        assert traj["q"].shape == (51, 6) and traj["tau"].shape == (50, 6)
+        np.testing.assert_array_equal(traj["q"], traj["q_true"])  # ideal sensor by default
+        # the recorded action is the total applied torque: gravity compensation + eq. (10)
+        amplitude, frequency, offset, phase = params[i].reshape(4, 6)
+        t = np.arange(50)[:, None] * dataset.sample_period
+        from stdm_drake.robot import Dynamics
+        gravity = np.array([Dynamics().gravity_torque(q) for q in traj["q_true"][:-1]])
+        np.testing.assert_allclose(traj["tau"], gravity + amplitude * np.sin(frequency * t + phase) + offset,
+                                   atol=1e-9)
+        # true accelerations agree with the velocity differences (first order in dt)
+        v_diff = np.diff(traj["v_true"], axis=0) / dataset.sample_period
+        midpoint = 0.5 * (traj["qdd"][:-1] + traj["qdd_end"])
+        assert np.abs(v_diff - midpoint).max() < 0.05 * np.abs(v_diff).max() + 1e-3
+
+
+def test_same_seed_same_bytes_any_worker_count(tmp_path):
+    def collect(seed, workers, name):
+        assert main(["collect", "--protocol", "excitation", "--count", "3", "--seed", str(seed), "--quiet",
+                     "--workers", str(workers), "-o", str(tmp_path / name)]) == 0
+
+    collect(11, 1, "a.h5")
+    collect(11, 2, "b.h5")
+    collect(12, 1, "c.h5")
+    assert (tmp_path / "a.h5").read_bytes() == (tmp_path / "b.h5").read_bytes()
+    assert (tmp_path / "a.h5").read_bytes() != (tmp_path / "c.h5").read_bytes()
+
+
+def test_tracking_dataset_tracks_tightly(tracking_dataset):
+    dataset = load_dataset(tracking_dataset)
+    assert dataset.protocol == "tracking" and dataset.num_trajectories == 8
+    np.testing.assert_array_equal(np.bincount(dataset.groups), [2, 2, 2, 2])
+    errors = tracking_errors(dataset)
+    # the paper's PID on the real UR-10: 1.818e-5 rad^2 and 0.029 (rad/s)^2
+    assert errors["true_q"] < 3e-5 and errors["measured_v"] < 0.029
+    for i in range(dataset.num_trajectories):
+        traj = dataset.trajectory(i)
+        np.testing.assert_allclose(traj["q_true"][0], traj["q_planned"][0], atol=1e-12)  # starts on the plan
+        assert not np.array_equal(traj["q"], traj["q_true"])  # measured with noise
+        for key in ("v_planned", "qdd_planned"):
+            assert np.abs(traj[key][[0, -1]]).max() < 1e-6  # plans start and end at rest
+    assert dataset.metadata["controller"]["kind"] == "pid"
+    assert dataset.metadata["planner"]["kind"] == "quintic"
+
+
+def test_sensor_filter_is_a_causal_moving_average():
+    sensor = JointSensor(SensorConfig(velocity_filter_window=3), np.random.default_rng(0))
+    outputs = [sensor.measure(np.zeros(6), np.full(6, float(k)))[2][0] for k in range(5)]
+    assert outputs == [0.0, 0.5, 1.0, 2.0, 3.0]
+
+
+def test_inverse_dynamics_controller_option(tmp_path):
+    path = tmp_path / "id.h5"
+    assert main(["collect", "--protocol", "tracking", "--controller", "controllers/inverse_dynamics.yaml",
+                 "--count", "2", "--seed", "2", "--workers", "1", "--quiet", "-o", str(path)]) == 0
+    dataset = load_dataset(path)
+    assert dataset.metadata["controller"]["kind"] == "inverse_dynamics"
+    assert tracking_errors(dataset)["true_q"] < 3e-6
+
+
+def test_inspect_prints_summary(tracking_dataset, capsys):
+    assert main(["inspect", str(tracking_dataset)]) == 0
+    out = capsys.readouterr().out
+    assert "protocol        tracking" in out and "tracking error" in out and "groups          0: 2" in out
+
+
+def run_cli(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "stdm_drake.cli", *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.mark.parametrize("yaml_text, message", [
+    ("num_steps: [1, 2\n", "invalid ExcitationConfig config"),
+    ("bogus_key: 1\n", "unknown to the schema"),
+    ("amplitude_max: [1.0, 2.0]\n", "amplitude_max must be 6 finite numbers"),
+])
+def test_bad_excitation_yaml_one_line_error_no_file(tmp_path, yaml_text, message):
+    config = tmp_path / "bad.yaml"
+    config.write_text(yaml_text)
+    result = run_cli("collect", "--protocol", "excitation", "--config", str(config), "--count", "1",
+                     "-o", str(tmp_path / "out.h5"))
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1 and message in result.stderr
+    assert str(config) in result.stderr
+    assert not (tmp_path / "out.h5").exists()
+
+
+def test_paper_excitation_preset_fails_clearly(tmp_path):
+    result = run_cli("collect", "--protocol", "excitation", "--config", "trajectories/excitation_paper.yaml",
+                     "--count", "1", "--workers", "1", "--quiet", "-o", str(tmp_path / "out.h5"))
+    assert result.returncode == 2
+    assert "no trajectory within limits after 50 attempts" in result.stderr and "wrist_3_joint" in result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_unreachable_pose_fails_clearly(tmp_path):
+    text = open("trajectories/tracking.yaml").read().replace("xyz: [0.65, 0.35, 0.45]", "xyz: [2.5, 0.35, 0.45]", 1)
+    config = tmp_path / "far.yaml"
+    config.write_text(text)
+    result = run_cli("collect", "--protocol", "tracking", "--config", str(config), "--count", "1",
+                     "--workers", "1", "--quiet", "-o", str(tmp_path / "out.h5"))
+    assert result.returncode == 2 and len(result.stderr.strip().splitlines()) == 1
+    assert "unreachable" in result.stderr.lower() or "inverse kinematics" in result.stderr.lower()
+    assert not (tmp_path / "out.h5").exists()
+
+
+def test_bad_controller_and_period(tmp_path):
+    gains = tmp_path / "gains.yaml"
+    gains.write_text("kind: pid\nkp: [1, 2, 3]\n")
+    result = run_cli("collect", "--controller", str(gains), "-o", str(tmp_path / "out.h5"))
+    assert result.returncode == 2 and "kp must be 6" in result.stderr
+    result = run_cli("collect", "--sample-period", "0.0015", "-o", str(tmp_path / "out.h5"))
+    assert result.returncode == 2 and "whole multiple" in result.stderr
+    assert list(tmp_path.iterdir()) == [gains]
+
+
+def test_html_recording(tmp_path):
+    html = tmp_path / "run.html"
+    assert main(["collect", "--protocol", "excitation", "--count", "2", "--seed", "1", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "d.h5"), "--html", str(html)]) == 0
+    text = html.read_text()
+    assert text.startswith("<!DOCTYPE html>") or "<html" in text[:200]
+    assert "animation" in text and len(text) > 100_000

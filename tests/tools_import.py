@@ -1,0 +1,17 @@
+"""Makes the scripts in tools/ importable from tests (tools/ is not a package)."""
+import importlib.util
+import pathlib
+import sys
+
+TOOLS = pathlib.Path(__file__).resolve().parents[1] / "tools"
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(name, TOOLS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+generate_ur10_urdf = _load("generate_ur10_urdf")
