@@ -15,6 +15,7 @@ collected it.
 
 import argparse
 import concurrent.futures
+import contextlib
 import dataclasses
 import multiprocessing
 import os
@@ -259,6 +260,20 @@ def _collect_one(job: tuple) -> dict:
     return tracking_trajectory(_WORKER_RIG, payload, rng)
 
 
+@contextlib.contextmanager
+def worker_pool(workers: int, settings: CollectionSettings):
+    """Yield map_jobs(function, jobs, chunksize) -> results in order, in this process (1 worker)
+    or in `workers` spawned processes that each build their own SimulationRig."""
+    if workers == 1:
+        _init_worker(settings)
+        yield lambda function, jobs, chunksize: map(function, jobs)
+        return
+    context = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
+                                                initargs=(settings,)) as pool:
+        yield lambda function, jobs, chunksize: pool.map(function, jobs, chunksize=chunksize)
+
+
 @dataclasses.dataclass
 class CollectionRequest:
     """One dataset to collect. config: ExcitationConfig or the tracking spec pair."""
@@ -271,37 +286,47 @@ class CollectionRequest:
     workers: int = 1
 
 
-def plan_tracking_jobs(request: CollectionRequest) -> tuple[list, list[int]]:
-    """Plans for the tracking protocol: (plans, groups), sampled deterministically from the seed."""
+def _plan_pose(job: tuple) -> list[PlanSamples]:
+    """Plan `count` trajectories from one initial pose, with that pose's own random stream.
+
+    Pose p draws from numpy.random.default_rng([seed, 2**31, p]); plan k of a pose does not
+    depend on how many plans are requested after it.
+    """
     from stdm_drake import plan as planning
 
-    sampling, planner = request.tracking_spec
-    kinematics = planning.RobotKinematics()
-    checker = SelfCollisionChecker()
-    rng = np.random.default_rng([request.seed, 2**31])  # separate stream from the per-trajectory ones
-    sampled = planning.sample_task_plans(kinematics, sampling, planner, request.settings.sample_period, rng,
-                                         is_collision_free=checker.is_collision_free)
-    if request.count > len(sampled):
-        raise InputError(f"tracking spec yields {len(sampled)} plans "
-                         f"({len(sampling.initial_poses)} poses x {sampling.num_final_per_initial}), "
-                         f"{request.count} requested")
-    chosen = _round_robin([group for group, _ in sampled], request.count)
-    plans = [PlanSamples(q=sampled[i][1].q, qd=sampled[i][1].qd, qdd=sampled[i][1].qdd) for i in chosen]
-    return plans, [sampled[i][0] for i in chosen]
+    (sampling, planner), pose_index, count, seed, sample_period = job
+    one_pose = dataclasses.replace(sampling, initial_poses=[sampling.initial_poses[pose_index]],
+                                   num_final_per_initial=count)
+    rng = np.random.default_rng([seed, 2**31, pose_index])
+    kinematics = planning.RobotKinematics(_WORKER_RIG.dynamics.plant)
+    try:
+        sampled = planning.sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
+                                             is_collision_free=_WORKER_RIG.collision_checker.is_collision_free)
+    except PlanningError as error:
+        raise PlanningError(f"initial pose {pose_index}: {error}") from None
+    return [PlanSamples(q=plan.q, qd=plan.qd, qdd=plan.qdd) for _, plan in sampled]
 
 
-def _round_robin(groups: list[int], count: int) -> list[int]:
-    """First `count` indices taking one per group in turn (so a small count covers every group)."""
-    by_group: dict[int, list[int]] = {}
-    for index, group in enumerate(groups):
-        by_group.setdefault(group, []).append(index)
-    chosen, depth = [], 0
-    while len(chosen) < count:
-        for members in by_group.values():
-            if depth < len(members) and len(chosen) < count:
-                chosen.append(members[depth])
-        depth += 1
-    return sorted(chosen)
+def plan_tracking(request: "CollectionRequest", map_jobs) -> tuple[list[PlanSamples], list[int]]:
+    """Plans for `request.count` tracking trajectories, spread evenly over the initial poses,
+    ordered by pose: returns (plans, groups). map_jobs comes from `worker_pool`."""
+    sampling, _ = request.tracking_spec
+    if request.count > len(sampling.initial_poses) * sampling.num_final_per_initial:
+        raise InputError(f"tracking spec yields {len(sampling.initial_poses)} poses x "
+                         f"{sampling.num_final_per_initial} final poses, {request.count} requested")
+    counts = plans_per_pose(request.count, len(sampling.initial_poses))
+    jobs = [(request.tracking_spec, pose, n, request.seed, request.settings.sample_period)
+            for pose, n in enumerate(counts) if n]
+    plans, groups = [], []
+    for (_, pose, *_), pose_plans in zip(jobs, map_jobs(_plan_pose, jobs, 1)):
+        plans += pose_plans
+        groups += [pose] * len(pose_plans)
+    return plans, groups
+
+
+def plans_per_pose(count: int, num_poses: int) -> list[int]:
+    """How many trajectories each initial pose gets: as even as possible, earlier poses first."""
+    return [count // num_poses + (1 if pose < count % num_poses else 0) for pose in range(num_poses)]
 
 
 def collect(request: CollectionRequest, progress: bool = True, on_trajectory=None) -> tuple[list[dict], list[int], dict]:
@@ -319,15 +344,8 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
     settings.substeps()
     settings.sensor.validate()
     settings.controller.validate()
-    if request.protocol == "excitation":
-        request.excitation.validate()
-        payloads, groups = [request.excitation] * request.count, [0] * request.count
-    else:
-        payloads, groups = plan_tracking_jobs(request)
-    jobs = [(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
-    bar = tqdm(total=len(jobs), desc=f"collect {request.protocol}", unit="traj", disable=not progress,
+    bar = tqdm(total=request.count, desc=f"collect {request.protocol}", unit="traj", disable=not progress,
                file=sys.stderr)
-    workers = max(1, min(request.workers, len(jobs)))
     trajectories = []
 
     def finished(traj):
@@ -336,16 +354,16 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
             on_trajectory(traj)
         bar.update()
 
-    if workers == 1:
-        _init_worker(settings)
-        for job in jobs:
-            finished(_collect_one(job))
-    else:
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
-                                                    initargs=(settings,)) as pool:
-            for traj in pool.map(_collect_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))):
-                finished(traj)
+    workers = max(1, min(request.workers, request.count))
+    with worker_pool(workers, settings) as map_jobs:
+        if request.protocol == "excitation":
+            request.excitation.validate()
+            payloads, groups = [request.excitation] * request.count, [0] * request.count
+        else:
+            payloads, groups = plan_tracking(request, map_jobs)
+        jobs = [(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
+        for traj in map_jobs(_collect_one, jobs, max(1, len(jobs) // (4 * workers))):
+            finished(traj)
     bar.close()
     metadata = _metadata(request)
     if request.protocol == "excitation":
@@ -417,14 +435,14 @@ def request_from_args(args: argparse.Namespace) -> CollectionRequest:
     sensor = SensorConfig()
     sensor_path = args.sensor or (DEFAULT_SENSOR if args.protocol == "tracking" else None)
     if sensor_path is not None:
-        sensor = load_yaml_config(sensor_path, SensorConfig)
+        sensor = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
     settings = CollectionSettings(sample_period=args.sample_period,
                                   plant=PlantConfig(time_step=args.plant_time_step), sensor=sensor,
                                   controller=load_controller_config(args.controller))
     request = CollectionRequest(protocol=args.protocol, count=args.count or PAPER_COUNTS[args.protocol],
                                 seed=args.seed, settings=settings, workers=args.workers)
     if args.protocol == "excitation":
-        request.excitation = load_yaml_config(config_path, ExcitationConfig)
+        request.excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
         try:
             request.excitation.validate()
         except InputError as error:

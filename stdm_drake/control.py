@@ -49,7 +49,7 @@ class ControllerConfig:
 
 
 def load_controller_config(path) -> ControllerConfig:
-    config = load_yaml_config(path, ControllerConfig)
+    config = load_yaml_config(path, ControllerConfig, what="controller config")
     try:
         config.validate()
     except InputError as error:

@@ -34,7 +34,7 @@ def summary(dataset: Dataset) -> str:
         f"protocol        {dataset.protocol}",
         f"trajectories    {dataset.num_trajectories}  steps each {min(steps)}..{max(steps)}  "
         f"transitions {sum(steps)}",
-        f"groups          " + ", ".join(f"{g}: {c}" for g, c in zip(groups, counts)),
+        "groups          " + ", ".join(f"{g}: {c}" for g, c in zip(groups, counts)),
         f"sample period   {dataset.sample_period} s  (plant step {meta.get('plant', {}).get('time_step')} s)",
         f"seed            {meta.get('seed')}   robot model sha256 {str(meta.get('robot_model_sha256'))[:16]}…",
     ]

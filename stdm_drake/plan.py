@@ -24,20 +24,19 @@ import dataclasses
 import logging
 import math
 import os
-import pathlib
 from typing import Callable
 
 import numpy as np
 
 os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
-from pydrake.common.yaml import yaml_load_typed  # noqa: E402
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix  # noqa: E402
 from pydrake.multibody.inverse_kinematics import InverseKinematics  # noqa: E402
 from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 from pydrake.multibody.tree import JacobianWrtVariable  # noqa: E402
 from pydrake.solvers import Solve  # noqa: E402
 
+from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.errors import InputError, PlanningError  # noqa: E402
 from stdm_drake.robot import (  # noqa: E402
     JOINT_NAMES, NUM_JOINTS, TOOL_FRAME, TRAJECTORIES_DIR, PlantConfig, joint_limits, make_plant)
@@ -213,15 +212,7 @@ def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *,
     Raises InputError, naming the file, on a missing or malformed file, unknown keys, wrong
     types or invalid values.
     """
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise InputError(f"tracking spec not found: {path}")
-    try:
-        spec = yaml_load_typed(schema=TrackingSpec, filename=str(path))
-    except Exception as error:  # the YAML loader raises RuntimeError, YAMLError, TypeError, ...
-        raise InputError(f"{path}: malformed tracking spec: {_one_line(error)}") from None
-    if not isinstance(spec, TrackingSpec):
-        raise InputError(f"{path}: malformed tracking spec: expected a mapping with 'sampling' and 'planner'")
+    spec = load_yaml_config(path, TrackingSpec, what="tracking spec")
     if planner_kind is not None:
         spec.planner = dataclasses.replace(spec.planner, kind=planner_kind)
     for section in ("planner", "sampling"):
@@ -230,11 +221,6 @@ def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *,
         except InputError as error:
             raise InputError(f"{path}: {section}: {error}") from None
     return spec.sampling, spec.planner
-
-
-def _one_line(error: BaseException) -> str:
-    text = " ".join(str(error).split())
-    return text or type(error).__name__
 
 
 # --------------------------------------------------------------------------------------------

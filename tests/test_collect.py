@@ -108,7 +108,7 @@ def run_cli(*args, cwd=None):
 
 
 @pytest.mark.parametrize("yaml_text, message", [
-    ("num_steps: [1, 2\n", "invalid ExcitationConfig config"),
+    ("num_steps: [1, 2\n", "malformed excitation config"),
     ("bogus_key: 1\n", "unknown to the schema"),
     ("amplitude_max: [1.0, 2.0]\n", "amplitude_max must be 6 finite numbers"),
 ])

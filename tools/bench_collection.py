@@ -1,0 +1,152 @@
+"""Benchmark: data collection speed as a multiple of real time, against a bare Drake loop.
+
+All three are measured in the same run, on the same default tracking plans (plant at 1 ms, PID):
+
+- bare: a Drake diagram of plant + PidController + gravity compensation (InverseDynamics in
+  gravity mode) + the plan as a TrajectorySource, simulated with one AdvanceTo per trajectory,
+  no logging: what plain Drake costs;
+- stdm-drake, 1 process: `SimulationRig.run` as `stdm-drake collect` uses it (sampled PID on the
+  sensor model, zero-order hold, logging, true accelerations);
+- stdm-drake, N processes: `collect()` end to end with N workers, planning and process start-up
+  included.
+
+Usage: python tools/bench_collection.py [--count 40] [--workers 2] [--write]
+(--write replaces the "Data collection" section of BENCHMARKS.md).
+"""
+import argparse
+import os
+import pathlib
+import platform
+import re
+import sys
+import time
+
+os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+
+import numpy as np  # noqa: E402
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from pydrake.systems.analysis import Simulator  # noqa: E402
+from pydrake.systems.controllers import InverseDynamics, PidController  # noqa: E402
+from pydrake.systems.framework import DiagramBuilder  # noqa: E402
+from pydrake.systems.primitives import Adder, TrajectorySource  # noqa: E402
+from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
+
+from stdm_drake.collect import (CollectionRequest, CollectionSettings, SimulationRig, collect,  # noqa: E402
+                                plan_tracking, tracking_trajectory, worker_pool)
+from stdm_drake.config import load_yaml_config  # noqa: E402
+from stdm_drake.control import SensorConfig, load_controller_config  # noqa: E402
+from stdm_drake.plan import load_tracking_spec  # noqa: E402
+from stdm_drake.robot import CONTROLLERS_DIR, PlantConfig, make_plant  # noqa: E402
+
+
+def bare_drake_seconds(plans, settings) -> float:
+    """Wall time to simulate every plan in a plain Drake PID diagram without logging."""
+    builder = DiagramBuilder()
+    plant, _ = make_plant(settings.plant, builder=builder)
+    gains = settings.controller
+    pid = builder.AddSystem(PidController(kp=gains.kp, ki=gains.ki, kd=gains.kd))
+    gravity = builder.AddSystem(InverseDynamics(plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation))
+    adder = builder.AddSystem(Adder(2, 6))
+    times = np.arange(len(plans[0].q)) * settings.sample_period
+    source = builder.AddSystem(TrajectorySource(
+        PiecewisePolynomial.CubicHermite(times, plans[0].q.T, plans[0].qd.T), output_derivative_order=1))
+    builder.Connect(plant.get_state_output_port(), pid.get_input_port_estimated_state())
+    builder.Connect(source.get_output_port(), pid.get_input_port_desired_state())
+    builder.Connect(plant.get_state_output_port(), gravity.get_input_port_estimated_state())
+    builder.Connect(pid.get_output_port_control(), adder.get_input_port(0))
+    builder.Connect(gravity.get_output_port_generalized_force(), adder.get_input_port(1))
+    builder.Connect(adder.get_output_port(), plant.get_actuation_input_port())
+    diagram = builder.Build()
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    started = time.perf_counter()
+    for plan in plans:
+        source.UpdateTrajectory(PiecewisePolynomial.CubicHermite(times, plan.q.T, plan.qd.T))
+        diagram.SetDefaultContext(context)
+        context.SetTime(0.0)
+        plant.SetPositions(plant.GetMyContextFromRoot(context), plan.q[0])
+        simulator.Initialize()
+        simulator.AdvanceTo(times[-1])
+    return time.perf_counter() - started
+
+
+def machine() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    from importlib.metadata import version
+    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, drake {version('drake')}"
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--count", type=int, default=40, help="trajectories (1 s each)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=3, help="best of this many runs of each")
+    parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
+    args = parser.parse_args()
+
+    settings = CollectionSettings(sensor=load_yaml_config(CONTROLLERS_DIR / "sensor.yaml", SensorConfig),
+                                  controller=load_controller_config(CONTROLLERS_DIR / "pid.yaml"),
+                                  plant=PlantConfig(time_step=0.001))
+    request = CollectionRequest(protocol="tracking", count=args.count, seed=0, settings=settings,
+                                tracking_spec=load_tracking_spec(), workers=args.workers)
+    with worker_pool(1, settings) as map_jobs:
+        plans, _ = plan_tracking(request, map_jobs)
+    simulated = sum(len(plan.q) - 1 for plan in plans) * settings.sample_period
+
+    bare = min(bare_drake_seconds(plans, settings) for _ in range(args.repeats))
+    rig = SimulationRig(settings)
+
+    def ours_once():
+        started = time.perf_counter()
+        for i, plan in enumerate(plans):
+            tracking_trajectory(rig, plan, np.random.default_rng([0, i]))
+        return time.perf_counter() - started
+
+    ours = min(ours_once() for _ in range(args.repeats))
+
+    def parallel_once():
+        started = time.perf_counter()
+        collect(request, progress=False)
+        return time.perf_counter() - started
+
+    parallel = min(parallel_once() for _ in range(args.repeats))
+
+    rows = [
+        ("bare Drake plant + PidController, no logging (baseline), 1 process", bare),
+        ("stdm-drake sampled PID + sensor + logging, 1 process", ours),
+        (f"stdm-drake `collect()` end to end, {args.workers} workers (planning, start-up included)", parallel),
+    ]
+    table = ["| loop | wall s | x real time | vs baseline |", "|---|---|---|---|"]
+    for name, seconds in rows:
+        table.append(f"| {name} | {seconds:.2f} | {simulated / seconds:.1f} | {bare / seconds:.2f}x |")
+    report = "\n".join([
+        f"{args.count} default tracking trajectories ({simulated:.0f} s simulated, plant step 1 ms, "
+        f"data at 10 ms), best of {args.repeats}. Goal: >= 40x real time on 2 cores.", "",
+        *table, "", f"Machine: {machine()}.", "Command: `python tools/bench_collection.py --write`."])
+    print(report)
+    if args.write:
+        write_section(ROOT / "BENCHMARKS.md", "Data collection", report)
+
+
+def write_section(path: pathlib.Path, title: str, body: str) -> None:
+    """Replace (or append) the `## title` section of a Markdown file, keeping the others."""
+    text = path.read_text() if path.exists() else "# Benchmarks\n"
+    section = f"## {title}\n\n{body}\n"
+    pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
+    text = pattern.sub(lambda _: section + "\n", text) if pattern.search(text) else text.rstrip() + "\n\n" + section
+    from stdm_drake.files import write_text_atomic
+    write_text_atomic(path, text.rstrip() + "\n")
+
+
+if __name__ == "__main__":
+    main()
