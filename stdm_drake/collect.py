@@ -422,7 +422,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes (default: min(2, cores)); the data do not depend on it")
     parser.add_argument("--meshcat", action="store_true",
-                        help="show each trajectory in Meshcat as it is collected (prints the URL)")
+                        help="show each trajectory in Meshcat at real time as it is collected (prints the URL; "
+                             "from a terminal, the server stays up until Ctrl+C)")
     parser.add_argument("--html", type=pathlib.Path,
                         help="save a standalone Meshcat HTML file that replays every collected trajectory")
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
@@ -466,13 +467,18 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     trajectories, groups, metadata = collect(
         request, progress=not args.quiet,
-        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj["q_true"]))
+        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj["q_true"], realtime=args.meshcat))
     elapsed = time.perf_counter() - started
     path = write_dataset(args.output, trajectories, groups, metadata)
     simulated = sum(len(t["tau"]) for t in trajectories) * request.settings.sample_period
     print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
+    if recorder is not None:
+        recorder.publish()
     if args.html:
         recorder.write_html(args.html)
         print(f"wrote {args.html}")
+    if args.meshcat:
+        from stdm_drake.visualize import wait_for_interrupt
+        wait_for_interrupt(recorder.meshcat.web_url())
     return 0
