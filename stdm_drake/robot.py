@@ -52,7 +52,7 @@ def model_sha256(path: pathlib.Path = UR10_URDF) -> str:
     return hashlib.sha256(pathlib.Path(path).read_bytes()).hexdigest()
 
 
-def offline_parser(plant: MultibodyPlant) -> Parser:
+def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser:
     """A Parser whose package map holds no remote packages.
 
     Drake's default PackageMap registers the remote `drake_models` package, and with
@@ -62,7 +62,7 @@ def offline_parser(plant: MultibodyPlant) -> Parser:
     """
     saved = os.environ.pop("DRAKE_ALLOW_NETWORK", None)
     try:
-        parser = Parser(plant)
+        parser = Parser(plant, model_name_prefix=model_name_prefix)
     finally:
         if saved is not None:
             os.environ["DRAKE_ALLOW_NETWORK"] = saved
@@ -71,11 +71,15 @@ def offline_parser(plant: MultibodyPlant) -> Parser:
     return parser
 
 
-def add_ur10(plant: MultibodyPlant, urdf: pathlib.Path = UR10_URDF):
-    """Parse the UR-10 into `plant`, weld base_link to the world, return the model instance."""
+def add_ur10(plant: MultibodyPlant, urdf: pathlib.Path = UR10_URDF, model_name_prefix: str = ""):
+    """Parse the UR-10 into `plant`, weld base_link to the world, return the model instance.
+
+    model_name_prefix: scopes the instance's name ("ghost" gives "ghost::ur10"), so that several
+    UR-10s can share a plant (e.g. for visualization).
+    """
     if not pathlib.Path(urdf).is_file():
         raise FileNotFoundError(f"robot description not found: {urdf}")
-    (instance,) = offline_parser(plant).AddModels(str(urdf))
+    (instance,) = offline_parser(plant, model_name_prefix).AddModels(str(urdf))
     plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base_link", instance), RigidTransform())
     return instance
 

@@ -1,0 +1,145 @@
+"""MPC: iLQR against exact LQR, the plant as model, timing inside a Drake diagram, fallback."""
+import numpy as np
+import pytest
+
+from stdm_drake.errors import InputError
+from stdm_drake.mpc import (IlqrSolver, MpcConfig, PlantModel, Reference, load_mpc_config, run_closed_loop,
+                            zero_order_hold_discretization)
+
+
+class LinearModel:
+    """x_next = A x + B u (12 states, 6 inputs): iLQR must find the exact LQR solution at once."""
+    name = "linear"
+    sample_period = 0.01
+
+    def __init__(self, seed=0):
+        rng = np.random.default_rng(seed)
+        self.A = np.eye(12) + 0.01 * rng.normal(size=(12, 12))
+        self.B = 0.01 * rng.normal(size=(12, 6))
+
+    def step(self, x, u):
+        return x @ self.A.T + u @ self.B.T
+
+    def jacobians(self, x, u):
+        return np.repeat(self.A[None], len(x), axis=0), np.repeat(self.B[None], len(x), axis=0)
+
+
+def exact_lqr_controls(model, config, x0, reference, u_ff):
+    """Minimize the MPC cost for a linear model as one least-squares problem over all torques."""
+    horizon = config.horizon
+    Q = np.diag(np.concatenate([config.position_weight, config.velocity_weight]))
+    R = np.diag(config.effort_weight)
+    # x_k+1 = A^(k+1) x0 + sum_j A^(k-j) B u_j
+    blocks, rows_u, free = [], [], []
+    for k in range(horizon):
+        weight = config.terminal_factor if k == horizon - 1 else 1.0
+        row = np.zeros((12, 6 * horizon))
+        for j in range(k + 1):
+            row[:, 6 * j:6 * j + 6] = np.linalg.matrix_power(model.A, k - j) @ model.B
+        root = np.sqrt(weight) * np.sqrt(Q)
+        blocks.append(root @ row)
+        free.append(root @ (reference[k + 1] - np.linalg.matrix_power(model.A, k + 1) @ x0))
+        select = np.zeros((6, 6 * horizon))
+        select[:, 6 * k:6 * k + 6] = np.sqrt(R)
+        rows_u.append(select)
+        free.append(np.sqrt(R) @ u_ff[k])
+    target = np.concatenate(free[0::2] + free[1::2])  # state residuals, then effort residuals
+    matrix = np.vstack(blocks + rows_u)
+    return np.linalg.lstsq(matrix, target, rcond=None)[0].reshape(horizon, 6)
+
+
+def test_ilqr_equals_exact_lqr_on_a_linear_model():
+    model = LinearModel()
+    config = MpcConfig(horizon=8, max_iterations=2, regularization=0.0)
+    rng = np.random.default_rng(1)
+    x0, reference = rng.normal(size=12), rng.normal(size=(9, 12))
+    u_ff = rng.normal(size=(8, 6))
+    solver = IlqrSolver(model, config, effort_limit=np.full(6, 1e9))
+    result = solver.solve(x0, np.zeros((8, 6)), reference, u_ff)
+    expected = exact_lqr_controls(model, config, x0, reference, u_ff)
+    np.testing.assert_allclose(result.u, expected, rtol=1e-6, atol=1e-8)
+    assert result.finite and result.cost == pytest.approx(solver.cost(solver.rollout(x0, expected), expected,
+                                                                      reference, u_ff), rel=1e-9)
+
+
+def test_torques_are_clipped_to_effort_limits():
+    model = LinearModel()
+    solver = IlqrSolver(model, MpcConfig(horizon=5), effort_limit=np.full(6, 0.5))
+    result = solver.solve(np.zeros(12), np.zeros((5, 6)), np.full((6, 12), 100.0), np.zeros((5, 6)))
+    assert np.abs(result.u).max() <= 0.5 + 1e-12 and np.abs(result.u).max() == pytest.approx(0.5)
+
+
+def test_zero_order_hold_discretization_matches_expm():
+    from scipy.linalg import expm
+    rng = np.random.default_rng(2)
+    A_c, B_c = rng.normal(size=(12, 12)), 100 * rng.normal(size=(12, 6))
+    generator = np.zeros((18, 18))
+    generator[:12] = np.hstack([A_c, B_c])
+    exact = expm(generator * 0.01)
+    A_d, B_d = zero_order_hold_discretization(A_c, B_c, 0.01, order=6)
+    np.testing.assert_allclose(A_d, exact[:12, :12], atol=1e-9)
+    np.testing.assert_allclose(B_d, exact[:12, 12:], rtol=1e-8, atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def plant_model():
+    return PlantModel(0.01)
+
+
+def test_plant_model_jacobians_match_finite_differences(plant_model):
+    x = np.array([0.1, -1.4, 1.6, -1.7, -1.5, 0.2, 0.5, 0.2, -0.4, 0.3, 0.6, 0.1])
+    u = np.array([1.0, -60.0, -30.0, -2.0, 0.1, 0.0])
+    A, B = plant_model.jacobians(x[None], u[None])
+    z, eps, J = np.concatenate([x, u]), 1e-6, np.zeros((12, 18))
+    for i in range(18):
+        up, down = z.copy(), z.copy()
+        up[i] += eps
+        down[i] -= eps
+        J[:, i] = (plant_model.step(up[None, :12], up[None, 12:]) - plant_model.step(down[None, :12], down[None, 12:]))[0] / (2 * eps)
+    assert np.abs(A[0] - J[:, :12]).max() < 0.01 * np.abs(J[:, :12]).max()
+    assert np.abs(B[0] - J[:, 12:]).max() < 0.01 * np.abs(J[:, 12:]).max()
+
+
+def quintic_reference(duration_steps=30):
+    """A joint-space quintic move of 0.1 rad on every joint from a typical pose, 10 ms samples."""
+    tau = np.linspace(0, 1, duration_steps + 1)[:, None]
+    start = np.array([0.0, -1.5, 1.6, -1.7, -1.57, 0.0])
+    s = 10 * tau ** 3 - 15 * tau ** 4 + 6 * tau ** 5
+    ds = (30 * tau ** 2 - 60 * tau ** 3 + 30 * tau ** 4) / (duration_steps * 0.01)
+    return Reference(q=start + 0.1 * s, v=0.1 * ds * np.ones(6))
+
+
+def test_mpc_with_the_plant_tracks_and_applies_each_torque_for_a_whole_period(plant_model):
+    reference = quintic_reference()
+    log = run_closed_loop(plant_model, reference, load_mpc_config())
+    states, torques = np.array(log.state), np.array(log.torque)
+    assert len(states) == 30 and not any(log.fallback)
+    np.testing.assert_allclose(log.time, np.concatenate([[0.0], np.arange(1, 30) * 0.01 - 0.0005]), atol=1e-12)
+    # the torque decided from x_k is what the plant integrates over [t_k, t_k+1): exact re-simulation
+    np.testing.assert_allclose(plant_model.step(states[:-1], torques[:-1]), states[1:], atol=1e-12)
+    rms_error = np.sqrt(np.mean((states[:, :6] - reference.q[:30]) ** 2))
+    assert rms_error < 0.02 * 0.1  # within 2% of the 0.1 rad move, planned in 0.3 s
+
+
+class BrokenModel(LinearModel):
+    def step(self, x, u):
+        return np.full_like(x, np.nan)
+
+
+def test_non_finite_model_falls_back_to_gravity_compensation():
+    from stdm_drake.robot import Dynamics
+    reference = quintic_reference(5)
+    log = run_closed_loop(BrokenModel(), reference, MpcConfig(horizon=3))
+    assert all(log.fallback)
+    gravity = Dynamics().gravity_torque(log.state[1][:6])
+    np.testing.assert_allclose(log.torque[1], gravity, rtol=1e-9)
+
+
+def test_bad_mpc_config(tmp_path):
+    path = tmp_path / "mpc.yaml"
+    path.write_text("horizon: 20\neffort_weight: [1, 1, 1, 1, 1, 0]\n")
+    with pytest.raises(InputError, match="effort_weight must be > 0"):
+        load_mpc_config(path)
+    path.write_text("horizon: [\n")
+    with pytest.raises(InputError, match="malformed MPC config"):
+        load_mpc_config(path)
