@@ -15,6 +15,11 @@ import sys
 COMMANDS = {
     "collect": ("stdm_drake.collect", "simulate the UR-10 under a data protocol and write a dataset"),
     "inspect": ("stdm_drake.inspect", "print a summary of a dataset file"),
+    "train": ("stdm_drake.learn", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
+    "evaluate": ("stdm_drake.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
+    "sine-sum": ("stdm_drake.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
+    "mpc": ("stdm_drake.mpc", "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
+    "view": ("stdm_drake.visualize", "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
 }
 
 

@@ -25,7 +25,7 @@ from importlib import metadata as importlib_metadata
 
 import numpy as np
 
-from stdm_drake.config import load_yaml_config
+from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.control import (ControllerConfig, JointSensor, SampledJointController, SensorConfig,
                                 load_controller_config)
 from stdm_drake.dataset import write_dataset
@@ -72,9 +72,7 @@ class ExcitationConfig:
 
     def validate(self) -> None:
         for name in ("amplitude_max", "offset_max", "initial_position_lower", "initial_position_upper"):
-            values = np.asarray(getattr(self, name), dtype=float)
-            if values.shape != (NUM_JOINTS,) or not np.all(np.isfinite(values)):
-                raise InputError(f"excitation {name} must be {NUM_JOINTS} finite numbers, got {getattr(self, name)}")
+            check_joint_vector(f"excitation {name}", getattr(self, name))
         for name in ("frequency_range", "phase_range"):
             low_high = getattr(self, name)
             if len(low_high) != 2 or not low_high[0] <= low_high[1]:
@@ -444,10 +442,6 @@ def request_from_args(args: argparse.Namespace) -> CollectionRequest:
                                 seed=args.seed, settings=settings, workers=args.workers)
     if args.protocol == "excitation":
         request.excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
-        try:
-            request.excitation.validate()
-        except InputError as error:
-            raise InputError(f"{config_path}: {error}") from None
     else:
         from stdm_drake.plan import load_tracking_spec
         request.tracking_spec = load_tracking_spec(config_path)
@@ -474,11 +468,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
     if recorder is not None:
-        recorder.publish()
-    if args.html:
-        recorder.write_html(args.html)
-        print(f"wrote {args.html}")
-    if args.meshcat:
-        from stdm_drake.visualize import wait_for_interrupt
-        wait_for_interrupt(recorder.meshcat.web_url())
+        recorder.finish(args.html, keep_serving=args.meshcat)
     return 0

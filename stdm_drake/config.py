@@ -1,9 +1,11 @@
 """Typed YAML configs: dataclass schemas loaded with Drake's `yaml_load_typed`.
 
-Bad files (missing, malformed YAML, unknown keys, wrong types, not a mapping) raise InputError
-with one line that names the file.
+Bad files (missing, malformed YAML, unknown keys, wrong types, not a mapping, values the schema's
+`validate()` rejects) raise InputError with one line that names the file.
 """
 import pathlib
+
+import numpy as np
 
 from pydrake.common.yaml import yaml_load_typed
 
@@ -29,4 +31,18 @@ def load_yaml_config(path, schema, what: str = "config"):
         raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
     if not isinstance(config, schema):
         raise InputError(f"{path}: malformed {what}: expected a mapping of {schema.__name__} fields")
+    if hasattr(config, "validate"):
+        try:
+            config.validate()
+        except InputError as error:
+            raise InputError(f"{path}: {error}") from None
     return config
+
+
+def check_joint_vector(label: str, values, *, nonnegative: bool = False) -> np.ndarray:
+    """`values` as a (6,) float array, or InputError unless they are 6 finite (non-negative) numbers."""
+    array = np.asarray(values, dtype=float)
+    if array.shape != (6,) or not np.all(np.isfinite(array)) or (nonnegative and np.any(array < 0)):
+        kind = "finite non-negative" if nonnegative else "finite"
+        raise InputError(f"{label} must be 6 {kind} numbers, got {values}")
+    return array

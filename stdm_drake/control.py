@@ -18,7 +18,7 @@ import dataclasses
 import numpy as np
 from pydrake.systems.controllers import InverseDynamicsController, PidController
 
-from stdm_drake.config import load_yaml_config
+from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
 from stdm_drake.robot import NUM_JOINTS, Dynamics, joint_limits
 
@@ -42,19 +42,11 @@ class ControllerConfig:
         if self.kind not in CONTROLLER_KINDS:
             raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
         for name in ("kp", "ki", "kd"):
-            gains = np.asarray(getattr(self, name), dtype=float)
-            if gains.shape != (NUM_JOINTS,) or not np.all(np.isfinite(gains)) or np.any(gains < 0):
-                raise InputError(f"controller gain {name} must be {NUM_JOINTS} finite non-negative numbers, "
-                                 f"got {getattr(self, name)}")
+            check_joint_vector(f"controller gain {name}", getattr(self, name), nonnegative=True)
 
 
 def load_controller_config(path) -> ControllerConfig:
-    config = load_yaml_config(path, ControllerConfig, what="controller config")
-    try:
-        config.validate()
-    except InputError as error:
-        raise InputError(f"{path}: {error}") from None
-    return config
+    return load_yaml_config(path, ControllerConfig, what="controller config")
 
 
 @dataclasses.dataclass

@@ -30,7 +30,7 @@ import h5py
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import atomic_path
+from stdm_drake.files import atomic_path, json_default
 
 FORMAT = "stdm-drake-dataset"
 FORMAT_VERSION = 1
@@ -226,7 +226,7 @@ def write_dataset(path, trajectories: list[dict], groups, metadata: dict) -> pat
     planned = metadata["protocol"] == "tracking"
     for i, traj in enumerate(trajectories):
         _check_trajectory(f"{i:06d}", traj, planned)
-    metadata_json = json.dumps(metadata, sort_keys=True, default=_json_default)
+    metadata_json = json.dumps(metadata, sort_keys=True, default=json_default)
     with atomic_path(path) as temp_name, h5py.File(temp_name, "w", libver=("earliest", "v110"), track_order=False) as f:
         f.attrs["format"] = FORMAT
         f.attrs["format_version"] = FORMAT_VERSION
@@ -241,16 +241,6 @@ def write_dataset(path, trajectories: list[dict], groups, metadata: dict) -> pat
             for key in sorted(traj):
                 group.create_dataset(key, data=np.asarray(traj[key], dtype=np.float64), track_times=False)
     return path
-
-
-def _json_default(value):
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if dataclasses.is_dataclass(value):
-        return dataclasses.asdict(value)
-    raise TypeError(f"not JSON-serializable: {type(value).__name__}")
 
 
 def file_sha256(path) -> str:

@@ -1,5 +1,6 @@
-"""Atomic file writes: write a temp file in the destination folder, then rename over the target."""
+"""File helpers: atomic writes (temp file in the destination folder, then rename) and JSON of numpy values."""
 import contextlib
+import dataclasses
 import os
 import pathlib
 import tempfile
@@ -30,3 +31,17 @@ def write_text_atomic(path, text: str) -> pathlib.Path:
     with atomic_path(path) as temp:
         temp.write_text(text)
     return pathlib.Path(path)
+
+
+def json_default(value):
+    """`default=` for json.dumps: numpy arrays and scalars, paths and dataclasses as plain JSON."""
+    import numpy as np
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, pathlib.PurePath):
+        return str(value)
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.asdict(value)
+    raise TypeError(f"not JSON-serializable: {type(value).__name__}")

@@ -26,7 +26,7 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from stdm_drake.config import load_yaml_config
+from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
 from stdm_drake.robot import CONTROLLERS_DIR, NUM_JOINTS, Dynamics, PlantConfig, joint_limits
 
@@ -54,9 +54,7 @@ class MpcConfig:
 
     def validate(self) -> None:
         for name in ("position_weight", "velocity_weight", "effort_weight"):
-            weights = np.asarray(getattr(self, name), dtype=float)
-            if weights.shape != (NUM_JOINTS,) or not np.all(np.isfinite(weights)) or np.any(weights < 0):
-                raise InputError(f"mpc {name} must be {NUM_JOINTS} finite non-negative numbers")
+            check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
         if np.any(np.asarray(self.effort_weight) <= 0):
             raise InputError("mpc effort_weight must be > 0 for every joint (the torque problem must be convex)")
         if self.horizon < 1 or self.max_iterations < 1 or not self.line_search:
@@ -64,12 +62,7 @@ class MpcConfig:
 
 
 def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
-    config = load_yaml_config(path, MpcConfig, what="MPC config")
-    try:
-        config.validate()
-    except InputError as error:
-        raise InputError(f"{path}: {error}") from None
-    return config
+    return load_yaml_config(path, MpcConfig, what="MPC config")
 
 
 class PlantModel:
@@ -501,16 +494,20 @@ def plot_results(results: list[ClosedLoopResult], sample_period: float, path) ->
 
 
 def held_out_references(dataset, checkpoints: list, count: int) -> list[tuple[int, Reference]]:
-    """`count` test trajectories of the first checkpoint's split (or the dataset's last ones) as
-    references: their *planned* q, v (tracking data) or recorded q, v (excitation data)."""
-    indices = None
+    """`count` held-out trajectories as references: their *planned* q, v (tracking data) or
+    recorded q, v (excitation data). Held out = in no checkpoint's training or validation set
+    (when a checkpoint was trained on this dataset), test-split trajectories first."""
+    seen, test = set(), []
     for checkpoint in checkpoints:
         split = checkpoint.metadata.get("split")
         if split and checkpoint.metadata.get("dataset_sha256") == dataset.sha256:
-            indices = list(split["test"])
-            break
-    if indices is None:
-        indices = list(range(dataset.num_trajectories))[::-1]
+            seen |= set(split["train"]) | set(split["val"])
+            test += [index for index in split["test"] if index not in test]
+    rest = [index for index in range(dataset.num_trajectories - 1, -1, -1) if index not in seen and index not in test]
+    indices = [index for index in test if index not in seen] + rest
+    if not indices:
+        raise InputError(f"{dataset.path}: every trajectory was used to train or validate the models; "
+                         "no held-out plan to track")
     references = []
     for index in indices[:count]:
         traj = dataset.trajectory(index)
@@ -577,7 +574,5 @@ def run(args) -> int:
     plot_results(results, dataset.sample_period, out / "mpc.png")
     print(f"wrote {out}/mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
-        recorder.publish()
-        recorder.write_html(args.html)
-        print(f"wrote {args.html}")
+        recorder.finish(args.html, what="robot: plant under MPC; translucent orange: the reference")
     return 0

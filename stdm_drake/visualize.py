@@ -78,6 +78,16 @@ class TrajectoryRecorder:
         """Save Meshcat's self-contained HTML page (with the published recording) atomically."""
         write_text_atomic(path, self.meshcat.StaticHtml())
 
+    def finish(self, html=None, keep_serving: bool = False, what: str = "") -> None:
+        """Publish the recording; write it to `html` if given (printing the path and `what` it
+        shows); with keep_serving, keep Meshcat up for a person at a terminal until Ctrl+C."""
+        self.publish()
+        if html:
+            self.write_html(html)
+            print(f"wrote {html}{f' ({what})' if what else ''}")
+        if keep_serving:
+            wait_for_interrupt(self.meshcat.web_url())
+
 
 def _recolor(plant, scene_graph, instance, color: Rgba) -> None:
     """Give every illustration geometry of model `instance` the (translucent) `color`.
@@ -156,10 +166,6 @@ def run(args) -> int:
         error = np.sqrt(np.mean((ghost_q - traj["q"]) ** 2))
         print(f"trajectory {index}: open-loop RMS joint-angle error over {len(traj['tau'])} steps {error:.4g} rad")
         recorder.add(traj["q_true"], ghost_q, realtime=args.meshcat)
-    recorder.publish()
-    if args.html:
-        recorder.write_html(args.html)
-        print(f"wrote {args.html} (robot: recorded; translucent orange: {model.name} open-loop prediction)")
-    if args.meshcat:
-        wait_for_interrupt(recorder.meshcat.web_url())
+    recorder.finish(args.html, keep_serving=args.meshcat,
+                    what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")
     return 0

@@ -15,3 +15,4 @@ def _load(name):
 
 
 generate_ur10_urdf = _load("generate_ur10_urdf")
+benchmark_report = _load("benchmark_report")

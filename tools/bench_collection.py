@@ -11,13 +11,11 @@ All three are measured in the same run, on the same default tracking plans (plan
   included.
 
 Usage: python tools/bench_collection.py [--count 40] [--workers 2] [--write]
-(--write replaces the "Data collection" section of BENCHMARKS.md).
+(--write replaces its subsection of BENCHMARKS.md).
 """
 import argparse
 import os
 import pathlib
-import platform
-import re
 import sys
 import time
 
@@ -34,6 +32,7 @@ from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 from pydrake.systems.primitives import Adder, TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
+from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
 from stdm_drake.collect import (CollectionRequest, CollectionSettings, SimulationRig, collect,  # noqa: E402
                                 plan_tracking, tracking_trajectory, worker_pool)
 from stdm_drake.config import load_yaml_config  # noqa: E402
@@ -71,19 +70,6 @@ def bare_drake_seconds(plans, settings) -> float:
         simulator.Initialize()
         simulator.AdvanceTo(times[-1])
     return time.perf_counter() - started
-
-
-def machine() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    from importlib.metadata import version
-    return f"{cpu}, {os.cpu_count()} cores, Python {platform.python_version()}, drake {version('drake')}"
 
 
 def main():
@@ -132,20 +118,10 @@ def main():
     report = "\n".join([
         f"{args.count} default tracking trajectories ({simulated:.0f} s simulated, plant step 1 ms, "
         f"data at 10 ms), best of {args.repeats}. Goal: >= 40x real time on 2 cores.", "",
-        *table, "", f"Machine: {machine()}.", "Command: `python tools/bench_collection.py --write`."])
+        *table, "", f"Machine: {machine_description()}.", "Command: `python tools/bench_collection.py --write`."])
     print(report)
     if args.write:
-        write_section(ROOT / "BENCHMARKS.md", "Data collection", report)
-
-
-def write_section(path: pathlib.Path, title: str, body: str) -> None:
-    """Replace (or append) the `## title` section of a Markdown file, keeping the others."""
-    text = path.read_text() if path.exists() else "# Benchmarks\n"
-    section = f"## {title}\n\n{body}\n"
-    pattern = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
-    text = pattern.sub(lambda _: section + "\n", text) if pattern.search(text) else text.rstrip() + "\n\n" + section
-    from stdm_drake.files import write_text_atomic
-    write_text_atomic(path, text.rstrip() + "\n")
+        write_benchmark_section("Data collection", "Collection speed (tools/bench_collection.py)", report)
 
 
 if __name__ == "__main__":

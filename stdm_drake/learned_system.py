@@ -1,0 +1,113 @@
+"""A trained STDM inside Drake: the `LearnedModel` adapter and the `LearnedDynamicsSystem` LeafSystem.
+
+`LearnedModel` turns any checkpoint (D, P, DE, PE, with or without derivative training) into the
+prediction-model interface the MPC uses: a batched `step` on the fast numpy inference path
+(ensemble mean) and exact `jacobians` from the network's forward-mode pass (the same JVP the
+derivative loss trains), one batched call for the whole horizon.
+"""
+import numpy as np
+import torch
+from pydrake.systems.framework import LeafSystem
+
+from stdm_drake.errors import InputError
+from stdm_drake.learn import load_model
+from stdm_drake.predict import as_inference_model, predict
+from stdm_drake.robot import NUM_JOINTS
+
+STATE_DIM = 2 * NUM_JOINTS
+
+
+class LearnedModel:
+    """A checkpoint as a prediction model: step(x (N,12), u (N,6)), jacobians(x (H,12), u (H,6)).
+
+    sample_period (s) comes from the checkpoint's metadata (the dataset it was trained on).
+    """
+
+    def __init__(self, checkpoint_path, name: str | None = None):
+        checkpoint = load_model(checkpoint_path, state_dim=STATE_DIM, action_dim=NUM_JOINTS)
+        self.checkpoint = checkpoint
+        self.name = name or checkpoint.path.stem
+        period = checkpoint.metadata.get("sample_period")
+        if period is None or not float(period) > 0:
+            raise InputError(f"{checkpoint.path}: checkpoint metadata has no sample_period (train it on a dataset file)")
+        self.sample_period = float(period)
+        self.network = checkpoint.model.double()
+        self.engine = as_inference_model(self.network)
+        self.probabilistic = checkpoint.model_config.probabilistic
+        self.ensemble_size = checkpoint.model_config.ensemble_size
+        self._unit_rates = torch.eye(STATE_DIM + NUM_JOINTS, dtype=torch.float64)
+        self._workspaces = {}
+
+    def predict(self, x: np.ndarray, u: np.ndarray):
+        """One-step Prediction (mean and variance (N, 12)); InputError on non-finite input."""
+        return predict(self.engine, x, u)
+
+    def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        """Ensemble-mean next states (N, 12) for x (N, 12), u (N, 6); the MPC's hot path, so it
+        skips `predict`'s input checks (the controller checks finiteness itself)."""
+        engine = self.engine
+        count = len(x)
+        workspace = self._workspaces.get(count)
+        if workspace is None:
+            workspace = self._workspaces[count] = engine.workspace(count)
+        rows = engine.input_rows(np.asarray(x, dtype=np.float32), np.asarray(u, dtype=np.float32)[None])[0]
+        mean = engine.ensemble_mean(engine.hidden_features(rows, workspace)).astype(np.float64)
+        if engine.residual:
+            mean += x
+        return mean
+
+    def jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d mean / d(x, u) at each row: A (H, 12, 12), B (H, 12, 6), by forward mode with unit tangents."""
+        horizon, width = len(x), STATE_DIM + NUM_JOINTS
+        inputs = torch.as_tensor(np.hstack([x, u]), dtype=torch.float64)
+        rows = inputs.repeat_interleave(width, dim=0)
+        rates = self._unit_rates.repeat(horizon, 1)
+        with torch.no_grad():
+            columns = self.network.time_derivative(rows, rates).mean(dim=0)  # (H*width, 12)
+        jacobian = columns.reshape(horizon, width, STATE_DIM).transpose(1, 2).numpy()
+        return jacobian[:, :, :STATE_DIM].copy(), jacobian[:, :, STATE_DIM:].copy()
+
+
+class LearnedDynamicsSystem(LeafSystem):
+    """Discrete-time Drake system that steps a learned STDM at its sample period.
+
+    Input ports: "torque" (6, N m), applied over [t_k, t_k+1); "measured_state" (12, optional):
+    when connected (or fixed), x_k is re-anchored to it before each step.
+    State: the predicted [q (6) rad, v (6) rad/s]. Output ports: "state" (12) and, for P/PE
+    models, "variance" (12): the one-step predictive variance of the last step (the same quantity
+    as `rollout(..., propagation="mean")` returns).
+    Non-finite torque or measurement inputs raise InputError.
+    """
+
+    def __init__(self, model: LearnedModel):
+        super().__init__()
+        self.model = model
+        self._torque = self.DeclareVectorInputPort("torque", NUM_JOINTS)
+        self._measured = self.DeclareVectorInputPort("measured_state", STATE_DIM)
+        self._state_index = self.DeclareDiscreteState(STATE_DIM)
+        self._variance_index = self.DeclareDiscreteState(STATE_DIM)
+        self.DeclareStateOutputPort("state", self._state_index)
+        if model.probabilistic or model.ensemble_size > 1:
+            self.DeclareStateOutputPort("variance", self._variance_index)
+        self.DeclarePeriodicDiscreteUpdateEvent(model.sample_period, 0.0, self._step)
+
+    def set_initial_state(self, context, x0: np.ndarray) -> None:
+        """x0: (12,) [q rad, v rad/s] in this system's context."""
+        x0 = np.asarray(x0, dtype=float)
+        if x0.shape != (STATE_DIM,) or not np.all(np.isfinite(x0)):
+            raise InputError(f"initial state must be {STATE_DIM} finite numbers, got shape {x0.shape}")
+        context.SetDiscreteState(int(self._state_index), x0)
+        context.SetDiscreteState(int(self._variance_index), np.zeros(STATE_DIM))
+
+    def _step(self, context, discrete_state):
+        torque = np.asarray(self._torque.Eval(context))
+        if not np.all(np.isfinite(torque)):
+            raise InputError(f"{self.get_name()}: non-finite torque input at t = {context.get_time():.4f} s")
+        x = context.get_discrete_state(int(self._state_index)).get_value()
+        if self._measured.HasValue(context):
+            x = np.asarray(self._measured.Eval(context))
+            if not np.all(np.isfinite(x)):
+                raise InputError(f"{self.get_name()}: non-finite measured_state at t = {context.get_time():.4f} s")
+        prediction = self.model.predict(x, torque)
+        discrete_state.get_mutable_vector(int(self._state_index)).SetFromVector(prediction.mean.astype(float))
+        discrete_state.get_mutable_vector(int(self._variance_index)).SetFromVector(prediction.variance.astype(float))

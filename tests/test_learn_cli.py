@@ -1,0 +1,152 @@
+"""`stdm-drake train` / `evaluate` on a tiny dataset file written by the dataset module; benchmark report writer."""
+import json
+
+import numpy as np
+import pytest
+
+from stdm_drake.cli import main
+from stdm_drake.dataset import load_dataset, write_dataset
+from stdm_drake.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
+from stdm_drake.learn import build_model, load_model, save_checkpoint
+from stdm_drake.models import dynamics_config
+
+
+
+def synthetic_trajectory(rng, steps=30, dt=0.01):
+    """Six decoupled damped pendulums under smooth torques: arrays named as the dataset module expects."""
+    q, v = np.zeros((steps + 1, 6)), np.zeros((steps + 1, 6))
+    tau = 0.5 * np.sin(0.3 * np.arange(steps)[:, None] + rng.uniform(0, 6, 6)) + rng.uniform(-0.5, 0.5, 6)
+    tau_next = 0.5 * np.sin(0.3 * steps + rng.uniform(0, 6, 6))
+    q[0], v[0] = rng.uniform(-1, 1, 6), rng.uniform(-0.5, 0.5, 6)
+
+    def acceleration(q, v, u):
+        return -2.0 * np.sin(q) - 0.3 * v + u
+
+    qdd, qdd_end = np.zeros((steps + 1, 6)), np.zeros((steps, 6))
+    for k in range(steps):
+        qdd[k] = acceleration(q[k], v[k], tau[k])
+        v[k + 1] = v[k] + dt * qdd[k]
+        q[k + 1] = q[k] + dt * v[k + 1]
+        qdd_end[k] = acceleration(q[k + 1], v[k + 1], tau[k])
+    qdd[steps] = acceleration(q[steps], v[steps], tau_next)
+    return dict(q=q, v=v, tau=tau, tau_next=tau_next, q_true=q.copy(), v_true=v.copy(), qdd=qdd, qdd_end=qdd_end)
+
+
+def write_tiny_dataset(path, count, seed):
+    rng = np.random.default_rng(seed)
+    trajectories = [synthetic_trajectory(rng) for _ in range(count)]
+    return write_dataset(path, trajectories, np.zeros(count, dtype=int),
+                         {"protocol": "excitation", "sample_period": 0.01})
+
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("learn_cli")
+    dataset = write_tiny_dataset(folder / "tiny.h5", 10, seed=0)
+    output = folder / "run"
+    code = main(["train", str(dataset), "-o", str(output), "--model", "DED", "--ensemble-size", "2",
+                 "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
+                 "--train", "6", "--val", "2", "--quiet"])
+    assert code == 0
+    return dataset, output
+
+
+def test_train_writes_checkpoints_curves_and_summary(tiny):
+    dataset, output = tiny
+    summary = json.loads((output / "summary.json").read_text())
+    assert summary["model_type"] == "DED" and set(summary["seeds"]) == {"0", "1"}
+    split = summary["split"]
+    assert len(split["train"]) == 6 and len(split["val"]) == 2 and len(split["test"]) == 2
+    assert not set(split["train"]) & set(split["val"]) and not set(split["test"]) & set(split["train"])
+    for seed in (0, 1):
+        checkpoint = load_model(output / f"seed{seed}" / "checkpoint.pt", state_dim=12, action_dim=6)
+        assert checkpoint.model_config.ensemble_size == 2 and checkpoint.model_config.residual
+        assert checkpoint.training_config.alpha == pytest.approx(1e-3) and checkpoint.training_config.seed == seed
+        assert checkpoint.metadata["dataset_sha256"] == load_dataset(dataset).sha256
+        assert checkpoint.metadata["sample_period"] == 0.01 and checkpoint.metadata["split"] == split
+        lines = (output / f"seed{seed}" / "curves.csv").read_text().splitlines()
+        assert lines[0].startswith("epoch,train_loss") and len(lines) == 5
+        assert all(np.isfinite([float(v) for v in line.split(",")]).all() for line in lines[1:])
+
+
+def test_train_refuses_to_overwrite_and_resumes(tiny, capsys):
+    dataset, output = tiny
+    arguments = ["train", str(dataset), "-o", str(output), "--model", "DED", "--ensemble-size", "2",
+                 "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
+                 "--train", "6", "--val", "2", "--quiet"]
+    capsys.readouterr()
+    assert main(arguments) == 2
+    assert "exists; pass --resume" in capsys.readouterr().err
+    before = (output / "seed0" / "curves.csv").read_text()
+    assert main(arguments + ["--resume"]) == 0
+    assert (output / "seed0" / "curves.csv").read_text() == before
+
+
+def test_evaluate_prints_and_writes_errors(tiny, tmp_path, capsys):
+    dataset, output = tiny
+    report = tmp_path / "report.json"
+    capsys.readouterr()
+    assert main(["evaluate", str(output / "seed0" / "checkpoint.pt"), str(dataset), "--horizon", "10",
+                 "--json", str(report)]) == 0
+    printed = capsys.readouterr().out
+    assert "one-step MSE" in printed and "multi-step MSE" in printed and "split test: 2 trajectories" in printed
+    content = json.loads(report.read_text())
+    assert len(content["multi_step"]["angle_mse"]) == 10 and content["trained_on_this_dataset"]
+    assert np.isfinite(content["one_step"]["angle_mse"]) and np.isfinite(content["one_step"]["velocity_mse"])
+    # consistency: the multi-step error at step 1 is the one-step error of the first transitions
+    checkpoint = load_model(output / "seed0" / "checkpoint.pt")
+    data = load_dataset(dataset)
+    x0, actions, truth = trajectory_rollout_data(data, content["trajectories"], 10)
+    multi = multi_step_errors(checkpoint.model, x0, actions, truth)
+    first = one_step_errors(checkpoint.model, x0, actions[:, 0], truth[:, 0])
+    assert multi.angle_mse[0] == pytest.approx(first.angle_mse, rel=1e-6)
+    assert multi.velocity_mse[0] == pytest.approx(first.velocity_mse, rel=1e-6)
+    assert content["multi_step"]["angle_mse"] == pytest.approx(multi.angle_mse.tolist(), rel=1e-9)
+
+
+def test_evaluate_errors_are_one_line(tiny, tmp_path, capsys):
+    dataset, output = tiny
+    checkpoint = output / "seed0" / "checkpoint.pt"
+    other = write_tiny_dataset(tmp_path / "other.h5", 3, seed=9)
+    capsys.readouterr()
+    assert main(["evaluate", str(checkpoint), str(other)]) == 2
+    assert "not the dataset" in capsys.readouterr().err
+    assert main(["evaluate", str(checkpoint), str(other), "--split", "all", "--horizon", "5"]) == 0
+    small = save_checkpoint(tmp_path / "small.pt", build_model(dynamics_config(state_dim=2, action_dim=1), 0))
+    capsys.readouterr()
+    assert main(["evaluate", str(small), str(dataset)]) == 2
+    error = capsys.readouterr().err
+    assert "state dim 2 and action dim 1, expected state dim 12 and action dim 6" in error
+    assert error.count("\n") == 1
+    truncated = tmp_path / "cut.pt"
+    truncated.write_bytes(checkpoint.read_bytes()[:1000])
+    assert main(["evaluate", str(truncated), str(dataset)]) == 2
+    assert "truncated or corrupt" in capsys.readouterr().err
+
+
+def test_train_input_errors(tiny, tmp_path, capsys):
+    dataset, _ = tiny
+    capsys.readouterr()
+    assert main(["train", str(dataset), "-o", str(tmp_path / "x"), "--train", "9", "--val", "2", "--quiet"]) == 2
+    assert "split needs" in capsys.readouterr().err
+    assert main(["train", str(dataset), "-o", str(tmp_path / "y"), "--model", "DD", "--alpha", "0",
+                 "--quiet"]) == 2
+    assert "alpha > 0" in capsys.readouterr().err
+
+
+def test_benchmark_report_writer_keeps_other_sections(tmp_path):
+    from tools_import import benchmark_report
+    path = tmp_path / "BENCHMARKS.md"
+    path.write_text("# Benchmarks\n\n## Data collection\n\n### Simulation\n\nfast enough\n")
+    benchmark_report.write_benchmark_section("Learning library", "Training step", "| a | b |\n", path)
+    benchmark_report.write_benchmark_section("Learning library", "Rollout", "one\n", path)
+    benchmark_report.write_benchmark_section("Learning library", "Training step", "| c | d |\n", path)
+    text = path.read_text()
+    assert text.startswith("# Benchmarks\n\n## Data collection\n\n### Simulation\n\nfast enough\n")
+    assert text.count("## Learning library") == 1 and text.count("### Training step") == 1
+    assert "| c | d |" in text and "| a | b |" not in text
+    assert text.index("### Training step") < text.index("### Rollout")
+    path.write_text("# Benchmarks\n\n## Learning library\n\n### Rollout\n\nold\n\n## Data collection\n\nkeep\n")
+    benchmark_report.write_benchmark_section("Learning library", "Rollout", "new\n", path)
+    text = path.read_text()
+    assert "new" in text and "old" not in text and text.rstrip().endswith("## Data collection\n\nkeep")

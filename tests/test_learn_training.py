@@ -1,0 +1,221 @@
+"""Training loop, losses, reproducibility, resume, checkpoints and their error messages."""
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from stdm_drake.errors import InputError
+from stdm_drake.learn import (RegressionData, TrainingConfig, build_model, fit_normalizers, load_checkpoint,
+                              load_model, save_checkpoint, standardize, train_model, training_step,
+                              validation_scores)
+from stdm_drake.models import ACTIVATION_NAMES, ModelConfig, dynamics_config
+
+
+def pendulum_data(count, seed):
+    """Damped pendulum-like STDM data (S=2, A=1) with exact chain-rule tangents and rate targets."""
+    rng = np.random.default_rng(seed)
+    dt = 0.05
+    q, v, a = rng.uniform(-2, 2, count), rng.uniform(-2, 2, count), rng.uniform(-1, 1, count)
+    a_rate = rng.uniform(-2, 2, count)
+
+    def acceleration(q, v, a):
+        return -9.81 * np.sin(q) - 0.2 * v + a
+
+    v_next = v + dt * acceleration(q, v, a)
+    q_next = q + dt * v_next
+    # rates of the discrete map along the trajectory direction, by central differences in time
+    eps = 1e-6
+    qe, ve, ae = q + eps * v, v + eps * acceleration(q, v, a), a + eps * a_rate
+    v_next_e = ve + dt * acceleration(qe, ve, ae)
+    q_next_e = qe + dt * v_next_e
+    return RegressionData(inputs=np.column_stack([q, v, a]), targets=np.column_stack([q_next, v_next]),
+                          input_rates=np.column_stack([v, acceleration(q, v, a), a_rate]),
+                          target_rates=np.column_stack([(q_next_e - q_next) / eps, (v_next_e - v_next) / eps]))
+
+
+TRAIN = pendulum_data(256, 0)
+VAL = pendulum_data(128, 1)
+SMALL = dict(hidden_width=24, hidden_layers=2)
+
+
+def weights_equal(a, b):
+    return all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
+
+
+@pytest.mark.parametrize("activation", ACTIVATION_NAMES)
+def test_every_activation_trains(activation):
+    """A few Adam steps lower the loss, naive and with the derivative term."""
+    for alpha in (0.0, 1e-2):
+        config = dynamics_config(state_dim=2, action_dim=1, activation=activation, **SMALL)
+        training = TrainingConfig(alpha=alpha, learning_rate=3e-3)
+        model = build_model(config, seed=0)
+        fit_normalizers(model, TRAIN)
+        data = standardize(model, TRAIN)
+        optimizer = torch.optim.Adam(model.parameters(), lr=training.learning_rate)
+        rows = torch.arange(len(TRAIN))[None]
+        losses = [training_step(model, optimizer, training, data, rows)[0] for _ in range(25)]
+        assert np.isfinite(losses).all()
+        assert losses[-1] < 0.7 * losses[0], (activation, alpha, losses[0], losses[-1])
+
+
+def test_same_seed_same_weights_different_seed_different():
+    config = dynamics_config(state_dim=2, action_dim=1, ensemble_size=2, **SMALL)
+    training = TrainingConfig(alpha=1e-3, max_epochs=3, batch_size=32, seed=5)
+    first = train_model(config, training, TRAIN, VAL).model
+    second = train_model(config, training, TRAIN, VAL).model
+    other = train_model(config, dataclasses.replace(training, seed=6), TRAIN, VAL).model
+    assert weights_equal(first, second)
+    assert not weights_equal(first, other)
+
+
+def test_best_weights_are_the_best_validation_epoch():
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    training = TrainingConfig(max_epochs=12, batch_size=64, learning_rate=1e-2)
+    result = train_model(config, training, TRAIN, VAL)
+    history = result.history["val_mse"]
+    assert result.best_scores[0] == pytest.approx(min(history), rel=1e-9)
+    assert result.best_epochs[0] == result.history["epoch"][int(np.argmin(history))]
+    recomputed = validation_scores(result.model, training, standardize(result.model, VAL))["member_mse"]
+    assert recomputed.item() == pytest.approx(min(history), rel=1e-5)
+
+
+def test_early_stopping_stops_after_patience():
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    training = TrainingConfig(max_epochs=200, patience=3, learning_rate=0.5, batch_size=256)   # diverges quickly
+    result = train_model(config, training, TRAIN, VAL)
+    assert result.stopped_early
+    assert result.epochs_run < 200
+    assert result.epochs_run - max(result.best_epochs) >= 3
+
+
+def test_derivative_learning_fits_slopes_better_from_few_points():
+    """The derivative term does what it is for: from 10 samples of sin(3x) the slope error drops."""
+    x = np.linspace(-2, 2, 10)[:, None]
+    train = RegressionData(inputs=x, targets=np.sin(3 * x), input_rates=np.ones_like(x), target_rates=3 * np.cos(3 * x))
+    grid = np.linspace(-2, 2, 200)[:, None]
+    val = RegressionData(inputs=grid, targets=np.sin(3 * grid))
+    config = ModelConfig(input_dim=1, output_dim=1, hidden_width=32, hidden_layers=2)
+    errors = {}
+    for alpha in (0.0, 0.1):
+        training = TrainingConfig(alpha=alpha, batch_size=10, max_epochs=600, patience=600, learning_rate=1e-2,
+                                  validation_interval=50)
+        model = train_model(config, training, train, val).model
+        with torch.no_grad():
+            slope = model.time_derivative(torch.tensor(grid, dtype=torch.float32), torch.ones(200, 1))[0].numpy()
+        errors[alpha] = float(np.mean((slope - 3 * np.cos(3 * grid)) ** 2))
+    assert errors[0.1] < 0.5 * errors[0.0], errors
+
+
+def test_resume_gives_the_same_result_as_uninterrupted_training(tmp_path):
+    config = dynamics_config(state_dim=2, action_dim=1, ensemble_size=2, probabilistic=True, **SMALL)
+    training = TrainingConfig(alpha=1e-3, max_epochs=6, patience=50, batch_size=64, seed=3)
+    straight = train_model(config, training, TRAIN, VAL, checkpoint_path=tmp_path / "straight.pt",
+                           checkpoint_every=1)
+
+    class Interrupt(Exception):
+        """Stands for a crash or Ctrl+C after epoch 3."""
+
+    def stop_at_three(row):
+        if row["epoch"] == 3:
+            raise Interrupt
+
+    path = tmp_path / "resumed.pt"
+    with pytest.raises(Interrupt):
+        train_model(config, training, TRAIN, VAL, checkpoint_path=path, checkpoint_every=1, on_epoch=stop_at_three)
+    assert load_checkpoint(path).resume["epoch"] == 3
+    resumed = train_model(config, training, TRAIN, VAL, checkpoint_path=path, checkpoint_every=1, resume=True)
+    assert resumed.epochs_run == straight.epochs_run == 6
+    assert weights_equal(resumed.model, straight.model)
+    for column in straight.history:
+        if column != "seconds":
+            assert resumed.history[column] == straight.history[column], column
+    final_straight, final_resumed = load_checkpoint(tmp_path / "straight.pt"), load_checkpoint(path)
+    assert weights_equal(final_straight.model, final_resumed.model)
+    for key, value in final_straight.resume["weights"].items():
+        assert torch.equal(value, final_resumed.resume["weights"][key])
+    with pytest.raises(InputError, match="options differ"):
+        train_model(config, dataclasses.replace(training, seed=4), TRAIN, VAL, checkpoint_path=path, resume=True)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    config = dynamics_config(state_dim=2, action_dim=1, ensemble_size=3, **SMALL)
+    training = TrainingConfig(alpha=1e-3, max_epochs=2)
+    result = train_model(config, training, TRAIN, VAL)
+    path = save_checkpoint(tmp_path / "model.pt", result.model, training_config=training, history=result.history,
+                           metadata={"dataset_sha256": "abc", "split": {"train": [0, 2]}, "sample_period": 0.01})
+    assert [p.name for p in tmp_path.iterdir()] == ["model.pt"]      # no temp file left behind
+    raw = torch.load(path, weights_only=True)
+    assert raw["format"] == "stdm-drake-model"
+    loaded = load_checkpoint(path)
+    assert loaded.model_config == config and loaded.training_config == training
+    assert loaded.metadata["split"] == {"train": [0, 2]} and loaded.metadata["sample_period"] == 0.01
+    assert loaded.history["val_mse"] == pytest.approx(result.history["val_mse"])
+    assert weights_equal(loaded.model, result.model)
+    inputs = torch.tensor(VAL.inputs[:5], dtype=torch.float32)
+    with torch.no_grad():
+        assert torch.equal(loaded.model(inputs)[0], result.model(inputs)[0])
+
+
+def test_bad_checkpoints_give_one_line_input_errors(tmp_path):
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    model = build_model(config, 0)
+    good = save_checkpoint(tmp_path / "good.pt", model)
+    data = good.read_bytes()
+    truncated = tmp_path / "truncated.pt"
+    truncated.write_bytes(data[: len(data) // 2])
+    with pytest.raises(InputError, match="truncated or corrupt") as caught:
+        load_checkpoint(truncated)
+    assert "\n" not in str(caught.value)
+    text = tmp_path / "notes.pt"
+    text.write_text("not a checkpoint\n")
+    with pytest.raises(InputError, match="not a readable stdm-drake checkpoint"):
+        load_checkpoint(text)
+    foreign = tmp_path / "foreign.pt"
+    torch.save({"state_dict": {}}, foreign)
+    with pytest.raises(InputError, match="not a stdm-drake model checkpoint"):
+        load_checkpoint(foreign)
+    with pytest.raises(InputError, match="state dim 2 and action dim 1, expected state dim 12 and action dim 6"):
+        load_model(good, state_dim=12, action_dim=6)
+    assert load_model(good, state_dim=2, action_dim=1).model_config == config
+    with pytest.raises(FileNotFoundError):
+        load_checkpoint(tmp_path / "missing.pt")
+    content = torch.load(good, weights_only=True)
+    content["weights"]["weights.0"] = torch.zeros(1, 5, 24)
+    broken = tmp_path / "broken.pt"
+    torch.save(content, broken)
+    with pytest.raises(InputError, match="inconsistent checkpoint"):
+        load_checkpoint(broken)
+
+
+def test_bad_training_data_is_rejected_clearly():
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    nan = dataclasses.replace(TRAIN, targets=TRAIN.targets.copy())
+    nan.targets[3, 1] = np.nan
+    with pytest.raises(InputError, match="training data: targets contains 1 NaN or inf"):
+        train_model(config, TrainingConfig(max_epochs=1), nan, VAL)
+    with pytest.raises(InputError, match=r"inputs has shape \(256, 3\), expected \(N, 4\)"):
+        train_model(dynamics_config(state_dim=2, action_dim=2), TrainingConfig(max_epochs=1), TRAIN, VAL)
+    no_rates = RegressionData(inputs=TRAIN.inputs, targets=TRAIN.targets)
+    with pytest.raises(InputError, match="needs input_rates and target_rates"):
+        train_model(config, TrainingConfig(alpha=1e-3, max_epochs=1), no_rates, VAL)
+    with pytest.raises(InputError, match="state_loss"):
+        TrainingConfig(state_loss="l3")
+    with pytest.raises(InputError, match="alpha"):
+        TrainingConfig(alpha=float("nan"))
+
+
+def test_interrupted_checkpoint_files_are_complete(tmp_path):
+    """Checkpoints are replaced atomically: the file is always loadable, never half written."""
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    path = tmp_path / "run.pt"
+    seen = []
+
+    def check(row):
+        seen.append(load_checkpoint(path).resume["epoch"])
+
+    train_model(config, TrainingConfig(max_epochs=4), TRAIN, VAL, checkpoint_path=path, checkpoint_every=1,
+                on_epoch=check)
+    assert seen == [1, 2, 3, 4]
+    assert sorted(os.listdir(tmp_path)) == ["run.pt"]

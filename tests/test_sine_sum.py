@@ -1,0 +1,69 @@
+"""The sine-sum study: data, run grid, and `stdm-drake sine-sum --quick` end to end."""
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from stdm_drake.cli import main
+from stdm_drake.errors import InputError
+from stdm_drake.sine_sum import FULL, PAPER_TABLE1, QUICK, StudyConfig, run_specs, sample, sine_sum, sine_sum_derivative
+
+
+def test_function_data_and_derivative():
+    data = sample(100)
+    assert data.inputs.shape == data.targets.shape == (100, 1)
+    assert data.inputs[0, 0] == pytest.approx(-30 * np.pi) and data.inputs[-1, 0] == pytest.approx(30 * np.pi)
+    assert np.allclose(np.diff(data.inputs[:, 0]), 60 * np.pi / 99)
+    assert np.all(data.input_rates == 1.0)
+    x = np.linspace(-90, 90, 301)
+    numeric = (sine_sum(x + 1e-6) - sine_sum(x - 1e-6)) / 2e-6
+    np.testing.assert_allclose(sine_sum_derivative(x), numeric, atol=1e-8)
+    assert sine_sum(np.array([np.pi]))[0] == pytest.approx(np.sin(np.pi) + np.sin(0.5 * np.pi) + np.sin(0.1 * np.pi))
+
+
+def test_run_grid_matches_the_paper_design():
+    specs = run_specs(FULL)
+    grid = [s for s in specs if s.loss == "mse" and s.members == FULL.seeds]
+    assert len(grid) == 3 * 9 * 2
+    assert {s.layers for s in grid} == {1, 3, 5} and len({s.activation for s in grid}) == 9
+    table = [s for s in specs if s.members == FULL.table_seeds]
+    assert len(table) == 9 and all(s.derivative and s.layers == 5 for s in table)
+    assert FULL.width == 100 and FULL.alpha == 1e-3 and (FULL.train_points, FULL.val_points, FULL.test_points) == (
+        100, 1000, 4000)
+    with pytest.raises(InputError, match="unknown activations"):
+        StudyConfig(activations=("mish",))
+    with pytest.raises(InputError, match="must be in the grid"):
+        StudyConfig(layers=(1, 3))
+
+
+def test_quick_study_end_to_end(tmp_path, capsys):
+    output = tmp_path / "sine"
+    assert main(["sine-sum", "--quick", "-o", str(output), "--workers", "1", "--quiet"]) == 0
+    assert "table 1" in capsys.readouterr().out
+    for name in ("results.json", "summary.md", "fig6_mse_vs_activation.csv", "fig6_mse_vs_activation.png",
+                 "fig7_predictions.png", "fig8_learning_curves.png", "fig8_learning_curves.csv", "table1.csv",
+                 "table1.json", "table1.png"):
+        assert (output / name).is_file(), name
+    for png in output.glob("*.png"):
+        content = png.read_bytes()
+        assert content.startswith(b"\x89PNG") and len(content) > 10_000, png.name
+    results = json.loads((output / "results.json").read_text())
+    assert len(results["runs"]) == len(run_specs(QUICK))
+    for run in results["runs"]:
+        assert len(run["member_test_mse"]) == run["spec"]["members"]
+        assert np.isfinite(run["member_test_mse"]).all() and run["seconds"] > 0
+        assert len(run["best_prediction"]) == QUICK.test_points
+        assert run["history"]["epoch"][-1] == QUICK.epochs
+    with open(output / "fig6_mse_vs_activation.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(QUICK.layers) * len(QUICK.activations)
+    assert all(np.isfinite(float(row[key])) for row in rows for key in row if key.endswith("mse"))
+    with open(output / "table1.csv") as f:
+        table = list(csv.DictReader(f))
+    assert len(table) == 9
+    for row in table:
+        assert float(row["paper"]) == PAPER_TABLE1[(row["loss"], row["activation"])]
+        assert np.isfinite(float(row["mean_test_mse"]))
+    summary = (output / "summary.md").read_text()
+    assert "quick profile" in summary and "paper 0.0006" in summary and "s wall" in summary

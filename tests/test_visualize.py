@@ -1,0 +1,48 @@
+"""Meshcat recordings: the standalone HTML renders the robot and its ghost in headless Chromium."""
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from stdm_drake.visualize import TrajectoryRecorder
+
+CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
+                  "--window-size=900,600", "--virtual-time-budget=8000"]
+
+
+def chromium():
+    path = shutil.which("chromium")
+    if path is None:
+        pytest.fail("Debian's chromium is needed for the rendering test: apt-get install chromium (.ci/run does)")
+    return path
+
+
+def test_ghost_recording_renders_in_chromium(tmp_path):
+    q = np.array([0.0, -1.6, 1.7, -1.7, -1.57, 0.0]) + np.linspace(0, 0.3, 31)[:, None] * [1, 0, 0, 0, 0, 0]
+    recorder = TrajectoryRecorder(0.01, ghost=True)
+    recorder.add(q, q + [0.8, 0, 0, 0, 0, 0])
+    recorder.publish()
+    html = tmp_path / "run.html"
+    recorder.write_html(html)
+    screenshot = tmp_path / "shot.png"
+    subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
+                    f"--screenshot={screenshot}", html.as_uri()], check=True, capture_output=True, timeout=120)
+    import matplotlib.image
+    pixels = matplotlib.image.imread(screenshot)[..., :3]  # floats in [0, 1]
+    red, green, blue = pixels[..., 0], pixels[..., 1], pixels[..., 2]
+    assert pixels.std() > 0.02  # not a blank page
+    robot_blue = np.count_nonzero((blue > red + 0.25) & (blue > green + 0.1))
+    ghost_orange = np.count_nonzero((red > blue + 0.2) & (red > green + 0.05))
+    assert robot_blue > 100, "the robot's blue links are not visible"
+    assert ghost_orange > 100, "the translucent orange ghost is not visible"
+
+
+def test_recorder_checks_its_inputs():
+    recorder = TrajectoryRecorder(0.01)
+    with pytest.raises(ValueError, match="ghost_q must be given exactly"):
+        recorder.add(np.zeros((3, 6)), np.zeros((3, 6)))
+    with_ghost = TrajectoryRecorder(0.01, ghost=True)
+    with pytest.raises(ValueError, match="shape"):
+        with_ghost.add(np.zeros((3, 6)), np.zeros((2, 6)))
