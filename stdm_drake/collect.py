@@ -228,8 +228,11 @@ def tracking_trajectory(rig: SimulationRig, plan: PlanSamples, rng: np.random.Ge
     controller = rig.controller
     controller.reset()
 
+    dither = np.asarray(rig.settings.controller.dither_std, dtype=float)
+
     def control(k, t, q, v):
-        return controller.torque(q, v, plan.q[k], plan.qd[k], plan.qdd[k])
+        torque = controller.torque(q, v, plan.q[k], plan.qd[k], plan.qdd[k])
+        return torque + dither * rng.standard_normal(NUM_JOINTS) if dither.any() else torque
 
     traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng))
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)

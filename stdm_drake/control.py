@@ -31,14 +31,18 @@ class ControllerConfig:
 
     pid: kp N m/rad, ki N m/(rad s), kd N m s/rad.
     inverse_dynamics: kp 1/s^2, ki 1/s^3, kd 1/s (they scale the mass matrix).
+    dither_std (N m): white torque dither added to each sample's torque (persistent excitation, as
+    in system identification), held and recorded like the rest of the torque; zeros = off.
     """
     kind: str = "pid"
     kp: list[float] = dataclasses.field(default_factory=lambda: [1250.0, 2500.0, 690.0, 24.5, 5.3, 0.42])
     ki: list[float] = dataclasses.field(default_factory=lambda: [2500.0, 5000.0, 1380.0, 49.0, 10.6, 0.84])
     kd: list[float] = dataclasses.field(default_factory=lambda: [100.0, 200.0, 55.0, 1.4, 0.3, 0.024])
     gravity_feedforward: bool = True
+    dither_std: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
 
     def validate(self) -> None:
+        check_joint_vector("controller dither_std", self.dither_std, nonnegative=True)
         if self.kind not in CONTROLLER_KINDS:
             raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
         for name in ("kp", "ki", "kd"):

@@ -159,3 +159,22 @@ def test_html_recording(tmp_path):
     text = html.read_text()
     assert text.startswith("<!DOCTYPE html>") or "<html" in text[:200]
     assert "animation" in text and len(text) > 100_000
+
+
+def test_torque_dither_is_recorded_and_seeded(tmp_path):
+    gains = tmp_path / "dither.yaml"
+    gains.write_text(open("controllers/pid.yaml").read() + "dither_std: [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]\n")
+
+    def collect(controller, name):
+        path = tmp_path / name
+        assert main(["collect", "--count", "2", "--seed", "4", "--workers", "1", "--quiet",
+                     "--controller", str(controller), "-o", str(path)]) == 0
+        return load_dataset(path)
+
+    plain, dithered, again = (collect("controllers/pid.yaml", "a.h5"), collect(gains, "b.h5"),
+                              collect(gains, "c.h5"))
+    difference = dithered.trajectory(0)["tau"] - plain.trajectory(0)["tau"]
+    assert np.abs(difference[:, 0]).max() > 1.0  # the dither is in the recorded (applied) torque
+    np.testing.assert_array_equal(dithered.trajectory(0)["tau"], again.trajectory(0)["tau"])
+    assert dithered.metadata["controller"]["dither_std"] == [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]
+    assert tracking_errors(dithered)["true_q"] < 1e-4
