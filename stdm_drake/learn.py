@@ -439,10 +439,15 @@ def load_checkpoint(path) -> Checkpoint:
     path = pathlib.Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"checkpoint not found: {path}")
+    with open(path, "rb") as f:
+        magic = f.read(8)
+    if not magic.startswith(b"PK\x03\x04"):  # torch.save writes a zip archive
+        kind = " (it is an HDF5 file: a dataset?)" if magic == b"\x89HDF\r\n\x1a\n" else ""
+        raise InputError(f"{path}: not a readable stdm-drake checkpoint: not a PyTorch checkpoint file{kind}")
     try:
         content = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as error:  # truncated zip, not a torch file, disallowed pickle content, ...
-        detail = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+    except Exception as error:  # truncated zip, disallowed pickle content, ...
+        detail = " ".join(str(error).split()).split(". ")[0] or type(error).__name__  # first sentence only
         raise InputError(f"{path}: not a readable stdm-drake checkpoint (truncated or corrupt?): {detail}") from None
     if not isinstance(content, dict) or content.get("format") != CHECKPOINT_FORMAT:
         raise InputError(f"{path}: not a stdm-drake model checkpoint (format field missing or wrong)")

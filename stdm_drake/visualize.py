@@ -118,7 +118,7 @@ def wait_for_interrupt(url: str) -> None:
         while True:
             time.sleep(1.0)
     except KeyboardInterrupt:
-        pass
+        print("Meshcat closed", file=sys.stderr)
 
 
 # ---- `stdm-drake view`: the robot and a learned model's open-loop prediction -------------------

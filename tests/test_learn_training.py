@@ -219,3 +219,12 @@ def test_interrupted_checkpoint_files_are_complete(tmp_path):
                 on_epoch=check)
     assert seen == [1, 2, 3, 4]
     assert sorted(os.listdir(tmp_path)) == ["run.pt"]
+
+
+def test_a_dataset_passed_as_checkpoint_is_named_as_such(tmp_path):
+    import h5py
+    path = tmp_path / "data.h5"
+    with h5py.File(path, "w") as f:
+        f["x"] = [1.0]
+    with pytest.raises(InputError, match="not a PyTorch checkpoint file \\(it is an HDF5 file: a dataset\\?\\)"):
+        load_checkpoint(path)
