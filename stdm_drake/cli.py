@@ -20,6 +20,7 @@ COMMANDS = {
     "sine-sum": ("stdm_drake.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
     "mpc": ("stdm_drake.mpc", "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
     "view": ("stdm_drake.visualize", "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
+    "reproduce": ("stdm_drake.reproduce", "the paper's UR-10 experiments end to end, with a report beside its numbers"),
 }
 
 

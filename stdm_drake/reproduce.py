@@ -1,0 +1,627 @@
+"""`stdm-drake reproduce`: the paper's UR-10 experiments (section V) end to end, with a report.
+
+Stages: (1) datasets: excitation (simulated UR-10, V.A) and tracked task-space plans (our stand-in
+for the real robot, V.B); (2) training jobs, two worker processes, each checkpoint cached under
+`<output>/cache` by a hash of its dataset and settings, so a rerun reuses what exists; (3) figures
+and tables: activations (Figs. 11, 16), sample efficiency (Figs. 12, 17), learning curves (Fig. 13),
+multi-step prediction and rollout time (Figs. 18, 19); the sine-sum study (III.B) and the
+closed-loop MPC comparison; (4) `report.md` / `report.html` with the paper's reported values in
+clearly labelled "paper" columns and a plain statement wherever ours differ. Raw results go to
+`results.json` and CSV files. Every other number is computed by the run.
+"""
+import argparse
+import concurrent.futures
+import dataclasses
+import hashlib
+import json
+import multiprocessing
+import pathlib
+import sys
+import time
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.files import json_default, write_text_atomic
+
+ALL_ACTIVATIONS = ("tanh", "sigmoid", "relu", "leaky_relu", "softplus", "selu", "elu", "gelu", "swish")
+MODEL_TYPES = ("D", "P", "DE", "PE", "DD", "PD", "DED", "PED")
+
+# The paper's reported values (numbers stated in its text), shown in "paper" columns only.
+PAPER = {
+    "tracking_mse": {"q": 1.818e-5, "v": 0.029},
+    "sim_activation_improvement": "3-7x lower MSE (improvement >= 200%) for all activations",
+    "sim_sample_efficiency_factor": {"q": {10: 11, 20: 5, 40: 9}, "v": {10: 3, 20: 5, 40: 6}},
+    "real_swish_improvement_percent": {"q": 60, "v": 80},
+    "real_sample_efficiency_percent": {"q": {1: 17, 3: 7, 5: 56}, "v": {1: 54, 3: 47, 5: 77}},
+    "rollout_seconds_100_steps": {"single": 0.033, "ensemble": 0.15},
+}
+
+
+@dataclasses.dataclass(frozen=True)
+class Profile:
+    """Sizes of one reproduction run. Trajectory counts for the tracking splits are per initial pose."""
+    name: str
+    excitation_count: int = 200
+    tracking_count: int = 100
+    seeds: int = 5
+    activations: tuple = ALL_ACTIVATIONS
+    sim_train_sizes: tuple = (10, 20, 40)
+    sim_val: int = 40
+    sim_test: int = 120
+    real_train_sizes: tuple = (1, 3, 5)
+    real_val: int = 5
+    real_test: int = 15
+    multistep_train: int = 5
+    ensemble_size: int = 5
+    max_epochs: int = 500
+    patience: int = 50
+    horizon: int = 100
+    sine_sum: str = "full"
+    mpc_plans: int = 3
+    mpc_steps: int | None = None  # control steps per MPC run (None: the whole plan)
+
+
+FULL = Profile("full")
+QUICK = Profile("quick", excitation_count=40, tracking_count=40, seeds=1, activations=("tanh", "relu", "swish"),
+                sim_train_sizes=(5, 10), sim_val=10, sim_test=20, real_train_sizes=(1, 2), real_val=2, real_test=5,
+                multistep_train=2, ensemble_size=2, max_epochs=25, patience=10, horizon=50, sine_sum="quick",
+                mpc_plans=1, mpc_steps=20)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainJob:
+    """One model to train and evaluate. Trajectory index lists are into the dataset file."""
+    experiment: str
+    dataset: str
+    dataset_sha256: str
+    train: tuple
+    val: tuple
+    test: tuple
+    model_type: str
+    activation: str
+    seed: int
+    ensemble_size: int
+    max_epochs: int
+    patience: int
+    horizon: int
+    multistep: bool
+    train_size: int  # the experiment's label: trajectories (sim) or trajectories per initial pose (real)
+
+    def key(self) -> str:
+        fields = dataclasses.asdict(self)
+        for label in ("dataset", "experiment", "train_size"):  # the content hash identifies the data
+            fields.pop(label)
+        return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:20]
+
+
+# ---- stage 1: datasets ----------------------------------------------------------------------------
+
+def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, progress: bool):
+    """Collect the dataset unless a valid file for the same protocol, count and seed exists."""
+    from stdm_drake.collect import CollectionRequest, collect, request_from_args
+    from stdm_drake.dataset import load_dataset, write_dataset
+    path = folder / f"{protocol}_n{count}_seed{seed}.h5"
+    if path.exists():
+        try:
+            dataset = load_dataset(path)
+            if dataset.metadata.get("seed") == seed and dataset.num_trajectories == count:
+                return dataset
+        except InputError:
+            pass  # unreadable: collect it again
+    parser = argparse.ArgumentParser()
+    from stdm_drake.collect import add_arguments
+    add_arguments(parser)
+    args = parser.parse_args(["--protocol", protocol, "--count", str(count), "--seed", str(seed), "-o", str(path)])
+    request: CollectionRequest = request_from_args(args)
+    trajectories, groups, metadata = collect(request, progress=progress)
+    write_dataset(path, trajectories, groups, metadata)
+    return load_dataset(path)
+
+
+# ---- stage 2: training jobs (run in worker processes) --------------------------------------------
+
+def run_job(job: TrainJob, cache: pathlib.Path) -> dict:
+    """Train (or reuse) one model; return its test metrics and learning curves."""
+    import torch
+    torch.set_num_threads(1)
+    from stdm_drake.dataset import load_dataset
+    from stdm_drake.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
+    from stdm_drake.learn import (DEFAULT_ALPHA, RegressionData, TrainingConfig, save_checkpoint,
+                                  train_model)
+    from stdm_drake.models import dynamics_config, parse_model_type
+    from stdm_drake.predict import InferenceModel, rollout
+
+    key = job.key()
+    result_path = cache / f"{key}.json"
+    if result_path.exists() and (cache / f"{key}.pt").exists():
+        return json.loads(result_path.read_text()) | {"experiment": job.experiment, "train_size": job.train_size,
+                                                       "reused": True}
+    dataset = load_dataset(job.dataset)
+    kind = parse_model_type(job.model_type)
+    config = dynamics_config(state_dim=12, action_dim=6, activation=job.activation,
+                             ensemble_size=job.ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
+    training = TrainingConfig(alpha=DEFAULT_ALPHA if kind.derivative else 0.0, seed=job.seed,
+                              max_epochs=job.max_epochs, patience=job.patience)
+    train = RegressionData.from_transitions(dataset.transitions(list(job.train)))
+    val = RegressionData.from_transitions(dataset.transitions(list(job.val)))
+    started = time.perf_counter()
+    trained = train_model(config, training, train, val)
+    seconds = time.perf_counter() - started
+    test = dataset.transitions(list(job.test))
+    errors = one_step_errors(trained.model, test.state, test.action, test.next_state)
+    result = dict(key=key, model_type=job.model_type, activation=job.activation, seed=job.seed,
+                  train_trajectories=len(job.train), train_seconds=seconds, epochs=trained.epochs_run,
+                  q_mse=errors.angle_mse, v_mse=errors.velocity_mse,
+                  train_loss=trained.history["train_loss"], val_loss=trained.history["val_loss"])
+    if job.multistep:
+        x0, actions, truth = trajectory_rollout_data(dataset, job.test, job.horizon)
+        multi = multi_step_errors(trained.model, x0, actions, truth)
+        engine = InferenceModel(trained.model)
+        rollout(engine, x0[:1], actions[:1])  # warm-up
+        timings = []
+        for _ in range(20):
+            tick = time.perf_counter()
+            rollout(engine, x0[:1], actions[:1])
+            timings.append(time.perf_counter() - tick)
+        result.update(multistep_q=multi.angle_mse.tolist(), multistep_v=multi.velocity_mse.tolist(),
+                      multistep_q_std=multi.angle_mse_std.tolist(), multistep_v_std=multi.velocity_mse_std.tolist(),
+                      rollout_ms=1e3 * float(np.median(timings)))
+    save_checkpoint(cache / f"{key}.pt", trained.model, training_config=training, history=trained.history,
+                    metadata=dict(dataset_path=job.dataset, dataset_sha256=job.dataset_sha256,
+                                  sample_period=dataset.sample_period, model_type=job.model_type,
+                                  split=dict(train=list(job.train), val=list(job.val), test=list(job.test))))
+    write_text_atomic(result_path, json.dumps(result, default=json_default))
+    return result | {"experiment": job.experiment, "train_size": job.train_size, "reused": False}
+
+
+def _run_job(arguments):
+    job, cache = arguments
+    return run_job(job, cache)
+
+
+def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: bool) -> list[dict]:
+    from tqdm import tqdm
+    bar = tqdm(total=len(jobs), desc="train", unit="model", disable=not progress, file=sys.stderr)
+    results = []
+    if workers > 1:
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context) as pool:
+            for result in pool.map(_run_job, [(job, cache) for job in jobs]):
+                results.append(result)
+                bar.update()
+    else:
+        for job in jobs:
+            results.append(run_job(job, cache))
+            bar.update()
+    bar.close()
+    return results
+
+
+def plan_jobs(profile: Profile, excitation, tracking) -> list[TrainJob]:
+    """Every training job of the three experiments (shared settings deduplicated by key)."""
+    from stdm_drake.dataset import split_trajectories
+    common = dict(max_epochs=profile.max_epochs, patience=profile.patience, horizon=profile.horizon,
+                  ensemble_size=profile.ensemble_size)
+    jobs = []
+    largest_sim = max(profile.sim_train_sizes)
+    for size in profile.sim_train_sizes:
+        split = split_trajectories(excitation.groups, size, profile.sim_val, profile.sim_test, seed=0, per_group=False)
+        activations = profile.activations if size == largest_sim else ("swish",)
+        for activation in activations:
+            for model_type in ("D", "DD"):
+                for seed in range(profile.seeds):
+                    jobs.append(TrainJob("sim", str(excitation.path), excitation.sha256, tuple(split.train.tolist()),
+                                         tuple(split.val.tolist()), tuple(split.test.tolist()), model_type,
+                                         activation, seed, multistep=False, train_size=size, **common))
+    largest_real = max(profile.real_train_sizes)
+    for size in profile.real_train_sizes:
+        split = split_trajectories(tracking.groups, size, profile.real_val, profile.real_test, seed=0, per_group=True)
+        activations = profile.activations if size == largest_real else ("swish",)
+        for activation in activations:
+            for model_type in ("D", "DD"):
+                for seed in range(profile.seeds):
+                    jobs.append(TrainJob("real", str(tracking.path), tracking.sha256, tuple(split.train.tolist()),
+                                         tuple(split.val.tolist()), tuple(split.test.tolist()), model_type,
+                                         activation, seed, multistep=False, train_size=size, **common))
+    split = split_trajectories(tracking.groups, profile.multistep_train, profile.real_val, profile.real_test, seed=0,
+                               per_group=True)
+    for model_type in MODEL_TYPES:
+        jobs.append(TrainJob("multistep", str(tracking.path), tracking.sha256, tuple(split.train.tolist()),
+                             tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, "swish", 0,
+                             multistep=True, train_size=profile.multistep_train, **common))
+    return jobs
+
+
+# ---- stage 3: tables, figures, report -------------------------------------------------------------
+
+def _select(results, **conditions):
+    return [r for r in results if all(r[key] == value for key, value in conditions.items())]
+
+
+def _mean_std(values):
+    values = np.asarray(values, dtype=float)
+    return float(values.mean()), float(values.std())
+
+
+def improvement_percent(naive: float, derivative: float) -> float:
+    """The paper's accuracy improvement (MSE_naive - MSE_derivative) / MSE_derivative x 100."""
+    return 100.0 * (naive - derivative) / derivative
+
+
+def activation_table(results, experiment: str, size: int) -> list[dict]:
+    rows = []
+    for activation in dict.fromkeys(r["activation"] for r in _select(results, experiment=experiment, train_size=size)):
+        row = dict(activation=activation)
+        for quantity in ("q", "v"):
+            naive = _mean_std([r[f"{quantity}_mse"] for r in _select(results, experiment=experiment, model_type="D",
+                                                                       activation=activation, train_size=size)])
+            deriv = _mean_std([r[f"{quantity}_mse"] for r in _select(results, experiment=experiment, model_type="DD",
+                                                                       activation=activation, train_size=size)])
+            row.update({f"{quantity}_naive": naive[0], f"{quantity}_derivative": deriv[0],
+                        f"{quantity}_improvement_percent": improvement_percent(naive[0], deriv[0])})
+        rows.append(row)
+    return rows
+
+
+def size_table(results, experiment: str) -> list[dict]:
+    rows = []
+    for size in sorted({r["train_size"] for r in _select(results, experiment=experiment, activation="swish")}):
+        row = dict(train_trajectories=size)
+        for quantity in ("q", "v"):
+            for model_type, label in (("D", "naive"), ("DD", "derivative")):
+                values = [r[f"{quantity}_mse"] for r in _select(results, experiment=experiment, model_type=model_type,
+                                                                 activation="swish", train_size=size)]
+                row[f"{quantity}_{label}"], row[f"{quantity}_{label}_std"] = _mean_std(values)
+            row[f"{quantity}_improvement_percent"] = improvement_percent(row[f"{quantity}_naive"],
+                                                                         row[f"{quantity}_derivative"])
+        rows.append(row)
+    return rows
+
+
+def _figure_path(folder, name):
+    return folder / f"{name}.png"
+
+
+def _save(figure, path):
+    import matplotlib.pyplot as plt
+
+    from stdm_drake.files import atomic_path
+    with atomic_path(path) as temp:
+        figure.savefig(temp, format="png", dpi=100)
+    plt.close(figure)
+
+
+def plot_activations(rows, title, path):
+    import matplotlib.pyplot as plt
+    figure, axes = plt.subplots(1, 2, figsize=(12, 4))
+    x = np.arange(len(rows))
+    for axis, quantity, unit in zip(axes, ("q", "v"), ("rad²", "(rad/s)²")):
+        axis.bar(x - 0.2, [r[f"{quantity}_naive"] for r in rows], 0.4, label="naive (D)")
+        axis.bar(x + 0.2, [r[f"{quantity}_derivative"] for r in rows], 0.4, label="derivative (DD)")
+        for i, row in enumerate(rows):
+            axis.annotate(f"{row[f'{quantity}_improvement_percent']:+.0f}%", (i, max(row[f"{quantity}_naive"],
+                          row[f"{quantity}_derivative"])), ha="center", va="bottom", fontsize=8)
+        axis.set(xticks=x, xticklabels=[r["activation"] for r in rows], yscale="log",
+                 ylabel=f"one-step test MSE ({unit})", title=f"{title}: {'joint angles' if quantity == 'q' else 'velocities'}")
+        axis.legend()
+    figure.tight_layout()
+    _save(figure, path)
+
+
+def plot_sizes(rows, title, xlabel, path):
+    import matplotlib.pyplot as plt
+    figure, axes = plt.subplots(1, 2, figsize=(11, 4))
+    sizes = [r["train_trajectories"] for r in rows]
+    for axis, quantity in zip(axes, ("q", "v")):
+        for label in ("naive", "derivative"):
+            axis.errorbar(sizes, [r[f"{quantity}_{label}"] for r in rows], yerr=[r[f"{quantity}_{label}_std"] for r in rows],
+                          marker="o", capsize=4, label=label)
+        axis.set(xlabel=xlabel, ylabel="one-step test MSE", yscale="log",
+                 title=f"{title}: {'joint angles' if quantity == 'q' else 'velocities'} (swish, mean ± std over seeds)")
+        axis.legend()
+    figure.tight_layout()
+    _save(figure, path)
+
+
+def plot_learning_curves(results, size, path):
+    import matplotlib.pyplot as plt
+    figure, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for axis, model_type in zip(axes, ("D", "DD")):
+        for run in _select(results, experiment="sim", model_type=model_type, activation="swish", train_size=size):
+            axis.semilogy(run["train_loss"], color="tab:blue", alpha=0.6)
+            axis.semilogy(run["val_loss"], color="tab:orange", alpha=0.6)
+        axis.set(xlabel="epoch", ylabel="loss (standardized)", title=f"{model_type}: train (blue) / validation (orange)")
+    figure.tight_layout()
+    _save(figure, path)
+
+
+def plot_multistep(results, horizon, path):
+    import matplotlib.pyplot as plt
+    figure, axes = plt.subplots(1, 2, figsize=(12, 4))
+    for run in _select(results, experiment="multistep"):
+        steps = np.arange(1, len(run["multistep_q"]) + 1)[:horizon]
+        style = "--" if run["model_type"] in ("DD", "PD", "DED", "PED") else "-"
+        for axis, key in zip(axes, ("multistep_q", "multistep_v")):
+            mean, std = np.array(run[key])[:horizon], np.array(run[f"{key}_std"])[:horizon]
+            line, = axis.semilogy(steps, mean, style, label=run["model_type"])
+            axis.fill_between(steps, np.maximum(mean - std, 1e-12), mean + std, color=line.get_color(), alpha=0.1)
+    for axis, name in zip(axes, ("joint angles (rad²)", "velocities ((rad/s)²)")):
+        axis.set(xlabel="prediction step", ylabel=f"MSE, {name}", title=f"open-loop prediction, {horizon} steps")
+        axis.legend(ncol=2, fontsize=8)
+    figure.tight_layout()
+    _save(figure, path)
+
+
+class Report:
+    """Blocks rendered to Markdown and to a standalone HTML page."""
+
+    def __init__(self, title):
+        self.title = title
+        self.blocks = []
+
+    def heading(self, text):
+        self.blocks.append(("h2", text))
+
+    def text(self, text):
+        self.blocks.append(("p", text))
+
+    def table(self, header, rows):
+        self.blocks.append(("table", header, rows))
+
+    def image(self, path, caption):
+        self.blocks.append(("img", path, caption))
+
+    def markdown(self):
+        out = [f"# {self.title}", ""]
+        for block in self.blocks:
+            if block[0] == "h2":
+                out += [f"## {block[1]}", ""]
+            elif block[0] == "p":
+                out += [block[1], ""]
+            elif block[0] == "table":
+                out += ["| " + " | ".join(block[1]) + " |", "|" + "---|" * len(block[1])]
+                out += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in block[2]] + [""]
+            else:
+                out += [f"![{block[2]}]({block[1]})", "", f"*{block[2]}*", ""]
+        return "\n".join(out)
+
+    def html(self):
+        import html
+        out = ["<!DOCTYPE html><html><head><meta charset='utf-8'>", f"<title>{html.escape(self.title)}</title>",
+               "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse}"
+               "td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}img{max-width:100%}</style></head><body>",
+               f"<h1>{html.escape(self.title)}</h1>"]
+        for block in self.blocks:
+            if block[0] == "h2":
+                out.append(f"<h2>{html.escape(block[1])}</h2>")
+            elif block[0] == "p":
+                out.append(f"<p>{html.escape(block[1])}</p>")
+            elif block[0] == "table":
+                out.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in block[1]) + "</tr>")
+                out += ["<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in block[2]]
+                out.append("</table>")
+            else:
+                out.append(f"<figure><img src='{html.escape(block[1])}'><figcaption>{html.escape(block[2])}"
+                           "</figcaption></figure>")
+        return "\n".join(out + ["</body></html>"])
+
+
+def _g(value):
+    return f"{value:.3g}"
+
+
+def verdict(ours_percent: float, paper_percent: float | None) -> str:
+    """Our improvement against the paper's: "agrees" (at least half its gain), "smaller gain" (a
+    gain, but under half), or "DIFFERS" (no gain); empty where the paper states no number."""
+    if paper_percent is None or paper_percent == "":
+        return ""
+    if ours_percent <= 0:
+        return "DIFFERS (no gain)"
+    return "agrees" if ours_percent >= 0.5 * float(paper_percent) else "smaller gain"
+
+
+def verdicts(row: dict, paper_q, paper_v) -> str:
+    parts = [f"{name}: {verdict(row[f'{name}_improvement_percent'], paper)}"
+             for name, paper in (("q", paper_q), ("v", paper_v)) if verdict(row[f"{name}_improvement_percent"], paper)]
+    return "; ".join(parts)
+
+
+def add_activation_section(report, rows, paper_text, paper_percent):
+    """paper_percent(activation) -> (q %, v %) the paper states for it, or (None, None)."""
+    report.table(["activation", "q naive", "q deriv", "q improvement %", "v naive", "v deriv", "v improvement %",
+                  "paper", "ours vs paper"],
+                 [[r["activation"], _g(r["q_naive"]), _g(r["q_derivative"]), f"{r['q_improvement_percent']:+.0f}",
+                   _g(r["v_naive"]), _g(r["v_derivative"]), f"{r['v_improvement_percent']:+.0f}", paper_text,
+                   verdicts(r, *paper_percent(r["activation"]))] for r in rows])
+
+
+def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, results, sine, mpc_rows,
+                 timings: dict) -> pathlib.Path:
+    from stdm_drake.inspect import tracking_errors
+    figures = folder / "figures"
+    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'")
+    report.text("Every number below is computed by this run except the columns labelled 'paper', which quote "
+                "the values stated in the paper's text. MSE in rad² (joint angles, q) and (rad/s)² (velocities, v); "
+                "improvement = (MSE_naive - MSE_derivative) / MSE_derivative x 100 (the paper's definition). "
+                f"Stage times (s): {', '.join(f'{k} {v:.0f}' for k, v in timings.items())}.")
+
+    report.heading("Data")
+    errors = tracking_errors(tracking)
+    report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
+                 [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0)["tau"]), "", "", ""],
+                  ["tracked plans (V.B)", tracking.num_trajectories, len(tracking.trajectory(0)["tau"]),
+                   _g(errors["true_q"]), _g(errors["measured_v"]),
+                   f"q {PAPER['tracking_mse']['q']}, v {PAPER['tracking_mse']['v']}"]])
+
+    largest_sim, largest_real = max(profile.sim_train_sizes), max(profile.real_train_sizes)
+    report.heading(f"Simulated UR-10: activations at {largest_sim} training trajectories (Fig. 11)")
+    sim_rows = activation_table(results, "sim", largest_sim)
+    plot_activations(sim_rows, "simulated UR-10", _figure_path(figures, "fig11_activations_sim"))
+    add_activation_section(report, sim_rows, PAPER["sim_activation_improvement"], lambda activation: (200, 200))
+    report.image("figures/fig11_activations_sim.png", "Fig. 11: one-step test MSE, naive vs derivative learning")
+
+    report.heading("Simulated UR-10: sample efficiency (Fig. 12)")
+    sim_sizes = size_table(results, "sim")
+    plot_sizes(sim_sizes, "simulated UR-10", "training trajectories", _figure_path(figures, "fig12_sizes_sim"))
+    paper_factor = PAPER["sim_sample_efficiency_factor"]
+    report.table(["train traj.", "q naive", "q deriv", "q factor", "paper q factor", "v naive", "v deriv", "v factor",
+                  "paper v factor", "ours vs paper"],
+                 [[r["train_trajectories"], _g(r["q_naive"]), _g(r["q_derivative"]), f"{r['q_naive'] / r['q_derivative']:.2f}",
+                   paper_factor["q"].get(r["train_trajectories"], ""), _g(r["v_naive"]), _g(r["v_derivative"]),
+                   f"{r['v_naive'] / r['v_derivative']:.2f}", paper_factor["v"].get(r["train_trajectories"], ""),
+                   verdicts(r, *[100 * (paper_factor[name][r["train_trajectories"]] - 1)
+                                 if r["train_trajectories"] in paper_factor[name] else None for name in ("q", "v")])]
+                  for r in sim_sizes])
+    report.image("figures/fig12_sizes_sim.png", "Fig. 12: MSE vs number of training trajectories (mean ± std)")
+    plot_learning_curves(results, largest_sim, _figure_path(figures, "fig13_learning_curves"))
+    report.image("figures/fig13_learning_curves.png",
+                 f"Fig. 13: learning curves, swish, {largest_sim} training trajectories, every seed")
+
+    report.heading(f"Tracked plans ('real robot' protocol): activations at {4 * largest_real} training trajectories (Fig. 16)")
+    real_rows = activation_table(results, "real", largest_real)
+    plot_activations(real_rows, "tracked plans", _figure_path(figures, "fig16_activations_real"))
+    paper_real = PAPER["real_swish_improvement_percent"]
+    add_activation_section(report, real_rows, f"swish: q +{paper_real['q']}%, v +{paper_real['v']}%",
+                           lambda activation: (paper_real["q"], paper_real["v"]) if activation == "swish" else (None, None))
+    report.image("figures/fig16_activations_real.png", "Fig. 16: tracked plans, naive vs derivative learning")
+
+    report.heading("Tracked plans: sample efficiency (Fig. 17)")
+    real_sizes = size_table(results, "real")
+    plot_sizes(real_sizes, "tracked plans", "training trajectories per initial pose", _figure_path(figures, "fig17_sizes_real"))
+    paper_percent = PAPER["real_sample_efficiency_percent"]
+    report.table(["train traj. (per pose)", "q naive", "q deriv", "q improvement %", "paper q %", "v naive", "v deriv",
+                  "v improvement %", "paper v %", "ours vs paper"],
+                 [[f"{4 * r['train_trajectories']} ({r['train_trajectories']})", _g(r["q_naive"]), _g(r["q_derivative"]),
+                   f"{r['q_improvement_percent']:+.0f}", paper_percent["q"].get(r["train_trajectories"], ""),
+                   _g(r["v_naive"]), _g(r["v_derivative"]), f"{r['v_improvement_percent']:+.0f}",
+                   paper_percent["v"].get(r["train_trajectories"], ""),
+                   verdicts(r, paper_percent["q"].get(r["train_trajectories"]), paper_percent["v"].get(r["train_trajectories"]))]
+                  for r in real_sizes])
+    report.image("figures/fig17_sizes_real.png", "Fig. 17: tracked plans, MSE vs training trajectories")
+
+    report.heading("Multi-step prediction (Figs. 18, 19)")
+    multistep = sorted(_select(results, experiment="multistep"), key=lambda r: MODEL_TYPES.index(r["model_type"]))
+    plot_multistep(results, profile.horizon, _figure_path(figures, "fig18_multistep"))
+    plot_multistep(results, 20, _figure_path(figures, "fig19_multistep_20"))
+    paper_time = PAPER["rollout_seconds_100_steps"]
+    report.table(["model", f"q MSE at step {profile.horizon}", f"v MSE at step {profile.horizon}", "q MSE at step 20",
+                  "v MSE at step 20", "rollout ms (batch 1)", "paper rollout ms (100 steps)"],
+                 [[r["model_type"], _g(r["multistep_q"][-1]), _g(r["multistep_v"][-1]),
+                   _g(r["multistep_q"][min(19, len(r["multistep_q"]) - 1)]),
+                   _g(r["multistep_v"][min(19, len(r["multistep_v"]) - 1)]), f"{r['rollout_ms']:.2f}",
+                   1e3 * paper_time["ensemble" if "E" in r["model_type"] else "single"]] for r in multistep])
+    report.image("figures/fig18_multistep.png", f"Fig. 18: open-loop MSE up to {profile.horizon} steps (mean ± std)")
+    report.image("figures/fig19_multistep_20.png", "Fig. 19: the first 20 steps")
+    pairs = [(naive, naive + "D" if naive in ("D", "P") else naive[:-1] + "ED") for naive in ("D", "P", "DE", "PE")]
+    by_type = {r["model_type"]: r for r in multistep}
+    statements = []
+    for naive, derivative in pairs:
+        if naive in by_type and derivative in by_type:
+            better = np.mean(by_type[derivative]["multistep_q"]) < np.mean(by_type[naive]["multistep_q"])
+            statements.append(f"{derivative} vs {naive}: mean multi-step q MSE "
+                              f"{_g(np.mean(by_type[derivative]['multistep_q']))} vs {_g(np.mean(by_type[naive]['multistep_q']))} "
+                              f"({'agrees with' if better else 'DIFFERS from'} the paper's claim that derivative learning is better).")
+    for line in statements:
+        report.text(line)
+
+    report.heading("Sine-sum study (section III.B)")
+    report.text(f"Profile '{sine['profile']}', {len(sine['runs'])} runs in {sine['wall_seconds']:.0f} s; "
+                "full figures and tables in sine_sum/ (summary.md).")
+    from stdm_drake.sine_sum import table1_rows
+    report.table(["loss", "activation", "ours (test MSE)", "paper"],
+                 [[r["loss"], r["activation"], _g(r["mean_test_mse"]), r["paper"]] for r in table1_rows(sine)])
+
+    report.heading("Closed-loop MPC (plant + iLQR MPC with each prediction model)")
+    if mpc_rows:
+        from stdm_drake.mpc import markdown_table
+        header, _, *lines = markdown_table(mpc_rows).splitlines()
+        report.table([cell.strip() for cell in header.strip("|").split("|")],
+                     [[cell.strip() for cell in line.strip("|").split("|")] for line in lines])
+        report.image("mpc/mpc.png", "MPC tracking error, plant model vs learned models")
+        report.text("The paper has no MPC experiment; the plant-as-model MPC is the reference.")
+
+    markdown, page = report.markdown(), report.html()
+    write_text_atomic(folder / "report.md", markdown + "\n")
+    write_text_atomic(folder / "report.html", page + "\n")
+    tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
+                  multistep=[{k: v for k, v in r.items() if k not in ("train_loss", "val_loss")} for r in multistep],
+                  mpc=mpc_rows, paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
+    write_text_atomic(folder / "results.json", json.dumps(dict(tables=tables, runs=results), default=json_default))
+    for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes"):
+        rows = tables[name]
+        write_text_atomic(folder / f"{name}.csv", "\n".join(
+            [",".join(rows[0])] + [",".join(str(row[key]) for key in rows[0]) for row in rows]) + "\n")
+    return folder / "report.html"
+
+
+# ---- the command -----------------------------------------------------------------------------------
+
+def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True):
+    """Run every stage; returns the report path."""
+    import torch
+
+    from stdm_drake import sine_sum
+    output = pathlib.Path(output)
+    cache = output / "cache"
+    cache.mkdir(parents=True, exist_ok=True)
+    timings = {}
+    tick = time.perf_counter()
+    excitation = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress)
+    tracking = ensure_dataset("tracking", profile.tracking_count, seed, output / "data", progress)
+    timings["data"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    jobs = plan_jobs(profile, excitation, tracking)
+    results = run_jobs(jobs, cache, workers, progress)
+    timings["training"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    study_config = sine_sum.QUICK if profile.sine_sum == "quick" else sine_sum.FULL
+    sine = sine_sum.run_study(study_config, workers=workers, progress=progress)
+    sine["profile"] = profile.sine_sum
+    sine_sum.write_reports(sine, output / "sine_sum", quick=profile.sine_sum == "quick")
+    timings["sine_sum"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    torch.set_num_threads(1)
+    mpc_rows = run_mpc(profile, tracking, results, cache, output / "mpc", progress)
+    timings["mpc"] = time.perf_counter() - tick
+    return write_report(output, profile, excitation, tracking, results, sine, mpc_rows, timings)
+
+
+def run_mpc(profile, tracking, results, cache, folder, progress) -> list[dict]:
+    """MPC with the plant and the multi-step experiment's D, DD, PE, PED models on held-out plans."""
+    from stdm_drake.learned_system import LearnedModel
+    from stdm_drake.mpc import (PlantModel, Reference, compare_controllers, held_out_references, load_mpc_config,
+                                plot_results, summarize)
+    models = [PlantModel(tracking.sample_period)]
+    for model_type in ("D", "DD", "PE", "PED"):
+        match = _select(results, experiment="multistep", model_type=model_type)
+        if match:
+            models.append(LearnedModel(cache / f"{match[0]['key']}.pt", name=model_type))
+    references = held_out_references(tracking, [model.checkpoint for model in models[1:]], profile.mpc_plans)
+    if profile.mpc_steps is not None:
+        references = [(i, Reference(q=r.q[:profile.mpc_steps + 1], v=r.v[:profile.mpc_steps + 1])) for i, r in references]
+    runs = compare_controllers(models, references, load_mpc_config(), progress=progress)
+    plot_results(runs, tracking.sample_period, folder / "mpc.png")
+    return summarize(runs, tracking.sample_period)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="every stage at reduced size (about 3 minutes)")
+    parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/reproduce"),
+                        help="report folder (default out/reproduce); datasets and checkpoints there are reused")
+    parser.add_argument("--seed", type=int, default=0, help="data collection seed")
+    parser.add_argument("--workers", type=int, default=2, help="training processes (default 2)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    profile = QUICK if args.quick else FULL
+    started = time.perf_counter()
+    path = reproduce(profile, args.output, seed=args.seed, workers=args.workers, progress=not args.quiet)
+    print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
+    return 0

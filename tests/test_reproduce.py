@@ -1,0 +1,97 @@
+"""`stdm-drake reproduce`: the quick profile end to end, the paper's split sizes, report verdicts."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from stdm_drake.cli import main
+from stdm_drake.dataset import load_dataset
+from stdm_drake.reproduce import FULL, MODEL_TYPES, QUICK, improvement_percent, plan_jobs, verdict
+
+
+@pytest.fixture(scope="module")
+def quick_report(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("reproduce")
+    assert main(["reproduce", "--quick", "-o", str(folder), "--quiet"]) == 0
+    return folder
+
+
+def test_quick_profile_writes_a_complete_report(quick_report):
+    for name in ("report.md", "report.html", "results.json", "sim_activations.csv", "real_sizes.csv",
+                 "figures/fig11_activations_sim.png", "figures/fig12_sizes_sim.png", "figures/fig13_learning_curves.png",
+                 "figures/fig16_activations_real.png", "figures/fig17_sizes_real.png", "figures/fig18_multistep.png",
+                 "figures/fig19_multistep_20.png", "mpc/mpc.png", "sine_sum/summary.md"):
+        assert (quick_report / name).stat().st_size > 200, name
+    tables = json.loads((quick_report / "results.json").read_text())["tables"]
+    assert [row["activation"] for row in tables["sim_activations"]] == list(QUICK.activations)
+    assert [row["activation"] for row in tables["real_activations"]] == list(QUICK.activations)
+    assert [row["train_trajectories"] for row in tables["sim_sizes"]] == list(QUICK.sim_train_sizes)
+    assert [row["train_trajectories"] for row in tables["real_sizes"]] == list(QUICK.real_train_sizes)
+    assert [row["model_type"] for row in tables["multistep"]] == list(MODEL_TYPES)
+    assert [row["model"] for row in tables["mpc"]] == ["plant", "D", "DD", "PE", "PED"]
+    for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "multistep"):
+        for row in tables[name]:
+            numbers = [value for value in row.values() if isinstance(value, float)]
+            assert numbers and all(math.isfinite(value) for value in numbers), (name, row)
+    for row in tables["multistep"]:
+        assert len(row["multistep_q"]) == QUICK.horizon and row["rollout_ms"] > 0
+    text = (quick_report / "report.md").read_text()
+    assert "paper" in text and "Fig. 11" in text and "Fig. 19" in text and "Sine-sum" in text
+
+
+def test_rerun_reuses_datasets_and_checkpoints(quick_report):
+    before = {path: path.stat().st_mtime_ns for path in (quick_report / "cache").glob("*.pt")}
+    data = {path: path.stat().st_mtime_ns for path in (quick_report / "data").glob("*.h5")}
+    assert before and data
+    assert main(["reproduce", "--quick", "-o", str(quick_report), "--quiet"]) == 0
+    assert {path: path.stat().st_mtime_ns for path in (quick_report / "cache").glob("*.pt")} == before
+    assert {path: path.stat().st_mtime_ns for path in (quick_report / "data").glob("*.h5")} == data
+    runs = json.loads((quick_report / "results.json").read_text())["runs"]
+    assert runs and all(run["reused"] for run in runs)
+
+
+def test_full_profile_uses_the_papers_splits(quick_report):
+    """Split sizes of every job of the full profile on stand-in datasets of the paper's sizes."""
+    class Stub:
+        def __init__(self, groups, name):
+            self.groups, self.path, self.sha256 = np.asarray(groups), name, name
+
+    excitation, tracking = Stub(np.zeros(200, int), "ex"), Stub(np.repeat(np.arange(4), 25), "tr")
+    jobs = plan_jobs(FULL, excitation, tracking)
+    sim = [job for job in jobs if job.experiment == "sim"]
+    assert {(len(job.train), len(job.val), len(job.test)) for job in sim} == {(10, 40, 120), (20, 40, 120), (40, 40, 120)}
+    real = [job for job in jobs if job.experiment == "real"]
+    assert {(len(job.train), len(job.val), len(job.test)) for job in real} == {(4, 20, 60), (12, 20, 60), (20, 20, 60)}
+    for job in real:  # per initial pose: train / 5 validation / 15 test from each of the 4 poses
+        groups = tracking.groups
+        assert set(np.bincount(groups[list(job.train)], minlength=4)) == {job.train_size}
+        assert set(np.bincount(groups[list(job.val)], minlength=4)) == {5}
+        assert set(np.bincount(groups[list(job.test)], minlength=4)) == {15}
+        assert not set(job.train) & set(job.test) and not set(job.val) & set(job.test)
+    multistep = [job for job in jobs if job.experiment == "multistep"]
+    assert sorted(job.model_type for job in multistep) == sorted(MODEL_TYPES)
+    assert {(len(job.train), len(job.val), len(job.test)) for job in multistep} == {(20, 20, 60)}
+    activations_at_40 = {job.activation for job in sim if len(job.train) == 40}
+    assert len(activations_at_40) == 9 and {job.seed for job in sim} == set(range(5))
+
+
+def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
+    from stdm_drake.learn import load_checkpoint
+    from stdm_drake.predict import predict, rollout
+    runs = json.loads((quick_report / "results.json").read_text())["runs"]
+    run = next(r for r in runs if r["experiment"] == "multistep" and r["model_type"] == "PED")
+    model = load_checkpoint(quick_report / "cache" / f"{run['key']}.pt").model
+    dataset = load_dataset(next((quick_report / "data").glob("tracking*.h5")))
+    traj = dataset.trajectory(0)
+    x = np.concatenate([traj["q"][0], traj["v"][0]])
+    path = rollout(model, x, traj["tau"][:30]).mean
+    for k in range(30):
+        x = predict(model, x, traj["tau"][k]).mean
+        np.testing.assert_array_equal(path[k], x)
+
+
+def test_verdicts():
+    assert improvement_percent(naive=3.0, derivative=1.0) == pytest.approx(200.0)
+    assert verdict(250, 200) == "agrees" and verdict(50, 200) == "smaller gain"
+    assert verdict(-5, 60) == "DIFFERS (no gain)" and verdict(10, None) == ""
