@@ -199,31 +199,24 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
 
 
 def plan_jobs(profile: Profile, excitation, tracking) -> list[TrainJob]:
-    """Every training job of the three experiments (shared settings deduplicated by key)."""
+    """Every training job of the three experiments; the splits use split seed 0, the seeds vary initialization."""
     from stdm_drake.dataset import split_trajectories
     common = dict(max_epochs=profile.max_epochs, patience=profile.patience, horizon=profile.horizon,
                   ensemble_size=profile.ensemble_size)
-    jobs = []
-    largest_sim = max(profile.sim_train_sizes)
-    for size in profile.sim_train_sizes:
-        split = split_trajectories(excitation.groups, size, profile.sim_val, profile.sim_test, seed=0, per_group=False)
-        activations = profile.activations if size == largest_sim else ("swish",)
-        for activation in activations:
-            for model_type in ("D", "DD"):
-                for seed in range(profile.seeds):
-                    jobs.append(TrainJob("sim", str(excitation.path), excitation.sha256, tuple(split.train.tolist()),
-                                         tuple(split.val.tolist()), tuple(split.test.tolist()), model_type,
-                                         activation, seed, multistep=False, train_size=size, **common))
-    largest_real = max(profile.real_train_sizes)
-    for size in profile.real_train_sizes:
-        split = split_trajectories(tracking.groups, size, profile.real_val, profile.real_test, seed=0, per_group=True)
-        activations = profile.activations if size == largest_real else ("swish",)
-        for activation in activations:
-            for model_type in ("D", "DD"):
-                for seed in range(profile.seeds):
-                    jobs.append(TrainJob("real", str(tracking.path), tracking.sha256, tuple(split.train.tolist()),
-                                         tuple(split.val.tolist()), tuple(split.test.tolist()), model_type,
-                                         activation, seed, multistep=False, train_size=size, **common))
+
+    def comparison(experiment, dataset, sizes, n_val, n_test, per_group):
+        """Naive (D) vs derivative (DD) for every seed: all activations at the largest size, swish at the others."""
+        for size in sizes:
+            split = split_trajectories(dataset.groups, size, n_val, n_test, seed=0, per_group=per_group)
+            for activation in (profile.activations if size == max(sizes) else ("swish",)):
+                for model_type in ("D", "DD"):
+                    for seed in range(profile.seeds):
+                        yield TrainJob(experiment, str(dataset.path), dataset.sha256, tuple(split.train.tolist()),
+                                       tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, activation,
+                                       seed, multistep=False, train_size=size, **common)
+
+    jobs = list(comparison("sim", excitation, profile.sim_train_sizes, profile.sim_val, profile.sim_test, False))
+    jobs += comparison("real", tracking, profile.real_train_sizes, profile.real_val, profile.real_test, True)
     split = split_trajectories(tracking.groups, profile.multistep_train, profile.real_val, profile.real_test, seed=0,
                                per_group=True)
     for model_type in MODEL_TYPES:

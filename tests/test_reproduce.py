@@ -51,7 +51,7 @@ def test_rerun_reuses_datasets_and_checkpoints(quick_report):
     assert runs and all(run["reused"] for run in runs)
 
 
-def test_full_profile_uses_the_papers_splits(quick_report):
+def test_full_profile_uses_the_papers_splits():
     """Split sizes of every job of the full profile on stand-in datasets of the paper's sizes."""
     class Stub:
         def __init__(self, groups, name):
