@@ -394,10 +394,11 @@ class ClosedLoopResult:
 
 
 def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference, limits, gravity) -> ClosedLoopResult:
+    """gravity: (N, 6) torque holding the arm at each reference sample (N >= the run's steps)."""
     states, torques = np.array(log.state), np.array(log.torque)
     steps = len(states)
-    q_error = states[:, :NUM_JOINTS] - reference.q[np.minimum(np.arange(steps), len(reference.q) - 1)]
-    v_error = states[:, NUM_JOINTS:] - reference.v[np.minimum(np.arange(steps), len(reference.v) - 1)]
+    error = states - reference.window(0, steps)
+    q_error, v_error = error[:, :NUM_JOINTS], error[:, NUM_JOINTS:]
     finite = np.all(np.isfinite(states), axis=1)
     outside = ((states[:, :NUM_JOINTS] < limits.position_lower) | (states[:, :NUM_JOINTS] > limits.position_upper)
                | (np.abs(states[:, NUM_JOINTS:]) > limits.velocity))
@@ -424,15 +425,17 @@ def compare_controllers(models: list, references: list[tuple[int, Reference]], c
     limits = joint_limits(dynamics.plant)
     results = []
     bar = tqdm(total=len(models) * len(references), desc="mpc", unit="run", disable=not progress)
+    # gravity at each reference sample, held past its end like the reference (a run may outlast it)
+    horizon = max(len(reference.q) for _, reference in references) + 1
+    gravity = {index: np.array([dynamics.gravity_torque(q) for q in reference.window(0, horizon)[:, :NUM_JOINTS]])
+               for index, reference in references}
     for model in models:
         for index, reference in references:
             log = run_closed_loop(model, reference, config, plant_config)
-            gravity = np.array([dynamics.gravity_torque(q) for q in reference.q])
-            gravity = gravity[np.minimum(np.arange(len(log.state)), len(gravity) - 1)]
-            results.append(closed_loop_metrics(model.name, index, log, reference, limits, gravity))
+            results.append(closed_loop_metrics(model.name, index, log, reference, limits, gravity[index]))
             if recorder is not None:
                 q = np.array(log.state)[:, :NUM_JOINTS]
-                recorder.add(q, reference.q[np.minimum(np.arange(len(q)), len(reference.q) - 1)])
+                recorder.add(q, reference.window(0, len(q))[:, :NUM_JOINTS])
             bar.update()
     bar.close()
     return results

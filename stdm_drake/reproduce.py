@@ -97,23 +97,31 @@ class TrainJob:
 
 # ---- stage 1: datasets ----------------------------------------------------------------------------
 
+def _reusable_dataset(path: pathlib.Path, count: int, seed: int):
+    """The dataset at `path` if it is readable and was collected with this count and seed, else None."""
+    from stdm_drake.dataset import load_dataset
+    if not path.exists():
+        return None
+    try:
+        dataset = load_dataset(path)
+    except InputError:  # unreadable (e.g. truncated): it will be collected again
+        return None
+    return dataset if dataset.metadata.get("seed") == seed and dataset.num_trajectories == count else None
+
+
 def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, progress: bool):
-    """Collect the dataset unless a valid file for the same protocol, count and seed exists."""
-    from stdm_drake.collect import CollectionRequest, collect, request_from_args
+    """Collect the dataset (with `stdm-drake collect`'s defaults) unless a valid file for the same
+    protocol, count and seed exists."""
+    from stdm_drake.collect import add_arguments, collect, request_from_args
     from stdm_drake.dataset import load_dataset, write_dataset
     path = folder / f"{protocol}_n{count}_seed{seed}.h5"
-    if path.exists():
-        try:
-            dataset = load_dataset(path)
-            if dataset.metadata.get("seed") == seed and dataset.num_trajectories == count:
-                return dataset
-        except InputError:
-            pass  # unreadable: collect it again
+    dataset = _reusable_dataset(path, count, seed)
+    if dataset is not None:
+        return dataset
     parser = argparse.ArgumentParser()
-    from stdm_drake.collect import add_arguments
     add_arguments(parser)
-    args = parser.parse_args(["--protocol", protocol, "--count", str(count), "--seed", str(seed), "-o", str(path)])
-    request: CollectionRequest = request_from_args(args)
+    request = request_from_args(parser.parse_args(["--protocol", protocol, "--count", str(count), "--seed", str(seed),
+                                                   "-o", str(path)]))
     trajectories, groups, metadata = collect(request, progress=progress)
     write_dataset(path, trajectories, groups, metadata)
     return load_dataset(path)
