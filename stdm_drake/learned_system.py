@@ -2,11 +2,10 @@
 
 `LearnedModel` turns any checkpoint (D, P, DE, PE, with or without derivative training) into the
 prediction-model interface the MPC uses: a batched `step` on the fast numpy inference path
-(ensemble mean) and exact `jacobians` from the network's forward-mode pass (the same JVP the
+(ensemble mean) and exact `jacobians` by forward mode on the same float32 path (the chain rule the
 derivative loss trains), one batched call for the whole horizon.
 """
 import numpy as np
-import torch
 from pydrake.systems.framework import LeafSystem
 
 from stdm_drake.errors import InputError
@@ -35,7 +34,6 @@ class LearnedModel:
         self.engine = as_inference_model(self.network)
         self.probabilistic = checkpoint.model_config.probabilistic
         self.ensemble_size = checkpoint.model_config.ensemble_size
-        self._unit_rates = torch.eye(STATE_DIM + NUM_JOINTS, dtype=torch.float64)
         self._workspaces = {}
 
     def predict(self, x: np.ndarray, u: np.ndarray):
@@ -57,15 +55,11 @@ class LearnedModel:
         return mean
 
     def jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """d mean / d(x, u) at each row: A (H, 12, 12), B (H, 12, 6), by forward mode with unit tangents."""
-        horizon, width = len(x), STATE_DIM + NUM_JOINTS
-        inputs = torch.as_tensor(np.hstack([x, u]), dtype=torch.float64)
-        rows = inputs.repeat_interleave(width, dim=0)
-        rates = self._unit_rates.repeat(horizon, 1)
-        with torch.no_grad():
-            columns = self.network.time_derivative(rows, rates).mean(dim=0)  # (H*width, 12)
-        jacobian = columns.reshape(horizon, width, STATE_DIM).transpose(1, 2).numpy()
-        return jacobian[:, :, :STATE_DIM].copy(), jacobian[:, :, STATE_DIM:].copy()
+        """d mean / d(x, u) at each row: A (H, 12, 12), B (H, 12, 6), float64 from the float32
+        inference path's forward-mode Jacobian (InferenceModel.mean_jacobian)."""
+        rows = self.engine.input_rows(np.asarray(x, dtype=np.float32), np.asarray(u, dtype=np.float32)[None])[0]
+        jacobian = self.engine.mean_jacobian(rows).astype(np.float64)
+        return jacobian[:, :, :STATE_DIM], jacobian[:, :, STATE_DIM:]
 
 
 class LearnedDynamicsSystem(LeafSystem):

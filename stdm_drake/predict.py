@@ -65,6 +65,31 @@ _NUMPY_ACTIVATIONS = {
 }
 
 
+def _swish_slope(scaled):
+    t = np.tanh(scaled)
+    return 1.0 + t + scaled * (1.0 - t * t)
+
+
+def _exponential_linear_slope(scale, alpha):
+    return lambda pre: np.where(pre > 0, scale, scale * alpha * np.exp(np.minimum(pre, 0.0)))
+
+
+_INV_SQRT_2PI = 0.3989422804014327  # 1 / sqrt(2 pi), a Python float: keeps float32 arrays float32
+
+# name -> f'(scaled pre-activation), the derivative of the function above in the same variable
+_NUMPY_SLOPES = {
+    "tanh": lambda pre: 1.0 - np.tanh(pre) ** 2,
+    "sigmoid": lambda pre: special.expit(pre) * special.expit(-pre),
+    "relu": lambda pre: (pre > 0).astype(pre.dtype),
+    "leaky_relu": lambda pre: np.where(pre > 0, 1.0, LEAKY_RELU_SLOPE).astype(pre.dtype),
+    "softplus": lambda pre: special.expit(pre),
+    "selu": _exponential_linear_slope(SELU_SCALE, SELU_ALPHA),
+    "elu": _exponential_linear_slope(1.0, 1.0),
+    "gelu": lambda pre: special.ndtr(pre) + pre * np.exp(-0.5 * pre * pre) * _INV_SQRT_2PI,
+    "swish": _swish_slope,
+}
+
+
 def _softplus(values):
     return np.logaddexp(values, 0.0)
 
@@ -86,6 +111,7 @@ class InferenceModel:
         self.residual = config.residual
         self.probabilistic = config.probabilistic
         scale, self._activation = _NUMPY_ACTIVATIONS[config.activation]
+        self._slope = _NUMPY_SLOPES[config.activation]
 
         def array(tensor):
             return tensor.detach().cpu().double().numpy()
@@ -168,6 +194,27 @@ class InferenceModel:
         mean = np.dot(flat, self.ensemble_mean_weight, out=out)
         mean += self.ensemble_mean_bias
         return mean
+
+    def mean_jacobian(self, inputs: np.ndarray) -> np.ndarray:
+        """d(ensemble-mean next state)/d[x, a] at input rows (N, S+A+1): (N, S, S+A), float32.
+
+        One primal pass per row; the Jacobian is carried forward as an (H, S+A) matrix per member
+        and row (forward mode with all unit tangents at once), so each layer is one batched matmul.
+        """
+        width = self.state_dim + self.action_dim
+        pre = np.matmul(inputs, self.input_member_weight)                                # (E, N, H)
+        tangent = self._slope(pre)[..., None] * self.input_member_weight[:, None, :width, :].transpose(0, 1, 3, 2)
+        hidden = self._activation(pre, np.empty_like(pre))
+        for weight, bias in self.hidden:                                                # weight (E, H, H)
+            pre = np.matmul(hidden, weight)
+            pre += bias
+            tangent = np.matmul(weight.transpose(0, 2, 1)[:, None], tangent)              # (E, N, H, S+A)
+            tangent *= self._slope(pre)[..., None]
+            hidden = self._activation(pre, np.empty_like(pre))
+        jacobian = np.matmul(self.mean_weight.transpose(0, 2, 1)[:, None], tangent).mean(axis=0)   # (N, S, S+A)
+        if self.residual:
+            jacobian[:, :, :self.state_dim] += np.eye(self.state_dim, dtype=np.float32)
+        return jacobian
 
     def member_outputs(self, hidden: np.ndarray):
         """Per-member outputs from hidden (E, M, H): (mean (E, M, S) raw units, residual not added;

@@ -26,6 +26,7 @@ from stdm_drake.files import json_default, write_text_atomic
 
 ALL_ACTIVATIONS = ("tanh", "sigmoid", "relu", "leaky_relu", "softplus", "selu", "elu", "gelu", "swish")
 MODEL_TYPES = ("D", "P", "DE", "PE", "DD", "PD", "DED", "PED")
+CONTROL_MODEL_TYPES = ("D", "DD", "PE", "PED")  # compared in closed loop (MPC)
 
 # The paper's reported values (numbers stated in its text), shown in "paper" columns only.
 PAPER = {
@@ -58,6 +59,10 @@ class Profile:
     patience: int = 50
     horizon: int = 100
     sine_sum: str = "full"
+    identification_count: int = 100  # tracked plans with dithered PID and an ideal sensor (MPC models)
+    control_train: int = 20          # per initial pose
+    control_val: int = 3
+    control_test: int = 2
     mpc_plans: int = 3
     mpc_steps: int | None = None  # control steps per MPC run (None: the whole plan)
 
@@ -66,7 +71,7 @@ FULL = Profile("full")
 QUICK = Profile("quick", excitation_count=40, tracking_count=40, seeds=1, activations=("tanh", "relu", "swish"),
                 sim_train_sizes=(5, 10), sim_val=10, sim_test=20, real_train_sizes=(1, 2), real_val=2, real_test=5,
                 multistep_train=2, ensemble_size=2, max_epochs=25, patience=10, horizon=50, sine_sum="quick",
-                mpc_plans=1, mpc_steps=20)
+                identification_count=20, control_train=3, control_val=1, control_test=1, mpc_plans=1, mpc_steps=20)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -87,11 +92,14 @@ class TrainJob:
     horizon: int
     multistep: bool
     train_size: int  # the experiment's label: trajectories (sim) or trajectories per initial pose (real)
+    derivative_source: str | None = None  # None: the dataset's default (Dataset.transitions)
 
     def key(self) -> str:
         fields = dataclasses.asdict(self)
         for label in ("dataset", "experiment", "train_size"):  # the content hash identifies the data
             fields.pop(label)
+        if fields["derivative_source"] is None:  # keys of jobs that predate the field stay the same
+            fields.pop("derivative_source")
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -109,19 +117,20 @@ def _reusable_dataset(path: pathlib.Path, count: int, seed: int):
     return dataset if dataset.metadata.get("seed") == seed and dataset.num_trajectories == count else None
 
 
-def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, progress: bool):
-    """Collect the dataset (with `stdm-drake collect`'s defaults) unless a valid file for the same
-    protocol, count and seed exists."""
+def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, progress: bool,
+                   name: str | None = None, options: tuple = ()):
+    """Collect the dataset (`stdm-drake collect` with its defaults plus the command-line `options`)
+    unless a valid file for the same name, count and seed exists."""
     from stdm_drake.collect import add_arguments, collect, request_from_args
     from stdm_drake.dataset import load_dataset, write_dataset
-    path = folder / f"{protocol}_n{count}_seed{seed}.h5"
+    path = folder / f"{name or protocol}_n{count}_seed{seed}.h5"
     dataset = _reusable_dataset(path, count, seed)
     if dataset is not None:
         return dataset
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     request = request_from_args(parser.parse_args(["--protocol", protocol, "--count", str(count), "--seed", str(seed),
-                                                   "-o", str(path)]))
+                                                   "-o", str(path), *options]))
     trajectories, groups, metadata = collect(request, progress=progress)
     write_dataset(path, trajectories, groups, metadata)
     return load_dataset(path)
@@ -151,8 +160,9 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> dict:
                              ensemble_size=job.ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
     training = TrainingConfig(alpha=DEFAULT_ALPHA if kind.derivative else 0.0, seed=job.seed,
                               max_epochs=job.max_epochs, patience=job.patience)
-    train = RegressionData.from_transitions(dataset.transitions(list(job.train)))
-    val = RegressionData.from_transitions(dataset.transitions(list(job.val)))
+    source = job.derivative_source
+    train = RegressionData.from_transitions(dataset.transitions(list(job.train), derivative_source=source))
+    val = RegressionData.from_transitions(dataset.transitions(list(job.val), derivative_source=source))
     started = time.perf_counter()
     trained = train_model(config, training, train, val)
     seconds = time.perf_counter() - started
@@ -206,7 +216,7 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
     return results
 
 
-def plan_jobs(profile: Profile, excitation, tracking) -> list[TrainJob]:
+def plan_jobs(profile: Profile, excitation, tracking, identification) -> list[TrainJob]:
     """Every training job of the three experiments; the splits use split seed 0, the seeds vary initialization."""
     from stdm_drake.dataset import split_trajectories
     common = dict(max_epochs=profile.max_epochs, patience=profile.patience, horizon=profile.horizon,
@@ -231,6 +241,13 @@ def plan_jobs(profile: Profile, excitation, tracking) -> list[TrainJob]:
         jobs.append(TrainJob("multistep", str(tracking.path), tracking.sha256, tuple(split.train.tolist()),
                              tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, "swish", 0,
                              multistep=True, train_size=profile.multistep_train, **common))
+    # models for the closed-loop MPC comparison: simulated data, so the derivative targets are the true ones
+    split = split_trajectories(identification.groups, profile.control_train, profile.control_val,
+                               profile.control_test, seed=0, per_group=True)
+    for model_type in CONTROL_MODEL_TYPES:
+        jobs.append(TrainJob("control", str(identification.path), identification.sha256, tuple(split.train.tolist()),
+                             tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, "swish", 0,
+                             multistep=False, train_size=profile.control_train, derivative_source="true", **common))
     return jobs
 
 
@@ -437,8 +454,8 @@ def add_activation_section(report, rows, paper_text, paper_percent):
                    verdicts(r, *paper_percent(r["activation"]))] for r in rows])
 
 
-def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, results, sine, mpc_rows,
-                 timings: dict) -> pathlib.Path:
+def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, identification, results, sine,
+                 mpc_rows, timings: dict) -> pathlib.Path:
     from stdm_drake.inspect import tracking_errors
     figures = folder / "figures"
     report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'")
@@ -448,12 +465,19 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, r
                 f"Stage times (s): {', '.join(f'{k} {v:.0f}' for k, v in timings.items())}.")
 
     report.heading("Data")
-    errors = tracking_errors(tracking)
+    errors, identification_errors = tracking_errors(tracking), tracking_errors(identification)
     report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
                  [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0)["tau"]), "", "", ""],
                   ["tracked plans (V.B)", tracking.num_trajectories, len(tracking.trajectory(0)["tau"]),
                    _g(errors["true_q"]), _g(errors["measured_v"]),
-                   f"q {PAPER['tracking_mse']['q']}, v {PAPER['tracking_mse']['v']}"]])
+                   f"q {PAPER['tracking_mse']['q']}, v {PAPER['tracking_mse']['v']}"],
+                  ["identification (MPC models)", identification.num_trajectories,
+                   len(identification.trajectory(0)["tau"]), _g(identification_errors["true_q"]),
+                   _g(identification_errors["measured_v"]), ""]])
+    report.text("The identification dataset tracks the same kind of plans with controllers/pid_dither.yaml (white "
+                "torque dither, persistent excitation) and controllers/sensor_ideal.yaml (true states): the models "
+                "for the closed-loop MPC comparison are trained on it, since closed-loop PID torques alone do not "
+                "identify the torque response.")
 
     largest_sim, largest_real = max(profile.sim_train_sizes), max(profile.real_train_sizes)
     report.heading(f"Simulated UR-10: activations at {largest_sim} training trajectories (Fig. 11)")
@@ -572,10 +596,13 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     tick = time.perf_counter()
     excitation = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress)
     tracking = ensure_dataset("tracking", profile.tracking_count, seed, output / "data", progress)
+    # the MPC models' data: the same kind of plans, tracked with dithered PID, recorded by an ideal sensor
+    identification = ensure_dataset("tracking", profile.identification_count, seed, output / "data", progress,
+                                    name="identification", options=identification_options())
     timings["data"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    jobs = plan_jobs(profile, excitation, tracking)
+    jobs = plan_jobs(profile, excitation, tracking, identification)
     results = run_jobs(jobs, cache, workers, progress)
     timings["training"] = time.perf_counter() - tick
 
@@ -590,9 +617,16 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
 
     tick = time.perf_counter()
     torch.set_num_threads(1)
-    mpc_rows = run_mpc(profile, tracking, results, cache, output / "mpc", progress)
+    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress)
     timings["mpc"] = time.perf_counter() - tick
-    return write_report(output, profile, excitation, tracking, results, sine, mpc_rows, timings)
+    return write_report(output, profile, excitation, tracking, identification, results, sine, mpc_rows, timings)
+
+
+def identification_options() -> tuple:
+    """`stdm-drake collect` options of the identification dataset (dithered PID, ideal sensor)."""
+    from stdm_drake.robot import CONTROLLERS_DIR
+    return ("--controller", str(CONTROLLERS_DIR / "pid_dither.yaml"),
+            "--sensor", str(CONTROLLERS_DIR / "sensor_ideal.yaml"))
 
 
 def reused_sine_sum(path: pathlib.Path, study_config):
@@ -607,22 +641,23 @@ def reused_sine_sum(path: pathlib.Path, study_config):
     return stored if stored.get("config") == expected and stored.get("runs") else None
 
 
-def run_mpc(profile, tracking, results, cache, folder, progress) -> list[dict]:
-    """MPC with the plant and the multi-step experiment's D, DD, PE, PED models on held-out plans."""
+def run_mpc(profile, identification, results, cache, folder, progress) -> list[dict]:
+    """MPC with the plant and the control experiment's D, DD, PE, PED models on held-out plans of
+    the identification dataset."""
     from stdm_drake.learned_system import LearnedModel
     from stdm_drake.mpc import (PlantModel, Reference, compare_controllers, held_out_references, load_mpc_config,
                                 plot_results, summarize)
-    models = [PlantModel(tracking.sample_period)]
-    for model_type in ("D", "DD", "PE", "PED"):
-        match = _select(results, experiment="multistep", model_type=model_type)
+    models = [PlantModel(identification.sample_period)]
+    for model_type in CONTROL_MODEL_TYPES:
+        match = _select(results, experiment="control", model_type=model_type)
         if match:
             models.append(LearnedModel(cache / f"{match[0]['key']}.pt", name=model_type))
-    references = held_out_references(tracking, [model.checkpoint for model in models[1:]], profile.mpc_plans)
+    references = held_out_references(identification, [model.checkpoint for model in models[1:]], profile.mpc_plans)
     if profile.mpc_steps is not None:
         references = [(i, Reference(q=r.q[:profile.mpc_steps + 1], v=r.v[:profile.mpc_steps + 1])) for i, r in references]
     runs = compare_controllers(models, references, load_mpc_config(), progress=progress)
-    plot_results(runs, tracking.sample_period, folder / "mpc.png")
-    return summarize(runs, tracking.sample_period)
+    plot_results(runs, identification.sample_period, folder / "mpc.png")
+    return summarize(runs, identification.sample_period)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

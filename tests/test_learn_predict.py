@@ -40,6 +40,23 @@ def test_inference_path_matches_the_torch_model(activation, delta):
     np.testing.assert_allclose(prediction.variance, total, rtol=2e-4, atol=1e-7)
 
 
+@pytest.mark.parametrize("activation", ACTIVATION_NAMES)
+@pytest.mark.parametrize("ensemble_size, delta", [(1, True), (3, False)], ids=["single-delta", "ensemble-direct"])
+def test_mean_jacobian_matches_the_training_jvp(activation, ensemble_size, delta):
+    """The float32 forward-mode Jacobian equals the float64 chain rule the derivative loss uses."""
+    model = make_model(ensemble_size=ensemble_size, probabilistic=ensemble_size > 1, activation=activation,
+                       delta=delta).double()
+    engine = InferenceModel(model)
+    z = np.hstack([STATES[:5], ACTIONS[:5]])
+    jacobian = engine.mean_jacobian(engine.input_rows(STATES[:5], ACTIONS[None, :5])[0])
+    assert jacobian.shape == (5, 4, 6) and jacobian.dtype == np.float32
+    rows = torch.as_tensor(np.repeat(z, 6, axis=0))
+    with torch.no_grad():
+        columns = model.time_derivative(rows, torch.eye(6, dtype=torch.float64).repeat(5, 1)).mean(0)
+    expected = columns.reshape(5, 6, 4).transpose(1, 2).numpy()
+    np.testing.assert_allclose(jacobian, expected, rtol=1e-4, atol=1e-5 * np.abs(expected).max())
+
+
 @pytest.mark.parametrize("ensemble_size,probabilistic", [(1, False), (5, False), (3, True)], ids=["D", "DE", "PE"])
 def test_rollout_equals_repeated_predict(ensemble_size, probabilistic):
     engine = InferenceModel(make_model(ensemble_size, probabilistic))

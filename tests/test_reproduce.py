@@ -18,6 +18,7 @@ def quick_report(tmp_path_factory):
 
 
 def test_quick_profile_writes_a_complete_report(quick_report):
+    assert (quick_report / "data" / f"identification_n{QUICK.identification_count}_seed0.h5").exists()
     for name in ("report.md", "report.html", "results.json", "sim_activations.csv", "real_sizes.csv",
                  "figures/fig11_activations_sim.png", "figures/fig12_sizes_sim.png", "figures/fig13_learning_curves.png",
                  "figures/fig16_activations_real.png", "figures/fig17_sizes_real.png", "figures/fig18_multistep.png",
@@ -59,7 +60,8 @@ def test_full_profile_uses_the_papers_splits():
             self.groups, self.path, self.sha256 = np.asarray(groups), name, name
 
     excitation, tracking = Stub(np.zeros(200, int), "ex"), Stub(np.repeat(np.arange(4), 25), "tr")
-    jobs = plan_jobs(FULL, excitation, tracking)
+    identification = Stub(np.repeat(np.arange(4), 25), "id")
+    jobs = plan_jobs(FULL, excitation, tracking, identification)
     sim = [job for job in jobs if job.experiment == "sim"]
     assert {(len(job.train), len(job.val), len(job.test)) for job in sim} == {(10, 40, 120), (20, 40, 120), (40, 40, 120)}
     real = [job for job in jobs if job.experiment == "real"]
@@ -73,6 +75,12 @@ def test_full_profile_uses_the_papers_splits():
     multistep = [job for job in jobs if job.experiment == "multistep"]
     assert sorted(job.model_type for job in multistep) == sorted(MODEL_TYPES)
     assert {(len(job.train), len(job.val), len(job.test)) for job in multistep} == {(20, 20, 60)}
+    control = [job for job in jobs if job.experiment == "control"]
+    assert [job.model_type for job in control] == ["D", "DD", "PE", "PED"]
+    assert {(len(job.train), len(job.val), len(job.test), job.derivative_source) for job in control} == {
+        (80, 12, 8, "true")}
+    assert all(job.dataset == "id" for job in control)
+    assert len({job.key() for job in jobs}) == len(jobs)
     activations_at_40 = {job.activation for job in sim if len(job.train) == 40}
     assert len(activations_at_40) == 9 and {job.seed for job in sim} == set(range(5))
 
