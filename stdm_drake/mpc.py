@@ -358,7 +358,7 @@ class MpcController(LeafSystem):
                 result = self.solver.solve(x, warm, reference, u_ff, disturbance)
             fallback = not (result.finite and np.all(np.isfinite(result.u)))
         if fallback:
-            q = np.nan_to_num(np.asarray(x)[:NUM_JOINTS])
+            q = np.nan_to_num(x[:NUM_JOINTS])
             torque = np.clip(self.dynamics.gravity_torque(q), -self.effort_limit, self.effort_limit)
             next_plan = u_ff
         else:

@@ -217,7 +217,7 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
 
 
 def plan_jobs(profile: Profile, excitation, tracking, identification) -> list[TrainJob]:
-    """Every training job of the three experiments; the splits use split seed 0, the seeds vary initialization."""
+    """Every training job (sim, real, multistep, control); the splits use split seed 0, the seeds vary initialization."""
     from stdm_drake.dataset import split_trajectories
     common = dict(max_epochs=profile.max_epochs, patience=profile.patience, horizon=profile.horizon,
                   ensemble_size=profile.ensemble_size)
