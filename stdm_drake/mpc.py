@@ -174,8 +174,12 @@ class IlqrSolver:
         x = np.empty((len(u) + 1, STATE_DIM))
         x[0] = x0
         for k in range(len(u)):
-            x[k + 1] = self.model.step(x[k][None], u[k][None])[0] + offset
+            x[k + 1] = self._predict(x[k], u[k], offset)
         return x
+
+    def _predict(self, x: np.ndarray, u: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """One shifted model step: f(x (12,), u (6,)) + offset (12,)."""
+        return self.model.step(x[None], u[None])[0] + offset
 
     def cost(self, x: np.ndarray, u: np.ndarray, reference: np.ndarray, u_ff: np.ndarray) -> float:
         error = x[1:] - reference[1:]
@@ -217,7 +221,7 @@ class IlqrSolver:
                 for k in range(horizon):
                     u_new[k] = np.clip(u[k] + alpha * feedforward[k] + feedback[k] @ (x_new[k] - x[k]),
                                        -self.effort_limit, self.effort_limit)
-                    x_new[k + 1] = self.model.step(x_new[k][None], u_new[k][None])[0] + offset
+                    x_new[k + 1] = self._predict(x_new[k], u_new[k], offset)
                 new_cost = self.cost(x_new, u_new, reference, u_ff)
                 if np.isfinite(new_cost) and new_cost < cost:
                     x, u, cost, improved = x_new, u_new, new_cost, True
@@ -297,8 +301,8 @@ class MpcController(LeafSystem):
     the plant integrates over the whole period [t_k, t_k+1). The first torque comes from an
     initialization event at t = 0.
 
-    State: the torque being applied, the last measured state and disturbance estimate (discrete),
-    the warm-start plan (abstract).
+    State: the torque being applied, the disturbance estimate and the prediction of the next
+    measured state made with both (discrete), the warm-start plan (abstract).
 
     If the model's predictions are not finite, the controller applies gravity compensation at the
     measured q, clipped to the effort limits, and records the step in `log.fallback`.
@@ -320,7 +324,7 @@ class MpcController(LeafSystem):
         self._period = period
         self._state_input = self.DeclareVectorInputPort("state", STATE_DIM)
         self._torque_index = self.DeclareDiscreteState(NUM_JOINTS)
-        self._previous_state_index = self.DeclareDiscreteState(STATE_DIM)
+        self._predicted_index = self.DeclareDiscreteState(STATE_DIM)
         self._disturbance_index = self.DeclareDiscreteState(STATE_DIM)
         self._plan_index = self.DeclareAbstractState(AbstractValue.Make(np.zeros((config.horizon, NUM_JOINTS))))
         self.DeclareStateOutputPort("torque", self._torque_index)
@@ -329,13 +333,12 @@ class MpcController(LeafSystem):
         self._feedforward = np.array([self.dynamics.gravity_torque(q) for q in reference.q])
 
     def _estimate_disturbance(self, context, x: np.ndarray) -> np.ndarray:
-        """d_k = d_k-1 + gain (x_k - f(x_k-1, u_k-1) - d_k-1): the model's recent one-step error,
-        added to every step of the next solve (offset-free MPC). Non-finite -> zero."""
-        previous = context.get_discrete_state(int(self._previous_state_index)).get_value()
-        applied = context.get_discrete_state(int(self._torque_index)).get_value()
+        """d_k = d_k-1 + gain (x_k - (f(x_k-1, u_k-1) + d_k-1)): the model's recent one-step error,
+        added to every step of the next solve (offset-free MPC). The bracket is the prediction
+        stored at the last update. Non-finite -> zero."""
+        predicted = context.get_discrete_state(int(self._predicted_index)).get_value()
         last = context.get_discrete_state(int(self._disturbance_index)).get_value()
-        innovation = x - self.model.step(previous[None], applied[None])[0] - last
-        disturbance = last + self.config.disturbance_gain * innovation
+        disturbance = last + self.config.disturbance_gain * (x - predicted)
         return disturbance if np.all(np.isfinite(disturbance)) else np.zeros(STATE_DIM)
 
     def _update(self, context, state):
@@ -361,12 +364,17 @@ class MpcController(LeafSystem):
             q = np.nan_to_num(x[:NUM_JOINTS])
             torque = np.clip(self.dynamics.gravity_torque(q), -self.effort_limit, self.effort_limit)
             next_plan = u_ff
+            predicted = np.full(STATE_DIM, np.nan)
+            if self.config.disturbance_gain > 0:
+                with np.errstate(all="ignore"):
+                    predicted = self.solver.rollout(x, torque[None], disturbance)[1]
         else:
             torque = result.u[0]
             next_plan = np.vstack([result.u[1:], result.u[-1:]])
+            predicted = result.x[1]  # the solve's own prediction under the torque it applies
         elapsed = time.perf_counter() - started
         state.get_mutable_discrete_state(int(self._torque_index)).set_value(torque)
-        state.get_mutable_discrete_state(int(self._previous_state_index)).set_value(x)
+        state.get_mutable_discrete_state(int(self._predicted_index)).set_value(predicted)
         state.get_mutable_discrete_state(int(self._disturbance_index)).set_value(disturbance)
         state.get_mutable_abstract_state(int(self._plan_index)).set_value(next_plan)
         self.log.time.append(context.get_time())
