@@ -1,16 +1,24 @@
 """Training STDMs with and without derivative learning (paper eq. 9), checkpoints, and `stdm-drake train`.
 
-Loss = L_state + alpha * L_derivative, both on standardized quantities so that alpha does not
-depend on units:
-  * L_state compares the network output with the standardized target y_n = (y - r(z) - μ_y)/σ_y
-    (MSE, MAE or Huber; probabilistic members use the PETS Gaussian NLL plus the log-variance bound
-    penalty instead);
-  * L_derivative compares the model's time derivative d x̂/dt = J(z) ż (one JVP, see models.py)
-    with the target ẏ, per output divided by σ_ẏ, the spread of the training targets' rates:
-    e = (d x̂/dt - ẏ) / σ_ẏ = (σ_y/σ_ẏ) ⊙ J_n ż_n - (ẏ - r(ż))/σ_ẏ.
-The loss is averaged over samples, outputs and ensemble members. Ensembles train each member on
-its own bootstrap resample (PETS); validation keeps each member's best weights (early stopping
-when no member improved for `patience` epochs).
+Loss = L_state + alpha * L_derivative with alpha meaning what it means in the paper's eq. 9, where
+both MSEs are taken in raw units: the state error x̂_{t+1} - x_{t+1} (output units) and the
+derivative error d x̂_{t+1}/dt - ẋ_{t+1} (output units per second). Per output j both residuals
+are divided by the same scale, σ_y,j, the spread of the training regression targets (of Δx for the
+delta parameterization), so that no output dominates while the ratio of the two terms stays the
+raw-unit ratio of eq. 9:
+    L = Σ_j (1/σ_j²) [ mean (x̂_j - x_j)² + alpha mean (dx̂_j/dt - ẋ_j)² ] / S,
+which is exactly eq. 9 divided by σ² when every σ_j equals σ. In network units
+    e_state = f_n(z_n) - y_n,    e_derivative = J_n(z_n) ż_n - (ẏ - r(ż))/σ_y,
+with J_n ż_n one Jacobian-vector product (see models.py). MAE and Huber replace the squares where
+asked; probabilistic members use the PETS Gaussian NLL plus the log-variance bound penalty for the
+state term.
+
+Each ensemble member has its own loss (mean over samples and outputs); the total is their sum, so
+members never interact and a member trains exactly as it would alone. Ensembles train each member
+on its own bootstrap resample (PETS). An alpha grid (`TrainingConfig.alpha_grid`) is a stack whose
+members start from the same initial weights, see the same minibatches and differ only in alpha:
+`select_alpha` trains one and keeps the member with the lowest validation state MSE. Validation
+keeps each member's best weights (early stopping when no member improved for `patience` epochs).
 """
 from __future__ import annotations
 
@@ -20,6 +28,7 @@ import dataclasses
 import hashlib
 import io
 import json
+import math
 import pathlib
 import time
 from typing import Callable
@@ -34,9 +43,12 @@ from stdm_drake.models import (ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MEMBER_P
                                ModelConfig, dynamics_config, parse_model_type)
 
 LOSS_KINDS = ("mse", "mae", "huber")
+LR_SCHEDULES = ("constant", "cosine")
 DEFAULT_ALPHA = 1e-3   # the paper's derivative-loss weight (found by search over 1e-1 ... 1e-4)
+# alpha values tried by `select_alpha` (`--alpha auto`): naive (0) and a log grid
+DEFAULT_ALPHA_GRID = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0)
 CHECKPOINT_FORMAT = "stdm-drake-model"
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2  # 2: derivative loss scaled by the state spread (alpha as in eq. 9), no rate normalizer
 HISTORY_COLUMNS = ("epoch", "train_loss", "train_state_loss", "train_derivative_loss",
                    "val_loss", "val_state_loss", "val_derivative_loss", "val_mse", "seconds")
 
@@ -49,6 +61,11 @@ class TrainingConfig:
     validation_interval: validate (and record a learning-curve row) every this many epochs.
     bootstrap: ensembles train each member on its own resample with replacement (PETS); single
     models always see the data once per epoch.
+    lr_schedule: "constant", or "cosine": the learning rate falls from learning_rate to
+    min_learning_rate along half a cosine over the max_epochs budget (per minibatch step).
+    weight_decay: decoupled weight decay (AdamW) per step, as a fraction of the learning rate.
+    alpha_grid: train one member per alpha (ensemble_size must equal its length) from the same
+    initial weights on the same minibatches (no bootstrap); `alpha` is then ignored.
     """
     alpha: float = 0.0
     state_loss: str = "mse"
@@ -61,6 +78,10 @@ class TrainingConfig:
     validation_interval: int = 1
     bootstrap: bool = True
     seed: int = 0
+    lr_schedule: str = "constant"
+    min_learning_rate: float = 0.0
+    weight_decay: float = 0.0
+    alpha_grid: tuple | None = None
 
     def __post_init__(self):
         for name in ("state_loss", "derivative_loss"):
@@ -68,12 +89,46 @@ class TrainingConfig:
                 raise InputError(f"training config: {name} must be one of {LOSS_KINDS}, got {getattr(self, name)!r}")
         if not (np.isfinite(self.alpha) and self.alpha >= 0):
             raise InputError(f"training config: alpha must be a finite number >= 0, got {self.alpha}")
+        if self.alpha_grid is not None:
+            object.__setattr__(self, "alpha_grid", tuple(float(value) for value in self.alpha_grid))
+            if not self.alpha_grid or not all(np.isfinite(a) and a >= 0 for a in self.alpha_grid):
+                raise InputError(f"training config: alpha_grid must be finite numbers >= 0, got {self.alpha_grid}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise InputError(f"training config: lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        for name in ("min_learning_rate", "weight_decay"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise InputError(f"training config: {name} must be a finite number >= 0, got {getattr(self, name)}")
+        if self.min_learning_rate > self.learning_rate:
+            raise InputError(f"training config: min_learning_rate {self.min_learning_rate} exceeds "
+                             f"learning_rate {self.learning_rate}")
         for name in ("huber_delta", "learning_rate"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
                 raise InputError(f"training config: {name} must be positive, got {getattr(self, name)}")
         for name in ("batch_size", "max_epochs", "patience", "validation_interval"):
             if int(getattr(self, name)) < 1:
                 raise InputError(f"training config: {name} must be a positive integer, got {getattr(self, name)}")
+
+    @property
+    def derivative(self) -> bool:
+        """Whether any member trains with the derivative term."""
+        return max(self.alpha_grid) > 0 if self.alpha_grid is not None else self.alpha > 0
+
+    def member_alphas(self, members: int) -> torch.Tensor:
+        """alpha per ensemble member (members,), float64."""
+        if self.alpha_grid is None:
+            return torch.full((members,), float(self.alpha), dtype=torch.float64)
+        if len(self.alpha_grid) != members:
+            raise InputError(f"training config: alpha_grid has {len(self.alpha_grid)} values for a model "
+                             f"of {members} members")
+        return torch.tensor(self.alpha_grid, dtype=torch.float64)
+
+    def learning_rate_at(self, step: int, total_steps: int) -> float:
+        """The scheduled learning rate of minibatch step `step` (0-based) of `total_steps`."""
+        if self.lr_schedule == "constant":
+            return self.learning_rate
+        progress = min(step / max(total_steps, 1), 1.0)
+        return self.min_learning_rate + 0.5 * (self.learning_rate - self.min_learning_rate) * (
+            1.0 + math.cos(math.pi * progress))
 
 
 @dataclasses.dataclass
@@ -134,7 +189,8 @@ class RegressionData:
 
 @dataclasses.dataclass
 class StandardizedData:
-    """Tensors in the network's units (model dtype): z_n (N, in), y_n (N, out), ż_n, r_n; see module doc."""
+    """Tensors in the network's units (model dtype): z_n (N, in), y_n (N, out), and for derivative
+    learning ż_n = ż/σ_z (N, in) and the derivative target (ẏ - r(ż))/σ_y (N, out); see module doc."""
     inputs: torch.Tensor
     targets: torch.Tensor
     input_rates: torch.Tensor | None
@@ -142,14 +198,12 @@ class StandardizedData:
 
 
 def fit_normalizers(model: EnsembleMLP, data: RegressionData) -> None:
-    """Input, output and rate statistics from training data (raw units, float64)."""
+    """Input and output statistics from training data (raw units, float64). With
+    standardize_inputs=False the input normalizer stays the identity."""
     inputs = np.asarray(data.inputs, dtype=np.float64)
-    residual = _residual(model.config, inputs)
-    model.input_normalizer.fit(inputs)
-    model.output_normalizer.fit(np.asarray(data.targets, dtype=np.float64) - residual)
-    if data.has_rates:
-        model.rate_normalizer.fit(np.asarray(data.target_rates, dtype=np.float64)
-                                  - _residual(model.config, np.asarray(data.input_rates, dtype=np.float64)))
+    if model.config.standardize_inputs:
+        model.input_normalizer.fit(inputs)
+    model.output_normalizer.fit(np.asarray(data.targets, dtype=np.float64) - _residual(model.config, inputs))
 
 
 def _residual(config: ModelConfig, values: np.ndarray) -> np.ndarray:
@@ -159,10 +213,9 @@ def _residual(config: ModelConfig, values: np.ndarray) -> np.ndarray:
 def standardize(model: EnsembleMLP, data: RegressionData) -> StandardizedData:
     """Raw arrays -> network units with the model's normalizers (computed in float64, then cast)."""
     dtype = next(model.parameters()).dtype
-    stats = {name: (getattr(model, name).mean.double().numpy(), getattr(model, name).std.double().numpy())
-             for name in ("input_normalizer", "output_normalizer", "rate_normalizer")}
+    z_mean, z_std = (value.double().numpy() for value in (model.input_normalizer.mean, model.input_normalizer.std))
+    y_mean, y_std = (value.double().numpy() for value in (model.output_normalizer.mean, model.output_normalizer.std))
     inputs = np.asarray(data.inputs, dtype=np.float64)
-    (z_mean, z_std), (y_mean, y_std), (_, rate_std) = stats.values()
     result = StandardizedData(
         inputs=torch.from_numpy((inputs - z_mean) / z_std).to(dtype),
         targets=torch.from_numpy((np.asarray(data.targets, np.float64) - _residual(model.config, inputs) - y_mean)
@@ -172,79 +225,100 @@ def standardize(model: EnsembleMLP, data: RegressionData) -> StandardizedData:
         input_rates = np.asarray(data.input_rates, dtype=np.float64)
         result.input_rates = torch.from_numpy(input_rates / z_std).to(dtype)
         result.target_rates = torch.from_numpy((np.asarray(data.target_rates, np.float64)
-                                                - _residual(model.config, input_rates)) / rate_std).to(dtype)
+                                                - _residual(model.config, input_rates)) / y_std).to(dtype)
     return result
 
 
-def point_loss(kind: str, prediction: torch.Tensor, target: torch.Tensor, huber_delta: float = 1.0) -> torch.Tensor:
-    """Mean MSE, MAE or Huber loss between prediction and target (same shape)."""
+def member_point_loss(kind: str, prediction: torch.Tensor, target: torch.Tensor,
+                      huber_delta: float = 1.0) -> torch.Tensor:
+    """MSE, MAE or Huber loss per ensemble member: (E, B, d) pairs -> (E,), the mean over B and d."""
     if kind == "mse":
-        return F.mse_loss(prediction, target)
-    if kind == "mae":
-        return F.l1_loss(prediction, target)
-    if kind == "huber":
-        return F.huber_loss(prediction, target, delta=huber_delta)
-    raise InputError(f"loss must be one of {LOSS_KINDS}, got {kind!r}")
+        values = (prediction - target) ** 2
+    elif kind == "mae":
+        values = (prediction - target).abs()
+    elif kind == "huber":
+        values = F.huber_loss(prediction, target, reduction="none", delta=huber_delta)
+    else:
+        raise InputError(f"loss must be one of {LOSS_KINDS}, got {kind!r}")
+    return values.mean(dim=(-2, -1))
 
 
-def gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """PETS Gaussian negative log-likelihood (without constants): mean of (μ - y)² e^{-s} + s."""
-    return ((mean - target) ** 2 * torch.exp(-logvar) + logvar).mean()
+def member_gaussian_nll(mean: torch.Tensor, logvar: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """PETS Gaussian negative log-likelihood (without constants) per member: mean of (μ - y)² e^{-s} + s -> (E,)."""
+    return ((mean - target) ** 2 * torch.exp(-logvar) + logvar).mean(dim=(-2, -1))
+
+
+@dataclasses.dataclass
+class LossTerms:
+    """Per-member loss terms (E,): state term, derivative term (None without derivative learning) and
+    total = state + alpha ⊙ derivative. `objective` (their sum over members) is what is minimized."""
+    total: torch.Tensor
+    state: torch.Tensor
+    derivative: torch.Tensor | None
+
+    @property
+    def objective(self) -> torch.Tensor:
+        return self.total.sum()
+
+    def means(self) -> tuple[float, float, float]:
+        """(total, state, derivative) averaged over members, as plain floats (derivative 0 when absent)."""
+        return (self.total.mean().item(), self.state.mean().item(),
+                self.derivative.mean().item() if self.derivative is not None else 0.0)
 
 
 def batch_losses(model: EnsembleMLP, config: TrainingConfig, inputs, targets, input_rates=None,
-                 target_rates=None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
-    """(total, state term, derivative term or None) on standardized tensors (E, B, ·) or (B, ·)."""
-    if config.alpha > 0:
+                 target_rates=None) -> LossTerms:
+    """Loss terms on standardized tensors (E, B, ·) or (B, ·)."""
+    if config.derivative:
         outputs, tangents = model.normalized_outputs_with_tangent(inputs, input_rates)
     else:
         outputs, tangents = model.normalized_outputs(inputs), None
     return losses_from_outputs(model, config, outputs, tangents, targets, target_rates)
 
 
-def losses_from_outputs(model: EnsembleMLP, config: TrainingConfig, outputs, tangents, targets, target_rates):
+def losses_from_outputs(model: EnsembleMLP, config: TrainingConfig, outputs, tangents, targets,
+                        target_rates) -> LossTerms:
     """Loss terms from head outputs (E, B, ·) and mean-head tangents J_n ż_n (or None: no derivative term)."""
     mean, logvar = model.split_head(outputs)
     target = model.per_member(targets)
     if logvar is None:
-        state_term = point_loss(config.state_loss, mean, target, config.huber_delta)
+        state_term = member_point_loss(config.state_loss, mean, target, config.huber_delta)
     else:
-        state_term = gaussian_nll(mean, logvar, target) + model.logvar_bound_penalty()
+        state_term = member_gaussian_nll(mean, logvar, target) + model.member_logvar_bound_penalty()
     if tangents is None:
-        return state_term, state_term, None
-    rate_scale = model.output_normalizer.std / model.rate_normalizer.std
-    derivative_term = point_loss(config.derivative_loss, tangents * rate_scale, model.per_member(target_rates),
-                                 config.huber_delta)
-    return state_term + config.alpha * derivative_term, state_term, derivative_term
+        return LossTerms(total=state_term, state=state_term, derivative=None)
+    derivative_term = member_point_loss(config.derivative_loss, tangents, model.per_member(target_rates),
+                                        config.huber_delta)
+    alphas = config.member_alphas(model.config.ensemble_size).to(derivative_term.dtype)
+    return LossTerms(total=state_term + alphas * derivative_term, state=state_term, derivative=derivative_term)
 
 
 def training_step(model: EnsembleMLP, optimizer: torch.optim.Optimizer, config: TrainingConfig,
                   data: StandardizedData, indices: torch.Tensor) -> tuple[float, float, float]:
-    """One Adam step on the minibatch data[indices] (indices (E, B): per-member rows). Returns loss terms."""
-    rates = config.alpha > 0
-    total, state_term, derivative_term = batch_losses(
-        model, config, data.inputs[indices], data.targets[indices],
-        data.input_rates[indices] if rates else None, data.target_rates[indices] if rates else None)
+    """One optimizer step on the minibatch data[indices] (indices (E, B): per-member rows).
+    Returns the loss terms averaged over members."""
+    rates = config.derivative
+    terms = batch_losses(model, config, data.inputs[indices], data.targets[indices],
+                         data.input_rates[indices] if rates else None, data.target_rates[indices] if rates else None)
     optimizer.zero_grad(set_to_none=True)
-    total.backward()
+    terms.objective.backward()
     optimizer.step()
-    return total.item(), state_term.item(), (derivative_term.item() if rates else 0.0)
+    return terms.means()
 
 
 @torch.no_grad()
 def validation_scores(model: EnsembleMLP, config: TrainingConfig, data: StandardizedData) -> dict:
-    """Validation loss terms (same formula as training) and per-member standardized MSE of the mean."""
-    if config.alpha > 0 and data.input_rates is not None:
+    """Validation loss terms (same formula as training, averaged over members) and per-member
+    standardized MSE of the state (the selection criterion), (E,) float64."""
+    if config.derivative and data.input_rates is not None:
         outputs, tangents = model.normalized_outputs_with_tangent(data.inputs, data.input_rates)
     else:
         outputs, tangents = model.normalized_outputs(data.inputs), None
     total, state_term, derivative_term = losses_from_outputs(model, config, outputs, tangents, data.targets,
-                                                             data.target_rates)
+                                                             data.target_rates).means()
     mean, _ = model.split_head(outputs)
     member_mse = ((mean - data.targets) ** 2).mean(dim=(1, 2)).double()
-    return dict(loss=total.item(), state=state_term.item(),
-                derivative=derivative_term.item() if derivative_term is not None else 0.0,
-                member_mse=member_mse)
+    return dict(loss=total, state=state_term, derivative=derivative_term, member_mse=member_mse)
 
 
 @dataclasses.dataclass
@@ -256,6 +330,7 @@ class TrainResult:
     best_scores: list
     epochs_run: int
     stopped_early: bool
+    member_val_mse: list = dataclasses.field(default_factory=list)  # per validation row: (E,) standardized MSE
 
 
 def _seeds(seed: int) -> tuple[int, int]:
@@ -281,19 +356,31 @@ def train_model(model_config: ModelConfig, training_config: TrainingConfig, trai
     continues from that file exactly as if training had not stopped (same weights, same curves).
     on_epoch(row) is called with each new history row.
     """
-    derivative = training_config.alpha > 0
+    derivative = training_config.derivative
     train_data.check(model_config, need_rates=derivative, name="training")
     val_data.check(model_config, need_rates=False, name="validation")
     members = model_config.ensemble_size
+    grid = training_config.alpha_grid is not None
+    training_config.member_alphas(members)  # checks the grid size
     data_seed = _seeds(training_config.seed)[1]
     fingerprint = hashlib.sha256((train_data.fingerprint() + val_data.fingerprint()).encode()).hexdigest()
 
     model = build_model(model_config, training_config.seed)
+    if grid:  # every member starts from the single model this seed gives
+        single = build_model(dataclasses.replace(model_config, ensemble_size=1), training_config.seed)
+        with torch.no_grad():
+            for name, value in single.named_parameters():
+                model.get_parameter(name).copy_(value.expand_as(model.get_parameter(name)))
     fit_normalizers(model, train_data)
-    optimizer = torch.optim.Adam(model.parameters(), lr=training_config.learning_rate)
+    # fused: one kernel for all parameters (elementwise, deterministic; about 1 ms less per step on a CPU)
+    if training_config.weight_decay > 0:
+        optimizer = torch.optim.AdamW(model.parameters(), lr=training_config.learning_rate,
+                                      weight_decay=training_config.weight_decay, fused=True)
+    else:
+        optimizer = torch.optim.Adam(model.parameters(), lr=training_config.learning_rate, fused=True)
     generator = torch.Generator().manual_seed(data_seed)
     count = len(train_data)
-    if members > 1 and training_config.bootstrap:
+    if members > 1 and training_config.bootstrap and not grid:
         bootstrap = torch.randint(0, count, (members, count), generator=generator)
     else:
         bootstrap = torch.arange(count).expand(members, count).clone()
@@ -347,13 +434,24 @@ def train_model(model_config: ModelConfig, training_config: TrainingConfig, trai
         save_checkpoint(checkpoint_path, best_model, training_config=training_config, history=history,
                         metadata=metadata, resume_state=snapshot(finished))
 
+    member_curves = []  # this call's validation rows only (not restored on resume)
     interval = training_config.validation_interval
+    steps_per_epoch = -(-count // batch_size)
+    total_steps = steps_per_epoch * training_config.max_epochs
+    scheduled = training_config.lr_schedule != "constant"
     sums, batches, started, last_written = np.zeros(3), 0, time.perf_counter(), epoch
     while not finished and epoch < training_config.max_epochs and since_improvement < training_config.patience:
         model.train()
-        order = torch.argsort(torch.rand(members, count, generator=generator), dim=1)
+        if grid:  # one minibatch order shared by every member
+            order = torch.argsort(torch.rand(1, count, generator=generator), dim=1).expand(members, count)
+        else:
+            order = torch.argsort(torch.rand(members, count, generator=generator), dim=1)
         epoch_rows = bootstrap.gather(1, order)
-        for start in range(0, count, batch_size):
+        for index, start in enumerate(range(0, count, batch_size)):
+            if scheduled:
+                rate = training_config.learning_rate_at(epoch * steps_per_epoch + index, total_steps)
+                for group in optimizer.param_groups:
+                    group["lr"] = rate
             sums += training_step(model, optimizer, training_config, train_tensors,
                                   epoch_rows[:, start:start + batch_size])
             batches += 1
@@ -381,6 +479,7 @@ def train_model(model_config: ModelConfig, training_config: TrainingConfig, trai
                    val_mse=float(scores["member_mse"].mean()), seconds=time.perf_counter() - started)
         for column in HISTORY_COLUMNS:
             history[column].append(row[column])
+        member_curves.append(scores["member_mse"].tolist())
         sums, batches, started = np.zeros(3), 0, time.perf_counter()
         done = stopped_early or epoch >= training_config.max_epochs
         if checkpoint_path is not None and (done or epoch - last_written >= checkpoint_every):
@@ -394,7 +493,63 @@ def train_model(model_config: ModelConfig, training_config: TrainingConfig, trai
     model.load_state_dict(best_weights)
     model.eval()
     return TrainResult(model=model, history=history, best_epochs=best_epochs.tolist(),
-                       best_scores=best_scores.tolist(), epochs_run=epoch, stopped_early=stopped_early)
+                       best_scores=best_scores.tolist(), epochs_run=epoch, stopped_early=stopped_early,
+                       member_val_mse=member_curves)
+
+
+@dataclasses.dataclass
+class AlphaSelection:
+    """Outcome of an alpha grid: per alpha the best validation state MSE (standardized, the mean over
+    outputs of ((x̂ - x)/σ_y)²) and the epoch it was reached; `index` is the chosen entry."""
+    alphas: tuple
+    val_mse: list
+    best_epochs: list
+    index: int
+
+    @property
+    def alpha(self) -> float:
+        return float(self.alphas[self.index])
+
+    def as_dict(self) -> dict:
+        return dict(alphas=[float(a) for a in self.alphas], val_mse=[float(v) for v in self.val_mse],
+                    best_epochs=[int(e) for e in self.best_epochs], chosen_alpha=self.alpha, chosen_index=self.index)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "AlphaSelection":
+        return cls(alphas=tuple(values["alphas"]), val_mse=list(values["val_mse"]),
+                   best_epochs=list(values["best_epochs"]), index=int(values["chosen_index"]))
+
+
+def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+                     val_data: RegressionData, *, alphas=DEFAULT_ALPHA_GRID,
+                     on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
+    """One single-member network per alpha, trained as one stack from the same initial weights on the
+    same minibatches (so member k equals training alphas[k] alone), and the selection: the lowest
+    validation state MSE (ties go to the earlier alpha). model_config's ensemble_size is ignored.
+    Returns the whole stack (member k: alphas[k]) and the selection."""
+    alphas = tuple(float(a) for a in alphas)
+    grid_config = dataclasses.replace(model_config, ensemble_size=len(alphas))
+    grid_training = dataclasses.replace(training_config, alpha_grid=alphas, alpha=0.0)
+    result = train_model(grid_config, grid_training, train_data, val_data, on_epoch=on_epoch)
+    scores = np.asarray(result.best_scores)
+    index = int(np.flatnonzero(scores == scores.min())[0])
+    return result, AlphaSelection(alphas=alphas, val_mse=scores.tolist(), best_epochs=list(result.best_epochs),
+                                  index=index)
+
+
+def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+                 val_data: RegressionData, *, alphas=DEFAULT_ALPHA_GRID,
+                 on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
+    """Choose alpha by validation (`train_alpha_grid`) and return the chosen single-member model (its
+    history is the whole grid's) with the selection. With 0 in `alphas` the chosen model is at least as
+    good as naive training on validation, by construction."""
+    result, selection = train_alpha_grid(model_config, training_config, train_data, val_data, alphas=alphas,
+                                         on_epoch=on_epoch)
+    index = selection.index
+    chosen = TrainResult(model=result.model.member(index), history=result.history,
+                         best_epochs=[result.best_epochs[index]], best_scores=[result.best_scores[index]],
+                         epochs_run=result.epochs_run, stopped_early=result.stopped_early)
+    return chosen, selection
 
 
 # -- checkpoints ----------------------------------------------------------------------------------
@@ -452,8 +607,10 @@ def load_checkpoint(path) -> Checkpoint:
     if not isinstance(content, dict) or content.get("format") != CHECKPOINT_FORMAT:
         raise InputError(f"{path}: not a stdm-drake model checkpoint (format field missing or wrong)")
     if content.get("format_version") != CHECKPOINT_VERSION:
+        hint = (" (written before the derivative loss took the paper's alpha scaling: retrain it)"
+                if content.get("format_version") == 1 else "")
         raise InputError(f"{path}: checkpoint format version {content.get('format_version')}, "
-                         f"this stdm-drake reads {CHECKPOINT_VERSION}")
+                         f"this stdm-drake reads {CHECKPOINT_VERSION}{hint}")
     try:
         model_config = ModelConfig.from_dict(dict(content["model_config"]))
         training = content.get("training_config")
@@ -505,7 +662,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (default DD)")
     parser.add_argument("--derivative", choices=("on", "off"),
                         help="override the derivative loss the model type implies")
-    parser.add_argument("--alpha", type=float, default=DEFAULT_ALPHA, help="derivative loss weight (default 1e-3)")
+    parser.add_argument("--alpha", type=parse_alpha, default=DEFAULT_ALPHA,
+                        help="derivative loss weight as in the paper's eq. 9 (default 1e-3, the paper's), or 'auto': "
+                             "chosen by validation state MSE from --alpha-grid (naive included)")
+    parser.add_argument("--alpha-grid", type=float, nargs="+", default=list(DEFAULT_ALPHA_GRID),
+                        help="alphas tried by --alpha auto (default 0 and 1e-5 ... 1e2)")
     parser.add_argument("--activation", choices=ACTIVATION_NAMES, default="swish", help="hidden activation")
     parser.add_argument("--hidden-width", type=int, default=100, help="units per hidden layer (default 100)")
     parser.add_argument("--hidden-layers", type=int, default=3, help="hidden layers (default 3)")
@@ -530,11 +691,102 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patience", type=int, default=50, help="early-stopping patience in epochs (default 50)")
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default 1e-3)")
+    parser.add_argument("--lr-schedule", choices=LR_SCHEDULES, default="constant",
+                        help="constant, or cosine decay to --min-lr over the --epochs budget (default constant)")
+    parser.add_argument("--min-lr", type=float, default=0.0, help="final learning rate of the cosine schedule")
+    parser.add_argument("--weight-decay", type=float, default=0.0,
+                        help="decoupled weight decay (AdamW), default 0 (plain Adam)")
     parser.add_argument("--checkpoint-every", type=int, default=10, help="epochs between checkpoint writes")
     parser.add_argument("--threads", type=int, default=1,
                         help="torch CPU threads (default 1: bitwise-reproducible on any machine)")
     parser.add_argument("--resume", action="store_true", help="continue interrupted runs in the output folder")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def parse_alpha(text: str):
+    """--alpha: a number >= 0 or the word 'auto'."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}")
+    return value
+
+
+def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+              val_data: RegressionData, *, alpha="fixed", alphas=DEFAULT_ALPHA_GRID, checkpoint_path=None,
+              checkpoint_every: int = 10, metadata: dict | None = None, resume: bool = False,
+              on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection | None]:
+    """Train one model as `stdm-drake train` does. alpha="fixed": training_config.alpha as given;
+    alpha="auto": `select_alpha` over `alphas` first; a single-member model is then the chosen grid
+    member itself, an ensemble is trained at the chosen alpha. The selection is stored in the
+    checkpoint's metadata (`alpha_selection`); resuming an "auto" run reuses a stored selection."""
+    metadata = dict(metadata or {})
+    selection = None
+    if alpha == "auto":
+        stored = None
+        if resume and checkpoint_path is not None and pathlib.Path(checkpoint_path).exists():
+            stored = load_checkpoint(checkpoint_path)
+        if stored is not None and "alpha_selection" in stored.metadata:
+            selection = AlphaSelection.from_dict(stored.metadata["alpha_selection"])
+            if stored.resume is None:  # a finished single-member selection: nothing left to train
+                return TrainResult(model=stored.model, history=stored.history,
+                                   best_epochs=list(selection.best_epochs[selection.index:selection.index + 1]),
+                                   best_scores=[selection.val_mse[selection.index]],
+                                   epochs_run=int(stored.history.get("epoch", [0])[-1] if stored.history.get("epoch")
+                                                  else 0), stopped_early=False), selection
+        else:
+            chosen, selection = select_alpha(model_config, training_config, train_data, val_data, alphas=alphas,
+                                             on_epoch=on_epoch)
+            resume = False
+            if model_config.ensemble_size == 1:
+                metadata["alpha_selection"] = selection.as_dict()
+                if checkpoint_path is not None:
+                    save_checkpoint(checkpoint_path, chosen.model,
+                                    training_config=dataclasses.replace(training_config, alpha=selection.alpha),
+                                    history=chosen.history, metadata=metadata)
+                return chosen, selection
+        metadata["alpha_selection"] = selection.as_dict()
+        training_config = dataclasses.replace(training_config, alpha=selection.alpha)
+    result = train_model(model_config, training_config, train_data, val_data, checkpoint_path=checkpoint_path,
+                         checkpoint_every=checkpoint_every, metadata=metadata, resume=resume, on_epoch=on_epoch)
+    return result, selection
+
+
+def alpha_selection_csv(selection: AlphaSelection) -> str:
+    """The alpha grid's validation curve as CSV: alpha, val_state_mse_standardized, best_epoch, chosen."""
+    lines = ["alpha,val_state_mse_standardized,best_epoch,chosen"]
+    for index, (alpha, score, epoch) in enumerate(zip(selection.alphas, selection.val_mse, selection.best_epochs)):
+        lines.append(f"{alpha:g},{score:.9g},{int(epoch)},{int(index == selection.index)}")
+    return "\n".join(lines) + "\n"
+
+
+def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pathlib.Path:
+    """Validation state MSE against alpha (log axes; alpha = 0 drawn as a dashed line), PNG, atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    alphas, scores = np.asarray(selection.alphas), np.asarray(selection.val_mse)
+    figure, axis = plt.subplots(figsize=(5.5, 3.8))
+    positive = alphas > 0
+    axis.loglog(alphas[positive], scores[positive], "o-", color="tab:orange", label="derivative learning")
+    for score in scores[~positive]:
+        axis.axhline(score, color="tab:blue", linestyle="--", label="naive (alpha = 0)")
+    axis.plot([selection.alpha if selection.alpha > 0 else alphas[positive].min()], [scores[selection.index]], "k*",
+              markersize=14, label=f"chosen: alpha = {selection.alpha:g}")
+    axis.set_xlabel("alpha (paper eq. 9)")
+    axis.set_ylabel("validation state MSE (standardized)")
+    axis.set_title(title or "alpha chosen by validation")
+    axis.legend(fontsize=8)
+    path = pathlib.Path(path)
+    with atomic_path(path) as temp:
+        figure.savefig(temp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return path
 
 
 def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
@@ -559,8 +811,14 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     model_type = parse_model_type(args.model)
     derivative = model_type.derivative if args.derivative is None else args.derivative == "on"
-    if derivative and not args.alpha > 0:
-        raise InputError(f"derivative learning needs --alpha > 0, got {args.alpha}")
+    auto = args.alpha == "auto"
+    if derivative and not auto and not args.alpha > 0:
+        raise InputError(f"derivative learning needs --alpha > 0 or --alpha auto, got {args.alpha}")
+    if auto and not derivative:
+        raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {args.model} trains without "
+                         "it (use DD, PD, DED or PED, or --derivative on)")
+    if auto and (not args.alpha_grid or not all(np.isfinite(a) and a >= 0 for a in args.alpha_grid)):
+        raise InputError(f"--alpha-grid needs numbers >= 0, got {args.alpha_grid}")
     dataset = load_dataset(args.dataset)
     per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"
     pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
@@ -587,9 +845,10 @@ def run(args: argparse.Namespace) -> int:
           f"({len(train_data)} / {len(val_data)} transitions)")
     for seed in args.seeds:
         training_config = TrainingConfig(
-            alpha=args.alpha if derivative else 0.0, state_loss=args.state_loss, derivative_loss=args.derivative_loss,
-            learning_rate=args.lr, batch_size=args.batch_size, max_epochs=args.epochs, patience=args.patience,
-            seed=seed)
+            alpha=(0.0 if auto else args.alpha) if derivative else 0.0, state_loss=args.state_loss,
+            derivative_loss=args.derivative_loss, learning_rate=args.lr, batch_size=args.batch_size,
+            max_epochs=args.epochs, patience=args.patience, seed=seed, lr_schedule=args.lr_schedule,
+            min_learning_rate=args.min_lr, weight_decay=args.weight_decay)
         folder = output / f"seed{seed}"
         checkpoint_path = folder / "checkpoint.pt"
         resume = False
@@ -610,12 +869,19 @@ def run(args: argparse.Namespace) -> int:
             bar.set_postfix(train=f"{row['train_loss']:.3g}", val_mse=f"{row['val_mse']:.3g}")
 
         try:
-            result = train_model(model_config, training_config, train_data, val_data,
-                                 checkpoint_path=checkpoint_path, checkpoint_every=args.checkpoint_every,
-                                 metadata=metadata, resume=resume, on_epoch=on_epoch)
+            result, selection = fit_model(model_config, training_config, train_data, val_data,
+                                          alpha="auto" if auto else "fixed", alphas=tuple(args.alpha_grid),
+                                          checkpoint_path=checkpoint_path, checkpoint_every=args.checkpoint_every,
+                                          metadata=metadata, resume=resume, on_epoch=on_epoch)
         finally:
             bar.close()
         write_text_atomic(folder / "curves.csv", history_csv(result.history))
+        if selection is not None:
+            write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
+            plot_alpha_selection(selection, folder / "alpha_selection.png", title=f"{name} seed {seed}")
+            summary.setdefault("alpha_selection", {})[str(seed)] = selection.as_dict()
+            print(f"seed {seed}: alpha chosen by validation: {selection.alpha:g} (validation state MSE "
+                  + ", ".join(f"{a:g}: {v:.3g}" for a, v in zip(selection.alphas, selection.val_mse)) + ")")
         summary["seeds"][str(seed)] = dict(checkpoint=str(checkpoint_path), epochs=result.epochs_run,
                                            stopped_early=result.stopped_early, best_epochs=result.best_epochs,
                                            best_val_mse_standardized=result.best_scores)

@@ -187,6 +187,9 @@ class ModelConfig:
 
     input_dim: size of z; output_dim: size of the prediction; residual: predict
     z[:output_dim] + network (the STDM delta parameterization) instead of the network directly.
+    standardize_inputs: scale inputs to zero mean and unit spread (False: the network sees raw z,
+    e.g. the sine-sum's x in [-30π, 30π], whose Xavier-scale first layer then starts with
+    frequencies of order 1 instead of 1/σ_x).
     """
     input_dim: int
     output_dim: int
@@ -196,6 +199,7 @@ class ModelConfig:
     activation: str = "swish"
     ensemble_size: int = 1
     probabilistic: bool = False
+    standardize_inputs: bool = True
 
     def __post_init__(self):
         for field in ("input_dim", "output_dim", "hidden_width", "hidden_layers", "ensemble_size"):
@@ -335,8 +339,8 @@ class EnsembleMLP(nn.Module):
     """Ensemble of `ensemble_size` MLPs with stacked weights, built from a ModelConfig.
 
     Parameters: weights[l] (E, in_l, out_l), biases[l] (E, 1, out_l), Xavier-uniform weights, zero
-    biases; probabilistic members also have min_logvar/max_logvar (E, 1, out_dim). Buffers: input,
-    output and rate normalizers (the rate normalizer scales the derivative loss, see learn.py).
+    biases; probabilistic members also have min_logvar/max_logvar (E, 1, out_dim). Buffers: input
+    and output normalizers (the output spread σ_y also scales the derivative loss, see learn.py).
     """
 
     def __init__(self, config: ModelConfig, generator: torch.Generator | None = None):
@@ -358,7 +362,6 @@ class EnsembleMLP(nn.Module):
             self.max_logvar = nn.Parameter(torch.full((members, 1, config.output_dim), MAX_LOGVAR_INIT))
         self.input_normalizer = Normalizer(config.input_dim)
         self.output_normalizer = Normalizer(config.output_dim)
-        self.rate_normalizer = Normalizer(config.output_dim)
 
     # -- shapes ---------------------------------------------------------------------------------
     def per_member(self, values: Tensor) -> Tensor:
@@ -397,9 +400,9 @@ class EnsembleMLP(nn.Module):
             return outputs, None
         return outputs[..., :out], bounded_logvar(outputs[..., out:], self.min_logvar, self.max_logvar)
 
-    def logvar_bound_penalty(self) -> Tensor:
-        """PETS regularizer 0.01 (Σ max_logvar - Σ min_logvar), averaged over members."""
-        return LOGVAR_BOUND_PENALTY * (self.max_logvar.sum() - self.min_logvar.sum()) / self.config.ensemble_size
+    def member_logvar_bound_penalty(self) -> Tensor:
+        """PETS regularizer 0.01 (Σ max_logvar - Σ min_logvar) of each member, (E,)."""
+        return LOGVAR_BOUND_PENALTY * (self.max_logvar - self.min_logvar).sum(dim=(1, 2))
 
     # -- raw units (reference implementation; the fast inference path is stdm_drake.predict) --------
     def forward(self, inputs: Tensor) -> tuple[Tensor, Tensor | None]:

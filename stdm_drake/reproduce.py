@@ -23,6 +23,8 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import json_default, write_text_atomic
+from stdm_drake.learn import CHECKPOINT_VERSION, DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
+from stdm_drake.stats import paired_ratio
 
 ALL_ACTIVATIONS = ("tanh", "sigmoid", "relu", "leaky_relu", "softplus", "selu", "elu", "gelu", "swish")
 MODEL_TYPES = ("D", "P", "DE", "PE", "DD", "PD", "DED", "PED")
@@ -76,7 +78,13 @@ QUICK = Profile("quick", excitation_count=40, tracking_count=40, seeds=1, activa
 
 @dataclasses.dataclass(frozen=True)
 class TrainJob:
-    """One model to train and evaluate. Trajectory index lists are into the dataset file."""
+    """One model (or alpha grid) to train and evaluate. Trajectory index lists are into the dataset file.
+
+    alphas: a grid job (naive/derivative comparisons): one stack of single networks from the same
+    initialization, one per alpha (see learn.train_alpha_grid); it yields the variants "D" (alpha 0),
+    "DD" (the paper's alpha) and, when the grid has more, "DD-auto" (chosen by validation), paired.
+    alpha_mode "auto": a derivative model type whose alpha is chosen by validation (learn.fit_model).
+    """
     experiment: str
     dataset: str
     dataset_sha256: str
@@ -93,13 +101,14 @@ class TrainJob:
     multistep: bool
     train_size: int  # the experiment's label: trajectories (sim) or trajectories per initial pose (real)
     derivative_source: str | None = None  # None: the dataset's default (Dataset.transitions)
+    alphas: tuple | None = None
+    alpha_mode: str = "fixed"
 
     def key(self) -> str:
         fields = dataclasses.asdict(self)
         for label in ("dataset", "experiment", "train_size"):  # the content hash identifies the data
             fields.pop(label)
-        if fields["derivative_source"] is None:  # keys of jobs that predate the field stay the same
-            fields.pop("derivative_source")
+        fields["loss_version"] = CHECKPOINT_VERSION  # results of older loss scalings are not reused
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -138,44 +147,18 @@ def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, p
 
 # ---- stage 2: training jobs (run in worker processes) --------------------------------------------
 
-def run_job(job: TrainJob, cache: pathlib.Path) -> dict:
-    """Train (or reuse) one model; return its test metrics and learning curves."""
-    import torch
-    torch.set_num_threads(1)
-    from stdm_drake.dataset import load_dataset
+def _evaluate(model, dataset, job: TrainJob) -> dict:
+    """One-step test MSE (q, v) and, for multistep jobs, the open-loop curves and rollout time."""
     from stdm_drake.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
-    from stdm_drake.learn import (DEFAULT_ALPHA, RegressionData, TrainingConfig, save_checkpoint,
-                                  train_model)
-    from stdm_drake.models import dynamics_config, parse_model_type
     from stdm_drake.predict import InferenceModel, rollout
 
-    key = job.key()
-    result_path = cache / f"{key}.json"
-    if result_path.exists() and (cache / f"{key}.pt").exists():
-        return json.loads(result_path.read_text()) | {"experiment": job.experiment, "train_size": job.train_size,
-                                                       "reused": True}
-    dataset = load_dataset(job.dataset)
-    kind = parse_model_type(job.model_type)
-    config = dynamics_config(state_dim=12, action_dim=6, activation=job.activation,
-                             ensemble_size=job.ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
-    training = TrainingConfig(alpha=DEFAULT_ALPHA if kind.derivative else 0.0, seed=job.seed,
-                              max_epochs=job.max_epochs, patience=job.patience)
-    source = job.derivative_source
-    train = RegressionData.from_transitions(dataset.transitions(list(job.train), derivative_source=source))
-    val = RegressionData.from_transitions(dataset.transitions(list(job.val), derivative_source=source))
-    started = time.perf_counter()
-    trained = train_model(config, training, train, val)
-    seconds = time.perf_counter() - started
     test = dataset.transitions(list(job.test))
-    errors = one_step_errors(trained.model, test.state, test.action, test.next_state)
-    result = dict(key=key, model_type=job.model_type, activation=job.activation, seed=job.seed,
-                  train_trajectories=len(job.train), train_seconds=seconds, epochs=trained.epochs_run,
-                  q_mse=errors.angle_mse, v_mse=errors.velocity_mse,
-                  train_loss=trained.history["train_loss"], val_loss=trained.history["val_loss"])
+    errors = one_step_errors(model, test.state, test.action, test.next_state)
+    result = dict(q_mse=errors.angle_mse, v_mse=errors.velocity_mse)
     if job.multistep:
         x0, actions, truth = trajectory_rollout_data(dataset, job.test, job.horizon)
-        multi = multi_step_errors(trained.model, x0, actions, truth)
-        engine = InferenceModel(trained.model)
+        multi = multi_step_errors(model, x0, actions, truth)
+        engine = InferenceModel(model)
         rollout(engine, x0[:1], actions[:1])  # warm-up
         timings = []
         for _ in range(20):
@@ -185,12 +168,77 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> dict:
         result.update(multistep_q=multi.angle_mse.tolist(), multistep_v=multi.velocity_mse.tolist(),
                       multistep_q_std=multi.angle_mse_std.tolist(), multistep_v_std=multi.velocity_mse_std.tolist(),
                       rollout_ms=1e3 * float(np.median(timings)))
-    save_checkpoint(cache / f"{key}.pt", trained.model, training_config=training, history=trained.history,
-                    metadata=dict(dataset_path=job.dataset, dataset_sha256=job.dataset_sha256,
-                                  sample_period=dataset.sample_period, model_type=job.model_type,
-                                  split=dict(train=list(job.train), val=list(job.val), test=list(job.test))))
-    write_text_atomic(result_path, json.dumps(result, default=json_default))
-    return result | {"experiment": job.experiment, "train_size": job.train_size, "reused": False}
+    return result
+
+
+def grid_variants(alphas) -> dict:
+    """Variant name -> index into `alphas` of a grid job: D (0), DD (the paper's alpha), DD-auto (chosen)."""
+    alphas = [float(a) for a in alphas]
+    variants = {"D": alphas.index(0.0), "DD": alphas.index(DEFAULT_ALPHA)}
+    if len(alphas) > 2:
+        variants["DD-auto"] = None  # the selection's index
+    return variants
+
+
+def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
+    """Train (or reuse) one job; return one result row per model it yields (test metrics, curves)."""
+    import torch
+    torch.set_num_threads(1)
+    from stdm_drake.dataset import load_dataset
+    from stdm_drake.learn import RegressionData, TrainingConfig, fit_model, save_checkpoint, train_alpha_grid
+    from stdm_drake.models import dynamics_config, parse_model_type
+
+    key = job.key()
+    result_path = cache / f"{key}.json"
+    labels = {"experiment": job.experiment, "train_size": job.train_size}
+    if result_path.exists() and (cache / f"{key}.pt").exists():
+        return [row | labels | {"reused": True} for row in json.loads(result_path.read_text())]
+    dataset = load_dataset(job.dataset)
+    kind = parse_model_type(job.model_type)
+    config = dynamics_config(state_dim=12, action_dim=6, activation=job.activation,
+                             ensemble_size=job.ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
+    training = TrainingConfig(alpha=DEFAULT_ALPHA if kind.derivative else 0.0, seed=job.seed,
+                              max_epochs=job.max_epochs, patience=job.patience)
+    source = job.derivative_source
+    train = RegressionData.from_transitions(dataset.transitions(list(job.train), derivative_source=source))
+    val = RegressionData.from_transitions(dataset.transitions(list(job.val), derivative_source=source))
+    common = dict(key=key, activation=job.activation, seed=job.seed, train_trajectories=len(job.train))
+    metadata = dict(dataset_path=job.dataset, dataset_sha256=job.dataset_sha256, sample_period=dataset.sample_period,
+                    model_type=job.model_type, split=dict(train=list(job.train), val=list(job.val), test=list(job.test)))
+    started = time.perf_counter()
+    rows = []
+    if job.alphas is not None:
+        grid, selection = train_alpha_grid(config, training, train, val, alphas=job.alphas)
+        seconds = time.perf_counter() - started
+        for name, index in grid_variants(job.alphas).items():
+            index = selection.index if index is None else index
+            rows.append(dict(common, model_type=name, alpha=float(job.alphas[index]), train_seconds=seconds,
+                             epochs=grid.epochs_run, best_epoch=int(grid.best_epochs[index]),
+                             val_mse=float(grid.best_scores[index]), epoch_axis=grid.history["epoch"],
+                             val_mse_curve=[scores[index] for scores in grid.member_val_mse],
+                             alpha_selection=selection.as_dict(),
+                             **_evaluate(grid.model.member(index), dataset, job)))
+        saved, history = grid.model, grid.history
+        saved_training = dataclasses.replace(training, alpha=0.0, alpha_grid=tuple(job.alphas))
+        metadata["alpha_selection"] = selection.as_dict()
+    else:
+        trained, selection = fit_model(config, training, train, val, alpha=job.alpha_mode if kind.derivative else
+                                       "fixed", metadata=metadata)
+        seconds = time.perf_counter() - started
+        alpha = selection.alpha if selection is not None else training.alpha
+        rows.append(dict(common, model_type=job.model_type, alpha=alpha, train_seconds=seconds,
+                         epochs=trained.epochs_run, epoch_axis=trained.history["epoch"],
+                         val_mse_curve=trained.history["val_mse"],
+                         alpha_selection=selection.as_dict() if selection is not None else None,
+                         **_evaluate(trained.model, dataset, job)))
+        saved, history = trained.model, trained.history
+        saved_training = dataclasses.replace(training, alpha=alpha)
+        if selection is not None:
+            metadata["alpha_selection"] = selection.as_dict()
+    save_checkpoint(cache / f"{key}.pt", saved, training_config=saved_training, history=history,
+                    metadata=metadata)
+    write_text_atomic(result_path, json.dumps(rows, default=json_default))
+    return [row | labels | {"reused": False} for row in rows]
 
 
 def _run_job(arguments):
@@ -205,49 +253,60 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
     if workers > 1:
         context = multiprocessing.get_context("spawn")
         with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context) as pool:
-            for result in pool.map(_run_job, [(job, cache) for job in jobs]):
-                results.append(result)
+            for rows in pool.map(_run_job, [(job, cache) for job in jobs]):
+                results.extend(rows)
                 bar.update()
     else:
         for job in jobs:
-            results.append(run_job(job, cache))
+            results.extend(run_job(job, cache))
             bar.update()
     bar.close()
     return results
 
 
-def plan_jobs(profile: Profile, excitation, tracking, identification) -> list[TrainJob]:
-    """Every training job (sim, real, multistep, control); the splits use split seed 0, the seeds vary initialization."""
+def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> list[TrainJob]:
+    """Every training job (sim, sim_local, real, multistep, control); the splits use split seed 0, the
+    seeds vary initialization. Naive/derivative comparisons are grid jobs (TrainJob.alphas): the paper's
+    alpha beside naive for every activation, and the full alpha grid (alpha chosen by validation) for swish."""
     from stdm_drake.dataset import split_trajectories
-    common = dict(max_epochs=profile.max_epochs, patience=profile.patience, horizon=profile.horizon,
-                  ensemble_size=profile.ensemble_size)
+    common = dict(max_epochs=profile.max_epochs, patience=profile.patience, ensemble_size=profile.ensemble_size)
 
-    def comparison(experiment, dataset, sizes, n_val, n_test, per_group):
-        """Naive (D) vs derivative (DD) for every seed: all activations at the largest size, swish at the others."""
+    def comparison(experiment, dataset, sizes, n_val, n_test, per_group, multistep=False):
+        """One grid job per seed: all activations at the largest size, swish at the others."""
+        horizon = len(dataset.trajectory(0)["tau"])
         for size in sizes:
             split = split_trajectories(dataset.groups, size, n_val, n_test, seed=0, per_group=per_group)
             for activation in (profile.activations if size == max(sizes) else ("swish",)):
-                for model_type in ("D", "DD"):
-                    for seed in range(profile.seeds):
-                        yield TrainJob(experiment, str(dataset.path), dataset.sha256, tuple(split.train.tolist()),
-                                       tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, activation,
-                                       seed, multistep=False, train_size=size, **common)
+                alphas = DEFAULT_ALPHA_GRID if activation == "swish" else (0.0, DEFAULT_ALPHA)
+                for seed in range(profile.seeds):
+                    yield TrainJob(experiment, str(dataset.path), dataset.sha256, tuple(split.train.tolist()),
+                                   tuple(split.val.tolist()), tuple(split.test.tolist()), "D", activation, seed,
+                                   multistep=multistep and activation == "swish", train_size=size, horizon=horizon,
+                                   alphas=alphas, **common)
 
-    jobs = list(comparison("sim", excitation, profile.sim_train_sizes, profile.sim_val, profile.sim_test, False))
+    jobs = list(comparison("sim", excitation, profile.sim_train_sizes, profile.sim_val, profile.sim_test, False,
+                           multistep=True))
+    # the coverage study's second regime: start poses in a box around a home pose, swish at the largest size
+    largest = max(profile.sim_train_sizes)
+    jobs += [dataclasses.replace(job, activation="swish") for job in
+             comparison("sim_local", local, (largest,), profile.sim_val, profile.sim_test, False, multistep=True)
+             if job.activation == "swish"]
     jobs += comparison("real", tracking, profile.real_train_sizes, profile.real_val, profile.real_test, True)
     split = split_trajectories(tracking.groups, profile.multistep_train, profile.real_val, profile.real_test, seed=0,
                                per_group=True)
     for model_type in MODEL_TYPES:
         jobs.append(TrainJob("multistep", str(tracking.path), tracking.sha256, tuple(split.train.tolist()),
                              tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, "swish", 0,
-                             multistep=True, train_size=profile.multistep_train, **common))
+                             multistep=True, train_size=profile.multistep_train, horizon=profile.horizon,
+                             alpha_mode="auto", **common))
     # models for the closed-loop MPC comparison: simulated data, so the derivative targets are the true ones
     split = split_trajectories(identification.groups, profile.control_train, profile.control_val,
                                profile.control_test, seed=0, per_group=True)
     for model_type in CONTROL_MODEL_TYPES:
         jobs.append(TrainJob("control", str(identification.path), identification.sha256, tuple(split.train.tolist()),
                              tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, "swish", 0,
-                             multistep=False, train_size=profile.control_train, derivative_source="true", **common))
+                             multistep=False, train_size=profile.control_train, horizon=profile.horizon,
+                             derivative_source="true", alpha_mode="auto", **common))
     return jobs
 
 
@@ -267,34 +326,75 @@ def improvement_percent(naive: float, derivative: float) -> float:
     return 100.0 * (naive - derivative) / derivative
 
 
+DERIVATIVE_VARIANTS = (("DD", "paper alpha"), ("DD-auto", "alpha by validation"))
+
+
+def paired(results, experiment: str, size: int, activation: str, variant: str, metric) -> tuple[list, list]:
+    """(naive values, variant values) of one metric, paired by seed (the grid's shared initialization).
+    metric: a result key, or a function of a result row."""
+    value = metric if callable(metric) else (lambda row: row[metric])
+    rows = {variant_name: {r["seed"]: value(r) for r in _select(results, experiment=experiment, train_size=size,
+                                                               activation=activation, model_type=variant_name)}
+            for variant_name in ("D", variant)}
+    seeds = sorted(set(rows["D"]) & set(rows[variant]))
+    return [rows["D"][seed] for seed in seeds], [rows[variant][seed] for seed in seeds]
+
+
+def comparison_row(results, experiment: str, size: int, activation: str, metrics: dict) -> dict:
+    """Means and paired ratios (naive / variant, 95 % CI) of every metric for the derivative variants
+    present. metrics: label -> result key or function of a row."""
+    row = dict(activation=activation, train_trajectories=size)
+    for label, metric in metrics.items():
+        for variant, _ in DERIVATIVE_VARIANTS:
+            naive, derivative = paired(results, experiment, size, activation, variant, metric)
+            if not naive:
+                continue
+            row[f"{label}_naive"], row[f"{label}_naive_std"] = _mean_std(naive)
+            row[f"{label}_{variant}"], row[f"{label}_{variant}_std"] = _mean_std(derivative)
+            row[f"{label}_{variant}_improvement_percent"] = improvement_percent(np.mean(naive), np.mean(derivative))
+            row[f"{label}_{variant}_ratio"] = paired_ratio(naive, derivative).as_dict()
+    return row
+
+
+ONE_STEP = {"q": "q_mse", "v": "v_mse"}
+
+
 def activation_table(results, experiment: str, size: int) -> list[dict]:
-    rows = []
-    for activation in dict.fromkeys(r["activation"] for r in _select(results, experiment=experiment, train_size=size)):
-        row = dict(activation=activation)
-        for quantity in ("q", "v"):
-            naive = _mean_std([r[f"{quantity}_mse"] for r in _select(results, experiment=experiment, model_type="D",
-                                                                       activation=activation, train_size=size)])
-            deriv = _mean_std([r[f"{quantity}_mse"] for r in _select(results, experiment=experiment, model_type="DD",
-                                                                       activation=activation, train_size=size)])
-            row.update({f"{quantity}_naive": naive[0], f"{quantity}_derivative": deriv[0],
-                        f"{quantity}_improvement_percent": improvement_percent(naive[0], deriv[0])})
-        rows.append(row)
-    return rows
+    activations = dict.fromkeys(r["activation"] for r in _select(results, experiment=experiment, train_size=size))
+    return [comparison_row(results, experiment, size, activation, ONE_STEP) for activation in activations]
 
 
 def size_table(results, experiment: str) -> list[dict]:
+    sizes = sorted({r["train_size"] for r in _select(results, experiment=experiment, activation="swish")})
+    return [comparison_row(results, experiment, size, "swish", ONE_STEP) for size in sizes]
+
+
+def coverage_table(results, size: int) -> list[dict]:
+    """The coverage study: per regime (sim: start poses over joint space; sim_local: in a box around a
+    home pose) one-step and open-loop MSE at step 20 and at the trajectory's end, swish."""
     rows = []
-    for size in sorted({r["train_size"] for r in _select(results, experiment=experiment, activation="swish")}):
-        row = dict(train_trajectories=size)
-        for quantity in ("q", "v"):
-            for model_type, label in (("D", "naive"), ("DD", "derivative")):
-                values = [r[f"{quantity}_mse"] for r in _select(results, experiment=experiment, model_type=model_type,
-                                                                 activation="swish", train_size=size)]
-                row[f"{quantity}_{label}"], row[f"{quantity}_{label}_std"] = _mean_std(values)
-            row[f"{quantity}_improvement_percent"] = improvement_percent(row[f"{quantity}_naive"],
-                                                                         row[f"{quantity}_derivative"])
+    for experiment, regime in (("sim", "global"), ("sim_local", "local")):
+        if not _select(results, experiment=experiment, train_size=size, activation="swish", model_type="D"):
+            continue
+        horizon = len(_select(results, experiment=experiment, train_size=size, activation="swish")[0]["multistep_q"])
+        metrics = dict(ONE_STEP)
+        for step in sorted({min(20, horizon), horizon}):
+            metrics[f"q{step}"] = lambda row, step=step: row["multistep_q"][step - 1]
+            metrics[f"v{step}"] = lambda row, step=step: row["multistep_v"][step - 1]
+        row = comparison_row(results, experiment, size, "swish", metrics)
+        row.update(regime=regime, metrics=list(metrics), alphas=sorted(
+            r["alpha"] for r in _select(results, experiment=experiment, train_size=size, activation="swish",
+                                        model_type="DD-auto")))
         rows.append(row)
     return rows
+
+
+def ratio_text(ratio: dict | None) -> str:
+    if not ratio:
+        return ""
+    if ratio["pairs"] < 2:
+        return f"{ratio['ratio']:.3g}x (1 pair)"
+    return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}] {ratio['verdict']}"
 
 
 def _figure_path(folder, name):
@@ -316,12 +416,15 @@ def plot_activations(rows, title, path):
     x = np.arange(len(rows))
     for axis, quantity, unit in zip(axes, ("q", "v"), ("rad²", "(rad/s)²")):
         axis.bar(x - 0.2, [r[f"{quantity}_naive"] for r in rows], 0.4, label="naive (D)")
-        axis.bar(x + 0.2, [r[f"{quantity}_derivative"] for r in rows], 0.4, label="derivative (DD)")
+        axis.bar(x + 0.2, [r[f"{quantity}_DD"] for r in rows], 0.4, label="derivative, paper alpha (DD)")
         for i, row in enumerate(rows):
-            axis.annotate(f"{row[f'{quantity}_improvement_percent']:+.0f}%", (i, max(row[f"{quantity}_naive"],
-                          row[f"{quantity}_derivative"])), ha="center", va="bottom", fontsize=8)
+            ratio = row[f"{quantity}_DD_ratio"]
+            axis.annotate(f"{ratio['ratio']:.2g}x", (i, max(row[f"{quantity}_naive"], row[f"{quantity}_DD"])),
+                          ha="center", va="bottom", fontsize=8, fontweight="bold" if ratio["verdict"] != "no clear "
+                          "difference" else "normal")
         axis.set(xticks=x, xticklabels=[r["activation"] for r in rows], yscale="log",
-                 ylabel=f"one-step test MSE ({unit})", title=f"{title}: {'joint angles' if quantity == 'q' else 'velocities'}")
+                 ylabel=f"one-step test MSE ({unit})",
+                 title=f"{title}: {'joint angles' if quantity == 'q' else 'velocities'} (naive/DD, bold: 95 % CI excludes 1)")
         axis.legend()
     figure.tight_layout()
     _save(figure, path)
@@ -332,8 +435,10 @@ def plot_sizes(rows, title, xlabel, path):
     figure, axes = plt.subplots(1, 2, figsize=(11, 4))
     sizes = [r["train_trajectories"] for r in rows]
     for axis, quantity in zip(axes, ("q", "v")):
-        for label in ("naive", "derivative"):
-            axis.errorbar(sizes, [r[f"{quantity}_{label}"] for r in rows], yerr=[r[f"{quantity}_{label}_std"] for r in rows],
+        for key, label in (("naive", "naive (D)"), ("DD", "paper alpha (DD)"), ("DD-auto", "alpha by validation")):
+            if f"{quantity}_{key}" not in rows[0]:
+                continue
+            axis.errorbar(sizes, [r[f"{quantity}_{key}"] for r in rows], yerr=[r[f"{quantity}_{key}_std"] for r in rows],
                           marker="o", capsize=4, label=label)
         axis.set(xlabel=xlabel, ylabel="one-step test MSE", yscale="log",
                  title=f"{title}: {'joint angles' if quantity == 'q' else 'velocities'} (swish, mean ± std over seeds)")
@@ -344,12 +449,15 @@ def plot_sizes(rows, title, xlabel, path):
 
 def plot_learning_curves(results, size, path):
     import matplotlib.pyplot as plt
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    for axis, model_type in zip(axes, ("D", "DD")):
-        for run in _select(results, experiment="sim", model_type=model_type, activation="swish", train_size=size):
-            axis.semilogy(run["train_loss"], color="tab:blue", alpha=0.6)
-            axis.semilogy(run["val_loss"], color="tab:orange", alpha=0.6)
-        axis.set(xlabel="epoch", ylabel="loss (standardized)", title=f"{model_type}: train (blue) / validation (orange)")
+    figure, axis = plt.subplots(figsize=(7, 4.5))
+    for model_type, color in (("D", "tab:blue"), ("DD", "tab:orange"), ("DD-auto", "tab:green")):
+        for index, run in enumerate(_select(results, experiment="sim", model_type=model_type, activation="swish",
+                                            train_size=size)):
+            axis.semilogy(run["epoch_axis"], run["val_mse_curve"], color=color, alpha=0.6,
+                          label=model_type if index == 0 else None)
+    axis.set(xlabel="epoch", ylabel="validation state MSE (standardized)",
+             title="validation curves, every seed (paired grids: one initialization per seed)")
+    axis.legend()
     figure.tight_layout()
     _save(figure, path)
 
@@ -425,36 +533,84 @@ class Report:
         return "\n".join(out + ["</body></html>"])
 
 
+def _flat(row: dict) -> dict:
+    """A table row for CSV: nested ratio dicts become <key>_ratio/_low/_high/_verdict columns, lists are dropped."""
+    flat = {}
+    for key, value in row.items():
+        if isinstance(value, dict):
+            flat.update({f"{key}_{inner}" if inner != "ratio" else key: value[inner]
+                         for inner in ("ratio", "low", "high", "verdict")})
+        elif not isinstance(value, list):
+            flat[key] = value
+    return flat
+
+
 def _g(value):
     return f"{value:.3g}"
 
 
-def verdict(ours_percent: float, paper_percent: float | None) -> str:
-    """Our improvement against the paper's: "agrees" (at least half its gain), "smaller gain" (at
-    least 1 %, but under half), or "DIFFERS" (under 1 %); empty where the paper states no number."""
-    if paper_percent is None or paper_percent == "":
+def verdict(ratio: dict | None, paper_percent) -> str:
+    """Ours against the paper's improvement, from the paired 95 % interval of naive/derivative:
+    "agrees" (the interval is above 1 and the ratio reaches at least half the paper's gain), "smaller
+    gain" (above 1, less than half), "DIFFERS (no clear gain)" (the interval contains 1) or "DIFFERS
+    (worse)" (below 1); empty where the paper states no number."""
+    if paper_percent is None or paper_percent == "" or not ratio:
         return ""
-    if ours_percent < 1.0:  # below 1 % the derivative term made no measurable difference
-        return "DIFFERS (no gain)"
-    return "agrees" if ours_percent >= 0.5 * float(paper_percent) else "smaller gain"
+    if ratio["verdict"] == "hurts":
+        return "DIFFERS (worse)"
+    if ratio["verdict"] != "helps":
+        return "DIFFERS (no clear gain)"
+    return "agrees" if 100.0 * (ratio["ratio"] - 1.0) >= 0.5 * float(paper_percent) else "smaller gain"
 
 
-def verdicts(row: dict, paper_q, paper_v) -> str:
-    parts = [f"{name}: {verdict(row[f'{name}_improvement_percent'], paper)}"
-             for name, paper in (("q", paper_q), ("v", paper_v)) if verdict(row[f"{name}_improvement_percent"], paper)]
+def verdicts(row: dict, paper_q, paper_v, variant: str = "DD") -> str:
+    parts = [f"{name}: {verdict(row.get(f'{name}_{variant}_ratio'), paper)}"
+             for name, paper in (("q", paper_q), ("v", paper_v)) if verdict(row.get(f"{name}_{variant}_ratio"), paper)]
     return "; ".join(parts)
 
 
 def add_activation_section(report, rows, paper_text, paper_percent):
     """paper_percent(activation) -> (q %, v %) the paper states for it, or (None, None)."""
-    report.table(["activation", "q naive", "q deriv", "q improvement %", "v naive", "v deriv", "v improvement %",
+    report.table(["activation", "q naive", "q DD", "q naive/DD (95 % CI)", "v naive", "v DD", "v naive/DD (95 % CI)",
                   "paper", "ours vs paper"],
-                 [[r["activation"], _g(r["q_naive"]), _g(r["q_derivative"]), f"{r['q_improvement_percent']:+.0f}",
-                   _g(r["v_naive"]), _g(r["v_derivative"]), f"{r['v_improvement_percent']:+.0f}", paper_text,
+                 [[r["activation"], _g(r["q_naive"]), _g(r["q_DD"]), ratio_text(r["q_DD_ratio"]),
+                   _g(r["v_naive"]), _g(r["v_DD"]), ratio_text(r["v_DD_ratio"]), paper_text,
                    verdicts(r, *paper_percent(r["activation"]))] for r in rows])
 
 
-def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, identification, results, sine,
+def add_size_section(report, rows, paper_improvement, label):
+    """Sample efficiency: naive, paper alpha and alpha by validation, paired ratios with intervals.
+    paper_improvement(size) -> (q %, v %) or (None, None)."""
+    header = [label, "q naive", "q DD", "q naive/DD", "q DD-auto", "q naive/DD-auto", "v naive", "v DD", "v naive/DD",
+              "v DD-auto", "v naive/DD-auto", "paper q / v %", "ours (DD) vs paper"]
+    lines = []
+    for r in rows:
+        paper_q, paper_v = paper_improvement(r["train_trajectories"])
+        lines.append([r["train_trajectories"]] + [cell for quantity in ("q", "v") for cell in (
+            _g(r[f"{quantity}_naive"]), _g(r[f"{quantity}_DD"]), ratio_text(r[f"{quantity}_DD_ratio"]),
+            _g(r.get(f"{quantity}_DD-auto", float("nan"))), ratio_text(r.get(f"{quantity}_DD-auto_ratio")))]
+            + [f"{paper_q} / {paper_v}" if paper_q is not None else "", verdicts(r, paper_q, paper_v)])
+    report.table(header, lines)
+
+
+def add_coverage_section(report, rows):
+    header = ["regime", "metric", "naive", "paper alpha (DD)", "naive/DD (95 % CI)", "alpha by validation",
+              "naive/DD-auto (95 % CI)"]
+    lines = []
+    for r in rows:
+        for metric in r["metrics"]:
+            unit = "q" if metric.startswith("q") else "v"
+            name = (f"one-step {unit}" if metric in ONE_STEP else f"{unit} at step {metric[1:]}")
+            lines.append([r["regime"], name, _g(r[f"{metric}_naive"]), _g(r[f"{metric}_DD"]),
+                          ratio_text(r[f"{metric}_DD_ratio"]), _g(r.get(f"{metric}_DD-auto", float("nan"))),
+                          ratio_text(r.get(f"{metric}_DD-auto_ratio"))])
+    report.table(header, lines)
+    for r in rows:
+        report.text(f"{r['regime']}: alpha chosen by validation per seed: "
+                    + ", ".join(f"{alpha:g}" for alpha in r["alphas"]) + ".")
+
+
+def write_report(folder: pathlib.Path, profile: Profile, excitation, local, tracking, identification, results, sine,
                  mpc_rows, timings: dict) -> pathlib.Path:
     from stdm_drake.inspect import tracking_errors
     figures = folder / "figures"
@@ -468,6 +624,8 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, i
     errors, identification_errors = tracking_errors(tracking), tracking_errors(identification)
     report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
                  [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0)["tau"]), "", "", ""],
+                  ["excitation, local start poses (coverage study)", local.num_trajectories,
+                   len(local.trajectory(0)["tau"]), "", "", ""],
                   ["tracked plans (V.B)", tracking.num_trajectories, len(tracking.trajectory(0)["tau"]),
                    _g(errors["true_q"]), _g(errors["measured_v"]),
                    f"q {PAPER['tracking_mse']['q']}, v {PAPER['tracking_mse']['v']}"],
@@ -490,14 +648,14 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, i
     sim_sizes = size_table(results, "sim")
     plot_sizes(sim_sizes, "simulated UR-10", "training trajectories", _figure_path(figures, "fig12_sizes_sim"))
     paper_factor = PAPER["sim_sample_efficiency_factor"]
-    report.table(["train traj.", "q naive", "q deriv", "q factor", "paper q factor", "v naive", "v deriv", "v factor",
-                  "paper v factor", "ours vs paper"],
-                 [[r["train_trajectories"], _g(r["q_naive"]), _g(r["q_derivative"]), f"{r['q_naive'] / r['q_derivative']:.2f}",
-                   paper_factor["q"].get(r["train_trajectories"], ""), _g(r["v_naive"]), _g(r["v_derivative"]),
-                   f"{r['v_naive'] / r['v_derivative']:.2f}", paper_factor["v"].get(r["train_trajectories"], ""),
-                   verdicts(r, *[100 * (paper_factor[name][r["train_trajectories"]] - 1)
-                                 if r["train_trajectories"] in paper_factor[name] else None for name in ("q", "v")])]
-                  for r in sim_sizes])
+    add_size_section(report, sim_sizes, lambda size: tuple(100 * (paper_factor[name][size] - 1)
+                                                           if size in paper_factor[name] else None
+                                                           for name in ("q", "v")), "train traj.")
+    report.text("Ratios naive/derivative > 1 mean derivative learning has the lower MSE; each is the geometric mean "
+                "over seeds of paired runs (one alpha grid per seed: naive, the paper's alpha and every other alpha "
+                "start from the same initialization and see the same minibatches), with its 95 % Student-t interval; "
+                "the verdict is 'helps' only if the whole interval is above 1. DD-auto is the grid member with the "
+                "lowest validation state MSE (naive included, so it is never worse than naive on validation).")
     report.image("figures/fig12_sizes_sim.png", "Fig. 12: MSE vs number of training trajectories (mean ± std)")
     plot_learning_curves(results, largest_sim, _figure_path(figures, "fig13_learning_curves"))
     report.image("figures/fig13_learning_curves.png",
@@ -515,24 +673,27 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, i
     real_sizes = size_table(results, "real")
     plot_sizes(real_sizes, "tracked plans", "training trajectories per initial pose", _figure_path(figures, "fig17_sizes_real"))
     paper_percent = PAPER["real_sample_efficiency_percent"]
-    report.table(["train traj. (per pose)", "q naive", "q deriv", "q improvement %", "paper q %", "v naive", "v deriv",
-                  "v improvement %", "paper v %", "ours vs paper"],
-                 [[f"{4 * r['train_trajectories']} ({r['train_trajectories']})", _g(r["q_naive"]), _g(r["q_derivative"]),
-                   f"{r['q_improvement_percent']:+.0f}", paper_percent["q"].get(r["train_trajectories"], ""),
-                   _g(r["v_naive"]), _g(r["v_derivative"]), f"{r['v_improvement_percent']:+.0f}",
-                   paper_percent["v"].get(r["train_trajectories"], ""),
-                   verdicts(r, paper_percent["q"].get(r["train_trajectories"]), paper_percent["v"].get(r["train_trajectories"]))]
-                  for r in real_sizes])
+    add_size_section(report, real_sizes, lambda size: (paper_percent["q"].get(size), paper_percent["v"].get(size)),
+                     "train traj. per pose")
     report.image("figures/fig17_sizes_real.png", "Fig. 17: tracked plans, MSE vs training trajectories")
+
+    report.heading(f"Where derivative learning helps: coverage of the training data ({largest_sim} trajectories)")
+    coverage = coverage_table(results, largest_sim)
+    report.text("Two simulated regimes, same protocol otherwise: 'global' (the excitation data above, start poses "
+                "over most of joint space) and 'local' (trajectories/excitation_local.yaml: start poses in a box of "
+                "±0.5 rad around a home pose). Swish, paired grids per seed; open-loop errors from each test "
+                "trajectory's first state under its recorded torques.")
+    add_coverage_section(report, coverage)
 
     report.heading("Multi-step prediction (Figs. 18, 19)")
     multistep = sorted(_select(results, experiment="multistep"), key=lambda r: MODEL_TYPES.index(r["model_type"]))
     plot_multistep(results, profile.horizon, _figure_path(figures, "fig18_multistep"))
     plot_multistep(results, 20, _figure_path(figures, "fig19_multistep_20"))
     paper_time = PAPER["rollout_seconds_100_steps"]
-    report.table(["model", f"q MSE at step {profile.horizon}", f"v MSE at step {profile.horizon}", "q MSE at step 20",
-                  "v MSE at step 20", "rollout ms (batch 1)", "paper rollout ms (100 steps)"],
-                 [[r["model_type"], _g(r["multistep_q"][-1]), _g(r["multistep_v"][-1]),
+    report.table(["model", "alpha", f"q MSE at step {profile.horizon}", f"v MSE at step {profile.horizon}",
+                  "q MSE at step 20", "v MSE at step 20", "rollout ms (batch 1)", "paper rollout ms (100 steps)"],
+                 [[r["model_type"], f"{r['alpha']:g}" + (" (by validation)" if r.get("alpha_selection") else ""),
+                   _g(r["multistep_q"][-1]), _g(r["multistep_v"][-1]),
                    _g(r["multistep_q"][min(19, len(r["multistep_q"]) - 1)]),
                    _g(r["multistep_v"][min(19, len(r["multistep_v"]) - 1)]), f"{r['rollout_ms']:.2f}",
                    1e3 * paper_time["ensemble" if "E" in r["model_type"] else "single"]] for r in multistep])
@@ -542,19 +703,31 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, i
     by_type = {r["model_type"]: r for r in multistep}
     statements = []
     for naive, derivative in pairs:
-        if naive in by_type and derivative in by_type:
+        if naive in by_type and derivative in by_type and by_type[derivative]["alpha"] == 0:
+            statements.append(f"{derivative}: validation chose alpha 0, so it is the naive {naive} model.")
+        elif naive in by_type and derivative in by_type:
             parts = []
             for key, label in (("multistep_q", "q"), ("multistep_v", "v")):
                 ours, theirs = np.mean(by_type[derivative][key]), np.mean(by_type[naive][key])
-                parts.append(f"{label} {_g(ours)} vs {_g(theirs)} ({'agrees with' if ours < theirs else 'DIFFERS from'} "
-                             "the paper's claim that derivative learning is better)")
-            statements.append(f"{derivative} vs {naive}, MSE averaged over the horizon: " + "; ".join(parts) + ".")
+                parts.append(f"{label} {_g(ours)} vs {_g(theirs)} ({'lower, as the paper reports' if ours < theirs else 'NOT lower, unlike the paper'})")
+            statements.append(f"{derivative} (alpha {by_type[derivative]['alpha']:g}) vs {naive}, MSE averaged over "
+                              "the horizon: " + "; ".join(parts) + ". One model each (seed 0): no interval; the "
+                              "coverage study above has paired seeds.")
     for line in statements:
         report.text(line)
 
     report.heading("Sine-sum study (section III.B)")
+    from stdm_drake.sine_sum import headline
+    top = headline(sine)
     report.text(f"Profile '{sine['profile']}', {len(sine['runs'])} runs in {sine['wall_seconds']:.0f} s; "
-                "full figures and tables in sine_sum/ (summary.md).")
+                "full figures and tables in sine_sum/ (summary.md). Raw input x as in the paper, cosine "
+                f"learning-rate decay over {sine['config']['epochs']} full-batch steps, alpha {top['alpha']:g}"
+                + (" chosen by validation." if sine.get("alpha_sweep") else "."))
+    report.table(["5 layers, swish", "naive", "derivative", "naive/derivative (paired, 95 % CI)", "paper (derivative)"],
+                 [[f"mean of {top['networks']} networks", _g(top["naive_mean_test_mse"]),
+                   _g(top["derivative_mean_test_mse"]),
+                   f"{top['ratio']:.3g}x [{top['ratio_low']:.3g}, {top['ratio_high']:.3g}] {top['verdict']}",
+                   top["paper_derivative"]]])
     from stdm_drake.sine_sum import table1_rows
     report.table(["loss", "activation", "ours (test MSE)", "paper"],
                  [[r["loss"], r["activation"], _g(r["mean_test_mse"]), r["paper"]] for r in table1_rows(sine)])
@@ -572,13 +745,15 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, tracking, i
     write_text_atomic(folder / "report.md", markdown + "\n")
     write_text_atomic(folder / "report.html", page + "\n")
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
-                  multistep=[{k: v for k, v in r.items() if k not in ("train_loss", "val_loss")} for r in multistep],
+                  coverage=coverage,
+                  multistep=[{k: v for k, v in r.items() if k not in ("epoch_axis", "val_mse_curve")} for r in multistep],
                   mpc=mpc_rows, paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
     write_text_atomic(folder / "results.json", json.dumps(dict(tables=tables, runs=results), default=json_default))
-    for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes"):
-        rows = tables[name]
-        write_text_atomic(folder / f"{name}.csv", "\n".join(
-            [",".join(rows[0])] + [",".join(str(row[key]) for key in rows[0]) for row in rows]) + "\n")
+    for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage"):
+        rows = [_flat(row) for row in tables[name]]
+        if rows:
+            write_text_atomic(folder / f"{name}.csv", "\n".join(
+                [",".join(rows[0])] + [",".join(str(row.get(key, "")) for key in rows[0]) for row in rows]) + "\n")
     return folder / "report.html"
 
 
@@ -594,7 +769,10 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     cache.mkdir(parents=True, exist_ok=True)
     timings = {}
     tick = time.perf_counter()
+    from stdm_drake.robot import TRAJECTORIES_DIR
     excitation = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress)
+    local = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress,
+                           name="excitation_local", options=("--config", str(TRAJECTORIES_DIR / "excitation_local.yaml")))
     tracking = ensure_dataset("tracking", profile.tracking_count, seed, output / "data", progress)
     # the MPC models' data: the same kind of plans, tracked with dithered PID, recorded by an ideal sensor
     identification = ensure_dataset("tracking", profile.identification_count, seed, output / "data", progress,
@@ -602,7 +780,7 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     timings["data"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    jobs = plan_jobs(profile, excitation, tracking, identification)
+    jobs = plan_jobs(profile, excitation, local, tracking, identification)
     results = run_jobs(jobs, cache, workers, progress)
     timings["training"] = time.perf_counter() - tick
 
@@ -611,15 +789,16 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     sine = reused_sine_sum(output / "sine_sum" / "results.json", study_config)
     if sine is None:
         sine = sine_sum.run_study(study_config, workers=workers, progress=progress)
-        sine["profile"] = profile.sine_sum
         sine_sum.write_reports(sine, output / "sine_sum", quick=profile.sine_sum == "quick")
+    sine["profile"] = profile.sine_sum
     timings["sine_sum"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
     torch.set_num_threads(1)
     mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress)
     timings["mpc"] = time.perf_counter() - tick
-    return write_report(output, profile, excitation, tracking, identification, results, sine, mpc_rows, timings)
+    return write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
+                        timings)
 
 
 def identification_options() -> tuple:

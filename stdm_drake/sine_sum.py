@@ -2,20 +2,30 @@
 
 Fit y = sin x + sin 0.5x + sin 0.1x on x in [-30π, 30π] from 100 training points (1000
 validation, 4000 test; uniform interval sampling) with MLPs of width 100 and 1/3/5 hidden layers,
-nine activations, naive (state-only) vs derivative learning (alpha 1e-3, target y'), several
-independently initialized networks per configuration, best by validation. Produces the Fig. 6
-table and bar chart, Fig. 7 prediction curves, Fig. 8 learning curves, and the Table 1 grid
-(loss function x activation, 5 layers) next to the paper's values.
+nine activations, naive (state-only) vs derivative learning (target y'), several independently
+initialized networks per configuration, best by validation. Produces the Fig. 6 table and bar
+chart, Fig. 7 prediction curves, Fig. 8 learning curves, the Table 1 grid (loss function x
+activation, 5 layers) next to the paper's values, and the alpha sweep that chose alpha.
 
 The map x -> y is a generic regression: inputs x (1), outputs y (1), direct parameterization,
-tangent ẋ = 1 and derivative target y'. Inputs are standardized (x spans ±94). The networks of one
-configuration are trained together as one stacked ensemble without bootstrap: members share the
-data and never interact (Adam is elementwise), so each is an independent run from its own
-initialization. Training is full-batch Adam (lr 1e-3): one step per epoch.
+tangent ẋ = 1 and derivative target y'. As in the paper the network sees raw x (no input
+standardization: Xavier-scale first-layer weights on x in ±94 start with frequencies of order 1,
+which the function needs), and the output is standardized (σ_y ≈ 1.2, so alpha weighs the raw
+derivative MSE against the raw state MSE exactly as in eq. 9). Training is full-batch Adam, one step
+per epoch, with a cosine learning-rate decay over the budget.
+
+alpha="auto" (the default) chooses alpha first, by validation: one stack of single networks from
+the same initialization, one per alpha of `alpha_grid` (5 hidden layers, swish), the lowest
+validation MSE wins; every derivative-learning run then uses it. Naive runs do not depend on it and
+run meanwhile. The networks of one configuration are trained together as one stacked ensemble
+without bootstrap: members share the data and never interact, so each is an independent run from
+its own initialization; naive and derivative runs of a configuration share their initializations,
+so they are compared in pairs.
 """
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import dataclasses
 import json
 import multiprocessing
@@ -28,8 +38,9 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, write_text_atomic
-from stdm_drake.learn import DEFAULT_ALPHA, RegressionData, TrainingConfig, train_model
+from stdm_drake.learn import RegressionData, TrainingConfig, parse_alpha, train_alpha_grid, train_model
 from stdm_drake.models import ACTIVATION_NAMES, ModelConfig
+from stdm_drake.stats import paired_ratio
 
 PAPER_TABLE1 = {  # paper Table 1: 5 hidden layers, derivative learning, average of 3 runs
     ("mae", "tanh"): 0.0682, ("mae", "relu"): 0.0530, ("mae", "swish"): 0.0962,
@@ -58,15 +69,21 @@ def sample(points: int):
 
 @dataclasses.dataclass(frozen=True)
 class StudyConfig:
-    """What the study trains. epochs = full-batch Adam steps per network."""
+    """What the study trains. epochs = full-batch Adam steps per network; seeds = networks per
+    configuration, headline_seeds for the (table_layers, swish) configuration (the paper's Fig. 8 has
+    five); alpha = a number, or "auto" (chosen by validation from alpha_grid, see module doc)."""
     layers: tuple = (1, 3, 5)
     activations: tuple = ACTIVATION_NAMES
-    seeds: int = 5
-    alpha: float = DEFAULT_ALPHA
-    epochs: int = 6000
+    seeds: int = 3
+    headline_seeds: int = 5
+    alpha: float | str = "auto"
+    alpha_grid: tuple = (0.0, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0)
+    epochs: int = 10000
     validation_interval: int = 50
     width: int = 100
-    learning_rate: float = 1e-3
+    learning_rate: float = 5e-3
+    lr_schedule: str = "cosine"
+    standardize_inputs: bool = False
     train_points: int = 100
     val_points: int = 1000
     test_points: int = 4000
@@ -82,18 +99,26 @@ class StudyConfig:
             raise InputError(f"unknown activations {unknown}")
         if self.table_layers not in self.layers or not set(self.table_activations) <= set(self.activations):
             raise InputError("the figure/table configurations (5 layers; tanh, relu, swish) must be in the grid")
-        if min(self.seeds, self.table_seeds, self.epochs, self.validation_interval) < 1:
+        if min(self.seeds, self.headline_seeds, self.table_seeds, self.epochs, self.validation_interval) < 1:
             raise InputError("seeds, table seeds, epochs and validation interval must be positive")
+        if self.table_seeds > min(self.seeds, self.headline_seeds):
+            raise InputError("table seeds must not exceed the networks per configuration (the MSE row reuses them)")
+        if self.alpha != "auto" and not (isinstance(self.alpha, (int, float)) and self.alpha > 0):
+            raise InputError(f"alpha must be a positive number or 'auto', got {self.alpha!r}")
+
+    def networks(self, layers: int, activation: str) -> int:
+        """Networks trained for one configuration of the Fig. 6 grid."""
+        return self.headline_seeds if (layers, activation) == (self.table_layers, "swish") else self.seeds
 
 
 FULL = StudyConfig()
-QUICK = StudyConfig(layers=(1, 5), activations=("tanh", "relu", "swish"), seeds=2, epochs=150,
-                    validation_interval=25, table_seeds=2)
+QUICK = StudyConfig(layers=(1, 5), activations=("tanh", "relu", "swish"), seeds=2, headline_seeds=2, epochs=150,
+                    validation_interval=25, table_seeds=2, alpha_grid=(0.0, 1e-2, 1.0))
 
 
 @dataclasses.dataclass(frozen=True)
 class RunSpec:
-    """One trained stack of `members` networks."""
+    """One trained stack of `members` networks (alpha 0: naive)."""
     layers: int
     activation: str
     derivative: bool
@@ -107,67 +132,121 @@ class RunSpec:
 
 
 def run_specs(config: StudyConfig) -> list[RunSpec]:
-    """The Fig. 6 grid (MSE loss, `seeds` networks) then the Table 1 grid (derivative, `table_seeds`)."""
-    grid = [RunSpec(layers, activation, derivative, "mse", config.seeds)
-            for layers in config.layers for activation in config.activations for derivative in (False, True)]
+    """The Fig. 6 grid (MSE loss) then the Table 1 grid (derivative, `table_seeds` networks) less its
+    MSE row, which reuses the first networks of the Fig. 6 runs; deepest and slowest first."""
+    grid = [RunSpec(layers, activation, derivative, "mse", config.networks(layers, activation))
+            for layers in sorted(config.layers, reverse=True) for activation in config.activations
+            for derivative in (True, False)]
     table = [RunSpec(config.table_layers, activation, True, loss, config.table_seeds)
-             for loss in config.table_losses for activation in config.table_activations]
-    return grid + table
+             for loss in config.table_losses if loss != "mse" for activation in config.table_activations]
+    return grid[:2 * len(config.activations)] + table + grid[2 * len(config.activations):]
 
 
-def train_run(spec: RunSpec, config: StudyConfig) -> dict:
+def _model_config(config: StudyConfig, layers: int, activation: str, members: int) -> ModelConfig:
+    return ModelConfig(input_dim=1, output_dim=1, residual=False, hidden_width=config.width, hidden_layers=layers,
+                       activation=activation, ensemble_size=members, standardize_inputs=config.standardize_inputs)
+
+
+def _training_config(config: StudyConfig, alpha: float, loss: str = "mse") -> TrainingConfig:
+    return TrainingConfig(alpha=alpha, state_loss=loss, derivative_loss=loss, learning_rate=config.learning_rate,
+                          lr_schedule=config.lr_schedule, batch_size=config.train_points, max_epochs=config.epochs,
+                          patience=config.epochs, validation_interval=config.validation_interval, bootstrap=False,
+                          seed=config.seed)
+
+
+def _test_mse(model, test: RegressionData) -> np.ndarray:
+    """Test MSE (raw y units) of every member, and the member predictions (E, N)."""
+    with torch.no_grad():
+        predicted = model(torch.from_numpy(test.inputs).float())[0].double().numpy()[..., 0]
+    return ((predicted - test.targets[None, :, 0]) ** 2).mean(axis=1), predicted
+
+
+def train_run(spec: RunSpec, config: StudyConfig, alpha: float) -> dict:
     """Train one stack; test MSE (raw y units) of every member, the best-by-validation member's
     predictions on the test grid, and the learning curves."""
     started = time.perf_counter()
     train, val, test = sample(config.train_points), sample(config.val_points), sample(config.test_points)
-    model_config = ModelConfig(input_dim=1, output_dim=1, residual=False, hidden_width=config.width,
-                               hidden_layers=spec.layers, activation=spec.activation, ensemble_size=spec.members)
-    training = TrainingConfig(alpha=config.alpha if spec.derivative else 0.0, state_loss=spec.loss,
-                              derivative_loss=spec.loss, learning_rate=config.learning_rate,
-                              batch_size=config.train_points, max_epochs=config.epochs, patience=config.epochs,
-                              validation_interval=config.validation_interval, bootstrap=False, seed=config.seed)
+    model_config = _model_config(config, spec.layers, spec.activation, spec.members)
+    training = _training_config(config, alpha if spec.derivative else 0.0, spec.loss)
     result = train_model(model_config, training, train, val)
-    with torch.no_grad():
-        predicted = result.model(torch.from_numpy(test.inputs).float())[0].double().numpy()[..., 0]  # (E, N)
-    test_mse = ((predicted - test.targets[None, :, 0]) ** 2).mean(axis=1)
+    test_mse, predicted = _test_mse(result.model, test)
     best = int(np.argmin(result.best_scores))
-    return dict(spec=dataclasses.asdict(spec), label=spec.label, member_test_mse=test_mse.tolist(),
-                member_val_mse_standardized=list(result.best_scores), best_member=best,
-                best_test_mse=float(test_mse[best]), mean_test_mse=float(test_mse.mean()),
+    return dict(spec=dataclasses.asdict(spec), label=spec.label, alpha=training.alpha,
+                member_test_mse=test_mse.tolist(), member_val_mse_standardized=list(result.best_scores),
+                best_member=best, best_test_mse=float(test_mse[best]), mean_test_mse=float(test_mse.mean()),
                 best_epochs=result.best_epochs, best_prediction=predicted[best].tolist(),
                 history={key: list(map(float, values)) for key, values in result.history.items()},
                 seconds=time.perf_counter() - started)
 
 
-def _worker(job):
+def alpha_sweep(config: StudyConfig) -> dict:
+    """Choose alpha by validation (5 layers, swish, one initialization, `alpha_grid`); the test MSE of
+    every alpha is reported beside it, never used for the choice."""
+    started = time.perf_counter()
+    train, val, test = sample(config.train_points), sample(config.val_points), sample(config.test_points)
+    grid, selection = train_alpha_grid(_model_config(config, config.table_layers, "swish", 1),
+                                       _training_config(config, 0.0), train, val, alphas=config.alpha_grid)
+    test_mse, _ = _test_mse(grid.model, test)
+    return dict(selection.as_dict(), test_mse=test_mse.tolist(), seconds=time.perf_counter() - started)
+
+
+def _call(function, *arguments):
+    """Run one job in a worker process, one torch thread each."""
     torch.set_num_threads(1)
-    spec, config = job
-    return train_run(spec, config)
+    return function(*arguments)
 
 
 def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True) -> dict:
-    """Train every run (in `workers` processes) and return {"runs": [...], timings}."""
+    """The alpha sweep (alpha="auto") and every run, in `workers` processes: naive runs start at once,
+    derivative runs once alpha is known. Returns {"runs": [...] in run_specs order, "alpha_sweep", timings};
+    the results do not depend on `workers`."""
     from tqdm import tqdm
 
     specs = run_specs(config)
     started = time.perf_counter()
-    jobs = [(spec, config) for spec in specs]
-    bar = tqdm(total=len(jobs), desc="sine-sum", unit="run", disable=not progress, dynamic_ncols=True)
-    runs = []
+    auto = config.alpha == "auto"
+    bar = tqdm(total=len(specs) + auto, desc="sine-sum", unit="run", disable=not progress, dynamic_ncols=True)
+    results: dict[int, dict] = {}
+    sweep = None
     try:
         if workers > 1:
-            with multiprocessing.get_context("spawn").Pool(workers) as pool:
-                for run in pool.imap(_worker, jobs):
-                    runs.append(run)
-                    bar.update(1)
+            context = multiprocessing.get_context("spawn")
+            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context) as pool:
+                pending = {}
+                if auto:
+                    sweep_future = pool.submit(_call, alpha_sweep, config)
+                    pending[sweep_future] = None
+                alpha = None if auto else float(config.alpha)
+                for index, spec in enumerate(specs):
+                    if not spec.derivative or not auto:
+                        pending[pool.submit(_call, train_run, spec, config, alpha or 0.0)] = index
+                while pending:
+                    done, _ = concurrent.futures.wait(pending, return_when=concurrent.futures.FIRST_COMPLETED)
+                    for future in done:
+                        index = pending.pop(future)
+                        bar.update(1)
+                        if index is None:
+                            sweep = future.result()
+                            for later, spec in enumerate(specs):
+                                if spec.derivative:
+                                    pending[pool.submit(_call, train_run, spec, config, sweep["chosen_alpha"])] = later
+                        else:
+                            results[index] = future.result()
         else:
-            for job in jobs:
-                runs.append(_worker(job))
+            torch.set_num_threads(1)
+            if auto:
+                sweep = alpha_sweep(config)
+                bar.update(1)
+            alpha = sweep["chosen_alpha"] if auto else float(config.alpha)
+            for index, spec in enumerate(specs):
+                results[index] = train_run(spec, config, alpha)
                 bar.update(1)
     finally:
         bar.close()
-    return dict(config=dataclasses.asdict(config), runs=runs, workers=workers,
-                wall_seconds=time.perf_counter() - started, run_seconds=sum(run["seconds"] for run in runs))
+    runs = [results[index] for index in range(len(specs))]
+    seconds = sum(run["seconds"] for run in runs) + (sweep["seconds"] if sweep else 0.0)
+    return dict(config=dataclasses.asdict(config), runs=runs, alpha_sweep=sweep, workers=workers,
+                wall_seconds=time.perf_counter() - started, run_seconds=seconds)
 
 
 # -- reports ------------------------------------------------------------------------------------------
@@ -179,32 +258,57 @@ def _find(runs, **conditions):
     raise KeyError(conditions)
 
 
+def _networks(config: dict, layers: int, activation: str) -> int:
+    headline = (layers, activation) == (config["table_layers"], "swish")
+    return config["headline_seeds"] if headline else config["seeds"]
+
+
 def fig6_rows(study: dict) -> list[dict]:
+    """Per (layers, activation): mean and best-by-validation test MSE, naive and derivative, and the
+    paired ratio naive/derivative over the shared initializations with its 95 % interval."""
     config = study["config"]
     rows = []
     for layers in config["layers"]:
         for activation in config["activations"]:
-            naive = _find(study["runs"], layers=layers, activation=activation, derivative=False, loss="mse",
-                          members=config["seeds"])
-            derivative = _find(study["runs"], layers=layers, activation=activation, derivative=True, loss="mse",
-                               members=config["seeds"])
-            rows.append(dict(layers=layers, activation=activation,
+            members = _networks(config, layers, activation)
+            naive, derivative = (_find(study["runs"], layers=layers, activation=activation, derivative=mode,
+                                       loss="mse", members=members) for mode in (False, True))
+            ratio = paired_ratio(naive["member_test_mse"], derivative["member_test_mse"])
+            rows.append(dict(layers=layers, activation=activation, networks=members,
                              naive_mean_test_mse=naive["mean_test_mse"], naive_best_test_mse=naive["best_test_mse"],
                              derivative_mean_test_mse=derivative["mean_test_mse"],
-                             derivative_best_test_mse=derivative["best_test_mse"]))
+                             derivative_best_test_mse=derivative["best_test_mse"],
+                             ratio=ratio.ratio, ratio_low=ratio.low, ratio_high=ratio.high, verdict=ratio.verdict))
     return rows
 
 
 def table1_rows(study: dict) -> list[dict]:
+    """Table 1: the MSE row is the first `table_seeds` networks of the Fig. 6 derivative runs."""
     config = study["config"]
     rows = []
     for loss in config["table_losses"]:
         for activation in config["table_activations"]:
-            run = _find(study["runs"], layers=config["table_layers"], activation=activation, derivative=True,
-                        loss=loss, members=config["table_seeds"])
-            rows.append(dict(loss=loss, activation=activation, mean_test_mse=run["mean_test_mse"],
-                             member_test_mse=run["member_test_mse"], paper=PAPER_TABLE1.get((loss, activation))))
+            if loss == "mse":
+                run = _find(study["runs"], layers=config["table_layers"], activation=activation, derivative=True,
+                            loss=loss, members=_networks(config, config["table_layers"], activation))
+                member_mse = run["member_test_mse"][:config["table_seeds"]]
+            else:
+                run = _find(study["runs"], layers=config["table_layers"], activation=activation, derivative=True,
+                            loss=loss, members=config["table_seeds"])
+                member_mse = run["member_test_mse"]
+            rows.append(dict(loss=loss, activation=activation, mean_test_mse=float(np.mean(member_mse)),
+                             member_test_mse=list(member_mse), paper=PAPER_TABLE1.get((loss, activation))))
     return rows
+
+
+def headline(study: dict) -> dict:
+    """5 layers, swish: mean test MSE naive and derivative, their ratio of means, the paired ratio and
+    the paper's derivative-learning value (Table 1, 6e-4)."""
+    config = study["config"]
+    row = next(r for r in fig6_rows(study) if r["layers"] == config["table_layers"] and r["activation"] == "swish")
+    return dict(row, ratio_of_means=row["naive_mean_test_mse"] / row["derivative_mean_test_mse"],
+                paper_derivative=PAPER_TABLE1[("mse", "swish")],
+                alpha=(study.get("alpha_sweep") or {}).get("chosen_alpha", config["alpha"]))
 
 
 def _csv(rows: list[dict], columns: list[str]) -> str:
@@ -246,7 +350,7 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
         positions = np.arange(len(rows))
         for offset, (mode, color) in zip((-0.2, 0.2), (("naive", "tab:blue"), ("derivative", "tab:orange"))):
             ax.bar(positions + offset, [row[f"{mode}_mean_test_mse"] for row in rows], width=0.4, color=color,
-                   label=f"{mode} (mean of {config['seeds']})")
+                   label=f"{mode} (mean of {config['seeds']}; 5L swish {config['headline_seeds']})")
             ax.plot(positions + offset, [row[f"{mode}_best_test_mse"] for row in rows], "k.", markersize=5)
         ax.set_xticks(positions, [row["activation"] for row in rows], rotation=45, ha="right")
         ax.set_yscale("log")
@@ -264,11 +368,12 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
         ax.plot(x, sine_sum(x), "k--", linewidth=1, label="ground truth")
         for derivative, color in ((False, "tab:blue"), (True, "tab:orange")):
             run = _find(study["runs"], layers=config["table_layers"], activation=activation, derivative=derivative,
-                        loss="mse", members=config["seeds"])
+                        loss="mse", members=_networks(config, config["table_layers"], activation))
             ax.plot(x, run["best_prediction"], color=color, linewidth=1,
                     label=f"{'derivative' if derivative else 'naive'} (test MSE {run['best_test_mse']:.3g})")
         ax.plot(train_x, sine_sum(train_x), "k.", markersize=3, label="training points")
-        ax.set_title(f"{activation}, {config['table_layers']} hidden layers (best of {config['seeds']} by validation)")
+        ax.set_title(f"{activation}, {config['table_layers']} hidden layers "
+                     f"(best of {_networks(config, config['table_layers'], activation)} by validation)")
         ax.legend(fontsize=7, loc="upper right", ncol=4)
     axes[-1, 0].set_xlabel("x")
     figure("fig7_predictions.png", fig)
@@ -277,7 +382,7 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for derivative, color in ((False, "tab:blue"), (True, "tab:orange")):
         run = _find(study["runs"], layers=config["table_layers"], activation="swish", derivative=derivative,
-                    loss="mse", members=config["seeds"])
+                    loss="mse", members=config["headline_seeds"])
         history = run["history"]
         mode = "derivative" if derivative else "naive"
         curves[mode] = history
@@ -285,7 +390,7 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
         ax.plot(history["epoch"], history["val_loss"], color=color, linestyle="--", label=f"{mode} validation loss")
     ax.set_yscale("log")
     ax.set_xlabel("epoch (full-batch step)")
-    ax.set_ylabel(f"loss (standardized, mean of {config['seeds']} networks)")
+    ax.set_ylabel(f"loss (standardized, mean of {config['headline_seeds']} networks)")
     ax.set_title(f"Fig. 8: learning curves, swish, {config['table_layers']} hidden layers")
     ax.legend(fontsize=8)
     figure("fig8_learning_curves.png", fig)
@@ -310,6 +415,26 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
     ax.legend()
     figure("table1.png", fig)
 
+    sweep = study.get("alpha_sweep")
+    if sweep:
+        text("alpha_sweep.csv", "alpha,val_mse_standardized,test_mse,chosen\n" + "".join(
+            f"{a:g},{v:.6g},{t:.6g},{int(i == sweep['chosen_index'])}\n"
+            for i, (a, v, t) in enumerate(zip(sweep["alphas"], sweep["val_mse"], sweep["test_mse"]))))
+        fig, ax = plt.subplots(figsize=(6, 4))
+        alphas = np.asarray(sweep["alphas"])
+        positive = alphas > 0
+        for key, color, label in (("val_mse", "tab:orange", "validation (standardized), chooses"),
+                                  ("test_mse", "tab:green", "test (y units), reported only")):
+            values = np.asarray(sweep[key])
+            ax.loglog(alphas[positive], values[positive], "o-", color=color, label=label)
+            ax.axhline(values[~positive][0] if (~positive).any() else np.nan, color=color, linestyle="--",
+                       linewidth=0.8)
+        ax.axvline(sweep["chosen_alpha"], color="k", linestyle=":", label=f"chosen alpha {sweep['chosen_alpha']:g}")
+        ax.set_xlabel("alpha (dashed: naive, alpha = 0)")
+        ax.set_ylabel("MSE")
+        ax.set_title(f"alpha chosen by validation: {config['table_layers']} layers, swish, one initialization")
+        ax.legend(fontsize=8)
+        figure("alpha_sweep.png", fig)
     text("summary.md", summary_markdown(study, fig6, table, quick, partial))
     return written
 
@@ -317,30 +442,50 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
 def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bool, partial: bool = False) -> str:
     config = study["config"]
     runs = study["runs"]
+    sweep = study.get("alpha_sweep")
+    top = headline(study)
     profile = ("quick profile" if quick else "full profile") + (", with overrides" if partial else "")
+    alpha_text = (f"alpha {top['alpha']:g}, chosen by validation from {tuple(config['alpha_grid'])}" if sweep
+                  else f"alpha {top['alpha']:g}")
     lines = [f"# Sine-sum study ({profile})", "",
              f"y = sin x + sin 0.5x + sin 0.1x on [-30π, 30π]; {config['train_points']} train / "
              f"{config['val_points']} validation / {config['test_points']} test points; width {config['width']}, "
              f"hidden layers {tuple(config['layers'])}; {len(config['activations'])} activations; "
-             f"{config['seeds']} networks per configuration; full-batch Adam lr {config['learning_rate']:g}, "
-             f"{config['epochs']} epochs, validation every {config['validation_interval']}; "
-             f"derivative learning alpha {config['alpha']:g}; standardized input and output.", "",
-             f"Time: {len(runs)} runs in {study['wall_seconds']:.1f} s wall with {study['workers']} worker(s) "
-             f"({study['run_seconds']:.1f} s of training in total, {study['run_seconds'] / len(runs):.2f} s per run).",
-             "", "## Fig. 6: test MSE (mean over networks / best by validation)", "",
-             "| layers | activation | naive mean | naive best | derivative mean | derivative best |",
-             "|---|---|---|---|---|---|"]
+             f"{config['seeds']} networks per configuration ({config['headline_seeds']} for "
+             f"{config['table_layers']} layers swish), naive and derivative runs paired by initialization; "
+             f"full-batch Adam from lr {config['learning_rate']:g} ({config['lr_schedule']} schedule), "
+             f"{config['epochs']} steps, validation every {config['validation_interval']}; derivative learning "
+             f"{alpha_text}; {'standardized' if config['standardize_inputs'] else 'raw'} input, standardized output.",
+             "", f"Time: {len(runs) + bool(sweep)} runs in {study['wall_seconds']:.1f} s wall with {study['workers']} "
+             f"worker(s) ({study['run_seconds']:.1f} s of training in total).", "",
+             f"**Headline ({config['table_layers']} layers, swish, mean of {top['networks']} networks):** derivative "
+             f"learning {top['derivative_mean_test_mse']:.3g} against naive {top['naive_mean_test_mse']:.3g} "
+             f"({top['ratio_of_means']:.3g}x lower; paired ratio {top['ratio']:.3g}x, 95 % interval "
+             f"[{top['ratio_low']:.3g}, {top['ratio_high']:.3g}]: {top['verdict']}); the paper reports "
+             f"{top['paper_derivative']:g}.", ""]
+    if sweep:
+        lines += ["## Alpha chosen by validation", "",
+                  "| alpha | validation MSE (standardized) | test MSE |", "|---|---|---|"]
+        for index, (alpha, val, test) in enumerate(zip(sweep["alphas"], sweep["val_mse"], sweep["test_mse"])):
+            mark = " (chosen)" if index == sweep["chosen_index"] else ""
+            lines.append(f"| {alpha:g}{mark} | {val:.4g} | {test:.4g} |")
+        lines += ["", "One initialization, 5 hidden layers, swish; the test column is reported, not used.", ""]
+    lines += ["## Fig. 6: test MSE (mean over networks / best by validation)", "",
+              "| layers | activation | naive mean | naive best | derivative mean | derivative best | "
+              "naive / derivative (paired, 95 % CI) | verdict |",
+              "|---|---|---|---|---|---|---|---|"]
     for row in fig6:
         lines.append(f"| {row['layers']} | {row['activation']} | {row['naive_mean_test_mse']:.4g} | "
                      f"{row['naive_best_test_mse']:.4g} | {row['derivative_mean_test_mse']:.4g} | "
-                     f"{row['derivative_best_test_mse']:.4g} |")
+                     f"{row['derivative_best_test_mse']:.4g} | {row['ratio']:.3g}x [{row['ratio_low']:.3g}, "
+                     f"{row['ratio_high']:.3g}] | {row['verdict']} |")
     deepest = [row for row in fig6 if row["layers"] == config["table_layers"]]
     winner = min(deepest, key=lambda row: row["derivative_mean_test_mse"])
-    better = sum(row["derivative_mean_test_mse"] < row["naive_mean_test_mse"] for row in fig6)
-    lines += ["", f"Derivative learning has the lower mean test MSE in {better} of {len(fig6)} configurations; "
-              f"at {config['table_layers']} layers the best activation with derivative learning is "
-              f"{winner['activation']} ({winner['derivative_mean_test_mse']:.4g}, naive "
-              f"{winner['naive_mean_test_mse']:.4g}).", "",
+    counts = {verdict: sum(row["verdict"] == verdict for row in fig6) for verdict in ("helps", "hurts")}
+    lines += ["", f"Derivative learning helps (whole 95 % interval of the paired ratio above 1) in {counts['helps']} "
+              f"of {len(fig6)} configurations and hurts in {counts['hurts']}; at {config['table_layers']} layers the "
+              f"best activation with derivative learning is {winner['activation']} "
+              f"({winner['derivative_mean_test_mse']:.4g}, naive {winner['naive_mean_test_mse']:.4g}).", "",
               f"## Table 1: test MSE, derivative learning, {config['table_layers']} layers, "
               f"mean of {config['table_seeds']} networks", "",
               "| loss | " + " | ".join(config["table_activations"]) + " |",
@@ -353,7 +498,7 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
         lines.append(f"| {loss.upper()} | " + " | ".join(cells) + " |")
     lines += ["", "Every number is computed by this run except those labelled paper (Table 1 of the paper).",
               "Files: fig6_mse_vs_activation.csv/.png, fig7_predictions.png, fig8_learning_curves.csv/.png, "
-              "table1.csv/.json/.png, results.json.", ""]
+              "table1.csv/.json/.png, " + ("alpha_sweep.csv/.png, " if sweep else "") + "results.json.", ""]
     return "\n".join(lines)
 
 
@@ -363,9 +508,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("runs/sine-sum"),
                         help="output folder (default runs/sine-sum)")
     parser.add_argument("--quick", action="store_true",
-                        help="small CI profile: 1 and 5 layers, tanh/relu/swish, 2 networks, 150 epochs")
+                        help="small CI profile: 1 and 5 layers, tanh/relu/swish, 2 networks, 150 steps")
+    parser.add_argument("--alpha", type=parse_alpha,
+                        help="derivative-loss weight as in eq. 9, or 'auto' (default: chosen by validation)")
     parser.add_argument("--epochs", type=int, help="override the profile's epochs (full-batch steps)")
-    parser.add_argument("--seeds", type=int, help="override the profile's networks per configuration")
+    parser.add_argument("--seeds", type=int,
+                        help="override the profile's networks per configuration (5-layer swish included)")
     parser.add_argument("--layers", type=int, nargs="+", help="override the hidden-layer counts (must include 5)")
     parser.add_argument("--activations", nargs="+", choices=ACTIVATION_NAMES,
                         help="override the activations (must include tanh, relu, swish)")
@@ -377,8 +525,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     config = QUICK if args.quick else FULL
     overrides = {key: (tuple(value) if isinstance(value, list) else value)
-                 for key, value in (("epochs", args.epochs), ("seeds", args.seeds), ("layers", args.layers),
-                                    ("activations", args.activations)) if value is not None}
+                 for key, value in (("epochs", args.epochs), ("seeds", args.seeds), ("headline_seeds", args.seeds),
+                                    ("layers", args.layers), ("activations", args.activations),
+                                    ("alpha", args.alpha)) if value is not None}
+    if args.seeds is not None:
+        overrides["table_seeds"] = min(config.table_seeds, args.seeds)
+    if overrides.get("alpha") == 0:
+        raise InputError("--alpha 0 is naive learning, which the study runs anyway; give a positive alpha or auto")
     if overrides:
         config = dataclasses.replace(config, **overrides)
     if args.workers < 1:
@@ -386,6 +539,10 @@ def run(args: argparse.Namespace) -> int:
     study = run_study(config, workers=args.workers, progress=not args.quiet)
     written = write_reports(study, args.output, quick=args.quick, partial=bool(overrides))
     print(f"{len(study['runs'])} runs in {study['wall_seconds']:.1f} s; wrote {len(written)} files to {args.output}")
+    top = headline(study)
+    print(f"  {top['layers']} layers swish (alpha {top['alpha']:g}): derivative {top['derivative_mean_test_mse']:.3g}, "
+          f"naive {top['naive_mean_test_mse']:.3g} (paired ratio {top['ratio']:.3g}x "
+          f"[{top['ratio_low']:.3g}, {top['ratio_high']:.3g}], {top['verdict']}; paper {top['paper_derivative']:g})")
     for row in table1_rows(study):
         print(f"  table 1  {row['loss']:>5} {row['activation']:>6}: test MSE {row['mean_test_mse']:.4g} "
               f"(paper {row['paper']:.4g})")

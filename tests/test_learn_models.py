@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learn import RegressionData, TrainingConfig, fit_normalizers, gaussian_nll, batch_losses, standardize
+from stdm_drake.learn import RegressionData, TrainingConfig, fit_normalizers, member_gaussian_nll, batch_losses, standardize
 from stdm_drake.models import (ACTIVATION_NAMES, MAX_LOGVAR_INIT, MIN_LOGVAR_INIT, EnsembleMLP, ModelConfig,
                                bounded_logvar, dynamics_config, get_activation, parse_model_type)
 
@@ -189,10 +189,10 @@ def test_gaussian_nll_is_minimized_by_the_true_variance():
     rng = torch.Generator().manual_seed(0)
     target = torch.randn(20000, 1, generator=rng) * 0.5
     mean = torch.zeros_like(target)
-    values = {s: gaussian_nll(mean, torch.full_like(target, s), target).item()
+    values = {s: member_gaussian_nll(mean, torch.full_like(target, s), target).item()
               for s in (np.log(0.25) - 1, np.log(0.25), np.log(0.25) + 1)}
     assert min(values, key=values.get) == np.log(0.25)
-    assert gaussian_nll(mean, torch.full_like(target, np.log(0.25)), target).item() == pytest.approx(
+    assert member_gaussian_nll(mean, torch.full_like(target, np.log(0.25)), target).item() == pytest.approx(
         1.0 + np.log(0.25), abs=0.05)
 
 
@@ -202,12 +202,12 @@ def test_probabilistic_loss_includes_bound_penalty_and_trains_bounds():
     data = _random_data(np.random.default_rng(0), 32, 2, 2)
     fit_normalizers(model, data)
     tensors = standardize(model, data)
-    total, state, _ = batch_losses(model, TrainingConfig(), tensors.inputs, tensors.targets)
+    terms = batch_losses(model, TrainingConfig(), tensors.inputs, tensors.targets)
     mean, logvar = model.split_head(model.normalized_outputs(tensors.inputs))
-    penalty = 0.01 * (MAX_LOGVAR_INIT - MIN_LOGVAR_INIT) * 2      # two outputs, averaged over members
-    expected = gaussian_nll(mean, logvar, tensors.targets.expand(2, -1, -1)) + penalty
-    assert total.item() == pytest.approx(expected.item(), rel=1e-6)
-    total.backward()
+    penalty = 0.01 * (MAX_LOGVAR_INIT - MIN_LOGVAR_INIT) * 2      # two outputs, per member
+    expected = member_gaussian_nll(mean, logvar, tensors.targets.expand(2, -1, -1)) + penalty   # (2,)
+    assert terms.total.detach().numpy() == pytest.approx(expected.detach().numpy(), rel=1e-6)
+    terms.objective.backward()
     assert model.max_logvar.grad is not None and torch.all(model.max_logvar.grad != 0)
 
 

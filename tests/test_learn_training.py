@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learn import (RegressionData, TrainingConfig, build_model, fit_normalizers, load_checkpoint,
-                              load_model, save_checkpoint, standardize, train_model, training_step,
-                              validation_scores)
+from stdm_drake.learn import (RegressionData, TrainingConfig, batch_losses, build_model, fit_normalizers,
+                              load_checkpoint, load_model, save_checkpoint, select_alpha, standardize, train_model,
+                              training_step, validation_scores)
 from stdm_drake.models import ACTIVATION_NAMES, ModelConfig, dynamics_config
 
 
@@ -108,9 +108,10 @@ def test_derivative_learning_fits_slopes_better_from_few_points():
     assert errors[0.1] < 0.5 * errors[0.0], errors
 
 
-def test_resume_gives_the_same_result_as_uninterrupted_training(tmp_path):
+@pytest.mark.parametrize("options", [{}, dict(lr_schedule="cosine", min_learning_rate=1e-4, weight_decay=1e-2)])
+def test_resume_gives_the_same_result_as_uninterrupted_training(tmp_path, options):
     config = dynamics_config(state_dim=2, action_dim=1, ensemble_size=2, probabilistic=True, **SMALL)
-    training = TrainingConfig(alpha=1e-3, max_epochs=6, patience=50, batch_size=64, seed=3)
+    training = TrainingConfig(alpha=1e-3, max_epochs=6, patience=50, batch_size=64, seed=3, **options)
     straight = train_model(config, training, TRAIN, VAL, checkpoint_path=tmp_path / "straight.pt",
                            checkpoint_every=1)
 
@@ -228,3 +229,109 @@ def test_a_dataset_passed_as_checkpoint_is_named_as_such(tmp_path):
         f["x"] = [1.0]
     with pytest.raises(InputError, match="not a PyTorch checkpoint file \\(it is an HDF5 file: a dataset\\?\\)"):
         load_checkpoint(path)
+
+
+def _eq9_terms(model, data):
+    """Per-output raw-unit MSEs of paper eq. 9: state (S,) and time derivative (S,), float64."""
+    z, zd = torch.tensor(data.inputs, dtype=torch.float64), torch.tensor(data.input_rates, dtype=torch.float64)
+    with torch.no_grad():
+        state = model(z)[0][0]
+        rate = model.time_derivative(z, zd)[0]
+    return (((state - torch.tensor(data.targets)) ** 2).mean(0).numpy(),
+            ((rate - torch.tensor(data.target_rates)) ** 2).mean(0).numpy())
+
+
+@pytest.mark.parametrize("residual", [True, False])
+def test_loss_is_the_papers_eq9_per_output_scaled_by_the_state_spread(residual):
+    """L = mean_j (1/σ_j²) [MSE_state,j + alpha MSE_derivative,j] in raw units; with one common σ it is
+    exactly eq. 9 (raw-unit MSE of the state + alpha MSE of its time derivative) divided by σ²."""
+    config = dynamics_config(state_dim=2, action_dim=1, delta=residual, **SMALL)
+    model = build_model(config, seed=1).double()
+    fit_normalizers(model, TRAIN)
+    alpha = 0.37
+    training = TrainingConfig(alpha=alpha)
+
+    def loss():
+        data = standardize(model, TRAIN)
+        with torch.no_grad():
+            return batch_losses(model, training, data.inputs, data.targets, data.input_rates,
+                                data.target_rates).total.item()
+
+    state_mse, rate_mse = _eq9_terms(model, TRAIN)
+    sigma = model.output_normalizer.std.numpy()
+    assert not np.allclose(sigma[0], sigma[1])
+    assert loss() == pytest.approx(np.mean((state_mse + alpha * rate_mse) / sigma ** 2), rel=1e-9)
+    model.output_normalizer.std.fill_(0.25)   # one common spread: eq. 9 itself, up to the factor 1/σ²
+    state_mse, rate_mse = _eq9_terms(model, TRAIN)
+    assert loss() == pytest.approx((state_mse.mean() + alpha * rate_mse.mean()) / 0.25 ** 2, rel=1e-9)
+
+
+def test_alpha_grid_members_equal_training_each_alpha_alone():
+    """An alpha grid is a stack of independent runs from one initialization: member k equals a single
+    model trained with alpha_k and the same seed (bitwise with the derivative term on; naive alone runs
+    the plain forward pass, which rounds differently by about 1e-7)."""
+    alphas = (0.0, 1e-2, 1.0)
+    single = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    training = TrainingConfig(max_epochs=8, batch_size=64, seed=4, learning_rate=3e-3, lr_schedule="cosine")
+    grid = train_model(dataclasses.replace(single, ensemble_size=len(alphas)),
+                       dataclasses.replace(training, alpha_grid=alphas), TRAIN, VAL)
+    for index, alpha in enumerate(alphas):
+        alone = train_model(single, dataclasses.replace(training, alpha=alpha), TRAIN, VAL)
+        member = grid.model.member(index)
+        assert alone.best_epochs[0] == grid.best_epochs[index]
+        if alpha > 0:
+            assert weights_equal(alone.model, member), alpha
+            assert alone.best_scores[0] == grid.best_scores[index]
+        else:
+            for a, b in zip(alone.model.state_dict().values(), member.state_dict().values()):
+                torch.testing.assert_close(a, b, rtol=1e-5, atol=1e-6)
+    different = [not weights_equal(grid.model.member(0), grid.model.member(k)) for k in (1, 2)]
+    assert all(different)
+    with pytest.raises(InputError, match="alpha_grid has 3 values for a model of 2 members"):
+        train_model(dataclasses.replace(single, ensemble_size=2), dataclasses.replace(training, alpha_grid=alphas),
+                    TRAIN, VAL)
+
+
+def test_select_alpha_keeps_the_best_validation_member_never_worse_than_naive():
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    training = TrainingConfig(max_epochs=10, batch_size=64, seed=2, learning_rate=3e-3)
+    alphas = (0.0, 1e-3, 1e-1, 10.0)
+    chosen, selection = select_alpha(config, training, TRAIN, VAL, alphas=alphas)
+    assert selection.alphas == alphas and len(selection.val_mse) == 4
+    assert selection.val_mse[selection.index] == min(selection.val_mse) <= selection.val_mse[0]
+    assert chosen.model.config.ensemble_size == 1
+    score = validation_scores(chosen.model, training, standardize(chosen.model, VAL))["member_mse"].item()
+    assert score == pytest.approx(selection.val_mse[selection.index], rel=1e-6)
+    assert selection.as_dict()["chosen_alpha"] == selection.alpha == alphas[selection.index]
+    tie, tied = select_alpha(config, training, TRAIN, VAL, alphas=(0.0, 0.0))
+    assert tied.index == 0
+
+
+def test_cosine_schedule_runs_from_the_rate_to_the_floor():
+    training = TrainingConfig(learning_rate=3e-3, lr_schedule="cosine", min_learning_rate=1e-4)
+    assert training.learning_rate_at(0, 100) == pytest.approx(3e-3)
+    assert training.learning_rate_at(50, 100) == pytest.approx((3e-3 + 1e-4) / 2)
+    assert training.learning_rate_at(100, 100) == pytest.approx(1e-4)
+    rates = [training.learning_rate_at(step, 100) for step in range(101)]
+    assert all(a >= b for a, b in zip(rates, rates[1:]))
+    assert TrainingConfig(learning_rate=2e-3).learning_rate_at(77, 100) == 2e-3
+    # every minibatch step of a run (4 epochs x 4 batches) uses its scheduled rate
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    seen = []
+    original = torch.optim.Adam.step
+
+    def spy(self, *args, **kwargs):
+        seen.append(self.param_groups[0]["lr"])
+        return original(self, *args, **kwargs)
+
+    torch.optim.Adam.step = spy
+    try:
+        train_model(config, dataclasses.replace(training, max_epochs=4, batch_size=64), TRAIN, VAL)
+    finally:
+        torch.optim.Adam.step = original
+    assert len(seen) == 16 and seen[0] == pytest.approx(3e-3)
+    assert seen == pytest.approx([training.learning_rate_at(step, 16) for step in range(16)]) and seen[-1] < 1.3e-4
+    for bad in (dict(lr_schedule="linear"), dict(min_learning_rate=-1.0), dict(weight_decay=float("nan")),
+                dict(learning_rate=1e-3, min_learning_rate=1e-2), dict(alpha_grid=(0.0, -1.0))):
+        with pytest.raises(InputError):
+            TrainingConfig(**bad)

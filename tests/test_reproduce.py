@@ -7,7 +7,9 @@ import pytest
 
 from stdm_drake.cli import main
 from stdm_drake.dataset import load_dataset
+from stdm_drake.learn import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
 from stdm_drake.reproduce import FULL, MODEL_TYPES, QUICK, improvement_percent, plan_jobs, verdict
+from stdm_drake.stats import paired_ratio
 
 
 @pytest.fixture(scope="module")
@@ -33,7 +35,7 @@ def test_quick_profile_writes_a_complete_report(quick_report):
     assert [row["model"] for row in tables["mpc"]] == ["plant", "D", "DD", "PE", "PED"]
     for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "multistep"):
         for row in tables[name]:
-            numbers = [value for value in row.values() if isinstance(value, float)]
+            numbers = [value for value in row.values() if isinstance(value, float) and not math.isinf(value)]
             assert numbers and all(math.isfinite(value) for value in numbers), (name, row)
     for row in tables["multistep"]:
         assert len(row["multistep_q"]) == QUICK.horizon and row["rollout_ms"] > 0
@@ -59,9 +61,12 @@ def test_full_profile_uses_the_papers_splits():
         def __init__(self, groups, name):
             self.groups, self.path, self.sha256 = np.asarray(groups), name, name
 
+        def trajectory(self, index):
+            return {"tau": np.zeros((50, 6))}
+
     excitation, tracking = Stub(np.zeros(200, int), "ex"), Stub(np.repeat(np.arange(4), 25), "tr")
-    identification = Stub(np.repeat(np.arange(4), 25), "id")
-    jobs = plan_jobs(FULL, excitation, tracking, identification)
+    local, identification = Stub(np.zeros(200, int), "lo"), Stub(np.repeat(np.arange(4), 25), "id")
+    jobs = plan_jobs(FULL, excitation, local, tracking, identification)
     sim = [job for job in jobs if job.experiment == "sim"]
     assert {(len(job.train), len(job.val), len(job.test)) for job in sim} == {(10, 40, 120), (20, 40, 120), (40, 40, 120)}
     real = [job for job in jobs if job.experiment == "real"]
@@ -83,6 +88,15 @@ def test_full_profile_uses_the_papers_splits():
     assert len({job.key() for job in jobs}) == len(jobs)
     activations_at_40 = {job.activation for job in sim if len(job.train) == 40}
     assert len(activations_at_40) == 9 and {job.seed for job in sim} == set(range(5))
+    # naive/derivative pairs are alpha grids: the full grid (alpha by validation) for swish, else naive + paper
+    for job in sim + real:
+        expected = DEFAULT_ALPHA_GRID if job.activation == "swish" else (0.0, DEFAULT_ALPHA)
+        assert job.alphas == expected and job.model_type == "D"
+    local_jobs = [job for job in jobs if job.experiment == "sim_local"]
+    assert {(len(job.train), len(job.val), len(job.test), job.activation, job.multistep, job.dataset)
+            for job in local_jobs} == {(40, 40, 120, "swish", True, "lo")}
+    assert {job.seed for job in local_jobs} == set(range(5))
+    assert all(job.alpha_mode == "auto" for job in multistep + control)
 
 
 def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
@@ -100,8 +114,31 @@ def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
         np.testing.assert_array_equal(path[k], x)
 
 
-def test_verdicts():
+def test_verdicts_follow_from_the_intervals():
     assert improvement_percent(naive=3.0, derivative=1.0) == pytest.approx(200.0)
-    assert verdict(250, 200) == "agrees" and verdict(50, 200) == "smaller gain"
-    assert verdict(-5, 60) == "DIFFERS (no gain)" and verdict(0.4, 60) == "DIFFERS (no gain)"
-    assert verdict(10, None) == ""
+    helps = paired_ratio([3.0, 3.3, 2.9, 3.1], [1.0, 1.0, 1.0, 1.0]).as_dict()
+    assert helps["verdict"] == "helps" and helps["low"] > 1
+    assert verdict(helps, 150) == "agrees" and verdict(helps, 1000) == "smaller gain"
+    unclear = paired_ratio([3.0, 0.5, 2.0], [1.0, 1.0, 1.0]).as_dict()
+    assert unclear["verdict"] == "no clear difference" and verdict(unclear, 60) == "DIFFERS (no clear gain)"
+    worse = paired_ratio([1.0, 1.0, 1.0], [2.0, 2.1, 1.9]).as_dict()
+    assert worse["verdict"] == "hurts" and verdict(worse, 60) == "DIFFERS (worse)"
+    assert verdict(helps, None) == ""
+    assert paired_ratio([2.0], [1.0]).verdict == "no clear difference"   # one pair: no interval
+
+
+def test_grid_variants_are_paired_members_of_one_grid(quick_report):
+    """D, DD and DD-auto of one seed come from one alpha grid: the D row is the alpha-0 member, DD the
+    paper's alpha, DD-auto the member with the lowest validation MSE (never above naive's)."""
+    runs = json.loads((quick_report / "results.json").read_text())["runs"]
+    grid = [r for r in runs if r["experiment"] == "sim" and r["activation"] == "swish" and r["seed"] == 0
+            and r["train_size"] == max(QUICK.sim_train_sizes)]
+    by_type = {r["model_type"]: r for r in grid}
+    assert set(by_type) == {"D", "DD", "DD-auto"} and len({r["key"] for r in grid}) == 1
+    assert by_type["D"]["alpha"] == 0 and by_type["DD"]["alpha"] == DEFAULT_ALPHA
+    selection = by_type["DD-auto"]["alpha_selection"]
+    assert by_type["DD-auto"]["alpha"] == selection["chosen_alpha"]
+    assert by_type["DD-auto"]["val_mse"] == min(selection["val_mse"]) <= by_type["D"]["val_mse"]
+    assert len(by_type["D"]["multistep_q"]) == 50    # open-loop over the whole excitation trajectory
+    coverage = json.loads((quick_report / "results.json").read_text())["tables"]["coverage"]
+    assert [row["regime"] for row in coverage] == ["global", "local"]

@@ -1,5 +1,6 @@
 """The sine-sum study: data, run grid, and `stdm-drake sine-sum --quick` end to end."""
 import csv
+import dataclasses
 import json
 
 import numpy as np
@@ -7,7 +8,8 @@ import pytest
 
 from stdm_drake.cli import main
 from stdm_drake.errors import InputError
-from stdm_drake.sine_sum import FULL, PAPER_TABLE1, QUICK, StudyConfig, run_specs, sample, sine_sum, sine_sum_derivative
+from stdm_drake.sine_sum import (FULL, PAPER_TABLE1, QUICK, StudyConfig, run_specs, run_study, sample, sine_sum,
+                                 sine_sum_derivative)
 
 
 def test_function_data_and_derivative():
@@ -24,17 +26,39 @@ def test_function_data_and_derivative():
 
 def test_run_grid_matches_the_paper_design():
     specs = run_specs(FULL)
-    grid = [s for s in specs if s.loss == "mse" and s.members == FULL.seeds]
+    grid = [s for s in specs if s.loss == "mse"]
     assert len(grid) == 3 * 9 * 2
     assert {s.layers for s in grid} == {1, 3, 5} and len({s.activation for s in grid}) == 9
-    table = [s for s in specs if s.members == FULL.table_seeds]
-    assert len(table) == 9 and all(s.derivative and s.layers == 5 for s in table)
-    assert FULL.width == 100 and FULL.alpha == 1e-3 and (FULL.train_points, FULL.val_points, FULL.test_points) == (
-        100, 1000, 4000)
+    assert all(s.members == (FULL.headline_seeds if (s.layers, s.activation) == (5, "swish") else FULL.seeds)
+               for s in grid)
+    assert FULL.headline_seeds == 5 and FULL.seeds == FULL.table_seeds == 3
+    table = [s for s in specs if s.loss != "mse"]   # the MSE row of Table 1 reuses the Fig. 6 runs
+    assert len(table) == 6 and all(s.derivative and s.layers == 5 and s.members == 3 for s in table)
+    assert specs[0].layers == 5   # deepest first: the slowest runs start first
+    assert FULL.width == 100 and FULL.alpha == "auto" and 0.0 in FULL.alpha_grid and 1e-3 in FULL.alpha_grid
+    assert not FULL.standardize_inputs and FULL.lr_schedule == "cosine"
+    assert (FULL.train_points, FULL.val_points, FULL.test_points) == (100, 1000, 4000)
     with pytest.raises(InputError, match="unknown activations"):
         StudyConfig(activations=("mish",))
     with pytest.raises(InputError, match="must be in the grid"):
         StudyConfig(layers=(1, 3))
+    with pytest.raises(InputError, match="alpha must be a positive number or 'auto'"):
+        StudyConfig(alpha="sometimes")
+
+
+def test_alpha_is_chosen_on_validation_before_any_derivative_run(tmp_path):
+    """The sweep's choice is the alpha every derivative run used; naive runs use 0; the chosen alpha
+    has the lowest validation MSE of the grid; results do not depend on the number of workers."""
+    config = dataclasses.replace(QUICK, layers=(5,), activations=("tanh", "relu", "swish"), epochs=60)
+    one, two = run_study(config, workers=1, progress=False), run_study(config, workers=2, progress=False)
+    sweep = one["alpha_sweep"]
+    assert sweep["chosen_alpha"] == sweep["alphas"][int(np.argmin(sweep["val_mse"]))]
+    for run in one["runs"]:
+        assert run["alpha"] == (sweep["chosen_alpha"] if run["spec"]["derivative"] else 0.0)
+    assert [run["member_test_mse"] for run in one["runs"]] == [run["member_test_mse"] for run in two["runs"]]
+    assert one["alpha_sweep"]["val_mse"] == two["alpha_sweep"]["val_mse"]
+    fixed = run_study(dataclasses.replace(config, alpha=0.5), workers=1, progress=False)
+    assert fixed["alpha_sweep"] is None and {run["alpha"] for run in fixed["runs"]} == {0.0, 0.5}
 
 
 def test_quick_study_end_to_end(tmp_path, capsys):
@@ -43,7 +67,7 @@ def test_quick_study_end_to_end(tmp_path, capsys):
     assert "table 1" in capsys.readouterr().out
     for name in ("results.json", "summary.md", "fig6_mse_vs_activation.csv", "fig6_mse_vs_activation.png",
                  "fig7_predictions.png", "fig8_learning_curves.png", "fig8_learning_curves.csv", "table1.csv",
-                 "table1.json", "table1.png"):
+                 "table1.json", "table1.png", "alpha_sweep.csv", "alpha_sweep.png"):
         assert (output / name).is_file(), name
     for png in output.glob("*.png"):
         content = png.read_bytes()
@@ -67,3 +91,4 @@ def test_quick_study_end_to_end(tmp_path, capsys):
         assert np.isfinite(float(row["mean_test_mse"]))
     summary = (output / "summary.md").read_text()
     assert "quick profile" in summary and "paper 0.0006" in summary and "s wall" in summary
+    assert "chosen by validation" in summary and "95 % interval" in summary
