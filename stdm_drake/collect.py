@@ -38,7 +38,7 @@ DEFAULT_CONFIGS = {
     "excitation": TRAJECTORIES_DIR / "excitation.yaml",
     "tracking": TRAJECTORIES_DIR / "tracking.yaml",
 }
-DEFAULT_CONTROLLER = CONTROLLERS_DIR / "pid.yaml"
+DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
 PAPER_COUNTS = {"excitation": 200, "tracking": 100}
 
@@ -366,7 +366,7 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
         for traj in map_jobs(_collect_one, jobs, max(1, len(jobs) // (4 * workers))):
             finished(traj)
     bar.close()
-    metadata = _metadata(request)
+    metadata = collection_metadata(request)
     if request.protocol == "excitation":
         metadata["excitation_parameters"] = [traj.pop("excitation").tolist() for traj in trajectories]
     return trajectories, groups, metadata
@@ -383,7 +383,9 @@ def _package_versions() -> dict:
     return versions
 
 
-def _metadata(request: CollectionRequest) -> dict:
+def collection_metadata(request: CollectionRequest) -> dict:
+    """What a dataset file records about how it was collected (JSON-ready; per-trajectory excitation
+    parameters are added by `collect`)."""
     settings = request.settings
     metadata = dict(
         protocol=request.protocol, sample_period=settings.sample_period, seed=request.seed,
@@ -410,7 +412,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=pathlib.Path,
                         help="protocol YAML (default: trajectories/excitation.yaml or trajectories/tracking.yaml)")
     parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
-                        help="tracking controller gains YAML (default: controllers/pid.yaml)")
+                        help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml)")
     parser.add_argument("--sensor", type=pathlib.Path,
                         help="sensor noise/filter YAML (default: controllers/sensor.yaml for tracking, "
                              "an ideal sensor for excitation)")

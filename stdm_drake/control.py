@@ -33,6 +33,10 @@ class ControllerConfig:
     inverse_dynamics: kp 1/s^2, ki 1/s^3, kd 1/s (they scale the mass matrix).
     dither_std (N m): white torque dither added to each sample's torque (persistent excitation, as
     in system identification), held and recorded like the rest of the torque; zeros = off.
+    velocity_filter_time_constant (s): the velocity the controller acts on (its D term, and C(q, v) v
+    for inverse_dynamics) is the measured one passed through a first-order low-pass filter,
+    v_f,k = v_f,k-1 + beta (v_k - v_f,k-1) with beta = T / (T + time_constant) at the sample period T,
+    started at the first measurement; 0 = the raw measurement.
     """
     kind: str = "pid"
     kp: list[float] = dataclasses.field(default_factory=lambda: [1250.0, 2500.0, 690.0, 24.5, 5.3, 0.42])
@@ -40,8 +44,12 @@ class ControllerConfig:
     kd: list[float] = dataclasses.field(default_factory=lambda: [100.0, 200.0, 55.0, 1.4, 0.3, 0.024])
     gravity_feedforward: bool = True
     dither_std: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
+    velocity_filter_time_constant: float = 0.0
 
     def validate(self) -> None:
+        if not self.velocity_filter_time_constant >= 0:
+            raise InputError("controller velocity_filter_time_constant must be >= 0 s, "
+                             f"got {self.velocity_filter_time_constant}")
         check_joint_vector("controller dither_std", self.dither_std, nonnegative=True)
         if self.kind not in CONTROLLER_KINDS:
             raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
@@ -98,7 +106,8 @@ class SampledJointController:
     """Drake's PID or inverse-dynamics controller evaluated once per sample period.
 
     `torque(q, v, q_d, v_d, qdd_d)` returns the torque (6,) N m to hold over the next sample
-    period, clamped to the effort limits, and advances the error integral by one period.
+    period, clamped to the effort limits, and advances the error integral and the velocity filter
+    by one period; `reset()` starts a new trajectory.
     """
 
     def __init__(self, config: ControllerConfig, sample_period: float):
@@ -115,12 +124,20 @@ class SampledJointController:
                 self.dynamics.plant, kp=kp, ki=ki, kd=kd, has_reference_acceleration=True)
         self._context = self._system.CreateDefaultContext()
         self._integral = np.zeros(NUM_JOINTS)
+        self._filter_gain = sample_period / (sample_period + config.velocity_filter_time_constant)
+        self._filtered_velocity: np.ndarray | None = None
 
     def reset(self) -> None:
         self._integral[:] = 0.0
+        self._filtered_velocity = None
 
     def torque(self, q, v, q_d, v_d, qdd_d) -> np.ndarray:
         system, context = self._system, self._context
+        if self._filtered_velocity is None:
+            self._filtered_velocity = np.array(v, dtype=float)
+        else:
+            self._filtered_velocity += self._filter_gain * (v - self._filtered_velocity)
+        v = self._filtered_velocity
         context.SetContinuousState(self._integral)
         system.get_input_port_estimated_state().FixValue(context, np.concatenate([q, v]))
         system.get_input_port_desired_state().FixValue(context, np.concatenate([q_d, v_d]))

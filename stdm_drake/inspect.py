@@ -25,6 +25,30 @@ def tracking_errors(dataset: Dataset) -> dict:
                 true_v=float(np.mean((stack("v_true") - v_plan) ** 2)))
 
 
+def tracking_smoothness(dataset: Dataset) -> dict:
+    """Per-joint measures of how smoothly the plant followed its plans (tracking data only), (6,) each.
+
+    velocity_error_rms: RMS of the true velocity minus the planned one, rad/s.
+    sign_flip_rate: fraction of consecutive sample pairs whose true velocity changes have opposite
+    signs (a smooth motion flips rarely, a period-two chatter nearly always; white noise gives 2/3).
+    peak_acceleration: largest |true acceleration| over all samples, rad/s^2, and peak_planned_acceleration
+    the largest |planned| one.
+    """
+    errors, flips, pairs, peak, planned_peak = [], 0, 0, 0.0, 0.0
+    for i in range(dataset.num_trajectories):
+        traj = dataset.trajectory(i)
+        errors.append(traj["v_true"] - traj["v_planned"])
+        change = np.diff(traj["v_true"], axis=0)
+        product = change[1:] * change[:-1]
+        flips = flips + (product < 0).sum(axis=0)
+        pairs += len(product)
+        peak = np.maximum(peak, np.abs(traj["qdd"]).max(axis=0))
+        planned_peak = np.maximum(planned_peak, np.abs(traj["qdd_planned"]).max(axis=0))
+    return dict(velocity_error_rms=np.sqrt(np.mean(np.concatenate(errors) ** 2, axis=0)),
+                sign_flip_rate=flips / max(pairs, 1), peak_acceleration=peak,
+                peak_planned_acceleration=planned_peak)
+
+
 def summary(dataset: Dataset) -> str:
     meta = dataset.metadata
     steps = [len(dataset.trajectory(i)["tau"]) for i in range(dataset.num_trajectories)]
@@ -54,6 +78,11 @@ def summary(dataset: Dataset) -> str:
         lines += ["", "tracking error (MSE against the plan; paper's real UR-10: q 1.818e-5 rad^2, v 0.029 (rad/s)^2)",
                   f"measured        q {errors['measured_q']:.3e} rad^2   v {errors['measured_v']:.3e} (rad/s)^2",
                   f"true            q {errors['true_q']:.3e} rad^2   v {errors['true_v']:.3e} (rad/s)^2"]
+        smooth = tracking_smoothness(dataset)
+        lines += ["", "smoothness of the true motion (per joint)", header]
+        for key, label in (("velocity_error_rms", "v error rms"), ("sign_flip_rate", "dv sign flips"),
+                           ("peak_acceleration", "|qdd| peak"), ("peak_planned_acceleration", "plan |qdd| pk")):
+            lines.append(f"{label:14s}" + "".join(f"{value:>17.3g}" for value in smooth[key]))
     return "\n".join(lines)
 
 

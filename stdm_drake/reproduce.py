@@ -114,8 +114,10 @@ class TrainJob:
 
 # ---- stage 1: datasets ----------------------------------------------------------------------------
 
-def _reusable_dataset(path: pathlib.Path, count: int, seed: int):
-    """The dataset at `path` if it is readable and was collected with this count and seed, else None."""
+def _reusable_dataset(path: pathlib.Path, request):
+    """The dataset at `path` if it is readable and was collected exactly as `request` asks (count, seed,
+    robot, plant, sensor, controller, plan or excitation settings; package versions aside), else None."""
+    from stdm_drake.collect import collection_metadata
     from stdm_drake.dataset import load_dataset
     if not path.exists():
         return None
@@ -123,23 +125,26 @@ def _reusable_dataset(path: pathlib.Path, count: int, seed: int):
         dataset = load_dataset(path)
     except InputError:  # unreadable (e.g. truncated): it will be collected again
         return None
-    return dataset if dataset.metadata.get("seed") == seed and dataset.num_trajectories == count else None
+    expected = json.loads(json.dumps(collection_metadata(request)))
+    expected.pop("package_versions")
+    same = all(dataset.metadata.get(key) == value for key, value in expected.items())
+    return dataset if same else None
 
 
 def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, progress: bool,
                    name: str | None = None, options: tuple = ()):
     """Collect the dataset (`stdm-drake collect` with its defaults plus the command-line `options`)
-    unless a valid file for the same name, count and seed exists."""
+    unless a file of that name collected with exactly these settings exists."""
     from stdm_drake.collect import add_arguments, collect, request_from_args
     from stdm_drake.dataset import load_dataset, write_dataset
     path = folder / f"{name or protocol}_n{count}_seed{seed}.h5"
-    dataset = _reusable_dataset(path, count, seed)
-    if dataset is not None:
-        return dataset
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     request = request_from_args(parser.parse_args(["--protocol", protocol, "--count", str(count), "--seed", str(seed),
                                                    "-o", str(path), *options]))
+    dataset = _reusable_dataset(path, request)
+    if dataset is not None:
+        return dataset
     trajectories, groups, metadata = collect(request, progress=progress)
     write_dataset(path, trajectories, groups, metadata)
     return load_dataset(path)

@@ -7,14 +7,16 @@ import pytest
 
 from stdm_drake.cli import main
 from stdm_drake.collect import CollectionSettings, SimulationRig
-from stdm_drake.control import JointSensor, SensorConfig
+from stdm_drake.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
 from stdm_drake.dataset import load_dataset
-from stdm_drake.inspect import tracking_errors
+from stdm_drake.inspect import tracking_errors, tracking_smoothness
 
 
-def test_next_state_is_a_function_of_state_and_held_torque(excitation_dataset):
-    """Re-simulating one sample period from (x_k, a_k) on a fresh rig reproduces x_k+1 exactly."""
-    dataset = load_dataset(excitation_dataset)
+@pytest.mark.parametrize("name", ["excitation_dataset", "tracking_dataset"])
+def test_next_state_is_a_function_of_state_and_held_torque(name, request):
+    """Re-simulating one sample period from (x_k, a_k) on a fresh rig reproduces x_k+1 exactly (the
+    tracking controller's filter and integral live outside the plant: the torque is held)."""
+    dataset = load_dataset(request.getfixturevalue(name))
     rig = SimulationRig(CollectionSettings())
     traj = dataset.trajectory(1)
     for k in (0, 17, 49):
@@ -78,7 +80,8 @@ def test_tracking_dataset_tracks_tightly(tracking_dataset):
         assert not np.array_equal(traj["q"], traj["q_true"])  # measured with noise
         for key in ("v_planned", "qdd_planned"):
             assert np.abs(traj[key][[0, -1]]).max() < 1e-6  # plans start and end at rest
-    assert dataset.metadata["controller"]["kind"] == "pid"
+    assert dataset.metadata["controller"]["kind"] == "inverse_dynamics"
+    assert dataset.metadata["controller"]["velocity_filter_time_constant"] == 0.015
     assert dataset.metadata["planner"]["kind"] == "quintic"
 
 
@@ -88,19 +91,43 @@ def test_sensor_filter_is_a_causal_moving_average():
     assert outputs == [0.0, 0.5, 1.0, 2.0, 3.0]
 
 
-def test_inverse_dynamics_controller_option(tmp_path):
-    path = tmp_path / "id.h5"
-    assert main(["collect", "--protocol", "tracking", "--controller", "controllers/inverse_dynamics.yaml",
-                 "--count", "2", "--seed", "2", "--workers", "1", "--quiet", "-o", str(path)]) == 0
-    dataset = load_dataset(path)
-    assert dataset.metadata["controller"]["kind"] == "inverse_dynamics"
-    assert tracking_errors(dataset)["true_q"] < 3e-6
+def test_default_controller_does_not_chatter_where_pid_does(tmp_path, tracking_dataset):
+    """Same plans and sensor noise: the diagonal PID (pid.yaml) makes the wrists chatter, the default
+    filtered computed-torque controller does not (wrist velocity error and sign-flip rate >= 3x lower)
+    and tracks the joint angles well within the paper's 1.8e-5 rad^2."""
+    path = tmp_path / "pid.h5"
+    assert main(["collect", "--protocol", "tracking", "--controller", "controllers/pid.yaml",
+                 "--count", "8", "--seed", "5", "--workers", "1", "--quiet", "-o", str(path)]) == 0
+    pid, default = load_dataset(path), load_dataset(tracking_dataset)
+    assert pid.metadata["controller"]["kind"] == "pid"
+    rough, smooth = tracking_smoothness(pid), tracking_smoothness(default)
+    wrists = slice(3, 6)
+    assert np.all(rough["sign_flip_rate"][wrists] > 0.5)  # chatter: close to white noise's 2/3
+    assert np.all(smooth["sign_flip_rate"][wrists] * 3 <= rough["sign_flip_rate"][wrists])
+    chattering = slice(3, 5)  # wrist_1, wrist_2: where the velocity error was largest
+    assert np.all(smooth["velocity_error_rms"][chattering] * 3 <= rough["velocity_error_rms"][chattering])
+    assert np.all(smooth["peak_acceleration"] < 2 * smooth["peak_planned_acceleration"].max())
+    assert tracking_errors(default)["true_q"] < 1.8e-5
+
+
+def test_controller_velocity_filter_is_first_order():
+    """D-only controller (kp = ki = 0, kd = 1, no gravity): torque = -v_filtered; with a time constant
+    equal to the period the filter moves halfway each sample, starting at the first reading."""
+    config = ControllerConfig(kind="pid", kp=[0.0] * 6, ki=[0.0] * 6, kd=[1.0] * 6, gravity_feedforward=False,
+                              velocity_filter_time_constant=0.01)
+    controller = SampledJointController(config, 0.01)
+    zeros = np.zeros(6)
+    torques = [controller.torque(zeros, np.full(6, v), zeros, zeros, zeros)[0] for v in (2.0, 0.0, 0.0, 4.0)]
+    np.testing.assert_allclose(torques, [-2.0, -1.0, -0.5, -2.25])
+    controller.reset()
+    assert controller.torque(zeros, np.full(6, 3.0), zeros, zeros, zeros)[0] == pytest.approx(-3.0)
 
 
 def test_inspect_prints_summary(tracking_dataset, capsys):
     assert main(["inspect", str(tracking_dataset)]) == 0
     out = capsys.readouterr().out
     assert "protocol        tracking" in out and "tracking error" in out and "groups          0: 2" in out
+    assert "dv sign flips" in out and "v error rms" in out
 
 
 def run_cli(*args, cwd=None):
@@ -147,6 +174,10 @@ def test_bad_controller_and_period(tmp_path):
     gains.write_text("kind: pid\nkp: [1, 2, 3]\n")
     result = run_cli("collect", "--controller", str(gains), "-o", str(tmp_path / "out.h5"))
     assert result.returncode == 2 and "kp must be 6" in result.stderr
+    gains.write_text(open("controllers/inverse_dynamics.yaml").read().replace(
+        "velocity_filter_time_constant: 0.015", "velocity_filter_time_constant: -0.01"))
+    result = run_cli("collect", "--controller", str(gains), "-o", str(tmp_path / "out.h5"))
+    assert result.returncode == 2 and "velocity_filter_time_constant must be >= 0" in result.stderr
     result = run_cli("collect", "--sample-period", "0.0015", "-o", str(tmp_path / "out.h5"))
     assert result.returncode == 2 and "whole multiple" in result.stderr
     assert list(tmp_path.iterdir()) == [gains]

@@ -150,3 +150,48 @@ def test_benchmark_report_writer_keeps_other_sections(tmp_path):
     benchmark_report.write_benchmark_section("Learning library", "Rollout", "new\n", path)
     text = path.read_text()
     assert "new" in text and "old" not in text and text.rstrip().endswith("## Data collection\n\nkeep")
+
+
+@pytest.mark.parametrize("model_type", ["DD", "DED"])
+def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, tmp_path, capsys, model_type):
+    dataset, _ = tiny
+    output = tmp_path / model_type
+    arguments = ["train", str(dataset), "-o", str(output), "--model", model_type, "--alpha", "auto",
+                 "--alpha-grid", "0", "1e-3", "1", "--ensemble-size", "2", "--hidden-width", "16", "--hidden-layers",
+                 "2", "--epochs", "5", "--lr-schedule", "cosine", "--train", "6", "--val", "2", "--quiet"]
+    assert main(arguments) == 0
+    assert "alpha chosen by validation" in capsys.readouterr().out
+    summary = json.loads((output / "summary.json").read_text())
+    selection = summary["alpha_selection"]["0"]
+    assert selection["alphas"] == [0.0, 1e-3, 1.0]
+    assert selection["val_mse"][selection["chosen_index"]] == min(selection["val_mse"]) <= selection["val_mse"][0]
+    checkpoint = load_model(output / "seed0" / "checkpoint.pt", state_dim=12, action_dim=6)
+    assert checkpoint.metadata["alpha_selection"] == selection
+    assert checkpoint.training_config.alpha == selection["chosen_alpha"]
+    assert checkpoint.training_config.lr_schedule == "cosine"
+    assert checkpoint.model_config.ensemble_size == (2 if model_type == "DED" else 1)
+    lines = (output / "seed0" / "alpha_selection.csv").read_text().splitlines()
+    assert lines[0] == "alpha,val_state_mse_standardized,best_epoch,chosen" and len(lines) == 4
+    assert (output / "seed0" / "alpha_selection.png").read_bytes().startswith(b"\x89PNG")
+    before = (output / "seed0" / "checkpoint.pt").read_bytes()
+    assert main(arguments + ["--resume"]) == 0       # a finished run: nothing is trained again
+    assert load_model(output / "seed0" / "checkpoint.pt").metadata["alpha_selection"] == selection
+    if model_type == "DD":
+        assert (output / "seed0" / "checkpoint.pt").read_bytes() == before
+
+
+def test_alpha_flag_errors(tiny, tmp_path, capsys):
+    dataset, _ = tiny
+    for extra, message in ((["--model", "D", "--alpha", "auto"], "trains without"),
+                           (["--model", "DD", "--alpha", "often"], "expected a number >= 0 or 'auto'"),
+                           (["--model", "DD", "--alpha", "-1"], "expected a number >= 0 or 'auto'"),
+                           (["--model", "DD", "--alpha", "auto", "--alpha-grid", "0", "-2"], "--alpha-grid"),
+                           (["--model", "DD", "--lr-schedule", "cosine", "--min-lr", "1"], "min_learning_rate")):
+        capsys.readouterr()
+        try:
+            code = main(["train", str(dataset), "-o", str(tmp_path / "x"), "--quiet", *extra])
+        except SystemExit as stop:   # argparse's own usage errors
+            code = stop.code
+        assert code == 2
+        err = capsys.readouterr().err
+        assert message in err and "Traceback" not in err, (extra, err)
