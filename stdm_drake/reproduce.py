@@ -61,11 +61,12 @@ class Profile:
     patience: int = 50
     horizon: int = 100
     sine_sum: str = "full"
-    identification_count: int = 100  # tracked plans with dithered PID and an ideal sensor (MPC models)
+    identification_count: int = 120  # tracked plans with dithered PID and an ideal sensor (MPC models)
     control_train: int = 20          # per initial pose
     control_val: int = 3
-    control_test: int = 2
-    mpc_plans: int = 3
+    control_test: int = 7
+    control_seeds: int = 3           # initializations of each MPC model type
+    mpc_plans: int = 20              # held-out plans tracked by every MPC
     mpc_steps: int | None = None  # control steps per MPC run (None: the whole plan)
 
 
@@ -73,7 +74,8 @@ FULL = Profile("full")
 QUICK = Profile("quick", excitation_count=40, tracking_count=40, seeds=1, activations=("tanh", "relu", "swish"),
                 sim_train_sizes=(5, 10), sim_val=10, sim_test=20, real_train_sizes=(1, 2), real_val=2, real_test=5,
                 multistep_train=2, ensemble_size=2, max_epochs=25, patience=10, horizon=50, sine_sum="quick",
-                identification_count=20, control_train=3, control_val=1, control_test=1, mpc_plans=1, mpc_steps=20)
+                identification_count=20, control_train=3, control_val=1, control_test=1, control_seeds=2, mpc_plans=2,
+                mpc_steps=20)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -308,10 +310,11 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
     split = split_trajectories(identification.groups, profile.control_train, profile.control_val,
                                profile.control_test, seed=0, per_group=True)
     for model_type in CONTROL_MODEL_TYPES:
-        jobs.append(TrainJob("control", str(identification.path), identification.sha256, tuple(split.train.tolist()),
-                             tuple(split.val.tolist()), tuple(split.test.tolist()), model_type, "swish", 0,
-                             multistep=False, train_size=profile.control_train, horizon=profile.horizon,
-                             derivative_source="true", alpha_mode="auto", **common))
+        for seed in range(profile.control_seeds):
+            jobs.append(TrainJob("control", str(identification.path), identification.sha256,
+                                 tuple(split.train.tolist()), tuple(split.val.tolist()), tuple(split.test.tolist()),
+                                 model_type, "swish", seed, multistep=False, train_size=profile.control_train,
+                                 horizon=profile.horizon, derivative_source="true", alpha_mode="auto", **common))
     return jobs
 
 
@@ -739,12 +742,22 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
 
     report.heading("Closed-loop MPC (plant + iLQR MPC with each prediction model)")
     if mpc_rows:
-        from stdm_drake.mpc import markdown_table
-        header, _, *lines = markdown_table(mpc_rows).splitlines()
-        report.table([cell.strip() for cell in header.strip("|").split("|")],
-                     [[cell.strip() for cell in line.strip("|").split("|")] for line in lines])
+        types = mpc_rows["types"]
+        plans, seeds = types[0]["plans"], max(row["seeds"] for row in types)
+        report.text(f"{plans} held-out plans of the identification dataset, {seeds} initializations per learned "
+                    "model type (trained on the same split, alpha chosen by validation for DD and PED). Ratios are "
+                    "geometric means over plans (each plan's q MSE a geometric mean over seeds) with 95 % intervals "
+                    "over plans; a ratio above 1 means lower tracking error than the compared controller.")
+        report.table(["model", "q MSE (rad², mean)", "plant-model MPC / model [95 % CI]", "per seed",
+                      "naive twin / model [95 % CI]", "solve mean / p95 (ms)", "limit violations", "fallbacks"],
+                     [[r["model"], _g(r["q_mse_rad2"]), ratio_text(r.get("plant_over_model")),
+                       ", ".join(f"{x:.3g}" for x in r.get("seed_ratios", [])),
+                       ratio_text(r.get("naive_over_derivative")),
+                       f"{r['solve_ms_mean']:.2f} / {r['solve_ms_p95']:.2f}", r["limit_violations"], r["fallbacks"]]
+                      for r in types])
         report.image("mpc/mpc.png", "MPC tracking error, plant model vs learned models")
-        report.text("The paper has no MPC experiment; the plant-as-model MPC is the reference.")
+        report.text("The paper has no MPC experiment; the plant-as-model MPC is the reference. Per model "
+                    "instance: mpc_runs.csv.")
 
     markdown, page = report.markdown(), report.html()
     write_text_atomic(folder / "report.md", markdown + "\n")
@@ -752,13 +765,14 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
                   coverage=coverage,
                   multistep=[{k: v for k, v in r.items() if k not in ("epoch_axis", "val_mse_curve")} for r in multistep],
-                  mpc=mpc_rows, paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
+                  mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [], paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
     write_text_atomic(folder / "results.json", json.dumps(dict(tables=tables, runs=results), default=json_default))
-    for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage"):
+    for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage", "mpc", "mpc_runs"):
         rows = [_flat(row) for row in tables[name]]
         if rows:
+            columns = list(dict.fromkeys(key for row in rows for key in row))
             write_text_atomic(folder / f"{name}.csv", "\n".join(
-                [",".join(rows[0])] + [",".join(str(row.get(key, "")) for key in rows[0]) for row in rows]) + "\n")
+                [",".join(columns)] + [",".join(str(row.get(key, "")) for key in columns) for row in rows]) + "\n")
     return folder / "report.html"
 
 
@@ -825,23 +839,62 @@ def reused_sine_sum(path: pathlib.Path, study_config):
     return stored if stored.get("config") == expected and stored.get("runs") else None
 
 
-def run_mpc(profile, identification, results, cache, folder, progress) -> list[dict]:
-    """MPC with the plant and the control experiment's D, DD, PE, PED models on held-out plans of
-    the identification dataset."""
+def run_mpc(profile, identification, results, cache, folder, progress) -> dict:
+    """MPC with the plant and every seed of the control experiment's D, DD, PE, PED models on held-out
+    plans of the identification dataset; returns {"runs": per model instance, "types": mpc_statistics}."""
     from stdm_drake.learned_system import LearnedModel
     from stdm_drake.mpc import (PlantModel, Reference, compare_controllers, held_out_references, load_mpc_config,
                                 plot_results, summarize)
     models = [PlantModel(identification.sample_period)]
     for model_type in CONTROL_MODEL_TYPES:
-        match = _select(results, experiment="control", model_type=model_type)
-        if match:
-            models.append(LearnedModel(cache / f"{match[0]['key']}.pt", name=model_type))
+        for match in sorted(_select(results, experiment="control", model_type=model_type), key=lambda r: r["seed"]):
+            models.append(LearnedModel(cache / f"{match['key']}.pt", name=f"{model_type} seed {match['seed']}"))
     references = held_out_references(identification, [model.checkpoint for model in models[1:]], profile.mpc_plans)
     if profile.mpc_steps is not None:
         references = [(i, Reference(q=r.q[:profile.mpc_steps + 1], v=r.v[:profile.mpc_steps + 1])) for i, r in references]
     runs = compare_controllers(models, references, load_mpc_config(), progress=progress)
     plot_results(runs, identification.sample_period, folder / "mpc.png")
-    return summarize(runs, identification.sample_period)
+    return dict(runs=summarize(runs, identification.sample_period), types=mpc_statistics(runs))
+
+
+def mpc_statistics(runs) -> list[dict]:
+    """Per model type (runs named "TYPE seed S", the plant "plant"): mean q MSE over seeds and plans, the
+    ratio of the plant-model MPC's q MSE to this type's with its 95 % interval, and, for the derivative
+    twins (DD, PED), the ratio of the naive twin's (D, PE) q MSE to theirs. Pairs are plans: on each plan
+    a type's q MSE is the geometric mean over its seeds, so seed-to-seed spread is averaged within a
+    plan and the interval reflects plan-to-plan variation; `seed_ratios` gives each seed's own ratio
+    (geometric mean over plans) for the spread between initializations."""
+    by_type: dict[str, dict[int, dict[int, float]]] = {}
+    solve = {}
+    for run in runs:
+        model_type, _, seed = run.model.partition(" seed ")
+        by_type.setdefault(model_type, {}).setdefault(int(seed or 0), {})[run.trajectory] = run.q_mse_rad2
+        solve.setdefault(model_type, []).append((run.solve_ms_mean, run.solve_ms_p95, run.limit_violations,
+                                                  run.fallbacks))
+    plans = sorted(next(iter(by_type.values()))[0])
+
+    def per_plan(model_type):
+        seeds = by_type[model_type]
+        return np.exp([np.mean([np.log(seeds[seed][plan]) for seed in seeds]) for plan in plans])
+
+    plant = per_plan("plant") if "plant" in by_type else None
+    twins = {"DD": "D", "PED": "PE"}
+    rows = []
+    for model_type, seeds in by_type.items():
+        values = per_plan(model_type)
+        stats = np.array(solve[model_type])
+        row = dict(model=model_type, seeds=len(seeds), plans=len(plans),
+                   q_mse_rad2=float(np.mean([q for seed in seeds.values() for q in seed.values()])),
+                   solve_ms_mean=float(stats[:, 0].mean()), solve_ms_p95=float(stats[:, 1].max()),
+                   limit_violations=int(stats[:, 2].sum()), fallbacks=int(stats[:, 3].sum()))
+        if plant is not None and model_type != "plant":
+            row["plant_over_model"] = paired_ratio(plant, values).as_dict()
+            row["seed_ratios"] = [float(np.exp(np.mean(np.log(plant) - np.log([seeds[seed][p] for p in plans]))))
+                                  for seed in sorted(seeds)]
+        if twins.get(model_type) in by_type:
+            row["naive_over_derivative"] = paired_ratio(per_plan(twins[model_type]), values).as_dict()
+        rows.append(row)
+    return rows
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

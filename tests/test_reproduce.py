@@ -33,6 +33,11 @@ def test_quick_profile_writes_a_complete_report(quick_report):
     assert [row["train_trajectories"] for row in tables["real_sizes"]] == list(QUICK.real_train_sizes)
     assert [row["model_type"] for row in tables["multistep"]] == list(MODEL_TYPES)
     assert [row["model"] for row in tables["mpc"]] == ["plant", "D", "DD", "PE", "PED"]
+    for row in tables["mpc"][1:]:
+        assert row["seeds"] == QUICK.control_seeds and row["plans"] == QUICK.mpc_plans
+        assert row["plant_over_model"]["pairs"] == QUICK.mpc_plans and len(row["seed_ratios"]) == QUICK.control_seeds
+    assert "naive_over_derivative" in tables["mpc"][2] and "naive_over_derivative" in tables["mpc"][4]
+    assert len(tables["mpc_runs"]) == 1 + 4 * QUICK.control_seeds
     for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "multistep"):
         for row in tables[name]:
             numbers = [value for value in row.values() if isinstance(value, float) and not math.isinf(value)]
@@ -65,7 +70,8 @@ def test_full_profile_uses_the_papers_splits():
             return {"tau": np.zeros((50, 6))}
 
     excitation, tracking = Stub(np.zeros(200, int), "ex"), Stub(np.repeat(np.arange(4), 25), "tr")
-    local, identification = Stub(np.zeros(200, int), "lo"), Stub(np.repeat(np.arange(4), 25), "id")
+    local = Stub(np.zeros(200, int), "lo")
+    identification = Stub(np.repeat(np.arange(4), FULL.identification_count // 4), "id")
     jobs = plan_jobs(FULL, excitation, local, tracking, identification)
     sim = [job for job in jobs if job.experiment == "sim"]
     assert {(len(job.train), len(job.val), len(job.test)) for job in sim} == {(10, 40, 120), (20, 40, 120), (40, 40, 120)}
@@ -81,9 +87,11 @@ def test_full_profile_uses_the_papers_splits():
     assert sorted(job.model_type for job in multistep) == sorted(MODEL_TYPES)
     assert {(len(job.train), len(job.val), len(job.test)) for job in multistep} == {(20, 20, 60)}
     control = [job for job in jobs if job.experiment == "control"]
-    assert [job.model_type for job in control] == ["D", "DD", "PE", "PED"]
+    assert [(job.model_type, job.seed) for job in control] == [
+        (model_type, seed) for model_type in ("D", "DD", "PE", "PED") for seed in range(3)]
     assert {(len(job.train), len(job.val), len(job.test), job.derivative_source) for job in control} == {
-        (80, 12, 8, "true")}
+        (80, 12, 28, "true")}
+    assert FULL.mpc_plans >= 20 and FULL.mpc_plans <= 28
     assert all(job.dataset == "id" for job in control)
     assert len({job.key() for job in jobs}) == len(jobs)
     activations_at_40 = {job.activation for job in sim if len(job.train) == 40}
@@ -125,6 +133,27 @@ def test_verdicts_follow_from_the_intervals():
     assert worse["verdict"] == "hurts" and verdict(worse, 60) == "DIFFERS (worse)"
     assert verdict(helps, None) == ""
     assert paired_ratio([2.0], [1.0]).verdict == "no clear difference"   # one pair: no interval
+
+
+def test_mpc_statistics_pair_by_plan_and_average_seeds():
+    """Plan-level pairs: each type's q MSE on a plan is the geometric mean over its seeds."""
+    from types import SimpleNamespace
+
+    from stdm_drake.reproduce import mpc_statistics
+
+    def run(model, plan, q):
+        return SimpleNamespace(model=model, trajectory=plan, q_mse_rad2=q, solve_ms_mean=1.0, solve_ms_p95=2.0,
+                               limit_violations=0, fallbacks=0)
+    runs = [run("plant", p, 1.0) for p in range(4)]
+    runs += [run(f"D seed {s}", p, 2.0 * (1 + s)) for s in range(2) for p in range(4)]        # gm over seeds: 2 sqrt 2
+    runs += [run(f"DD seed {s}", p, [1.0, 1.1, 0.9, 1.0][p]) for s in range(2) for p in range(4)]
+    rows = {row["model"]: row for row in mpc_statistics(runs)}
+    assert rows["D"]["plant_over_model"]["ratio"] == pytest.approx(1 / (2 * 2 ** 0.5))
+    assert rows["D"]["plant_over_model"]["verdict"] == "hurts" and rows["D"]["plant_over_model"]["pairs"] == 4
+    assert rows["D"]["seed_ratios"] == pytest.approx([0.5, 0.25])
+    assert rows["D"]["q_mse_rad2"] == pytest.approx(3.0)
+    assert rows["DD"]["naive_over_derivative"]["verdict"] == "helps"
+    assert "plant_over_model" not in rows["plant"] and "naive_over_derivative" not in rows["D"]
 
 
 def test_grid_variants_are_paired_members_of_one_grid(quick_report):
