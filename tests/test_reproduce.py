@@ -90,8 +90,8 @@ def test_full_profile_uses_the_papers_splits():
     assert [(job.model_type, job.seed) for job in control] == [
         (model_type, seed) for model_type in ("D", "DD", "PE", "PED") for seed in range(3)]
     assert {(len(job.train), len(job.val), len(job.test), job.derivative_source) for job in control} == {
-        (80, 12, 28, "true")}
-    assert FULL.mpc_plans >= 20 and FULL.mpc_plans <= 28
+        (72, 8, 20, "true")}
+    assert FULL.mpc_plans == 20
     assert all(job.dataset == "id" for job in control)
     assert len({job.key() for job in jobs}) == len(jobs)
     activations_at_40 = {job.activation for job in sim if len(job.train) == 40}
@@ -104,7 +104,8 @@ def test_full_profile_uses_the_papers_splits():
     assert {(len(job.train), len(job.val), len(job.test), job.activation, job.multistep, job.dataset)
             for job in local_jobs} == {(40, 40, 120, "swish", True, "lo")}
     assert {job.seed for job in local_jobs} == set(range(5))
-    assert all(job.alpha_mode == "auto" for job in multistep + control)
+    assert all(job.alpha_mode == "auto" for job in multistep)
+    assert all(job.alpha_mode == "fixed" and job.max_epochs == FULL.control_max_epochs for job in control)
 
 
 def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
