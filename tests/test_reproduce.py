@@ -105,7 +105,9 @@ def test_full_profile_uses_the_papers_splits():
             for job in local_jobs} == {(40, 40, 120, "swish", True, "lo")}
     assert {job.seed for job in local_jobs} == set(range(5))
     assert all(job.alpha_mode == "auto" for job in multistep)
-    assert all(job.alpha_mode == "fixed" and job.max_epochs == FULL.control_max_epochs for job in control)
+    assert all(job.alpha_mode == "fixed" and job.max_epochs == FULL.control_max_epochs
+               and job.action_rate == "zero_order_hold" for job in control)
+    assert all(job.action_rate == "forward_difference" for job in jobs if job.experiment != "control")
 
 
 def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
@@ -172,3 +174,14 @@ def test_grid_variants_are_paired_members_of_one_grid(quick_report):
     assert len(by_type["D"]["multistep_q"]) == 50    # open-loop over the whole excitation trajectory
     coverage = json.loads((quick_report / "results.json").read_text())["tables"]["coverage"]
     assert [row["regime"] for row in coverage] == ["global", "local"]
+
+
+def test_datasets_are_reused_only_when_collected_with_the_same_settings(tmp_path):
+    from stdm_drake.reproduce import ensure_dataset
+    first = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans")
+    stamp = first.path.stat().st_mtime_ns
+    assert ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans").path.stat().st_mtime_ns == stamp
+    other = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans",
+                           options=("--controller", "controllers/pid.yaml"))
+    assert other.path == first.path and other.path.stat().st_mtime_ns != stamp
+    assert other.metadata["controller"]["kind"] == "pid"
