@@ -265,9 +265,10 @@ JOB_COST = {"control": 20.0, "sim_local": 15.0, "multistep": 2.0, "sim": 1.0, "r
 
 
 def job_cost(job: TrainJob) -> float:
-    kind = job.model_type
-    members = len(job.alphas) if job.alphas else (5.0 if "E" in kind else 1.0)
-    derivative = 1.5 if job.alphas or (kind.endswith("D") and kind != "D") else 1.0
+    from stdm_drake.models import parse_model_type
+    kind = parse_model_type(job.model_type)
+    members = len(job.alphas) if job.alphas else (job.ensemble_size if kind.ensemble else 1)
+    derivative = 1.5 if job.alphas or kind.derivative else 1.0
     return JOB_COST.get(job.experiment, 1.0) * members * derivative * len(job.train)
 
 
@@ -796,7 +797,8 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
                   coverage=coverage,
                   multistep=[{k: v for k, v in r.items() if k not in ("epoch_axis", "val_mse_curve")} for r in multistep],
-                  mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [], paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
+                  mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [],
+                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
     write_text_atomic(folder / "results.json", json.dumps(dict(tables=tables, runs=results), default=json_default))
     for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage", "mpc", "mpc_runs"):
         rows = [_flat(row) for row in tables[name]]
@@ -811,8 +813,6 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
 
 def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True):
     """Run every stage; returns the report path."""
-    import torch
-
     from stdm_drake import sine_sum
     output = pathlib.Path(output)
     cache = output / "cache"
@@ -844,7 +844,6 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     timings["sine_sum"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    torch.set_num_threads(1)
     mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers)
     timings["mpc"] = time.perf_counter() - tick
     return write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,

@@ -24,7 +24,6 @@ Usage: python tools/generalization_gap.py [--quick] [--seeds N] [-o out/generali
 """
 import argparse
 import concurrent.futures
-import dataclasses
 import json
 import multiprocessing
 import os
@@ -38,6 +37,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
+from stdm_drake.files import write_text_atomic  # noqa: E402
 from stdm_drake.stats import paired_ratio  # noqa: E402
 
 ALPHAS = (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0)
@@ -117,7 +117,8 @@ def summarize(rows: list[dict], seeds: int) -> str:
         test_v = np.array([r["test"][0][1] for r in runs])
         deriv_q = np.array([r["test"][r["chosen"]][0] for r in runs])
         deriv_v = np.array([r["test"][r["chosen"]][1] for r in runs])
-        versus = "" if variant == "baseline" else f"{paired_ratio(base, test_q).text()} {paired_ratio(base, test_q).verdict}"
+        versus = paired_ratio(base, test_q)
+        versus = "" if variant == "baseline" else f"{versus.text()} {versus.verdict}"
         gain = paired_ratio(test_q, deriv_q)
         epochs = ", ".join(str(r["best_epochs"][0]) for r in runs)
         alphas = ", ".join(f"{r['chosen_alpha']:g}" for r in runs)
@@ -136,7 +137,7 @@ def main() -> int:
     args = parser.parse_args()
     from stdm_drake.collect import CollectionRequest, CollectionSettings, ExcitationConfig, collect
     from stdm_drake.config import load_yaml_config
-    from stdm_drake.dataset import split_trajectories, write_dataset
+    from stdm_drake.dataset import load_dataset, split_trajectories, write_dataset
     from stdm_drake.robot import TRAJECTORIES_DIR
 
     args.output.mkdir(parents=True, exist_ok=True)
@@ -148,7 +149,6 @@ def main() -> int:
         request = CollectionRequest("excitation", count, 0, CollectionSettings(), excitation=excitation,
                                     workers=args.workers)
         write_dataset(path, *collect(request, progress=False))
-    from stdm_drake.dataset import load_dataset
     dataset = load_dataset(path)
     split = split_trajectories(dataset.groups, largest, VALIDATION, TEST, seed=0, per_group=False)
     split = {"train": split.train.tolist(), "val": split.val.tolist(), "test": split.test.tolist()}
@@ -165,8 +165,8 @@ def main() -> int:
                   flush=True)
     wall = time.perf_counter() - started
     table = summarize(rows, seeds)
-    (args.output / "results.json").write_text(json.dumps(dict(rows=rows, wall_seconds=wall, alphas=ALPHAS)))
-    (args.output / "summary.md").write_text(table + f"\n\n{len(jobs)} jobs in {wall:.0f} s wall.\n")
+    write_text_atomic(args.output / "results.json", json.dumps(dict(rows=rows, wall_seconds=wall, alphas=ALPHAS)))
+    write_text_atomic(args.output / "summary.md", table + f"\n\n{len(jobs)} jobs in {wall:.0f} s wall.\n")
     print(table)
     print(f"{len(jobs)} jobs in {wall:.0f} s wall")
     return 0
