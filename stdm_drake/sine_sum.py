@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import concurrent.futures
+import contextlib
 import dataclasses
 import json
 import multiprocessing
@@ -71,7 +72,8 @@ def sample(points: int):
 class StudyConfig:
     """What the study trains. epochs = full-batch Adam steps per network; seeds = networks per
     configuration, headline_seeds for the (table_layers, swish) configuration (the paper's Fig. 8 has
-    five); alpha = a number, or "auto" (chosen by validation from alpha_grid, see module doc)."""
+    five); alpha = a number, or "auto" (chosen by validation from alpha_grid, see module doc);
+    flush_subnormals: train with subnormal floats flushed to zero (see `_numerics`)."""
     layers: tuple = (1, 3, 5)
     activations: tuple = ACTIVATION_NAMES
     seeds: int = 3
@@ -92,6 +94,7 @@ class StudyConfig:
     table_losses: tuple = ("mae", "mse", "huber")
     table_seeds: int = 3
     seed: int = 0
+    flush_subnormals: bool = True
 
     def __post_init__(self):
         unknown = [name for name in self.activations if name not in ACTIVATION_NAMES]
@@ -154,6 +157,22 @@ def _training_config(config: StudyConfig, alpha: float, loss: str = "mse") -> Tr
                           seed=config.seed)
 
 
+@contextlib.contextmanager
+def _numerics(config: StudyConfig):
+    """Subnormal floats flushed to zero while training, if `config.flush_subnormals`. On raw x (±94) the
+    hidden pre-activations are large, so exp(-h²/2) (gelu), exp(-h) (softplus) and e^h (elu) underflow
+    into subnormals, which x86 CPUs process many times slower: flushing them makes gelu derivative
+    runs about 2.5x faster and changes values only below 1.2e-38."""
+    if not config.flush_subnormals:
+        yield
+        return
+    torch.set_flush_denormal(True)
+    try:
+        yield
+    finally:
+        torch.set_flush_denormal(False)
+
+
 def _test_mse(model, test: RegressionData) -> np.ndarray:
     """Test MSE (raw y units) of every member, and the member predictions (E, N)."""
     with torch.no_grad():
@@ -168,8 +187,9 @@ def train_run(spec: RunSpec, config: StudyConfig, alpha: float) -> dict:
     train, val, test = sample(config.train_points), sample(config.val_points), sample(config.test_points)
     model_config = _model_config(config, spec.layers, spec.activation, spec.members)
     training = _training_config(config, alpha if spec.derivative else 0.0, spec.loss)
-    result = train_model(model_config, training, train, val)
-    test_mse, predicted = _test_mse(result.model, test)
+    with _numerics(config):
+        result = train_model(model_config, training, train, val)
+        test_mse, predicted = _test_mse(result.model, test)
     best = int(np.argmin(result.best_scores))
     return dict(spec=dataclasses.asdict(spec), label=spec.label, alpha=training.alpha,
                 member_test_mse=test_mse.tolist(), member_val_mse_standardized=list(result.best_scores),
@@ -184,9 +204,10 @@ def alpha_sweep(config: StudyConfig) -> dict:
     every alpha is reported beside it, never used for the choice."""
     started = time.perf_counter()
     train, val, test = sample(config.train_points), sample(config.val_points), sample(config.test_points)
-    grid, selection = train_alpha_grid(_model_config(config, config.table_layers, "swish", 1),
-                                       _training_config(config, 0.0), train, val, alphas=config.alpha_grid)
-    test_mse, _ = _test_mse(grid.model, test)
+    with _numerics(config):
+        grid, selection = train_alpha_grid(_model_config(config, config.table_layers, "swish", 1),
+                                           _training_config(config, 0.0), train, val, alphas=config.alpha_grid)
+        test_mse, _ = _test_mse(grid.model, test)
     return dict(selection.as_dict(), test_mse=test_mse.tolist(), seconds=time.perf_counter() - started)
 
 
