@@ -92,3 +92,16 @@ def test_quick_study_end_to_end(tmp_path, capsys):
     summary = (output / "summary.md").read_text()
     assert "quick profile" in summary and "paper 0.0006" in summary and "s wall" in summary
     assert "chosen by validation" in summary and "95 % interval" in summary
+
+
+def test_flushing_subnormals_changes_speed_not_results():
+    """Raw x in ±94 drives gelu's exp(-h²/2) into subnormals; flushing them to zero (the default) must
+    leave the trained networks' test errors as they are, and switch flushing off again afterwards."""
+    import torch
+    from stdm_drake.sine_sum import RunSpec, train_run
+    spec = RunSpec(layers=3, activation="gelu", derivative=True, loss="mse", members=2)
+    config = dataclasses.replace(QUICK, epochs=60, validation_interval=20)
+    flushed = train_run(spec, config, 1.0)
+    plain = train_run(spec, dataclasses.replace(config, flush_subnormals=False), 1.0)
+    np.testing.assert_allclose(flushed["member_test_mse"], plain["member_test_mse"], rtol=1e-5)
+    assert torch.tensor(1e-40, dtype=torch.float32).item() != 0.0  # flushing is off outside the study
