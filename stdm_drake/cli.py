@@ -13,14 +13,14 @@ import sys
 
 # name -> (module, one-line help)
 COMMANDS = {
-    "collect": ("stdm_drake.collect", "simulate the UR-10 under a data protocol and write a dataset"),
-    "inspect": ("stdm_drake.inspect", "print a summary of a dataset file"),
-    "train": ("stdm_drake.learn", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
-    "evaluate": ("stdm_drake.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
-    "sine-sum": ("stdm_drake.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
-    "mpc": ("stdm_drake.mpc", "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
-    "view": ("stdm_drake.visualize", "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
-    "reproduce": ("stdm_drake.reproduce", "the paper's UR-10 experiments end to end, with a report beside its numbers"),
+    "collect": ("stdm_drake.collection.collect", "simulate the UR-10 under a data protocol and write a dataset"),
+    "inspect": ("stdm_drake.data.inspect", "print a summary of a dataset file"),
+    "train": ("stdm_drake.learning.train", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
+    "evaluate": ("stdm_drake.learning.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
+    "sine-sum": ("stdm_drake.experiments.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
+    "mpc": ("stdm_drake.closed_loop.comparison", "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
+    "view": ("stdm_drake.closed_loop.view", "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
+    "reproduce": ("stdm_drake.experiments.reproduce", "the paper's UR-10 experiments end to end, with a report beside its numbers"),
 }
 
 

@@ -46,3 +46,9 @@ def check_joint_vector(label: str, values, *, nonnegative: bool = False) -> np.n
         kind = "finite non-negative" if nonnegative else "finite"
         raise InputError(f"{label} must be 6 {kind} numbers, got {values}")
     return array
+
+
+def require(condition: bool, message: str, value) -> None:
+    """InputError "<message>, got <value>" unless `condition` holds (config validation)."""
+    if not condition:
+        raise InputError(f"{message}, got {value!r}")

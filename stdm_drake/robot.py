@@ -19,10 +19,8 @@ from pydrake.multibody.parsing import Parser  # noqa: E402
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig  # noqa: E402
 from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 
-REPO_ROOT = pathlib.Path(__file__).resolve().parents[1]
-MODELS_DIR = REPO_ROOT / "models"
-TRAJECTORIES_DIR = REPO_ROOT / "trajectories"
-CONTROLLERS_DIR = REPO_ROOT / "controllers"
+from stdm_drake.paths import MODELS_DIR  # noqa: E402
+
 UR10_URDF = MODELS_DIR / "ur10.urdf"
 
 JOINT_NAMES = (
@@ -30,6 +28,7 @@ JOINT_NAMES = (
     "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
 )
 NUM_JOINTS = 6
+STATE_DIM = 2 * NUM_JOINTS  # x = [q, v]
 TOOL_FRAME = "tool0"
 BASE_FRAME = "base_link_inertia"
 
@@ -106,6 +105,46 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
     if scene_graph is not None and not config.self_collision:
         _filter_self_collisions(plant, scene_graph)
     return plant, scene_graph
+
+
+class PlantSimulator:
+    """The plant diagram (plant + scene graph, actuation exported as the input port "actuation") and a
+    Simulator, stepped by holding a torque: used by data collection and by the plant-as-model MPC.
+
+    `start(x, tau)` resets to a fresh default context at t = 0 with state x = [q, v] (12,) and the held
+    torque tau (6,) N m, so what follows depends only on its own inputs."""
+
+    def __init__(self, plant_config: PlantConfig | None = None):
+        from pydrake.systems.analysis import Simulator
+
+        builder = DiagramBuilder()
+        self.plant, _ = make_plant(plant_config or PlantConfig(), builder=builder)
+        builder.ExportInput(self.plant.get_actuation_input_port(), "actuation")
+        self.diagram = builder.Build()
+        self.simulator = Simulator(self.diagram)
+        self.context = self.simulator.get_mutable_context()
+        self.plant_context = self.plant.GetMyContextFromRoot(self.context)
+
+    def get_actuation_input_port(self):
+        """The diagram's input port "actuation": joint torques (6,) N m."""
+        return self.diagram.GetInputPort("actuation")
+
+    def start(self, x: np.ndarray, tau: np.ndarray) -> None:
+        """Reset to t = 0 with state x (12,) and torque tau (6,) N m held."""
+        self.diagram.SetDefaultContext(self.context)
+        self.context.SetTime(0.0)
+        self.plant.SetPositionsAndVelocities(self.plant_context, x)
+        self.hold(tau)
+        self.simulator.Initialize()
+
+    def hold(self, tau: np.ndarray) -> None:
+        """Hold the joint torques tau (6,) N m from now on."""
+        self.get_actuation_input_port().FixValue(self.context, tau)
+
+    def advance_to(self, time: float) -> np.ndarray:
+        """Simulate to `time` s and return the state [q, v] (12,)."""
+        self.simulator.AdvanceTo(time)
+        return self.plant.GetPositionsAndVelocities(self.plant_context)
 
 
 def _filter_self_collisions(plant, scene_graph):

@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from stdm_drake.cli import main
-from stdm_drake.collect import CollectionSettings, SimulationRig
-from stdm_drake.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
-from stdm_drake.dataset import load_dataset
-from stdm_drake.inspect import tracking_errors, tracking_smoothness
+from stdm_drake.collection.collect import CollectionSettings, SimulationRig
+from stdm_drake.collection.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
+from stdm_drake.data.dataset import load_dataset
+from stdm_drake.data.inspect import tracking_errors, tracking_smoothness
 
 
 @pytest.mark.parametrize("name", ["excitation_dataset", "tracking_dataset"])
@@ -17,14 +17,14 @@ def test_next_state_is_a_function_of_state_and_held_torque(name, request):
     """Re-simulating one sample period from (x_k, a_k) on a fresh rig reproduces x_k+1 exactly (the
     tracking controller's filter and integral live outside the plant: the torque is held)."""
     dataset = load_dataset(request.getfixturevalue(name))
-    rig = SimulationRig(CollectionSettings())
+    rig = SimulationRig(CollectionSettings()).simulation
     traj = dataset.trajectory(1)
     for k in (0, 17, 49):
         x_k = np.concatenate([traj["q_true"][k], traj["v_true"][k]])
         rig.diagram.SetDefaultContext(rig.context)
         rig.context.SetTime(0.0)
         rig.plant.SetPositionsAndVelocities(rig.plant_context, x_k)
-        rig.actuation.FixValue(rig.context, traj["tau"][k])
+        rig.diagram.GetInputPort("actuation").FixValue(rig.context, traj["tau"][k])
         rig.simulator.Initialize()
         rig.simulator.AdvanceTo(dataset.sample_period)
         x_next = rig.plant.GetPositionsAndVelocities(rig.plant_context)

@@ -3,7 +3,7 @@ import h5py
 import numpy as np
 import pytest
 
-from stdm_drake.dataset import load_dataset, split_trajectories, write_dataset
+from stdm_drake.data.dataset import load_dataset, split_trajectories, write_dataset
 from stdm_drake.errors import InputError
 
 DT = 0.01

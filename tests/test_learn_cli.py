@@ -5,10 +5,11 @@ import numpy as np
 import pytest
 
 from stdm_drake.cli import main
-from stdm_drake.dataset import load_dataset, write_dataset
-from stdm_drake.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
-from stdm_drake.learn import build_model, load_model, save_checkpoint
-from stdm_drake.models import dynamics_config
+from stdm_drake.data.dataset import load_dataset, write_dataset
+from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
+from stdm_drake.learning.trainer import build_model
+from stdm_drake.learning.checkpoint import load_model, save_checkpoint
+from stdm_drake.learning.models import dynamics_config
 
 
 
@@ -62,8 +63,8 @@ def test_train_writes_checkpoints_curves_and_summary(tiny):
         checkpoint = load_model(output / f"seed{seed}" / "checkpoint.pt", state_dim=12, action_dim=6)
         assert checkpoint.model_config.ensemble_size == 2 and checkpoint.model_config.residual
         assert checkpoint.training_config.alpha == pytest.approx(1e-3) and checkpoint.training_config.seed == seed
-        assert checkpoint.metadata["dataset_sha256"] == load_dataset(dataset).sha256
-        assert checkpoint.metadata["sample_period"] == 0.01 and checkpoint.metadata["split"] == split
+        assert checkpoint.metadata.dataset_sha256 == load_dataset(dataset).sha256
+        assert checkpoint.metadata.sample_period == 0.01 and checkpoint.metadata.split == split
         lines = (output / f"seed{seed}" / "curves.csv").read_text().splitlines()
         assert lines[0].startswith("epoch,train_loss") and len(lines) == 5
         assert all(np.isfinite([float(v) for v in line.split(",")]).all() for line in lines[1:])
@@ -166,7 +167,7 @@ def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, t
     assert selection["alphas"] == [0.0, 1e-3, 1.0]
     assert selection["val_mse"][selection["chosen_index"]] == min(selection["val_mse"]) <= selection["val_mse"][0]
     checkpoint = load_model(output / "seed0" / "checkpoint.pt", state_dim=12, action_dim=6)
-    assert checkpoint.metadata["alpha_selection"] == selection
+    assert checkpoint.metadata.alpha_selection == selection
     assert checkpoint.training_config.alpha == selection["chosen_alpha"]
     assert checkpoint.training_config.lr_schedule == "cosine"
     assert checkpoint.model_config.ensemble_size == (2 if model_type == "DED" else 1)
@@ -175,7 +176,7 @@ def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, t
     assert (output / "seed0" / "alpha_selection.png").read_bytes().startswith(b"\x89PNG")
     before = (output / "seed0" / "checkpoint.pt").read_bytes()
     assert main(arguments + ["--resume"]) == 0       # a finished run: nothing is trained again
-    assert load_model(output / "seed0" / "checkpoint.pt").metadata["alpha_selection"] == selection
+    assert load_model(output / "seed0" / "checkpoint.pt").metadata.alpha_selection == selection
     if model_type == "DD":
         assert (output / "seed0" / "checkpoint.pt").read_bytes() == before
 
@@ -195,3 +196,29 @@ def test_alpha_flag_errors(tiny, tmp_path, capsys):
         assert code == 2
         err = capsys.readouterr().err
         assert message in err and "Traceback" not in err, (extra, err)
+
+
+def test_training_settings_file_with_flags_over_it(tiny, tmp_path, capsys):
+    """`--config` loads a typed TrainSettings YAML; flags given on the command line override its keys."""
+    dataset, _ = tiny
+    settings = tmp_path / "de.yaml"
+    settings.write_text("model: DE\nensemble_size: 2\nhidden_width: 8\nhidden_layers: 1\nepochs: 2\nseeds: [4]\n"
+                        "train: 6\nval: 2\nlr_schedule: cosine\n")
+    assert main(["train", str(dataset), "-o", str(tmp_path / "run"), "--config", str(settings), "--epochs", "3",
+                 "--quiet"]) == 0
+    checkpoint = load_model(tmp_path / "run" / "seed4" / "checkpoint.pt")
+    config = checkpoint.model_config
+    assert (config.ensemble_size, config.hidden_width, config.hidden_layers) == (2, 8, 1)
+    assert checkpoint.training_config.lr_schedule == "cosine"
+    assert checkpoint.training_config.max_epochs == 3 and checkpoint.history["epoch"][-1] == 3  # the flag won
+    assert checkpoint.metadata.model_type == "DE" and checkpoint.metadata.split_seed == 0
+    for text, message in (("epoch: 3\n", "malformed training settings"),          # unknown key (typo)
+                          ("epochs: many\n", "malformed training settings"),      # wrong type
+                          ("model: XD\n", "model (--model) must be one of"),      # bad value
+                          ("hidden_layers: 0\n", "hidden_layers (--hidden-layers) must be >= 1")):
+        settings.write_text(text)
+        capsys.readouterr()
+        assert main(["train", str(dataset), "-o", str(tmp_path / "bad"), "--config", str(settings), "--quiet"]) == 2
+        err = capsys.readouterr().err
+        assert message in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / "bad").exists()  # checks come before any work

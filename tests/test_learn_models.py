@@ -6,8 +6,10 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learn import RegressionData, TrainingConfig, fit_normalizers, member_gaussian_nll, batch_losses, standardize
-from stdm_drake.models import (ACTIVATION_NAMES, MAX_LOGVAR_INIT, MIN_LOGVAR_INIT, EnsembleMLP, ModelConfig,
+from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize
+from stdm_drake.learning.settings import TrainingConfig
+from stdm_drake.learning.loss import member_gaussian_nll, batch_losses
+from stdm_drake.learning.models import (ACTIVATION_NAMES, MAX_LOGVAR_INIT, MIN_LOGVAR_INIT, EnsembleMLP, ModelConfig,
                                bounded_logvar, dynamics_config, get_activation, parse_model_type)
 
 
@@ -69,7 +71,7 @@ def test_jvp_function_gradients_pass_gradcheck(name, probabilistic):
         with torch.no_grad():
             for target, value in zip(parameters, values):
                 target.copy_(value)
-        from stdm_drake.models import _TangentPropagation
+        from stdm_drake.learning.models import _TangentPropagation
         return _TangentPropagation.apply(model.activation, 3, model.per_member(inputs), model.per_member(rates),
                                          *values[:count], *values[count:])
 

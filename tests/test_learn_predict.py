@@ -4,9 +4,10 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learn import RegressionData, build_model, fit_normalizers
-from stdm_drake.models import ACTIVATION_NAMES, dynamics_config
-from stdm_drake.predict import InferenceModel, predict, rollout
+from stdm_drake.learning.regression import RegressionData, fit_normalizers
+from stdm_drake.learning.trainer import build_model
+from stdm_drake.learning.models import ACTIVATION_NAMES, dynamics_config
+from stdm_drake.learning.predict import InferenceModel, predict, rollout
 
 RNG = np.random.default_rng(0)
 STATES = RNG.standard_normal((400, 4))
@@ -155,7 +156,8 @@ def test_prediction_input_errors_are_clear():
 
 def test_models_without_actions():
     """A = 0: an autonomous STDM trains, predicts without actions and rolls out under (T, 0) actions."""
-    from stdm_drake.learn import TrainingConfig, train_model
+    from stdm_drake.learning.settings import TrainingConfig
+    from stdm_drake.learning.trainer import train_model
 
     states = RNG.standard_normal((300, 2))
     rotation = np.array([[np.cos(0.1), -np.sin(0.1)], [np.sin(0.1), np.cos(0.1)]])

@@ -7,10 +7,12 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learn import (RegressionData, TrainingConfig, batch_losses, build_model, fit_normalizers,
-                              load_checkpoint, load_model, save_checkpoint, select_alpha, standardize, train_model,
-                              training_step, validation_scores)
-from stdm_drake.models import ACTIVATION_NAMES, ModelConfig, dynamics_config
+from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize
+from stdm_drake.learning.settings import TrainingConfig
+from stdm_drake.learning.loss import batch_losses
+from stdm_drake.learning.trainer import build_model, select_alpha, train_model, training_step, validation_scores
+from stdm_drake.learning.checkpoint import load_checkpoint, load_model, save_checkpoint
+from stdm_drake.learning.models import ACTIVATION_NAMES, ModelConfig, dynamics_config
 
 
 def pendulum_data(count, seed):
@@ -151,7 +153,7 @@ def test_checkpoint_round_trip(tmp_path):
     assert raw["format"] == "stdm-drake-model"
     loaded = load_checkpoint(path)
     assert loaded.model_config == config and loaded.training_config == training
-    assert loaded.metadata["split"] == {"train": [0, 2]} and loaded.metadata["sample_period"] == 0.01
+    assert loaded.metadata.split == {"train": [0, 2]} and loaded.metadata.sample_period == 0.01
     assert loaded.history["val_mse"] == pytest.approx(result.history["val_mse"])
     assert weights_equal(loaded.model, result.model)
     inputs = torch.tensor(VAL.inputs[:5], dtype=torch.float32)
@@ -335,3 +337,26 @@ def test_cosine_schedule_runs_from_the_rate_to_the_floor():
                 dict(learning_rate=1e-3, min_learning_rate=1e-2), dict(alpha_grid=(0.0, -1.0))):
         with pytest.raises(InputError):
             TrainingConfig(**bad)
+
+
+def test_checkpoint_metadata_is_typed_and_fits_are_checked_in_one_place(tmp_path, tracking_dataset):
+    """Unknown metadata keys are refused; `check_fits` names a size or period mismatch; `split_indices`
+    applies only to the dataset the model was trained on."""
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.learning.checkpoint import CheckpointMetadata
+    dataset = load_dataset(tracking_dataset)
+    model = build_model(dynamics_config(state_dim=12, action_dim=6, hidden_width=8, hidden_layers=1), seed=0)
+    with pytest.raises(InputError, match="unknown checkpoint metadata fields"):
+        save_checkpoint(tmp_path / "x.pt", model, metadata={"sample_periodd": 0.01})
+    metadata = CheckpointMetadata(dataset_sha256=dataset.sha256, sample_period=dataset.sample_period,
+                                  split={"train": [0, 1], "val": [2], "test": [3, 4]})
+    checkpoint = load_checkpoint(save_checkpoint(tmp_path / "m.pt", model, metadata=metadata))
+    checkpoint.check_fits(dataset)
+    assert checkpoint.trained_on(dataset) and checkpoint.split_indices(dataset, "test") == [3, 4]
+    other = load_checkpoint(save_checkpoint(tmp_path / "o.pt", model, metadata=dict(sample_period=0.02)))
+    assert other.split_indices(dataset, "test") is None
+    with pytest.raises(InputError, match="model steps at 0.02 s"):
+        other.check_fits(dataset)
+    small = build_model(dynamics_config(state_dim=2, action_dim=1, hidden_width=8, hidden_layers=1), seed=0)
+    with pytest.raises(InputError, match="state dim 2 and action dim 1, expected state dim 12 and action dim 6"):
+        load_checkpoint(save_checkpoint(tmp_path / "s.pt", small)).check_fits(dataset)

@@ -7,10 +7,10 @@ from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
 from stdm_drake.cli import main
-from stdm_drake.dataset import load_dataset
+from stdm_drake.data.dataset import load_dataset
 from stdm_drake.errors import InputError
-from stdm_drake.learned_system import LearnedDynamicsSystem, LearnedModel
-from stdm_drake.predict import predict, rollout
+from stdm_drake.closed_loop.learned_system import LearnedDynamicsSystem, LearnedModel
+from stdm_drake.learning.predict import predict, rollout
 
 
 @pytest.fixture(scope="module")
@@ -34,20 +34,20 @@ def simulate_system(model, x0, torques, measured=None):
     system = builder.AddSystem(LearnedDynamicsSystem(model))
     source = builder.AddSystem(TrajectorySource(
         PiecewisePolynomial.ZeroOrderHold(times, np.vstack([torques, torques[-1:]]).T)))
-    builder.Connect(source.get_output_port(), system.GetInputPort("torque"))
+    builder.Connect(source.get_output_port(), system.get_torque_input_port())
     diagram = builder.Build()
     simulator = Simulator(diagram)
     context = system.GetMyContextFromRoot(simulator.get_mutable_context())
     system.set_initial_state(context, x0)
     if measured is not None:
-        system.GetInputPort("measured_state").FixValue(context, measured)
+        system.get_measured_state_input_port().FixValue(context, measured)
     states, variances = [], []
     simulator.Initialize()
     for k in range(1, steps + 1):
         simulator.AdvanceTo(k * dt)
-        states.append(system.GetOutputPort("state").Eval(context).copy())
+        states.append(system.get_state_output_port().Eval(context).copy())
         if system.HasOutputPort("variance"):
-            variances.append(system.GetOutputPort("variance").Eval(context).copy())
+            variances.append(system.get_variance_output_port().Eval(context).copy())
     return np.array(states), np.array(variances)
 
 
@@ -105,8 +105,9 @@ def test_learned_jacobians_match_finite_differences(checkpoints, kind):
 
 
 def test_checkpoint_of_the_wrong_size_is_rejected(tmp_path):
-    from stdm_drake.learn import build_model, save_checkpoint
-    from stdm_drake.models import dynamics_config
+    from stdm_drake.learning.trainer import build_model
+    from stdm_drake.learning.checkpoint import save_checkpoint
+    from stdm_drake.learning.models import dynamics_config
     path = save_checkpoint(tmp_path / "small.pt", build_model(dynamics_config(state_dim=4, action_dim=2), seed=0),
                            metadata={"sample_period": 0.01})
     with pytest.raises(InputError, match="expected state dim 12 and action dim 6"):

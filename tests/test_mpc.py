@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from stdm_drake.errors import InputError
-from stdm_drake.mpc import (IlqrSolver, MpcConfig, PlantModel, Reference, load_mpc_config, run_closed_loop,
-                            zero_order_hold_discretization)
+from stdm_drake.closed_loop.ilqr import IlqrSolver
+from stdm_drake.closed_loop.mpc import MpcConfig, Reference, load_mpc_config, run_closed_loop
+from stdm_drake.closed_loop.plant_model import PlantModel, zero_order_hold_discretization
 
 
 class LinearModel:
@@ -200,7 +201,7 @@ class ScaledTorqueResponse:
 def test_jacobian_accuracy_tool_measures_the_torque_response_error(plant_model, tracking_dataset):
     from tools_import import jacobian_accuracy
 
-    from stdm_drake.dataset import load_dataset
+    from stdm_drake.data.dataset import load_dataset
     dataset = load_dataset(tracking_dataset)
     errors = jacobian_accuracy.torque_jacobian_errors(ScaledTorqueResponse(plant_model), plant_model, dataset, [0, 1])
     np.testing.assert_allclose(errors, 0.1, rtol=1e-9)

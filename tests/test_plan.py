@@ -9,11 +9,12 @@ import ruckig
 from pydrake.math import RigidTransform, RotationMatrix
 
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.plan import (
-    PLANNER_KINDS, InitialPose, PlannedTrajectory, PlannerConfig, RobotKinematics, TaskSpaceSamplingConfig,
-    check_position_extrema, initial_configuration, load_tracking_spec, plan_trajectory, rotation_exp,
-    rotation_log, sample_task_plans)
-from stdm_drake.robot import TRAJECTORIES_DIR
+from stdm_drake.collection.kinematics import RobotKinematics, rotation_exp, rotation_log
+from stdm_drake.collection.plan import (InitialPose, TaskSpaceSamplingConfig, initial_configuration,
+                                        load_tracking_spec, sample_task_plans)
+from stdm_drake.collection.planners import (PLANNER_KINDS, PlannedTrajectory, PlannerConfig, check_position_extrema,
+                                            plan_trajectory)
+from stdm_drake.paths import TRAJECTORIES_DIR
 
 NUM_STEPS = 100
 DT = 0.01

@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 
 from stdm_drake.cli import main
-from stdm_drake.dataset import load_dataset
-from stdm_drake.learn import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
-from stdm_drake.reproduce import FULL, MODEL_TYPES, QUICK, improvement_percent, plan_jobs, verdict
+from stdm_drake.data.dataset import load_dataset
+from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
+from stdm_drake.experiments.jobs import FULL, QUICK, plan_jobs
+from stdm_drake.learning.models import MODEL_TYPES
+from stdm_drake.experiments.reproduce_report import improvement_percent, verdict
 from stdm_drake.stats import paired_ratio
 
 
@@ -111,8 +113,8 @@ def test_full_profile_uses_the_papers_splits():
 
 
 def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
-    from stdm_drake.learn import load_checkpoint
-    from stdm_drake.predict import predict, rollout
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    from stdm_drake.learning.predict import predict, rollout
     runs = json.loads((quick_report / "results.json").read_text())["runs"]
     run = next(r for r in runs if r["experiment"] == "multistep" and r["model_type"] == "PED")
     model = load_checkpoint(quick_report / "cache" / f"{run['key']}.pt").model
@@ -142,7 +144,7 @@ def test_mpc_statistics_pair_by_plan_and_average_seeds():
     """Plan-level pairs: each type's q MSE on a plan is the geometric mean over its seeds."""
     from types import SimpleNamespace
 
-    from stdm_drake.reproduce import mpc_statistics
+    from stdm_drake.experiments.reproduce_report import mpc_statistics
 
     def run(model, plan, q):
         return SimpleNamespace(model=model, trajectory=plan, q_mse_rad2=q, solve_ms_mean=1.0, solve_ms_p95=2.0,
@@ -177,11 +179,11 @@ def test_grid_variants_are_paired_members_of_one_grid(quick_report):
 
 
 def test_datasets_are_reused_only_when_collected_with_the_same_settings(tmp_path):
-    from stdm_drake.reproduce import ensure_dataset
+    from stdm_drake.experiments.jobs import ensure_dataset
     first = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans")
     stamp = first.path.stat().st_mtime_ns
     assert ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans").path.stat().st_mtime_ns == stamp
     other = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans",
-                           options=("--controller", "controllers/pid.yaml"))
+                           controller="controllers/pid.yaml")
     assert other.path == first.path and other.path.stat().st_mtime_ns != stamp
     assert other.metadata["controller"]["kind"] == "pid"

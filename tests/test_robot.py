@@ -69,13 +69,13 @@ def test_actuation_is_clamped_to_effort_limits():
     from pydrake.systems.framework import DiagramBuilder
     builder = DiagramBuilder()
     plant, _ = make_plant(builder=builder)
-    builder.ExportInput(plant.get_actuation_input_port(), "u")
+    builder.ExportInput(plant.get_actuation_input_port(), "actuation")
     diagram = builder.Build()
 
     def velocity_after(torque):
         simulator = Simulator(diagram)
         context = simulator.get_mutable_context()
-        diagram.get_input_port(0).FixValue(context, torque)
+        diagram.GetInputPort("actuation").FixValue(context, torque)
         simulator.AdvanceTo(0.002)
         return plant.GetVelocities(plant.GetMyContextFromRoot(context))
 

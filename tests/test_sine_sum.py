@@ -8,7 +8,7 @@ import pytest
 
 from stdm_drake.cli import main
 from stdm_drake.errors import InputError
-from stdm_drake.sine_sum import (FULL, PAPER_TABLE1, QUICK, StudyConfig, run_specs, run_study, sample, sine_sum,
+from stdm_drake.experiments.sine_sum import (FULL, PAPER_TABLE1, QUICK, StudyConfig, run_specs, run_study, sample, sine_sum,
                                  sine_sum_derivative)
 
 
@@ -98,7 +98,7 @@ def test_flushing_subnormals_changes_speed_not_results():
     """Raw x in ±94 drives gelu's exp(-h²/2) into subnormals; flushing them to zero (the default) must
     leave the trained networks' test errors as they are, and switch flushing off again afterwards."""
     import torch
-    from stdm_drake.sine_sum import RunSpec, train_run
+    from stdm_drake.experiments.sine_sum import RunSpec, train_run
     spec = RunSpec(layers=3, activation="gelu", derivative=True, loss="mse", members=2)
     config = dataclasses.replace(QUICK, epochs=60, validation_interval=20)
     flushed = train_run(spec, config, 1.0)

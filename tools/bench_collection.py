@@ -33,12 +33,13 @@ from pydrake.systems.primitives import Adder, TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.collect import (CollectionRequest, CollectionSettings, SimulationRig, collect,  # noqa: E402
+from stdm_drake.collection.collect import (CollectionRequest, CollectionSettings, SimulationRig, collect,  # noqa: E402
                                 plan_tracking, tracking_trajectory, worker_pool)
 from stdm_drake.config import load_yaml_config  # noqa: E402
-from stdm_drake.control import SensorConfig, load_controller_config  # noqa: E402
-from stdm_drake.plan import load_tracking_spec  # noqa: E402
-from stdm_drake.robot import CONTROLLERS_DIR, PlantConfig, make_plant  # noqa: E402
+from stdm_drake.collection.control import SensorConfig, load_controller_config  # noqa: E402
+from stdm_drake.collection.plan import load_tracking_spec  # noqa: E402
+from stdm_drake.paths import CONTROLLERS_DIR  # noqa: E402
+from stdm_drake.robot import PlantConfig, make_plant  # noqa: E402
 
 
 def bare_drake_seconds(plans, settings) -> float:

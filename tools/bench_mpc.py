@@ -27,11 +27,12 @@ sys.path.insert(0, str(ROOT / "tools"))
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
 
 from stdm_drake.cli import main as cli  # noqa: E402
-from stdm_drake.dataset import load_dataset  # noqa: E402
-from stdm_drake.learned_system import LearnedModel  # noqa: E402
-from stdm_drake.mpc import (PlantModel, compare_controllers, held_out_references, load_mpc_config,  # noqa: E402
-                            markdown_table, summarize)
-from stdm_drake.reproduce import identification_options  # noqa: E402
+from stdm_drake.data.dataset import load_dataset  # noqa: E402
+from stdm_drake.closed_loop.learned_system import LearnedModel  # noqa: E402
+from stdm_drake.closed_loop.plant_model import PlantModel  # noqa: E402
+from stdm_drake.closed_loop.comparison import compare_controllers, held_out_references, summarize, summary_table  # noqa: E402
+from stdm_drake.closed_loop.mpc import load_mpc_config  # noqa: E402
+from stdm_drake.experiments.jobs import IDENTIFICATION_SETTINGS  # noqa: E402
 
 
 def main():
@@ -45,7 +46,8 @@ def main():
     folder = pathlib.Path(tempfile.mkdtemp(prefix="bench_mpc_"))
     dataset_path = args.dataset or folder / "identification.h5"
     if args.dataset is None:
-        assert cli(["collect", "--protocol", "tracking", *identification_options(), "--quiet",
+        assert cli(["collect", "--protocol", "tracking", "--controller", str(IDENTIFICATION_SETTINGS["controller"]),
+                    "--sensor", str(IDENTIFICATION_SETTINGS["sensor"]), "--quiet",
                     "-o", str(dataset_path)]) == 0
     checkpoints = list(args.checkpoint)
     if not checkpoints:
@@ -56,7 +58,7 @@ def main():
     dataset = load_dataset(dataset_path)
     learned = [LearnedModel(path) for path in checkpoints]
     for model in learned:
-        model.name = f"learned ({model.checkpoint.metadata.get('model_type', model.name)})"
+        model.name = f"learned ({model.checkpoint.metadata.model_type or model.name})"
     references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
     config = load_mpc_config()
     results = compare_controllers([PlantModel(dataset.sample_period), *learned], references, config, progress=False)
@@ -64,7 +66,7 @@ def main():
     plant_row = rows[0]
     lines = [f"{len(references)} held-out plans of {dataset_path.name} (1 s each), horizon {config.horizon}, "
              f"{config.max_iterations} iLQR iteration(s) per step, disturbance gain {config.disturbance_gain}, "
-             "torch threads 1.", "", markdown_table(rows), ""]
+             "torch threads 1.", "", summary_table(rows), ""]
     for row in rows[1:]:
         speed = row["solve_ms_mean"] / plant_row["solve_ms_mean"]
         lines.append(f"{row['model']}: {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 "

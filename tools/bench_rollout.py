@@ -3,7 +3,7 @@
 Models: 3 hidden layers x 100, swish, state 12, action 6, delta parameterization, normalizers
 fitted to synthetic robot-like data (so rollouts stay bounded). Timed in the same run, interleaved
 (median over rounds):
-  fast       stdm_drake.predict.rollout on a prebuilt InferenceModel (numpy float32, the whole call)
+  fast       stdm_drake.learning.predict.rollout on a prebuilt InferenceModel (numpy float32, the whole call)
   baseline   a plain PyTorch loop calling the nn.Module under torch.no_grad() (ensemble: mean of members)
 Goals: single model <= 1 ms, 5-member ensemble <= 1.5 ms. Also shown, not part of the goals: a
 probabilistic ensemble with TS-inf propagation over 20 particles.
@@ -26,9 +26,10 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.learn import RegressionData, build_model, fit_normalizers  # noqa: E402
-from stdm_drake.models import dynamics_config  # noqa: E402
-from stdm_drake.predict import InferenceModel, rollout  # noqa: E402
+from stdm_drake.learning.regression import RegressionData, fit_normalizers  # noqa: E402
+from stdm_drake.learning.trainer import build_model  # noqa: E402
+from stdm_drake.learning.models import dynamics_config  # noqa: E402
+from stdm_drake.learning.predict import InferenceModel, rollout  # noqa: E402
 
 HORIZON = 100
 

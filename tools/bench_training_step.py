@@ -2,7 +2,7 @@
 
 Model: 3 hidden layers x 100, swish, 18 inputs (x 12 + a 6), 12 outputs, batch 256, Adam.
 Variants, all timed in the same run and interleaved (median over rounds):
-  plain        stdm_drake.learn.training_step with alpha = 0 (the MSE step)
+  plain        stdm_drake.learning.trainer.training_step with alpha = 0 (the MSE step)
   derivative   the same step with alpha = 1e-3: hand-written forward-mode JVP (models.py)
   func.jvp     baseline: the tangent from torch.func.jvp of the network
   vmap(jacrev) baseline: full per-sample Jacobians (torch.func.vmap(torch.func.jacrev)), then J ż
@@ -27,9 +27,11 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmark_report import BENCHMARKS_FILE, machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.learn import (RegressionData, TrainingConfig, build_model, fit_normalizers,  # noqa: E402
-                              losses_from_outputs, standardize, training_step)
-from stdm_drake.models import dynamics_config  # noqa: E402
+from stdm_drake.learning.loss import losses_from_outputs  # noqa: E402
+from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize  # noqa: E402
+from stdm_drake.learning.settings import TrainingConfig  # noqa: E402
+from stdm_drake.learning.trainer import build_model, training_step  # noqa: E402
+from stdm_drake.learning.models import dynamics_config  # noqa: E402
 
 SECTION = "Learning library"
 BATCH = 256

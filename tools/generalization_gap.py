@@ -56,7 +56,7 @@ VALIDATION, TEST = 40, 120
 
 def regression_data(transitions, features: str):
     """RegressionData for raw inputs [x, a] (delta model) or sin/cos inputs (targets x_{t+1} - x_t)."""
-    from stdm_drake.learn import RegressionData
+    from stdm_drake.learning.regression import RegressionData
     if features == "raw":
         return RegressionData.from_transitions(transitions)
     state, rate = np.asarray(transitions.state), np.asarray(transitions.state_rate)
@@ -80,9 +80,10 @@ def member_mse(model, data) -> np.ndarray:
 def run_job(job: tuple) -> dict:
     import torch
     torch.set_num_threads(1)
-    from stdm_drake.dataset import load_dataset
-    from stdm_drake.learn import TrainingConfig, train_alpha_grid
-    from stdm_drake.models import ModelConfig
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.learning.settings import TrainingConfig
+    from stdm_drake.learning.trainer import train_alpha_grid
+    from stdm_drake.learning.models import ModelConfig
 
     path, variant, seed, split, max_epochs = job
     size, features, changes = VARIANTS[variant]
@@ -135,10 +136,10 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("out/generalization_gap"))
     args = parser.parse_args()
-    from stdm_drake.collect import CollectionRequest, CollectionSettings, ExcitationConfig, collect
+    from stdm_drake.collection.collect import CollectionRequest, CollectionSettings, ExcitationConfig, collect
     from stdm_drake.config import load_yaml_config
-    from stdm_drake.dataset import load_dataset, split_trajectories, write_dataset
-    from stdm_drake.robot import TRAJECTORIES_DIR
+    from stdm_drake.data.dataset import load_dataset, split_trajectories, write_dataset
+    from stdm_drake.paths import TRAJECTORIES_DIR
 
     args.output.mkdir(parents=True, exist_ok=True)
     largest = max(size for size, _, _ in VARIANTS.values())

@@ -20,9 +20,10 @@ import torch  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from stdm_drake.dataset import load_dataset  # noqa: E402
-from stdm_drake.learned_system import LearnedModel  # noqa: E402
-from stdm_drake.mpc import PlantModel, held_out_references  # noqa: E402
+from stdm_drake.data.dataset import load_dataset  # noqa: E402
+from stdm_drake.closed_loop.learned_system import LearnedModel  # noqa: E402
+from stdm_drake.closed_loop.plant_model import PlantModel  # noqa: E402
+from stdm_drake.closed_loop.comparison import held_out_references  # noqa: E402
 from stdm_drake.robot import JOINT_NAMES, NUM_JOINTS  # noqa: E402
 
 

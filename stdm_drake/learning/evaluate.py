@@ -17,7 +17,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import write_text_atomic
-from stdm_drake.predict import PROPAGATIONS, as_inference_model, predict, rollout
+from stdm_drake.learning.predict import PROPAGATIONS, as_inference_model, predict, rollout
 
 REPORT_STEPS = (1, 5, 10, 20, 50, 100)
 
@@ -137,22 +137,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from stdm_drake.dataset import load_dataset
-    from stdm_drake.learn import load_model
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.learning.checkpoint import load_checkpoint
 
     dataset = load_dataset(args.dataset)
-    first = dataset.trajectory(0)
-    state_dim, action_dim = 2 * first["q"].shape[1], first["tau"].shape[1]
-    checkpoint = load_model(args.checkpoint, state_dim=state_dim, action_dim=action_dim)
-    metadata = checkpoint.metadata
-    trained_on = metadata.get("dataset_sha256")
+    checkpoint = load_checkpoint(args.checkpoint)
+    checkpoint.check_fits(dataset)
+    trained_on_this = checkpoint.trained_on(dataset)
     if args.split == "all":
         indices = np.arange(dataset.num_trajectories)
     else:
-        if trained_on != dataset.sha256:
+        split = checkpoint.split_indices(dataset, args.split)
+        if split is None:
             raise InputError(f"{args.dataset} is not the dataset {args.checkpoint} was trained on (sha256 differs), "
                              f"so its {args.split} split does not apply; use --split all")
-        indices = np.asarray(metadata["split"][args.split], dtype=int)
+        indices = np.asarray(split, dtype=int)
         if not len(indices):
             raise InputError(f"the checkpoint's {args.split} split is empty")
     engine = as_inference_model(checkpoint.model)
@@ -163,11 +162,11 @@ def run(args: argparse.Namespace) -> int:
                               particles=args.particles, seed=args.seed)
     config = checkpoint.model_config
     alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
-    name = metadata.get("model_type", "?")
+    name = checkpoint.metadata.model_type or "?"
     print(f"model {name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
           f"{config.ensemble_size} member(s), {'probabilistic' if config.probabilistic else 'deterministic'}, "
           f"{'delta' if config.residual else 'direct'}, derivative alpha {alpha:g}")
-    print(f"dataset {args.dataset} ({'the training dataset' if trained_on == dataset.sha256 else 'another dataset'}); "
+    print(f"dataset {args.dataset} ({'the training dataset' if trained_on_this else 'another dataset'}); "
           f"split {args.split}: {len(indices)} trajectories, {one_step.transitions} transitions")
     print(f"one-step MSE        q {one_step.angle_mse:.4e} rad^2    v {one_step.velocity_mse:.4e} (rad/s)^2")
     print(f"multi-step MSE ({multi.propagation} propagation, {multi.horizon} steps, "
@@ -181,7 +180,7 @@ def run(args: argparse.Namespace) -> int:
     print(f"  {'mean':>5}  {multi.angle_mse_mean:>11.4e}{'':13}  {multi.velocity_mse_mean:>11.4e}")
     if args.json:
         report = dict(checkpoint=str(args.checkpoint), dataset=str(args.dataset), dataset_sha256=dataset.sha256,
-                      trained_on_this_dataset=trained_on == dataset.sha256, split=args.split,
+                      trained_on_this_dataset=trained_on_this, split=args.split,
                       trajectories=[int(i) for i in indices], one_step=one_step.as_dict(), multi_step=multi.as_dict())
         write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
         print(f"wrote {args.json}")

@@ -21,6 +21,9 @@ run meanwhile. The networks of one configuration are trained together as one sta
 without bootstrap: members share the data and never interact, so each is an independent run from
 its own initialization; naive and derivative runs of a configuration share their initializations,
 so they are compared in pairs.
+
+Longer than 400 lines on purpose: one self-contained study (its configuration, runs, figures,
+tables and command); the figures read the run records' exact layout.
 """
 from __future__ import annotations
 
@@ -39,8 +42,12 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, write_text_atomic
-from stdm_drake.learn import RegressionData, TrainingConfig, parse_alpha, train_alpha_grid, train_model
-from stdm_drake.models import ACTIVATION_NAMES, ModelConfig
+from stdm_drake.learning.regression import RegressionData
+from stdm_drake.learning.settings import TrainingConfig
+from stdm_drake.learning.train import parse_alpha
+from stdm_drake.learning.trainer import train_alpha_grid, train_model
+from stdm_drake.learning.models import ACTIVATION_NAMES, ModelConfig
+from stdm_drake.report import markdown_table
 from stdm_drake.stats import paired_ratio
 
 PAPER_TABLE1 = {  # paper Table 1: 5 hidden layers, derivative learning, average of 3 runs
@@ -485,21 +492,17 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
              f"[{top['ratio_low']:.3g}, {top['ratio_high']:.3g}]: {top['verdict']}); the paper reports "
              f"{top['paper_derivative']:g}.", ""]
     if sweep:
-        lines += ["## Alpha chosen by validation", "",
-                  "| alpha | validation MSE (standardized) | test MSE |", "|---|---|---|"]
-        for index, (alpha, val, test) in enumerate(zip(sweep["alphas"], sweep["val_mse"], sweep["test_mse"])):
-            mark = " (chosen)" if index == sweep["chosen_index"] else ""
-            lines.append(f"| {alpha:g}{mark} | {val:.4g} | {test:.4g} |")
+        lines += ["## Alpha chosen by validation", "", markdown_table(
+            ["alpha", "validation MSE (standardized)", "test MSE"],
+            [[f"{alpha:g}" + (" (chosen)" if index == sweep["chosen_index"] else ""), f"{val:.4g}", f"{test:.4g}"]
+             for index, (alpha, val, test) in enumerate(zip(sweep["alphas"], sweep["val_mse"], sweep["test_mse"]))])]
         lines += ["", "One initialization, 5 hidden layers, swish; the test column is reported, not used.", ""]
-    lines += ["## Fig. 6: test MSE (mean over networks / best by validation)", "",
-              "| layers | activation | naive mean | naive best | derivative mean | derivative best | "
-              "naive / derivative (paired, 95 % CI) | verdict |",
-              "|---|---|---|---|---|---|---|---|"]
-    for row in fig6:
-        lines.append(f"| {row['layers']} | {row['activation']} | {row['naive_mean_test_mse']:.4g} | "
-                     f"{row['naive_best_test_mse']:.4g} | {row['derivative_mean_test_mse']:.4g} | "
-                     f"{row['derivative_best_test_mse']:.4g} | {row['ratio']:.3g}x [{row['ratio_low']:.3g}, "
-                     f"{row['ratio_high']:.3g}] | {row['verdict']} |")
+    lines += ["## Fig. 6: test MSE (mean over networks / best by validation)", "", markdown_table(
+        ["layers", "activation", "naive mean", "naive best", "derivative mean", "derivative best",
+         "naive / derivative (paired, 95 % CI)", "verdict"],
+        [[row["layers"], row["activation"], f"{row['naive_mean_test_mse']:.4g}", f"{row['naive_best_test_mse']:.4g}",
+          f"{row['derivative_mean_test_mse']:.4g}", f"{row['derivative_best_test_mse']:.4g}",
+          f"{row['ratio']:.3g}x [{row['ratio_low']:.3g}, {row['ratio_high']:.3g}]", row["verdict"]] for row in fig6])]
     deepest = [row for row in fig6 if row["layers"] == config["table_layers"]]
     winner = min(deepest, key=lambda row: row["derivative_mean_test_mse"])
     counts = {verdict: sum(row["verdict"] == verdict for row in fig6) for verdict in ("helps", "hurts")}
@@ -508,15 +511,11 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
               f"best activation with derivative learning is {winner['activation']} "
               f"({winner['derivative_mean_test_mse']:.4g}, naive {winner['naive_mean_test_mse']:.4g}).", "",
               f"## Table 1: test MSE, derivative learning, {config['table_layers']} layers, "
-              f"mean of {config['table_seeds']} networks", "",
-              "| loss | " + " | ".join(config["table_activations"]) + " |",
-              "|---|" + "---|" * len(config["table_activations"])]
-    for loss in config["table_losses"]:
-        cells = []
-        for activation in config["table_activations"]:
-            row = next(r for r in table if r["loss"] == loss and r["activation"] == activation)
-            cells.append(f"{row['mean_test_mse']:.4f} (paper {row['paper']:.4f})")
-        lines.append(f"| {loss.upper()} | " + " | ".join(cells) + " |")
+              f"mean of {config['table_seeds']} networks", ""]
+    cell = {(r["loss"], r["activation"]): f"{r['mean_test_mse']:.4f} (paper {r['paper']:.4f})" for r in table}
+    lines.append(markdown_table(["loss", *config["table_activations"]],
+                                [[loss.upper()] + [cell[loss, activation] for activation in config["table_activations"]]
+                                 for loss in config["table_losses"]]))
     lines += ["", "Every number is computed by this run except those labelled paper (Table 1 of the paper).",
               "Files: fig6_mse_vs_activation.csv/.png, fig7_predictions.png, fig8_learning_curves.csv/.png, "
               "table1.csv/.json/.png, " + ("alpha_sweep.csv/.png, " if sweep else "") + "results.json.", ""]

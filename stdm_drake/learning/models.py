@@ -15,6 +15,9 @@ z -> x̂ with the tangent ż = [ẋ_t, ȧ_t]. With the affine maps above it is e
     d x̂/dt = r(ż) + σ_y ⊙ J_n(z_n) (ż / σ_z),
 so only the normalized network is differentiated, by a hand-written forward-mode pass that carries
 (h, ḣ) through the layers (`normalized_outputs_with_tangent`), with a hand-written backward.
+
+Longer than 400 lines on purpose: each activation's tangent pass (value, slope, curvature) sits
+beside the network whose training step depends on it, so a new activation is one place to edit.
 """
 from __future__ import annotations
 
@@ -404,7 +407,7 @@ class EnsembleMLP(nn.Module):
         """PETS regularizer 0.01 (Σ max_logvar - Σ min_logvar) of each member, (E,)."""
         return LOGVAR_BOUND_PENALTY * (self.max_logvar - self.min_logvar).sum(dim=(1, 2))
 
-    # -- raw units (reference implementation; the fast inference path is stdm_drake.predict) --------
+    # -- raw units (reference implementation; the fast inference path is stdm_drake.learning.predict) --------
     def forward(self, inputs: Tensor) -> tuple[Tensor, Tensor | None]:
         """z (B, in) raw -> (mean (E, B, out), variance (E, B, out) or None) in raw output units."""
         stacked = self.per_member(inputs)

@@ -14,6 +14,9 @@ Uncertainty propagation (PETS, Chua et al. 2018), `propagation=`:
           drawn uniformly at random and, for probabilistic models, samples its Gaussian.
   "tsinf" as ts1 but each particle keeps the member drawn at the start for the whole horizon.
 For TS the mean and variance are over particles.
+
+Longer than 400 lines on purpose: the NumPy activations, their slopes (for the Jacobians the MPC
+uses) and the rollout share one preallocated workspace and must stay consistent with each other.
 """
 from __future__ import annotations
 
@@ -23,7 +26,7 @@ import numpy as np
 from scipy import special
 
 from stdm_drake.errors import InputError
-from stdm_drake.models import LEAKY_RELU_SLOPE, SELU_ALPHA, SELU_SCALE, EnsembleMLP
+from stdm_drake.learning.models import LEAKY_RELU_SLOPE, SELU_ALPHA, SELU_SCALE, EnsembleMLP
 
 PROPAGATIONS = ("mean", "ts1", "tsinf")
 

@@ -2,8 +2,8 @@
 
 - excitation (paper V.A.2, eq. 10): per-joint random sine torques A sin(f t + phi) + B added to
   gravity compensation; the action recorded is the total torque applied.
-- tracking (paper V.B.1): task-space plans from `stdm_drake.plan`, tracked by a joint-space
-  controller (`stdm_drake.control`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
+- tracking (paper V.B.1): task-space plans from `stdm_drake.collection.plan`, tracked by a joint-space
+  controller (`stdm_drake.collection.control`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
   are recorded as the "real robot" derivative targets.
 
 Every trajectory is simulated sample by sample: at t_k the controller sees the measurement y_k,
@@ -11,6 +11,10 @@ returns a_k, and a_k is held while the discrete plant integrates to t_k+1 at its
 x_k+1 is exactly a function of (x_k, a_k). Trajectory i draws its randomness from
 numpy.random.default_rng([seed, i]), so a dataset does not depend on how many worker processes
 collected it.
+
+Longer than 400 lines on purpose: the two protocols, the worker pool that runs them and the dataset
+metadata that records their settings change together (a setting not recorded here would make
+`reproduce` reuse a dataset collected differently).
 """
 
 import argparse
@@ -26,12 +30,13 @@ from importlib import metadata as importlib_metadata
 import numpy as np
 
 from stdm_drake.config import check_joint_vector, load_yaml_config
-from stdm_drake.control import (ControllerConfig, JointSensor, SampledJointController, SensorConfig,
+from stdm_drake.collection.control import (ControllerConfig, JointSensor, SampledJointController, SensorConfig,
                                 load_controller_config)
-from stdm_drake.dataset import write_dataset
+from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.robot import (CONTROLLERS_DIR, JOINT_NAMES, NUM_JOINTS, TRAJECTORIES_DIR, Dynamics, PlantConfig,
-                              SelfCollisionChecker, joint_limits, make_plant, model_sha256)
+from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
+from stdm_drake.robot import (JOINT_NAMES, NUM_JOINTS, Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker,
+                              joint_limits, model_sha256)
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 DEFAULT_CONFIGS = {
@@ -114,19 +119,10 @@ class SimulationRig:
     """
 
     def __init__(self, settings: CollectionSettings):
-        from pydrake.systems.analysis import Simulator
-        from pydrake.systems.framework import DiagramBuilder
-
         self.settings = settings
         settings.substeps()
-        builder = DiagramBuilder()
-        self.plant, _ = make_plant(settings.plant, builder=builder)
-        builder.ExportInput(self.plant.get_actuation_input_port(), "actuation")
-        self.diagram = builder.Build()
-        self.simulator = Simulator(self.diagram)
-        self.context = self.simulator.get_mutable_context()
-        self.plant_context = self.plant.GetMyContextFromRoot(self.context)
-        self.actuation = self.diagram.get_input_port(0)
+        self.simulation = PlantSimulator(settings.plant)
+        self.plant = self.simulation.plant
         self.limits = joint_limits(self.plant)
         self.dynamics = Dynamics()
         self.collision_checker = SelfCollisionChecker()
@@ -137,17 +133,14 @@ class SimulationRig:
 
         control(k, t, q_measured, v_measured) -> torque (6,) N m for [t_k, t_k+1); t = k * period;
         the controller gets the raw measurement, the dataset records q_measured and the filtered v.
-        Returns the arrays of one dataset trajectory (see stdm_drake.dataset).
+        Returns the arrays of one dataset trajectory (see stdm_drake.data.dataset).
         """
         dt = self.settings.sample_period
-        self.diagram.SetDefaultContext(self.context)
-        self.context.SetTime(0.0)
-        self.plant.SetPositionsAndVelocities(self.plant_context, np.concatenate([q0, np.zeros(NUM_JOINTS)]))
-        self.actuation.FixValue(self.context, np.zeros(NUM_JOINTS))
-        self.simulator.Initialize()
+        simulation = self.simulation
+        simulation.start(np.concatenate([q0, np.zeros(NUM_JOINTS)]), np.zeros(NUM_JOINTS))
+        x = simulation.plant.GetPositionsAndVelocities(simulation.plant_context)
         q_true, v_true, q_meas, v_meas, tau = [], [], [], [], []
         for k in range(num_steps + 1):
-            x = self.plant.GetPositionsAndVelocities(self.plant_context)
             q_true.append(x[:NUM_JOINTS])
             v_true.append(x[NUM_JOINTS:])
             q_k, v_k, v_filtered = sensor.measure(q_true[-1], v_true[-1])
@@ -156,8 +149,8 @@ class SimulationRig:
             tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
             tau.append(tau_k)
             if k < num_steps:
-                self.actuation.FixValue(self.context, tau_k)
-                self.simulator.AdvanceTo((k + 1) * dt)
+                simulation.hold(tau_k)
+                x = simulation.advance_to((k + 1) * dt)
         acceleration = self.dynamics.acceleration
         qdd = [acceleration(q_true[k], v_true[k], tau[k]) for k in range(num_steps + 1)]
         qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], tau[k]) for k in range(num_steps)]
@@ -293,16 +286,17 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
     Pose p draws from numpy.random.default_rng([seed, 2**31, p]); plan k of a pose does not
     depend on how many plans are requested after it.
     """
-    from stdm_drake import plan as planning
+    from stdm_drake.collection.kinematics import RobotKinematics
+    from stdm_drake.collection.plan import sample_task_plans
 
     (sampling, planner), pose_index, count, seed, sample_period = job
     one_pose = dataclasses.replace(sampling, initial_poses=[sampling.initial_poses[pose_index]],
                                    num_final_per_initial=count)
     rng = np.random.default_rng([seed, 2**31, pose_index])
-    kinematics = planning.RobotKinematics(_WORKER_RIG.dynamics.plant)
+    kinematics = RobotKinematics(_WORKER_RIG.dynamics.plant)
     try:
-        sampled = planning.sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
-                                             is_collision_free=_WORKER_RIG.collision_checker.is_collision_free)
+        sampled = sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
+                                    is_collision_free=_WORKER_RIG.collision_checker.is_collision_free)
     except PlanningError as error:
         raise PlanningError(f"initial pose {pose_index}: {error}") from None
     return [PlanSamples(q=plan.q, qd=plan.qd, qdd=plan.qdd) for _, plan in sampled]
@@ -433,24 +427,37 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def request_from_args(args: argparse.Namespace) -> CollectionRequest:
-    """Read every config file the arguments name (errors before any simulation starts)."""
-    config_path = args.config or DEFAULT_CONFIGS[args.protocol]
-    sensor = SensorConfig()
-    sensor_path = args.sensor or (DEFAULT_SENSOR if args.protocol == "tracking" else None)
+def collection_request(protocol: str = "tracking", *, count: int | None = None, seed: int = 0, config=None,
+                       controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
+                       plant_time_step: float = PlantConfig.time_step,
+                       workers: int = min(2, os.cpu_count() or 1)) -> CollectionRequest:
+    """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
+    sensor: YAML paths, None for the defaults). Reads every config file, so errors come before any
+    simulation starts."""
+    if protocol not in DEFAULT_CONFIGS:
+        raise InputError(f"protocol must be one of {tuple(DEFAULT_CONFIGS)}, got {protocol!r}")
+    config_path = config or DEFAULT_CONFIGS[protocol]
+    sensor_config = SensorConfig()
+    sensor_path = sensor or (DEFAULT_SENSOR if protocol == "tracking" else None)
     if sensor_path is not None:
-        sensor = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
-    settings = CollectionSettings(sample_period=args.sample_period,
-                                  plant=PlantConfig(time_step=args.plant_time_step), sensor=sensor,
-                                  controller=load_controller_config(args.controller))
-    request = CollectionRequest(protocol=args.protocol, count=args.count or PAPER_COUNTS[args.protocol],
-                                seed=args.seed, settings=settings, workers=args.workers)
-    if args.protocol == "excitation":
+        sensor_config = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
+    settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
+                                  sensor=sensor_config, controller=load_controller_config(controller))
+    request = CollectionRequest(protocol=protocol, count=count or PAPER_COUNTS[protocol], seed=seed,
+                                settings=settings, workers=workers)
+    if protocol == "excitation":
         request.excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
     else:
-        from stdm_drake.plan import load_tracking_spec
+        from stdm_drake.collection.plan import load_tracking_spec
         request.tracking_spec = load_tracking_spec(config_path)
     return request
+
+
+def request_from_args(args: argparse.Namespace) -> CollectionRequest:
+    """`collection_request` from the command line's arguments."""
+    return collection_request(args.protocol, count=args.count, seed=args.seed, config=args.config,
+                              controller=args.controller, sensor=args.sensor, sample_period=args.sample_period,
+                              plant_time_step=args.plant_time_step, workers=args.workers)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -459,7 +466,7 @@ def run(args: argparse.Namespace) -> int:
     request = request_from_args(args)
     recorder = None
     if args.meshcat or args.html:
-        from stdm_drake.visualize import TrajectoryRecorder
+        from stdm_drake.collection.recorder import TrajectoryRecorder
         recorder = TrajectoryRecorder(request.settings.sample_period)
         if args.meshcat:
             print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)

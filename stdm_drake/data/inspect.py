@@ -6,9 +6,8 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.dataset import Dataset, load_dataset
+from stdm_drake.data.dataset import Dataset, load_dataset
 
-JOINT_LABELS = ("pan", "lift", "elbow", "wrist1", "wrist2", "wrist3")
 
 
 def tracking_errors(dataset: Dataset) -> dict:
@@ -67,7 +66,9 @@ def summary(dataset: Dataset) -> str:
                      f"{meta.get('controller', {}).get('kind')}   sensor {meta.get('sensor')}")
     versions = meta.get("package_versions", {})
     lines.append("packages        " + ", ".join(f"{k} {v}" for k, v in sorted(versions.items())))
-    header = f"{'':14s}" + "".join(f"{label:>17s}" for label in JOINT_LABELS)
+    labels = [name.removesuffix("_joint") for name in dataset.metadata.get("joint_names", [])]
+    labels = labels or [f"joint{j}" for j in range(dataset.trajectory(0)["q"].shape[1])]
+    header = f"{'':14s}" + "".join(f"{label:>17s}" for label in labels)
     lines += ["", "ranges (min..max over all samples)", header]
     for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), ("qdd", "rad/s^2")):
         values = np.concatenate([dataset.trajectory(i)[key] for i in range(dataset.num_trajectories)])

@@ -9,11 +9,10 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from stdm_drake.errors import InputError
-from stdm_drake.learn import load_model
-from stdm_drake.predict import as_inference_model, predict
-from stdm_drake.robot import NUM_JOINTS
+from stdm_drake.learning.checkpoint import load_model
+from stdm_drake.learning.predict import as_inference_model, predict
+from stdm_drake.robot import NUM_JOINTS, STATE_DIM
 
-STATE_DIM = 2 * NUM_JOINTS
 
 
 class LearnedModel:
@@ -26,7 +25,7 @@ class LearnedModel:
         checkpoint = load_model(checkpoint_path, state_dim=STATE_DIM, action_dim=NUM_JOINTS)
         self.checkpoint = checkpoint
         self.name = name or checkpoint.path.stem
-        period = checkpoint.metadata.get("sample_period")
+        period = checkpoint.metadata.sample_period
         if period is None or not float(period) > 0:
             raise InputError(f"{checkpoint.path}: checkpoint metadata has no sample_period (train it on a dataset file)")
         self.sample_period = float(period)
@@ -84,6 +83,22 @@ class LearnedDynamicsSystem(LeafSystem):
         if model.probabilistic or model.ensemble_size > 1:
             self.DeclareStateOutputPort("variance", self._variance_index)
         self.DeclarePeriodicDiscreteUpdateEvent(model.sample_period, 0.0, self._step)
+
+    def get_torque_input_port(self):
+        """Input "torque": joint torques (6) N m applied over [t_k, t_k+1)."""
+        return self.GetInputPort("torque")
+
+    def get_measured_state_input_port(self):
+        """Input "measured_state" (optional): [q, v] (12) to re-anchor the prediction to before each step."""
+        return self.GetInputPort("measured_state")
+
+    def get_state_output_port(self):
+        """Output "state": the predicted [q (6) rad, v (6) rad/s]."""
+        return self.GetOutputPort("state")
+
+    def get_variance_output_port(self):
+        """Output "variance" (P/PE models and ensembles only): the one-step predictive variance (12)."""
+        return self.GetOutputPort("variance")
 
     def set_initial_state(self, context, x0: np.ndarray) -> None:
         """x0: (12,) [q rad, v rad/s] in this system's context."""

@@ -35,7 +35,6 @@ from stdm_drake.files import atomic_path, json_default
 FORMAT = "stdm-drake-dataset"
 FORMAT_VERSION = 1
 PROTOCOLS = ("excitation", "tracking")
-NUM_JOINTS = 6
 REQUIRED_ARRAYS = ("q", "v", "tau", "tau_next", "q_true", "v_true", "qdd", "qdd_end")
 PLANNED_ARRAYS = ("q_planned", "v_planned", "qdd_planned")
 DERIVATIVE_SOURCES = ("true", "planned")
@@ -195,10 +194,11 @@ def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
     num_steps = len(traj["tau"])
     if num_steps < 2:
         raise InputError(f"trajectory {name}: needs at least 2 steps, has {num_steps}")
-    expected = {"tau": (num_steps, NUM_JOINTS), "qdd_end": (num_steps, NUM_JOINTS), "tau_next": (NUM_JOINTS,)}
+    joints = np.shape(traj["tau"])[1] if np.ndim(traj["tau"]) == 2 else -1  # the robot's, from its torques
+    expected = {"tau": (num_steps, joints), "qdd_end": (num_steps, joints), "tau_next": (joints,)}
     for key in traj:
         shape = np.shape(traj[key])
-        want = expected.get(key, (num_steps + 1, NUM_JOINTS))
+        want = expected.get(key, (num_steps + 1, joints))
         if shape != want:
             raise InputError(f"trajectory {name}: {key} has shape {shape}, expected {want}")
         if not np.all(np.isfinite(traj[key])):

@@ -1,4 +1,4 @@
-"""Meshcat views of UR-10 trajectories, live and as standalone HTML recordings.
+"""Meshcat recordings of UR-10 trajectories, live and as standalone HTML pages.
 
 Recordings replay stored joint angles in a visualization-only diagram (plant + scene graph +
 MeshcatVisualizer), so what is shown never feeds back into the simulation that produced it.
@@ -119,53 +119,3 @@ def wait_for_interrupt(url: str) -> None:
             time.sleep(1.0)
     except KeyboardInterrupt:
         print("Meshcat closed", file=sys.stderr)
-
-
-# ---- `stdm-drake view`: the robot and a learned model's open-loop prediction -------------------
-
-def add_arguments(parser) -> None:
-    import pathlib
-    parser.add_argument("checkpoint", type=pathlib.Path, help="trained model (checkpoint.pt)")
-    parser.add_argument("dataset", type=pathlib.Path, help="dataset with the trajectories to replay")
-    parser.add_argument("--trajectories", type=int, default=3,
-                        help="how many test trajectories (the checkpoint's test split when it was trained on "
-                             "this dataset, else the dataset's last ones; default 3)")
-    parser.add_argument("--index", type=int, action="append", help="replay these trajectory indices instead")
-    parser.add_argument("--html", type=pathlib.Path, help="save the recording as a standalone HTML file")
-    parser.add_argument("--meshcat", action="store_true", help="play live in Meshcat (prints the URL)")
-
-
-def run(args) -> int:
-    from stdm_drake.dataset import load_dataset
-    from stdm_drake.errors import InputError
-    from stdm_drake.learned_system import LearnedModel
-    from stdm_drake.predict import rollout
-    if not (args.html or args.meshcat):
-        raise InputError("nothing to show: give --html FILE and/or --meshcat")
-    model = LearnedModel(args.checkpoint)
-    dataset = load_dataset(args.dataset)
-    if abs(model.sample_period - dataset.sample_period) > 1e-12:
-        raise InputError(f"model steps at {model.sample_period} s, the dataset at {dataset.sample_period} s")
-    if args.index:
-        indices = args.index
-    else:
-        split = model.checkpoint.metadata.get("split")
-        same = model.checkpoint.metadata.get("dataset_sha256") == dataset.sha256
-        pool = list(split["test"]) if split and same else list(range(dataset.num_trajectories))[::-1]
-        indices = pool[:args.trajectories]
-    recorder = TrajectoryRecorder(dataset.sample_period, ghost=True)
-    if args.meshcat:
-        print(f"Meshcat: {recorder.meshcat.web_url()}")
-    for index in indices:
-        if not 0 <= index < dataset.num_trajectories:
-            raise InputError(f"trajectory index {index} out of range 0..{dataset.num_trajectories - 1}")
-        traj = dataset.trajectory(index)
-        x0 = np.concatenate([traj["q"][0], traj["v"][0]])
-        predicted = rollout(model.engine, x0, traj["tau"]).mean
-        ghost_q = np.vstack([traj["q"][:1], predicted[:, :6]])
-        error = np.sqrt(np.mean((ghost_q - traj["q"]) ** 2))
-        print(f"trajectory {index}: open-loop RMS joint-angle error over {len(traj['tau'])} steps {error:.4g} rad")
-        recorder.add(traj["q_true"], ghost_q, realtime=args.meshcat)
-    recorder.finish(args.html, keep_serving=args.meshcat,
-                    what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")
-    return 0

@@ -1,0 +1,218 @@
+"""Closed-loop comparison of prediction models under the same MPC on held-out plans (metrics, summary,
+plots) and the `stdm-drake mpc` command."""
+import dataclasses
+
+import numpy as np
+
+from stdm_drake.closed_loop.mpc import DEFAULT_MPC_CONFIG, MpcConfig, MpcLog, Reference, load_mpc_config, run_closed_loop
+from stdm_drake.closed_loop.plant_model import PlantModel
+from stdm_drake.errors import InputError
+from stdm_drake.report import markdown_table
+from stdm_drake.robot import NUM_JOINTS, Dynamics, PlantConfig, joint_limits
+
+
+@dataclasses.dataclass
+class ClosedLoopResult:
+    """One closed-loop run: model name, reference index, and its metrics (units in the names)."""
+    model: str
+    trajectory: int
+    q_mse_rad2: float
+    v_mse: float
+    torque_rms_nm: float
+    effort_beyond_gravity_rms_nm: float
+    limit_violations: int
+    fallbacks: int
+    solve_ms_mean: float
+    solve_ms_p95: float
+    steps: int
+    q_error: list  # per-step RMS joint-angle error (rad), for plots
+
+
+def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference, limits, gravity) -> ClosedLoopResult:
+    """gravity: (N, 6) torque holding the arm at each reference sample (N >= the run's steps)."""
+    states, torques = np.array(log.state), np.array(log.torque)
+    steps = len(states)
+    error = states - reference.window(0, steps)
+    q_error, v_error = error[:, :NUM_JOINTS], error[:, NUM_JOINTS:]
+    finite = np.all(np.isfinite(states), axis=1)
+    outside = ((states[:, :NUM_JOINTS] < limits.position_lower) | (states[:, :NUM_JOINTS] > limits.position_upper)
+               | (np.abs(states[:, NUM_JOINTS:]) > limits.velocity))
+    solve_ms = 1e3 * np.array(log.solve_seconds)
+    return ClosedLoopResult(
+        model=name, trajectory=index,
+        q_mse_rad2=float(np.mean(q_error ** 2)), v_mse=float(np.mean(v_error ** 2)),
+        torque_rms_nm=float(np.sqrt(np.mean(torques ** 2))),
+        effort_beyond_gravity_rms_nm=float(np.sqrt(np.mean((torques - gravity[:steps]) ** 2))),
+        limit_violations=int(np.count_nonzero(outside.any(axis=1) | ~finite)),
+        fallbacks=int(np.count_nonzero(log.fallback)),
+        solve_ms_mean=float(solve_ms.mean()), solve_ms_p95=float(np.percentile(solve_ms, 95)), steps=steps,
+        q_error=np.sqrt(np.mean(q_error ** 2, axis=1)).tolist())
+
+
+def compare_controllers(models: list, references: list[tuple[int, Reference]], config: MpcConfig,
+                        plant_config: PlantConfig | None = None, progress: bool = True, recorder=None):
+    """Run plant + MPC(model) on every reference for every model; returns [ClosedLoopResult].
+
+    recorder: an optional ghost TrajectoryRecorder; each run is added (robot = plant, ghost = reference).
+    """
+    from tqdm import tqdm
+    dynamics = Dynamics()
+    limits = joint_limits(dynamics.plant)
+    results = []
+    bar = tqdm(total=len(models) * len(references), desc="mpc", unit="run", disable=not progress)
+    # gravity at each reference sample, held past its end like the reference (a run may outlast it)
+    horizon = max(len(reference.q) for _, reference in references) + 1
+    gravity = {index: np.array([dynamics.gravity_torque(q) for q in reference.window(0, horizon)[:, :NUM_JOINTS]])
+               for index, reference in references}
+    for model in models:
+        for index, reference in references:
+            log = run_closed_loop(model, reference, config, plant_config)
+            results.append(closed_loop_metrics(model.name, index, log, reference, limits, gravity[index]))
+            if recorder is not None:
+                q = np.array(log.state)[:, :NUM_JOINTS]
+                recorder.add(q, reference.window(0, len(q))[:, :NUM_JOINTS])
+            bar.update()
+    bar.close()
+    return results
+
+
+def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dict]:
+    """One row per model: means over references (solve p95 over all control steps' p95s)."""
+    rows = []
+    for name in dict.fromkeys(result.model for result in results):
+        mine = [result for result in results if result.model == name]
+        p95 = max(result.solve_ms_p95 for result in mine)
+        rows.append(dict(
+            model=name, runs=len(mine),
+            q_mse_rad2=float(np.mean([r.q_mse_rad2 for r in mine])),
+            v_mse=float(np.mean([r.v_mse for r in mine])),
+            effort_beyond_gravity_rms_nm=float(np.mean([r.effort_beyond_gravity_rms_nm for r in mine])),
+            limit_violations=int(sum(r.limit_violations for r in mine)),
+            fallbacks=int(sum(r.fallbacks for r in mine)),
+            solve_ms_mean=float(np.mean([r.solve_ms_mean for r in mine])), solve_ms_p95=float(p95),
+            faster_than_real_time=bool(p95 < 1e3 * sample_period)))
+    plant = next((row for row in rows if row["model"] == PlantModel.name), None)
+    for row in rows:  # tracking error relative to the plant-as-model MPC on the same plans
+        known = plant is not None and plant["q_mse_rad2"] > 0
+        row["q_mse_vs_plant"] = float(row["q_mse_rad2"] / plant["q_mse_rad2"]) if known else None
+    return rows
+
+
+def summary_table(rows: list[dict]) -> str:
+    """The `summarize` rows as a Markdown table."""
+    header = ["model", "runs", "q MSE (rad²)", "q MSE / plant MPC", "q̇ MSE ((rad/s)²)", "effort beyond g, RMS (N m)",
+              "limit violations", "fallbacks", "solve mean (ms)", "solve p95 (ms)", "faster than real time"]
+    return markdown_table(header, [
+        [row["model"], row["runs"], f"{row['q_mse_rad2']:.3g}",
+         "" if row.get("q_mse_vs_plant") is None else f"{row['q_mse_vs_plant']:.3g}", f"{row['v_mse']:.3g}",
+         f"{row['effort_beyond_gravity_rms_nm']:.3g}", row["limit_violations"], row["fallbacks"],
+         f"{row['solve_ms_mean']:.2f}", f"{row['solve_ms_p95']:.2f}", "yes" if row["faster_than_real_time"] else "no"]
+        for row in rows])
+
+
+def plot_results(results: list[ClosedLoopResult], sample_period: float, path) -> None:
+    """Per-step RMS joint-angle error of the first reference, one line per model (PNG)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from stdm_drake.files import atomic_path
+    first = results[0].trajectory
+    figure, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for result in results:
+        if result.trajectory == first:
+            t = np.arange(len(result.q_error)) * sample_period
+            axes[0].semilogy(t, np.maximum(result.q_error, 1e-12), label=result.model)
+    axes[0].set(xlabel="time (s)", ylabel="RMS joint-angle error (rad)", title=f"MPC tracking, plan {first}")
+    axes[0].legend()
+    names = list(dict.fromkeys(result.model for result in results))
+    means = [np.mean([r.q_mse_rad2 for r in results if r.model == name]) for name in names]
+    axes[1].bar(names, means)
+    axes[1].set(yscale="log", ylabel="q MSE (rad²)", title="mean over held-out plans")
+    figure.tight_layout()
+    with atomic_path(path) as temp:
+        figure.savefig(temp, format="png", dpi=110)
+    plt.close(figure)
+
+
+def held_out_references(dataset, checkpoints: list, count: int) -> list[tuple[int, Reference]]:
+    """`count` held-out trajectories as references: their *planned* q, v (tracking data) or
+    recorded q, v (excitation data). Held out = in no checkpoint's training or validation set
+    (when a checkpoint was trained on this dataset), test-split trajectories first."""
+    seen, test = set(), []
+    for checkpoint in checkpoints:
+        if checkpoint.split_indices(dataset, "test") is not None:
+            seen |= set(checkpoint.split_indices(dataset, "train")) | set(checkpoint.split_indices(dataset, "val"))
+            test += [index for index in checkpoint.split_indices(dataset, "test") if index not in test]
+    rest = [index for index in range(dataset.num_trajectories - 1, -1, -1) if index not in seen and index not in test]
+    indices = [index for index in test if index not in seen] + rest
+    if not indices:
+        raise InputError(f"{dataset.path}: every trajectory was used to train or validate the models; "
+                         "no held-out plan to track")
+    references = []
+    for index in indices[:count]:
+        traj = dataset.trajectory(index)
+        if dataset.protocol == "tracking":
+            references.append((index, Reference(q=traj["q_planned"], v=traj["v_planned"])))
+        else:
+            references.append((index, Reference(q=traj["q_true"], v=traj["v_true"])))
+    return references
+
+
+def add_arguments(parser) -> None:
+    import pathlib
+    parser.add_argument("dataset", type=pathlib.Path, help="tracking dataset whose held-out plans are the references")
+    parser.add_argument("--model", action="append", default=[], metavar="NAME=CHECKPOINT",
+                        help="a learned model to compare (repeatable), e.g. DD=runs/dd/seed0/checkpoint.pt")
+    parser.add_argument("--no-plant", action="store_true", help="leave out the plant-as-model reference MPC")
+    parser.add_argument("--plans", type=int, default=3, help="held-out plans to track (default 3)")
+    parser.add_argument("--config", type=pathlib.Path, default=DEFAULT_MPC_CONFIG, help="MPC settings YAML")
+    parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/mpc"),
+                        help="folder for mpc.md, mpc.csv, mpc.json and mpc.png")
+    parser.add_argument("--html", type=pathlib.Path, help="Meshcat recording: plant (robot) vs reference (ghost)")
+    parser.add_argument("--quiet", action="store_true")
+
+
+def run(args) -> int:
+    import json
+
+    import torch
+
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.files import write_text_atomic
+    from stdm_drake.closed_loop.learned_system import LearnedModel
+    torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
+    config = load_mpc_config(args.config)
+    dataset = load_dataset(args.dataset)
+    learned = []
+    for entry in args.model:
+        name, separator, path = entry.partition("=")
+        if not separator or not name or not path:
+            raise InputError(f"--model takes NAME=CHECKPOINT, got {entry!r}")
+        learned.append(LearnedModel(path, name=name))
+    for model in learned:
+        model.checkpoint.check_fits(dataset)
+    models = ([] if args.no_plant else [PlantModel(dataset.sample_period)]) + learned
+    if not models:
+        raise InputError("nothing to compare: give --model NAME=CHECKPOINT or keep the plant model")
+    references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
+    recorder = None
+    if args.html:
+        from stdm_drake.collection.recorder import TrajectoryRecorder
+        recorder = TrajectoryRecorder(dataset.sample_period, ghost=True)
+    results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder)
+    rows = summarize(results, dataset.sample_period)
+    table = summary_table(rows)
+    print(table)
+    out = args.output
+    write_text_atomic(out / "mpc.md", table + "\n")
+    write_text_atomic(out / "mpc.json", json.dumps(dict(summary=rows, runs=[dataclasses.asdict(r) for r in results]),
+                                                   indent=1))
+    columns = [field.name for field in dataclasses.fields(ClosedLoopResult) if field.name != "q_error"]
+    write_text_atomic(out / "mpc.csv", "\n".join([",".join(columns)] + [
+        ",".join(str(getattr(result, column)) for column in columns) for result in results]) + "\n")
+    plot_results(results, dataset.sample_period, out / "mpc.png")
+    print(f"wrote {out}/mpc.md, mpc.csv, mpc.json, mpc.png")
+    if recorder is not None:
+        recorder.finish(args.html, what="robot: plant under MPC; translucent orange: the reference")
+    return 0

@@ -1,0 +1,238 @@
+"""Model predictive control of the UR-10 with a pluggable prediction model.
+
+The optimizer is iLQR (iterative LQR: a gradient-based shooting method on the model's
+Jacobians). Why iLQR rather than sampling (MPPI/CEM): the learned models are smooth, their
+Jacobians cost one forward-mode pass, and derivative training is exactly what makes those
+Jacobians right, so the controller uses what the method improves; and the plant itself can
+serve as the reference model (exact rollouts through the same discrete plant, Jacobians from
+Drake's AutoDiff), which a sampling method could not afford (tens of thousands of plant steps per
+control step).
+
+Cost over the horizon H (k = 0..H-1, reference r from a planner, u_ff = g(q_ref) the static
+gravity torque at the reference):
+    sum_k (x_k+1 - r_k+1)^T Q (x_k+1 - r_k+1) + (u_k - u_ff,k)^T R (u_k - u_ff,k),
+with the last state term weighted by `terminal_factor`. Torques are clipped to the effort limits
+in the forward passes (clamped iLQR). The first torque is applied, the rest warm-starts the next
+solve; by default one iLQR iteration per control step (a real-time iteration: with the warm start,
+more iterations changed the closed-loop tracking by less than 0.5 %).
+
+Offset-free MPC: every prediction over the horizon is shifted by a disturbance estimate d, the
+model's latest one-step error x_k - f(x_k-1, u_k-1) (filtered by `disturbance_gain`), so a model's
+slowly varying bias does not become a tracking error. For the plant as model d is ~0.
+
+Every prediction model provides `sample_period` (s) and two batched methods:
+    step(x (N, 12), u (N, 6)) -> x_next (N, 12)
+    jacobians(x (H, 12), u (H, 6)) -> (A (H, 12, 12), B (H, 12, 6))   of x_next w.r.t. x and u.
+
+Modules: the plant model (`plant_model`), the solver (`ilqr`), this controller and its closed loop,
+and the comparison of prediction models with the `stdm-drake mpc` command (`comparison`).
+"""
+import dataclasses
+import time
+
+import numpy as np
+from pydrake.common.value import AbstractValue
+from pydrake.systems.framework import DiagramBuilder, LeafSystem
+
+from stdm_drake.closed_loop.ilqr import IlqrSolver
+from stdm_drake.config import check_joint_vector, load_yaml_config
+from stdm_drake.errors import InputError
+from stdm_drake.paths import CONTROLLERS_DIR
+from stdm_drake.robot import NUM_JOINTS, STATE_DIM, Dynamics, PlantConfig, joint_limits
+
+DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
+
+
+@dataclasses.dataclass
+class MpcConfig:
+    """MPC settings (controllers/mpc.yaml).
+
+    position_weight (6) 1/rad^2, velocity_weight (6) s^2/rad^2, effort_weight (6) 1/(N m)^2 on the
+    torque beyond the reference's gravity torque; horizon in sample periods; iLQR iterations per
+    control step, line-search step sizes and the initial Levenberg-Marquardt regularization;
+    disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off).
+    """
+    horizon: int = 20
+    position_weight: list[float] = dataclasses.field(default_factory=lambda: [1e4] * 6)
+    velocity_weight: list[float] = dataclasses.field(default_factory=lambda: [10.0] * 6)
+    effort_weight: list[float] = dataclasses.field(
+        default_factory=lambda: [1e-4, 1e-4, 1e-3, 0.1, 1.0, 100.0])
+    terminal_factor: float = 10.0
+    max_iterations: int = 1
+    line_search: list[float] = dataclasses.field(default_factory=lambda: [1.0, 0.5, 0.25, 0.1])
+    regularization: float = 1e-6
+    disturbance_gain: float = 1.0
+
+    def validate(self) -> None:
+        for name in ("position_weight", "velocity_weight", "effort_weight"):
+            check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
+        if np.any(np.asarray(self.effort_weight) <= 0):
+            raise InputError("mpc effort_weight must be > 0 for every joint (the torque problem must be convex)")
+        if not 0.0 <= self.disturbance_gain <= 1.0:
+            raise InputError(f"mpc disturbance_gain must be in [0, 1], got {self.disturbance_gain}")
+        if self.horizon < 1 or self.max_iterations < 1 or not self.line_search:
+            raise InputError("mpc horizon and max_iterations must be >= 1 and line_search non-empty")
+
+
+def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
+    return load_yaml_config(path, MpcConfig, what="MPC config")
+
+
+@dataclasses.dataclass
+class Reference:
+    """A reference trajectory at the control period: q (N+1, 6) rad, v (N+1, 6) rad/s.
+
+    Past its end the reference holds its last sample (at rest).
+    """
+    q: np.ndarray
+    v: np.ndarray
+
+    def window(self, k: int, length: int) -> np.ndarray:
+        """States r_k .. r_k+length-1 as (length, 12), holding the last sample past the end."""
+        index = np.minimum(np.arange(k, k + length), len(self.q) - 1)
+        return np.hstack([self.q[index], self.v[index]])
+
+
+@dataclasses.dataclass
+class MpcLog:
+    """What the controller did at each control step (diagnostics, appended as it runs)."""
+    time: list = dataclasses.field(default_factory=list)
+    state: list = dataclasses.field(default_factory=list)
+    torque: list = dataclasses.field(default_factory=list)
+    solve_seconds: list = dataclasses.field(default_factory=list)
+    fallback: list = dataclasses.field(default_factory=list)
+
+
+class MpcController(LeafSystem):
+    """Discrete-time MPC: every `model.sample_period` it solves iLQR from the measured state and
+    holds the first torque until the next sample.
+
+    Ports: input "state" (12: [q rad, v rad/s]); output "torque" (6, N m).
+
+    Timing: a discrete plant steps at multiples of its step h; the controller updates at
+    t_k - h/2, where the plant's state already equals x(t_k), so the torque it computes is the one
+    the plant integrates over the whole period [t_k, t_k+1). The first torque comes from an
+    initialization event at t = 0.
+
+    State: the torque being applied, the disturbance estimate and the prediction of the next
+    measured state made with both (discrete), the warm-start plan (abstract).
+
+    If the model's predictions are not finite, the controller applies gravity compensation at the
+    measured q, clipped to the effort limits, and records the step in `log.fallback`.
+    """
+
+    def __init__(self, model, reference: Reference, config: MpcConfig, plant_time_step: float):
+        super().__init__()
+        config.validate()
+        self.model = model
+        self.reference = reference
+        self.config = config
+        self.dynamics = Dynamics()
+        self.effort_limit = joint_limits(self.dynamics.plant).effort
+        self.solver = IlqrSolver(model, config, self.effort_limit)
+        self.log = MpcLog()
+        period = model.sample_period
+        if not 0 < plant_time_step <= period:
+            raise InputError(f"plant time step {plant_time_step} s must be in (0, {period}] s")
+        self._period = period
+        self._state_input = self.DeclareVectorInputPort("state", STATE_DIM)
+        self._torque_index = self.DeclareDiscreteState(NUM_JOINTS)
+        self._predicted_index = self.DeclareDiscreteState(STATE_DIM)
+        self._disturbance_index = self.DeclareDiscreteState(STATE_DIM)
+        self._plan_index = self.DeclareAbstractState(AbstractValue.Make(np.zeros((config.horizon, NUM_JOINTS))))
+        self.DeclareStateOutputPort("torque", self._torque_index)
+        self.DeclareInitializationUnrestrictedUpdateEvent(self._update)
+        self.DeclarePeriodicUnrestrictedUpdateEvent(period, period - 0.5 * plant_time_step, self._update)
+        self._feedforward = np.array([self.dynamics.gravity_torque(q) for q in reference.q])
+
+    def get_state_input_port(self):
+        """Input "state": the measured plant state [q (6) rad, v (6) rad/s]."""
+        return self.GetInputPort("state")
+
+    def get_torque_output_port(self):
+        """Output "torque": the joint torques (6) N m applied until the next control step."""
+        return self.GetOutputPort("torque")
+
+    def _estimate_disturbance(self, context, x: np.ndarray) -> np.ndarray:
+        """d_k = d_k-1 + gain (x_k - (f(x_k-1, u_k-1) + d_k-1)): the model's recent one-step error,
+        added to every step of the next solve (offset-free MPC). The bracket is the prediction
+        stored at the last update. Non-finite -> zero."""
+        predicted = context.get_discrete_state(int(self._predicted_index)).get_value()
+        last = context.get_discrete_state(int(self._disturbance_index)).get_value()
+        disturbance = last + self.config.disturbance_gain * (x - predicted)
+        return disturbance if np.all(np.isfinite(disturbance)) else np.zeros(STATE_DIM)
+
+    def _update(self, context, state):
+        x = self._state_input.Eval(context)
+        k = int(round(context.get_time() / self._period))
+        horizon = self.config.horizon
+        reference = self.reference.window(k, horizon + 1)
+        u_ff = self._feedforward[np.minimum(np.arange(k, k + horizon), len(self._feedforward) - 1)]
+        warm = state.get_mutable_abstract_state(int(self._plan_index)).get_value()
+        if k == 0:
+            warm = u_ff  # first solve: start from the reference's gravity torques
+        started = time.perf_counter()
+        x = np.asarray(x)
+        fallback = not np.all(np.isfinite(x))
+        disturbance = np.zeros(STATE_DIM)
+        if not fallback:
+            with np.errstate(all="ignore"):
+                if k > 0 and self.config.disturbance_gain > 0:
+                    disturbance = self._estimate_disturbance(context, x)
+                result = self.solver.solve(x, warm, reference, u_ff, disturbance)
+            fallback = not (result.finite and np.all(np.isfinite(result.u)))
+        if fallback:
+            q = np.nan_to_num(x[:NUM_JOINTS])
+            torque = np.clip(self.dynamics.gravity_torque(q), -self.effort_limit, self.effort_limit)
+            next_plan = u_ff
+            predicted = np.full(STATE_DIM, np.nan)
+            if self.config.disturbance_gain > 0:
+                with np.errstate(all="ignore"):
+                    predicted = self.solver.rollout(x, torque[None], disturbance)[1]
+        else:
+            torque = result.u[0]
+            next_plan = np.vstack([result.u[1:], result.u[-1:]])
+            predicted = result.x[1]  # the solve's own prediction under the torque it applies
+        elapsed = time.perf_counter() - started
+        state.get_mutable_discrete_state(int(self._torque_index)).set_value(torque)
+        state.get_mutable_discrete_state(int(self._predicted_index)).set_value(predicted)
+        state.get_mutable_discrete_state(int(self._disturbance_index)).set_value(disturbance)
+        state.get_mutable_abstract_state(int(self._plan_index)).set_value(next_plan)
+        self.log.time.append(context.get_time())
+        self.log.state.append(np.array(x))
+        self.log.torque.append(torque.copy())
+        self.log.solve_seconds.append(elapsed)
+        self.log.fallback.append(fallback)
+
+
+def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
+                      meshcat=None):
+    """Diagram: UR-10 plant (discrete) <-> MpcController(model). Returns (diagram, plant, controller)."""
+    from stdm_drake.robot import make_plant
+    plant_config = plant_config or PlantConfig()
+    builder = DiagramBuilder()
+    plant, scene_graph = make_plant(plant_config, builder=builder)
+    controller = builder.AddSystem(MpcController(model, reference, config, plant_config.time_step))
+    controller.set_name("mpc")
+    builder.Connect(plant.get_state_output_port(), controller.get_state_input_port())
+    builder.Connect(controller.get_torque_output_port(), plant.get_actuation_input_port())
+    if meshcat is not None:
+        from pydrake.geometry import MeshcatVisualizer
+        MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat)
+    return builder.Build(), plant, controller
+
+
+def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
+                    duration: float | None = None) -> MpcLog:
+    """Simulate plant + MPC from rest at the reference's start; returns the controller's log."""
+    from pydrake.systems.analysis import Simulator
+    diagram, plant, controller = build_closed_loop(model, reference, config, plant_config)
+    simulator = Simulator(diagram)
+    context = simulator.get_mutable_context()
+    x0 = np.concatenate([reference.q[0], np.zeros(NUM_JOINTS)])
+    plant.SetPositionsAndVelocities(plant.GetMyContextFromRoot(context), x0)
+    period = model.sample_period
+    duration = (len(reference.q) - 1) * period if duration is None else duration
+    simulator.Initialize()
+    simulator.AdvanceTo(duration - 0.25 * period)  # the last update (t = duration - h/2) included
+    return controller.log

@@ -1,0 +1,52 @@
+"""`stdm-drake view`: a recorded trajectory and a learned model's open-loop prediction from the same
+initial state and actions, side by side in Meshcat (the prediction as a translucent ghost)."""
+import pathlib
+
+import numpy as np
+
+from stdm_drake.collection.recorder import TrajectoryRecorder
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("checkpoint", type=pathlib.Path, help="trained model (checkpoint.pt)")
+    parser.add_argument("dataset", type=pathlib.Path, help="dataset with the trajectories to replay")
+    parser.add_argument("--trajectories", type=int, default=3,
+                        help="how many test trajectories (the checkpoint's test split when it was trained on "
+                             "this dataset, else the dataset's last ones; default 3)")
+    parser.add_argument("--index", type=int, action="append", help="replay these trajectory indices instead")
+    parser.add_argument("--html", type=pathlib.Path, help="save the recording as a standalone HTML file")
+    parser.add_argument("--meshcat", action="store_true", help="play live in Meshcat (prints the URL)")
+
+
+def run(args) -> int:
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.errors import InputError
+    from stdm_drake.closed_loop.learned_system import LearnedModel
+    from stdm_drake.learning.predict import rollout
+    if not (args.html or args.meshcat):
+        raise InputError("nothing to show: give --html FILE and/or --meshcat")
+    model = LearnedModel(args.checkpoint)
+    dataset = load_dataset(args.dataset)
+    model.checkpoint.check_fits(dataset)
+    if args.index:
+        indices = args.index
+    else:
+        test = model.checkpoint.split_indices(dataset, "test")
+        pool = test if test is not None else list(range(dataset.num_trajectories))[::-1]
+        indices = pool[:args.trajectories]
+    recorder = TrajectoryRecorder(dataset.sample_period, ghost=True)
+    if args.meshcat:
+        print(f"Meshcat: {recorder.meshcat.web_url()}")
+    for index in indices:
+        if not 0 <= index < dataset.num_trajectories:
+            raise InputError(f"trajectory index {index} out of range 0..{dataset.num_trajectories - 1}")
+        traj = dataset.trajectory(index)
+        x0 = np.concatenate([traj["q"][0], traj["v"][0]])
+        predicted = rollout(model.engine, x0, traj["tau"]).mean
+        ghost_q = np.vstack([traj["q"][:1], predicted[:, :6]])
+        error = np.sqrt(np.mean((ghost_q - traj["q"]) ** 2))
+        print(f"trajectory {index}: open-loop RMS joint-angle error over {len(traj['tau'])} steps {error:.4g} rad")
+        recorder.add(traj["q_true"], ghost_q, realtime=args.meshcat)
+    recorder.finish(args.html, keep_serving=args.meshcat,
+                    what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")
+    return 0

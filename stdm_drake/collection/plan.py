@@ -1,0 +1,178 @@
+"""Plan specifications of the tracked data protocol (paper section V.B.1): initial tool poses, final
+poses sampled near each (`TaskSpaceSamplingConfig`), the planner settings (`TrackingSpec`, from
+trajectories/*.yaml), and the sampling of plans for every initial pose."""
+import dataclasses
+import logging
+import math
+import os
+from typing import Callable
+
+import numpy as np
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+
+from stdm_drake.collection.kinematics import RobotKinematics, pose_text, rotation_exp
+from stdm_drake.collection.planners import PlannedTrajectory, PlannerConfig, plan_trajectory
+from stdm_drake.config import load_yaml_config, require
+from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.paths import TRAJECTORIES_DIR
+from stdm_drake.robot import NUM_JOINTS
+
+logger = logging.getLogger(__name__)
+
+DEFAULT_TRACKING_SPEC = TRAJECTORIES_DIR / "tracking.yaml"
+
+
+@dataclasses.dataclass
+class InitialPose:
+    """One predefined initial tool0 pose in the world frame.
+
+    xyz: (3,) position, m. rpy: (3,) roll-pitch-yaw, rad (Drake's RollPitchYaw convention).
+    q_seed: (6,) joint-space IK seed, rad; it fixes the arm's branch (elbow up, wrist side).
+    """
+    xyz: list[float] = dataclasses.field(default_factory=list)
+    rpy: list[float] = dataclasses.field(default_factory=list)
+    q_seed: list[float] = dataclasses.field(default_factory=list)
+
+    def pose(self) -> RigidTransform:
+        return RigidTransform(RollPitchYaw(np.asarray(self.rpy, float)), np.asarray(self.xyz, float))
+
+
+@dataclasses.dataclass
+class TaskSpaceSamplingConfig:
+    """Where the plans start and how their final poses are sampled.
+
+    initial_poses: the predefined initial poses (4 in the paper).
+    position_offset: (3,) half-widths (m) of the box, centered on the initial position and
+        aligned with the world axes, from which final positions are drawn uniformly.
+    orientation_max_angle: final orientation = exp(angle * axis) * initial orientation (world
+        frame) with axis uniform on the sphere and angle uniform in [0, this], rad.
+    num_final_per_initial: final poses (plans) per initial pose (25 in the paper).
+    num_steps: steps per plan N; a plan has N + 1 samples (100 in the paper).
+    max_resample_attempts: a rejected final pose is redrawn at most this many times; then
+        sample_task_plans raises PlanningError naming the initial pose.
+    """
+    initial_poses: list[InitialPose] = dataclasses.field(default_factory=list)
+    position_offset: list[float] = dataclasses.field(default_factory=lambda: [0.15, 0.15, 0.15])
+    orientation_max_angle: float = 0.3
+    num_final_per_initial: int = 25
+    num_steps: int = 100
+    max_resample_attempts: int = 20
+
+    def validate(self) -> None:
+        """Raise InputError (one line) on a malformed configuration."""
+        require(len(self.initial_poses) >= 1, "initial_poses must list at least one pose",
+                 len(self.initial_poses))
+        for index, pose in enumerate(self.initial_poses):
+            for name, size in (("xyz", 3), ("rpy", 3), ("q_seed", NUM_JOINTS)):
+                values = getattr(pose, name)
+                require(len(values) == size and all(math.isfinite(v) for v in values),
+                         f"initial_poses[{index}].{name} must be {size} finite numbers", values)
+        require(len(self.position_offset) == 3 and all(
+            math.isfinite(v) and v >= 0 for v in self.position_offset),
+            "position_offset must be 3 non-negative numbers (m)", self.position_offset)
+        require(0.0 <= self.orientation_max_angle <= math.pi,
+                 "orientation_max_angle must be in [0, pi] rad", self.orientation_max_angle)
+        require(self.num_final_per_initial >= 1, "num_final_per_initial must be >= 1",
+                 self.num_final_per_initial)
+        require(self.num_steps >= 1, "num_steps must be >= 1", self.num_steps)
+        require(self.max_resample_attempts >= 0, "max_resample_attempts must be >= 0",
+                 self.max_resample_attempts)
+
+
+@dataclasses.dataclass
+class TrackingSpec:
+    """Schema of trajectories/tracking*.yaml: the sampling protocol and the planner."""
+    sampling: TaskSpaceSamplingConfig = dataclasses.field(default_factory=TaskSpaceSamplingConfig)
+    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+
+
+def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *,
+                       planner_kind: str | None = None) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
+    """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`).
+
+    planner_kind: if given, overrides `planner.kind` (same poses and limits, other planner).
+    Raises InputError, naming the file, on a missing or malformed file, unknown keys, wrong
+    types or invalid values.
+    """
+    spec = load_yaml_config(path, TrackingSpec, what="tracking spec")
+    if planner_kind is not None:
+        spec.planner = dataclasses.replace(spec.planner, kind=planner_kind)
+    for section in ("planner", "sampling"):
+        try:
+            getattr(spec, section).validate()
+        except InputError as error:
+            raise InputError(f"{path}: {section}: {error}") from None
+    return spec.sampling, spec.planner
+
+
+def initial_configuration(kinematics: RobotKinematics, pose: InitialPose, config: PlannerConfig) -> np.ndarray:
+    """IK (6,) rad of an initial pose from its configured seed (Newton first, Drake IK as fallback)."""
+    X = pose.pose()
+    q_seed = np.asarray(pose.q_seed, dtype=float)
+    try:
+        return kinematics.inverse_kinematics(X, q_seed, tolerance=config.ik_tolerance,
+                                             max_iterations=config.ik_max_iterations, damping=config.ik_damping)
+    except PlanningError:
+        return kinematics.inverse_kinematics_global(X, q_seed, tolerance=config.ik_tolerance)
+
+
+def sample_final_pose(X_initial: RigidTransform, sampling_config: TaskSpaceSamplingConfig,
+                      rng: np.random.Generator) -> RigidTransform:
+    """A final pose near X_initial: uniform position offset in the box, rotation by an angle
+    uniform in [0, orientation_max_angle] about a uniformly random world axis (7 draws)."""
+    offset = rng.uniform(-1.0, 1.0, size=3) * np.asarray(sampling_config.position_offset, dtype=float)
+    axis = rng.standard_normal(3)
+    axis /= max(float(np.linalg.norm(axis)), 1e-12)
+    angle = rng.uniform(0.0, sampling_config.orientation_max_angle)
+    R = rotation_exp(angle * axis) @ X_initial.rotation().matrix()
+    return RigidTransform(RotationMatrix(R), X_initial.translation() + offset)
+
+
+def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSamplingConfig,
+                      planner_config: PlannerConfig, sample_period: float, rng: np.random.Generator, *,
+                      is_collision_free: Callable[[np.ndarray], bool] | None = None,
+                      on_reject: Callable[[str], None] | None = None) -> list[tuple[int, PlannedTrajectory]]:
+    """Plans for every initial pose and num_final_per_initial final poses sampled near it.
+
+    Returns [(initial_pose_index, PlannedTrajectory)] ordered by initial pose, each plan with
+    num_steps + 1 samples at sample_period (s). Deterministic for a given rng state. A final pose
+    whose plan raises PlanningError, or with a sample q (6,) rad for which is_collision_free(q)
+    is False, is rejected: its one-line reason goes to on_reject (default: logged as a warning)
+    and the pose is redrawn, up to max_resample_attempts times, after which PlanningError names
+    the initial pose. An unreachable initial pose raises PlanningError at once.
+    """
+    sampling_config.validate()
+    planner_config.validate()
+    report = on_reject if on_reject is not None else logger.warning
+    plans: list[tuple[int, PlannedTrajectory]] = []
+    for index, initial in enumerate(sampling_config.initial_poses):
+        X_initial = initial.pose()
+        what = f"initial pose {index} ({pose_text(X_initial)})"
+        try:
+            q_initial = initial_configuration(kinematics, initial, planner_config)
+        except PlanningError as error:
+            raise PlanningError(f"{what} is unreachable: {error}") from None
+        if is_collision_free is not None and not is_collision_free(q_initial):
+            raise PlanningError(f"{what} is in self-collision at q={np.round(q_initial, 3).tolist()} rad")
+        for plan_index in range(sampling_config.num_final_per_initial):
+            reason = ""
+            for attempt in range(sampling_config.max_resample_attempts + 1):
+                X_goal = sample_final_pose(X_initial, sampling_config, rng)
+                try:
+                    plan = plan_trajectory(kinematics, q_initial, X_goal, config=planner_config,
+                                           num_steps=sampling_config.num_steps, sample_period=sample_period)
+                    if is_collision_free is not None:
+                        for k, q in enumerate(plan.q):
+                            if not is_collision_free(q):
+                                raise PlanningError(f"{plan.planner} plan to goal pose {pose_text(X_goal)}: "
+                                                    f"self-collision at t={plan.t[k]:.3f} s")
+                except PlanningError as error:
+                    reason = str(error)
+                    report(f"{what}, plan {plan_index}, attempt {attempt + 1}: rejected, resampling: {reason}")
+                    continue
+                plans.append((index, plan))
+                break
+            else:
+                raise PlanningError(f"{what}: no feasible final pose for plan {plan_index} after "
+                                    f"{sampling_config.max_resample_attempts + 1} attempts; last: {reason}")
+    return plans

@@ -1,0 +1,138 @@
+"""`stdm-drake reproduce`: the paper's UR-10 experiments (section V) end to end, with a report.
+
+Stages: (1) datasets: excitation (simulated UR-10, V.A) and tracked task-space plans (our stand-in
+for the real robot, V.B); (2) training jobs, two worker processes, each checkpoint cached under
+`<output>/cache` by a hash of its dataset and settings, so a rerun reuses what exists; (3) figures
+and tables: activations (Figs. 11, 16), sample efficiency (Figs. 12, 17), learning curves (Fig. 13),
+multi-step prediction and rollout time (Figs. 18, 19); the sine-sum study (III.B) and the
+closed-loop MPC comparison; (4) `report.md` / `report.html` with the paper's reported values in
+clearly labelled "paper" columns and a plain statement wherever ours differ. Raw results go to
+`results.json` and CSV files. Every other number is computed by the run.
+
+Modules: `jobs` (profiles, datasets, training jobs), `reproduce_report` (tables, figures, report),
+this one (the stages in order, the MPC comparison, the command).
+"""
+import argparse
+import concurrent.futures
+import dataclasses
+import json
+import multiprocessing
+import pathlib
+import time
+
+from stdm_drake.errors import InputError
+from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, FULL, IDENTIFICATION_SETTINGS, QUICK, Profile,
+                                         ensure_dataset, plan_jobs, run_jobs)
+from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
+from stdm_drake.files import json_default
+from stdm_drake.paths import TRAJECTORIES_DIR
+
+def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True):
+    """Run every stage; returns the report path."""
+    from stdm_drake.experiments import sine_sum
+    output = pathlib.Path(output)
+    cache = output / "cache"
+    cache.mkdir(parents=True, exist_ok=True)
+    timings = {}
+    tick = time.perf_counter()
+    excitation = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress)
+    local = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress,
+                           name="excitation_local", config=TRAJECTORIES_DIR / "excitation_local.yaml")
+    tracking = ensure_dataset("tracking", profile.tracking_count, seed, output / "data", progress)
+    # the MPC models' data: the same kind of plans, tracked with dithered PID, recorded by an ideal sensor
+    identification = ensure_dataset("tracking", profile.identification_count, seed, output / "data", progress,
+                                    name="identification", **IDENTIFICATION_SETTINGS)
+    timings["data"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    jobs = plan_jobs(profile, excitation, local, tracking, identification)
+    results = run_jobs(jobs, cache, workers, progress)
+    timings["training"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    study_config = sine_sum.QUICK if profile.sine_sum == "quick" else sine_sum.FULL
+    sine = reused_sine_sum(output / "sine_sum" / "results.json", study_config)
+    if sine is None:
+        sine = sine_sum.run_study(study_config, workers=workers, progress=progress)
+        sine_sum.write_reports(sine, output / "sine_sum", quick=profile.sine_sum == "quick")
+    sine["profile"] = profile.sine_sum
+    timings["sine_sum"] = time.perf_counter() - tick
+
+    tick = time.perf_counter()
+    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers)
+    timings["mpc"] = time.perf_counter() - tick
+    return write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
+                        timings)
+
+
+def reused_sine_sum(path: pathlib.Path, study_config):
+    """The stored sine-sum study at `path` if it was computed with exactly `study_config`, else None."""
+    if not path.exists():
+        return None
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError):
+        return None
+    expected = json.loads(json.dumps(dataclasses.asdict(study_config), default=json_default))
+    return stored if stored.get("config") == expected and stored.get("runs") else None
+
+
+def run_mpc(profile, identification, results, cache, folder, progress, workers: int = 2) -> dict:
+    """MPC with the plant and every seed of the control experiment's D, DD, PE, PED models on held-out
+    plans of the identification dataset, the models split over `workers` processes; returns
+    {"runs": per model instance, "types": mpc_statistics}."""
+    from stdm_drake.closed_loop.learned_system import LearnedModel
+    from stdm_drake.closed_loop.mpc import Reference
+    from stdm_drake.closed_loop.comparison import held_out_references, plot_results, summarize
+    specs = [("plant", None)]
+    for model_type in CONTROL_MODEL_TYPES:
+        for match in sorted(select_rows(results, experiment="control", model_type=model_type), key=lambda r: r["seed"]):
+            specs.append((f"{model_type} seed {match['seed']}", str(cache / f"{match['key']}.pt")))
+    checkpoints = [LearnedModel(path).checkpoint for _, path in specs[1:]]
+    references = held_out_references(identification, checkpoints, profile.mpc_plans)
+    if profile.mpc_steps is not None:
+        references = [(i, Reference(q=r.q[:profile.mpc_steps + 1], v=r.v[:profile.mpc_steps + 1])) for i, r in references]
+    # the plant-as-model MPC costs about as much as all learned models together: it gets a worker of its own
+    groups = [specs[:1], specs[1:]] if workers > 1 else [specs]
+    jobs = [(group, references, identification.sample_period, progress and index == len(groups) - 1)
+            for index, group in enumerate(groups)]
+    if len(jobs) > 1:
+        context = multiprocessing.get_context("spawn")
+        with concurrent.futures.ProcessPoolExecutor(len(jobs), mp_context=context) as pool:
+            runs = [run for group_runs in pool.map(_mpc_group, jobs) for run in group_runs]
+    else:
+        runs = _mpc_group(jobs[0])
+    plot_results(runs, identification.sample_period, folder / "mpc.png")
+    return dict(runs=summarize(runs, identification.sample_period), types=mpc_statistics(runs))
+
+
+def _mpc_group(arguments) -> list:
+    """Closed-loop runs of the models named in `specs` ((name, checkpoint path or None for the plant))."""
+    import torch
+    torch.set_num_threads(1)
+    from stdm_drake.closed_loop.learned_system import LearnedModel
+    from stdm_drake.closed_loop.plant_model import PlantModel
+    from stdm_drake.closed_loop.comparison import compare_controllers
+    from stdm_drake.closed_loop.mpc import load_mpc_config
+    specs, references, sample_period, progress = arguments
+    models = [PlantModel(sample_period) if path is None else LearnedModel(path, name=name) for name, path in specs]
+    return compare_controllers(models, references, load_mpc_config(), progress=progress)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="every stage at reduced size (under a minute on 2 cores)")
+    parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/reproduce"),
+                        help="report folder (default out/reproduce); datasets and checkpoints there are reused")
+    parser.add_argument("--seed", type=int, default=0, help="data collection seed")
+    parser.add_argument("--workers", type=int, default=2, help="training processes (default 2)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    profile = QUICK if args.quick else FULL
+    started = time.perf_counter()
+    path = reproduce(profile, args.output, seed=args.seed, workers=args.workers, progress=not args.quiet)
+    print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
+    return 0

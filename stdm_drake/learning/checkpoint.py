@@ -1,0 +1,181 @@
+"""Checkpoints: one file per trained model (weights, architecture, normalizers, training settings,
+learning curves, typed metadata), written atomically and read with torch.load(weights_only=True);
+and the one check of whether a checkpoint fits a dataset."""
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+
+import torch
+
+from stdm_drake.errors import InputError
+from stdm_drake.files import atomic_path, json_default
+from stdm_drake.learning.models import EnsembleMLP, ModelConfig
+from stdm_drake.learning.settings import TrainingConfig
+
+CHECKPOINT_FORMAT = "stdm-drake-model"
+CHECKPOINT_VERSION = 2  # 2: derivative loss scaled by the state spread (alpha as in eq. 9), no rate normalizer
+HISTORY_COLUMNS = ("epoch", "train_loss", "train_state_loss", "train_derivative_loss",
+                   "val_loss", "val_state_loss", "val_derivative_loss", "val_mse", "seconds")
+
+
+@dataclasses.dataclass
+class CheckpointMetadata:
+    """What a checkpoint records about how it was made. Every field is optional: a model fitted to
+    arrays (not a dataset file) has no dataset fields.
+
+    model_type: "D", "PED", ...; dataset_path, dataset_sha256: the training dataset file and its hash;
+    protocol: "excitation" or "tracking"; sample_period: s per model step (the dataset's);
+    split: {"train", "val", "test"} -> trajectory indices of that dataset; split_seed, per_group:
+    how the split was drawn; derivative_source ("true"/"planned") and action_rate
+    ("forward_difference"/"zero_order_hold"): how the derivative targets were formed; threads,
+    torch_version, stdm_drake_version: the software that trained it; alpha_selection: the alpha grid's
+    validation curve when alpha was chosen by validation (`AlphaSelection.as_dict`).
+    """
+    model_type: str | None = None
+    dataset_path: str | None = None
+    dataset_sha256: str | None = None
+    protocol: str | None = None
+    sample_period: float | None = None
+    split: dict | None = None
+    split_seed: int | None = None
+    per_group: bool | None = None
+    derivative_source: str | None = None
+    action_rate: str | None = None
+    threads: int | None = None
+    torch_version: str | None = None
+    stdm_drake_version: str | None = None
+    alpha_selection: dict | None = None
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "CheckpointMetadata":
+        """From the stored dict; unknown keys raise InputError."""
+        unknown = sorted(set(values) - {field.name for field in dataclasses.fields(cls)})
+        if unknown:
+            raise InputError(f"unknown checkpoint metadata fields {unknown}")
+        return cls(**values)
+
+    def as_dict(self) -> dict:
+        """The fields that are set, as plain JSON values."""
+        values = {key: value for key, value in dataclasses.asdict(self).items() if value is not None}
+        return json.loads(json.dumps(values, default=json_default))
+
+
+@dataclasses.dataclass
+class Checkpoint:
+    """A loaded checkpoint: the model (best weights) and what was stored beside it."""
+    path: pathlib.Path
+    model: EnsembleMLP
+    model_config: ModelConfig
+    training_config: TrainingConfig | None
+    metadata: CheckpointMetadata
+    history: dict
+    resume: dict | None
+
+    def trained_on(self, dataset) -> bool:
+        """Whether `dataset` (a loaded Dataset) is the file this model was trained on (same SHA-256)."""
+        return self.metadata.dataset_sha256 is not None and self.metadata.dataset_sha256 == dataset.sha256
+
+    def check_sizes(self, *, state_dim: int | None = None, action_dim: int | None = None) -> None:
+        """InputError unless the model's STDM sizes equal the given ones (None: any)."""
+        config = self.model_config
+        wanted = (state_dim if state_dim is not None else config.state_dim,
+                  action_dim if action_dim is not None else config.action_dim)
+        if (config.state_dim, config.action_dim) != wanted:
+            raise InputError(f"{self.path}: model has state dim {config.state_dim} and action dim "
+                             f"{config.action_dim}, expected state dim {wanted[0]} and action dim {wanted[1]}")
+
+    def check_fits(self, dataset) -> None:
+        """InputError unless the model can predict `dataset`'s transitions: the state (2 x joints) and
+        action (joints) sizes match, and the model steps at the dataset's sample period (when recorded)."""
+        first = dataset.trajectory(0)
+        self.check_sizes(state_dim=2 * first["q"].shape[1], action_dim=first["tau"].shape[1])
+        period = self.metadata.sample_period
+        if period is not None and abs(float(period) - dataset.sample_period) > 1e-12:
+            raise InputError(f"{self.path}: model steps at {period} s, {dataset.path} at {dataset.sample_period} s")
+
+    def split_indices(self, dataset, part: str) -> list[int] | None:
+        """Trajectory indices of the model's `part` ("train", "val", "test") split of `dataset`, or None
+        when it was not trained on this dataset (so its split does not apply)."""
+        if not self.trained_on(dataset) or self.metadata.split is None:
+            return None
+        return [int(index) for index in self.metadata.split.get(part, [])]
+
+
+def _metadata(metadata: CheckpointMetadata | dict | None) -> CheckpointMetadata:
+    if isinstance(metadata, CheckpointMetadata):
+        return metadata
+    return CheckpointMetadata.from_dict(dict(metadata or {}))
+
+
+def save_checkpoint(path, model: EnsembleMLP, *, training_config: TrainingConfig | None = None,
+                    history: dict | None = None, metadata: CheckpointMetadata | dict | None = None,
+                    resume_state: dict | None = None) -> pathlib.Path:
+    """Write one file (atomically) holding weights, architecture, normalizers, options and metadata.
+
+    Only tensors and plain Python values are stored, so it loads with torch.load(weights_only=True).
+    """
+    content = {
+        "format": CHECKPOINT_FORMAT,
+        "format_version": CHECKPOINT_VERSION,
+        "model_config": dataclasses.asdict(model.config),
+        "weights": {name: value.detach().cpu().clone() for name, value in model.state_dict().items()},
+        "training_config": dataclasses.asdict(training_config) if training_config is not None else None,
+        "history": {column: [float(v) for v in values] for column, values in (history or {}).items()},
+        "metadata": _metadata(metadata).as_dict(),
+        "resume": resume_state,
+    }
+    path = pathlib.Path(path)
+    with atomic_path(path) as temp:
+        torch.save(content, temp)
+    return path
+
+
+def load_checkpoint(path) -> Checkpoint:
+    """Read and validate a checkpoint; any problem raises InputError (FileNotFoundError if missing)."""
+    path = pathlib.Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint not found: {path}")
+    with open(path, "rb") as f:
+        magic = f.read(8)
+    if not magic.startswith(b"PK\x03\x04"):  # torch.save writes a zip archive
+        kind = " (it is an HDF5 file: a dataset?)" if magic == b"\x89HDF\r\n\x1a\n" else ""
+        raise InputError(f"{path}: not a readable stdm-drake checkpoint: not a PyTorch checkpoint file{kind}")
+    try:
+        content = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as error:  # truncated zip, disallowed pickle content, ...
+        detail = " ".join(str(error).split()).split(". ")[0] or type(error).__name__  # first sentence only
+        raise InputError(f"{path}: not a readable stdm-drake checkpoint (truncated or corrupt?): {detail}") from None
+    if not isinstance(content, dict) or content.get("format") != CHECKPOINT_FORMAT:
+        raise InputError(f"{path}: not a stdm-drake model checkpoint (format field missing or wrong)")
+    if content.get("format_version") != CHECKPOINT_VERSION:
+        hint = (" (written before the derivative loss took the paper's alpha scaling: retrain it)"
+                if content.get("format_version") == 1 else "")
+        raise InputError(f"{path}: checkpoint format version {content.get('format_version')}, "
+                         f"this stdm-drake reads {CHECKPOINT_VERSION}{hint}")
+    try:
+        model_config = ModelConfig.from_dict(dict(content["model_config"]))
+        training = content.get("training_config")
+        training_config = TrainingConfig(**training) if training is not None else None
+        model = EnsembleMLP(model_config)
+        model.load_state_dict(content["weights"])
+        metadata = CheckpointMetadata.from_dict(dict(content.get("metadata") or {}))
+    except InputError as error:
+        raise InputError(f"{path}: {error}") from None
+    except (KeyError, TypeError, RuntimeError, ValueError) as error:
+        detail = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise InputError(f"{path}: inconsistent checkpoint contents: {detail}") from None
+    if not all(torch.isfinite(value).all() for value in model.state_dict().values()):
+        raise InputError(f"{path}: checkpoint weights contain NaN or inf")
+    model.eval()
+    return Checkpoint(path=path, model=model, model_config=model_config, training_config=training_config,
+                      metadata=metadata, history=dict(content.get("history") or {}),
+                      resume=content.get("resume"))
+
+
+def load_model(path, *, state_dim: int | None = None, action_dim: int | None = None) -> Checkpoint:
+    """load_checkpoint plus a check of the STDM sizes the caller expects (InputError on mismatch)."""
+    checkpoint = load_checkpoint(path)
+    checkpoint.check_sizes(state_dim=state_dim, action_dim=action_dim)
+    return checkpoint

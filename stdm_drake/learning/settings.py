@@ -1,0 +1,179 @@
+"""Training settings: `TrainingConfig` (how one model is fitted), the paper's alpha, and the
+`stdm-drake train` settings file (`TrainSettings`, typed YAML; command-line flags override it)."""
+
+import dataclasses
+import math
+import typing
+
+import numpy as np
+import torch
+
+from stdm_drake.errors import InputError
+from stdm_drake.learning.models import ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
+
+LOSS_KINDS = ("mse", "mae", "huber")
+LR_SCHEDULES = ("constant", "cosine")
+DEFAULT_ALPHA = 1e-3   # the paper's derivative-loss weight (found by search over 1e-1 ... 1e-4)
+# alpha values tried by `select_alpha` (`--alpha auto`): naive (0) and a log grid
+DEFAULT_ALPHA_GRID = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0)
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainingConfig:
+    """How a model is fitted. alpha = 0 is naive (state-only) training; alpha > 0 adds the derivative term.
+
+    patience: stop after this many epochs in which no member's validation MSE improved.
+    validation_interval: validate (and record a learning-curve row) every this many epochs.
+    bootstrap: ensembles train each member on its own resample with replacement (PETS); single
+    models always see the data once per epoch.
+    lr_schedule: "constant", or "cosine": the learning rate falls from learning_rate to
+    min_learning_rate along half a cosine over the max_epochs budget (per minibatch step).
+    weight_decay: decoupled weight decay (AdamW) per step, as a fraction of the learning rate.
+    alpha_grid: train one member per alpha (ensemble_size must equal its length) from the same
+    initial weights on the same minibatches (no bootstrap); `alpha` is then ignored.
+    """
+    alpha: float = 0.0
+    state_loss: str = "mse"
+    derivative_loss: str = "mse"
+    huber_delta: float = 1.0
+    learning_rate: float = 1e-3
+    batch_size: int = 64
+    max_epochs: int = 500
+    patience: int = 50
+    validation_interval: int = 1
+    bootstrap: bool = True
+    seed: int = 0
+    lr_schedule: str = "constant"
+    min_learning_rate: float = 0.0
+    weight_decay: float = 0.0
+    alpha_grid: tuple | None = None
+
+    def __post_init__(self):
+        for name in ("state_loss", "derivative_loss"):
+            if getattr(self, name) not in LOSS_KINDS:
+                raise InputError(f"training config: {name} must be one of {LOSS_KINDS}, got {getattr(self, name)!r}")
+        if not (np.isfinite(self.alpha) and self.alpha >= 0):
+            raise InputError(f"training config: alpha must be a finite number >= 0, got {self.alpha}")
+        if self.alpha_grid is not None:
+            object.__setattr__(self, "alpha_grid", tuple(float(value) for value in self.alpha_grid))
+            if not self.alpha_grid or not all(np.isfinite(a) and a >= 0 for a in self.alpha_grid):
+                raise InputError(f"training config: alpha_grid must be finite numbers >= 0, got {self.alpha_grid}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise InputError(f"training config: lr_schedule must be one of {LR_SCHEDULES}, got {self.lr_schedule!r}")
+        for name in ("min_learning_rate", "weight_decay"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise InputError(f"training config: {name} must be a finite number >= 0, got {getattr(self, name)}")
+        if self.min_learning_rate > self.learning_rate:
+            raise InputError(f"training config: min_learning_rate {self.min_learning_rate} exceeds "
+                             f"learning_rate {self.learning_rate}")
+        for name in ("huber_delta", "learning_rate"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise InputError(f"training config: {name} must be positive, got {getattr(self, name)}")
+        for name in ("batch_size", "max_epochs", "patience", "validation_interval"):
+            if int(getattr(self, name)) < 1:
+                raise InputError(f"training config: {name} must be a positive integer, got {getattr(self, name)}")
+
+    @property
+    def derivative(self) -> bool:
+        """Whether any member trains with the derivative term."""
+        return max(self.alpha_grid) > 0 if self.alpha_grid is not None else self.alpha > 0
+
+    def member_alphas(self, members: int) -> torch.Tensor:
+        """alpha per ensemble member (members,), float64."""
+        if self.alpha_grid is None:
+            return torch.full((members,), float(self.alpha), dtype=torch.float64)
+        if len(self.alpha_grid) != members:
+            raise InputError(f"training config: alpha_grid has {len(self.alpha_grid)} values for a model "
+                             f"of {members} members")
+        return torch.tensor(self.alpha_grid, dtype=torch.float64)
+
+    def learning_rate_at(self, step: int, total_steps: int) -> float:
+        """The scheduled learning rate of minibatch step `step` (0-based) of `total_steps`."""
+        if self.lr_schedule == "constant":
+            return self.learning_rate
+        progress = min(step / max(total_steps, 1), 1.0)
+        return self.min_learning_rate + 0.5 * (self.learning_rate - self.min_learning_rate) * (
+            1.0 + math.cos(math.pi * progress))
+
+
+@dataclasses.dataclass
+class TrainSettings:
+    """Everything `stdm-drake train` takes besides the dataset and the output folder, as a typed YAML
+    file (`--config FILE`; keys left out keep these defaults; a command-line flag overrides its key).
+    Field names are the flags' names with "_" for "-"; see `stdm-drake train --help` for each.
+
+    model: "D", "P", "DE", "PE" (naive) or "DD", "PD", "DED", "PED" (derivative loss); derivative:
+    "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto";
+    alpha_grid: alphas tried by "auto"; network: activation, hidden_width, hidden_layers,
+    ensemble_size (DE/PE types), direct (x_{t+1} instead of the delta); losses: state_loss,
+    derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
+    trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
+    derivative_source ("true", "planned"; None: the dataset's), action_rate ("forward_difference",
+    "zero_order_hold"); optimization: epochs, patience, batch_size, lr, lr_schedule ("constant",
+    "cosine"), min_lr, weight_decay; checkpoint_every (epochs); threads (torch CPU threads).
+    """
+    model: str = "DD"
+    derivative: typing.Optional[str] = None
+    alpha: typing.Union[float, str] = DEFAULT_ALPHA
+    alpha_grid: typing.List[float] = dataclasses.field(default_factory=lambda: list(DEFAULT_ALPHA_GRID))
+    activation: str = "swish"
+    hidden_width: int = 100
+    hidden_layers: int = 3
+    ensemble_size: int = DEFAULT_ENSEMBLE_SIZE
+    direct: bool = False
+    state_loss: str = "mse"
+    derivative_loss: str = "mse"
+    seeds: typing.List[int] = dataclasses.field(default_factory=lambda: [0])
+    train: typing.Optional[int] = None
+    val: typing.Optional[int] = None
+    test: typing.Optional[int] = None
+    per_group: typing.Optional[str] = None
+    split_seed: int = 0
+    derivative_source: typing.Optional[str] = None
+    action_rate: str = "forward_difference"
+    epochs: int = 500
+    patience: int = 50
+    batch_size: int = 64
+    lr: float = 1e-3
+    lr_schedule: str = "constant"
+    min_lr: float = 0.0
+    weight_decay: float = 0.0
+    checkpoint_every: int = 10
+    threads: int = 1
+
+    def validate(self) -> None:
+        """InputError (one line, naming the key and its flag) on a value no flag would accept."""
+        key = lambda name: f"{name} (--{name.replace('_', '-')})"  # noqa: E731
+        self.model = str(self.model).upper()
+        if isinstance(self.alpha, str) and self.alpha.strip().lower() != "auto":
+            try:
+                self.alpha = float(self.alpha)
+            except ValueError:
+                raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}") from None
+        elif isinstance(self.alpha, str):
+            self.alpha = "auto"
+        choices = dict(model=tuple(MODEL_TYPES), derivative=(None, "on", "off"), activation=ACTIVATION_NAMES,
+                       state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
+                       derivative_source=(None, "true", "planned"),
+                       action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES)
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "
+                                 f"got {getattr(self, name)!r}")
+        if self.alpha != "auto" and not (math.isfinite(self.alpha) and self.alpha >= 0):
+            raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}")
+        if not self.alpha_grid or not all(math.isfinite(a) and a >= 0 for a in self.alpha_grid):
+            raise InputError(f"{key('alpha_grid')} needs numbers >= 0, got {self.alpha_grid}")
+        if not self.seeds:
+            raise InputError(f"{key('seeds')} must list at least one seed")
+        for name in ("hidden_width", "hidden_layers", "ensemble_size", "epochs", "patience", "batch_size",
+                     "checkpoint_every", "threads"):
+            if int(getattr(self, name)) < 1:
+                raise InputError(f"{key(name)} must be >= 1, got {getattr(self, name)}")
+        for name in ("train", "val", "test"):
+            if getattr(self, name) is not None and getattr(self, name) < (0 if name == "test" else 1):
+                raise InputError(f"{key(name)} must be >= {0 if name == 'test' else 1}, got {getattr(self, name)}")
+        for name in ("lr", "min_lr", "weight_decay"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and (value > 0 if name == "lr" else value >= 0)):
+                raise InputError(f"{key(name)} must be a finite number {'> 0' if name == 'lr' else '>= 0'}, got {value}")

@@ -1,0 +1,303 @@
+"""`stdm-drake train`: split a dataset, train one model per seed, and write checkpoints, learning curves
+and the alpha selection. `training_problem` (the network, the training pairs and the checkpoint
+metadata of one model type on one dataset split) is the programmatic entry point that this command
+and `stdm-drake reproduce` share; `fit_model` / `train_alpha_grid` then train it."""
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import json
+import pathlib
+
+import numpy as np
+import torch
+
+from stdm_drake.errors import InputError
+from stdm_drake.files import atomic_path, write_text_atomic
+from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata
+from stdm_drake.learning.models import (ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig, dynamics_config,
+                                       parse_model_type)
+from stdm_drake.learning.regression import RegressionData
+from stdm_drake.learning.settings import (DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainingConfig,
+                                         TrainSettings)
+from stdm_drake.learning.trainer import AlphaSelection, fit_model
+
+
+def history_csv(history: dict) -> str:
+    """Learning curves as CSV text (one row per epoch, HISTORY_COLUMNS)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(HISTORY_COLUMNS)
+    for values in zip(*(history[column] for column in HISTORY_COLUMNS)):
+        writer.writerow([int(values[0])] + [f"{value:.9g}" for value in values[1:]])
+    return buffer.getvalue()
+
+
+# -- `stdm-drake train` -----------------------------------------------------------------------------
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("dataset", type=pathlib.Path, help="dataset file written by `stdm-drake collect` (.h5)")
+    parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
+                        help="output folder: seed<N>/checkpoint.pt, seed<N>/curves.csv, summary.json")
+    parser.add_argument("--config", type=pathlib.Path,
+                        help="training settings YAML (TrainSettings: keys as the flags below with '_' for '-'); "
+                             "flags given on the command line override it")
+    parser.add_argument("--model", default="DD", type=str.upper, choices=tuple(MODEL_TYPES),
+                        help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (default DD)")
+    parser.add_argument("--derivative", choices=("on", "off"),
+                        help="override the derivative loss the model type implies")
+    parser.add_argument("--alpha", type=parse_alpha, default=DEFAULT_ALPHA,
+                        help="derivative loss weight as in the paper's eq. 9 (default 1e-3, the paper's), or 'auto': "
+                             "chosen by validation state MSE from --alpha-grid (naive included)")
+    parser.add_argument("--alpha-grid", type=float, nargs="+", default=list(DEFAULT_ALPHA_GRID),
+                        help="alphas tried by --alpha auto (default 0 and 1e-5 ... 1e2)")
+    parser.add_argument("--activation", choices=ACTIVATION_NAMES, default="swish", help="hidden activation")
+    parser.add_argument("--hidden-width", type=int, default=100, help="units per hidden layer (default 100)")
+    parser.add_argument("--hidden-layers", type=int, default=3, help="hidden layers (default 3)")
+    parser.add_argument("--ensemble-size", type=int, default=DEFAULT_ENSEMBLE_SIZE,
+                        help="members of DE/PE-type models (default 5)")
+    parser.add_argument("--direct", action="store_true",
+                        help="predict x_{t+1} directly instead of the delta x_{t+1} - x_t")
+    parser.add_argument("--state-loss", choices=LOSS_KINDS, default="mse")
+    parser.add_argument("--derivative-loss", choices=LOSS_KINDS, default="mse")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="one model per seed (default 0)")
+    parser.add_argument("--train", type=int, help="training trajectories (per group with --per-group)")
+    parser.add_argument("--val", type=int, help="validation trajectories (per group with --per-group)")
+    parser.add_argument("--test", type=int, help="test trajectories (default: all the rest)")
+    parser.add_argument("--per-group", choices=("on", "off"),
+                        help="split per initial-pose group (default: on for tracking data, off otherwise)")
+    parser.add_argument("--split-seed", type=int, default=0, help="seed of the trajectory split (default 0)")
+    parser.add_argument("--derivative-source", choices=("true", "planned"),
+                        help="derivative targets (default: the dataset's: true for excitation, planned for tracking)")
+    parser.add_argument("--action-rate", choices=("forward_difference", "zero_order_hold"),
+                        default="forward_difference", help="how Δa/Δt is formed (default forward_difference)")
+    parser.add_argument("--epochs", type=int, default=500, help="maximum epochs (default 500)")
+    parser.add_argument("--patience", type=int, default=50, help="early-stopping patience in epochs (default 50)")
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--lr", type=float, default=1e-3, help="Adam learning rate (default 1e-3)")
+    parser.add_argument("--lr-schedule", choices=LR_SCHEDULES, default="constant",
+                        help="constant, or cosine decay to --min-lr over the --epochs budget (default constant)")
+    parser.add_argument("--min-lr", type=float, default=0.0, help="final learning rate of the cosine schedule")
+    parser.add_argument("--weight-decay", type=float, default=0.0,
+                        help="decoupled weight decay (AdamW), default 0 (plain Adam)")
+    parser.add_argument("--checkpoint-every", type=int, default=10, help="epochs between checkpoint writes")
+    parser.add_argument("--threads", type=int, default=1,
+                        help="torch CPU threads (default 1: bitwise-reproducible on any machine)")
+    parser.add_argument("--resume", action="store_true", help="continue interrupted runs in the output folder")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    settings = {field.name for field in dataclasses.fields(TrainSettings)}
+    for action in parser._actions:  # unset flags stay absent, so the settings file (or its defaults) decide
+        if action.dest in settings:
+            action.default = argparse.SUPPRESS
+
+
+def training_settings(args: argparse.Namespace) -> TrainSettings:
+    """The settings file (`--config`, else the defaults) with every flag given on the command line
+    applied over it, validated."""
+    from stdm_drake.config import load_yaml_config
+    settings = (load_yaml_config(args.config, TrainSettings, what="training settings") if args.config
+                else TrainSettings())
+    given = {field.name: getattr(args, field.name) for field in dataclasses.fields(TrainSettings)
+             if hasattr(args, field.name)}
+    settings = dataclasses.replace(settings, **given)
+    settings.validate()
+    return settings
+
+
+def parse_alpha(text: str):
+    """--alpha: a number >= 0 or the word 'auto'."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}")
+    return value
+
+
+
+def alpha_selection_csv(selection: AlphaSelection) -> str:
+    """The alpha grid's validation curve as CSV: alpha, val_state_mse_standardized, best_epoch, chosen."""
+    lines = ["alpha,val_state_mse_standardized,best_epoch,chosen"]
+    for index, (alpha, score, epoch) in enumerate(zip(selection.alphas, selection.val_mse, selection.best_epochs)):
+        lines.append(f"{alpha:g},{score:.9g},{int(epoch)},{int(index == selection.index)}")
+    return "\n".join(lines) + "\n"
+
+
+def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pathlib.Path:
+    """Validation state MSE against alpha (log axes; alpha = 0 drawn as a dashed line), PNG, atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    alphas, scores = np.asarray(selection.alphas), np.asarray(selection.val_mse)
+    figure, axis = plt.subplots(figsize=(5.5, 3.8))
+    positive = alphas > 0
+    axis.loglog(alphas[positive], scores[positive], "o-", color="tab:orange", label="derivative learning")
+    for score in scores[~positive]:
+        axis.axhline(score, color="tab:blue", linestyle="--", label="naive (alpha = 0)")
+    axis.plot([selection.alpha if selection.alpha > 0 else alphas[positive].min()], [scores[selection.index]], "k*",
+              markersize=14, label=f"chosen: alpha = {selection.alpha:g}")
+    axis.set_xlabel("alpha (paper eq. 9)")
+    axis.set_ylabel("validation state MSE (standardized)")
+    axis.set_title(title or "alpha chosen by validation")
+    axis.legend(fontsize=8)
+    path = pathlib.Path(path)
+    with atomic_path(path) as temp:
+        figure.savefig(temp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def regression_data(dataset, indices, *, derivative_source: str | None = None,
+                    action_rate: str = "forward_difference") -> RegressionData:
+    """Training pairs of the trajectories `indices` of a loaded Dataset: z = [x_t, a_t], y = x_{t+1},
+    ż = [ẋ_t, Δa_t/Δt], ẏ = ẋ_{t+1} (derivative_source None: the dataset's default)."""
+    return RegressionData.from_transitions(dataset.transitions(list(indices), derivative_source=derivative_source,
+                                                               action_rate=action_rate))
+
+
+def dynamics_sizes(data: RegressionData) -> tuple[int, int]:
+    """(state_dim, action_dim) of STDM training pairs (inputs [x, a], targets x)."""
+    state_dim = data.targets.shape[1]
+    return state_dim, data.inputs.shape[1] - state_dim
+
+
+@dataclasses.dataclass
+class TrainingProblem:
+    """One model type on one dataset split: the network to fit (`model_config`), the training and
+    validation pairs (raw units), and the checkpoint metadata that records where they came from."""
+    model_config: ModelConfig
+    train: RegressionData
+    val: RegressionData
+    metadata: CheckpointMetadata
+
+
+def training_problem(dataset, split, *, model_type: str = "DD", activation: str = "swish", hidden_width: int = 100,
+                     hidden_layers: int = 3, ensemble_size: int = DEFAULT_ENSEMBLE_SIZE, delta: bool = True,
+                     derivative_source: str | None = None, action_rate: str = "forward_difference",
+                     **metadata_fields) -> TrainingProblem:
+    """The TrainingProblem of `model_type` ("D" ... "PED"; it decides probabilistic heads and whether
+    the ensemble size applies) on `dataset` (a loaded Dataset) with `split` (a Split or {"train",
+    "val", "test"} -> trajectory indices). State and action sizes come from the data; derivative
+    targets from `derivative_source` (None: the dataset's default) and `action_rate`."""
+    kind = parse_model_type(model_type)
+    source = derivative_source or dataset.default_derivative_source
+    parts = split.as_dict() if hasattr(split, "as_dict") else split
+    train = regression_data(dataset, parts["train"], derivative_source=source, action_rate=action_rate)
+    val = regression_data(dataset, parts["val"], derivative_source=source, action_rate=action_rate)
+    state_dim, action_dim = dynamics_sizes(train)
+    config = dynamics_config(state_dim=state_dim, action_dim=action_dim, delta=delta, hidden_width=hidden_width,
+                             hidden_layers=hidden_layers, activation=activation,
+                             ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
+    metadata = dataset_metadata(dataset, parts, model_type=model_type, derivative_source=source,
+                                action_rate=action_rate, **metadata_fields)
+    return TrainingProblem(model_config=config, train=train, val=val, metadata=metadata)
+
+
+def dataset_metadata(dataset, split, *, model_type: str, derivative_source: str, action_rate: str,
+                     **fields) -> CheckpointMetadata:
+    """Checkpoint metadata of a model trained on `dataset` (a loaded Dataset) with `split` (a Split or
+    {"train", "val", "test"} -> indices); `fields`: further CheckpointMetadata fields."""
+    from stdm_drake import __version__
+    parts = split.as_dict() if hasattr(split, "as_dict") else split
+    return CheckpointMetadata(model_type=model_type, dataset_path=str(dataset.path), dataset_sha256=dataset.sha256,
+                              protocol=dataset.protocol, sample_period=dataset.sample_period,
+                              split={key: [int(i) for i in value] for key, value in parts.items()},
+                              derivative_source=derivative_source, action_rate=action_rate,
+                              torch_version=torch.__version__, stdm_drake_version=__version__, **fields)
+
+
+def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
+    """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation,
+    20 % test, the rest training; n_test None means "all the rest" for split_trajectories."""
+    n_val = n_val if n_val is not None else max(1, round(0.2 * pool))
+    if n_train is None:
+        n_train = pool - n_val - (n_test if n_test is not None else max(1, round(0.2 * pool)))
+    if n_train < 1:
+        raise InputError(f"the split leaves {n_train} training trajectories (of {pool} per split unit)")
+    return n_train, n_val, n_test
+
+
+def run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from stdm_drake.data.dataset import load_dataset, split_trajectories
+
+    args = argparse.Namespace(**(vars(args) | dataclasses.asdict(training_settings(args))))
+    torch.set_num_threads(args.threads)
+    model_type = parse_model_type(args.model)
+    derivative = model_type.derivative if args.derivative is None else args.derivative == "on"
+    auto = args.alpha == "auto"
+    if derivative and not auto and not args.alpha > 0:
+        raise InputError(f"derivative learning needs --alpha > 0 or --alpha auto, got {args.alpha}")
+    if auto and not derivative:
+        raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {args.model} trains without "
+                         "it (use DD, PD, DED or PED, or --derivative on)")
+    dataset = load_dataset(args.dataset)
+    per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"
+    pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
+    n_train, n_val, n_test = default_split_sizes(pool, args.train, args.val, args.test)
+    split = split_trajectories(dataset.groups, n_train, n_val, n_test, args.split_seed, per_group)
+    name = (("P" if model_type.probabilistic else "D") + ("E" if model_type.ensemble else "")
+            + ("D" if derivative else ""))
+    problem = training_problem(dataset, split, model_type=name, activation=args.activation,
+                               hidden_width=args.hidden_width, hidden_layers=args.hidden_layers,
+                               ensemble_size=args.ensemble_size, delta=not args.direct,
+                               derivative_source=args.derivative_source, action_rate=args.action_rate,
+                               split_seed=args.split_seed, per_group=per_group, threads=args.threads)
+    model_config, train_data, val_data = problem.model_config, problem.train, problem.val
+    output = pathlib.Path(args.output)
+    summary = dict(model_type=name, dataset=str(args.dataset), dataset_sha256=dataset.sha256,
+                   split={key: list(map(int, value)) for key, value in split.as_dict().items()}, seeds={})
+    print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "
+          f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}; "
+          f"train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
+          f"({len(train_data)} / {len(val_data)} transitions)")
+    for seed in args.seeds:
+        training_config = TrainingConfig(
+            alpha=(0.0 if auto else args.alpha) if derivative else 0.0, state_loss=args.state_loss,
+            derivative_loss=args.derivative_loss, learning_rate=args.lr, batch_size=args.batch_size,
+            max_epochs=args.epochs, patience=args.patience, seed=seed, lr_schedule=args.lr_schedule,
+            min_learning_rate=args.min_lr, weight_decay=args.weight_decay)
+        folder = output / f"seed{seed}"
+        checkpoint_path = folder / "checkpoint.pt"
+        resume = False
+        if checkpoint_path.exists():
+            if not args.resume:
+                raise InputError(f"{checkpoint_path} exists; pass --resume to continue it or choose another --output")
+            resume = True
+        metadata = problem.metadata
+        bar = tqdm(total=args.epochs, desc=f"train {name} seed {seed}", unit="epoch", disable=args.quiet,
+                   dynamic_ncols=True)
+
+        def on_epoch(row, bar=bar):
+            bar.update(row["epoch"] - bar.n)
+            bar.set_postfix(train=f"{row['train_loss']:.3g}", val_mse=f"{row['val_mse']:.3g}")
+
+        try:
+            result, selection = fit_model(model_config, training_config, train_data, val_data,
+                                          alpha="auto" if auto else "fixed", alphas=tuple(args.alpha_grid),
+                                          checkpoint_path=checkpoint_path, checkpoint_every=args.checkpoint_every,
+                                          metadata=metadata, resume=resume, on_epoch=on_epoch)
+        finally:
+            bar.close()
+        write_text_atomic(folder / "curves.csv", history_csv(result.history))
+        if selection is not None:
+            write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
+            plot_alpha_selection(selection, folder / "alpha_selection.png", title=f"{name} seed {seed}")
+            summary.setdefault("alpha_selection", {})[str(seed)] = selection.as_dict()
+            print(f"seed {seed}: alpha chosen by validation: {selection.alpha:g} (validation state MSE "
+                  + ", ".join(f"{a:g}: {v:.3g}" for a, v in zip(selection.alphas, selection.val_mse)) + ")")
+        summary["seeds"][str(seed)] = dict(checkpoint=str(checkpoint_path), epochs=result.epochs_run,
+                                           stopped_early=result.stopped_early, best_epochs=result.best_epochs,
+                                           best_val_mse_standardized=result.best_scores)
+        print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
+              f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {checkpoint_path}")
+    write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
+    return 0
+

@@ -1,0 +1,340 @@
+"""Training STDMs with and without derivative learning (paper eq. 9): one model, an alpha grid, alpha by validation.
+
+Loss = L_state + alpha * L_derivative with alpha meaning what it means in the paper's eq. 9, where
+both MSEs are taken in raw units: the state error x̂_{t+1} - x_{t+1} (output units) and the
+derivative error d x̂_{t+1}/dt - ẋ_{t+1} (output units per second). Per output j both residuals
+are divided by the same scale, σ_y,j, the spread of the training regression targets (of Δx for the
+delta parameterization), so that no output dominates while the ratio of the two terms stays the
+raw-unit ratio of eq. 9:
+    L = Σ_j (1/σ_j²) [ mean (x̂_j - x_j)² + alpha mean (dx̂_j/dt - ẋ_j)² ] / S,
+which is exactly eq. 9 divided by σ² when every σ_j equals σ. In network units
+    e_state = f_n(z_n) - y_n,    e_derivative = J_n(z_n) ż_n - (ẏ - r(ż))/σ_y,
+with J_n ż_n one Jacobian-vector product (see models.py). MAE and Huber replace the squares where
+asked; probabilistic members use the PETS Gaussian NLL plus the log-variance bound penalty for the
+state term.
+
+Each ensemble member has its own loss (mean over samples and outputs); the total is their sum, so
+members never interact and a member trains exactly as it would alone. Ensembles train each member
+on its own bootstrap resample (PETS). An alpha grid (`TrainingConfig.alpha_grid`) is a stack whose
+members start from the same initial weights, see the same minibatches and differ only in alpha:
+`select_alpha` trains one and keeps the member with the lowest validation state MSE. Validation
+keeps each member's best weights (early stopping when no member improved for `patience` epochs).
+"""
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import pathlib
+import time
+from typing import Callable
+
+import numpy as np
+import torch
+
+from stdm_drake.errors import InputError
+from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata, load_checkpoint, save_checkpoint
+from stdm_drake.learning.loss import batch_losses, losses_from_outputs
+from stdm_drake.learning.models import MEMBER_PARAMETERS, EnsembleMLP, ModelConfig
+from stdm_drake.learning.regression import RegressionData, StandardizedData, fit_normalizers, standardize
+from stdm_drake.learning.settings import DEFAULT_ALPHA_GRID, TrainingConfig
+
+
+def training_step(model: EnsembleMLP, optimizer: torch.optim.Optimizer, config: TrainingConfig,
+                  data: StandardizedData, indices: torch.Tensor) -> tuple[float, float, float]:
+    """One optimizer step on the minibatch data[indices] (indices (E, B): per-member rows).
+    Returns the loss terms averaged over members."""
+    rates = config.derivative
+    terms = batch_losses(model, config, data.inputs[indices], data.targets[indices],
+                         data.input_rates[indices] if rates else None, data.target_rates[indices] if rates else None)
+    optimizer.zero_grad(set_to_none=True)
+    terms.objective.backward()
+    optimizer.step()
+    return terms.means()
+
+
+@torch.no_grad()
+def validation_scores(model: EnsembleMLP, config: TrainingConfig, data: StandardizedData) -> dict:
+    """Validation loss terms (same formula as training, averaged over members) and per-member
+    standardized MSE of the state (the selection criterion), (E,) float64."""
+    if config.derivative and data.input_rates is not None:
+        outputs, tangents = model.normalized_outputs_with_tangent(data.inputs, data.input_rates)
+    else:
+        outputs, tangents = model.normalized_outputs(data.inputs), None
+    total, state_term, derivative_term = losses_from_outputs(model, config, outputs, tangents, data.targets,
+                                                             data.target_rates).means()
+    mean, _ = model.split_head(outputs)
+    member_mse = ((mean - data.targets) ** 2).mean(dim=(1, 2)).double()
+    return dict(loss=total, state=state_term, derivative=derivative_term, member_mse=member_mse)
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """A trained model (each member at its best validation epoch) and its learning curves."""
+    model: EnsembleMLP
+    history: dict
+    best_epochs: list
+    best_scores: list
+    epochs_run: int
+    stopped_early: bool
+    member_val_mse: list = dataclasses.field(default_factory=list)  # per validation row: (E,) standardized MSE
+
+
+def _seeds(seed: int) -> tuple[int, int]:
+    """Independent integer seeds for weight initialization and for bootstrap/shuffling."""
+    init_seed, data_seed = np.random.SeedSequence(seed).generate_state(2, dtype=np.uint64)
+    return int(init_seed % (2 ** 63)), int(data_seed % (2 ** 63))
+
+
+def build_model(model_config: ModelConfig, seed: int) -> EnsembleMLP:
+    """A freshly initialized model (same seed -> same weights)."""
+    torch.manual_seed(seed)
+    return EnsembleMLP(model_config, generator=torch.Generator().manual_seed(_seeds(seed)[0]))
+
+
+def train_model(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+                val_data: RegressionData, *, checkpoint_path=None, checkpoint_every: int = 10,
+                metadata: CheckpointMetadata | dict | None = None, resume: bool = False,
+                on_epoch: Callable[[dict], None] | None = None) -> TrainResult:
+    """Fit a model with Adam on minibatches; keep per-member best-by-validation weights.
+
+    checkpoint_path: written atomically every `checkpoint_every` epochs and at the end (weights =
+    current best, plus everything needed to resume), only at validation epochs. resume=True
+    continues from that file exactly as if training had not stopped (same weights, same curves).
+    on_epoch(row) is called with each new history row.
+    """
+    derivative = training_config.derivative
+    train_data.check(model_config, need_rates=derivative, name="training")
+    val_data.check(model_config, need_rates=False, name="validation")
+    members = model_config.ensemble_size
+    grid = training_config.alpha_grid is not None
+    training_config.member_alphas(members)  # checks the grid size
+    data_seed = _seeds(training_config.seed)[1]
+    fingerprint = hashlib.sha256((train_data.fingerprint() + val_data.fingerprint()).encode()).hexdigest()
+
+    model = build_model(model_config, training_config.seed)
+    if grid:  # every member starts from the single model this seed gives
+        single = build_model(dataclasses.replace(model_config, ensemble_size=1), training_config.seed)
+        with torch.no_grad():
+            for name, value in single.named_parameters():
+                model.get_parameter(name).copy_(value.expand_as(model.get_parameter(name)))
+    fit_normalizers(model, train_data)
+    # fused: one kernel for all parameters (elementwise, deterministic; about 1 ms less per step on a CPU)
+    if training_config.weight_decay > 0:
+        optimizer = torch.optim.AdamW(model.parameters(), lr=training_config.learning_rate,
+                                      weight_decay=training_config.weight_decay, fused=True)
+    else:
+        optimizer = torch.optim.Adam(model.parameters(), lr=training_config.learning_rate, fused=True)
+    generator = torch.Generator().manual_seed(data_seed)
+    count = len(train_data)
+    if members > 1 and training_config.bootstrap and not grid:
+        bootstrap = torch.randint(0, count, (members, count), generator=generator)
+    else:
+        bootstrap = torch.arange(count).expand(members, count).clone()
+    history = {column: [] for column in HISTORY_COLUMNS}
+    best_weights = {name: value.detach().clone() for name, value in model.state_dict().items()}
+    best_scores = torch.full((members,), float("inf"), dtype=torch.float64)
+    best_epochs = torch.zeros(members, dtype=torch.int64)
+    epoch, since_improvement, stopped_early, finished = 0, 0, False, False
+
+    if resume:
+        if checkpoint_path is None:
+            raise InputError("resume=True needs the checkpoint_path to continue from")
+        state = load_checkpoint(checkpoint_path)
+        resume_state = state.resume
+        if resume_state is None:
+            raise InputError(f"{checkpoint_path}: checkpoint holds no training state to resume")
+        if state.model_config != model_config or state.training_config != training_config:
+            raise InputError(f"{checkpoint_path}: model or training options differ from the checkpoint's; "
+                             "resume with the same options")
+        if resume_state["data_fingerprint"] != fingerprint:
+            raise InputError(f"{checkpoint_path}: training/validation data differ from the checkpoint's")
+        model.load_state_dict(resume_state["weights"])
+        optimizer.load_state_dict(resume_state["optimizer"])
+        generator.set_state(resume_state["generator"])
+        bootstrap = resume_state["bootstrap"]
+        best_weights = resume_state["best_weights"]
+        best_scores = resume_state["best_scores"]
+        best_epochs = resume_state["best_epochs"]
+        epoch = int(resume_state["epoch"])
+        since_improvement = int(resume_state["epochs_since_improvement"])
+        stopped_early = bool(resume_state["stopped_early"])
+        finished = bool(resume_state["finished"])
+        history = {column: list(state.history.get(column, [])) for column in HISTORY_COLUMNS}
+
+    train_tensors = standardize(model, train_data)
+    val_tensors = standardize(model, val_data)
+    batch_size = training_config.batch_size
+
+    def snapshot(finished: bool) -> dict:
+        return dict(epoch=epoch, weights={k: v.detach().clone() for k, v in model.state_dict().items()},
+                    optimizer=optimizer.state_dict(), generator=generator.get_state(), bootstrap=bootstrap,
+                    best_weights=best_weights, best_scores=best_scores, best_epochs=best_epochs,
+                    epochs_since_improvement=since_improvement, stopped_early=stopped_early,
+                    finished=finished, data_fingerprint=fingerprint)
+
+    def write_checkpoint(finished: bool) -> None:
+        if checkpoint_path is None:
+            return
+        best_model = EnsembleMLP(model_config).to(next(model.parameters()).dtype)
+        best_model.load_state_dict(best_weights)
+        save_checkpoint(checkpoint_path, best_model, training_config=training_config, history=history,
+                        metadata=metadata, resume_state=snapshot(finished))
+
+    member_curves = []  # this call's validation rows only (not restored on resume)
+    interval = training_config.validation_interval
+    steps_per_epoch = -(-count // batch_size)
+    total_steps = steps_per_epoch * training_config.max_epochs
+    scheduled = training_config.lr_schedule != "constant"
+    sums, batches, started, last_written = np.zeros(3), 0, time.perf_counter(), epoch
+    while not finished and epoch < training_config.max_epochs and since_improvement < training_config.patience:
+        model.train()
+        if grid:  # one minibatch order shared by every member
+            order = torch.argsort(torch.rand(1, count, generator=generator), dim=1).expand(members, count)
+        else:
+            order = torch.argsort(torch.rand(members, count, generator=generator), dim=1)
+        epoch_rows = bootstrap.gather(1, order)
+        for index, start in enumerate(range(0, count, batch_size)):
+            if scheduled:
+                rate = training_config.learning_rate_at(epoch * steps_per_epoch + index, total_steps)
+                for group in optimizer.param_groups:
+                    group["lr"] = rate
+            sums += training_step(model, optimizer, training_config, train_tensors,
+                                  epoch_rows[:, start:start + batch_size])
+            batches += 1
+        epoch += 1
+        if epoch % interval and epoch < training_config.max_epochs:
+            continue
+        model.eval()
+        scores = validation_scores(model, training_config, val_tensors)
+        improved = scores["member_mse"] < best_scores
+        if bool(improved.any()):
+            for name, value in model.state_dict().items():
+                if name.split(".")[0] in MEMBER_PARAMETERS:
+                    best_weights[name][improved] = value.detach()[improved]
+                else:
+                    best_weights[name] = value.detach().clone()
+            best_scores = torch.where(improved, scores["member_mse"], best_scores)
+            best_epochs = torch.where(improved, torch.tensor(epoch), best_epochs)
+            since_improvement = 0
+        else:
+            since_improvement += interval
+        stopped_early = since_improvement >= training_config.patience
+        means = sums / max(batches, 1)
+        row = dict(epoch=epoch, train_loss=means[0], train_state_loss=means[1], train_derivative_loss=means[2],
+                   val_loss=scores["loss"], val_state_loss=scores["state"], val_derivative_loss=scores["derivative"],
+                   val_mse=float(scores["member_mse"].mean()), seconds=time.perf_counter() - started)
+        for column in HISTORY_COLUMNS:
+            history[column].append(row[column])
+        member_curves.append(scores["member_mse"].tolist())
+        sums, batches, started = np.zeros(3), 0, time.perf_counter()
+        done = stopped_early or epoch >= training_config.max_epochs
+        if checkpoint_path is not None and (done or epoch - last_written >= checkpoint_every):
+            write_checkpoint(finished=done)
+            last_written = epoch
+        if on_epoch is not None:
+            on_epoch(row)
+        finished = done
+    if checkpoint_path is not None and not history["epoch"]:
+        write_checkpoint(finished=True)
+    model.load_state_dict(best_weights)
+    model.eval()
+    return TrainResult(model=model, history=history, best_epochs=best_epochs.tolist(),
+                       best_scores=best_scores.tolist(), epochs_run=epoch, stopped_early=stopped_early,
+                       member_val_mse=member_curves)
+
+
+@dataclasses.dataclass
+class AlphaSelection:
+    """Outcome of an alpha grid: per alpha the best validation state MSE (standardized, the mean over
+    outputs of ((x̂ - x)/σ_y)²) and the epoch it was reached; `index` is the chosen entry."""
+    alphas: tuple
+    val_mse: list
+    best_epochs: list
+    index: int
+
+    @property
+    def alpha(self) -> float:
+        return float(self.alphas[self.index])
+
+    def as_dict(self) -> dict:
+        return dict(alphas=[float(a) for a in self.alphas], val_mse=[float(v) for v in self.val_mse],
+                    best_epochs=[int(e) for e in self.best_epochs], chosen_alpha=self.alpha, chosen_index=self.index)
+
+    @classmethod
+    def from_dict(cls, values: dict) -> "AlphaSelection":
+        return cls(alphas=tuple(values["alphas"]), val_mse=list(values["val_mse"]),
+                   best_epochs=list(values["best_epochs"]), index=int(values["chosen_index"]))
+
+
+def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+                     val_data: RegressionData, *, alphas=DEFAULT_ALPHA_GRID,
+                     on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
+    """One single-member network per alpha, trained as one stack from the same initial weights on the
+    same minibatches (so member k equals training alphas[k] alone), and the selection: the lowest
+    validation state MSE (ties go to the earlier alpha). model_config's ensemble_size is ignored.
+    Returns the whole stack (member k: alphas[k]) and the selection."""
+    alphas = tuple(float(a) for a in alphas)
+    grid_config = dataclasses.replace(model_config, ensemble_size=len(alphas))
+    grid_training = dataclasses.replace(training_config, alpha_grid=alphas, alpha=0.0)
+    result = train_model(grid_config, grid_training, train_data, val_data, on_epoch=on_epoch)
+    scores = np.asarray(result.best_scores)
+    index = int(np.flatnonzero(scores == scores.min())[0])
+    return result, AlphaSelection(alphas=alphas, val_mse=scores.tolist(), best_epochs=list(result.best_epochs),
+                                  index=index)
+
+
+def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+                 val_data: RegressionData, *, alphas=DEFAULT_ALPHA_GRID,
+                 on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
+    """Choose alpha by validation (`train_alpha_grid`) and return the chosen single-member model (its
+    history is the whole grid's) with the selection. With 0 in `alphas` the chosen model is at least as
+    good as naive training on validation, by construction."""
+    result, selection = train_alpha_grid(model_config, training_config, train_data, val_data, alphas=alphas,
+                                         on_epoch=on_epoch)
+    index = selection.index
+    chosen = TrainResult(model=result.model.member(index), history=result.history,
+                         best_epochs=[result.best_epochs[index]], best_scores=[result.best_scores[index]],
+                         epochs_run=result.epochs_run, stopped_early=result.stopped_early)
+    return chosen, selection
+
+
+def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+              val_data: RegressionData, *, alpha="fixed", alphas=DEFAULT_ALPHA_GRID, checkpoint_path=None,
+              checkpoint_every: int = 10, metadata: CheckpointMetadata | dict | None = None, resume: bool = False,
+              on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection | None]:
+    """Train one model as `stdm-drake train` does. alpha="fixed": training_config.alpha as given;
+    alpha="auto": `select_alpha` over `alphas` first; a single-member model is then the chosen grid
+    member itself, an ensemble is trained at the chosen alpha. The selection is stored in the
+    checkpoint's metadata (`alpha_selection`); resuming an "auto" run reuses a stored selection."""
+    metadata = (dataclasses.replace(metadata) if isinstance(metadata, CheckpointMetadata)
+                else CheckpointMetadata.from_dict(dict(metadata or {})))
+    selection = None
+    if alpha == "auto":
+        stored = None
+        if resume and checkpoint_path is not None and pathlib.Path(checkpoint_path).exists():
+            stored = load_checkpoint(checkpoint_path)
+        if stored is not None and stored.metadata.alpha_selection is not None:
+            selection = AlphaSelection.from_dict(stored.metadata.alpha_selection)
+            if stored.resume is None:  # a finished single-member selection: nothing left to train
+                return TrainResult(model=stored.model, history=stored.history,
+                                   best_epochs=list(selection.best_epochs[selection.index:selection.index + 1]),
+                                   best_scores=[selection.val_mse[selection.index]],
+                                   epochs_run=int(stored.history.get("epoch", [0])[-1] if stored.history.get("epoch")
+                                                  else 0), stopped_early=False), selection
+        else:
+            chosen, selection = select_alpha(model_config, training_config, train_data, val_data, alphas=alphas,
+                                             on_epoch=on_epoch)
+            resume = False
+            if model_config.ensemble_size == 1:
+                metadata.alpha_selection = selection.as_dict()
+                if checkpoint_path is not None:
+                    save_checkpoint(checkpoint_path, chosen.model,
+                                    training_config=dataclasses.replace(training_config, alpha=selection.alpha),
+                                    history=chosen.history, metadata=metadata)
+                return chosen, selection
+        metadata.alpha_selection = selection.as_dict()
+        training_config = dataclasses.replace(training_config, alpha=selection.alpha)
+    result = train_model(model_config, training_config, train_data, val_data, checkpoint_path=checkpoint_path,
+                         checkpoint_every=checkpoint_every, metadata=metadata, resume=resume, on_epoch=on_epoch)
+    return result, selection
+

@@ -1,0 +1,61 @@
+"""Same seeds give the same data and the same weights as before the package was restructured.
+
+The reference values were computed with the code of commit 799fd2b (one module per stage, before
+the subpackages) on the session fixtures' datasets and a 3-epoch PED run; the restructured code
+gave identical values (weights bitwise). The datasets are compared exactly (every array and the
+collection metadata, package versions aside); the weights by the sum of |w| per tensor to 1e-6
+relative, so that a CPU with other vector instructions may round differently without failing,
+while any change of seed, split, data or architecture would move them by far more.
+"""
+import hashlib
+import json
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from stdm_drake.cli import main
+
+DATASET_SHA256 = {  # sha256 over every array (by name) and the metadata without package versions
+    "excitation": "322cf83c5409962130708df56cfdbb3034083126bcc5f624c1c3016dea99a59f",
+    "tracking": "6e48ca1de5b59a73a7398e57cae080dff7cd5ca23f6d2e6b61bccaac16821d45",
+}
+PED_WEIGHT_ABS_SUMS = {  # `train tracking.h5 --model PED --ensemble-size 2 --epochs 3 --train 1 --val 1`
+    "biases.0": 2.0941610610461794, "biases.1": 1.807498714828398, "biases.2": 1.7212671341840178,
+    "biases.3": 0.46276067825965583, "input_normalizer.mean": 97.08296090655577,
+    "input_normalizer.std": 27.532644520513713, "max_logvar": 12.046423316001892, "min_logvar": 239.4958906173706,
+    "output_normalizer.mean": 0.005100442062030197, "output_normalizer.std": 0.07142730482155457,
+    "weights.0": 409.8495265604506, "weights.1": 1753.893147531904, "weights.2": 1753.4748684044098,
+    "weights.3": 534.5573389155616,
+}
+
+
+def dataset_sha256(path) -> str:
+    digest = hashlib.sha256()
+    with h5py.File(path, "r") as f:
+        def visit(name, item):
+            if isinstance(item, h5py.Dataset):
+                digest.update(name.encode())
+                digest.update(np.ascontiguousarray(item[()]).tobytes())
+        f.visititems(visit)
+        metadata = json.loads(f.attrs["metadata_json"])
+    metadata.pop("package_versions", None)
+    digest.update(json.dumps(metadata, sort_keys=True).encode())
+    return digest.hexdigest()
+
+
+@pytest.mark.parametrize("protocol", sorted(DATASET_SHA256))
+def test_same_seed_same_dataset_as_before(protocol, request):
+    path = request.getfixturevalue(f"{protocol}_dataset")
+    assert dataset_sha256(path) == DATASET_SHA256[protocol]
+
+
+def test_same_seed_same_weights_as_before(tracking_dataset, tmp_path):
+    assert main(["train", str(tracking_dataset), "--model", "PED", "--ensemble-size", "2", "--epochs", "3",
+                 "--train", "1", "--val", "1", "--quiet", "-o", str(tmp_path)]) == 0
+    weights = torch.load(tmp_path / "seed0" / "checkpoint.pt", weights_only=True)["weights"]
+    sums = {name: float(value.double().abs().sum()) for name, value in weights.items()}
+    assert sums.keys() == PED_WEIGHT_ABS_SUMS.keys()
+    for name, expected in PED_WEIGHT_ABS_SUMS.items():
+        assert sums[name] == pytest.approx(expected, rel=1e-6), name

@@ -1,0 +1,78 @@
+"""The package's shape: imports point down the data flow, and a regular (non-editable) install runs."""
+import ast
+import os
+import pathlib
+import subprocess
+import sys
+
+import pytest
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+PACKAGE = ROOT / "stdm_drake"
+# stage -> the stages it must not import (the flow: collection -> data -> learning -> closed_loop;
+# experiments use them all)
+FORBIDDEN = {
+    "collection": ("learning", "closed_loop", "experiments"),
+    "data": ("collection", "learning", "closed_loop", "experiments"),
+    "learning": ("collection", "closed_loop", "experiments"),
+    "closed_loop": ("experiments",),
+}
+
+
+def imported_modules(path: pathlib.Path) -> set[str]:
+    """Every stdm_drake module `path` imports, at module level or inside functions."""
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("stdm_drake"):
+            names.add(node.module)
+            names.update(f"{node.module}.{alias.name}" for alias in node.names)
+        elif isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names if alias.name.startswith("stdm_drake"))
+    return names
+
+
+@pytest.mark.parametrize("stage", sorted(FORBIDDEN))
+def test_imports_point_down_the_data_flow(stage):
+    edges = [(path.relative_to(ROOT).as_posix(), module) for path in sorted((PACKAGE / stage).glob("*.py"))
+             for module in imported_modules(path)
+             if any(module == f"stdm_drake.{other}" or module.startswith(f"stdm_drake.{other}.")
+                    for other in FORBIDDEN[stage])]
+    assert not edges, f"{stage} imports from a later stage: {edges}"
+
+
+def test_importing_collection_loads_no_learning_code():
+    code = ("import sys, stdm_drake.collection.collect, stdm_drake.collection.recorder; "
+            "bad = [m for m in sys.modules if m.startswith(('stdm_drake.learning', 'torch'))]; "
+            "print(bad); sys.exit(1 if bad else 0)")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def test_modules_over_400_lines_say_why():
+    for path in PACKAGE.rglob("*.py"):
+        text = path.read_text()
+        if text.count("\n") > 420:
+            docstring = ast.get_docstring(ast.parse(text)) or ""
+            assert "Longer than 400 lines on purpose" in docstring, f"{path}: {text.count(chr(10))} lines, no reason"
+
+
+@pytest.mark.slow
+def test_regular_install_runs_reproduce_quick(tmp_path):
+    """A wheel built from the checkout, installed without the checkout on the path, finds the robot,
+    plan and controller files inside the package and runs `reproduce --quick`."""
+    wheels, target, work = tmp_path / "wheels", tmp_path / "site", tmp_path / "work"
+    work.mkdir()
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    subprocess.run(pip + ["wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
+                   cwd=work, timeout=300)
+    (wheel,) = wheels.glob("stdm_drake-*.whl")
+    subprocess.run(pip + ["install", "--no-deps", "--target", str(target), str(wheel)], check=True, timeout=300)
+    env = dict(os.environ, PYTHONPATH=str(target), DRAKE_ALLOW_NETWORK="meshcat")
+    where = subprocess.run([sys.executable, "-c", "import stdm_drake, stdm_drake.paths as p; "
+                            "print(stdm_drake.__file__); print(p.MODELS_DIR)"],
+                           cwd=work, env=env, capture_output=True, text=True, check=True, timeout=120).stdout.split()
+    assert all(pathlib.Path(line).is_relative_to(target) for line in where), where
+    result = subprocess.run([sys.executable, "-m", "stdm_drake.cli", "reproduce", "--quick", "-o", "out", "--quiet"],
+                            cwd=work, env=env, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert (work / "out" / "report.html").is_file()
