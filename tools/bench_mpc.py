@@ -8,7 +8,10 @@ MPC.
 Usage: python tools/bench_mpc.py [--dataset D.h5 --checkpoint C.pt ...] [--plans 3] [--write]
 Without --dataset/--checkpoint it collects the identification dataset (100 tracked plans, dithered
 PID, ideal sensor: controllers/pid_dither.yaml, controllers/sensor_ideal.yaml) and trains a DD and
-a PE model on 20 plans per initial pose (seed 0) in a temporary folder first.
+a PE model on 20 plans per initial pose (seed 0) in a temporary folder first, with the true,
+held-torque derivative targets (--action-rate zero_order_hold) as `reproduce` trains its control
+models: the dither changes the torque every sample, so forward-difference torque rates teach DD a
+wrong torque response and its MPC diverges.
 """
 import argparse
 import os
@@ -52,7 +55,8 @@ def main():
     checkpoints = list(args.checkpoint)
     if not checkpoints:
         for kind in ("DD", "PE"):
-            assert cli(["train", str(dataset_path), "--model", kind, "--derivative-source", "true", "--train", "20",
+            assert cli(["train", str(dataset_path), "--model", kind, "--derivative-source", "true",
+                        "--action-rate", "zero_order_hold", "--train", "20",
                         "--val", "3", "--test", "2", "--seeds", "0", "--quiet", "-o", str(folder / kind)]) == 0
             checkpoints.append(folder / kind / "seed0" / "checkpoint.pt")
     dataset = load_dataset(dataset_path)
