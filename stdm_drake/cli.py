@@ -18,9 +18,12 @@ COMMANDS = {
     "train": ("stdm_drake.learning.train", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
     "evaluate": ("stdm_drake.learning.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
     "sine-sum": ("stdm_drake.experiments.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
-    "mpc": ("stdm_drake.closed_loop.comparison", "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
-    "view": ("stdm_drake.closed_loop.view", "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
-    "reproduce": ("stdm_drake.experiments.reproduce", "the paper's UR-10 experiments end to end, with a report beside its numbers"),
+    "mpc": ("stdm_drake.closed_loop.comparison",
+            "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
+    "view": ("stdm_drake.closed_loop.view",
+             "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
+    "reproduce": ("stdm_drake.experiments.reproduce",
+                  "the paper's UR-10 experiments end to end, with a report beside its numbers"),
 }
 
 

@@ -10,7 +10,7 @@ from stdm_drake.learning.regression import RegressionData, fit_normalizers, stan
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.loss import member_gaussian_nll, batch_losses
 from stdm_drake.learning.models import (ACTIVATION_NAMES, MAX_LOGVAR_INIT, MIN_LOGVAR_INIT, EnsembleMLP, ModelConfig,
-                               bounded_logvar, dynamics_config, get_activation, parse_model_type)
+                                        bounded_logvar, dynamics_config, get_activation, parse_model_type)
 
 
 def _random_data(rng, count, input_dim, output_dim, scale_in=1.0):

@@ -8,8 +8,8 @@ import pytest
 
 from stdm_drake.cli import main
 from stdm_drake.errors import InputError
-from stdm_drake.experiments.sine_sum import (FULL, PAPER_TABLE1, QUICK, StudyConfig, run_specs, run_study, sample, sine_sum,
-                                 sine_sum_derivative)
+from stdm_drake.experiments.sine_sum import (FULL, PAPER_TABLE1, QUICK, StudyConfig, run_specs, run_study, sample,
+                                             sine_sum, sine_sum_derivative)
 
 
 def test_function_data_and_derivative():

@@ -34,7 +34,7 @@ from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
 from stdm_drake.collection.collect import (CollectionRequest, CollectionSettings, SimulationRig, collect,  # noqa: E402
-                                plan_tracking, tracking_trajectory, worker_pool)
+                                           plan_tracking, tracking_trajectory, worker_pool)
 from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.collection.control import SensorConfig, load_controller_config  # noqa: E402
 from stdm_drake.collection.plan import load_tracking_spec  # noqa: E402

@@ -4,7 +4,8 @@ import dataclasses
 
 import numpy as np
 
-from stdm_drake.closed_loop.mpc import DEFAULT_MPC_CONFIG, MpcConfig, MpcLog, Reference, load_mpc_config, run_closed_loop
+from stdm_drake.closed_loop.mpc import (DEFAULT_MPC_CONFIG, MpcConfig, MpcLog, Reference, load_mpc_config,
+                                        run_closed_loop)
 from stdm_drake.closed_loop.plant_model import PlantModel
 from stdm_drake.errors import InputError
 from stdm_drake.report import markdown_table
@@ -100,8 +101,9 @@ def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dic
 
 def summary_table(rows: list[dict]) -> str:
     """The `summarize` rows as a Markdown table."""
-    header = ["model", "runs", "q MSE (rad²)", "q MSE / plant MPC", "q̇ MSE ((rad/s)²)", "effort beyond g, RMS (N m)",
-              "limit violations", "fallbacks", "solve mean (ms)", "solve p95 (ms)", "faster than real time"]
+    header = ["model", "runs", "q MSE (rad²)", "q MSE / plant MPC", "q̇ MSE ((rad/s)²)",
+              "effort beyond g, RMS (N m)", "limit violations", "fallbacks", "solve mean (ms)", "solve p95 (ms)",
+              "faster than real time"]
     return markdown_table(header, [
         [row["model"], row["runs"], f"{row['q_mse_rad2']:.3g}",
          "" if row.get("q_mse_vs_plant") is None else f"{row['q_mse_vs_plant']:.3g}", f"{row['v_mse']:.3g}",

@@ -31,7 +31,7 @@ import numpy as np
 
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.collection.control import (ControllerConfig, JointSensor, SampledJointController, SensorConfig,
-                                load_controller_config)
+                                           load_controller_config)
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR

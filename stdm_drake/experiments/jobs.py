@@ -326,4 +326,5 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
 
 
 # `collection_request` settings of the identification dataset (dithered PID, ideal sensor)
-IDENTIFICATION_SETTINGS = dict(controller=CONTROLLERS_DIR / "pid_dither.yaml", sensor=CONTROLLERS_DIR / "sensor_ideal.yaml")
+IDENTIFICATION_SETTINGS = dict(controller=CONTROLLERS_DIR / "pid_dither.yaml",
+                               sensor=CONTROLLERS_DIR / "sensor_ideal.yaml")

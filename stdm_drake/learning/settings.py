@@ -176,4 +176,5 @@ class TrainSettings:
         for name in ("lr", "min_lr", "weight_decay"):
             value = getattr(self, name)
             if not (math.isfinite(value) and (value > 0 if name == "lr" else value >= 0)):
-                raise InputError(f"{key(name)} must be a finite number {'> 0' if name == 'lr' else '>= 0'}, got {value}")
+                bound = "> 0" if name == "lr" else ">= 0"
+                raise InputError(f"{key(name)} must be a finite number {bound}, got {value}")

@@ -17,11 +17,11 @@ import torch
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata
-from stdm_drake.learning.models import (ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig, dynamics_config,
-                                       parse_model_type)
+from stdm_drake.learning.models import (ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig,
+                                        dynamics_config, parse_model_type)
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import (DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainingConfig,
-                                         TrainSettings)
+                                          TrainSettings)
 from stdm_drake.learning.trainer import AlphaSelection, fit_model
 
 
