@@ -1,4 +1,5 @@
-"""The UR-10 in Drake: model paths, limits, and the plant + scene-graph diagram builder.
+"""Robots in Drake: the typed robot config (RobotConfig, the UR-10 preset models/ur10.yaml), limits,
+dynamics, and the plant + scene-graph diagram builder.
 
 Joint order everywhere in stdm-drake: shoulder_pan, shoulder_lift, elbow, wrist_1, wrist_2,
 wrist_3. State x = [q (6) rad, v (6) rad/s]; action = joint torque (6) N m.
@@ -6,8 +7,10 @@ wrist_3. State x = [q (6) rad, v (6) rad/s]; action = joint torque (6) N m.
 
 import dataclasses
 import hashlib
+import math
 import os
 import pathlib
+import typing
 
 import numpy as np
 
@@ -19,18 +22,223 @@ from pydrake.multibody.parsing import Parser  # noqa: E402
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig  # noqa: E402
 from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 
+from stdm_drake.config import one_line  # noqa: E402
+from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.paths import MODELS_DIR  # noqa: E402
 
-UR10_URDF = MODELS_DIR / "ur10.urdf"
+UR10_CONFIG = MODELS_DIR / "ur10.yaml"
 
-JOINT_NAMES = (
-    "shoulder_pan_joint", "shoulder_lift_joint", "elbow_joint",
-    "wrist_1_joint", "wrist_2_joint", "wrist_3_joint",
-)
-NUM_JOINTS = 6
+
+@dataclasses.dataclass
+class RobotConfig:
+    """A robot arm as stdm-drake sees it (typed YAML, loaded with `load_robot`).
+
+    name: a label for files and plots. model: the URDF or SDF file; package_paths: package name ->
+    folder, for package:// URIs (relative paths: to the YAML file's folder). weld_frame: the frame
+    welded to the world origin, or None when the model fixes its base itself (e.g. a joint to
+    "world"). arm_joints: the joints the data, models and controllers see, in the model's order
+    (one revolute or prismatic degree of freedom each); locked_joints: any other movable joint ->
+    the position (rad or m) it is welded at (fingers, say). effort_limits (N m or N) and
+    velocity_limits (rad/s or m/s): per arm joint, for joints whose file gives none (or to replace
+    the file's); an arm joint without an actuator gets one with its effort limit (from the file's
+    <limit effort=...>, else from effort_limits). home: one position per arm joint (rad or m), a
+    configuration well inside the limits. tool_frame: the frame task-space plans move.
+    """
+    name: str = ""
+    model: str = ""
+    package_paths: typing.Dict[str, str] = dataclasses.field(default_factory=dict)
+    weld_frame: typing.Optional[str] = None
+    arm_joints: typing.List[str] = dataclasses.field(default_factory=list)
+    locked_joints: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
+    effort_limits: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
+    velocity_limits: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
+    home: typing.List[float] = dataclasses.field(default_factory=list)
+    tool_frame: str = ""
+
+    def validate(self) -> None:
+        """Checks that need no model file (the rest happen when the plant is built)."""
+        if not self.name or not self.model or not self.tool_frame:
+            raise InputError("robot config needs name, model and tool_frame")
+        if not self.arm_joints or len(set(self.arm_joints)) != len(self.arm_joints):
+            raise InputError(f"robot config arm_joints must list distinct joints, got {self.arm_joints}")
+        if len(self.home) != len(self.arm_joints) or not all(math.isfinite(value) for value in self.home):
+            raise InputError(f"robot config home must give {len(self.arm_joints)} finite positions (one per arm "
+                             f"joint), got {self.home}")
+        overlap = set(self.locked_joints) & set(self.arm_joints)
+        if overlap:
+            raise InputError(f"robot config: joints {sorted(overlap)} are both arm joints and locked")
+        for field in ("effort_limits", "velocity_limits"):
+            for joint, value in getattr(self, field).items():
+                if joint not in self.arm_joints:
+                    raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
+                if not (math.isfinite(value) and value > 0):
+                    raise InputError(f"robot config {field}[{joint!r}] must be > 0, got {value}")
+
+
+class Robot:
+    """A robot built from a RobotConfig: adds itself to a MultibodyPlant and says what it is.
+
+    joint_names: the arm joints in order; num_joints; home (n,) rad; tool_frame; model_path and
+    model_sha256 (of the description file, recorded in datasets).
+    """
+
+    def __init__(self, config: RobotConfig, folder: pathlib.Path):
+        config.validate()
+        self.config = config
+        self.folder = pathlib.Path(folder)
+        self.model_path = self._resolve(config.model)
+        if not self.model_path.is_file():
+            raise InputError(f"robot {config.name}: model file not found: {self.model_path}")
+        if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
+            raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
+        self.package_paths = {name: self._resolve(path) for name, path in config.package_paths.items()}
+        for name, path in self.package_paths.items():
+            if not path.is_dir():
+                raise InputError(f"robot {config.name}: package {name!r} folder not found: {path}")
+        self.file_limits = _joint_limits_in_file(self.model_path)
+
+    def _resolve(self, path: str) -> pathlib.Path:
+        path = pathlib.Path(path)
+        return path if path.is_absolute() else self.folder / path
+
+    @property
+    def name(self) -> str:
+        return self.config.name
+
+    @property
+    def joint_names(self) -> tuple:
+        return tuple(self.config.arm_joints)
+
+    @property
+    def num_joints(self) -> int:
+        return len(self.config.arm_joints)
+
+    @property
+    def home(self) -> np.ndarray:
+        return np.asarray(self.config.home, dtype=float)
+
+    @property
+    def tool_frame(self) -> str:
+        return self.config.tool_frame
+
+    def model_sha256(self) -> str:
+        """SHA-256 of the robot description file, stored in every dataset."""
+        return hashlib.sha256(self.model_path.read_bytes()).hexdigest()
+
+    def add_to(self, plant: MultibodyPlant, model_name_prefix: str = ""):
+        """Parse the model into `plant` (not finalized), weld its base, lock the locked joints and add
+        missing arm actuators; return the model instance. model_name_prefix scopes the instance's
+        name ("ghost" gives "ghost::ur10"), so that several copies can share a plant."""
+        parser = offline_parser(plant, model_name_prefix)
+        for name, path in self.package_paths.items():
+            parser.package_map().Add(name, str(path))
+        try:
+            instances = parser.AddModels(str(self.model_path))
+        except RuntimeError as error:
+            raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}") from None
+        if len(instances) != 1:
+            raise InputError(f"robot {self.name}: {self.model_path.name} holds {len(instances)} models, expected one")
+        (instance,) = instances
+        config = self.config
+        if config.weld_frame is not None:
+            if not plant.HasFrameNamed(config.weld_frame, instance):
+                raise InputError(f"robot {self.name}: weld_frame {config.weld_frame!r} is not a frame of the model")
+            plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(config.weld_frame, instance), RigidTransform())
+        for name in list(config.arm_joints) + list(config.locked_joints):
+            if not plant.HasJointNamed(name, instance):
+                raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")
+        for name, position in config.locked_joints.items():
+            _weld_joint_at(plant, plant.GetJointByName(name, instance), position)
+        actuated = {plant.get_joint_actuator(index).joint().name() for index in plant.GetJointActuatorIndices()
+                    if plant.get_joint_actuator(index).model_instance() == instance}
+        for name in config.arm_joints:
+            joint = plant.GetJointByName(name, instance)
+            if joint.num_velocities() != 1:
+                raise InputError(f"robot {self.name}: arm joint {name!r} has {joint.num_velocities()} degrees of "
+                                 "freedom; arm joints must be revolute or prismatic")
+            if name not in actuated:
+                effort = config.effort_limits.get(name, self.file_limits.get(name, {}).get("effort"))
+                if effort is None or not effort > 0:
+                    raise InputError(f"robot {self.name}: arm joint {name!r} has no actuator and no effort limit; "
+                                     "give effort_limits in the robot config")
+                plant.AddJointActuator(f"{name}_actuator", joint, effort)
+        return instance
+
+    def check_plant(self, plant: MultibodyPlant, instance) -> None:
+        """After Finalize: the arm joints are the plant's only degrees of freedom, in order, each with
+        finite position and velocity limits and an actuator; configured limits replace the file's."""
+        config = self.config
+        names = [plant.get_joint(index).name() for index in plant.GetJointIndices(instance)
+                 if plant.get_joint(index).num_velocities() > 0]
+        if plant.num_positions(instance) != self.num_joints or plant.num_velocities(instance) != self.num_joints:
+            free = "a floating base (give weld_frame)" if any(plant.get_body(b).is_floating_base_body()
+                                                              for b in plant.GetBodyIndices(instance)) else names
+            raise InputError(f"robot {self.name}: the model moves {plant.num_velocities(instance)} degrees of "
+                             f"freedom ({free}); list the others under locked_joints")
+        order = sorted(config.arm_joints, key=lambda name: plant.GetJointByName(name, instance).velocity_start())
+        if order != list(config.arm_joints):
+            raise InputError(f"robot {self.name}: list arm_joints in the model's order: {order}")
+        for name in config.arm_joints:
+            joint = plant.GetJointByName(name, instance)
+            lower, upper = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
+            velocity = config.velocity_limits.get(name, joint.velocity_upper_limits()[0])
+            if not (np.isfinite(lower) and np.isfinite(upper)):
+                raise InputError(f"robot {self.name}: arm joint {name!r} has no position limits in the model")
+            if not np.isfinite(velocity):
+                raise InputError(f"robot {self.name}: arm joint {name!r} has no velocity limit; give velocity_limits")
+            if name in config.velocity_limits:
+                joint.set_velocity_limits([-velocity], [velocity])
+
+
+def load_robot(path=UR10_CONFIG) -> Robot:
+    """The Robot of a robot config YAML (default: the UR-10 preset, models/ur10.yaml)."""
+    from stdm_drake.config import load_yaml_config
+    path = pathlib.Path(path)
+    return Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
+
+
+def _joint_limits_in_file(path: pathlib.Path) -> dict:
+    """Per joint name, the limits the description file states: {"effort": N m, "velocity": ...}
+    (URDF <limit effort= velocity=>, SDF <axis><limit><effort>/<velocity>); unparsable files give {}."""
+    import xml.etree.ElementTree as ElementTree
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return {}
+    limits = {}
+    for joint in root.iter("joint"):
+        name, values = joint.get("name"), {}
+        urdf = joint.find("limit")
+        if urdf is not None:
+            values = {key: float(urdf.get(key)) for key in ("effort", "velocity") if urdf.get(key) is not None}
+        sdf = joint.find("axis/limit")
+        if sdf is not None:
+            values = {key: float(sdf.findtext(key)) for key in ("effort", "velocity") if sdf.findtext(key)}
+        if name and values:  # (a URDF <transmission> names its joint too, without limits)
+            limits[name] = values
+    return limits
+
+
+def _weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:
+    """Replace a one-dof revolute or prismatic `joint` by a weld at `position` (rad or m)."""
+    from pydrake.math import RotationMatrix
+    from pydrake.common.eigen_geometry import AngleAxis
+    kind = joint.type_name()
+    if kind not in ("revolute", "prismatic"):
+        raise InputError(f"locked joint {joint.name()!r} is {kind}; only revolute and prismatic joints can be locked")
+    axis = np.asarray(joint.revolute_axis() if kind == "revolute" else joint.translation_axis(), dtype=float)
+    X_FM = (RigidTransform(RotationMatrix(AngleAxis(position, axis / np.linalg.norm(axis))), np.zeros(3))
+            if kind == "revolute" else RigidTransform(position * axis))
+    parent, child = joint.frame_on_parent(), joint.frame_on_child()
+    plant.RemoveJoint(joint)
+    plant.WeldFrames(parent, child, X_FM)
+
+
+UR10 = load_robot()
+JOINT_NAMES = UR10.joint_names
+NUM_JOINTS = UR10.num_joints
 STATE_DIM = 2 * NUM_JOINTS  # x = [q, v]
-TOOL_FRAME = "tool0"
-BASE_FRAME = "base_link_inertia"
+TOOL_FRAME = UR10.tool_frame
 
 
 @dataclasses.dataclass
@@ -44,11 +252,6 @@ class PlantConfig:
     time_step: float = 0.001
     discrete_contact_approximation: str = "sap"
     self_collision: bool = True
-
-
-def model_sha256(path: pathlib.Path = UR10_URDF) -> str:
-    """SHA-256 of the robot description file, stored in every dataset and checkpoint."""
-    return hashlib.sha256(pathlib.Path(path).read_bytes()).hexdigest()
 
 
 def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser:
@@ -70,25 +273,13 @@ def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser
     return parser
 
 
-def add_ur10(plant: MultibodyPlant, urdf: pathlib.Path = UR10_URDF, model_name_prefix: str = ""):
-    """Parse the UR-10 into `plant`, weld base_link to the world, return the model instance.
-
-    model_name_prefix: scopes the instance's name ("ghost" gives "ghost::ur10"), so that several
-    UR-10s can share a plant (e.g. for visualization).
-    """
-    if not pathlib.Path(urdf).is_file():
-        raise FileNotFoundError(f"robot description not found: {urdf}")
-    (instance,) = offline_parser(plant, model_name_prefix).AddModels(str(urdf))
-    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base_link", instance), RigidTransform())
-    return instance
-
-
-def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None = None):
-    """Add the finalized UR-10 plant (and a SceneGraph) to `builder`.
+def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None = None, robot: Robot | None = None):
+    """Add the finalized plant of `robot` (default: the UR-10 preset) and a SceneGraph to `builder`.
 
     Returns (plant, scene_graph). With builder=None a bare plant without SceneGraph is returned
     as (plant, None), for kinematics and dynamics queries.
     """
+    robot = robot or UR10
     config = config or PlantConfig()
     if config.time_step < 0:
         raise ValueError(f"time_step must be >= 0, got {config.time_step}")
@@ -100,10 +291,11 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
             time_step=config.time_step,
             discrete_contact_approximation=config.discrete_contact_approximation)
         plant, scene_graph = AddMultibodyPlant(plant_config, builder)
-    add_ur10(plant)
+    instance = robot.add_to(plant)
     plant.Finalize()
+    robot.check_plant(plant, instance)
     if scene_graph is not None and not config.self_collision:
-        _filter_self_collisions(plant, scene_graph)
+        _filter_self_collisions(plant, scene_graph, instance)
     return plant, scene_graph
 
 
@@ -147,10 +339,10 @@ class PlantSimulator:
         return self.plant.GetPositionsAndVelocities(self.plant_context)
 
 
-def _filter_self_collisions(plant, scene_graph):
+def _filter_self_collisions(plant, scene_graph, instance):
     """Exclude contact among all of the robot's collision geometries."""
     geometry_ids = []
-    for body_index in plant.GetBodyIndices(plant.GetModelInstanceByName("ur10")):
+    for body_index in plant.GetBodyIndices(instance):
         geometry_ids.extend(plant.GetCollisionGeometriesForBody(plant.get_body(body_index)))
     scene_graph.collision_filter_manager().Apply(
         CollisionFilterDeclaration().ExcludeWithin(GeometrySet(geometry_ids)))

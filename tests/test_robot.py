@@ -5,7 +5,7 @@ import time
 import numpy as np
 import pytest
 
-from stdm_drake.robot import (BASE_FRAME, TOOL_FRAME, UR10_URDF, Dynamics, SelfCollisionChecker, joint_limits,
+from stdm_drake.robot import (TOOL_FRAME, UR10, Dynamics, SelfCollisionChecker, joint_limits,
                               make_plant, offline_parser)
 
 DH = [(0, 0.1273, math.pi / 2), (-0.612, 0, 0), (-0.5723, 0, 0),
@@ -32,7 +32,7 @@ def test_forward_kinematics_equals_dh_product(plant_and_context):
     rng = np.random.default_rng(0)
     for q in rng.uniform(-np.pi, np.pi, size=(20, 6)):
         plant.SetPositions(context, q)
-        X = plant.CalcRelativeTransform(context, plant.GetFrameByName(BASE_FRAME), plant.GetFrameByName(TOOL_FRAME))
+        X = plant.CalcRelativeTransform(context, plant.GetFrameByName("base_link_inertia"), plant.GetFrameByName(TOOL_FRAME))
         np.testing.assert_allclose(X.GetAsMatrix4(), dh_forward_kinematics(q), atol=1e-11)
 
 
@@ -85,7 +85,7 @@ def test_actuation_is_clamped_to_effort_limits():
 
 def test_urdf_matches_generator():
     from tools_import import generate_ur10_urdf
-    assert UR10_URDF.read_text() == generate_ur10_urdf.urdf_text()
+    assert UR10.model_path.read_text() == generate_ur10_urdf.urdf_text()
 
 
 def test_remote_package_fails_at_once_offline():

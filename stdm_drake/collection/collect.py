@@ -36,7 +36,7 @@ from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
 from stdm_drake.robot import (JOINT_NAMES, NUM_JOINTS, Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker,
-                              joint_limits, model_sha256)
+                              UR10, joint_limits)
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 DEFAULT_CONFIGS = {
@@ -383,7 +383,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
     settings = request.settings
     metadata = dict(
         protocol=request.protocol, sample_period=settings.sample_period, seed=request.seed,
-        num_trajectories=request.count, robot_model_sha256=model_sha256(), joint_names=list(JOINT_NAMES),
+        num_trajectories=request.count, robot_model_sha256=UR10.model_sha256(), joint_names=list(JOINT_NAMES),
         plant=dataclasses.asdict(settings.plant), sensor=dataclasses.asdict(settings.sensor),
         package_versions=_package_versions(),
         torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")

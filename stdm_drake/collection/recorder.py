@@ -15,7 +15,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.files import write_text_atomic
-from stdm_drake.robot import add_ur10
+from stdm_drake.robot import UR10
 
 GHOST_COLOR = Rgba(1.0, 0.55, 0.1, 0.35)  # translucent orange
 
@@ -31,8 +31,8 @@ class TrajectoryRecorder:
         self.pause = pause
         builder = DiagramBuilder()
         self.plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
-        self.robot = add_ur10(self.plant)
-        self.ghost = add_ur10(self.plant, model_name_prefix="ghost") if ghost else None
+        self.robot = UR10.add_to(self.plant)
+        self.ghost = UR10.add_to(self.plant, model_name_prefix="ghost") if ghost else None
         self.plant.Finalize()
         if ghost:
             _recolor(self.plant, scene_graph, self.ghost, GHOST_COLOR)

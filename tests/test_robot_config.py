@@ -1,0 +1,99 @@
+"""Robots as typed configs: the UR-10 preset, and an arm brought as a URDF with bad configs refused."""
+import numpy as np
+import pytest
+
+from stdm_drake.errors import InputError
+from stdm_drake.robot import UR10, PlantConfig, joint_limits, load_robot, make_plant
+
+LINK = """  <link name="{name}">
+    <inertial><mass value="{mass}"/><origin xyz="0 0 {com}"/>
+      <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.005"/></inertial>
+    <visual><geometry><cylinder radius="0.04" length="0.3"/></geometry></visual>
+  </link>
+"""
+
+
+def two_link_urdf(effort: bool = True) -> str:
+    """A planar 2-link arm (no <transmission>) with a prismatic finger: 3 movable joints."""
+    limit = 'effort="{}" ' if effort else ""
+    joint = ('  <joint name="{name}" type="{kind}"><parent link="{parent}"/><child link="{child}"/>'
+             '<origin xyz="0 0 {z}"/><axis xyz="{axis}"/>'
+             '<limit lower="{lower}" upper="{upper}" ' + limit + 'velocity="{velocity}"/></joint>\n')
+    links = "".join(LINK.format(name=name, mass=mass, com=0.15) for name, mass in
+                    (("base", 5.0), ("upper", 2.0), ("fore", 1.0), ("finger", 0.1)))
+    joints = (joint.format("40", name="shoulder", kind="revolute", parent="base", child="upper", z=0.1, axis="0 1 0",
+                           lower=-2.5, upper=2.5, velocity=3.0)
+              + joint.format("20", name="elbow", kind="revolute", parent="upper", child="fore", z=0.3, axis="0 1 0",
+                             lower=-2.5, upper=2.5, velocity=3.0)
+              + joint.format("5", name="finger_joint", kind="prismatic", parent="fore", child="finger", z=0.3,
+                             axis="1 0 0", lower=0.0, upper=0.04, velocity=0.1))
+    links += '  <link name="tool"/>\n  <joint name="tool_fixed" type="fixed"><parent link="fore"/><child link="tool"/>' \
+             '<origin xyz="0 0 0.3"/></joint>\n'
+    return f'<?xml version="1.0"?>\n<robot name="two_link">\n{links}{joints}</robot>\n'
+
+
+def write_robot(folder, urdf_text: str, config_text: str):
+    (folder / "two_link.urdf").write_text(urdf_text)
+    path = folder / "two_link.yaml"
+    path.write_text(config_text)
+    return path
+
+
+GOOD = """name: two_link
+model: two_link.urdf
+weld_frame: base
+arm_joints: [shoulder, elbow]
+locked_joints: {finger_joint: 0.02}
+home: [0.3, -0.6]
+tool_frame: tool
+"""
+
+
+def test_ur10_preset_is_the_default_robot():
+    assert UR10.name == "ur10" and UR10.num_joints == 6 and UR10.tool_frame == "tool0"
+    plant, _ = make_plant(PlantConfig(time_step=0.0))
+    limits = joint_limits(plant)
+    assert np.all(UR10.home > limits.position_lower) and np.all(UR10.home < limits.position_upper)
+    assert [plant.get_joint_actuator(i).joint().name() for i in plant.GetJointActuatorIndices()] == \
+        list(UR10.joint_names)
+
+
+def test_an_arm_without_transmissions_gets_actuators_from_its_file(tmp_path):
+    robot = load_robot(write_robot(tmp_path, two_link_urdf(), GOOD))
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+    assert plant.num_positions() == 2 and robot.joint_names == ("shoulder", "elbow")   # the finger is welded
+    np.testing.assert_array_equal(joint_limits(plant).effort, [40.0, 20.0])
+    np.testing.assert_array_equal(joint_limits(plant).velocity, [3.0, 3.0])
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, robot.home)
+    gravity = -plant.CalcGravityGeneralizedForces(context)
+    assert np.all(np.isfinite(gravity)) and abs(gravity[0]) > 0.1       # the arm feels gravity
+    assert len(robot.model_sha256()) == 64
+
+
+def test_configured_limits_fill_gaps_and_replace_the_files(tmp_path):
+    path = write_robot(tmp_path, two_link_urdf(effort=False),
+                       GOOD + "effort_limits: {shoulder: 35.0, elbow: 12.0}\nvelocity_limits: {elbow: 1.5}\n")
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=load_robot(path))
+    np.testing.assert_array_equal(joint_limits(plant).effort, [35.0, 12.0])
+    np.testing.assert_array_equal(joint_limits(plant).velocity, [3.0, 1.5])
+
+
+@pytest.mark.parametrize("urdf, config, message", [
+    ("good", GOOD.replace("two_link.urdf", "missing.urdf"), "model file not found"),
+    ("good", GOOD.replace("[shoulder, elbow]", "[shoulder, wrist]"), "joint 'wrist' is not in two_link.urdf"),
+    ("good", GOOD.replace("[0.3, -0.6]", "[0.3]"), "home must give 2 finite positions"),
+    ("good", GOOD + "effort_limits: {finger_joint: 3.0}\n", "'finger_joint' is not an arm joint"),
+    ("no effort", GOOD, "'shoulder' has no actuator and no effort limit; give effort_limits"),
+    ("good", GOOD.replace("locked_joints: {finger_joint: 0.02}\n", ""), "list the others under locked_joints"),
+    ("good", GOOD.replace("weld_frame: base\n", ""), "floating base (give weld_frame)"),
+    ("good", GOOD.replace("weld_frame: base", "weld_frame: plate"), "weld_frame 'plate' is not a frame"),
+    ("good", GOOD.replace("[shoulder, elbow]", "[elbow, shoulder]").replace("[0.3, -0.6]", "[0.0, 0.0]"),
+     "list arm_joints in the model's order"),
+    ("good", GOOD + "wheels: 4\n", "malformed robot config"),
+])
+def test_bad_robot_configs_are_one_line_errors(tmp_path, urdf, config, message):
+    text = two_link_urdf(effort=urdf != "no effort")
+    with pytest.raises(InputError, match=None) as error:
+        make_plant(PlantConfig(time_step=0.0), robot=load_robot(write_robot(tmp_path, text, config)))
+    assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
