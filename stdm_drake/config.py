@@ -39,12 +39,19 @@ def load_yaml_config(path, schema, what: str = "config"):
     return config
 
 
-def check_joint_vector(label: str, values, *, nonnegative: bool = False) -> np.ndarray:
-    """`values` as a (6,) float array, or InputError unless they are 6 finite (non-negative) numbers."""
-    array = np.asarray(values, dtype=float)
-    if array.shape != (6,) or not np.all(np.isfinite(array)) or (nonnegative and np.any(array < 0)):
-        kind = "finite non-negative" if nonnegative else "finite"
-        raise InputError(f"{label} must be 6 {kind} numbers, got {values}")
+def check_joint_vector(label: str, values, *, count: int | None = None, nonnegative: bool = False) -> np.ndarray:
+    """`values` (one per joint, or one for every joint) as a float array, or InputError unless they are
+    finite (non-negative) numbers. count: the robot's joints: the result is (count,), a single value
+    broadcast; None (config files checked before the robot is known): any non-empty length."""
+    array = np.atleast_1d(np.asarray(values, dtype=float))
+    kind = "finite non-negative" if nonnegative else "finite"
+    if array.ndim != 1 or not array.size or not np.all(np.isfinite(array)) or (nonnegative and np.any(array < 0)):
+        raise InputError(f"{label} must be {kind} numbers (one per joint, or one for all), got {values}")
+    if count is not None:
+        if array.size not in (1, count):
+            raise InputError(f"{label} has {array.size} values; the robot has {count} joints (give {count}, or one "
+                             "for all)")
+        array = np.broadcast_to(array, (count,)).copy()
     return array
 
 

@@ -114,6 +114,11 @@ class Robot:
         return len(self.config.arm_joints)
 
     @property
+    def state_dim(self) -> int:
+        """Size of the state x = [q, v]."""
+        return 2 * len(self.config.arm_joints)
+
+    @property
     def home(self) -> np.ndarray:
         return np.asarray(self.config.home, dtype=float)
 
@@ -306,11 +311,11 @@ class PlantSimulator:
     `start(x, tau)` resets to a fresh default context at t = 0 with state x = [q, v] (12,) and the held
     torque tau (6,) N m, so what follows depends only on its own inputs."""
 
-    def __init__(self, plant_config: PlantConfig | None = None):
+    def __init__(self, plant_config: PlantConfig | None = None, robot: Robot | None = None):
         from pydrake.systems.analysis import Simulator
 
         builder = DiagramBuilder()
-        self.plant, _ = make_plant(plant_config or PlantConfig(), builder=builder)
+        self.plant, _ = make_plant(plant_config or PlantConfig(), builder=builder, robot=robot)
         builder.ExportInput(self.plant.get_actuation_input_port(), "actuation")
         self.diagram = builder.Build()
         self.simulator = Simulator(self.diagram)
@@ -367,13 +372,14 @@ def joint_limits(plant: MultibodyPlant) -> JointLimits:
 
 
 class Dynamics:
-    """Continuous-time rigid-body dynamics of the UR-10 (a bare plant of its own).
+    """Continuous-time rigid-body dynamics of `robot` (default: the UR-10; a bare plant of its own).
 
-    acceleration(q, v, tau) = M(q)^-1 (tau + tau_g(q) - C(q, v) v), all (6,) arrays.
+    acceleration(q, v, tau) = M(q)^-1 (tau + tau_g(q) - C(q, v) v), all (n,) arrays for n joints.
     """
 
-    def __init__(self):
-        self.plant, _ = make_plant(PlantConfig(time_step=0.0))
+    def __init__(self, robot: Robot | None = None):
+        self.robot = robot or UR10
+        self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
 
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
@@ -389,11 +395,11 @@ class Dynamics:
 
 
 class SelfCollisionChecker:
-    """Answers whether a configuration q (6,) rad puts two non-adjacent links in contact."""
+    """Answers whether a configuration q (n,) of `robot` puts two non-adjacent links in contact."""
 
-    def __init__(self):
+    def __init__(self, robot: Robot | None = None):
         builder = DiagramBuilder()
-        self.plant, self.scene_graph = make_plant(PlantConfig(time_step=0.0), builder=builder)
+        self.plant, self.scene_graph = make_plant(PlantConfig(time_step=0.0), builder=builder, robot=robot)
         self.diagram = builder.Build()
         self.context = self.diagram.CreateDefaultContext()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)

@@ -137,7 +137,7 @@ def run_cli(*args, cwd=None):
 @pytest.mark.parametrize("yaml_text, message", [
     ("num_steps: [1, 2\n", "malformed excitation config"),
     ("bogus_key: 1\n", "unknown to the schema"),
-    ("amplitude_max: [1.0, 2.0]\n", "amplitude_max must be 6 finite numbers"),
+    ("amplitude_max: [1.0, 2.0]\n", "amplitude_max has 2 values; the robot has 6 joints"),
 ])
 def test_bad_excitation_yaml_one_line_error_no_file(tmp_path, yaml_text, message):
     config = tmp_path / "bad.yaml"
@@ -173,7 +173,7 @@ def test_bad_controller_and_period(tmp_path):
     gains = tmp_path / "gains.yaml"
     gains.write_text("kind: pid\nkp: [1, 2, 3]\n")
     result = run_cli("collect", "--controller", str(gains), "-o", str(tmp_path / "out.h5"))
-    assert result.returncode == 2 and "kp must be 6" in result.stderr
+    assert result.returncode == 2 and "controller kp has 3 values; the robot has 6 joints" in result.stderr
     gains.write_text(open("controllers/inverse_dynamics.yaml").read().replace(
         "velocity_filter_time_constant: 0.015", "velocity_filter_time_constant: -0.01"))
     result = run_cli("collect", "--controller", str(gains), "-o", str(tmp_path / "out.h5"))

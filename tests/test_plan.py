@@ -258,7 +258,7 @@ def test_ruckig_position_extrema_checked_against_joint_limits(kinematics, start,
     lower[j] = min(start[j], quintic_plan.q_goal[j]) - 1.0
     with pytest.raises(PlanningError, match=r"ruckig test: \w+_joint reaches .* outside its position limit .* by "
                                             r"0\.0100 rad"):
-        check_position_extrema(trajectory.position_extrema, lower, upper, "ruckig test")
+        check_position_extrema(trajectory.position_extrema, lower, upper, "ruckig test", kinematics.joint_names)
 
 
 def test_ruckig_too_short_horizon_is_a_planning_error(kinematics, spec, start, goal):
@@ -418,7 +418,7 @@ def test_spec_variants_share_the_sampling_protocol():
     ("- 1\n- 2\n", r"malformed tracking spec: YAML root was a <class 'list'>"),
     ("", r"malformed tracking spec"),
     ("sampling:\n  initial_poses:\n    - xyz: [1, 2]\n", r"sampling: initial_poses\[0\]\.xyz must be 3 finite numbers"),
-    ("planner:\n  acceleration_limits: [1, 2]\n", r"planner: acceleration_limits must be 6 positive numbers"),
+    ("planner:\n  acceleration_limits: [1, 2]\n", r"planner: planner acceleration_limits has 2 values; the robot has 6 joints"),
 ])
 def test_malformed_spec_is_an_input_error_naming_the_file(tmp_path, text, message):
     path = tmp_path / "bad_spec.yaml"

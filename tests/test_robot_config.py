@@ -97,3 +97,54 @@ def test_bad_robot_configs_are_one_line_errors(tmp_path, urdf, config, message):
     with pytest.raises(InputError, match=None) as error:
         make_plant(PlantConfig(time_step=0.0), robot=load_robot(write_robot(tmp_path, text, config)))
     assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
+
+
+def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
+    """The 2-joint arm through the excitation protocol, training and evaluation, with no code change."""
+    from stdm_drake.cli import main
+    from stdm_drake.data.dataset import load_dataset
+    robot = write_robot(tmp_path, two_link_urdf(), GOOD)
+    excitation = tmp_path / "excitation.yaml"
+    excitation.write_text("num_steps: 30\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"
+                          "initial_position_lower: [-1.0, -1.5]\ninitial_position_upper: [1.0, 1.5]\n")
+    data = tmp_path / "data.h5"
+    assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--config", str(excitation),
+                 "--count", "6", "--workers", "1", "--quiet", "-o", str(data)]) == 0
+    dataset = load_dataset(data)
+    assert dataset.trajectory(0)["q"].shape == (31, 2) and dataset.trajectory(0)["tau"].shape == (30, 2)
+    assert dataset.metadata["robot"]["name"] == "two_link"
+    assert dataset.metadata["joint_names"] == ["shoulder", "elbow"]
+    assert dataset.metadata["excitation"]["offset_max"] == [1.0, 1.0]          # one value for both joints
+    assert main(["inspect", str(data)]) == 0
+    assert "shoulder" in capsys.readouterr().out
+    assert main(["train", str(data), "--model", "DD", "--epochs", "3", "--train", "4", "--val", "1", "--quiet",
+                 "-o", str(tmp_path / "dd")]) == 0
+    assert main(["evaluate", str(tmp_path / "dd" / "seed0" / "checkpoint.pt"), str(data), "--horizon", "10"]) == 0
+    assert "one-step MSE" in capsys.readouterr().out
+
+
+def test_a_checkpoint_refuses_a_dataset_of_another_robot(tmp_path, capsys, excitation_dataset):
+    """The checkpoint records the robot of its training data; evaluating on another robot's data is a
+    one-line error."""
+    from stdm_drake.cli import main
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    assert main(["train", str(excitation_dataset), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
+                 "--quiet", "-o", str(tmp_path / "ur10")]) == 0
+    checkpoint = load_checkpoint(tmp_path / "ur10" / "seed0" / "checkpoint.pt")
+    assert checkpoint.metadata.robot_name == "ur10" and len(checkpoint.metadata.joint_names) == 6
+    robot = write_robot(tmp_path, two_link_urdf(), GOOD.replace("name: two_link", "name: ur10"))
+    excitation = tmp_path / "excitation.yaml"
+    excitation.write_text("num_steps: 10\namplitude_max: [1.0]\noffset_max: [0.5]\n"
+                          "initial_position_lower: [-1.0]\ninitial_position_upper: [1.0]\n")
+    assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--config", str(excitation),
+                 "--count", "2", "--workers", "1", "--quiet", "-o", str(tmp_path / "other.h5")]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(tmp_path / "ur10" / "seed0" / "checkpoint.pt"), str(tmp_path / "other.h5"),
+                 "--split", "all"]) == 2
+    assert "state dim 12 and action dim 6, expected state dim 4 and action dim 2" in capsys.readouterr().err
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.learning.checkpoint import save_checkpoint
+    other = save_checkpoint(tmp_path / "other.pt", checkpoint.model,
+                            metadata=dict(robot_name="arm6", joint_names=[f"j{i}" for i in range(6)]))
+    with pytest.raises(InputError, match=r"trained on another robot .*\(joints differ: arm6 vs ur10\)"):
+        load_checkpoint(other).check_fits(load_dataset(excitation_dataset))

@@ -35,8 +35,8 @@ from stdm_drake.collection.control import (ControllerConfig, JointSensor, Sample
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
-from stdm_drake.robot import (JOINT_NAMES, NUM_JOINTS, Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker,
-                              UR10, joint_limits)
+from stdm_drake.robot import (UR10, Dynamics, PlantConfig, PlantSimulator, Robot, SelfCollisionChecker, joint_limits,
+                              load_robot)
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 DEFAULT_CONFIGS = {
@@ -89,14 +89,22 @@ class ExcitationConfig:
         if self.num_steps < 2 or self.max_attempts < 1:
             raise InputError("excitation num_steps must be >= 2 and max_attempts >= 1")
 
+    def for_robot(self, robot: Robot) -> "ExcitationConfig":
+        """This config with every per-joint list of the robot's length (one value broadcast);
+        InputError when a list has another length."""
+        return dataclasses.replace(self, **{
+            name: check_joint_vector(f"excitation {name}", getattr(self, name), count=robot.num_joints).tolist()
+            for name in ("amplitude_max", "offset_max", "initial_position_lower", "initial_position_upper")})
+
 
 @dataclasses.dataclass
 class CollectionSettings:
-    """What every protocol shares: sample period (s), plant, sensor and tracking controller."""
+    """What every protocol shares: sample period (s), plant, sensor, tracking controller and robot."""
     sample_period: float = DEFAULT_SAMPLE_PERIOD
     plant: PlantConfig = dataclasses.field(default_factory=PlantConfig)
     sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig)
     controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
+    robot: Robot = dataclasses.field(default_factory=lambda: UR10)
 
     def substeps(self) -> int:
         """Plant steps per sample period; the period must be a whole multiple of the plant step."""
@@ -121,12 +129,21 @@ class SimulationRig:
     def __init__(self, settings: CollectionSettings):
         self.settings = settings
         settings.substeps()
-        self.simulation = PlantSimulator(settings.plant)
+        self.robot = settings.robot
+        self.simulation = PlantSimulator(settings.plant, settings.robot)
         self.plant = self.simulation.plant
         self.limits = joint_limits(self.plant)
-        self.dynamics = Dynamics()
-        self.collision_checker = SelfCollisionChecker()
-        self.controller = SampledJointController(settings.controller, settings.sample_period)
+        self.dynamics = Dynamics(settings.robot)
+        self.collision_checker = SelfCollisionChecker(settings.robot)
+        self._controller = None
+
+    @property
+    def controller(self) -> SampledJointController:
+        """The tracking controller (built on first use: the excitation protocol has none)."""
+        if self._controller is None:
+            settings = self.settings
+            self._controller = SampledJointController(settings.controller, settings.sample_period, settings.robot)
+        return self._controller
 
     def run(self, q0: np.ndarray, num_steps: int, control, sensor: JointSensor) -> dict:
         """Simulate one trajectory from rest at q0 (6,) rad for num_steps sample periods.
@@ -137,12 +154,13 @@ class SimulationRig:
         """
         dt = self.settings.sample_period
         simulation = self.simulation
-        simulation.start(np.concatenate([q0, np.zeros(NUM_JOINTS)]), np.zeros(NUM_JOINTS))
+        n = self.robot.num_joints
+        simulation.start(np.concatenate([q0, np.zeros(n)]), np.zeros(n))
         x = simulation.plant.GetPositionsAndVelocities(simulation.plant_context)
         q_true, v_true, q_meas, v_meas, tau = [], [], [], [], []
         for k in range(num_steps + 1):
-            q_true.append(x[:NUM_JOINTS])
-            v_true.append(x[NUM_JOINTS:])
+            q_true.append(x[:n])
+            v_true.append(x[n:])
             q_k, v_k, v_filtered = sensor.measure(q_true[-1], v_true[-1])
             q_meas.append(q_k)
             v_meas.append(v_filtered)
@@ -167,7 +185,7 @@ class SimulationRig:
                           ("velocity", np.abs(v) > velocity_fraction * self.limits.velocity)):
             if bad.any():
                 step, joint = np.argwhere(bad)[0]
-                return f"{JOINT_NAMES[joint]} {name} limit at step {step}"
+                return f"{self.robot.joint_names[joint]} {name} limit at step {step}"
         if check_self_collision:
             for step, q_step in enumerate(q):
                 if not self.collision_checker.is_collision_free(q_step):
@@ -183,9 +201,9 @@ def excitation_trajectory(rig: SimulationRig, config: ExcitationConfig, rng: np.
     sensor_config = rig.settings.sensor
     for _ in range(config.max_attempts):
         amplitude = rng.uniform(0.0, config.amplitude_max)
-        frequency = rng.uniform(*config.frequency_range, size=NUM_JOINTS)
+        frequency = rng.uniform(*config.frequency_range, size=rig.robot.num_joints)
         offset = rng.uniform(-np.asarray(config.offset_max), config.offset_max)
-        phase = rng.uniform(*config.phase_range, size=NUM_JOINTS)
+        phase = rng.uniform(*config.phase_range, size=rig.robot.num_joints)
         q0 = rng.uniform(lower, upper)
         if config.check_self_collision and not rig.collision_checker.is_collision_free(q0):
             reasons["initial self-collision"] = reasons.get("initial self-collision", 0) + 1
@@ -221,11 +239,11 @@ def tracking_trajectory(rig: SimulationRig, plan: PlanSamples, rng: np.random.Ge
     controller = rig.controller
     controller.reset()
 
-    dither = np.asarray(rig.settings.controller.dither_std, dtype=float)
+    dither = controller.dither_std
 
     def control(k, t, q, v):
         torque = controller.torque(q, v, plan.q[k], plan.qd[k], plan.qdd[k])
-        return torque + dither * rng.standard_normal(NUM_JOINTS) if dither.any() else torque
+        return torque + dither * rng.standard_normal(len(dither)) if dither.any() else torque
 
     traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng))
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
@@ -293,7 +311,7 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
     one_pose = dataclasses.replace(sampling, initial_poses=[sampling.initial_poses[pose_index]],
                                    num_final_per_initial=count)
     rng = np.random.default_rng([seed, 2**31, pose_index])
-    kinematics = RobotKinematics(_WORKER_RIG.dynamics.plant)
+    kinematics = RobotKinematics(_WORKER_RIG.dynamics.plant, _WORKER_RIG.robot)
     try:
         sampled = sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
                                     is_collision_free=_WORKER_RIG.collision_checker.is_collision_free)
@@ -383,7 +401,8 @@ def collection_metadata(request: CollectionRequest) -> dict:
     settings = request.settings
     metadata = dict(
         protocol=request.protocol, sample_period=settings.sample_period, seed=request.seed,
-        num_trajectories=request.count, robot_model_sha256=UR10.model_sha256(), joint_names=list(JOINT_NAMES),
+        num_trajectories=request.count, robot_model_sha256=settings.robot.model_sha256(),
+        joint_names=list(settings.robot.joint_names), robot=dataclasses.asdict(settings.robot.config),
         plant=dataclasses.asdict(settings.plant), sensor=dataclasses.asdict(settings.sensor),
         package_versions=_package_versions(),
         torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")
@@ -410,6 +429,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensor", type=pathlib.Path,
                         help="sensor noise/filter YAML (default: controllers/sensor.yaml for tracking, "
                              "an ideal sensor for excitation)")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="robot config YAML (default: the UR-10 preset, models/ur10.yaml)")
     parser.add_argument("--count", type=int, help="number of trajectories (default: the paper's, 200 / 100)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (same seed -> same file)")
     parser.add_argument("--sample-period", type=float, default=DEFAULT_SAMPLE_PERIOD,
@@ -429,11 +450,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def collection_request(protocol: str = "tracking", *, count: int | None = None, seed: int = 0, config=None,
                        controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
-                       plant_time_step: float = PlantConfig.time_step,
+                       plant_time_step: float = PlantConfig.time_step, robot=None,
                        workers: int = min(2, os.cpu_count() or 1)) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
-    sensor: YAML paths, None for the defaults). Reads every config file, so errors come before any
-    simulation starts."""
+    sensor, robot: YAML paths, None for the defaults; robot may also be a Robot). Reads every config
+    file and checks it against the robot, so errors come before any simulation starts."""
     if protocol not in DEFAULT_CONFIGS:
         raise InputError(f"protocol must be one of {tuple(DEFAULT_CONFIGS)}, got {protocol!r}")
     config_path = config or DEFAULT_CONFIGS[protocol]
@@ -441,15 +462,22 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     sensor_path = sensor or (DEFAULT_SENSOR if protocol == "tracking" else None)
     if sensor_path is not None:
         sensor_config = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
+    robot = robot if isinstance(robot, Robot) else (load_robot(robot) if robot is not None else UR10)
     settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
-                                  sensor=sensor_config, controller=load_controller_config(controller))
+                                  sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
+    if protocol == "tracking":
+        settings.controller.gains(robot.num_joints)  # per-joint lists of the robot's length, or one value
     request = CollectionRequest(protocol=protocol, count=count or PAPER_COUNTS[protocol], seed=seed,
                                 settings=settings, workers=workers)
     if protocol == "excitation":
-        request.excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
+        excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
+        try:
+            request.excitation = excitation.for_robot(robot)
+        except InputError as error:
+            raise InputError(f"{config_path}: {error}") from None
     else:
         from stdm_drake.collection.plan import load_tracking_spec
-        request.tracking_spec = load_tracking_spec(config_path)
+        request.tracking_spec = load_tracking_spec(config_path, robot=robot)
     return request
 
 
@@ -457,7 +485,7 @@ def request_from_args(args: argparse.Namespace) -> CollectionRequest:
     """`collection_request` from the command line's arguments."""
     return collection_request(args.protocol, count=args.count, seed=args.seed, config=args.config,
                               controller=args.controller, sensor=args.sensor, sample_period=args.sample_period,
-                              plant_time_step=args.plant_time_step, workers=args.workers)
+                              plant_time_step=args.plant_time_step, robot=args.robot, workers=args.workers)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -467,7 +495,7 @@ def run(args: argparse.Namespace) -> int:
     recorder = None
     if args.meshcat or args.html:
         from stdm_drake.collection.recorder import TrajectoryRecorder
-        recorder = TrajectoryRecorder(request.settings.sample_period)
+        recorder = TrajectoryRecorder(request.settings.sample_period, robot=request.settings.robot)
         if args.meshcat:
             print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)
     started = time.perf_counter()

@@ -20,14 +20,15 @@ from pydrake.systems.controllers import InverseDynamicsController, PidController
 
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
-from stdm_drake.robot import NUM_JOINTS, Dynamics, joint_limits
+from stdm_drake.robot import Dynamics, Robot, joint_limits
 
 CONTROLLER_KINDS = ("pid", "inverse_dynamics")
 
 
 @dataclasses.dataclass
 class ControllerConfig:
-    """Gains of the joint-space tracking controller (per joint, shoulder_pan .. wrist_3).
+    """Gains of the joint-space tracking controller: per joint (in the robot's arm-joint order), or one
+    value for every joint.
 
     pid: kp N m/rad, ki N m/(rad s), kd N m s/rad.
     inverse_dynamics: kp 1/s^2, ki 1/s^3, kd 1/s (they scale the mass matrix).
@@ -55,6 +56,11 @@ class ControllerConfig:
             raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
         for name in ("kp", "ki", "kd"):
             check_joint_vector(f"controller gain {name}", getattr(self, name), nonnegative=True)
+
+    def gains(self, joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(kp, ki, kd, dither_std), each (joints,); InputError when a list has another length."""
+        return tuple(check_joint_vector(f"controller {name}", getattr(self, name), count=joints, nonnegative=True)
+                     for name in ("kp", "ki", "kd", "dither_std"))
 
 
 def load_controller_config(path) -> ControllerConfig:
@@ -95,8 +101,8 @@ class JointSensor:
     def measure(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """q, v: (6,) true state -> (q_measured, v_measured, v_filtered), each (6,)."""
         c = self.config
-        q_measured = q + c.position_noise_std * self.rng.standard_normal(NUM_JOINTS) if c.position_noise_std else q.copy()
-        v_noisy = v + c.velocity_noise_std * self.rng.standard_normal(NUM_JOINTS) if c.velocity_noise_std else v.copy()
+        q_measured = q + c.position_noise_std * self.rng.standard_normal(len(q)) if c.position_noise_std else q.copy()
+        v_noisy = v + c.velocity_noise_std * self.rng.standard_normal(len(v)) if c.velocity_noise_std else v.copy()
         self._velocity_history.append(v_noisy)
         del self._velocity_history[:-c.velocity_filter_window]
         return q_measured, v_noisy, np.mean(self._velocity_history, axis=0)
@@ -110,20 +116,21 @@ class SampledJointController:
     by one period; `reset()` starts a new trajectory.
     """
 
-    def __init__(self, config: ControllerConfig, sample_period: float):
+    def __init__(self, config: ControllerConfig, sample_period: float, robot: Robot | None = None):
         config.validate()
         self.config = config
         self.sample_period = sample_period
-        self.dynamics = Dynamics()
+        self.dynamics = Dynamics(robot)
         self.effort_limit = joint_limits(self.dynamics.plant).effort
-        kp, ki, kd = (np.asarray(getattr(config, name), dtype=float) for name in ("kp", "ki", "kd"))
+        joints = len(self.effort_limit)
+        kp, ki, kd, self.dither_std = config.gains(joints)
         if config.kind == "pid":
             self._system = PidController(kp=kp, ki=ki, kd=kd)
         else:
             self._system = InverseDynamicsController(
                 self.dynamics.plant, kp=kp, ki=ki, kd=kd, has_reference_acceleration=True)
         self._context = self._system.CreateDefaultContext()
-        self._integral = np.zeros(NUM_JOINTS)
+        self._integral = np.zeros(joints)
         self._filter_gain = sample_period / (sample_period + config.velocity_filter_time_constant)
         self._filtered_velocity: np.ndarray | None = None
 

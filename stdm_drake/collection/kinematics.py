@@ -19,7 +19,7 @@ from pydrake.multibody.tree import JacobianWrtVariable  # noqa: E402
 from pydrake.solvers import Solve  # noqa: E402
 
 from stdm_drake.errors import InputError, PlanningError  # noqa: E402
-from stdm_drake.robot import JOINT_NAMES, NUM_JOINTS, TOOL_FRAME, PlantConfig, joint_limits, make_plant  # noqa: E402
+from stdm_drake.robot import UR10, PlantConfig, Robot, joint_limits, make_plant  # noqa: E402
 
 
 def _skew(w: np.ndarray) -> np.ndarray:
@@ -57,29 +57,35 @@ def pose_text(X: RigidTransform) -> str:
 
 
 class RobotKinematics:
-    """Forward/inverse kinematics of tool0 on a bare UR-10 plant (poses in the world frame).
+    """Forward/inverse kinematics of the robot's tool frame (poses in the world frame).
 
-    plant: a finalized MultibodyPlant holding the UR-10 (default: make_plant with
-    time_step=0). The object owns one plant context, so it is not thread-safe.
+    robot: the Robot (default: the UR-10 preset); plant: a finalized MultibodyPlant holding it
+    (default: make_plant with time_step=0). The object owns one plant context, so it is not
+    thread-safe.
     """
 
-    def __init__(self, plant: MultibodyPlant | None = None):
+    def __init__(self, plant: MultibodyPlant | None = None, robot: Robot | None = None):
+        robot = robot or UR10
         if plant is None:
-            plant, _ = make_plant(PlantConfig(time_step=0.0))
-        if plant.num_positions() != NUM_JOINTS or plant.num_velocities() != NUM_JOINTS:
-            raise InputError(f"RobotKinematics needs the {NUM_JOINTS}-joint UR-10 plant, got "
+            plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+        n = robot.num_joints
+        if plant.num_positions() != n or plant.num_velocities() != n:
+            raise InputError(f"RobotKinematics needs the {n}-joint plant of {robot.name}, got "
                              f"{plant.num_positions()} positions")
+        self.robot = robot
+        self.num_joints = n
+        self.joint_names = robot.joint_names
         self.plant = plant
         self.context = plant.CreateDefaultContext()
-        self.tool_frame = plant.GetFrameByName(TOOL_FRAME)
+        self.tool_frame = plant.GetFrameByName(robot.tool_frame)
         self.world_frame = plant.world_frame()
         self.limits = joint_limits(plant)
         self._origin = np.zeros(3)
-        # Reach bound: the distance between consecutive joint origins is constant, so tool0 is
-        # never farther from the shoulder (on the pan axis) than the sum of those distances.
-        self._set_state(np.zeros(NUM_JOINTS))
+        # Reach bound: the distance between consecutive joint origins is constant, so the tool is
+        # never farther from the first joint's origin (fixed in the world) than the sum of those distances.
+        self._set_state(np.zeros(n))
         points = [plant.GetJointByName(name).frame_on_child().CalcPoseInWorld(self.context).translation()
-                  for name in JOINT_NAMES[1:]]
+                  for name in self.joint_names]
         points.append(self.tool_frame.CalcPoseInWorld(self.context).translation())
         self.shoulder = points[0].copy()
         self.reach = float(sum(np.linalg.norm(b - a) for a, b in zip(points[:-1], points[1:])))
@@ -138,7 +144,7 @@ class RobotKinematics:
         min(1, |e|), scaled down to at most `max_step` rad on any joint. Raises PlanningError
         if it does not converge or the solution is outside the joint position limits.
         """
-        q = np.array(q_seed, dtype=float).reshape(NUM_JOINTS)
+        q = np.array(q_seed, dtype=float).reshape(self.num_joints)
         for _ in range(max_iterations + 1):
             error = self.pose_error(X_goal, q)
             rotation_error = float(np.linalg.norm(error[:3]))
@@ -164,7 +170,7 @@ class RobotKinematics:
         """IK (6,) rad by Drake's InverseKinematics + Solve from q_seed (cost |q - q_seed|^2),
         then polished by inverse_kinematics(). For poses whose seed is only roughly known.
         """
-        q_seed = np.array(q_seed, dtype=float).reshape(NUM_JOINTS)
+        q_seed = np.array(q_seed, dtype=float).reshape(self.num_joints)
         ik = InverseKinematics(self.plant, with_joint_limits=True)
         position = X_goal.translation()
         slack = 1e-6
@@ -172,7 +178,7 @@ class RobotKinematics:
                                  position - slack, position + slack)
         ik.AddOrientationConstraint(self.world_frame, X_goal.rotation(), self.tool_frame,
                                     RotationMatrix(), slack)
-        ik.prog().AddQuadraticErrorCost(np.eye(NUM_JOINTS), q_seed, ik.q())
+        ik.prog().AddQuadraticErrorCost(np.eye(self.num_joints), q_seed, ik.q())
         ik.prog().SetInitialGuess(ik.q(), q_seed)
         result = Solve(ik.prog())
         if not result.is_success():
@@ -183,8 +189,8 @@ class RobotKinematics:
     def check_position_limits(self, q: np.ndarray, *, what: str) -> None:
         """Raise PlanningError naming the joint if q (6,) rad is outside the position limits."""
         lower, upper = self.limits.position_lower, self.limits.position_upper
-        for j in range(NUM_JOINTS):
+        for j in range(self.num_joints):
             if q[j] < lower[j] or q[j] > upper[j]:
                 bound, excess = (lower[j], lower[j] - q[j]) if q[j] < lower[j] else (upper[j], q[j] - upper[j])
-                raise PlanningError(f"{what}: {JOINT_NAMES[j]} at {q[j]:.4f} rad is outside its position "
+                raise PlanningError(f"{what}: {self.joint_names[j]} at {q[j]:.4f} rad is outside its position "
                                     f"limit {bound:.4f} rad by {excess:.4f} rad")

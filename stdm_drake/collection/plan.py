@@ -15,7 +15,7 @@ from stdm_drake.collection.planners import PlannedTrajectory, PlannerConfig, pla
 from stdm_drake.config import load_yaml_config, require
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import TRAJECTORIES_DIR
-from stdm_drake.robot import NUM_JOINTS
+from stdm_drake.robot import UR10, Robot
 
 logger = logging.getLogger(__name__)
 
@@ -58,15 +58,23 @@ class TaskSpaceSamplingConfig:
     num_steps: int = 100
     max_resample_attempts: int = 20
 
+    def for_robot(self, robot: Robot) -> "TaskSpaceSamplingConfig":
+        """This config after checking each IK seed has one position per arm joint of `robot`."""
+        for index, pose in enumerate(self.initial_poses):
+            require(len(pose.q_seed) == robot.num_joints,
+                    f"initial_poses[{index}].q_seed must have {robot.num_joints} positions (robot {robot.name})",
+                    pose.q_seed)
+        return self
+
     def validate(self) -> None:
         """Raise InputError (one line) on a malformed configuration."""
         require(len(self.initial_poses) >= 1, "initial_poses must list at least one pose",
                  len(self.initial_poses))
         for index, pose in enumerate(self.initial_poses):
-            for name, size in (("xyz", 3), ("rpy", 3), ("q_seed", NUM_JOINTS)):
+            for name, size in (("xyz", 3), ("rpy", 3), ("q_seed", None)):
                 values = getattr(pose, name)
-                require(len(values) == size and all(math.isfinite(v) for v in values),
-                         f"initial_poses[{index}].{name} must be {size} finite numbers", values)
+                require(len(values) == (size or len(values)) and len(values) and all(math.isfinite(v) for v in values),
+                         f"initial_poses[{index}].{name} must be {size or 'joint-count'} finite numbers", values)
         require(len(self.position_offset) == 3 and all(
             math.isfinite(v) and v >= 0 for v in self.position_offset),
             "position_offset must be 3 non-negative numbers (m)", self.position_offset)
@@ -86,20 +94,23 @@ class TrackingSpec:
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
 
 
-def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *,
-                       planner_kind: str | None = None) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
-    """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`).
+def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *, planner_kind: str | None = None,
+                       robot: Robot | None = None) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
+    """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`) for `robot`
+    (default: the UR-10 preset): per-joint lists of its length (or one value), IK seeds of its joints.
 
     planner_kind: if given, overrides `planner.kind` (same poses and limits, other planner).
     Raises InputError, naming the file, on a missing or malformed file, unknown keys, wrong
     types or invalid values.
     """
+    robot = robot or UR10
     spec = load_yaml_config(path, TrackingSpec, what="tracking spec")
     if planner_kind is not None:
         spec.planner = dataclasses.replace(spec.planner, kind=planner_kind)
     for section in ("planner", "sampling"):
         try:
             getattr(spec, section).validate()
+            setattr(spec, section, getattr(spec, section).for_robot(robot))
         except InputError as error:
             raise InputError(f"{path}: {section}: {error}") from None
     return spec.sampling, spec.planner

@@ -32,7 +32,7 @@ from pydrake.math import RigidTransform, RotationMatrix
 from stdm_drake.collection.kinematics import RobotKinematics, pose_text, rotation_exp, rotation_log
 from stdm_drake.config import require
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.robot import JOINT_NAMES, NUM_JOINTS
+from stdm_drake.robot import Robot
 
 PLANNER_KINDS = ("quintic", "ruckig", "toppra")
 
@@ -51,8 +51,8 @@ class PlannerConfig:
         duration_fraction * horizon (0 gives the time-optimal jerk-limited motion); toppra:
         ignored (the re-timing is time-optimal). horizon = num_steps * sample_period (s).
     velocity_scale: joint velocity limit as a fraction of the published limits (0, 1].
-    acceleration_limits: (6,) joint acceleration limits, rad/s^2 (none are published).
-    jerk_limits: (6,) joint jerk limits for ruckig, rad/s^3.
+    acceleration_limits: (n,) joint acceleration limits, rad/s^2 (none are published), or one for all.
+    jerk_limits: (n,) joint jerk limits for ruckig, rad/s^3, or one for all.
     max_linear_speed, max_linear_acceleration: quintic task-space limits on the tool0 origin,
         m/s and m/s^2.
     max_angular_speed, max_angular_acceleration: quintic task-space limits on the tool
@@ -94,6 +94,13 @@ class PlannerConfig:
     toppra_limit_margin: float = 0.02
     limit_tolerance: float = 1e-9
 
+    def for_robot(self, robot: Robot) -> "PlannerConfig":
+        """This config with the per-joint limits of the robot's length (one value broadcast)."""
+        from stdm_drake.config import check_joint_vector
+        return dataclasses.replace(self, **{
+            name: check_joint_vector(f"planner {name}", getattr(self, name), count=robot.num_joints).tolist()
+            for name in ("acceleration_limits", "jerk_limits")})
+
     def validate(self) -> None:
         """Raise InputError (one line) on a malformed configuration."""
         if self.kind not in PLANNER_KINDS:
@@ -103,8 +110,8 @@ class PlannerConfig:
         require(0.0 < self.velocity_scale <= 1.0, "velocity_scale must be in (0, 1]", self.velocity_scale)
         for name in ("acceleration_limits", "jerk_limits"):
             values = getattr(self, name)
-            require(len(values) == NUM_JOINTS and all(math.isfinite(v) and v > 0 for v in values),
-                     f"{name} must be {NUM_JOINTS} positive numbers", values)
+            require(len(values) >= 1 and all(math.isfinite(v) and v > 0 for v in values),
+                     f"{name} must be positive numbers (one per joint, or one for all)", values)
         for name in ("max_linear_speed", "max_linear_acceleration", "max_angular_speed",
                      "max_angular_acceleration", "ik_tolerance", "ik_continuity_tolerance"):
             value = getattr(self, name)
@@ -155,7 +162,7 @@ class PlannedTrajectory:
         """Exact (q, qd, qdd), each (6,), at time t (s); clamped to [0, N * sample_period]."""
         t = min(max(float(t), 0.0), float(self.t[-1]))
         if t >= self.duration:
-            zero = np.zeros(NUM_JOINTS)
+            zero = np.zeros_like(self.q_goal)
             return self.q_goal.copy(), zero, zero.copy()
         return self.evaluator(t)
 
@@ -200,8 +207,9 @@ def _horizon_times(num_steps: int, sample_period: float) -> np.ndarray:
 
 def _start_configuration(kinematics: RobotKinematics, q0) -> np.ndarray:
     q0 = np.array(q0, dtype=float)
-    if q0.shape != (NUM_JOINTS,) or not np.all(np.isfinite(q0)):
-        raise InputError(f"start configuration must be {NUM_JOINTS} finite joint positions (rad), got {q0!r}")
+    if q0.shape != (kinematics.num_joints,) or not np.all(np.isfinite(q0)):
+        raise InputError(f"start configuration must be {kinematics.num_joints} finite joint positions (rad), "
+                         f"got {q0!r}")
     kinematics.check_position_limits(q0, what="start configuration")
     return q0
 
@@ -227,7 +235,7 @@ def _ik_step(kinematics: RobotKinematics, X: RigidTransform, q_predicted: np.nda
     jump = np.abs(q - q_predicted)
     j = int(np.argmax(jump))
     if jump[j] > config.ik_continuity_tolerance:
-        raise PlanningError(f"{label}: IK discontinuity {where}: {JOINT_NAMES[j]} jumps {jump[j]:.4f} rad "
+        raise PlanningError(f"{label}: IK discontinuity {where}: {kinematics.joint_names[j]} jumps {jump[j]:.4f} rad "
                             f"from its prediction (> {config.ik_continuity_tolerance} rad; branch switch)")
     return q
 
@@ -235,7 +243,7 @@ def _ik_step(kinematics: RobotKinematics, X: RigidTransform, q_predicted: np.nda
 def _ik_along_line(kinematics: RobotKinematics, q0: np.ndarray, line: _TaskLine, ss: np.ndarray,
                    config: PlannerConfig, label: str) -> np.ndarray:
     """Joint waypoints (M, 6) rad along the task-space line at path parameters ss (M,), ss[0] = 0."""
-    qs = np.empty((len(ss), NUM_JOINTS))
+    qs = np.empty((len(ss), kinematics.num_joints))
     qs[0] = q0
     for k in range(1, len(ss)):
         J = _checked_jacobian(kinematics, qs[k - 1], config, label, f"at path parameter s={ss[k - 1]:.3f}")
@@ -271,7 +279,7 @@ def _check_limits(kinematics: RobotKinematics, config: PlannerConfig, label: str
         relative = (excess - allowed) / scale
         k, j = np.unravel_index(int(np.argmax(relative)), relative.shape)
         if relative[k, j] > 0 and (worst is None or relative[k, j] > worst[0]):
-            worst = (relative[k, j], f"{label}: {JOINT_NAMES[j]} {name} {values[k, j]:.4g} {unit} exceeds its "
+            worst = (relative[k, j], f"{label}: {kinematics.joint_names[j]} {name} {values[k, j]:.4g} {unit} exceeds its "
                                      f"limit {limit[j]:.4g} {unit} by {excess[k, j]:.3g} {unit} at t={t[k]:.3f} s")
     if worst is not None:
         raise PlanningError(worst[1])
@@ -287,14 +295,15 @@ def _check_goal_reachable(kinematics: RobotKinematics, X_goal: RigidTransform, l
         raise PlanningError(f"{label}: {problem}")
 
 
-def check_position_extrema(extrema, lower: np.ndarray, upper: np.ndarray, label: str) -> None:
+def check_position_extrema(extrema, lower: np.ndarray, upper: np.ndarray, label: str, joint_names=None) -> None:
     """Raise PlanningError if a ruckig trajectory's per-joint position extrema (its
-    `position_extrema`: objects with .min/.max, rad) leave [lower, upper] (6,) rad."""
+    `position_extrema`: objects with .min/.max, rad) leave [lower, upper] (n,) rad."""
+    names = joint_names or [f"joint {j}" for j in range(len(lower))]
     for j, extremum in enumerate(extrema):
         for value, bound, excess in ((extremum.max, upper[j], extremum.max - upper[j]),
                                      (extremum.min, lower[j], lower[j] - extremum.min)):
             if excess > 0:
-                raise PlanningError(f"{label}: {JOINT_NAMES[j]} reaches {value:.4f} rad, outside its position "
+                raise PlanningError(f"{label}: {names[j]} reaches {value:.4f} rad, outside its position "
                                     f"limit {bound:.4f} rad by {excess:.4f} rad")
 
 
@@ -336,13 +345,13 @@ def plan_quintic(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, con
         q = _ik_step(kinematics, line.pose(s if tau < 1.0 else 1.0), q_predicted, config, label, where)
         J = _checked_jacobian(kinematics, q, config, label, where)
         if tau >= 1.0:
-            return q, np.zeros(NUM_JOINTS), np.zeros(NUM_JOINTS)
+            return q, np.zeros(kinematics.num_joints), np.zeros(kinematics.num_joints)
         qd = np.linalg.solve(J, line.tangent * (ds / T))
         qdd = np.linalg.solve(J, line.tangent * (dds / T**2) - kinematics.bias_acceleration(q, qd))
         return q, qd, qdd
 
     n = len(t)
-    q, qd, qdd = np.empty((n, NUM_JOINTS)), np.zeros((n, NUM_JOINTS)), np.zeros((n, NUM_JOINTS))
+    q, qd, qdd = np.empty((n, kinematics.num_joints)), np.zeros((n, kinematics.num_joints)), np.zeros((n, kinematics.num_joints))
     q[0] = q0
     k = 1
     while k < n:
@@ -356,7 +365,7 @@ def plan_quintic(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, con
     _check_limits(kinematics, config, label, t, q, qd, qdd)
 
     def evaluator(time: float):
-        q_seed = np.array([np.interp(time, t, q[:, j]) for j in range(NUM_JOINTS)])
+        q_seed = np.array([np.interp(time, t, q[:, j]) for j in range(kinematics.num_joints)])
         return state(time, q_seed, f"at t={time:.4f} s")
 
     return PlannedTrajectory(planner="quintic", t=t, q=q, qd=qd, qdd=qdd, X_start=X_start, X_goal=X_goal,
@@ -424,33 +433,33 @@ def plan_ruckig(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, conf
 
     goal = _joint_space_goal("ruckig", kinematics, q0, X_goal, config, num_steps, sample_period)
     t, q0, q_goal = goal.t, goal.q0, goal.q_goal
-    inp = ruckig.InputParameter(NUM_JOINTS)
+    inp = ruckig.InputParameter(kinematics.num_joints)
     inp.current_position = q0.tolist()
-    inp.current_velocity = [0.0] * NUM_JOINTS
-    inp.current_acceleration = [0.0] * NUM_JOINTS
+    inp.current_velocity = [0.0] * kinematics.num_joints
+    inp.current_acceleration = [0.0] * kinematics.num_joints
     inp.target_position = q_goal.tolist()
-    inp.target_velocity = [0.0] * NUM_JOINTS
-    inp.target_acceleration = [0.0] * NUM_JOINTS
+    inp.target_velocity = [0.0] * kinematics.num_joints
+    inp.target_acceleration = [0.0] * kinematics.num_joints
     inp.max_velocity = (config.velocity_scale * kinematics.limits.velocity).tolist()
     inp.max_acceleration = list(config.acceleration_limits)
     inp.max_jerk = list(config.jerk_limits)
     if config.duration_fraction > 0:
         inp.minimum_duration = config.duration_fraction * goal.horizon
-    trajectory = ruckig.Trajectory(NUM_JOINTS)
-    result = ruckig.Ruckig(NUM_JOINTS).calculate(inp, trajectory)
+    trajectory = ruckig.Trajectory(kinematics.num_joints)
+    result = ruckig.Ruckig(kinematics.num_joints).calculate(inp, trajectory)
     if result not in (ruckig.Result.Working, ruckig.Result.Finished):
         raise PlanningError(f"{goal.label}: ruckig failed with {result}")
     duration = float(trajectory.duration)
     goal.check_duration(duration, "jerk-limited")
     check_position_extrema(trajectory.position_extrema, kinematics.limits.position_lower,
-                           kinematics.limits.position_upper, goal.label)
+                           kinematics.limits.position_upper, goal.label, kinematics.joint_names)
 
     def evaluator(time: float):
         position, velocity, acceleration = trajectory.at_time(min(time, duration))
         return np.array(position), np.array(velocity), np.array(acceleration)
 
     n = len(t)
-    q, qd, qdd = np.tile(q_goal, (n, 1)), np.zeros((n, NUM_JOINTS)), np.zeros((n, NUM_JOINTS))
+    q, qd, qdd = np.tile(q_goal, (n, 1)), np.zeros((n, kinematics.num_joints)), np.zeros((n, kinematics.num_joints))
     for k in range(n):
         if t[k] >= duration:
             break
@@ -479,10 +488,10 @@ def plan_toppra(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, conf
     t, q0, q_goal, waypoints = goal.t, goal.q0, goal.q_goal, goal.waypoints
     n = len(t)
     if np.max(np.abs(q_goal - q0)) == 0.0:  # nothing to re-time
-        zeros = np.zeros((n, NUM_JOINTS))
+        zeros = np.zeros((n, kinematics.num_joints))
         return PlannedTrajectory(planner="toppra", t=t, q=np.tile(q0, (n, 1)), qd=zeros, qdd=zeros.copy(),
                                  X_start=goal.X_start, X_goal=X_goal, q_goal=q_goal, duration=0.0,
-                                 evaluator=lambda time: (q0.copy(), np.zeros(NUM_JOINTS), np.zeros(NUM_JOINTS)))
+                                 evaluator=lambda time: (q0.copy(), np.zeros(len(q0)), np.zeros(len(q0))))
 
     scale = 1.0 - config.toppra_limit_margin
     velocity = scale * config.velocity_scale * kinematics.limits.velocity
@@ -502,7 +511,7 @@ def plan_toppra(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, conf
         time = min(time, duration)
         return trajectory(time), trajectory(time, 1), trajectory(time, 2)
 
-    q, qd, qdd = np.tile(q_goal, (n, 1)), np.zeros((n, NUM_JOINTS)), np.zeros((n, NUM_JOINTS))
+    q, qd, qdd = np.tile(q_goal, (n, 1)), np.zeros((n, kinematics.num_joints)), np.zeros((n, kinematics.num_joints))
     moving = t < duration
     q[moving] = trajectory(t[moving])
     qd[moving] = trajectory(t[moving], 1)

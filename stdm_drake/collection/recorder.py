@@ -15,24 +15,25 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.files import write_text_atomic
-from stdm_drake.robot import UR10
+from stdm_drake.robot import UR10, Robot
 
 GHOST_COLOR = Rgba(1.0, 0.55, 0.1, 0.35)  # translucent orange
 
 
 class TrajectoryRecorder:
-    """Appends joint trajectories q (T+1, 6) rad, sampled every `sample_period` s, to one
+    """Appends joint trajectories q (T+1, n) rad, sampled every `sample_period` s, to one
     Meshcat animation that plays them one after another (with `pause` s of rest between)."""
 
     def __init__(self, sample_period: float, meshcat: Meshcat | None = None, pause: float = 0.25,
-                 ghost: bool = False):
+                 ghost: bool = False, robot: Robot | None = None):
         self.meshcat = meshcat or Meshcat()
         self.sample_period = sample_period
         self.pause = pause
         builder = DiagramBuilder()
         self.plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
-        self.robot = UR10.add_to(self.plant)
-        self.ghost = UR10.add_to(self.plant, model_name_prefix="ghost") if ghost else None
+        robot = robot or UR10
+        self.robot = robot.add_to(self.plant)
+        self.ghost = robot.add_to(self.plant, model_name_prefix="ghost") if ghost else None
         self.plant.Finalize()
         if ghost:
             _recolor(self.plant, scene_graph, self.ghost, GHOST_COLOR)

@@ -31,7 +31,8 @@ class CheckpointMetadata:
     how the split was drawn; derivative_source ("true"/"planned") and action_rate
     ("forward_difference"/"zero_order_hold"): how the derivative targets were formed; threads,
     torch_version, stdm_drake_version: the software that trained it; alpha_selection: the alpha grid's
-    validation curve when alpha was chosen by validation (`AlphaSelection.as_dict`).
+    validation curve when alpha was chosen by validation (`AlphaSelection.as_dict`); robot_name,
+    robot_model_sha256, joint_names: the robot of the training dataset.
     """
     model_type: str | None = None
     dataset_path: str | None = None
@@ -47,6 +48,9 @@ class CheckpointMetadata:
     torch_version: str | None = None
     stdm_drake_version: str | None = None
     alpha_selection: dict | None = None
+    robot_name: str | None = None
+    robot_model_sha256: str | None = None
+    joint_names: list | None = None
 
     @classmethod
     def from_dict(cls, values: dict) -> "CheckpointMetadata":
@@ -94,6 +98,12 @@ class Checkpoint:
         period = self.metadata.sample_period
         if period is not None and abs(float(period) - dataset.sample_period) > 1e-12:
             raise InputError(f"{self.path}: model steps at {period} s, {dataset.path} at {dataset.sample_period} s")
+        recorded = dataset.metadata
+        for field, what in (("robot_model_sha256", "robot model"), ("joint_names", "joints")):
+            mine, theirs = getattr(self.metadata, field), recorded.get(field)
+            if mine is not None and theirs is not None and mine != theirs:
+                raise InputError(f"{self.path}: trained on another robot than {dataset.path} ({what} differ: "
+                                 f"{self.metadata.robot_name or '?'} vs {recorded.get('robot', {}).get('name', '?')})")
 
     def split_indices(self, dataset, part: str) -> list[int] | None:
         """Trajectory indices of the model's `part` ("train", "val", "test") split of `dataset`, or None
