@@ -45,7 +45,7 @@ def test_excitation_dataset_contents(excitation_dataset):
         # the recorded action is the total applied torque: gravity compensation + eq. (10)
         amplitude, frequency, offset, phase = params[i].reshape(4, 6)
         t = np.arange(50)[:, None] * dataset.sample_period
-        from stdm_drake.robot import Dynamics
+        from stdm_drake.plant import Dynamics
         gravity = np.array([Dynamics().gravity_torque(q) for q in traj["q_true"][:-1]])
         np.testing.assert_allclose(traj["tau"], gravity + amplitude * np.sin(frequency * t + phase) + offset,
                                    atol=1e-9)

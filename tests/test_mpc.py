@@ -130,7 +130,7 @@ class BrokenModel(LinearModel):
 
 
 def test_non_finite_model_falls_back_to_gravity_compensation():
-    from stdm_drake.robot import Dynamics
+    from stdm_drake.plant import Dynamics
     reference = quintic_reference(5)
     log = run_closed_loop(BrokenModel(), reference, MpcConfig(horizon=3))
     assert all(log.fallback)

@@ -5,8 +5,8 @@ import time
 import numpy as np
 import pytest
 
-from stdm_drake.robot import (TOOL_FRAME, UR10, Dynamics, SelfCollisionChecker, joint_limits,
-                              make_plant, offline_parser)
+from stdm_drake.plant import Dynamics, SelfCollisionChecker, joint_limits, make_plant
+from stdm_drake.robot import UR10, offline_parser
 
 DH = [(0, 0.1273, math.pi / 2), (-0.612, 0, 0), (-0.5723, 0, 0),
       (0, 0.163941, math.pi / 2), (0, 0.1157, -math.pi / 2), (0, 0.0922, 0)]
@@ -32,7 +32,7 @@ def test_forward_kinematics_equals_dh_product(plant_and_context):
     rng = np.random.default_rng(0)
     for q in rng.uniform(-np.pi, np.pi, size=(20, 6)):
         plant.SetPositions(context, q)
-        X = plant.CalcRelativeTransform(context, plant.GetFrameByName("base_link_inertia"), plant.GetFrameByName(TOOL_FRAME))
+        X = plant.CalcRelativeTransform(context, plant.GetFrameByName("base_link_inertia"), plant.GetFrameByName(UR10.tool_frame))
         np.testing.assert_allclose(X.GetAsMatrix4(), dh_forward_kinematics(q), atol=1e-11)
 
 

@@ -3,7 +3,8 @@ import numpy as np
 import pytest
 
 from stdm_drake.errors import InputError
-from stdm_drake.robot import UR10, PlantConfig, joint_limits, load_robot, make_plant
+from stdm_drake.plant import PlantConfig, joint_limits, make_plant
+from stdm_drake.robot import UR10, load_robot
 
 LINK = """  <link name="{name}">
     <inertial><mass value="{mass}"/><origin xyz="0 0 {com}"/>
@@ -148,3 +149,34 @@ def test_a_checkpoint_refuses_a_dataset_of_another_robot(tmp_path, capsys, excit
                             metadata=dict(robot_name="arm6", joint_names=[f"j{i}" for i in range(6)]))
     with pytest.raises(InputError, match=r"trained on another robot .*\(joints differ: arm6 vs ur10\)"):
         load_checkpoint(other).check_fits(load_dataset(excitation_dataset))
+
+
+def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
+    """Closed-loop MPC (plant model and a learned model) and the Meshcat view on the 2-joint arm, with
+    one-value MPC weights; the UR-10 default refuses its dataset."""
+    import json
+    from stdm_drake.cli import main
+    robot = write_robot(tmp_path, two_link_urdf(), GOOD)
+    excitation = tmp_path / "excitation.yaml"
+    excitation.write_text("num_steps: 20\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"
+                          "initial_position_lower: [-1.0, -1.5]\ninitial_position_upper: [1.0, 1.5]\n")
+    data = tmp_path / "data.h5"
+    assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--config", str(excitation),
+                 "--count", "6", "--workers", "1", "--quiet", "-o", str(data)]) == 0
+    assert main(["train", str(data), "--model", "D", "--epochs", "5", "--train", "4", "--val", "1", "--quiet",
+                 "-o", str(tmp_path / "d")]) == 0
+    checkpoint = str(tmp_path / "d" / "seed0" / "checkpoint.pt")
+    weights = tmp_path / "mpc.yaml"
+    weights.write_text("horizon: 5\nposition_weight: [1.0e+4]\nvelocity_weight: [10.0]\neffort_weight: [1.0e-3]\n")
+    assert main(["mpc", str(data), "--robot", str(robot), "--config", str(weights), "--model", f"D={checkpoint}",
+                 "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc")]) == 0
+    rows = json.loads((tmp_path / "mpc" / "mpc.json").read_text())["summary"]
+    assert [row["model"] for row in rows] == ["plant", "D"] and rows[0]["limit_violations"] == 0
+    assert rows[0]["q_mse_rad2"] < 1e-3                                  # the plant model tracks its own data
+    assert main(["view", checkpoint, str(data), "--robot", str(robot), "--trajectories", "1",
+                 "--html", str(tmp_path / "view.html")]) == 0
+    assert (tmp_path / "view.html").stat().st_size > 1000
+    capsys.readouterr()
+    assert main(["mpc", str(data), "--model", f"D={checkpoint}", "--plans", "1", "--quiet",
+                 "-o", str(tmp_path / "mpc_ur10")]) == 2
+    assert "collected with robot two_link" in capsys.readouterr().err

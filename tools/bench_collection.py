@@ -39,7 +39,7 @@ from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.collection.control import SensorConfig, load_controller_config  # noqa: E402
 from stdm_drake.collection.plan import load_tracking_spec  # noqa: E402
 from stdm_drake.paths import CONTROLLERS_DIR  # noqa: E402
-from stdm_drake.robot import PlantConfig, make_plant  # noqa: E402
+from stdm_drake.plant import PlantConfig, make_plant  # noqa: E402
 
 
 def bare_drake_seconds(plans, settings) -> float:

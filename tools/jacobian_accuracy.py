@@ -24,7 +24,7 @@ from stdm_drake.data.dataset import load_dataset  # noqa: E402
 from stdm_drake.closed_loop.learned_system import LearnedModel  # noqa: E402
 from stdm_drake.closed_loop.plant_model import PlantModel  # noqa: E402
 from stdm_drake.closed_loop.comparison import held_out_references  # noqa: E402
-from stdm_drake.robot import JOINT_NAMES, NUM_JOINTS  # noqa: E402
+from stdm_drake.robot import UR10  # noqa: E402
 
 
 def torque_jacobian_errors(model: LearnedModel, plant: PlantModel, dataset, indices, stride: int = 10) -> np.ndarray:
@@ -36,7 +36,7 @@ def torque_jacobian_errors(model: LearnedModel, plant: PlantModel, dataset, indi
         u = traj["tau"][::stride]
         _, B_plant = plant.jacobians(x, u)
         _, B_model = model.jacobians(x, u)
-        velocity_rows = slice(NUM_JOINTS, 2 * NUM_JOINTS)
+        velocity_rows = slice(UR10.num_joints, UR10.state_dim)
         difference = np.linalg.norm(B_model[:, velocity_rows] - B_plant[:, velocity_rows], axis=1)
         errors.append(difference / np.linalg.norm(B_plant[:, velocity_rows], axis=1))
     return np.concatenate(errors).mean(axis=0)
@@ -51,7 +51,7 @@ def main():
     torch.set_num_threads(1)
     dataset = load_dataset(args.dataset)
     plant = PlantModel(dataset.sample_period)
-    print("relative error of d qdot_next / d tau, per joint column: " + ", ".join(JOINT_NAMES))
+    print("relative error of d qdot_next / d tau, per joint column: " + ", ".join(UR10.joint_names))
     for path in args.checkpoints:
         model = LearnedModel(path)
         indices = [index for index, _ in held_out_references(dataset, [model.checkpoint], args.trajectories)]

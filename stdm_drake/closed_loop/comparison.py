@@ -9,7 +9,8 @@ from stdm_drake.closed_loop.mpc import (DEFAULT_MPC_CONFIG, MpcConfig, MpcLog, R
 from stdm_drake.closed_loop.plant_model import PlantModel
 from stdm_drake.errors import InputError
 from stdm_drake.report import markdown_table
-from stdm_drake.robot import NUM_JOINTS, Dynamics, PlantConfig, joint_limits
+from stdm_drake.plant import Dynamics, PlantConfig, joint_limits
+from stdm_drake.robot import Robot
 
 
 @dataclasses.dataclass
@@ -30,14 +31,14 @@ class ClosedLoopResult:
 
 
 def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference, limits, gravity) -> ClosedLoopResult:
-    """gravity: (N, 6) torque holding the arm at each reference sample (N >= the run's steps)."""
+    """gravity: (N, n) torque holding the arm at each reference sample (N >= the run's steps)."""
     states, torques = np.array(log.state), np.array(log.torque)
-    steps = len(states)
+    steps, n = len(states), torques.shape[1]
     error = states - reference.window(0, steps)
-    q_error, v_error = error[:, :NUM_JOINTS], error[:, NUM_JOINTS:]
+    q_error, v_error = error[:, :n], error[:, n:]
     finite = np.all(np.isfinite(states), axis=1)
-    outside = ((states[:, :NUM_JOINTS] < limits.position_lower) | (states[:, :NUM_JOINTS] > limits.position_upper)
-               | (np.abs(states[:, NUM_JOINTS:]) > limits.velocity))
+    outside = ((states[:, :n] < limits.position_lower) | (states[:, :n] > limits.position_upper)
+               | (np.abs(states[:, n:]) > limits.velocity))
     solve_ms = 1e3 * np.array(log.solve_seconds)
     return ClosedLoopResult(
         model=name, trajectory=index,
@@ -51,27 +52,30 @@ def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference
 
 
 def compare_controllers(models: list, references: list[tuple[int, Reference]], config: MpcConfig,
-                        plant_config: PlantConfig | None = None, progress: bool = True, recorder=None):
-    """Run plant + MPC(model) on every reference for every model; returns [ClosedLoopResult].
+                        plant_config: PlantConfig | None = None, progress: bool = True, recorder=None,
+                        robot: Robot | None = None):
+    """Run plant + MPC(model) on every reference for every model (the plant of `robot`, default the
+    UR-10 preset); returns [ClosedLoopResult].
 
     recorder: an optional ghost TrajectoryRecorder; each run is added (robot = plant, ghost = reference).
     """
     from tqdm import tqdm
-    dynamics = Dynamics()
+    dynamics = Dynamics(robot)
+    n = dynamics.robot.num_joints
     limits = joint_limits(dynamics.plant)
     results = []
     bar = tqdm(total=len(models) * len(references), desc="mpc", unit="run", disable=not progress)
     # gravity at each reference sample, held past its end like the reference (a run may outlast it)
     horizon = max(len(reference.q) for _, reference in references) + 1
-    gravity = {index: np.array([dynamics.gravity_torque(q) for q in reference.window(0, horizon)[:, :NUM_JOINTS]])
+    gravity = {index: np.array([dynamics.gravity_torque(q) for q in reference.window(0, horizon)[:, :n]])
                for index, reference in references}
     for model in models:
         for index, reference in references:
-            log = run_closed_loop(model, reference, config, plant_config)
+            log = run_closed_loop(model, reference, config, plant_config, robot=robot)
             results.append(closed_loop_metrics(model.name, index, log, reference, limits, gravity[index]))
             if recorder is not None:
-                q = np.array(log.state)[:, :NUM_JOINTS]
-                recorder.add(q, reference.window(0, len(q))[:, :NUM_JOINTS])
+                q = np.array(log.state)[:, :n]
+                recorder.add(q, reference.window(0, len(q))[:, :n])
             bar.update()
     bar.close()
     return results
@@ -169,6 +173,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-plant", action="store_true", help="leave out the plant-as-model reference MPC")
     parser.add_argument("--plans", type=int, default=3, help="held-out plans to track (default 3)")
     parser.add_argument("--config", type=pathlib.Path, default=DEFAULT_MPC_CONFIG, help="MPC settings YAML")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="robot config YAML (default: the UR-10 preset); must be the dataset's robot")
     parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/mpc"),
                         help="folder for mpc.md, mpc.csv, mpc.json and mpc.png")
     parser.add_argument("--html", type=pathlib.Path, help="Meshcat recording: plant (robot) vs reference (ghost)")
@@ -183,26 +189,30 @@ def run(args) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.files import write_text_atomic
     from stdm_drake.closed_loop.learned_system import LearnedModel
+    from stdm_drake.robot import UR10, load_robot
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     config = load_mpc_config(args.config)
+    robot = load_robot(args.robot) if args.robot else UR10
     dataset = load_dataset(args.dataset)
+    robot.check_dataset(dataset)
     learned = []
     for entry in args.model:
         name, separator, path = entry.partition("=")
         if not separator or not name or not path:
             raise InputError(f"--model takes NAME=CHECKPOINT, got {entry!r}")
-        learned.append(LearnedModel(path, name=name))
+        learned.append(LearnedModel(path, name=name, robot=robot))
     for model in learned:
         model.checkpoint.check_fits(dataset)
-    models = ([] if args.no_plant else [PlantModel(dataset.sample_period)]) + learned
+    models = ([] if args.no_plant else [PlantModel(dataset.sample_period, robot=robot)]) + learned
     if not models:
         raise InputError("nothing to compare: give --model NAME=CHECKPOINT or keep the plant model")
     references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
     recorder = None
     if args.html:
         from stdm_drake.collection.recorder import TrajectoryRecorder
-        recorder = TrajectoryRecorder(dataset.sample_period, ghost=True)
-    results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder)
+        recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot)
+    results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder,
+                                  robot=robot)
     rows = summarize(results, dataset.sample_period)
     table = summary_table(rows)
     print(table)

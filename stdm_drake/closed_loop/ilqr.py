@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stdm_drake.robot import NUM_JOINTS, STATE_DIM
+from stdm_drake.config import check_joint_vector
 
 if TYPE_CHECKING:
     from stdm_drake.closed_loop.mpc import MpcConfig
@@ -32,13 +32,17 @@ class IlqrSolver:
         self.model = model
         self.config = config
         self.effort_limit = np.asarray(effort_limit, dtype=float)
-        self.Q = np.diag(np.concatenate([config.position_weight, config.velocity_weight]))
-        self.R = np.diag(np.asarray(config.effort_weight, dtype=float))
+        self.joints = joints = len(self.effort_limit)
+        self.state_dim = 2 * joints
+        weight = {name: check_joint_vector(f"mpc {name}", getattr(config, name), count=joints, nonnegative=True)
+                  for name in ("position_weight", "velocity_weight", "effort_weight")}
+        self.Q = np.diag(np.concatenate([weight["position_weight"], weight["velocity_weight"]]))
+        self.R = np.diag(weight["effort_weight"])
 
     def rollout(self, x0: np.ndarray, u: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
         """Predicted states (H+1, 12) from x0 under u (H, 6), each step shifted by `offset` (12,)."""
-        offset = np.zeros(STATE_DIM) if offset is None else offset
-        x = np.empty((len(u) + 1, STATE_DIM))
+        offset = np.zeros(self.state_dim) if offset is None else offset
+        x = np.empty((len(u) + 1, self.state_dim))
         x[0] = x0
         for k in range(len(u)):
             x[k + 1] = self._predict(x[k], u[k], offset)
@@ -61,7 +65,7 @@ class IlqrSolver:
         """x0 (12,); u_init (H, 6) warm start; reference (H+1, 12); u_ff (H, 6); offset (12,): a
         constant added to every predicted step (the disturbance estimate; zero by default)."""
         horizon = len(u_init)
-        offset = np.zeros(STATE_DIM) if offset is None else np.asarray(offset, dtype=float)
+        offset = np.zeros(self.state_dim) if offset is None else np.asarray(offset, dtype=float)
         u = np.clip(u_init, -self.effort_limit, self.effort_limit)
         x = self.rollout(x0, u, offset)
         cost = self.cost(x, u, reference, u_ff)
@@ -101,14 +105,14 @@ class IlqrSolver:
     def _backward(self, x, u, reference, u_ff, A, B, terminal, mu):
         """Riccati recursion; returns (feedforward (H, 6), feedback (H, 6, 12)) or None if Q_uu is not PD."""
         horizon = len(u)
-        feedforward = np.empty((horizon, NUM_JOINTS))
-        feedback = np.empty((horizon, NUM_JOINTS, STATE_DIM))
+        feedforward = np.empty((horizon, self.joints))
+        feedback = np.empty((horizon, self.joints, self.state_dim))
         # gradients of the running costs, all steps at once
         state_gradient = terminal[:, None] * ((x[1:] - reference[1:]) @ self.Q)
         effort_gradient = (u - u_ff) @ self.R
-        R_regularized = self.R + mu * np.eye(NUM_JOINTS)
-        V_x = np.zeros(STATE_DIM)
-        V_xx = np.zeros((STATE_DIM, STATE_DIM))
+        R_regularized = self.R + mu * np.eye(self.joints)
+        V_x = np.zeros(self.state_dim)
+        V_xx = np.zeros((self.state_dim, self.state_dim))
         for k in range(horizon - 1, -1, -1):
             # step k's cost: state x_k+1 (weighted by terminal[k]) and torque u_k
             V_x = V_x + state_gradient[k]

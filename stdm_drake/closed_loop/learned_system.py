@@ -11,18 +11,21 @@ from pydrake.systems.framework import LeafSystem
 from stdm_drake.errors import InputError
 from stdm_drake.learning.checkpoint import load_model
 from stdm_drake.learning.predict import as_inference_model, predict
-from stdm_drake.robot import NUM_JOINTS, STATE_DIM
-
+from stdm_drake.robot import UR10, Robot
 
 
 class LearnedModel:
-    """A checkpoint as a prediction model: step(x (N,12), u (N,6)), jacobians(x (H,12), u (H,6)).
+    """A checkpoint as a prediction model of `robot` (default: the UR-10 preset) with n joints:
+    step(x (N, 2n), u (N, n)), jacobians(x (H, 2n), u (H, n)).
 
-    sample_period (s) comes from the checkpoint's metadata (the dataset it was trained on).
+    sample_period (s) comes from the checkpoint's metadata (the dataset it was trained on); a model
+    of other state or action sizes than the robot's is refused.
     """
 
-    def __init__(self, checkpoint_path, name: str | None = None):
-        checkpoint = load_model(checkpoint_path, state_dim=STATE_DIM, action_dim=NUM_JOINTS)
+    def __init__(self, checkpoint_path, name: str | None = None, robot: Robot | None = None):
+        robot = robot or UR10
+        checkpoint = load_model(checkpoint_path, state_dim=robot.state_dim, action_dim=robot.num_joints)
+        self.state_dim, self.action_dim = robot.state_dim, robot.num_joints
         self.checkpoint = checkpoint
         self.name = name or checkpoint.path.stem
         period = checkpoint.metadata.sample_period
@@ -58,16 +61,16 @@ class LearnedModel:
         inference path's forward-mode Jacobian (InferenceModel.mean_jacobian)."""
         rows = self.engine.input_rows(np.asarray(x, dtype=np.float32), np.asarray(u, dtype=np.float32)[None])[0]
         jacobian = self.engine.mean_jacobian(rows).astype(np.float64)
-        return jacobian[:, :, :STATE_DIM], jacobian[:, :, STATE_DIM:]
+        return jacobian[:, :, :self.state_dim], jacobian[:, :, self.state_dim:]
 
 
 class LearnedDynamicsSystem(LeafSystem):
     """Discrete-time Drake system that steps a learned STDM at its sample period.
 
-    Input ports: "torque" (6, N m), applied over [t_k, t_k+1); "measured_state" (12, optional):
-    when connected (or fixed), x_k is re-anchored to it before each step.
-    State: the predicted [q (6) rad, v (6) rad/s]. Output ports: "state" (12) and, for P/PE
-    models, "variance" (12): the one-step predictive variance of the last step (the same quantity
+    For a robot of n joints: input ports "torque" (n, N m), applied over [t_k, t_k+1);
+    "measured_state" (2n, optional): when connected (or fixed), x_k is re-anchored to it before each
+    step. State: the predicted [q (n) rad, v (n) rad/s]. Output ports: "state" (2n) and, for P/PE
+    models, "variance" (2n): the one-step predictive variance of the last step (the same quantity
     as `rollout(..., propagation="mean")` returns).
     Non-finite torque or measurement inputs raise InputError.
     """
@@ -75,10 +78,11 @@ class LearnedDynamicsSystem(LeafSystem):
     def __init__(self, model: LearnedModel):
         super().__init__()
         self.model = model
-        self._torque = self.DeclareVectorInputPort("torque", NUM_JOINTS)
-        self._measured = self.DeclareVectorInputPort("measured_state", STATE_DIM)
-        self._state_index = self.DeclareDiscreteState(STATE_DIM)
-        self._variance_index = self.DeclareDiscreteState(STATE_DIM)
+        n = self.state_dim = model.state_dim
+        self._torque = self.DeclareVectorInputPort("torque", model.action_dim)
+        self._measured = self.DeclareVectorInputPort("measured_state", n)
+        self._state_index = self.DeclareDiscreteState(n)
+        self._variance_index = self.DeclareDiscreteState(n)
         self.DeclareStateOutputPort("state", self._state_index)
         if model.probabilistic or model.ensemble_size > 1:
             self.DeclareStateOutputPort("variance", self._variance_index)
@@ -89,7 +93,7 @@ class LearnedDynamicsSystem(LeafSystem):
         return self.GetInputPort("torque")
 
     def get_measured_state_input_port(self):
-        """Input "measured_state" (optional): [q, v] (12) to re-anchor the prediction to before each step."""
+        """Input "measured_state" (optional): [q, v] (2n) to re-anchor the prediction to before each step."""
         return self.GetInputPort("measured_state")
 
     def get_state_output_port(self):
@@ -97,16 +101,16 @@ class LearnedDynamicsSystem(LeafSystem):
         return self.GetOutputPort("state")
 
     def get_variance_output_port(self):
-        """Output "variance" (P/PE models and ensembles only): the one-step predictive variance (12)."""
+        """Output "variance" (P/PE models and ensembles only): the one-step predictive variance (2n)."""
         return self.GetOutputPort("variance")
 
     def set_initial_state(self, context, x0: np.ndarray) -> None:
-        """x0: (12,) [q rad, v rad/s] in this system's context."""
+        """x0: (2n,) [q rad, v rad/s] in this system's context."""
         x0 = np.asarray(x0, dtype=float)
-        if x0.shape != (STATE_DIM,) or not np.all(np.isfinite(x0)):
-            raise InputError(f"initial state must be {STATE_DIM} finite numbers, got shape {x0.shape}")
+        if x0.shape != (self.state_dim,) or not np.all(np.isfinite(x0)):
+            raise InputError(f"initial state must be {self.state_dim} finite numbers, got shape {x0.shape}")
         context.SetDiscreteState(int(self._state_index), x0)
-        context.SetDiscreteState(int(self._variance_index), np.zeros(STATE_DIM))
+        context.SetDiscreteState(int(self._variance_index), np.zeros(self.state_dim))
 
     def _step(self, context, discrete_state):
         torque = np.asarray(self._torque.Eval(context))

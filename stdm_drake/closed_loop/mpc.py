@@ -38,7 +38,8 @@ from stdm_drake.closed_loop.ilqr import IlqrSolver
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.robot import NUM_JOINTS, STATE_DIM, Dynamics, PlantConfig, joint_limits
+from stdm_drake.plant import Dynamics, PlantConfig, joint_limits
+from stdm_drake.robot import Robot
 
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
 
@@ -47,8 +48,8 @@ DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
 class MpcConfig:
     """MPC settings (controllers/mpc.yaml).
 
-    position_weight (6) 1/rad^2, velocity_weight (6) s^2/rad^2, effort_weight (6) 1/(N m)^2 on the
-    torque beyond the reference's gravity torque; horizon in sample periods; iLQR iterations per
+    position_weight (n) 1/rad^2, velocity_weight (n) s^2/rad^2, effort_weight (n) 1/(N m)^2 on the
+    torque beyond the reference's gravity torque (one per joint, or one for all); horizon in sample periods; iLQR iterations per
     control step, line-search step sizes and the initial Levenberg-Marquardt regularization;
     disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off).
     """
@@ -107,7 +108,8 @@ class MpcController(LeafSystem):
     """Discrete-time MPC: every `model.sample_period` it solves iLQR from the measured state and
     holds the first torque until the next sample.
 
-    Ports: input "state" (12: [q rad, v rad/s]); output "torque" (6, N m).
+    For a robot of n joints (`robot`, default the UR-10 preset): input "state" (2n: [q rad, v rad/s]);
+    output "torque" (n, N m).
 
     Timing: a discrete plant steps at multiples of its step h; the controller updates at
     t_k - h/2, where the plant's state already equals x(t_k), so the torque it computes is the one
@@ -121,13 +123,16 @@ class MpcController(LeafSystem):
     measured q, clipped to the effort limits, and records the step in `log.fallback`.
     """
 
-    def __init__(self, model, reference: Reference, config: MpcConfig, plant_time_step: float):
+    def __init__(self, model, reference: Reference, config: MpcConfig, plant_time_step: float,
+                 robot: Robot | None = None):
         super().__init__()
         config.validate()
         self.model = model
         self.reference = reference
         self.config = config
-        self.dynamics = Dynamics()
+        self.dynamics = Dynamics(robot)
+        self.joints = joints = self.dynamics.robot.num_joints
+        self.state_dim = state_dim = 2 * joints
         self.effort_limit = joint_limits(self.dynamics.plant).effort
         self.solver = IlqrSolver(model, config, self.effort_limit)
         self.log = MpcLog()
@@ -135,22 +140,22 @@ class MpcController(LeafSystem):
         if not 0 < plant_time_step <= period:
             raise InputError(f"plant time step {plant_time_step} s must be in (0, {period}] s")
         self._period = period
-        self._state_input = self.DeclareVectorInputPort("state", STATE_DIM)
-        self._torque_index = self.DeclareDiscreteState(NUM_JOINTS)
-        self._predicted_index = self.DeclareDiscreteState(STATE_DIM)
-        self._disturbance_index = self.DeclareDiscreteState(STATE_DIM)
-        self._plan_index = self.DeclareAbstractState(AbstractValue.Make(np.zeros((config.horizon, NUM_JOINTS))))
+        self._state_input = self.DeclareVectorInputPort("state", state_dim)
+        self._torque_index = self.DeclareDiscreteState(joints)
+        self._predicted_index = self.DeclareDiscreteState(state_dim)
+        self._disturbance_index = self.DeclareDiscreteState(state_dim)
+        self._plan_index = self.DeclareAbstractState(AbstractValue.Make(np.zeros((config.horizon, joints))))
         self.DeclareStateOutputPort("torque", self._torque_index)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._update)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, period - 0.5 * plant_time_step, self._update)
         self._feedforward = np.array([self.dynamics.gravity_torque(q) for q in reference.q])
 
     def get_state_input_port(self):
-        """Input "state": the measured plant state [q (6) rad, v (6) rad/s]."""
+        """Input "state": the measured plant state [q (n) rad, v (n) rad/s]."""
         return self.GetInputPort("state")
 
     def get_torque_output_port(self):
-        """Output "torque": the joint torques (6) N m applied until the next control step."""
+        """Output "torque": the joint torques (n) N m applied until the next control step."""
         return self.GetOutputPort("torque")
 
     def _estimate_disturbance(self, context, x: np.ndarray) -> np.ndarray:
@@ -160,7 +165,7 @@ class MpcController(LeafSystem):
         predicted = context.get_discrete_state(int(self._predicted_index)).get_value()
         last = context.get_discrete_state(int(self._disturbance_index)).get_value()
         disturbance = last + self.config.disturbance_gain * (x - predicted)
-        return disturbance if np.all(np.isfinite(disturbance)) else np.zeros(STATE_DIM)
+        return disturbance if np.all(np.isfinite(disturbance)) else np.zeros(self.state_dim)
 
     def _update(self, context, state):
         x = self._state_input.Eval(context)
@@ -174,7 +179,7 @@ class MpcController(LeafSystem):
         started = time.perf_counter()
         x = np.asarray(x)
         fallback = not np.all(np.isfinite(x))
-        disturbance = np.zeros(STATE_DIM)
+        disturbance = np.zeros(self.state_dim)
         if not fallback:
             with np.errstate(all="ignore"):
                 if k > 0 and self.config.disturbance_gain > 0:
@@ -182,10 +187,10 @@ class MpcController(LeafSystem):
                 result = self.solver.solve(x, warm, reference, u_ff, disturbance)
             fallback = not (result.finite and np.all(np.isfinite(result.u)))
         if fallback:
-            q = np.nan_to_num(x[:NUM_JOINTS])
+            q = np.nan_to_num(x[:self.joints])
             torque = np.clip(self.dynamics.gravity_torque(q), -self.effort_limit, self.effort_limit)
             next_plan = u_ff
-            predicted = np.full(STATE_DIM, np.nan)
+            predicted = np.full(self.state_dim, np.nan)
             if self.config.disturbance_gain > 0:
                 with np.errstate(all="ignore"):
                     predicted = self.solver.rollout(x, torque[None], disturbance)[1]
@@ -206,13 +211,14 @@ class MpcController(LeafSystem):
 
 
 def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
-                      meshcat=None):
-    """Diagram: UR-10 plant (discrete) <-> MpcController(model). Returns (diagram, plant, controller)."""
-    from stdm_drake.robot import make_plant
+                      meshcat=None, robot: Robot | None = None):
+    """Diagram: the robot's plant (discrete; default robot: the UR-10 preset) <-> MpcController(model).
+    Returns (diagram, plant, controller)."""
+    from stdm_drake.plant import make_plant
     plant_config = plant_config or PlantConfig()
     builder = DiagramBuilder()
-    plant, scene_graph = make_plant(plant_config, builder=builder)
-    controller = builder.AddSystem(MpcController(model, reference, config, plant_config.time_step))
+    plant, scene_graph = make_plant(plant_config, builder=builder, robot=robot)
+    controller = builder.AddSystem(MpcController(model, reference, config, plant_config.time_step, robot))
     controller.set_name("mpc")
     builder.Connect(plant.get_state_output_port(), controller.get_state_input_port())
     builder.Connect(controller.get_torque_output_port(), plant.get_actuation_input_port())
@@ -223,13 +229,13 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
 
 
 def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
-                    duration: float | None = None) -> MpcLog:
+                    duration: float | None = None, robot: Robot | None = None) -> MpcLog:
     """Simulate plant + MPC from rest at the reference's start; returns the controller's log."""
     from pydrake.systems.analysis import Simulator
-    diagram, plant, controller = build_closed_loop(model, reference, config, plant_config)
+    diagram, plant, controller = build_closed_loop(model, reference, config, plant_config, robot=robot)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
-    x0 = np.concatenate([reference.q[0], np.zeros(NUM_JOINTS)])
+    x0 = np.concatenate([reference.q[0], np.zeros(len(reference.q[0]))])
     plant.SetPositionsAndVelocities(plant.GetMyContextFromRoot(context), x0)
     period = model.sample_period
     duration = (len(reference.q) - 1) * period if duration is None else duration

@@ -1,13 +1,13 @@
-"""The UR-10 plant itself as an MPC prediction model: exact steps through the same discrete Drake plant
+"""The robot's plant itself as an MPC prediction model: exact steps through the same discrete Drake plant
 as the simulation, Jacobians by Drake AutoDiff of the continuous dynamics discretized over the period."""
 import numpy as np
 
-from stdm_drake.robot import NUM_JOINTS, STATE_DIM, PlantConfig
-
+from stdm_drake.plant import PlantConfig
+from stdm_drake.robot import UR10, Robot
 
 
 class PlantModel:
-    """The UR-10 plant itself as a prediction model at the control period.
+    """The plant of `robot` (default: the UR-10 preset) as a prediction model at the control period.
 
     step: the same discrete Drake plant as the simulation (plant step h, torque held for the whole
     period), so its predictions are exact. jacobians: Drake AutoDiff linearization of the
@@ -16,11 +16,12 @@ class PlantModel:
 
     name = "plant"
 
-    def __init__(self, sample_period: float, plant_config: PlantConfig | None = None):
-        from stdm_drake.robot import PlantSimulator, make_plant
+    def __init__(self, sample_period: float, plant_config: PlantConfig | None = None, robot: Robot | None = None):
+        from stdm_drake.plant import PlantSimulator, make_plant
+        self.robot = robot or UR10
         self.sample_period = sample_period
-        self.simulation = PlantSimulator(plant_config)
-        continuous, _ = make_plant(PlantConfig(time_step=0.0))
+        self.simulation = PlantSimulator(plant_config, self.robot)
+        continuous, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
         self.autodiff_plant = continuous.ToAutoDiffXd()
         self.autodiff_context = self.autodiff_plant.CreateDefaultContext()
 
@@ -34,16 +35,16 @@ class PlantModel:
 
     def jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
-        horizon = len(x)
-        A = np.empty((horizon, STATE_DIM, STATE_DIM))
-        B = np.empty((horizon, STATE_DIM, NUM_JOINTS))
+        horizon, n = len(x), self.robot.state_dim
+        A = np.empty((horizon, n, n))
+        B = np.empty((horizon, n, self.robot.num_joints))
         for k in range(horizon):
             z = InitializeAutoDiff(np.concatenate([x[k], u[k]])).ravel()
-            self.autodiff_plant.SetPositionsAndVelocities(self.autodiff_context, z[:STATE_DIM])
-            self.autodiff_plant.get_actuation_input_port().FixValue(self.autodiff_context, z[STATE_DIM:])
+            self.autodiff_plant.SetPositionsAndVelocities(self.autodiff_context, z[:n])
+            self.autodiff_plant.get_actuation_input_port().FixValue(self.autodiff_context, z[n:])
             derivatives = self.autodiff_plant.EvalTimeDerivatives(self.autodiff_context).CopyToVector()
             gradient = ExtractGradient(derivatives)
-            A[k], B[k] = zero_order_hold_discretization(gradient[:, :STATE_DIM], gradient[:, STATE_DIM:],
+            A[k], B[k] = zero_order_hold_discretization(gradient[:, :n], gradient[:, n:],
                                                         self.sample_period)
         return A, B
 

@@ -16,6 +16,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--index", type=int, action="append", help="replay these trajectory indices instead")
     parser.add_argument("--html", type=pathlib.Path, help="save the recording as a standalone HTML file")
     parser.add_argument("--meshcat", action="store_true", help="play live in Meshcat (prints the URL)")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="robot config YAML (default: the UR-10 preset); must be the dataset's robot")
 
 
 def run(args) -> int:
@@ -23,10 +25,13 @@ def run(args) -> int:
     from stdm_drake.errors import InputError
     from stdm_drake.closed_loop.learned_system import LearnedModel
     from stdm_drake.learning.predict import rollout
+    from stdm_drake.robot import UR10, load_robot
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
-    model = LearnedModel(args.checkpoint)
+    robot = load_robot(args.robot) if args.robot else UR10
     dataset = load_dataset(args.dataset)
+    robot.check_dataset(dataset)
+    model = LearnedModel(args.checkpoint, robot=robot)
     model.checkpoint.check_fits(dataset)
     if args.index:
         indices = args.index
@@ -34,7 +39,7 @@ def run(args) -> int:
         test = model.checkpoint.split_indices(dataset, "test")
         pool = test if test is not None else list(range(dataset.num_trajectories))[::-1]
         indices = pool[:args.trajectories]
-    recorder = TrajectoryRecorder(dataset.sample_period, ghost=True)
+    recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot)
     if args.meshcat:
         print(f"Meshcat: {recorder.meshcat.web_url()}")
     for index in indices:
@@ -43,7 +48,7 @@ def run(args) -> int:
         traj = dataset.trajectory(index)
         x0 = np.concatenate([traj["q"][0], traj["v"][0]])
         predicted = rollout(model.engine, x0, traj["tau"]).mean
-        ghost_q = np.vstack([traj["q"][:1], predicted[:, :6]])
+        ghost_q = np.vstack([traj["q"][:1], predicted[:, :robot.num_joints]])
         error = np.sqrt(np.mean((ghost_q - traj["q"]) ** 2))
         print(f"trajectory {index}: open-loop RMS joint-angle error over {len(traj['tau'])} steps {error:.4g} rad")
         recorder.add(traj["q_true"], ghost_q, realtime=args.meshcat)

@@ -35,8 +35,8 @@ from stdm_drake.collection.control import (ControllerConfig, JointSensor, Sample
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
-from stdm_drake.robot import (UR10, Dynamics, PlantConfig, PlantSimulator, Robot, SelfCollisionChecker, joint_limits,
-                              load_robot)
+from stdm_drake.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
+from stdm_drake.robot import UR10, Robot, load_robot
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 DEFAULT_CONFIGS = {
