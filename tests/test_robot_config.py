@@ -100,17 +100,24 @@ def test_bad_robot_configs_are_one_line_errors(tmp_path, urdf, config, message):
     assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
 
 
+def collect_two_link(folder, num_steps: int):
+    """Collect 6 excitation trajectories of the 2-joint arm; returns (robot config path, dataset path)."""
+    from stdm_drake.cli import main
+    robot = write_robot(folder, two_link_urdf(), GOOD)
+    excitation = folder / "excitation.yaml"
+    excitation.write_text(f"num_steps: {num_steps}\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"
+                          "initial_position_lower: [-1.0, -1.5]\ninitial_position_upper: [1.0, 1.5]\n")
+    data = folder / "data.h5"
+    assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--config", str(excitation),
+                 "--count", "6", "--workers", "1", "--quiet", "-o", str(data)]) == 0
+    return robot, data
+
+
 def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     """The 2-joint arm through the excitation protocol, training and evaluation, with no code change."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
-    robot = write_robot(tmp_path, two_link_urdf(), GOOD)
-    excitation = tmp_path / "excitation.yaml"
-    excitation.write_text("num_steps: 30\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"
-                          "initial_position_lower: [-1.0, -1.5]\ninitial_position_upper: [1.0, 1.5]\n")
-    data = tmp_path / "data.h5"
-    assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--config", str(excitation),
-                 "--count", "6", "--workers", "1", "--quiet", "-o", str(data)]) == 0
+    _, data = collect_two_link(tmp_path, 30)
     dataset = load_dataset(data)
     assert dataset.trajectory(0)["q"].shape == (31, 2) and dataset.trajectory(0)["tau"].shape == (30, 2)
     assert dataset.metadata["robot"]["name"] == "two_link"
@@ -156,13 +163,7 @@ def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     one-value MPC weights; the UR-10 default refuses its dataset."""
     import json
     from stdm_drake.cli import main
-    robot = write_robot(tmp_path, two_link_urdf(), GOOD)
-    excitation = tmp_path / "excitation.yaml"
-    excitation.write_text("num_steps: 20\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"
-                          "initial_position_lower: [-1.0, -1.5]\ninitial_position_upper: [1.0, 1.5]\n")
-    data = tmp_path / "data.h5"
-    assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--config", str(excitation),
-                 "--count", "6", "--workers", "1", "--quiet", "-o", str(data)]) == 0
+    robot, data = collect_two_link(tmp_path, 20)
     assert main(["train", str(data), "--model", "D", "--epochs", "5", "--train", "4", "--val", "1", "--quiet",
                  "-o", str(tmp_path / "d")]) == 0
     checkpoint = str(tmp_path / "d" / "seed0" / "checkpoint.pt")
