@@ -6,6 +6,7 @@ wrist_1, wrist_2, wrist_3): state x = [q (n) rad, v (n) rad/s]; action = joint t
 """
 import dataclasses
 import hashlib
+import logging
 import math
 import os
 import pathlib
@@ -24,6 +25,7 @@ from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.paths import MODELS_DIR  # noqa: E402
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
+logger = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
@@ -94,6 +96,51 @@ class Robot:
                 raise InputError(f"robot {config.name}: package {name!r} folder not found: {path}")
         self.file_limits = _joint_limits_in_file(self.model_path)
 
+    def _mesh_path(self, uri: str) -> pathlib.Path | None:
+        """The file a mesh reference names (package://, file:// or relative to the model), or None for a
+        package this config does not map (Drake reports those itself)."""
+        if uri.startswith("package://"):
+            package, _, rest = uri[len("package://"):].partition("/")
+            return self.package_paths[package] / rest if package in self.package_paths else None
+        path = pathlib.Path(uri[len("file://"):] if uri.startswith("file://") else uri)
+        return path if path.is_absolute() else self.model_path.parent / path
+
+    def _without_missing_visual_meshes(self) -> tuple[str | None, list[str]]:
+        """(the model text without the visuals whose mesh file is missing, with relative mesh paths made
+        absolute; the missing files), or (None, []) when every visual mesh exists. A missing collision
+        mesh is an InputError: the dynamics and the self-collision check need it."""
+        import xml.etree.ElementTree as ElementTree
+        try:
+            tree = ElementTree.parse(self.model_path)
+        except ElementTree.ParseError:
+            return None, []  # Drake's parser gives the precise error
+        root = tree.getroot()
+        parents = {child: parent for parent in root.iter() for child in parent}
+        missing, references, dropped = [], [], []
+        for element in [element for element in root.iter() if element.tag in ("visual", "collision")]:
+            for mesh in element.iter("mesh"):
+                uri_element = mesh.find("uri")
+                uri = mesh.get("filename") if uri_element is None else (uri_element.text or "").strip()
+                path = self._mesh_path(uri) if uri else None
+                if path is None:
+                    continue
+                references.append((mesh, uri_element, path))
+                if not path.is_file():
+                    if element.tag == "collision":
+                        raise InputError(f"robot {self.name}: collision mesh {uri!r} not found ({path})")
+                    missing += [uri] if uri not in missing else []
+                    dropped += [element] if element not in dropped else []
+        if not missing:
+            return None, []
+        for element in dropped:
+            parents[element].remove(element)
+        for mesh, uri_element, path in references:
+            if uri_element is None:
+                mesh.set("filename", str(path))
+            else:
+                uri_element.text = str(path)
+        return ElementTree.tostring(root, encoding="unicode"), missing
+
     def _resolve(self, path: str) -> pathlib.Path:
         path = pathlib.Path(path)
         return path if path.is_absolute() else self.folder / path
@@ -146,8 +193,12 @@ class Robot:
         parser = offline_parser(plant, model_name_prefix)
         for name, path in self.package_paths.items():
             parser.package_map().Add(name, str(path))
+        text, missing = self._without_missing_visual_meshes()
+        if missing:
+            logger.warning("robot %s: visual meshes not found, loaded without them: %s", self.name, ", ".join(missing))
         try:
-            instances = parser.AddModels(str(self.model_path))
+            instances = (parser.AddModels(str(self.model_path)) if text is None
+                         else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))
         except RuntimeError as error:
             raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}") from None
         if len(instances) != 1:
@@ -268,3 +319,12 @@ def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser
 
 
 UR10 = load_robot()  # the default robot of every command
+
+
+def robot_for(path, dataset=None) -> Robot:
+    """The robot a command's `--robot PATH` names (None: the UR-10 preset); with `dataset`, InputError
+    unless the dataset was collected with it."""
+    robot = load_robot(path) if path is not None else UR10
+    if dataset is not None:
+        robot.check_dataset(dataset)
+    return robot

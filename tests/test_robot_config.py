@@ -117,14 +117,19 @@ def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     """The 2-joint arm through the excitation protocol, training and evaluation, with no code change."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
-    _, data = collect_two_link(tmp_path, 30)
+    robot, data = collect_two_link(tmp_path, 30)
     dataset = load_dataset(data)
     assert dataset.trajectory(0)["q"].shape == (31, 2) and dataset.trajectory(0)["tau"].shape == (30, 2)
     assert dataset.metadata["robot"]["name"] == "two_link"
     assert dataset.metadata["joint_names"] == ["shoulder", "elbow"]
     assert dataset.metadata["excitation"]["offset_max"] == [1.0, 1.0]          # one value for both joints
-    assert main(["inspect", str(data)]) == 0
+    assert main(["inspect", str(data), "--robot", str(robot)]) == 0
     assert "shoulder" in capsys.readouterr().out
+    from stdm_drake.robot import UR10_CONFIG
+    for command in (["inspect", str(data)], ["train", str(data), "-o", str(tmp_path / "x")]):
+        assert main(command + ["--robot", str(UR10_CONFIG)]) == 2          # --robot checks the dataset's robot
+        assert "collected with robot two_link" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
     assert main(["train", str(data), "--model", "DD", "--epochs", "3", "--train", "4", "--val", "1", "--quiet",
                  "-o", str(tmp_path / "dd")]) == 0
     assert main(["evaluate", str(tmp_path / "dd" / "seed0" / "checkpoint.pt"), str(data), "--horizon", "10"]) == 0
@@ -181,3 +186,23 @@ def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     assert main(["mpc", str(data), "--model", f"D={checkpoint}", "--plans", "1", "--quiet",
                  "-o", str(tmp_path / "mpc_ur10")]) == 2
     assert "collected with robot two_link" in capsys.readouterr().err
+
+
+def test_missing_visual_meshes_warn_and_the_dynamics_load(tmp_path, caplog):
+    """A visual mesh that is not there is left out with a warning (the plant, its scene graph and a
+    Meshcat recording still build); a missing collision mesh is a one-line error."""
+    from stdm_drake.collection.recorder import TrajectoryRecorder
+    from pydrake.systems.framework import DiagramBuilder
+    cylinder = '<cylinder radius="0.04" length="0.3"/>'
+    text = two_link_urdf().replace(cylinder, '<mesh filename="meshes/upper.obj"/>', 2)
+    robot = load_robot(write_robot(tmp_path, text, GOOD))
+    with caplog.at_level("WARNING"):
+        plant, scene_graph = make_plant(PlantConfig(), builder=DiagramBuilder(), robot=robot)
+    assert plant.num_positions() == 2 and scene_graph is not None
+    assert "visual meshes not found, loaded without them: meshes/upper.obj" in caplog.text
+    recorder = TrajectoryRecorder(0.01, robot=robot)
+    recorder.add(np.zeros((3, 2)))
+    collision = text.replace("</visual>", "</visual><collision><geometry><mesh filename=\"meshes/c.obj\"/>"
+                             "</geometry></collision>", 1)
+    with pytest.raises(InputError, match="collision mesh 'meshes/c.obj' not found"):
+        make_plant(PlantConfig(), builder=DiagramBuilder(), robot=load_robot(write_robot(tmp_path, collision, GOOD)))

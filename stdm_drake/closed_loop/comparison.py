@@ -189,12 +189,11 @@ def run(args) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.files import write_text_atomic
     from stdm_drake.closed_loop.learned_system import LearnedModel
-    from stdm_drake.robot import UR10, load_robot
+    from stdm_drake.robot import robot_for
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     config = load_mpc_config(args.config)
-    robot = load_robot(args.robot) if args.robot else UR10
     dataset = load_dataset(args.dataset)
-    robot.check_dataset(dataset)
+    robot = robot_for(args.robot, dataset)
     learned = []
     for entry in args.model:
         name, separator, path = entry.partition("=")

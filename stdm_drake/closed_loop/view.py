@@ -25,12 +25,11 @@ def run(args) -> int:
     from stdm_drake.errors import InputError
     from stdm_drake.closed_loop.learned_system import LearnedModel
     from stdm_drake.learning.predict import rollout
-    from stdm_drake.robot import UR10, load_robot
+    from stdm_drake.robot import robot_for
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
-    robot = load_robot(args.robot) if args.robot else UR10
     dataset = load_dataset(args.dataset)
-    robot.check_dataset(dataset)
+    robot = robot_for(args.robot, dataset)
     model = LearnedModel(args.checkpoint, robot=robot)
     model.checkpoint.check_fits(dataset)
     if args.index:

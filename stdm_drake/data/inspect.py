@@ -89,8 +89,14 @@ def summary(dataset: Dataset) -> str:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", type=pathlib.Path, help="dataset file (.h5) written by `stdm-drake collect`")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="robot config YAML: refuse a dataset collected with another robot (default: no check)")
 
 
 def run(args: argparse.Namespace) -> int:
-    print(summary(load_dataset(args.dataset)))
+    dataset = load_dataset(args.dataset)
+    if args.robot is not None:
+        from stdm_drake.robot import robot_for
+        robot_for(args.robot, dataset)
+    print(summary(dataset))
     return 0

@@ -126,6 +126,8 @@ def trajectory_rollout_data(dataset, indices, horizon: int | None = None):
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=pathlib.Path, help="model checkpoint written by `stdm-drake train`")
     parser.add_argument("dataset", type=pathlib.Path, help="dataset file (.h5)")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="robot config YAML: refuse a dataset collected with another robot (default: no check)")
     parser.add_argument("--split", choices=("test", "val", "train", "all"), default="test",
                         help="trajectories to evaluate: the checkpoint's split of this dataset, or all (default test)")
     parser.add_argument("--horizon", type=int, default=100, help="multi-step horizon in steps (default 100)")
@@ -141,6 +143,9 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.learning.checkpoint import load_checkpoint
 
     dataset = load_dataset(args.dataset)
+    if args.robot is not None:
+        from stdm_drake.robot import robot_for
+        robot_for(args.robot, dataset)
     checkpoint = load_checkpoint(args.checkpoint)
     checkpoint.check_fits(dataset)
     trained_on_this = checkpoint.trained_on(dataset)

@@ -41,6 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", type=pathlib.Path, help="dataset file written by `stdm-drake collect` (.h5)")
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
                         help="output folder: seed<N>/checkpoint.pt, seed<N>/curves.csv, summary.json")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="robot config YAML: refuse a dataset collected with another robot (default: no check)")
     parser.add_argument("--config", type=pathlib.Path,
                         help="training settings YAML (TrainSettings: keys as the flags below with '_' for '-'); "
                              "flags given on the command line override it")
@@ -242,6 +244,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {args.model} trains without "
                          "it (use DD, PD, DED or PED, or --derivative on)")
     dataset = load_dataset(args.dataset)
+    if args.robot is not None:
+        from stdm_drake.robot import robot_for
+        robot_for(args.robot, dataset)
     per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"
     pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
     n_train, n_val, n_test = default_split_sizes(pool, args.train, args.val, args.test)
