@@ -206,3 +206,21 @@ def test_missing_visual_meshes_warn_and_the_dynamics_load(tmp_path, caplog):
                              "</geometry></collision>", 1)
     with pytest.raises(InputError, match="collision mesh 'meshes/c.obj' not found"):
         make_plant(PlantConfig(), builder=DiagramBuilder(), robot=load_robot(write_robot(tmp_path, collision, GOOD)))
+
+
+def test_excitation_ranges_are_derived_for_a_robot_without_an_excitation_file(tmp_path):
+    """Without --config, another robot's excitation ranges follow the UR-10's rule (0.5 rad/s^2 times the
+    effective inertia at home; start poses home +-0.5 rad inside the limits); the data stay in limits."""
+    from stdm_drake.cli import main
+    from stdm_drake.data.dataset import load_dataset
+    robot = write_robot(tmp_path, two_link_urdf(), GOOD)
+    data = tmp_path / "data.h5"
+    assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--count", "3", "--workers", "1",
+                 "--quiet", "-o", str(data)]) == 0
+    excitation = load_dataset(data).metadata["excitation"]
+    assert excitation["initial_position_lower"] == pytest.approx([-0.2, -1.1])
+    assert excitation["initial_position_upper"] == pytest.approx([0.8, -0.1])
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=load_robot(robot))
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, np.array([0.3, -0.6]))
+    np.testing.assert_allclose(excitation["amplitude_max"], 0.5 * np.diag(plant.CalcMassMatrix(context)))

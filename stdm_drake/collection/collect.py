@@ -89,6 +89,22 @@ class ExcitationConfig:
         if self.num_steps < 2 or self.max_attempts < 1:
             raise InputError("excitation num_steps must be >= 2 and max_attempts >= 1")
 
+    @classmethod
+    def derived_for(cls, robot: Robot, acceleration: float = 0.5, box: float = 0.5) -> "ExcitationConfig":
+        """Default ranges for a robot without an excitation file, by the rule behind the UR-10's:
+        amplitude and offset limits `acceleration` (rad/s^2) times each joint's effective inertia
+        M_ii at the home pose (N m), start poses in a box of +-`box` rad around home, kept 0.05 rad
+        inside the position limits."""
+        dynamics = Dynamics(robot)
+        context = dynamics.plant.CreateDefaultContext()
+        dynamics.plant.SetPositions(context, robot.home)
+        torque = acceleration * np.diag(dynamics.plant.CalcMassMatrix(context))
+        limits = joint_limits(dynamics.plant)
+        lower = np.maximum(robot.home - box, limits.position_lower + 0.05)
+        upper = np.minimum(robot.home + box, limits.position_upper - 0.05)
+        return cls(amplitude_max=torque.tolist(), offset_max=torque.tolist(), initial_position_lower=lower.tolist(),
+                   initial_position_upper=upper.tolist())
+
     def for_robot(self, robot: Robot) -> "ExcitationConfig":
         """This config with every per-joint list of the robot's length (one value broadcast);
         InputError when a list has another length."""
@@ -423,7 +439,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--protocol", choices=tuple(DEFAULT_CONFIGS), default="tracking",
                         help="data protocol (default: tracking)")
     parser.add_argument("--config", type=pathlib.Path,
-                        help="protocol YAML (default: trajectories/excitation.yaml or trajectories/tracking.yaml)")
+                        help="protocol YAML (default: trajectories/excitation.yaml or trajectories/tracking.yaml; "
+                             "for another robot's excitation: ranges derived from its inertia, see README)")
     parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
                         help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml)")
     parser.add_argument("--sensor", type=pathlib.Path,
@@ -470,6 +487,9 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     request = CollectionRequest(protocol=protocol, count=count or PAPER_COUNTS[protocol], seed=seed,
                                 settings=settings, workers=workers)
     if protocol == "excitation":
+        if config is None and robot is not UR10:  # trajectories/excitation.yaml is written for the UR-10
+            request.excitation = ExcitationConfig.derived_for(robot)
+            return request
         excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
         try:
             request.excitation = excitation.for_robot(robot)
