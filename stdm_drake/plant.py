@@ -57,8 +57,8 @@ class PlantSimulator:
     """The plant diagram (plant + scene graph, actuation exported as the input port "actuation") and a
     Simulator, stepped by holding a torque: used by data collection and by the plant-as-model MPC.
 
-    `start(x, tau)` resets to a fresh default context at t = 0 with state x = [q, v] (12,) and the held
-    torque tau (6,) N m, so what follows depends only on its own inputs."""
+    `start(x, tau)` resets to a fresh default context at t = 0 with state x = [q, v] (2n,) and the held
+    torque tau (n,) N m, so what follows depends only on its own inputs."""
 
     def __init__(self, plant_config: PlantConfig | None = None, robot: Robot | None = None):
         from pydrake.systems.analysis import Simulator
@@ -70,13 +70,14 @@ class PlantSimulator:
         self.simulator = Simulator(self.diagram)
         self.context = self.simulator.get_mutable_context()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)
+        self._actuation = self.diagram.GetInputPort("actuation")
 
     def get_actuation_input_port(self):
-        """The diagram's input port "actuation": joint torques (6,) N m."""
-        return self.diagram.GetInputPort("actuation")
+        """The diagram's input port "actuation": joint torques (n,) N m."""
+        return self._actuation
 
     def start(self, x: np.ndarray, tau: np.ndarray) -> None:
-        """Reset to t = 0 with state x (12,) and torque tau (6,) N m held."""
+        """Reset to t = 0 with state x (2n,) and torque tau (n,) N m held."""
         self.diagram.SetDefaultContext(self.context)
         self.context.SetTime(0.0)
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
@@ -84,11 +85,11 @@ class PlantSimulator:
         self.simulator.Initialize()
 
     def hold(self, tau: np.ndarray) -> None:
-        """Hold the joint torques tau (6,) N m from now on."""
-        self.get_actuation_input_port().FixValue(self.context, tau)
+        """Hold the joint torques tau (n,) N m from now on."""
+        self._actuation.FixValue(self.context, tau)
 
     def advance_to(self, time: float) -> np.ndarray:
-        """Simulate to `time` s and return the state [q, v] (12,)."""
+        """Simulate to `time` s and return the state [q, v] (2n,)."""
         self.simulator.AdvanceTo(time)
         return self.plant.GetPositionsAndVelocities(self.plant_context)
 
@@ -104,7 +105,7 @@ def _filter_self_collisions(plant, scene_graph, instance):
 
 @dataclasses.dataclass(frozen=True)
 class JointLimits:
-    """Limits read back from the plant, each (6,): position rad, velocity rad/s, effort N m."""
+    """Limits read back from the plant, each (n,): position rad, velocity rad/s, effort N m."""
     position_lower: np.ndarray
     position_upper: np.ndarray
     velocity: np.ndarray
@@ -132,7 +133,7 @@ class Dynamics:
         self.context = self.plant.CreateDefaultContext()
 
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
-        """Torque (6,) N m that holds the arm still at q."""
+        """Torque (n,) N m that holds the arm still at q."""
         self.plant.SetPositions(self.context, q)
         return -self.plant.CalcGravityGeneralizedForces(self.context)
 
