@@ -16,7 +16,7 @@ from stdm_drake.robot import UR10, Robot  # noqa: E402
 
 @dataclasses.dataclass
 class PlantConfig:
-    """How the UR-10 plant is simulated.
+    """How the robot's plant is simulated.
 
     time_step: discrete plant step (s); 0 gives a continuous-time plant.
     discrete_contact_approximation: Drake's discrete solver ("tamsi", "sap", "lagged", "similar").

@@ -143,7 +143,11 @@ class Robot:
 
     def _resolve(self, path: str) -> pathlib.Path:
         path = pathlib.Path(path)
-        return path if path.is_absolute() else self.folder / path
+        return (path if path.is_absolute() else self.folder / path).resolve()
+
+    def same_as(self, other: "Robot") -> bool:
+        """Whether `other` describes the same robot: equal configs and the same model file."""
+        return self.config == other.config and self.model_path == other.model_path
 
     @property
     def name(self) -> str:

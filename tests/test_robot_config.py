@@ -224,3 +224,17 @@ def test_excitation_ranges_are_derived_for_a_robot_without_an_excitation_file(tm
     context = plant.CreateDefaultContext()
     plant.SetPositions(context, np.array([0.3, -0.6]))
     np.testing.assert_allclose(excitation["amplitude_max"], 0.5 * np.diag(plant.CalcMassMatrix(context)))
+
+
+def test_the_ur10_preset_named_with_robot_collects_the_default_data(tmp_path):
+    """`--robot models/ur10.yaml` is the default robot: the same excitation file and the same data."""
+    from stdm_drake.cli import main
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.robot import UR10_CONFIG
+    paths = [tmp_path / "default.h5", tmp_path / "named.h5"]
+    for path, extra in zip(paths, ([], ["--robot", str(UR10_CONFIG)])):
+        assert main(["collect", "--protocol", "excitation", "--count", "2", "--seed", "7", "--workers", "1",
+                     "--quiet", "-o", str(path), *extra]) == 0
+    default, named = (load_dataset(path) for path in paths)
+    assert named.metadata["excitation"] == default.metadata["excitation"]
+    np.testing.assert_array_equal(named.trajectory(1)["tau"], default.trajectory(1)["tau"])

@@ -487,7 +487,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     request = CollectionRequest(protocol=protocol, count=count or PAPER_COUNTS[protocol], seed=seed,
                                 settings=settings, workers=workers)
     if protocol == "excitation":
-        if config is None and robot is not UR10:  # trajectories/excitation.yaml is written for the UR-10
+        if config is None and not robot.same_as(UR10):  # trajectories/excitation.yaml is written for the UR-10
             request.excitation = ExcitationConfig.derived_for(robot)
             return request
         excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
