@@ -95,6 +95,10 @@ class Robot:
             if not path.is_dir():
                 raise InputError(f"robot {config.name}: package {name!r} folder not found: {path}")
         self.file_limits = _joint_limits_in_file(self.model_path)
+        # the model text to parse when visual meshes are missing (None: the file itself), read once
+        self._model_text, missing = self._without_missing_visual_meshes()
+        if missing:
+            logger.warning("robot %s: visual meshes not found, loaded without them: %s", self.name, ", ".join(missing))
 
     def _mesh_path(self, uri: str) -> pathlib.Path | None:
         """The file a mesh reference names (package://, file:// or relative to the model), or None for a
@@ -197,9 +201,7 @@ class Robot:
         parser = offline_parser(plant, model_name_prefix)
         for name, path in self.package_paths.items():
             parser.package_map().Add(name, str(path))
-        text, missing = self._without_missing_visual_meshes()
-        if missing:
-            logger.warning("robot %s: visual meshes not found, loaded without them: %s", self.name, ", ".join(missing))
+        text = self._model_text
         try:
             instances = (parser.AddModels(str(self.model_path)) if text is None
                          else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))

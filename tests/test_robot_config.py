@@ -195,8 +195,8 @@ def test_missing_visual_meshes_warn_and_the_dynamics_load(tmp_path, caplog):
     from pydrake.systems.framework import DiagramBuilder
     cylinder = '<cylinder radius="0.04" length="0.3"/>'
     text = two_link_urdf().replace(cylinder, '<mesh filename="meshes/upper.obj"/>', 2)
-    robot = load_robot(write_robot(tmp_path, text, GOOD))
     with caplog.at_level("WARNING"):
+        robot = load_robot(write_robot(tmp_path, text, GOOD))
         plant, scene_graph = make_plant(PlantConfig(), builder=DiagramBuilder(), robot=robot)
     assert plant.num_positions() == 2 and scene_graph is not None
     assert "visual meshes not found, loaded without them: meshes/upper.obj" in caplog.text
@@ -205,7 +205,7 @@ def test_missing_visual_meshes_warn_and_the_dynamics_load(tmp_path, caplog):
     collision = text.replace("</visual>", "</visual><collision><geometry><mesh filename=\"meshes/c.obj\"/>"
                              "</geometry></collision>", 1)
     with pytest.raises(InputError, match="collision mesh 'meshes/c.obj' not found"):
-        make_plant(PlantConfig(), builder=DiagramBuilder(), robot=load_robot(write_robot(tmp_path, collision, GOOD)))
+        load_robot(write_robot(tmp_path, collision, GOOD))
 
 
 def test_excitation_ranges_are_derived_for_a_robot_without_an_excitation_file(tmp_path):
