@@ -58,7 +58,7 @@ class PlantSimulator:
     Simulator, stepped by holding a torque: used by data collection and by the plant-as-model MPC.
 
     `start(x, tau)` resets to a fresh default context at t = 0 with state x = [q, v] (2n,) and the held
-    torque tau (n,) N m, so what follows depends only on its own inputs."""
+    action tau (m,) N m (one torque per actuated joint), so what follows depends only on its own inputs."""
 
     def __init__(self, plant_config: PlantConfig | None = None, robot: Robot | None = None):
         from pydrake.systems.analysis import Simulator
@@ -73,11 +73,11 @@ class PlantSimulator:
         self._actuation = self.diagram.GetInputPort("actuation")
 
     def get_actuation_input_port(self):
-        """The diagram's input port "actuation": joint torques (n,) N m."""
+        """The diagram's input port "actuation": torques (m,) N m of the actuated joints."""
         return self._actuation
 
     def start(self, x: np.ndarray, tau: np.ndarray) -> None:
-        """Reset to t = 0 with state x (2n,) and torque tau (n,) N m held."""
+        """Reset to t = 0 with state x (2n,) and the action tau (m,) N m held."""
         self.diagram.SetDefaultContext(self.context)
         self.context.SetTime(0.0)
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
@@ -85,7 +85,7 @@ class PlantSimulator:
         self.simulator.Initialize()
 
     def hold(self, tau: np.ndarray) -> None:
-        """Hold the joint torques tau (n,) N m from now on."""
+        """Hold the action tau (m,) N m from now on."""
         self._actuation.FixValue(self.context, tau)
 
     def advance_to(self, time: float) -> np.ndarray:
@@ -105,7 +105,8 @@ def _filter_self_collisions(plant, scene_graph, instance):
 
 @dataclasses.dataclass(frozen=True)
 class JointLimits:
-    """Limits read back from the plant, each (n,): position rad, velocity rad/s, effort N m."""
+    """Limits read back from the plant: position rad and velocity rad/s (n,), effort N m of each actuated
+    joint (m,)."""
     position_lower: np.ndarray
     position_upper: np.ndarray
     velocity: np.ndarray
@@ -124,23 +125,38 @@ def joint_limits(plant: MultibodyPlant) -> JointLimits:
 class Dynamics:
     """Continuous-time rigid-body dynamics of `robot` (default: the UR-10; a bare plant of its own).
 
-    acceleration(q, v, tau) = M(q)^-1 (tau + tau_g(q) - C(q, v) v), all (n,) arrays for n joints.
+    acceleration(q, v, tau) = M(q)^-1 (B tau + tau_g(q) - C(q, v) v) for q, v (n,) and the action tau
+    (m,) N m of the m actuated joints; B places each torque on its joint (B = I when m = n).
     """
 
     def __init__(self, robot: Robot | None = None):
         self.robot = robot or UR10
         self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
+        self._actuated = None if self.robot.fully_actuated else self.robot.actuated_indices
 
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
-        """Torque (n,) N m that holds the arm still at q."""
+        """Torque (n,) N m on every joint that holds the arm still at q."""
         self.plant.SetPositions(self.context, q)
         return -self.plant.CalcGravityGeneralizedForces(self.context)
+
+    def actuated_gravity_torque(self, q: np.ndarray) -> np.ndarray:
+        """The actuated joints' part (m,) N m of gravity_torque(q) (all of it for a fully actuated arm)."""
+        torque = self.gravity_torque(q)
+        return torque if self._actuated is None else torque[self._actuated]
+
+    def generalized_force(self, tau: np.ndarray) -> np.ndarray:
+        """The joint torques (n,) N m of an action tau (m,): zero on the unactuated joints."""
+        if self._actuated is None:
+            return tau
+        force = np.zeros(self.robot.num_joints)
+        force[self._actuated] = tau
+        return force
 
     def acceleration(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         plant, context = self.plant, self.context
         plant.SetPositionsAndVelocities(context, np.concatenate([q, v]))
-        rhs = tau + plant.CalcGravityGeneralizedForces(context) - plant.CalcBiasTerm(context)
+        rhs = self.generalized_force(tau) + plant.CalcGravityGeneralizedForces(context) - plant.CalcBiasTerm(context)
         return np.linalg.solve(plant.CalcMassMatrix(context), rhs)
 
 

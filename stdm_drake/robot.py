@@ -2,7 +2,9 @@
 itself to a Drake MultibodyPlant, and the offline parser. Plants and simulators: `stdm_drake.plant`.
 
 For a robot of n arm joints (in its config's order; the UR-10: shoulder_pan, shoulder_lift, elbow,
-wrist_1, wrist_2, wrist_3): state x = [q (n) rad, v (n) rad/s]; action = joint torques (n) N m.
+wrist_1, wrist_2, wrist_3): state x = [q (n) rad, v (n) rad/s]; action = the torques (m) N m of its
+m actuated arm joints, in the same order (m = n unless the config lists unactuated joints, like the
+Acrobot's shoulder).
 """
 import dataclasses
 import hashlib
@@ -25,6 +27,7 @@ from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.paths import MODELS_DIR  # noqa: E402
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
+POSE_DIM = 6  # coordinates a tool pose fixes: rotation (3) and position (3)
 logger = logging.getLogger(__name__)
 
 
@@ -40,8 +43,12 @@ class RobotConfig:
     the position (rad or m) it is welded at (fingers, say). effort_limits (N m or N) and
     velocity_limits (rad/s or m/s): per arm joint, for joints whose file gives none (or to replace
     the file's); an arm joint without an actuator gets one with its effort limit (from the file's
-    <limit effort=...>, else from effort_limits). home: one position per arm joint (rad or m), a
-    configuration well inside the limits. tool_frame: the frame task-space plans move.
+    <limit effort=...>, else from effort_limits). unactuated_joints: arm joints that move freely with
+    no actuator (an underactuated robot such as the Acrobot; an actuator the file gives them is
+    removed): the action then has one torque per actuated arm joint, and tracking and MPC refuse the
+    robot. home: one position per arm joint (rad or m), a configuration well inside the limits.
+    tool_frame: the frame task-space plans move. Position limits come from the file; only a URDF
+    "continuous" joint may have none.
     """
     name: str = ""
     model: str = ""
@@ -51,6 +58,7 @@ class RobotConfig:
     locked_joints: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
     effort_limits: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
     velocity_limits: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
+    unactuated_joints: typing.List[str] = dataclasses.field(default_factory=list)
     home: typing.List[float] = dataclasses.field(default_factory=list)
     tool_frame: str = ""
 
@@ -63,6 +71,11 @@ class RobotConfig:
         if len(self.home) != len(self.arm_joints) or not all(math.isfinite(value) for value in self.home):
             raise InputError(f"robot config home must give {len(self.arm_joints)} finite positions (one per arm "
                              f"joint), got {self.home}")
+        unknown = [joint for joint in self.unactuated_joints if joint not in self.arm_joints]
+        if unknown or len(set(self.unactuated_joints)) != len(self.unactuated_joints):
+            raise InputError(f"robot config unactuated_joints must list distinct arm joints, got {self.unactuated_joints}")
+        if len(self.unactuated_joints) == len(self.arm_joints):
+            raise InputError("robot config: every arm joint is unactuated; the robot needs at least one actuator")
         overlap = set(self.locked_joints) & set(self.arm_joints)
         if overlap:
             raise InputError(f"robot config: joints {sorted(overlap)} are both arm joints and locked")
@@ -85,16 +98,16 @@ class Robot:
         config.validate()
         self.config = config
         self.folder = pathlib.Path(folder)
-        self.model_path = self._resolve(config.model)
-        if not self.model_path.is_file():
-            raise InputError(f"robot {config.name}: model file not found: {self.model_path}")
-        if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
-            raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
         self.package_paths = {name: self._resolve(path) for name, path in config.package_paths.items()}
         for name, path in self.package_paths.items():
             if not path.is_dir():
                 raise InputError(f"robot {config.name}: package {name!r} folder not found: {path}")
-        self.file_limits = _joint_limits_in_file(self.model_path)
+        self.model_path = self._model_file(config.model)
+        if not self.model_path.is_file():
+            raise InputError(f"robot {config.name}: model file not found: {self.model_path}")
+        if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
+            raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
+        self.file_limits, self.continuous_joints = _joint_limits_in_file(self.model_path)
         # the model text to parse when visual meshes are missing (None: the file itself), read once
         self._model_text, missing = self._without_missing_visual_meshes()
         if missing:
@@ -145,6 +158,20 @@ class Robot:
                 uri_element.text = str(path)
         return ElementTree.tostring(root, encoding="unicode"), missing
 
+    def _model_file(self, model: str) -> pathlib.Path:
+        """The model file: a path (relative to the config's folder), or package://NAME/PATH in one of
+        package_paths or a package Drake ships locally (package://drake/examples/acrobot/Acrobot.urdf)."""
+        if not model.startswith("package://"):
+            return self._resolve(model)
+        package, _, rest = model[len("package://"):].partition("/")
+        if package in self.package_paths:
+            return self.package_paths[package] / rest
+        package_map = offline_parser(MultibodyPlant(0.0)).package_map()
+        if not package_map.Contains(package):
+            raise InputError(f"robot {self.config.name}: model {model!r}: unknown package {package!r}; map it under "
+                             "package_paths")
+        return pathlib.Path(package_map.GetPath(package)) / rest
+
     def _resolve(self, path: str) -> pathlib.Path:
         path = pathlib.Path(path)
         return (path if path.is_absolute() else self.folder / path).resolve()
@@ -166,6 +193,32 @@ class Robot:
         return len(self.config.arm_joints)
 
     @property
+    def actuated_joint_names(self) -> tuple:
+        """The arm joints with an actuator, in arm order: one torque each in the action."""
+        return tuple(name for name in self.config.arm_joints if name not in self.config.unactuated_joints)
+
+    @property
+    def actuated_indices(self) -> np.ndarray:
+        """Positions (m,) of the actuated joints among the arm joints."""
+        return np.array([j for j, name in enumerate(self.config.arm_joints) if name not in self.config.unactuated_joints])
+
+    @property
+    def action_dim(self) -> int:
+        """Size of the action: torques of the actuated arm joints."""
+        return len(self.config.arm_joints) - len(self.config.unactuated_joints)
+
+    @property
+    def fully_actuated(self) -> bool:
+        return not self.config.unactuated_joints
+
+    def check_fully_actuated(self, what: str) -> None:
+        """InputError unless every arm joint has an actuator; `what` names what needs it."""
+        if not self.fully_actuated:
+            raise InputError(f"robot {self.name} is underactuated ({', '.join(self.config.unactuated_joints)} without an "
+                             f"actuator): {what} needs a torque on every joint; use the excitation protocol, train and "
+                             "evaluate")
+
+    @property
     def state_dim(self) -> int:
         """Size of the state x = [q, v]."""
         return 2 * len(self.config.arm_joints)
@@ -177,6 +230,14 @@ class Robot:
     @property
     def tool_frame(self) -> str:
         return self.config.tool_frame
+
+    def check_can_track(self) -> None:
+        """InputError unless the robot can follow task-space plans with joint torques: at least 6 arm
+        joints (a tool pose has 6 coordinates), every one of them actuated."""
+        self.check_fully_actuated("tracking task-space plans")
+        if self.num_joints < POSE_DIM:
+            raise InputError(f"robot {self.name} has {self.num_joints} arm joints; task-space plans place the tool's "
+                             f"position and orientation and need at least {POSE_DIM}: use the excitation protocol")
 
     def check_dataset(self, dataset) -> None:
         """InputError unless `dataset` (a loaded Dataset) was collected with this robot (same joints and
@@ -220,19 +281,35 @@ class Robot:
                 raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")
         for name, position in config.locked_joints.items():
             _weld_joint_at(plant, plant.GetJointByName(name, instance), position)
-        actuated = {plant.get_joint_actuator(index).joint().name() for index in plant.GetJointActuatorIndices()
-                    if plant.get_joint_actuator(index).model_instance() == instance}
+        actuators = {plant.get_joint_actuator(index).joint().name(): plant.get_joint_actuator(index)
+                     for index in plant.GetJointActuatorIndices()
+                     if plant.get_joint_actuator(index).model_instance() == instance}
+        efforts = {}  # actuated arm joint -> effort limit
         for name in config.arm_joints:
             joint = plant.GetJointByName(name, instance)
             if joint.num_velocities() != 1:
                 raise InputError(f"robot {self.name}: arm joint {name!r} has {joint.num_velocities()} degrees of "
                                  "freedom; arm joints must be revolute or prismatic")
-            if name not in actuated:
-                effort = config.effort_limits.get(name, self.file_limits.get(name, {}).get("effort"))
-                if effort is None or not effort > 0:
-                    raise InputError(f"robot {self.name}: arm joint {name!r} has no actuator and no effort limit; "
-                                     "give effort_limits in the robot config")
-                plant.AddJointActuator(f"{name}_actuator", joint, effort)
+            if name in config.unactuated_joints:
+                continue
+            effort = config.effort_limits.get(name)
+            if effort is None and name in actuators:
+                effort = actuators[name].effort_limit()
+            if effort is None:
+                effort = self.file_limits.get(name, {}).get("effort")
+            if effort is None or not 0 < effort < math.inf:
+                raise InputError(f"robot {self.name}: arm joint {name!r} has no effort limit; give effort_limits in "
+                                 "the robot config")
+            efforts[name] = effort
+        # one actuator per actuated arm joint, in arm order (the action's order); rebuilt when the file's
+        # actuators are missing, out of order or on an unactuated joint
+        if list(actuators) != list(efforts):
+            for actuator in actuators.values():
+                plant.RemoveJointActuator(actuator)
+            actuators = {name: plant.AddJointActuator(f"{name}_actuator", plant.GetJointByName(name, instance), effort)
+                         for name, effort in efforts.items()}
+        for name, effort in efforts.items():
+            actuators[name].set_effort_limit(effort)
         return instance
 
     def check_plant(self, plant: MultibodyPlant, instance) -> None:
@@ -253,7 +330,7 @@ class Robot:
             joint = plant.GetJointByName(name, instance)
             lower, upper = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
             velocity = config.velocity_limits.get(name, joint.velocity_upper_limits()[0])
-            if not (np.isfinite(lower) and np.isfinite(upper)):
+            if not (np.isfinite(lower) and np.isfinite(upper)) and name not in self.continuous_joints:
                 raise InputError(f"robot {self.name}: arm joint {name!r} has no position limits in the model")
             if not np.isfinite(velocity):
                 raise InputError(f"robot {self.name}: arm joint {name!r} has no velocity limit; give velocity_limits")
@@ -268,15 +345,17 @@ def load_robot(path=UR10_CONFIG) -> Robot:
     return Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
 
 
-def _joint_limits_in_file(path: pathlib.Path) -> dict:
-    """Per joint name, the limits the description file states: {"effort": N m, "velocity": ...}
-    (URDF <limit effort= velocity=>, SDF <axis><limit><effort>/<velocity>); unparsable files give {}."""
+def _joint_limits_in_file(path: pathlib.Path) -> tuple[dict, set]:
+    """(per joint name, the limits the description file states: {"effort": N m, "velocity": ...}
+    (URDF <limit effort= velocity=>, SDF <axis><limit><effort>/<velocity>); the names of URDF
+    "continuous" joints, which have no position limits). An unparsable file gives ({}, set())."""
     import xml.etree.ElementTree as ElementTree
     try:
         root = ElementTree.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
-        return {}
+        return {}, set()
     limits = {}
+    continuous = {joint.get("name") for joint in root.iter("joint") if joint.get("type") == "continuous"}
     for joint in root.iter("joint"):
         name, values = joint.get("name"), {}
         urdf = joint.find("limit")
@@ -287,7 +366,7 @@ def _joint_limits_in_file(path: pathlib.Path) -> dict:
             values = {key: float(sdf.findtext(key)) for key in ("effort", "velocity") if sdf.findtext(key)}
         if name and values:  # (a URDF <transmission> names its joint too, without limits)
             limits[name] = values
-    return limits
+    return limits, continuous
 
 
 def _weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:

@@ -85,7 +85,7 @@ def test_configured_limits_fill_gaps_and_replace_the_files(tmp_path):
     ("good", GOOD.replace("[shoulder, elbow]", "[shoulder, wrist]"), "joint 'wrist' is not in two_link.urdf"),
     ("good", GOOD.replace("[0.3, -0.6]", "[0.3]"), "home must give 2 finite positions"),
     ("good", GOOD + "effort_limits: {finger_joint: 3.0}\n", "'finger_joint' is not an arm joint"),
-    ("no effort", GOOD, "'shoulder' has no actuator and no effort limit; give effort_limits"),
+    ("no effort", GOOD, "'shoulder' has no effort limit; give effort_limits"),
     ("good", GOOD.replace("locked_joints: {finger_joint: 0.02}\n", ""), "list the others under locked_joints"),
     ("good", GOOD.replace("weld_frame: base\n", ""), "floating base (give weld_frame)"),
     ("good", GOOD.replace("weld_frame: base", "weld_frame: plate"), "weld_frame 'plate' is not a frame"),

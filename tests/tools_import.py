@@ -17,3 +17,4 @@ def _load(name):
 generate_ur10_urdf = _load("generate_ur10_urdf")
 benchmark_report = _load("benchmark_report")
 jacobian_accuracy = _load("jacobian_accuracy")
+generate_panda_urdf = _load("generate_panda_urdf")

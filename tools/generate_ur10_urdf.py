@@ -6,6 +6,10 @@ Run: python tools/generate_ur10_urdf.py  (rewrites models/ur10.urdf).
 """
 import math
 import pathlib
+import sys
+
+sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
+import urdf_writer as urdf  # noqa: E402  (tools/urdf_writer.py, next to this file)
 
 PI = math.pi
 ROOT = pathlib.Path(__file__).resolve().parents[1]
@@ -52,21 +56,6 @@ BLUE, GREY = "0.2 0.4 0.8 1", "0.75 0.75 0.78 1"
 COLORS = {"upper_arm_link": GREY, "forearm_link": GREY}
 
 
-def _v(values):
-    return " ".join(repr(round(float(x), 12)) for x in values)
-
-
-def _geometry(link, tag):
-    out = []
-    for (radius, length), xyz, rpy in GEOMETRY[link]:
-        material = (f'\n      <material name="{link}_color"><color rgba="{COLORS.get(link, BLUE)}"/></material>'
-                    if tag == "visual" else "")
-        out.append(f'    <{tag}>\n      <origin xyz="{_v(xyz)}" rpy="{_v(rpy)}"/>\n'
-                   f'      <geometry><cylinder radius="{radius}" length="{length}"/></geometry>{material}\n'
-                   f'    </{tag}>')
-    return "\n".join(out)
-
-
 def urdf_text():
     s = ['<?xml version="1.0"?>',
          '<!-- UR-10 (CB-series) for stdm-drake, from the published DH parameters, masses, centres of',
@@ -82,35 +71,19 @@ def urdf_text():
          '    <collision><origin xyz="0 0 0.019"/><geometry><cylinder radius="0.075" length="0.038"/>'
          '</geometry></collision>',
          '  </link>',
-         '  <link name="base_link_inertia"/>',
-         '  <joint name="base_link-base_link_inertia" type="fixed"><parent link="base_link"/>'
-         '<child link="base_link_inertia"/><origin xyz="0 0 0" rpy="0 0 3.141592653589793"/></joint>']
+         urdf.frame_link("base_link_inertia"),
+         urdf.fixed_joint("base_link-base_link_inertia", "base_link", "base_link_inertia",
+                          "0 0 0", "0 0 3.141592653589793")]
     for name, (mass, com, rpy, inertia) in LINKS.items():
-        ixx, ixy, ixz, iyy, iyz, izz = inertia
-        s.append(f'  <link name="{name}">\n    <inertial>\n      <mass value="{mass}"/>\n'
-                 f'      <origin xyz="{_v(com)}" rpy="{_v(rpy)}"/>\n'
-                 f'      <inertia ixx="{ixx}" ixy="{ixy}" ixz="{ixz}" iyy="{iyy}" iyz="{iyz}" izz="{izz}"/>\n'
-                 f'    </inertial>\n{_geometry(name, "visual")}\n{_geometry(name, "collision")}\n  </link>')
+        s.append(urdf.link(name, mass, com, rpy, inertia, GEOMETRY[name], COLORS.get(name, BLUE)))
     for name, parent, child, xyz, rpy, position, velocity, effort in JOINTS:
-        s.append(f'  <joint name="{name}" type="revolute">\n'
-                 f'    <parent link="{parent}"/><child link="{child}"/>\n'
-                 f'    <origin xyz="{_v(xyz)}" rpy="{_v(rpy)}"/>\n    <axis xyz="0 0 1"/>\n'
-                 f'    <limit lower="{-position!r}" upper="{position!r}" velocity="{velocity}" effort="{effort}"/>\n'
-                 f'  </joint>')
-    s.append('  <link name="flange"/>\n'
-             '  <joint name="wrist_3-flange" type="fixed"><parent link="wrist_3_link"/><child link="flange"/>'
-             '<origin xyz="0 0 0" rpy="0 -1.5707963267948966 -1.5707963267948966"/></joint>\n'
-             '  <link name="tool0"/>\n'
-             '  <joint name="flange-tool0" type="fixed"><parent link="flange"/><child link="tool0"/>'
-             '<origin xyz="0 0 0" rpy="1.5707963267948966 0 1.5707963267948966"/></joint>')
-    for name, *_ in JOINTS:
-        base = name.removesuffix("_joint")
-        s.append(f'  <transmission name="{base}_trans">\n'
-                 '    <type>transmission_interface/SimpleTransmission</type>\n'
-                 f'    <joint name="{name}"><hardwareInterface>hardware_interface/EffortJointInterface'
-                 '</hardwareInterface></joint>\n'
-                 f'    <actuator name="{base}_motor"><mechanicalReduction>1</mechanicalReduction></actuator>\n'
-                 '  </transmission>')
+        s.append(urdf.revolute_joint(name, parent, child, xyz, rpy, -position, position, velocity, effort))
+    s += [urdf.frame_link("flange"),
+          urdf.fixed_joint("wrist_3-flange", "wrist_3_link", "flange",
+                           "0 0 0", "0 -1.5707963267948966 -1.5707963267948966"),
+          urdf.frame_link("tool0"),
+          urdf.fixed_joint("flange-tool0", "flange", "tool0", "0 0 0", "1.5707963267948966 0 1.5707963267948966")]
+    s += [urdf.transmission(name, name.removesuffix("_joint")) for name, *_ in JOINTS]
     s.append('</robot>\n')
     return "\n".join(s)
 

@@ -4,8 +4,7 @@ import dataclasses
 
 import numpy as np
 
-from stdm_drake.closed_loop.mpc import (DEFAULT_MPC_CONFIG, MpcConfig, MpcLog, Reference, load_mpc_config,
-                                        run_closed_loop)
+from stdm_drake.closed_loop.mpc import MpcConfig, MpcLog, Reference, mpc_config_for, run_closed_loop
 from stdm_drake.closed_loop.plant_model import PlantModel
 from stdm_drake.errors import InputError
 from stdm_drake.report import markdown_table
@@ -172,7 +171,9 @@ def add_arguments(parser) -> None:
                         help="a learned model to compare (repeatable), e.g. DD=runs/dd/seed0/checkpoint.pt")
     parser.add_argument("--no-plant", action="store_true", help="leave out the plant-as-model reference MPC")
     parser.add_argument("--plans", type=int, default=3, help="held-out plans to track (default 3)")
-    parser.add_argument("--config", type=pathlib.Path, default=DEFAULT_MPC_CONFIG, help="MPC settings YAML")
+    parser.add_argument("--config", type=pathlib.Path,
+                        help="MPC settings YAML (default: controllers/mpc.yaml; for another robot, its effort "
+                             "weights derived from the robot's inertia, see README)")
     parser.add_argument("--robot", type=pathlib.Path,
                         help="robot config YAML (default: the UR-10 preset); must be the dataset's robot")
     parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/mpc"),
@@ -191,9 +192,10 @@ def run(args) -> int:
     from stdm_drake.closed_loop.learned_system import LearnedModel
     from stdm_drake.robot import robot_for
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
-    config = load_mpc_config(args.config)
     dataset = load_dataset(args.dataset)
     robot = robot_for(args.robot, dataset)
+    robot.check_fully_actuated("MPC")
+    config = mpc_config_for(robot, args.config)
     learned = []
     for entry in args.model:
         name, separator, path = entry.partition("=")

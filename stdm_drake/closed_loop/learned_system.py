@@ -15,8 +15,8 @@ from stdm_drake.robot import UR10, Robot
 
 
 class LearnedModel:
-    """A checkpoint as a prediction model of `robot` (default: the UR-10 preset) with n joints:
-    step(x (N, 2n), u (N, n)), jacobians(x (H, 2n), u (H, n)).
+    """A checkpoint as a prediction model of `robot` (default: the UR-10 preset) with n joints, m of them
+    actuated: step(x (N, 2n), u (N, m)), jacobians(x (H, 2n), u (H, m)).
 
     sample_period (s) comes from the checkpoint's metadata (the dataset it was trained on); a model
     of other state or action sizes than the robot's is refused.
@@ -24,8 +24,8 @@ class LearnedModel:
 
     def __init__(self, checkpoint_path, name: str | None = None, robot: Robot | None = None):
         robot = robot or UR10
-        checkpoint = load_model(checkpoint_path, state_dim=robot.state_dim, action_dim=robot.num_joints)
-        self.state_dim, self.action_dim = robot.state_dim, robot.num_joints
+        checkpoint = load_model(checkpoint_path, state_dim=robot.state_dim, action_dim=robot.action_dim)
+        self.state_dim, self.action_dim = robot.state_dim, robot.action_dim
         self.checkpoint = checkpoint
         self.name = name or checkpoint.path.stem
         period = checkpoint.metadata.sample_period

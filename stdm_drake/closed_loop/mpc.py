@@ -75,8 +75,32 @@ class MpcConfig:
             raise InputError("mpc horizon and max_iterations must be >= 1 and line_search non-empty")
 
 
+    @classmethod
+    def derived_for(cls, robot: Robot) -> "MpcConfig":
+        """Settings for a robot without an MPC file: controllers/mpc.yaml's, with the effort weights given
+        by the power law that fits that file's hand-tuned UR-10 weights against each joint's effective
+        inertia at home, M_eff,i = 1 / (M^-1)_ii (log-log least squares over the 6 joints:
+        R_i = 7.8e-4 M_eff,i^-1.4, within a factor of 2 of every UR-10 weight)."""
+        config = load_mpc_config(DEFAULT_MPC_CONFIG)
+        dynamics = Dynamics(robot)
+        context = dynamics.plant.CreateDefaultContext()
+        dynamics.plant.SetPositions(context, robot.home)
+        effective_inertia = 1.0 / np.diag(np.linalg.inv(dynamics.plant.CalcMassMatrix(context)))
+        weights = 7.8e-4 * effective_inertia ** -1.4
+        return dataclasses.replace(config, effort_weight=[float(f"{w:.3g}") for w in weights])
+
+
 def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
     return load_yaml_config(path, MpcConfig, what="MPC config")
+
+
+def mpc_config_for(robot: Robot, path=None) -> MpcConfig:
+    """The MPC settings of `path`, or without one: controllers/mpc.yaml for the UR-10 preset and
+    `MpcConfig.derived_for` another robot."""
+    from stdm_drake.robot import UR10
+    if path is None and not robot.same_as(UR10):
+        return MpcConfig.derived_for(robot)
+    return load_mpc_config(path or DEFAULT_MPC_CONFIG)
 
 
 @dataclasses.dataclass
@@ -127,10 +151,11 @@ class MpcController(LeafSystem):
                  robot: Robot | None = None):
         super().__init__()
         config.validate()
+        self.dynamics = Dynamics(robot)
+        self.dynamics.robot.check_fully_actuated("MPC")
         self.model = model
         self.reference = reference
         self.config = config
-        self.dynamics = Dynamics(robot)
         self.joints = joints = self.dynamics.robot.num_joints
         self.state_dim = state_dim = 2 * joints
         self.effort_limit = joint_limits(self.dynamics.plant).effort

@@ -19,6 +19,7 @@ class PlantModel:
     def __init__(self, sample_period: float, plant_config: PlantConfig | None = None, robot: Robot | None = None):
         from stdm_drake.plant import PlantSimulator, make_plant
         self.robot = robot or UR10
+        self.robot.check_fully_actuated("MPC with the plant as model")
         self.sample_period = sample_period
         self.simulation = PlantSimulator(plant_config, self.robot)
         continuous, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)

@@ -50,7 +50,8 @@ PAPER_COUNTS = {"excitation": 200, "tracking": 100}
 
 @dataclasses.dataclass
 class ExcitationConfig:
-    """Random sine torques (paper eq. 10) on top of gravity compensation, per joint.
+    """Random sine torques (paper eq. 10) on top of gravity compensation, per actuated joint (amplitude,
+    offset; the start positions: per arm joint). An unactuated joint gets no torque and no compensation.
 
     tau_i(t) = g_i(q_k) + A_i sin(f_i t + phi_i) + B_i with A_i ~ U[0, amplitude_max_i] N m,
     f_i ~ U[frequency_range] rad/s, B_i ~ U[-offset_max_i, offset_max_i] N m,
@@ -98,7 +99,7 @@ class ExcitationConfig:
         dynamics = Dynamics(robot)
         context = dynamics.plant.CreateDefaultContext()
         dynamics.plant.SetPositions(context, robot.home)
-        torque = acceleration * np.diag(dynamics.plant.CalcMassMatrix(context))
+        torque = acceleration * np.diag(dynamics.plant.CalcMassMatrix(context))[robot.actuated_indices]
         limits = joint_limits(dynamics.plant)
         lower = np.maximum(robot.home - box, limits.position_lower + 0.05)
         upper = np.minimum(robot.home + box, limits.position_upper - 0.05)
@@ -106,11 +107,13 @@ class ExcitationConfig:
                    initial_position_upper=upper.tolist())
 
     def for_robot(self, robot: Robot) -> "ExcitationConfig":
-        """This config with every per-joint list of the robot's length (one value broadcast);
-        InputError when a list has another length."""
+        """This config with every per-joint list of the robot's length (one value broadcast): torques per
+        actuated joint, start positions per arm joint; InputError when a list has another length."""
+        counts = dict(amplitude_max=robot.action_dim, offset_max=robot.action_dim,
+                      initial_position_lower=robot.num_joints, initial_position_upper=robot.num_joints)
         return dataclasses.replace(self, **{
-            name: check_joint_vector(f"excitation {name}", getattr(self, name), count=robot.num_joints).tolist()
-            for name in ("amplitude_max", "offset_max", "initial_position_lower", "initial_position_upper")})
+            name: check_joint_vector(f"excitation {name}", getattr(self, name), count=count).tolist()
+            for name, count in counts.items()})
 
 
 @dataclasses.dataclass
@@ -162,16 +165,16 @@ class SimulationRig:
         return self._controller
 
     def run(self, q0: np.ndarray, num_steps: int, control, sensor: JointSensor) -> dict:
-        """Simulate one trajectory from rest at q0 (6,) rad for num_steps sample periods.
+        """Simulate one trajectory from rest at q0 (n,) rad for num_steps sample periods.
 
-        control(k, t, q_measured, v_measured) -> torque (6,) N m for [t_k, t_k+1); t = k * period;
+        control(k, t, q_measured, v_measured) -> action (m,) N m for [t_k, t_k+1); t = k * period;
         the controller gets the raw measurement, the dataset records q_measured and the filtered v.
         Returns the arrays of one dataset trajectory (see stdm_drake.data.dataset).
         """
         dt = self.settings.sample_period
         simulation = self.simulation
         n = self.robot.num_joints
-        simulation.start(np.concatenate([q0, np.zeros(n)]), np.zeros(n))
+        simulation.start(np.concatenate([q0, np.zeros(n)]), np.zeros(self.robot.action_dim))
         x = simulation.plant.GetPositionsAndVelocities(simulation.plant_context)
         q_true, v_true, q_meas, v_meas, tau = [], [], [], [], []
         for k in range(num_steps + 1):
@@ -217,9 +220,9 @@ def excitation_trajectory(rig: SimulationRig, config: ExcitationConfig, rng: np.
     sensor_config = rig.settings.sensor
     for _ in range(config.max_attempts):
         amplitude = rng.uniform(0.0, config.amplitude_max)
-        frequency = rng.uniform(*config.frequency_range, size=rig.robot.num_joints)
+        frequency = rng.uniform(*config.frequency_range, size=rig.robot.action_dim)
         offset = rng.uniform(-np.asarray(config.offset_max), config.offset_max)
-        phase = rng.uniform(*config.phase_range, size=rig.robot.num_joints)
+        phase = rng.uniform(*config.phase_range, size=rig.robot.action_dim)
         q0 = rng.uniform(lower, upper)
         if config.check_self_collision and not rig.collision_checker.is_collision_free(q0):
             reasons["initial self-collision"] = reasons.get("initial self-collision", 0) + 1
@@ -227,7 +230,7 @@ def excitation_trajectory(rig: SimulationRig, config: ExcitationConfig, rng: np.
 
         def control(k, t, q, v):
             tau = amplitude * np.sin(frequency * t + phase) + offset
-            return tau + rig.dynamics.gravity_torque(q) if config.gravity_compensation else tau
+            return tau + rig.dynamics.actuated_gravity_torque(q) if config.gravity_compensation else tau
 
         traj = rig.run(q0, config.num_steps, control, JointSensor(sensor_config, rng))
         reason = rig.limit_violation(traj, config.position_margin, config.velocity_fraction,
@@ -424,7 +427,9 @@ def collection_metadata(request: CollectionRequest) -> dict:
         torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")
     if request.protocol == "excitation":
         metadata["excitation"] = dataclasses.asdict(request.excitation)
-        metadata["excitation_parameters_columns"] = "amplitude (6) N m, frequency (6) rad/s, offset (6) N m, phase (6) rad"
+        m = settings.robot.action_dim
+        metadata["excitation_parameters_columns"] = (f"amplitude ({m}) N m, frequency ({m}) rad/s, offset ({m}) N m, "
+                                                     f"phase ({m}) rad")
     else:
         sampling, planner = request.tracking_spec
         metadata["controller"] = dataclasses.asdict(settings.controller)
@@ -440,7 +445,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="data protocol (default: tracking)")
     parser.add_argument("--config", type=pathlib.Path,
                         help="protocol YAML (default: trajectories/excitation.yaml or trajectories/tracking.yaml; "
-                             "for another robot's excitation: ranges derived from its inertia, see README)")
+                             "for another robot: excitation ranges and tracking poses derived from it, see README)")
     parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
                         help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml)")
     parser.add_argument("--sensor", type=pathlib.Path,
@@ -483,7 +488,11 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
                                   sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     if protocol == "tracking":
-        settings.controller.gains(robot.num_joints)  # per-joint lists of the robot's length, or one value
+        robot.check_can_track()
+        try:  # per-joint lists of the robot's length, or one value for all
+            settings.controller = settings.controller.for_robot(robot)
+        except InputError as error:
+            raise InputError(f"{controller}: {error}") from None
     request = CollectionRequest(protocol=protocol, count=count or PAPER_COUNTS[protocol], seed=seed,
                                 settings=settings, workers=workers)
     if protocol == "excitation":
@@ -496,8 +505,11 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
         except InputError as error:
             raise InputError(f"{config_path}: {error}") from None
     else:
-        from stdm_drake.collection.plan import load_tracking_spec
-        request.tracking_spec = load_tracking_spec(config_path, robot=robot)
+        from stdm_drake.collection.plan import derived_tracking_spec, load_tracking_spec
+        if config is None and not robot.same_as(UR10):  # trajectories/tracking.yaml is written for the UR-10
+            request.tracking_spec = derived_tracking_spec(robot)
+        else:
+            request.tracking_spec = load_tracking_spec(config_path, robot=robot)
     return request
 
 

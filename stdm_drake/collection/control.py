@@ -45,7 +45,7 @@ class ControllerConfig:
     ki: list[float] = dataclasses.field(default_factory=lambda: [2500.0, 5000.0, 1380.0, 49.0, 10.6, 0.84])
     kd: list[float] = dataclasses.field(default_factory=lambda: [100.0, 200.0, 55.0, 1.4, 0.3, 0.024])
     gravity_feedforward: bool = True
-    dither_std: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
+    dither_std: list[float] = dataclasses.field(default_factory=lambda: [0.0])
     velocity_filter_time_constant: float = 0.0
 
     def validate(self) -> None:
@@ -57,6 +57,12 @@ class ControllerConfig:
             raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
         for name in ("kp", "ki", "kd"):
             check_joint_vector(f"controller gain {name}", getattr(self, name), nonnegative=True)
+
+    def for_robot(self, robot: Robot) -> "ControllerConfig":
+        """This config with kp, ki, kd and dither_std of the robot's length (one value broadcast), as
+        datasets record it; InputError when a list has another length."""
+        kp, ki, kd, dither_std = self.gains(robot.num_joints)
+        return dataclasses.replace(self, kp=kp.tolist(), ki=ki.tolist(), kd=kd.tolist(), dither_std=dither_std.tolist())
 
     def gains(self, joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(kp, ki, kd, dither_std), each (joints,); InputError when a list has another length."""
@@ -100,7 +106,7 @@ class JointSensor:
         self._velocity_history: list[np.ndarray] = []
 
     def measure(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """q, v: (6,) true state -> (q_measured, v_measured, v_filtered), each (6,)."""
+        """q, v: (n,) true state -> (q_measured, v_measured, v_filtered), each (n,)."""
         c = self.config
         q_measured = q + c.position_noise_std * self.rng.standard_normal(len(q)) if c.position_noise_std else q.copy()
         v_noisy = v + c.velocity_noise_std * self.rng.standard_normal(len(v)) if c.velocity_noise_std else v.copy()
@@ -112,7 +118,7 @@ class JointSensor:
 class SampledJointController:
     """Drake's PID or inverse-dynamics controller evaluated once per sample period.
 
-    `torque(q, v, q_d, v_d, qdd_d)` returns the torque (6,) N m to hold over the next sample
+    `torque(q, v, q_d, v_d, qdd_d)` returns the torque (n,) N m to hold over the next sample
     period, clamped to the effort limits, and advances the error integral and the velocity filter
     by one period; `reset()` starts a new trajectory.
     """

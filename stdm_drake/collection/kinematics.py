@@ -1,10 +1,20 @@
-"""Kinematics of tool0 on the UR-10: SO(3) exponential and logarithm, forward kinematics, Jacobians,
-and inverse kinematics (damped Newton, with Drake's InverseKinematics as the global fallback).
+"""Kinematics of a robot's tool frame: SO(3) exponential and logarithm, forward kinematics, Jacobians,
+inverse kinematics (damped Newton, with Drake's InverseKinematics as the global fallback), and the
+task coordinates that make the tracking planners work for any arm of 6 or more joints.
 
-Frames: every pose is the pose of `tool0` in the world frame (base_link welded at the world origin).
+Frames: every pose is the pose of the robot's tool frame (the UR-10's tool0) in the world frame.
 Spatial vectors are ordered [angular; linear], measured and expressed in the world frame, for the
-origin of tool0. Joint order: shoulder_pan, shoulder_lift, elbow, wrist_1, wrist_2, wrist_3.
+origin of the tool frame. Joint order: the robot's arm joints (the UR-10: shoulder_pan, shoulder_lift,
+elbow, wrist_1, wrist_2, wrist_3).
+
+Task coordinates. A tool pose fixes 6 coordinates; an arm of n > 6 joints has n - 6 more degrees of
+freedom (the Panda's elbow can swing about the shoulder-wrist line with the tool still). The planners
+make the motion unique, and its derivatives exact, by adding the positions of n - 6 "redundant" joints
+to the task: y(q) = [tool pose; q_r], with the square task Jacobian [J; S] (S picks the redundant
+joints). Which joints: those whose columns, removed from J at the home pose, leave the best-conditioned
+6x6 Jacobian (`redundant_joints`). For the UR-10 (n = 6) the task is the tool pose alone.
 """
+import itertools
 import math
 import os
 
@@ -20,7 +30,7 @@ from pydrake.solvers import Solve  # noqa: E402
 
 from stdm_drake.errors import InputError, PlanningError  # noqa: E402
 from stdm_drake.plant import PlantConfig, joint_limits, make_plant  # noqa: E402
-from stdm_drake.robot import UR10, Robot  # noqa: E402
+from stdm_drake.robot import POSE_DIM, UR10, Robot  # noqa: E402
 
 
 def _skew(w: np.ndarray) -> np.ndarray:
@@ -90,9 +100,11 @@ class RobotKinematics:
         points.append(self.tool_frame.CalcPoseInWorld(self.context).translation())
         self.shoulder = points[0].copy()
         self.reach = float(sum(np.linalg.norm(b - a) for a, b in zip(points[:-1], points[1:])))
+        self.redundant_joints = redundant_joints(self.jacobian(robot.home)) if n > POSE_DIM else ()
+
 
     def check_reachable(self, X_goal: RigidTransform) -> None:
-        """Raise PlanningError if the tool0 position of X_goal is beyond the arm's reach bound."""
+        """Raise PlanningError if the tool position of X_goal is beyond the arm's reach bound."""
         problem = self._reach_problem(X_goal)
         if problem:
             raise PlanningError(f"pose {pose_text(X_goal)} is {problem}")
@@ -110,24 +122,39 @@ class RobotKinematics:
             self.plant.SetVelocities(self.context, v)
 
     def tool_pose(self, q: np.ndarray) -> RigidTransform:
-        """Pose of tool0 in the world frame at joint positions q (6,) rad."""
+        """Pose of the tool frame in the world frame at joint positions q (n,) rad."""
         self._set_state(q)
         return self.plant.CalcRelativeTransform(self.context, self.world_frame, self.tool_frame)
 
     def jacobian(self, q: np.ndarray) -> np.ndarray:
-        """Spatial velocity Jacobian (6, 6) of the tool0 origin: [omega; v] in world = J q_dot."""
+        """Spatial velocity Jacobian (6, n) of the tool frame's origin: [omega; v] in world = J q_dot."""
         self._set_state(q)
         return self.plant.CalcJacobianSpatialVelocity(
             self.context, JacobianWrtVariable.kV, self.tool_frame, self._origin,
             self.world_frame, self.world_frame)
 
     def bias_acceleration(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        """Bias spatial acceleration (6,) J_dot v = [alpha; a] - J q_ddot of tool0, world frame."""
+        """Bias spatial acceleration (6,) J_dot v = [alpha; a] - J q_ddot of the tool frame, world frame."""
         self._set_state(q, v)
         bias = self.plant.CalcBiasSpatialAcceleration(
             self.context, JacobianWrtVariable.kV, self.tool_frame, self._origin,
             self.world_frame, self.world_frame)
         return np.concatenate([bias.rotational(), bias.translational()])
+
+    def task_jacobian(self, q: np.ndarray) -> np.ndarray:
+        """Task Jacobian (n, n): the tool's spatial velocity Jacobian (6, n) with one unit row per
+        redundant joint below it (the Jacobian itself for a 6-joint arm)."""
+        J = self.jacobian(q)
+        if not self.redundant_joints:
+            return J
+        return np.vstack([J, np.eye(self.num_joints)[list(self.redundant_joints)]])
+
+    def task_bias(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+        """Task bias acceleration (n,): bias_acceleration (6,), then zeros for the redundant joints."""
+        bias = self.bias_acceleration(q, v)
+        if not self.redundant_joints:
+            return bias
+        return np.concatenate([bias, np.zeros(len(self.redundant_joints))])
 
     def pose_error(self, X_goal: RigidTransform, q: np.ndarray) -> np.ndarray:
         """Error (6,) [rotation vector of R_goal R^T (rad); p_goal - p (m)] in the world frame."""
@@ -137,25 +164,34 @@ class RobotKinematics:
 
     def inverse_kinematics(self, X_goal: RigidTransform, q_seed: np.ndarray, *,
                            tolerance: float = 1e-10, max_iterations: int = 50,
-                           damping: float = 1e-3, max_step: float = 0.5) -> np.ndarray:
-        """Joint positions q (6,) rad with tool_pose(q) = X_goal, by damped Newton steps from q_seed.
+                           damping: float = 1e-3, max_step: float = 0.5,
+                           redundant_positions: np.ndarray | None = None) -> np.ndarray:
+        """Joint positions q (n,) rad with tool_pose(q) = X_goal, by damped Newton steps from q_seed.
 
         Converges when both the rotation error (rad) and the position error (m) are below
         `tolerance`; each step is J^T (J J^T + lambda^2 I)^-1 e with lambda = damping *
-        min(1, |e|), scaled down to at most `max_step` rad on any joint. Raises PlanningError
-        if it does not converge or the solution is outside the joint position limits.
+        min(1, |e|), scaled down to at most `max_step` rad on any joint. For an arm of more than
+        6 joints the steps are the smallest joint motions (the solution stays near the seed), or,
+        with `redundant_positions` (one per redundant joint, rad), J and e are the task Jacobian
+        and error, so the redundant joints end at those positions. Raises PlanningError if it
+        does not converge or the solution is outside the joint position limits.
         """
         q = np.array(q_seed, dtype=float).reshape(self.num_joints)
+        redundant = list(self.redundant_joints) if redundant_positions is not None else []
         for _ in range(max_iterations + 1):
             error = self.pose_error(X_goal, q)
             rotation_error = float(np.linalg.norm(error[:3]))
             position_error = float(np.linalg.norm(error[3:]))
-            if rotation_error <= tolerance and position_error <= tolerance:
+            redundancy_error = np.asarray(redundant_positions, dtype=float) - q[redundant] if redundant else None
+            if (rotation_error <= tolerance and position_error <= tolerance
+                    and (not redundant or float(np.max(np.abs(redundancy_error))) <= tolerance)):
                 self.check_position_limits(q, what=f"IK solution for pose {pose_text(X_goal)}")
                 return q
-            J = self.jacobian(q)
+            J = self.task_jacobian(q) if redundant else self.jacobian(q)
+            if redundant:
+                error = np.concatenate([error, redundancy_error])
             lam = damping * min(1.0, float(np.linalg.norm(error)))
-            step = J.T @ np.linalg.solve(J @ J.T + lam**2 * np.eye(6), error)
+            step = J.T @ np.linalg.solve(J @ J.T + lam**2 * np.eye(len(error)), error)
             largest = float(np.max(np.abs(step)))
             if largest > max_step:
                 step *= max_step / largest
@@ -168,7 +204,7 @@ class RobotKinematics:
 
     def inverse_kinematics_global(self, X_goal: RigidTransform, q_seed: np.ndarray, *,
                                   tolerance: float = 1e-10) -> np.ndarray:
-        """IK (6,) rad by Drake's InverseKinematics + Solve from q_seed (cost |q - q_seed|^2),
+        """IK (n,) rad by Drake's InverseKinematics + Solve from q_seed (cost |q - q_seed|^2),
         then polished by inverse_kinematics(). For poses whose seed is only roughly known.
         """
         q_seed = np.array(q_seed, dtype=float).reshape(self.num_joints)
@@ -188,10 +224,18 @@ class RobotKinematics:
         return self.inverse_kinematics(X_goal, result.GetSolution(ik.q()), tolerance=tolerance)
 
     def check_position_limits(self, q: np.ndarray, *, what: str) -> None:
-        """Raise PlanningError naming the joint if q (6,) rad is outside the position limits."""
+        """Raise PlanningError naming the joint if q (n,) rad is outside the position limits."""
         lower, upper = self.limits.position_lower, self.limits.position_upper
         for j in range(self.num_joints):
             if q[j] < lower[j] or q[j] > upper[j]:
                 bound, excess = (lower[j], lower[j] - q[j]) if q[j] < lower[j] else (upper[j], q[j] - upper[j])
                 raise PlanningError(f"{what}: {self.joint_names[j]} at {q[j]:.4f} rad is outside its position "
                                     f"limit {bound:.4f} rad by {excess:.4f} rad")
+
+
+def redundant_joints(J: np.ndarray) -> tuple[int, ...]:
+    """The n - 6 joints (indices, ascending) whose columns, removed from the tool Jacobian J (6, n),
+    leave the 6x6 Jacobian with the smallest condition number; the first such set on ties."""
+    n = J.shape[1]
+    return min(itertools.combinations(range(n), n - POSE_DIM),
+               key=lambda removed: float(np.linalg.cond(np.delete(J, removed, axis=1))))

@@ -94,6 +94,63 @@ class TrackingSpec:
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
 
 
+def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: float = 0.3,
+                          seed: int = 0) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
+    """A tracking spec for a robot without a tracking file, by the rules behind the UR-10's:
+
+    - initial poses: the tool pose at home, then at configurations drawn uniformly in home +- `box`
+      rad (numpy.random.default_rng(seed)), kept when 0.1 rad inside the position limits, free of
+      self-collision and with a task Jacobian condition number at most half the planner's limit;
+      each pose's IK seed is its configuration, so every initial pose is reachable on that branch.
+    - final poses: a box of +-0.1 x the arm's reach bound around each (the UR-10's 0.15 m is 0.106 of
+      its 1.415 m), rotations up to 0.3 rad, 25 per initial pose, 100 steps (the paper's protocol).
+    - planner: quintic with the UR-10 file's task-space limits; joint acceleration limits of
+      5 rad/s^2, or a tenth of what a joint's actuator gives beyond gravity at home (effort - |g_i|)
+      / M_ii when that is less (the UR-10's 4-5 rad/s^2 are 0.06-0.15 of it on the arm joints);
+      jerk limits ten times those (the UR-10 file's are 7.5-12 times).
+
+    Raises PlanningError when fewer than `num_initial_poses` usable configurations are found.
+    """
+    from stdm_drake.plant import Dynamics, SelfCollisionChecker, joint_limits
+
+    robot.check_can_track()
+    dynamics = Dynamics(robot)
+    kinematics = RobotKinematics(dynamics.plant, robot)
+    checker = SelfCollisionChecker(robot)
+    limits = joint_limits(dynamics.plant)
+    context = dynamics.plant.CreateDefaultContext()
+    dynamics.plant.SetPositions(context, robot.home)
+    inertia = np.diag(dynamics.plant.CalcMassMatrix(context))
+    capability = (limits.effort - np.abs(dynamics.gravity_torque(robot.home))) / inertia
+    acceleration = np.minimum(5.0, 0.1 * np.maximum(capability, 0.0))
+    planner = PlannerConfig(acceleration_limits=np.round(acceleration, 3).tolist(),
+                            jerk_limits=np.round(10.0 * acceleration, 3).tolist())
+    rng = np.random.default_rng(seed)
+    configurations, attempts = [], 0
+    candidate = robot.home.copy()
+    while len(configurations) < num_initial_poses:
+        inside = np.all(candidate >= limits.position_lower + 0.1) and np.all(candidate <= limits.position_upper - 0.1)
+        if (inside and checker.is_collision_free(candidate)
+                and np.linalg.cond(kinematics.task_jacobian(candidate)) <= planner.max_jacobian_condition / 2):
+            configurations.append(candidate)
+        attempts += 1
+        if attempts > 1000:
+            raise PlanningError(f"robot {robot.name}: found only {len(configurations)} of {num_initial_poses} initial "
+                                f"configurations within +-{box} rad of home that are inside the limits, collision "
+                                "free and away from singularities; give a tracking spec with --config")
+        candidate = robot.home + rng.uniform(-box, box, size=robot.num_joints)
+    poses = []
+    for q in configurations:
+        X = kinematics.tool_pose(q)
+        poses.append(InitialPose(xyz=X.translation().tolist(), rpy=RollPitchYaw(X.rotation()).vector().tolist(),
+                                 q_seed=q.tolist()))
+    offset = round(0.1 * kinematics.reach, 3)
+    sampling = TaskSpaceSamplingConfig(initial_poses=poses, position_offset=[offset] * 3)
+    sampling.validate()
+    planner.validate()
+    return sampling, planner
+
+
 def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *, planner_kind: str | None = None,
                        robot: Robot | None = None) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
     """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`) for `robot`

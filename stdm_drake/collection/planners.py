@@ -10,13 +10,13 @@
 - "toppra": the IK'd task-space straight line as a joint-space path, re-timed time-optimally
   under joint velocity and acceleration limits.
 
-Frames: every pose is the pose of `tool0` in the world frame. base_link is welded at the world
-origin, so world = base_link; note that base_link_inertia (DH frame 0) is base_link rotated by
-pi about z, so the arm stretched at q = 0 points along world +x ("in front of the robot").
+Frames: every pose is the pose of the robot's tool frame in the world frame (the UR-10: tool0;
+base_link is welded at the world origin, and base_link_inertia (DH frame 0) is base_link rotated by
+pi about z, so the arm stretched at q = 0 points along world +x, "in front of the robot").
 Spatial vectors are ordered [angular; linear], measured and expressed in the world frame, for
-the origin of tool0.
-
-Joint order: shoulder_pan, shoulder_lift, elbow, wrist_1, wrist_2, wrist_3.
+the origin of the tool frame. Joint order: the robot's arm joints. An arm of more than 6 joints
+also moves its redundant joints linearly along the path (task coordinates: see
+stdm_drake.collection.kinematics); an arm of fewer than 6 cannot follow a task-space plan.
 
 Longer than 400 lines on purpose: the three planners share the IK continuation along the task-space
 line, the horizon and the joint-limit checks, so that the same goal gives the same end
@@ -63,8 +63,8 @@ class PlannerConfig:
         it vanishes near convergence (plain Newton steps, quadratic convergence).
     ik_continuity_tolerance: largest allowed distance (rad, any joint) between an IK solution
         and its first-order prediction from the previous sample (catches branch flips).
-    max_jacobian_condition: largest allowed 2-norm condition number of the 6x6 tool Jacobian
-        along quintic and toppra paths (singularity guard).
+    max_jacobian_condition: largest allowed 2-norm condition number of the task Jacobian (the 6x6
+        tool Jacobian of a 6-joint arm) along the paths (singularity guard).
     path_waypoints: IK waypoints along the task-space line for the toppra path and for the
         continuation that finds the goal configuration for ruckig.
     toppra_gridpoints: number of toppra discretization points along the path.
@@ -133,10 +133,10 @@ class PlannedTrajectory:
     """A rest-to-rest joint trajectory sampled at a fixed period.
 
     planner: "quintic", "ruckig" or "toppra".
-    t: (N+1,) s, t[k] = k * sample_period. q: (N+1, 6) rad. qd: (N+1, 6) rad/s.
-    qdd: (N+1, 6) rad/s^2 (the desired accelerations used as derivative targets).
+    t: (N+1,) s, t[k] = k * sample_period. q: (N+1, n) rad. qd: (N+1, n) rad/s.
+    qdd: (N+1, n) rad/s^2 (the desired accelerations used as derivative targets).
     X_start, X_goal: tool0 poses in the world frame at q[0] and q[-1].
-    q_goal: (6,) rad, the IK solution of X_goal where the plan ends (q[-1] == q_goal).
+    q_goal: (n,) rad, the IK solution of X_goal where the plan ends (q[-1] == q_goal).
     duration: motion time (s) <= N * sample_period; the plan holds q_goal after it.
     """
     planner: str
@@ -159,7 +159,7 @@ class PlannedTrajectory:
         return float(self.t[1] - self.t[0])
 
     def evaluate(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Exact (q, qd, qdd), each (6,), at time t (s); clamped to [0, N * sample_period]."""
+        """Exact (q, qd, qdd), each (n,), at time t (s); clamped to [0, N * sample_period]."""
         t = min(max(float(t), 0.0), float(self.t[-1]))
         if t >= self.duration:
             zero = np.zeros_like(self.q_goal)
@@ -169,16 +169,22 @@ class PlannedTrajectory:
 
 @dataclasses.dataclass
 class _TaskLine:
-    """Straight line in position and geodesic in orientation from X_start to X_goal (world)."""
+    """Straight line in position and geodesic in orientation from X_start to X_goal (world); for an
+    arm of more than 6 joints, the redundant joints (kinematics.redundant_joints) move linearly in
+    the path parameter from redundant_start to redundant_goal (rad)."""
     X_start: RigidTransform
     X_goal: RigidTransform
+    redundant_start: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
+    redundant_goal: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self):
         self.p0 = self.X_start.translation()
         self.R0 = self.X_start.rotation().matrix()
         self.dp = self.X_goal.translation() - self.p0
         self.w = rotation_log(self.X_goal.rotation().matrix() @ self.R0.T)
-        self.tangent = np.concatenate([self.w, self.dp])  # d[omega; v]/ds, world frame
+        self.dr = np.asarray(self.redundant_goal, float) - np.asarray(self.redundant_start, float)
+        # d(task coordinates)/ds: [omega; v] (world frame), then the redundant joints' rates
+        self.tangent = np.concatenate([self.w, self.dp, self.dr]) if len(self.dr) else np.concatenate([self.w, self.dp])
 
     def pose(self, s: float) -> RigidTransform:
         if s >= 1.0:
@@ -186,6 +192,28 @@ class _TaskLine:
         if s <= 0.0:
             return self.X_start
         return RigidTransform(RotationMatrix(rotation_exp(s * self.w) @ self.R0), self.p0 + s * self.dp)
+
+    def redundant(self, s: float) -> np.ndarray | None:
+        """Positions (rad) of the redundant joints at path parameter s, or None for a 6-joint arm."""
+        if not len(self.dr):
+            return None
+        return np.asarray(self.redundant_start, float) + min(max(s, 0.0), 1.0) * self.dr
+
+
+def _task_line(kinematics: RobotKinematics, q0: np.ndarray, X_goal: RigidTransform, config: PlannerConfig,
+               label: str) -> _TaskLine:
+    """The task-space line from the tool pose at q0 to X_goal. For an arm of more than 6 joints the
+    redundant joints go to where the smallest-motion IK from q0 puts them at X_goal."""
+    X_start = kinematics.tool_pose(q0)
+    redundant = list(kinematics.redundant_joints)
+    if not redundant:
+        return _TaskLine(X_start, X_goal)
+    try:
+        q_goal = kinematics.inverse_kinematics(X_goal, q0, tolerance=config.ik_tolerance,
+                                               max_iterations=config.ik_max_iterations, damping=config.ik_damping)
+    except PlanningError as error:
+        raise PlanningError(f"{label}: at the goal: {error}") from None
+    return _TaskLine(X_start, X_goal, q0[redundant], q_goal[redundant])
 
 
 def _quintic_scaling(tau: float) -> tuple[float, float, float]:
@@ -206,6 +234,7 @@ def _horizon_times(num_steps: int, sample_period: float) -> np.ndarray:
 
 
 def _start_configuration(kinematics: RobotKinematics, q0) -> np.ndarray:
+    kinematics.robot.check_can_track()
     q0 = np.array(q0, dtype=float)
     if q0.shape != (kinematics.num_joints,) or not np.all(np.isfinite(q0)):
         raise InputError(f"start configuration must be {kinematics.num_joints} finite joint positions (rad), "
@@ -216,7 +245,7 @@ def _start_configuration(kinematics: RobotKinematics, q0) -> np.ndarray:
 
 def _checked_jacobian(kinematics: RobotKinematics, q: np.ndarray, config: PlannerConfig,
                       label: str, where: str) -> np.ndarray:
-    J = kinematics.jacobian(q)
+    J = kinematics.task_jacobian(q)
     condition = float(np.linalg.cond(J))
     if not condition <= config.max_jacobian_condition:
         raise PlanningError(f"{label}: near a singularity {where}: Jacobian condition number "
@@ -224,12 +253,14 @@ def _checked_jacobian(kinematics: RobotKinematics, q: np.ndarray, config: Planne
     return J
 
 
-def _ik_step(kinematics: RobotKinematics, X: RigidTransform, q_predicted: np.ndarray,
+def _ik_step(kinematics: RobotKinematics, line: _TaskLine, s: float, q_predicted: np.ndarray,
              config: PlannerConfig, label: str, where: str) -> np.ndarray:
-    """IK seeded with a first-order prediction, with the continuity check."""
+    """IK of the line's task coordinates at path parameter s, seeded with a first-order prediction,
+    with the continuity check."""
     try:
-        q = kinematics.inverse_kinematics(X, q_predicted, tolerance=config.ik_tolerance,
-                                          max_iterations=config.ik_max_iterations, damping=config.ik_damping)
+        q = kinematics.inverse_kinematics(line.pose(s), q_predicted, tolerance=config.ik_tolerance,
+                                          max_iterations=config.ik_max_iterations, damping=config.ik_damping,
+                                          redundant_positions=line.redundant(s))
     except PlanningError as error:
         raise PlanningError(f"{label}: {where}: {error}") from None
     jump = np.abs(q - q_predicted)
@@ -242,13 +273,13 @@ def _ik_step(kinematics: RobotKinematics, X: RigidTransform, q_predicted: np.nda
 
 def _ik_along_line(kinematics: RobotKinematics, q0: np.ndarray, line: _TaskLine, ss: np.ndarray,
                    config: PlannerConfig, label: str) -> np.ndarray:
-    """Joint waypoints (M, 6) rad along the task-space line at path parameters ss (M,), ss[0] = 0."""
+    """Joint waypoints (M, n) rad along the task-space line at path parameters ss (M,), ss[0] = 0."""
     qs = np.empty((len(ss), kinematics.num_joints))
     qs[0] = q0
     for k in range(1, len(ss)):
         J = _checked_jacobian(kinematics, qs[k - 1], config, label, f"at path parameter s={ss[k - 1]:.3f}")
         q_predicted = qs[k - 1] + np.linalg.solve(J, line.tangent * (ss[k] - ss[k - 1]))
-        qs[k] = _ik_step(kinematics, line.pose(ss[k]), q_predicted, config, label,
+        qs[k] = _ik_step(kinematics, line, float(ss[k]), q_predicted, config, label,
                          f"at path parameter s={ss[k]:.3f}")
     _checked_jacobian(kinematics, qs[-1], config, label, "at the goal")
     return qs
@@ -258,7 +289,7 @@ def _check_limits(kinematics: RobotKinematics, config: PlannerConfig, label: str
                   q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> None:
     """Raise PlanningError on the worst joint position/velocity/acceleration limit violation.
 
-    t: (N+1,) s; q, qd, qdd: (N+1, 6). Velocity and acceleration get a relative slack of
+    t: (N+1,) s; q, qd, qdd: (N+1, n). Velocity and acceleration get a relative slack of
     config.limit_tolerance; the violation reported is the largest relative to its limit.
     """
     limits = kinematics.limits
@@ -326,28 +357,29 @@ def plan_quintic(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, con
                  num_steps: int = 100, sample_period: float = 0.01) -> PlannedTrajectory:
     """Quintic-timed task-space line (position) and geodesic (orientation), mapped by IK.
 
-    q0: (6,) rad start at rest. Returns num_steps + 1 samples; q̇ = J^-1 V_d and
-    q̈ = J^-1 (A_d - J̇ q̇) from the 6x6 tool Jacobian and bias acceleration.
+    q0: (n,) rad start at rest. Returns num_steps + 1 samples; q̇ = J^-1 V_d and
+    q̈ = J^-1 (A_d - J̇ q̇) from the square task Jacobian and bias acceleration (the 6x6 tool
+    Jacobian of a 6-joint arm; see stdm_drake.collection.kinematics for more joints).
     """
     config.validate()
     t = _horizon_times(num_steps, sample_period)
     q0 = _start_configuration(kinematics, q0)
     label = _plan_label("quintic", X_goal)
     _check_goal_reachable(kinematics, X_goal, label)
-    X_start = kinematics.tool_pose(q0)
-    line = _TaskLine(X_start, X_goal)
     _checked_jacobian(kinematics, q0, config, label, "at the start")
+    line = _task_line(kinematics, q0, X_goal, config, label)
+    X_start = line.X_start
     T = _quintic_duration(line, config, float(t[-1]), label)
 
     def state(time: float, q_predicted: np.ndarray, where: str):
         tau = time / T if T > 0 else 1.0
         s, ds, dds = _quintic_scaling(tau)
-        q = _ik_step(kinematics, line.pose(s if tau < 1.0 else 1.0), q_predicted, config, label, where)
+        q = _ik_step(kinematics, line, s if tau < 1.0 else 1.0, q_predicted, config, label, where)
         J = _checked_jacobian(kinematics, q, config, label, where)
         if tau >= 1.0:
             return q, np.zeros(kinematics.num_joints), np.zeros(kinematics.num_joints)
         qd = np.linalg.solve(J, line.tangent * (ds / T))
-        qdd = np.linalg.solve(J, line.tangent * (dds / T**2) - kinematics.bias_acceleration(q, qd))
+        qdd = np.linalg.solve(J, line.tangent * (dds / T**2) - kinematics.task_bias(q, qd))
         return q, qd, qdd
 
     n = len(t)
@@ -374,17 +406,16 @@ def plan_quintic(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, con
 
 def _goal_configuration(kinematics: RobotKinematics, q0: np.ndarray, X_goal: RigidTransform,
                         config: PlannerConfig, label: str) -> tuple[RigidTransform, _TaskLine, np.ndarray]:
-    X_start = kinematics.tool_pose(q0)
-    line = _TaskLine(X_start, X_goal)
+    line = _task_line(kinematics, q0, X_goal, config, label)
     ss = np.linspace(0.0, 1.0, config.path_waypoints)
-    return X_start, line, _ik_along_line(kinematics, q0, line, ss, config, label)
+    return line.X_start, line, _ik_along_line(kinematics, q0, line, ss, config, label)
 
 
 @dataclasses.dataclass
 class _JointSpaceGoal:
     """What the joint-space planners (ruckig, toppra) share: sample times t (n,) s and the horizon
-    t[-1] s; the start q0 and the goal q_goal (6,) rad; the IK waypoints along the task-space line
-    (W, 6) rad, whose last is q_goal; the start pose X_start; the label for error messages."""
+    t[-1] s; the start q0 and the goal q_goal (n,) rad; the IK waypoints along the task-space line
+    (W, n) rad, whose last is q_goal; the start pose X_start; the label for error messages."""
     t: np.ndarray
     horizon: float
     q0: np.ndarray
@@ -402,7 +433,7 @@ class _JointSpaceGoal:
 
     def trajectory(self, kind: str, kinematics: "RobotKinematics", config: "PlannerConfig", q, qd, qdd,
                    duration: float, evaluator) -> "PlannedTrajectory":
-        """The sampled plan (q, qd, qdd: (n, 6)) after the joint-limit checks."""
+        """The sampled plan (q, qd, qdd: (N+1, n)) after the joint-limit checks."""
         _check_limits(kinematics, config, self.label, self.t, q, qd, qdd)
         return PlannedTrajectory(planner=kind, t=self.t, q=q, qd=qd, qdd=qdd, X_start=self.X_start,
                                  X_goal=self.X_goal, q_goal=self.q_goal, duration=duration, evaluator=evaluator)
@@ -423,7 +454,7 @@ def _joint_space_goal(kind: str, kinematics: "RobotKinematics", q0, X_goal: Rigi
 
 def plan_ruckig(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, config: PlannerConfig,
                 num_steps: int = 100, sample_period: float = 0.01) -> PlannedTrajectory:
-    """Jerk-limited joint-space point-to-point motion (ruckig) from q0 (6,) rad to IK(X_goal).
+    """Jerk-limited joint-space point-to-point motion (ruckig) from q0 (n,) rad to IK(X_goal).
 
     The goal configuration is found by IK continuation along the task-space line, so all three
     planners end in the same configuration for the same goal. ruckig (community edition)
@@ -471,7 +502,7 @@ def plan_ruckig(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, conf
 def plan_toppra(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, config: PlannerConfig,
                 num_steps: int = 100, sample_period: float = 0.01) -> PlannedTrajectory:
     """Time-optimal re-timing (toppra) of the IK'd task-space line under joint velocity and
-    acceleration limits, from rest at q0 (6,) rad to rest at IK(X_goal).
+    acceleration limits, from rest at q0 (n,) rad to rest at IK(X_goal).
 
     The path is a cubic spline through `path_waypoints` IK solutions along the same line the
     quintic planner follows, so the tool deviates from the exact line between waypoints only
@@ -525,7 +556,7 @@ _PLANNERS = {"quintic": plan_quintic, "ruckig": plan_ruckig, "toppra": plan_topp
 
 def plan_trajectory(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, config: PlannerConfig,
                     num_steps: int = 100, sample_period: float = 0.01) -> PlannedTrajectory:
-    """Plan from rest at q0 (6,) rad to rest at IK(X_goal) with the planner `config.kind`.
+    """Plan from rest at q0 (n,) rad to rest at IK(X_goal) with the planner `config.kind`.
 
     Returns exactly num_steps + 1 samples at sample_period (s). Raises PlanningError (one line)
     when the goal is unreachable, near a singularity, or the plan violates a limit or cannot

@@ -5,16 +5,18 @@ Layout (format "stdm-drake-dataset", version 1):
     /                      attrs: format, format_version, protocol, sample_period (s),
                                   num_trajectories, metadata_json (everything else, see below)
     /trajectories/000000   attrs: group (int; initial-pose index, 0 for excitation)
-        q        (T+1, 6) rad     joint angles as the learner sees them (measured: noise + filter)
-        v        (T+1, 6) rad/s   joint velocities as the learner sees them
-        tau      (T, 6)   N m     torque applied over [t_k, t_k+1) (zero-order hold)
-        tau_next (6,)     N m     torque the controller computes at t_T (not applied); closes the
+        q        (T+1, n) rad     joint angles as the learner sees them (measured: noise + filter)
+        v        (T+1, n) rad/s   joint velocities as the learner sees them
+        tau      (T, m)   N m     action: torques of the m actuated joints over [t_k, t_k+1)
+                                  (zero-order hold); m = n unless the robot is underactuated
+        tau_next (m,)     N m     action the controller computes at t_T (not applied); closes the
                                   forward difference of the action rate at the last step
-        q_true, v_true (T+1, 6)   the plant's true state at the sample instants
-        qdd      (T+1, 6) rad/s^2 true acceleration just after t_k (under the torque from t_k on)
-        qdd_end  (T, 6)   rad/s^2 true acceleration just before t_k+1 (under tau_k)
-        q_planned, v_planned, qdd_planned (T+1, 6)   tracking protocol only: the plan
+        q_true, v_true (T+1, n)   the plant's true state at the sample instants
+        qdd      (T+1, n) rad/s^2 true acceleration just after t_k (under the torque from t_k on)
+        qdd_end  (T, n)   rad/s^2 true acceleration just before t_k+1 (under tau_k)
+        q_planned, v_planned, qdd_planned (T+1, n)   tracking protocol only: the plan
 
+n is the robot's arm-joint count (the UR-10: 6), recorded with the joint names and the robot's config.
 metadata_json holds the robot model hash, plant time step, protocol settings (planner,
 controller gains, excitation ranges, noise and filter), seed and package versions. Files are
 written atomically and deterministically (same content -> same bytes).
@@ -45,9 +47,9 @@ ACTION_RATE_SCHEMES = ("forward_difference", "zero_order_hold")
 class Transitions:
     """One-step training pairs, stacked over trajectories (N = sum of T over trajectories).
 
-    state (N, 12) [q rad, v rad/s] at t_k; action (N, 6) N m over [t_k, t_k+1);
-    next_state (N, 12) at t_k+1; state_rate (N, 12) = [q̇, q̈] at t_k (tangent of the chain rule);
-    action_rate (N, 6) N m/s; next_state_rate (N, 12) = [q̇, q̈] at t_k+1 (derivative target);
+    state (N, 2n) [q rad, v rad/s] at t_k; action (N, m) N m over [t_k, t_k+1);
+    next_state (N, 2n) at t_k+1; state_rate (N, 2n) = [q̇, q̈] at t_k (tangent of the chain rule);
+    action_rate (N, m) N m/s; next_state_rate (N, 2n) = [q̇, q̈] at t_k+1 (derivative target);
     trajectory (N,) int index into the dataset; step (N,) int k.
     """
     state: np.ndarray
@@ -194,8 +196,9 @@ def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
     num_steps = len(traj["tau"])
     if num_steps < 2:
         raise InputError(f"trajectory {name}: needs at least 2 steps, has {num_steps}")
-    joints = np.shape(traj["tau"])[1] if np.ndim(traj["tau"]) == 2 else -1  # the robot's, from its torques
-    expected = {"tau": (num_steps, joints), "qdd_end": (num_steps, joints), "tau_next": (joints,)}
+    joints = np.shape(traj["q"])[1] if np.ndim(traj["q"]) == 2 else -1  # the robot's, from its positions
+    actions = np.shape(traj["tau"])[1] if np.ndim(traj["tau"]) == 2 else -1  # torques of its actuated joints
+    expected = {"tau": (num_steps, actions), "qdd_end": (num_steps, joints), "tau_next": (actions,)}
     for key in traj:
         shape = np.shape(traj[key])
         want = expected.get(key, (num_steps + 1, joints))

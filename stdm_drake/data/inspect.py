@@ -70,9 +70,13 @@ def summary(dataset: Dataset) -> str:
     labels = labels or [f"joint{j}" for j in range(dataset.trajectory(0)["q"].shape[1])]
     header = f"{'':14s}" + "".join(f"{label:>17s}" for label in labels)
     lines += ["", "ranges (min..max over all samples)", header]
+    unactuated = set(meta.get("robot", {}).get("unactuated_joints", []))
+    actuated = [j for j, name in enumerate(meta.get("joint_names", labels)) if name not in unactuated]
     for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), ("qdd", "rad/s^2")):
         values = np.concatenate([dataset.trajectory(i)[key] for i in range(dataset.num_trajectories)])
-        cells = "".join(f"{lo:>8.3g}..{hi:<7.3g}" for lo, hi in zip(values.min(0), values.max(0)))
+        columns = actuated if key == "tau" and len(actuated) == values.shape[1] else range(values.shape[1])
+        ranges = {j: f"{lo:>8.3g}..{hi:<7.3g}" for j, lo, hi in zip(columns, values.min(0), values.max(0))}
+        cells = "".join(ranges.get(j, f"{'(none)':>17s}") for j in range(len(labels)))
         lines.append(f"{key + ' ' + unit:14s}{cells}")
     if dataset.protocol == "tracking":
         errors = tracking_errors(dataset)

@@ -1,0 +1,215 @@
+"""The robots shipped beside the UR-10: the 7-joint Franka Emika Panda (models/panda.yaml) through every
+command, and the Acrobot from the drake wheel (models/acrobot.yaml, underactuated) through excitation,
+training and evaluation, with tracking and MPC refused."""
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from stdm_drake.errors import InputError
+from stdm_drake.paths import MODELS_DIR
+from stdm_drake.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, make_plant
+from stdm_drake.robot import UR10, load_robot
+
+PANDA_CONFIG = MODELS_DIR / "panda.yaml"
+ACROBOT_CONFIG = MODELS_DIR / "acrobot.yaml"
+
+
+@pytest.fixture(scope="module")
+def panda():
+    return load_robot(PANDA_CONFIG)
+
+
+@pytest.fixture(scope="module")
+def acrobot():
+    return load_robot(ACROBOT_CONFIG)
+
+
+def modified_dh(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
+    """Craig's link transform: Rot_x(alpha) Trans_x(a) Rot_z(theta) Trans_z(d)."""
+    ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
+    return np.array([[ct, -st, 0, a], [st * ca, ct * ca, -sa, -sa * d], [st * sa, ct * sa, ca, ca * d], [0, 0, 0, 1]])
+
+
+def test_panda_file_is_the_published_arm(panda):
+    from tools_import import generate_panda_urdf
+    assert panda.model_path.read_text() == generate_panda_urdf.urdf_text()   # written by its generator
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=panda)
+    limits = joint_limits(plant)
+    assert panda.num_joints == 7 and panda.action_dim == 7
+    np.testing.assert_array_equal(limits.position_upper, [2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
+    np.testing.assert_array_equal(limits.velocity, [2.175] * 4 + [2.61] * 3)
+    np.testing.assert_array_equal(limits.effort, [87.0] * 4 + [12.0] * 3)
+    # Franka's modified DH table, flange 0.107 m along link 7's z axis
+    dh = [(0.0, 0.333, 0.0), (0.0, 0.0, -np.pi / 2), (0.0, 0.316, np.pi / 2), (0.0825, 0.0, np.pi / 2),
+          (-0.0825, 0.384, -np.pi / 2), (0.0, 0.0, np.pi / 2), (0.088, 0.0, np.pi / 2)]
+    context = plant.CreateDefaultContext()
+    for q in np.random.default_rng(0).uniform(limits.position_lower, limits.position_upper, size=(5, 7)):
+        X = np.eye(4)
+        for (a, d, alpha), theta in zip(dh, q):
+            X = X @ modified_dh(a, d, alpha, theta)
+        X = X @ modified_dh(0.0, 0.107, 0.0, 0.0)
+        plant.SetPositions(context, q)
+        flange = plant.CalcRelativeTransform(context, plant.world_frame(), plant.GetFrameByName("panda_link8"))
+        np.testing.assert_allclose(flange.GetAsMatrix4(), X, atol=1e-9)
+    assert SelfCollisionChecker(panda).is_collision_free(panda.home)
+    gravity = Dynamics(panda).gravity_torque(panda.home)
+    assert np.all(np.abs(gravity) < 0.3 * limits.effort)   # the arm holds itself at home with margin
+
+
+def test_redundant_arm_plans_have_exact_derivatives(panda):
+    """A 7-joint arm's quintic plan: the tool follows the line, the redundant joint moves linearly along
+    it, and q̇, q̈ are the derivatives of q; ruckig and toppra end in the same configuration."""
+    from stdm_drake.collection.kinematics import RobotKinematics, rotation_log
+    from stdm_drake.collection.plan import derived_tracking_spec, initial_configuration, sample_final_pose
+    from stdm_drake.collection.planners import plan_trajectory
+
+    sampling, planner = derived_tracking_spec(panda)
+    kinematics = RobotKinematics(robot=panda)
+    assert len(kinematics.redundant_joints) == 1
+    (r,) = kinematics.redundant_joints
+    q0 = initial_configuration(kinematics, sampling.initial_poses[1], planner)
+    X_goal = sample_final_pose(kinematics.tool_pose(q0), sampling, np.random.default_rng(3))
+    plan = plan_trajectory(kinematics, q0, X_goal, config=planner, num_steps=100, sample_period=0.01)
+    moving = plan.t < plan.duration
+    assert np.ptp(plan.q[:, r]) > 1e-3                                   # the redundant joint moves...
+    progress = (plan.q[:, r] - q0[r]) / (plan.q_goal[r] - q0[r])
+    X_start = kinematics.tool_pose(q0)
+    for k in np.flatnonzero(moving)[::10]:                               # ...in step with the tool on the line
+        X = kinematics.tool_pose(plan.q[k])
+        s = progress[k]
+        expected = X_start.translation() + s * (X_goal.translation() - X_start.translation())
+        np.testing.assert_allclose(X.translation(), expected, atol=1e-9)
+    assert np.linalg.norm(rotation_log(kinematics.tool_pose(plan.q_goal).rotation().matrix()
+                                       @ X_goal.rotation().matrix().T)) < 1e-9
+    # derivatives: evaluate() is exact, so central differences at 1e-5 s agree to O(h^2)
+    h = 1e-5
+    for time in (0.2, 0.5, 0.8):
+        q_minus, qd_minus, _ = plan.evaluate(time - h)
+        q_plus, qd_plus, _ = plan.evaluate(time + h)
+        _, qd, qdd = plan.evaluate(time)
+        np.testing.assert_allclose((q_plus - q_minus) / (2 * h), qd, atol=1e-6)
+        np.testing.assert_allclose((qd_plus - qd_minus) / (2 * h), qdd, atol=1e-4)
+    for kind in ("ruckig", "toppra"):
+        other = plan_trajectory(kinematics, q0, X_goal, config=dataclasses.replace(planner, kind=kind),
+                                num_steps=100, sample_period=0.01)
+        np.testing.assert_allclose(other.q_goal, plan.q_goal, atol=1e-9)
+
+
+def test_derived_tracking_spec_starts_at_home_within_reach(panda):
+    from stdm_drake.collection.plan import derived_tracking_spec
+    sampling, planner = derived_tracking_spec(panda)
+    assert len(sampling.initial_poses) == 4 and sampling.initial_poses[0].q_seed == panda.home.tolist()
+    seeds = np.array([pose.q_seed for pose in sampling.initial_poses])
+    assert np.all(np.abs(seeds - panda.home) <= 0.3)
+    assert len(planner.acceleration_limits) == 7 and max(planner.acceleration_limits) <= 5.0
+    assert 0.05 < sampling.position_offset[0] < 0.15                     # a tenth of the Panda's reach
+
+
+def test_mpc_weights_for_other_robots_follow_the_ur10_fit():
+    """The derived effort weights reproduce the UR-10's hand-tuned ones within a factor of 2.2."""
+    from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config
+    tuned = np.array(load_mpc_config().effort_weight)
+    derived = np.array(MpcConfig.derived_for(UR10).effort_weight)
+    assert np.all(np.abs(np.log(derived / tuned)) < np.log(2.2)), derived
+
+
+def test_panda_collect_train_evaluate_mpc_view(tmp_path, capsys, panda):
+    """The 7-joint arm through every command with only its robot config: derived tracking poses,
+    the default controller (one gain for every joint), derived MPC weights."""
+    from stdm_drake.cli import main
+    from stdm_drake.data.dataset import load_dataset
+
+    data = tmp_path / "panda.h5"
+    robot = str(PANDA_CONFIG)
+    assert main(["collect", "--robot", robot, "--count", "12", "--workers", "1", "--quiet", "-o", str(data)]) == 0
+    dataset = load_dataset(data)
+    assert dataset.trajectory(0)["q"].shape == (101, 7) and dataset.trajectory(0)["tau"].shape == (100, 7)
+    assert dataset.metadata["controller"]["kp"] == [225.0] * 7          # recorded per joint
+    assert len(dataset.metadata["task_space_sampling"]["initial_poses"]) == 4
+    assert main(["inspect", str(data), "--robot", robot]) == 0
+    summary = capsys.readouterr().out
+    true_q_mse = float(summary.split("true            q ")[1].split()[0])
+    assert true_q_mse < 1e-5                                             # it tracks its plans
+    assert main(["train", str(data), "--robot", robot, "--model", "DD", "--epochs", "3", "--train", "1", "--val", "1",
+                 "--test", "1", "--quiet", "-o", str(tmp_path / "dd")]) == 0
+    checkpoint = str(tmp_path / "dd" / "seed0" / "checkpoint.pt")
+    assert main(["evaluate", checkpoint, str(data), "--robot", robot, "--horizon", "10"]) == 0
+    assert main(["mpc", str(data), "--robot", robot, "--model", f"DD={checkpoint}", "--plans", "1", "--quiet",
+                 "-o", str(tmp_path / "mpc")]) == 0
+    rows = {row["model"]: row for row in json.loads((tmp_path / "mpc" / "mpc.json").read_text())["summary"]}
+    assert rows["plant"]["q_mse_rad2"] < 1e-6 and rows["plant"]["limit_violations"] == 0
+    assert np.isfinite(rows["DD"]["q_mse_rad2"])
+    assert main(["view", checkpoint, str(data), "--robot", robot, "--trajectories", "1",
+                 "--html", str(tmp_path / "view.html")]) == 0
+    assert (tmp_path / "view.html").stat().st_size > 1000
+    assert main(["mpc", str(data), "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc_ur10")]) == 2
+    assert "collected with robot panda" in capsys.readouterr().err      # the UR-10 default refuses it
+
+
+def test_acrobot_excitation_train_evaluate_and_refusals(tmp_path, capsys, acrobot):
+    """The underactuated Acrobot: one torque (the elbow's) per step, the shoulder swinging free;
+    tracking and MPC refuse it in one line before any work."""
+    from stdm_drake.cli import main
+    from stdm_drake.data.dataset import load_dataset
+
+    assert acrobot.joint_names == ("shoulder", "elbow") and acrobot.actuated_joint_names == ("elbow",)
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=acrobot)
+    assert plant.num_actuators() == 1 and joint_limits(plant).effort.tolist() == [20.0]
+    data = tmp_path / "acrobot.h5"
+    robot = str(ACROBOT_CONFIG)
+    assert main(["collect", "--robot", robot, "--protocol", "excitation", "--count", "6", "--workers", "1",
+                 "--quiet", "-o", str(data)]) == 0
+    dataset = load_dataset(data)
+    traj = dataset.trajectory(0)
+    assert traj["q"].shape == (51, 2) and traj["tau"].shape == (50, 1) and traj["tau_next"].shape == (1,)
+    assert np.ptp(traj["q_true"][:, 0]) > 0.01                          # the free shoulder swings
+    dynamics = Dynamics(acrobot)   # the recorded accelerations are the plant's under the elbow torque alone
+    np.testing.assert_allclose(dynamics.acceleration(traj["q_true"][3], traj["v_true"][3], traj["tau"][3]),
+                               traj["qdd"][3], rtol=1e-9, atol=1e-9)
+    assert main(["inspect", str(data), "--robot", robot]) == 0
+    assert "(none)" in capsys.readouterr().out                          # no torque column for the shoulder
+    assert main(["train", str(data), "--robot", robot, "--model", "DD", "--epochs", "3", "--train", "4", "--val", "1",
+                 "--quiet", "-o", str(tmp_path / "dd")]) == 0
+    checkpoint = str(tmp_path / "dd" / "seed0" / "checkpoint.pt")
+    assert main(["evaluate", checkpoint, str(data), "--robot", robot, "--horizon", "10"]) == 0
+    assert main(["view", checkpoint, str(data), "--robot", robot, "--trajectories", "1",
+                 "--html", str(tmp_path / "view.html")]) == 0
+    capsys.readouterr()
+    for command in (["collect", "--robot", robot, "-o", str(tmp_path / "tracking.h5")],
+                    ["mpc", str(data), "--robot", robot, "-o", str(tmp_path / "mpc")]):
+        assert main(command) == 2
+        error = capsys.readouterr().err
+        assert "acrobot is underactuated (shoulder without an actuator)" in error and error.count("\n") == 1
+    assert not (tmp_path / "tracking.h5").exists() and not (tmp_path / "mpc").exists()
+
+
+def test_robot_config_underactuation_and_model_package_errors(tmp_path):
+    text = ACROBOT_CONFIG.read_text()
+    for replace, message in (
+            (("unactuated_joints: [shoulder]", "unactuated_joints: [wrist]"), "unactuated_joints must list distinct arm"),
+            (("unactuated_joints: [shoulder]", "unactuated_joints: [shoulder, elbow]"), "every arm joint is unactuated"),
+            (("package://drake/", "package://nowhere/"), "unknown package 'nowhere'"),
+            (("effort_limits: {elbow: 20.0}", ""), "'elbow' has no effort limit"),
+            (("velocity_limits: {shoulder: 10.0, elbow: 10.0}", ""), "'shoulder' has no velocity limit")):
+        path = tmp_path / "robot.yaml"
+        path.write_text(text.replace(*replace))
+        with pytest.raises(InputError) as error:
+            make_plant(PlantConfig(time_step=0.0), robot=load_robot(path))
+        assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
+
+
+def test_actuators_follow_the_arm_order_when_the_file_gives_only_some(tmp_path):
+    """A file with a <transmission> on the elbow only: the shoulder's actuator is created, and the
+    action's order (the actuation port's) is still shoulder, elbow."""
+    from test_robot_config import GOOD, two_link_urdf, write_robot
+    transmission = ('<transmission name="elbow_trans"><type>transmission_interface/SimpleTransmission</type>'
+                    '<joint name="elbow"><hardwareInterface>hardware_interface/EffortJointInterface'
+                    '</hardwareInterface></joint><actuator name="elbow_motor"/></transmission>\n</robot>')
+    robot = load_robot(write_robot(tmp_path, two_link_urdf().replace("</robot>", transmission), GOOD))
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+    names = [plant.get_joint_actuator(index).joint().name() for index in plant.GetJointActuatorIndices()]
+    assert names == ["shoulder", "elbow"]
+    np.testing.assert_array_equal(joint_limits(plant).effort, [40.0, 20.0])
+    np.testing.assert_array_equal(plant.MakeActuationMatrix(), np.eye(2))
