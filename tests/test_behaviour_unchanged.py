@@ -18,7 +18,8 @@ import torch
 from stdm_drake.cli import main
 
 # sha256 over every array (by name), and over the collection metadata's keys as they were (package
-# versions aside; keys added since, like the robot's name, are not part of the comparison)
+# versions aside; keys added since, like the robot's name or the controller's empty sizing fields, are not
+# part of the comparison)
 DATASET_ARRAYS_SHA256 = {
     "excitation": "05234ff90ac845c1bc50dd359874648dba5914500116e3c16f8a042b426fee32",
     "tracking": "c71777eb1c72ec4fdb565ae61135254759be06b9f0ab1eff6805383a410e2570",
@@ -55,6 +56,9 @@ def dataset_hashes(path, keys) -> tuple[str, str]:
         f.visititems(visit)
         metadata = json.loads(f.attrs["metadata_json"])
     kept = {key: metadata[key] for key in keys}
+    if "controller" in kept:  # fields added since (PID sizing), empty in files of gains given by hand
+        kept["controller"] = {key: value for key, value in kept["controller"].items()
+                              if not (key in ("bandwidth", "dither_acceleration") and value == [])}
     return arrays.hexdigest(), hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
 
 

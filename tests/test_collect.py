@@ -171,7 +171,7 @@ def test_unreachable_pose_fails_clearly(tmp_path):
 
 def test_bad_controller_and_period(tmp_path):
     gains = tmp_path / "gains.yaml"
-    gains.write_text("kind: pid\nkp: [1, 2, 3]\n")
+    gains.write_text("kind: pid\nkp: [1, 2, 3]\nki: [0]\nkd: [1]\n")
     result = run_cli("collect", "--controller", str(gains), "-o", str(tmp_path / "out.h5"))
     assert result.returncode == 2 and "controller kp has 3 values; the robot has 6 joints" in result.stderr
     gains.write_text(open("controllers/inverse_dynamics.yaml").read().replace(

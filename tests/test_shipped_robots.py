@@ -213,3 +213,52 @@ def test_actuators_follow_the_arm_order_when_the_file_gives_only_some(tmp_path):
     assert names == ["shoulder", "elbow"]
     np.testing.assert_array_equal(joint_limits(plant).effort, [40.0, 20.0])
     np.testing.assert_array_equal(plant.MakeActuationMatrix(), np.eye(2))
+
+
+def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
+    """controllers/pid_sized.yaml gives the UR-10 gains close to pid.yaml's hand-set ones, and tracks
+    the Panda's plans with no per-robot tuning; a file with both gains and a bandwidth is refused."""
+    from stdm_drake.cli import main
+    from stdm_drake.collection.collect import collection_request
+    from stdm_drake.collection.control import load_controller_config
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.paths import CONTROLLERS_DIR
+    hand_set = load_controller_config(CONTROLLERS_DIR / "pid.yaml")
+    sized = dataclasses.replace(load_controller_config(CONTROLLERS_DIR / "pid_sized.yaml"),
+                                bandwidth=[25.0] * 3 + [35.0] * 3).for_robot(UR10)
+    for name in ("kp", "ki", "kd"):
+        ratio = np.array(getattr(sized, name)) / np.array(getattr(hand_set, name))
+        assert np.all((ratio > 0.6) & (ratio < 1.1)), (name, ratio)
+    request = collection_request("tracking", count=4, robot=panda, controller=CONTROLLERS_DIR / "pid_dither_sized.yaml")
+    assert len(request.settings.controller.kp) == 7 and min(request.settings.controller.dither_std) > 0
+    data = tmp_path / "pid.h5"
+    assert main(["collect", "--robot", str(PANDA_CONFIG), "--controller", str(CONTROLLERS_DIR / "pid_sized.yaml"),
+                 "--count", "4", "--workers", "1", "--quiet", "-o", str(data)]) == 0
+    traj = load_dataset(data).trajectory(0)
+    assert np.mean((traj["q_true"] - traj["q_planned"]) ** 2) < 1e-4
+    both = tmp_path / "both.yaml"
+    both.write_text("kind: pid\nkp: [100.0]\nbandwidth: [25.0]\n")
+    with pytest.raises(InputError, match="give kp, ki, kd or bandwidth, not both"):
+        collection_request("tracking", count=1, robot=panda, controller=both)
+
+
+def test_reproduce_quick_on_the_panda(tmp_path, capsys):
+    """`reproduce --quick --robot` runs every stage on the 7-joint arm with its derived protocols, and
+    refuses the underactuated Acrobot before any work."""
+    from stdm_drake.cli import main
+    from stdm_drake.data.dataset import load_dataset
+    out = tmp_path / "reproduce"
+    assert main(["reproduce", "--quick", "--robot", str(PANDA_CONFIG), "--quiet", "-o", str(out)]) == 0
+    report = (out / "report.md").read_text()
+    assert "profile 'quick', robot panda" in report and "Simulated panda: activations" in report
+    assert "pid_dither_sized.yaml" in report and "## Closed-loop MPC" in report
+    datasets = sorted((out / "data").glob("*.h5"))
+    assert len(datasets) == 4
+    for path in datasets:
+        dataset = load_dataset(path)
+        assert dataset.metadata["robot"]["name"] == "panda" and dataset.trajectory(0)["q"].shape[1] == 7
+    plant = json.loads((out / "results.json").read_text())["tables"]["mpc"][0]
+    assert plant["model"] == "plant" and plant["q_mse_rad2"] < 1e-5 and plant["limit_violations"] == 0
+    capsys.readouterr()
+    assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
+    assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()

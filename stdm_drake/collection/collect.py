@@ -95,7 +95,8 @@ class ExcitationConfig:
         """Default ranges for a robot without an excitation file, by the rule behind the UR-10's:
         amplitude and offset limits `acceleration` (rad/s^2) times each joint's effective inertia
         M_ii at the home pose (N m), start poses in a box of +-`box` rad around home, kept 0.05 rad
-        inside the position limits."""
+        inside the position limits (box=math.pi: the whole range, as trajectories/excitation.yaml's
+        nearly whole-range UR-10 start poses)."""
         dynamics = Dynamics(robot)
         context = dynamics.plant.CreateDefaultContext()
         dynamics.plant.SetPositions(context, robot.home)
@@ -473,10 +474,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def collection_request(protocol: str = "tracking", *, count: int | None = None, seed: int = 0, config=None,
                        controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
                        plant_time_step: float = PlantConfig.time_step, robot=None,
-                       workers: int = min(2, os.cpu_count() or 1)) -> CollectionRequest:
+                       workers: int = min(2, os.cpu_count() or 1),
+                       excitation: ExcitationConfig | None = None) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
-    sensor, robot: YAML paths, None for the defaults; robot may also be a Robot). Reads every config
-    file and checks it against the robot, so errors come before any simulation starts."""
+    sensor, robot: YAML paths, None for the defaults; robot may also be a Robot; excitation: an
+    ExcitationConfig to use instead of a file). Reads every config file and checks it against the
+    robot, so errors come before any simulation starts."""
     if protocol not in DEFAULT_CONFIGS:
         raise InputError(f"protocol must be one of {tuple(DEFAULT_CONFIGS)}, got {protocol!r}")
     config_path = config or DEFAULT_CONFIGS[protocol]
@@ -496,6 +499,9 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     request = CollectionRequest(protocol=protocol, count=count or PAPER_COUNTS[protocol], seed=seed,
                                 settings=settings, workers=workers)
     if protocol == "excitation":
+        if excitation is not None:
+            request.excitation = excitation.for_robot(robot)
+            return request
         if config is None and not robot.same_as(UR10):  # trajectories/excitation.yaml is written for the UR-10
             request.excitation = ExcitationConfig.derived_for(robot)
             return request

@@ -39,14 +39,21 @@ class ControllerConfig:
     for inverse_dynamics) is the measured one passed through a first-order low-pass filter,
     v_f,k = v_f,k-1 + beta (v_k - v_f,k-1) with beta = T / (T + time_constant) at the sample period T,
     started at the first measurement; 0 = the raw measurement.
+    bandwidth (rad/s, pid only; instead of kp, ki, kd): gains sized for any robot from each joint's
+    effective inertia M_eff,i = 1 / (M^-1)_ii, its smallest over home and 50 poses within +-0.5 rad of
+    it (the smallest decides stability at a held torque): kp = M_eff w^2, kd = 2 M_eff w (critically
+    damped), ki = 2 kp, the rule behind controllers/pid.yaml's UR-10 gains.
+    dither_acceleration (rad/s^2; instead of dither_std): dither_std = dither_acceleration x M_eff.
     """
     kind: str = "pid"
-    kp: list[float] = dataclasses.field(default_factory=lambda: [1250.0, 2500.0, 690.0, 24.5, 5.3, 0.42])
-    ki: list[float] = dataclasses.field(default_factory=lambda: [2500.0, 5000.0, 1380.0, 49.0, 10.6, 0.84])
-    kd: list[float] = dataclasses.field(default_factory=lambda: [100.0, 200.0, 55.0, 1.4, 0.3, 0.024])
+    kp: list[float] = dataclasses.field(default_factory=list)
+    ki: list[float] = dataclasses.field(default_factory=list)
+    kd: list[float] = dataclasses.field(default_factory=list)
     gravity_feedforward: bool = True
     dither_std: list[float] = dataclasses.field(default_factory=lambda: [0.0])
     velocity_filter_time_constant: float = 0.0
+    bandwidth: list[float] = dataclasses.field(default_factory=list)
+    dither_acceleration: list[float] = dataclasses.field(default_factory=list)
 
     def validate(self) -> None:
         if not self.velocity_filter_time_constant >= 0:
@@ -55,19 +62,59 @@ class ControllerConfig:
         check_joint_vector("controller dither_std", self.dither_std, nonnegative=True)
         if self.kind not in CONTROLLER_KINDS:
             raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
-        for name in ("kp", "ki", "kd"):
+        if self.bandwidth and self.kind != "pid":
+            raise InputError("controller bandwidth sizes pid gains; inverse_dynamics gains are per unit inertia already")
+        given = [name for name in ("kp", "ki", "kd") if getattr(self, name)]
+        if self.bandwidth:
+            check_joint_vector("controller bandwidth", self.bandwidth, nonnegative=True)
+            if given:
+                raise InputError(f"controller: give kp, ki, kd or bandwidth, not both (got {', '.join(given)})")
+        elif len(given) != 3:
+            raise InputError("controller needs kp, ki and kd (or, for pid, a bandwidth to size them from)")
+        for name in given:
             check_joint_vector(f"controller gain {name}", getattr(self, name), nonnegative=True)
+        if self.dither_acceleration:
+            check_joint_vector("controller dither_acceleration", self.dither_acceleration, nonnegative=True)
 
     def for_robot(self, robot: Robot) -> "ControllerConfig":
-        """This config with kp, ki, kd and dither_std of the robot's length (one value broadcast), as
+        """This config with kp, ki, kd and dither_std of the robot's length (one value broadcast, or
+        sized from its inertia by bandwidth and dither_acceleration, which are then left empty), as
         datasets record it; InputError when a list has another length."""
-        kp, ki, kd, dither_std = self.gains(robot.num_joints)
-        return dataclasses.replace(self, kp=kp.tolist(), ki=ki.tolist(), kd=kd.tolist(), dither_std=dither_std.tolist())
+        self.validate()
+        n = robot.num_joints
+        config = self
+        if self.bandwidth or self.dither_acceleration:
+            inertia = smallest_effective_inertia(robot)
+            if self.bandwidth:
+                w = check_joint_vector("controller bandwidth", self.bandwidth, count=n)
+                kp = inertia * w**2
+                config = dataclasses.replace(config, kp=kp.tolist(), ki=(2.0 * kp).tolist(),
+                                             kd=(2.0 * inertia * w).tolist(), bandwidth=[])
+            if self.dither_acceleration:
+                acceleration = check_joint_vector("controller dither_acceleration", self.dither_acceleration, count=n)
+                config = dataclasses.replace(config, dither_std=(acceleration * inertia).tolist(), dither_acceleration=[])
+        kp, ki, kd, dither_std = config.gains(n)
+        return dataclasses.replace(config, kp=kp.tolist(), ki=ki.tolist(), kd=kd.tolist(), dither_std=dither_std.tolist())
 
     def gains(self, joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(kp, ki, kd, dither_std), each (joints,); InputError when a list has another length."""
         return tuple(check_joint_vector(f"controller {name}", getattr(self, name), count=joints, nonnegative=True)
                      for name in ("kp", "ki", "kd", "dither_std"))
+
+
+def smallest_effective_inertia(robot: Robot, box: float = 0.5, samples: int = 50) -> np.ndarray:
+    """Per joint (n,) kg m^2, the smallest 1 / (M(q)^-1)_ii over home and `samples` poses drawn
+    uniformly within +-box rad of it inside the position limits (numpy.random.default_rng(0))."""
+    dynamics = Dynamics(robot)
+    plant, context = dynamics.plant, dynamics.context
+    limits = joint_limits(plant)
+    poses = np.clip(robot.home + np.random.default_rng(0).uniform(-box, box, size=(samples, robot.num_joints)),
+                    limits.position_lower, limits.position_upper)
+    smallest = np.full(robot.num_joints, np.inf)
+    for q in np.vstack([robot.home, poses]):
+        plant.SetPositions(context, q)
+        smallest = np.minimum(smallest, 1.0 / np.diag(np.linalg.inv(plant.CalcMassMatrix(context))))
+    return smallest
 
 
 def load_controller_config(path) -> ControllerConfig:

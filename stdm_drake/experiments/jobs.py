@@ -326,5 +326,6 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
 
 
 # `collection_request` settings of the identification dataset (dithered PID, ideal sensor)
+# (for another robot than the UR-10: pid_dither_sized.yaml, the same rule sized from its inertia)
 IDENTIFICATION_SETTINGS = dict(controller=CONTROLLERS_DIR / "pid_dither.yaml",
                                sensor=CONTROLLERS_DIR / "sensor_ideal.yaml")

@@ -16,6 +16,7 @@ import argparse
 import concurrent.futures
 import dataclasses
 import json
+import math
 import multiprocessing
 import pathlib
 import time
@@ -25,23 +26,45 @@ from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, FULL, IDENTIFICATI
                                          ensure_dataset, plan_jobs, run_jobs)
 from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
 from stdm_drake.files import json_default
-from stdm_drake.paths import TRAJECTORIES_DIR
+from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
+from stdm_drake.robot import UR10, Robot
 
-def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True):
-    """Run every stage; returns the report path."""
+def dataset_settings(robot: Robot) -> dict:
+    """`ensure_dataset` settings of the four datasets for `robot`: the UR-10 preset's files, or for another
+    robot the same protocols derived from its model (excitation ranges from its inertia, start poses over
+    its whole range for "excitation" and within +-0.5 rad of home for "excitation_local", tracking poses
+    around home, PID gains and dither sized from its inertia)."""
+    if robot.same_as(UR10):
+        return dict(excitation={}, local=dict(config=TRAJECTORIES_DIR / "excitation_local.yaml"), tracking={},
+                    identification=IDENTIFICATION_SETTINGS)
+    from stdm_drake.collection.collect import ExcitationConfig
+    return dict(excitation=dict(robot=robot, excitation=ExcitationConfig.derived_for(robot, box=math.pi)),
+                local=dict(robot=robot, excitation=ExcitationConfig.derived_for(robot)), tracking=dict(robot=robot),
+                identification=dict(IDENTIFICATION_SETTINGS, robot=robot,
+                                    controller=CONTROLLERS_DIR / "pid_dither_sized.yaml"))
+
+
+def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True,
+              robot: Robot | None = None):
+    """Run every stage for `robot` (default: the UR-10 preset); returns the report path."""
     from stdm_drake.experiments import sine_sum
+    robot = robot or UR10
+    robot.check_can_track()  # the tracked-plan experiments and MPC need it (before any work)
+    settings = dataset_settings(robot)
     output = pathlib.Path(output)
     cache = output / "cache"
     cache.mkdir(parents=True, exist_ok=True)
     timings = {}
     tick = time.perf_counter()
-    excitation = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress)
+    excitation = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress,
+                                **settings["excitation"])
     local = ensure_dataset("excitation", profile.excitation_count, seed, output / "data", progress,
-                           name="excitation_local", config=TRAJECTORIES_DIR / "excitation_local.yaml")
-    tracking = ensure_dataset("tracking", profile.tracking_count, seed, output / "data", progress)
+                           name="excitation_local", **settings["local"])
+    tracking = ensure_dataset("tracking", profile.tracking_count, seed, output / "data", progress,
+                              **settings["tracking"])
     # the MPC models' data: the same kind of plans, tracked with dithered PID, recorded by an ideal sensor
     identification = ensure_dataset("tracking", profile.identification_count, seed, output / "data", progress,
-                                    name="identification", **IDENTIFICATION_SETTINGS)
+                                    name="identification", **settings["identification"])
     timings["data"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
@@ -59,7 +82,7 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     timings["sine_sum"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers)
+    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot)
     timings["mpc"] = time.perf_counter() - tick
     return write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
                         timings)
@@ -77,7 +100,8 @@ def reused_sine_sum(path: pathlib.Path, study_config):
     return stored if stored.get("config") == expected and stored.get("runs") else None
 
 
-def run_mpc(profile, identification, results, cache, folder, progress, workers: int = 2) -> dict:
+def run_mpc(profile, identification, results, cache, folder, progress, workers: int = 2,
+            robot: Robot | None = None) -> dict:
     """MPC with the plant and every seed of the control experiment's D, DD, PE, PED models on held-out
     plans of the identification dataset, the models split over `workers` processes; returns
     {"runs": per model instance, "types": mpc_statistics}."""
@@ -88,13 +112,13 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     for model_type in CONTROL_MODEL_TYPES:
         for match in sorted(select_rows(results, experiment="control", model_type=model_type), key=lambda r: r["seed"]):
             specs.append((f"{model_type} seed {match['seed']}", str(cache / f"{match['key']}.pt")))
-    checkpoints = [LearnedModel(path).checkpoint for _, path in specs[1:]]
+    checkpoints = [LearnedModel(path, robot=robot).checkpoint for _, path in specs[1:]]
     references = held_out_references(identification, checkpoints, profile.mpc_plans)
     if profile.mpc_steps is not None:
         references = [(i, Reference(q=r.q[:profile.mpc_steps + 1], v=r.v[:profile.mpc_steps + 1])) for i, r in references]
     # the plant-as-model MPC costs about as much as all learned models together: it gets a worker of its own
     groups = [specs[:1], specs[1:]] if workers > 1 else [specs]
-    jobs = [(group, references, identification.sample_period, progress and index == len(groups) - 1)
+    jobs = [(group, references, identification.sample_period, progress and index == len(groups) - 1, robot)
             for index, group in enumerate(groups)]
     if len(jobs) > 1:
         context = multiprocessing.get_context("spawn")
@@ -113,16 +137,22 @@ def _mpc_group(arguments) -> list:
     from stdm_drake.closed_loop.learned_system import LearnedModel
     from stdm_drake.closed_loop.plant_model import PlantModel
     from stdm_drake.closed_loop.comparison import compare_controllers
-    from stdm_drake.closed_loop.mpc import load_mpc_config
-    specs, references, sample_period, progress = arguments
-    models = [PlantModel(sample_period) if path is None else LearnedModel(path, name=name) for name, path in specs]
-    return compare_controllers(models, references, load_mpc_config(), progress=progress)
+    from stdm_drake.closed_loop.mpc import mpc_config_for
+    specs, references, sample_period, progress, robot = arguments
+    robot = robot or UR10
+    models = [PlantModel(sample_period, robot=robot) if path is None else LearnedModel(path, name=name, robot=robot)
+              for name, path in specs]
+    return compare_controllers(models, references, mpc_config_for(robot), progress=progress, robot=robot)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="every stage at reduced size (under a minute on 2 cores)")
-    parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/reproduce"),
-                        help="report folder (default out/reproduce); datasets and checkpoints there are reused")
+    parser.add_argument("--output", "-o", type=pathlib.Path,
+                        help="report folder (default out/reproduce, or out/reproduce-NAME with --robot); datasets and "
+                             "checkpoints there are reused")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="robot config YAML (default: the UR-10 preset); another fully actuated arm of 6 or more "
+                             "joints runs the same experiments with its protocols derived from its model")
     parser.add_argument("--seed", type=int, default=0, help="data collection seed")
     parser.add_argument("--workers", type=int, default=2, help="training processes (default 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -131,8 +161,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
+    from stdm_drake.robot import robot_for
+    robot = robot_for(args.robot)
+    robot.check_can_track()
+    output = args.output or pathlib.Path("out/reproduce" if robot.same_as(UR10) else f"out/reproduce-{robot.name}")
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()
-    path = reproduce(profile, args.output, seed=args.seed, workers=args.workers, progress=not args.quiet)
+    path = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet, robot=robot)
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
     return 0

@@ -274,7 +274,14 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                  mpc_rows, timings: dict) -> pathlib.Path:
     from stdm_drake.data.inspect import tracking_errors
     figures = folder / "figures"
-    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'")
+    robot = excitation.metadata.get("robot", {}).get("name", "ur10")
+    robot_label = "UR-10" if robot == "ur10" else robot
+    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'"
+                    + ("" if robot == "ur10" else f", robot {robot}"))
+    if robot != "ur10":
+        report.text(f"Robot: {robot} ({len(excitation.metadata.get('joint_names', []))} joints), with the excitation "
+                    "ranges, tracking poses, PID gains and MPC weights derived from its model (README, 'Using your "
+                    "own robot'). The 'paper' columns quote the paper's UR-10 numbers for scale, not as a target.")
     report.text("Every number below is computed by this run except the columns labelled 'paper', which quote "
                 "the values stated in the paper's text. MSE in rad² (joint angles, q) and (rad/s)² (velocities, v); "
                 "improvement = (MSE_naive - MSE_derivative) / MSE_derivative x 100 (the paper's definition). "
@@ -292,21 +299,22 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                   ["identification (MPC models)", identification.num_trajectories,
                    len(identification.trajectory(0)["tau"]), _g(identification_errors["true_q"]),
                    _g(identification_errors["measured_v"]), ""]])
-    report.text("The identification dataset tracks the same kind of plans with controllers/pid_dither.yaml (white "
+    controller_file = "pid_dither.yaml" if robot == "ur10" else "pid_dither_sized.yaml"
+    report.text(f"The identification dataset tracks the same kind of plans with controllers/{controller_file} (white "
                 "torque dither, persistent excitation) and controllers/sensor_ideal.yaml (true states): the models "
                 "for the closed-loop MPC comparison are trained on it, since closed-loop PID torques alone do not "
                 "identify the torque response.")
 
     largest_sim, largest_real = max(profile.sim_train_sizes), max(profile.real_train_sizes)
-    report.heading(f"Simulated UR-10: activations at {largest_sim} training trajectories (Fig. 11)")
+    report.heading(f"Simulated {robot_label}: activations at {largest_sim} training trajectories (Fig. 11)")
     sim_rows = activation_table(results, "sim", largest_sim)
-    plot_activations(sim_rows, "simulated UR-10", _figure_path(figures, "fig11_activations_sim"))
+    plot_activations(sim_rows, f"simulated {robot_label}", _figure_path(figures, "fig11_activations_sim"))
     add_activation_section(report, sim_rows, PAPER["sim_activation_improvement"], lambda activation: (200, 200))
     report.image("figures/fig11_activations_sim.png", "Fig. 11: one-step test MSE, naive vs derivative learning")
 
-    report.heading("Simulated UR-10: sample efficiency (Fig. 12)")
+    report.heading(f"Simulated {robot_label}: sample efficiency (Fig. 12)")
     sim_sizes = size_table(results, "sim")
-    plot_sizes(sim_sizes, "simulated UR-10", "training trajectories", _figure_path(figures, "fig12_sizes_sim"))
+    plot_sizes(sim_sizes, f"simulated {robot_label}", "training trajectories", _figure_path(figures, "fig12_sizes_sim"))
     paper_factor = PAPER["sim_sample_efficiency_factor"]
     add_size_section(report, sim_sizes, lambda size: tuple(100 * (paper_factor[name][size] - 1)
                                                            if size in paper_factor[name] else None
