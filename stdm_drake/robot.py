@@ -107,7 +107,7 @@ class Robot:
             raise InputError(f"robot {config.name}: model file not found: {self.model_path}")
         if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
-        self.file_limits, self.continuous_joints = _joint_limits_in_file(self.model_path)
+        self.file_limits, self.continuous_joints, self.mimic_pairs = _joint_limits_in_file(self.model_path)
         # the model text to parse when visual meshes are missing (None: the file itself), read once
         self._model_text, missing = self._without_missing_visual_meshes()
         if missing:
@@ -279,6 +279,7 @@ class Robot:
         for name in list(config.arm_joints) + list(config.locked_joints):
             if not plant.HasJointNamed(name, instance):
                 raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")
+        self._remove_mimic_constraints(plant)
         for name, position in config.locked_joints.items():
             _weld_joint_at(plant, plant.GetJointByName(name, instance), position)
         actuators = {plant.get_joint_actuator(index).joint().name(): plant.get_joint_actuator(index)
@@ -311,6 +312,26 @@ class Robot:
         for name, effort in efforts.items():
             actuators[name].set_effort_limit(effort)
         return instance
+
+    def _remove_mimic_constraints(self, plant: MultibodyPlant) -> None:
+        """Drake turns a URDF <mimic> into a coupler constraint, and a joint in a constraint cannot be
+        welded. A mimic between locked joints (a gripper's fingers) is dropped (both are welded at their
+        configured positions); a mimic that involves an arm joint is refused."""
+        config = self.config
+        for follower, leader in self.mimic_pairs:
+            arm = [name for name in (follower, leader) if name in config.arm_joints]
+            if arm:
+                raise InputError(f"robot {self.name}: arm joint {arm[0]!r} is in a <mimic> pair ({follower} mimics "
+                                 f"{leader}); arm joints must move independently (lock both, or leave the pair out)")
+        locked_pairs = [pair for pair in self.mimic_pairs if set(pair) & set(config.locked_joints)]
+        if not locked_pairs:
+            return
+        if len(locked_pairs) != len(self.mimic_pairs) or plant.num_constraints() != len(self.mimic_pairs) or any(
+                name not in config.locked_joints for pair in locked_pairs for name in pair):
+            raise InputError(f"robot {self.name}: locked joints {sorted(set(sum(locked_pairs, ())))} are in <mimic> "
+                             "pairs with joints that are not locked; lock every joint of a mimic pair")
+        for constraint in plant.GetConstraintIds():
+            plant.RemoveConstraint(constraint)
 
     def check_plant(self, plant: MultibodyPlant, instance) -> None:
         """After Finalize: the arm joints are the plant's only degrees of freedom, in order, each with
@@ -345,17 +366,20 @@ def load_robot(path=UR10_CONFIG) -> Robot:
     return Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
 
 
-def _joint_limits_in_file(path: pathlib.Path) -> tuple[dict, set]:
+def _joint_limits_in_file(path: pathlib.Path) -> tuple[dict, set, list]:
     """(per joint name, the limits the description file states: {"effort": N m, "velocity": ...}
     (URDF <limit effort= velocity=>, SDF <axis><limit><effort>/<velocity>); the names of URDF
-    "continuous" joints, which have no position limits). An unparsable file gives ({}, set())."""
+    "continuous" joints, which have no position limits; the URDF <mimic> pairs (follower, leader)).
+    An unparsable file gives ({}, set(), [])."""
     import xml.etree.ElementTree as ElementTree
     try:
         root = ElementTree.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
-        return {}, set()
+        return {}, set(), []
     limits = {}
     continuous = {joint.get("name") for joint in root.iter("joint") if joint.get("type") == "continuous"}
+    mimics = [(joint.get("name"), joint.find("mimic").get("joint")) for joint in root.iter("joint")
+              if joint.find("mimic") is not None and joint.get("name") and joint.find("mimic").get("joint")]
     for joint in root.iter("joint"):
         name, values = joint.get("name"), {}
         urdf = joint.find("limit")
@@ -366,7 +390,7 @@ def _joint_limits_in_file(path: pathlib.Path) -> tuple[dict, set]:
             values = {key: float(sdf.findtext(key)) for key in ("effort", "velocity") if sdf.findtext(key)}
         if name and values:  # (a URDF <transmission> names its joint too, without limits)
             limits[name] = values
-    return limits, continuous
+    return limits, continuous, mimics
 
 
 def _weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:

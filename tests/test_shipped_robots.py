@@ -262,3 +262,25 @@ def test_reproduce_quick_on_the_panda(tmp_path, capsys):
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
     assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()
+
+
+def test_locked_mimic_fingers_load_and_a_mimic_on_an_arm_joint_is_refused(tmp_path):
+    """Drake turns <mimic> into a coupler constraint, which blocks welding; a pair of locked fingers is
+    dropped (as in pybullet's Panda), a pair that touches an arm joint is a one-line error."""
+    from test_robot_config import GOOD, LINK, two_link_urdf, write_robot
+    finger2 = (LINK.format(name="finger2", mass=0.1, com=0.0)
+               + '  <joint name="finger_joint2" type="prismatic"><parent link="fore"/><child link="finger2"/>'
+                 '<origin xyz="0 0 0.3"/><axis xyz="-1 0 0"/><limit lower="0" upper="0.04" effort="5" velocity="0.1"/>'
+                 '<mimic joint="{leader}"/></joint>\n</robot>')
+    fingers = two_link_urdf().replace("</robot>", finger2.format(leader="finger_joint"))
+    robot = load_robot(write_robot(tmp_path, fingers, GOOD.replace("{finger_joint: 0.02}",
+                                                                   "{finger_joint: 0.02, finger_joint2: 0.02}")))
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+    assert plant.num_positions() == 2 and plant.num_constraints() == 0
+    for leader, locked, message in (("elbow", "{finger_joint: 0.02, finger_joint2: 0.02}", "arm joint 'elbow' is in a <mimic>"),
+                                    ("finger_joint", "{finger_joint: 0.02}", "lock every joint of a mimic pair")):
+        config = GOOD.replace("{finger_joint: 0.02}", locked)
+        path = write_robot(tmp_path, two_link_urdf().replace("</robot>", finger2.format(leader=leader)), config)
+        with pytest.raises(InputError) as error:
+            make_plant(PlantConfig(time_step=0.0), robot=load_robot(path))
+        assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
