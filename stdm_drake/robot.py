@@ -1,5 +1,6 @@
 """Robots: the typed robot config (RobotConfig, the UR-10 preset models/ur10.yaml), the Robot that adds
-itself to a Drake MultibodyPlant, and the offline parser. Plants and simulators: `stdm_drake.plant`.
+itself to a Drake MultibodyPlant. The description file itself: `stdm_drake.model_file`; plants and
+simulators: `stdm_drake.plant`.
 
 For a robot of n arm joints (in its config's order; the UR-10: shoulder_pan, shoulder_lift, elbow,
 wrist_1, wrist_2, wrist_3): state x = [q (n) rad, v (n) rad/s]; action = the torques (m) N m of its
@@ -19,11 +20,11 @@ import numpy as np
 os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
 from pydrake.math import RigidTransform  # noqa: E402
-from pydrake.multibody.parsing import Parser  # noqa: E402
 from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
+from stdm_drake.model_file import joint_facts, offline_parser, weld_joint_at, without_missing_visual_meshes  # noqa: E402
 from stdm_drake.paths import MODELS_DIR  # noqa: E402
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
@@ -107,56 +108,11 @@ class Robot:
             raise InputError(f"robot {config.name}: model file not found: {self.model_path}")
         if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
-        self.file_limits, self.continuous_joints, self.mimic_pairs = _joint_limits_in_file(self.model_path)
+        self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
         # the model text to parse when visual meshes are missing (None: the file itself), read once
-        self._model_text, missing = self._without_missing_visual_meshes()
+        self._model_text, missing = without_missing_visual_meshes(self.name, self.model_path, self.package_paths)
         if missing:
             logger.warning("robot %s: visual meshes not found, loaded without them: %s", self.name, ", ".join(missing))
-
-    def _mesh_path(self, uri: str) -> pathlib.Path | None:
-        """The file a mesh reference names (package://, file:// or relative to the model), or None for a
-        package this config does not map (Drake reports those itself)."""
-        if uri.startswith("package://"):
-            package, _, rest = uri[len("package://"):].partition("/")
-            return self.package_paths[package] / rest if package in self.package_paths else None
-        path = pathlib.Path(uri[len("file://"):] if uri.startswith("file://") else uri)
-        return path if path.is_absolute() else self.model_path.parent / path
-
-    def _without_missing_visual_meshes(self) -> tuple[str | None, list[str]]:
-        """(the model text without the visuals whose mesh file is missing, with relative mesh paths made
-        absolute; the missing files), or (None, []) when every visual mesh exists. A missing collision
-        mesh is an InputError: the dynamics and the self-collision check need it."""
-        import xml.etree.ElementTree as ElementTree
-        try:
-            tree = ElementTree.parse(self.model_path)
-        except ElementTree.ParseError:
-            return None, []  # Drake's parser gives the precise error
-        root = tree.getroot()
-        parents = {child: parent for parent in root.iter() for child in parent}
-        missing, references, dropped = [], [], []
-        for element in [element for element in root.iter() if element.tag in ("visual", "collision")]:
-            for mesh in element.iter("mesh"):
-                uri_element = mesh.find("uri")
-                uri = mesh.get("filename") if uri_element is None else (uri_element.text or "").strip()
-                path = self._mesh_path(uri) if uri else None
-                if path is None:
-                    continue
-                references.append((mesh, uri_element, path))
-                if not path.is_file():
-                    if element.tag == "collision":
-                        raise InputError(f"robot {self.name}: collision mesh {uri!r} not found ({path})")
-                    missing += [uri] if uri not in missing else []
-                    dropped += [element] if element not in dropped else []
-        if not missing:
-            return None, []
-        for element in dropped:
-            parents[element].remove(element)
-        for mesh, uri_element, path in references:
-            if uri_element is None:
-                mesh.set("filename", str(path))
-            else:
-                uri_element.text = str(path)
-        return ElementTree.tostring(root, encoding="unicode"), missing
 
     def _model_file(self, model: str) -> pathlib.Path:
         """The model file: a path (relative to the config's folder), or package://NAME/PATH in one of
@@ -281,7 +237,7 @@ class Robot:
                 raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")
         self._remove_mimic_constraints(plant)
         for name, position in config.locked_joints.items():
-            _weld_joint_at(plant, plant.GetJointByName(name, instance), position)
+            weld_joint_at(plant, plant.GetJointByName(name, instance), position)
         actuators = {plant.get_joint_actuator(index).joint().name(): plant.get_joint_actuator(index)
                      for index in plant.GetJointActuatorIndices()
                      if plant.get_joint_actuator(index).model_instance() == instance}
@@ -364,67 +320,6 @@ def load_robot(path=UR10_CONFIG) -> Robot:
     from stdm_drake.config import load_yaml_config
     path = pathlib.Path(path)
     return Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
-
-
-def _joint_limits_in_file(path: pathlib.Path) -> tuple[dict, set, list]:
-    """(per joint name, the limits the description file states: {"effort": N m, "velocity": ...}
-    (URDF <limit effort= velocity=>, SDF <axis><limit><effort>/<velocity>); the names of URDF
-    "continuous" joints, which have no position limits; the URDF <mimic> pairs (follower, leader)).
-    An unparsable file gives ({}, set(), [])."""
-    import xml.etree.ElementTree as ElementTree
-    try:
-        root = ElementTree.parse(path).getroot()
-    except (ElementTree.ParseError, OSError):
-        return {}, set(), []
-    limits = {}
-    continuous = {joint.get("name") for joint in root.iter("joint") if joint.get("type") == "continuous"}
-    mimics = [(joint.get("name"), joint.find("mimic").get("joint")) for joint in root.iter("joint")
-              if joint.find("mimic") is not None and joint.get("name") and joint.find("mimic").get("joint")]
-    for joint in root.iter("joint"):
-        name, values = joint.get("name"), {}
-        urdf = joint.find("limit")
-        if urdf is not None:
-            values = {key: float(urdf.get(key)) for key in ("effort", "velocity") if urdf.get(key) is not None}
-        sdf = joint.find("axis/limit")
-        if sdf is not None:
-            values = {key: float(sdf.findtext(key)) for key in ("effort", "velocity") if sdf.findtext(key)}
-        if name and values:  # (a URDF <transmission> names its joint too, without limits)
-            limits[name] = values
-    return limits, continuous, mimics
-
-
-def _weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:
-    """Replace a one-dof revolute or prismatic `joint` by a weld at `position` (rad or m)."""
-    from pydrake.math import RotationMatrix
-    from pydrake.common.eigen_geometry import AngleAxis
-    kind = joint.type_name()
-    if kind not in ("revolute", "prismatic"):
-        raise InputError(f"locked joint {joint.name()!r} is {kind}; only revolute and prismatic joints can be locked")
-    axis = np.asarray(joint.revolute_axis() if kind == "revolute" else joint.translation_axis(), dtype=float)
-    X_FM = (RigidTransform(RotationMatrix(AngleAxis(position, axis / np.linalg.norm(axis))), np.zeros(3))
-            if kind == "revolute" else RigidTransform(position * axis))
-    parent, child = joint.frame_on_parent(), joint.frame_on_child()
-    plant.RemoveJoint(joint)
-    plant.WeldFrames(parent, child, X_FM)
-
-
-def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser:
-    """A Parser whose package map holds no remote packages.
-
-    Drake's default PackageMap registers the remote `drake_models` package, and with
-    DRAKE_ALLOW_NETWORK=meshcat that registration itself throws. We construct the parser with
-    the variable briefly unset, then drop `drake_models`, so that any package://drake_models
-    reference fails at once ("unknown package") instead of trying a download.
-    """
-    saved = os.environ.pop("DRAKE_ALLOW_NETWORK", None)
-    try:
-        parser = Parser(plant, model_name_prefix=model_name_prefix)
-    finally:
-        if saved is not None:
-            os.environ["DRAKE_ALLOW_NETWORK"] = saved
-    if parser.package_map().Contains("drake_models"):
-        parser.package_map().Remove("drake_models")
-    return parser
 
 
 UR10 = load_robot()  # the default robot of every command
