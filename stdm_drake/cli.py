@@ -27,6 +27,14 @@ COMMANDS = {
 }
 
 
+def error_line(error: BaseException) -> str:
+    """One line for the user: the message's first line, with the file an OSError names."""
+    if isinstance(error, OSError) and error.strerror:
+        return f"{error.strerror}: {error.filename}" if error.filename else error.strerror
+    text = str(error).strip()
+    return text.splitlines()[0] if text else type(error).__name__
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -34,8 +42,11 @@ def main(argv: list[str] | None = None) -> int:
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (_, help_text) in COMMANDS.items():
         subparsers.add_parser(name, help=help_text, add_help=False)
-    if not argv or argv[0] not in COMMANDS:
-        parser.parse_args(argv or ["--help"])
+    if not argv:
+        parser.print_help(sys.stderr)
+        return 2
+    if argv[0] not in COMMANDS:
+        parser.parse_args(argv)  # --help exits 0; an unknown command exits 2 with argparse's message
         return 2
     name = argv[0]
     module = importlib.import_module(COMMANDS[name][0])
@@ -44,9 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     args = command_parser.parse_args(argv[1:])
     try:
         return int(module.run(args) or 0)
-    except (ValueError, FileNotFoundError) as error:  # InputError is a ValueError
-        message = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        print(f"stdm-drake {name}: error: {message}", file=sys.stderr)
+    except (ValueError, OSError) as error:  # InputError is a ValueError; OSError: files, folders, HDF5
+        print(f"stdm-drake {name}: error: {error_line(error)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"stdm-drake {name}: interrupted", file=sys.stderr)

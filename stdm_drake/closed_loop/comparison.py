@@ -7,6 +7,7 @@ import numpy as np
 from stdm_drake.closed_loop.mpc import MpcConfig, MpcLog, Reference, mpc_config_for, run_closed_loop
 from stdm_drake.closed_loop.plant_model import PlantModel
 from stdm_drake.errors import InputError
+from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
 from stdm_drake.report import markdown_table
 from stdm_drake.plant import Dynamics, PlantConfig, joint_limits
 from stdm_drake.robot import Robot
@@ -180,6 +181,7 @@ def add_arguments(parser) -> None:
                         help="folder for mpc.md, mpc.csv, mpc.json and mpc.png")
     parser.add_argument("--html", type=pathlib.Path, help="Meshcat recording: plant (robot) vs reference (ghost)")
     parser.add_argument("--quiet", action="store_true")
+    add_force_argument(parser)
 
 
 def run(args) -> int:
@@ -192,6 +194,16 @@ def run(args) -> int:
     from stdm_drake.closed_loop.learned_system import LearnedModel
     from stdm_drake.robot import robot_for
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
+    if args.plans < 1:
+        raise InputError(f"--plans must be >= 1, got {args.plans}")
+    checkpoints = [entry.partition("=")[2] or None for entry in args.model]
+    names = [entry.partition("=")[0] for entry in args.model]
+    repeated = sorted({name for name in names if names.count(name) > 1})
+    if repeated:
+        raise InputError(f"--model names must differ; {', '.join(repeated)} given more than once")
+    inputs = [args.dataset, args.config, args.robot, *checkpoints]
+    check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
+    check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
     dataset = load_dataset(args.dataset)
     robot = robot_for(args.robot, dataset)
     robot.check_fully_actuated("MPC")
@@ -208,6 +220,8 @@ def run(args) -> int:
     if not models:
         raise InputError("nothing to compare: give --model NAME=CHECKPOINT or keep the plant model")
     references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
+    if len(references) < args.plans:
+        raise InputError(f"--plans {args.plans}: {args.dataset} has only {len(references)} held-out plans")
     recorder = None
     if args.html:
         from stdm_drake.collection.recorder import TrajectoryRecorder
@@ -218,6 +232,7 @@ def run(args) -> int:
     table = summary_table(rows)
     print(table)
     out = args.output
+    mark_output_folder(out)
     write_text_atomic(out / "mpc.md", table + "\n")
     write_text_atomic(out / "mpc.json", json.dumps(dict(summary=rows, runs=[dataclasses.asdict(r) for r in results]),
                                                    indent=1))

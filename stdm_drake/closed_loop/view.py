@@ -5,6 +5,7 @@ import pathlib
 import numpy as np
 
 from stdm_drake.collection.recorder import TrajectoryRecorder
+from stdm_drake.outputs import add_force_argument, check_output_file
 
 
 def add_arguments(parser) -> None:
@@ -18,6 +19,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--meshcat", action="store_true", help="play live in Meshcat (prints the URL)")
     parser.add_argument("--robot", type=pathlib.Path,
                         help="robot config YAML (default: the UR-10 preset); must be the dataset's robot")
+    add_force_argument(parser)
 
 
 def run(args) -> int:
@@ -28,6 +30,10 @@ def run(args) -> int:
     from stdm_drake.robot import robot_for
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
+    if not args.index and args.trajectories < 1:
+        raise InputError(f"--trajectories must be >= 1, got {args.trajectories}")
+    check_output_file("--html", args.html, kind="html", inputs=[args.checkpoint, args.dataset, args.robot],
+                      force=args.force)
     dataset = load_dataset(args.dataset)
     robot = robot_for(args.robot, dataset)
     model = LearnedModel(args.checkpoint, robot=robot)

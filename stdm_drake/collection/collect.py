@@ -34,6 +34,7 @@ from stdm_drake.collection.control import (ControllerConfig, JointSensor, Sample
                                            load_controller_config)
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
 from stdm_drake.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
 from stdm_drake.robot import UR10, Robot, load_robot
@@ -454,7 +455,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "an ideal sensor for excitation)")
     parser.add_argument("--robot", type=pathlib.Path,
                         help="robot config YAML (default: the UR-10 preset, models/ur10.yaml)")
-    parser.add_argument("--count", type=int, help="number of trajectories (default: the paper's, 200 / 100)")
+    parser.add_argument("--count", type=int, help="number of trajectories, >= 1 (default: the paper's, 200 / 100)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (same seed -> same file)")
     parser.add_argument("--sample-period", type=float, default=DEFAULT_SAMPLE_PERIOD,
                         help="data sample period in s (default 0.01; the learned model steps at this period)")
@@ -469,6 +470,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="save a standalone Meshcat HTML file that replays every collected trajectory")
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_force_argument(parser)
 
 
 def collection_request(protocol: str = "tracking", *, count: int | None = None, seed: int = 0, config=None,
@@ -496,7 +498,13 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
             settings.controller = settings.controller.for_robot(robot)
         except InputError as error:
             raise InputError(f"{controller}: {error}") from None
-    request = CollectionRequest(protocol=protocol, count=count or PAPER_COUNTS[protocol], seed=seed,
+    if count is not None and count < 1:
+        raise InputError(f"--count must be >= 1, got {count}")
+    if workers < 1:
+        raise InputError(f"--workers must be >= 1, got {workers}")
+    if seed < 0:
+        raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {seed}")
+    request = CollectionRequest(protocol=protocol, count=PAPER_COUNTS[protocol] if count is None else count, seed=seed,
                                 settings=settings, workers=workers)
     if protocol == "excitation":
         if excitation is not None:
@@ -530,6 +538,10 @@ def run(args: argparse.Namespace) -> int:
     import time
 
     request = request_from_args(args)
+    robot = request.settings.robot
+    inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path]
+    check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
+    check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
     recorder = None
     if args.meshcat or args.html:
         from stdm_drake.collection.recorder import TrajectoryRecorder

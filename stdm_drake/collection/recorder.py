@@ -77,7 +77,8 @@ class TrajectoryRecorder:
 
     def write_html(self, path) -> None:
         """Save Meshcat's self-contained HTML page (with the published recording) atomically."""
-        write_text_atomic(path, self.meshcat.StaticHtml())
+        from stdm_drake.outputs import HTML_MARKER
+        write_text_atomic(path, HTML_MARKER + "\n" + self.meshcat.StaticHtml())
 
     def finish(self, html=None, keep_serving: bool = False, what: str = "") -> None:
         """Publish the recording; write it to `html` if given (printing the path and `what` it

@@ -26,6 +26,7 @@ from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, FULL, IDENTIFICATI
                                          ensure_dataset, plan_jobs, run_jobs)
 from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
 from stdm_drake.files import json_default
+from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
 from stdm_drake.robot import UR10, Robot
 
@@ -53,6 +54,7 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     settings = dataset_settings(robot)
     output = pathlib.Path(output)
     cache = output / "cache"
+    mark_output_folder(output)
     cache.mkdir(parents=True, exist_ok=True)
     timings = {}
     tick = time.perf_counter()
@@ -156,6 +158,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="data collection seed")
     parser.add_argument("--workers", type=int, default=2, help="training processes (default 2)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_force_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -165,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
     robot = robot_for(args.robot)
     robot.check_can_track()
     output = args.output or pathlib.Path("out/reproduce" if robot.same_as(UR10) else f"out/reproduce-{robot.name}")
+    check_output_folder("-o/--output", output, inputs=[args.robot], own_files=("report.md", "cache"), force=args.force)
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()
     path = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet, robot=robot)

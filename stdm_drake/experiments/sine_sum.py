@@ -42,6 +42,7 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, write_text_atomic
+from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.train import parse_alpha
@@ -540,6 +541,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="processes, one torch thread each (default min(2, cores)); results do not depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_force_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -556,7 +558,9 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, **overrides)
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
+    check_output_folder("-o/--output", args.output, own_files=("results.json",), force=args.force)
     study = run_study(config, workers=args.workers, progress=not args.quiet)
+    mark_output_folder(args.output)
     written = write_reports(study, args.output, quick=args.quick, partial=bool(overrides))
     print(f"{len(study['runs'])} runs in {study['wall_seconds']:.1f} s; wrote {len(written)} files to {args.output}")
     top = headline(study)

@@ -17,6 +17,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import write_text_atomic
+from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.learning.predict import PROPAGATIONS, as_inference_model, predict, rollout
 
 REPORT_STEPS = (1, 5, 10, 20, 50, 100)
@@ -130,18 +131,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="robot config YAML: refuse a dataset collected with another robot (default: no check)")
     parser.add_argument("--split", choices=("test", "val", "train", "all"), default="test",
                         help="trajectories to evaluate: the checkpoint's split of this dataset, or all (default test)")
-    parser.add_argument("--horizon", type=int, default=100, help="multi-step horizon in steps (default 100)")
+    parser.add_argument("--horizon", type=int,
+                        help="multi-step horizon in steps, at most the trajectories' length (default: that length, "
+                             "capped at 100)")
     parser.add_argument("--propagation", choices=PROPAGATIONS, default="mean",
                         help="multi-step propagation: mean, ts1 or tsinf (PETS; default mean)")
     parser.add_argument("--particles", type=int, default=20, help="particles per trajectory for ts1/tsinf")
     parser.add_argument("--seed", type=int, default=0, help="seed of the TS particles")
     parser.add_argument("--json", type=pathlib.Path, help="also write every number (and the curves) to this JSON file")
+    add_force_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.checkpoint import load_checkpoint
 
+    check_output_file("--json", args.json, kind="json", inputs=[args.checkpoint, args.dataset, args.robot],
+                      force=args.force)
     dataset = load_dataset(args.dataset)
     if args.robot is not None:
         from stdm_drake.robot import robot_for
@@ -162,7 +168,11 @@ def run(args: argparse.Namespace) -> int:
     engine = as_inference_model(checkpoint.model)
     transitions = dataset.transitions(indices)
     one_step = one_step_errors(engine, transitions.state, transitions.action, transitions.next_state)
-    x0, actions, truth = trajectory_rollout_data(dataset, indices, args.horizon)
+    shortest = min(len(dataset.trajectory(int(i))["tau"]) for i in indices)
+    if args.horizon is not None and not 1 <= args.horizon <= shortest:
+        raise InputError(f"--horizon must be in 1..{shortest} (the shortest selected trajectory's steps), "
+                         f"got {args.horizon}")
+    x0, actions, truth = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
     multi = multi_step_errors(engine, x0, actions, truth, propagation=args.propagation,
                               particles=args.particles, seed=args.seed)
     config = checkpoint.model_config
@@ -184,7 +194,7 @@ def run(args: argparse.Namespace) -> int:
               f"{multi.velocity_mse[i]:>11.4e} +- {multi.velocity_mse_std[i]:<9.2e}")
     print(f"  {'mean':>5}  {multi.angle_mse_mean:>11.4e}{'':13}  {multi.velocity_mse_mean:>11.4e}")
     if args.json:
-        report = dict(checkpoint=str(args.checkpoint), dataset=str(args.dataset), dataset_sha256=dataset.sha256,
+        report = dict(written_by="stdm-drake evaluate", checkpoint=str(args.checkpoint), dataset=str(args.dataset), dataset_sha256=dataset.sha256,
                       trained_on_this_dataset=trained_on_this, split=args.split,
                       trajectories=[int(i) for i in indices], one_step=one_step.as_dict(), multi_step=multi.as_dict())
         write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")

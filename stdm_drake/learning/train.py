@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from stdm_drake.errors import InputError
+from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata
 from stdm_drake.learning.models import (ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig,
@@ -89,6 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="torch CPU threads (default 1: bitwise-reproducible on any machine)")
     parser.add_argument("--resume", action="store_true", help="continue interrupted runs in the output folder")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_force_argument(parser)
     settings = {field.name for field in dataclasses.fields(TrainSettings)}
     for action in parser._actions:  # unset flags stay absent, so the settings file (or its defaults) decide
         if action.dest in settings:
@@ -243,6 +245,12 @@ def run(args: argparse.Namespace) -> int:
     if auto and not derivative:
         raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {args.model} trains without "
                          "it (use DD, PD, DED or PED, or --derivative on)")
+    check_output_folder("-o/--output", args.output, inputs=[args.dataset, args.config, args.robot],
+                        own_files=("summary.json",), force=args.force)
+    existing = [seed for seed in args.seeds if (pathlib.Path(args.output) / f"seed{seed}" / "checkpoint.pt").exists()]
+    if existing and not args.resume:
+        raise InputError(f"{pathlib.Path(args.output) / f'seed{existing[0]}' / 'checkpoint.pt'} exists; pass --resume "
+                         "to continue it or choose another --output")
     dataset = load_dataset(args.dataset)
     if args.robot is not None:
         from stdm_drake.robot import robot_for
@@ -260,6 +268,7 @@ def run(args: argparse.Namespace) -> int:
                                split_seed=args.split_seed, per_group=per_group, threads=args.threads)
     model_config, train_data, val_data = problem.model_config, problem.train, problem.val
     output = pathlib.Path(args.output)
+    mark_output_folder(output)
     summary = dict(model_type=name, dataset=str(args.dataset), dataset_sha256=dataset.sha256,
                    split={key: list(map(int, value)) for key, value in split.as_dict().items()}, seeds={})
     print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "
@@ -274,11 +283,7 @@ def run(args: argparse.Namespace) -> int:
             min_learning_rate=args.min_lr, weight_decay=args.weight_decay)
         folder = output / f"seed{seed}"
         checkpoint_path = folder / "checkpoint.pt"
-        resume = False
-        if checkpoint_path.exists():
-            if not args.resume:
-                raise InputError(f"{checkpoint_path} exists; pass --resume to continue it or choose another --output")
-            resume = True
+        resume = checkpoint_path.exists()  # (only with --resume: checked before any work)
         metadata = problem.metadata
         bar = tqdm(total=args.epochs, desc=f"train {name} seed {seed}", unit="epoch", disable=args.quiet,
                    dynamic_ncols=True)

@@ -1,0 +1,124 @@
+"""Bad input never costs data: an output cannot clobber an input, a device or a foreign file; it is
+checked before any work; counts out of range are refused with the valid range; every error is one
+line with exit status 2 (issue 12's classes, one regression test each)."""
+import hashlib
+import os
+import pathlib
+import shutil
+import stat
+
+import pytest
+
+from stdm_drake.cli import main
+from stdm_drake.outputs import FOLDER_MARKER
+
+SPEC = pathlib.Path(__file__).resolve().parents[1] / "trajectories" / "excitation.yaml"
+
+
+def digest(path) -> str:
+    return hashlib.sha256(pathlib.Path(path).read_bytes()).hexdigest()
+
+
+def fails(capsys, argv, *messages) -> str:
+    """Run the CLI; it must exit 2 with one line on stderr containing every message."""
+    capsys.readouterr()
+    assert main(argv) == 2, argv
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and error.startswith("stdm-drake"), error
+    for message in messages:
+        assert message in error, error
+    return error
+
+
+@pytest.fixture(scope="module")
+def checkpoint(excitation_dataset, tmp_path_factory):
+    out = tmp_path_factory.mktemp("ck") / "d"
+    assert main(["train", str(excitation_dataset), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
+                 "--quiet", "-o", str(out)]) == 0
+    return out / "seed0" / "checkpoint.pt"
+
+
+def test_an_output_that_is_an_input_is_refused_and_the_input_kept(capsys, tmp_path, excitation_dataset, checkpoint):
+    data = tmp_path / "data.h5"
+    shutil.copy(excitation_dataset, data)
+    before = digest(data)
+    fails(capsys, ["evaluate", str(checkpoint), str(data), "--json", str(data)], "is one of the command's inputs")
+    fails(capsys, ["view", str(checkpoint), str(data), "--html", str(data)], "is one of the command's inputs")
+    link = tmp_path / "link.json"
+    link.symlink_to(data)                                             # another name for the same file
+    fails(capsys, ["evaluate", str(checkpoint), str(data), "--json", str(link)], "is one of the command's inputs")
+    assert digest(data) == before
+    spec = tmp_path / "spec.yaml"
+    shutil.copy(SPEC, spec)
+    fails(capsys, ["collect", "--protocol", "excitation", "--config", str(spec), "-o", str(spec)],
+          "is one of the command's inputs")
+    assert spec.read_text() == SPEC.read_text()
+    fails(capsys, ["mpc", str(data), "--model", f"D={checkpoint}", "-o", str(data)], "is one of the command's inputs")
+    assert digest(data) == before
+
+
+def test_devices_folders_and_foreign_files_are_not_replaced(capsys, tmp_path, excitation_dataset, checkpoint):
+    fails(capsys, ["collect", "--protocol", "excitation", "--count", "1", "-o", os.devnull], "is not a regular file")
+    assert stat.S_ISCHR(os.stat(os.devnull).st_mode)
+    fails(capsys, ["collect", "--protocol", "excitation", "--count", "1", "-o", str(tmp_path)], "is a folder")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine\n")
+    fails(capsys, ["collect", "--protocol", "excitation", "--count", "1", "-o", str(notes / "x.h5")],
+          "is not a folder")
+    fails(capsys, ["train", str(excitation_dataset), "-o", str(notes)], "exists and is not a folder")
+    fails(capsys, ["evaluate", str(checkpoint), str(excitation_dataset), "--json", str(notes)],
+          "stdm-drake did not write it; pass --force")
+    assert notes.read_text() == "mine\n"
+    foreign = tmp_path / "theirs"
+    foreign.mkdir()
+    (foreign / "thesis.tex").write_text("x")
+    fails(capsys, ["train", str(excitation_dataset), "--epochs", "1", "-o", str(foreign)],
+          "is a folder stdm-drake did not write")
+    assert sorted(p.name for p in foreign.iterdir()) == ["thesis.tex"]
+    assert main(["evaluate", str(checkpoint), str(excitation_dataset), "--horizon", "5", "--json", str(notes),
+                 "--force"]) == 0                                  # --force allows it
+    assert '"written_by": "stdm-drake evaluate"' in notes.read_text()
+    assert main(["evaluate", str(checkpoint), str(excitation_dataset), "--horizon", "5", "--json", str(notes)]) == 0
+
+
+def test_its_own_outputs_are_replaced_without_force(capsys, tmp_path):
+    data = tmp_path / "data.h5"
+    argv = ["collect", "--protocol", "excitation", "--count", "2", "--workers", "1", "--quiet", "-o", str(data)]
+    assert main(argv) == 0 and main(argv) == 0                       # its own dataset: replaced
+    out = tmp_path / "train"
+    train = ["train", str(data), "--epochs", "1", "--train", "1", "--val", "1", "--test", "0", "--quiet", "-o", str(out)]
+    assert main(train) == 0 and (out / FOLDER_MARKER).exists()
+    fails(capsys, train, "checkpoint.pt exists; pass --resume")      # before any work, as before
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["collect", "--count", "0", "-o", "x.h5"], "--count must be >= 1, got 0"),
+    (["collect", "--workers", "0", "-o", "x.h5"], "--workers must be >= 1, got 0"),
+    (["collect", "--seed", "-1", "-o", "x.h5"], "--seed must be a non-negative integer"),
+])
+def test_counts_out_of_range_name_the_valid_range(capsys, tmp_path, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)
+    fails(capsys, argv, message)
+    assert not (tmp_path / "x.h5").exists()
+
+
+def test_counts_of_the_model_commands(capsys, tmp_path, excitation_dataset, checkpoint):
+    data, ck = str(excitation_dataset), str(checkpoint)
+    fails(capsys, ["mpc", data, "--plans", "0", "-o", str(tmp_path / "m")], "--plans must be >= 1, got 0")
+    fails(capsys, ["mpc", data, "--model", f"D={ck}", "--plans", "1000", "-o", str(tmp_path / "m")],
+          "--plans 1000", "held-out plans")
+    fails(capsys, ["mpc", data, "--model", f"D={ck}", "--model", f"D={ck}", "-o", str(tmp_path / "m")],
+          "--model names must differ; D given more than once")
+    fails(capsys, ["evaluate", ck, data, "--horizon", "1000"], "--horizon must be in 1..50")
+    fails(capsys, ["view", ck, data, "--trajectories", "0", "--html", str(tmp_path / "v.html")],
+          "--trajectories must be >= 1, got 0")
+    assert not (tmp_path / "m").exists() and not (tmp_path / "v.html").exists()
+
+
+def test_no_command_and_file_system_errors_are_one_line_exit_2(capsys, tmp_path, checkpoint):
+    assert main([]) == 2
+    assert "usage: stdm-drake" in capsys.readouterr().err
+    folder = tmp_path / "folder.h5"
+    folder.mkdir()
+    fails(capsys, ["evaluate", str(checkpoint), str(folder)])        # a folder where a dataset is expected
+    fails(capsys, ["inspect", str(tmp_path / "missing.h5")], "missing.h5")
