@@ -27,6 +27,13 @@ COMMANDS = {
 }
 
 
+class CommandParser(argparse.ArgumentParser):
+    """argparse with its errors as one line (`stdm-drake CMD: error: ...; see --help`), exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def error_line(error: BaseException) -> str:
     """One line for the user: the message's first line, with the file an OSError names."""
     if isinstance(error, OSError) and error.strerror:
@@ -50,9 +57,12 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     name = argv[0]
     module = importlib.import_module(COMMANDS[name][0])
-    command_parser = argparse.ArgumentParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
+    command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
     module.add_arguments(command_parser)
-    args = command_parser.parse_args(argv[1:])
+    try:
+        args = command_parser.parse_args(argv[1:])
+    except SystemExit as exit_:  # --help (0) or a malformed command line (2, one line printed)
+        return int(exit_.code or 0)
     try:
         return int(module.run(args) or 0)
     except (ValueError, OSError) as error:  # InputError is a ValueError; OSError: files, folders, HDF5

@@ -206,6 +206,26 @@ class Robot:
         if recorded.get("robot_model_sha256") not in (None, self.model_sha256()):
             raise InputError(f"{dataset.path} was collected with another model file than {self.model_path.name} "
                              f"(robot {name}); pass its config with --robot")
+        self._check_within_limits(dataset)
+
+    def _check_within_limits(self, dataset, position_margin: float = 0.5, velocity_factor: float = 1.5) -> None:
+        """InputError if the dataset's states leave the robot's position limits by more than
+        `position_margin` (rad or m) or its velocity limits by more than `velocity_factor` times."""
+        from stdm_drake.plant import PlantConfig, joint_limits, make_plant
+        limits = joint_limits(make_plant(PlantConfig(time_step=0.0), robot=self)[0])
+        for index in range(dataset.num_trajectories):
+            traj = dataset.trajectory(index)
+            for key, low, high in (("q", limits.position_lower - position_margin, limits.position_upper + position_margin),
+                                   ("v", -velocity_factor * limits.velocity, velocity_factor * limits.velocity)):
+                if traj[key].shape[1] != self.num_joints:
+                    raise InputError(f"{dataset.path}: {key} has {traj[key].shape[1]} joints, robot {self.name} has "
+                                     f"{self.num_joints}")
+                outside = (traj[key] < low) | (traj[key] > high)
+                if outside.any():
+                    step, joint = np.argwhere(outside)[0]
+                    raise InputError(f"{dataset.path}: trajectory {index} {key} of {self.joint_names[joint]} is "
+                                     f"{traj[key][step, joint]:.4g} at step {step}, far outside robot {self.name}'s "
+                                     "limits; not this robot's data")
 
     def model_sha256(self) -> str:
         """SHA-256 of the robot description file, stored in every dataset."""

@@ -108,6 +108,18 @@ class ExcitationConfig:
         return cls(amplitude_max=torque.tolist(), offset_max=torque.tolist(), initial_position_lower=lower.tolist(),
                    initial_position_upper=upper.tolist())
 
+    def check_start_poses(self, robot: Robot) -> None:
+        """InputError naming the joint if the start-pose box is not `position_margin` inside its limits
+        (every start would be rejected, after the simulation, as a limit violation)."""
+        from stdm_drake.plant import make_plant
+        limits = joint_limits(make_plant(PlantConfig(time_step=0.0), robot=robot)[0])
+        lower, upper = np.asarray(self.initial_position_lower), np.asarray(self.initial_position_upper)
+        for j, name in enumerate(robot.joint_names):
+            low, high = limits.position_lower[j] + self.position_margin, limits.position_upper[j] - self.position_margin
+            if lower[j] < low or upper[j] > high:
+                raise InputError(f"excitation start poses of {name} [{lower[j]:.4g}, {upper[j]:.4g}] rad leave its "
+                                 f"limits less the {self.position_margin} rad margin [{low:.4g}, {high:.4g}] rad")
+
     def for_robot(self, robot: Robot) -> "ExcitationConfig":
         """This config with every per-joint list of the robot's length (one value broadcast): torques per
         actuated joint, start positions per arm joint; InputError when a list has another length."""
@@ -333,11 +345,9 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
                                    num_final_per_initial=count)
     rng = np.random.default_rng([seed, 2**31, pose_index])
     kinematics = RobotKinematics(_WORKER_RIG.dynamics.plant, _WORKER_RIG.robot)
-    try:
-        sampled = sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
-                                    is_collision_free=_WORKER_RIG.collision_checker.is_collision_free)
-    except PlanningError as error:
-        raise PlanningError(f"initial pose {pose_index}: {error}") from None
+    sampled = sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
+                                is_collision_free=_WORKER_RIG.collision_checker.is_collision_free,
+                                first_index=pose_index)
     return [PlanSamples(q=plan.q, qd=plan.qd, qdd=plan.qdd) for _, plan in sampled]
 
 
@@ -516,6 +526,8 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
         excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
         try:
             request.excitation = excitation.for_robot(robot)
+            request.excitation.validate()
+            request.excitation.check_start_poses(robot)
         except InputError as error:
             raise InputError(f"{config_path}: {error}") from None
     else:

@@ -199,7 +199,8 @@ def sample_final_pose(X_initial: RigidTransform, sampling_config: TaskSpaceSampl
 def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSamplingConfig,
                       planner_config: PlannerConfig, sample_period: float, rng: np.random.Generator, *,
                       is_collision_free: Callable[[np.ndarray], bool] | None = None,
-                      on_reject: Callable[[str], None] | None = None) -> list[tuple[int, PlannedTrajectory]]:
+                      on_reject: Callable[[str], None] | None = None,
+                      first_index: int = 0) -> list[tuple[int, PlannedTrajectory]]:
     """Plans for every initial pose and num_final_per_initial final poses sampled near it.
 
     Returns [(initial_pose_index, PlannedTrajectory)] ordered by initial pose, each plan with
@@ -207,7 +208,8 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
     whose plan raises PlanningError, or with a sample q (6,) rad for which is_collision_free(q)
     is False, is rejected: its one-line reason goes to on_reject (default: logged as a warning)
     and the pose is redrawn, up to max_resample_attempts times, after which PlanningError names
-    the initial pose. An unreachable initial pose raises PlanningError at once.
+    the initial pose. An unreachable initial pose raises PlanningError at once. Messages number the
+    initial poses from `first_index` (the pose's index in the full spec when planning one pose).
     """
     sampling_config.validate()
     planner_config.validate()
@@ -215,7 +217,7 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
     plans: list[tuple[int, PlannedTrajectory]] = []
     for index, initial in enumerate(sampling_config.initial_poses):
         X_initial = initial.pose()
-        what = f"initial pose {index} ({pose_text(X_initial)})"
+        what = f"initial pose {index + first_index} ({pose_text(X_initial)})"
         try:
             q_initial = initial_configuration(kinematics, initial, planner_config)
         except PlanningError as error:

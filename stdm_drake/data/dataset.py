@@ -38,6 +38,10 @@ FORMAT = "stdm-drake-dataset"
 FORMAT_VERSION = 1
 PROTOCOLS = ("excitation", "tracking")
 REQUIRED_ARRAYS = ("q", "v", "tau", "tau_next", "q_true", "v_true", "qdd", "qdd_end")
+# Bounds no robot's data reaches (rad or m, rad/s, rad/s^2: a continuous joint may wind up many turns,
+# a light joint accelerate fast): a value beyond them is a corrupted or foreign file. The robot's own
+# limits are checked where the robot is known (Robot.check_dataset).
+PLAUSIBLE_MAGNITUDE = {"q": 1e4, "q_true": 1e4, "v": 1e4, "v_true": 1e4, "qdd": 1e7, "qdd_end": 1e7}
 PLANNED_ARRAYS = ("q_planned", "v_planned", "qdd_planned")
 DERIVATIVE_SOURCES = ("true", "planned")
 ACTION_RATE_SCHEMES = ("forward_difference", "zero_order_hold")
@@ -200,12 +204,18 @@ def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
     actions = np.shape(traj["tau"])[1] if np.ndim(traj["tau"]) == 2 else -1  # torques of its actuated joints
     expected = {"tau": (num_steps, actions), "qdd_end": (num_steps, joints), "tau_next": (actions,)}
     for key in traj:
+        if not (np.issubdtype(np.asarray(traj[key]).dtype, np.floating)
+                or np.issubdtype(np.asarray(traj[key]).dtype, np.integer)):
+            raise InputError(f"trajectory {name}: {key} holds {np.asarray(traj[key]).dtype} values, not numbers")
         shape = np.shape(traj[key])
         want = expected.get(key, (num_steps + 1, joints))
         if shape != want:
             raise InputError(f"trajectory {name}: {key} has shape {shape}, expected {want}")
         if not np.all(np.isfinite(traj[key])):
             raise InputError(f"trajectory {name}: {key} contains NaN or inf")
+        if key in PLAUSIBLE_MAGNITUDE and np.max(np.abs(traj[key])) > PLAUSIBLE_MAGNITUDE[key]:
+            raise InputError(f"trajectory {name}: {key} reaches {np.max(np.abs(traj[key])):.3g}, beyond any joint's "
+                             f"range (|{key}| <= {PLAUSIBLE_MAGNITUDE[key]:g}); not robot data")
 
 
 def write_dataset(path, trajectories: list[dict], groups, metadata: dict) -> pathlib.Path:

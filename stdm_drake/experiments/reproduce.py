@@ -148,7 +148,7 @@ def _mpc_group(arguments) -> list:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--quick", action="store_true", help="every stage at reduced size (under a minute on 2 cores)")
+    parser.add_argument("--quick", action="store_true", help="every stage at reduced size (about 35 s on 2 cores)")
     parser.add_argument("--output", "-o", type=pathlib.Path,
                         help="report folder (default out/reproduce, or out/reproduce-NAME with --robot); datasets and "
                              "checkpoints there are reused")

@@ -178,6 +178,10 @@ def load_checkpoint(path) -> Checkpoint:
         raise InputError(f"{path}: inconsistent checkpoint contents: {detail}") from None
     if not all(torch.isfinite(value).all() for value in model.state_dict().values()):
         raise InputError(f"{path}: checkpoint weights contain NaN or inf")
+    spreads = {name: value for name, value in model.state_dict().items() if name.endswith("normalizer.std")}
+    for name, value in spreads.items():
+        if not bool((value > 0).all()):
+            raise InputError(f"{path}: checkpoint {name} has a zero or negative spread (its predictions would be NaN)")
     model.eval()
     return Checkpoint(path=path, model=model, model_config=model_config, training_config=training_config,
                       metadata=metadata, history=dict(content.get("history") or {}),

@@ -1,0 +1,144 @@
+"""Property-based tests (Hypothesis) of what reads user input: the dataset loader on corrupted files
+and arrays, the YAML config loaders on arbitrary documents, and the command line on arbitrary
+numbers. The property: every input either loads or is refused with InputError (one line); nothing
+else escapes, and nothing is written where it should not be."""
+import dataclasses
+import pathlib
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings, strategies as st
+
+from stdm_drake.errors import InputError
+
+SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+
+scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6),
+                    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8))
+values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=8),
+                                                         st.dictionaries(st.text(max_size=6), inner, max_size=4)),
+                      max_leaves=12)
+
+
+def one_line(error: Exception) -> bool:
+    return "\n" not in str(error) and str(error).strip() != ""
+
+
+@pytest.fixture(scope="module")
+def dataset_bytes(excitation_dataset):
+    return pathlib.Path(excitation_dataset).read_bytes()
+
+
+@SETTINGS
+@given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)), max_size=6))
+def test_a_corrupted_dataset_file_loads_or_is_refused(tmp_path, dataset_bytes, cut, flips):
+    from stdm_drake.data.dataset import load_dataset
+    data = bytearray(dataset_bytes[:max(1, int(cut * len(dataset_bytes)))] if cut < 1.0 else dataset_bytes)
+    for where, byte in flips:
+        data[min(int(where * len(data)), len(data) - 1)] = byte
+    path = tmp_path / "corrupt.h5"
+    path.write_bytes(bytes(data))
+    try:
+        dataset = load_dataset(path)
+    except InputError as error:
+        assert one_line(error), str(error)
+        return
+    for index in range(dataset.num_trajectories):          # what loads is finite, well-shaped robot data
+        traj = dataset.trajectory(index)
+        assert np.all(np.isfinite(traj["q"])) and traj["q"].shape[0] == traj["tau"].shape[0] + 1
+
+
+arrays = st.one_of(
+    st.builds(lambda shape, fill: np.full(shape, fill), st.tuples(st.integers(0, 60), st.integers(0, 8)),
+              st.floats(allow_nan=True, allow_infinity=True, width=64)),
+    st.builds(lambda n: np.array(["0.1"] * n, dtype="S8"), st.integers(1, 5)),
+    st.builds(lambda n: np.arange(n, dtype=np.int64), st.integers(0, 60)),
+)
+
+
+@SETTINGS
+@given(key=st.sampled_from(["q", "v", "tau", "tau_next", "q_true", "v_true", "qdd", "qdd_end"]), value=arrays)
+def test_a_dataset_with_a_replaced_array_loads_or_is_refused(tmp_path, excitation_dataset, key, value):
+    from stdm_drake.data.dataset import load_dataset
+    path = tmp_path / "edited.h5"
+    shutil.copy(excitation_dataset, path)
+    with h5py.File(path, "r+") as f:
+        group = f["trajectories"][sorted(f["trajectories"])[0]]
+        del group[key]
+        group[key] = value
+    try:
+        dataset = load_dataset(path)
+    except InputError as error:
+        assert one_line(error), str(error)
+        return
+    traj = dataset.trajectory(0)
+    assert np.all(np.isfinite(traj[key])) and np.max(np.abs(traj[key]), initial=0.0) < 1e7
+
+
+def schemas():
+    from stdm_drake.closed_loop.mpc import MpcConfig
+    from stdm_drake.collection.collect import ExcitationConfig
+    from stdm_drake.collection.control import ControllerConfig, SensorConfig
+    from stdm_drake.collection.plan import TrackingSpec
+    from stdm_drake.learning.settings import TrainSettings
+    from stdm_drake.robot import RobotConfig
+    return [ExcitationConfig, ControllerConfig, SensorConfig, TrackingSpec, TrainSettings, RobotConfig, MpcConfig]
+
+
+@SETTINGS
+@given(schema_index=st.integers(0, 6), document=st.dictionaries(st.text(max_size=10), values, max_size=5),
+       use_fields=st.booleans(), data=st.data())
+def test_a_yaml_config_loads_or_is_refused(tmp_path, schema_index, document, use_fields, data):
+    """Arbitrary documents, and documents over the schema's own keys with arbitrary values."""
+    import yaml
+    from stdm_drake.config import load_yaml_config
+    schema = schemas()[schema_index]
+    if use_fields:
+        names = [field.name for field in dataclasses.fields(schema)]
+        document = {data.draw(st.sampled_from(names)): value for value in document.values()}
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(document, allow_unicode=True))
+    try:
+        config = load_yaml_config(path, schema)
+        if schema.__name__ == "RobotConfig":
+            from stdm_drake.robot import Robot
+            Robot(config, tmp_path)
+    except InputError as error:
+        assert one_line(error), str(error)
+
+
+@SETTINGS
+@given(count=st.integers(-5, 10**6), workers=st.integers(-3, 64), seed=st.integers(-2**40, 2**40),
+       period=st.floats(allow_nan=True, allow_infinity=True))
+def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, count, workers, seed, period):
+    """With the output a folder (always refused) every number either fails its own check or reaches the
+    output check: exit 2 and one line either way, never a simulation and never a file."""
+    from stdm_drake.cli import main
+    capsys.readouterr()
+    argv = ["collect", "--protocol", "excitation", "--count", str(count), "--workers", str(workers), "--seed",
+            str(seed), "--sample-period", repr(period), "--quiet", "-o", str(tmp_path)]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1, error
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+@SETTINGS
+@given(flag=st.sampled_from(["--epochs", "--patience", "--batch-size", "--lr", "--alpha", "--hidden-width",
+                             "--hidden-layers", "--ensemble-size", "--train", "--val", "--test", "--threads",
+                             "--weight-decay", "--checkpoint-every", "--min-lr", "--split-seed"]),
+       value=st.one_of(st.integers(-10**9, 10**9).map(str), st.floats(allow_nan=True, allow_infinity=True).map(repr),
+                       st.text(max_size=6)))
+def test_train_flags_are_checked_before_the_dataset_is_read(tmp_path, capsys, flag, value):
+    """Any value of any numeric flag, with the output a file (always refused): exit 2 with one line, and
+    the dataset (missing here) is never opened before the flags and the output are checked."""
+    from stdm_drake.cli import main
+    capsys.readouterr()
+    notes = tmp_path / "notes.txt"
+    notes.write_text("keep")
+    assert main(["train", str(tmp_path / "missing.h5"), flag, value, "--quiet", "-o", str(notes)]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "missing.h5" not in error, error
+    assert notes.read_text() == "keep"
