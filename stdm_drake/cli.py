@@ -45,7 +45,7 @@ def error_line(error: BaseException) -> str:
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = argparse.ArgumentParser(prog="stdm-drake", description=__doc__.splitlines()[0])
+    parser = CommandParser(prog="stdm-drake", description=__doc__.splitlines()[0])
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (_, help_text) in COMMANDS.items():
         subparsers.add_parser(name, help=help_text, add_help=False)
@@ -53,7 +53,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help(sys.stderr)
         return 2
     if argv[0] not in COMMANDS:
-        parser.parse_args(argv)  # --help exits 0; an unknown command exits 2 with argparse's message
+        try:
+            parser.parse_args(argv)  # --help exits 0; an unknown command exits 2 with one line
+        except SystemExit as exit_:
+            return int(exit_.code or 0)
         return 2
     name = argv[0]
     module = importlib.import_module(COMMANDS[name][0])

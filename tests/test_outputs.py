@@ -105,8 +105,8 @@ def test_counts_out_of_range_name_the_valid_range(capsys, tmp_path, monkeypatch,
 def test_counts_of_the_model_commands(capsys, tmp_path, excitation_dataset, checkpoint):
     data, ck = str(excitation_dataset), str(checkpoint)
     fails(capsys, ["mpc", data, "--plans", "0", "-o", str(tmp_path / "m")], "--plans must be >= 1, got 0")
-    fails(capsys, ["mpc", data, "--model", f"D={ck}", "--plans", "1000", "-o", str(tmp_path / "m")],
-          "--plans 1000", "held-out plans")
+    fails(capsys, ["mpc", data, "--model", f"D={ck}", "--plans", "1000", "--excitation-references",
+                   "-o", str(tmp_path / "m")], "--plans 1000", "held-out plans")
     fails(capsys, ["mpc", data, "--model", f"D={ck}", "--model", f"D={ck}", "-o", str(tmp_path / "m")],
           "--model names must differ; D given more than once")
     fails(capsys, ["evaluate", ck, data, "--horizon", "1000"], "--horizon must be in 1..50")

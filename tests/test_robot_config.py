@@ -175,7 +175,7 @@ def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     weights = tmp_path / "mpc.yaml"
     weights.write_text("horizon: 5\nposition_weight: [1.0e+4]\nvelocity_weight: [10.0]\neffort_weight: [1.0e-3]\n")
     assert main(["mpc", str(data), "--robot", str(robot), "--config", str(weights), "--model", f"D={checkpoint}",
-                 "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc")]) == 0
+                 "--plans", "1", "--excitation-references", "--quiet", "-o", str(tmp_path / "mpc")]) == 0
     rows = json.loads((tmp_path / "mpc" / "mpc.json").read_text())["summary"]
     assert [row["model"] for row in rows] == ["plant", "D"] and rows[0]["limit_violations"] == 0
     assert rows[0]["q_mse_rad2"] < 1e-3                                  # the plant model tracks its own data

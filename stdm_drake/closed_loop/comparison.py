@@ -171,6 +171,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--model", action="append", default=[], metavar="NAME=CHECKPOINT",
                         help="a learned model to compare (repeatable), e.g. DD=runs/dd/seed0/checkpoint.pt")
     parser.add_argument("--no-plant", action="store_true", help="leave out the plant-as-model reference MPC")
+    parser.add_argument("--excitation-references", action="store_true",
+                        help="with an excitation dataset (no plans): track its recorded trajectories instead, e.g. "
+                             "for an arm too small for task-space plans")
     parser.add_argument("--plans", type=int, default=3, help="held-out plans to track (default 3)")
     parser.add_argument("--config", type=pathlib.Path,
                         help="MPC settings YAML (default: controllers/mpc.yaml; for another robot, its effort "
@@ -196,7 +199,11 @@ def run(args) -> int:
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     if args.plans < 1:
         raise InputError(f"--plans must be >= 1, got {args.plans}")
-    checkpoints = [entry.partition("=")[2] or None for entry in args.model]
+    for entry in args.model:
+        name, separator, path = entry.partition("=")
+        if not separator or not name or not path:
+            raise InputError(f"--model takes NAME=CHECKPOINT, got {entry!r}")
+    checkpoints = [entry.partition("=")[2] for entry in args.model]
     names = [entry.partition("=")[0] for entry in args.model]
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
@@ -207,6 +214,9 @@ def run(args) -> int:
     dataset = load_dataset(args.dataset)
     robot = robot_for(args.robot, dataset)
     robot.check_fully_actuated("MPC")
+    if dataset.protocol != "tracking" and not args.excitation_references:
+        raise InputError(f"{args.dataset} is an excitation dataset: it has no plans to track; give a tracking "
+                         "dataset, or --excitation-references to track its recorded trajectories")
     config = mpc_config_for(robot, args.config)
     learned = []
     for entry in args.model:

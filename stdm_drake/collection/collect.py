@@ -21,6 +21,7 @@ import argparse
 import concurrent.futures
 import contextlib
 import dataclasses
+import math
 import multiprocessing
 import os
 import pathlib
@@ -141,8 +142,8 @@ class CollectionSettings:
 
     def substeps(self) -> int:
         """Plant steps per sample period; the period must be a whole multiple of the plant step."""
-        if not self.sample_period > 0:
-            raise InputError(f"sample period must be > 0 s, got {self.sample_period}")
+        if not (math.isfinite(self.sample_period) and self.sample_period > 0):
+            raise InputError(f"sample period must be a finite number > 0 s, got {self.sample_period}")
         if self.plant.time_step <= 0:
             raise InputError("collection needs a discrete plant (time_step > 0)")
         ratio = self.sample_period / self.plant.time_step
@@ -502,6 +503,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     robot = robot if isinstance(robot, Robot) else (load_robot(robot) if robot is not None else UR10)
     settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
                                   sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
+    settings.substeps()  # the sample period and the plant step, before any work
     if protocol == "tracking":
         robot.check_can_track()
         try:  # per-joint lists of the robot's length, or one value for all

@@ -197,9 +197,9 @@ def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
     missing = [key for key in REQUIRED_ARRAYS + (PLANNED_ARRAYS if planned else ()) if key not in traj]
     if missing:
         raise InputError(f"trajectory {name}: missing arrays {missing}")
-    num_steps = len(traj["tau"])
+    num_steps = len(traj["q"]) - 1 if np.ndim(traj["q"]) == 2 else -1  # the samples are the reference
     if num_steps < 2:
-        raise InputError(f"trajectory {name}: needs at least 2 steps, has {num_steps}")
+        raise InputError(f"trajectory {name}: needs at least 2 steps (3 samples of q), has {num_steps}")
     joints = np.shape(traj["q"])[1] if np.ndim(traj["q"]) == 2 else -1  # the robot's, from its positions
     actions = np.shape(traj["tau"])[1] if np.ndim(traj["tau"]) == 2 else -1  # torques of its actuated joints
     expected = {"tau": (num_steps, actions), "qdd_end": (num_steps, joints), "tau_next": (actions,)}

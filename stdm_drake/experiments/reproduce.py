@@ -164,6 +164,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
+    if args.seed < 0:
+        raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
     from stdm_drake.robot import robot_for
     robot = robot_for(args.robot)
     robot.check_can_track()

@@ -166,6 +166,8 @@ class TrainSettings:
             raise InputError(f"{key('alpha_grid')} needs numbers >= 0, got {self.alpha_grid}")
         if not self.seeds:
             raise InputError(f"{key('seeds')} must list at least one seed")
+        if any(seed < 0 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
+            raise InputError(f"{key('seeds')} must be distinct non-negative integers, got {list(self.seeds)}")
         for name in ("hidden_width", "hidden_layers", "ensemble_size", "epochs", "patience", "batch_size",
                      "checkpoint_every", "threads"):
             if int(getattr(self, name)) < 1:

@@ -268,6 +268,15 @@ def run(args: argparse.Namespace) -> int:
                                split_seed=args.split_seed, per_group=per_group, threads=args.threads)
     model_config, train_data, val_data = problem.model_config, problem.train, problem.val
     output = pathlib.Path(args.output)
+
+    def training_config_for(seed: int) -> TrainingConfig:
+        return TrainingConfig(
+            alpha=(0.0 if auto else args.alpha) if derivative else 0.0, state_loss=args.state_loss,
+            derivative_loss=args.derivative_loss, learning_rate=args.lr, batch_size=args.batch_size,
+            max_epochs=args.epochs, patience=args.patience, seed=seed, lr_schedule=args.lr_schedule,
+            min_learning_rate=args.min_lr, weight_decay=args.weight_decay)
+
+    training_config_for(args.seeds[0])  # its checks, before the output folder is made
     mark_output_folder(output)
     summary = dict(model_type=name, dataset=str(args.dataset), dataset_sha256=dataset.sha256,
                    split={key: list(map(int, value)) for key, value in split.as_dict().items()}, seeds={})
@@ -276,11 +285,7 @@ def run(args: argparse.Namespace) -> int:
           f"train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
           f"({len(train_data)} / {len(val_data)} transitions)")
     for seed in args.seeds:
-        training_config = TrainingConfig(
-            alpha=(0.0 if auto else args.alpha) if derivative else 0.0, state_loss=args.state_loss,
-            derivative_loss=args.derivative_loss, learning_rate=args.lr, batch_size=args.batch_size,
-            max_epochs=args.epochs, patience=args.patience, seed=seed, lr_schedule=args.lr_schedule,
-            min_learning_rate=args.min_lr, weight_decay=args.weight_decay)
+        training_config = training_config_for(seed)
         folder = output / f"seed{seed}"
         checkpoint_path = folder / "checkpoint.pt"
         resume = checkpoint_path.exists()  # (only with --resume: checked before any work)

@@ -1,0 +1,255 @@
+"""A battery of bad inputs over every command, as a new user would try them (issue 12's "done when"):
+each must end in exit status 2 with one line on stderr (no traceback), before any work, and leave
+every file in the sandbox as it was (nothing lost, clobbered or left behind).
+
+Placeholders in the argument lists name sandbox files: DATA (excitation dataset), TRACK (tracking
+dataset), CK (a checkpoint trained on DATA), NOTES (a user's text file), FOREIGN (a user's folder with
+files in it), DIR (an empty folder), SPEC/TSPEC/CTRL/MPCY (copies of the shipped YAML files), ROBOT (a
+copy of the UR-10 preset), NEW (a path that does not exist yet, in the sandbox).
+"""
+import hashlib
+import os
+import pathlib
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+import torch
+
+from stdm_drake.cli import main
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def sandbox(tmp_path_factory, excitation_dataset, tracking_dataset):
+    box = tmp_path_factory.mktemp("battery")
+    shutil.copy(excitation_dataset, box / "data.h5")
+    shutil.copy(tracking_dataset, box / "track.h5")
+    assert main(["train", str(box / "data.h5"), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
+                 "--quiet", "-o", str(box / "run")]) == 0
+    shutil.copy(box / "run" / "seed0" / "checkpoint.pt", box / "ck.pt")
+    (box / "notes.txt").write_text("a user's notes\n")
+    (box / "foreign").mkdir()
+    (box / "foreign" / "thesis.tex").write_text("\\documentclass{article}\n")
+    (box / "empty").mkdir()
+    for name, source in (("spec.yaml", "trajectories/excitation.yaml"), ("tspec.yaml", "trajectories/tracking.yaml"),
+                         ("ctrl.yaml", "controllers/inverse_dynamics.yaml"), ("mpc.yaml", "controllers/mpc.yaml"),
+                         ("ur10.yaml", "models/ur10.yaml"), ("ur10.urdf", "models/ur10.urdf")):
+        shutil.copy(ROOT / source, box / name)
+    (box / "bad.yaml").write_text("num_steps: [unclosed\n")
+    (box / "text.h5").write_text("not hdf5\n")
+    data = (box / "data.h5").read_bytes()
+    (box / "truncated.h5").write_bytes(data[:len(data) // 2])
+    (box / "truncated.pt").write_bytes((box / "ck.pt").read_bytes()[:500])
+    with h5py.File(box / "huge.h5", "w") as f:  # a copy of data.h5 with a position of 1e30 rad
+        with h5py.File(box / "data.h5", "r") as source:
+            for key, value in source.attrs.items():
+                f.attrs[key] = value
+            source.copy("trajectories", f)
+        q = f["trajectories/000000/q"][()]
+        q[3, 1] = 1e30
+        del f["trajectories/000000/q"]
+        f["trajectories/000000/q"] = q
+    assert main(["collect", "--protocol", "excitation", "--count", "2", "--sample-period", "0.02", "--workers", "1",
+                 "--quiet", "-o", str(box / "slow.h5")]) == 0
+    edited_copy(box, "strings.h5", "q", lambda q: np.array([[str(v).encode() for v in row] for row in q]))
+    edited_copy(box, "short_tau.h5", "tau", lambda tau: tau[:-1])
+    content = torch.load(box / "ck.pt", weights_only=True)    # a checkpoint whose output spread is zero
+    content["weights"]["output_normalizer.std"] = torch.zeros_like(content["weights"]["output_normalizer.std"])
+    torch.save(content, box / "zero_std.pt")
+    return box
+
+
+def edited_copy(box, name: str, key: str, edit) -> None:
+    """A copy of data.h5 with array `key` of its first trajectory replaced by edit(array)."""
+    shutil.copy(box / "data.h5", box / name)
+    with h5py.File(box / name, "r+") as f:
+        group = f["trajectories"][sorted(f["trajectories"])[0]]
+        value = edit(group[key][()])
+        del group[key]
+        group[key] = value
+
+
+def yaml_case(name: str, text: str) -> str:
+    return f"@{name}@{text}"
+
+
+PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": "notes.txt", "FOREIGN": "foreign",
+                "DIR": "empty", "SPEC": "spec.yaml", "TSPEC": "tspec.yaml", "CTRL": "ctrl.yaml", "MPCY": "mpc.yaml",
+                "ROBOT": "ur10.yaml", "BADYAML": "bad.yaml", "TEXTH5": "text.h5", "TRUNC": "truncated.h5",
+                "TRUNCPT": "truncated.pt", "HUGE": "huge.h5", "SLOW": "slow.h5", "NEW": "new_output",
+                "STRINGS": "strings.h5", "SHORTTAU": "short_tau.h5", "ZEROSTD": "zero_std.pt"}
+
+C = ["collect", "--count", "1", "--workers", "1", "--quiet"]           # a cheap collect if a check were missing
+E = ["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet"]
+T = ["train", "DATA", "--epochs", "1", "--train", "2", "--val", "1", "--quiet"]
+V = ["evaluate", "CK", "DATA"]
+W = ["view", "CK", "DATA"]
+M = ["mpc", "DATA", "--model", "D=CK", "--plans", "1", "--excitation-references", "--quiet"]
+S = ["sine-sum", "--quick", "--quiet"]
+R = ["reproduce", "--quick", "--quiet"]
+
+# (argv, a fragment the one-line message must contain ("" = any))
+CASES = [
+    # --- the command line itself
+    ([], "usage"), (["frobnicate"], "invalid choice"), (["collect"], "required: --output"),
+    (["train"], "required"), (["evaluate", "CK"], "required"), (["view"], "required"), (["mpc"], "required"),
+    (["inspect"], "required"), ([*C, "--bogus", "-o", "NEW.h5"], "unrecognized arguments"),
+    ([*T, "--bogus", "-o", "NEW"], "unrecognized"), ([*V, "--bogus"], "unrecognized"),
+    ([*S, "--bogus"], "unrecognized"), ([*R, "--bogus"], "unrecognized"),
+    ([*C, "--count", "many", "-o", "NEW.h5"], "invalid int value"), ([*C, "--protocol", "dance", "-o", "NEW.h5"], "invalid choice"),
+    ([*T, "--epochs", "ten", "-o", "NEW"], "invalid"), ([*T, "--model", "XL", "-o", "NEW"], "invalid choice"),
+    ([*T, "--activation", "sin", "-o", "NEW"], "invalid choice"), ([*V, "--split", "half"], "invalid choice"),
+    ([*V, "--propagation", "magic"], "invalid choice"), ([*M, "--plans", "two"], "invalid int"),
+    ([*S, "--activations", "sin"], "invalid choice"), ([*R, "--workers", "x"], "invalid int"),
+    # --- outputs that are inputs
+    ([*E, "--config", "SPEC", "-o", "SPEC"], "is one of the command's inputs"),
+    ([*C, "--controller", "CTRL", "-o", "CTRL"], "is one of the command's inputs"),
+    ([*E, "--robot", "ROBOT", "-o", "ROBOT"], "is one of the command's inputs"),
+    ([*E, "--robot", "ROBOT", "-o", "ur10.urdf"], "is one of the command's inputs"),
+    ([*E, "-o", "NEW.h5", "--html", "NEW.h5"], "is one of the command's inputs"),
+    ([*V, "--json", "DATA"], "is one of the command's inputs"), ([*V, "--json", "CK"], "is one of the command's inputs"),
+    ([*W, "--html", "DATA"], "is one of the command's inputs"), ([*W, "--html", "CK"], "is one of the command's inputs"),
+    ([*M, "-o", "DATA"], "is one of the command's inputs"), ([*M, "--html", "DATA", "-o", "NEW"], "is one of the command's inputs"),
+    ([*M, "--html", "CK", "-o", "NEW"], "is one of the command's inputs"), ([*T, "-o", "DATA"], "is one of the command's inputs"),
+    ([*M, "--config", "MPCY", "--html", "MPCY", "-o", "NEW"], "is one of the command's inputs"),
+    # --- outputs that are devices, folders, foreign files, or under a file
+    ([*E, "-o", os.devnull], "not a regular file"), ([*V, "--json", os.devnull], "not a regular file"),
+    ([*W, "--html", os.devnull], "not a regular file"), ([*E, "--html", os.devnull, "-o", "NEW.h5"], "not a regular file"),
+    ([*M, "--html", os.devnull, "-o", "NEW"], "not a regular file"),
+    ([*E, "-o", "DIR"], "is a folder"), ([*V, "--json", "DIR"], "is a folder"), ([*W, "--html", "DIR"], "is a folder"),
+    ([*E, "--html", "DIR", "-o", "NEW.h5"], "is a folder"),
+    ([*E, "-o", "NOTES"], "stdm-drake did not write it"), ([*V, "--json", "NOTES"], "stdm-drake did not write it"),
+    ([*W, "--html", "NOTES"], "stdm-drake did not write it"), ([*M, "--html", "NOTES", "-o", "NEW"], "did not write it"),
+    ([*E, "-o", "NOTES/x.h5"], "is not a folder"), ([*V, "--json", "NOTES/x.json"], "is not a folder"),
+    ([*W, "--html", "NOTES/x.html"], "is not a folder"), ([*T, "-o", "NOTES/run"], "is not a folder"),
+    ([*T, "-o", "NOTES"], "is not a folder"), ([*M, "-o", "NOTES"], "is not a folder"),
+    ([*S, "-o", "NOTES"], "is not a folder"), ([*R, "-o", "NOTES"], "is not a folder"),
+    ([*T, "-o", "FOREIGN"], "stdm-drake did not write"), ([*M, "-o", "FOREIGN"], "stdm-drake did not write"),
+    ([*S, "-o", "FOREIGN"], "stdm-drake did not write"), ([*R, "-o", "FOREIGN"], "stdm-drake did not write"),
+    ([*M, "-o", "NOTES/deeper/x"], "is not a folder"), ([*R, "-o", "NOTES/x"], "is not a folder"),
+    # --- counts and sizes
+    ([*C, "--count", "0", "-o", "NEW.h5"], "--count must be >= 1"), ([*C, "--count", "-3", "-o", "NEW.h5"], ">= 1"),
+    ([*C, "--workers", "0", "-o", "NEW.h5"], "--workers must be >= 1"), ([*C, "--seed", "-1", "-o", "NEW.h5"], "non-negative"),
+    ([*E, "--sample-period", "0", "-o", "NEW.h5"], "sample period"), ([*E, "--sample-period", "-0.01", "-o", "NEW.h5"], "sample period"),
+    ([*E, "--sample-period", "nan", "-o", "NEW.h5"], "sample period"), ([*E, "--sample-period", "0.0015", "-o", "NEW.h5"], "multiple"),
+    ([*E, "--plant-time-step", "0", "-o", "NEW.h5"], "discrete plant"), ([*E, "--plant-time-step", "-1", "-o", "NEW.h5"], ""),
+    ([*E, "--sample-period", "inf", "-o", "NEW.h5"], "sample period"),
+    ([*T, "--epochs", "0", "-o", "NEW"], "epochs"), ([*T, "--epochs", "-5", "-o", "NEW"], "epochs"),
+    ([*T, "--batch-size", "0", "-o", "NEW"], "batch"), ([*T, "--lr", "0", "-o", "NEW"], "--lr"),
+    ([*T, "--lr", "nan", "-o", "NEW"], "--lr"), ([*T, "--lr", "-1", "-o", "NEW"], "--lr"),
+    ([*T, "--hidden-width", "0", "-o", "NEW"], "width"), ([*T, "--hidden-layers", "0", "-o", "NEW"], "layers"),
+    ([*T, "--ensemble-size", "0", "-o", "NEW"], "ensemble"), ([*T, "--train", "0", "-o", "NEW"], "train"),
+    ([*T, "--val", "0", "-o", "NEW"], "val"), ([*T, "--test", "-1", "-o", "NEW"], "test"),
+    ([*T, "--train", "99", "-o", "NEW"], "split needs"), ([*T, "--threads", "0", "-o", "NEW"], "threads"),
+    ([*T, "--model", "DD", "--alpha", "-1", "-o", "NEW"], "alpha"), ([*T, "--model", "DD", "--alpha", "nan", "-o", "NEW"], "alpha"),
+    ([*T, "--patience", "0", "-o", "NEW"], "patience"), ([*T, "--checkpoint-every", "0", "-o", "NEW"], "checkpoint"),
+    ([*T, "--weight-decay", "-1", "-o", "NEW"], "weight"), ([*T, "--seeds", "-1", "-o", "NEW"], "seed"),
+    ([*T, "--model", "D", "--alpha", "auto", "-o", "NEW"], "trains without"),
+    ([*T, "--lr-schedule", "cosine", "--min-lr", "1", "-o", "NEW"], "min_learning_rate"),
+    ([*V, "--horizon", "0"], "--horizon must be in 1..50"), ([*V, "--horizon", "1000"], "--horizon must be in 1..50"),
+    ([*V, "--propagation", "ts1", "--particles", "0"], "particles"), ([*V, "--split", "test", "--horizon", "-2"], "horizon"),
+    ([*W, "--trajectories", "0", "--html", "NEW.html"], "--trajectories must be >= 1"),
+    ([*W, "--index", "999", "--html", "NEW.html"], "out of range"), ([*W, "--index", "-1", "--html", "NEW.html"], "out of range"),
+    ([*W], "nothing to show"),
+    ([*M, "--plans", "0", "-o", "NEW"], "--plans must be >= 1"), ([*M, "--plans", "1000", "-o", "NEW"], "held-out plans"),
+    ([*M, "--model", "D=CK", "-o", "NEW"], "given more than once"), (["mpc", "DATA", "--model", "D", "-o", "NEW"], "NAME=CHECKPOINT"),
+    (["mpc", "DATA", "--model", "=CK", "-o", "NEW"], "NAME=CHECKPOINT"),
+    (["mpc", "DATA", "--no-plant", "--excitation-references", "-o", "NEW"], "nothing to compare"),
+    (["mpc", "DATA", "--model", "D=CK", "-o", "NEW"], "is an excitation dataset: it has no plans"),
+    (["inspect", "STRINGS"], "not numbers"), (["inspect", "SHORTTAU"], "tau has shape"),
+    (["evaluate", "ZEROSTD", "DATA"], "zero or negative spread"), (["mpc", "TRACK", "--model", "D=ZEROSTD", "-o", "NEW"], "spread"),
+    ([*S, "--epochs", "0", "-o", "NEW"], "epochs"), ([*S, "--workers", "0", "-o", "NEW"], "--workers must be >= 1"),
+    ([*S, "--seeds", "0", "-o", "NEW"], "seeds"), ([*S, "--alpha", "0", "-o", "NEW"], "--alpha 0"),
+    ([*S, "--layers", "2", "-o", "NEW"], "5"), ([*S, "--alpha", "-1", "-o", "NEW"], "alpha"),
+    ([*R, "--workers", "0", "-o", "NEW"], "--workers must be >= 1"), ([*R, "--seed", "-1", "-o", "NEW"], "seed"),
+    # --- input files that are missing, of the wrong kind, corrupt or implausible
+    (["inspect", "NEW.h5"], "not found"), (["inspect", "DIR"], ""), (["inspect", "TEXTH5"], ""), (["inspect", "TRUNC"], ""),
+    (["inspect", "SPEC"], ""), (["inspect", "CK"], ""), (["inspect", "HUGE"], "beyond any joint's range"),
+    (["train", "NEW.h5", "-o", "NEW"], "not found"), (["train", "TEXTH5", "-o", "NEW"], ""), (["train", "TRUNC", "-o", "NEW"], ""),
+    (["train", "HUGE", "-o", "NEW"], "beyond"), (["train", "DIR", "-o", "NEW"], ""), (["train", "CK", "-o", "NEW"], ""),
+    (["evaluate", "NEW.pt", "DATA"], "not found"), (["evaluate", "DATA", "DATA"], "checkpoint"), (["evaluate", "TRUNCPT", "DATA"], ""),
+    (["evaluate", "NOTES", "DATA"], ""), (["evaluate", "CK", "TRUNC"], ""), (["evaluate", "CK", "CK"], ""),
+    (["evaluate", "CK", "SLOW"], "model steps at"), (["evaluate", "DIR", "DATA"], ""),
+    (["view", "CK", "SLOW", "--html", "NEW.html"], "model steps at"), (["view", "TRUNCPT", "DATA", "--html", "NEW.html"], ""),
+    (["view", "CK", "HUGE", "--html", "NEW.html"], "beyond"),
+    (["mpc", "TRUNC", "-o", "NEW"], ""), (["mpc", "DATA", "--model", "D=TRUNCPT", "-o", "NEW"], ""),
+    (["mpc", "SLOW", "--model", "D=CK", "--excitation-references", "-o", "NEW"], "model steps at"), (["mpc", "TRACK", "--model", "D=NEW.pt", "-o", "NEW"], "not found"),
+    # --- configuration files
+    ([*E, "--config", "NEW.yaml", "-o", "NEW.h5"], "not found"), ([*E, "--config", "BADYAML", "-o", "NEW.h5"], "malformed"),
+    ([*E, "--config", "DATA", "-o", "NEW.h5"], "malformed"), ([*E, "--config", "DIR", "-o", "NEW.h5"], "not found"),
+    ([*C, "--config", "BADYAML", "-o", "NEW.h5"], "malformed"), ([*C, "--controller", "BADYAML", "-o", "NEW.h5"], "malformed"),
+    ([*C, "--controller", "NEW.yaml", "-o", "NEW.h5"], "not found"), ([*C, "--sensor", "BADYAML", "-o", "NEW.h5"], "malformed"),
+    ([*C, "--robot", "BADYAML", "-o", "NEW.h5"], "malformed"), ([*C, "--robot", "NEW.yaml", "-o", "NEW.h5"], "not found"),
+    ([*T, "--config", "BADYAML", "-o", "NEW"], "malformed"), ([*T, "--config", "NEW.yaml", "-o", "NEW"], "not found"),
+    ([*M, "--config", "BADYAML", "-o", "NEW"], "malformed"), ([*M, "--robot", "NEW.yaml", "-o", "NEW"], "not found"),
+    ([*R, "--robot", "BADYAML", "-o", "NEW"], "malformed"),
+    (yaml_case("spec", "amplitude_max: [1, 2, 3]\n"), "amplitude_max"),
+    (yaml_case("spec", "initial_position_lower: [1.0]\ninitial_position_upper: [0.0]\n"), "initial_position_lower"),
+    (yaml_case("spec", "initial_position_lower: [-9.0]\ninitial_position_upper: [9.0]\n"), "leave its limits"),
+    (yaml_case("spec", "num_steps: 1\n"), "num_steps"), (yaml_case("spec", "frequency_range: [5.0, 1.0]\n"), "frequency_range"),
+    (yaml_case("spec", "wobble: 3\n"), "malformed"), (yaml_case("spec", "num_steps: many\n"), "malformed"),
+    (yaml_case("spec", "offset_max: [-1.0]\n"), ">= 0"), (yaml_case("spec", "max_attempts: 0\n"), "max_attempts"),
+    (yaml_case("ctrl", "kind: pid\nkp: [1, 2, 3]\nki: [0]\nkd: [1]\n"), "3 values"),
+    (yaml_case("ctrl", "kind: pid\nkp: [1]\n"), "needs kp, ki and kd"), (yaml_case("ctrl", "kind: magic\nkp: [1]\nki: [1]\nkd: [1]\n"), "kind"),
+    (yaml_case("ctrl", "kind: pid\nbandwidth: [25]\nkp: [1]\n"), "not both"),
+    (yaml_case("ctrl", "kind: inverse_dynamics\nbandwidth: [25]\n"), "per unit inertia"),
+    (yaml_case("ctrl", "kind: pid\nkp: [-1]\nki: [0]\nkd: [0]\n"), "non-negative"),
+    (yaml_case("tspec", "planner:\n  kind: teleport\n"), "planner kind"),
+    (yaml_case("tspec", "sampling:\n  initial_poses: []\n"), "initial_poses"),
+    (yaml_case("tspec", "planner:\n  velocity_scale: 2.0\n"), "velocity_scale"),
+    (yaml_case("mpc", "horizon: 0\n"), "horizon"), (yaml_case("mpc", "effort_weight: [0.0]\n"), "effort_weight"),
+    (yaml_case("mpc", "effort_weight: [1, 2]\n"), "effort_weight"), (yaml_case("mpc", "disturbance_gain: 2\n"), "disturbance_gain"),
+    (yaml_case("robot", "name: x\nmodel: missing.urdf\narm_joints: [a]\nhome: [0]\ntool_frame: t\n"), "model file not found"),
+    (yaml_case("robot", "name: x\nmodel: ur10.urdf\nweld_frame: base_link\narm_joints: [a]\nhome: [0]\ntool_frame: tool0\n"),
+     "joint 'a' is not in"),
+    (yaml_case("robot", "name: x\nmodel: ur10.urdf\narm_joints: [a, a]\nhome: [0, 0]\ntool_frame: t\n"), "distinct"),
+    (yaml_case("robot", "model: ur10.urdf\n"), "needs name"),
+]
+
+YAML_COMMANDS = {  # where a written YAML case goes in
+    "spec": [*E, "--config", "CASE", "-o", "NEW.h5"], "ctrl": [*C, "--controller", "CASE", "-o", "NEW.h5"],
+    "tspec": [*C, "--config", "CASE", "-o", "NEW.h5"], "mpc": [*M, "--config", "CASE", "-o", "NEW"],
+    "robot": [*E, "--robot", "CASE", "-o", "NEW.h5"],
+}
+
+
+def snapshot(folder: pathlib.Path) -> dict:
+    return {str(path.relative_to(folder)): (hashlib.sha256(path.read_bytes()).hexdigest() if path.is_file() else "dir")
+            for path in sorted(folder.rglob("*"))}
+
+
+def test_the_battery_is_large():
+    assert len(CASES) >= 150
+
+
+@pytest.mark.parametrize("argv, fragment", CASES, ids=[f"{i:03d}" for i in range(len(CASES))])
+def test_bad_input_is_one_line_exit_2_and_touches_nothing(sandbox, capsys, monkeypatch, argv, fragment):
+    monkeypatch.chdir(sandbox)
+    if isinstance(argv, str):  # a YAML case: write the file, then run its command on it
+        _, kind, text = argv.split("@", 2)
+        (sandbox / "case.yaml").write_text(text)
+        argv = YAML_COMMANDS[kind]
+    before = snapshot(sandbox)
+    resolved = [str(sandbox / PLACEHOLDERS[token]) if token in PLACEHOLDERS else
+                str(sandbox / "case.yaml") if token == "CASE" else
+                token.replace("NEW", str(sandbox / "new_output"), 1) if token.startswith("NEW") else
+                (str(sandbox / PLACEHOLDERS[token.split("/")[0]]) + "/" + token.split("/", 1)[1]
+                 if "/" in token and token.split("/")[0] in PLACEHOLDERS else
+                 token.replace("ZEROSTD", str(sandbox / "zero_std.pt")).replace("CK", str(sandbox / "ck.pt"))
+                 .replace("TRUNCPT", str(sandbox / "truncated.pt"))
+                 if token.startswith(("D=", "=")) else token)
+                for token in argv]
+    capsys.readouterr()
+    code = main(resolved)
+    captured = capsys.readouterr()
+    assert code == 2, (resolved, captured.err[-500:])
+    lines = captured.err.strip().splitlines()
+    if argv:  # (no command at all prints the usage)
+        assert len(lines) == 1 and "Traceback" not in captured.err, captured.err
+        assert fragment in lines[0], (fragment, lines[0])
+    after = snapshot(sandbox)
+    after.pop("case.yaml", None), before.pop("case.yaml", None)
+    assert after == before, sorted(set(after.items()) ^ set(before.items()))
