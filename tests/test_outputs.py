@@ -122,3 +122,13 @@ def test_no_command_and_file_system_errors_are_one_line_exit_2(capsys, tmp_path,
     folder.mkdir()
     fails(capsys, ["evaluate", str(checkpoint), str(folder)])        # a folder where a dataset is expected
     fails(capsys, ["inspect", str(tmp_path / "missing.h5")], "missing.h5")
+
+
+def test_a_model_whose_mpc_always_falls_back_fails_the_command(capsys):
+    """MPC that fell back on most steps is not a result: `mpc` says so in one line per model and exits 2."""
+    from stdm_drake.closed_loop.comparison import ClosedLoopResult, report_fallbacks
+    row = dict(trajectory=0, q_mse_rad2=1.0, v_mse=1.0, torque_rms_nm=1.0, effort_beyond_gravity_rms_nm=1.0,
+               limit_violations=0, solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[])
+    results = [ClosedLoopResult(model="plant", fallbacks=0, **row), ClosedLoopResult(model="NaN", fallbacks=100, **row)]
+    assert report_fallbacks(results) == ["NaN"]
+    assert "model NaN fell back to gravity compensation on 100 of 100 steps" in capsys.readouterr().err

@@ -1,5 +1,5 @@
-"""Property-based tests (Hypothesis) of what reads user input: the dataset loader on corrupted files
-and arrays, the YAML config loaders on arbitrary documents, and the command line on arbitrary
+"""Property-based tests (Hypothesis) of what reads user input: the dataset and checkpoint loaders on
+corrupted files and arrays, the YAML config loaders on arbitrary documents, and the command line on arbitrary
 numbers. The property: every input either loads or is refused with InputError (one line); nothing
 else escapes, and nothing is written where it should not be."""
 import dataclasses
@@ -48,6 +48,34 @@ def test_a_corrupted_dataset_file_loads_or_is_refused(tmp_path, dataset_bytes, c
     for index in range(dataset.num_trajectories):          # what loads is finite, well-shaped robot data
         traj = dataset.trajectory(index)
         assert np.all(np.isfinite(traj["q"])) and traj["q"].shape[0] == traj["tau"].shape[0] + 1
+
+
+@pytest.fixture(scope="module")
+def checkpoint_bytes(excitation_dataset, tmp_path_factory):
+    from stdm_drake.cli import main
+    out = tmp_path_factory.mktemp("ck")
+    assert main(["train", str(excitation_dataset), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
+                 "--quiet", "-o", str(out / "d")]) == 0
+    return (out / "d" / "seed0" / "checkpoint.pt").read_bytes()
+
+
+@SETTINGS
+@given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)), max_size=6))
+def test_a_corrupted_checkpoint_loads_or_is_refused(tmp_path, checkpoint_bytes, cut, flips):
+    """Never code execution (weights_only) and never another exception: InputError or a finite model."""
+    import torch
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    data = bytearray(checkpoint_bytes[:max(1, int(cut * len(checkpoint_bytes)))] if cut < 1.0 else checkpoint_bytes)
+    for where, byte in flips:
+        data[min(int(where * len(data)), len(data) - 1)] = byte
+    path = tmp_path / "corrupt.pt"
+    path.write_bytes(bytes(data))
+    try:
+        checkpoint = load_checkpoint(path)
+    except InputError as error:
+        assert one_line(error), str(error)
+        return
+    assert all(torch.isfinite(value).all() for value in checkpoint.model.state_dict().values())
 
 
 arrays = st.one_of(

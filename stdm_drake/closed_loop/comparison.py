@@ -253,4 +253,19 @@ def run(args) -> int:
     print(f"wrote {out}/mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
         recorder.finish(args.html, what="robot: plant under MPC; translucent orange: the reference")
-    return 0
+    return 2 if report_fallbacks(results) else 0
+
+
+def report_fallbacks(results: list[ClosedLoopResult], fraction: float = 0.5) -> list[str]:
+    """Models whose MPC fell back to gravity compensation (non-finite predictions) on more than `fraction`
+    of their steps: each gets one line on stderr (their rows are not a result); returns their names."""
+    import sys
+    failed = []
+    for name in dict.fromkeys(result.model for result in results):
+        runs = [result for result in results if result.model == name]
+        fallbacks, steps = sum(run.fallbacks for run in runs), sum(run.steps for run in runs)
+        if fallbacks > fraction * steps:
+            failed.append(name)
+            print(f"stdm-drake mpc: error: model {name} fell back to gravity compensation on {fallbacks} of {steps} "
+                  "steps (its predictions were not finite); its row is not a result", file=sys.stderr)
+    return failed
