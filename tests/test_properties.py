@@ -13,7 +13,10 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 
 from stdm_drake.errors import InputError
 
-SETTINGS = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+# derandomize: every run explores the same examples, so a CI failure reproduces anywhere (the explicit
+# examples below are cases random runs found)
+SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
+                    suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 scalars = st.one_of(st.none(), st.booleans(), st.integers(-10**6, 10**6),
                     st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=8))
@@ -139,14 +142,15 @@ def test_a_yaml_config_loads_or_is_refused(tmp_path, schema_index, document, use
 
 @SETTINGS
 @given(count=st.integers(-5, 10**6), workers=st.integers(-3, 64), seed=st.integers(-2**40, 2**40),
-       period=st.floats(allow_nan=True, allow_infinity=True))
-def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, count, workers, seed, period):
+       period=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.just(1.797693134862316e+305)),
+       step=st.one_of(st.just(0.001), st.floats(allow_nan=True, allow_infinity=True)))
+def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, count, workers, seed, period, step):
     """With the output a folder (always refused) every number either fails its own check or reaches the
     output check: exit 2 and one line either way, never a simulation and never a file."""
     from stdm_drake.cli import main
     capsys.readouterr()
     argv = ["collect", "--protocol", "excitation", "--count", str(count), "--workers", str(workers), "--seed",
-            str(seed), "--sample-period", repr(period), "--quiet", "-o", str(tmp_path)]
+            str(seed), "--sample-period", repr(period), "--plant-time-step", repr(step), "--quiet", "-o", str(tmp_path)]
     assert main(argv) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1, error

@@ -144,10 +144,10 @@ class CollectionSettings:
         """Plant steps per sample period; the period must be a whole multiple of the plant step."""
         if not (math.isfinite(self.sample_period) and self.sample_period > 0):
             raise InputError(f"sample period must be a finite number > 0 s, got {self.sample_period}")
-        if self.plant.time_step <= 0:
-            raise InputError("collection needs a discrete plant (time_step > 0)")
+        if not (math.isfinite(self.plant.time_step) and self.plant.time_step > 0):
+            raise InputError(f"collection needs a discrete plant (a finite time_step > 0), got {self.plant.time_step}")
         ratio = self.sample_period / self.plant.time_step
-        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        if not ratio <= 1e7 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise InputError(f"sample period {self.sample_period} s is not a whole multiple of the plant "
                              f"step {self.plant.time_step} s")
         return int(round(ratio))
