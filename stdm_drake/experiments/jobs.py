@@ -183,8 +183,9 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
     key = job.key()
     result_path = cache / f"{key}.json"
     labels = {"experiment": job.experiment, "train_size": job.train_size}
-    if result_path.exists() and (cache / f"{key}.pt").exists():
-        return [row | labels | {"reused": True} for row in json.loads(result_path.read_text())]
+    reused = cached_rows(job, cache)
+    if reused is not None:
+        return reused
     dataset = load_dataset(job.dataset)
     kind = parse_model_type(job.model_type)
     problem = training_problem(dataset, dict(train=job.train, val=job.val, test=job.test), model_type=job.model_type,
@@ -230,6 +231,16 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
     return [row | labels | {"reused": False} for row in rows]
 
 
+def cached_rows(job: TrainJob, cache: pathlib.Path) -> list[dict] | None:
+    """The job's result rows from the cache (marked reused), or None when it has not run yet."""
+    key = job.key()
+    result_path = cache / f"{key}.json"
+    if not (result_path.exists() and (cache / f"{key}.pt").exists()):
+        return None
+    labels = {"experiment": job.experiment, "train_size": job.train_size}
+    return [row | labels | {"reused": True} for row in json.loads(result_path.read_text())]
+
+
 def _run_job(arguments):
     job, cache = arguments
     return run_job(job, cache)
@@ -248,9 +259,15 @@ def job_cost(job: TrainJob) -> float:
     return JOB_COST.get(job.experiment, 1.0) * members * derivative * len(job.train)
 
 
-def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: bool) -> list[dict]:
-    """Train every job (the most expensive first, so the workers finish together); rows in job order."""
+def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: bool, runner=None) -> list[dict]:
+    """Train every job (the most expensive first, so the workers finish together); rows in job order.
+    runner: a RunnerConfig (stdm_drake.experiments.runner) for another backend than the local pool."""
     from tqdm import tqdm
+    if runner is not None and runner.backend == "ray":
+        from stdm_drake.experiments.runner import run_jobs_on_ray
+        order = sorted(range(len(jobs)), key=lambda index: -job_cost(jobs[index]))
+        rows_of = run_jobs_on_ray(jobs, cache, runner, progress, order)
+        return [row for index in range(len(jobs)) for row in rows_of[index]]
     bar = tqdm(total=len(jobs), desc="train", unit="model", disable=not progress, file=sys.stderr)
     results = []
     if workers > 1:

@@ -27,6 +27,7 @@ from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, FULL, IDENTIFICATI
 from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
 from stdm_drake.files import json_default
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
+from stdm_drake.experiments.runner import add_runner_arguments, runner_config_from_args
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
 from stdm_drake.robot import UR10, Robot
 
@@ -46,8 +47,9 @@ def dataset_settings(robot: Robot) -> dict:
 
 
 def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True,
-              robot: Robot | None = None):
-    """Run every stage for `robot` (default: the UR-10 preset); returns the report path."""
+              robot: Robot | None = None, runner=None):
+    """Run every stage for `robot` (default: the UR-10 preset); returns the report path. runner: a
+    RunnerConfig for the training jobs (default: the local pool of `workers` processes)."""
     from stdm_drake.experiments import sine_sum
     robot = robot or UR10
     robot.check_can_track()  # the tracked-plan experiments and MPC need it (before any work)
@@ -71,7 +73,7 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
 
     tick = time.perf_counter()
     jobs = plan_jobs(profile, excitation, local, tracking, identification)
-    results = run_jobs(jobs, cache, workers, progress)
+    results = run_jobs(jobs, cache, workers, progress, runner=runner)
     timings["training"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
@@ -156,7 +158,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="robot config YAML (default: the UR-10 preset); another fully actuated arm of 6 or more "
                              "joints runs the same experiments with its protocols derived from its model")
     parser.add_argument("--seed", type=int, default=0, help="data collection seed")
-    parser.add_argument("--workers", type=int, default=2, help="training processes (default 2)")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="training processes (default 2); with --backend ray and no cluster, the local Ray "
+                             "instance's CPUs")
+    add_runner_arguments(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     add_force_argument(parser)
 
@@ -173,6 +178,8 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder("-o/--output", output, inputs=[args.robot], own_files=("report.md", "cache"), force=args.force)
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()
-    path = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet, robot=robot)
+    runner = runner_config_from_args(args)
+    path = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet, robot=robot,
+                     runner=runner)
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
     return 0

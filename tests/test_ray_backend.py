@@ -1,0 +1,126 @@
+"""The Ray backend against a real Ray head started here on loopback (2 CPUs): the same rows and bitwise
+the same checkpoints as the local pool, a failing job's own error, a killed worker's job retried, and
+one-line errors for an unreachable cluster."""
+import dataclasses
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import secrets
+
+import pytest
+import torch
+
+# Token authentication, as a cluster should run: Ray reads the mode when it is imported, so the driver (this
+# process) gets the token before `import ray`, and the head started below gets the same one.
+AUTH = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": os.environ.get("RAY_AUTH_TOKEN") or secrets.token_hex(32)}
+os.environ.update(AUTH)
+ray = pytest.importorskip("ray")
+
+from stdm_drake.errors import InputError  # noqa: E402
+from stdm_drake.experiments.jobs import TrainJob, run_jobs  # noqa: E402
+from stdm_drake.experiments.runner import KILL_ONCE_VARIABLE, RunnerConfig  # noqa: E402
+
+RAY = os.path.join(os.path.dirname(sys.executable), "ray")
+TIMING = ("train_seconds", "rollout_ms", "reused")
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture(scope="module")
+def head(tmp_path_factory):
+    """A Ray head on 127.0.0.1 with 2 CPUs and this module's token; its workers die once while the kill
+    marker is missing."""
+    marker = tmp_path_factory.mktemp("ray") / "killed-once"
+    port = free_port()
+    env = dict(os.environ, **AUTH, **{KILL_ONCE_VARIABLE: str(marker), "RAY_USAGE_STATS_ENABLED": "0"})
+    subprocess.run([RAY, "start", "--head", "--node-ip-address=127.0.0.1", f"--port={port}", "--num-cpus=2",
+                    "--include-dashboard=false", "--disable-usage-stats"], env=env, check=True,
+                   capture_output=True, timeout=120)
+    try:
+        yield f"127.0.0.1:{port}", marker
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+        subprocess.run([RAY, "stop", "--force"], env=env, capture_output=True, timeout=120)
+
+
+def small_jobs(dataset_path) -> list[TrainJob]:
+    from stdm_drake.data.dataset import load_dataset
+    dataset = load_dataset(dataset_path)
+    common = dict(experiment="sim", dataset=str(dataset_path), dataset_sha256=dataset.sha256, train=(0, 1), val=(2,),
+                  test=(3,), activation="tanh", ensemble_size=1, max_epochs=3, patience=3, horizon=10, multistep=False,
+                  train_size=2)
+    return [TrainJob(model_type="D", seed=0, **common), TrainJob(model_type="DD", seed=1, **common),
+            TrainJob(model_type="PE", seed=0, **dict(common, ensemble_size=2)),
+            TrainJob(model_type="D", seed=0, alphas=(0.0, 1e-3), **common)]
+
+
+def clean(rows):
+    return [{key: value for key, value in row.items() if key not in TIMING} for row in rows]
+
+
+def test_ray_gives_the_local_results_bit_for_bit_and_retries_a_killed_worker(head, tmp_path, excitation_dataset):
+    address, marker = head
+    jobs = small_jobs(excitation_dataset)
+    local = run_jobs(jobs, tmp_path / "local", workers=1, progress=False)
+    assert not marker.exists()
+    remote = run_jobs(jobs, tmp_path / "ray", workers=2, progress=False,
+                      runner=RunnerConfig(backend="ray", ray_address=address, max_retries=2))
+    assert marker.exists()                                    # one worker died mid-sweep, and its job was rerun
+    assert clean(remote) == clean(local)
+    files = sorted(path.name for path in (tmp_path / "local").iterdir())
+    assert files == sorted(path.name for path in (tmp_path / "ray").iterdir()) and len(files) == 2 * len(jobs)
+    for name in files:
+        if name.endswith(".pt"):
+            a = torch.load(tmp_path / "local" / name, weights_only=True)["weights"]
+            b = torch.load(tmp_path / "ray" / name, weights_only=True)["weights"]
+            assert a.keys() == b.keys() and all(torch.equal(a[key], b[key]) for key in a), name
+    again = run_jobs(jobs, tmp_path / "ray", workers=2, progress=False,
+                     runner=RunnerConfig(backend="ray", ray_address=address))
+    assert all(row["reused"] for row in again) and clean(again) == clean(local)   # the same cache, reused
+
+
+def test_a_job_that_raises_reports_its_own_error(head, tmp_path, excitation_dataset):
+    address, _ = head
+    bad = dataclasses.replace(small_jobs(excitation_dataset)[0], train=(0, 99))   # no trajectory 99
+    with pytest.raises(InputError) as error:
+        run_jobs([bad], tmp_path / "cache", workers=2, progress=False,
+                 runner=RunnerConfig(backend="ray", ray_address=address))
+    message = str(error.value)
+    assert "training job 0 (sim D seed 0) failed on the cluster" in message and "\n" not in message, message
+
+
+def test_reproduce_quick_on_ray_equals_the_local_report(head, tmp_path, capsys):
+    """`reproduce --backend ray` against the running head: the same tables as the local run (timings aside)."""
+    from stdm_drake.cli import main
+    address, _ = head
+    if ray.is_initialized():
+        ray.shutdown()
+    assert main(["reproduce", "--quick", "--quiet", "-o", str(tmp_path / "local")]) == 0
+    assert main(["reproduce", "--quick", "--quiet", "--backend", "ray", "--ray-address", address,
+                 "-o", str(tmp_path / "ray")]) == 0
+    local, remote = (json.loads((tmp_path / name / "results.json").read_text()) for name in ("local", "ray"))
+    assert clean(remote["runs"]) == clean(local["runs"])
+
+
+def test_unreachable_cluster_and_missing_ray_are_one_line_errors(tmp_path, capsys, monkeypatch):
+    from stdm_drake.cli import main
+    if ray.is_initialized():
+        ray.shutdown()
+    started = time.perf_counter()
+    assert main(["reproduce", "--quick", "--backend", "ray", "--ray-address", f"127.0.0.1:{free_port()}",
+                 "-o", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert "cannot reach the Ray cluster" in error and error.count("\n") == 1
+    assert time.perf_counter() - started < 30 and not (tmp_path / "out").exists()
+    monkeypatch.setitem(sys.modules, "ray", None)            # as if Ray were not installed
+    assert main(["reproduce", "--quick", "--backend", "ray", "-o", str(tmp_path / "out")]) == 2
+    assert 'pip install -e ".[ray]"' in capsys.readouterr().err
