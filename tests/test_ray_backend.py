@@ -1,5 +1,5 @@
 """The Ray backend against a real Ray head started here on loopback (2 CPUs): the same rows and bitwise
-the same checkpoints as the local pool, a failing job's own error, a killed worker's job retried, and
+the same checkpoints as the local pool (training jobs and the sine-sum study), a failing job's own error, a killed worker's job retried, and
 one-line errors for an unreachable cluster."""
 import dataclasses
 import json
@@ -22,7 +22,7 @@ ray = pytest.importorskip("ray")
 
 from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.experiments.jobs import TrainJob, run_jobs  # noqa: E402
-from stdm_drake.experiments.runner import KILL_ONCE_VARIABLE, RunnerConfig  # noqa: E402
+from stdm_drake.cluster import KILL_ONCE_VARIABLE, RunnerConfig  # noqa: E402
 
 RAY = os.path.join(os.path.dirname(sys.executable), "ray")
 TIMING = ("train_seconds", "rollout_ms", "reused")
@@ -95,11 +95,12 @@ def test_a_job_that_raises_reports_its_own_error(head, tmp_path, excitation_data
         run_jobs([bad], tmp_path / "cache", workers=2, progress=False,
                  runner=RunnerConfig(backend="ray", ray_address=address))
     message = str(error.value)
-    assert "training job 0 (sim D seed 0) failed on the cluster" in message and "\n" not in message, message
+    assert "training job 0 (sim D seed 0) on the cluster failed: trajectory index out of range" in message and "\n" not in message, message
 
 
 def test_reproduce_quick_on_ray_equals_the_local_report(head, tmp_path, capsys):
-    """`reproduce --backend ray` against the running head: the same tables as the local run (timings aside)."""
+    """`reproduce --backend ray` against the running head: the same training rows and sine-sum study as the
+    local run (timings aside)."""
     from stdm_drake.cli import main
     address, _ = head
     if ray.is_initialized():
@@ -109,6 +110,10 @@ def test_reproduce_quick_on_ray_equals_the_local_report(head, tmp_path, capsys):
                  "-o", str(tmp_path / "ray")]) == 0
     local, remote = (json.loads((tmp_path / name / "results.json").read_text()) for name in ("local", "ray"))
     assert clean(remote["runs"]) == clean(local["runs"])
+    local, remote = (json.loads((tmp_path / name / "sine_sum" / "results.json").read_text())["runs"]
+                     for name in ("local", "ray"))             # the sine-sum study ran on Ray too
+    assert [run["member_test_mse"] for run in remote] == [run["member_test_mse"] for run in local]
+    assert [run["best_prediction"] for run in remote] == [run["best_prediction"] for run in local]
 
 
 def test_unreachable_cluster_and_missing_ray_are_one_line_errors(tmp_path, capsys, monkeypatch):
@@ -124,3 +129,27 @@ def test_unreachable_cluster_and_missing_ray_are_one_line_errors(tmp_path, capsy
     monkeypatch.setitem(sys.modules, "ray", None)            # as if Ray were not installed
     assert main(["reproduce", "--quick", "--backend", "ray", "-o", str(tmp_path / "out")]) == 2
     assert 'pip install -e ".[ray]"' in capsys.readouterr().err
+
+
+
+def test_train_seeds_on_ray_write_the_local_checkpoints(head, tmp_path, excitation_dataset, capsys):
+    """`train --seeds 0 1 2 --backend ray`: every seed trained on the cluster, the files written here,
+    checkpoints bitwise equal to the local run's; --resume is refused with Ray."""
+    from stdm_drake.cli import main
+    address, _ = head
+    common = ["train", str(excitation_dataset), "--model", "DD", "--epochs", "4", "--train", "2", "--val", "1",
+              "--seeds", "0", "1", "2", "--quiet"]
+    assert main(common + ["-o", str(tmp_path / "local")]) == 0
+    assert main(common + ["--backend", "ray", "--ray-address", address, "-o", str(tmp_path / "ray")]) == 0
+    for seed in (0, 1, 2):
+        a = torch.load(tmp_path / "local" / f"seed{seed}" / "checkpoint.pt", weights_only=True)["weights"]
+        b = torch.load(tmp_path / "ray" / f"seed{seed}" / "checkpoint.pt", weights_only=True)["weights"]
+        assert all(torch.equal(a[key], b[key]) for key in a)
+        curves = [[line.rsplit(",", 1)[0] for line in (tmp_path / name / f"seed{seed}" / "curves.csv").read_text()
+                   .splitlines()] for name in ("local", "ray")]      # every column but the epoch's seconds
+        assert curves[0] == curves[1]
+    summary = json.loads((tmp_path / "ray" / "summary.json").read_text())
+    assert sorted(summary["seeds"]) == ["0", "1", "2"]
+    capsys.readouterr()
+    assert main(common + ["--backend", "ray", "--resume", "-o", str(tmp_path / "ray")]) == 2
+    assert "--resume continues runs in a local folder" in capsys.readouterr().err

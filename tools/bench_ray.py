@@ -71,7 +71,7 @@ def main() -> None:
     args = parser.parse_args()
     import ray
 
-    from stdm_drake.experiments.runner import RunnerConfig
+    from stdm_drake.cluster import RunnerConfig
     with tempfile.TemporaryDirectory() as temp:
         folder = pathlib.Path(temp)
         jobs = sweep(folder, args.jobs)
@@ -83,7 +83,7 @@ def main() -> None:
                     address = ray_head(workers)
                     started = time.perf_counter()
                     runner = RunnerConfig(backend="ray", workers=workers, ray_address=address)
-                    from stdm_drake.experiments.runner import connect
+                    from stdm_drake.cluster import connect
                     connect(runner)
                     connect_seconds = time.perf_counter() - started
                 seconds, rows = timed(jobs, folder / f"cache-{backend}-{workers}", workers, runner)

@@ -27,7 +27,7 @@ from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, FULL, IDENTIFICATI
 from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
 from stdm_drake.files import json_default
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
-from stdm_drake.experiments.runner import add_runner_arguments, runner_config_from_args
+from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
 from stdm_drake.robot import UR10, Robot
 
@@ -80,7 +80,7 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     study_config = sine_sum.QUICK if profile.sine_sum == "quick" else sine_sum.FULL
     sine = reused_sine_sum(output / "sine_sum" / "results.json", study_config)
     if sine is None:
-        sine = sine_sum.run_study(study_config, workers=workers, progress=progress)
+        sine = sine_sum.run_study(study_config, workers=workers, progress=progress, runner=runner)
         sine_sum.write_reports(sine, output / "sine_sum", quick=profile.sine_sum == "quick")
     sine["profile"] = profile.sine_sum
     timings["sine_sum"] = time.perf_counter() - tick

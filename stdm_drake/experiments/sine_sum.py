@@ -32,7 +32,6 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import json
-import multiprocessing
 import os
 import pathlib
 import time
@@ -225,11 +224,15 @@ def _call(function, *arguments):
     return function(*arguments)
 
 
-def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True) -> dict:
-    """The alpha sweep (alpha="auto") and every run, in `workers` processes: naive runs start at once,
-    derivative runs once alpha is known. Returns {"runs": [...] in run_specs order, "alpha_sweep", timings};
-    the results do not depend on `workers`."""
+def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True, runner=None) -> dict:
+    """The alpha sweep (alpha="auto") and every run, in `workers` processes (or on `runner`, a RunnerConfig
+    of stdm_drake.experiments.runner: Ray): naive runs start at once, derivative runs once alpha is known.
+    Returns {"runs": [...] in run_specs order, "alpha_sweep", timings}; the results do not depend on
+    `workers` or the backend."""
     from tqdm import tqdm
+
+    from stdm_drake.cluster import RunnerConfig, job_pool, task_error
+    runner = runner or RunnerConfig(workers=workers)
 
     specs = run_specs(config)
     started = time.perf_counter()
@@ -238,9 +241,8 @@ def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True) -
     results: dict[int, dict] = {}
     sweep = None
     try:
-        if workers > 1:
-            context = multiprocessing.get_context("spawn")
-            with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context) as pool:
+        if workers > 1 or runner.backend != "local":
+            with job_pool(runner) as pool:
                 pending = {}
                 if auto:
                     sweep_future = pool.submit(_call, alpha_sweep, config)
@@ -254,13 +256,18 @@ def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True) -
                     for future in done:
                         index = pending.pop(future)
                         bar.update(1)
+                        try:
+                            result = future.result()
+                        except Exception as error:  # one line, whichever backend raised it
+                            raise task_error(error, "the alpha sweep" if index is None else
+                                             f"sine-sum run {specs[index].label}") from None
                         if index is None:
-                            sweep = future.result()
+                            sweep = result
                             for later, spec in enumerate(specs):
                                 if spec.derivative:
                                     pending[pool.submit(_call, train_run, spec, config, sweep["chosen_alpha"])] = later
                         else:
-                            results[index] = future.result()
+                            results[index] = result
         else:
             torch.set_num_threads(1)
             if auto:
@@ -542,6 +549,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="processes, one torch thread each (default min(2, cores)); results do not depend on it")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_force_argument(parser)
+    from stdm_drake.cluster import add_runner_arguments
+    add_runner_arguments(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -559,7 +568,9 @@ def run(args: argparse.Namespace) -> int:
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     check_output_folder("-o/--output", args.output, own_files=("results.json",), force=args.force)
-    study = run_study(config, workers=args.workers, progress=not args.quiet)
+    from stdm_drake.cluster import runner_config_from_args
+    runner = runner_config_from_args(args)
+    study = run_study(config, workers=args.workers, progress=not args.quiet, runner=runner)
     mark_output_folder(args.output)
     written = write_reports(study, args.output, quick=args.quick, partial=bool(overrides))
     print(f"{len(study['runs'])} runs in {study['wall_seconds']:.1f} s; wrote {len(written)} files to {args.output}")

@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from stdm_drake.errors import InputError
+from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata
@@ -91,6 +92,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true", help="continue interrupted runs in the output folder")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_force_argument(parser)
+    add_runner_arguments(parser)
     settings = {field.name for field in dataclasses.fields(TrainSettings)}
     for action in parser._actions:  # unset flags stay absent, so the settings file (or its defaults) decide
         if action.dest in settings:
@@ -230,6 +232,21 @@ def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_tes
     return n_train, n_val, n_test
 
 
+def fit_seed(model_config, training_config, train_data, val_data, fit_options: dict, threads: int):
+    """One seed of `train` on a Ray worker: fit_model with `threads` torch threads into a scratch
+    checkpoint; returns (result, selection, the checkpoint file's bytes)."""
+    import shutil
+    import tempfile
+    torch.set_num_threads(threads)
+    scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-seed-"))
+    try:
+        result, selection = fit_model(model_config, training_config, train_data, val_data,
+                                      checkpoint_path=scratch / "checkpoint.pt", **fit_options)
+        return result, selection, (scratch / "checkpoint.pt").read_bytes()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -247,6 +264,8 @@ def run(args: argparse.Namespace) -> int:
                          "it (use DD, PD, DED or PED, or --derivative on)")
     check_output_folder("-o/--output", args.output, inputs=[args.dataset, args.config, args.robot],
                         own_files=("summary.json",), force=args.force)
+    if args.backend == "ray" and args.resume:
+        raise InputError("--resume continues runs in a local folder; with --backend ray, train without it")
     existing = [seed for seed in args.seeds if (pathlib.Path(args.output) / f"seed{seed}" / "checkpoint.pt").exists()]
     if existing and not args.resume:
         raise InputError(f"{pathlib.Path(args.output) / f'seed{existing[0]}' / 'checkpoint.pt'} exists; pass --resume "
@@ -277,6 +296,7 @@ def run(args: argparse.Namespace) -> int:
             min_learning_rate=args.min_lr, weight_decay=args.weight_decay)
 
     training_config_for(args.seeds[0])  # its checks, before the output folder is made
+    runner = runner_config_from_args(args)  # joins the cluster now: an unreachable one stops before any work
     mark_output_folder(output)
     summary = dict(model_type=name, dataset=str(args.dataset), dataset_sha256=dataset.sha256,
                    split={key: list(map(int, value)) for key, value in split.as_dict().items()}, seeds={})
@@ -284,26 +304,13 @@ def run(args: argparse.Namespace) -> int:
           f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}; "
           f"train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
           f"({len(train_data)} / {len(val_data)} transitions)")
-    for seed in args.seeds:
-        training_config = training_config_for(seed)
+    fit_options = dict(alpha="auto" if auto else "fixed", alphas=tuple(args.alpha_grid),
+                       checkpoint_every=args.checkpoint_every, metadata=problem.metadata)
+
+    def finish(seed: int, result, selection) -> None:
+        """The files and the summary entry of one trained seed (its checkpoint is written already)."""
         folder = output / f"seed{seed}"
         checkpoint_path = folder / "checkpoint.pt"
-        resume = checkpoint_path.exists()  # (only with --resume: checked before any work)
-        metadata = problem.metadata
-        bar = tqdm(total=args.epochs, desc=f"train {name} seed {seed}", unit="epoch", disable=args.quiet,
-                   dynamic_ncols=True)
-
-        def on_epoch(row, bar=bar):
-            bar.update(row["epoch"] - bar.n)
-            bar.set_postfix(train=f"{row['train_loss']:.3g}", val_mse=f"{row['val_mse']:.3g}")
-
-        try:
-            result, selection = fit_model(model_config, training_config, train_data, val_data,
-                                          alpha="auto" if auto else "fixed", alphas=tuple(args.alpha_grid),
-                                          checkpoint_path=checkpoint_path, checkpoint_every=args.checkpoint_every,
-                                          metadata=metadata, resume=resume, on_epoch=on_epoch)
-        finally:
-            bar.close()
         write_text_atomic(folder / "curves.csv", history_csv(result.history))
         if selection is not None:
             write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
@@ -316,6 +323,47 @@ def run(args: argparse.Namespace) -> int:
                                            best_val_mse_standardized=result.best_scores)
         print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
               f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {checkpoint_path}")
+
+    if runner.backend == "ray":  # every seed at once on the cluster; files written here as they finish
+        import concurrent.futures
+
+        from stdm_drake.cluster import job_pool, shared, task_error
+        bar = tqdm(total=len(args.seeds), desc=f"train {name} (ray)", unit="seed", disable=args.quiet)
+        outcomes = {}
+        with job_pool(runner) as pool:
+            train_ref, val_ref = shared(pool, train_data), shared(pool, val_data)   # once, not once per seed
+            pending = {pool.submit(fit_seed, model_config, training_config_for(seed), train_ref, val_ref,
+                                   fit_options, args.threads): seed for seed in args.seeds}
+            for future in concurrent.futures.as_completed(pending):
+                seed = pending[future]
+                try:
+                    result, selection, checkpoint = future.result()
+                except Exception as error:
+                    raise task_error(error, f"seed {seed} on the cluster") from None
+                with atomic_path(output / f"seed{seed}" / "checkpoint.pt") as temp:
+                    temp.write_bytes(checkpoint)
+                outcomes[seed] = result, selection
+                bar.update()
+        bar.close()
+        for seed in args.seeds:
+            finish(seed, *outcomes[seed])
+    for seed in args.seeds if runner.backend != "ray" else ():
+        checkpoint_path = output / f"seed{seed}" / "checkpoint.pt"
+        resume = checkpoint_path.exists()  # (only with --resume: checked before any work)
+        bar = tqdm(total=args.epochs, desc=f"train {name} seed {seed}", unit="epoch", disable=args.quiet,
+                   dynamic_ncols=True)
+
+        def on_epoch(row, bar=bar):
+            bar.update(row["epoch"] - bar.n)
+            bar.set_postfix(train=f"{row['train_loss']:.3g}", val_mse=f"{row['val_mse']:.3g}")
+
+        try:
+            result, selection = fit_model(model_config, training_config_for(seed), train_data, val_data,
+                                          checkpoint_path=checkpoint_path, resume=resume, on_epoch=on_epoch,
+                                          **fit_options)
+        finally:
+            bar.close()
+        finish(seed, result, selection)
     write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
     return 0
 
