@@ -25,6 +25,14 @@ values = st.recursive(scalars, lambda inner: st.one_of(st.lists(inner, max_size=
                       max_leaves=12)
 
 
+def corrupted(content: bytes, cut: float, flips) -> bytes:
+    """`content` cut to the fraction `cut` (1: whole), then bytes set at fractions of its length."""
+    data = bytearray(content[:max(1, int(cut * len(content)))] if cut < 1.0 else content)
+    for where, byte in flips:
+        data[min(int(where * len(data)), len(data) - 1)] = byte
+    return bytes(data)
+
+
 def one_line(error: Exception) -> bool:
     return "\n" not in str(error) and str(error).strip() != ""
 
@@ -38,11 +46,8 @@ def dataset_bytes(excitation_dataset):
 @given(cut=st.floats(0.0, 1.0), flips=st.lists(st.tuples(st.floats(0.0, 1.0), st.integers(0, 255)), max_size=6))
 def test_a_corrupted_dataset_file_loads_or_is_refused(tmp_path, dataset_bytes, cut, flips):
     from stdm_drake.data.dataset import load_dataset
-    data = bytearray(dataset_bytes[:max(1, int(cut * len(dataset_bytes)))] if cut < 1.0 else dataset_bytes)
-    for where, byte in flips:
-        data[min(int(where * len(data)), len(data) - 1)] = byte
     path = tmp_path / "corrupt.h5"
-    path.write_bytes(bytes(data))
+    path.write_bytes(corrupted(dataset_bytes, cut, flips))
     try:
         dataset = load_dataset(path)
     except InputError as error:
@@ -68,11 +73,8 @@ def test_a_corrupted_checkpoint_loads_or_is_refused(tmp_path, checkpoint_bytes, 
     """Never code execution (weights_only) and never another exception: InputError or a finite model."""
     import torch
     from stdm_drake.learning.checkpoint import load_checkpoint
-    data = bytearray(checkpoint_bytes[:max(1, int(cut * len(checkpoint_bytes)))] if cut < 1.0 else checkpoint_bytes)
-    for where, byte in flips:
-        data[min(int(where * len(data)), len(data) - 1)] = byte
     path = tmp_path / "corrupt.pt"
-    path.write_bytes(bytes(data))
+    path.write_bytes(corrupted(checkpoint_bytes, cut, flips))
     try:
         checkpoint = load_checkpoint(path)
     except InputError as error:
