@@ -101,10 +101,7 @@ def check_output_folder(option: str, path, *, inputs=(), own_files=(), force: bo
     command's own result files (`own_files`, names relative to it, from runs before the marker), or
     --force. A folder that is one of the inputs, or an existing file, is refused."""
     path = pathlib.Path(path)
-    for source in inputs:
-        if source is not None and (_same_file(path, pathlib.Path(source))
-                                   or path.absolute() == pathlib.Path(source).absolute()):
-            raise InputError(f"{option} {path} is one of the command's inputs ({source}); choose another folder")
+    _check_not_input(option, path, inputs)
     if path.exists() or path.is_symlink():
         if not path.is_dir():
             raise InputError(f"{option} {path} exists and is not a folder; give a folder path")

@@ -113,6 +113,11 @@ class JointLimits:
     effort: np.ndarray
 
 
+def robot_joint_limits(robot: Robot) -> JointLimits:
+    """The limits of `robot` as its plant states them (a bare plant built for the purpose)."""
+    return joint_limits(make_plant(PlantConfig(time_step=0.0), robot=robot)[0])
+
+
 def joint_limits(plant: MultibodyPlant) -> JointLimits:
     return JointLimits(
         position_lower=plant.GetPositionLowerLimits().copy(),
@@ -139,6 +144,15 @@ class Dynamics:
         """Torque (n,) N m on every joint that holds the arm still at q."""
         self.plant.SetPositions(self.context, q)
         return -self.plant.CalcGravityGeneralizedForces(self.context)
+
+    def mass_matrix(self, q: np.ndarray) -> np.ndarray:
+        """M(q) (n, n), kg m^2 (or kg for prismatic joints)."""
+        self.plant.SetPositions(self.context, q)
+        return self.plant.CalcMassMatrix(self.context)
+
+    def effective_inertia(self, q: np.ndarray) -> np.ndarray:
+        """Per joint (n,), the inertia it moves with the other joints free: 1 / (M(q)^-1)_ii."""
+        return 1.0 / np.diag(np.linalg.inv(self.mass_matrix(q)))
 
     def actuated_gravity_torque(self, q: np.ndarray) -> np.ndarray:
         """The actuated joints' part (m,) N m of gravity_torque(q) (all of it for a fully actuated arm)."""

@@ -211,8 +211,8 @@ class Robot:
     def _check_within_limits(self, dataset, position_margin: float = 0.5, velocity_factor: float = 1.5) -> None:
         """InputError if the dataset's states leave the robot's position limits by more than
         `position_margin` (rad or m) or its velocity limits by more than `velocity_factor` times."""
-        from stdm_drake.plant import PlantConfig, joint_limits, make_plant
-        limits = joint_limits(make_plant(PlantConfig(time_step=0.0), robot=self)[0])
+        from stdm_drake.plant import robot_joint_limits
+        limits = robot_joint_limits(self)
         for index in range(dataset.num_trajectories):
             traj = dataset.trajectory(index)
             for key, low, high in (("q", limits.position_lower - position_margin, limits.position_upper + position_margin),

@@ -82,11 +82,7 @@ class MpcConfig:
         inertia at home, M_eff,i = 1 / (M^-1)_ii (log-log least squares over the 6 joints:
         R_i = 7.8e-4 M_eff,i^-1.4, within a factor of 2 of every UR-10 weight)."""
         config = load_mpc_config(DEFAULT_MPC_CONFIG)
-        dynamics = Dynamics(robot)
-        context = dynamics.plant.CreateDefaultContext()
-        dynamics.plant.SetPositions(context, robot.home)
-        effective_inertia = 1.0 / np.diag(np.linalg.inv(dynamics.plant.CalcMassMatrix(context)))
-        weights = 7.8e-4 * effective_inertia ** -1.4
+        weights = 7.8e-4 * Dynamics(robot).effective_inertia(robot.home) ** -1.4
         return dataclasses.replace(config, effort_weight=[float(f"{w:.3g}") for w in weights])
 
 

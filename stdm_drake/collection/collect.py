@@ -37,7 +37,7 @@ from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
-from stdm_drake.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
+from stdm_drake.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits, robot_joint_limits
 from stdm_drake.robot import UR10, Robot, load_robot
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
@@ -100,9 +100,7 @@ class ExcitationConfig:
         inside the position limits (box=math.pi: the whole range, as trajectories/excitation.yaml's
         nearly whole-range UR-10 start poses)."""
         dynamics = Dynamics(robot)
-        context = dynamics.plant.CreateDefaultContext()
-        dynamics.plant.SetPositions(context, robot.home)
-        torque = acceleration * np.diag(dynamics.plant.CalcMassMatrix(context))[robot.actuated_indices]
+        torque = acceleration * np.diag(dynamics.mass_matrix(robot.home))[robot.actuated_indices]
         limits = joint_limits(dynamics.plant)
         lower = np.maximum(robot.home - box, limits.position_lower + 0.05)
         upper = np.minimum(robot.home + box, limits.position_upper - 0.05)
@@ -112,8 +110,7 @@ class ExcitationConfig:
     def check_start_poses(self, robot: Robot) -> None:
         """InputError naming the joint if the start-pose box is not `position_margin` inside its limits
         (every start would be rejected, after the simulation, as a limit violation)."""
-        from stdm_drake.plant import make_plant
-        limits = joint_limits(make_plant(PlantConfig(time_step=0.0), robot=robot)[0])
+        limits = robot_joint_limits(robot)
         lower, upper = np.asarray(self.initial_position_lower), np.asarray(self.initial_position_upper)
         for j, name in enumerate(robot.joint_names):
             low, high = limits.position_lower[j] + self.position_margin, limits.position_upper[j] - self.position_margin

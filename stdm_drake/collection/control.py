@@ -106,15 +106,10 @@ def smallest_effective_inertia(robot: Robot, box: float = 0.5, samples: int = 50
     """Per joint (n,) kg m^2, the smallest 1 / (M(q)^-1)_ii over home and `samples` poses drawn
     uniformly within +-box rad of it inside the position limits (numpy.random.default_rng(0))."""
     dynamics = Dynamics(robot)
-    plant, context = dynamics.plant, dynamics.context
-    limits = joint_limits(plant)
+    limits = joint_limits(dynamics.plant)
     poses = np.clip(robot.home + np.random.default_rng(0).uniform(-box, box, size=(samples, robot.num_joints)),
                     limits.position_lower, limits.position_upper)
-    smallest = np.full(robot.num_joints, np.inf)
-    for q in np.vstack([robot.home, poses]):
-        plant.SetPositions(context, q)
-        smallest = np.minimum(smallest, 1.0 / np.diag(np.linalg.inv(plant.CalcMassMatrix(context))))
-    return smallest
+    return np.min([dynamics.effective_inertia(q) for q in np.vstack([robot.home, poses])], axis=0)
 
 
 def load_controller_config(path) -> ControllerConfig:

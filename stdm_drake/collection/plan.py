@@ -118,9 +118,7 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
     kinematics = RobotKinematics(dynamics.plant, robot)
     checker = SelfCollisionChecker(robot)
     limits = joint_limits(dynamics.plant)
-    context = dynamics.plant.CreateDefaultContext()
-    dynamics.plant.SetPositions(context, robot.home)
-    inertia = np.diag(dynamics.plant.CalcMassMatrix(context))
+    inertia = np.diag(dynamics.mass_matrix(robot.home))
     capability = (limits.effort - np.abs(dynamics.gravity_torque(robot.home))) / inertia
     acceleration = np.minimum(5.0, 0.1 * np.maximum(capability, 0.0))
     planner = PlannerConfig(acceleration_limits=np.round(acceleration, 3).tolist(),
