@@ -27,7 +27,7 @@ def sandbox(tmp_path_factory, excitation_dataset, tracking_dataset):
     box = tmp_path_factory.mktemp("battery")
     shutil.copy(excitation_dataset, box / "data.h5")
     shutil.copy(tracking_dataset, box / "track.h5")
-    assert main(["train", str(box / "data.h5"), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
+    assert main(["train", str(box / "data.h5"), "--predicts", "state", "--inputs", "raw", "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
                  "--quiet", "-o", str(box / "run")]) == 0
     shutil.copy(box / "run" / "seed0" / "checkpoint.pt", box / "ck.pt")
     (box / "notes.txt").write_text("a user's notes\n")

@@ -45,7 +45,7 @@ def tiny(tmp_path_factory):
     folder = tmp_path_factory.mktemp("learn_cli")
     dataset = write_tiny_dataset(folder / "tiny.h5", 10, seed=0)
     output = folder / "run"
-    code = main(["train", str(dataset), "-o", str(output), "--model", "DED", "--ensemble-size", "2",
+    code = main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", "DED", "--ensemble-size", "2",
                  "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
                  "--train", "6", "--val", "2", "--quiet"])
     assert code == 0
@@ -72,7 +72,7 @@ def test_train_writes_checkpoints_curves_and_summary(tiny):
 
 def test_train_refuses_to_overwrite_and_resumes(tiny, capsys):
     dataset, output = tiny
-    arguments = ["train", str(dataset), "-o", str(output), "--model", "DED", "--ensemble-size", "2",
+    arguments = ["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", "DED", "--ensemble-size", "2",
                  "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
                  "--train", "6", "--val", "2", "--quiet"]
     capsys.readouterr()
@@ -128,9 +128,9 @@ def test_evaluate_errors_are_one_line(tiny, tmp_path, capsys):
 def test_train_input_errors(tiny, tmp_path, capsys):
     dataset, _ = tiny
     capsys.readouterr()
-    assert main(["train", str(dataset), "-o", str(tmp_path / "x"), "--train", "9", "--val", "2", "--quiet"]) == 2
+    assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "x"), "--train", "9", "--val", "2", "--quiet"]) == 2
     assert "split needs" in capsys.readouterr().err
-    assert main(["train", str(dataset), "-o", str(tmp_path / "y"), "--model", "DD", "--alpha", "0",
+    assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "y"), "--model", "DD", "--alpha", "0",
                  "--quiet"]) == 2
     assert "alpha > 0" in capsys.readouterr().err
 
@@ -157,7 +157,7 @@ def test_benchmark_report_writer_keeps_other_sections(tmp_path):
 def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, tmp_path, capsys, model_type):
     dataset, _ = tiny
     output = tmp_path / model_type
-    arguments = ["train", str(dataset), "-o", str(output), "--model", model_type, "--alpha", "auto",
+    arguments = ["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", model_type, "--alpha", "auto",
                  "--alpha-grid", "0", "1e-3", "1", "--ensemble-size", "2", "--hidden-width", "16", "--hidden-layers",
                  "2", "--epochs", "5", "--lr-schedule", "cosine", "--train", "6", "--val", "2", "--quiet"]
     assert main(arguments) == 0
@@ -190,7 +190,7 @@ def test_alpha_flag_errors(tiny, tmp_path, capsys):
                            (["--model", "DD", "--lr-schedule", "cosine", "--min-lr", "1"], "min_learning_rate")):
         capsys.readouterr()
         try:
-            code = main(["train", str(dataset), "-o", str(tmp_path / "x"), "--quiet", *extra])
+            code = main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "x"), "--quiet", *extra])
         except SystemExit as stop:   # argparse's own usage errors
             code = stop.code
         assert code == 2
@@ -204,7 +204,7 @@ def test_training_settings_file_with_flags_over_it(tiny, tmp_path, capsys):
     settings = tmp_path / "de.yaml"
     settings.write_text("model: DE\nensemble_size: 2\nhidden_width: 8\nhidden_layers: 1\nepochs: 2\nseeds: [4]\n"
                         "train: 6\nval: 2\nlr_schedule: cosine\n")
-    assert main(["train", str(dataset), "-o", str(tmp_path / "run"), "--config", str(settings), "--epochs", "3",
+    assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "run"), "--config", str(settings), "--epochs", "3",
                  "--quiet"]) == 0
     checkpoint = load_model(tmp_path / "run" / "seed4" / "checkpoint.pt")
     config = checkpoint.model_config
@@ -218,7 +218,7 @@ def test_training_settings_file_with_flags_over_it(tiny, tmp_path, capsys):
                           ("hidden_layers: 0\n", "hidden_layers (--hidden-layers) must be >= 1")):
         settings.write_text(text)
         capsys.readouterr()
-        assert main(["train", str(dataset), "-o", str(tmp_path / "bad"), "--config", str(settings), "--quiet"]) == 2
+        assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "bad"), "--config", str(settings), "--quiet"]) == 2
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "bad").exists()  # checks come before any work

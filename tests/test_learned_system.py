@@ -9,7 +9,8 @@ from pydrake.trajectories import PiecewisePolynomial
 from stdm_drake.cli import main
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.errors import InputError
-from stdm_drake.closed_loop.learned_system import LearnedDynamicsSystem, LearnedModel
+from stdm_drake.closed_loop.learned_system import LearnedDynamicsSystem
+from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.predict import predict, rollout
 
 
@@ -19,7 +20,7 @@ def checkpoints(tracking_dataset, tmp_path_factory):
     folder = tmp_path_factory.mktemp("models")
     paths = {}
     for kind, extra in (("PE", ["--ensemble-size", "2"]), ("D", [])):
-        assert main(["train", str(tracking_dataset), "-o", str(folder / kind), "--model", kind, *extra,
+        assert main(["train", str(tracking_dataset), "-o", str(folder / kind), "--predicts", "state", "--inputs", "raw", "--model", kind, *extra,
                      "--hidden-width", "32", "--hidden-layers", "2", "--epochs", "5", "--seeds", "0",
                      "--train", "3", "--val", "2", "--test", "0", "--per-group", "off", "--quiet"]) == 0
         paths[kind] = folder / kind / "seed0" / "checkpoint.pt"
@@ -130,7 +131,7 @@ def test_view_and_mpc_commands(checkpoints, tracking_dataset, tmp_path, capsys):
 
 def test_mpc_needs_a_held_out_plan(tracking_dataset, tmp_path, capsys):
     folder = tmp_path / "all"
-    assert main(["train", str(tracking_dataset), "-o", str(folder), "--model", "D", "--hidden-width", "8",
+    assert main(["train", str(tracking_dataset), "-o", str(folder), "--predicts", "state", "--inputs", "raw", "--model", "D", "--hidden-width", "8",
                  "--hidden-layers", "1", "--epochs", "1", "--seeds", "0", "--train", "1", "--val", "1",
                  "--test", "0", "--quiet"]) == 0
     assert main(["mpc", str(tracking_dataset), "--model", f"D={folder / 'seed0' / 'checkpoint.pt'}",

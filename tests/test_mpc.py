@@ -7,7 +7,7 @@ import pytest
 from stdm_drake.errors import InputError
 from stdm_drake.closed_loop.ilqr import IlqrSolver
 from stdm_drake.closed_loop.mpc import MpcConfig, Reference, load_mpc_config, run_closed_loop
-from stdm_drake.closed_loop.plant_model import PlantModel, zero_order_hold_discretization
+from stdm_drake.learning.physics import PlantModel, zero_order_hold_discretization
 
 
 class LinearModel:

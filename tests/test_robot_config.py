@@ -131,8 +131,12 @@ def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
         assert "collected with robot two_link" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
     assert main(["train", str(data), "--model", "DD", "--epochs", "3", "--train", "4", "--val", "1", "--quiet",
-                 "-o", str(tmp_path / "dd")]) == 0
-    assert main(["evaluate", str(tmp_path / "dd" / "seed0" / "checkpoint.pt"), str(data), "--horizon", "10"]) == 0
+                 "-o", str(tmp_path / "dd")]) == 2     # nominal-acceleration inputs need the robot: the UR-10 refuses
+    assert "collected with robot two_link" in capsys.readouterr().err
+    assert main(["train", str(data), "--robot", str(robot), "--model", "DD", "--epochs", "3", "--train", "4",
+                 "--val", "1", "--quiet", "-o", str(tmp_path / "dd")]) == 0
+    assert main(["evaluate", str(tmp_path / "dd" / "seed0" / "checkpoint.pt"), str(data), "--robot", str(robot),
+                 "--horizon", "10"]) == 0
     assert "one-step MSE" in capsys.readouterr().out
 
 
@@ -158,7 +162,8 @@ def test_a_checkpoint_refuses_a_dataset_of_another_robot(tmp_path, capsys, excit
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.checkpoint import save_checkpoint
     other = save_checkpoint(tmp_path / "other.pt", checkpoint.model,
-                            metadata=dict(robot_name="arm6", joint_names=[f"j{i}" for i in range(6)]))
+                            metadata=dict(robot_name="arm6", joint_names=[f"j{i}" for i in range(6)],
+                                          structure=checkpoint.metadata.structure))
     with pytest.raises(InputError, match=r"trained on another robot .*\(joints differ: arm6 vs ur10\)"):
         load_checkpoint(other).check_fits(load_dataset(excitation_dataset))
 
@@ -169,8 +174,8 @@ def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     import json
     from stdm_drake.cli import main
     robot, data = collect_two_link(tmp_path, 20)
-    assert main(["train", str(data), "--model", "D", "--epochs", "5", "--train", "4", "--val", "1", "--quiet",
-                 "-o", str(tmp_path / "d")]) == 0
+    assert main(["train", str(data), "--robot", str(robot), "--model", "D", "--epochs", "5", "--train", "4",
+                 "--val", "1", "--quiet", "-o", str(tmp_path / "d")]) == 0
     checkpoint = str(tmp_path / "d" / "seed0" / "checkpoint.pt")
     weights = tmp_path / "mpc.yaml"
     weights.write_text("horizon: 5\nposition_weight: [1.0e+4]\nvelocity_weight: [10.0]\neffort_weight: [1.0e-3]\n")

@@ -31,8 +31,8 @@ from benchmark_report import machine_description, write_benchmark_section  # noq
 
 from stdm_drake.cli import main as cli  # noqa: E402
 from stdm_drake.data.dataset import load_dataset  # noqa: E402
-from stdm_drake.closed_loop.learned_system import LearnedModel  # noqa: E402
-from stdm_drake.closed_loop.plant_model import PlantModel  # noqa: E402
+from stdm_drake.learning.learned_model import LearnedModel  # noqa: E402
+from stdm_drake.learning.physics import PlantModel  # noqa: E402
 from stdm_drake.closed_loop.comparison import (compare_controllers, held_out_references, summarize,  # noqa: E402
                                                summary_table)
 from stdm_drake.closed_loop.mpc import load_mpc_config  # noqa: E402

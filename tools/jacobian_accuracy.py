@@ -21,8 +21,8 @@ import torch  # noqa: E402
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 from stdm_drake.data.dataset import load_dataset  # noqa: E402
-from stdm_drake.closed_loop.learned_system import LearnedModel  # noqa: E402
-from stdm_drake.closed_loop.plant_model import PlantModel  # noqa: E402
+from stdm_drake.learning.learned_model import LearnedModel  # noqa: E402
+from stdm_drake.learning.physics import PlantModel  # noqa: E402
 from stdm_drake.closed_loop.comparison import held_out_references  # noqa: E402
 from stdm_drake.robot import UR10  # noqa: E402
 

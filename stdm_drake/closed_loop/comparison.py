@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 
 from stdm_drake.closed_loop.mpc import MpcConfig, MpcLog, Reference, mpc_config_for, run_closed_loop
-from stdm_drake.closed_loop.plant_model import PlantModel
+from stdm_drake.learning.physics import PlantModel
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
 from stdm_drake.report import markdown_table
@@ -194,7 +194,7 @@ def run(args) -> int:
 
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.files import write_text_atomic
-    from stdm_drake.closed_loop.learned_system import LearnedModel
+    from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.robot import robot_for
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     if args.plans < 1:

@@ -25,8 +25,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.errors import InputError
-    from stdm_drake.closed_loop.learned_system import LearnedModel
-    from stdm_drake.learning.predict import rollout
+    from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.robot import robot_for
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
@@ -52,7 +51,7 @@ def run(args) -> int:
             raise InputError(f"trajectory index {index} out of range 0..{dataset.num_trajectories - 1}")
         traj = dataset.trajectory(index)
         x0 = np.concatenate([traj["q"][0], traj["v"][0]])
-        predicted = rollout(model.engine, x0, traj["tau"]).mean
+        predicted = model.rollout(x0[None], traj["tau"][None]).mean[0]
         ghost_q = np.vstack([traj["q"][:1], predicted[:, :robot.num_joints]])
         error = np.sqrt(np.mean((ghost_q - traj["q"]) ** 2))
         print(f"trajectory {index}: open-loop RMS joint-angle error over {len(traj['tau'])} steps {error:.4g} rad")

@@ -109,7 +109,7 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     """MPC with the plant and every seed of the control experiment's D, DD, PE, PED models on held-out
     plans of the identification dataset, the models split over `workers` processes; returns
     {"runs": per model instance, "types": mpc_statistics}."""
-    from stdm_drake.closed_loop.learned_system import LearnedModel
+    from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.closed_loop.mpc import Reference
     from stdm_drake.closed_loop.comparison import held_out_references, plot_results, summarize
     specs = [("plant", None)]
@@ -138,8 +138,8 @@ def _mpc_group(arguments) -> list:
     """Closed-loop runs of the models named in `specs` ((name, checkpoint path or None for the plant))."""
     import torch
     torch.set_num_threads(1)
-    from stdm_drake.closed_loop.learned_system import LearnedModel
-    from stdm_drake.closed_loop.plant_model import PlantModel
+    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.learning.physics import PlantModel
     from stdm_drake.closed_loop.comparison import compare_controllers
     from stdm_drake.closed_loop.mpc import mpc_config_for
     specs, references, sample_period, progress, robot = arguments

@@ -13,6 +13,7 @@ from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, json_default
 from stdm_drake.learning.models import EnsembleMLP, ModelConfig
 from stdm_drake.learning.settings import TrainingConfig
+from stdm_drake.learning.structure import ModelStructure
 
 CHECKPOINT_FORMAT = "stdm-drake-model"
 CHECKPOINT_VERSION = 2  # 2: derivative loss scaled by the state spread (alpha as in eq. 9), no rate normalizer
@@ -51,6 +52,7 @@ class CheckpointMetadata:
     robot_name: str | None = None
     robot_model_sha256: str | None = None
     joint_names: list | None = None
+    structure: dict | None = None
 
     @classmethod
     def from_dict(cls, values: dict) -> "CheckpointMetadata":
@@ -77,18 +79,27 @@ class Checkpoint:
     history: dict
     resume: dict | None
 
+    @property
+    def structure(self) -> ModelStructure:
+        """What the network predicts and sees (the paper's structure for checkpoints that record none)."""
+        return ModelStructure.from_dict(self.metadata.structure)
+
+    @property
+    def model_sizes(self) -> tuple[int, int]:
+        """(state_dim, action_dim) of the model the network serves: (2n, m)."""
+        return self.structure.model_sizes(self.model_config.input_dim, self.model_config.output_dim)
+
     def trained_on(self, dataset) -> bool:
         """Whether `dataset` (a loaded Dataset) is the file this model was trained on (same SHA-256)."""
         return self.metadata.dataset_sha256 is not None and self.metadata.dataset_sha256 == dataset.sha256
 
     def check_sizes(self, *, state_dim: int | None = None, action_dim: int | None = None) -> None:
         """InputError unless the model's STDM sizes equal the given ones (None: any)."""
-        config = self.model_config
-        wanted = (state_dim if state_dim is not None else config.state_dim,
-                  action_dim if action_dim is not None else config.action_dim)
-        if (config.state_dim, config.action_dim) != wanted:
-            raise InputError(f"{self.path}: model has state dim {config.state_dim} and action dim "
-                             f"{config.action_dim}, expected state dim {wanted[0]} and action dim {wanted[1]}")
+        mine = self.model_sizes
+        wanted = (state_dim if state_dim is not None else mine[0], action_dim if action_dim is not None else mine[1])
+        if mine != wanted:
+            raise InputError(f"{self.path}: model has state dim {mine[0]} and action dim "
+                             f"{mine[1]}, expected state dim {wanted[0]} and action dim {wanted[1]}")
 
     def check_fits(self, dataset) -> None:
         """InputError unless the model can predict `dataset`'s transitions: the state (2 x joints) and
@@ -171,6 +182,7 @@ def load_checkpoint(path) -> Checkpoint:
         model = EnsembleMLP(model_config)
         model.load_state_dict(content["weights"])
         metadata = CheckpointMetadata.from_dict(dict(content.get("metadata") or {}))
+        ModelStructure.from_dict(metadata.structure).model_sizes(model_config.input_dim, model_config.output_dim)
     except InputError as error:
         raise InputError(f"{path}: {error}") from None
     except (KeyError, TypeError, RuntimeError, ValueError) as error:

@@ -18,15 +18,16 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.files import write_text_atomic
 from stdm_drake.outputs import add_force_argument, check_output_file
-from stdm_drake.learning.predict import PROPAGATIONS, as_inference_model, predict, rollout
+from stdm_drake.learning.dynamics_model import DynamicsModel
+from stdm_drake.learning.predict import PROPAGATIONS, as_inference_model
 
 REPORT_STEPS = (1, 5, 10, 20, 50, 100)
 
 
-def _halves(config) -> int:
-    if config.state_dim % 2:
-        raise InputError(f"angle/velocity errors need a state [q, v] of even size, the model's has {config.state_dim}")
-    return config.state_dim // 2
+def _halves(state_dim: int) -> int:
+    if state_dim % 2:
+        raise InputError(f"angle/velocity errors need a state [q, v] of even size, the model's has {state_dim}")
+    return state_dim // 2
 
 
 @dataclasses.dataclass
@@ -70,14 +71,24 @@ class MultiStepErrors:
         return result
 
 
+def as_dynamics_model(model):
+    """A DynamicsModel as it is; a bare network (EnsembleMLP or InferenceModel) as a LearnedModel of the
+    paper's structure (next state from [x, a])."""
+    from stdm_drake.learning.learned_model import LearnedModel
+    if isinstance(model, DynamicsModel):
+        return model
+    return LearnedModel(as_inference_model(model), require_sample_period=False)
+
+
 def one_step_errors(model, states, actions, next_states) -> OneStepErrors:
-    """states (N, S) [q, v], actions (N, A), next_states (N, S) -> OneStepErrors of the ensemble mean."""
-    engine = as_inference_model(model)
-    joints = _halves(engine.config)
+    """states (N, S) [q, v], actions (N, A), next_states (N, S) -> OneStepErrors of the mean prediction
+    of `model` (any DynamicsModel, or a bare network)."""
+    model = as_dynamics_model(model)
+    joints = _halves(model.state_dim)
     truth = np.asarray(next_states, dtype=np.float64)
-    if truth.ndim != 2 or truth.shape[1] != engine.state_dim:
-        raise InputError(f"next_states must have shape (N, {engine.state_dim}), got {truth.shape}")
-    predicted = predict(engine, states, actions).mean.astype(np.float64)
+    if truth.ndim != 2 or truth.shape[1] != model.state_dim:
+        raise InputError(f"next_states must have shape (N, {model.state_dim}), got {truth.shape}")
+    predicted = np.asarray(model.predict(states, actions).mean, dtype=np.float64)
     if predicted.shape != truth.shape:
         raise InputError(f"states and next_states differ in shape: {predicted.shape} and {truth.shape}")
     squared = (predicted - truth) ** 2
@@ -90,12 +101,12 @@ def one_step_errors(model, states, actions, next_states) -> OneStepErrors:
 def multi_step_errors(model, initial_states, actions, true_states, *, propagation: str = "mean",
                       particles: int = 20, seed: int = 0) -> MultiStepErrors:
     """initial_states (B, S), actions (B, H, A), true_states (B, H, S) of steps 1..H -> MultiStepErrors
-    of the rollout mean."""
-    engine = as_inference_model(model)
-    joints = _halves(engine.config)
+    of the rollout mean of `model` (any DynamicsModel, or a bare network)."""
+    model = as_dynamics_model(model)
+    joints = _halves(model.state_dim)
     truth = np.asarray(true_states, dtype=np.float64)
-    result = rollout(engine, initial_states, actions, propagation=propagation, particles=particles, seed=seed)
-    predicted = result.mean.astype(np.float64)
+    result = model.rollout(initial_states, actions, propagation=propagation, particles=particles, seed=seed)
+    predicted = np.asarray(result.mean, dtype=np.float64)
     if predicted.shape != truth.shape:
         raise InputError(f"rollout has shape {predicted.shape}, true_states {truth.shape}")
     squared = (predicted - truth) ** 2
@@ -104,6 +115,61 @@ def multi_step_errors(model, initial_states, actions, true_states, *, propagatio
     return MultiStepErrors(trajectories=len(truth), horizon=truth.shape[1], propagation=propagation,
                            angle_mse=per_trajectory_q.mean(axis=0), velocity_mse=per_trajectory_v.mean(axis=0),
                            angle_mse_std=per_trajectory_q.std(axis=0), velocity_mse_std=per_trajectory_v.std(axis=0))
+
+
+@dataclasses.dataclass
+class ModelErrors:
+    """One model's test errors on a set of trajectories, and (for learned models) its ratios to the
+    physics-free baselines: one-step q MSE of the Euler step / the model's, one-step v MSE of
+    "v unchanged" / the model's, and the verdict `physics.learning_verdict` draws from them."""
+    name: str
+    learned: bool
+    one_step: OneStepErrors
+    multi_step: MultiStepErrors
+    ratio_q: float | None = None
+    ratio_v: float | None = None
+    verdict: str | None = None
+
+    def as_dict(self) -> dict:
+        return dict(name=self.name, learned=self.learned, one_step=self.one_step.as_dict(),
+                    multi_step=self.multi_step.as_dict(), ratio_to_euler_q=self.ratio_q,
+                    ratio_to_velocity_unchanged_v=self.ratio_v, verdict=self.verdict)
+
+
+def physics_baselines(sample_period: float, state_dim: int, action_dim: int, robot=None,
+                      plant: bool = True) -> list:
+    """The baselines every learned number stands beside: the Euler step (q) / "v unchanged" (v), "stays
+    put" (open loop), and, with plant, the robot's own rigid-body plant stepping the recorded torque."""
+    from stdm_drake.learning.physics import ConstantVelocity, PlantModel, StaysPut
+    models = [ConstantVelocity(state_dim, action_dim, sample_period), StaysPut(state_dim, action_dim, sample_period)]
+    if plant:
+        models.append(PlantModel(sample_period, robot=robot))
+    return models
+
+
+def compare_with_baselines(models, transitions, rollout_data, *, propagation: str = "mean", particles: int = 20,
+                           seed: int = 0) -> list[ModelErrors]:
+    """Errors of every model (DynamicsModel) on the same transitions and rollouts (x0, actions, truth);
+    learned models are rated against the first ConstantVelocity among them."""
+    from stdm_drake.learning.physics import ConstantVelocity, learning_verdict
+    rows = []
+    for model in models:
+        one = one_step_errors(model, transitions.state, transitions.action, transitions.next_state)
+        multi = multi_step_errors(model, *rollout_data, propagation=propagation if model.learned else "mean",
+                                  particles=particles, seed=seed)
+        rows.append(ModelErrors(name=model.name, learned=model.learned, one_step=one, multi_step=multi))
+    euler = next((row for row, model in zip(rows, models) if isinstance(model, ConstantVelocity)), None)
+    if euler is not None:
+        for row in rows:
+            if row.learned:
+                row.ratio_q = _ratio(euler.one_step.angle_mse, row.one_step.angle_mse)
+                row.ratio_v = _ratio(euler.one_step.velocity_mse, row.one_step.velocity_mse)
+                row.verdict = learning_verdict(row.ratio_q, row.ratio_v)
+    return rows
+
+
+def _ratio(baseline: float, model: float) -> float:
+    return float(baseline / model) if model > 0 else float("inf")
 
 
 def trajectory_rollout_data(dataset, indices, horizon: int | None = None):
@@ -128,7 +194,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", type=pathlib.Path, help="model checkpoint written by `stdm-drake train`")
     parser.add_argument("dataset", type=pathlib.Path, help="dataset file (.h5)")
     parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML: refuse a dataset collected with another robot (default: no check)")
+                        help="robot config YAML (default: the UR-10 preset when the dataset is its): the plant "
+                             "baseline and the nominal model; a dataset collected with another robot is refused")
     parser.add_argument("--split", choices=("test", "val", "train", "all"), default="test",
                         help="trajectories to evaluate: the checkpoint's split of this dataset, or all (default test)")
     parser.add_argument("--horizon", type=int,
@@ -138,6 +205,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="multi-step propagation: mean, ts1 or tsinf (PETS; default mean)")
     parser.add_argument("--particles", type=int, default=20, help="particles per trajectory for ts1/tsinf")
     parser.add_argument("--seed", type=int, default=0, help="seed of the TS particles")
+    parser.add_argument("--no-plant", action="store_true",
+                        help="leave out the plant baseline (the robot's rigid-body plant stepping the recorded torque: "
+                             "about a millisecond per step)")
     parser.add_argument("--json", type=pathlib.Path, help="also write every number (and the curves) to this JSON file")
     add_force_argument(parser)
 
@@ -145,13 +215,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.checkpoint import load_checkpoint
+    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.learning.physics import LEARNED_FACTOR
+    from stdm_drake.robot import robot_for
 
     check_output_file("--json", args.json, kind="json", inputs=[args.checkpoint, args.dataset, args.robot],
                       force=args.force)
     dataset = load_dataset(args.dataset)
     if args.robot is not None:
-        from stdm_drake.robot import robot_for
-        robot_for(args.robot, dataset)
+        robot = robot_for(args.robot, dataset)
+    else:  # the UR-10 preset when the dataset is its; another robot's data get no plant baseline
+        try:
+            robot = robot_for(None, dataset)
+        except InputError:
+            robot = None
     checkpoint = load_checkpoint(args.checkpoint)
     checkpoint.check_fits(dataset)
     trained_on_this = checkpoint.trained_on(dataset)
@@ -165,38 +242,57 @@ def run(args: argparse.Namespace) -> int:
         indices = np.asarray(split, dtype=int)
         if not len(indices):
             raise InputError(f"the checkpoint's {args.split} split is empty")
-    engine = as_inference_model(checkpoint.model)
-    transitions = dataset.transitions(indices)
-    one_step = one_step_errors(engine, transitions.state, transitions.action, transitions.next_state)
     shortest = min(len(dataset.trajectory(int(i))["tau"]) for i in indices)
     if args.horizon is not None and not 1 <= args.horizon <= shortest:
         raise InputError(f"--horizon must be in 1..{shortest} (the shortest selected trajectory's steps), "
                          f"got {args.horizon}")
-    x0, actions, truth = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
-    multi = multi_step_errors(engine, x0, actions, truth, propagation=args.propagation,
-                              particles=args.particles, seed=args.seed)
+    model = LearnedModel(checkpoint, name=checkpoint.metadata.model_type or "model", robot=robot,
+                         sample_period=dataset.sample_period, require_sample_period=False,
+                         check_robot=robot is not None)
+    transitions = dataset.transitions(indices)
+    rollout_data = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
+    plant = robot is not None and not args.no_plant
+    baselines = physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, robot=robot, plant=plant)
+    rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=args.propagation,
+                                  particles=args.particles, seed=args.seed)
     config = checkpoint.model_config
     alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
-    name = checkpoint.metadata.model_type or "?"
-    print(f"model {name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
+    print(f"model {model.name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
           f"{config.ensemble_size} member(s), {'probabilistic' if config.probabilistic else 'deterministic'}, "
-          f"{'delta' if config.residual else 'direct'}, derivative alpha {alpha:g}")
+          f"{'delta' if config.residual else 'direct'}, {model.structure.label}, derivative alpha {alpha:g}")
     print(f"dataset {args.dataset} ({'the training dataset' if trained_on_this else 'another dataset'}); "
-          f"split {args.split}: {len(indices)} trajectories, {one_step.transitions} transitions")
-    print(f"one-step MSE        q {one_step.angle_mse:.4e} rad^2    v {one_step.velocity_mse:.4e} (rad/s)^2")
-    print(f"multi-step MSE ({multi.propagation} propagation, {multi.horizon} steps, "
-          f"mean +- std over {multi.trajectories} trajectories):")
-    print(f"  {'step':>5}  {'q [rad^2]':>24}  {'v [(rad/s)^2]':>24}")
+          f"split {args.split}: {len(indices)} trajectories, {rows[0].one_step.transitions} transitions")
+    multi = rows[0].multi_step
     shown = sorted({s for s in REPORT_STEPS if s <= multi.horizon} | {multi.horizon})
+    print(f"one-step MSE and open-loop ({multi.propagation} propagation, {multi.horizon} steps, mean over "
+          f"{multi.trajectories} trajectories) q MSE at step k, beside the physics baselines:")
+    header = f"  {'model':<12} {'q [rad^2]':>10} {'v [(rad/s)^2]':>13}  " + " ".join(f"{'q@' + str(k):>9}" for k in shown)
+    print(header)
+    for row in rows:
+        print(f"  {row.name[:12]:<12} {row.one_step.angle_mse:>10.3e} {row.one_step.velocity_mse:>13.3e}  "
+              + " ".join(f"{row.multi_step.angle_mse[k - 1]:>9.2e}" for k in shown))
+    if not plant:
+        print("  (no plant baseline: " + ("--no-plant" if args.no_plant else "pass the dataset's robot with --robot")
+              + ")")
+    learned = rows[0]
+    print(f"{model.name} against the physics-free baselines: one-step q {learned.ratio_q:.3g}x better than the Euler "
+          f"step, v {learned.ratio_v:.3g}x better than 'v unchanged' -> {learned.verdict}"
+          + ("" if learned.verdict == "learned" else
+             f" (needs {LEARNED_FACTOR:g}x in both; comparisons with other such models are uninformative)"))
+    print(f"multi-step MSE of {model.name} (mean +- std over {multi.trajectories} trajectories):")
+    print(f"  {'step':>5}  {'q [rad^2]':>24}  {'v [(rad/s)^2]':>24}")
     for step in shown:
         i = step - 1
         print(f"  {step:>5}  {multi.angle_mse[i]:>11.4e} +- {multi.angle_mse_std[i]:<9.2e}  "
               f"{multi.velocity_mse[i]:>11.4e} +- {multi.velocity_mse_std[i]:<9.2e}")
     print(f"  {'mean':>5}  {multi.angle_mse_mean:>11.4e}{'':13}  {multi.velocity_mse_mean:>11.4e}")
     if args.json:
-        report = dict(written_by="stdm-drake evaluate", checkpoint=str(args.checkpoint), dataset=str(args.dataset), dataset_sha256=dataset.sha256,
-                      trained_on_this_dataset=trained_on_this, split=args.split,
-                      trajectories=[int(i) for i in indices], one_step=one_step.as_dict(), multi_step=multi.as_dict())
+        report = dict(written_by="stdm-drake evaluate", checkpoint=str(args.checkpoint), dataset=str(args.dataset),
+                      dataset_sha256=dataset.sha256, trained_on_this_dataset=trained_on_this, split=args.split,
+                      structure=model.structure.as_dict(), trajectories=[int(i) for i in indices],
+                      one_step=learned.one_step.as_dict(), multi_step=multi.as_dict(),
+                      ratio_to_euler_q=learned.ratio_q, ratio_to_velocity_unchanged_v=learned.ratio_v,
+                      verdict=learned.verdict, baselines=[row.as_dict() for row in rows[1:]])
         write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
         print(f"wrote {args.json}")
     return 0

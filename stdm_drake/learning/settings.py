@@ -10,6 +10,7 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.learning.models import ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
+from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 
 LOSS_KINDS = ("mse", "mae", "huber")
 LR_SCHEDULES = ("constant", "cosine")
@@ -105,7 +106,10 @@ class TrainSettings:
     model: "D", "P", "DE", "PE" (naive) or "DD", "PD", "DED", "PED" (derivative loss); derivative:
     "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto";
     alpha_grid: alphas tried by "auto"; network: activation, hidden_width, hidden_layers,
-    ensemble_size (DE/PE types), direct (x_{t+1} instead of the delta); losses: state_loss,
+    ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
+    predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's) and inputs
+    ("nominal_acceleration": [q, v, τ] and the robot's nominal acceleration; "raw": [q, v, τ], the
+    paper's), see `learning.structure`; losses: state_loss,
     derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
     trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
     derivative_source ("true", "planned"; None: the dataset's), action_rate ("forward_difference",
@@ -121,6 +125,8 @@ class TrainSettings:
     hidden_layers: int = 3
     ensemble_size: int = DEFAULT_ENSEMBLE_SIZE
     direct: bool = False
+    predicts: str = "velocity"
+    inputs: str = "nominal_acceleration"
     state_loss: str = "mse"
     derivative_loss: str = "mse"
     seeds: typing.List[int] = dataclasses.field(default_factory=lambda: [0])
@@ -155,7 +161,8 @@ class TrainSettings:
         choices = dict(model=tuple(MODEL_TYPES), derivative=(None, "on", "off"), activation=ACTIVATION_NAMES,
                        state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
                        derivative_source=(None, "true", "planned"),
-                       action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES)
+                       action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES,
+                       predicts=PREDICTS, inputs=INPUT_SETS)
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "

@@ -20,10 +20,11 @@ from stdm_drake.outputs import add_force_argument, check_output_folder, mark_out
 from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata
 from stdm_drake.learning.models import (ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig,
-                                        dynamics_config, parse_model_type)
+                                        parse_model_type)
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import (DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainingConfig,
                                           TrainSettings)
+from stdm_drake.learning.structure import INPUT_SETS, PAPER, PREDICTS, ModelStructure
 from stdm_drake.learning.trainer import AlphaSelection, fit_model
 
 
@@ -44,7 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
                         help="output folder: seed<N>/checkpoint.pt, seed<N>/curves.csv, summary.json")
     parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML: refuse a dataset collected with another robot (default: no check)")
+                        help="robot config YAML (default: the UR-10 preset): the nominal model of "
+                             "nominal-acceleration inputs; a dataset collected with another robot is refused")
     parser.add_argument("--config", type=pathlib.Path,
                         help="training settings YAML (TrainSettings: keys as the flags below with '_' for '-'); "
                              "flags given on the command line override it")
@@ -63,7 +65,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ensemble-size", type=int, default=DEFAULT_ENSEMBLE_SIZE,
                         help="members of DE/PE-type models (default 5)")
     parser.add_argument("--direct", action="store_true",
-                        help="predict x_{t+1} directly instead of the delta x_{t+1} - x_t")
+                        help="predict the next state (or velocity) directly instead of its delta from the current one")
+    parser.add_argument("--predicts", choices=PREDICTS, default="velocity",
+                        help="velocity: the network predicts v_{t+1} and q_{t+1} follows by the trapezoid rule "
+                             "(default); state: it predicts x_{t+1} (the paper's)")
+    parser.add_argument("--inputs", choices=INPUT_SETS, default="nominal_acceleration",
+                        help="nominal_acceleration: [q, v, tau] and the acceleration the robot's nominal model "
+                             "(--robot) gives (default); raw: [q, v, tau] (the paper's)")
     parser.add_argument("--state-loss", choices=LOSS_KINDS, default="mse")
     parser.add_argument("--derivative-loss", choices=LOSS_KINDS, default="mse")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="one model per seed (default 0)")
@@ -159,20 +167,6 @@ def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pa
     return path
 
 
-def regression_data(dataset, indices, *, derivative_source: str | None = None,
-                    action_rate: str = "forward_difference") -> RegressionData:
-    """Training pairs of the trajectories `indices` of a loaded Dataset: z = [x_t, a_t], y = x_{t+1},
-    ż = [ẋ_t, Δa_t/Δt], ẏ = ẋ_{t+1} (derivative_source None: the dataset's default)."""
-    return RegressionData.from_transitions(dataset.transitions(list(indices), derivative_source=derivative_source,
-                                                               action_rate=action_rate))
-
-
-def dynamics_sizes(data: RegressionData) -> tuple[int, int]:
-    """(state_dim, action_dim) of STDM training pairs (inputs [x, a], targets x)."""
-    state_dim = data.targets.shape[1]
-    return state_dim, data.inputs.shape[1] - state_dim
-
-
 @dataclasses.dataclass
 class TrainingProblem:
     """One model type on one dataset split: the network to fit (`model_config`), the training and
@@ -186,22 +180,36 @@ class TrainingProblem:
 def training_problem(dataset, split, *, model_type: str = "DD", activation: str = "swish", hidden_width: int = 100,
                      hidden_layers: int = 3, ensemble_size: int = DEFAULT_ENSEMBLE_SIZE, delta: bool = True,
                      derivative_source: str | None = None, action_rate: str = "forward_difference",
-                     **metadata_fields) -> TrainingProblem:
+                     structure: ModelStructure = PAPER, robot=None, **metadata_fields) -> TrainingProblem:
     """The TrainingProblem of `model_type` ("D" ... "PED"; it decides probabilistic heads and whether
     the ensemble size applies) on `dataset` (a loaded Dataset) with `split` (a Split or {"train",
     "val", "test"} -> trajectory indices). State and action sizes come from the data; derivative
-    targets from `derivative_source` (None: the dataset's default) and `action_rate`."""
+    targets from `derivative_source` (None: the dataset's default) and `action_rate`; what the network
+    predicts and sees from `structure` (default the paper's; `robot` is the nominal model of
+    nominal-acceleration inputs, default the UR-10 preset)."""
     kind = parse_model_type(model_type)
     source = derivative_source or dataset.default_derivative_source
     parts = split.as_dict() if hasattr(split, "as_dict") else split
-    train = regression_data(dataset, parts["train"], derivative_source=source, action_rate=action_rate)
-    val = regression_data(dataset, parts["val"], derivative_source=source, action_rate=action_rate)
-    state_dim, action_dim = dynamics_sizes(train)
-    config = dynamics_config(state_dim=state_dim, action_dim=action_dim, delta=delta, hidden_width=hidden_width,
-                             hidden_layers=hidden_layers, activation=activation,
-                             ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
+    features = None
+    if structure.uses_nominal_model:
+        from stdm_drake.learning.physics import NominalAcceleration
+        from stdm_drake.robot import UR10
+        features = NominalAcceleration(robot or UR10)
+
+    def pairs(indices) -> RegressionData:
+        transitions = dataset.transitions(list(indices), derivative_source=source, action_rate=action_rate)
+        return structure.regression_data(transitions, features)
+
+    train, val = pairs(parts["train"]), pairs(parts["val"])
+    first = dataset.trajectory(0)
+    state_dim, action_dim = 2 * first["q"].shape[1], first["tau"].shape[1]
+    input_dim, output_dim = structure.network_sizes(state_dim, action_dim)
+    config = ModelConfig(input_dim=input_dim, output_dim=output_dim, residual=delta, hidden_width=hidden_width,
+                         hidden_layers=hidden_layers, activation=activation,
+                         ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
     metadata = dataset_metadata(dataset, parts, model_type=model_type, derivative_source=source,
-                                action_rate=action_rate, **metadata_fields)
+                                action_rate=action_rate,
+                                structure=None if structure == PAPER else structure.as_dict(), **metadata_fields)
     return TrainingProblem(model_config=config, train=train, val=val, metadata=metadata)
 
 
@@ -270,10 +278,12 @@ def run(args: argparse.Namespace) -> int:
     if existing and not args.resume:
         raise InputError(f"{pathlib.Path(args.output) / f'seed{existing[0]}' / 'checkpoint.pt'} exists; pass --resume "
                          "to continue it or choose another --output")
+    structure = ModelStructure(predicts=args.predicts, inputs=args.inputs)
     dataset = load_dataset(args.dataset)
-    if args.robot is not None:
+    robot = None
+    if args.robot is not None or structure.uses_nominal_model:
         from stdm_drake.robot import robot_for
-        robot_for(args.robot, dataset)
+        robot = robot_for(args.robot, dataset)
     per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"
     pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
     n_train, n_val, n_test = default_split_sizes(pool, args.train, args.val, args.test)
@@ -284,7 +294,7 @@ def run(args: argparse.Namespace) -> int:
                                hidden_width=args.hidden_width, hidden_layers=args.hidden_layers,
                                ensemble_size=args.ensemble_size, delta=not args.direct,
                                derivative_source=args.derivative_source, action_rate=args.action_rate,
-                               split_seed=args.split_seed, per_group=per_group, threads=args.threads)
+                               structure=structure, robot=robot, split_seed=args.split_seed, per_group=per_group, threads=args.threads)
     model_config, train_data, val_data = problem.model_config, problem.train, problem.val
     output = pathlib.Path(args.output)
 
@@ -298,10 +308,11 @@ def run(args: argparse.Namespace) -> int:
     training_config_for(args.seeds[0])  # its checks, before the output folder is made
     runner = runner_config_from_args(args)  # joins the cluster now: an unreachable one stops before any work
     mark_output_folder(output)
-    summary = dict(model_type=name, dataset=str(args.dataset), dataset_sha256=dataset.sha256,
+    summary = dict(model_type=name, structure=structure.as_dict(), dataset=str(args.dataset), dataset_sha256=dataset.sha256,
                    split={key: list(map(int, value)) for key, value in split.as_dict().items()}, seeds={})
     print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "
-          f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}; "
+          f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}, "
+          f"{structure.label}; "
           f"train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
           f"({len(train_data)} / {len(val_data)} transitions)")
     fit_options = dict(alpha="auto" if auto else "fixed", alphas=tuple(args.alpha_grid),

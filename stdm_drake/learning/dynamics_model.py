@@ -1,0 +1,112 @@
+"""The one model contract: every state-transition model x_{t+1} = f(x_t, a_t) implements `DynamicsModel`.
+
+Learned models (`learning.learned_model.LearnedModel`: the paper's D/P/DE/PE networks and the
+physics-structured networks), the physics baselines and the robot's own plant as a model
+(`learning.physics`) all implement it, so `evaluate`, `view`, the LeafSystem and the MPC accept any
+of them. As in mbrl-lib's `mbrl.models.Model`, the contract is small:
+
+    sizes           state_dim S = 2n ([q rad, v rad/s]), action_dim A = m (N m), sample_period (s)
+    step(x, a)      next states (N, S) for x (N, S), a (N, A): the mean prediction, no input checks
+                    (the MPC's hot path)
+    predict(x, a)   a checked one-step `Prediction` (mean, variance); deterministic models give
+                    zero variance
+    rollout(x0, a)  open-loop prediction of steps 1..T: x0 (B, S), a (B, T, A) -> `Rollout`
+    jacobians(x, a) d step / d(x, a) at H rows: A (H, S, S), B (H, S, A)
+"""
+from __future__ import annotations
+
+import abc
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.learning.predict import PROPAGATIONS, Prediction, Rollout
+
+
+def check_batch(values, width: int, name: str, *, sequence: bool = False) -> np.ndarray:
+    """float64 (B, width) or, with sequence, (B, T, width); InputError on another shape or non-finite values."""
+    array = np.asarray(values, dtype=np.float64)
+    wanted = 3 if sequence else 2
+    if array.ndim != wanted or array.shape[-1] != width:
+        shape = "(B, T, {})" if sequence else "(B, {})"
+        raise InputError(f"{name} must have shape {shape.format(width)}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        raise InputError(f"{name} contain NaN or infinite values")
+    return array
+
+
+class DynamicsModel(abc.ABC):
+    """A state-transition model of a robot with n joints, m of them actuated, at a fixed sample period.
+
+    Subclasses set `name`, `state_dim` (2n), `action_dim` (m) and `sample_period` (s; None for a
+    bare network that was not trained on a dataset) and implement `step` and `jacobians`.
+    `probabilistic` and `ensemble_size` tell whether `predict` has a variance worth showing.
+    """
+    name: str = "model"
+    state_dim: int
+    action_dim: int
+    sample_period: float | None = None
+    probabilistic: bool = False
+    ensemble_size: int = 1
+    learned: bool = False          # True for models fitted to data (the baselines' gate applies to them)
+
+    @property
+    def num_joints(self) -> int:
+        """n: half the state."""
+        return self.state_dim // 2
+
+    @abc.abstractmethod
+    def step(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Mean next states (N, S) float64 for x (N, S) [q rad, v rad/s] and a (N, A) N m."""
+
+    @abc.abstractmethod
+    def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d step / d x (H, S, S) and d step / d a (H, S, A) at the rows x (H, S), a (H, A)."""
+
+    def predict(self, x, a) -> Prediction:
+        """Checked one-step prediction for x (B, S), a (B, A) (or unbatched): mean and variance (B, S)."""
+        states, actions, added = self._checked_pair(x, a)
+        mean = self.step(states, actions)
+        variance = np.zeros_like(mean)
+        if added:
+            return Prediction(mean=mean[0], variance=variance[0], member_means=mean[None, 0], member_variances=None)
+        return Prediction(mean=mean, variance=variance, member_means=mean[None], member_variances=None)
+
+    def rollout(self, x0, actions, *, propagation: str = "mean", particles: int = 20, seed: int | None = 0) -> Rollout:
+        """Open-loop prediction of steps 1..T from x0 (B, S) under actions (B, T, A): mean (B, T, S).
+
+        Only "mean" propagation (each step from the previous mean); ensembles of networks also offer
+        PETS trajectory sampling (`LearnedModel.rollout`)."""
+        if propagation not in PROPAGATIONS:
+            raise InputError(f"propagation must be one of {PROPAGATIONS}, got {propagation!r}")
+        if propagation != "mean":
+            raise InputError(f"{self.name}: only 'mean' propagation (ts1/tsinf need an ensemble of networks "
+                             "that predicts the whole state)")
+        states = check_batch(x0, self.state_dim, "initial_states")
+        sequence = check_batch(actions, self.action_dim, "actions", sequence=True)
+        if len(sequence) != len(states):
+            raise InputError(f"initial_states and actions have different batch sizes: {len(states)} and {len(sequence)}")
+        horizon = sequence.shape[1]
+        mean = np.empty((len(states), horizon, self.state_dim))
+        variance = np.zeros_like(mean)
+        current = states
+        for k in range(horizon):
+            prediction = self._rollout_step(current, sequence[:, k])
+            mean[:, k], variance[:, k] = prediction
+            current = mean[:, k]
+        return Rollout(mean=mean, variance=variance)
+
+    def _rollout_step(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(mean, variance) (B, S) of one rollout step; models with a variance override it."""
+        mean = self.step(x, a)
+        return mean, np.zeros_like(mean)
+
+    def _checked_pair(self, x, a) -> tuple[np.ndarray, np.ndarray, bool]:
+        states = np.asarray(x, dtype=np.float64)
+        added = states.ndim == 1
+        states = check_batch(states[None] if added else states, self.state_dim, "states")
+        actions = np.asarray(a, dtype=np.float64)
+        actions = check_batch(actions[None] if added and actions.ndim == 1 else actions, self.action_dim, "actions")
+        if len(actions) != len(states):
+            raise InputError(f"states and actions have different batch sizes: {len(states)} and {len(actions)}")
+        return states, actions, added

@@ -1,0 +1,182 @@
+"""A trained network as a `DynamicsModel`: `LearnedModel` wraps a checkpoint (or a bare network) and its
+`ModelStructure`, so every command treats the paper's black boxes and the physics-structured networks
+alike.
+
+The network runs on the float32 numpy inference path (`predict.InferenceModel`); nominal-acceleration
+inputs are evaluated by the robot's Drake plant at every step, and their Jacobian (Drake AutoDiff)
+enters the model's Jacobian by the chain rule.
+"""
+from __future__ import annotations
+
+import pathlib
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.learning.dynamics_model import DynamicsModel, check_batch
+from stdm_drake.learning.predict import Prediction, Rollout, as_inference_model, predict, rollout
+from stdm_drake.learning.structure import PAPER, ModelStructure
+
+
+class LearnedModel(DynamicsModel):
+    """A checkpoint (path or loaded `Checkpoint`) or a bare network (`EnsembleMLP`/`InferenceModel`, then
+    with `structure`, default the paper's) as a model of `robot` with n joints and m actuated ones.
+
+    sample_period (s) comes from the checkpoint's metadata (else the `sample_period` given); with
+    require_sample_period a checkpoint without one is refused (the closed loop needs it). A model of other sizes than the robot's, or one
+    trained on another robot's description, is refused. The robot (default: the UR-10 preset) is also
+    the nominal model of nominal-acceleration inputs; check_robot=False takes a checkpoint without a
+    robot (raw inputs only) as it is.
+    """
+    learned = True
+
+    def __init__(self, source, name: str | None = None, robot=None, *, structure: ModelStructure | None = None,
+                 sample_period: float | None = None, require_sample_period: bool = True,
+                 check_robot: bool = True):
+        from stdm_drake.learning.checkpoint import Checkpoint, load_checkpoint
+        from stdm_drake.learning.models import EnsembleMLP
+        from stdm_drake.learning.predict import InferenceModel
+        self.checkpoint = None
+        if isinstance(source, (EnsembleMLP, InferenceModel)):
+            self.structure = structure or PAPER
+            network, self.name, self.sample_period = source, name or "network", sample_period
+        else:
+            checkpoint = source if isinstance(source, Checkpoint) else load_checkpoint(pathlib.Path(source))
+            self.checkpoint = checkpoint
+            self.structure = checkpoint.structure
+            network = checkpoint.model.double()
+            self.name = name or checkpoint.path.stem
+            period = checkpoint.metadata.sample_period
+            if period is not None and not (np.isfinite(float(period)) and float(period) > 0):
+                raise InputError(f"{checkpoint.path}: checkpoint metadata has an invalid sample_period {period!r}")
+            self.sample_period = float(period) if period is not None else sample_period
+            if self.sample_period is None and require_sample_period:
+                raise InputError(f"{checkpoint.path}: checkpoint metadata has no sample_period (train it on a dataset file)")
+        self.network = network
+        self.engine = as_inference_model(network)
+        config = self.engine.config
+        self.state_dim, self.action_dim = self.structure.model_sizes(config.input_dim, config.output_dim)
+        self.probabilistic, self.ensemble_size = config.probabilistic, config.ensemble_size
+        if self.structure.predicts == "velocity" and self.sample_period is None:
+            raise InputError("a velocity-structured model needs its sample period (the trapezoid step)")
+        if robot is None and self.checkpoint is not None and check_robot:
+            from stdm_drake.robot import UR10
+            robot = UR10
+        self.robot = robot
+        if robot is not None:
+            self._check_robot(robot)
+        self.features = None
+        if self.structure.uses_nominal_model:
+            from stdm_drake.learning.physics import NominalAcceleration
+            if robot is None:
+                from stdm_drake.robot import UR10
+                self.robot = UR10
+                self._check_robot(UR10)
+            self.features = NominalAcceleration(self.robot)
+        self._workspaces = {}
+
+    def _check_robot(self, robot) -> None:
+        where = self.checkpoint.path if self.checkpoint is not None else self.name
+        if (self.state_dim, self.action_dim) != (robot.state_dim, robot.action_dim):
+            raise InputError(f"{where}: model has state dim {self.state_dim} and action dim {self.action_dim}, "
+                             f"expected state dim {robot.state_dim} and action dim {robot.action_dim} "
+                             f"(robot {robot.name})")
+        recorded = self.checkpoint.metadata.robot_model_sha256 if self.checkpoint is not None else None
+        if recorded is not None and recorded != robot.model_sha256():
+            raise InputError(f"{where}: trained on another robot description than {robot.model_path.name} "
+                             f"(robot {robot.name}); pass its config with --robot")
+
+    # -- the network's view of a step ------------------------------------------------------------------
+
+    def _network_rows(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        features = None
+        if self.features is not None:   # a diverged rollout state gets NaN features (Drake refuses it)
+            n, finite = self.num_joints, np.isfinite(x).all(axis=1) & np.isfinite(a).all(axis=1)
+            features = np.full((len(x), n), np.nan)
+            if finite.any():
+                features[finite] = self.features.values(x[finite, :n], x[finite, n:], a[finite])
+        return self.structure.split(x, a, features)
+
+    def _assemble(self, x: np.ndarray, network_mean: np.ndarray) -> np.ndarray:
+        """The model's next state (N, 2n) from the network's mean output (residual added)."""
+        if self.structure.predicts == "state":
+            return network_mean
+        n, dt = self.num_joints, self.sample_period
+        return np.hstack([x[:, :n] + 0.5 * dt * (x[:, n:] + network_mean), network_mean])
+
+    def _assemble_variance(self, variance: np.ndarray) -> np.ndarray:
+        if self.structure.predicts == "state":
+            return variance
+        return np.hstack([(0.5 * self.sample_period) ** 2 * variance, variance])
+
+    def step(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """Ensemble-mean next states (N, 2n) for x (N, 2n), a (N, m); the MPC's hot path, so it skips
+        `predict`'s input checks (the controller checks finiteness itself)."""
+        x, a = np.asarray(x, dtype=np.float64), np.asarray(a, dtype=np.float64)
+        state, rest = self._network_rows(x, a)
+        engine = self.engine
+        workspace = self._workspaces.get(len(x))
+        if workspace is None:
+            workspace = self._workspaces[len(x)] = engine.workspace(len(x))
+        rows = engine.input_rows(state.astype(np.float32), rest.astype(np.float32)[None])[0]
+        mean = engine.ensemble_mean(engine.hidden_features(rows, workspace)).astype(np.float64)
+        if engine.residual:
+            mean += state
+        return self._assemble(x, mean)
+
+    def predict(self, x, a) -> Prediction:
+        """Checked one-step prediction: mean and variance (B, 2n) (ensemble spread + aleatoric), member means."""
+        states, actions, added = self._checked_pair(x, a)
+        state, rest = self._network_rows(states, actions)
+        result = predict(self.engine, state, rest)
+        mean = self._assemble(states, result.mean.astype(np.float64))
+        variance = self._assemble_variance(result.variance.astype(np.float64))
+        members = np.stack([self._assemble(states, m.astype(np.float64)) for m in result.member_means])
+        member_variances = (None if result.member_variances is None else
+                            np.stack([self._assemble_variance(v.astype(np.float64)) for v in result.member_variances]))
+        if added:
+            return Prediction(mean=mean[0], variance=variance[0], member_means=members[:, 0],
+                              member_variances=None if member_variances is None else member_variances[:, 0])
+        return Prediction(mean=mean, variance=variance, member_means=members, member_variances=member_variances)
+
+    def _rollout_step(self, x, a):
+        result = self.predict(x, a)
+        return result.mean, result.variance
+
+    def rollout(self, x0, actions, *, propagation: str = "mean", particles: int = 20, seed: int | None = 0) -> Rollout:
+        """Open-loop prediction of steps 1..T (mean, variance (B, T, 2n)). The paper's structure runs the
+        fast whole-horizon path with PETS propagation ("mean", "ts1", "tsinf"); other structures step
+        with "mean" propagation."""
+        if self.structure == PAPER:
+            check_batch(x0, self.state_dim, "initial_states")
+            check_batch(actions, self.action_dim, "actions", sequence=True)
+            result = rollout(self.engine, x0, actions, propagation=propagation, particles=particles, seed=seed)
+            return Rollout(mean=result.mean.astype(np.float64), variance=result.variance.astype(np.float64),
+                           particles=result.particles)
+        return super().rollout(x0, actions, propagation=propagation, particles=particles, seed=seed)
+
+    def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d mean / d(x, a) at each row: A (H, 2n, 2n), B (H, 2n, m), from the float32 forward-mode
+        Jacobian of the network (InferenceModel.mean_jacobian) and, for nominal-acceleration inputs, the
+        AutoDiff Jacobian of φ by the chain rule."""
+        x, a = np.asarray(x, dtype=np.float64), np.asarray(a, dtype=np.float64)
+        n, S = self.num_joints, self.state_dim
+        state, rest = self._network_rows(x, a)
+        rows = self.engine.input_rows(state.astype(np.float32), rest.astype(np.float32)[None])[0]
+        network = self.engine.mean_jacobian(rows).astype(np.float64)     # (H, out, network inputs)
+        width = S + self.action_dim
+        # d(network inputs) / d(x, a): the structure's permutation of [q, v, τ], then φ's Jacobian
+        count = len(x)
+        order = np.eye(width)
+        if self.structure.predicts == "velocity":
+            order = np.vstack([order[n:S], order[:n], order[S:]])        # [v, q, τ]
+        inputs = np.broadcast_to(order, (count, width, width))
+        if self.features is not None:
+            inputs = np.concatenate([inputs, self.features.jacobians(x[:, :n], x[:, n:], a)], axis=1)
+        jacobian = network @ inputs                                      # (H, out, 2n + m)
+        if self.structure.predicts == "velocity":
+            angle = 0.5 * self.sample_period * jacobian
+            angle[:, :, :n] += np.eye(n)
+            angle[:, :, n:S] += 0.5 * self.sample_period * np.eye(n)
+            jacobian = np.concatenate([angle, jacobian], axis=1)
+        return jacobian[:, :, :S], jacobian[:, :, S:]

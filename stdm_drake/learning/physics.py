@@ -1,0 +1,204 @@
+"""Models that need no learning: the physics baselines every learned number stands beside, the robot's
+own rigid-body plant as a model, and the nominal model's acceleration that physics-structured networks
+take as an input.
+
+    ConstantVelocity   q̂ = q + Δt v, v̂ = v: the one-line Euler step for q and "v unchanged" for v
+    StaysPut           q̂ = q, v̂ = 0: open loop, "the robot stays at q₀"
+    PlantModel         the robot's discrete Drake plant stepping the held torque over the period (what
+                       the simulation itself does, so exact where the data are simulated from the
+                       same description: the nominal model a user has)
+    NominalAcceleration  q̈ = M(q)⁻¹(B τ + τ_g(q) − C(q, v) v) of the robot's continuous plant, with its
+                       time derivative along a tangent and its Jacobian (Drake AutoDiff)
+
+A learned model that does not beat ConstantVelocity by `LEARNED_FACTOR` in both one-step q and v has
+not learned the dynamics (`learning_verdict`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.learning.dynamics_model import DynamicsModel
+
+# A learned model must beat the physics-free baselines by this factor (one-step MSE) to count as
+# having learned the dynamics; comparisons between models that do not are uninformative.
+LEARNED_FACTOR = 2.0
+
+
+def learning_verdict(ratio_q: float, ratio_v: float) -> str:
+    """"learned" when the one-step MSE ratios baseline/model of q (vs the Euler step) and v (vs "v
+    unchanged") are both >= LEARNED_FACTOR, else "has not learned the dynamics"."""
+    if ratio_q >= LEARNED_FACTOR and ratio_v >= LEARNED_FACTOR:
+        return "learned"
+    return "has not learned the dynamics"
+
+
+class _Kinematic(DynamicsModel):
+    """Baselines that only integrate the current state (no action)."""
+
+    def __init__(self, state_dim: int, action_dim: int, sample_period: float):
+        if state_dim % 2 or state_dim < 2:
+            raise InputError(f"a physics baseline needs a state [q, v] of even size, got {state_dim}")
+        if not (np.isfinite(sample_period) and sample_period > 0):
+            raise InputError(f"sample period must be a positive number of seconds, got {sample_period}")
+        self.state_dim, self.action_dim, self.sample_period = state_dim, action_dim, float(sample_period)
+
+    def _linear(self) -> np.ndarray:
+        raise NotImplementedError
+
+    def step(self, x, a):
+        return np.asarray(x, dtype=np.float64) @ self._linear().T
+
+    def jacobians(self, x, a):
+        horizon = len(x)
+        return (np.broadcast_to(self._linear(), (horizon, self.state_dim, self.state_dim)).copy(),
+                np.zeros((horizon, self.state_dim, self.action_dim)))
+
+
+class ConstantVelocity(_Kinematic):
+    """q̂_{t+1} = q_t + Δt v_t, v̂_{t+1} = v_t: the Euler step for q and "v unchanged" for v."""
+    name = "Euler step"
+
+    def _linear(self):
+        n = self.num_joints
+        matrix = np.eye(self.state_dim)
+        matrix[:n, n:] = self.sample_period * np.eye(n)
+        return matrix
+
+
+class StaysPut(_Kinematic):
+    """q̂_{t+1} = q_t, v̂_{t+1} = 0: open loop, the robot stays where it started."""
+    name = "stays put"
+
+    def _linear(self):
+        n = self.num_joints
+        matrix = np.zeros((self.state_dim, self.state_dim))
+        matrix[:n, :n] = np.eye(n)
+        return matrix
+
+
+class PlantModel(DynamicsModel):
+    """The plant of `robot` (default: the UR-10 preset) as a model at the sample period.
+
+    step: the same discrete Drake plant as the simulation (plant step h, torque held for the whole
+    period), so where the data come from this description its predictions are exact. jacobians:
+    Drake AutoDiff linearization of the continuous dynamics at (x_k, u_k), discretized over the
+    period (`zero_order_hold_discretization`).
+    """
+    name = "plant"
+
+    def __init__(self, sample_period: float, plant_config=None, robot=None):
+        from stdm_drake.plant import PlantConfig, PlantSimulator, make_plant
+        from stdm_drake.robot import UR10
+        self.robot = robot or UR10
+        self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
+        self.sample_period = float(sample_period)
+        self.simulation = PlantSimulator(plant_config, self.robot)
+        continuous, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
+        self.autodiff_plant = continuous.ToAutoDiffXd()
+        self.autodiff_context = self.autodiff_plant.CreateDefaultContext()
+
+    def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        x, u = np.atleast_2d(x), np.atleast_2d(u)
+        out = np.empty_like(x, dtype=float)
+        for i in range(len(x)):
+            self.simulation.start(x[i], u[i])
+            out[i] = self.simulation.advance_to(self.sample_period)
+        return out
+
+    def jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        from pydrake.autodiffutils import ExtractGradient, InitializeAutoDiff
+        horizon, n = len(x), self.state_dim
+        A = np.empty((horizon, n, n))
+        B = np.empty((horizon, n, self.action_dim))
+        for k in range(horizon):
+            z = InitializeAutoDiff(np.concatenate([x[k], u[k]])).ravel()
+            self.autodiff_plant.SetPositionsAndVelocities(self.autodiff_context, z[:n])
+            self.autodiff_plant.get_actuation_input_port().FixValue(self.autodiff_context, z[n:])
+            derivatives = self.autodiff_plant.EvalTimeDerivatives(self.autodiff_context).CopyToVector()
+            gradient = ExtractGradient(derivatives)
+            A[k], B[k] = zero_order_hold_discretization(gradient[:, :n], gradient[:, n:], self.sample_period)
+        return A, B
+
+
+def zero_order_hold_discretization(A_c: np.ndarray, B_c: np.ndarray, period: float, order: int = 4):
+    """(A_d, B_d) = (exp(A_c T), int_0^T exp(A_c s) ds B_c) by their Taylor series to `order`.
+
+    scipy's expm of the augmented matrix spends ~5 ms per call here, because the wrist columns of
+    B_c (1/inertia ~ 3000) force many squarings; |A_c T| itself is small at T = 10 ms.
+    """
+    AT = A_c * period
+    term = np.eye(len(A_c))
+    exp_sum = term.copy()      # sum AT^n / n!
+    integral_sum = term.copy()  # sum AT^n / (n+1)!
+    for n in range(1, order + 1):
+        term = term @ AT / n
+        exp_sum += term
+        integral_sum += term / (n + 1)
+    return exp_sum, period * integral_sum @ B_c
+
+
+class NominalAcceleration:
+    """The joint accelerations (n,) rad/s² the robot's nominal rigid-body model (its description file,
+    continuous time) gives for q (n,) rad, v (n,) rad/s and the action τ (m,) N m:
+    q̈ = M(q)⁻¹(B τ + τ_g(q) − C(q, v) v), evaluated by Drake's plant (`EvalTimeDerivatives`).
+
+    values(q, v, tau) (N, n); rates(...) the time derivative along a tangent (q̇, q̈, τ̇) (N, n), one
+    forward-mode AutoDiff pass per row; jacobians(q, v, tau) d q̈ / d(q, v, τ) (N, n, 2n + m).
+    """
+
+    def __init__(self, robot=None):
+        from stdm_drake.plant import PlantConfig, make_plant
+        from stdm_drake.robot import UR10
+        self.robot = robot or UR10
+        self.num_joints, self.action_dim = self.robot.num_joints, self.robot.action_dim
+        self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
+        self.context = self.plant.CreateDefaultContext()
+        self.autodiff_plant = self.plant.ToAutoDiffXd()
+        self.autodiff_context = self.autodiff_plant.CreateDefaultContext()
+
+    def _rows(self, q, v, tau):
+        q, v, tau = (np.atleast_2d(np.asarray(values, dtype=np.float64)) for values in (q, v, tau))
+        n = self.num_joints
+        if q.shape[1] != n or v.shape != q.shape or tau.shape != (len(q), self.action_dim):
+            raise InputError(f"nominal acceleration needs q, v (N, {n}) and tau (N, {self.action_dim}), got "
+                             f"{q.shape}, {v.shape}, {tau.shape}")
+        return q, v, tau
+
+    def values(self, q, v, tau) -> np.ndarray:
+        q, v, tau = self._rows(q, v, tau)
+        plant, context, n = self.plant, self.context, self.num_joints
+        port = plant.get_actuation_input_port()
+        out = np.empty_like(q)
+        for i in range(len(q)):
+            plant.SetPositionsAndVelocities(context, np.concatenate([q[i], v[i]]))
+            port.FixValue(context, tau[i])
+            out[i] = plant.EvalTimeDerivatives(context).CopyToVector()[n:]
+        return out
+
+    def _autodiff(self, q, v, tau, gradients):
+        """(values (N, n), d values (N, n, K)) with the inputs' gradients (N, 2n + m, K)."""
+        from pydrake.autodiffutils import ExtractGradient, ExtractValue, InitializeAutoDiff
+        q, v, tau = self._rows(q, v, tau)
+        plant, context, n = self.autodiff_plant, self.autodiff_context, self.num_joints
+        port = plant.get_actuation_input_port()
+        values = np.empty_like(q)
+        derivatives = np.empty((len(q), n, gradients.shape[-1]))
+        for i in range(len(q)):
+            z = InitializeAutoDiff(np.concatenate([q[i], v[i], tau[i]]), gradients[i]).ravel()
+            plant.SetPositionsAndVelocities(context, z[:2 * n])
+            port.FixValue(context, z[2 * n:])
+            result = plant.EvalTimeDerivatives(context).CopyToVector()[n:]
+            values[i] = ExtractValue(result).ravel()
+            derivatives[i] = ExtractGradient(result)
+        return values, derivatives
+
+    def rates(self, q, v, tau, q_rate, v_rate, tau_rate) -> np.ndarray:
+        """d q̈ / dt = ∂q̈/∂q q̇ + ∂q̈/∂v v̇ + ∂q̈/∂τ τ̇ (N, n) along the tangent rows (q̇, v̇, τ̇)."""
+        tangent = np.hstack([np.atleast_2d(q_rate), np.atleast_2d(v_rate), np.atleast_2d(tau_rate)])
+        return self._autodiff(q, v, tau, tangent[:, :, None])[1][:, :, 0]
+
+    def jacobians(self, q, v, tau) -> np.ndarray:
+        """d q̈ / d(q, v, τ) (N, n, 2n + m)."""
+        count, width = len(np.atleast_2d(q)), 2 * self.num_joints + self.action_dim
+        return self._autodiff(q, v, tau, np.broadcast_to(np.eye(width), (count, width, width)))[1]

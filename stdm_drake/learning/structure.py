@@ -1,0 +1,126 @@
+"""How a network becomes a state-transition model: what it predicts and what it sees.
+
+`ModelStructure(predicts, inputs)` for a robot with n joints and m actuated ones, x = [q, v]:
+
+    predicts="state"     the network predicts the next state x_{t+1} (2n), as a delta x_t + f(z) or
+                         directly (`--direct`): the paper's black box
+    predicts="velocity"  the network predicts the next velocity v_{t+1} (n), as v_t + f(z) or directly,
+                         and the next angle follows by the trapezoid rule
+                         q̂_{t+1} = q_t + Δt (v_t + v̂_{t+1}) / 2, so the angle is never learned
+    inputs="raw"         z = [q, v, τ]: the paper's inputs
+    inputs="nominal_acceleration"
+                         z also holds φ = M(q)⁻¹(B τ + τ_g(q) − C(q, v) v), the acceleration of the
+                         robot's nominal rigid-body model (`physics.NominalAcceleration`): the torque
+                         beyond gravity and bias, mapped through the inverse inertia
+
+The network's own input order puts the part its delta adds first: [x, τ, (φ)] for "state",
+[v, q, τ, (φ)] for "velocity". Derivative learning needs the time derivative of every input: ẋ and
+Δτ/Δt from the dataset, φ̇ = ∂φ/∂(q, v, τ) (q̇, q̈, Δτ/Δt) by forward-mode AutoDiff through the plant.
+For "velocity" the state loss is the velocity MSE and the derivative target q̈_{t+1}: the angle's
+error is (Δt/2)² times the velocity's, so nothing is lost by leaving it out.
+
+`PAPER` is the paper's structure (what `reproduce` compares); `DEFAULT` the most accurate one, what
+`stdm-drake train` uses unless told otherwise.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+
+PREDICTS = ("state", "velocity")
+INPUT_SETS = ("raw", "nominal_acceleration")
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelStructure:
+    """What the network predicts ("state" or "velocity") and sees ("raw" or "nominal_acceleration")."""
+    predicts: str = "velocity"
+    inputs: str = "nominal_acceleration"
+
+    def __post_init__(self):
+        if self.predicts not in PREDICTS:
+            raise InputError(f"model structure: predicts must be one of {PREDICTS}, got {self.predicts!r}")
+        if self.inputs not in INPUT_SETS:
+            raise InputError(f"model structure: inputs must be one of {INPUT_SETS}, got {self.inputs!r}")
+
+    @classmethod
+    def from_dict(cls, values: dict | None) -> "ModelStructure":
+        """From checkpoint metadata; None (checkpoints written before structures existed) is the paper's."""
+        if values is None:
+            return PAPER
+        if not isinstance(values, dict) or set(values) - {"predicts", "inputs"}:
+            raise InputError(f"model structure: expected keys predicts and inputs, got {values!r}")
+        return cls(**values)
+
+    def as_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @property
+    def uses_nominal_model(self) -> bool:
+        return self.inputs == "nominal_acceleration"
+
+    @property
+    def label(self) -> str:
+        """Short description for tables: e.g. "velocity + trapezoid, nominal-acceleration inputs"."""
+        what = "next state" if self.predicts == "state" else "next velocity, q by trapezoid"
+        seen = "raw inputs" if self.inputs == "raw" else "nominal-acceleration inputs"
+        return f"{what}, {seen}"
+
+    def network_sizes(self, state_dim: int, action_dim: int) -> tuple[int, int]:
+        """(input_dim, output_dim) of the network for a state of state_dim = 2n and action_dim = m."""
+        joints = state_dim // 2
+        extra = joints if self.uses_nominal_model else 0
+        output = state_dim if self.predicts == "state" else joints
+        return state_dim + action_dim + extra, output
+
+    def model_sizes(self, input_dim: int, output_dim: int) -> tuple[int, int]:
+        """(state_dim, action_dim) of the model a network of these sizes serves (network_sizes inverted)."""
+        joints = output_dim // 2 if self.predicts == "state" else output_dim
+        extra = joints if self.uses_nominal_model else 0
+        action = input_dim - 2 * joints - extra
+        if action < 0 or (self.predicts == "state" and output_dim % 2):
+            raise InputError(f"a network of {input_dim} inputs and {output_dim} outputs does not fit the structure "
+                             f"{self.label}")
+        return 2 * joints, action
+
+    def split(self, x: np.ndarray, a: np.ndarray, features: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        """The network's (state part, rest) of its input rows for x (N, 2n), a (N, m), φ (N, n) or None:
+        the state part is what its delta adds to (x or v)."""
+        joints = x.shape[1] // 2
+        extra = [] if features is None else [features]
+        if self.predicts == "state":
+            return x, np.hstack([a] + extra)
+        return x[:, joints:], np.hstack([x[:, :joints], a] + extra)
+
+    def regression_data(self, transitions, features=None, *, rates: bool = True):
+        """Training pairs (`RegressionData`) of dataset `Transitions` in the network's layout; `features`
+        (a `NominalAcceleration`) is needed for nominal-acceleration inputs; rates=False leaves out the
+        derivative tangents and targets (validation data)."""
+        from stdm_drake.learning.regression import RegressionData
+        x, a = np.asarray(transitions.state, dtype=np.float64), np.asarray(transitions.action, dtype=np.float64)
+        joints = x.shape[1] // 2
+        q, v = x[:, :joints], x[:, joints:]
+        x_rate = np.asarray(transitions.state_rate, dtype=np.float64)
+        a_rate = np.asarray(transitions.action_rate, dtype=np.float64)
+        phi = phi_rate = None
+        if self.uses_nominal_model:
+            if features is None:
+                raise InputError("nominal-acceleration inputs need the robot's nominal model")
+            phi = features.values(q, v, a)
+            if rates:
+                phi_rate = features.rates(q, v, a, x_rate[:, :joints], x_rate[:, joints:], a_rate)
+        state, rest = self.split(x, a, phi)
+        state_rate, rest_rate = self.split(x_rate, a_rate, phi_rate) if rates else (None, None)
+        next_state, next_rate = np.asarray(transitions.next_state), np.asarray(transitions.next_state_rate)
+        if self.predicts == "velocity":
+            next_state, next_rate = next_state[:, joints:], next_rate[:, joints:]
+        return RegressionData(inputs=np.hstack([state, rest]), targets=next_state,
+                              input_rates=np.hstack([state_rate, rest_rate]) if rates else None,
+                              target_rates=next_rate if rates else None)
+
+
+PAPER = ModelStructure(predicts="state", inputs="raw")
+DEFAULT = ModelStructure()

@@ -1,0 +1,118 @@
+"""The model contract: learned models beside the physics baselines, the structures that make them learn,
+their Jacobians, and the chain rule of derivative learning checked against the plant."""
+import numpy as np
+import pytest
+
+from stdm_drake.cli import main
+from stdm_drake.data.dataset import load_dataset
+from stdm_drake.learning.dynamics_model import DynamicsModel
+from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
+from stdm_drake.learning.learned_model import LearnedModel
+from stdm_drake.learning.physics import ConstantVelocity, NominalAcceleration, PlantModel, StaysPut
+from stdm_drake.learning.settings import TrainingConfig
+from stdm_drake.learning.structure import DEFAULT, PAPER, ModelStructure
+from stdm_drake.learning.train import training_problem
+from stdm_drake.learning.trainer import fit_model
+
+
+@pytest.fixture(scope="module")
+def excitation(tmp_path_factory):
+    """40 trajectories of the default excitation protocol (seed 7)."""
+    path = tmp_path_factory.mktemp("excitation") / "excitation.h5"
+    assert main(["collect", "--protocol", "excitation", "--count", "40", "--seed", "7", "-o", str(path),
+                 "--quiet"]) == 0
+    return load_dataset(path)
+
+
+def trained(dataset, structure, *, epochs=150, seed=0):
+    split = dict(train=list(range(20)), val=list(range(20, 30)), test=list(range(30, 40)))
+    problem = training_problem(dataset, split, model_type="D", structure=structure)
+    result, _ = fit_model(problem.model_config, TrainingConfig(seed=seed, max_epochs=epochs), problem.train,
+                          problem.val)
+    return LearnedModel(result.model, name=structure.label, structure=structure, sample_period=dataset.sample_period)
+
+
+def test_the_default_model_learns_and_the_paper_black_box_does_not(excitation):
+    """On 20 training trajectories the default structure beats the Euler step (q) and "v unchanged" (v)
+    by >= 3x on held-out trajectories; the paper's black box on the same data fails the 2x gate."""
+    test = list(range(30, 40))
+    transitions = excitation.transitions(test)
+    rollouts = trajectory_rollout_data(excitation, test, 20)
+    baselines = physics_baselines(excitation.sample_period, 12, 6, plant=False)
+    default, = compare_with_baselines([trained(excitation, DEFAULT)] + baselines, transitions, rollouts)[:1]
+    assert default.ratio_q >= 3 and default.ratio_v >= 3, (default.ratio_q, default.ratio_v)
+    assert default.verdict == "learned"
+    paper, = compare_with_baselines([trained(excitation, PAPER)] + baselines, transitions, rollouts)[:1]
+    assert paper.verdict == "has not learned the dynamics", (paper.ratio_q, paper.ratio_v)
+
+
+@pytest.mark.parametrize("structure", [ModelStructure("velocity", "nominal_acceleration")])
+def test_structured_jacobians_equal_finite_differences_of_the_step(excitation, structure):
+    model = trained(excitation, structure, epochs=3)
+    transitions = excitation.transitions([31])
+    x, u = transitions.state[:4], transitions.action[:4]
+    A, B = model.jacobians(x, u)
+    z = np.hstack([x, u])
+    numeric = np.empty((len(x), 12, 18))
+    for j in range(18):
+        step = 1e-4 * max(1.0, abs(z[:, j]).max())
+        up, down = z.copy(), z.copy()
+        up[:, j] += step
+        down[:, j] -= step
+        numeric[:, :, j] = (model.step(up[:, :12], up[:, 12:]) - model.step(down[:, :12], down[:, 12:])) / (2 * step)
+    analytic = np.concatenate([A, B], axis=2)
+    scale = np.abs(numeric).max(axis=2, keepdims=True) + 1e-9     # per output row: float32 network, FD noise
+    assert np.all(np.abs(analytic - numeric) <= 5e-2 * scale + 1e-4), np.abs(analytic - numeric).max()
+
+
+def test_nominal_acceleration_rates_are_its_time_derivative(excitation):
+    """φ̇ by AutoDiff along (q̇, q̈, τ̇) equals the central difference of φ along the same tangent, and φ
+    at a sample equals the plant's recorded acceleration there."""
+    features = NominalAcceleration()
+    traj = excitation.trajectory(3)
+    q, v, tau = traj["q_true"][:5], traj["v_true"][:5], traj["tau"][:5]
+    np.testing.assert_allclose(features.values(q, v, tau), traj["qdd"][:5], rtol=1e-9, atol=1e-9)
+    q_rate, v_rate, tau_rate = v, traj["qdd"][:5], np.random.default_rng(0).normal(size=tau.shape)
+    h = 1e-6
+    numeric = (features.values(q + h * q_rate, v + h * v_rate, tau + h * tau_rate)
+               - features.values(q - h * q_rate, v - h * v_rate, tau - h * tau_rate)) / (2 * h)
+    np.testing.assert_allclose(features.rates(q, v, tau, q_rate, v_rate, tau_rate), numeric, rtol=1e-4, atol=1e-6)
+
+
+def test_chain_rule_identity_against_the_plant(excitation):
+    """Derivative learning's identity d x_{k+1}/dt = ∂x_{k+1}/∂x_k ẋ_k (torque held) holds for the plant:
+    its Jacobian times the recorded [q̇_k, q̈_k] gives the recorded [q̇_{k+1}, q̈_{k+1}^-] to 1 %."""
+    plant = PlantModel(excitation.sample_period)
+    traj = excitation.trajectory(5)
+    x = np.hstack([traj["q_true"], traj["v_true"]])
+    A, _ = plant.jacobians(x[10:20], traj["tau"][10:20])
+    rate = np.hstack([traj["v_true"][10:20], traj["qdd"][10:20]])
+    target = np.hstack([traj["v_true"][11:21], traj["qdd_end"][10:20]])
+    predicted = np.einsum("kij,kj->ki", A, rate)
+    assert np.linalg.norm(predicted - target) / np.linalg.norm(target) < 1e-2
+
+
+def test_baselines_are_dynamics_models_with_exact_jacobians():
+    x = np.random.default_rng(1).normal(size=(3, 12))
+    u = np.zeros((3, 6))
+    for model in (ConstantVelocity(12, 6, 0.01), StaysPut(12, 6, 0.01)):
+        assert isinstance(model, DynamicsModel) and not model.learned
+        A, B = model.jacobians(x, u)
+        np.testing.assert_allclose(np.einsum("kij,kj->ki", A, x), model.step(x, u))
+        assert not B.any()
+    np.testing.assert_allclose(ConstantVelocity(12, 6, 0.01).step(x, u)[:, :6], x[:, :6] + 0.01 * x[:, 6:])
+    rolled = StaysPut(12, 6, 0.01).rollout(x, np.zeros((3, 4, 6))).mean
+    np.testing.assert_allclose(rolled[:, -1, :6], x[:, :6])
+
+
+def test_evaluate_prints_the_baselines_and_the_verdict(excitation, tmp_path, capsys):
+    output = tmp_path / "run"
+    assert main(["train", str(excitation.path), "-o", str(output), "--model", "D", "--train", "20", "--val", "10",
+                 "--test", "10", "--epochs", "100", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", str(output / "seed0" / "checkpoint.pt"), str(excitation.path), "--horizon", "20"]) == 0
+    printed = capsys.readouterr().out
+    for name in ("Euler step", "stays put", "plant"):
+        assert f"\n  {name}" in printed
+    assert "-> learned" in printed
+    assert "next velocity, q by trapezoid, nominal-acceleration inputs" in printed
