@@ -63,6 +63,22 @@ def small_jobs(dataset_path) -> list[TrainJob]:
             TrainJob(model_type="D", seed=0, alphas=(0.0, 1e-3), **common)]
 
 
+def assert_close(actual, expected, where="runs"):
+    """Equal structure and values, floats to 1e-5 relative (float32 inference)."""
+    if isinstance(expected, dict):
+        assert isinstance(actual, dict) and actual.keys() == expected.keys(), where
+        for key in expected:
+            assert_close(actual[key], expected[key], f"{where}.{key}")
+    elif isinstance(expected, list):
+        assert isinstance(actual, list) and len(actual) == len(expected), where
+        for index, (a, e) in enumerate(zip(actual, expected)):
+            assert_close(a, e, f"{where}[{index}]")
+    elif isinstance(expected, float):
+        assert actual == pytest.approx(expected, rel=1e-5), where
+    else:
+        assert actual == expected, where
+
+
 def clean(rows):
     return [{key: value for key, value in row.items() if key not in TIMING} for row in rows]
 
@@ -109,7 +125,9 @@ def test_reproduce_quick_on_ray_equals_the_local_report(head, tmp_path, capsys):
     assert main(["reproduce", "--quick", "--quiet", "--backend", "ray", "--ray-address", address,
                  "-o", str(tmp_path / "ray")]) == 0
     local, remote = (json.loads((tmp_path / name / "results.json").read_text()) for name in ("local", "ray"))
-    assert clean(remote["runs"]) == clean(local["runs"])
+    # the training is bitwise the same (curves, epochs); test errors come from the float32 numpy inference,
+    # whose BLAS sums in another order with another thread count on some CPUs (AMD EPYC: up to 1e-7 relative)
+    assert_close(clean(remote["runs"]), clean(local["runs"]))
     local, remote = (json.loads((tmp_path / name / "sine_sum" / "results.json").read_text())["runs"]
                      for name in ("local", "ray"))             # the sine-sum study ran on Ray too
     assert [run["member_test_mse"] for run in remote] == [run["member_test_mse"] for run in local]
