@@ -131,11 +131,15 @@ def test_verdicts_follow_from_the_intervals():
     assert improvement_percent(naive=3.0, derivative=1.0) == pytest.approx(200.0)
     helps = paired_ratio([3.0, 3.3, 2.9, 3.1], [1.0, 1.0, 1.0, 1.0]).as_dict()
     assert helps["verdict"] == "helps" and helps["low"] > 1
-    assert verdict(helps, 150) == "agrees" and verdict(helps, 1000) == "smaller gain"
+    # consistent: the whole interval above 1 + half the paper's gain (150 %: 1.75)
+    assert verdict(helps, 150) == "consistent with the paper"
+    assert verdict(helps, 1000) == "inconsistent with the paper"          # the interval lies below 6
     unclear = paired_ratio([3.0, 0.5, 2.0], [1.0, 1.0, 1.0]).as_dict()
-    assert unclear["verdict"] == "no clear difference" and verdict(unclear, 60) == "DIFFERS (no clear gain)"
+    assert unclear["verdict"] == "no clear difference" and verdict(unclear, 60) == "inconclusive"
     worse = paired_ratio([1.0, 1.0, 1.0], [2.0, 2.1, 1.9]).as_dict()
-    assert worse["verdict"] == "hurts" and verdict(worse, 60) == "DIFFERS (worse)"
+    assert worse["verdict"] == "hurts" and verdict(worse, 60) == "inconsistent with the paper"
+    assert verdict(paired_ratio([3.0], [1.0]).as_dict(), 60) == "inconclusive (1 pair)"
+    assert verdict(helps, 150, learned=False) == "uninformative (not learned)"
     assert verdict(helps, None) == ""
     assert paired_ratio([2.0], [1.0]).verdict == "no clear difference"   # one pair: no interval
 

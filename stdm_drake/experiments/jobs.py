@@ -96,6 +96,7 @@ class TrainJob:
         if fields["action_rate"] == "forward_difference":  # the default keeps the keys it always had
             fields.pop("action_rate")
         fields["loss_version"] = CHECKPOINT_VERSION  # results of older loss scalings are not reused
+        fields["evaluation_version"] = 2    # 2: rows carry the physics baselines' errors
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:20]
 
 
@@ -141,12 +142,20 @@ def _evaluate(model, dataset, job: TrainJob) -> dict:
     from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
     from stdm_drake.learning.predict import InferenceModel, rollout
 
+    from stdm_drake.learning.physics import ConstantVelocity, StaysPut
+
     test = dataset.transitions(list(job.test))
     errors = one_step_errors(model, test.state, test.action, test.next_state)
-    result = dict(q_mse=errors.angle_mse, v_mse=errors.velocity_mse)
+    state_dim, action_dim = test.state.shape[1], test.action.shape[1]
+    euler = one_step_errors(ConstantVelocity(state_dim, action_dim, dataset.sample_period), test.state, test.action,
+                            test.next_state)
+    result = dict(q_mse=errors.angle_mse, v_mse=errors.velocity_mse, euler_q_mse=euler.angle_mse,
+                  unchanged_v_mse=euler.velocity_mse)
     if job.multistep:
         x0, actions, truth = trajectory_rollout_data(dataset, job.test, job.horizon)
         multi = multi_step_errors(model, x0, actions, truth)
+        stays = multi_step_errors(StaysPut(state_dim, action_dim, dataset.sample_period), x0, actions, truth)
+        result.update(stays_put_multistep_q=stays.angle_mse.tolist())
         engine = InferenceModel(model)
         rollout(engine, x0[:1], actions[:1])  # warm-up
         timings = []

@@ -41,6 +41,7 @@ def improvement_percent(naive: float, derivative: float) -> float:
 
 
 DERIVATIVE_VARIANTS = (("DD", "paper alpha"), ("DD-auto", "alpha by validation"))
+ONE_STEP = {"q": "q_mse", "v": "v_mse"}
 
 
 def paired(results, experiment: str, size: int, activation: str, variant: str, metric) -> tuple[list, list]:
@@ -54,10 +55,33 @@ def paired(results, experiment: str, size: int, activation: str, variant: str, m
     return [rows["D"][seed] for seed in seeds], [rows[variant][seed] for seed in seeds]
 
 
+BASELINE_KEYS = {"q": "euler_q_mse", "v": "unchanged_v_mse"}
+
+
+def learned_ratios(results, experiment: str, size: int, activation: str, model_type: str) -> dict:
+    """Geometric means over seeds of baseline MSE / model MSE for one-step q (the Euler step) and v ("v
+    unchanged"); empty for rows written before baselines were recorded."""
+    rows = select_rows(results, experiment=experiment, train_size=size, activation=activation, model_type=model_type)
+    if not rows or any(key not in row for row in rows for key in BASELINE_KEYS.values()):
+        return {}
+    return {quantity: float(np.exp(np.mean([np.log(row[key] / row[ONE_STEP[quantity]]) for row in rows])))
+            for quantity, key in BASELINE_KEYS.items()}
+
+
 def comparison_row(results, experiment: str, size: int, activation: str, metrics: dict) -> dict:
     """Means and paired ratios (naive / variant, 95 % CI) of every metric for the derivative variants
-    present. metrics: label -> result key or function of a row."""
+    present, and each model type's ratios to the physics-free baselines (`<type>_vs_baseline`: q vs the
+    Euler step, v vs "v unchanged") with `learned`: whether every model type beat both by LEARNED_FACTOR.
+    metrics: label -> result key or function of a row."""
+    from stdm_drake.learning.physics import LEARNED_FACTOR
     row = dict(activation=activation, train_trajectories=size)
+    ratios = {}
+    for variant in ("D",) + tuple(name for name, _ in DERIVATIVE_VARIANTS):
+        found = learned_ratios(results, experiment, size, activation, variant)
+        if found:
+            ratios[variant] = found
+            row[f"{variant}_vs_baseline"] = found
+    row["learned"] = bool(ratios) and all(value >= LEARNED_FACTOR for found in ratios.values() for value in found.values())
     for label, metric in metrics.items():
         for variant, _ in DERIVATIVE_VARIANTS:
             naive, derivative = paired(results, experiment, size, activation, variant, metric)
@@ -70,7 +94,6 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
     return row
 
 
-ONE_STEP = {"q": "q_mse", "v": "v_mse"}
 
 
 def activation_table(results, experiment: str, size: int) -> list[dict]:
@@ -103,12 +126,14 @@ def coverage_table(results, size: int) -> list[dict]:
     return rows
 
 
-def ratio_text(ratio: dict | None) -> str:
+def ratio_text(ratio: dict | None, learned: bool = True) -> str:
+    """e.g. '3.1x [2.2, 4.4] helps'; with learned=False the verdict reads 'uninformative'."""
     if not ratio:
         return ""
     if ratio["pairs"] < 2:
         return f"{ratio['ratio']:.3g}x (1 pair)"
-    return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}] {ratio['verdict']}"
+    reading = ratio["verdict"] if learned else "uninformative"
+    return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}] {reading}"
 
 
 def _figure_path(folder, name):
@@ -197,7 +222,9 @@ def _flat(row: dict) -> dict:
     """A table row for CSV: nested ratio dicts become <key>_ratio/_low/_high/_verdict columns, lists are dropped."""
     flat = {}
     for key, value in row.items():
-        if isinstance(value, dict):
+        if isinstance(value, dict) and key.endswith("_vs_baseline"):
+            flat.update({f"{key}_{inner}": value[inner] for inner in value})
+        elif isinstance(value, dict):
             flat.update({f"{key}_{inner}" if inner != "ratio" else key: value[inner]
                          for inner in ("ratio", "low", "high", "verdict")})
         elif not isinstance(value, list):
@@ -209,62 +236,92 @@ def _g(value):
     return f"{value:.3g}"
 
 
-def verdict(ratio: dict | None, paper_percent) -> str:
-    """Ours against the paper's improvement, from the paired 95 % interval of naive/derivative:
-    "agrees" (the interval is above 1 and the ratio reaches at least half the paper's gain), "smaller
-    gain" (above 1, less than half), "DIFFERS (no clear gain)" (the interval contains 1) or "DIFFERS
-    (worse)" (below 1); empty where the paper states no number."""
+def verdict(ratio: dict | None, paper_percent, learned: bool = True) -> str:
+    """Ours against the paper's improvement, three ways, from the paired 95 % interval of naive/derivative
+    and the paper's gain g = paper_percent / 100 (half of it is what we must see to call it reproduced):
+    "consistent with the paper" (the whole interval at or above 1 + g/2), "inconsistent with the paper"
+    (the whole interval below 1 + g/2: the data exclude even half the paper's gain) or "inconclusive"
+    (the interval straddles 1 + g/2, or a single pair); "uninformative (not learned)" when a compared
+    model did not beat the physics-free baselines; empty where the paper states no number."""
     if paper_percent is None or paper_percent == "" or not ratio:
         return ""
-    if ratio["verdict"] == "hurts":
-        return "DIFFERS (worse)"
-    if ratio["verdict"] != "helps":
-        return "DIFFERS (no clear gain)"
-    return "agrees" if 100.0 * (ratio["ratio"] - 1.0) >= 0.5 * float(paper_percent) else "smaller gain"
+    if not learned:
+        return "uninformative (not learned)"
+    if ratio["pairs"] < 2:
+        return "inconclusive (1 pair)"
+    threshold = 1.0 + 0.5 * float(paper_percent) / 100.0
+    if ratio["low"] >= threshold:
+        return "consistent with the paper"
+    if ratio["high"] < threshold:
+        return "inconsistent with the paper"
+    return "inconclusive"
 
 
 def verdicts(row: dict, paper_q, paper_v, variant: str = "DD") -> str:
-    parts = [f"{name}: {verdict(row.get(f'{name}_{variant}_ratio'), paper)}"
-             for name, paper in (("q", paper_q), ("v", paper_v)) if verdict(row.get(f"{name}_{variant}_ratio"), paper)]
+    learned = row.get("learned", True)
+    parts = [f"{name}: {verdict(row.get(f'{name}_{variant}_ratio'), paper, learned)}"
+             for name, paper in (("q", paper_q), ("v", paper_v))
+             if verdict(row.get(f"{name}_{variant}_ratio"), paper, learned)]
     return "; ".join(parts)
+
+
+def baseline_text(row: dict, variant: str = "D") -> str:
+    """e.g. '0.0052x / 1.39x' (one-step q vs the Euler step / v vs 'v unchanged'), 'not learned' marked."""
+    found = row.get(f"{variant}_vs_baseline")
+    if not found:
+        return ""
+    return f"{found['q']:.3g}x / {found['v']:.3g}x"
+
+
+BASELINE_NOTE = ("Baselines: 'vs Euler q / v unchanged' is the one-step MSE of the physics-free predictors (q + Δt v; "
+                 "v unchanged) divided by the model's, geometric mean over seeds; a model below 2x in either has not "
+                 "learned the dynamics, and a comparison involving it is reported as uninformative. Verdicts: "
+                 "consistent / inconsistent with the paper when the whole 95 % interval lies above / below half the "
+                 "paper's gain, otherwise inconclusive (always so for a single pair).")
 
 
 def add_activation_section(report, rows, paper_text, paper_percent):
     """paper_percent(activation) -> (q %, v %) the paper states for it, or (None, None)."""
     report.table(["activation", "q naive", "q DD", "q naive/DD (95 % CI)", "v naive", "v DD", "v naive/DD (95 % CI)",
-                  "paper", "ours vs paper"],
-                 [[r["activation"], _g(r["q_naive"]), _g(r["q_DD"]), ratio_text(r["q_DD_ratio"]),
-                   _g(r["v_naive"]), _g(r["v_DD"]), ratio_text(r["v_DD_ratio"]), paper_text,
-                   verdicts(r, *paper_percent(r["activation"]))] for r in rows])
+                  "naive vs Euler q / v unchanged", "DD vs Euler q / v unchanged", "paper", "ours vs paper"],
+                 [[r["activation"], _g(r["q_naive"]), _g(r["q_DD"]), ratio_text(r["q_DD_ratio"], r["learned"]),
+                   _g(r["v_naive"]), _g(r["v_DD"]), ratio_text(r["v_DD_ratio"], r["learned"]), baseline_text(r, "D"),
+                   baseline_text(r, "DD"), paper_text, verdicts(r, *paper_percent(r["activation"]))] for r in rows])
+    report.text(BASELINE_NOTE)
 
 
 def add_size_section(report, rows, paper_improvement, label):
     """Sample efficiency: naive, paper alpha and alpha by validation, paired ratios with intervals.
     paper_improvement(size) -> (q %, v %) or (None, None)."""
     header = [label, "q naive", "q DD", "q naive/DD", "q DD-auto", "q naive/DD-auto", "v naive", "v DD", "v naive/DD",
-              "v DD-auto", "v naive/DD-auto", "paper q / v %", "ours (DD) vs paper"]
+              "v DD-auto", "v naive/DD-auto", "naive vs Euler q / v unchanged", "paper q / v %", "ours (DD) vs paper"]
     lines = []
     for r in rows:
         paper_q, paper_v = paper_improvement(r["train_trajectories"])
         lines.append([r["train_trajectories"]] + [cell for quantity in ("q", "v") for cell in (
-            _g(r[f"{quantity}_naive"]), _g(r[f"{quantity}_DD"]), ratio_text(r[f"{quantity}_DD_ratio"]),
-            _g(r.get(f"{quantity}_DD-auto", float("nan"))), ratio_text(r.get(f"{quantity}_DD-auto_ratio")))]
-            + [f"{paper_q} / {paper_v}" if paper_q is not None else "", verdicts(r, paper_q, paper_v)])
+            _g(r[f"{quantity}_naive"]), _g(r[f"{quantity}_DD"]), ratio_text(r[f"{quantity}_DD_ratio"], r["learned"]),
+            _g(r.get(f"{quantity}_DD-auto", float("nan"))), ratio_text(r.get(f"{quantity}_DD-auto_ratio"), r["learned"]))]
+            + [baseline_text(r, "D"), f"{paper_q} / {paper_v}" if paper_q is not None else "",
+               verdicts(r, paper_q, paper_v)])
     report.table(header, lines)
+    report.text(BASELINE_NOTE)
 
 
 def add_coverage_section(report, rows):
     header = ["regime", "metric", "naive", "paper alpha (DD)", "naive/DD (95 % CI)", "alpha by validation",
-              "naive/DD-auto (95 % CI)"]
+              "naive/DD-auto (95 % CI)", "naive vs Euler q / v unchanged"]
     lines = []
     for r in rows:
         for metric in r["metrics"]:
             unit = "q" if metric.startswith("q") else "v"
             name = (f"one-step {unit}" if metric in ONE_STEP else f"{unit} at step {metric[1:]}")
             lines.append([r["regime"], name, _g(r[f"{metric}_naive"]), _g(r[f"{metric}_DD"]),
-                          ratio_text(r[f"{metric}_DD_ratio"]), _g(r.get(f"{metric}_DD-auto", float("nan"))),
-                          ratio_text(r.get(f"{metric}_DD-auto_ratio"))])
+                          ratio_text(r[f"{metric}_DD_ratio"], r["learned"]),
+                          _g(r.get(f"{metric}_DD-auto", float("nan"))),
+                          ratio_text(r.get(f"{metric}_DD-auto_ratio"), r["learned"]),
+                          baseline_text(r, "D") if metric == "q" else ""])
     report.table(header, lines)
+    report.text(BASELINE_NOTE)
     for r in rows:
         report.text(f"{r['regime']}: alpha chosen by validation per seed: "
                     + ", ".join(f"{alpha:g}" for alpha in r["alphas"]) + ".")
@@ -345,7 +402,7 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                      "train traj. per pose")
     report.image("figures/fig17_sizes_real.png", "Fig. 17: tracked plans, MSE vs training trajectories")
 
-    report.heading(f"Where derivative learning helps: coverage of the training data ({largest_sim} trajectories)")
+    report.heading(f"Coverage of the training data ({largest_sim} trajectories)")
     coverage = coverage_table(results, largest_sim)
     report.text("Two simulated regimes, same protocol otherwise: 'global' (the excitation data above, start poses "
                 "over most of joint space) and 'local' (trajectories/excitation_local.yaml: start poses in a box of "
@@ -358,13 +415,20 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
     plot_multistep(results, profile.horizon, _figure_path(figures, "fig18_multistep"))
     plot_multistep(results, 20, _figure_path(figures, "fig19_multistep_20"))
     paper_time = PAPER["rollout_seconds_100_steps"]
-    report.table(["model", "alpha", f"q MSE at step {profile.horizon}", f"v MSE at step {profile.horizon}",
-                  "q MSE at step 20", "v MSE at step 20", "rollout ms (batch 1)", "paper rollout ms (100 steps)"],
+    def stays(row, step):
+        curve = row.get("stays_put_multistep_q")
+        return _g(curve[min(step, len(curve)) - 1]) if curve else ""
+
+    report.table(["model", "alpha", f"q MSE at step {profile.horizon}", f"stays put q at {profile.horizon}",
+                  f"v MSE at step {profile.horizon}", "q MSE at step 20", "stays put q at 20", "v MSE at step 20",
+                  "rollout ms (batch 1)", "paper rollout ms (100 steps)"],
                  [[r["model_type"], f"{r['alpha']:g}" + (" (by validation)" if r.get("alpha_selection") else ""),
-                   _g(r["multistep_q"][-1]), _g(r["multistep_v"][-1]),
-                   _g(r["multistep_q"][min(19, len(r["multistep_q"]) - 1)]),
+                   _g(r["multistep_q"][-1]), stays(r, len(r["multistep_q"])), _g(r["multistep_v"][-1]),
+                   _g(r["multistep_q"][min(19, len(r["multistep_q"]) - 1)]), stays(r, 20),
                    _g(r["multistep_v"][min(19, len(r["multistep_v"]) - 1)]), f"{r['rollout_ms']:.2f}",
                    1e3 * paper_time["ensemble" if "E" in r["model_type"] else "single"]] for r in multistep])
+    report.text("'stays put': the open-loop error of predicting that the robot stays at its first state (q̂ = q₀); "
+                "an open-loop model that does not beat it has not learned the dynamics.")
     report.image("figures/fig18_multistep.png", f"Fig. 18: open-loop MSE up to {profile.horizon} steps (mean ± std)")
     report.image("figures/fig19_multistep_20.png", "Fig. 19: the first 20 steps")
     pairs = [(naive, naive + "D" if naive in ("D", "P") else naive[:-1] + "ED") for naive in ("D", "P", "DE", "PE")]
