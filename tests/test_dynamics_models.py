@@ -120,3 +120,30 @@ def test_evaluate_prints_the_baselines_and_the_verdict(excitation, tmp_path, cap
         assert f"\n  {name}" in printed
     assert "-> learned" in printed
     assert "next velocity, q by trapezoid, nominal-acceleration inputs" in printed
+
+
+def test_the_gate_counts_a_model_at_the_noise_floor_as_learned():
+    from stdm_drake.learning.physics import learning_verdict
+    assert learning_verdict(3.0, 2.5) == "learned"
+    assert learning_verdict(1.1, 1.9) == "has not learned the dynamics"
+    assert learning_verdict(1.1, 1.9, floor_ratio_q=1.3, floor_ratio_v=1.0) == "learned (at the noise floor)"
+    assert learning_verdict(1.1, 1.9, floor_ratio_q=1.6, floor_ratio_v=1.0) == "has not learned the dynamics"
+
+
+def test_noise_floor_is_that_of_the_sensor_model(tmp_path):
+    """White velocity noise σ through a w-sample moving average: the floor is 2σ²/w² (a model that knows the
+    true change of state still misses the sample entering and the one leaving the average); 0 for the
+    ideal sensor."""
+    from stdm_drake.data.inspect import noise_floor
+    path = tmp_path / "tracking.h5"
+    assert main(["collect", "--count", "8", "--seed", "2", "--workers", "1", "--quiet", "-o", str(path)]) == 0
+    floor = noise_floor(load_dataset(path))
+    sigma_v, sigma_q, window = 0.02, 2e-4, 4                  # controllers/sensor.yaml
+    # 10 % above 2σ²/w²: the average starts with fewer samples in each trajectory's first w - 1 steps
+    assert floor["v"] == pytest.approx(2 * sigma_v ** 2 / window ** 2, rel=0.15)
+    assert floor["q"] == pytest.approx(2 * sigma_q ** 2, rel=0.1)
+
+
+def test_noise_floor_of_an_ideal_sensor_is_zero(excitation):
+    from stdm_drake.data.inspect import noise_floor
+    assert noise_floor(excitation) == {"q": 0.0, "v": 0.0}

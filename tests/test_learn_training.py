@@ -92,22 +92,25 @@ def test_early_stopping_stops_after_patience():
     assert result.epochs_run - max(result.best_epochs) >= 3
 
 
-def test_derivative_learning_fits_slopes_better_from_few_points():
-    """The derivative term does what it is for: from 10 samples of sin(3x) the slope error drops."""
+def test_derivative_learning_fits_the_function_better_from_few_points():
+    """The derivative term does what it is for: from 10 samples of sin(3x) and their slopes, the *function*
+    between the samples (what the value loss alone fits, not what the derivative term minimizes) is
+    predicted better, for each of three initializations."""
     x = np.linspace(-2, 2, 10)[:, None]
     train = RegressionData(inputs=x, targets=np.sin(3 * x), input_rates=np.ones_like(x), target_rates=3 * np.cos(3 * x))
     grid = np.linspace(-2, 2, 200)[:, None]
     val = RegressionData(inputs=grid, targets=np.sin(3 * grid))
     config = ModelConfig(input_dim=1, output_dim=1, hidden_width=32, hidden_layers=2)
-    errors = {}
-    for alpha in (0.0, 0.1):
-        training = TrainingConfig(alpha=alpha, batch_size=10, max_epochs=600, patience=600, learning_rate=1e-2,
-                                  validation_interval=50)
-        model = train_model(config, training, train, val).model
-        with torch.no_grad():
-            slope = model.time_derivative(torch.tensor(grid, dtype=torch.float32), torch.ones(200, 1))[0].numpy()
-        errors[alpha] = float(np.mean((slope - 3 * np.cos(3 * grid)) ** 2))
-    assert errors[0.1] < 0.5 * errors[0.0], errors
+    for seed in range(3):
+        errors = {}
+        for alpha in (0.0, 0.1):
+            training = TrainingConfig(alpha=alpha, batch_size=10, max_epochs=600, patience=600, learning_rate=1e-2,
+                                      validation_interval=600, seed=seed)
+            model = train_model(config, training, train, val).model
+            with torch.no_grad():
+                values = model(torch.tensor(grid, dtype=torch.float32))[0][0].numpy()
+            errors[alpha] = float(np.mean((values - np.sin(3 * grid)) ** 2))
+        assert errors[0.1] < 0.5 * errors[0.0], (seed, errors)
 
 
 @pytest.mark.parametrize("options", [{}, dict(lr_schedule="cosine", min_learning_rate=1e-4, weight_decay=1e-2)])

@@ -187,23 +187,32 @@ def test_disturbance_gain_is_checked(tmp_path):
         load_mpc_config(path)
 
 
-class ScaledTorqueResponse:
-    """The plant's Jacobians with d x_next / d tau scaled by 1.1: a 10 % torque-response error."""
+class FiniteDifferencePlant:
+    """d x_next / d tau by central differences of the plant's exact discrete step (Drake's simulation of
+    the held torque), independent of the AutoDiff linearization the MPC and the tool use."""
 
     def __init__(self, plant_model):
         self.plant_model = plant_model
 
     def jacobians(self, x, u):
-        A, B = self.plant_model.jacobians(x, u)
-        return A, 1.1 * B
+        B = np.empty((len(x), x.shape[1], u.shape[1]))
+        for j in range(u.shape[1]):
+            step = 1e-3 * max(1e-3, float(np.abs(u[:, j]).max()))
+            up, down = u.copy(), u.copy()
+            up[:, j] += step
+            down[:, j] -= step
+            B[:, :, j] = (self.plant_model.step(x, up) - self.plant_model.step(x, down)) / (2 * step)
+        return None, B
 
 
-def test_jacobian_accuracy_tool_measures_the_torque_response_error(plant_model, tracking_dataset):
+def test_jacobian_accuracy_tool_agrees_with_the_plants_own_torque_response(plant_model, tracking_dataset):
+    """The tool's reference (the plant's AutoDiff torque Jacobian, discretized over the period) against
+    finite differences of the plant's simulated step: within 2 % per joint, so a learned model's
+    percentages are measured against the real torque response."""
     from tools_import import jacobian_accuracy
 
     from stdm_drake.data.dataset import load_dataset
     dataset = load_dataset(tracking_dataset)
-    errors = jacobian_accuracy.torque_jacobian_errors(ScaledTorqueResponse(plant_model), plant_model, dataset, [0, 1])
-    np.testing.assert_allclose(errors, 0.1, rtol=1e-9)
-    exact = jacobian_accuracy.torque_jacobian_errors(plant_model, plant_model, dataset, [0])
-    np.testing.assert_array_equal(exact, 0.0)
+    errors = jacobian_accuracy.torque_jacobian_errors(FiniteDifferencePlant(plant_model), plant_model, dataset, [0],
+                                                      stride=25)
+    assert errors.shape == (6,) and np.all(errors < 0.02), errors

@@ -24,6 +24,21 @@ def tracking_errors(dataset: Dataset) -> dict:
                 true_v=float(np.mean((stack("v_true") - v_plan) ** 2)))
 
 
+def noise_floor(dataset: Dataset, indices=None) -> dict:
+    """The one-step error floor the sensor sets, q rad^2 and v (rad/s)^2: the MSE of an oracle that knows
+    the plant's true change of state over each step but, like any model, starts from the recorded state:
+    x̂_{t+1} = x_t + (x^true_{t+1} - x^true_t), whose error is the change of the measurement error
+    e = x - x^true over the step. For white noise of std σ on v that is 2σ²; through a w-sample moving
+    average 2σ²/w² (the new sample enters, the oldest leaves); 0 for an ideal sensor. No model's one-step
+    error on these data can be expected much below it. indices: the trajectories (default all)."""
+    q_err, v_err = [], []
+    for i in (range(dataset.num_trajectories) if indices is None else indices):
+        traj = dataset.trajectory(int(i))
+        q_err.append(np.diff(traj["q"] - traj["q_true"], axis=0))
+        v_err.append(np.diff(traj["v"] - traj["v_true"], axis=0))
+    return dict(q=float(np.mean(np.concatenate(q_err) ** 2)), v=float(np.mean(np.concatenate(v_err) ** 2)))
+
+
 def tracking_smoothness(dataset: Dataset) -> dict:
     """Per-joint measures of how smoothly the plant followed its plans (tracking data only), (6,) each.
 
@@ -78,6 +93,10 @@ def summary(dataset: Dataset) -> str:
         ranges = {j: f"{lo:>8.3g}..{hi:<7.3g}" for j, lo, hi in zip(columns, values.min(0), values.max(0))}
         cells = "".join(ranges.get(j, f"{'(none)':>17s}") for j in range(len(labels)))
         lines.append(f"{key + ' ' + unit:14s}{cells}")
+    floor = noise_floor(dataset)
+    lines += ["", "sensor noise floor (one-step MSE of a model that knows the true change of state, from the "
+              "recorded state)",
+              f"                q {floor['q']:.3e} rad^2   v {floor['v']:.3e} (rad/s)^2"]
     if dataset.protocol == "tracking":
         errors = tracking_errors(dataset)
         lines += ["", "tracking error (MSE against the plan; paper's real UR-10: q 1.818e-5 rad^2, v 0.029 (rad/s)^2)",

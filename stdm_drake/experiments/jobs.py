@@ -149,8 +149,10 @@ def _evaluate(model, dataset, job: TrainJob) -> dict:
     state_dim, action_dim = test.state.shape[1], test.action.shape[1]
     euler = one_step_errors(ConstantVelocity(state_dim, action_dim, dataset.sample_period), test.state, test.action,
                             test.next_state)
+    from stdm_drake.data.inspect import noise_floor
+    floor = noise_floor(dataset, job.test)
     result = dict(q_mse=errors.angle_mse, v_mse=errors.velocity_mse, euler_q_mse=euler.angle_mse,
-                  unchanged_v_mse=euler.velocity_mse)
+                  unchanged_v_mse=euler.velocity_mse, noise_floor_q=floor["q"], noise_floor_v=floor["v"])
     if job.multistep:
         x0, actions, truth = trajectory_rollout_data(dataset, job.test, job.horizon)
         multi = multi_step_errors(model, x0, actions, truth)

@@ -64,8 +64,14 @@ def learned_ratios(results, experiment: str, size: int, activation: str, model_t
     rows = select_rows(results, experiment=experiment, train_size=size, activation=activation, model_type=model_type)
     if not rows or any(key not in row for row in rows for key in BASELINE_KEYS.values()):
         return {}
-    return {quantity: float(np.exp(np.mean([np.log(row[key] / row[ONE_STEP[quantity]]) for row in rows])))
-            for quantity, key in BASELINE_KEYS.items()}
+    found = {quantity: float(np.exp(np.mean([np.log(row[key] / row[ONE_STEP[quantity]]) for row in rows])))
+             for quantity, key in BASELINE_KEYS.items()}
+    for quantity in BASELINE_KEYS:       # model MSE / sensor noise floor (absent for an ideal sensor)
+        floors = [row.get(f"noise_floor_{quantity}", 0.0) for row in rows]
+        if all(floor > 0 for floor in floors):
+            found[f"{quantity}_over_floor"] = float(np.exp(np.mean(
+                [np.log(row[ONE_STEP[quantity]] / floor) for row, floor in zip(rows, floors)])))
+    return found
 
 
 def comparison_row(results, experiment: str, size: int, activation: str, metrics: dict) -> dict:
@@ -73,7 +79,7 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
     present, and each model type's ratios to the physics-free baselines (`<type>_vs_baseline`: q vs the
     Euler step, v vs "v unchanged") with `learned`: whether every model type beat both by LEARNED_FACTOR.
     metrics: label -> result key or function of a row."""
-    from stdm_drake.learning.physics import LEARNED_FACTOR
+    from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
     row = dict(activation=activation, train_trajectories=size)
     ratios = {}
     for variant in ("D",) + tuple(name for name, _ in DERIVATIVE_VARIANTS):
@@ -81,7 +87,9 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
         if found:
             ratios[variant] = found
             row[f"{variant}_vs_baseline"] = found
-    row["learned"] = bool(ratios) and all(value >= LEARNED_FACTOR for found in ratios.values() for value in found.values())
+    row["learned"] = bool(ratios) and all(
+        found[quantity] >= LEARNED_FACTOR or found.get(f"{quantity}_over_floor", np.inf) <= FLOOR_FACTOR
+        for found in ratios.values() for quantity in BASELINE_KEYS)
     for label, metric in metrics.items():
         for variant, _ in DERIVATIVE_VARIANTS:
             naive, derivative = paired(results, experiment, size, activation, variant, metric)
@@ -270,12 +278,15 @@ def baseline_text(row: dict, variant: str = "D") -> str:
     found = row.get(f"{variant}_vs_baseline")
     if not found:
         return ""
-    return f"{found['q']:.3g}x / {found['v']:.3g}x"
+    floor = "".join(f", {quantity} at {found[quantity + '_over_floor']:.3g}x the noise floor"
+                    for quantity in BASELINE_KEYS if quantity + "_over_floor" in found)
+    return f"{found['q']:.3g}x / {found['v']:.3g}x{floor}"
 
 
 BASELINE_NOTE = ("Baselines: 'vs Euler q / v unchanged' is the one-step MSE of the physics-free predictors (q + Δt v; "
                  "v unchanged) divided by the model's, geometric mean over seeds; a model below 2x in either has not "
-                 "learned the dynamics, and a comparison involving it is reported as uninformative. Verdicts: "
+                 "learned the dynamics (unless within 1.5x of the sensor noise floor, `stdm-drake inspect`), and a "
+                 "comparison involving it is reported as uninformative. Verdicts: "
                  "consistent / inconsistent with the paper when the whole 95 % interval lies above / below half the "
                  "paper's gain, otherwise inconclusive (always so for a single pair).")
 

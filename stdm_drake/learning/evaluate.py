@@ -129,11 +129,14 @@ class ModelErrors:
     ratio_q: float | None = None
     ratio_v: float | None = None
     verdict: str | None = None
+    floor_ratio_q: float | None = None     # model MSE / sensor noise floor (None: no floor)
+    floor_ratio_v: float | None = None
 
     def as_dict(self) -> dict:
         return dict(name=self.name, learned=self.learned, one_step=self.one_step.as_dict(),
                     multi_step=self.multi_step.as_dict(), ratio_to_euler_q=self.ratio_q,
-                    ratio_to_velocity_unchanged_v=self.ratio_v, verdict=self.verdict)
+                    ratio_to_velocity_unchanged_v=self.ratio_v, over_noise_floor_q=self.floor_ratio_q,
+                    over_noise_floor_v=self.floor_ratio_v, verdict=self.verdict)
 
 
 def physics_baselines(sample_period: float, state_dim: int, action_dim: int, robot=None,
@@ -148,9 +151,10 @@ def physics_baselines(sample_period: float, state_dim: int, action_dim: int, rob
 
 
 def compare_with_baselines(models, transitions, rollout_data, *, propagation: str = "mean", particles: int = 20,
-                           seed: int = 0) -> list[ModelErrors]:
+                           seed: int = 0, noise_floor: dict | None = None) -> list[ModelErrors]:
     """Errors of every model (DynamicsModel) on the same transitions and rollouts (x0, actions, truth);
-    learned models are rated against the first ConstantVelocity among them."""
+    learned models are rated against the first ConstantVelocity among them and, given the sensor's
+    noise_floor ({"q", "v"} one-step MSE, `data.inspect.noise_floor`), against it."""
     from stdm_drake.learning.physics import ConstantVelocity, learning_verdict
     rows = []
     for model in models:
@@ -164,8 +168,15 @@ def compare_with_baselines(models, transitions, rollout_data, *, propagation: st
             if row.learned:
                 row.ratio_q = _ratio(euler.one_step.angle_mse, row.one_step.angle_mse)
                 row.ratio_v = _ratio(euler.one_step.velocity_mse, row.one_step.velocity_mse)
-                row.verdict = learning_verdict(row.ratio_q, row.ratio_v)
+                if noise_floor:
+                    row.floor_ratio_q = _floor_ratio(row.one_step.angle_mse, noise_floor["q"])
+                    row.floor_ratio_v = _floor_ratio(row.one_step.velocity_mse, noise_floor["v"])
+                row.verdict = learning_verdict(row.ratio_q, row.ratio_v, row.floor_ratio_q, row.floor_ratio_v)
     return rows
+
+
+def _floor_ratio(model: float, floor: float) -> float | None:
+    return float(model / floor) if floor > 0 else None
 
 
 def _ratio(baseline: float, model: float) -> float:
@@ -216,7 +227,7 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.checkpoint import load_checkpoint
     from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import LEARNED_FACTOR
+    from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
     from stdm_drake.robot import robot_for
 
     check_output_file("--json", args.json, kind="json", inputs=[args.checkpoint, args.dataset, args.robot],
@@ -253,8 +264,10 @@ def run(args: argparse.Namespace) -> int:
     rollout_data = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
     plant = robot is not None and not args.no_plant
     baselines = physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, robot=robot, plant=plant)
+    from stdm_drake.data.inspect import noise_floor
+    floor = noise_floor(dataset, indices)
     rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=args.propagation,
-                                  particles=args.particles, seed=args.seed)
+                                  particles=args.particles, seed=args.seed, noise_floor=floor)
     config = checkpoint.model_config
     alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
     print(f"model {model.name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
@@ -275,10 +288,15 @@ def run(args: argparse.Namespace) -> int:
         print("  (no plant baseline: " + ("--no-plant" if args.no_plant else "pass the dataset's robot with --robot")
               + ")")
     learned = rows[0]
+    if floor["q"] > 0 or floor["v"] > 0:
+        print(f"  {'noise floor':<12} {floor['q']:>10.3e} {floor['v']:>13.3e}  (a model that knows the true change "
+              f"of state, from the recorded state; {model.name} is at {learned.floor_ratio_q or 0:.3g}x / "
+              f"{learned.floor_ratio_v or 0:.3g}x of it)")
     print(f"{model.name} against the physics-free baselines: one-step q {learned.ratio_q:.3g}x better than the Euler "
           f"step, v {learned.ratio_v:.3g}x better than 'v unchanged' -> {learned.verdict}"
-          + ("" if learned.verdict == "learned" else
-             f" (needs {LEARNED_FACTOR:g}x in both; comparisons with other such models are uninformative)"))
+          + ("" if learned.verdict.startswith("learned") else
+             f" (needs {LEARNED_FACTOR:g}x in both, or within {FLOOR_FACTOR:g}x of the noise floor; comparisons "
+             "with other such models are uninformative)"))
     print(f"multi-step MSE of {model.name} (mean +- std over {multi.trajectories} trajectories):")
     print(f"  {'step':>5}  {'q [rad^2]':>24}  {'v [(rad/s)^2]':>24}")
     for step in shown:
@@ -292,7 +310,8 @@ def run(args: argparse.Namespace) -> int:
                       structure=model.structure.as_dict(), trajectories=[int(i) for i in indices],
                       one_step=learned.one_step.as_dict(), multi_step=multi.as_dict(),
                       ratio_to_euler_q=learned.ratio_q, ratio_to_velocity_unchanged_v=learned.ratio_v,
-                      verdict=learned.verdict, baselines=[row.as_dict() for row in rows[1:]])
+                      over_noise_floor_q=learned.floor_ratio_q, over_noise_floor_v=learned.floor_ratio_v,
+                      noise_floor=floor, verdict=learned.verdict, baselines=[row.as_dict() for row in rows[1:]])
         write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
         print(f"wrote {args.json}")
     return 0
