@@ -48,14 +48,17 @@ def frame_link(name: str) -> str:
     return f'  <link name="{name}"/>'
 
 
-def revolute_joint(name: str, parent: str, child: str, xyz, rpy, lower: float, upper: float,
+def revolute_joint(name: str, parent: str, child: str, xyz, rpy, lower: float | None, upper: float | None,
                    velocity, effort) -> str:
     """A revolute <joint> about the child frame's z axis, with position limits (rad), velocity limit
-    (rad/s) and effort limit (N m); velocity and effort are written as given (str())."""
-    return (f'  <joint name="{name}" type="revolute">\n'
+    (rad/s) and effort limit (N m); velocity and effort are written as given (str()). lower = upper =
+    None writes a "continuous" joint: no position limits."""
+    kind, bounds = ("continuous", "") if lower is None and upper is None else (
+        "revolute", f'lower="{float(lower)!r}" upper="{float(upper)!r}" ')
+    return (f'  <joint name="{name}" type="{kind}">\n'
             f'    <parent link="{parent}"/><child link="{child}"/>\n'
             f'    <origin xyz="{fmt(xyz)}" rpy="{fmt(rpy)}"/>\n    <axis xyz="0 0 1"/>\n'
-            f'    <limit lower="{float(lower)!r}" upper="{float(upper)!r}" velocity="{velocity}" effort="{effort}"/>\n'
+            f'    <limit {bounds}velocity="{velocity}" effort="{effort}"/>\n'
             f'  </joint>')
 
 

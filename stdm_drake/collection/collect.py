@@ -244,7 +244,13 @@ def excitation_trajectory(rig: SimulationRig, config: ExcitationConfig, rng: np.
             tau = amplitude * np.sin(frequency * t + phase) + offset
             return tau + rig.dynamics.actuated_gravity_torque(q) if config.gravity_compensation else tau
 
-        traj = rig.run(q0, config.num_steps, control, JointSensor(sensor_config, rng))
+        try:
+            traj = rig.run(q0, config.num_steps, control, JointSensor(sensor_config, rng))
+        except RuntimeError as error:  # Drake refuses a state gone non-finite: the draw diverged, draw again
+            if "non-finite" not in str(error):
+                raise
+            reasons["simulation diverged"] = reasons.get("simulation diverged", 0) + 1
+            continue
         reason = rig.limit_violation(traj, config.position_margin, config.velocity_fraction,
                                      config.check_self_collision)
         if reason is None:
