@@ -45,3 +45,17 @@ def json_default(value):
     if dataclasses.is_dataclass(value) and not isinstance(value, type):
         return dataclasses.asdict(value)
     raise TypeError(f"not JSON-serializable: {type(value).__name__}")
+
+
+def rows_csv(rows: list[dict], columns: list[str] | None = None) -> str:
+    """CSV text of result rows (columns: default the first row's keys); floats with 6 significant digits,
+    fields quoted only where they hold a comma or quote."""
+    import csv
+    import io
+    columns = list(rows[0]) if columns is None else columns
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(columns)
+    for row in rows:
+        writer.writerow([f"{row[c]:.6g}" if isinstance(row[c], float) else row[c] for c in columns])
+    return buffer.getvalue()

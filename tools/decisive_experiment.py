@@ -9,9 +9,7 @@ Usage: python tools/decisive_experiment.py [--quick] [--workers 2] [-o docs/resu
 """
 import argparse
 import concurrent.futures
-import csv
 import dataclasses
-import io
 import json
 import math
 import multiprocessing
@@ -27,7 +25,7 @@ import numpy as np  # noqa: E402
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from stdm_drake.files import write_text_atomic  # noqa: E402
+from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
 
 HOME = [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]
 GLOBAL_LOWER, GLOBAL_UPPER = [-3.1, -2.6, -2.6, -3.1, -3.1, -3.1], [3.1, -0.5, 2.6, 3.1, 3.1, 3.1]
@@ -151,15 +149,6 @@ def cell_verdict(gated: bool, ratios: dict) -> str:
     return "inconclusive"
 
 
-def csv_text(rows: list[dict]) -> str:
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({key: (f"{value:.6g}" if isinstance(value, float) else value) for key, value in row.items()})
-    return buffer.getvalue()
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "decisive")
@@ -209,8 +198,8 @@ def main(argv=None) -> int:
                  naive_vs_unchanged_v=s["naive_vs_unchanged_v"], gated=s["gated"], verdict=s["verdict"],
                  **{f"{which} {label} {part}": s[which][label][part] for which in ("D_over_DD", "D2x_over_DD")
                     for _, label in ENDPOINTS for part in ("ratio", "low", "high")}) for s in summary]
-    write_text_atomic(args.output / "runs.csv", csv_text(rows))
-    write_text_atomic(args.output / "cells.csv", csv_text(flat))
+    write_text_atomic(args.output / "runs.csv", rows_csv(rows))
+    write_text_atomic(args.output / "cells.csv", rows_csv(flat))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
         written_by="tools/decisive_experiment.py", quick=args.quick, data_seeds=data_seeds, inits=inits,
         split=dict(train=TRAIN, validation=VALIDATION, test=TEST), alpha=ALPHA, horizon=HORIZON,

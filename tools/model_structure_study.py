@@ -26,8 +26,6 @@ Usage: python tools/model_structure_study.py [--quick] [--seeds N] [--workers 2]
 """
 import argparse
 import concurrent.futures
-import csv
-import io
 import json
 import multiprocessing
 import os
@@ -41,7 +39,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
-from stdm_drake.files import write_text_atomic  # noqa: E402
+from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
 from stdm_drake.stats import paired_ratio  # noqa: E402
 
 HELD_OUT_SEED = 20261124          # never used for anything else; fixed before the first run
@@ -142,15 +140,6 @@ def run_job(name: str, seed: int, job_problem, held_out_path: str, epochs: int, 
                 verdict=mine.verdict)
 
 
-def csv_text(rows: list[dict]) -> str:
-    buffer = io.StringIO()
-    writer = csv.DictWriter(buffer, fieldnames=list(rows[0]), lineterminator="\n")
-    writer.writeheader()
-    for row in rows:
-        writer.writerow({key: (f"{value:.6g}" if isinstance(value, float) else value) for key, value in row.items()})
-    return buffer.getvalue()
-
-
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("docs/results/model_structure"))
@@ -203,9 +192,9 @@ def main(argv=None) -> int:
                                     reading=ratio.verdict if learned else "uninformative (a model has not learned)"))
     elapsed = time.perf_counter() - started
     args.output.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.output / "runs.csv", csv_text(rows))
-    write_text_atomic(args.output / "summary.csv", csv_text(summary))
-    write_text_atomic(args.output / "comparisons.csv", csv_text(comparisons))
+    write_text_atomic(args.output / "runs.csv", rows_csv(rows))
+    write_text_atomic(args.output / "summary.csv", rows_csv(summary))
+    write_text_atomic(args.output / "comparisons.csv", rows_csv(comparisons))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
         written_by="tools/model_structure_study.py", quick=args.quick, seeds=seeds, epochs=epochs,
         held_out_seed=HELD_OUT_SEED, test_trajectories=keep, left_out_for_self_contact=contact, horizon=HORIZON, seconds=round(elapsed, 1), configs=CONFIGS,

@@ -40,7 +40,7 @@ import numpy as np
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import atomic_path, write_text_atomic
+from stdm_drake.files import atomic_path, rows_csv, write_text_atomic
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import TrainingConfig
@@ -347,13 +347,6 @@ def headline(study: dict) -> dict:
                 alpha=(study.get("alpha_sweep") or {}).get("chosen_alpha", config["alpha"]))
 
 
-def _csv(rows: list[dict], columns: list[str]) -> str:
-    lines = [",".join(columns)]
-    for row in rows:
-        lines.append(",".join(f"{row[c]:.6g}" if isinstance(row[c], float) else str(row[c]) for c in columns))
-    return "\n".join(lines) + "\n"
-
-
 def _save_figure(figure, path) -> None:
     with atomic_path(path) as temp:
         figure.savefig(temp, format="png", dpi=110, bbox_inches="tight")
@@ -379,7 +372,7 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
 
     text("results.json", json.dumps(study, indent=1) + "\n")
     fig6 = fig6_rows(study)
-    text("fig6_mse_vs_activation.csv", _csv(fig6, list(fig6[0])))
+    text("fig6_mse_vs_activation.csv", rows_csv(fig6))
     fig, axes = plt.subplots(1, len(config["layers"]), figsize=(5 * len(config["layers"]), 4), squeeze=False)
     for ax, layers in zip(axes[0], config["layers"]):
         rows = [row for row in fig6 if row["layers"] == layers]
@@ -437,7 +430,7 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
     text("fig8_learning_curves.csv", "\n".join(lines) + "\n")
 
     table = table1_rows(study)
-    text("table1.csv", _csv(table, ["loss", "activation", "mean_test_mse", "paper"]))
+    text("table1.csv", rows_csv(table, ["loss", "activation", "mean_test_mse", "paper"]))
     text("table1.json", json.dumps(table, indent=1) + "\n")
     fig, ax = plt.subplots(figsize=(7, 4))
     labels = [f"{row['loss']}\n{row['activation']}" for row in table]

@@ -1,0 +1,56 @@
+"""The decisive experiment's statistics and verdict rules, its limit-free robot, and its pipeline."""
+import math
+
+import numpy as np
+import pytest
+
+from tools_import import decisive_experiment as experiment
+
+
+def rows(values, model):
+    return [dict(data_seed=seed, init=init, model=model, one_step_q=value)
+            for seed, per_seed in enumerate(values) for init, value in enumerate(per_seed)]
+
+
+def test_two_level_interval_is_over_data_seeds():
+    """Ratios 4x in every pair: 4x with a zero-width interval; data seeds that disagree widen it even when
+    the initializations within each agree perfectly (inits are not independent evidence)."""
+    same = experiment.two_level_ratio(rows([[4.0] * 5] * 3, "D"), rows([[1.0] * 5] * 3, "DD"), "one_step_q")
+    assert same["ratio"] == pytest.approx(4.0) and same["low"] == pytest.approx(4.0) and same["pairs"] == 15
+    spread = experiment.two_level_ratio(rows([[8.0] * 5, [4.0] * 5, [2.0] * 5], "D"), rows([[1.0] * 5] * 3, "DD"),
+                                        "one_step_q")
+    assert spread["ratio"] == pytest.approx(4.0) and spread["low"] < 1.0 < 4.0 < spread["high"]
+    single = experiment.two_level_ratio(rows([[3.0] * 5], "D"), rows([[1.0] * 5], "DD"), "one_step_q")
+    assert single["low"] == 0.0 and math.isinf(single["high"])
+
+
+def test_cell_verdicts_follow_the_design():
+    ratio = lambda r, low, high: dict(ratio=r, low=low, high=high)   # noqa: E731
+    reproduces = {"one-step q": ratio(4, 2.5, 6), "one-step v": ratio(3.5, 2.1, 5), "q at step 20": ratio(1, 0.5, 2)}
+    assert experiment.cell_verdict(True, reproduces) == "the paper reproduces"
+    assert experiment.cell_verdict(False, reproduces) == "uninformative (naive has not learned)"
+    no_help = {key: ratio(1.0, 0.9, 1.1) for key in reproduces}
+    assert experiment.cell_verdict(True, no_help) == "no help"
+    wide = dict(no_help, **{"one-step v": ratio(1.0, 0.7, 1.4)})
+    assert experiment.cell_verdict(True, wide) == "inconclusive"
+
+
+def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
+    from stdm_drake.plant import Dynamics, robot_joint_limits
+    from stdm_drake.robot import UR10, load_robot
+    free = load_robot(experiment.ROOT / "models" / "ur10_limit_free.yaml")
+    limits = robot_joint_limits(free)
+    assert np.all(np.isinf(limits.position_lower)) and np.all(np.isinf(limits.position_upper))
+    np.testing.assert_array_equal(limits.effort, robot_joint_limits(UR10).effort)
+    q = np.array(experiment.HOME)
+    np.testing.assert_allclose(Dynamics(free).mass_matrix(q), Dynamics(UR10).mass_matrix(q), rtol=1e-12)
+
+
+@pytest.mark.slow
+def test_quick_profile_runs_end_to_end(tmp_path):
+    assert experiment.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    import json
+    results = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert [cell["cell"] for cell in results["summary"]] == ["literal-10ms", "literal-50ms"]
+    assert len(results["runs"]) == 2 * 2 * 2 * 3
+    assert all(cell["verdict"] for cell in results["summary"])
