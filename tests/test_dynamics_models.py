@@ -147,3 +147,34 @@ def test_noise_floor_is_that_of_the_sensor_model(tmp_path):
 def test_noise_floor_of_an_ideal_sensor_is_zero(excitation):
     from stdm_drake.data.inspect import noise_floor
     assert noise_floor(excitation) == {"q": 0.0, "v": 0.0}
+
+
+@pytest.mark.parametrize("kind", ["default", "euler"])
+def test_the_leaf_system_steps_any_dynamics_model_as_its_rollout(excitation, kind):
+    """LearnedDynamicsSystem takes any DynamicsModel: a physics-structured network (its features from
+    Drake inside a Drake diagram) and a baseline; 10 steps under held torques equal the model's rollout."""
+    from pydrake.systems.analysis import Simulator
+    from pydrake.systems.framework import DiagramBuilder
+    from pydrake.systems.primitives import TrajectorySource
+    from pydrake.trajectories import PiecewisePolynomial
+
+    from stdm_drake.closed_loop.learned_system import LearnedDynamicsSystem
+    model = trained(excitation, DEFAULT, epochs=5) if kind == "default" else ConstantVelocity(12, 6, 0.01)
+    traj = excitation.trajectory(33)
+    x0, torques = np.concatenate([traj["q"][0], traj["v"][0]]), traj["tau"][:10]
+    times = np.arange(11) * model.sample_period
+    builder = DiagramBuilder()
+    system = builder.AddSystem(LearnedDynamicsSystem(model))
+    source = builder.AddSystem(TrajectorySource(PiecewisePolynomial.ZeroOrderHold(
+        times, np.vstack([torques, torques[-1:]]).T)))
+    builder.Connect(source.get_output_port(), system.get_torque_input_port())
+    simulator = Simulator(builder.Build())
+    context = system.GetMyContextFromRoot(simulator.get_mutable_context())
+    system.set_initial_state(context, x0)
+    simulator.Initialize()
+    states = []
+    for k in range(1, 11):
+        simulator.AdvanceTo(times[k])
+        states.append(system.get_state_output_port().Eval(context).copy())
+    expected = model.rollout(x0[None], torques[None]).mean[0]
+    np.testing.assert_allclose(np.array(states), expected, rtol=1e-6, atol=1e-9)
