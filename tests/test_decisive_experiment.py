@@ -54,3 +54,18 @@ def test_quick_profile_runs_end_to_end(tmp_path):
     assert [cell["cell"] for cell in results["summary"]] == ["literal-10ms", "literal-50ms"]
     assert len(results["runs"]) == 2 * 2 * 2 * 3
     assert all(cell["verdict"] for cell in results["summary"])
+
+
+@pytest.mark.slow
+def test_closed_loop_study_quick_profile(tmp_path):
+    """The seed-level closed-loop study end to end at pipeline size: every model trained and gated, the
+    plant and every model driven over the same plans, a seed-level ratio with its interval."""
+    import json
+
+    from tools_import import closed_loop_study
+    assert closed_loop_study.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    results = json.loads((tmp_path / "out" / "results.json").read_text())
+    summary = results["summary"]
+    assert summary["seeds"] == 2 and summary["D_over_DD"]["pairs"] == 2
+    assert {run["model"] for run in results["runs"]} == {"plant", "D seed 0", "D seed 1", "DD seed 0", "DD seed 1"}
+    assert len(results["runs"]) == 5 * summary["plans"]
