@@ -7,6 +7,9 @@ take as an input.
     PlantModel         the robot's discrete Drake plant stepping the held torque over the period (what
                        the simulation itself does, so exact where the data are simulated from the
                        same description: the nominal model a user has)
+    RungeKuttaPlantModel  the same description's continuous rigid-body dynamics, one RK4 step over the
+                       period (no contact, no joint limits, no plant substeps): the cheap nominal model,
+                       the fair compute baseline for learned models in MPC
     NominalAcceleration  q̈ = M(q)⁻¹(B τ + τ_g(q) − C(q, v) v) of the robot's continuous plant, with its
                        time derivative along a tangent and its Jacobian (Drake AutoDiff)
 
@@ -125,6 +128,47 @@ class PlantModel(DynamicsModel):
             derivatives = self.autodiff_plant.EvalTimeDerivatives(self.autodiff_context).CopyToVector()
             gradient = ExtractGradient(derivatives)
             A[k], B[k] = zero_order_hold_discretization(gradient[:, :n], gradient[:, n:], self.sample_period)
+        return A, B
+
+
+class RungeKuttaPlantModel(DynamicsModel):
+    """The continuous dynamics ẋ = [v, q̈(q, v, τ)] of `robot`'s description (`NominalAcceleration`),
+    one classical Runge-Kutta step over the sample period with the torque held: four evaluations of
+    the rigid-body dynamics per step, against the discrete plant's `period / plant step` contact-aware
+    substeps. jacobians: as `PlantModel`'s (the AutoDiff linearization at (x_k, u_k), zero-order-hold
+    discretized), one AutoDiff evaluation per row."""
+    name = "plant (RK4)"
+
+    def __init__(self, sample_period: float, robot=None):
+        self.acceleration = NominalAcceleration(robot)
+        self.robot = self.acceleration.robot
+        self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
+        self.sample_period = float(sample_period)
+
+    def _derivative(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        n = self.num_joints
+        return np.hstack([x[:, n:], self.acceleration.values(x[:, :n], x[:, n:], u)])
+
+    def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
+        x, u = np.atleast_2d(np.asarray(x, dtype=float)), np.atleast_2d(np.asarray(u, dtype=float))
+        h = self.sample_period
+        k1 = self._derivative(x, u)
+        k2 = self._derivative(x + 0.5 * h * k1, u)
+        k3 = self._derivative(x + 0.5 * h * k2, u)
+        k4 = self._derivative(x + h * k3, u)
+        return x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+
+    def jacobians(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        x, u = np.atleast_2d(np.asarray(x, dtype=float)), np.atleast_2d(np.asarray(u, dtype=float))
+        n, S = self.num_joints, self.state_dim
+        acceleration = self.acceleration.jacobians(x[:, :n], x[:, n:], u)        # (H, n, 2n + m)
+        A, B = np.empty((len(x), S, S)), np.empty((len(x), S, self.action_dim))
+        for k in range(len(x)):
+            A_c = np.zeros((S, S))
+            A_c[:n, n:] = np.eye(n)
+            A_c[n:] = acceleration[k, :, :S]
+            B_c = np.vstack([np.zeros((n, self.action_dim)), acceleration[k, :, S:]])
+            A[k], B[k] = zero_order_hold_discretization(A_c, B_c, self.sample_period)
         return A, B
 
 
