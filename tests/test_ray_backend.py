@@ -171,3 +171,18 @@ def test_train_seeds_on_ray_write_the_local_checkpoints(head, tmp_path, excitati
     capsys.readouterr()
     assert main(common + ["--backend", "ray", "--resume", "-o", str(tmp_path / "ray")]) == 2
     assert "--resume continues runs in a local folder" in capsys.readouterr().err
+
+
+def test_the_decisive_experiment_runs_on_ray_with_the_local_results(head, tmp_path):
+    """The decisive study's cells on the cluster: datasets collected by its workers and sent back, each
+    once through the object store to the training tasks; the same rows as the local pool."""
+    from stdm_drake.cluster import RunnerConfig
+    from stdm_drake.experiments import decisive
+    address, _ = head
+    options = dict(cells=decisive.CELLS[:1], data_seeds=1, inits=2, sizes=(6, 4, 6), progress=lambda text: None)
+    local = decisive.run_study(tmp_path / "local", RunnerConfig(workers=1), **options)
+    remote = decisive.run_study(tmp_path / "ray", RunnerConfig(backend="ray", ray_address=address), **options)
+    strip = lambda rows: [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]  # noqa: E731
+    assert_close(strip(remote["runs"]), strip(local["runs"]))
+    assert (tmp_path / "ray" / "literal-10ms_seed0_n22.h5").read_bytes() == \
+        (tmp_path / "local" / "literal-10ms_seed0_n22.h5").read_bytes()

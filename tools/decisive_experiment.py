@@ -1,152 +1,25 @@
-"""The decisive experiment on the paper's UR-10 claim (derivative learning: 3-7x lower one-step MSE).
+"""The decisive experiment on the paper's UR-10 claim: the command line of
+`stdm_drake.experiments.decisive` (design and verdict rules in docs/learning.md).
 
-Design, endpoints, intervals and verdict rules: docs/learning.md, "The decisive experiment" (fixed
-before the first run). Cells start from the paper-literal setting and switch one factor at a time;
-per cell 3 datasets x 5 initializations of D, DD (alpha 1e-3, our units) and D-2x (80 training
-trajectories); the gate: the cell's naive models beat the physics-free baselines by 2x.
-
-Usage: python tools/decisive_experiment.py [--quick] [--workers 2] [-o docs/results/decisive]
+Usage: python tools/decisive_experiment.py [--quick] [--workers 2] [--backend local|ray] [--ray-address HOST:PORT]
+       [-o docs/results/decisive] [--data out/decisive_data]
 """
 import argparse
-import concurrent.futures
 import dataclasses
 import json
-import math
-import multiprocessing
 import os
 import pathlib
 import sys
-import time
 
 os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
-
-import numpy as np  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from stdm_drake.cluster import add_runner_arguments, runner_config_from_args  # noqa: E402
+from stdm_drake.experiments.decisive import (ALPHA, CELLS, ENDPOINTS, HOME, HORIZON, TEST, TRAIN,  # noqa: E402,F401
+                                             VALIDATION, cell_verdict, run_study, two_level_ratio)
 from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
-
-HOME = [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]
-GLOBAL_LOWER, GLOBAL_UPPER = [-3.1, -2.6, -2.6, -3.1, -3.1, -3.1], [3.1, -0.5, 2.6, 3.1, 3.1, 3.1]
-SCALED = [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015]           # excitation.yaml's per-joint ranges (N m)
-SPEED_BOUND = 3000.0                                      # rad/s: faster trajectories are redrawn
-ALPHA = 1e-3
-HORIZON = 20
-TRAIN, VALIDATION, TEST = 40, 40, 120
-
-
-@dataclasses.dataclass(frozen=True)
-class Cell:
-    name: str
-    switch: str
-    sample_period: float = 0.01
-    delta: bool = False
-    start: str = "fixed"            # fixed | box | global
-    compensated: bool = False
-
-
-CELLS = (
-    Cell("literal-10ms", "the paper-literal setting"),
-    Cell("literal-50ms", "sample period 10 ms -> 50 ms", sample_period=0.05),
-    Cell("delta", "direct -> delta outputs", delta=True),
-    Cell("box-start", "fixed start -> home +- 0.5 rad", start="box"),
-    Cell("global-start", "fixed start -> excitation.yaml's global box", start="global"),
-    Cell("compensated", "no compensation -> g(q) + excitation.yaml's scaled ranges", compensated=True),
-)
-MODELS = {"D": (0.0, 1), "DD": (ALPHA, 1), "D-2x": (0.0, 2)}    # alpha, training trajectories in units of TRAIN
-ENDPOINTS = (("one_step_q", "one-step q"), ("one_step_v", "one-step v"), ("open_loop_q", f"q at step {HORIZON}"))
-
-
-def excitation_config(cell: Cell):
-    from stdm_drake.collection.collect import ExcitationConfig
-    lower, upper = {"fixed": (HOME, HOME), "box": ([h - 0.5 for h in HOME], [h + 0.5 for h in HOME]),
-                    "global": (GLOBAL_LOWER, GLOBAL_UPPER)}[cell.start]
-    ranges = SCALED if cell.compensated else None
-    return ExcitationConfig(amplitude_max=ranges or [0.3] * 6, offset_max=ranges or [1.0] * 6,
-                            gravity_compensation=cell.compensated, initial_position_lower=list(lower),
-                            initial_position_upper=list(upper), position_margin=0.0,
-                            velocity_fraction=SPEED_BOUND / 1e4, check_self_collision=False, max_attempts=200)
-
-
-def dataset_path(folder: pathlib.Path, cell: Cell, data_seed: int, count: int) -> pathlib.Path:
-    """Collect (once) the cell's dataset of `count` trajectories for data_seed."""
-    from stdm_drake.collection.collect import collect, collection_request
-    from stdm_drake.data.dataset import write_dataset
-    from stdm_drake.robot import load_robot
-    path = folder / f"{cell.name}_seed{data_seed}_n{count}.h5"
-    if not path.exists():
-        robot = load_robot(ROOT / "models" / "ur10_limit_free.yaml")
-        request = collection_request("excitation", count=count, seed=1000 + data_seed, robot=robot,
-                                     sample_period=cell.sample_period, excitation=excitation_config(cell), workers=1)
-        request.settings.plant.self_collision = False
-        trajectories, groups, metadata = collect(request, progress=False)
-        write_dataset(path, trajectories, groups, metadata)
-    return path
-
-
-def run_job(path: str, cell: Cell, data_seed: int, init: int, model: str, sizes: tuple) -> dict:
-    import torch
-
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.settings import TrainingConfig
-    from stdm_drake.learning.structure import PAPER
-    from stdm_drake.learning.train import training_problem
-    from stdm_drake.learning.trainer import fit_model
-    torch.set_num_threads(1)
-    train, validation, tested = sizes
-    alpha, factor = MODELS[model]
-    n_train = factor * train
-    dataset = load_dataset(path)
-    test = list(range(2 * train + validation, 2 * train + validation + tested))
-    split = dict(train=list(range(n_train)), val=list(range(2 * train, 2 * train + validation)), test=test)
-    problem = training_problem(dataset, split, model_type="DD" if alpha else "D", delta=cell.delta, structure=PAPER)
-    started = time.perf_counter()
-    result, _ = fit_model(problem.model_config, TrainingConfig(alpha=alpha, seed=init), problem.train, problem.val)
-    seconds = time.perf_counter() - started
-    learned = LearnedModel(result.model, name=model, structure=PAPER, sample_period=dataset.sample_period)
-    baselines = physics_baselines(dataset.sample_period, 12, 6, plant=False)
-    mine, euler, stays = compare_with_baselines([learned] + baselines, dataset.transitions(test),
-                                                trajectory_rollout_data(dataset, test, HORIZON))
-    return dict(cell=cell.name, data_seed=data_seed, init=init, model=model, alpha=alpha, train_trajectories=n_train,
-                epochs=result.epochs_run, best_epoch=int(result.best_epochs[0]), train_seconds=round(seconds, 2),
-                one_step_q=mine.one_step.angle_mse, one_step_v=mine.one_step.velocity_mse,
-                open_loop_q=float(mine.multi_step.angle_mse[-1]), ratio_to_euler_q=mine.ratio_q,
-                ratio_to_unchanged_v=mine.ratio_v, ratio_to_stays_put_open_loop_q=float(
-                    stays.multi_step.angle_mse[-1] / mine.multi_step.angle_mse[-1]), verdict=mine.verdict)
-
-
-def two_level_ratio(rows_base: list[dict], rows_method: list[dict], key: str) -> dict:
-    """Ratio base/method: per (data seed, init) pair, log-averaged over inits per data seed, then a
-    Student-t 95 % interval over the data seeds' means."""
-    from scipy import stats
-    method = {(r["data_seed"], r["init"]): r[key] for r in rows_method}
-    per_seed = {}
-    for r in rows_base:
-        pair = (r["data_seed"], r["init"])
-        if pair in method:
-            per_seed.setdefault(r["data_seed"], []).append(math.log(r[key] / method[pair]))
-    means = np.array([np.mean(values) for values in per_seed.values()])
-    pairs = sum(len(values) for values in per_seed.values())
-    mean = float(means.mean())
-    if len(means) < 2:
-        return dict(ratio=math.exp(mean), low=0.0, high=math.inf, data_seeds=len(means), pairs=pairs)
-    half = float(stats.t.ppf(0.975, len(means) - 1) * means.std(ddof=1) / math.sqrt(len(means)))
-    return dict(ratio=math.exp(mean), low=math.exp(mean - half), high=math.exp(mean + half), data_seeds=len(means),
-                pairs=pairs)
-
-
-def cell_verdict(gated: bool, ratios: dict) -> str:
-    if not gated:
-        return "uninformative (naive has not learned)"
-    q, v = ratios["one-step q"], ratios["one-step v"]
-    if all(r["ratio"] >= 3 and r["low"] >= 2 for r in (q, v)):
-        return "the paper reproduces"
-    if all(0.8 <= r["low"] and r["high"] <= 1.25 for r in ratios.values()):
-        return "no help"
-    return "inconclusive"
 
 
 def main(argv=None) -> int:
@@ -156,43 +29,15 @@ def main(argv=None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--quick", action="store_true",
                         help="2 cells, 2 data seeds x 2 inits, 60 trajectories (pipeline check, ~1 min)")
+    add_runner_arguments(parser)
     args = parser.parse_args(argv)
-    global TRAIN, VALIDATION, TEST
-    cells, data_seeds, inits = CELLS, 3, 5
+    runner = runner_config_from_args(args)
+    cells, data_seeds, inits, sizes = CELLS, 3, 5, (TRAIN, VALIDATION, TEST)
     if args.quick:
-        cells, data_seeds, inits = CELLS[:2], 2, 2
-        TRAIN, VALIDATION, TEST = 10, 10, 20
-    count = 2 * TRAIN + VALIDATION + TEST
-    args.data.mkdir(parents=True, exist_ok=True)
-    started = time.perf_counter()
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:
-        paths = {(cell.name, seed): pool.submit(dataset_path, args.data, cell, seed, count)
-                 for cell in cells for seed in range(data_seeds)}
-        paths = {key: str(future.result()) for key, future in paths.items()}
-        print(f"{len(paths)} datasets in {time.perf_counter() - started:.0f} s", flush=True)
-        sizes = (TRAIN, VALIDATION, TEST)
-        jobs = [pool.submit(run_job, paths[(cell.name, seed)], cell, seed, init, model, sizes)
-                for cell in cells for seed in range(data_seeds) for init in range(inits) for model in MODELS]
-        rows = []
-        for future in concurrent.futures.as_completed(jobs):
-            rows.append(future.result())
-            if len(rows) % 15 == 0:
-                print(f"{len(rows)}/{len(jobs)} models trained ({time.perf_counter() - started:.0f} s)", flush=True)
-    rows.sort(key=lambda r: ([c.name for c in cells].index(r["cell"]), r["data_seed"], r["init"], list(MODELS).index(r["model"])))
-    summary = []
-    for cell in cells:
-        mine = [r for r in rows if r["cell"] == cell.name]
-        by_model = {model: [r for r in mine if r["model"] == model] for model in MODELS}
-        naive = by_model["D"]
-        gate_q = float(np.exp(np.mean([np.log(r["ratio_to_euler_q"]) for r in naive])))
-        gate_v = float(np.exp(np.mean([np.log(r["ratio_to_unchanged_v"]) for r in naive])))
-        gated = gate_q >= 2 and gate_v >= 2
-        ratios = {label: two_level_ratio(naive, by_model["DD"], key) for key, label in ENDPOINTS}
-        control = {label: two_level_ratio(by_model["D-2x"], by_model["DD"], key) for key, label in ENDPOINTS}
-        summary.append(dict(cell=cell.name, switch=cell.switch, naive_vs_euler_q=gate_q, naive_vs_unchanged_v=gate_v,
-                            gated=gated, D_over_DD=ratios, D2x_over_DD=control, verdict=cell_verdict(gated, ratios)))
-    elapsed = time.perf_counter() - started
+        cells, data_seeds, inits, sizes = CELLS[:2], 2, 2, (10, 10, 20)
+    study = run_study(args.data, runner, cells=cells, data_seeds=data_seeds, inits=inits, sizes=sizes,
+                      progress=lambda text: print(text, flush=True))
+    summary, rows = study["summary"], study["runs"]
     args.output.mkdir(parents=True, exist_ok=True)
     flat = [dict(cell=s["cell"], switch=s["switch"], naive_vs_euler_q=s["naive_vs_euler_q"],
                  naive_vs_unchanged_v=s["naive_vs_unchanged_v"], gated=s["gated"], verdict=s["verdict"],
@@ -202,8 +47,8 @@ def main(argv=None) -> int:
     write_text_atomic(args.output / "cells.csv", rows_csv(flat))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
         written_by="tools/decisive_experiment.py", quick=args.quick, data_seeds=data_seeds, inits=inits,
-        split=dict(train=TRAIN, validation=VALIDATION, test=TEST), alpha=ALPHA, horizon=HORIZON,
-        seconds=round(elapsed, 1), cells=[dataclasses.asdict(c) for c in cells], summary=summary, runs=rows),
+        split=dict(zip(("train", "validation", "test"), sizes)), alpha=ALPHA, horizon=HORIZON,
+        seconds=study["seconds"], cells=[dataclasses.asdict(c) for c in cells], summary=summary, runs=rows),
         indent=2) + "\n")
     for s in summary:
         print(f"\n{s['cell']} ({s['switch']}): naive vs Euler q {s['naive_vs_euler_q']:.3g}x, vs 'v unchanged' "
@@ -212,7 +57,7 @@ def main(argv=None) -> int:
             r, c = s["D_over_DD"][label], s["D2x_over_DD"][label]
             print(f"  {label:>14}: D/DD {r['ratio']:.3g}x [{r['low']:.3g}, {r['high']:.3g}]   "
                   f"D-2x/DD {c['ratio']:.3g}x [{c['low']:.3g}, {c['high']:.3g}]")
-    print(f"\n{len(rows)} models in {elapsed:.0f} s -> {args.output}")
+    print(f"\n{len(rows)} models in {study['seconds']:.0f} s -> {args.output}")
     return 0
 
 

@@ -1,0 +1,232 @@
+"""The decisive experiment on the paper's UR-10 claim (derivative learning: 3-7x lower one-step MSE).
+
+Design, endpoints, intervals and verdict rules: docs/learning.md, "The decisive experiment" (fixed
+before the first run). Cells start from the paper-literal setting (`models/ur10_limit_free.yaml`, the
+paper's torque ranges, gravity uncompensated, one start pose, direct outputs) and switch one factor at
+a time; per cell `data_seeds` datasets x `inits` initializations of D, DD (alpha 1e-3, our units) and
+D-2x (twice the training trajectories); the gate: the cell's naive models beat the physics-free
+baselines by 2x. `run_study` runs it on the local pool or a Ray cluster (`stdm_drake.cluster`);
+`tools/decisive_experiment.py` is its command line.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import dataclasses
+import hashlib
+import math
+import pathlib
+import time
+
+import numpy as np
+
+HOME = [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]
+GLOBAL_LOWER, GLOBAL_UPPER = [-3.1, -2.6, -2.6, -3.1, -3.1, -3.1], [3.1, -0.5, 2.6, 3.1, 3.1, 3.1]
+SCALED = [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015]           # excitation.yaml's per-joint ranges (N m)
+SPEED_BOUND = 3000.0                                      # rad/s: faster trajectories are redrawn
+ALPHA = 1e-3
+HORIZON = 20
+TRAIN, VALIDATION, TEST = 40, 40, 120
+
+
+@dataclasses.dataclass(frozen=True)
+class Cell:
+    name: str
+    switch: str
+    sample_period: float = 0.01
+    delta: bool = False
+    start: str = "fixed"            # fixed | box | global
+    compensated: bool = False
+
+
+CELLS = (
+    Cell("literal-10ms", "the paper-literal setting"),
+    Cell("literal-50ms", "sample period 10 ms -> 50 ms", sample_period=0.05),
+    Cell("delta", "direct -> delta outputs", delta=True),
+    Cell("box-start", "fixed start -> home +- 0.5 rad", start="box"),
+    Cell("global-start", "fixed start -> excitation.yaml's global box", start="global"),
+    Cell("compensated", "no compensation -> g(q) + excitation.yaml's scaled ranges", compensated=True),
+)
+MODELS = {"D": (0.0, 1), "DD": (ALPHA, 1), "D-2x": (0.0, 2)}    # alpha, training trajectories in units of TRAIN
+ENDPOINTS = (("one_step_q", "one-step q"), ("one_step_v", "one-step v"), ("open_loop_q", f"q at step {HORIZON}"))
+
+
+def excitation_config(cell: Cell):
+    from stdm_drake.collection.collect import ExcitationConfig
+    lower, upper = {"fixed": (HOME, HOME), "box": ([h - 0.5 for h in HOME], [h + 0.5 for h in HOME]),
+                    "global": (GLOBAL_LOWER, GLOBAL_UPPER)}[cell.start]
+    ranges = SCALED if cell.compensated else None
+    return ExcitationConfig(amplitude_max=ranges or [0.3] * 6, offset_max=ranges or [1.0] * 6,
+                            gravity_compensation=cell.compensated, initial_position_lower=list(lower),
+                            initial_position_upper=list(upper), position_margin=0.0,
+                            velocity_fraction=SPEED_BOUND / 1e4, check_self_collision=False, max_attempts=200)
+
+
+def dataset_name(cell: Cell, data_seed: int, count: int) -> str:
+    return f"{cell.name}_seed{data_seed}_n{count}.h5"
+
+
+def collect_dataset(cell: Cell, data_seed: int, count: int) -> bytes:
+    """The cell's dataset of `count` trajectories for data_seed, as the bytes of its file (collected in a
+    scratch folder of the worker's node, so the driver gets it from any node of a cluster)."""
+    import shutil
+    import tempfile
+
+    from stdm_drake.collection.collect import collect, collection_request
+    from stdm_drake.data.dataset import write_dataset
+    from stdm_drake.paths import MODELS_DIR
+    from stdm_drake.robot import load_robot
+    robot = load_robot(MODELS_DIR / "ur10_limit_free.yaml")
+    request = collection_request("excitation", count=count, seed=1000 + data_seed, robot=robot,
+                                 sample_period=cell.sample_period, excitation=excitation_config(cell), workers=1)
+    request.settings.plant.self_collision = False
+    trajectories, groups, metadata = collect(request, progress=False)
+    scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-decisive-"))
+    try:
+        path = write_dataset(scratch / dataset_name(cell, data_seed, count), trajectories, groups, metadata)
+        return path.read_bytes()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def run_job(path: str, cell: Cell, data_seed: int, init: int, model: str, sizes: tuple,
+            content: bytes | None = None, sha256: str | None = None) -> dict:
+    """Train and evaluate one model. With `content` (the dataset's bytes, on a Ray cluster) the dataset
+    is read from this node's scratch copy instead of `path`."""
+    if content is not None:
+        from stdm_drake.cluster import node_local_dataset
+        path = str(node_local_dataset(content, sha256))
+    import torch
+
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
+    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.learning.settings import TrainingConfig
+    from stdm_drake.learning.structure import PAPER
+    from stdm_drake.learning.train import training_problem
+    from stdm_drake.learning.trainer import fit_model
+    torch.set_num_threads(1)
+    train, validation, tested = sizes
+    alpha, factor = MODELS[model]
+    n_train = factor * train
+    dataset = load_dataset(path)
+    test = list(range(2 * train + validation, 2 * train + validation + tested))
+    split = dict(train=list(range(n_train)), val=list(range(2 * train, 2 * train + validation)), test=test)
+    problem = training_problem(dataset, split, model_type="DD" if alpha else "D", delta=cell.delta, structure=PAPER)
+    started = time.perf_counter()
+    result, _ = fit_model(problem.model_config, TrainingConfig(alpha=alpha, seed=init), problem.train, problem.val)
+    seconds = time.perf_counter() - started
+    learned = LearnedModel(result.model, name=model, structure=PAPER, sample_period=dataset.sample_period)
+    baselines = physics_baselines(dataset.sample_period, 12, 6, plant=False)
+    mine, euler, stays = compare_with_baselines([learned] + baselines, dataset.transitions(test),
+                                                trajectory_rollout_data(dataset, test, HORIZON))
+    return dict(cell=cell.name, data_seed=data_seed, init=init, model=model, alpha=alpha, train_trajectories=n_train,
+                epochs=result.epochs_run, best_epoch=int(result.best_epochs[0]), train_seconds=round(seconds, 2),
+                one_step_q=mine.one_step.angle_mse, one_step_v=mine.one_step.velocity_mse,
+                open_loop_q=float(mine.multi_step.angle_mse[-1]), ratio_to_euler_q=mine.ratio_q,
+                ratio_to_unchanged_v=mine.ratio_v, ratio_to_stays_put_open_loop_q=float(
+                    stays.multi_step.angle_mse[-1] / mine.multi_step.angle_mse[-1]), verdict=mine.verdict)
+
+
+def two_level_ratio(rows_base: list[dict], rows_method: list[dict], key: str) -> dict:
+    """Ratio base/method: per (data seed, init) pair, log-averaged over inits per data seed, then a
+    Student-t 95 % interval over the data seeds' means."""
+    from scipy import stats
+    method = {(r["data_seed"], r["init"]): r[key] for r in rows_method}
+    per_seed = {}
+    for r in rows_base:
+        pair = (r["data_seed"], r["init"])
+        if pair in method:
+            per_seed.setdefault(r["data_seed"], []).append(math.log(r[key] / method[pair]))
+    means = np.array([np.mean(values) for values in per_seed.values()])
+    pairs = sum(len(values) for values in per_seed.values())
+    mean = float(means.mean())
+    if len(means) < 2:
+        return dict(ratio=math.exp(mean), low=0.0, high=math.inf, data_seeds=len(means), pairs=pairs)
+    half = float(stats.t.ppf(0.975, len(means) - 1) * means.std(ddof=1) / math.sqrt(len(means)))
+    return dict(ratio=math.exp(mean), low=math.exp(mean - half), high=math.exp(mean + half), data_seeds=len(means),
+                pairs=pairs)
+
+
+def cell_verdict(gated: bool, ratios: dict) -> str:
+    if not gated:
+        return "uninformative (naive has not learned)"
+    q, v = ratios["one-step q"], ratios["one-step v"]
+    if all(r["ratio"] >= 3 and r["low"] >= 2 for r in (q, v)):
+        return "the paper reproduces"
+    if all(0.8 <= r["low"] and r["high"] <= 1.25 for r in ratios.values()):
+        return "no help"
+    return "inconclusive"
+
+
+
+
+def summarize(cells, rows: list[dict]) -> list[dict]:
+    """Per cell: the naive models' gate, the two-level ratios D/DD and D-2x/DD per endpoint, the verdict."""
+    summary = []
+    for cell in cells:
+        mine = [r for r in rows if r["cell"] == cell.name]
+        by_model = {model: [r for r in mine if r["model"] == model] for model in MODELS}
+        naive = by_model["D"]
+        gate_q = float(np.exp(np.mean([np.log(r["ratio_to_euler_q"]) for r in naive])))
+        gate_v = float(np.exp(np.mean([np.log(r["ratio_to_unchanged_v"]) for r in naive])))
+        gated = gate_q >= 2 and gate_v >= 2
+        ratios = {label: two_level_ratio(naive, by_model["DD"], key) for key, label in ENDPOINTS}
+        control = {label: two_level_ratio(by_model["D-2x"], by_model["DD"], key) for key, label in ENDPOINTS}
+        summary.append(dict(cell=cell.name, switch=cell.switch, naive_vs_euler_q=gate_q, naive_vs_unchanged_v=gate_v,
+                            gated=gated, D_over_DD=ratios, D2x_over_DD=control, verdict=cell_verdict(gated, ratios)))
+    return summary
+
+
+def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, inits: int = 5,
+              sizes: tuple = (TRAIN, VALIDATION, TEST), progress=print) -> dict:
+    """Collect every cell's datasets into `data` (once), train and evaluate every model on `runner`
+    (`cluster.RunnerConfig`: local processes or Ray; on Ray each dataset travels once through the object
+    store); returns {"summary", "runs", "seconds"}."""
+    from stdm_drake.cluster import job_pool, shared, task_error
+    train, validation, test = sizes
+    count = 2 * train + validation + test
+    pathlib.Path(data).mkdir(parents=True, exist_ok=True)
+    started = time.perf_counter()
+    from stdm_drake.files import atomic_path
+    by_name = {cell.name: cell for cell in cells}
+    with job_pool(runner) as pool:
+        paths, futures = {}, {}
+        for cell in cells:
+            for seed in range(data_seeds):
+                path = pathlib.Path(data) / dataset_name(cell, seed, count)
+                if path.exists():      # collected before with these settings (the name holds all of them)
+                    paths[(cell.name, seed)] = str(path)
+                else:
+                    futures[(cell.name, seed)] = pool.submit(collect_dataset, cell, seed, count)
+        for key, future in futures.items():
+            try:
+                content = future.result()
+            except Exception as error:
+                raise task_error(error, f"collecting {key[0]} seed {key[1]}") from None
+            path = pathlib.Path(data) / dataset_name(by_name[key[0]], key[1], count)
+            with atomic_path(path) as temp:
+                temp.write_bytes(content)
+            paths[key] = str(path)
+        progress(f"{len(paths)} datasets in {time.perf_counter() - started:.0f} s")
+        transport = {}
+        for key, path in paths.items():   # Ray: the bytes once into the object store, a scratch file per node
+            if runner.backend == "ray":
+                content = pathlib.Path(path).read_bytes()
+                transport[key] = (shared(pool, content), hashlib.sha256(content).hexdigest())
+            else:
+                transport[key] = (None, None)
+        jobs = {pool.submit(run_job, paths[(cell.name, seed)], cell, seed, init, model, sizes,
+                            *transport[(cell.name, seed)]): (cell.name, seed, init, model)
+                for cell in cells for seed in range(data_seeds) for init in range(inits) for model in MODELS}
+        rows = []
+        for future in concurrent.futures.as_completed(jobs):
+            try:
+                rows.append(future.result())
+            except Exception as error:
+                raise task_error(error, "model {} of {} (data seed {}, init {})".format(
+                    jobs[future][3], jobs[future][0], jobs[future][1], jobs[future][2])) from None
+            if len(rows) % 15 == 0:
+                progress(f"{len(rows)}/{len(jobs)} models trained ({time.perf_counter() - started:.0f} s)")
+    names = [c.name for c in cells]
+    rows.sort(key=lambda r: (names.index(r["cell"]), r["data_seed"], r["init"], list(MODELS).index(r["model"])))
+    return dict(summary=summarize(cells, rows), runs=rows, seconds=round(time.perf_counter() - started, 1))
