@@ -18,6 +18,8 @@ not learned the dynamics (`learning_verdict`).
 """
 from __future__ import annotations
 
+import abc
+
 import numpy as np
 
 from stdm_drake.errors import InputError
@@ -53,8 +55,9 @@ class _Kinematic(DynamicsModel):
             raise InputError(f"sample period must be a positive number of seconds, got {sample_period}")
         self.state_dim, self.action_dim, self.sample_period = state_dim, action_dim, float(sample_period)
 
+    @abc.abstractmethod
     def _linear(self) -> np.ndarray:
-        raise NotImplementedError
+        """The model's step as a matrix: x_{t+1} = L x_t, (S, S)."""
 
     def step(self, x, a):
         return np.asarray(x, dtype=np.float64) @ self._linear().T
