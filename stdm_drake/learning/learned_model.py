@@ -161,7 +161,10 @@ class LearnedModel(DynamicsModel):
         AutoDiff Jacobian of φ by the chain rule."""
         x, a = np.asarray(x, dtype=np.float64), np.asarray(a, dtype=np.float64)
         n, S = self.num_joints, self.state_dim
-        state, rest = self._network_rows(x, a)
+        features = feature_jacobian = None
+        if self.features is not None:   # φ and its Jacobian from the same AutoDiff pass
+            features, feature_jacobian = self.features.values_and_jacobians(x[:, :n], x[:, n:], a)
+        state, rest = self.structure.split(x, a, features)
         rows = self.engine.input_rows(state.astype(np.float32), rest.astype(np.float32)[None])[0]
         network = self.engine.mean_jacobian(rows).astype(np.float64)     # (H, out, network inputs)
         width = S + self.action_dim
@@ -171,8 +174,8 @@ class LearnedModel(DynamicsModel):
         if self.structure.predicts == "velocity":
             order = np.vstack([order[n:S], order[:n], order[S:]])        # [v, q, τ]
         inputs = np.broadcast_to(order, (count, width, width))
-        if self.features is not None:
-            inputs = np.concatenate([inputs, self.features.jacobians(x[:, :n], x[:, n:], a)], axis=1)
+        if feature_jacobian is not None:
+            inputs = np.concatenate([inputs, feature_jacobian], axis=1)
         jacobian = network @ inputs                                      # (H, out, 2n + m)
         if self.structure.predicts == "velocity":
             angle = 0.5 * self.sample_period * jacobian

@@ -252,7 +252,11 @@ class NominalAcceleration:
         tangent = np.hstack([np.atleast_2d(q_rate), np.atleast_2d(v_rate), np.atleast_2d(tau_rate)])
         return self._autodiff(q, v, tau, tangent[:, :, None])[1][:, :, 0]
 
+    def values_and_jacobians(self, q, v, tau) -> tuple[np.ndarray, np.ndarray]:
+        """(q̈ (N, n), d q̈ / d(q, v, τ) (N, n, 2n + m)) from one AutoDiff pass per row."""
+        count, width = len(np.atleast_2d(q)), 2 * self.num_joints + self.action_dim
+        return self._autodiff(q, v, tau, np.broadcast_to(np.eye(width), (count, width, width)))
+
     def jacobians(self, q, v, tau) -> np.ndarray:
         """d q̈ / d(q, v, τ) (N, n, 2n + m)."""
-        count, width = len(np.atleast_2d(q)), 2 * self.num_joints + self.action_dim
-        return self._autodiff(q, v, tau, np.broadcast_to(np.eye(width), (count, width, width)))[1]
+        return self.values_and_jacobians(q, v, tau)[1]
