@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from stdm_drake.experiments import decisive
 from tools_import import decisive_experiment as experiment
 
 
@@ -15,24 +16,24 @@ def rows(values, model):
 def test_two_level_interval_is_over_data_seeds():
     """Ratios 4x in every pair: 4x with a zero-width interval; data seeds that disagree widen it even when
     the initializations within each agree perfectly (inits are not independent evidence)."""
-    same = experiment.two_level_ratio(rows([[4.0] * 5] * 3, "D"), rows([[1.0] * 5] * 3, "DD"), "one_step_q")
+    same = decisive.two_level_ratio(rows([[4.0] * 5] * 3, "D"), rows([[1.0] * 5] * 3, "DD"), "one_step_q")
     assert same["ratio"] == pytest.approx(4.0) and same["low"] == pytest.approx(4.0) and same["pairs"] == 15
-    spread = experiment.two_level_ratio(rows([[8.0] * 5, [4.0] * 5, [2.0] * 5], "D"), rows([[1.0] * 5] * 3, "DD"),
+    spread = decisive.two_level_ratio(rows([[8.0] * 5, [4.0] * 5, [2.0] * 5], "D"), rows([[1.0] * 5] * 3, "DD"),
                                         "one_step_q")
     assert spread["ratio"] == pytest.approx(4.0) and spread["low"] < 1.0 < 4.0 < spread["high"]
-    single = experiment.two_level_ratio(rows([[3.0] * 5], "D"), rows([[1.0] * 5], "DD"), "one_step_q")
+    single = decisive.two_level_ratio(rows([[3.0] * 5], "D"), rows([[1.0] * 5], "DD"), "one_step_q")
     assert single["low"] == 0.0 and math.isinf(single["high"])
 
 
 def test_cell_verdicts_follow_the_design():
     ratio = lambda r, low, high: dict(ratio=r, low=low, high=high)   # noqa: E731
     reproduces = {"one-step q": ratio(4, 2.5, 6), "one-step v": ratio(3.5, 2.1, 5), "q at step 20": ratio(1, 0.5, 2)}
-    assert experiment.cell_verdict(True, reproduces) == "the paper reproduces"
-    assert experiment.cell_verdict(False, reproduces) == "uninformative (naive has not learned)"
+    assert decisive.cell_verdict(True, reproduces) == "the paper reproduces"
+    assert decisive.cell_verdict(False, reproduces) == "uninformative (naive has not learned)"
     no_help = {key: ratio(1.0, 0.9, 1.1) for key in reproduces}
-    assert experiment.cell_verdict(True, no_help) == "no help"
+    assert decisive.cell_verdict(True, no_help) == "no help"
     wide = dict(no_help, **{"one-step v": ratio(1.0, 0.7, 1.4)})
-    assert experiment.cell_verdict(True, wide) == "inconclusive"
+    assert decisive.cell_verdict(True, wide) == "inconclusive"
 
 
 def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
@@ -42,7 +43,7 @@ def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
     limits = robot_joint_limits(free)
     assert np.all(np.isinf(limits.position_lower)) and np.all(np.isinf(limits.position_upper))
     np.testing.assert_array_equal(limits.effort, robot_joint_limits(UR10).effort)
-    q = np.array(experiment.HOME)
+    q = np.array(decisive.HOME)
     np.testing.assert_allclose(Dynamics(free).mass_matrix(q), Dynamics(UR10).mass_matrix(q), rtol=1e-12)
 
 

@@ -17,8 +17,8 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args  # noqa: E402
-from stdm_drake.experiments.decisive import (ALPHA, CELLS, ENDPOINTS, HOME, HORIZON, TEST, TRAIN,  # noqa: E402,F401
-                                             VALIDATION, cell_verdict, run_study, two_level_ratio)
+from stdm_drake.experiments.decisive import (ALPHA, CELLS, ENDPOINTS, HORIZON, TEST, TRAIN,  # noqa: E402
+                                             VALIDATION, run_study)
 from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
 
 
