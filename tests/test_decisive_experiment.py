@@ -52,9 +52,19 @@ def test_quick_profile_runs_end_to_end(tmp_path):
     assert experiment.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
     import json
     results = json.loads((tmp_path / "out" / "results.json").read_text())
-    assert [cell["cell"] for cell in results["summary"]] == ["literal-10ms", "literal-50ms"]
-    assert len(results["runs"]) == 2 * 2 * 2 * 3
-    assert all(cell["verdict"] for cell in results["summary"])
+    assert [cell["cell"] for cell in results["summary"]] == ["literal-10ms", "learned-structure"]
+    assert len(results["runs"]) == 2 * 2 * 2 * 4 and results["reused_rows"] == 0
+    assert all(cell["verdict"] and "D-half_over_DD" in cell for cell in results["summary"])
+    half = [run for run in results["runs"] if run["model"] == "D-half"]
+    assert {run["train_sample_period"] for run in half} == {0.005}
+    # the learned-structure cell trains on the literal cell's data: one full and one half-period file per seed
+    assert sorted(path.name for path in (tmp_path / "data").iterdir()) == sorted(
+        f"literal-10ms{half}_seed{seed}_n60.h5" for half in ("", "_half") for seed in (0, 1))
+    # --resume keeps every row of the same design and trains nothing
+    assert experiment.main(["--quick", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    again = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert again["reused_rows"] == len(results["runs"]) and again["runs"] == results["runs"]
+    assert experiment.main(["--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 2
 
 
 @pytest.mark.slow

@@ -193,3 +193,53 @@ def test_the_rk4_plant_model_steps_close_to_the_plant_and_has_its_jacobians(exci
     assert np.abs(rk4.step(x, u) - exact)[:, 6:].mean() < 0.05 * change
     for mine, theirs in zip(rk4.jacobians(x[:3], u[:3]), plant.jacobians(x[:3], u[:3])):
         np.testing.assert_allclose(mine, theirs, rtol=1e-6, atol=1e-9)
+
+
+class _Pendulums(DynamicsModel):
+    """Test model: n independent pendulums, one explicit Euler step (exact Jacobians, nonlinear in q)."""
+    name, state_dim, action_dim, sample_period = "pendulums", 4, 2, 0.01
+
+    def step(self, x, a):
+        q, v = x[:, :2], x[:, 2:]
+        return np.hstack([q + self.sample_period * v, v + self.sample_period * (a - 9.81 * np.sin(q))])
+
+    def jacobians(self, x, a):
+        h, q = self.sample_period, x[:, :2]
+        A = np.broadcast_to(np.eye(4), (len(x), 4, 4)).copy()
+        A[:, :2, 2:] += h * np.eye(2)
+        A[:, 2:, :2] -= h * 9.81 * np.cos(q)[:, :, None] * np.eye(2)
+        B = np.zeros((len(x), 4, 2))
+        B[:, 2:, :] = h * np.eye(2)
+        return A, B
+
+
+def test_held_input_substeps_chain_the_inner_steps_and_their_jacobians():
+    from stdm_drake.learning.dynamics_model import HeldInputSubsteps
+    inner = _Pendulums()
+    model = HeldInputSubsteps(inner, 3)
+    assert model.sample_period == pytest.approx(0.03) and model.state_dim == 4 and model.action_dim == 2
+    rng = np.random.default_rng(0)
+    x, a = rng.normal(size=(5, 4)), rng.normal(size=(5, 2))
+    np.testing.assert_array_equal(model.step(x, a), inner.step(inner.step(inner.step(x, a), a), a))
+    A, B = model.jacobians(x, a)
+    z, eps = np.hstack([x, a]), 1e-6
+    numeric = np.empty((5, 4, 6))
+    for j in range(6):
+        up, down = z.copy(), z.copy()
+        up[:, j] += eps
+        down[:, j] -= eps
+        numeric[:, :, j] = (model.step(up[:, :4], up[:, 4:]) - model.step(down[:, :4], down[:, 4:])) / (2 * eps)
+    np.testing.assert_allclose(np.concatenate([A, B], axis=2), numeric, atol=1e-8)
+    with pytest.raises(Exception, match="substeps must be an integer >= 1"):
+        HeldInputSubsteps(inner, 0)
+
+
+def test_two_half_period_plant_steps_are_one_full_period_step(excitation):
+    """The recorder holds the torque for the whole period, so the plant at Δt/2 run twice with the same
+    torque is the plant at Δt: what lets a model trained at half the period be tested on Δt data."""
+    from stdm_drake.learning.dynamics_model import HeldInputSubsteps
+    transitions = excitation.transitions([5])
+    x, u = transitions.state[::7], transitions.action[::7]
+    halves = HeldInputSubsteps(PlantModel(excitation.sample_period / 2), 2)
+    np.testing.assert_allclose(halves.step(x, u), PlantModel(excitation.sample_period).step(x, u), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(halves.step(x, u), transitions.next_state[::7], atol=1e-9)

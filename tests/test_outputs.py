@@ -124,11 +124,36 @@ def test_no_command_and_file_system_errors_are_one_line_exit_2(capsys, tmp_path,
     fails(capsys, ["inspect", str(tmp_path / "missing.h5")], "missing.h5")
 
 
-def test_a_model_whose_mpc_always_falls_back_fails_the_command(capsys):
-    """MPC that fell back on most steps is not a result: `mpc` says so in one line per model and exits 2."""
-    from stdm_drake.closed_loop.comparison import ClosedLoopResult, report_fallbacks
+def test_closed_loops_that_fall_back_or_leave_the_limits_are_failures():
+    """MPC that fell back on most steps, or whose arm left its limits on any step, is not a result: one line
+    per model (`mpc` prints them and exits 2)."""
+    from stdm_drake.closed_loop.comparison import ClosedLoopResult, closed_loop_failures
     row = dict(trajectory=0, q_mse_rad2=1.0, v_mse=1.0, torque_rms_nm=1.0, effort_beyond_gravity_rms_nm=1.0,
-               limit_violations=0, solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[])
-    results = [ClosedLoopResult(model="plant", fallbacks=0, **row), ClosedLoopResult(model="NaN", fallbacks=100, **row)]
-    assert report_fallbacks(results) == ["NaN"]
-    assert "model NaN fell back to gravity compensation on 100 of 100 steps" in capsys.readouterr().err
+               solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[])
+    results = [ClosedLoopResult(model="plant", fallbacks=0, limit_violations=0, **row),
+               ClosedLoopResult(model="NaN", fallbacks=100, limit_violations=0, **row),
+               ClosedLoopResult(model="wild", fallbacks=10, limit_violations=0, **row),
+               ClosedLoopResult(model="wild", fallbacks=10, limit_violations=3, **row)]
+    assert closed_loop_failures(results) == [
+        "model NaN fell back to gravity compensation on 100 of 100 steps (its predictions were not finite); "
+        "its row is not a result", "model wild left the robot's joint limits on 3 of 200 steps (1 of 2 plans)"]
+
+
+def test_mpc_exits_2_when_a_closed_loop_leaves_the_limits(tracking_dataset, tmp_path, monkeypatch, capsys):
+    """The command writes its tables and figure, then names the model whose arm left its limits and
+    exits 2 (here the plant MPC's results, with violations injected after the real run)."""
+    import dataclasses
+
+    from stdm_drake.cli import main
+    from stdm_drake.closed_loop import comparison
+    real = comparison.compare_controllers
+
+    def violating(*args, **kwargs):
+        return [dataclasses.replace(result, limit_violations=4) for result in real(*args, **kwargs)]
+
+    monkeypatch.setattr(comparison, "compare_controllers", violating)
+    code = main(["mpc", str(tracking_dataset), "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc")])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "stdm-drake mpc: error: model plant left the robot's joint limits on 4 of" in err
+    assert (tmp_path / "mpc" / "mpc.md").exists()

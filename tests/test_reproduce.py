@@ -191,3 +191,15 @@ def test_datasets_are_reused_only_when_collected_with_the_same_settings(tmp_path
                            controller="controllers/pid.yaml")
     assert other.path == first.path and other.path.stat().st_mtime_ns != stamp
     assert other.metadata["controller"]["kind"] == "pid"
+
+
+def test_reproduce_exits_2_when_an_mpc_run_left_the_limits(tmp_path, monkeypatch, capsys):
+    """The report is written and each failed closed loop named in one line; the exit status says the
+    run is not a clean result."""
+    from stdm_drake.experiments import reproduce as command
+    report = tmp_path / "out" / "report.html"
+    monkeypatch.setattr(command, "reproduce", lambda *args, **kwargs: (
+        report, ["model DD seed 1 left the robot's joint limits on 7 of 2000 steps (1 of 20 plans)"]))
+    assert main(["reproduce", "--quick", "-o", str(tmp_path / "out"), "--quiet"]) == 2
+    assert "stdm-drake reproduce: error: MPC stage: model DD seed 1 left the robot's joint limits on 7 of 2000" in \
+        capsys.readouterr().err

@@ -147,7 +147,11 @@ def main(argv=None) -> int:
         print(f"{t}: {summary['over_plant'][t]['geometric_mean']:.3g}x the plant MPC's q MSE, "
               f"{summary['limit_violations'][t]} limit violations, gate {summary['gate'][t]}")
     print(f"{elapsed:.0f} s -> {args.output}")
-    return 0
+    violated = {run["model"] for run in runs if run["limit_violations"]}
+    for name in sorted(violated):
+        steps = sum(run["limit_violations"] for run in runs if run["model"] == name)
+        print(f"error: the closed loop of {name} left the robot's joint limits on {steps} steps", file=sys.stderr)
+    return 2 if violated else 0
 
 
 if __name__ == "__main__":

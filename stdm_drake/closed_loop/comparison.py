@@ -1,6 +1,7 @@
 """Closed-loop comparison of prediction models under the same MPC on held-out plans (metrics, summary,
 plots) and the `stdm-drake mpc` command."""
 import dataclasses
+import sys
 
 import numpy as np
 
@@ -253,19 +254,26 @@ def run(args) -> int:
     print(f"wrote {out}/mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
         recorder.finish(args.html, what="robot: plant under MPC; translucent orange: the reference")
-    return 2 if report_fallbacks(results) else 0
+    failures = closed_loop_failures(results)
+    for failure in failures:
+        print(f"stdm-drake mpc: error: {failure}", file=sys.stderr)
+    return 2 if failures else 0
 
 
-def report_fallbacks(results: list[ClosedLoopResult], fraction: float = 0.5) -> list[str]:
-    """Models whose MPC fell back to gravity compensation (non-finite predictions) on more than `fraction`
-    of their steps: each gets one line on stderr (their rows are not a result); returns their names."""
-    import sys
-    failed = []
+def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5) -> list[str]:
+    """One line per model whose closed loop is not a result: it left the robot's limits (a state outside
+    the position or velocity limits, or not finite, on any step of any plan) or fell back to gravity
+    compensation (non-finite predictions) on more than `fraction` of its steps."""
+    failures = []
     for name in dict.fromkeys(result.model for result in results):
         runs = [result for result in results if result.model == name]
-        fallbacks, steps = sum(run.fallbacks for run in runs), sum(run.steps for run in runs)
+        violations, fallbacks = sum(run.limit_violations for run in runs), sum(run.fallbacks for run in runs)
+        steps = sum(run.steps for run in runs)
+        plans = sum(1 for run in runs if run.limit_violations)
+        if violations:
+            failures.append(f"model {name} left the robot's joint limits on {violations} of {steps} steps "
+                            f"({plans} of {len(runs)} plans)")
         if fallbacks > fraction * steps:
-            failed.append(name)
-            print(f"stdm-drake mpc: error: model {name} fell back to gravity compensation on {fallbacks} of {steps} "
-                  "steps (its predictions were not finite); its row is not a result", file=sys.stderr)
-    return failed
+            failures.append(f"model {name} fell back to gravity compensation on {fallbacks} of {steps} steps "
+                            "(its predictions were not finite); its row is not a result")
+    return failures

@@ -4,8 +4,11 @@ Design, endpoints, intervals and verdict rules: docs/learning.md, "The decisive 
 before the first run). Cells start from the paper-literal setting (`models/ur10_limit_free.yaml`, the
 paper's torque ranges, gravity uncompensated, one start pose, direct outputs) and switch one factor at
 a time; per cell `data_seeds` datasets x `inits` initializations of D, DD (alpha 1e-3, our units) and
-D-2x (twice the training trajectories); the gate: the cell's naive models beat the physics-free
-baselines by 2x. `run_study` runs it on the local pool or a Ray cluster (`stdm_drake.cluster`);
+the two label-matched controls D-2x (twice the training trajectories) and D-half (naive on the same
+trajectories sampled at half the period, run twice per period with the torque held); the gate: the
+cell's naive models beat the physics-free baselines by 2x. One cell swaps the paper's model class for
+the default structure on the paper-literal data, so the claim is also tested on models that learn.
+`run_study` runs it on the local pool or a Ray cluster (`stdm_drake.cluster`);
 `tools/decisive_experiment.py` is its command line.
 """
 from __future__ import annotations
@@ -36,6 +39,13 @@ class Cell:
     delta: bool = False
     start: str = "fixed"            # fixed | box | global
     compensated: bool = False
+    structure: str = "paper"        # paper | default (stdm_drake.learning.structure)
+    data: str = ""                  # another cell whose datasets this one uses ("": its own)
+
+    @property
+    def model_structure(self):
+        from stdm_drake.learning.structure import DEFAULT, PAPER
+        return {"paper": PAPER, "default": DEFAULT}[self.structure]
 
 
 CELLS = (
@@ -45,8 +55,12 @@ CELLS = (
     Cell("box-start", "fixed start -> home +- 0.5 rad", start="box"),
     Cell("global-start", "fixed start -> excitation.yaml's global box", start="global"),
     Cell("compensated", "no compensation -> g(q) + excitation.yaml's scaled ranges", compensated=True),
+    Cell("learned-structure", "the paper's black box -> the default structure (delta v, trapezoid q, "
+         "nominal-acceleration inputs)", delta=True, structure="default", data="literal-10ms"),
 )
-MODELS = {"D": (0.0, 1), "DD": (ALPHA, 1), "D-2x": (0.0, 2)}    # alpha, training trajectories in units of TRAIN
+# alpha, training trajectories in units of TRAIN, trained at half the sample period
+MODELS = {"D": (0.0, 1, False), "DD": (ALPHA, 1, False), "D-2x": (0.0, 2, False), "D-half": (0.0, 1, True)}
+CONTROLS = ("D-2x", "D-half")
 ENDPOINTS = (("one_step_q", "one-step q"), ("one_step_v", "one-step v"), ("open_loop_q", f"q at step {HORIZON}"))
 
 
@@ -61,13 +75,14 @@ def excitation_config(cell: Cell):
                             velocity_fraction=SPEED_BOUND / 1e4, check_self_collision=False, max_attempts=200)
 
 
-def dataset_name(cell: Cell, data_seed: int, count: int) -> str:
-    return f"{cell.name}_seed{data_seed}_n{count}.h5"
+def dataset_name(cell: Cell, data_seed: int, count: int, half: bool = False) -> str:
+    return f"{cell.data or cell.name}{'_half' if half else ''}_seed{data_seed}_n{count}.h5"
 
 
-def collect_dataset(cell: Cell, data_seed: int, count: int) -> bytes:
+def collect_dataset(cell: Cell, data_seed: int, count: int, half: bool = False) -> bytes:
     """The cell's dataset of `count` trajectories for data_seed, as the bytes of its file (collected in a
-    scratch folder of the worker's node, so the driver gets it from any node of a cluster)."""
+    scratch folder of the worker's node, so the driver gets it from any node of a cluster). With `half`
+    the same protocol sampled at half the period for twice the steps (the same duration)."""
     import shutil
     import tempfile
 
@@ -76,51 +91,74 @@ def collect_dataset(cell: Cell, data_seed: int, count: int) -> bytes:
     from stdm_drake.paths import MODELS_DIR
     from stdm_drake.robot import load_robot
     robot = load_robot(MODELS_DIR / "ur10_limit_free.yaml")
+    excitation = excitation_config(cell)
+    if half:
+        excitation = dataclasses.replace(excitation, num_steps=2 * excitation.num_steps)
     request = collection_request("excitation", count=count, seed=1000 + data_seed, robot=robot,
-                                 sample_period=cell.sample_period, excitation=excitation_config(cell), workers=1)
+                                 sample_period=cell.sample_period / (2 if half else 1), excitation=excitation,
+                                 workers=1)
     request.settings.plant.self_collision = False
     trajectories, groups, metadata = collect(request, progress=False)
     scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-decisive-"))
     try:
-        path = write_dataset(scratch / dataset_name(cell, data_seed, count), trajectories, groups, metadata)
+        path = write_dataset(scratch / dataset_name(cell, data_seed, count, half), trajectories, groups, metadata)
         return path.read_bytes()
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-def run_job(path: str, cell: Cell, data_seed: int, init: int, model: str, sizes: tuple,
-            content: bytes | None = None, sha256: str | None = None) -> dict:
-    """Train and evaluate one model. With `content` (the dataset's bytes, on a Ray cluster) the dataset
-    is read from this node's scratch copy instead of `path`."""
-    if content is not None:
-        from stdm_drake.cluster import node_local_dataset
-        path = str(node_local_dataset(content, sha256))
+def local_path(path: str | None, content: bytes | None, sha256: str | None) -> str | None:
+    """A dataset's path on this node: on a Ray cluster (content given) this node's scratch copy of the
+    bytes, else `path` itself."""
+    if content is None:
+        return path
+    from stdm_drake.cluster import node_local_dataset
+    return str(node_local_dataset(content, sha256))
+
+
+def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, path: str,
+            content: bytes | None = None, sha256: str | None = None, half_path: str | None = None,
+            half_content: bytes | None = None, half_sha256: str | None = None) -> dict:
+    """Train and evaluate one model on the cell's dataset `path` (on a Ray cluster its bytes `content`
+    and their `sha256`; top-level arguments, so Ray hands the task the bytes, not a reference). D-half
+    trains on the half-period dataset (`half_*`, the same way) and is tested, like every model, on
+    `path`'s test trajectories."""
     import torch
 
     from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.learning.dynamics_model import HeldInputSubsteps
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.settings import TrainingConfig
-    from stdm_drake.learning.structure import PAPER
     from stdm_drake.learning.train import training_problem
     from stdm_drake.learning.trainer import fit_model
+    from stdm_drake.paths import MODELS_DIR
+    from stdm_drake.robot import load_robot
     torch.set_num_threads(1)
     train, validation, tested = sizes
-    alpha, factor = MODELS[model]
+    alpha, factor, half = MODELS[model]
     n_train = factor * train
-    dataset = load_dataset(path)
+    dataset = load_dataset(local_path(path, content, sha256))
+    training_data = load_dataset(local_path(half_path, half_content, half_sha256)) if half else dataset
     test = list(range(2 * train + validation, 2 * train + validation + tested))
     split = dict(train=list(range(n_train)), val=list(range(2 * train, 2 * train + validation)), test=test)
-    problem = training_problem(dataset, split, model_type="DD" if alpha else "D", delta=cell.delta, structure=PAPER)
+    robot = load_robot(MODELS_DIR / "ur10_limit_free.yaml")
+    structure = cell.model_structure
+    problem = training_problem(training_data, split, model_type="DD" if alpha else "D", delta=cell.delta,
+                               structure=structure, robot=robot)
     started = time.perf_counter()
     result, _ = fit_model(problem.model_config, TrainingConfig(alpha=alpha, seed=init), problem.train, problem.val)
     seconds = time.perf_counter() - started
-    learned = LearnedModel(result.model, name=model, structure=PAPER, sample_period=dataset.sample_period)
+    learned = LearnedModel(result.model, name=model, robot=robot, structure=structure,
+                           sample_period=training_data.sample_period)
+    if half:
+        learned = HeldInputSubsteps(learned, 2, name=model)
     baselines = physics_baselines(dataset.sample_period, 12, 6, plant=False)
     mine, euler, stays = compare_with_baselines([learned] + baselines, dataset.transitions(test),
                                                 trajectory_rollout_data(dataset, test, HORIZON))
     return dict(cell=cell.name, data_seed=data_seed, init=init, model=model, alpha=alpha, train_trajectories=n_train,
-                epochs=result.epochs_run, best_epoch=int(result.best_epochs[0]), train_seconds=round(seconds, 2),
+                train_sample_period=training_data.sample_period, epochs=result.epochs_run,
+                best_epoch=int(result.best_epochs[0]), train_seconds=round(seconds, 2),
                 one_step_q=mine.one_step.angle_mse, one_step_v=mine.one_step.velocity_mse,
                 open_loop_q=float(mine.multi_step.angle_mse[-1]), ratio_to_euler_q=mine.ratio_q,
                 ratio_to_unchanged_v=mine.ratio_v, ratio_to_stays_put_open_loop_q=float(
@@ -161,7 +199,8 @@ def cell_verdict(gated: bool, ratios: dict) -> str:
 
 
 def summarize(cells, rows: list[dict]) -> list[dict]:
-    """Per cell: the naive models' gate, the two-level ratios D/DD and D-2x/DD per endpoint, the verdict."""
+    """Per cell: the naive models' gate, the two-level ratios D/DD and control/DD per endpoint (for each
+    label-matched control in the rows), the verdict."""
     summary = []
     for cell in cells:
         mine = [r for r in rows if r["cell"] == cell.name]
@@ -171,62 +210,76 @@ def summarize(cells, rows: list[dict]) -> list[dict]:
         gate_v = float(np.exp(np.mean([np.log(r["ratio_to_unchanged_v"]) for r in naive])))
         gated = gate_q >= 2 and gate_v >= 2
         ratios = {label: two_level_ratio(naive, by_model["DD"], key) for key, label in ENDPOINTS}
-        control = {label: two_level_ratio(by_model["D-2x"], by_model["DD"], key) for key, label in ENDPOINTS}
-        summary.append(dict(cell=cell.name, switch=cell.switch, naive_vs_euler_q=gate_q, naive_vs_unchanged_v=gate_v,
-                            gated=gated, D_over_DD=ratios, D2x_over_DD=control, verdict=cell_verdict(gated, ratios)))
+        controls = {control: {label: two_level_ratio(by_model[control], by_model["DD"], key)
+                              for key, label in ENDPOINTS} for control in CONTROLS if by_model[control]}
+        summary.append(dict(cell=cell.name, switch=cell.switch, structure=cell.structure, naive_vs_euler_q=gate_q,
+                            naive_vs_unchanged_v=gate_v, gated=gated, D_over_DD=ratios,
+                            **{f"{control}_over_DD": ratio for control, ratio in controls.items()},
+                            verdict=cell_verdict(gated, ratios)))
     return summary
 
 
 def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, inits: int = 5,
-              sizes: tuple = (TRAIN, VALIDATION, TEST), progress=print) -> dict:
-    """Collect every cell's datasets into `data` (once), train and evaluate every model on `runner`
-    (`cluster.RunnerConfig`: local processes or Ray; on Ray each dataset travels once through the object
-    store); returns {"summary", "runs", "seconds"}."""
+              sizes: tuple = (TRAIN, VALIDATION, TEST), models=tuple(MODELS), done: list[dict] = (),
+              progress=print) -> dict:
+    """Collect every cell's datasets into `data` (once; cells that share data share the files), train and
+    evaluate every model on `runner` (`cluster.RunnerConfig`: local processes or Ray; on Ray each dataset
+    travels once through the object store); rows in `done` (from an earlier run of the same design) are
+    kept and their models not trained again. Returns {"summary", "runs", "seconds", "reused"}."""
     from stdm_drake.cluster import job_pool, shared, task_error
+    from stdm_drake.files import atomic_path
     train, validation, test = sizes
     count = 2 * train + validation + test
     pathlib.Path(data).mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    from stdm_drake.files import atomic_path
-    by_name = {cell.name: cell for cell in cells}
+    key = lambda row: (row["cell"], row["data_seed"], row["init"], row["model"])  # noqa: E731
+    wanted = [(cell, seed, init, model) for cell in cells for seed in range(data_seeds) for init in range(inits)
+              for model in models]
+    kept = {key(row): row for row in done}
+    todo = [job for job in wanted if (job[0].name, *job[1:]) not in kept]
+    needed = {}                      # dataset file name -> (cell, seed, half)
+    for cell, seed, _, model in todo:
+        needed.setdefault(dataset_name(cell, seed, count), (cell, seed, False))
+        if MODELS[model][2]:
+            needed.setdefault(dataset_name(cell, seed, count, half=True), (cell, seed, True))
     with job_pool(runner) as pool:
         paths, futures = {}, {}
-        for cell in cells:
-            for seed in range(data_seeds):
-                path = pathlib.Path(data) / dataset_name(cell, seed, count)
-                if path.exists():      # collected before with these settings (the name holds all of them)
-                    paths[(cell.name, seed)] = str(path)
-                else:
-                    futures[(cell.name, seed)] = pool.submit(collect_dataset, cell, seed, count)
-        for key, future in futures.items():
+        for name, (cell, seed, half) in needed.items():
+            path = pathlib.Path(data) / name
+            if path.exists():      # collected before with these settings (the name holds all of them)
+                paths[name] = str(path)
+            else:
+                futures[name] = pool.submit(collect_dataset, cell, seed, count, half)
+        for name, future in futures.items():
             try:
                 content = future.result()
             except Exception as error:
-                raise task_error(error, f"collecting {key[0]} seed {key[1]}") from None
-            path = pathlib.Path(data) / dataset_name(by_name[key[0]], key[1], count)
+                raise task_error(error, f"collecting {name}") from None
+            path = pathlib.Path(data) / name
             with atomic_path(path) as temp:
                 temp.write_bytes(content)
-            paths[key] = str(path)
+            paths[name] = str(path)
         progress(f"{len(paths)} datasets in {time.perf_counter() - started:.0f} s")
-        transport = {}
-        for key, path in paths.items():   # Ray: the bytes once into the object store, a scratch file per node
+        sources = {}
+        for name, path in paths.items():   # Ray: the bytes once into the object store, a scratch file per node
             if runner.backend == "ray":
                 content = pathlib.Path(path).read_bytes()
-                transport[key] = (shared(pool, content), hashlib.sha256(content).hexdigest())
+                sources[name] = (path, shared(pool, content), hashlib.sha256(content).hexdigest())
             else:
-                transport[key] = (None, None)
-        jobs = {pool.submit(run_job, paths[(cell.name, seed)], cell, seed, init, model, sizes,
-                            *transport[(cell.name, seed)]): (cell.name, seed, init, model)
-                for cell in cells for seed in range(data_seeds) for init in range(inits) for model in MODELS}
-        rows = []
-        for future in concurrent.futures.as_completed(jobs):
+                sources[name] = (path, None, None)
+        jobs = {pool.submit(run_job, cell, seed, init, model, sizes, *sources[dataset_name(cell, seed, count)],
+                            *(sources[dataset_name(cell, seed, count, half=True)] if MODELS[model][2] else ())):
+                (cell.name, seed, init, model) for cell, seed, init, model in todo}
+        rows = [kept[(cell.name, *rest)] for cell, *rest in wanted if (cell.name, *rest) in kept]
+        for finished, future in enumerate(concurrent.futures.as_completed(jobs), start=1):
             try:
                 rows.append(future.result())
             except Exception as error:
                 raise task_error(error, "model {} of {} (data seed {}, init {})".format(
                     jobs[future][3], jobs[future][0], jobs[future][1], jobs[future][2])) from None
-            if len(rows) % 15 == 0:
-                progress(f"{len(rows)}/{len(jobs)} models trained ({time.perf_counter() - started:.0f} s)")
-    names = [c.name for c in cells]
-    rows.sort(key=lambda r: (names.index(r["cell"]), r["data_seed"], r["init"], list(MODELS).index(r["model"])))
-    return dict(summary=summarize(cells, rows), runs=rows, seconds=round(time.perf_counter() - started, 1))
+            if finished % 15 == 0:
+                progress(f"{finished}/{len(jobs)} models trained ({time.perf_counter() - started:.0f} s)")
+    names, order = [c.name for c in cells], list(MODELS)
+    rows.sort(key=lambda r: (names.index(r["cell"]), r["data_seed"], r["init"], order.index(r["model"])))
+    return dict(summary=summarize(cells, rows), runs=rows, seconds=round(time.perf_counter() - started, 1),
+                reused=len(rows) - len(jobs))

@@ -19,6 +19,7 @@ import json
 import math
 import multiprocessing
 import pathlib
+import sys
 import time
 
 from stdm_drake.errors import InputError
@@ -48,8 +49,9 @@ def dataset_settings(robot: Robot) -> dict:
 
 def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True,
               robot: Robot | None = None, runner=None):
-    """Run every stage for `robot` (default: the UR-10 preset); returns the report path. runner: a
-    RunnerConfig for the training jobs (default: the local pool of `workers` processes)."""
+    """Run every stage for `robot` (default: the UR-10 preset); returns the report path and the MPC
+    stage's failures (`comparison.closed_loop_failures`: closed loops that left the robot's limits or fell
+    back). runner: a RunnerConfig for the training jobs (default: the local pool of `workers` processes)."""
     from stdm_drake.experiments import sine_sum
     robot = robot or UR10
     robot.check_can_track()  # the tracked-plan experiments and MPC need it (before any work)
@@ -88,8 +90,9 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     tick = time.perf_counter()
     mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot)
     timings["mpc"] = time.perf_counter() - tick
-    return write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
+    path = write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
                         timings)
+    return path, mpc_rows["failures"]
 
 
 def reused_sine_sum(path: pathlib.Path, study_config):
@@ -108,10 +111,10 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
             robot: Robot | None = None) -> dict:
     """MPC with the plant and every seed of the control experiment's D, DD, PE, PED models on held-out
     plans of the identification dataset, the models split over `workers` processes; returns
-    {"runs": per model instance, "types": mpc_statistics}."""
+    {"runs": per model instance, "types": mpc_statistics, "failures": one line per failed closed loop}."""
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.closed_loop.mpc import Reference
-    from stdm_drake.closed_loop.comparison import held_out_references, plot_results, summarize
+    from stdm_drake.closed_loop.comparison import closed_loop_failures, held_out_references, plot_results, summarize
     specs = [("plant", None)]
     for model_type in CONTROL_MODEL_TYPES:
         for match in sorted(select_rows(results, experiment="control", model_type=model_type), key=lambda r: r["seed"]):
@@ -131,7 +134,8 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     else:
         runs = _mpc_group(jobs[0])
     plot_results(runs, identification.sample_period, folder / "mpc.png")
-    return dict(runs=summarize(runs, identification.sample_period), types=mpc_statistics(runs))
+    return dict(runs=summarize(runs, identification.sample_period), types=mpc_statistics(runs),
+                failures=closed_loop_failures(runs))
 
 
 def _mpc_group(arguments) -> list:
@@ -179,7 +183,9 @@ def run(args: argparse.Namespace) -> int:
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()
     runner = runner_config_from_args(args)
-    path = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet, robot=robot,
-                     runner=runner)
+    path, failures = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet,
+                               robot=robot, runner=runner)
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
-    return 0
+    for failure in failures:
+        print(f"stdm-drake reproduce: error: MPC stage: {failure}", file=sys.stderr)
+    return 2 if failures else 0

@@ -110,3 +110,34 @@ class DynamicsModel(abc.ABC):
         if len(actions) != len(states):
             raise InputError(f"states and actions have different batch sizes: {len(states)} and {len(actions)}")
         return states, actions, added
+
+
+class HeldInputSubsteps(DynamicsModel):
+    """A model of period k·h made of k steps of a model of period h with the action held (a zero-order
+    hold over the longer period, as the recorder holds torques): runs a model trained at a finer sample
+    period on data of a coarser one. Jacobians by the chain rule over the k steps."""
+
+    def __init__(self, inner: DynamicsModel, substeps: int, name: str | None = None):
+        if not isinstance(substeps, int) or substeps < 1:
+            raise InputError(f"substeps must be an integer >= 1, got {substeps!r}")
+        self.inner, self.substeps = inner, substeps
+        self.name = name or f"{inner.name} x{substeps}"
+        self.state_dim, self.action_dim, self.learned = inner.state_dim, inner.action_dim, inner.learned
+        self.sample_period = None if inner.sample_period is None else inner.sample_period * substeps
+
+    def step(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        for _ in range(self.substeps):
+            x = self.inner.step(x, a)
+        return x
+
+    def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """d x_k / d x_0 = A_k ... A_1 and d x_k / d a = sum_j A_k ... A_{j+1} B_j, each A_j, B_j at the
+        j-th intermediate state."""
+        state_jacobian = np.broadcast_to(np.eye(self.state_dim), (len(x), self.state_dim, self.state_dim)).copy()
+        action_jacobian = np.zeros((len(x), self.state_dim, self.action_dim))
+        for _ in range(self.substeps):
+            step_x, step_a = self.inner.jacobians(x, a)
+            state_jacobian = step_x @ state_jacobian
+            action_jacobian = step_x @ action_jacobian + step_a
+            x = self.inner.step(x, a)
+        return state_jacobian, action_jacobian
