@@ -86,8 +86,8 @@ def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict) -> pathl
     return path if path.is_absolute() else model_path.parent / path
 
 def without_missing_visual_meshes(name: str, model_path: pathlib.Path, package_paths: dict) -> tuple[str | None, list[str]]:
-    """(the model text without the visuals whose mesh file is missing, with relative mesh paths made
-    absolute; the missing files), or (None, []) when every visual mesh exists. A missing collision
+    """(the model text without the visuals whose mesh file is missing, with every other mesh path made a
+    file:// URI; the missing files), or (None, []) when every visual mesh exists. A missing collision
     mesh is an InputError naming robot `name`: the dynamics and the self-collision check need it."""
     import xml.etree.ElementTree as ElementTree
     try:
@@ -114,9 +114,9 @@ def without_missing_visual_meshes(name: str, model_path: pathlib.Path, package_p
         return None, []
     for element in dropped:
         parents[element].remove(element)
-    for mesh, uri_element, path in references:
+    for mesh, uri_element, path in references:   # Drake resolves only URIs in a model parsed from text
         if uri_element is None:
-            mesh.set("filename", str(path))
+            mesh.set("filename", path.resolve().as_uri())
         else:
-            uri_element.text = str(path)
+            uri_element.text = path.resolve().as_uri()
     return ElementTree.tostring(root, encoding="unicode"), missing

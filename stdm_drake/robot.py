@@ -251,7 +251,14 @@ class Robot:
         if config.weld_frame is not None:
             if not plant.HasFrameNamed(config.weld_frame, instance):
                 raise InputError(f"robot {self.name}: weld_frame {config.weld_frame!r} is not a frame of the model")
-            plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(config.weld_frame, instance), RigidTransform())
+            try:
+                plant.WeldFrames(plant.world_frame(), plant.GetFrameByName(config.weld_frame, instance), RigidTransform())
+            except RuntimeError as error:
+                raise InputError(f"robot {self.name}: cannot weld {config.weld_frame!r} to the world, the model already "
+                                 f"fixes it there ({one_line(error)}); leave weld_frame out") from None
+        if not plant.HasFrameNamed(config.tool_frame, instance):
+            raise InputError(f"robot {self.name}: tool_frame {config.tool_frame!r} is not a frame of "
+                             f"{self.model_path.name}")
         for name in list(config.arm_joints) + list(config.locked_joints):
             if not plant.HasJointNamed(name, instance):
                 raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")
@@ -311,7 +318,8 @@ class Robot:
 
     def check_plant(self, plant: MultibodyPlant, instance) -> None:
         """After Finalize: the arm joints are the plant's only degrees of freedom, in order, each with
-        finite position and velocity limits and an actuator; configured limits replace the file's."""
+        finite position and velocity limits and an actuator, home within the position limits;
+        configured limits replace the file's."""
         config = self.config
         names = [plant.get_joint(index).name() for index in plant.GetJointIndices(instance)
                  if plant.get_joint(index).num_velocities() > 0]
@@ -331,6 +339,10 @@ class Robot:
                 raise InputError(f"robot {self.name}: arm joint {name!r} has no position limits in the model")
             if not np.isfinite(velocity):
                 raise InputError(f"robot {self.name}: arm joint {name!r} has no velocity limit; give velocity_limits")
+            home = self.home[config.arm_joints.index(name)]
+            if not lower <= home <= upper:
+                raise InputError(f"robot {self.name}: home {home:g} of {name!r} is outside its position limits "
+                                 f"[{lower:g}, {upper:g}]")
             if name in config.velocity_limits:
                 joint.set_velocity_limits([-velocity], [velocity])
 

@@ -128,6 +128,10 @@ def test_inspect_prints_summary(tracking_dataset, capsys):
     out = capsys.readouterr().out
     assert "protocol        tracking" in out and "tracking error" in out and "groups          0: 2" in out
     assert "dv sign flips" in out and "v error rms" in out
+    for key, words in (("q rad", 2), ("v rad/s", 2), ("tau N m", 3), ("qdd rad/s^2", 2)):   # one cell per joint,
+        (row,) = [line for line in out.splitlines() if line.startswith(key + " ")]       # never run together
+        cells = row.split()[words:]
+        assert len(cells) == 6 and all(".." in cell for cell in cells), row
 
 
 def run_cli(*args, cwd=None):

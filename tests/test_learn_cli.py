@@ -129,7 +129,8 @@ def test_train_input_errors(tiny, tmp_path, capsys):
     dataset, _ = tiny
     capsys.readouterr()
     assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "x"), "--train", "9", "--val", "2", "--quiet"]) == 2
-    assert "split needs" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "split needs" in err and "9 train + 2 validation" in err and "--train/--val/--test" in err
     assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "y"), "--model", "DD", "--alpha", "0",
                  "--quiet"]) == 2
     assert "alpha > 0" in capsys.readouterr().err

@@ -72,16 +72,27 @@ def test_torques_are_clipped_to_effort_limits():
     assert np.abs(result.u).max() <= 0.5 + 1e-12 and np.abs(result.u).max() == pytest.approx(0.5)
 
 
-def test_zero_order_hold_discretization_matches_expm():
+@pytest.mark.parametrize("damping", [0.0, 1.0, 2000.0])
+def test_zero_order_hold_discretization_is_exact_for_stiff_damped_joints(damping):
+    """Against scipy's expm of the augmented matrix, from no damping to joint damping with a time constant
+    of about 0.2 ms beside the 10 ms period (|A T| above 10, where a truncated series is far off)."""
     from scipy.linalg import expm
     rng = np.random.default_rng(2)
-    A_c, B_c = rng.normal(size=(12, 12)), 100 * rng.normal(size=(12, 6))
-    generator = np.zeros((18, 18))
-    generator[:12] = np.hstack([A_c, B_c])
+    n = 6
+    A_c, B_c = np.zeros((2 * n, 2 * n)), np.zeros((2 * n, n))
+    A_c[:n, n:] = np.eye(n)
+    A_c[n:, :n] = rng.normal(size=(n, n))
+    inverse_inertia = np.array([1.0, 1.0, 3.0, 100.0, 1000.0, 3000.0])     # 1/(kg m²): the UR-10's wrist is light
+    A_c[n:, n:] = -damping * np.diag(inverse_inertia) / 1000.0 * (1 + rng.uniform(size=n)) + 0.1 * rng.normal(size=(n, n))
+    B_c[n:] = np.diag(inverse_inertia)
+    generator = np.zeros((3 * n, 3 * n))
+    generator[:2 * n] = np.hstack([A_c, B_c])
     exact = expm(generator * 0.01)
-    A_d, B_d = zero_order_hold_discretization(A_c, B_c, 0.01, order=6)
-    np.testing.assert_allclose(A_d, exact[:12, :12], atol=1e-9)
-    np.testing.assert_allclose(B_d, exact[:12, 12:], rtol=1e-8, atol=1e-9)
+    A_d, B_d = zero_order_hold_discretization(A_c, B_c, 0.01)
+    np.testing.assert_allclose(A_d, exact[:2 * n, :2 * n], rtol=1e-9, atol=1e-11)
+    np.testing.assert_allclose(B_d, exact[:2 * n, 2 * n:], rtol=1e-9, atol=1e-11)
+    if damping == 2000.0:   # the stiff regime is really exercised
+        assert np.abs(A_c * 0.01).sum(axis=0).max() > 10
 
 
 @pytest.fixture(scope="module")

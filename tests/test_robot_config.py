@@ -92,9 +92,16 @@ def test_configured_limits_fill_gaps_and_replace_the_files(tmp_path):
     ("good", GOOD.replace("[shoulder, elbow]", "[elbow, shoulder]").replace("[0.3, -0.6]", "[0.0, 0.0]"),
      "list arm_joints in the model's order"),
     ("good", GOOD + "wheels: 4\n", "malformed robot config"),
+    ("welded", GOOD, "cannot weld 'base' to the world, the model already fixes it there"),
+    ("good", GOOD.replace("tool_frame: tool", "tool_frame: flange"), "tool_frame 'flange' is not a frame of two_link"),
+    ("good", GOOD.replace("[0.3, -0.6]", "[0.3, -2.6]"), "home -2.6 of 'elbow' is outside its position limits [-2.5, 2.5]"),
 ])
 def test_bad_robot_configs_are_one_line_errors(tmp_path, urdf, config, message):
     text = two_link_urdf(effort=urdf != "no effort")
+    if urdf == "welded":     # as ROS descriptions ship: a world link and a fixed joint to the base
+        text = text.replace("<robot name=\"two_link\">\n", "<robot name=\"two_link\">\n  <link name=\"world\"/>\n"
+                            "  <joint name=\"world_joint\" type=\"fixed\"><parent link=\"world\"/><child link=\"base\"/>"
+                            "</joint>\n")
     with pytest.raises(InputError, match=None) as error:
         make_plant(PlantConfig(time_step=0.0), robot=load_robot(write_robot(tmp_path, text, config)))
     assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
@@ -243,3 +250,59 @@ def test_the_ur10_preset_named_with_robot_collects_the_default_data(tmp_path):
     default, named = (load_dataset(path) for path in paths)
     assert named.metadata["excitation"] == default.metadata["excitation"]
     np.testing.assert_array_equal(named.trajectory(1)["tau"], default.trajectory(1)["tau"])
+
+
+def test_a_robot_that_does_not_load_fails_collect_in_one_line_before_any_worker(tmp_path, capsys):
+    """Excitation collection with worker processes: the plant is built in the command's own process first,
+    so a bad description is one line with exit status 2, not a traceback from each worker's initializer."""
+    from stdm_drake.cli import main
+    robot = write_robot(tmp_path, two_link_urdf(), GOOD.replace("tool_frame: tool", "tool_frame: flange"))
+    code = main(["collect", "--protocol", "excitation", "--robot", str(robot), "--count", "4", "--workers", "2",
+                 "--quiet", "-o", str(tmp_path / "data.h5")])
+    err = capsys.readouterr().err
+    assert code == 2 and "tool_frame 'flange' is not a frame" in err and "Traceback" not in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "data.h5").exists()
+
+
+def test_plant_model_jacobians_stay_exact_on_stiff_damped_joints(tmp_path):
+    """Joint damping with a time constant under 1 ms against the 10 ms period (|A T| ~ 40): the plant
+    model's discrete Jacobians (exact zero-order hold of the continuous linearization) agree with finite
+    differences of its own discrete step, and the velocity block decays (a truncated series gave
+    eigenvalues in the hundreds)."""
+    from stdm_drake.learning.physics import PlantModel
+    urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
+    robot = load_robot(write_robot(tmp_path, urdf, GOOD))
+    model = PlantModel(0.01, robot=robot)
+    x, u = np.array([[0.3, -0.6, 0.2, -0.1]]), np.array([[1.0, -0.5]])
+    A, B = model.jacobians(x, u)
+    numeric = np.empty((4, 6))
+    for j in range(6):
+        step = np.zeros(6)
+        step[j] = 1e-5
+        up, down = np.hstack([x, u])[0] + step, np.hstack([x, u])[0] - step
+        numeric[:, j] = (model.step(up[None, :4], up[None, 4:]) - model.step(down[None, :4], down[None, 4:]))[0] / 2e-5
+    assert np.max(np.abs(np.linalg.eigvals(A[0][2:, 2:]))) < 1.0
+    # to the linearization's own error (it holds the gravity terms at x_k over the period): 0.07 here,
+    # against entries in the thousands from a 4th-order series
+    np.testing.assert_allclose(np.hstack([A[0], B[0]]), numeric, atol=0.1)
+
+
+def test_a_missing_visual_mesh_beside_present_ones_is_left_out(tmp_path, caplog):
+    """The model is re-parsed from text without the missing visual; the meshes that exist keep working
+    (their paths are rewritten as file:// URIs, which Drake resolves when parsing from a string)."""
+    from pydrake.systems.framework import DiagramBuilder
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / "box.obj").write_text(
+        "v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    cylinder = '<cylinder radius="0.04" length="0.3"/>'
+    text = two_link_urdf().replace(cylinder, '<mesh filename="meshes/box.obj"/>', 1)
+    text = text.replace(cylinder, '<mesh filename="meshes/gone.obj"/>', 1)
+    with caplog.at_level("WARNING"):
+        robot = load_robot(write_robot(tmp_path, text, GOOD))
+        plant, scene_graph = make_plant(PlantConfig(), builder=DiagramBuilder(), robot=robot)
+    assert plant.num_positions() == 2
+    assert "loaded without them: meshes/gone.obj" in caplog.text and "box.obj" not in caplog.text
+    inspector = scene_graph.model_inspector()
+    meshes = [str(inspector.GetShape(geometry).source().path()) for geometry in inspector.GetAllGeometryIds()
+              if type(inspector.GetShape(geometry)).__name__ == "Mesh"]
+    assert meshes and all(name.endswith("box.obj") for name in meshes), meshes

@@ -504,6 +504,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     if sensor_path is not None:
         sensor_config = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
     robot = robot if isinstance(robot, Robot) else (load_robot(robot) if robot is not None else UR10)
+    robot_joint_limits(robot)   # builds its plant here: a model that does not load fails before any worker starts
     settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
                                   sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     settings.substeps()  # the sample period and the plant step, before any work

@@ -183,7 +183,9 @@ def split_trajectories(groups, n_train: int, n_val: int, n_test: int | None, see
         need = n_train + n_val + (n_test or 0)
         if need > len(order):
             where = f"group {groups[bucket[0]]}" if per_group else "the dataset"
-            raise InputError(f"split needs {need} trajectories from {where}, which has {len(order)}")
+            unit = " per group (--per-group on)" if per_group else ""
+            raise InputError(f"split needs {need} trajectories from {where} ({n_train} train + {n_val} validation + "
+                             f"{n_test or 0} test{unit}: --train/--val/--test), which has {len(order)}")
         val.append(order[:n_val])
         rest = order[n_val:]
         test_count = len(rest) - n_train if n_test is None else n_test

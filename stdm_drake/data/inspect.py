@@ -84,14 +84,14 @@ def summary(dataset: Dataset) -> str:
     labels = [name.removesuffix("_joint") for name in dataset.metadata.get("joint_names", [])]
     labels = labels or [f"joint{j}" for j in range(dataset.trajectory(0)["q"].shape[1])]
     header = f"{'':14s}" + "".join(f"{label:>17s}" for label in labels)
-    lines += ["", "ranges (min..max over all samples)", header]
+    lines += ["", "ranges (min..max over all samples)", f"{'':14s}" + "".join(f"{label:>21s}" for label in labels)]
     unactuated = set(meta.get("robot", {}).get("unactuated_joints", []))
     actuated = [j for j, name in enumerate(meta.get("joint_names", labels)) if name not in unactuated]
     for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), ("qdd", "rad/s^2")):
         values = np.concatenate([dataset.trajectory(i)[key] for i in range(dataset.num_trajectories)])
         columns = actuated if key == "tau" and len(actuated) == values.shape[1] else range(values.shape[1])
-        ranges = {j: f"{lo:>8.3g}..{hi:<7.3g}" for j, lo, hi in zip(columns, values.min(0), values.max(0))}
-        cells = "".join(ranges.get(j, f"{'(none)':>17s}") for j in range(len(labels)))
+        ranges = {j: f"{f'{lo:.3g}..{hi:.3g}':>21s}" for j, lo, hi in zip(columns, values.min(0), values.max(0))}
+        cells = "".join(ranges.get(j, f"{'(none)':>21s}") for j in range(len(labels)))   # 2 spaces at least
         lines.append(f"{key + ' ' + unit:14s}{cells}")
     floor = noise_floor(dataset)
     lines += ["", "sensor noise floor (one-step MSE of a model that knows the true change of state, from the "
