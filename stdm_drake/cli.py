@@ -7,8 +7,11 @@ does not pay for importing PyTorch and `stdm-drake train` does not pay for Drake
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import logging
 import os
+import re
 import sys
 
 # name -> (module, one-line help)
@@ -42,6 +45,38 @@ def error_line(error: BaseException) -> str:
     return text.splitlines()[0] if text else type(error).__name__
 
 
+class RepeatedWarnings(logging.Filter):
+    """Lets each distinct message of Drake's logger through once (the model file's line number aside:
+    one warning per kind of problem, not one per joint and per plant built) and counts the rest."""
+
+    def __init__(self):
+        super().__init__()
+        self.seen, self.left_out = set(), 0
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        key = re.sub(r":\d+: ", ": ", record.getMessage())
+        if key in self.seen:
+            self.left_out += 1
+            return False
+        self.seen.add(key)
+        return True
+
+
+@contextlib.contextmanager
+def drake_warnings_once(command: str):
+    """While a command runs, Drake's parser warnings (it builds several plants from one description) are
+    shown once each; afterwards one line says how many repeats were left out."""
+    logger, repeated = logging.getLogger("drake"), RepeatedWarnings()
+    logger.addFilter(repeated)
+    try:
+        yield repeated
+    finally:
+        logger.removeFilter(repeated)
+        if repeated.left_out:
+            print(f"stdm-drake {command}: {repeated.left_out} repeats of Drake's warnings above left out",
+                  file=sys.stderr)
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     argv = sys.argv[1:] if argv is None else list(argv)
@@ -67,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit_:  # --help (0) or a malformed command line (2, one line printed)
         return int(exit_.code or 0)
     try:
-        return int(module.run(args) or 0)
+        with drake_warnings_once(name):
+            return int(module.run(args) or 0)
     except (ValueError, OSError) as error:  # InputError is a ValueError; OSError: files, folders, HDF5
         print(f"stdm-drake {name}: error: {error_line(error)}", file=sys.stderr)
         return 2

@@ -1,6 +1,9 @@
 """Robots as typed configs: the UR-10 preset, and an arm brought as a URDF with bad configs refused."""
+import json
+
 import numpy as np
 import pytest
+from conftest import closed_loop_status
 
 from stdm_drake.errors import InputError
 from stdm_drake.plant import PlantConfig, joint_limits, make_plant
@@ -178,7 +181,6 @@ def test_a_checkpoint_refuses_a_dataset_of_another_robot(tmp_path, capsys, excit
 def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     """Closed-loop MPC (plant model and a learned model) and the Meshcat view on the 2-joint arm, with
     one-value MPC weights; the UR-10 default refuses its dataset."""
-    import json
     from stdm_drake.cli import main
     robot, data = collect_two_link(tmp_path, 20)
     assert main(["train", str(data), "--robot", str(robot), "--model", "D", "--epochs", "5", "--train", "4",
@@ -186,9 +188,10 @@ def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     checkpoint = str(tmp_path / "d" / "seed0" / "checkpoint.pt")
     weights = tmp_path / "mpc.yaml"
     weights.write_text("horizon: 5\nposition_weight: [1.0e+4]\nvelocity_weight: [10.0]\neffort_weight: [1.0e-3]\n")
-    assert main(["mpc", str(data), "--robot", str(robot), "--config", str(weights), "--model", f"D={checkpoint}",
-                 "--plans", "1", "--excitation-references", "--quiet", "-o", str(tmp_path / "mpc")]) == 0
+    code = main(["mpc", str(data), "--robot", str(robot), "--config", str(weights), "--model", f"D={checkpoint}",
+                 "--plans", "1", "--excitation-references", "--quiet", "-o", str(tmp_path / "mpc")])
     rows = json.loads((tmp_path / "mpc" / "mpc.json").read_text())["summary"]
+    assert code == closed_loop_status(rows)                  # a 5-epoch D may leave the limits: exit 2 then
     assert [row["model"] for row in rows] == ["plant", "D"] and rows[0]["limit_violations"] == 0
     assert rows[0]["q_mse_rad2"] < 1e-3                                  # the plant model tracks its own data
     assert main(["view", checkpoint, str(data), "--robot", str(robot), "--trajectories", "1",
@@ -306,3 +309,17 @@ def test_a_missing_visual_mesh_beside_present_ones_is_left_out(tmp_path, caplog)
     meshes = [str(inspector.GetShape(geometry).source().path()) for geometry in inspector.GetAllGeometryIds()
               if type(inspector.GetShape(geometry)).__name__ == "Mesh"]
     assert meshes and all(name.endswith("box.obj") for name in meshes), meshes
+
+
+def test_drakes_parser_warnings_are_shown_once_per_command(tmp_path, caplog, capsys):
+    """A description with joint friction (which Drake's plant does not model) warns once, not once per
+    joint and per plant the command builds; one line counts the repeats."""
+    from stdm_drake.cli import main
+    urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics friction="0.3"/>')
+    robot = write_robot(tmp_path, urdf, GOOD)
+    with caplog.at_level("WARNING", logger="drake"):
+        assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--count", "2", "--workers", "1",
+                     "--quiet", "-o", str(tmp_path / "data.h5")]) == 0
+    friction = [record for record in caplog.records if "friction" in record.getMessage()]
+    assert len(friction) == 1, [record.getMessage() for record in friction]
+    assert "repeats of Drake's warnings above left out" in capsys.readouterr().err
