@@ -32,7 +32,7 @@ def main(argv=None) -> int:
     parser.add_argument("--data", type=pathlib.Path, default=ROOT / "out" / "decisive_data")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--quick", action="store_true",
-                        help="the literal and learned-structure cells, 2 data seeds x 2 inits, 60 trajectories "
+                        help="the literal and learned-structure cells, 2 data seeds x 2 inits, 50 trajectories "
                              "(pipeline check, ~2 min)")
     parser.add_argument("--resume", action="store_true",
                         help="keep the output folder's rows of the same design; train only the missing models")
