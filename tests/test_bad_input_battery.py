@@ -225,6 +225,7 @@ def test_the_battery_is_large():
     assert len(CASES) >= 150
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("argv, fragment", CASES, ids=[f"{i:03d}" for i in range(len(CASES))])
 def test_bad_input_is_one_line_exit_2_and_touches_nothing(sandbox, capsys, monkeypatch, argv, fragment):
     monkeypatch.chdir(sandbox)

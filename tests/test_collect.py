@@ -55,6 +55,7 @@ def test_excitation_dataset_contents(excitation_dataset):
         assert np.abs(v_diff - midpoint).max() < 0.05 * np.abs(v_diff).max() + 1e-3
 
 
+@pytest.mark.slow
 def test_same_seed_same_bytes_any_worker_count(tmp_path):
     def collect(seed, workers, name):
         assert main(["collect", "--protocol", "excitation", "--count", "3", "--seed", str(seed), "--quiet",
@@ -91,6 +92,7 @@ def test_sensor_filter_is_a_causal_moving_average():
     assert outputs == [0.0, 0.5, 1.0, 2.0, 3.0]
 
 
+@pytest.mark.slow
 def test_default_controller_does_not_chatter_where_pid_does(tmp_path, tracking_dataset):
     """Same plans and sensor noise: the diagonal PID (pid.yaml) makes the wrists chatter, the default
     filtered computed-torque controller does not (wrist velocity error and sign-flip rate >= 3x lower)
@@ -138,6 +140,7 @@ def run_cli(*args, cwd=None):
     return subprocess.run([sys.executable, "-m", "stdm_drake.cli", *args], capture_output=True, text=True, cwd=cwd)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("yaml_text, message", [
     ("num_steps: [1, 2\n", "malformed excitation config"),
     ("bogus_key: 1\n", "unknown to the schema"),
@@ -154,6 +157,7 @@ def test_bad_excitation_yaml_one_line_error_no_file(tmp_path, yaml_text, message
     assert not (tmp_path / "out.h5").exists()
 
 
+@pytest.mark.slow
 def test_paper_excitation_preset_fails_clearly(tmp_path):
     result = run_cli("collect", "--protocol", "excitation", "--config", "trajectories/excitation_paper.yaml",
                      "--count", "1", "--workers", "1", "--quiet", "-o", str(tmp_path / "out.h5"))
@@ -162,6 +166,7 @@ def test_paper_excitation_preset_fails_clearly(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_unreachable_pose_fails_clearly(tmp_path):
     text = open("trajectories/tracking.yaml").read().replace("xyz: [0.65, 0.35, 0.45]", "xyz: [2.5, 0.35, 0.45]", 1)
     config = tmp_path / "far.yaml"
@@ -173,6 +178,7 @@ def test_unreachable_pose_fails_clearly(tmp_path):
     assert not (tmp_path / "out.h5").exists()
 
 
+@pytest.mark.slow
 def test_bad_controller_and_period(tmp_path):
     gains = tmp_path / "gains.yaml"
     gains.write_text("kind: pid\nkp: [1, 2, 3]\nki: [0]\nkd: [1]\n")
@@ -196,6 +202,7 @@ def test_html_recording(tmp_path):
     assert "animation" in text and len(text) > 100_000
 
 
+@pytest.mark.slow
 def test_torque_dither_is_recorded_and_seeded(tmp_path):
     gains = tmp_path / "dither.yaml"
     gains.write_text(open("controllers/pid.yaml").read() + "dither_std: [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]\n")

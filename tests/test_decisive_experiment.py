@@ -13,6 +13,7 @@ def rows(values, model):
             for seed, per_seed in enumerate(values) for init, value in enumerate(per_seed)]
 
 
+@pytest.mark.slow
 def test_two_level_interval_is_over_data_seeds():
     """Ratios 4x in every pair: 4x with a zero-width interval; data seeds that disagree widen it even when
     the initializations within each agree perfectly (inits are not independent evidence)."""

@@ -32,6 +32,7 @@ def trained(dataset, structure, *, epochs=150, seed=0):
     return LearnedModel(result.model, name=structure.label, structure=structure, sample_period=dataset.sample_period)
 
 
+@pytest.mark.slow
 def test_the_default_model_learns_and_the_paper_black_box_does_not(excitation):
     """On 20 training trajectories the default structure beats the Euler step (q) and "v unchanged" (v)
     by >= 3x on held-out trajectories; the paper's black box on the same data fails the 2x gate."""
@@ -46,6 +47,7 @@ def test_the_default_model_learns_and_the_paper_black_box_does_not(excitation):
     assert paper.verdict == "has not learned the dynamics", (paper.ratio_q, paper.ratio_v)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("structure", [ModelStructure("velocity", "nominal_acceleration"),
                                        ModelStructure("state", "nominal_acceleration"),
                                        ModelStructure("velocity", "raw"), PAPER])
@@ -109,6 +111,7 @@ def test_baselines_are_dynamics_models_with_exact_jacobians():
     np.testing.assert_allclose(rolled[:, -1, :6], x[:, :6])
 
 
+@pytest.mark.slow
 def test_evaluate_prints_the_baselines_and_the_verdict(excitation, tmp_path, capsys):
     output = tmp_path / "run"
     assert main(["train", str(excitation.path), "-o", str(output), "--model", "D", "--train", "20", "--val", "10",
@@ -130,6 +133,7 @@ def test_the_gate_counts_a_model_at_the_noise_floor_as_learned():
     assert learning_verdict(1.1, 1.9, floor_ratio_q=1.6, floor_ratio_v=1.0) == "has not learned the dynamics"
 
 
+@pytest.mark.slow
 def test_noise_floor_is_that_of_the_sensor_model(tmp_path):
     """White velocity noise σ through a w-sample moving average: the floor is 2σ²/w² (a model that knows the
     true change of state still misses the sample entering and the one leaving the average); 0 for the
@@ -149,6 +153,7 @@ def test_noise_floor_of_an_ideal_sensor_is_zero(excitation):
     assert noise_floor(excitation) == {"q": 0.0, "v": 0.0}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", ["default", "euler"])
 def test_the_leaf_system_steps_any_dynamics_model_as_its_rollout(excitation, kind):
     """LearnedDynamicsSystem takes any DynamicsModel: a physics-structured network (its features from

@@ -154,6 +154,7 @@ def test_benchmark_report_writer_keeps_other_sections(tmp_path):
     assert "new" in text and "old" not in text and text.rstrip().endswith("## Data collection\n\nkeep")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model_type", ["DD", "DED"])
 def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, tmp_path, capsys, model_type):
     dataset, _ = tiny

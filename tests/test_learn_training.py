@@ -92,6 +92,7 @@ def test_early_stopping_stops_after_patience():
     assert result.epochs_run - max(result.best_epochs) >= 3
 
 
+@pytest.mark.slow
 def test_derivative_learning_fits_the_function_better_from_few_points():
     """The derivative term does what it is for: from 10 samples of sin(3x) and their slopes, the *function*
     between the samples (what the value loss alone fits, not what the derivative term minimizes) is

@@ -118,6 +118,7 @@ def test_checkpoint_of_the_wrong_size_is_rejected(tmp_path):
         LearnedModel(path)
 
 
+@pytest.mark.slow
 def test_view_and_mpc_commands(checkpoints, tracking_dataset, tmp_path, capsys):
     html = tmp_path / "view.html"
     assert main(["view", str(checkpoints["PE"]), str(tracking_dataset), "--index", "2", "--html", str(html)]) == 0

@@ -123,6 +123,7 @@ def quintic_reference(duration_steps=30):
     return Reference(q=start + 0.1 * s, v=0.1 * ds * np.ones(6))
 
 
+@pytest.mark.slow
 def test_mpc_with_the_plant_tracks_and_applies_each_torque_for_a_whole_period(plant_model):
     reference = quintic_reference()
     log = run_closed_loop(plant_model, reference, load_mpc_config())
@@ -177,6 +178,7 @@ class BiasedPlantModel:
         return self.plant_model.jacobians(x, u)
 
 
+@pytest.mark.slow
 def test_disturbance_estimate_removes_a_constant_model_bias(plant_model):
     """Offset-free MPC: with the last one-step error added to its predictions, the biased model's
     closed loop follows the exact model's closed loop; without it, it drifts 10x further."""

@@ -81,6 +81,7 @@ def test_devices_folders_and_foreign_files_are_not_replaced(capsys, tmp_path, ex
     assert main(["evaluate", str(checkpoint), str(excitation_dataset), "--horizon", "5", "--json", str(notes)]) == 0
 
 
+@pytest.mark.slow
 def test_its_own_outputs_are_replaced_without_force(capsys, tmp_path):
     data = tmp_path / "data.h5"
     argv = ["collect", "--protocol", "excitation", "--count", "2", "--workers", "1", "--quiet", "-o", str(data)]
@@ -139,6 +140,7 @@ def test_closed_loops_that_fall_back_or_leave_the_limits_are_failures():
         "its row is not a result", "model wild left the robot's joint limits on 3 of 200 steps (1 of 2 plans)"]
 
 
+@pytest.mark.slow
 def test_mpc_exits_2_when_a_closed_loop_leaves_the_limits(tracking_dataset, tmp_path, monkeypatch, capsys):
     """The command writes its tables and figure, then names the model whose arm left its limits and
     exits 2 (here the plant MPC's results, with violations injected after the real run)."""

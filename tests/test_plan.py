@@ -310,6 +310,7 @@ def small_sampling(spec, **changes) -> TaskSpaceSamplingConfig:
     return dataclasses.replace(spec[0], initial_poses=spec[0].initial_poses[:2], num_final_per_initial=3, **changes)
 
 
+@pytest.mark.slow
 def test_sample_task_plans_resamples_rejected_and_is_deterministic(kinematics, spec):
     sampling, planner = small_sampling(spec), spec[1]  # both initial poses are at z = 0.45 m
     z_max = 0.48
@@ -348,6 +349,7 @@ def test_sample_task_plans_gives_up_naming_the_initial_pose(kinematics, spec, st
     assert len(messages) == 3
 
 
+@pytest.mark.slow
 def test_sample_task_plans_rejects_limit_violations(kinematics, spec):
     # Tight acceleration limits reject some final poses; the kept ones all respect them.
     planner = dataclasses.replace(spec[1], acceleration_limits=[1.2] * 6)
@@ -367,6 +369,7 @@ def test_unreachable_initial_pose_is_named(kinematics, spec):
         sample_task_plans(kinematics, sampling, spec[1], DT, np.random.default_rng(0))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kind", PLANNER_KINDS)
 def test_default_spec_yields_100_valid_plans(kinematics, kind):
     sampling, planner = load_tracking_spec(TRAJECTORIES_DIR / SPEC_FILES[kind])

@@ -120,6 +120,7 @@ def schemas():
     return [ExcitationConfig, ControllerConfig, SensorConfig, TrackingSpec, TrainSettings, RobotConfig, MpcConfig]
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(schema_index=st.integers(0, 6), document=st.dictionaries(st.text(max_size=10), values, max_size=5),
        use_fields=st.booleans(), data=st.data())

@@ -14,6 +14,8 @@ import secrets
 import pytest
 import torch
 
+pytestmark = pytest.mark.slow   # each test joins a Ray head started for the module (seconds to start and stop)
+
 # Token authentication, as a cluster should run: Ray reads the mode when it is imported, so the driver (this
 # process) gets the token before `import ray`, and the head started below gets the same one.
 AUTH = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": os.environ.get("RAY_AUTH_TOKEN") or secrets.token_hex(32)}

@@ -21,6 +21,7 @@ def quick_report(tmp_path_factory):
     return folder
 
 
+@pytest.mark.slow
 def test_quick_profile_writes_a_complete_report(quick_report):
     assert (quick_report / "data" / f"identification_n{QUICK.identification_count}_seed0.h5").exists()
     for name in ("report.md", "report.html", "results.json", "sim_activations.csv", "real_sizes.csv",
@@ -50,6 +51,7 @@ def test_quick_profile_writes_a_complete_report(quick_report):
     assert "paper" in text and "Fig. 11" in text and "Fig. 19" in text and "Sine-sum" in text
 
 
+@pytest.mark.slow
 def test_rerun_reuses_datasets_and_checkpoints(quick_report):
     before = {path: path.stat().st_mtime_ns for path in (quick_report / "cache").glob("*.pt")}
     data = {path: path.stat().st_mtime_ns for path in (quick_report / "data").glob("*.h5")}
@@ -112,6 +114,7 @@ def test_full_profile_uses_the_papers_splits():
     assert all(job.action_rate == "forward_difference" for job in jobs if job.experiment != "control")
 
 
+@pytest.mark.slow
 def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
     from stdm_drake.learning.checkpoint import load_checkpoint
     from stdm_drake.learning.predict import predict, rollout
@@ -165,6 +168,7 @@ def test_mpc_statistics_pair_by_plan_and_average_seeds():
     assert "plant_over_model" not in rows["plant"] and "naive_over_derivative" not in rows["D"]
 
 
+@pytest.mark.slow
 def test_grid_variants_are_paired_members_of_one_grid(quick_report):
     """D, DD and DD-auto of one seed come from one alpha grid: the D row is the alpha-0 member, DD the
     paper's alpha, DD-auto the member with the lowest validation MSE (never above naive's)."""
@@ -182,6 +186,7 @@ def test_grid_variants_are_paired_members_of_one_grid(quick_report):
     assert [row["regime"] for row in coverage] == ["global", "local"]
 
 
+@pytest.mark.slow
 def test_datasets_are_reused_only_when_collected_with_the_same_settings(tmp_path):
     from stdm_drake.experiments.jobs import ensure_dataset
     first = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans")

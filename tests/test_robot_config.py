@@ -123,6 +123,7 @@ def collect_two_link(folder, num_steps: int):
     return robot, data
 
 
+@pytest.mark.slow
 def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     """The 2-joint arm through the excitation protocol, training and evaluation, with no code change."""
     from stdm_drake.cli import main
@@ -178,6 +179,7 @@ def test_a_checkpoint_refuses_a_dataset_of_another_robot(tmp_path, capsys, excit
         load_checkpoint(other).check_fits(load_dataset(excitation_dataset))
 
 
+@pytest.mark.slow
 def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     """Closed-loop MPC (plant model and a learned model) and the Meshcat view on the 2-joint arm, with
     one-value MPC weights; the UR-10 default refuses its dataset."""

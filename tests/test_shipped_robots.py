@@ -116,6 +116,7 @@ def test_mpc_weights_for_other_robots_follow_the_ur10_fit():
     assert np.all(np.abs(np.log(derived / tuned)) < np.log(2.2)), derived
 
 
+@pytest.mark.slow
 def test_panda_collect_train_evaluate_mpc_view(tmp_path, capsys, panda):
     """The 7-joint arm through every command with only its robot config: derived tracking poses,
     the default controller (one gain for every joint), derived MPC weights."""
@@ -151,6 +152,7 @@ def test_panda_collect_train_evaluate_mpc_view(tmp_path, capsys, panda):
     assert "collected with robot panda" in capsys.readouterr().err      # the UR-10 default refuses it
 
 
+@pytest.mark.slow
 def test_acrobot_excitation_train_evaluate_and_refusals(tmp_path, capsys, acrobot):
     """The underactuated Acrobot: one torque (the elbow's) per step, the shoulder swinging free;
     tracking and MPC refuse it in one line before any work."""
@@ -218,6 +220,7 @@ def test_actuators_follow_the_arm_order_when_the_file_gives_only_some(tmp_path):
     np.testing.assert_array_equal(plant.MakeActuationMatrix(), np.eye(2))
 
 
+@pytest.mark.slow
 def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
     """controllers/pid_sized.yaml gives the UR-10 gains close to pid.yaml's hand-set ones, and tracks
     the Panda's plans with no per-robot tuning; a file with both gains and a bandwidth is refused."""
@@ -245,6 +248,7 @@ def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
         collection_request("tracking", count=1, robot=panda, controller=both)
 
 
+@pytest.mark.slow
 def test_reproduce_quick_on_the_panda(tmp_path, capsys):
     """`reproduce --quick --robot` runs every stage on the 7-joint arm with its derived protocols, and
     refuses the underactuated Acrobot before any work."""

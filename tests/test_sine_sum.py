@@ -46,6 +46,7 @@ def test_run_grid_matches_the_paper_design():
         StudyConfig(alpha="sometimes")
 
 
+@pytest.mark.slow
 def test_alpha_is_chosen_on_validation_before_any_derivative_run(tmp_path):
     """The sweep's choice is the alpha every derivative run used; naive runs use 0; the chosen alpha
     has the lowest validation MSE of the grid; results do not depend on the number of workers."""
@@ -61,6 +62,7 @@ def test_alpha_is_chosen_on_validation_before_any_derivative_run(tmp_path):
     assert fixed["alpha_sweep"] is None and {run["alpha"] for run in fixed["runs"]} == {0.0, 0.5}
 
 
+@pytest.mark.slow
 def test_quick_study_end_to_end(tmp_path, capsys):
     output = tmp_path / "sine"
     assert main(["sine-sum", "--quick", "-o", str(output), "--workers", "1", "--quiet"]) == 0
@@ -94,6 +96,7 @@ def test_quick_study_end_to_end(tmp_path, capsys):
     assert "chosen by validation" in summary and "95 % interval" in summary
 
 
+@pytest.mark.slow
 def test_flushing_subnormals_changes_speed_not_results():
     """Raw x in ±94 drives gelu's exp(-h²/2) into subnormals; flushing them to zero (the default) must
     leave the trained networks' test errors as they are, and switch flushing off again afterwards."""

@@ -19,6 +19,7 @@ def chromium():
     return path
 
 
+@pytest.mark.slow
 def test_ghost_recording_renders_in_chromium(tmp_path):
     q = np.array([0.0, -1.6, 1.7, -1.7, -1.57, 0.0]) + np.linspace(0, 0.3, 31)[:, None] * [1, 0, 0, 0, 0, 0]
     recorder = TrajectoryRecorder(0.01, ghost=True)
