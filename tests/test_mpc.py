@@ -93,6 +93,8 @@ def test_zero_order_hold_discretization_is_exact_for_stiff_damped_joints(damping
     np.testing.assert_allclose(B_d, exact[:2 * n, 2 * n:], rtol=1e-9, atol=1e-11)
     if damping == 2000.0:   # the stiff regime is really exercised
         assert np.abs(A_c * 0.01).sum(axis=0).max() > 10
+    A_c[0, 0] = np.inf          # a diverged state: NaN matrices (the MPC's fallback), no exception
+    assert all(np.isnan(matrix).all() for matrix in zero_order_hold_discretization(A_c, B_c, 0.01))
 
 
 @pytest.fixture(scope="module")

@@ -188,6 +188,8 @@ def zero_order_hold_discretization(A_c: np.ndarray, B_c: np.ndarray, period: flo
     n = len(A_c)
     scaled = A_c * period
     norm = np.abs(scaled).sum(axis=0).max()
+    if not np.isfinite(norm):      # a diverged linearization point: NaN matrices, which the MPC falls back on
+        return np.full_like(scaled, np.nan), np.full(B_c.shape, np.nan)
     doublings = int(np.ceil(np.log2(norm / 0.25))) if norm > 0.25 else 0
     scaled = scaled / 2.0 ** doublings
     term = np.eye(n)
