@@ -14,6 +14,8 @@ import os
 import re
 import sys
 
+from stdm_drake.paths import expand_shipped
+
 # name -> (module, one-line help)
 COMMANDS = {
     "collect": ("stdm_drake.collection.collect", "simulate the UR-10 under a data protocol and write a dataset"),
@@ -94,6 +96,11 @@ def main(argv: list[str] | None = None) -> int:
             return int(exit_.code or 0)
         return 2
     name = argv[0]
+    try:  # stdm-drake:controllers/pid.yaml names a shipped file, from any folder
+        argv = [name] + [expand_shipped(argument) for argument in argv[1:]]
+    except ValueError as error:
+        print(f"stdm-drake {name}: error: {error}", file=sys.stderr)
+        return 2
     module = importlib.import_module(COMMANDS[name][0])
     command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
     module.add_arguments(command_parser)

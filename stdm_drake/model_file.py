@@ -1,6 +1,8 @@
 """Robot description files as stdm-drake reads them, beside Drake's parser: the joint facts a URDF or
-SDF states (limits, continuous joints, <mimic> pairs), visual meshes that are missing, an offline
-Parser, and welding a joint at a position. Used by `stdm_drake.robot`."""
+SDF states (limits, continuous joints, <mimic> pairs), the model text Drake can load (missing visual
+meshes left out, STL and COLLADA meshes converted to OBJ in a cache), an offline Parser, and welding a
+joint at a position. Used by `stdm_drake.robot`."""
+import dataclasses
 import os
 import pathlib
 
@@ -40,6 +42,54 @@ def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
         if name and values:  # (a URDF <transmission> names its joint too, without limits)
             limits[name] = values
     return limits, continuous, mimics
+
+
+def unmodelled_joint_effects(path: pathlib.Path, joints) -> list[str]:
+    """What a URDF states about `joints` that Drake's plant does not simulate, one phrase per kind:
+    <dynamics friction> (Coulomb friction, N m) and a <transmission> mechanicalReduction other than 1.
+    Empty for an SDF or an unparsable file."""
+    import xml.etree.ElementTree as ElementTree
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return []
+    joints = set(joints)
+    friction = {joint.get("name"): float(joint.find("dynamics").get("friction"))
+                for joint in root.iter("joint") if joint.get("name") in joints and joint.find("dynamics") is not None
+                and float(joint.find("dynamics").get("friction") or 0.0) != 0.0}
+    reductions = {}
+    for transmission in root.iter("transmission"):
+        names = [joint.get("name") for joint in transmission.iter("joint")]
+        values = [float(element.text) for element in transmission.iter("mechanicalReduction")
+                  if (element.text or "").strip()]
+        for name in names:
+            if name in joints and values and values[0] != 1.0:
+                reductions[name] = values[0]
+    effects = []
+    if friction:
+        effects.append("joint friction (" + ", ".join(f"{name} {value:g} N m" for name, value in friction.items())
+                       + "): the simulated joints have none, only the viscous <dynamics damping>")
+    if reductions:
+        effects.append("gear ratios (" + ", ".join(f"{name} {value:g}" for name, value in reductions.items())
+                       + "): the action is the joint torque itself and no rotor inertia is reflected")
+    return effects
+
+
+def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, str]]:
+    """The (link1, link2) pairs of a MoveIt SRDF's <disable_collisions> elements; InputError naming robot
+    `name` for a missing or unparsable file."""
+    import xml.etree.ElementTree as ElementTree
+    if not path.is_file():
+        raise InputError(f"robot {name}: srdf file not found: {path}")
+    try:
+        root = ElementTree.parse(path).getroot()
+    except ElementTree.ParseError as error:
+        raise InputError(f"robot {name}: srdf {path.name} is not valid XML ({error})") from None
+    pairs = [(element.get("link1"), element.get("link2")) for element in root.iter("disable_collisions")]
+    bad = [pair for pair in pairs if not all(pair)]
+    if bad:
+        raise InputError(f"robot {name}: srdf {path.name}: a <disable_collisions> element lacks link1 or link2")
+    return pairs
 
 
 def weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:
@@ -85,18 +135,83 @@ def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict) -> pathl
     path = pathlib.Path(uri[len("file://"):] if uri.startswith("file://") else uri)
     return path if path.is_absolute() else model_path.parent / path
 
-def without_missing_visual_meshes(name: str, model_path: pathlib.Path, package_paths: dict) -> tuple[str | None, list[str]]:
-    """(the model text without the visuals whose mesh file is missing, with every other mesh path made a
-    file:// URI; the missing files), or (None, []) when every visual mesh exists. A missing collision
-    mesh is an InputError naming robot `name`: the dynamics and the self-collision check need it."""
+# Mesh formats Drake reads as collision geometry (it takes their convex hull), and as visuals Meshcat shows.
+DRAKE_COLLISION_MESHES = (".obj", ".vtk", ".gltf")
+MESHCAT_VISUAL_MESHES = (".obj", ".gltf", ".dae")
+CONVERTED_MESHES = (".stl", ".dae", ".ply", ".off")   # read by trimesh (COLLADA through pycollada)
+MESH_CACHE_VERSION = "1"   # part of every cached file's name: bump when the conversion changes
+
+
+def mesh_cache_dir() -> pathlib.Path:
+    """Where converted meshes are kept: $STDM_DRAKE_CACHE/meshes, else $XDG_CACHE_HOME/stdm-drake/meshes,
+    else ~/.cache/stdm-drake/meshes."""
+    root = os.environ.get("STDM_DRAKE_CACHE")
+    if not root:
+        root = pathlib.Path(os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache") / "stdm-drake"
+    return pathlib.Path(root) / "meshes"
+
+
+def mesh_as_obj(path: pathlib.Path, what: str) -> pathlib.Path:
+    """The Wavefront OBJ copy of mesh file `path` (STL, COLLADA, PLY or OFF) in the mesh cache, converted
+    once with trimesh and named by the SHA-256 of the file's bytes. Coordinates keep the file's own
+    length unit, except that a COLLADA <unit meter=...> is applied (as ROS tools do), so a URDF
+    `scale` means what it meant; the COLLADA up_axis is not applied. Every part of the file's scene is
+    placed by its node transforms and merged into one mesh (Drake takes a collision mesh's convex hull
+    anyway). InputError, naming `what`, for a file trimesh cannot read or one without triangles."""
+    import hashlib
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()[:32]
+    target = mesh_cache_dir() / f"{digest}-v{MESH_CACHE_VERSION}.obj"
+    if target.is_file():
+        return target
+    import trimesh
+    from stdm_drake.files import write_text_atomic
+    try:
+        scene = trimesh.load(str(path), force="scene")
+        if scene.units not in (None, "m", "meter", "meters"):
+            scene = scene.convert_units("m")
+        mesh = scene.to_mesh()
+    except Exception as error:  # trimesh and pycollada raise many kinds on a malformed file
+        raise InputError(f"{what}: mesh {path} cannot be read ({type(error).__name__}: "
+                         f"{str(error).splitlines()[0] if str(error) else 'no detail'})") from None
+    vertices, faces = np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces)
+    if len(faces) == 0 or not np.isfinite(vertices).all():
+        raise InputError(f"{what}: mesh {path} has no triangles with finite vertices")
+    lines = [f"# {path.name} converted by stdm-drake (trimesh {trimesh.__version__})"]
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    try:
+        return write_text_atomic(target, "\n".join(lines) + "\n")
+    except OSError as error:
+        raise InputError(f"{what}: cannot write the converted mesh cache {target.parent} ({error.strerror}); "
+                         "set STDM_DRAKE_CACHE to a writable folder") from None
+
+
+@dataclasses.dataclass
+class LoadableModel:
+    """A description file made loadable by Drake. text: the model text to parse instead of the file (None:
+    the file parses as it is); missing_visuals: visual mesh references left out because their file is
+    missing; converted: mesh references replaced by an OBJ copy (collision meshes Drake cannot read,
+    visuals Meshcat cannot show)."""
+    text: str | None
+    missing_visuals: list
+    converted: list
+
+
+def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict) -> LoadableModel:
+    """The model text Drake can load (see LoadableModel): visuals whose mesh file is missing are left
+    out, collision meshes in a format Drake does not read (STL, COLLADA, ...) and visuals Meshcat does
+    not show (STL, ...) point to OBJ copies (`mesh_as_obj`), every other mesh path becomes a file:// URI
+    (Drake resolves only URIs in a model parsed from text). A missing collision mesh, or one in a format
+    neither Drake nor trimesh reads, is an InputError naming robot `name`: the dynamics and the
+    self-collision check need it."""
     import xml.etree.ElementTree as ElementTree
     try:
         tree = ElementTree.parse(model_path)
     except ElementTree.ParseError:
-        return None, []  # Drake's parser gives the precise error
+        return LoadableModel(None, [], [])  # Drake's parser gives the precise error
     root = tree.getroot()
     parents = {child: parent for parent in root.iter() for child in parent}
-    missing, references, dropped = [], [], []
+    missing, converted, references, dropped = [], [], [], []
     for element in [element for element in root.iter() if element.tag in ("visual", "collision")]:
         for mesh in element.iter("mesh"):
             uri_element = mesh.find("uri")
@@ -104,19 +219,28 @@ def without_missing_visual_meshes(name: str, model_path: pathlib.Path, package_p
             path = _mesh_path(uri, model_path, package_paths) if uri else None
             if path is None:
                 continue
-            references.append((mesh, uri_element, path))
+            suffix = path.suffix.lower()
             if not path.is_file():
                 if element.tag == "collision":
                     raise InputError(f"robot {name}: collision mesh {uri!r} not found ({path})")
                 missing += [uri] if uri not in missing else []
                 dropped += [element] if element not in dropped else []
-    if not missing:
-        return None, []
+                continue
+            readable = DRAKE_COLLISION_MESHES if element.tag == "collision" else MESHCAT_VISUAL_MESHES
+            if suffix not in readable:
+                if suffix not in CONVERTED_MESHES:
+                    raise InputError(f"robot {name}: {element.tag} mesh {uri!r} is a {suffix or 'suffix-less'} "
+                                     f"file; stdm-drake reads {', '.join(readable + CONVERTED_MESHES)}")
+                path = mesh_as_obj(path, f"robot {name}")
+                converted += [uri] if uri not in converted else []
+            references.append((mesh, uri_element, path))
+    if not missing and not converted:
+        return LoadableModel(None, [], [])
     for element in dropped:
         parents[element].remove(element)
-    for mesh, uri_element, path in references:   # Drake resolves only URIs in a model parsed from text
+    for mesh, uri_element, path in references:
         if uri_element is None:
             mesh.set("filename", path.resolve().as_uri())
         else:
             uri_element.text = path.resolve().as_uri()
-    return ElementTree.tostring(root, encoding="unicode"), missing
+    return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted)

@@ -1,7 +1,10 @@
 """Where the robot descriptions (models/), plan specifications (trajectories/) and controller settings
 (controllers/) are: inside the installed package (stdm_drake/_data, put there by a wheel build, see
-pyproject.toml) or, in a source checkout or an editable install, the repository root."""
+pyproject.toml) or, in a source checkout or an editable install, the repository root. A path written
+`stdm-drake:controllers/pid.yaml` names such a shipped file from any folder, installed or not."""
 import pathlib
+
+SHIPPED_PREFIX = "stdm-drake:"
 
 
 def _data_root() -> pathlib.Path:
@@ -15,3 +18,29 @@ DATA_ROOT = _data_root()
 MODELS_DIR = DATA_ROOT / "models"
 TRAJECTORIES_DIR = DATA_ROOT / "trajectories"
 CONTROLLERS_DIR = DATA_ROOT / "controllers"
+
+
+def shipped_file(text: str) -> pathlib.Path:
+    """The file `text` = "stdm-drake:FOLDER/NAME" names among the shipped models/, trajectories/ and
+    controllers/. ValueError, listing that folder's files, for anything else."""
+    relative = pathlib.PurePosixPath(text[len(SHIPPED_PREFIX):])
+    folder = relative.parts[0] if relative.parts else ""
+    if folder not in ("models", "trajectories", "controllers") or len(relative.parts) != 2:
+        raise ValueError(f"{text}: a shipped file is stdm-drake:models/NAME, stdm-drake:trajectories/NAME or "
+                         "stdm-drake:controllers/NAME")
+    path = DATA_ROOT / folder / relative.name
+    if not path.is_file():
+        names = sorted(item.name for item in (DATA_ROOT / folder).iterdir() if item.suffix in (".yaml", ".urdf", ".sdf"))
+        raise ValueError(f"{text}: no such shipped file; {folder}/ holds {', '.join(names)}")
+    return path
+
+
+def expand_shipped(argument: str) -> str:
+    """A command-line argument with a leading "stdm-drake:" (or "--option=stdm-drake:") made the shipped
+    file's path (see `shipped_file`); any other argument unchanged."""
+    option, separator, value = argument.partition("=")
+    if argument.startswith(SHIPPED_PREFIX):
+        return str(shipped_file(argument))
+    if separator and option.startswith("--") and value.startswith(SHIPPED_PREFIX):
+        return f"{option}={shipped_file(value)}"
+    return argument

@@ -11,6 +11,7 @@ from pydrake.geometry import CollisionFilterDeclaration, GeometrySet  # noqa: E4
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig  # noqa: E402
 from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 
+from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.robot import UR10, Robot  # noqa: E402
 
 
@@ -48,8 +49,11 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
     instance = robot.add_to(plant)
     plant.Finalize()
     robot.check_plant(plant, instance)
-    if scene_graph is not None and not config.self_collision:
-        _filter_self_collisions(plant, scene_graph, instance)
+    if scene_graph is not None:
+        if config.self_collision:
+            _filter_disabled_collisions(plant, scene_graph, instance, robot)
+        else:
+            _filter_self_collisions(plant, scene_graph, instance)
     return plant, scene_graph
 
 
@@ -101,6 +105,17 @@ def _filter_self_collisions(plant, scene_graph, instance):
         geometry_ids.extend(plant.GetCollisionGeometriesForBody(plant.get_body(body_index)))
     scene_graph.collision_filter_manager().Apply(
         CollisionFilterDeclaration().ExcludeWithin(GeometrySet(geometry_ids)))
+
+
+def _filter_disabled_collisions(plant, scene_graph, instance, robot: Robot) -> None:
+    """Exclude contact between the link pairs the robot's SRDF and config disable (`Robot.disabled_collisions`):
+    for the simulation and for the self-collision check alike."""
+    manager = scene_graph.collision_filter_manager()
+    for first, second in robot.disabled_collisions(lambda link: plant.HasBodyNamed(link, instance)):
+        geometries = [plant.GetCollisionGeometriesForBody(plant.GetBodyByName(link, instance)) for link in (first, second)]
+        if all(geometries):
+            manager.Apply(CollisionFilterDeclaration().ExcludeBetween(GeometrySet(geometries[0]),
+                                                                      GeometrySet(geometries[1])))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -175,14 +190,22 @@ class Dynamics:
 
 
 class SelfCollisionChecker:
-    """Answers whether a configuration q (n,) of `robot` puts two non-adjacent links in contact."""
+    """Answers whether a configuration q (n,) of `robot` puts two of its links in contact: links that are
+    not adjacent and whose pair the robot's SRDF or config does not disable. InputError when the robot's
+    home is in self-collision."""
 
     def __init__(self, robot: Robot | None = None):
         builder = DiagramBuilder()
+        robot = robot or UR10
         self.plant, self.scene_graph = make_plant(PlantConfig(time_step=0.0), builder=builder, robot=robot)
         self.diagram = builder.Build()
         self.context = self.diagram.CreateDefaultContext()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)
+        touching = sorted({tuple(sorted(pair)) for pair in self.colliding_links(robot.home)})
+        if touching:
+            listed = ", ".join(f"{a}/{b}" for a, b in touching[:4]) + (" ..." if len(touching) > 4 else "")
+            raise InputError(f"robot {robot.name}: home is in self-collision ({listed}); choose another home, or "
+                             "disable the pairs that touch by design (srdf: the MoveIt SRDF, or disabled_collisions)")
 
     def colliding_links(self, q: np.ndarray) -> list[tuple[str, str]]:
         self.plant.SetPositions(self.plant_context, q)

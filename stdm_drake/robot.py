@@ -24,8 +24,9 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.model_file import joint_facts, offline_parser, weld_joint_at, without_missing_visual_meshes  # noqa: E402
-from stdm_drake.paths import MODELS_DIR  # noqa: E402
+from stdm_drake.model_file import (joint_facts, loadable_model, mesh_cache_dir, offline_parser,  # noqa: E402
+                                   srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
+from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, shipped_file  # noqa: E402
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
 POSE_DIM = 6  # coordinates a tool pose fixes: rotation (3) and position (3)
@@ -36,7 +37,8 @@ logger = logging.getLogger(__name__)
 class RobotConfig:
     """A robot arm as stdm-drake sees it (typed YAML, loaded with `load_robot`).
 
-    name: a label for files and plots. model: the URDF or SDF file; package_paths: package name ->
+    name: a label for files and plots. model: the URDF or SDF file (a path relative to the YAML file's
+    folder, package://, or stdm-drake:models/NAME for a shipped one); package_paths: package name ->
     folder, for package:// URIs (relative paths: to the YAML file's folder). weld_frame: the frame
     welded to the world origin, or None when the model fixes its base itself (e.g. a joint to
     "world"). arm_joints: the joints the data, models and controllers see, in the model's order
@@ -49,7 +51,9 @@ class RobotConfig:
     removed): the action then has one torque per actuated arm joint, and tracking and MPC refuse the
     robot. home: one position per arm joint (rad or m), a configuration well inside the limits.
     tool_frame: the frame task-space plans move. Position limits come from the file; only a URDF
-    "continuous" joint may have none.
+    "continuous" joint may have none. srdf: a MoveIt SRDF (path or package:// URI) whose
+    <disable_collisions link1= link2=> pairs never count as self-collision (nor touch in simulation);
+    disabled_collisions: more such link pairs, [[link_a, link_b], ...].
     """
     name: str = ""
     model: str = ""
@@ -62,6 +66,8 @@ class RobotConfig:
     unactuated_joints: typing.List[str] = dataclasses.field(default_factory=list)
     home: typing.List[float] = dataclasses.field(default_factory=list)
     tool_frame: str = ""
+    srdf: str = ""
+    disabled_collisions: list[list[str]] = dataclasses.field(default_factory=list)
 
     def validate(self) -> None:
         """Checks that need no model file (the rest happen when the plant is built)."""
@@ -75,6 +81,9 @@ class RobotConfig:
         unknown = [joint for joint in self.unactuated_joints if joint not in self.arm_joints]
         if unknown or len(set(self.unactuated_joints)) != len(self.unactuated_joints):
             raise InputError(f"robot config unactuated_joints must list distinct arm joints, got {self.unactuated_joints}")
+        for pair in self.disabled_collisions:
+            if len(pair) != 2 or not all(isinstance(link, str) and link for link in pair) or pair[0] == pair[1]:
+                raise InputError(f"robot config disabled_collisions: each entry is two different link names, got {pair}")
         if len(self.unactuated_joints) == len(self.arm_joints):
             raise InputError("robot config: every arm joint is unactuated; the robot needs at least one actuator")
         overlap = set(self.locked_joints) & set(self.arm_joints)
@@ -109,10 +118,37 @@ class Robot:
         if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
         self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
-        # the model text to parse when visual meshes are missing (None: the file itself), read once
-        self._model_text, missing = without_missing_visual_meshes(self.name, self.model_path, self.package_paths)
-        if missing:
-            logger.warning("robot %s: visual meshes not found, loaded without them: %s", self.name, ", ".join(missing))
+        for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
+            logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
+        self.srdf_path = self._model_file(config.srdf) if config.srdf else None
+        self._srdf_pairs = srdf_disabled_collisions(self.srdf_path, self.name) if self.srdf_path else []
+        self._reported_srdf_links = False
+        # the model text to parse when meshes are missing or converted (None: the file itself), read once
+        loadable = loadable_model(self.name, self.model_path, self.package_paths)
+        self._model_text = loadable.text
+        if loadable.missing_visuals:
+            logger.warning("robot %s: visual meshes not found, loaded without them: %s", self.name,
+                           ", ".join(loadable.missing_visuals))
+        if loadable.converted:
+            logger.info("robot %s: %d meshes read through OBJ copies in %s", self.name, len(loadable.converted),
+                        mesh_cache_dir())
+
+    def disabled_collisions(self, has_link) -> list[tuple[str, str]]:
+        """The link pairs whose contact is ignored: the SRDF's <disable_collisions> and the config's
+        disabled_collisions, of the links for which has_link(name) is true. A config pair naming another
+        link is an InputError; SRDF pairs naming links the model lacks (an SRDF written for the arm with
+        its gripper, say) are left out with one warning."""
+        unknown = [link for pair in self.config.disabled_collisions for link in pair if not has_link(link)]
+        if unknown:
+            raise InputError(f"robot {self.name}: disabled_collisions names {unknown[0]!r}, not a link of "
+                             f"{self.model_path.name}")
+        absent = sorted({link for pair in self._srdf_pairs for link in pair if not has_link(link)})
+        if absent and not self._reported_srdf_links:
+            self._reported_srdf_links = True
+            logger.warning("robot %s: %s names links the model lacks (%s); their pairs are left out", self.name,
+                           self.srdf_path.name, ", ".join(absent))
+        pairs = [tuple(pair) for pair in self.config.disabled_collisions]
+        return pairs + [pair for pair in self._srdf_pairs if all(has_link(link) for link in pair)]
 
     def _model_file(self, model: str) -> pathlib.Path:
         """The model file: a path (relative to the config's folder), or package://NAME/PATH in one of
@@ -129,6 +165,11 @@ class Robot:
         return pathlib.Path(package_map.GetPath(package)) / rest
 
     def _resolve(self, path: str) -> pathlib.Path:
+        if path.startswith(SHIPPED_PREFIX):  # stdm-drake:models/ur10.urdf
+            try:
+                return shipped_file(path)
+            except ValueError as error:
+                raise InputError(f"robot {self.config.name}: {error}") from None
         path = pathlib.Path(path)
         return (path if path.is_absolute() else self.folder / path).resolve()
 
@@ -358,9 +399,12 @@ UR10 = load_robot()  # the default robot of every command
 
 
 def robot_for(path, dataset=None) -> Robot:
-    """The robot a command's `--robot PATH` names (None: the UR-10 preset); with `dataset`, InputError
-    unless the dataset was collected with it."""
+    """The robot a command's `--robot PATH` names (None: the UR-10 preset), its plant built once to check
+    that it loads and that home is free of self-collision; with `dataset`, InputError unless the dataset
+    was collected with it."""
+    from stdm_drake.plant import SelfCollisionChecker
     robot = load_robot(path) if path is not None else UR10
+    SelfCollisionChecker(robot)  # the model loads, and its home is free of self-collision, before any work
     if dataset is not None:
         robot.check_dataset(dataset)
     return robot

@@ -3,6 +3,9 @@ import os
 import sys
 
 os.environ["DRAKE_ALLOW_NETWORK"] = "meshcat"  # a remote package fails at once; local Meshcat works
+if "STDM_DRAKE_CACHE" not in os.environ:  # converted meshes go to a folder of this run, not the user's cache
+    import tempfile
+    os.environ["STDM_DRAKE_CACHE"] = tempfile.mkdtemp(prefix="stdm-drake-test-cache-")
 
 import pytest  # noqa: E402
 

@@ -231,3 +231,20 @@ def test_jacobian_accuracy_tool_agrees_with_the_plants_own_torque_response(plant
     errors = jacobian_accuracy.torque_jacobian_errors(FiniteDifferencePlant(plant_model), plant_model, dataset, [0],
                                                       stride=25)
     assert errors.shape == (6,) and np.all(errors < 0.02), errors
+
+
+def test_a_long_comparison_announces_its_time_estimate_after_each_models_first_plan():
+    """After a model's first plan, one line gives its time per control step and the time its other plans
+    will take, when that passes the threshold (20 s by default; 0 here), with or without progress bar."""
+    from stdm_drake.closed_loop.comparison import compare_controllers
+    config = dataclasses.replace(load_mpc_config(), horizon=3)
+    references = [(0, quintic_reference(4)), (1, quintic_reference(4)), (2, quintic_reference(4))]
+    lines = []
+    results = compare_controllers([BrokenModel(), BrokenModel()], references, config, progress=False,
+                                  announce=lines.append, announce_after=0.0)
+    assert len(results) == 6 and len(lines) == 2
+    assert all(line.startswith("mpc: model linear: ") and "ms per control step); about" in line
+               and line.endswith("min more for its other 2 plans") for line in lines)
+    silent = []
+    compare_controllers([BrokenModel()], references, config, progress=False, announce=silent.append)
+    assert silent == []

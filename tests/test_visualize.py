@@ -47,3 +47,22 @@ def test_recorder_checks_its_inputs():
     with_ghost = TrajectoryRecorder(0.01, ghost=True)
     with pytest.raises(ValueError, match="shape"):
         with_ghost.add(np.zeros((3, 6)), np.zeros((2, 6)))
+
+
+def test_view_reports_open_loop_errors_at_steps_beside_the_physics_free_rollouts():
+    """The view's line: errors at steps 1 / 10 / 50 and the last, beside "stays put" and "v unchanged",
+    and the step from which the model is further off than staying put."""
+    from stdm_drake.closed_loop.view import open_loop_error_line
+    t = np.arange(201)[:, None] * 0.01
+    q = np.hstack([0.5 * t, np.sin(t)])                      # (201, 2): v0 = (0.5, 1.0)
+    predicted = q.copy()
+    predicted[120:] += 10.0                                  # a model that holds for 119 steps, then diverges
+    line = open_loop_error_line("DD", q, np.array([0.5, 1.0]), predicted, 0.01)
+    assert line.startswith("open-loop RMS joint-angle error (rad) at steps 1 / 10 / 50 / 200: DD 0 / 0 / 0 / 10; ")
+    stays = [np.sqrt(np.mean(q[k] ** 2)) for k in (1, 10, 50, 200)]        # q_0 = 0
+    assert "stays put " + " / ".join(f"{value:.3g}" for value in stays) + ";" in line
+    unchanged = [np.sqrt(np.mean((q[k] - k * 0.01 * np.array([0.5, 1.0])) ** 2)) for k in (1, 10, 50, 200)]
+    assert "v unchanged " + " / ".join(f"{value:.3g}" for value in unchanged) + ";" in line
+    assert line.endswith("DD further off than staying put from step 120")
+    exact = open_loop_error_line("DD", q[:6], np.array([0.5, 1.0]), q[:6], 0.01)
+    assert "at steps 1 / 5:" in exact and exact.endswith("DD closer than staying put throughout")

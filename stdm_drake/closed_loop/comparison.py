@@ -54,12 +54,17 @@ def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference
 
 def compare_controllers(models: list, references: list[tuple[int, Reference]], config: MpcConfig,
                         plant_config: PlantConfig | None = None, progress: bool = True, recorder=None,
-                        robot: Robot | None = None):
+                        robot: Robot | None = None, announce=None, announce_after: float = 20.0):
     """Run plant + MPC(model) on every reference for every model (the plant of `robot`, default the
     UR-10 preset); returns [ClosedLoopResult].
 
     recorder: an optional ghost TrajectoryRecorder; each run is added (robot = plant, ghost = reference).
+    announce: called with one line after a model's first plan when its other plans will take more than
+    `announce_after` s (the time of that plan and of its control steps, and the estimate), so that a
+    long run says so even without the progress bar (progress=False).
     """
+    import time
+
     from tqdm import tqdm
     dynamics = Dynamics(robot)
     n = dynamics.robot.num_joints
@@ -71,9 +76,14 @@ def compare_controllers(models: list, references: list[tuple[int, Reference]], c
     gravity = {index: np.array([dynamics.gravity_torque(q) for q in reference.window(0, horizon)[:, :n]])
                for index, reference in references}
     for model in models:
-        for index, reference in references:
+        for number, (index, reference) in enumerate(references):
+            start = time.perf_counter()
             log = run_closed_loop(model, reference, config, plant_config, robot=robot)
             results.append(closed_loop_metrics(model.name, index, log, reference, limits, gravity[index]))
+            elapsed, remaining = time.perf_counter() - start, len(references) - 1
+            if number == 0 and announce is not None and elapsed * remaining > announce_after:
+                announce(f"mpc: model {model.name}: {elapsed:.1f} s for the first plan ({1e3 * elapsed / max(len(log.state), 1):.0f} "
+                         f"ms per control step); about {elapsed * remaining / 60:.1f} min more for its other {remaining} plans")
             if recorder is not None:
                 q = np.array(log.state)[:, :n]
                 recorder.add(q, reference.window(0, len(q))[:, :n])
@@ -238,7 +248,7 @@ def run(args) -> int:
         from stdm_drake.collection.recorder import TrajectoryRecorder
         recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot)
     results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder,
-                                  robot=robot)
+                                  robot=robot, announce=lambda line: print(line, file=sys.stderr, flush=True))
     rows = summarize(results, dataset.sample_period)
     table = summary_table(rows)
     print(table)

@@ -53,9 +53,33 @@ def run(args) -> int:
         x0 = np.concatenate([traj["q"][0], traj["v"][0]])
         predicted = model.rollout(x0[None], traj["tau"][None]).mean[0]
         ghost_q = np.vstack([traj["q"][:1], predicted[:, :robot.num_joints]])
-        error = np.sqrt(np.mean((ghost_q - traj["q"]) ** 2))
-        print(f"trajectory {index}: open-loop RMS joint-angle error over {len(traj['tau'])} steps {error:.4g} rad")
+        label = model.checkpoint.metadata.model_type or "model"
+        print(f"trajectory {index}: {open_loop_error_line(label, traj['q'], traj['v'][0], ghost_q, dataset.sample_period)}")
         recorder.add(traj["q_true"], ghost_q, realtime=args.meshcat)
     recorder.finish(args.html, keep_serving=args.meshcat,
                     what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")
     return 0
+
+
+def open_loop_error_line(name: str, q: np.ndarray, v0: np.ndarray, predicted: np.ndarray, sample_period: float,
+                         steps=(1, 10, 50)) -> str:
+    """One line of open-loop joint-angle errors: the RMS over joints of predicted - q at a few steps
+    (those of `steps` within the trajectory, and its last), beside the physics-free rollouts from the
+    same start, "stays put" (q_0 held) and "v unchanged" (q_0 + k h v_0), and the first step from which
+    the model is further off than staying put (a rollout's error grows with the horizon, so a long
+    trajectory's whole-length figure alone says little).
+
+    q, predicted: (T + 1, n) rad, both starting at q_0; v0: (n,) rad/s; sample_period h: s."""
+    last = len(q) - 1
+    shown = [k for k in steps if k < last] + [last]
+    k = np.arange(len(q))[:, None]
+    rollouts = {name: predicted, "stays put": np.broadcast_to(q[0], q.shape),
+                "v unchanged": q[0] + k * sample_period * v0}
+    errors = {label: np.sqrt(np.mean((rollout - q) ** 2, axis=1)) for label, rollout in rollouts.items()}
+    table = "; ".join(f"{label} " + " / ".join(f"{error[step]:.3g}" for step in shown)
+                      for label, error in errors.items())
+    worse = np.flatnonzero(errors[name][1:] > errors["stays put"][1:])
+    verdict = (f"further off than staying put from step {worse[0] + 1}" if len(worse)
+               else "closer than staying put throughout")
+    return (f"open-loop RMS joint-angle error (rad) at steps {' / '.join(map(str, shown))}: {table}; "
+            f"{name} {verdict}")

@@ -504,7 +504,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     if sensor_path is not None:
         sensor_config = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
     robot = robot if isinstance(robot, Robot) else (load_robot(robot) if robot is not None else UR10)
-    robot_joint_limits(robot)   # builds its plant here: a model that does not load fails before any worker starts
+    SelfCollisionChecker(robot)  # a model that does not load, or a home in self-collision, fails before any worker
     settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
                                   sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     settings.substeps()  # the sample period and the plant step, before any work
@@ -539,7 +539,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     else:
         from stdm_drake.collection.plan import derived_tracking_spec, load_tracking_spec
         if config is None and not robot.same_as(UR10):  # trajectories/tracking.yaml is written for the UR-10
-            request.tracking_spec = derived_tracking_spec(robot)
+            request.tracking_spec = derived_tracking_spec(robot, sample_period=sample_period)
         else:
             request.tracking_spec = load_tracking_spec(config_path, robot=robot)
     return request

@@ -94,8 +94,8 @@ class TrackingSpec:
     planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
 
 
-def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: float = 0.3,
-                          seed: int = 0) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
+def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: float = 0.3, seed: int = 0,
+                          sample_period: float = 0.01) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
     """A tracking spec for a robot without a tracking file, by the rules behind the UR-10's:
 
     - initial poses: the tool pose at home, then at configurations drawn uniformly in home +- `box`
@@ -103,7 +103,9 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
       self-collision and with a task Jacobian condition number at most half the planner's limit;
       each pose's IK seed is its configuration, so every initial pose is reachable on that branch.
     - final poses: a box of +-0.1 x the arm's reach bound around each (the UR-10's 0.15 m is 0.106 of
-      its 1.415 m), rotations up to 0.3 rad, 25 per initial pose, 100 steps (the paper's protocol).
+      its 1.415 m), rotations up to 0.3 rad, 25 per initial pose, 100 steps (the paper's protocol);
+      box and angle shrink together for a slow arm by `speed_fitted_scale` (plans of 100 steps at
+      `sample_period` s must stay within the planner's share of the joint velocity limits).
     - planner: quintic with the UR-10 file's task-space limits; joint acceleration limits of
       5 rad/s^2, or a tenth of what a joint's actuator gives beyond gravity at home (effort - |g_i|)
       / M_ii when that is less (the UR-10's 4-5 rad/s^2 are 0.06-0.15 of it on the arm joints);
@@ -142,11 +144,38 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
         X = kinematics.tool_pose(q)
         poses.append(InitialPose(xyz=X.translation().tolist(), rpy=RollPitchYaw(X.rotation()).vector().tolist(),
                                  q_seed=q.tolist()))
-    offset = round(0.1 * kinematics.reach, 3)
-    sampling = TaskSpaceSamplingConfig(initial_poses=poses, position_offset=[offset] * 3)
+    sampling = TaskSpaceSamplingConfig(initial_poses=poses, position_offset=[0.1 * kinematics.reach] * 3)
+    scale = speed_fitted_scale(kinematics, configurations, sampling, planner,
+                               np.abs(limits.velocity), sampling.num_steps * sample_period, seed)
+    sampling.position_offset = [round(scale * 0.1 * kinematics.reach, 3)] * 3
+    sampling.orientation_max_angle = round(scale * sampling.orientation_max_angle, 3)
     sampling.validate()
     planner.validate()
     return sampling, planner
+
+
+def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampling: TaskSpaceSamplingConfig,
+                       planner: PlannerConfig, velocity_limits: np.ndarray, horizon: float, seed: int,
+                       draws: int = 200, target: float = 0.8) -> float:
+    """Factor in (0, 1] for the final-pose box and angle: 1 unless the arm is too slow for them. At each
+    initial configuration q, `draws` displacements dx drawn as `sample_final_pose` draws them become
+    joint motions dq = J_task(q)^-1 dx (redundant joints held); a quintic over `horizon` s peaks at
+    1.875 |dq| / horizon. The factor brings the 90th percentile of the largest ratio of that peak to
+    velocity_scale x the joint's limit down to `target` (the UR-10 and the Panda need 0.50 and 0.71 with
+    their boxes: factor 1), so that most plans pass the planner's velocity check at the first draw."""
+    rng = np.random.default_rng(seed + 1)
+    allowed = planner.velocity_scale * np.asarray(velocity_limits, dtype=float)
+    ratios = []
+    for q in configurations:
+        jacobian = kinematics.task_jacobian(q)
+        for _ in range(draws):
+            displacement = np.zeros(len(q))
+            axis = rng.standard_normal(3)
+            displacement[:3] = rng.uniform(0.0, sampling.orientation_max_angle) * axis / np.linalg.norm(axis)
+            displacement[3:6] = rng.uniform(-1.0, 1.0, 3) * np.asarray(sampling.position_offset)
+            motion = np.linalg.lstsq(jacobian, displacement, rcond=None)[0]
+            ratios.append(np.max(1.875 * np.abs(motion) / horizon / allowed))
+    return float(min(1.0, target / np.quantile(ratios, 0.9)))
 
 
 def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *, planner_kind: str | None = None,

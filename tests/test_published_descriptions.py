@@ -1,0 +1,246 @@
+"""Robot descriptions as published: STL and COLLADA meshes (converted once to OBJ in a cache), MoveIt SRDF
+collision rules and filtered pairs, home checked for self-collision, and what the plant leaves out
+(friction, gear ratios) reported. The mesh files are written in their real formats (binary STL by
+trimesh, COLLADA by pycollada with a millimetre <unit>), as CAD exports and robot vendors ship them."""
+import numpy as np
+import pytest
+from test_robot_config import GOOD, two_link_urdf, write_robot
+
+from stdm_drake.errors import InputError
+from stdm_drake.plant import PlantConfig, SelfCollisionChecker, make_plant
+from stdm_drake.robot import load_robot
+
+CYLINDER = '<visual><geometry><cylinder radius="0.04" length="0.3"/></geometry></visual>'
+
+
+def box_stl(path, extents):
+    """A binary STL of a box (m) centred on its frame's origin."""
+    import trimesh
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(trimesh.creation.box(extents=extents).export(file_type="stl"))
+    return path
+
+
+def box_dae_millimetres(path, extents_mm):
+    """A COLLADA file of a box given in millimetres (<unit meter="0.001">), corner at the origin."""
+    import collada
+    corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float) * extents_mm
+    triangles = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                          [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    document = collada.Collada()
+    effect = collada.material.Effect("effect", [], "phong", diffuse=(0.8, 0.2, 0.2))
+    material = collada.material.Material("material", "material", effect)
+    document.effects.append(effect)
+    document.materials.append(material)
+    source = collada.source.FloatSource("vertices", corners.ravel(), ("X", "Y", "Z"))
+    geometry = collada.geometry.Geometry(document, "box", "box", [source])
+    inputs = collada.source.InputList()
+    inputs.addInput(0, "VERTEX", "#vertices")
+    geometry.primitives.append(geometry.createTriangleSet(triangles.ravel(), inputs, "material"))
+    document.geometries.append(geometry)
+    node = collada.scene.Node("box", children=[collada.scene.GeometryNode(
+        geometry, [collada.scene.MaterialNode("material", material, inputs=[])])])
+    document.scenes.append(collada.scene.Scene("scene", [node]))
+    document.scene = document.scenes[0]
+    document.assetInfo.unitmeter, document.assetInfo.unitname = 0.001, "millimeter"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    document.write(str(path))
+    return path
+
+
+def with_collision(urdf: str, link: str, geometry: str, origin: str = "0 0 0") -> str:
+    """`urdf` with a collision element `geometry` (inner XML of <geometry>) on `link`."""
+    opening = f'<link name="{link}">'
+    head, _, tail = urdf.partition(opening)
+    visual_end = tail.index("</visual>") + len("</visual>")
+    collision = f'<collision><origin xyz="{origin}"/><geometry>{geometry}</geometry></collision>'
+    return head + opening + tail[:visual_end] + collision + tail[visual_end:]
+
+
+def collision_meshes(scene_graph) -> list:
+    inspector = scene_graph.model_inspector()
+    return [inspector.GetShape(geometry) for geometry in inspector.GetAllGeometryIds()
+            if inspector.GetProximityProperties(geometry) is not None]
+
+
+def test_stl_and_collada_meshes_load_through_cached_obj_copies(tmp_path, caplog):
+    """STL collision and visual meshes and a COLLADA collision mesh in millimetres: the plant loads with
+    OBJ copies in the cache (the COLLADA unit applied: a 100 mm box is 0.1 m), COLLADA visuals stay as
+    they are (Meshcat shows them), a second load reuses the cache, and a Meshcat recording builds."""
+    import trimesh
+    from pydrake.systems.framework import DiagramBuilder
+    from stdm_drake.collection.recorder import TrajectoryRecorder
+    from stdm_drake.model_file import mesh_cache_dir
+    box_stl(tmp_path / "meshes" / "upper.stl", [0.08, 0.08, 0.3])
+    box_dae_millimetres(tmp_path / "meshes" / "fore.dae", [60.0, 60.0, 100.0])
+    urdf = two_link_urdf().replace(CYLINDER, '<visual><geometry><mesh filename="meshes/upper.stl"/></geometry></visual>', 2)
+    urdf = urdf.replace(CYLINDER, '<visual><geometry><mesh filename="meshes/fore.dae"/></geometry></visual>', 1)
+    urdf = with_collision(urdf, "upper", '<mesh filename="meshes/upper.stl"/>', "0 0 0.15")
+    urdf = with_collision(urdf, "fore", '<mesh filename="meshes/fore.dae"/>', "-0.03 -0.03 0.05")
+    with caplog.at_level("INFO"):
+        robot = load_robot(write_robot(tmp_path, urdf, GOOD))
+    assert "3 meshes read through OBJ copies" not in caplog.text and "2 meshes read through OBJ copies" in caplog.text
+    plant, scene_graph = make_plant(PlantConfig(), builder=DiagramBuilder(), robot=robot)
+    assert plant.num_positions() == 2
+    paths = [pathlib_of(shape) for shape in collision_meshes(scene_graph)]
+    assert len(paths) == 2 and all(path.suffix == ".obj" and path.parent == mesh_cache_dir() for path in paths)
+    extents = sorted(tuple(np.round(trimesh.load(str(path), force="mesh").extents, 6)) for path in paths)
+    assert extents == [(0.06, 0.06, 0.1), (0.08, 0.08, 0.3)]
+    inspector = scene_graph.model_inspector()
+    visuals = {pathlib_of(inspector.GetShape(geometry)).suffix for geometry in inspector.GetAllGeometryIds()
+               if inspector.GetIllustrationProperties(geometry) is not None
+               and type(inspector.GetShape(geometry)).__name__ == "Mesh"}
+    assert visuals == {".obj", ".dae"}
+    stamps = [path.stat().st_mtime_ns for path in paths]
+    load_robot(tmp_path / "two_link.yaml")
+    assert [path.stat().st_mtime_ns for path in paths] == stamps
+    assert SelfCollisionChecker(robot).is_collision_free(robot.home)
+    recorder = TrajectoryRecorder(0.01, robot=robot)
+    recorder.add(np.zeros((3, 2)))
+
+
+def pathlib_of(shape):
+    import pathlib
+    return pathlib.Path(str(shape.source().path()))
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("bad.stl", b"solid nothing here\nendsolid\n", "meshes/bad.stl cannot be read|has no triangles"),
+    ("part.3ds", b"\x4d\x4d\x00\x00", "collision mesh 'meshes/part.3ds' is a .3ds file; stdm-drake reads"),
+])
+def test_an_unreadable_collision_mesh_is_a_one_line_error(tmp_path, name, content, message):
+    (tmp_path / "meshes").mkdir()
+    (tmp_path / "meshes" / name).write_bytes(content)
+    urdf = with_collision(two_link_urdf(), "upper", f'<mesh filename="meshes/{name}"/>')
+    with pytest.raises(InputError, match=message) as error:
+        load_robot(write_robot(tmp_path, urdf, GOOD))
+    assert "\n" not in str(error.value)
+
+
+def test_an_unwritable_mesh_cache_names_the_variable_that_moves_it(tmp_path, monkeypatch):
+    box_stl(tmp_path / "meshes" / "upper.stl", [0.08, 0.08, 0.3])
+    blocker = tmp_path / "not_a_folder"
+    blocker.write_text("a file where the cache folder would go")
+    monkeypatch.setenv("STDM_DRAKE_CACHE", str(blocker))
+    urdf = with_collision(two_link_urdf(), "upper", '<mesh filename="meshes/upper.stl"/>', "0 0 0.15")
+    with pytest.raises(InputError, match="set STDM_DRAKE_CACHE to a writable folder"):
+        load_robot(write_robot(tmp_path, urdf, GOOD))
+
+
+# A tall collision box on the base reaches the forearm's box at home: links that are not adjacent touch.
+TOUCHING = with_collision(with_collision(two_link_urdf(), "base", '<box size="0.3 0.3 1.2"/>', "0 0 0.6"),
+                          "fore", '<box size="0.1 0.1 0.1"/>', "0 0 0.15")
+SRDF = """<?xml version="1.0"?>
+<robot name="two_link">
+  <group name="arm"><chain base_link="base" tip_link="tool"/></group>
+  <disable_collisions link1="base" link2="fore" reason="Never"/>
+  <disable_collisions link1="fore" link2="gripper_pad" reason="Adjacent"/>
+</robot>
+"""
+
+
+def test_home_in_self_collision_is_refused_in_one_line_before_any_work(tmp_path, capsys):
+    from stdm_drake.cli import main
+    robot = write_robot(tmp_path, TOUCHING, GOOD)
+    with pytest.raises(InputError, match=r"home is in self-collision \(base/fore\)"):
+        SelfCollisionChecker(load_robot(robot))
+    for command in (["collect", "--protocol", "excitation", "--count", "2", "--workers", "1"],
+                    ["collect", "--protocol", "excitation", "--count", "2", "--workers", "2"]):
+        assert main(command + ["--robot", str(robot), "--quiet", "-o", str(tmp_path / "data.h5")]) == 2
+        err = capsys.readouterr().err
+        assert "home is in self-collision (base/fore)" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "data.h5").exists()
+
+
+@pytest.mark.parametrize("extra", ["srdf: two_link.srdf\n", "disabled_collisions: [[fore, base]]\n"])
+def test_srdf_and_config_pairs_disable_contact_between_links(tmp_path, caplog, extra):
+    """The SRDF's <disable_collisions> pairs (those naming links the model lacks: left out with one
+    warning) or the config's disabled_collisions allow the touching pair; the simulated plant's contact
+    is filtered too, and pairs not listed still count (a box on the finger, welded to the forearm,
+    touches the base)."""
+    from pydrake.systems.framework import DiagramBuilder
+    (tmp_path / "two_link.srdf").write_text(SRDF)
+    with caplog.at_level("WARNING"):
+        robot = load_robot(write_robot(tmp_path, TOUCHING, GOOD + extra))
+        assert SelfCollisionChecker(robot).is_collision_free(robot.home)
+    assert ("gripper_pad" in caplog.text) == extra.startswith("srdf")
+    builder = DiagramBuilder()
+    plant, _ = make_plant(PlantConfig(), builder=builder, robot=robot)
+    diagram = builder.Build()
+    context = plant.GetMyContextFromRoot(diagram.CreateDefaultContext())
+    plant.SetPositions(context, robot.home)
+    assert not plant.get_geometry_query_input_port().Eval(context).HasCollisions()
+    finger = with_collision(TOUCHING, "finger", '<box size="0.05 0.05 0.05"/>')
+    with pytest.raises(InputError, match=r"home is in self-collision \(base/finger\)"):
+        SelfCollisionChecker(load_robot(write_robot(tmp_path, finger, GOOD + extra)))
+
+
+@pytest.mark.parametrize("extra, message", [
+    ("disabled_collisions: [[base, elbow_link]]\n", "disabled_collisions names 'elbow_link', not a link"),
+    ("disabled_collisions: [[base]]\n", "each entry is two different link names"),
+    ("srdf: missing.srdf\n", "srdf file not found"),
+    ("srdf: two_link.urdf.broken\n", "is not valid XML"),
+])
+def test_bad_collision_rules_are_one_line_errors(tmp_path, extra, message):
+    (tmp_path / "two_link.urdf.broken").write_text("<robot><disable_collisions link1=")
+    with pytest.raises(InputError, match=message):
+        SelfCollisionChecker(load_robot(write_robot(tmp_path, TOUCHING, GOOD + extra)))
+
+
+def test_friction_and_gear_ratios_the_plant_leaves_out_are_reported(tmp_path, caplog):
+    urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="0.5" friction="2.0"/>', 1)
+    urdf = urdf.replace("</robot>", '<transmission name="t"><type>transmission_interface/SimpleTransmission</type>'
+                        '<joint name="elbow"><hardwareInterface>EffortJointInterface</hardwareInterface></joint>'
+                        '<actuator name="m"><mechanicalReduction>100</mechanicalReduction></actuator></transmission>'
+                        "</robot>")
+    with caplog.at_level("WARNING", logger="stdm_drake.robot"):
+        load_robot(write_robot(tmp_path, urdf, GOOD))
+    assert "joint friction (shoulder 2 N m): the simulated joints have none" in caplog.text
+    assert "gear ratios (elbow 100): the action is the joint torque itself" in caplog.text
+
+
+def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog):
+    """An arm with 0.628 rad/s joints (the UR-10's kinematics and inertia, a fifth of its speed): the
+    derived final-pose box and angle shrink so that the 1 s plans stay within the planner's half of the
+    velocity limits at the first draw (with the UR-10's box, plans were rejected and redrawn); the
+    UR-10's own speed keeps the full box (0.142 m, 0.3 rad)."""
+    from stdm_drake.cli import main
+    from stdm_drake.collection.plan import derived_tracking_spec
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.robot import MODELS_DIR, UR10
+    slow = (MODELS_DIR / "ur10.yaml").read_text().replace("name: ur10", "name: ur10_slow")
+    slow = slow.replace("model: ur10.urdf", "model: stdm-drake:models/ur10.urdf")   # the shipped file, from here
+    slow += "velocity_limits: {" + ", ".join(f"{joint}: 0.628" for joint in UR10.joint_names) + "}\n"
+    (tmp_path / "slow.yaml").write_text(slow)
+    fast_sampling, _ = derived_tracking_spec(UR10)
+    with caplog.at_level("WARNING"):
+        assert main(["collect", "--robot", str(tmp_path / "slow.yaml"), "--count", "8", "--workers", "1", "--quiet",
+                     "-o", str(tmp_path / "slow.h5")]) == 0
+    dataset = load_dataset(tmp_path / "slow.h5")
+    sampling = dataset.metadata["task_space_sampling"]
+    assert sampling["position_offset"][0] < 0.5 * fast_sampling.position_offset[0]
+    assert sampling["orientation_max_angle"] < 0.5 * fast_sampling.orientation_max_angle
+    assert "rejected" not in caplog.text
+    for index in range(dataset.num_trajectories):
+        assert np.abs(dataset.trajectory(index)["v_planned"]).max() <= 0.5 * 0.628 + 1e-9
+
+
+def test_shipped_files_are_named_from_any_folder_with_the_stdm_drake_prefix(tmp_path, monkeypatch, capsys):
+    """`stdm-drake:controllers/NAME` (and `--option=stdm-drake:...`) name the files shipped with the
+    package, wherever the command runs; an unknown one is a one-line error listing the folder."""
+    from stdm_drake.cli import main
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.paths import CONTROLLERS_DIR
+    monkeypatch.chdir(tmp_path)
+    assert main(["collect", "--count", "1", "--workers", "1", "--quiet", "--controller",
+                 "stdm-drake:controllers/pid_dither_sized.yaml", "--sensor=stdm-drake:controllers/sensor_ideal.yaml",
+                 "-o", "ident.h5"]) == 0
+    metadata = load_dataset(tmp_path / "ident.h5").metadata
+    assert metadata["controller"]["kind"] == "pid" and len(metadata["controller"]["dither_std"]) == 6
+    assert metadata["sensor"]["position_noise_std"] == 0.0
+    assert main(["collect", "--count", "1", "--controller", "stdm-drake:controllers/pid_fast.yaml",
+                 "-o", "other.h5"]) == 2
+    err = capsys.readouterr().err
+    assert "stdm-drake:controllers/pid_fast.yaml: no such shipped file; controllers/ holds" in err
+    assert "pid_dither_sized.yaml" in err and len(err.strip().splitlines()) == 1
+    assert (CONTROLLERS_DIR / "pid_dither_sized.yaml").is_file() and not (tmp_path / "other.h5").exists()
