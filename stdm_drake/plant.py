@@ -75,14 +75,21 @@ class PlantSimulator:
         self.context = self.simulator.get_mutable_context()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)
         self._actuation = self.diagram.GetInputPort("actuation")
+        self._initial_state = self.diagram.CreateDefaultContext()  # what `start` resets the state to
 
     def get_actuation_input_port(self):
         """The diagram's input port "actuation": torques (m,) N m of the actuated joints."""
         return self._actuation
 
     def start(self, x: np.ndarray, tau: np.ndarray) -> None:
-        """Reset to t = 0 with state x (2n,) and the action tau (m,) N m held."""
-        self.diagram.SetDefaultContext(self.context)
+        """Reset to t = 0 with state x (2n,) and the action tau (m,) N m held. Every state variable
+        (continuous, discrete, abstract) is reset to its default, the parameters are left as they are
+        (nothing changes them): the same result as resetting the whole context, which costs 20 ms on a
+        description with many collision meshes (its geometry is a parameter) against well under 1 ms."""
+        initial = self._initial_state
+        self.context.get_mutable_continuous_state().SetFrom(initial.get_continuous_state())
+        self.context.get_mutable_discrete_state().SetFrom(initial.get_discrete_state())
+        self.context.get_mutable_abstract_state().SetFrom(initial.get_abstract_state())
         self.context.SetTime(0.0)
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
         self.hold(tau)

@@ -120,7 +120,7 @@ class Robot:
         self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
         for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
             logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
-        self.srdf_path = self._model_file(config.srdf) if config.srdf else None
+        self.srdf_path = self._model_file(config.srdf, "srdf") if config.srdf else None
         self._srdf_pairs = srdf_disabled_collisions(self.srdf_path, self.name) if self.srdf_path else []
         self._reported_srdf_links = False
         # the model text to parse when meshes are missing or converted (None: the file itself), read once
@@ -150,9 +150,9 @@ class Robot:
         pairs = [tuple(pair) for pair in self.config.disabled_collisions]
         return pairs + [pair for pair in self._srdf_pairs if all(has_link(link) for link in pair)]
 
-    def _model_file(self, model: str) -> pathlib.Path:
-        """The model file: a path (relative to the config's folder), or package://NAME/PATH in one of
-        package_paths or a package Drake ships locally (package://drake/examples/acrobot/Acrobot.urdf)."""
+    def _model_file(self, model: str, what: str = "model") -> pathlib.Path:
+        """The model (or SRDF, `what`) file: a path (relative to the config's folder), or package://NAME/PATH
+        in one of package_paths or a package Drake ships locally (package://drake/examples/acrobot/Acrobot.urdf)."""
         if not model.startswith("package://"):
             return self._resolve(model)
         package, _, rest = model[len("package://"):].partition("/")
@@ -160,7 +160,7 @@ class Robot:
             return self.package_paths[package] / rest
         package_map = offline_parser(MultibodyPlant(0.0)).package_map()
         if not package_map.Contains(package):
-            raise InputError(f"robot {self.config.name}: model {model!r}: unknown package {package!r}; map it under "
+            raise InputError(f"robot {self.config.name}: {what} {model!r}: unknown package {package!r}; map it under "
                              "package_paths")
         return pathlib.Path(package_map.GetPath(package)) / rest
 
