@@ -189,6 +189,15 @@ class Dynamics:
         force[self._actuated] = tau
         return force
 
+    def damping_time_constants(self, q: np.ndarray | None = None) -> np.ndarray:
+        """Per arm joint (n,), s: how fast its description's viscous <dynamics damping> d_i stops it
+        alone, M_eff,i / d_i with M_eff = `effective_inertia` at q (default home); inf without damping."""
+        q = self.robot.home if q is None else q
+        damping = np.array([self.plant.GetJointByName(name).default_damping() for name in self.robot.joint_names])
+        inertia = self.effective_inertia(q)
+        with np.errstate(divide="ignore"):
+            return np.where(damping > 0, inertia / np.where(damping > 0, damping, 1.0), np.inf)
+
     def acceleration(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         plant, context = self.plant, self.context
         plant.SetPositionsAndVelocities(context, np.concatenate([q, v]))

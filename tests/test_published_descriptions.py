@@ -244,3 +244,72 @@ def test_shipped_files_are_named_from_any_folder_with_the_stdm_drake_prefix(tmp_
     assert "stdm-drake:controllers/pid_fast.yaml: no such shipped file; controllers/ holds" in err
     assert "pid_dither_sized.yaml" in err and len(err.strip().splitlines()) == 1
     assert (CONTROLLERS_DIR / "pid_dither_sized.yaml").is_file() and not (tmp_path / "other.h5").exists()
+
+
+def test_period_acceleration_gives_the_next_velocity_where_damping_outpaces_the_period(tmp_path):
+    """A joint damped faster than the 10 ms period (damping 40 N m s/rad on the two-link's light arm):
+    v + T φ̄ (the period-mean acceleration) lands near the plant's next velocity, where v + T q̈ (the
+    instantaneous nominal acceleration) overshoots by far; on the UR-10 the two agree to O(T). Its
+    rates equal a finer central difference, a zero tangent has a zero rate, and its Jacobian (Ψ held
+    constant) matches finite differences in v and τ."""
+    from stdm_drake.learning.physics import NominalAcceleration, PeriodAcceleration, PlantModel
+    from stdm_drake.robot import UR10
+    urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
+    stiff = load_robot(write_robot(tmp_path, urdf, GOOD))
+    q, v, tau = np.array([[0.3, -0.6], [0.1, 0.2]]), np.array([[0.5, -0.4], [-1.0, 0.3]]), np.array([[3.0, -1.0], [0.5, 2.0]])
+    nominal, period = NominalAcceleration(stiff), PeriodAcceleration(stiff, 0.01)
+    plant_next = PlantModel(0.01, robot=stiff).step(np.hstack([q, v]), tau)[:, 2:]
+    euler_error = np.abs(v + 0.01 * nominal.values(q, v, tau) - plant_next).max()
+    period_error = np.abs(v + 0.01 * period.values(q, v, tau) - plant_next).max()
+    assert period_error < 0.05 * euler_error, (period_error, euler_error)
+    assert period_error < 0.05 * np.abs(plant_next - v).max()       # the linearization over the period: 2 %
+    # rates: a central difference 100x finer agrees; a zero tangent gives zero
+    q_rate, v_rate, tau_rate = v, np.array([[2.0, -1.0], [0.5, 0.5]]), np.array([[10.0, 0.0], [0.0, -5.0]])
+    rates = period.rates(q, v, tau, q_rate, v_rate, tau_rate)
+    h = 1e-7
+    finer = (period.values(q + h * q_rate, v + h * v_rate, tau + h * tau_rate)
+             - period.values(q - h * q_rate, v - h * v_rate, tau - h * tau_rate)) / (2 * h)
+    np.testing.assert_allclose(rates, finer, rtol=1e-4, atol=1e-6 * np.abs(finer).max())
+    assert not period.rates(q, v, tau, 0 * q, 0 * v, 0 * tau).any()
+    values, jacobian = period.values_and_jacobians(q, v, tau)
+    np.testing.assert_array_equal(values, period.values(q, v, tau))
+    numeric = np.empty_like(jacobian)
+    z = np.hstack([q, v, tau])
+    for j in range(6):
+        up, down = z.copy(), z.copy()
+        up[:, j] += 1e-6
+        down[:, j] -= 1e-6
+        numeric[:, :, j] = (period.values(up[:, :2], up[:, 2:4], up[:, 4:]) - period.values(down[:, :2], down[:, 2:4],
+                                                                                             down[:, 4:])) / 2e-6
+    # Ψ held constant: the v and τ columns agree to 1 % of the largest entry (Ψ moves with them only
+    # through the inertia's slope); the q columns leave out dΨ/dq f, which is not small, and are not checked
+    assert np.abs(jacobian[:, :, 2:] - numeric[:, :, 2:]).max() < 0.01 * np.abs(numeric).max()
+    ur10_q, ur10_v = UR10.home[None], np.full((1, 6), 0.2)
+    ur10_tau = np.array([[5.0, -60.0, -20.0, 1.0, 0.5, 0.1]])
+    instantaneous = NominalAcceleration(UR10).values(ur10_q, ur10_v, ur10_tau)
+    mean = PeriodAcceleration(UR10, 0.01).values(ur10_q, ur10_v, ur10_tau)
+    assert np.abs(mean - instantaneous).max() < 0.05 * np.abs(instantaneous).max()
+
+
+def test_derivative_training_warns_about_joints_damped_faster_than_the_period(tmp_path, capsys):
+    """Damping 40 N m s/rad on the two-link's light joints stops them in a few ms (M_eff / d at home),
+    under the 10 ms period: `train --model DD` says so in one warning line and names D; D trains quietly."""
+    from stdm_drake.cli import main
+    from stdm_drake.plant import Dynamics
+    urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
+    robot_path = write_robot(tmp_path, urdf, GOOD)
+    robot = load_robot(robot_path)
+    dynamics = Dynamics(robot)
+    constants = dynamics.damping_time_constants()
+    np.testing.assert_allclose(constants, dynamics.effective_inertia(robot.home) / 40.0)
+    assert np.all(constants < 0.01)
+    assert np.all(np.isinf(Dynamics().damping_time_constants()))                   # the UR-10 has no damping
+    data = tmp_path / "data.h5"
+    assert main(["collect", "--protocol", "excitation", "--robot", str(robot_path), "--count", "4", "--workers", "1",
+                 "--quiet", "-o", str(data)]) == 0
+    capsys.readouterr()
+    for model, warned in (("DD", True), ("D", False)):
+        assert main(["train", str(data), "--robot", str(robot_path), "--model", model, "--epochs", "2", "--train", "2",
+                     "--val", "1", "--quiet", "-o", str(tmp_path / model)]) == 0
+        err = capsys.readouterr().err
+        assert ("stops these joints faster than the 10 ms period" in err and "train --model D" in err) == warned, err

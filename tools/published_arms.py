@@ -11,13 +11,15 @@ else), then runs the stdm-drake commands a user would, each as its own process:
    `inspect`;
 2. the README's control flow on identification data: `collect` (tracked plans under the dithered PID
    sized from the inertia, ideal sensor), `inspect`, `train --model DD --action-rate zero_order_hold
-   --derivative-source true`, `evaluate --json`, `mpc --plans 3` (the plant as model beside the learned
-   DD) and `view --html`.
+   --derivative-source true` (--model D for an arm whose damping stops a joint faster than the
+   sample period, where `train` warns that derivative learning fails), `evaluate --json`, `mpc --plans 3`
+   (the plant as model beside the learned model) and `view --html`.
 
 OUT/summary.json and OUT/summary.csv: one row per arm with every command's exit status and time, the
 learned model's one-step errors beside the Euler step, "velocity unchanged" and the plant, the closed
 loops' tracking errors, limit violations and solve times, and the view's open-loop errors. The run
-fails (exit status 1) when a command fails or a closed loop leaves the limits. --quick: fewer
+fails (exit status 1) when a command fails, the learned model does not beat the physics-free
+baselines, or a closed loop leaves the limits or falls back to gravity compensation. --quick: fewer
 trajectories and epochs (a smoke run, not a result).
 """
 import argparse
@@ -88,6 +90,15 @@ def robot_config(arm: str, descriptions: pathlib.Path, folder: pathlib.Path) -> 
     return path
 
 
+def learned_model_type(robot_config: pathlib.Path, sample_period: float = 0.01) -> str:
+    """The README's rule: DD, or D when `train` would warn that the description's damping stops a joint
+    faster than the sample period (derivative learning failed there)."""
+    from stdm_drake.plant import Dynamics
+    from stdm_drake.robot import load_robot
+    constants = Dynamics(load_robot(robot_config)).damping_time_constants()
+    return "D" if (constants < sample_period).any() else "DD"
+
+
 def command(log: list, folder: pathlib.Path, label: str, *arguments) -> tuple[int, str]:
     """Run `stdm-drake ARGUMENTS` as its own process; log its status and time; return (status, stdout)."""
     start = time.perf_counter()
@@ -116,11 +127,13 @@ def run_arm(arm: str, descriptions: pathlib.Path, out: pathlib.Path, quick: bool
             "stdm-drake:controllers/pid_dither_sized.yaml", "--sensor", "stdm-drake:controllers/sensor_ideal.yaml",
             *counts, "--quiet", "-o", ident)
     command(steps, folder, "inspect_identification", "inspect", ident)
-    command(steps, folder, "train", "train", ident, "--robot", robot, "--model", "DD", "--action-rate",
+    model = learned_model_type(robot)
+    row["model"] = model
+    command(steps, folder, "train", "train", ident, "--robot", robot, "--model", model, "--action-rate",
             "zero_order_hold", "--derivative-source", "true", *training, "--quiet", "-o", runs)
     checkpoint = runs / "seed0" / "checkpoint.pt"
     command(steps, folder, "evaluate", "evaluate", checkpoint, ident, "--robot", robot, "--json", folder / "evaluate.json")
-    command(steps, folder, "mpc", "mpc", ident, "--robot", robot, "--model", f"DD={checkpoint}", "--plans", "3",
+    command(steps, folder, "mpc", "mpc", ident, "--robot", robot, "--model", f"{model}={checkpoint}", "--plans", "3",
             "--quiet", "-o", folder / "mpc")
     _, view = command(steps, folder, "view", "view", checkpoint, ident, "--robot", robot, "--html", folder / "view.html")
     row["steps"] = steps
@@ -138,11 +151,11 @@ def run_arm(arm: str, descriptions: pathlib.Path, out: pathlib.Path, quick: bool
         row["verdict"] = evaluation["verdict"]
     if (folder / "mpc" / "mpc.json").is_file():
         for summary in json.loads((folder / "mpc" / "mpc.json").read_text())["summary"]:
-            prefix = "mpc_plant" if summary["model"] == "plant" else "mpc_dd"
+            prefix = "mpc_plant" if summary["model"] == "plant" else "mpc_learned"
             for key in ("q_mse_rad2", "limit_violations", "fallbacks", "solve_ms_mean"):
                 row[f"{prefix}_{key}"] = summary[key]
-            if prefix == "mpc_dd":
-                row["mpc_dd_vs_plant"] = summary["q_mse_vs_plant"]
+            if prefix == "mpc_learned":
+                row["mpc_learned_vs_plant"] = summary["q_mse_vs_plant"]
     row["view"] = [line for line in view.splitlines() if line.startswith("trajectory ")]
     return row
 
@@ -170,8 +183,9 @@ def main() -> int:
     columns = list(dict.fromkeys(key for row in rows for key in row if key not in ("steps", "view", "failed_steps")))
     flat = [{key: row.get(key, "") for key in columns} | dict(failed_steps=" ".join(row["failed_steps"])) for row in rows]
     write_text_atomic(args.output / "summary.csv", rows_csv(flat, columns + ["failed_steps"]))
-    failed = [row["arm"] for row in rows if row["failed_steps"] or row.get("mpc_dd_limit_violations")
-              or row.get("mpc_plant_limit_violations")]
+    failed = [row["arm"] for row in rows if row["failed_steps"] or row.get("verdict") != "learned"
+              or row.get("mpc_learned_limit_violations") or row.get("mpc_plant_limit_violations")
+              or row.get("mpc_learned_fallbacks") or row.get("mpc_plant_fallbacks")]
     print(f"wrote {args.output}/summary.json, summary.csv; " + (f"failed: {', '.join(failed)}" if failed else "all passed"))
     return 1 if failed else 0
 

@@ -67,12 +67,11 @@ class LearnedModel(DynamicsModel):
             self._check_robot(robot)
         self.features = None
         if self.structure.uses_nominal_model:
-            from stdm_drake.learning.physics import NominalAcceleration
             if robot is None:
                 from stdm_drake.robot import UR10
                 self.robot = UR10
                 self._check_robot(UR10)
-            self.features = NominalAcceleration(self.robot)
+            self.features = self.structure.nominal_features(self.robot, self.sample_period)
         self._workspaces = {}
 
     def _check_robot(self, robot) -> None:

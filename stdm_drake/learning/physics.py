@@ -273,3 +273,62 @@ class NominalAcceleration:
     def jacobians(self, q, v, tau) -> np.ndarray:
         """d q̈ / d(q, v, τ) (N, n, 2n + m)."""
         return self.values_and_jacobians(q, v, tau)[1]
+
+
+class PeriodAcceleration(NominalAcceleration):
+    """The mean acceleration (n,) rad/s² of the robot's nominal model over one sample period T from
+    (q, v) under the held action τ, linearized there: φ̄ = [Ψ f]_v / T with f = [v, q̈(q, v, τ)] and
+    Ψ = ∫_0^T exp(A_c s) ds (A_c = ∂f/∂x; `zero_order_hold_discretization`), so that v + T φ̄ is the
+    linearized nominal model's next velocity. Where T is short against the dynamics this is q̈ plus
+    O(T) terms; on a joint whose damping decays faster than T (a light wrist with its URDF's
+    <dynamics damping>: time constants near 1 ms against 10 ms) q̈ itself is -v / (1 ms) large and says
+    little about the next velocity, while φ̄ stays what the period does.
+
+    Same interface as NominalAcceleration: values; rates along a tangent by central differences of
+    the values (ε = 1e-6 of the row's scale; exact to ~1e-9 relative); values_and_jacobians with Ψ held
+    constant (d φ̄ ≈ Ψ_v [A_c B_c] / T: the linearization's own Jacobian, for the MPC's iLQR)."""
+
+    def __init__(self, robot=None, sample_period: float = 0.01):
+        super().__init__(robot)
+        if not (np.isfinite(sample_period) and sample_period > 0):
+            raise InputError(f"period acceleration needs a sample period > 0 s, got {sample_period}")
+        self.sample_period = float(sample_period)
+
+    def _period_mean(self, q, v, tau):
+        """(φ̄ (N, n), Ψ_v [A_c B_c] / T (N, n, 2n + m)) from one AutoDiff pass per row."""
+        q, v, tau = self._rows(q, v, tau)
+        n, S, T = self.num_joints, 2 * self.num_joints, self.sample_period
+        accelerations, jacobians = super().values_and_jacobians(q, v, tau)
+        values, derivatives = np.empty_like(q), np.empty_like(jacobians)
+        for i in range(len(q)):
+            A_c = np.zeros((S, S))
+            A_c[:n, n:] = np.eye(n)
+            A_c[n:] = jacobians[i, :, :S]
+            _, integral = zero_order_hold_discretization(A_c, np.eye(S), T)          # Ψ (2n, 2n)
+            values[i] = integral[n:] @ np.concatenate([v[i], accelerations[i]]) / T
+            velocity_part = np.hstack([np.zeros((n, n)), np.eye(n), np.zeros((n, tau.shape[1]))])  # d v / d(q, v, τ)
+            derivatives[i] = integral[n:] @ np.vstack([velocity_part, jacobians[i]]) / T
+        return values, derivatives
+
+    def values(self, q, v, tau) -> np.ndarray:
+        return self._period_mean(q, v, tau)[0]
+
+    def values_and_jacobians(self, q, v, tau) -> tuple[np.ndarray, np.ndarray]:
+        return self._period_mean(q, v, tau)
+
+    def rates(self, q, v, tau, q_rate, v_rate, tau_rate) -> np.ndarray:
+        """d φ̄ / dt (N, n) along the tangent rows (q̇, v̇, τ̇): central differences of `values`."""
+        q, v, tau = self._rows(q, v, tau)
+        n = self.num_joints
+        point = np.hstack([q, v, tau])
+        tangent = np.hstack([np.atleast_2d(q_rate), np.atleast_2d(v_rate), np.atleast_2d(tau_rate)])
+        size = np.abs(tangent).max(axis=1)
+        moving = size > 0
+        step = np.zeros((len(point), 1))      # a zero tangent has a zero rate
+        step[moving, 0] = 1e-6 * np.maximum(np.abs(point[moving]).max(axis=1), 1.0) / size[moving]
+        ahead, behind = point + step * tangent, point - step * tangent
+        forward = self.values(ahead[:, :n], ahead[:, n:2 * n], ahead[:, 2 * n:])
+        backward = self.values(behind[:, :n], behind[:, n:2 * n], behind[:, 2 * n:])
+        rates = np.zeros_like(forward)
+        rates[moving] = (forward[moving] - backward[moving]) / (2.0 * step[moving])
+        return rates

@@ -108,8 +108,9 @@ class TrainSettings:
     alpha_grid: alphas tried by "auto"; network: activation, hidden_width, hidden_layers,
     ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
     predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's) and inputs
-    ("nominal_acceleration": [q, v, τ] and the robot's nominal acceleration; "raw": [q, v, τ], the
-    paper's), see `learning.structure`; losses: state_loss,
+    ("nominal_acceleration": [q, v, τ] and the robot's nominal acceleration; "period_acceleration":
+    its mean over the sample period instead; "raw": [q, v, τ], the paper's), see
+    `learning.structure`; losses: state_loss,
     derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
     trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
     derivative_source ("true", "planned"; None: the dataset's), action_rate ("forward_difference",

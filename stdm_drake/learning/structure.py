@@ -12,6 +12,12 @@
                          z also holds φ = M(q)⁻¹(B τ + τ_g(q) − C(q, v) v), the acceleration of the
                          robot's nominal rigid-body model (`physics.NominalAcceleration`): the torque
                          beyond gravity and bias, mapped through the inverse inertia
+    inputs="period_acceleration"
+                         z holds φ̄ instead: the nominal model's mean acceleration over the sample
+                         period, linearized at (x, τ) (`physics.PeriodAcceleration`), so v + Δt φ̄ is
+                         its next velocity; equal to φ up to O(Δt) on a UR-10, and the one that stays
+                         meaningful on joints whose damping decays faster than the period (light
+                         wrists of published descriptions with <dynamics damping>)
 
 The network's own input order puts the part its delta adds first: [x, τ, (φ)] for "state",
 [v, q, τ, (φ)] for "velocity". Derivative learning needs the time derivative of every input: ẋ and
@@ -31,12 +37,13 @@ import numpy as np
 from stdm_drake.errors import InputError
 
 PREDICTS = ("state", "velocity")
-INPUT_SETS = ("raw", "nominal_acceleration")
+INPUT_SETS = ("raw", "nominal_acceleration", "period_acceleration")
 
 
 @dataclasses.dataclass(frozen=True)
 class ModelStructure:
-    """What the network predicts ("state" or "velocity") and sees ("raw" or "nominal_acceleration")."""
+    """What the network predicts ("state" or "velocity") and sees ("raw", "nominal_acceleration" or
+    "period_acceleration")."""
     predicts: str = "velocity"
     inputs: str = "nominal_acceleration"
 
@@ -60,13 +67,24 @@ class ModelStructure:
 
     @property
     def uses_nominal_model(self) -> bool:
-        return self.inputs == "nominal_acceleration"
+        return self.inputs != "raw"
+
+    def nominal_features(self, robot, sample_period: float):
+        """The nominal-model input of this structure for `robot` at `sample_period` s (None for raw
+        inputs): a `NominalAcceleration` or a `PeriodAcceleration`."""
+        from stdm_drake.learning.physics import NominalAcceleration, PeriodAcceleration
+        if self.inputs == "raw":
+            return None
+        if self.inputs == "period_acceleration":
+            return PeriodAcceleration(robot, sample_period)
+        return NominalAcceleration(robot)
 
     @property
     def label(self) -> str:
         """Short description for tables: e.g. "velocity + trapezoid, nominal-acceleration inputs"."""
         what = "next state" if self.predicts == "state" else "next velocity, q by trapezoid"
-        seen = "raw inputs" if self.inputs == "raw" else "nominal-acceleration inputs"
+        seen = {"raw": "raw inputs", "nominal_acceleration": "nominal-acceleration inputs",
+                "period_acceleration": "period-acceleration inputs"}[self.inputs]
         return f"{what}, {seen}"
 
     def network_sizes(self, state_dim: int, action_dim: int) -> tuple[int, int]:

@@ -10,6 +10,7 @@ import dataclasses
 import io
 import json
 import pathlib
+import sys
 
 import numpy as np
 import torch
@@ -71,7 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default); state: it predicts x_{t+1} (the paper's)")
     parser.add_argument("--inputs", choices=INPUT_SETS, default="nominal_acceleration",
                         help="nominal_acceleration: [q, v, tau] and the acceleration the robot's nominal model "
-                             "(--robot) gives (default); raw: [q, v, tau] (the paper's)")
+                             "(--robot) gives (default); period_acceleration: that model's mean acceleration over "
+                             "the sample period instead (for joints damped faster than the period); raw: [q, v, "
+                             "tau] (the paper's)")
     parser.add_argument("--state-loss", choices=LOSS_KINDS, default="mse")
     parser.add_argument("--derivative-loss", choices=LOSS_KINDS, default="mse")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="one model per seed (default 0)")
@@ -192,9 +195,8 @@ def training_problem(dataset, split, *, model_type: str = "DD", activation: str 
     parts = split.as_dict() if hasattr(split, "as_dict") else split
     features = None
     if structure.uses_nominal_model:
-        from stdm_drake.learning.physics import NominalAcceleration
         from stdm_drake.robot import UR10
-        features = NominalAcceleration(robot or UR10)
+        features = structure.nominal_features(robot or UR10, dataset.sample_period)
 
     def pairs(indices) -> RegressionData:
         transitions = dataset.transitions(list(indices), derivative_source=source, action_rate=action_rate)
@@ -255,6 +257,21 @@ def fit_seed(model_config, training_config, train_data, val_data, fit_options: d
         shutil.rmtree(scratch, ignore_errors=True)
 
 
+def warn_about_fast_damped_joints(robot, sample_period: float) -> None:
+    """One warning line when derivative learning is asked for a robot with joints whose description's
+    damping stops them faster than the sample period (`Dynamics.damping_time_constants` at home): on
+    such an arm the derivative targets are the fast decay itself, and a DD trained on the ABB IRB 1200's
+    identification data did not learn (docs/published_arms.md)."""
+    from stdm_drake.plant import Dynamics
+    constants = Dynamics(robot).damping_time_constants()
+    fast = [(name, value) for name, value in zip(robot.joint_names, constants) if value < sample_period]
+    if fast:
+        listed = ", ".join(f"{name} {1e3 * value:.2g} ms" for name, value in fast)
+        print(f"stdm-drake train: warning: robot {robot.name}: the damping of {listed} stops these joints faster than "
+              f"the {1e3 * sample_period:g} ms period; derivative learning failed on such an arm (docs/published_arms.md), "
+              "train --model D for it", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -284,6 +301,8 @@ def run(args: argparse.Namespace) -> int:
     if args.robot is not None or structure.uses_nominal_model:
         from stdm_drake.robot import robot_for
         robot = robot_for(args.robot, dataset)
+    if derivative and robot is not None:   # (without a robot, train loads no Drake plant at all)
+        warn_about_fast_damped_joints(robot, dataset.sample_period)
     per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"
     pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
     n_train, n_val, n_test = default_split_sizes(pool, args.train, args.val, args.test)
