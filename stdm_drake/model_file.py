@@ -53,22 +53,32 @@ def unmodelled_joint_effects(path: pathlib.Path, joints) -> list[str]:
         root = ElementTree.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
         return []
+    def number(text) -> float | None:   # (Drake's parser reports what is not a number)
+        try:
+            return float(text)
+        except (TypeError, ValueError):
+            return None
+
     joints = set(joints)
-    friction = {joint.get("name"): float(joint.find("dynamics").get("friction"))
-                for joint in root.iter("joint") if joint.get("name") in joints and joint.find("dynamics") is not None
-                and float(joint.find("dynamics").get("friction") or 0.0) != 0.0}
+    friction = {}
+    for joint in root.iter("joint"):
+        dynamics = joint.find("dynamics")
+        value = number(dynamics.get("friction")) if dynamics is not None else None
+        if joint.get("name") in joints and value:
+            friction[joint.get("name")] = value
     reductions = {}
     for transmission in root.iter("transmission"):
         names = [joint.get("name") for joint in transmission.iter("joint")]
-        values = [float(element.text) for element in transmission.iter("mechanicalReduction")
-                  if (element.text or "").strip()]
+        values = [value for value in (number(element.text) for element in transmission.iter("mechanicalReduction"))
+                  if value is not None]
         for name in names:
             if name in joints and values and values[0] != 1.0:
                 reductions[name] = values[0]
     effects = []
     if friction:
-        effects.append("joint friction (" + ", ".join(f"{name} {value:g} N m" for name, value in friction.items())
-                       + "): the simulated joints have none, only the viscous <dynamics damping>")
+        effects.append("joint friction (" + ", ".join(f"{name} {value:g}" for name, value in friction.items())
+                       + "; N m, or N on a prismatic joint): the simulated joints have none, only the viscous "
+                       "<dynamics damping>")
     if reductions:
         effects.append("gear ratios (" + ", ".join(f"{name} {value:g}" for name, value in reductions.items())
                        + "): the action is the joint torque itself and no rotor inertia is reflected")
@@ -129,9 +139,10 @@ def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser
 def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict) -> pathlib.Path | None:
     """The file a mesh reference names (package://, file:// or relative to the model), or None for a
     package the robot config does not map (Drake reports those itself)."""
-    if uri.startswith("package://"):
-        package, _, rest = uri[len("package://"):].partition("/")
-        return package_paths[package] / rest if package in package_paths else None
+    for scheme in ("package://", "model://"):   # (model://: SDF's name for the same thing)
+        if uri.startswith(scheme):
+            package, _, rest = uri[len(scheme):].partition("/")
+            return package_paths[package] / rest if package in package_paths else None
     path = pathlib.Path(uri[len("file://"):] if uri.startswith("file://") else uri)
     return path if path.is_absolute() else model_path.parent / path
 
@@ -186,6 +197,19 @@ def mesh_as_obj(path: pathlib.Path, what: str) -> pathlib.Path:
                          "set STDM_DRAKE_CACHE to a writable folder") from None
 
 
+def collada_in_metres(path: pathlib.Path) -> bool:
+    """Whether a COLLADA file states its lengths in metres (or states no unit): what Meshcat shows as
+    written. Meshcat's loader ignores <unit>, so other COLLADA visuals go through an OBJ copy with the
+    unit applied (their own colors lost; a URDF <material> still applies)."""
+    import xml.etree.ElementTree as ElementTree
+    try:
+        root = ElementTree.parse(path).getroot()
+        unit = next((element for element in root.iter() if element.tag.rsplit("}", 1)[-1] == "unit"), None)
+        return unit is None or float(unit.get("meter") or 1.0) == 1.0
+    except (ElementTree.ParseError, OSError, ValueError):
+        return False   # the conversion reports what is wrong with it
+
+
 @dataclasses.dataclass
 class LoadableModel:
     """A description file made loadable by Drake. text: the model text to parse instead of the file (None:
@@ -227,7 +251,7 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict) -> 
                 dropped += [element] if element not in dropped else []
                 continue
             readable = DRAKE_COLLISION_MESHES if element.tag == "collision" else MESHCAT_VISUAL_MESHES
-            if suffix not in readable:
+            if suffix not in readable or (suffix == ".dae" and not collada_in_metres(path)):
                 if suffix not in CONVERTED_MESHES:
                     raise InputError(f"robot {name}: {element.tag} mesh {uri!r} is a {suffix or 'suffix-less'} "
                                      f"file; stdm-drake reads {', '.join(readable + CONVERTED_MESHES)}")
@@ -238,9 +262,10 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict) -> 
         return LoadableModel(None, [], [])
     for element in dropped:
         parents[element].remove(element)
-    for mesh, uri_element, path in references:
+    for mesh, uri_element, path in references:   # file:// + the plain path: Drake does not percent-decode
+        uri = "file://" + str(path.resolve())
         if uri_element is None:
-            mesh.set("filename", path.resolve().as_uri())
+            mesh.set("filename", uri)
         else:
-            uri_element.text = path.resolve().as_uri()
+            uri_element.text = uri
     return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted)

@@ -3,9 +3,10 @@ import os
 import sys
 
 os.environ["DRAKE_ALLOW_NETWORK"] = "meshcat"  # a remote package fails at once; local Meshcat works
+_OWN_CACHE = None
 if "STDM_DRAKE_CACHE" not in os.environ:  # converted meshes go to a folder of this run, not the user's cache
     import tempfile
-    os.environ["STDM_DRAKE_CACHE"] = tempfile.mkdtemp(prefix="stdm-drake-test-cache-")
+    _OWN_CACHE = os.environ["STDM_DRAKE_CACHE"] = tempfile.mkdtemp(prefix="stdm-drake-test-cache-")
 
 import pytest  # noqa: E402
 
@@ -39,6 +40,9 @@ def closed_loop_status(rows) -> int:
 
 def pytest_sessionfinish(session, exitstatus):
     session.config.stash[_EXIT_STATUS] = int(exitstatus)
+    if _OWN_CACHE is not None:
+        import shutil
+        shutil.rmtree(_OWN_CACHE, ignore_errors=True)
 
 
 @pytest.hookimpl(trylast=True)

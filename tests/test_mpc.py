@@ -248,3 +248,22 @@ def test_a_long_comparison_announces_its_time_estimate_after_each_models_first_p
     silent = []
     compare_controllers([BrokenModel()], references, config, progress=False, announce=silent.append)
     assert silent == []
+
+
+def test_plant_simulator_start_equals_a_fresh_simulator():
+    """`start` resets the state variables only (not the parameters): after other runs, the steps of a
+    simulator in use equal those of a freshly built one, bitwise."""
+    from stdm_drake.plant import PlantSimulator
+    from stdm_drake.robot import UR10
+    rng = np.random.default_rng(4)
+    pairs = [(np.concatenate([UR10.home + rng.normal(0, 0.1, 6), rng.normal(0, 0.5, 6)]), rng.normal(0, 5, 6))
+             for _ in range(4)]
+    used = PlantSimulator()
+    for x, tau in pairs[::-1]:      # runs before, in another order
+        used.start(x, tau)
+        used.advance_to(0.03)
+    for x, tau in pairs:
+        fresh = PlantSimulator()
+        fresh.start(x, tau)
+        used.start(x, tau)
+        np.testing.assert_array_equal(used.advance_to(0.02), fresh.advance_to(0.02))

@@ -2,6 +2,8 @@
 collision rules and filtered pairs, home checked for self-collision, and what the plant leaves out
 (friction, gear ratios) reported. The mesh files are written in their real formats (binary STL by
 trimesh, COLLADA by pycollada with a millimetre <unit>), as CAD exports and robot vendors ship them."""
+import subprocess
+
 import numpy as np
 import pytest
 from test_robot_config import GOOD, two_link_urdf, write_robot
@@ -21,8 +23,9 @@ def box_stl(path, extents):
     return path
 
 
-def box_dae_millimetres(path, extents_mm):
-    """A COLLADA file of a box given in millimetres (<unit meter="0.001">), corner at the origin."""
+def box_dae_millimetres(path, extents_mm, metre: float = 0.001):
+    """A COLLADA file of a box given in millimetres (<unit meter="0.001">; `metre`=1.0: the same numbers
+    in metres), corner at the origin, with a red material."""
     import collada
     corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)], dtype=float) * extents_mm
     triangles = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
@@ -42,7 +45,7 @@ def box_dae_millimetres(path, extents_mm):
         geometry, [collada.scene.MaterialNode("material", material, inputs=[])])])
     document.scenes.append(collada.scene.Scene("scene", [node]))
     document.scene = document.scenes[0]
-    document.assetInfo.unitmeter, document.assetInfo.unitname = 0.001, "millimeter"
+    document.assetInfo.unitmeter, document.assetInfo.unitname = metre, ("millimeter" if metre == 0.001 else "meter")
     path.parent.mkdir(parents=True, exist_ok=True)
     document.write(str(path))
     return path
@@ -64,9 +67,10 @@ def collision_meshes(scene_graph) -> list:
 
 
 def test_stl_and_collada_meshes_load_through_cached_obj_copies(tmp_path, caplog):
-    """STL collision and visual meshes and a COLLADA collision mesh in millimetres: the plant loads with
-    OBJ copies in the cache (the COLLADA unit applied: a 100 mm box is 0.1 m), COLLADA visuals stay as
-    they are (Meshcat shows them), a second load reuses the cache, and a Meshcat recording builds."""
+    """STL collision and visual meshes and a COLLADA mesh in millimetres: the plant loads with OBJ copies
+    in the cache (the COLLADA unit applied: a 100 mm box is 0.1 m); a COLLADA visual in metres stays as
+    it is (Meshcat shows it, colors and all), one in millimetres goes through its OBJ copy (Meshcat
+    would ignore its unit); a second load reuses the cache, and a Meshcat recording builds."""
     import trimesh
     from pydrake.systems.framework import DiagramBuilder
     from stdm_drake.collection.recorder import TrajectoryRecorder
@@ -75,11 +79,13 @@ def test_stl_and_collada_meshes_load_through_cached_obj_copies(tmp_path, caplog)
     box_dae_millimetres(tmp_path / "meshes" / "fore.dae", [60.0, 60.0, 100.0])
     urdf = two_link_urdf().replace(CYLINDER, '<visual><geometry><mesh filename="meshes/upper.stl"/></geometry></visual>', 2)
     urdf = urdf.replace(CYLINDER, '<visual><geometry><mesh filename="meshes/fore.dae"/></geometry></visual>', 1)
+    box_dae_millimetres(tmp_path / "meshes" / "finger.dae", [0.02, 0.02, 0.05], metre=1.0)
+    urdf = urdf.replace(CYLINDER, '<visual><geometry><mesh filename="meshes/finger.dae"/></geometry></visual>', 1)
     urdf = with_collision(urdf, "upper", '<mesh filename="meshes/upper.stl"/>', "0 0 0.15")
     urdf = with_collision(urdf, "fore", '<mesh filename="meshes/fore.dae"/>', "-0.03 -0.03 0.05")
     with caplog.at_level("INFO"):
         robot = load_robot(write_robot(tmp_path, urdf, GOOD))
-    assert "3 meshes read through OBJ copies" not in caplog.text and "2 meshes read through OBJ copies" in caplog.text
+    assert "2 meshes read through OBJ copies" in caplog.text      # upper.stl, fore.dae (finger.dae stays)
     plant, scene_graph = make_plant(PlantConfig(), builder=DiagramBuilder(), robot=robot)
     assert plant.num_positions() == 2
     paths = [pathlib_of(shape) for shape in collision_meshes(scene_graph)]
@@ -87,16 +93,40 @@ def test_stl_and_collada_meshes_load_through_cached_obj_copies(tmp_path, caplog)
     extents = sorted(tuple(np.round(trimesh.load(str(path), force="mesh").extents, 6)) for path in paths)
     assert extents == [(0.06, 0.06, 0.1), (0.08, 0.08, 0.3)]
     inspector = scene_graph.model_inspector()
-    visuals = {pathlib_of(inspector.GetShape(geometry)).suffix for geometry in inspector.GetAllGeometryIds()
+    visuals = [pathlib_of(inspector.GetShape(geometry)) for geometry in inspector.GetAllGeometryIds()
                if inspector.GetIllustrationProperties(geometry) is not None
-               and type(inspector.GetShape(geometry)).__name__ == "Mesh"}
-    assert visuals == {".obj", ".dae"}
+               and type(inspector.GetShape(geometry)).__name__ == "Mesh"]
+    assert sorted(path.name for path in visuals if path.suffix == ".dae") == ["finger.dae"]
+    assert len([path for path in visuals if path.parent == mesh_cache_dir()]) == 3   # base, upper (STL), fore (mm)
     stamps = [path.stat().st_mtime_ns for path in paths]
     load_robot(tmp_path / "two_link.yaml")
     assert [path.stat().st_mtime_ns for path in paths] == stamps
-    assert SelfCollisionChecker(robot).is_collision_free(robot.home)
     recorder = TrajectoryRecorder(0.01, robot=robot)
     recorder.add(np.zeros((3, 2)))
+    recorder.publish()
+    recorder.write_html(tmp_path / "run.html")
+    assert (tmp_path / "run.html").stat().st_size > 1000
+
+
+def test_meshes_load_from_folders_with_spaces_and_accents_and_through_model_uris(tmp_path, monkeypatch):
+    """The rewritten model names every mesh by a plain file:// path (Drake does not percent-decode
+    URIs), so a description folder and a cache folder named "a b/é" work; an SDF-style model:// URI
+    resolves through package_paths like package://."""
+    from pydrake.systems.framework import DiagramBuilder
+    from stdm_drake.model_file import mesh_cache_dir
+    folder = tmp_path / "a b" / "é"
+    folder.mkdir(parents=True)
+    monkeypatch.setenv("STDM_DRAKE_CACHE", str(tmp_path / "cache dir é"))
+    box_stl(folder / "meshes" / "upper.stl", [0.08, 0.08, 0.3])
+    (folder / "meshes" / "fore.obj").write_text(
+        "v 0 0 0\nv 0.05 0 0\nv 0 0.05 0\nv 0 0 0.05\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    urdf = with_collision(two_link_urdf(), "upper", '<mesh filename="model://parts/meshes/upper.stl"/>', "0 0 0.15")
+    urdf = urdf.replace(CYLINDER, '<visual><geometry><mesh filename="meshes/fore.obj"/></geometry></visual>', 1)
+    robot = load_robot(write_robot(folder, urdf, GOOD + "package_paths: {parts: .}\n"))
+    plant, scene_graph = make_plant(PlantConfig(), builder=DiagramBuilder(), robot=robot)
+    assert plant.num_positions() == 2
+    (shape,) = collision_meshes(scene_graph)
+    assert pathlib_of(shape).parent == mesh_cache_dir() and "cache dir é" in str(mesh_cache_dir())
 
 
 def pathlib_of(shape):
@@ -195,16 +225,17 @@ def test_friction_and_gear_ratios_the_plant_leaves_out_are_reported(tmp_path, ca
                         "</robot>")
     with caplog.at_level("WARNING", logger="stdm_drake.robot"):
         load_robot(write_robot(tmp_path, urdf, GOOD))
-    assert "joint friction (shoulder 2 N m): the simulated joints have none" in caplog.text
+    assert "joint friction (shoulder 2; N m, or N on a prismatic joint): the simulated joints have none" in caplog.text
     assert "gear ratios (elbow 100): the action is the joint torque itself" in caplog.text
 
 
-def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog):
+def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
     """An arm with 0.628 rad/s joints (the UR-10's kinematics and inertia, a fifth of its speed): the
     derived final-pose box and angle shrink so that the 1 s plans stay within the planner's half of the
-    velocity limits at the first draw (with the UR-10's box, plans were rejected and redrawn); the
-    UR-10's own speed keeps the full box (0.142 m, 0.3 rad)."""
+    velocity limits at the first draw (with the UR-10's box, as before, plans are rejected and redrawn);
+    the UR-10's own speed keeps the full box (0.142 m, 0.3 rad)."""
     from stdm_drake.cli import main
+    from stdm_drake.collection import plan
     from stdm_drake.collection.plan import derived_tracking_spec
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.robot import MODELS_DIR, UR10
@@ -221,8 +252,12 @@ def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog):
     assert sampling["position_offset"][0] < 0.5 * fast_sampling.position_offset[0]
     assert sampling["orientation_max_angle"] < 0.5 * fast_sampling.orientation_max_angle
     assert "rejected" not in caplog.text
-    for index in range(dataset.num_trajectories):
-        assert np.abs(dataset.trajectory(index)["v_planned"]).max() <= 0.5 * 0.628 + 1e-9
+    caplog.clear()
+    monkeypatch.setattr(plan, "speed_fitted_scale", lambda *args, **kwargs: 1.0)   # the UR-10's box as it was
+    with caplog.at_level("WARNING"):
+        assert main(["collect", "--robot", str(tmp_path / "slow.yaml"), "--count", "8", "--workers", "1", "--quiet",
+                     "-o", str(tmp_path / "unscaled.h5")]) == 0
+    assert "exceeds its limit 0.314 rad/s" in caplog.text
 
 
 def test_shipped_files_are_named_from_any_folder_with_the_stdm_drake_prefix(tmp_path, monkeypatch, capsys):
@@ -313,3 +348,36 @@ def test_derivative_training_warns_about_joints_damped_faster_than_the_period(tm
                      "--val", "1", "--quiet", "-o", str(tmp_path / model)]) == 0
         err = capsys.readouterr().err
         assert ("stops these joints faster than the 10 ms period" in err and "train --model D" in err) == warned, err
+
+
+@pytest.mark.slow
+def test_stl_and_collada_visuals_render_in_chromium(tmp_path):
+    """Meshcat shows an STL visual and a millimetre COLLADA visual (both through OBJ copies, colored by
+    the URDF's <material>) in a real browser, at their size: without the conversion the STL link would
+    be missing from the page, and the COLLADA box, its unit ignored by Meshcat, 1000 times too large."""
+    import matplotlib.image
+    from test_visualize import CHROMIUM_FLAGS, chromium
+    from stdm_drake.collection.recorder import TrajectoryRecorder
+    box_stl(tmp_path / "meshes" / "upper.stl", [0.2, 0.2, 0.3])
+    box_dae_millimetres(tmp_path / "meshes" / "fore.dae", [200.0, 200.0, 300.0])
+    blue_material = '<material name="blue"><color rgba="0.1 0.2 0.95 1"/></material>'
+    urdf = two_link_urdf().replace(CYLINDER, "<visual><geometry></geometry></visual>", 1)   # the base: nothing
+    urdf = urdf.replace("<visual><geometry></geometry></visual>", "", 1)
+    urdf = urdf.replace(CYLINDER, f'<visual><origin xyz="0 0 0.15"/><geometry><mesh filename="meshes/upper.stl"/>'
+                                  f'</geometry>{blue_material}</visual>', 1)
+    red_material = '<material name="red"><color rgba="0.95 0.1 0.1 1"/></material>'
+    urdf = urdf.replace(CYLINDER, '<visual><origin xyz="-0.1 -0.1 0"/><geometry><mesh filename="meshes/fore.dae"/>'
+                                  f'</geometry>{red_material}</visual>', 1)
+    recorder = TrajectoryRecorder(0.01, robot=load_robot(write_robot(tmp_path, urdf, GOOD)))
+    recorder.add(np.tile([0.3, -0.6], (5, 1)))
+    recorder.publish()
+    html = tmp_path / "run.html"
+    recorder.write_html(html)
+    screenshot = tmp_path / "shot.png"
+    subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
+                    f"--screenshot={screenshot}", html.as_uri()], check=True, capture_output=True, timeout=120)
+    pixels = matplotlib.image.imread(screenshot)[..., :3]
+    red, green, blue_channel = pixels[..., 0], pixels[..., 1], pixels[..., 2]
+    assert np.count_nonzero((blue_channel > red + 0.25) & (blue_channel > green + 0.1)) > 100, "the STL link is missing"
+    reddish = np.count_nonzero((red > blue_channel + 0.25) & (red > green + 0.25))
+    assert 100 < reddish < 0.2 * red.size, f"the COLLADA link is missing or out of scale ({reddish} pixels)"

@@ -175,7 +175,12 @@ def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampli
             displacement[3:6] = rng.uniform(-1.0, 1.0, 3) * np.asarray(sampling.position_offset)
             motion = np.linalg.lstsq(jacobian, displacement, rcond=None)[0]
             ratios.append(np.max(1.875 * np.abs(motion) / horizon / allowed))
-    return float(min(1.0, target / np.quantile(ratios, 0.9)))
+    scale = float(min(1.0, target / np.quantile(ratios, 0.9)))
+    if not (np.isfinite(scale) and scale >= 0.05):
+        raise PlanningError(f"robot {kinematics.robot.name}: derived plans of {horizon:g} s would need a final-pose box "
+                            f"{scale:.3g} of the usual to stay within the velocity limits; give a tracking spec with "
+                            "--config")
+    return scale
 
 
 def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *, planner_kind: str | None = None,

@@ -51,7 +51,7 @@ class _Kinematic(DynamicsModel):
     def __init__(self, state_dim: int, action_dim: int, sample_period: float):
         if state_dim % 2 or state_dim < 2:
             raise InputError(f"a physics baseline needs a state [q, v] of even size, got {state_dim}")
-        if not (np.isfinite(sample_period) and sample_period > 0):
+        if sample_period is None or not (np.isfinite(sample_period) and sample_period > 0):
             raise InputError(f"sample period must be a positive number of seconds, got {sample_period}")
         self.state_dim, self.action_dim, self.sample_period = state_dim, action_dim, float(sample_period)
 
@@ -290,7 +290,7 @@ class PeriodAcceleration(NominalAcceleration):
 
     def __init__(self, robot=None, sample_period: float = 0.01):
         super().__init__(robot)
-        if not (np.isfinite(sample_period) and sample_period > 0):
+        if sample_period is None or not (np.isfinite(sample_period) and sample_period > 0):
             raise InputError(f"period acceleration needs a sample period > 0 s, got {sample_period}")
         self.sample_period = float(sample_period)
 
