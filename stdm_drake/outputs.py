@@ -20,6 +20,7 @@ FOLDER_MARKER = ".stdm-drake-output"
 # The first line of every HTML file stdm-drake writes, and the key of every JSON file.
 HTML_MARKER = "<!-- written by stdm-drake -->"
 JSON_MARKER = "written_by"
+DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every dataset (stdm_drake.data.dataset)
 
 
 def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
@@ -59,9 +60,8 @@ def _written_by_us(path: pathlib.Path, kind: str) -> bool:
     try:
         if kind == "dataset":
             import h5py
-            from stdm_drake.data.dataset import FORMAT
             with h5py.File(path, "r") as f:
-                return f.attrs.get("format") == FORMAT
+                return f.attrs.get("format") == DATASET_FORMAT
         if kind == "json":
             with open(path, encoding="utf-8") as f:
                 data = json.load(f)

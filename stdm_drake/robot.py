@@ -236,38 +236,6 @@ class Robot:
             raise InputError(f"robot {self.name} has {self.num_joints} arm joints; task-space plans place the tool's "
                              f"position and orientation and need at least {POSE_DIM}: use the excitation protocol")
 
-    def check_dataset(self, dataset) -> None:
-        """InputError unless `dataset` (a loaded Dataset) was collected with this robot (same joints and
-        model file, as its metadata records them)."""
-        recorded = dataset.metadata
-        name = recorded.get("robot", {}).get("name", "?")
-        if recorded.get("joint_names") is not None and list(recorded["joint_names"]) != list(self.joint_names):
-            raise InputError(f"{dataset.path} was collected with robot {name} (joints {recorded['joint_names']}), "
-                             f"not {self.name}; pass its config with --robot")
-        if recorded.get("robot_model_sha256") not in (None, self.model_sha256()):
-            raise InputError(f"{dataset.path} was collected with another model file than {self.model_path.name} "
-                             f"(robot {name}); pass its config with --robot")
-        self._check_within_limits(dataset)
-
-    def _check_within_limits(self, dataset, position_margin: float = 0.5, velocity_factor: float = 1.5) -> None:
-        """InputError if the dataset's states leave the robot's position limits by more than
-        `position_margin` (rad or m) or its velocity limits by more than `velocity_factor` times."""
-        from stdm_drake.plant import robot_joint_limits
-        limits = robot_joint_limits(self)
-        for index in range(dataset.num_trajectories):
-            traj = dataset.trajectory(index)
-            for key, low, high in (("q", limits.position_lower - position_margin, limits.position_upper + position_margin),
-                                   ("v", -velocity_factor * limits.velocity, velocity_factor * limits.velocity)):
-                if traj[key].shape[1] != self.num_joints:
-                    raise InputError(f"{dataset.path}: {key} has {traj[key].shape[1]} joints, robot {self.name} has "
-                                     f"{self.num_joints}")
-                outside = (traj[key] < low) | (traj[key] > high)
-                if outside.any():
-                    step, joint = np.argwhere(outside)[0]
-                    raise InputError(f"{dataset.path}: trajectory {index} {key} of {self.joint_names[joint]} is "
-                                     f"{traj[key][step, joint]:.4g} at step {step}, far outside robot {self.name}'s "
-                                     "limits; not this robot's data")
-
     def model_sha256(self) -> str:
         """SHA-256 of the robot description file, stored in every dataset."""
         return hashlib.sha256(self.model_path.read_bytes()).hexdigest()
@@ -396,15 +364,3 @@ def load_robot(path=UR10_CONFIG) -> Robot:
 
 
 UR10 = load_robot()  # the default robot of every command
-
-
-def robot_for(path, dataset=None) -> Robot:
-    """The robot a command's `--robot PATH` names (None: the UR-10 preset), its plant built once to check
-    that it loads and that home is free of self-collision; with `dataset`, InputError unless the dataset
-    was collected with it."""
-    from stdm_drake.plant import SelfCollisionChecker
-    robot = load_robot(path) if path is not None else UR10
-    SelfCollisionChecker(robot)  # the model loads, and its home is free of self-collision, before any work
-    if dataset is not None:
-        robot.check_dataset(dataset)
-    return robot

@@ -6,6 +6,7 @@ import pytest
 
 from stdm_drake.errors import InputError
 from stdm_drake.closed_loop.ilqr import IlqrSolver
+from stdm_drake.closed_loop.optimizer import OptimizerResult, TrajectoryOptimizer
 from stdm_drake.closed_loop.mpc import MpcConfig, Reference, load_mpc_config, run_closed_loop
 from stdm_drake.learning.physics import PlantModel, zero_order_hold_discretization
 
@@ -57,7 +58,7 @@ def test_ilqr_equals_exact_lqr_on_a_linear_model():
     rng = np.random.default_rng(1)
     x0, reference = rng.normal(size=12), rng.normal(size=(9, 12))
     u_ff = rng.normal(size=(8, 6))
-    solver = IlqrSolver(model, config, effort_limit=np.full(6, 1e9))
+    solver = IlqrSolver(model, config.cost(6), np.full(6, 1e9), config.ilqr())
     result = solver.solve(x0, np.zeros((8, 6)), reference, u_ff)
     expected = exact_lqr_controls(model, config, x0, reference, u_ff)
     np.testing.assert_allclose(result.u, expected, rtol=1e-6, atol=1e-8)
@@ -67,7 +68,8 @@ def test_ilqr_equals_exact_lqr_on_a_linear_model():
 
 def test_torques_are_clipped_to_effort_limits():
     model = LinearModel()
-    solver = IlqrSolver(model, MpcConfig(horizon=5), effort_limit=np.full(6, 0.5))
+    config = MpcConfig(horizon=5)
+    solver = IlqrSolver(model, config.cost(6), np.full(6, 0.5), config.ilqr())
     result = solver.solve(np.zeros(12), np.zeros((5, 6)), np.full((6, 12), 100.0), np.zeros((5, 6)))
     assert np.abs(result.u).max() <= 0.5 + 1e-12 and np.abs(result.u).max() == pytest.approx(0.5)
 
@@ -267,3 +269,25 @@ def test_plant_simulator_start_equals_a_fresh_simulator():
         fresh.start(x, tau)
         used.start(x, tau)
         np.testing.assert_array_equal(used.advance_to(0.02), fresh.advance_to(0.02))
+
+
+class HoldFeedforward(TrajectoryOptimizer):
+    """Another optimizer, for the plug test: returns the feedforward torques unchanged."""
+
+    def solve(self, x0, u_init, reference, u_ff, offset=None):
+        x = self.rollout(x0, u_ff, offset)
+        return OptimizerResult(u_ff.copy(), x, self.cost(x, u_ff, reference, u_ff), 0, bool(np.isfinite(x).all()))
+
+
+def test_another_optimizer_plugs_into_the_controller_unchanged(plant_model):
+    """MpcController takes any TrajectoryOptimizer: with one that returns the feedforward, every applied
+    torque is the reference's gravity torque at that step (the controller is not touched)."""
+    from stdm_drake.plant import Dynamics
+    config = dataclasses.replace(load_mpc_config(), horizon=3)
+    reference = quintic_reference(5)
+    optimizer = HoldFeedforward(plant_model, config.cost(6), np.full(6, 1e3))
+    log = run_closed_loop(plant_model, reference, config, optimizer=optimizer)
+    gravity = Dynamics()
+    assert not any(log.fallback) and len(log.torque) == 5
+    for k, torque in enumerate(log.torque):
+        np.testing.assert_allclose(torque, gravity.gravity_torque(reference.q[k]), rtol=1e-12)

@@ -40,6 +40,56 @@ def test_imports_point_down_the_data_flow(stage):
     assert not edges, f"{stage} imports from a later stage: {edges}"
 
 
+def module_graph() -> dict[str, set[str]]:
+    """Every stdm_drake module (top level included) -> the stdm_drake modules it imports anywhere in it."""
+    paths = {".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): path
+             for path in PACKAGE.rglob("*.py")}
+    return {name: {module for module in imported_modules(path) if module in paths and module != name}
+            for name, path in paths.items()}
+
+
+def test_no_module_imports_itself_back():
+    """No import cycle among the package's modules, function-level and type-checking imports counted
+    (strongly connected components of the import graph, Tarjan's algorithm)."""
+    graph = module_graph()
+    index, low, stack, on_stack, cycles = {}, {}, [], set(), []
+
+    def visit(node):
+        index[node] = low[node] = len(index)
+        stack.append(node)
+        on_stack.add(node)
+        for target in sorted(graph[node]):
+            if target not in index:
+                visit(target)
+                low[node] = min(low[node], low[target])
+            elif target in on_stack:
+                low[node] = min(low[node], index[target])
+        if low[node] == index[node]:
+            component = []
+            while True:
+                member = stack.pop()
+                on_stack.discard(member)
+                component.append(member)
+                if member == node:
+                    break
+            if len(component) > 1:
+                cycles.append(sorted(component))
+
+    for node in sorted(graph):
+        if node not in index:
+            visit(node)
+    assert not cycles, f"import cycles: {cycles}"
+
+
+def test_top_level_modules_import_no_stage():
+    """The modules at the package's top (robot, plant, files, config, ...) sit below every stage; only
+    the command line (cli, which loads commands by name) stands above them."""
+    stages = tuple(f"stdm_drake.{stage}" for stage in ("collection", "data", "learning", "closed_loop", "experiments"))
+    edges = [(name, module) for name, modules in module_graph().items() if name.count(".") == 1 and name != "stdm_drake.cli"
+             for module in modules if module.startswith(stages)]
+    assert not edges, f"top-level modules import a stage: {edges}"
+
+
 def test_importing_collection_loads_no_learning_code():
     code = ("import sys, stdm_drake.collection.collect, stdm_drake.collection.recorder; "
             "bad = [m for m in sys.modules if m.startswith(('stdm_drake.learning', 'torch'))]; "

@@ -206,7 +206,7 @@ def run(args) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.files import write_text_atomic
     from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.robot import robot_for
+    from stdm_drake.data.compatibility import robot_for
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     if args.plans < 1:
         raise InputError(f"--plans must be >= 1, got {args.plans}")

@@ -1,68 +1,41 @@
-"""Clamped iLQR (iterative LQR) over a horizon for one prediction model and one tracking cost; see
-`stdm_drake.closed_loop.mpc` for the cost and the prediction-model interface."""
+"""Clamped iLQR (iterative LQR) over a horizon for one prediction model and one tracking cost: the MPC's
+default `TrajectoryOptimizer` (`stdm_drake.closed_loop.optimizer`; the prediction-model interface is in
+`stdm_drake.closed_loop.mpc`). Shapes for n joints, m actuated, horizon H as in `optimizer`."""
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from stdm_drake.config import check_joint_vector
-
-if TYPE_CHECKING:
-    from stdm_drake.closed_loop.mpc import MpcConfig
-
+from stdm_drake.closed_loop.optimizer import OptimizerResult, TrackingCost, TrajectoryOptimizer
+from stdm_drake.errors import InputError
 
 
 @dataclasses.dataclass
-class IlqrResult:
-    """u: (H, 6) optimized torques; x: (H+1, 12) predicted states; cost; iterations; finite."""
-    u: np.ndarray
-    x: np.ndarray
-    cost: float
-    iterations: int
-    finite: bool
+class IlqrConfig:
+    """iLQR's own settings: iterations per solve, line-search step sizes, the initial
+    Levenberg-Marquardt regularization of Q_uu."""
+    max_iterations: int = 1
+    line_search: list[float] = dataclasses.field(default_factory=lambda: [1.0, 0.5, 0.25, 0.1])
+    regularization: float = 1e-6
+
+    def validate(self) -> None:
+        if self.max_iterations < 1 or not self.line_search:
+            raise InputError("mpc max_iterations must be >= 1 and line_search non-empty")
 
 
-class IlqrSolver:
+class IlqrSolver(TrajectoryOptimizer):
     """Clamped iLQR over a horizon for one prediction model and one cost."""
 
-    def __init__(self, model, config: MpcConfig, effort_limit: np.ndarray):
-        config.validate()
-        self.model = model
-        self.config = config
-        self.effort_limit = np.asarray(effort_limit, dtype=float)
-        self.joints = joints = len(self.effort_limit)
-        self.state_dim = 2 * joints
-        weight = {name: check_joint_vector(f"mpc {name}", getattr(config, name), count=joints, nonnegative=True)
-                  for name in ("position_weight", "velocity_weight", "effort_weight")}
-        self.Q = np.diag(np.concatenate([weight["position_weight"], weight["velocity_weight"]]))
-        self.R = np.diag(weight["effort_weight"])
-
-    def rollout(self, x0: np.ndarray, u: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
-        """Predicted states (H+1, 12) from x0 under u (H, 6), each step shifted by `offset` (12,)."""
-        offset = np.zeros(self.state_dim) if offset is None else offset
-        x = np.empty((len(u) + 1, self.state_dim))
-        x[0] = x0
-        for k in range(len(u)):
-            x[k + 1] = self._predict(x[k], u[k], offset)
-        return x
-
-    def _predict(self, x: np.ndarray, u: np.ndarray, offset: np.ndarray) -> np.ndarray:
-        """One shifted model step: f(x (12,), u (6,)) + offset (12,)."""
-        return self.model.step(x[None], u[None])[0] + offset
-
-    def cost(self, x: np.ndarray, u: np.ndarray, reference: np.ndarray, u_ff: np.ndarray) -> float:
-        error = x[1:] - reference[1:]
-        weights = np.ones(len(u))
-        weights[-1] = self.config.terminal_factor
-        state = np.einsum("ki,ij,kj->k", error, self.Q, error) @ weights
-        effort = np.einsum("ki,ij,kj->", u - u_ff, self.R, u - u_ff)
-        return float(state + effort)
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: IlqrConfig | None = None):
+        super().__init__(model, cost, effort_limit)
+        self.config = config or IlqrConfig()
+        self.config.validate()
+        self.Q, self.R = cost.Q, cost.R
 
     def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
-              offset: np.ndarray | None = None) -> IlqrResult:
-        """x0 (12,); u_init (H, 6) warm start; reference (H+1, 12); u_ff (H, 6); offset (12,): a
+              offset: np.ndarray | None = None) -> OptimizerResult:
+        """x0 (2n,); u_init (H, m) warm start; reference (H+1, 2n); u_ff (H, m); offset (2n,): a
         constant added to every predicted step (the disturbance estimate; zero by default)."""
         horizon = len(u_init)
         offset = np.zeros(self.state_dim) if offset is None else np.asarray(offset, dtype=float)
@@ -70,15 +43,14 @@ class IlqrSolver:
         x = self.rollout(x0, u, offset)
         cost = self.cost(x, u, reference, u_ff)
         if not (np.all(np.isfinite(x)) and np.isfinite(cost)):
-            return IlqrResult(u, x, cost, 0, False)
+            return OptimizerResult(u, x, cost, 0, False)
         mu = self.config.regularization
         iterations = 0
-        terminal = np.ones(horizon)
-        terminal[-1] = self.config.terminal_factor
+        terminal = self.cost_function.step_weights(horizon)
         for iterations in range(1, self.config.max_iterations + 1):
             A, B = self.model.jacobians(x[:-1], u)
             if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
-                return IlqrResult(u, x, cost, iterations, False)
+                return OptimizerResult(u, x, cost, iterations, False)
             gains = self._backward(x, u, reference, u_ff, A, B, terminal, mu)
             if gains is None:
                 mu *= 10.0
@@ -92,7 +64,7 @@ class IlqrSolver:
                 for k in range(horizon):
                     u_new[k] = np.clip(u[k] + alpha * feedforward[k] + feedback[k] @ (x_new[k] - x[k]),
                                        -self.effort_limit, self.effort_limit)
-                    x_new[k + 1] = self._predict(x_new[k], u_new[k], offset)
+                    x_new[k + 1] = self.predict(x_new[k], u_new[k], offset)
                 new_cost = self.cost(x_new, u_new, reference, u_ff)
                 if np.isfinite(new_cost) and new_cost < cost:
                     x, u, cost, improved = x_new, u_new, new_cost, True
@@ -100,10 +72,10 @@ class IlqrSolver:
             if not improved:
                 break
             mu = max(mu / 10.0, 1e-12)
-        return IlqrResult(u, x, cost, iterations, bool(np.all(np.isfinite(x))))
+        return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x))))
 
     def _backward(self, x, u, reference, u_ff, A, B, terminal, mu):
-        """Riccati recursion; returns (feedforward (H, 6), feedback (H, 6, 12)) or None if Q_uu is not PD."""
+        """Riccati recursion; returns (feedforward (H, m), feedback (H, m, 2n)) or None if Q_uu is not PD."""
         horizon = len(u)
         feedforward = np.empty((horizon, self.joints))
         feedback = np.empty((horizon, self.joints, self.state_dim))

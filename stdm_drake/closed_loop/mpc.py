@@ -1,7 +1,7 @@
 """Model predictive control of the UR-10 with a pluggable prediction model.
 
-The optimizer is iLQR (iterative LQR: a gradient-based shooting method on the model's
-Jacobians). Why iLQR rather than sampling (MPPI/CEM): the learned models are smooth, their
+The default optimizer is iLQR (iterative LQR: a gradient-based shooting method on the model's
+Jacobians); any `optimizer.TrajectoryOptimizer` can replace it. Why iLQR rather than sampling (MPPI/CEM): the learned models are smooth, their
 Jacobians cost one forward-mode pass, and derivative training is exactly what makes those
 Jacobians right, so the controller uses what the method improves; and the plant itself can
 serve as the reference model (exact rollouts through the same discrete plant, Jacobians from
@@ -24,8 +24,9 @@ Every prediction model provides `sample_period` (s) and two batched methods:
     step(x (N, 12), u (N, 6)) -> x_next (N, 12)
     jacobians(x (H, 12), u (H, 6)) -> (A (H, 12, 12), B (H, 12, 6))   of x_next w.r.t. x and u.
 
-Modules: the plant model (`plant_model`), the solver (`ilqr`), this controller and its closed loop,
-and the comparison of prediction models with the `stdm-drake mpc` command (`comparison`).
+Modules: the tracking cost and the optimizer interface (`optimizer`), the default optimizer (`ilqr`),
+this controller and its closed loop, and the comparison of prediction models with the `stdm-drake mpc`
+command (`comparison`); the plant as a prediction model is `learning.physics.PlantModel`.
 """
 import dataclasses
 import time
@@ -34,7 +35,8 @@ import numpy as np
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from stdm_drake.closed_loop.ilqr import IlqrSolver
+from stdm_drake.closed_loop.ilqr import IlqrConfig, IlqrSolver
+from stdm_drake.closed_loop.optimizer import TrackingCost, TrajectoryOptimizer
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
@@ -71,9 +73,21 @@ class MpcConfig:
             raise InputError("mpc effort_weight must be > 0 for every joint (the torque problem must be convex)")
         if not 0.0 <= self.disturbance_gain <= 1.0:
             raise InputError(f"mpc disturbance_gain must be in [0, 1], got {self.disturbance_gain}")
-        if self.horizon < 1 or self.max_iterations < 1 or not self.line_search:
-            raise InputError("mpc horizon and max_iterations must be >= 1 and line_search non-empty")
+        if self.horizon < 1:
+            raise InputError("mpc horizon must be >= 1")
+        self.ilqr().validate()
 
+    def cost(self, joints: int) -> TrackingCost:
+        """The tracking cost of these weights for `joints` joints (one weight each, or one for all)."""
+        weight = {name: check_joint_vector(f"mpc {name}", getattr(self, name), count=joints, nonnegative=True)
+                  for name in ("position_weight", "velocity_weight", "effort_weight")}
+        return TrackingCost.from_weights(weight["position_weight"], weight["velocity_weight"],
+                                         weight["effort_weight"], self.terminal_factor)
+
+    def ilqr(self) -> IlqrConfig:
+        """The iLQR settings among these (the default optimizer's own config)."""
+        return IlqrConfig(max_iterations=self.max_iterations, line_search=list(self.line_search),
+                          regularization=self.regularization)
 
     @classmethod
     def derived_for(cls, robot: Robot) -> "MpcConfig":
@@ -125,8 +139,8 @@ class MpcLog:
 
 
 class MpcController(LeafSystem):
-    """Discrete-time MPC: every `model.sample_period` it solves iLQR from the measured state and
-    holds the first torque until the next sample.
+    """Discrete-time MPC: every `model.sample_period` it solves the tracking problem from the measured
+    state (iLQR unless another optimizer is given) and holds the first torque until the next sample.
 
     For a robot of n joints (`robot`, default the UR-10 preset): input "state" (2n: [q rad, v rad/s]);
     output "torque" (n, N m).
@@ -141,10 +155,13 @@ class MpcController(LeafSystem):
 
     If the model's predictions are not finite, the controller applies gravity compensation at the
     measured q, clipped to the effort limits, and records the step in `log.fallback`.
+
+    optimizer: the `TrajectoryOptimizer` that solves each step (default: `IlqrSolver` of `model` with
+    the config's cost and iLQR settings); it brings its own model, cost and effort limits.
     """
 
     def __init__(self, model, reference: Reference, config: MpcConfig, plant_time_step: float,
-                 robot: Robot | None = None):
+                 robot: Robot | None = None, optimizer: TrajectoryOptimizer | None = None):
         super().__init__()
         config.validate()
         self.dynamics = Dynamics(robot)
@@ -155,7 +172,7 @@ class MpcController(LeafSystem):
         self.joints = joints = self.dynamics.robot.num_joints
         self.state_dim = state_dim = 2 * joints
         self.effort_limit = joint_limits(self.dynamics.plant).effort
-        self.solver = IlqrSolver(model, config, self.effort_limit)
+        self.solver = optimizer or IlqrSolver(model, config.cost(joints), self.effort_limit, config.ilqr())
         self.log = MpcLog()
         period = model.sample_period
         if not 0 < plant_time_step <= period:
@@ -232,14 +249,14 @@ class MpcController(LeafSystem):
 
 
 def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
-                      meshcat=None, robot: Robot | None = None):
-    """Diagram: the robot's plant (discrete; default robot: the UR-10 preset) <-> MpcController(model).
-    Returns (diagram, plant, controller)."""
+                      meshcat=None, robot: Robot | None = None, optimizer: TrajectoryOptimizer | None = None):
+    """Diagram: the robot's plant (discrete; default robot: the UR-10 preset) <-> MpcController(model,
+    optimizer). Returns (diagram, plant, controller)."""
     from stdm_drake.plant import make_plant
     plant_config = plant_config or PlantConfig()
     builder = DiagramBuilder()
     plant, scene_graph = make_plant(plant_config, builder=builder, robot=robot)
-    controller = builder.AddSystem(MpcController(model, reference, config, plant_config.time_step, robot))
+    controller = builder.AddSystem(MpcController(model, reference, config, plant_config.time_step, robot, optimizer))
     controller.set_name("mpc")
     builder.Connect(plant.get_state_output_port(), controller.get_state_input_port())
     builder.Connect(controller.get_torque_output_port(), plant.get_actuation_input_port())
@@ -250,10 +267,12 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
 
 
 def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
-                    duration: float | None = None, robot: Robot | None = None) -> MpcLog:
+                    duration: float | None = None, robot: Robot | None = None,
+                    optimizer: TrajectoryOptimizer | None = None) -> MpcLog:
     """Simulate plant + MPC from rest at the reference's start; returns the controller's log."""
     from pydrake.systems.analysis import Simulator
-    diagram, plant, controller = build_closed_loop(model, reference, config, plant_config, robot=robot)
+    diagram, plant, controller = build_closed_loop(model, reference, config, plant_config, robot=robot,
+                                                   optimizer=optimizer)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     x0 = np.concatenate([reference.q[0], np.zeros(len(reference.q[0]))])

@@ -26,7 +26,7 @@ def run(args) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.errors import InputError
     from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.robot import robot_for
+    from stdm_drake.data.compatibility import robot_for
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
     if not args.index and args.trajectories < 1:

@@ -33,14 +33,15 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, json_default
+from stdm_drake.outputs import DATASET_FORMAT
 
-FORMAT = "stdm-drake-dataset"
+FORMAT = DATASET_FORMAT
 FORMAT_VERSION = 1
 PROTOCOLS = ("excitation", "tracking")
 REQUIRED_ARRAYS = ("q", "v", "tau", "tau_next", "q_true", "v_true", "qdd", "qdd_end")
 # Bounds no robot's data reaches (rad or m, rad/s, rad/s^2: a continuous joint may wind up many turns,
 # a light joint accelerate fast): a value beyond them is a corrupted or foreign file. The robot's own
-# limits are checked where the robot is known (Robot.check_dataset).
+# limits are checked where the robot is known (data.compatibility.check_dataset_robot).
 PLAUSIBLE_MAGNITUDE = {"q": 1e4, "q_true": 1e4, "v": 1e4, "v_true": 1e4, "qdd": 1e7, "qdd_end": 1e7}
 PLANNED_ARRAYS = ("q_planned", "v_planned", "qdd_planned")
 DERIVATIVE_SOURCES = ("true", "planned")

@@ -119,7 +119,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     if args.robot is not None:
-        from stdm_drake.robot import robot_for
+        from stdm_drake.data.compatibility import robot_for
         robot_for(args.robot, dataset)
     print(summary(dataset))
     return 0

@@ -277,7 +277,7 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
     if runner is not None and runner.backend == "ray":
         from stdm_drake.experiments.runner import run_jobs_on_ray
         order = sorted(range(len(jobs)), key=lambda index: -job_cost(jobs[index]))
-        rows_of = run_jobs_on_ray(jobs, cache, runner, progress, order)
+        rows_of = run_jobs_on_ray(jobs, cache, runner, progress, order, run_job=run_job, cached_rows=cached_rows)
         return [row for index in range(len(jobs)) for row in rows_of[index]]
     bar = tqdm(total=len(jobs), desc="train", unit="model", disable=not progress, file=sys.stderr)
     results = []

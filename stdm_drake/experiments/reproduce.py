@@ -175,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
     if args.seed < 0:
         raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
-    from stdm_drake.robot import robot_for
+    from stdm_drake.data.compatibility import robot_for
     robot = robot_for(args.robot)
     robot.check_can_track()
     output = args.output or pathlib.Path("out/reproduce" if robot.same_as(UR10) else f"out/reproduce-{robot.name}")

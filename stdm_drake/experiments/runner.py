@@ -1,5 +1,6 @@
 """`reproduce`'s training jobs on Ray: the same job list and cache as the local pool
-(`stdm_drake.experiments.jobs.run_jobs`), the same rows.
+(`stdm_drake.experiments.jobs.run_jobs`, which hands this module its job runner and cache lookup), the
+same rows.
 
 The cache of results keyed by configuration stays on the machine that runs the command: a Ray task
 trains into a scratch folder on its node and returns the checkpoint and result files, which the driver
@@ -17,12 +18,11 @@ import tempfile
 from stdm_drake.cluster import KILL_ONCE_VARIABLE, RunnerConfig, connect, node_local_dataset, task_error
 
 
-def _ray_job(job, dataset_content: bytes, dataset_sha256: str) -> tuple[list, dict]:
-    """A training job on a Ray worker: the dataset from the object store, training into a scratch cache;
-    returns (rows, {file name: bytes}) for the driver's cache."""
+def _ray_job(run_job, job, dataset_content: bytes, dataset_sha256: str) -> tuple[list, dict]:
+    """A training job on a Ray worker: `run_job(job, cache folder) -> rows` with the dataset from the
+    object store, training into a scratch cache; returns (rows, {file name: bytes}) for the driver's cache."""
     import shutil
 
-    from stdm_drake.experiments.jobs import run_job
     marker = os.environ.get(KILL_ONCE_VARIABLE)
     if marker and not os.path.exists(marker):  # fault injection for the retry test: die once, like a lost node
         pathlib.Path(marker).write_text(str(os.getpid()))
@@ -39,12 +39,13 @@ def _ray_job(job, dataset_content: bytes, dataset_sha256: str) -> tuple[list, di
     return rows, files
 
 
-def run_jobs_on_ray(jobs: list, cache: pathlib.Path, config: RunnerConfig, progress: bool, order: list[int]) -> dict:
-    """{job index: rows}; jobs already in the cache are read from it, the rest run as Ray tasks (submitted
-    in `order`), their files written into `cache` by this process."""
+def run_jobs_on_ray(jobs: list, cache: pathlib.Path, config: RunnerConfig, progress: bool, order: list[int], *,
+                    run_job, cached_rows) -> dict:
+    """{job index: rows}; jobs for which `cached_rows(job, cache)` has rows are read from the cache, the rest
+    run as Ray tasks of `run_job(job, folder) -> rows` (a module-level function; submitted in `order`),
+    their files written into `cache` by this process."""
     from tqdm import tqdm
 
-    from stdm_drake.experiments.jobs import cached_rows
     from stdm_drake.files import atomic_path
     rows_of = {}
     missing = []
@@ -65,7 +66,7 @@ def run_jobs_on_ray(jobs: list, cache: pathlib.Path, config: RunnerConfig, progr
             if path not in datasets:
                 content = pathlib.Path(path).read_bytes()
                 datasets[path] = (ray.put(content), hashlib.sha256(content).hexdigest())
-        pending = {task.remote(jobs[index], *datasets[jobs[index].dataset]): index for index in missing}
+        pending = {task.remote(run_job, jobs[index], *datasets[jobs[index].dataset]): index for index in missing}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             index = pending.pop(done[0])

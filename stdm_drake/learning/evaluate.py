@@ -228,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.learning.checkpoint import load_checkpoint
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
-    from stdm_drake.robot import robot_for
+    from stdm_drake.data.compatibility import robot_for
 
     check_output_file("--json", args.json, kind="json", inputs=[args.checkpoint, args.dataset, args.robot],
                       force=args.force)

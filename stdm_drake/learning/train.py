@@ -299,7 +299,7 @@ def run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     robot = None
     if args.robot is not None or structure.uses_nominal_model:
-        from stdm_drake.robot import robot_for
+        from stdm_drake.data.compatibility import robot_for
         robot = robot_for(args.robot, dataset)
     if derivative and robot is not None:   # (without a robot, train loads no Drake plant at all)
         warn_about_fast_damped_joints(robot, dataset.sample_period)

@@ -1,0 +1,87 @@
+"""Trajectory optimization for the MPC, apart from the controller: the tracking cost and the interface
+every optimizer implements. `stdm_drake.closed_loop.ilqr.IlqrSolver` is one; `MpcController` takes any
+(`optimizer=`), so a sampling optimizer (CEM, MPPI) plugs in without touching the controller.
+
+For a robot of n joints and m actuated ones, a horizon of H steps: states x (H+1, 2n) = [q rad, v rad/s],
+torques u (H, m) N m, the reference r (H+1, 2n) and the feedforward torques u_ff (H, m).
+"""
+from __future__ import annotations
+
+import abc
+import dataclasses
+
+import numpy as np
+
+
+@dataclasses.dataclass(frozen=True)
+class TrackingCost:
+    """sum_k w_k (x_k+1 - r_k+1)^T Q (x_k+1 - r_k+1) + (u_k - u_ff,k)^T R (u_k - u_ff,k), k = 0..H-1,
+    with w_k = 1 except the last step's, `terminal_factor`. Q (2n, 2n) and R (m, m) are diagonal."""
+    Q: np.ndarray
+    R: np.ndarray
+    terminal_factor: float
+
+    @classmethod
+    def from_weights(cls, position_weight, velocity_weight, effort_weight, terminal_factor: float) -> "TrackingCost":
+        """From per-joint weights: position (n) 1/rad², velocity (n) s²/rad², effort (m) 1/(N m)²."""
+        return cls(Q=np.diag(np.concatenate([np.asarray(position_weight, dtype=float),
+                                             np.asarray(velocity_weight, dtype=float)])),
+                   R=np.diag(np.asarray(effort_weight, dtype=float)), terminal_factor=float(terminal_factor))
+
+    def step_weights(self, horizon: int) -> np.ndarray:
+        """w (H,): ones, the last `terminal_factor`."""
+        weights = np.ones(horizon)
+        weights[-1] = self.terminal_factor
+        return weights
+
+    def value(self, x: np.ndarray, u: np.ndarray, reference: np.ndarray, u_ff: np.ndarray) -> float:
+        """The cost of states x (H+1, 2n) and torques u (H, m) against reference (H+1, 2n) and u_ff (H, m)."""
+        error = x[1:] - reference[1:]
+        state = np.einsum("ki,ij,kj->k", error, self.Q, error) @ self.step_weights(len(u))
+        effort = np.einsum("ki,ij,kj->", u - u_ff, self.R, u - u_ff)
+        return float(state + effort)
+
+
+@dataclasses.dataclass
+class OptimizerResult:
+    """u: (H, m) optimized torques; x: (H+1, 2n) predicted states; cost; iterations; finite (every
+    predicted state finite)."""
+    u: np.ndarray
+    x: np.ndarray
+    cost: float
+    iterations: int
+    finite: bool
+
+
+class TrajectoryOptimizer(abc.ABC):
+    """Minimizes `cost` over torque sequences within +-effort_limit (m,) N m, predicting with `model`
+    (a prediction model: `step(x (N, 2n), u (N, m)) -> (N, 2n)`; see `stdm_drake.closed_loop.mpc`)."""
+
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray):
+        self.model = model
+        self.cost_function = cost
+        self.effort_limit = np.asarray(effort_limit, dtype=float)
+        self.joints = len(self.effort_limit)
+        self.state_dim = len(cost.Q)
+
+    def cost(self, x: np.ndarray, u: np.ndarray, reference: np.ndarray, u_ff: np.ndarray) -> float:
+        return self.cost_function.value(x, u, reference, u_ff)
+
+    def rollout(self, x0: np.ndarray, u: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
+        """Predicted states (H+1, 2n) from x0 (2n,) under u (H, m), each step shifted by `offset` (2n,)."""
+        offset = np.zeros(self.state_dim) if offset is None else offset
+        x = np.empty((len(u) + 1, self.state_dim))
+        x[0] = x0
+        for k in range(len(u)):
+            x[k + 1] = self.predict(x[k], u[k], offset)
+        return x
+
+    def predict(self, x: np.ndarray, u: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """One shifted model step: f(x (2n,), u (m,)) + offset (2n,)."""
+        return self.model.step(x[None], u[None])[0] + offset
+
+    @abc.abstractmethod
+    def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
+              offset: np.ndarray | None = None) -> OptimizerResult:
+        """Torques for x0 (2n,) from the warm start u_init (H, m), against reference (H+1, 2n) and u_ff
+        (H, m); offset (2n,): a constant added to every predicted step (the disturbance estimate)."""

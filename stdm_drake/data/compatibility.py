@@ -1,0 +1,54 @@
+"""Which robot a dataset belongs to: the robot a command's `--robot` names, checked once (its plant
+loads, its home is free of self-collision) and checked against a dataset's recorded robot and limits.
+The one place where robot, dataset and plant meet; checkpoints compare their recorded robot in
+`learning.learned_model`."""
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.plant import JointLimits, SelfCollisionChecker, robot_joint_limits
+from stdm_drake.robot import UR10, Robot, load_robot
+
+
+def robot_for(path, dataset=None) -> Robot:
+    """The robot a command's `--robot PATH` names (None: the UR-10 preset), its plant built once to check
+    that it loads and that home is free of self-collision; with `dataset`, InputError unless the dataset
+    was collected with it (`check_dataset_robot`)."""
+    robot = load_robot(path) if path is not None else UR10
+    SelfCollisionChecker(robot)  # the model loads, and its home is free of self-collision, before any work
+    if dataset is not None:
+        check_dataset_robot(dataset, robot, robot_joint_limits(robot))
+    return robot
+
+
+def check_dataset_robot(dataset, robot: Robot, limits: JointLimits) -> None:
+    """InputError unless `dataset` (a loaded Dataset) was collected with `robot`: the same joints and model
+    file, as its metadata records them, and states within `limits` (the robot's joint limits) give or take
+    `check_within_limits`'s margins."""
+    recorded = dataset.metadata
+    name = recorded.get("robot", {}).get("name", "?")
+    if recorded.get("joint_names") is not None and list(recorded["joint_names"]) != list(robot.joint_names):
+        raise InputError(f"{dataset.path} was collected with robot {name} (joints {recorded['joint_names']}), "
+                         f"not {robot.name}; pass its config with --robot")
+    if recorded.get("robot_model_sha256") not in (None, robot.model_sha256()):
+        raise InputError(f"{dataset.path} was collected with another model file than {robot.model_path.name} "
+                         f"(robot {name}); pass its config with --robot")
+    check_within_limits(dataset, robot, limits)
+
+
+def check_within_limits(dataset, robot: Robot, limits: JointLimits, position_margin: float = 0.5,
+                        velocity_factor: float = 1.5) -> None:
+    """InputError if the dataset's states (q, v: (T, n) per trajectory) leave the position limits by more
+    than `position_margin` (rad or m) or the velocity limits by more than `velocity_factor` times."""
+    for index in range(dataset.num_trajectories):
+        traj = dataset.trajectory(index)
+        for key, low, high in (("q", limits.position_lower - position_margin, limits.position_upper + position_margin),
+                               ("v", -velocity_factor * limits.velocity, velocity_factor * limits.velocity)):
+            if traj[key].shape[1] != robot.num_joints:
+                raise InputError(f"{dataset.path}: {key} has {traj[key].shape[1]} joints, robot {robot.name} has "
+                                 f"{robot.num_joints}")
+            outside = (traj[key] < low) | (traj[key] > high)
+            if outside.any():
+                step, joint = np.argwhere(outside)[0]
+                raise InputError(f"{dataset.path}: trajectory {index} {key} of {robot.joint_names[joint]} is "
+                                 f"{traj[key][step, joint]:.4g} at step {step}, far outside robot {robot.name}'s "
+                                 "limits; not this robot's data")
