@@ -221,8 +221,15 @@ def snapshot(folder: pathlib.Path) -> dict:
             for path in sorted(folder.rglob("*"))}
 
 
-def test_the_battery_is_large():
-    assert len(CASES) >= 150
+def test_the_battery_covers_every_command():
+    """Every command of the CLI (and every kind of YAML file it reads) has bad-input cases here: a new
+    command without them fails this test."""
+    from stdm_drake.cli import COMMANDS
+    commands = {argv[0] for argv, _ in CASES if not isinstance(argv, str) and argv}
+    commands |= {YAML_COMMANDS[argv.split("@", 2)[1]][0] for argv, _ in CASES if isinstance(argv, str)}
+    assert set(COMMANDS) <= commands, sorted(set(COMMANDS) - commands)
+    kinds = {argv.split("@", 2)[1] for argv, _ in CASES if isinstance(argv, str)}
+    assert kinds == set(YAML_COMMANDS), sorted(set(YAML_COMMANDS) - kinds)
 
 
 @pytest.mark.slow

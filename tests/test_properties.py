@@ -9,7 +9,7 @@ import shutil
 import h5py
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
+from hypothesis import HealthCheck, example, given, settings, strategies as st
 
 from stdm_drake.errors import InputError
 
@@ -145,35 +145,77 @@ def test_a_yaml_config_loads_or_is_refused(tmp_path, schema_index, document, use
 
 @SETTINGS
 @given(count=st.integers(-5, 10**6), workers=st.integers(-3, 64), seed=st.integers(-2**40, 2**40),
-       period=st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.just(1.797693134862316e+305)),
+       period=st.one_of(st.sampled_from([0.01, 0.004, 0.0105]), st.floats(allow_nan=True, allow_infinity=True),
+                        st.just(1.797693134862316e+305)),
        step=st.one_of(st.just(0.001), st.floats(allow_nan=True, allow_infinity=True)))
-def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, count, workers, seed, period, step):
-    """With the output a folder (always refused) every number either fails its own check or reaches the
-    output check: exit 2 and one line either way, never a simulation and never a file."""
+@example(count=0, workers=1, seed=0, period=0.01, step=0.001)     # each check alone (the others valid)
+@example(count=1, workers=0, seed=0, period=0.01, step=0.001)
+@example(count=1, workers=1, seed=-1, period=0.01, step=0.001)
+@example(count=1, workers=1, seed=0, period=0.0105, step=0.001)
+@example(count=1, workers=1, seed=0, period=0.01, step=0.0)
+@example(count=2, workers=1, seed=3, period=0.01, step=0.001)     # all valid: the work is reached
+def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypatch, count, workers, seed, period,
+                                                     step):
+    """With an output that would be accepted, the simulation is reached exactly when every number is
+    valid (count, workers >= 1; seed >= 0; period and plant step finite > 0, the period a whole multiple
+    of the step, at most 1e7 of them); otherwise exit 2 with one line and no file."""
+    import math
+
     from stdm_drake.cli import main
+    from stdm_drake.collection import collect
+
+    class ReachedTheWork(Exception):
+        pass
+
+    def no_simulation(*args, **kwargs):
+        raise ReachedTheWork
+
+    monkeypatch.setattr(collect, "collect", no_simulation)
     capsys.readouterr()
+    output = tmp_path / "data.h5"
     argv = ["collect", "--protocol", "excitation", "--count", str(count), "--workers", str(workers), "--seed",
-            str(seed), "--sample-period", repr(period), "--plant-time-step", repr(step), "--quiet", "-o", str(tmp_path)]
-    assert main(argv) == 2
-    error = capsys.readouterr().err
-    assert error.count("\n") == 1, error
-    assert sorted(p.name for p in tmp_path.iterdir()) == []
+            str(seed), "--sample-period", repr(period), "--plant-time-step", repr(step), "--quiet", "-o", str(output)]
+    ratio = period / step if math.isfinite(period) and math.isfinite(step) and step > 0 else math.nan
+    valid = (count >= 1 and workers >= 1 and seed >= 0 and math.isfinite(period) and period > 0
+             and math.isfinite(step) and step > 0 and ratio <= 1e7 and abs(ratio - round(ratio)) <= 1e-9
+             and round(ratio) >= 1)
+    try:
+        status = main(argv)
+    except ReachedTheWork:
+        assert valid, (count, workers, seed, period, step)
+    else:
+        assert not valid and status == 2, (count, workers, seed, period, step, status)
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1, error
+    assert not output.exists()
 
 
 @SETTINGS
+@example(flag="--split-seed", value="-1")
+@example(flag="--epochs", value="-3")
+@example(flag="--lr", value="nan")
 @given(flag=st.sampled_from(["--epochs", "--patience", "--batch-size", "--lr", "--alpha", "--hidden-width",
                              "--hidden-layers", "--ensemble-size", "--train", "--val", "--test", "--threads",
                              "--weight-decay", "--checkpoint-every", "--min-lr", "--split-seed"]),
        value=st.one_of(st.integers(-10**9, 10**9).map(str), st.floats(allow_nan=True, allow_infinity=True).map(repr),
                        st.text(max_size=6)))
 def test_train_flags_are_checked_before_the_dataset_is_read(tmp_path, capsys, flag, value):
-    """Any value of any numeric flag, with the output a file (always refused): exit 2 with one line, and
-    the dataset (missing here) is never opened before the flags and the output are checked."""
+    """Any value of any numeric flag, with an output that would be accepted and a missing dataset: exit 2
+    with one line and no output. A value that is not a number, not finite or negative is refused by the
+    flag checks before the dataset is opened (the error does not name the dataset); a valid one gets as
+    far as the missing dataset."""
+    import math
+
     from stdm_drake.cli import main
     capsys.readouterr()
-    notes = tmp_path / "notes.txt"
-    notes.write_text("keep")
-    assert main(["train", str(tmp_path / "missing.h5"), flag, value, "--quiet", "-o", str(notes)]) == 2
+    output = tmp_path / "run"
+    assert main(["train", str(tmp_path / "missing.h5"), flag, value, "--quiet", "-o", str(output)]) == 2
     error = capsys.readouterr().err
-    assert error.count("\n") == 1 and "missing.h5" not in error, error
-    assert notes.read_text() == "keep"
+    assert error.count("\n") == 1, error
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if not math.isfinite(number) or number < 0:
+        assert "missing.h5" not in error, (flag, value, error)
+    assert not output.exists() or not any(output.iterdir())

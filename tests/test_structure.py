@@ -98,12 +98,23 @@ def test_importing_collection_loads_no_learning_code():
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-def test_modules_over_400_lines_say_why():
-    for path in PACKAGE.rglob("*.py"):
-        text = path.read_text()
-        if text.count("\n") > 420:
-            docstring = ast.get_docstring(ast.parse(text)) or ""
-            assert "Longer than 400 lines on purpose" in docstring, f"{path}: {text.count(chr(10))} lines, no reason"
+# The modules allowed past 420 lines, each with its ceiling (issue 21 plans to split them): a new long
+# module, one past its ceiling, or one listed here that is no longer long fails the test.
+LONG_MODULES = {
+    "collection/planners.py": 600,      # three planners with their shared task-space checks
+    "collection/collect.py": 600,       # protocols, rig, pool and the command, to be split
+    "experiments/reproduce_report.py": 580,
+    "experiments/sine_sum.py": 600,
+    "learning/models.py": 460,
+}
+
+
+def test_long_modules_are_the_listed_ones_within_their_ceilings():
+    lengths = {path.relative_to(PACKAGE).as_posix(): path.read_text().count("\n") for path in PACKAGE.rglob("*.py")}
+    long = {name for name, lines in lengths.items() if lines > 420}
+    assert long == set(LONG_MODULES), f"long modules {sorted(long)} != listed {sorted(LONG_MODULES)}"
+    over = {name: lengths[name] for name, ceiling in LONG_MODULES.items() if lengths[name] > ceiling}
+    assert not over, f"past their ceilings: {over}"
 
 
 @pytest.mark.slow

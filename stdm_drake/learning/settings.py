@@ -176,6 +176,8 @@ class TrainSettings:
             raise InputError(f"{key('seeds')} must list at least one seed")
         if any(seed < 0 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             raise InputError(f"{key('seeds')} must be distinct non-negative integers, got {list(self.seeds)}")
+        if self.split_seed < 0:   # (numpy's generators take non-negative seeds only)
+            raise InputError(f"{key('split_seed')} must be a non-negative integer, got {self.split_seed}")
         for name in ("hidden_width", "hidden_layers", "ensemble_size", "epochs", "patience", "batch_size",
                      "checkpoint_every", "threads"):
             if int(getattr(self, name)) < 1:
