@@ -34,6 +34,20 @@ logger = logging.getLogger(__name__)
 
 
 @dataclasses.dataclass
+class RobotDefaults:
+    """The files commands use for a robot when not told otherwise (paths relative to the robot's YAML
+    file, or stdm-drake:FOLDER/NAME); an empty one is derived from the robot's model instead (see the
+    README's table of derived settings). excitation: `collect --protocol excitation` ranges;
+    excitation_local: reproduce's local excitation data; tracking: `collect --protocol tracking` poses
+    and planner; identification_controller: reproduce's identification data; mpc: `mpc` settings."""
+    excitation: str = ""
+    excitation_local: str = ""
+    tracking: str = ""
+    identification_controller: str = ""
+    mpc: str = ""
+
+
+@dataclasses.dataclass
 class RobotConfig:
     """A robot arm as stdm-drake sees it (typed YAML, loaded with `load_robot`).
 
@@ -53,7 +67,8 @@ class RobotConfig:
     tool_frame: the frame task-space plans move. Position limits come from the file; only a URDF
     "continuous" joint may have none. srdf: a MoveIt SRDF (path or package:// URI) whose
     <disable_collisions link1= link2=> pairs never count as self-collision (nor touch in simulation);
-    disabled_collisions: more such link pairs, [[link_a, link_b], ...].
+    disabled_collisions: more such link pairs, [[link_a, link_b], ...]. defaults: the protocol,
+    controller and MPC files written for this robot (`RobotDefaults`; absent ones are derived).
     """
     name: str = ""
     model: str = ""
@@ -68,6 +83,7 @@ class RobotConfig:
     tool_frame: str = ""
     srdf: str = ""
     disabled_collisions: list[list[str]] = dataclasses.field(default_factory=list)
+    defaults: RobotDefaults = dataclasses.field(default_factory=RobotDefaults)
 
     def validate(self) -> None:
         """Checks that need no model file (the rest happen when the plant is built)."""
@@ -150,6 +166,17 @@ class Robot:
         pairs = [tuple(pair) for pair in self.config.disabled_collisions]
         return pairs + [pair for pair in self._srdf_pairs if all(has_link(link) for link in pair)]
 
+    def default_file(self, purpose: str) -> pathlib.Path | None:
+        """The file the robot's config names for `purpose` (a `RobotDefaults` field), or None: derive it.
+        InputError when the named file is missing."""
+        value = getattr(self.config.defaults, purpose)
+        if not value:
+            return None
+        path = self._resolve(value)
+        if not path.is_file():
+            raise InputError(f"robot {self.name}: defaults.{purpose} file not found: {path}")
+        return path
+
     def _model_file(self, model: str, what: str = "model") -> pathlib.Path:
         """The model (or SRDF, `what`) file: a path (relative to the config's folder), or package://NAME/PATH
         in one of package_paths or a package Drake ships locally (package://drake/examples/acrobot/Acrobot.urdf)."""
@@ -172,10 +199,6 @@ class Robot:
                 raise InputError(f"robot {self.config.name}: {error}") from None
         path = pathlib.Path(path)
         return (path if path.is_absolute() else self.folder / path).resolve()
-
-    def same_as(self, other: "Robot") -> bool:
-        """Whether `other` describes the same robot: equal configs and the same model file."""
-        return self.config == other.config and self.model_path == other.model_path
 
     @property
     def name(self) -> str:

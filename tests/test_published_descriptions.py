@@ -239,7 +239,8 @@ def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
     from stdm_drake.collection.plan import derived_tracking_spec
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.robot import MODELS_DIR, UR10
-    slow = (MODELS_DIR / "ur10.yaml").read_text().replace("name: ur10", "name: ur10_slow")
+    slow = (MODELS_DIR / "ur10.yaml").read_text().partition("defaults:")[0]    # its settings derived, not the UR-10's files
+    slow = slow.replace("name: ur10", "name: ur10_slow")
     slow = slow.replace("model: ur10.urdf", "model: stdm-drake:models/ur10.urdf")   # the shipped file, from here
     slow += "velocity_limits: {" + ", ".join(f"{joint}: 0.628" for joint in UR10.joint_names) + "}\n"
     (tmp_path / "slow.yaml").write_text(slow)
@@ -381,3 +382,29 @@ def test_stl_and_collada_visuals_render_in_chromium(tmp_path):
     assert np.count_nonzero((blue_channel > red + 0.25) & (blue_channel > green + 0.1)) > 100, "the STL link is missing"
     reddish = np.count_nonzero((red > blue_channel + 0.25) & (red > green + 0.25))
     assert 100 < reddish < 0.2 * red.size, f"the COLLADA link is missing or out of scale ({reddish} pixels)"
+
+
+def test_a_robot_config_names_its_default_files_and_the_rest_is_derived(tmp_path):
+    """`defaults:` in a robot config names the files commands use when not told otherwise (the UR-10
+    preset names its five); a robot naming none gets derived settings; a named file that is missing is
+    a one-line error."""
+    from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, mpc_config_for
+    from stdm_drake.collection.collect import ExcitationConfig, collection_request
+    from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
+    from stdm_drake.robot import UR10
+    assert UR10.default_file("tracking") == TRAJECTORIES_DIR / "tracking.yaml"
+    assert UR10.default_file("mpc") == CONTROLLERS_DIR / "mpc.yaml"
+    (tmp_path / "exc.yaml").write_text("num_steps: 7\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"
+                                       "initial_position_lower: [-1.0, -1.5]\ninitial_position_upper: [1.0, 1.5]\n")
+    (tmp_path / "mpc.yaml").write_text("horizon: 4\nposition_weight: [100.0]\nvelocity_weight: [1.0]\n"
+                                       "effort_weight: [0.01]\n")
+    named = load_robot(write_robot(tmp_path, two_link_urdf(), GOOD + "defaults: {excitation: exc.yaml, mpc: mpc.yaml}\n"))
+    request = collection_request("excitation", count=1, robot=named, workers=1)
+    assert request.excitation.num_steps == 7
+    assert mpc_config_for(named) == load_mpc_config(tmp_path / "mpc.yaml")
+    plain = load_robot(write_robot(tmp_path, two_link_urdf(), GOOD))
+    assert collection_request("excitation", count=1, robot=plain, workers=1).excitation == ExcitationConfig.derived_for(plain)
+    assert mpc_config_for(plain) == MpcConfig.derived_for(plain)
+    missing = load_robot(write_robot(tmp_path, two_link_urdf(), GOOD + "defaults: {mpc: gone.yaml}\n"))
+    with pytest.raises(InputError, match="robot two_link: defaults.mpc file not found"):
+        mpc_config_for(missing)

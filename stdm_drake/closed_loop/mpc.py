@@ -105,12 +105,10 @@ def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
 
 
 def mpc_config_for(robot: Robot, path=None) -> MpcConfig:
-    """The MPC settings of `path`, or without one: controllers/mpc.yaml for the UR-10 preset and
-    `MpcConfig.derived_for` another robot."""
-    from stdm_drake.robot import UR10
-    if path is None and not robot.same_as(UR10):
-        return MpcConfig.derived_for(robot)
-    return load_mpc_config(path or DEFAULT_MPC_CONFIG)
+    """The MPC settings of `path`, or without one: the file the robot's config names (`defaults.mpc`; the
+    UR-10's controllers/mpc.yaml), else `MpcConfig.derived_for` the robot."""
+    path = path or robot.default_file("mpc")
+    return MpcConfig.derived_for(robot) if path is None else load_mpc_config(path)
 
 
 @dataclasses.dataclass

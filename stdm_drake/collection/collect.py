@@ -36,15 +36,12 @@ from stdm_drake.collection.control import (ControllerConfig, JointSensor, Sample
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.outputs import add_force_argument, check_output_file
-from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
+from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits, robot_joint_limits
 from stdm_drake.robot import UR10, Robot, load_robot
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
-DEFAULT_CONFIGS = {
-    "excitation": TRAJECTORIES_DIR / "excitation.yaml",
-    "tracking": TRAJECTORIES_DIR / "tracking.yaml",
-}
+PROTOCOLS = ("excitation", "tracking")   # their files: --config, the robot's `defaults`, or derived
 DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
 PAPER_COUNTS = {"excitation": 200, "tracking": 100}
@@ -384,8 +381,8 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
     """
     from tqdm import tqdm
 
-    if request.protocol not in DEFAULT_CONFIGS:
-        raise InputError(f"protocol must be one of {tuple(DEFAULT_CONFIGS)}, got {request.protocol!r}")
+    if request.protocol not in PROTOCOLS:
+        raise InputError(f"protocol must be one of {PROTOCOLS}, got {request.protocol!r}")
     if request.count < 1:
         raise InputError(f"count must be >= 1, got {request.count}")
     settings = request.settings
@@ -457,11 +454,12 @@ def collection_metadata(request: CollectionRequest) -> dict:
 # ---- command line ------------------------------------------------------------------------------
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--protocol", choices=tuple(DEFAULT_CONFIGS), default="tracking",
+    parser.add_argument("--protocol", choices=PROTOCOLS, default="tracking",
                         help="data protocol (default: tracking)")
     parser.add_argument("--config", type=pathlib.Path,
-                        help="protocol YAML (default: trajectories/excitation.yaml or trajectories/tracking.yaml; "
-                             "for another robot: excitation ranges and tracking poses derived from it, see README)")
+                        help="protocol YAML (default: the file the robot config's `defaults` names, for the UR-10 "
+                             "trajectories/excitation.yaml or tracking.yaml; without one, excitation ranges and "
+                             "tracking poses derived from the robot, see README)")
     parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
                         help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml)")
     parser.add_argument("--sensor", type=pathlib.Path,
@@ -496,15 +494,16 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     sensor, robot: YAML paths, None for the defaults; robot may also be a Robot; excitation: an
     ExcitationConfig to use instead of a file). Reads every config file and checks it against the
     robot, so errors come before any simulation starts."""
-    if protocol not in DEFAULT_CONFIGS:
-        raise InputError(f"protocol must be one of {tuple(DEFAULT_CONFIGS)}, got {protocol!r}")
-    config_path = config or DEFAULT_CONFIGS[protocol]
+    if protocol not in PROTOCOLS:
+        raise InputError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
     sensor_config = SensorConfig()
     sensor_path = sensor or (DEFAULT_SENSOR if protocol == "tracking" else None)
     if sensor_path is not None:
         sensor_config = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
     robot = robot if isinstance(robot, Robot) else (load_robot(robot) if robot is not None else UR10)
     SelfCollisionChecker(robot)  # a model that does not load, or a home in self-collision, fails before any worker
+    # the protocol file: --config, else the one the robot's config names, else derived from the robot
+    config_path = config or robot.default_file(protocol)
     settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
                                   sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     settings.substeps()  # the sample period and the plant step, before any work
@@ -526,7 +525,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
         if excitation is not None:
             request.excitation = excitation.for_robot(robot)
             return request
-        if config is None and not robot.same_as(UR10):  # trajectories/excitation.yaml is written for the UR-10
+        if config_path is None:
             request.excitation = ExcitationConfig.derived_for(robot)
             return request
         excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
@@ -538,7 +537,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
             raise InputError(f"{config_path}: {error}") from None
     else:
         from stdm_drake.collection.plan import derived_tracking_spec, load_tracking_spec
-        if config is None and not robot.same_as(UR10):  # trajectories/tracking.yaml is written for the UR-10
+        if config_path is None:
             request.tracking_spec = derived_tracking_spec(robot, sample_period=sample_period)
         else:
             request.tracking_spec = load_tracking_spec(config_path, robot=robot)

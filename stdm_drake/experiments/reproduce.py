@@ -29,22 +29,26 @@ from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics,
 from stdm_drake.files import json_default
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
-from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
+from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robot import UR10, Robot
 
 def dataset_settings(robot: Robot) -> dict:
-    """`ensure_dataset` settings of the four datasets for `robot`: the UR-10 preset's files, or for another
-    robot the same protocols derived from its model (excitation ranges from its inertia, start poses over
-    its whole range for "excitation" and within +-0.5 rad of home for "excitation_local", tracking poses
-    around home, PID gains and dither sized from its inertia)."""
-    if robot.same_as(UR10):
-        return dict(excitation={}, local=dict(config=TRAJECTORIES_DIR / "excitation_local.yaml"), tracking={},
-                    identification=IDENTIFICATION_SETTINGS)
+    """`ensure_dataset` settings of the four datasets for `robot`: the files its config's `defaults` names
+    (the UR-10 preset names all four), and for the ones it does not, the same protocols derived from its
+    model (excitation ranges from its inertia, start poses over its whole range for "excitation" and
+    within +-0.5 rad of home for "excitation_local", tracking poses around home, PID gains and dither
+    sized from its inertia)."""
     from stdm_drake.collection.collect import ExcitationConfig
-    return dict(excitation=dict(robot=robot, excitation=ExcitationConfig.derived_for(robot, box=math.pi)),
-                local=dict(robot=robot, excitation=ExcitationConfig.derived_for(robot)), tracking=dict(robot=robot),
-                identification=dict(IDENTIFICATION_SETTINGS, robot=robot,
-                                    controller=CONTROLLERS_DIR / "pid_dither_sized.yaml"))
+    excitation, local = robot.default_file("excitation"), robot.default_file("excitation_local")
+    controller = robot.default_file("identification_controller")
+    return dict(
+        excitation=(dict(robot=robot, config=excitation) if excitation else
+                    dict(robot=robot, excitation=ExcitationConfig.derived_for(robot, box=math.pi))),
+        local=(dict(robot=robot, config=local) if local else
+               dict(robot=robot, excitation=ExcitationConfig.derived_for(robot))),
+        tracking=dict(robot=robot),
+        identification=dict(IDENTIFICATION_SETTINGS, robot=robot,
+                            controller=controller or CONTROLLERS_DIR / "pid_dither_sized.yaml"))
 
 
 def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True,
@@ -178,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.compatibility import robot_for
     robot = robot_for(args.robot)
     robot.check_can_track()
-    output = args.output or pathlib.Path("out/reproduce" if robot.same_as(UR10) else f"out/reproduce-{robot.name}")
+    output = args.output or pathlib.Path("out/reproduce" if args.robot is None else f"out/reproduce-{robot.name}")
     check_output_folder("-o/--output", output, inputs=[args.robot], own_files=("report.md", "cache"), force=args.force)
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()
