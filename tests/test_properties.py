@@ -165,7 +165,7 @@ def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypat
     from stdm_drake.collection import collect
 
     class ReachedTheWork(Exception):
-        pass
+        """Raised where the simulation would start."""
 
     def no_simulation(*args, **kwargs):
         raise ReachedTheWork

@@ -2,8 +2,6 @@
 collision rules and filtered pairs, home checked for self-collision, and what the plant leaves out
 (friction, gear ratios) reported. The mesh files are written in their real formats (binary STL by
 trimesh, COLLADA by pycollada with a millimetre <unit>), as CAD exports and robot vendors ship them."""
-import subprocess
-
 import numpy as np
 import pytest
 from test_robot_config import GOOD, two_link_urdf, write_robot
@@ -356,8 +354,7 @@ def test_stl_and_collada_visuals_render_in_chromium(tmp_path):
     """Meshcat shows an STL visual and a millimetre COLLADA visual (both through OBJ copies, colored by
     the URDF's <material>) in a real browser, at their size: without the conversion the STL link would
     be missing from the page, and the COLLADA box, its unit ignored by Meshcat, 1000 times too large."""
-    import matplotlib.image
-    from test_visualize import CHROMIUM_FLAGS, chromium
+    from test_visualize import rendered_pixels
     from stdm_drake.collection.recorder import TrajectoryRecorder
     box_stl(tmp_path / "meshes" / "upper.stl", [0.2, 0.2, 0.3])
     box_dae_millimetres(tmp_path / "meshes" / "fore.dae", [200.0, 200.0, 300.0])
@@ -371,13 +368,7 @@ def test_stl_and_collada_visuals_render_in_chromium(tmp_path):
                                   f'</geometry>{red_material}</visual>', 1)
     recorder = TrajectoryRecorder(0.01, robot=load_robot(write_robot(tmp_path, urdf, GOOD)))
     recorder.add(np.tile([0.3, -0.6], (5, 1)))
-    recorder.publish()
-    html = tmp_path / "run.html"
-    recorder.write_html(html)
-    screenshot = tmp_path / "shot.png"
-    subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
-                    f"--screenshot={screenshot}", html.as_uri()], check=True, capture_output=True, timeout=120)
-    pixels = matplotlib.image.imread(screenshot)[..., :3]
+    pixels = rendered_pixels(recorder, tmp_path)
     red, green, blue_channel = pixels[..., 0], pixels[..., 1], pixels[..., 2]
     assert np.count_nonzero((blue_channel > red + 0.25) & (blue_channel > green + 0.1)) > 100, "the STL link is missing"
     reddish = np.count_nonzero((red > blue_channel + 0.25) & (red > green + 0.25))

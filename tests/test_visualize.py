@@ -19,19 +19,23 @@ def chromium():
     return path
 
 
+def rendered_pixels(recorder: TrajectoryRecorder, folder) -> np.ndarray:
+    """The recorder's standalone HTML page as headless Chromium draws it: RGB floats in [0, 1] (600, 900, 3)."""
+    import matplotlib.image
+    recorder.publish()
+    html, screenshot = folder / "run.html", folder / "shot.png"
+    recorder.write_html(html)
+    subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={folder / 'profile'}",
+                    f"--screenshot={screenshot}", html.as_uri()], check=True, capture_output=True, timeout=120)
+    return matplotlib.image.imread(screenshot)[..., :3]
+
+
 @pytest.mark.slow
 def test_ghost_recording_renders_in_chromium(tmp_path):
     q = np.array([0.0, -1.6, 1.7, -1.7, -1.57, 0.0]) + np.linspace(0, 0.3, 31)[:, None] * [1, 0, 0, 0, 0, 0]
     recorder = TrajectoryRecorder(0.01, ghost=True)
     recorder.add(q, q + [0.8, 0, 0, 0, 0, 0])
-    recorder.publish()
-    html = tmp_path / "run.html"
-    recorder.write_html(html)
-    screenshot = tmp_path / "shot.png"
-    subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
-                    f"--screenshot={screenshot}", html.as_uri()], check=True, capture_output=True, timeout=120)
-    import matplotlib.image
-    pixels = matplotlib.image.imread(screenshot)[..., :3]  # floats in [0, 1]
+    pixels = rendered_pixels(recorder, tmp_path)
     red, green, blue = pixels[..., 0], pixels[..., 1], pixels[..., 2]
     assert pixels.std() > 0.02  # not a blank page
     robot_blue = np.count_nonzero((blue > red + 0.25) & (blue > green + 0.1))

@@ -5,7 +5,7 @@ The one place where robot, dataset and plant meet; checkpoints compare their rec
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.plant import JointLimits, SelfCollisionChecker, robot_joint_limits
+from stdm_drake.plant import JointLimits, SelfCollisionChecker, joint_limits
 from stdm_drake.robot import UR10, Robot, load_robot
 
 
@@ -14,9 +14,9 @@ def robot_for(path, dataset=None) -> Robot:
     that it loads and that home is free of self-collision; with `dataset`, InputError unless the dataset
     was collected with it (`check_dataset_robot`)."""
     robot = load_robot(path) if path is not None else UR10
-    SelfCollisionChecker(robot)  # the model loads, and its home is free of self-collision, before any work
+    checker = SelfCollisionChecker(robot)  # the model loads, and its home is free of self-collision, before any work
     if dataset is not None:
-        check_dataset_robot(dataset, robot, robot_joint_limits(robot))
+        check_dataset_robot(dataset, robot, joint_limits(checker.plant))
     return robot
 
 
