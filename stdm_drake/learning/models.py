@@ -14,16 +14,12 @@ Derivative learning needs d x̂/dt = J(z) ż, one Jacobian-vector product of the
 z -> x̂ with the tangent ż = [ẋ_t, ȧ_t]. With the affine maps above it is exactly
     d x̂/dt = r(ż) + σ_y ⊙ J_n(z_n) (ż / σ_z),
 so only the normalized network is differentiated, by a hand-written forward-mode pass that carries
-(h, ḣ) through the layers (`normalized_outputs_with_tangent`), with a hand-written backward.
-
-Longer than 400 lines on purpose: each activation's tangent pass (value, slope, curvature) sits
-beside the network whose training step depends on it, so a new activation is one place to edit.
+(h, ḣ) through the layers (`normalized_outputs_with_tangent`), with a hand-written backward; each
+activation's tangent pass (value, slope, curvature) is in `stdm_drake.learning.activations`.
 """
 from __future__ import annotations
 
 import dataclasses
-import math
-from typing import Callable
 
 import numpy as np
 import torch
@@ -31,11 +27,8 @@ import torch.nn.functional as F
 from torch import nn
 
 from stdm_drake.errors import InputError
+from stdm_drake.learning.activations import ACTIVATION_NAMES, get_activation  # noqa: F401 (ACTIVATION_NAMES: re-exported)
 
-ACTIVATION_NAMES = ("tanh", "sigmoid", "relu", "leaky_relu", "softplus", "selu", "elu", "gelu", "swish")
-LEAKY_RELU_SLOPE = 0.01
-SELU_SCALE = 1.0507009873554804934193349852946
-SELU_ALPHA = 1.6732632423543772848170429916717
 # PETS soft bounds on the log-variance: initial limits and the weight of their penalty in the loss.
 MIN_LOGVAR_INIT = -10.0
 MAX_LOGVAR_INIT = 0.5
@@ -45,119 +38,6 @@ MEMBER_PARAMETERS = ("weights", "biases", "min_logvar", "max_logvar")
 
 Tensor = torch.Tensor
 
-
-_CONSTANTS: dict = {}
-
-
-def _constant(value: float, like: Tensor) -> Tensor:
-    """A cached 0-d tensor of `value` with the dtype and device of `like` (for lerp/where/addcmul)."""
-    key = (value, like.dtype, like.device)
-    if key not in _CONSTANTS:
-        _CONSTANTS[key] = torch.tensor(value, dtype=like.dtype, device=like.device)
-    return _CONSTANTS[key]
-
-
-# Tangent rules. Each takes the pre-activation h and its tangent ḣ (both (E, B, H), consumed: they
-# may be overwritten) and returns (y, ẏ, slope, curvature_term):
-#   y = f(h), ẏ = f'(h) ḣ, slope = f'(h), curvature_term = f''(h) ḣ (None where f'' = 0).
-# The backward pass needs exactly slope and curvature_term:
-#   ∂L/∂h = ∂L/∂y ⊙ slope + ∂L/∂ẏ ⊙ curvature_term,   ∂L/∂ḣ = ∂L/∂ẏ ⊙ slope.
-
-def _swish_tangent(h, hd):
-    s = torch.sigmoid(h)
-    y = h.mul_(s)                                   # h s
-    slope = torch.lerp(s, _constant(1.0, s), y)     # s + h s (1 - s)
-    yd = hd * slope
-    # f'' = s (1-s)(2 + h(1-2s)) = s + f' - 2 s f', so f'' ḣ = ẏ + s (ḣ - 2 ẏ)
-    curvature = torch.addcmul(yd, s, hd.add_(yd, alpha=-2.0))
-    return y, yd, slope, curvature
-
-
-def _tanh_tangent(h, hd):
-    y = torch.tanh(h)
-    slope = torch.addcmul(_constant(1.0, y), y, y, value=-1.0)   # 1 - y²
-    yd = hd * slope
-    curvature = torch.mul(y, yd).mul_(-2.0)                      # f'' = -2 y f'
-    return y, yd, slope, curvature
-
-
-def _sigmoid_tangent(h, hd):
-    y = torch.sigmoid(h)
-    slope = torch.addcmul(y, y, y, value=-1.0)                   # y (1 - y)
-    yd = hd * slope
-    curvature = torch.addcmul(yd, y, yd, value=-2.0)             # f'' = f' (1 - 2y)
-    return y, yd, slope, curvature
-
-
-def _relu_tangent(h, hd):
-    slope = (h > 0).to(h.dtype)
-    return torch.relu(h), hd.mul_(slope), slope, None
-
-
-def _leaky_relu_tangent(h, hd):
-    slope = (h > 0).to(h.dtype).mul_(1.0 - LEAKY_RELU_SLOPE).add_(LEAKY_RELU_SLOPE)
-    return F.leaky_relu(h, LEAKY_RELU_SLOPE), hd.mul_(slope), slope, None
-
-
-def _softplus_tangent(h, hd):
-    y = F.softplus(h)
-    slope = torch.sigmoid(h)
-    yd = hd * slope
-    curvature = torch.addcmul(yd, slope, yd, value=-1.0)         # f'' = s (1 - s)
-    return y, yd, slope, curvature
-
-
-def _exponential_linear_tangent(scale: float, alpha: float):
-    """ELU-type f = scale * (h if h > 0 else alpha (e^h - 1)); for h <= 0, f' = f'' = f + scale alpha."""
-    def tangent(h, hd):
-        y = F.selu(h) if scale != 1.0 else F.elu(h, alpha)
-        positive = h > 0
-        slope = torch.where(positive, _constant(scale, y), y + scale * alpha)
-        yd = hd.mul_(slope)
-        curvature = torch.where(positive, _constant(0.0, y), yd)
-        return y, yd, slope, curvature
-    return tangent
-
-
-_INV_SQRT_2PI = 1.0 / math.sqrt(2.0 * math.pi)
-
-
-def _gelu_tangent(h, hd):
-    y = F.gelu(h)
-    cdf = torch.special.ndtr(h)
-    pdf = torch.exp(-0.5 * h * h).mul_(_INV_SQRT_2PI)
-    slope = torch.addcmul(cdf, h, pdf)                            # Φ + h φ
-    yd = hd * slope
-    curvature = torch.addcmul(_constant(2.0, h), h, h, value=-1.0).mul_(pdf).mul_(hd)   # φ (2 - h²) ḣ
-    return y, yd, slope, curvature
-
-
-@dataclasses.dataclass(frozen=True)
-class Activation:
-    """A hidden-layer nonlinearity: `function(h)` for the plain pass, `tangent(h, ḣ)` for the JVP pass."""
-    name: str
-    function: Callable[[Tensor], Tensor]
-    tangent: Callable[[Tensor, Tensor], tuple]
-
-
-ACTIVATIONS: dict[str, Activation] = {
-    "tanh": Activation("tanh", torch.tanh, _tanh_tangent),
-    "sigmoid": Activation("sigmoid", torch.sigmoid, _sigmoid_tangent),
-    "relu": Activation("relu", torch.relu, _relu_tangent),
-    "leaky_relu": Activation("leaky_relu", lambda h: F.leaky_relu(h, LEAKY_RELU_SLOPE), _leaky_relu_tangent),
-    "softplus": Activation("softplus", F.softplus, _softplus_tangent),
-    "selu": Activation("selu", F.selu, _exponential_linear_tangent(SELU_SCALE, SELU_ALPHA)),
-    "elu": Activation("elu", F.elu, _exponential_linear_tangent(1.0, 1.0)),
-    "gelu": Activation("gelu", F.gelu, _gelu_tangent),
-    "swish": Activation("swish", F.silu, _swish_tangent),
-}
-assert tuple(ACTIVATIONS) == ACTIVATION_NAMES
-
-
-def get_activation(name: str) -> Activation:
-    if name not in ACTIVATIONS:
-        raise InputError(f"unknown activation {name!r}; choose from {', '.join(ACTIVATION_NAMES)}")
-    return ACTIVATIONS[name]
 
 
 @dataclasses.dataclass(frozen=True)

@@ -15,82 +15,20 @@ Uncertainty propagation (PETS, Chua et al. 2018), `propagation=`:
   "tsinf" as ts1 but each particle keeps the member drawn at the start for the whole horizon.
 For TS the mean and variance are over particles.
 
-Longer than 400 lines on purpose: the NumPy activations, their slopes (for the Jacobians the MPC
-uses) and the rollout share one preallocated workspace and must stay consistent with each other.
+The NumPy activations and their slopes (for the Jacobians the MPC uses) are in
+`stdm_drake.learning.activations`, beside each activation's torch passes.
 """
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
-from scipy import special
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.models import LEAKY_RELU_SLOPE, SELU_ALPHA, SELU_SCALE, EnsembleMLP
+from stdm_drake.learning.activations import get_activation
+from stdm_drake.learning.models import EnsembleMLP
 
 PROPAGATIONS = ("mean", "ts1", "tsinf")
-
-
-def _swish(scaled, out):
-    """swish(h) = h σ(h) = g (1 + tanh g) with g = h/2 (the 1/2 is folded into the layer weights)."""
-    np.tanh(scaled, out=out)
-    out *= scaled
-    out += scaled
-    return out
-
-
-def _leaky_relu(pre, out):
-    np.multiply(pre, LEAKY_RELU_SLOPE, out=out)
-    return np.maximum(pre, out, out=out)
-
-
-def _exponential_linear(scale, alpha):
-    def apply(pre, out):
-        np.expm1(np.minimum(pre, 0.0), out=out)
-        out *= alpha
-        np.copyto(out, pre, where=pre > 0)
-        out *= scale
-        return out
-    return apply
-
-
-# name -> (scale folded into the pre-activation, f(scaled pre-activation, out) -> out)
-_NUMPY_ACTIVATIONS = {
-    "tanh": (1.0, lambda pre, out: np.tanh(pre, out=out)),
-    "sigmoid": (1.0, lambda pre, out: special.expit(pre, out=out)),
-    "relu": (1.0, lambda pre, out: np.maximum(pre, 0.0, out=out)),
-    "leaky_relu": (1.0, _leaky_relu),
-    "softplus": (1.0, lambda pre, out: np.logaddexp(pre, 0.0, out=out)),
-    "selu": (1.0, _exponential_linear(SELU_SCALE, SELU_ALPHA)),
-    "elu": (1.0, _exponential_linear(1.0, 1.0)),
-    "gelu": (1.0, lambda pre, out: np.multiply(pre, special.ndtr(pre), out=out)),
-    "swish": (0.5, _swish),
-}
-
-
-def _swish_slope(scaled):
-    t = np.tanh(scaled)
-    return 1.0 + t + scaled * (1.0 - t * t)
-
-
-def _exponential_linear_slope(scale, alpha):
-    return lambda pre: np.where(pre > 0, scale, scale * alpha * np.exp(np.minimum(pre, 0.0)))
-
-
-_INV_SQRT_2PI = 0.3989422804014327  # 1 / sqrt(2 pi), a Python float: keeps float32 arrays float32
-
-# name -> f'(scaled pre-activation), the derivative of the function above in the same variable
-_NUMPY_SLOPES = {
-    "tanh": lambda pre: 1.0 - np.tanh(pre) ** 2,
-    "sigmoid": lambda pre: special.expit(pre) * special.expit(-pre),
-    "relu": lambda pre: (pre > 0).astype(pre.dtype),
-    "leaky_relu": lambda pre: np.where(pre > 0, 1.0, LEAKY_RELU_SLOPE).astype(pre.dtype),
-    "softplus": lambda pre: special.expit(pre),
-    "selu": _exponential_linear_slope(SELU_SCALE, SELU_ALPHA),
-    "elu": _exponential_linear_slope(1.0, 1.0),
-    "gelu": lambda pre: special.ndtr(pre) + pre * np.exp(-0.5 * pre * pre) * _INV_SQRT_2PI,
-    "swish": _swish_slope,
-}
 
 
 def _softplus(values):
@@ -113,8 +51,8 @@ class InferenceModel:
         self.action_dim = config.action_dim
         self.residual = config.residual
         self.probabilistic = config.probabilistic
-        scale, self._activation = _NUMPY_ACTIVATIONS[config.activation]
-        self._slope = _NUMPY_SLOPES[config.activation]
+        activation = get_activation(config.activation)
+        scale, self._activation, self._slope = activation.numpy_scale, activation.numpy, activation.numpy_slope
 
         def array(tensor):
             return tensor.detach().cpu().double().numpy()
