@@ -167,12 +167,19 @@ class RungeKuttaPlantModel(DynamicsModel):
         acceleration = self.acceleration.jacobians(x[:, :n], x[:, n:], u)        # (H, n, 2n + m)
         A, B = np.empty((len(x), S, S)), np.empty((len(x), S, self.action_dim))
         for k in range(len(x)):
-            A_c = np.zeros((S, S))
-            A_c[:n, n:] = np.eye(n)
-            A_c[n:] = acceleration[k, :, :S]
-            B_c = np.vstack([np.zeros((n, self.action_dim)), acceleration[k, :, S:]])
-            A[k], B[k] = zero_order_hold_discretization(A_c, B_c, self.sample_period)
+            A[k], B[k] = zero_order_hold_discretization(*state_space_jacobians(acceleration[k]), self.sample_period)
         return A, B
+
+
+def state_space_jacobians(acceleration_jacobian: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A_c (2n, 2n), B_c (2n, m)): the Jacobians of ẋ = [v, q̈(q, v, τ)] w.r.t. x = [q, v] and τ, from
+    d q̈ / d(q, v, τ) (n, 2n + m)."""
+    n = acceleration_jacobian.shape[0]
+    A_c = np.zeros((2 * n, 2 * n))
+    A_c[:n, n:] = np.eye(n)
+    A_c[n:] = acceleration_jacobian[:, :2 * n]
+    B_c = np.vstack([np.zeros((n, acceleration_jacobian.shape[1] - 2 * n)), acceleration_jacobian[:, 2 * n:]])
+    return A_c, B_c
 
 
 def zero_order_hold_discretization(A_c: np.ndarray, B_c: np.ndarray, period: float):
@@ -297,17 +304,14 @@ class PeriodAcceleration(NominalAcceleration):
     def _period_mean(self, q, v, tau):
         """(φ̄ (N, n), Ψ_v [A_c B_c] / T (N, n, 2n + m)) from one AutoDiff pass per row."""
         q, v, tau = self._rows(q, v, tau)
-        n, S, T = self.num_joints, 2 * self.num_joints, self.sample_period
+        n, T = self.num_joints, self.sample_period
         accelerations, jacobians = super().values_and_jacobians(q, v, tau)
         values, derivatives = np.empty_like(q), np.empty_like(jacobians)
         for i in range(len(q)):
-            A_c = np.zeros((S, S))
-            A_c[:n, n:] = np.eye(n)
-            A_c[n:] = jacobians[i, :, :S]
-            _, integral = zero_order_hold_discretization(A_c, np.eye(S), T)          # Ψ (2n, 2n)
+            A_c, B_c = state_space_jacobians(jacobians[i])
+            _, integral = zero_order_hold_discretization(A_c, np.eye(2 * n), T)      # Ψ (2n, 2n)
             values[i] = integral[n:] @ np.concatenate([v[i], accelerations[i]]) / T
-            velocity_part = np.hstack([np.zeros((n, n)), np.eye(n), np.zeros((n, tau.shape[1]))])  # d v / d(q, v, τ)
-            derivatives[i] = integral[n:] @ np.vstack([velocity_part, jacobians[i]]) / T
+            derivatives[i] = integral[n:] @ np.hstack([A_c, B_c]) / T
         return values, derivatives
 
     def values(self, q, v, tau) -> np.ndarray:
