@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from stdm_drake.cli import main
-from stdm_drake.collection.collect import CollectionSettings, SimulationRig
-from stdm_drake.collection.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
+from stdm_drake.collection.collect import StationConfig, Station
+from stdm_drake.robots.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.data.inspect import tracking_errors, tracking_smoothness
 
@@ -17,7 +17,7 @@ def test_next_state_is_a_function_of_state_and_held_torque(name, request):
     """Re-simulating one sample period from (x_k, a_k) on a fresh rig reproduces x_k+1 exactly (the
     tracking controller's filter and integral live outside the plant: the torque is held)."""
     dataset = load_dataset(request.getfixturevalue(name))
-    rig = SimulationRig(CollectionSettings()).simulation
+    rig = Station(StationConfig()).simulation
     traj = dataset.trajectory(1)
     for k in (0, 17, 49):
         x_k = np.concatenate([traj["q_true"][k], traj["v_true"][k]])
@@ -45,7 +45,7 @@ def test_excitation_dataset_contents(excitation_dataset):
         # the recorded action is the total applied torque: gravity compensation + eq. (10)
         amplitude, frequency, offset, phase = params[i].reshape(4, 6)
         t = np.arange(50)[:, None] * dataset.sample_period
-        from stdm_drake.plant import Dynamics
+        from stdm_drake.robots.plant import Dynamics
         gravity = np.array([Dynamics().gravity_torque(q) for q in traj["q_true"][:-1]])
         np.testing.assert_allclose(traj["tau"], gravity + amplitude * np.sin(frequency * t + phase) + offset,
                                    atol=1e-9)

@@ -38,8 +38,8 @@ def test_cell_verdicts_follow_the_design():
 
 
 def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
-    from stdm_drake.plant import Dynamics, robot_joint_limits
-    from stdm_drake.robot import UR10, load_robot
+    from stdm_drake.robots.plant import Dynamics, robot_joint_limits
+    from stdm_drake.robots.robot import UR10, load_robot
     free = load_robot(experiment.ROOT / "models" / "ur10_limit_free.yaml")
     limits = robot_joint_limits(free)
     assert np.all(np.isinf(limits.position_lower)) and np.all(np.isinf(limits.position_upper))

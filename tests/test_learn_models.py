@@ -9,7 +9,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.loss import member_gaussian_nll, batch_losses
-from stdm_drake.learning.models import (ACTIVATION_NAMES, MAX_LOGVAR_INIT, MIN_LOGVAR_INIT, EnsembleMLP, ModelConfig,
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.models import (MAX_LOGVAR_INIT, MIN_LOGVAR_INIT, EnsembleMLP, ModelConfig,
                                         bounded_logvar, dynamics_config, get_activation, parse_model_type)
 
 

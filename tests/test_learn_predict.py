@@ -6,7 +6,8 @@ import torch
 from stdm_drake.errors import InputError
 from stdm_drake.learning.regression import RegressionData, fit_normalizers
 from stdm_drake.learning.trainer import build_model
-from stdm_drake.learning.models import ACTIVATION_NAMES, dynamics_config
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.models import dynamics_config
 from stdm_drake.learning.predict import InferenceModel, predict, rollout
 
 RNG = np.random.default_rng(0)

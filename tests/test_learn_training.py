@@ -12,7 +12,8 @@ from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.loss import batch_losses
 from stdm_drake.learning.trainer import build_model, select_alpha, train_model, training_step, validation_scores
 from stdm_drake.learning.checkpoint import load_checkpoint, load_model, save_checkpoint
-from stdm_drake.learning.models import ACTIVATION_NAMES, ModelConfig, dynamics_config
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.models import ModelConfig, dynamics_config
 
 
 def pendulum_data(count, seed):

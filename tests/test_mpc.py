@@ -146,7 +146,7 @@ class BrokenModel(LinearModel):
 
 
 def test_non_finite_model_falls_back_to_gravity_compensation():
-    from stdm_drake.plant import Dynamics
+    from stdm_drake.robots.plant import Dynamics
     reference = quintic_reference(5)
     log = run_closed_loop(BrokenModel(), reference, MpcConfig(horizon=3))
     assert all(log.fallback)
@@ -255,8 +255,8 @@ def test_a_long_comparison_announces_its_time_estimate_after_each_models_first_p
 def test_plant_simulator_start_equals_a_fresh_simulator():
     """`start` resets the state variables only (not the parameters): after other runs, the steps of a
     simulator in use equal those of a freshly built one, bitwise."""
-    from stdm_drake.plant import PlantSimulator
-    from stdm_drake.robot import UR10
+    from stdm_drake.robots.plant import PlantSimulator
+    from stdm_drake.robots.robot import UR10
     rng = np.random.default_rng(4)
     pairs = [(np.concatenate([UR10.home + rng.normal(0, 0.1, 6), rng.normal(0, 0.5, 6)]), rng.normal(0, 5, 6))
              for _ in range(4)]
@@ -282,7 +282,7 @@ class HoldFeedforward(TrajectoryOptimizer):
 def test_another_optimizer_plugs_into_the_controller_unchanged(plant_model):
     """MpcController takes any TrajectoryOptimizer: with one that returns the feedforward, every applied
     torque is the reference's gravity torque at that step (the controller is not touched)."""
-    from stdm_drake.plant import Dynamics
+    from stdm_drake.robots.plant import Dynamics
     config = dataclasses.replace(load_mpc_config(), horizon=3)
     reference = quintic_reference(5)
     optimizer = HoldFeedforward(plant_model, config.cost(6), np.full(6, 1e3))

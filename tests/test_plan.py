@@ -9,7 +9,7 @@ import ruckig
 from pydrake.math import RigidTransform, RotationMatrix
 
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.collection.kinematics import RobotKinematics, rotation_exp, rotation_log
+from stdm_drake.robots.kinematics import RobotKinematics, rotation_exp, rotation_log
 from stdm_drake.collection.plan import (InitialPose, TaskSpaceSamplingConfig, initial_configuration,
                                         load_tracking_spec, sample_task_plans)
 from stdm_drake.collection.planners import (PLANNER_KINDS, PlannedTrajectory, PlannerConfig, check_position_extrema,

@@ -113,10 +113,10 @@ def test_a_dataset_with_a_replaced_array_loads_or_is_refused(tmp_path, excitatio
 def schemas():
     from stdm_drake.closed_loop.mpc import MpcConfig
     from stdm_drake.collection.collect import ExcitationConfig
-    from stdm_drake.collection.control import ControllerConfig, SensorConfig
+    from stdm_drake.robots.control import ControllerConfig, SensorConfig
     from stdm_drake.collection.plan import TrackingSpec
     from stdm_drake.learning.settings import TrainSettings
-    from stdm_drake.robot import RobotConfig
+    from stdm_drake.robots.robot import RobotConfig
     return [ExcitationConfig, ControllerConfig, SensorConfig, TrackingSpec, TrainSettings, RobotConfig, MpcConfig]
 
 
@@ -137,7 +137,7 @@ def test_a_yaml_config_loads_or_is_refused(tmp_path, schema_index, document, use
     try:
         config = load_yaml_config(path, schema)
         if schema.__name__ == "RobotConfig":
-            from stdm_drake.robot import Robot
+            from stdm_drake.robots.robot import Robot
             Robot(config, tmp_path)
     except InputError as error:
         assert one_line(error), str(error)

@@ -7,8 +7,8 @@ import pytest
 from test_robot_config import GOOD, two_link_urdf, write_robot
 
 from stdm_drake.errors import InputError
-from stdm_drake.plant import PlantConfig, SelfCollisionChecker, make_plant
-from stdm_drake.robot import load_robot
+from stdm_drake.robots.plant import PlantConfig, SelfCollisionChecker, make_plant
+from stdm_drake.robots.robot import load_robot
 
 CYLINDER = '<visual><geometry><cylinder radius="0.04" length="0.3"/></geometry></visual>'
 
@@ -71,8 +71,8 @@ def test_stl_and_collada_meshes_load_through_cached_obj_copies(tmp_path, caplog)
     would ignore its unit); a second load reuses the cache, and a Meshcat recording builds."""
     import trimesh
     from pydrake.systems.framework import DiagramBuilder
-    from stdm_drake.collection.recorder import TrajectoryRecorder
-    from stdm_drake.model_file import mesh_cache_dir
+    from stdm_drake.robots.recorder import TrajectoryRecorder
+    from stdm_drake.robots.model_file import mesh_cache_dir
     box_stl(tmp_path / "meshes" / "upper.stl", [0.08, 0.08, 0.3])
     box_dae_millimetres(tmp_path / "meshes" / "fore.dae", [60.0, 60.0, 100.0])
     urdf = two_link_urdf().replace(CYLINDER, '<visual><geometry><mesh filename="meshes/upper.stl"/></geometry></visual>', 2)
@@ -111,7 +111,7 @@ def test_meshes_load_from_folders_with_spaces_and_accents_and_through_model_uris
     URIs), so a description folder and a cache folder named "a b/é" work; an SDF-style model:// URI
     resolves through package_paths like package://."""
     from pydrake.systems.framework import DiagramBuilder
-    from stdm_drake.model_file import mesh_cache_dir
+    from stdm_drake.robots.model_file import mesh_cache_dir
     folder = tmp_path / "a b" / "é"
     folder.mkdir(parents=True)
     monkeypatch.setenv("STDM_DRAKE_CACHE", str(tmp_path / "cache dir é"))
@@ -221,7 +221,7 @@ def test_friction_and_gear_ratios_the_plant_leaves_out_are_reported(tmp_path, ca
                         '<joint name="elbow"><hardwareInterface>EffortJointInterface</hardwareInterface></joint>'
                         '<actuator name="m"><mechanicalReduction>100</mechanicalReduction></actuator></transmission>'
                         "</robot>")
-    with caplog.at_level("WARNING", logger="stdm_drake.robot"):
+    with caplog.at_level("WARNING", logger="stdm_drake.robots.robot"):
         load_robot(write_robot(tmp_path, urdf, GOOD))
     assert "joint friction (shoulder 2; N m, or N on a prismatic joint): the simulated joints have none" in caplog.text
     assert "gear ratios (elbow 100): the action is the joint torque itself" in caplog.text
@@ -236,7 +236,7 @@ def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
     from stdm_drake.collection import plan
     from stdm_drake.collection.plan import derived_tracking_spec
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.robot import MODELS_DIR, UR10
+    from stdm_drake.robots.robot import MODELS_DIR, UR10
     slow = (MODELS_DIR / "ur10.yaml").read_text().partition("defaults:")[0]    # its settings derived, not the UR-10's files
     slow = slow.replace("name: ur10", "name: ur10_slow")
     slow = slow.replace("model: ur10.urdf", "model: stdm-drake:models/ur10.urdf")   # the shipped file, from here
@@ -287,7 +287,7 @@ def test_period_acceleration_gives_the_next_velocity_where_damping_outpaces_the_
     rates equal a finer central difference, a zero tangent has a zero rate, and its Jacobian (Ψ held
     constant) matches finite differences in v and τ."""
     from stdm_drake.learning.physics import NominalAcceleration, PeriodAcceleration, PlantModel
-    from stdm_drake.robot import UR10
+    from stdm_drake.robots.robot import UR10
     urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
     stiff = load_robot(write_robot(tmp_path, urdf, GOOD))
     q, v, tau = np.array([[0.3, -0.6], [0.1, 0.2]]), np.array([[0.5, -0.4], [-1.0, 0.3]]), np.array([[3.0, -1.0], [0.5, 2.0]])
@@ -329,7 +329,7 @@ def test_derivative_training_warns_about_joints_damped_faster_than_the_period(tm
     """Damping 40 N m s/rad on the two-link's light joints stops them in a few ms (M_eff / d at home),
     under the 10 ms period: `train --model DD` says so in one warning line and names D; D trains quietly."""
     from stdm_drake.cli import main
-    from stdm_drake.plant import Dynamics
+    from stdm_drake.robots.plant import Dynamics
     urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
     robot_path = write_robot(tmp_path, urdf, GOOD)
     robot = load_robot(robot_path)
@@ -355,7 +355,7 @@ def test_stl_and_collada_visuals_render_in_chromium(tmp_path):
     the URDF's <material>) in a real browser, at their size: without the conversion the STL link would
     be missing from the page, and the COLLADA box, its unit ignored by Meshcat, 1000 times too large."""
     from test_visualize import rendered_pixels
-    from stdm_drake.collection.recorder import TrajectoryRecorder
+    from stdm_drake.robots.recorder import TrajectoryRecorder
     box_stl(tmp_path / "meshes" / "upper.stl", [0.2, 0.2, 0.3])
     box_dae_millimetres(tmp_path / "meshes" / "fore.dae", [200.0, 200.0, 300.0])
     blue_material = '<material name="blue"><color rgba="0.1 0.2 0.95 1"/></material>'
@@ -382,7 +382,7 @@ def test_a_robot_config_names_its_default_files_and_the_rest_is_derived(tmp_path
     from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, mpc_config_for
     from stdm_drake.collection.collect import ExcitationConfig, collection_request
     from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
-    from stdm_drake.robot import UR10
+    from stdm_drake.robots.robot import UR10
     assert UR10.default_file("tracking") == TRAJECTORIES_DIR / "tracking.yaml"
     assert UR10.default_file("mpc") == CONTROLLERS_DIR / "mpc.yaml"
     (tmp_path / "exc.yaml").write_text("num_steps: 7\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"

@@ -5,9 +5,9 @@ import time
 import numpy as np
 import pytest
 
-from stdm_drake.plant import Dynamics, SelfCollisionChecker, joint_limits, make_plant
-from stdm_drake.model_file import offline_parser
-from stdm_drake.robot import UR10
+from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker, joint_limits, make_plant
+from stdm_drake.robots.model_file import offline_parser
+from stdm_drake.robots.robot import UR10
 
 DH = [(0, 0.1273, math.pi / 2), (-0.612, 0, 0), (-0.5723, 0, 0),
       (0, 0.163941, math.pi / 2), (0, 0.1157, -math.pi / 2), (0, 0.0922, 0)]

@@ -6,8 +6,8 @@ import pytest
 from conftest import closed_loop_status
 
 from stdm_drake.errors import InputError
-from stdm_drake.plant import PlantConfig, joint_limits, make_plant
-from stdm_drake.robot import UR10, load_robot
+from stdm_drake.robots.plant import PlantConfig, joint_limits, make_plant
+from stdm_drake.robots.robot import UR10, load_robot
 
 LINK = """  <link name="{name}">
     <inertial><mass value="{mass}"/><origin xyz="0 0 {com}"/>
@@ -136,7 +136,7 @@ def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     assert dataset.metadata["excitation"]["offset_max"] == [1.0, 1.0]          # one value for both joints
     assert main(["inspect", str(data), "--robot", str(robot)]) == 0
     assert "shoulder" in capsys.readouterr().out
-    from stdm_drake.robot import UR10_CONFIG
+    from stdm_drake.robots.robot import UR10_CONFIG
     for command in (["inspect", str(data)], ["train", str(data), "-o", str(tmp_path / "x")]):
         assert main(command + ["--robot", str(UR10_CONFIG)]) == 2          # --robot checks the dataset's robot
         assert "collected with robot two_link" in capsys.readouterr().err
@@ -208,7 +208,7 @@ def test_mpc_and_view_run_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
 def test_missing_visual_meshes_warn_and_the_dynamics_load(tmp_path, caplog):
     """A visual mesh that is not there is left out with a warning (the plant, its scene graph and a
     Meshcat recording still build); a missing collision mesh is a one-line error."""
-    from stdm_drake.collection.recorder import TrajectoryRecorder
+    from stdm_drake.robots.recorder import TrajectoryRecorder
     from pydrake.systems.framework import DiagramBuilder
     cylinder = '<cylinder radius="0.04" length="0.3"/>'
     text = two_link_urdf().replace(cylinder, '<mesh filename="meshes/upper.obj"/>', 2)
@@ -247,7 +247,7 @@ def test_the_ur10_preset_named_with_robot_collects_the_default_data(tmp_path):
     """`--robot models/ur10.yaml` is the default robot: the same excitation file and the same data."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.robot import UR10_CONFIG
+    from stdm_drake.robots.robot import UR10_CONFIG
     paths = [tmp_path / "default.h5", tmp_path / "named.h5"]
     for path, extra in zip(paths, ([], ["--robot", str(UR10_CONFIG)])):
         assert main(["collect", "--protocol", "excitation", "--count", "2", "--seed", "7", "--workers", "1",
@@ -322,7 +322,7 @@ def test_drakes_parser_warnings_are_shown_once_per_command(tmp_path, caplog, cap
     with caplog.at_level("WARNING", logger="drake"):
         assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--count", "2", "--workers", "1",
                      "--quiet", "-o", str(tmp_path / "data.h5")]) == 0
-    for logger in ("drake", "stdm_drake.robot"):   # Drake's own warning, and stdm-drake's what-it-means line
+    for logger in ("drake", "stdm_drake.robots.robot"):   # Drake's own warning, and stdm-drake's what-it-means line
         friction = [record for record in caplog.records if record.name == logger and "friction" in record.getMessage()]
         assert len(friction) == 1, [record.getMessage() for record in friction]
     assert "repeats of Drake's warnings above left out" in capsys.readouterr().err

@@ -10,8 +10,8 @@ from conftest import closed_loop_status
 
 from stdm_drake.errors import InputError
 from stdm_drake.paths import MODELS_DIR
-from stdm_drake.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, make_plant
-from stdm_drake.robot import UR10, load_robot
+from stdm_drake.robots.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, make_plant
+from stdm_drake.robots.robot import UR10, load_robot
 
 PANDA_CONFIG = MODELS_DIR / "panda.yaml"
 ACROBOT_CONFIG = MODELS_DIR / "acrobot.yaml"
@@ -62,7 +62,7 @@ def test_panda_file_is_the_published_arm(panda):
 def test_redundant_arm_plans_have_exact_derivatives(panda):
     """A 7-joint arm's quintic plan: the tool follows the line, the redundant joint moves linearly along
     it, and q̇, q̈ are the derivatives of q; ruckig and toppra end in the same configuration."""
-    from stdm_drake.collection.kinematics import RobotKinematics, rotation_log
+    from stdm_drake.robots.kinematics import RobotKinematics, rotation_log
     from stdm_drake.collection.plan import derived_tracking_spec, initial_configuration, sample_final_pose
     from stdm_drake.collection.planners import plan_trajectory
 
@@ -226,7 +226,7 @@ def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
     the Panda's plans with no per-robot tuning; a file with both gains and a bandwidth is refused."""
     from stdm_drake.cli import main
     from stdm_drake.collection.collect import collection_request
-    from stdm_drake.collection.control import load_controller_config
+    from stdm_drake.robots.control import load_controller_config
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.paths import CONTROLLERS_DIR
     hand_set = load_controller_config(CONTROLLERS_DIR / "pid.yaml")

@@ -9,9 +9,10 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "stdm_drake"
-# stage -> the stages it must not import (the flow: collection -> data -> learning -> closed_loop;
+# stage -> the stages it must not import (the flow: robots -> collection -> data -> learning -> closed_loop;
 # experiments use them all)
 FORBIDDEN = {
+    "robots": ("collection", "data", "learning", "closed_loop", "experiments"),
     "collection": ("learning", "closed_loop", "experiments"),
     "data": ("collection", "learning", "closed_loop", "experiments"),
     "learning": ("collection", "closed_loop", "experiments"),
@@ -82,16 +83,16 @@ def test_no_module_imports_itself_back():
 
 
 def test_top_level_modules_import_no_stage():
-    """The modules at the package's top (robot, plant, files, config, ...) sit below every stage; only
+    """The modules at the package's top (files, config, paths, errors, ...) sit below every stage; only
     the command line (cli, which loads commands by name) stands above them."""
-    stages = tuple(f"stdm_drake.{stage}" for stage in ("collection", "data", "learning", "closed_loop", "experiments"))
+    stages = tuple(f"stdm_drake.{stage}" for stage in ("robots", "collection", "data", "learning", "closed_loop", "experiments"))
     edges = [(name, module) for name, modules in module_graph().items() if name.count(".") == 1 and name != "stdm_drake.cli"
              for module in modules if module.startswith(stages)]
     assert not edges, f"top-level modules import a stage: {edges}"
 
 
 def test_importing_collection_loads_no_learning_code():
-    code = ("import sys, stdm_drake.collection.collect, stdm_drake.collection.recorder; "
+    code = ("import sys, stdm_drake.collection.collect, stdm_drake.robots.recorder, stdm_drake.robots.station; "
             "bad = [m for m in sys.modules if m.startswith(('stdm_drake.learning', 'torch'))]; "
             "print(bad); sys.exit(1 if bad else 0)")
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)

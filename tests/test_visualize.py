@@ -5,7 +5,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from stdm_drake.collection.recorder import TrajectoryRecorder
+from stdm_drake.robots.recorder import TrajectoryRecorder
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",

@@ -5,7 +5,7 @@ All three are measured in the same run, on the same default tracking plans (plan
 - bare: a Drake diagram of plant + PidController + gravity compensation (InverseDynamics in
   gravity mode) + the plan as a TrajectorySource, simulated with one AdvanceTo per trajectory,
   no logging: what plain Drake costs;
-- stdm-drake, 1 process: `SimulationRig.run` as `stdm-drake collect` uses it (sampled PID on the
+- stdm-drake, 1 process: `Station.run` as `stdm-drake collect` uses it (sampled PID on the
   sensor model, zero-order hold, logging, true accelerations);
 - stdm-drake, N processes: `collect()` end to end with N workers, planning and process start-up
   included.
@@ -33,13 +33,13 @@ from pydrake.systems.primitives import Adder, TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.collection.collect import (CollectionRequest, CollectionSettings, SimulationRig, collect,  # noqa: E402
+from stdm_drake.collection.collect import (CollectionRequest, StationConfig, Station, collect,  # noqa: E402
                                            plan_tracking, tracking_trajectory, worker_pool)
 from stdm_drake.config import load_yaml_config  # noqa: E402
-from stdm_drake.collection.control import SensorConfig, load_controller_config  # noqa: E402
+from stdm_drake.robots.control import SensorConfig, load_controller_config  # noqa: E402
 from stdm_drake.collection.plan import load_tracking_spec  # noqa: E402
 from stdm_drake.paths import CONTROLLERS_DIR  # noqa: E402
-from stdm_drake.plant import PlantConfig, make_plant  # noqa: E402
+from stdm_drake.robots.plant import PlantConfig, make_plant  # noqa: E402
 
 
 def bare_drake_seconds(plans, settings) -> float:
@@ -81,7 +81,7 @@ def main():
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
     args = parser.parse_args()
 
-    settings = CollectionSettings(sensor=load_yaml_config(CONTROLLERS_DIR / "sensor.yaml", SensorConfig),
+    settings = StationConfig(sensor=load_yaml_config(CONTROLLERS_DIR / "sensor.yaml", SensorConfig),
                                   controller=load_controller_config(CONTROLLERS_DIR / "pid.yaml"),
                                   plant=PlantConfig(time_step=0.001))
     request = CollectionRequest(protocol="tracking", count=args.count, seed=0, settings=settings,
@@ -91,7 +91,7 @@ def main():
     simulated = sum(len(plan.q) - 1 for plan in plans) * settings.sample_period
 
     bare = min(bare_drake_seconds(plans, settings) for _ in range(args.repeats))
-    rig = SimulationRig(settings)
+    rig = Station(settings)
 
     def ours_once():
         started = time.perf_counter()

@@ -30,8 +30,8 @@ sys.path.insert(0, str(ROOT / "tools"))
 os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.plant import Dynamics, PlantConfig, PlantSimulator  # noqa: E402
-from stdm_drake.robot import MODELS_DIR, UR10, load_robot  # noqa: E402
+from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator  # noqa: E402
+from stdm_drake.robots.robot import MODELS_DIR, UR10, load_robot  # noqa: E402
 
 
 def meshed_arm(folder: pathlib.Path):

@@ -24,7 +24,7 @@ from stdm_drake.data.dataset import load_dataset  # noqa: E402
 from stdm_drake.learning.learned_model import LearnedModel  # noqa: E402
 from stdm_drake.learning.physics import PlantModel  # noqa: E402
 from stdm_drake.closed_loop.comparison import held_out_references  # noqa: E402
-from stdm_drake.robot import UR10  # noqa: E402
+from stdm_drake.robots.robot import UR10  # noqa: E402
 
 
 def torque_jacobian_errors(model: LearnedModel, plant: PlantModel, dataset, indices, stride: int = 10) -> np.ndarray:

@@ -94,7 +94,7 @@ def contact_free_trajectories(path) -> tuple[list[int], list[int]]:
     and a difference above 1e-6 rad/s in any velocity marks contact."""
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.physics import PlantModel
-    from stdm_drake.plant import PlantConfig
+    from stdm_drake.robots.plant import PlantConfig
     dataset = load_dataset(path)
     free = PlantModel(dataset.sample_period, PlantConfig(self_collision=False))
     keep, contact = [], []

@@ -94,8 +94,8 @@ def learned_model_type(robot_config: pathlib.Path, sample_period: float = 0.01) 
     """The README's rule: DD, or D when `train` would warn that the description's damping stops a joint
     faster than the sample period (derivative learning failed there)."""
     import logging
-    from stdm_drake.plant import Dynamics
-    from stdm_drake.robot import load_robot
+    from stdm_drake.robots.plant import Dynamics
+    from stdm_drake.robots.robot import load_robot
     for name in ("drake", "stdm_drake"):   # the commands themselves report the description's warnings
         logging.getLogger(name).setLevel(logging.ERROR)
     constants = Dynamics(load_robot(robot_config)).damping_time_constants()

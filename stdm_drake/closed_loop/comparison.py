@@ -10,8 +10,8 @@ from stdm_drake.learning.physics import PlantModel
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
 from stdm_drake.report import markdown_table
-from stdm_drake.plant import Dynamics, PlantConfig, joint_limits
-from stdm_drake.robot import Robot
+from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
+from stdm_drake.robots.robot import Robot
 
 
 @dataclasses.dataclass
@@ -245,7 +245,7 @@ def run(args) -> int:
         raise InputError(f"--plans {args.plans}: {args.dataset} has only {len(references)} held-out plans")
     recorder = None
     if args.html:
-        from stdm_drake.collection.recorder import TrajectoryRecorder
+        from stdm_drake.robots.recorder import TrajectoryRecorder
         recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot)
     results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder,
                                   robot=robot, announce=lambda line: print(line, file=sys.stderr, flush=True))

@@ -40,8 +40,8 @@ from stdm_drake.closed_loop.optimizer import TrackingCost, TrajectoryOptimizer
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.plant import Dynamics, PlantConfig, joint_limits
-from stdm_drake.robot import Robot
+from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
+from stdm_drake.robots.robot import Robot
 
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
 
@@ -250,7 +250,7 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
                       meshcat=None, robot: Robot | None = None, optimizer: TrajectoryOptimizer | None = None):
     """Diagram: the robot's plant (discrete; default robot: the UR-10 preset) <-> MpcController(model,
     optimizer). Returns (diagram, plant, controller)."""
-    from stdm_drake.plant import make_plant
+    from stdm_drake.robots.plant import make_plant
     plant_config = plant_config or PlantConfig()
     builder = DiagramBuilder()
     plant, scene_graph = make_plant(plant_config, builder=builder, robot=robot)

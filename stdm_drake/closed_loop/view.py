@@ -4,7 +4,7 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.collection.recorder import TrajectoryRecorder
+from stdm_drake.robots.recorder import TrajectoryRecorder
 from stdm_drake.outputs import add_force_argument, check_output_file
 
 

@@ -1,3 +1,3 @@
-"""Data collection: kinematics and IK, trajectory planners, joint controllers and the sensor model,
-the simulated robot, and the excitation and tracking protocols that write datasets.
+"""Data collection: task-space plans and their planners, and the excitation and tracking protocols
+that step a robot's station (`stdm_drake.robots.station`) and write datasets.
 Imports nothing from learning or deployment."""

@@ -3,7 +3,7 @@
 - excitation (paper V.A.2, eq. 10): per-joint random sine torques A sin(f t + phi) + B added to
   gravity compensation; the action recorded is the total torque applied.
 - tracking (paper V.B.1): task-space plans from `stdm_drake.collection.plan`, tracked by a joint-space
-  controller (`stdm_drake.collection.control`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
+  controller (`stdm_drake.robots.control`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
   are recorded as the "real robot" derivative targets.
 
 Every trajectory is simulated sample by sample: at t_k the controller sees the measurement y_k,
@@ -21,7 +21,6 @@ import argparse
 import concurrent.futures
 import contextlib
 import dataclasses
-import math
 import multiprocessing
 import os
 import pathlib
@@ -31,16 +30,15 @@ from importlib import metadata as importlib_metadata
 import numpy as np
 
 from stdm_drake.config import check_joint_vector, load_yaml_config
-from stdm_drake.collection.control import (ControllerConfig, JointSensor, SampledJointController, SensorConfig,
-                                           load_controller_config)
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits, robot_joint_limits
-from stdm_drake.robot import UR10, Robot, load_robot
+from stdm_drake.robots.control import JointSensor, SensorConfig, load_controller_config
+from stdm_drake.robots.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, robot_joint_limits
+from stdm_drake.robots.robot import UR10, Robot, load_robot
+from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 
-DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 PROTOCOLS = ("excitation", "tracking")   # their files: --config, the robot's `defaults`, or derived
 DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
@@ -125,104 +123,7 @@ class ExcitationConfig:
             for name, count in counts.items()})
 
 
-@dataclasses.dataclass
-class CollectionSettings:
-    """What every protocol shares: sample period (s), plant, sensor, tracking controller and robot."""
-    sample_period: float = DEFAULT_SAMPLE_PERIOD
-    plant: PlantConfig = dataclasses.field(default_factory=PlantConfig)
-    sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig)
-    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
-    robot: Robot = dataclasses.field(default_factory=lambda: UR10)
-
-    def substeps(self) -> int:
-        """Plant steps per sample period; the period must be a whole multiple of the plant step."""
-        if not (math.isfinite(self.sample_period) and self.sample_period > 0):
-            raise InputError(f"sample period must be a finite number > 0 s, got {self.sample_period}")
-        if not (math.isfinite(self.plant.time_step) and self.plant.time_step > 0):
-            raise InputError(f"collection needs a discrete plant (a finite time_step > 0), got {self.plant.time_step}")
-        ratio = self.sample_period / self.plant.time_step
-        if not ratio <= 1e7 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
-            raise InputError(f"sample period {self.sample_period} s is not a whole multiple of the plant "
-                             f"step {self.plant.time_step} s")
-        return int(round(ratio))
-
-
-class SimulationRig:
-    """The collection diagram (plant + scene graph) and a simulator stepped sample by sample.
-
-    Each trajectory starts from a fresh default context at t = 0, so its data depend only on its
-    own inputs, not on what the rig simulated before (or in which worker process).
-    """
-
-    def __init__(self, settings: CollectionSettings):
-        self.settings = settings
-        settings.substeps()
-        self.robot = settings.robot
-        self.simulation = PlantSimulator(settings.plant, settings.robot)
-        self.plant = self.simulation.plant
-        self.limits = joint_limits(self.plant)
-        self.dynamics = Dynamics(settings.robot)
-        self.collision_checker = SelfCollisionChecker(settings.robot)
-        self._controller = None
-
-    @property
-    def controller(self) -> SampledJointController:
-        """The tracking controller (built on first use: the excitation protocol has none)."""
-        if self._controller is None:
-            settings = self.settings
-            self._controller = SampledJointController(settings.controller, settings.sample_period, settings.robot)
-        return self._controller
-
-    def run(self, q0: np.ndarray, num_steps: int, control, sensor: JointSensor) -> dict:
-        """Simulate one trajectory from rest at q0 (n,) rad for num_steps sample periods.
-
-        control(k, t, q_measured, v_measured) -> action (m,) N m for [t_k, t_k+1); t = k * period;
-        the controller gets the raw measurement, the dataset records q_measured and the filtered v.
-        Returns the arrays of one dataset trajectory (see stdm_drake.data.dataset).
-        """
-        dt = self.settings.sample_period
-        simulation = self.simulation
-        n = self.robot.num_joints
-        simulation.start(np.concatenate([q0, np.zeros(n)]), np.zeros(self.robot.action_dim))
-        x = simulation.plant.GetPositionsAndVelocities(simulation.plant_context)
-        q_true, v_true, q_meas, v_meas, tau = [], [], [], [], []
-        for k in range(num_steps + 1):
-            q_true.append(x[:n])
-            v_true.append(x[n:])
-            q_k, v_k, v_filtered = sensor.measure(q_true[-1], v_true[-1])
-            q_meas.append(q_k)
-            v_meas.append(v_filtered)
-            tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
-            tau.append(tau_k)
-            if k < num_steps:
-                simulation.hold(tau_k)
-                x = simulation.advance_to((k + 1) * dt)
-        acceleration = self.dynamics.acceleration
-        qdd = [acceleration(q_true[k], v_true[k], tau[k]) for k in range(num_steps + 1)]
-        qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], tau[k]) for k in range(num_steps)]
-        return dict(q=np.array(q_meas), v=np.array(v_meas), tau=np.array(tau[:-1]), tau_next=tau[-1],
-                    q_true=np.array(q_true), v_true=np.array(v_true), qdd=np.array(qdd), qdd_end=np.array(qdd_end))
-
-    def limit_violation(self, traj: dict, position_margin: float, velocity_fraction: float,
-                        check_self_collision: bool) -> str | None:
-        """Why the trajectory is unusable (first reason found), or None if it is fine."""
-        lower = self.limits.position_lower + position_margin
-        upper = self.limits.position_upper - position_margin
-        q, v = traj["q_true"], traj["v_true"]
-        for name, bad in (("position", (q < lower) | (q > upper)),
-                          ("velocity", np.abs(v) > velocity_fraction * self.limits.velocity)):
-            if bad.any():
-                step, joint = np.argwhere(bad)[0]
-                return f"{self.robot.joint_names[joint]} {name} limit at step {step}"
-        if check_self_collision:
-            for step, q_step in enumerate(q):
-                if not self.collision_checker.is_collision_free(q_step):
-                    links = self.collision_checker.colliding_links(q_step)
-                    return f"self-collision {links[0][0]}/{links[0][1]} at step {step}"
-        return None
-
-
-def excitation_trajectory(rig: SimulationRig, config: ExcitationConfig, rng: np.random.Generator) -> dict:
+def excitation_trajectory(rig: Station, config: ExcitationConfig, rng: np.random.Generator) -> dict:
     """Sample eq. (10) parameters and q0 until a trajectory stays inside the limits."""
     lower, upper = np.asarray(config.initial_position_lower), np.asarray(config.initial_position_upper)
     reasons: dict[str, int] = {}
@@ -268,7 +169,7 @@ class PlanSamples:
     qdd: np.ndarray
 
 
-def tracking_trajectory(rig: SimulationRig, plan: PlanSamples, rng: np.random.Generator) -> dict:
+def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generator) -> dict:
     """Track one planned trajectory from rest at its start with the configured controller."""
     controller = rig.controller
     controller.reset()
@@ -289,13 +190,13 @@ def tracking_trajectory(rig: SimulationRig, plan: PlanSamples, rng: np.random.Ge
 
 # ---- worker processes -------------------------------------------------------------------------
 
-_WORKER_RIG: SimulationRig | None = None
+_WORKER_RIG: Station | None = None
 
 
-def _init_worker(settings: CollectionSettings) -> None:
+def _init_worker(settings: StationConfig) -> None:
     global _WORKER_RIG
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
-    _WORKER_RIG = SimulationRig(settings)
+    _WORKER_RIG = Station(settings)
 
 
 def _collect_one(job: tuple) -> dict:
@@ -307,9 +208,9 @@ def _collect_one(job: tuple) -> dict:
 
 
 @contextlib.contextmanager
-def worker_pool(workers: int, settings: CollectionSettings):
+def worker_pool(workers: int, settings: StationConfig):
     """Yield map_jobs(function, jobs, chunksize) -> results in order, in this process (1 worker)
-    or in `workers` spawned processes that each build their own SimulationRig."""
+    or in `workers` spawned processes that each build their own Station."""
     if workers == 1:
         _init_worker(settings)
         yield lambda function, jobs, chunksize: map(function, jobs)
@@ -326,7 +227,7 @@ class CollectionRequest:
     protocol: str
     count: int
     seed: int
-    settings: CollectionSettings
+    settings: StationConfig
     excitation: ExcitationConfig | None = None
     tracking_spec: tuple | None = None
     workers: int = 1
@@ -338,7 +239,7 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
     Pose p draws from numpy.random.default_rng([seed, 2**31, p]); plan k of a pose does not
     depend on how many plans are requested after it.
     """
-    from stdm_drake.collection.kinematics import RobotKinematics
+    from stdm_drake.robots.kinematics import RobotKinematics
     from stdm_drake.collection.plan import sample_task_plans
 
     (sampling, planner), pose_index, count, seed, sample_period = job
@@ -504,7 +405,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     SelfCollisionChecker(robot)  # a model that does not load, or a home in self-collision, fails before any worker
     # the protocol file: --config, else the one the robot's config names, else derived from the robot
     config_path = config or robot.default_file(protocol)
-    settings = CollectionSettings(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
+    settings = StationConfig(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
                                   sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     settings.substeps()  # the sample period and the plant step, before any work
     if protocol == "tracking":
@@ -561,7 +462,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
     recorder = None
     if args.meshcat or args.html:
-        from stdm_drake.collection.recorder import TrajectoryRecorder
+        from stdm_drake.robots.recorder import TrajectoryRecorder
         recorder = TrajectoryRecorder(request.settings.sample_period, robot=request.settings.robot)
         if args.meshcat:
             print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)

@@ -10,12 +10,12 @@ from typing import Callable
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
-from stdm_drake.collection.kinematics import RobotKinematics, pose_text, rotation_exp
+from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_exp
 from stdm_drake.collection.planners import PlannedTrajectory, PlannerConfig, plan_trajectory
 from stdm_drake.config import load_yaml_config, require
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import TRAJECTORIES_DIR
-from stdm_drake.robot import UR10, Robot
+from stdm_drake.robots.robot import UR10, Robot
 
 logger = logging.getLogger(__name__)
 
@@ -113,7 +113,7 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
 
     Raises PlanningError when fewer than `num_initial_poses` usable configurations are found.
     """
-    from stdm_drake.plant import Dynamics, SelfCollisionChecker, joint_limits
+    from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker, joint_limits
 
     robot.check_can_track()
     dynamics = Dynamics(robot)

@@ -16,7 +16,7 @@ pi about z, so the arm stretched at q = 0 points along world +x, "in front of th
 Spatial vectors are ordered [angular; linear], measured and expressed in the world frame, for
 the origin of the tool frame. Joint order: the robot's arm joints. An arm of more than 6 joints
 also moves its redundant joints linearly along the path (task coordinates: see
-stdm_drake.collection.kinematics); an arm of fewer than 6 cannot follow a task-space plan.
+stdm_drake.robots.kinematics); an arm of fewer than 6 cannot follow a task-space plan.
 
 Longer than 400 lines on purpose: the three planners share the IK continuation along the task-space
 line, the horizon and the joint-limit checks, so that the same goal gives the same end
@@ -29,10 +29,10 @@ from typing import Callable
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
-from stdm_drake.collection.kinematics import RobotKinematics, pose_text, rotation_exp, rotation_log
+from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_exp, rotation_log
 from stdm_drake.config import require
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.robot import Robot
+from stdm_drake.robots.robot import Robot
 
 PLANNER_KINDS = ("quintic", "ruckig", "toppra")
 
@@ -359,7 +359,7 @@ def plan_quintic(kinematics: RobotKinematics, q0, X_goal: RigidTransform, *, con
 
     q0: (n,) rad start at rest. Returns num_steps + 1 samples; q̇ = J^-1 V_d and
     q̈ = J^-1 (A_d - J̇ q̇) from the square task Jacobian and bias acceleration (the 6x6 tool
-    Jacobian of a 6-joint arm; see stdm_drake.collection.kinematics for more joints).
+    Jacobian of a 6-joint arm; see stdm_drake.robots.kinematics for more joints).
     """
     config.validate()
     t = _horizon_times(num_steps, sample_period)

@@ -5,8 +5,8 @@ The one place where robot, dataset and plant meet; checkpoints compare their rec
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.plant import JointLimits, SelfCollisionChecker, joint_limits
-from stdm_drake.robot import UR10, Robot, load_robot
+from stdm_drake.robots.plant import JointLimits, SelfCollisionChecker, joint_limits
+from stdm_drake.robots.robot import UR10, Robot, load_robot
 
 
 def robot_for(path, dataset=None) -> Robot:

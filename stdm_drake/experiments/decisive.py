@@ -89,7 +89,7 @@ def collect_dataset(cell: Cell, data_seed: int, count: int, half: bool = False) 
     from stdm_drake.collection.collect import collect, collection_request
     from stdm_drake.data.dataset import write_dataset
     from stdm_drake.paths import MODELS_DIR
-    from stdm_drake.robot import load_robot
+    from stdm_drake.robots.robot import load_robot
     robot = load_robot(MODELS_DIR / "ur10_limit_free.yaml")
     excitation = excitation_config(cell)
     if half:
@@ -133,7 +133,7 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
     from stdm_drake.learning.train import training_problem
     from stdm_drake.learning.trainer import fit_model
     from stdm_drake.paths import MODELS_DIR
-    from stdm_drake.robot import load_robot
+    from stdm_drake.robots.robot import load_robot
     torch.set_num_threads(1)
     train, validation, tested = sizes
     alpha, factor, half = MODELS[model]

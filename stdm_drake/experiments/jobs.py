@@ -15,7 +15,8 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.files import json_default, write_text_atomic
 from stdm_drake.learning.checkpoint import CHECKPOINT_VERSION
-from stdm_drake.learning.models import ACTIVATION_NAMES, MODEL_TYPES
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.models import MODEL_TYPES
 from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
 from stdm_drake.paths import CONTROLLERS_DIR
 

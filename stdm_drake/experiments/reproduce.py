@@ -30,7 +30,7 @@ from stdm_drake.files import json_default
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.robot import UR10, Robot
+from stdm_drake.robots.robot import UR10, Robot
 
 def dataset_settings(robot: Robot) -> dict:
     """`ensure_dataset` settings of the four datasets for `robot`: the files its config's `defaults` names

@@ -46,7 +46,8 @@ from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.train import parse_alpha
 from stdm_drake.learning.trainer import train_alpha_grid, train_model
-from stdm_drake.learning.models import ACTIVATION_NAMES, ModelConfig
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.models import ModelConfig
 from stdm_drake.report import markdown_table
 from stdm_drake.stats import paired_ratio
 

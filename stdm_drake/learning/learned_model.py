@@ -60,7 +60,7 @@ class LearnedModel(DynamicsModel):
         if self.structure.predicts == "velocity" and self.sample_period is None:
             raise InputError("a velocity-structured model needs its sample period (the trapezoid step)")
         if robot is None and self.checkpoint is not None and check_robot:
-            from stdm_drake.robot import UR10
+            from stdm_drake.robots.robot import UR10
             robot = UR10
         self.robot = robot
         if robot is not None:
@@ -68,7 +68,7 @@ class LearnedModel(DynamicsModel):
         self.features = None
         if self.structure.uses_nominal_model:
             if robot is None:
-                from stdm_drake.robot import UR10
+                from stdm_drake.robots.robot import UR10
                 self.robot = UR10
                 self._check_robot(UR10)
             self.features = self.structure.nominal_features(self.robot, self.sample_period)

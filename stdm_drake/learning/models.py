@@ -27,7 +27,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.activations import ACTIVATION_NAMES, get_activation  # noqa: F401 (ACTIVATION_NAMES: re-exported)
+from stdm_drake.learning.activations import get_activation
 
 # PETS soft bounds on the log-variance: initial limits and the weight of their penalty in the loss.
 MIN_LOGVAR_INIT = -10.0

@@ -101,8 +101,8 @@ class PlantModel(DynamicsModel):
     name = "plant"
 
     def __init__(self, sample_period: float, plant_config=None, robot=None):
-        from stdm_drake.plant import PlantConfig, PlantSimulator, make_plant
-        from stdm_drake.robot import UR10
+        from stdm_drake.robots.plant import PlantConfig, PlantSimulator, make_plant
+        from stdm_drake.robots.robot import UR10
         self.robot = robot or UR10
         self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
         self.sample_period = float(sample_period)
@@ -222,8 +222,8 @@ class NominalAcceleration:
     """
 
     def __init__(self, robot=None):
-        from stdm_drake.plant import PlantConfig, make_plant
-        from stdm_drake.robot import UR10
+        from stdm_drake.robots.plant import PlantConfig, make_plant
+        from stdm_drake.robots.robot import UR10
         self.robot = robot or UR10
         self.num_joints, self.action_dim = self.robot.num_joints, self.robot.action_dim
         self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)

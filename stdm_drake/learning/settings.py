@@ -9,7 +9,8 @@ import numpy as np
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.models import ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 
 LOSS_KINDS = ("mse", "mae", "huber")

@@ -20,7 +20,8 @@ from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata
-from stdm_drake.learning.models import (ACTIVATION_NAMES, DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig,
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.models import (DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig,
                                         parse_model_type)
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import (DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainingConfig,
@@ -195,7 +196,7 @@ def training_problem(dataset, split, *, model_type: str = "DD", activation: str 
     parts = split.as_dict() if hasattr(split, "as_dict") else split
     features = None
     if structure.uses_nominal_model:
-        from stdm_drake.robot import UR10
+        from stdm_drake.robots.robot import UR10
         features = structure.nominal_features(robot or UR10, dataset.sample_period)
 
     def pairs(indices) -> RegressionData:
@@ -262,7 +263,7 @@ def warn_about_fast_damped_joints(robot, sample_period: float) -> None:
     damping stops them faster than the sample period (`Dynamics.damping_time_constants` at home): on
     such an arm the derivative targets are the fast decay itself, and a DD trained on the ABB IRB 1200's
     identification data did not learn (docs/published_arms.md)."""
-    from stdm_drake.plant import Dynamics
+    from stdm_drake.robots.plant import Dynamics
     constants = Dynamics(robot).damping_time_constants()
     fast = [(name, value) for name, value in zip(robot.joint_names, constants) if value < sample_period]
     if fast:

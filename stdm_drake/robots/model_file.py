@@ -1,7 +1,7 @@
 """Robot description files as stdm-drake reads them, beside Drake's parser: the joint facts a URDF or
 SDF states (limits, continuous joints, <mimic> pairs), the model text Drake can load (missing visual
 meshes left out, STL and COLLADA meshes converted to OBJ in a cache), an offline Parser, and welding a
-joint at a position. Used by `stdm_drake.robot`."""
+joint at a position. Used by `stdm_drake.robots.robot`."""
 import dataclasses
 import os
 import pathlib

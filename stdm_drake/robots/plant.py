@@ -12,7 +12,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, Multibody
 from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 
 from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.robot import UR10, Robot  # noqa: E402
+from stdm_drake.robots.robot import UR10, Robot  # noqa: E402
 
 
 @dataclasses.dataclass

@@ -29,8 +29,8 @@ from pydrake.multibody.tree import JacobianWrtVariable  # noqa: E402
 from pydrake.solvers import Solve  # noqa: E402
 
 from stdm_drake.errors import InputError, PlanningError  # noqa: E402
-from stdm_drake.plant import PlantConfig, joint_limits, make_plant  # noqa: E402
-from stdm_drake.robot import POSE_DIM, UR10, Robot  # noqa: E402
+from stdm_drake.robots.plant import PlantConfig, joint_limits, make_plant  # noqa: E402
+from stdm_drake.robots.robot import POSE_DIM, UR10, Robot  # noqa: E402
 
 
 def _skew(w: np.ndarray) -> np.ndarray:

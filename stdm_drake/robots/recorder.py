@@ -15,7 +15,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.files import write_text_atomic
-from stdm_drake.robot import UR10, Robot
+from stdm_drake.robots.robot import UR10, Robot
 
 GHOST_COLOR = Rgba(1.0, 0.55, 0.1, 0.35)  # translucent orange
 

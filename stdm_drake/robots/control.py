@@ -20,8 +20,8 @@ from pydrake.systems.controllers import InverseDynamicsController, PidController
 
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
-from stdm_drake.plant import Dynamics, joint_limits
-from stdm_drake.robot import Robot
+from stdm_drake.robots.plant import Dynamics, joint_limits
+from stdm_drake.robots.robot import Robot
 
 CONTROLLER_KINDS = ("pid", "inverse_dynamics")
 

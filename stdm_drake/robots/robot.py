@@ -1,6 +1,6 @@
 """Robots: the typed robot config (RobotConfig, the UR-10 preset models/ur10.yaml), the Robot that adds
-itself to a Drake MultibodyPlant. The description file itself: `stdm_drake.model_file`; plants and
-simulators: `stdm_drake.plant`.
+itself to a Drake MultibodyPlant. The description file itself: `stdm_drake.robots.model_file`; plants and
+simulators: `stdm_drake.robots.plant`.
 
 For a robot of n arm joints (in its config's order; the UR-10: shoulder_pan, shoulder_lift, elbow,
 wrist_1, wrist_2, wrist_3): state x = [q (n) rad, v (n) rad/s]; action = the torques (m) N m of its
@@ -24,7 +24,7 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.model_file import (joint_facts, loadable_model, mesh_cache_dir, offline_parser,  # noqa: E402
+from stdm_drake.robots.model_file import (joint_facts, loadable_model, mesh_cache_dir, offline_parser,  # noqa: E402
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
 from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, shipped_file  # noqa: E402
 

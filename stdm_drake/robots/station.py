@@ -1,0 +1,115 @@
+"""The simulated station: a robot's discrete plant with its joint sensor and tracking controller,
+stepped one sample period at a time with the action held in between (zero-order hold).
+
+`Station.run` is what both data protocols simulate; `StationConfig` is what they share (sample
+period, plant, sensor, controller, robot). Each trajectory starts from a fresh state at t = 0, so its
+data depend only on its own inputs, not on what the station simulated before or in which process.
+"""
+import dataclasses
+import math
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.robots.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
+from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
+from stdm_drake.robots.robot import UR10, Robot
+
+DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
+
+
+@dataclasses.dataclass
+class StationConfig:
+    """What every protocol shares: sample period (s), plant, sensor, tracking controller and robot."""
+    sample_period: float = DEFAULT_SAMPLE_PERIOD
+    plant: PlantConfig = dataclasses.field(default_factory=PlantConfig)
+    sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig)
+    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
+    robot: Robot = dataclasses.field(default_factory=lambda: UR10)
+
+    def substeps(self) -> int:
+        """Plant steps per sample period; the period must be a whole multiple of the plant step."""
+        if not (math.isfinite(self.sample_period) and self.sample_period > 0):
+            raise InputError(f"sample period must be a finite number > 0 s, got {self.sample_period}")
+        if not (math.isfinite(self.plant.time_step) and self.plant.time_step > 0):
+            raise InputError(f"collection needs a discrete plant (a finite time_step > 0), got {self.plant.time_step}")
+        ratio = self.sample_period / self.plant.time_step
+        if not ratio <= 1e7 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+            raise InputError(f"sample period {self.sample_period} s is not a whole multiple of the plant "
+                             f"step {self.plant.time_step} s")
+        return int(round(ratio))
+
+
+class Station:
+    """The collection diagram (plant + scene graph) and a simulator stepped sample by sample.
+
+    Each trajectory starts from a fresh default context at t = 0, so its data depend only on its
+    own inputs, not on what the rig simulated before (or in which worker process).
+    """
+
+    def __init__(self, settings: StationConfig):
+        self.settings = settings
+        settings.substeps()
+        self.robot = settings.robot
+        self.simulation = PlantSimulator(settings.plant, settings.robot)
+        self.plant = self.simulation.plant
+        self.limits = joint_limits(self.plant)
+        self.dynamics = Dynamics(settings.robot)
+        self.collision_checker = SelfCollisionChecker(settings.robot)
+        self._controller = None
+
+    @property
+    def controller(self) -> SampledJointController:
+        """The tracking controller (built on first use: the excitation protocol has none)."""
+        if self._controller is None:
+            settings = self.settings
+            self._controller = SampledJointController(settings.controller, settings.sample_period, settings.robot)
+        return self._controller
+
+    def run(self, q0: np.ndarray, num_steps: int, control, sensor: JointSensor) -> dict:
+        """Simulate one trajectory from rest at q0 (n,) rad for num_steps sample periods.
+
+        control(k, t, q_measured, v_measured) -> action (m,) N m for [t_k, t_k+1); t = k * period;
+        the controller gets the raw measurement, the dataset records q_measured and the filtered v.
+        Returns the arrays of one dataset trajectory (see stdm_drake.data.dataset).
+        """
+        dt = self.settings.sample_period
+        simulation = self.simulation
+        n = self.robot.num_joints
+        simulation.start(np.concatenate([q0, np.zeros(n)]), np.zeros(self.robot.action_dim))
+        x = simulation.plant.GetPositionsAndVelocities(simulation.plant_context)
+        q_true, v_true, q_meas, v_meas, tau = [], [], [], [], []
+        for k in range(num_steps + 1):
+            q_true.append(x[:n])
+            v_true.append(x[n:])
+            q_k, v_k, v_filtered = sensor.measure(q_true[-1], v_true[-1])
+            q_meas.append(q_k)
+            v_meas.append(v_filtered)
+            tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
+            tau.append(tau_k)
+            if k < num_steps:
+                simulation.hold(tau_k)
+                x = simulation.advance_to((k + 1) * dt)
+        acceleration = self.dynamics.acceleration
+        qdd = [acceleration(q_true[k], v_true[k], tau[k]) for k in range(num_steps + 1)]
+        qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], tau[k]) for k in range(num_steps)]
+        return dict(q=np.array(q_meas), v=np.array(v_meas), tau=np.array(tau[:-1]), tau_next=tau[-1],
+                    q_true=np.array(q_true), v_true=np.array(v_true), qdd=np.array(qdd), qdd_end=np.array(qdd_end))
+
+    def limit_violation(self, traj: dict, position_margin: float, velocity_fraction: float,
+                        check_self_collision: bool) -> str | None:
+        """Why the trajectory is unusable (first reason found), or None if it is fine."""
+        lower = self.limits.position_lower + position_margin
+        upper = self.limits.position_upper - position_margin
+        q, v = traj["q_true"], traj["v_true"]
+        for name, bad in (("position", (q < lower) | (q > upper)),
+                          ("velocity", np.abs(v) > velocity_fraction * self.limits.velocity)):
+            if bad.any():
+                step, joint = np.argwhere(bad)[0]
+                return f"{self.robot.joint_names[joint]} {name} limit at step {step}"
+        if check_self_collision:
+            for step, q_step in enumerate(q):
+                if not self.collision_checker.is_collision_free(q_step):
+                    links = self.collision_checker.colliding_links(q_step)
+                    return f"self-collision {links[0][0]}/{links[0][1]} at step {step}"
+        return None
