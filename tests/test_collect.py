@@ -5,6 +5,7 @@ import sys
 import numpy as np
 import pytest
 
+from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.collection.collect import StationConfig, Station
 from stdm_drake.robots.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
@@ -17,7 +18,7 @@ def test_next_state_is_a_function_of_state_and_held_torque(name, request):
     """Re-simulating one sample period from (x_k, a_k) on a fresh rig reproduces x_k+1 exactly (the
     tracking controller's filter and integral live outside the plant: the torque is held)."""
     dataset = load_dataset(request.getfixturevalue(name))
-    rig = Station(StationConfig()).simulation
+    rig = Station(StationConfig(robot=UR10)).simulation
     traj = dataset.trajectory(1)
     for k in (0, 17, 49):
         x_k = np.concatenate([traj["q_true"][k], traj["v_true"][k]])
@@ -46,7 +47,7 @@ def test_excitation_dataset_contents(excitation_dataset):
         amplitude, frequency, offset, phase = params[i].reshape(4, 6)
         t = np.arange(50)[:, None] * dataset.sample_period
         from stdm_drake.robots.plant import Dynamics
-        gravity = np.array([Dynamics().gravity_torque(q) for q in traj["q_true"][:-1]])
+        gravity = np.array([Dynamics(UR10).gravity_torque(q) for q in traj["q_true"][:-1]])
         np.testing.assert_allclose(traj["tau"], gravity + amplitude * np.sin(frequency * t + phase) + offset,
                                    atol=1e-9)
         # true accelerations agree with the velocity differences (first order in dt)
@@ -117,7 +118,7 @@ def test_controller_velocity_filter_is_first_order():
     equal to the period the filter moves halfway each sample, starting at the first reading."""
     config = ControllerConfig(kind="pid", kp=[0.0] * 6, ki=[0.0] * 6, kd=[1.0] * 6, gravity_feedforward=False,
                               velocity_filter_time_constant=0.01)
-    controller = SampledJointController(config, 0.01)
+    controller = SampledJointController(config, 0.01, UR10)
     zeros = np.zeros(6)
     torques = [controller.torque(zeros, np.full(6, v), zeros, zeros, zeros)[0] for v in (2.0, 0.0, 0.0, 4.0)]
     np.testing.assert_allclose(torques, [-2.0, -1.0, -0.5, -2.25])

@@ -4,6 +4,7 @@ import math
 import numpy as np
 import pytest
 
+from presets import UR10
 from stdm_drake.experiments import decisive
 from tools_import import decisive_experiment as experiment
 
@@ -39,7 +40,7 @@ def test_cell_verdicts_follow_the_design():
 
 def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
     from stdm_drake.robots.plant import Dynamics, robot_joint_limits
-    from stdm_drake.robots.robot import UR10, load_robot
+    from stdm_drake.robots.robot import load_robot
     free = load_robot(experiment.ROOT / "models" / "ur10_limit_free.yaml")
     limits = robot_joint_limits(free)
     assert np.all(np.isinf(limits.position_lower)) and np.all(np.isinf(limits.position_upper))

@@ -3,6 +3,7 @@ their Jacobians, and the chain rule of derivative learning checked against the p
 import numpy as np
 import pytest
 
+from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.learning.dynamics_model import DynamicsModel
@@ -26,10 +27,10 @@ def excitation(tmp_path_factory):
 
 def trained(dataset, structure, *, epochs=150, seed=0):
     split = dict(train=list(range(20)), val=list(range(20, 30)), test=list(range(30, 40)))
-    problem = training_problem(dataset, split, model_type="D", structure=structure)
+    problem = training_problem(dataset, split, model_type="D", structure=structure, robot=UR10)
     result, _ = fit_model(problem.model_config, TrainingConfig(seed=seed, max_epochs=epochs), problem.train,
                           problem.val)
-    return LearnedModel(result.model, name=structure.label, structure=structure, sample_period=dataset.sample_period)
+    return LearnedModel(result.model, name=structure.label, robot=UR10, structure=structure, sample_period=dataset.sample_period)
 
 
 @pytest.mark.slow
@@ -74,7 +75,7 @@ def test_structured_jacobians_equal_finite_differences_of_the_step(excitation, s
 def test_nominal_acceleration_rates_are_its_time_derivative(excitation):
     """φ̇ by AutoDiff along (q̇, q̈, τ̇) equals the central difference of φ along the same tangent, and φ
     at a sample equals the plant's recorded acceleration there."""
-    features = NominalAcceleration()
+    features = NominalAcceleration(UR10)
     traj = excitation.trajectory(3)
     q, v, tau = traj["q_true"][:5], traj["v_true"][:5], traj["tau"][:5]
     np.testing.assert_allclose(features.values(q, v, tau), traj["qdd"][:5], rtol=1e-9, atol=1e-9)
@@ -88,7 +89,7 @@ def test_nominal_acceleration_rates_are_its_time_derivative(excitation):
 def test_chain_rule_identity_against_the_plant(excitation):
     """Derivative learning's identity d x_{k+1}/dt = ∂x_{k+1}/∂x_k ẋ_k (torque held) holds for the plant:
     its Jacobian times the recorded [q̇_k, q̈_k] gives the recorded [q̇_{k+1}, q̈_{k+1}^-] to 1 %."""
-    plant = PlantModel(excitation.sample_period)
+    plant = PlantModel(excitation.sample_period, robot=UR10)
     traj = excitation.trajectory(5)
     x = np.hstack([traj["q_true"], traj["v_true"]])
     A, _ = plant.jacobians(x[10:20], traj["tau"][10:20])
@@ -190,7 +191,7 @@ def test_the_rk4_plant_model_steps_close_to_the_plant_and_has_its_jacobians(exci
     excitation data (no contact): velocity errors far below the one-step change; its Jacobians are the
     plant model's (the same linearization)."""
     from stdm_drake.learning.physics import RungeKuttaPlantModel
-    rk4, plant = RungeKuttaPlantModel(excitation.sample_period), PlantModel(excitation.sample_period)
+    rk4, plant = RungeKuttaPlantModel(excitation.sample_period, robot=UR10), PlantModel(excitation.sample_period, robot=UR10)
     transitions = excitation.transitions([2, 3])
     x, u = transitions.state[::10], transitions.action[::10]
     exact = plant.step(x, u)
@@ -245,6 +246,6 @@ def test_two_half_period_plant_steps_are_one_full_period_step(excitation):
     from stdm_drake.learning.dynamics_model import HeldInputSubsteps
     transitions = excitation.transitions([5])
     x, u = transitions.state[::7], transitions.action[::7]
-    halves = HeldInputSubsteps(PlantModel(excitation.sample_period / 2), 2)
-    np.testing.assert_allclose(halves.step(x, u), PlantModel(excitation.sample_period).step(x, u), rtol=0, atol=1e-9)
+    halves = HeldInputSubsteps(PlantModel(excitation.sample_period / 2, robot=UR10), 2)
+    np.testing.assert_allclose(halves.step(x, u), PlantModel(excitation.sample_period, robot=UR10).step(x, u), rtol=0, atol=1e-9)
     np.testing.assert_allclose(halves.step(x, u), transitions.next_state[::7], atol=1e-9)

@@ -9,6 +9,7 @@ from pydrake.systems.framework import DiagramBuilder
 from pydrake.systems.primitives import TrajectorySource
 from pydrake.trajectories import PiecewisePolynomial
 
+from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.errors import InputError
@@ -56,7 +57,7 @@ def simulate_system(model, x0, torques, measured=None):
 
 
 def test_system_trajectory_equals_rollout(checkpoints, tracking_dataset):
-    model = LearnedModel(checkpoints["PE"])
+    model = LearnedModel(checkpoints["PE"], robot=UR10)
     traj = load_dataset(tracking_dataset).trajectory(3)
     x0 = np.concatenate([traj["q"][0], traj["v"][0]])
     states, variances = simulate_system(model, x0, traj["tau"])
@@ -68,7 +69,7 @@ def test_system_trajectory_equals_rollout(checkpoints, tracking_dataset):
 
 
 def test_measured_state_reanchors_every_step(checkpoints, tracking_dataset):
-    model = LearnedModel(checkpoints["D"])
+    model = LearnedModel(checkpoints["D"], robot=UR10)
     traj = load_dataset(tracking_dataset).trajectory(0)
     measured = np.concatenate([traj["q"][10], traj["v"][10]])
     states, variances = simulate_system(model, np.zeros(12), traj["tau"][:3], measured=measured)
@@ -78,7 +79,7 @@ def test_measured_state_reanchors_every_step(checkpoints, tracking_dataset):
 
 
 def test_non_finite_torque_is_refused(checkpoints):
-    model = LearnedModel(checkpoints["D"])
+    model = LearnedModel(checkpoints["D"], robot=UR10)
     torques = np.zeros((3, 6))
     torques[1, 2] = np.nan
     with pytest.raises(Exception, match="non-finite torque"):
@@ -90,7 +91,7 @@ def test_non_finite_torque_is_refused(checkpoints):
 
 @pytest.mark.parametrize("kind", ["PE", "D"])
 def test_learned_jacobians_match_finite_differences(checkpoints, kind):
-    model = LearnedModel(checkpoints[kind])
+    model = LearnedModel(checkpoints[kind], robot=UR10)
     rng = np.random.default_rng(0)
     x = np.concatenate([rng.uniform(-1, 1, (4, 6)) + [0, -1.5, 1.6, -1.7, -1.5, 0], rng.normal(size=(4, 6))], 1)
     u = rng.normal(size=(4, 6)) * [5, 50, 20, 2, 0.2, 0.01]
@@ -115,7 +116,7 @@ def test_checkpoint_of_the_wrong_size_is_rejected(tmp_path):
     path = save_checkpoint(tmp_path / "small.pt", build_model(dynamics_config(state_dim=4, action_dim=2), seed=0),
                            metadata={"sample_period": 0.01})
     with pytest.raises(InputError, match="expected state dim 12 and action dim 6"):
-        LearnedModel(path)
+        LearnedModel(path, robot=UR10)
 
 
 @pytest.mark.slow

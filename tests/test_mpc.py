@@ -4,6 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from presets import UR10
 from stdm_drake.errors import InputError
 from stdm_drake.closed_loop.ilqr import IlqrSolver
 from stdm_drake.closed_loop.optimizer import OptimizerResult, TrajectoryOptimizer
@@ -101,7 +102,7 @@ def test_zero_order_hold_discretization_is_exact_for_stiff_damped_joints(damping
 
 @pytest.fixture(scope="module")
 def plant_model():
-    return PlantModel(0.01)
+    return PlantModel(0.01, robot=UR10)
 
 
 def test_plant_model_jacobians_match_finite_differences(plant_model):
@@ -130,7 +131,7 @@ def quintic_reference(duration_steps=30):
 @pytest.mark.slow
 def test_mpc_with_the_plant_tracks_and_applies_each_torque_for_a_whole_period(plant_model):
     reference = quintic_reference()
-    log = run_closed_loop(plant_model, reference, load_mpc_config())
+    log = run_closed_loop(plant_model, reference, load_mpc_config(), robot=UR10)
     states, torques = np.array(log.state), np.array(log.torque)
     assert len(states) == 30 and not any(log.fallback)
     np.testing.assert_allclose(log.time, np.concatenate([[0.0], np.arange(1, 30) * 0.01 - 0.0005]), atol=1e-12)
@@ -148,9 +149,9 @@ class BrokenModel(LinearModel):
 def test_non_finite_model_falls_back_to_gravity_compensation():
     from stdm_drake.robots.plant import Dynamics
     reference = quintic_reference(5)
-    log = run_closed_loop(BrokenModel(), reference, MpcConfig(horizon=3))
+    log = run_closed_loop(BrokenModel(), reference, MpcConfig(horizon=3), robot=UR10)
     assert all(log.fallback)
-    gravity = Dynamics().gravity_torque(log.state[1][:6])
+    gravity = Dynamics(UR10).gravity_torque(log.state[1][:6])
     np.testing.assert_allclose(log.torque[1], gravity, rtol=1e-9)
 
 
@@ -187,11 +188,11 @@ def test_disturbance_estimate_removes_a_constant_model_bias(plant_model):
     """Offset-free MPC: with the last one-step error added to its predictions, the biased model's
     closed loop follows the exact model's closed loop; without it, it drifts 10x further."""
     reference = quintic_reference()
-    exact = np.array(run_closed_loop(plant_model, reference, load_mpc_config()).state)
+    exact = np.array(run_closed_loop(plant_model, reference, load_mpc_config(), robot=UR10).state)
     deviation = {}
     for gain in (0.0, 1.0):
         config = dataclasses.replace(load_mpc_config(), disturbance_gain=gain)
-        states = np.array(run_closed_loop(BiasedPlantModel(plant_model), reference, config).state)
+        states = np.array(run_closed_loop(BiasedPlantModel(plant_model), reference, config, robot=UR10).state)
         deviation[gain] = np.abs(states[:, :6] - exact[:, :6]).max()
     assert deviation[1.0] < 0.2 * deviation[0.0]
     assert deviation[1.0] < 5e-4  # rad; what is left is the first step, taken before any estimate
@@ -242,13 +243,13 @@ def test_a_long_comparison_announces_its_time_estimate_after_each_models_first_p
     config = dataclasses.replace(load_mpc_config(), horizon=3)
     references = [(0, quintic_reference(4)), (1, quintic_reference(4)), (2, quintic_reference(4))]
     lines = []
-    results = compare_controllers([BrokenModel(), BrokenModel()], references, config, progress=False,
+    results = compare_controllers([BrokenModel(), BrokenModel()], references, config, progress=False, robot=UR10,
                                   announce=lines.append, announce_after=0.0)
     assert len(results) == 6 and len(lines) == 2
     assert all(line.startswith("mpc: model linear: ") and "ms per control step); about" in line
                and line.endswith("min more for its other 2 plans") for line in lines)
     silent = []
-    compare_controllers([BrokenModel()], references, config, progress=False, announce=silent.append)
+    compare_controllers([BrokenModel()], references, config, progress=False, robot=UR10, announce=silent.append)
     assert silent == []
 
 
@@ -256,16 +257,15 @@ def test_plant_simulator_start_equals_a_fresh_simulator():
     """`start` resets the state variables only (not the parameters): after other runs, the steps of a
     simulator in use equal those of a freshly built one, bitwise."""
     from stdm_drake.robots.plant import PlantSimulator
-    from stdm_drake.robots.robot import UR10
     rng = np.random.default_rng(4)
     pairs = [(np.concatenate([UR10.home + rng.normal(0, 0.1, 6), rng.normal(0, 0.5, 6)]), rng.normal(0, 5, 6))
              for _ in range(4)]
-    used = PlantSimulator()
+    used = PlantSimulator(robot=UR10)
     for x, tau in pairs[::-1]:      # runs before, in another order
         used.start(x, tau)
         used.advance_to(0.03)
     for x, tau in pairs:
-        fresh = PlantSimulator()
+        fresh = PlantSimulator(robot=UR10)
         fresh.start(x, tau)
         used.start(x, tau)
         np.testing.assert_array_equal(used.advance_to(0.02), fresh.advance_to(0.02))
@@ -286,8 +286,8 @@ def test_another_optimizer_plugs_into_the_controller_unchanged(plant_model):
     config = dataclasses.replace(load_mpc_config(), horizon=3)
     reference = quintic_reference(5)
     optimizer = HoldFeedforward(plant_model, config.cost(6), np.full(6, 1e3))
-    log = run_closed_loop(plant_model, reference, config, optimizer=optimizer)
-    gravity = Dynamics()
+    log = run_closed_loop(plant_model, reference, config, robot=UR10, optimizer=optimizer)
+    gravity = Dynamics(UR10)
     assert not any(log.fallback) and len(log.torque) == 5
     for k, torque in enumerate(log.torque):
         np.testing.assert_allclose(torque, gravity.gravity_torque(reference.q[k]), rtol=1e-12)

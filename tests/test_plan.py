@@ -8,6 +8,7 @@ import pytest
 import ruckig
 from pydrake.math import RigidTransform, RotationMatrix
 
+from presets import UR10
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.robots.kinematics import RobotKinematics, rotation_exp, rotation_log
 from stdm_drake.collection.plan import (InitialPose, TaskSpaceSamplingConfig, initial_configuration,
@@ -23,12 +24,12 @@ SPEC_FILES = {"quintic": "tracking.yaml", "ruckig": "tracking_ruckig.yaml", "top
 
 @pytest.fixture(scope="module")
 def kinematics():
-    return RobotKinematics()
+    return RobotKinematics(robot=UR10)
 
 
 @pytest.fixture(scope="module")
 def spec():
-    return load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml")
+    return load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10)
 
 
 @pytest.fixture(scope="module")
@@ -372,7 +373,7 @@ def test_unreachable_initial_pose_is_named(kinematics, spec):
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", PLANNER_KINDS)
 def test_default_spec_yields_100_valid_plans(kinematics, kind):
-    sampling, planner = load_tracking_spec(TRAJECTORIES_DIR / SPEC_FILES[kind])
+    sampling, planner = load_tracking_spec(TRAJECTORIES_DIR / SPEC_FILES[kind], robot=UR10)
     assert planner.kind == kind
     messages = []
     started = time.perf_counter()
@@ -400,7 +401,7 @@ def test_default_spec_yields_100_valid_plans(kinematics, kind):
 # ---------------------------------------------------------------------------------------------
 
 def test_spec_variants_share_the_sampling_protocol():
-    specs = {kind: load_tracking_spec(TRAJECTORIES_DIR / name) for kind, name in SPEC_FILES.items()}
+    specs = {kind: load_tracking_spec(TRAJECTORIES_DIR / name, robot=UR10) for kind, name in SPEC_FILES.items()}
     reference_sampling, reference_planner = specs["quintic"]
     assert len(reference_sampling.initial_poses) == 4 and reference_sampling.num_final_per_initial == 25
     assert reference_sampling.num_steps == 100
@@ -408,7 +409,7 @@ def test_spec_variants_share_the_sampling_protocol():
         assert planner.kind == kind
         assert sampling == reference_sampling
         assert dataclasses.replace(planner, kind="quintic") == reference_planner
-    _, overridden = load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", planner_kind="toppra")
+    _, overridden = load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10, planner_kind="toppra")
     assert overridden.kind == "toppra"
 
 
@@ -427,13 +428,13 @@ def test_malformed_spec_is_an_input_error_naming_the_file(tmp_path, text, messag
     path = tmp_path / "bad_spec.yaml"
     path.write_text(text)
     with pytest.raises(InputError, match=message) as info:
-        load_tracking_spec(path)
+        load_tracking_spec(path, robot=UR10)
     assert str(info.value).startswith(f"{path}: ") and "\n" not in str(info.value)
 
 
 def test_missing_spec_file_is_an_input_error(tmp_path):
     with pytest.raises(InputError, match="tracking spec not found: .*missing.yaml"):
-        load_tracking_spec(tmp_path / "missing.yaml")
+        load_tracking_spec(tmp_path / "missing.yaml", robot=UR10)
 
 
 def test_invalid_planner_config_in_code_is_an_input_error(kinematics, start, goal):

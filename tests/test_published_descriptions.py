@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from test_robot_config import GOOD, two_link_urdf, write_robot
 
+from presets import UR10
 from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import PlantConfig, SelfCollisionChecker, make_plant
 from stdm_drake.robots.robot import load_robot
@@ -236,7 +237,7 @@ def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
     from stdm_drake.collection import plan
     from stdm_drake.collection.plan import derived_tracking_spec
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.robots.robot import MODELS_DIR, UR10
+    from stdm_drake.robots.robot import MODELS_DIR
     slow = (MODELS_DIR / "ur10.yaml").read_text().partition("defaults:")[0]    # its settings derived, not the UR-10's files
     slow = slow.replace("name: ur10", "name: ur10_slow")
     slow = slow.replace("model: ur10.urdf", "model: stdm-drake:models/ur10.urdf")   # the shipped file, from here
@@ -287,7 +288,6 @@ def test_period_acceleration_gives_the_next_velocity_where_damping_outpaces_the_
     rates equal a finer central difference, a zero tangent has a zero rate, and its Jacobian (Ψ held
     constant) matches finite differences in v and τ."""
     from stdm_drake.learning.physics import NominalAcceleration, PeriodAcceleration, PlantModel
-    from stdm_drake.robots.robot import UR10
     urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
     stiff = load_robot(write_robot(tmp_path, urdf, GOOD))
     q, v, tau = np.array([[0.3, -0.6], [0.1, 0.2]]), np.array([[0.5, -0.4], [-1.0, 0.3]]), np.array([[3.0, -1.0], [0.5, 2.0]])
@@ -337,7 +337,7 @@ def test_derivative_training_warns_about_joints_damped_faster_than_the_period(tm
     constants = dynamics.damping_time_constants()
     np.testing.assert_allclose(constants, dynamics.effective_inertia(robot.home) / 40.0)
     assert np.all(constants < 0.01)
-    assert np.all(np.isinf(Dynamics().damping_time_constants()))                   # the UR-10 has no damping
+    assert np.all(np.isinf(Dynamics(UR10).damping_time_constants()))                   # the UR-10 has no damping
     data = tmp_path / "data.h5"
     assert main(["collect", "--protocol", "excitation", "--robot", str(robot_path), "--count", "4", "--workers", "1",
                  "--quiet", "-o", str(data)]) == 0
@@ -382,7 +382,6 @@ def test_a_robot_config_names_its_default_files_and_the_rest_is_derived(tmp_path
     from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, mpc_config_for
     from stdm_drake.collection.collect import ExcitationConfig, collection_request
     from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
-    from stdm_drake.robots.robot import UR10
     assert UR10.default_file("tracking") == TRAJECTORIES_DIR / "tracking.yaml"
     assert UR10.default_file("mpc") == CONTROLLERS_DIR / "mpc.yaml"
     (tmp_path / "exc.yaml").write_text("num_steps: 7\namplitude_max: [2.0, 1.0]\noffset_max: [1.0]\n"

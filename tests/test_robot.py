@@ -7,7 +7,7 @@ import pytest
 
 from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker, joint_limits, make_plant
 from stdm_drake.robots.model_file import offline_parser
-from stdm_drake.robots.robot import UR10
+from presets import UR10
 
 DH = [(0, 0.1273, math.pi / 2), (-0.612, 0, 0), (-0.5723, 0, 0),
       (0, 0.163941, math.pi / 2), (0, 0.1157, -math.pi / 2), (0, 0.0922, 0)]
@@ -24,7 +24,7 @@ def dh_forward_kinematics(q):
 
 @pytest.fixture(scope="module")
 def plant_and_context():
-    plant, _ = make_plant()
+    plant, _ = make_plant(robot=UR10)
     return plant, plant.CreateDefaultContext()
 
 
@@ -50,7 +50,7 @@ def test_mass_matrix_positive_definite_and_total_mass(plant_and_context):
 
 
 def test_gravity_torque_at_zero_matches_published():
-    tau = Dynamics().gravity_torque(np.zeros(6))
+    tau = Dynamics(UR10).gravity_torque(np.zeros(6))
     assert abs(tau[1]) == pytest.approx(119.17, abs=0.1)
     assert abs(tau[2]) == pytest.approx(38.43, abs=0.1)
     assert np.abs(tau[[0, 4, 5]]).max() < 1e-9
@@ -69,7 +69,7 @@ def test_actuation_is_clamped_to_effort_limits():
     from pydrake.systems.analysis import Simulator
     from pydrake.systems.framework import DiagramBuilder
     builder = DiagramBuilder()
-    plant, _ = make_plant(builder=builder)
+    plant, _ = make_plant(builder=builder, robot=UR10)
     builder.ExportInput(plant.get_actuation_input_port(), "actuation")
     diagram = builder.Build()
 
@@ -99,7 +99,7 @@ def test_remote_package_fails_at_once_offline():
 
 
 def test_self_collision_checker():
-    checker = SelfCollisionChecker()
+    checker = SelfCollisionChecker(UR10)
     assert checker.is_collision_free(np.zeros(6))
     assert checker.is_collision_free(np.array([0, -1.57, 1.57, -1.57, -1.57, 0]))
     folded = np.array([0, 0, 3.1, 0, 0, 0])

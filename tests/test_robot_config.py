@@ -7,7 +7,8 @@ from conftest import closed_loop_status
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import PlantConfig, joint_limits, make_plant
-from stdm_drake.robots.robot import UR10, load_robot
+from presets import UR10
+from stdm_drake.robots.robot import load_robot
 
 LINK = """  <link name="{name}">
     <inertial><mass value="{mass}"/><origin xyz="0 0 {com}"/>
@@ -55,7 +56,7 @@ tool_frame: tool
 
 def test_ur10_preset_is_the_default_robot():
     assert UR10.name == "ur10" and UR10.num_joints == 6 and UR10.tool_frame == "tool0"
-    plant, _ = make_plant(PlantConfig(time_step=0.0))
+    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=UR10)
     limits = joint_limits(plant)
     assert np.all(UR10.home > limits.position_lower) and np.all(UR10.home < limits.position_upper)
     assert [plant.get_joint_actuator(i).joint().name() for i in plant.GetJointActuatorIndices()] == \

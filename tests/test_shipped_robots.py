@@ -11,7 +11,8 @@ from conftest import closed_loop_status
 from stdm_drake.errors import InputError
 from stdm_drake.paths import MODELS_DIR
 from stdm_drake.robots.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, make_plant
-from stdm_drake.robots.robot import UR10, load_robot
+from presets import UR10
+from stdm_drake.robots.robot import load_robot
 
 PANDA_CONFIG = MODELS_DIR / "panda.yaml"
 ACROBOT_CONFIG = MODELS_DIR / "acrobot.yaml"

@@ -5,6 +5,7 @@ import subprocess
 import numpy as np
 import pytest
 
+from presets import UR10
 from stdm_drake.robots.recorder import TrajectoryRecorder
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -33,7 +34,7 @@ def rendered_pixels(recorder: TrajectoryRecorder, folder) -> np.ndarray:
 @pytest.mark.slow
 def test_ghost_recording_renders_in_chromium(tmp_path):
     q = np.array([0.0, -1.6, 1.7, -1.7, -1.57, 0.0]) + np.linspace(0, 0.3, 31)[:, None] * [1, 0, 0, 0, 0, 0]
-    recorder = TrajectoryRecorder(0.01, ghost=True)
+    recorder = TrajectoryRecorder(0.01, ghost=True, robot=UR10)
     recorder.add(q, q + [0.8, 0, 0, 0, 0, 0])
     pixels = rendered_pixels(recorder, tmp_path)
     red, green, blue = pixels[..., 0], pixels[..., 1], pixels[..., 2]
@@ -45,10 +46,10 @@ def test_ghost_recording_renders_in_chromium(tmp_path):
 
 
 def test_recorder_checks_its_inputs():
-    recorder = TrajectoryRecorder(0.01)
+    recorder = TrajectoryRecorder(0.01, robot=UR10)
     with pytest.raises(ValueError, match="ghost_q must be given exactly"):
         recorder.add(np.zeros((3, 6)), np.zeros((3, 6)))
-    with_ghost = TrajectoryRecorder(0.01, ghost=True)
+    with_ghost = TrajectoryRecorder(0.01, ghost=True, robot=UR10)
     with pytest.raises(ValueError, match="shape"):
         with_ghost.add(np.zeros((3, 6)), np.zeros((2, 6)))
 

@@ -33,19 +33,23 @@ from pydrake.systems.primitives import Adder, TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.collection.collect import (CollectionRequest, StationConfig, Station, collect,  # noqa: E402
+from stdm_drake.collection.collect import (CollectionRequest, collect,  # noqa: E402
                                            plan_tracking, tracking_trajectory, worker_pool)
 from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.robots.control import SensorConfig, load_controller_config  # noqa: E402
 from stdm_drake.collection.plan import load_tracking_spec  # noqa: E402
-from stdm_drake.paths import CONTROLLERS_DIR  # noqa: E402
+from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR  # noqa: E402
 from stdm_drake.robots.plant import PlantConfig, make_plant  # noqa: E402
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
+from stdm_drake.robots.station import Station, StationConfig  # noqa: E402
+
+UR10 = load_robot(UR10_CONFIG)
 
 
 def bare_drake_seconds(plans, settings) -> float:
     """Wall time to simulate every plan in a plain Drake PID diagram without logging."""
     builder = DiagramBuilder()
-    plant, _ = make_plant(settings.plant, builder=builder)
+    plant, _ = make_plant(settings.plant, builder=builder, robot=settings.robot)
     gains = settings.controller
     pid = builder.AddSystem(PidController(kp=gains.kp, ki=gains.ki, kd=gains.kd))
     gravity = builder.AddSystem(InverseDynamics(plant, InverseDynamics.InverseDynamicsMode.kGravityCompensation))
@@ -81,11 +85,11 @@ def main():
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
     args = parser.parse_args()
 
-    settings = StationConfig(sensor=load_yaml_config(CONTROLLERS_DIR / "sensor.yaml", SensorConfig),
+    settings = StationConfig(robot=UR10, sensor=load_yaml_config(CONTROLLERS_DIR / "sensor.yaml", SensorConfig),
                                   controller=load_controller_config(CONTROLLERS_DIR / "pid.yaml"),
                                   plant=PlantConfig(time_step=0.001))
     request = CollectionRequest(protocol="tracking", count=args.count, seed=0, settings=settings,
-                                tracking_spec=load_tracking_spec(), workers=args.workers)
+                                tracking_spec=load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10), workers=args.workers)
     with worker_pool(1, settings) as map_jobs:
         plans, _ = plan_tracking(request, map_jobs)
     simulated = sum(len(plan.q) - 1 for plan in plans) * settings.sample_period

@@ -41,6 +41,7 @@ from stdm_drake.closed_loop.comparison import (compare_controllers, held_out_ref
                                                summary_table)
 from stdm_drake.closed_loop.mpc import load_mpc_config  # noqa: E402
 from stdm_drake.experiments.jobs import IDENTIFICATION_SETTINGS  # noqa: E402
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
 
 
 def main():
@@ -67,14 +68,15 @@ def main():
                         "--val", "3", "--test", "2", "--seeds", "0", "--quiet", "-o", str(folder / name)]) == 0
             checkpoints.append(folder / name / "seed0" / "checkpoint.pt")
     dataset = load_dataset(dataset_path)
-    learned = [LearnedModel(path) for path in checkpoints]
+    ur10 = load_robot(UR10_CONFIG)
+    learned = [LearnedModel(path, robot=ur10) for path in checkpoints]
     for model in learned:
         default = model.structure.uses_nominal_model
         model.name = f"learned ({model.checkpoint.metadata.model_type or model.name}{', default' if default else ''})"
     references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
     config = load_mpc_config()
-    plants = [PlantModel(dataset.sample_period), RungeKuttaPlantModel(dataset.sample_period)]
-    results = compare_controllers([*plants, *learned], references, config, progress=False)
+    plants = [PlantModel(dataset.sample_period, robot=ur10), RungeKuttaPlantModel(dataset.sample_period, robot=ur10)]
+    results = compare_controllers([*plants, *learned], references, config, progress=False, robot=ur10)
     rows = summarize(results, dataset.sample_period)
     plant_row, rk4_row = rows[0], rows[1]
     lines = [f"{len(references)} held-out plans of {dataset_path.name} (1 s each), horizon {config.horizon}, "

@@ -31,7 +31,7 @@ os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
 from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator  # noqa: E402
-from stdm_drake.robots.robot import MODELS_DIR, UR10, load_robot  # noqa: E402
+from stdm_drake.robots.robot import MODELS_DIR, UR10_CONFIG, load_robot  # noqa: E402
 
 
 def meshed_arm(folder: pathlib.Path):
@@ -86,9 +86,9 @@ def main() -> int:
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         os.environ.setdefault("STDM_DRAKE_CACHE", folder)
-        robots = [UR10, load_robot(MODELS_DIR / "panda.yaml"), meshed_arm(pathlib.Path(folder))]
+        robots = [load_robot(UR10_CONFIG), load_robot(MODELS_DIR / "panda.yaml"), meshed_arm(pathlib.Path(folder))]
         for robot in robots:
-            simulator = PlantSimulator(PlantConfig(), robot)
+            simulator = PlantSimulator(PlantConfig(), robot=robot)
             rng = np.random.default_rng(0)
             gravity = Dynamics(robot).actuated_gravity_torque(robot.home)
             states = [np.concatenate([robot.home + rng.normal(0, 0.05, robot.num_joints),

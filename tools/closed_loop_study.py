@@ -24,6 +24,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
 
 ALPHA = 1e-3
 TYPES = {"D": 0.0, "DD": ALPHA}
@@ -59,9 +60,9 @@ def train_job(path: str, split: dict, model_type: str, seed: int, epochs: int, f
     save_checkpoint(checkpoint, result.model, training_config=TrainingConfig(alpha=TYPES[model_type], seed=seed,
                                                                            max_epochs=epochs),
                     history=result.history, metadata=problem.metadata)
-    model = LearnedModel(checkpoint)
+    model = LearnedModel(checkpoint, robot=load_robot(UR10_CONFIG))
     test = split["test"]
-    mine, _, _ = compare_with_baselines([model] + physics_baselines(dataset.sample_period, 12, 6, plant=False),
+    mine, _, _ = compare_with_baselines([model] + physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, plant=False),
                                         dataset.transitions(test), trajectory_rollout_data(dataset, test, 20))
     return dict(model_type=model_type, seed=seed, checkpoint=str(checkpoint), epochs=result.epochs_run,
                 best_epoch=int(result.best_epochs[0]), train_seconds=round(seconds, 1),
@@ -77,8 +78,9 @@ def mpc_job(name: str, checkpoint: str | None, references, sample_period: float)
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.physics import PlantModel
     torch.set_num_threads(1)
-    model = PlantModel(sample_period) if checkpoint is None else LearnedModel(checkpoint, name=name)
-    runs = compare_controllers([model], references, load_mpc_config(), progress=False)
+    robot = load_robot(UR10_CONFIG)
+    model = PlantModel(sample_period, robot=robot) if checkpoint is None else LearnedModel(checkpoint, name=name, robot=robot)
+    runs = compare_controllers([model], references, load_mpc_config(), progress=False, robot=robot)
     return [dict(model=name, plan=run.trajectory, q_mse=run.q_mse_rad2, v_mse=run.v_mse,
                  limit_violations=run.limit_violations, fallbacks=run.fallbacks, solve_ms=run.solve_ms_mean)
             for run in runs]

@@ -39,6 +39,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 from stdm_drake.files import write_text_atomic  # noqa: E402
 from stdm_drake.stats import paired_ratio  # noqa: E402
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
 
 ALPHAS = (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0)
 VARIANTS = {  # name -> (training trajectories, input features, TrainingConfig changes)
@@ -136,7 +137,8 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("out/generalization_gap"))
     args = parser.parse_args()
-    from stdm_drake.collection.collect import CollectionRequest, StationConfig, ExcitationConfig, collect
+    from stdm_drake.collection.collect import CollectionRequest, ExcitationConfig, collect
+    from stdm_drake.robots.station import StationConfig
     from stdm_drake.config import load_yaml_config
     from stdm_drake.data.dataset import load_dataset, split_trajectories, write_dataset
     from stdm_drake.paths import TRAJECTORIES_DIR
@@ -147,7 +149,7 @@ def main() -> int:
     path = args.output / f"excitation_n{count}_seed0.h5"
     if not path.exists():
         excitation = load_yaml_config(TRAJECTORIES_DIR / "excitation.yaml", ExcitationConfig, what="excitation config")
-        request = CollectionRequest("excitation", count, 0, StationConfig(), excitation=excitation,
+        request = CollectionRequest("excitation", count, 0, StationConfig(robot=load_robot(UR10_CONFIG)), excitation=excitation,
                                     workers=args.workers)
         write_dataset(path, *collect(request, progress=False))
     dataset = load_dataset(path)

@@ -24,11 +24,13 @@ from stdm_drake.data.dataset import load_dataset  # noqa: E402
 from stdm_drake.learning.learned_model import LearnedModel  # noqa: E402
 from stdm_drake.learning.physics import PlantModel  # noqa: E402
 from stdm_drake.closed_loop.comparison import held_out_references  # noqa: E402
-from stdm_drake.robots.robot import UR10  # noqa: E402
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
+
+UR10 = load_robot(UR10_CONFIG)
 
 
 def torque_jacobian_errors(model: LearnedModel, plant: PlantModel, dataset, indices, stride: int = 10) -> np.ndarray:
-    """Relative error per joint column of d v_next / d tau, mean over the sampled steps: (6,)."""
+    """Relative error per joint column of d v_next / d tau, mean over the sampled steps: (m,)."""
     errors = []
     for index in indices:
         traj = dataset.trajectory(index)
@@ -50,10 +52,10 @@ def main():
     args = parser.parse_args()
     torch.set_num_threads(1)
     dataset = load_dataset(args.dataset)
-    plant = PlantModel(dataset.sample_period)
+    plant = PlantModel(dataset.sample_period, robot=UR10)
     print("relative error of d qdot_next / d tau, per joint column: " + ", ".join(UR10.joint_names))
     for path in args.checkpoints:
-        model = LearnedModel(path)
+        model = LearnedModel(path, robot=UR10)
         indices = [index for index, _ in held_out_references(dataset, [model.checkpoint], args.trajectories)]
         errors = torque_jacobian_errors(model, plant, dataset, indices)
         print(f"{path}: " + " ".join(f"{100 * error:.1f}%" for error in errors))

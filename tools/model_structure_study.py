@@ -41,6 +41,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
 from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
 from stdm_drake.stats import paired_ratio  # noqa: E402
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
 
 HELD_OUT_SEED = 20261124          # never used for anything else; fixed before the first run
 TRAIN_SEED = 0                    # the default collection seed
@@ -85,7 +86,8 @@ def problem(train_path, name: str):
     dataset = load_dataset(train_path)
     order = np.random.default_rng(0).permutation(dataset.num_trajectories)
     split = dict(train=order[VALIDATION:VALIDATION + n_train], val=order[:VALIDATION], test=[])
-    return training_problem(dataset, split, model_type="D", structure=ModelStructure(predicts, inputs))
+    return training_problem(dataset, split, model_type="D", structure=ModelStructure(predicts, inputs),
+                            robot=load_robot(UR10_CONFIG))
 
 
 def contact_free_trajectories(path) -> tuple[list[int], list[int]]:
@@ -96,7 +98,7 @@ def contact_free_trajectories(path) -> tuple[list[int], list[int]]:
     from stdm_drake.learning.physics import PlantModel
     from stdm_drake.robots.plant import PlantConfig
     dataset = load_dataset(path)
-    free = PlantModel(dataset.sample_period, PlantConfig(self_collision=False))
+    free = PlantModel(dataset.sample_period, PlantConfig(self_collision=False), robot=load_robot(UR10_CONFIG))
     keep, contact = [], []
     for index in range(dataset.num_trajectories):
         traj = dataset.trajectory(index)
@@ -123,7 +125,7 @@ def run_job(name: str, seed: int, job_problem, held_out_path: str, epochs: int, 
                           job_problem.train, job_problem.val)
     seconds = time.perf_counter() - started
     held_out = load_dataset(held_out_path)
-    model = LearnedModel(result.model, name=name, structure=ModelStructure(predicts, inputs),
+    model = LearnedModel(result.model, name=name, robot=load_robot(UR10_CONFIG), structure=ModelStructure(predicts, inputs),
                          sample_period=held_out.sample_period)
     baselines = physics_baselines(held_out.sample_period, model.state_dim, model.action_dim, plant=False)
     rows = compare_with_baselines([model] + baselines, held_out.transitions(indices),

@@ -53,10 +53,10 @@ def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference
 
 
 def compare_controllers(models: list, references: list[tuple[int, Reference]], config: MpcConfig,
-                        plant_config: PlantConfig | None = None, progress: bool = True, recorder=None,
-                        robot: Robot | None = None, announce=None, announce_after: float = 20.0):
-    """Run plant + MPC(model) on every reference for every model (the plant of `robot`, default the
-    UR-10 preset); returns [ClosedLoopResult].
+                        plant_config: PlantConfig | None = None, progress: bool = True, recorder=None, *,
+                        robot: Robot, announce=None, announce_after: float = 20.0):
+    """Run plant + MPC(model) on every reference for every model (the plant of `robot`); returns
+    [ClosedLoopResult].
 
     recorder: an optional ghost TrajectoryRecorder; each run is added (robot = plant, ghost = reference).
     announce: called with one line after a model's first plan when its other plans will take more than
@@ -207,6 +207,7 @@ def run(args) -> int:
     from stdm_drake.files import write_text_atomic
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.data.compatibility import robot_for
+    from stdm_drake.robots.robot import UR10_CONFIG
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     if args.plans < 1:
         raise InputError(f"--plans must be >= 1, got {args.plans}")
@@ -223,7 +224,7 @@ def run(args) -> int:
     check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
     dataset = load_dataset(args.dataset)
-    robot = robot_for(args.robot, dataset)
+    robot = robot_for(args.robot or UR10_CONFIG, dataset)
     robot.check_fully_actuated("MPC")
     if dataset.protocol != "tracking" and not args.excitation_references:
         raise InputError(f"{args.dataset} is an excitation dataset: it has no plans to track; give a tracking "

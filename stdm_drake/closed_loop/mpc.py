@@ -21,8 +21,8 @@ model's latest one-step error x_k - f(x_k-1, u_k-1) (filtered by `disturbance_ga
 slowly varying bias does not become a tracking error. For the plant as model d is ~0.
 
 Every prediction model provides `sample_period` (s) and two batched methods:
-    step(x (N, 12), u (N, 6)) -> x_next (N, 12)
-    jacobians(x (H, 12), u (H, 6)) -> (A (H, 12, 12), B (H, 12, 6))   of x_next w.r.t. x and u.
+    step(x (N, 2n), u (N, m)) -> x_next (N, 2n)
+    jacobians(x (H, 2n), u (H, m)) -> (A (H, 2n, 2n), B (H, 2n, m))   of x_next w.r.t. x and u.
 
 Modules: the tracking cost and the optimizer interface (`optimizer`), the default optimizer (`ilqr`),
 this controller and its closed loop, and the comparison of prediction models with the `stdm-drake mpc`
@@ -113,7 +113,7 @@ def mpc_config_for(robot: Robot, path=None) -> MpcConfig:
 
 @dataclasses.dataclass
 class Reference:
-    """A reference trajectory at the control period: q (N+1, 6) rad, v (N+1, 6) rad/s.
+    """A reference trajectory at the control period: q (N+1, n) rad, v (N+1, n) rad/s.
 
     Past its end the reference holds its last sample (at rest).
     """
@@ -121,7 +121,7 @@ class Reference:
     v: np.ndarray
 
     def window(self, k: int, length: int) -> np.ndarray:
-        """States r_k .. r_k+length-1 as (length, 12), holding the last sample past the end."""
+        """States r_k .. r_k+length-1 as (length, 2n), holding the last sample past the end."""
         index = np.minimum(np.arange(k, k + length), len(self.q) - 1)
         return np.hstack([self.q[index], self.v[index]])
 
@@ -159,7 +159,7 @@ class MpcController(LeafSystem):
     """
 
     def __init__(self, model, reference: Reference, config: MpcConfig, plant_time_step: float,
-                 robot: Robot | None = None, optimizer: TrajectoryOptimizer | None = None):
+                 robot: Robot, optimizer: TrajectoryOptimizer | None = None):
         super().__init__()
         config.validate()
         self.dynamics = Dynamics(robot)
@@ -247,8 +247,8 @@ class MpcController(LeafSystem):
 
 
 def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
-                      meshcat=None, robot: Robot | None = None, optimizer: TrajectoryOptimizer | None = None):
-    """Diagram: the robot's plant (discrete; default robot: the UR-10 preset) <-> MpcController(model,
+                      meshcat=None, *, robot: Robot, optimizer: TrajectoryOptimizer | None = None):
+    """Diagram: the robot's plant (discrete) <-> MpcController(model,
     optimizer). Returns (diagram, plant, controller)."""
     from stdm_drake.robots.plant import make_plant
     plant_config = plant_config or PlantConfig()
@@ -265,7 +265,7 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
 
 
 def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
-                    duration: float | None = None, robot: Robot | None = None,
+                    duration: float | None = None, *, robot: Robot,
                     optimizer: TrajectoryOptimizer | None = None) -> MpcLog:
     """Simulate plant + MPC from rest at the reference's start; returns the controller's log."""
     from pydrake.systems.analysis import Simulator

@@ -27,6 +27,7 @@ def run(args) -> int:
     from stdm_drake.errors import InputError
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.data.compatibility import robot_for
+    from stdm_drake.robots.robot import UR10_CONFIG
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
     if not args.index and args.trajectories < 1:
@@ -34,7 +35,7 @@ def run(args) -> int:
     check_output_file("--html", args.html, kind="html", inputs=[args.checkpoint, args.dataset, args.robot],
                       force=args.force)
     dataset = load_dataset(args.dataset)
-    robot = robot_for(args.robot, dataset)
+    robot = robot_for(args.robot or UR10_CONFIG, dataset)
     model = LearnedModel(args.checkpoint, robot=robot)
     model.checkpoint.check_fits(dataset)
     if args.index:

@@ -36,7 +36,7 @@ from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, load_controller_config
 from stdm_drake.robots.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, robot_joint_limits
-from stdm_drake.robots.robot import UR10, Robot, load_robot
+from stdm_drake.robots.robot import UR10_CONFIG, Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 
 PROTOCOLS = ("excitation", "tracking")   # their files: --config, the robot's `defaults`, or derived
@@ -163,7 +163,7 @@ def excitation_trajectory(rig: Station, config: ExcitationConfig, rng: np.random
 
 @dataclasses.dataclass
 class PlanSamples:
-    """A plan sampled at the data rate: q (T+1, 6) rad, qd (T+1, 6) rad/s, qdd (T+1, 6) rad/s^2."""
+    """A plan sampled at the data rate: q (T+1, n) rad, qd (T+1, n) rad/s, qdd (T+1, n) rad/s^2."""
     q: np.ndarray
     qd: np.ndarray
     qdd: np.ndarray
@@ -246,7 +246,7 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
     one_pose = dataclasses.replace(sampling, initial_poses=[sampling.initial_poses[pose_index]],
                                    num_final_per_initial=count)
     rng = np.random.default_rng([seed, 2**31, pose_index])
-    kinematics = RobotKinematics(_WORKER_RIG.dynamics.plant, _WORKER_RIG.robot)
+    kinematics = RobotKinematics(_WORKER_RIG.dynamics.plant, robot=_WORKER_RIG.robot)
     sampled = sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
                                 is_collision_free=_WORKER_RIG.collision_checker.is_collision_free,
                                 first_index=pose_index)
@@ -388,11 +388,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def collection_request(protocol: str = "tracking", *, count: int | None = None, seed: int = 0, config=None,
                        controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
-                       plant_time_step: float = PlantConfig.time_step, robot=None,
+                       plant_time_step: float = PlantConfig.time_step, robot,
                        workers: int = min(2, os.cpu_count() or 1),
                        excitation: ExcitationConfig | None = None) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
-    sensor, robot: YAML paths, None for the defaults; robot may also be a Robot; excitation: an
+    sensor: YAML paths, None for the defaults; robot: a Robot or its config's path; excitation: an
     ExcitationConfig to use instead of a file). Reads every config file and checks it against the
     robot, so errors come before any simulation starts."""
     if protocol not in PROTOCOLS:
@@ -401,7 +401,7 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
     sensor_path = sensor or (DEFAULT_SENSOR if protocol == "tracking" else None)
     if sensor_path is not None:
         sensor_config = load_yaml_config(sensor_path, SensorConfig, what="sensor config")
-    robot = robot if isinstance(robot, Robot) else (load_robot(robot) if robot is not None else UR10)
+    robot = robot if isinstance(robot, Robot) else load_robot(robot)
     SelfCollisionChecker(robot)  # a model that does not load, or a home in self-collision, fails before any worker
     # the protocol file: --config, else the one the robot's config names, else derived from the robot
     config_path = config or robot.default_file(protocol)
@@ -449,7 +449,7 @@ def request_from_args(args: argparse.Namespace) -> CollectionRequest:
     """`collection_request` from the command line's arguments."""
     return collection_request(args.protocol, count=args.count, seed=args.seed, config=args.config,
                               controller=args.controller, sensor=args.sensor, sample_period=args.sample_period,
-                              plant_time_step=args.plant_time_step, robot=args.robot, workers=args.workers)
+                              plant_time_step=args.plant_time_step, robot=args.robot or UR10_CONFIG, workers=args.workers)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -14,12 +14,10 @@ from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_ex
 from stdm_drake.collection.planners import PlannedTrajectory, PlannerConfig, plan_trajectory
 from stdm_drake.config import load_yaml_config, require
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.paths import TRAJECTORIES_DIR
-from stdm_drake.robots.robot import UR10, Robot
+from stdm_drake.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
 
-DEFAULT_TRACKING_SPEC = TRAJECTORIES_DIR / "tracking.yaml"
 
 
 @dataclasses.dataclass
@@ -27,7 +25,7 @@ class InitialPose:
     """One predefined initial tool0 pose in the world frame.
 
     xyz: (3,) position, m. rpy: (3,) roll-pitch-yaw, rad (Drake's RollPitchYaw convention).
-    q_seed: (6,) joint-space IK seed, rad; it fixes the arm's branch (elbow up, wrist side).
+    q_seed: (n,) joint-space IK seed, rad; it fixes the arm's branch (elbow up, wrist side).
     """
     xyz: list[float] = dataclasses.field(default_factory=list)
     rpy: list[float] = dataclasses.field(default_factory=list)
@@ -117,7 +115,7 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
 
     robot.check_can_track()
     dynamics = Dynamics(robot)
-    kinematics = RobotKinematics(dynamics.plant, robot)
+    kinematics = RobotKinematics(dynamics.plant, robot=robot)
     checker = SelfCollisionChecker(robot)
     limits = joint_limits(dynamics.plant)
     inertia = np.diag(dynamics.mass_matrix(robot.home))
@@ -183,16 +181,15 @@ def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampli
     return scale
 
 
-def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *, planner_kind: str | None = None,
-                       robot: Robot | None = None) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
-    """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`) for `robot`
-    (default: the UR-10 preset): per-joint lists of its length (or one value), IK seeds of its joints.
+def load_tracking_spec(path: str | os.PathLike, *, robot: Robot,
+                       planner_kind: str | None = None) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
+    """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`) for `robot`:
+    per-joint lists of its length (or one value), IK seeds of its joints.
 
     planner_kind: if given, overrides `planner.kind` (same poses and limits, other planner).
     Raises InputError, naming the file, on a missing or malformed file, unknown keys, wrong
     types or invalid values.
     """
-    robot = robot or UR10
     spec = load_yaml_config(path, TrackingSpec, what="tracking spec")
     if planner_kind is not None:
         spec.planner = dataclasses.replace(spec.planner, kind=planner_kind)
@@ -206,7 +203,7 @@ def load_tracking_spec(path: str | os.PathLike = DEFAULT_TRACKING_SPEC, *, plann
 
 
 def initial_configuration(kinematics: RobotKinematics, pose: InitialPose, config: PlannerConfig) -> np.ndarray:
-    """IK (6,) rad of an initial pose from its configured seed (Newton first, Drake IK as fallback)."""
+    """IK (n,) rad of an initial pose from its configured seed (Newton first, Drake IK as fallback)."""
     X = pose.pose()
     q_seed = np.asarray(pose.q_seed, dtype=float)
     try:
@@ -237,7 +234,7 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
 
     Returns [(initial_pose_index, PlannedTrajectory)] ordered by initial pose, each plan with
     num_steps + 1 samples at sample_period (s). Deterministic for a given rng state. A final pose
-    whose plan raises PlanningError, or with a sample q (6,) rad for which is_collision_free(q)
+    whose plan raises PlanningError, or with a sample q (n,) rad for which is_collision_free(q)
     is False, is rejected: its one-line reason goes to on_reject (default: logged as a warning)
     and the pose is redrawn, up to max_resample_attempts times, after which PlanningError names
     the initial pose. An unreachable initial pose raises PlanningError at once. Messages number the

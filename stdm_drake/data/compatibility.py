@@ -6,14 +6,14 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import JointLimits, SelfCollisionChecker, joint_limits
-from stdm_drake.robots.robot import UR10, Robot, load_robot
+from stdm_drake.robots.robot import Robot, load_robot
 
 
 def robot_for(path, dataset=None) -> Robot:
-    """The robot a command's `--robot PATH` names (None: the UR-10 preset), its plant built once to check
+    """The robot of the config YAML at `path` (a command's `--robot`), its plant built once to check
     that it loads and that home is free of self-collision; with `dataset`, InputError unless the dataset
     was collected with it (`check_dataset_robot`)."""
-    robot = load_robot(path) if path is not None else UR10
+    robot = load_robot(path)
     checker = SelfCollisionChecker(robot)  # the model loads, and its home is free of self-collision, before any work
     if dataset is not None:
         check_dataset_robot(dataset, robot, joint_limits(checker.plant))

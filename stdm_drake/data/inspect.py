@@ -40,7 +40,7 @@ def noise_floor(dataset: Dataset, indices=None) -> dict:
 
 
 def tracking_smoothness(dataset: Dataset) -> dict:
-    """Per-joint measures of how smoothly the plant followed its plans (tracking data only), (6,) each.
+    """Per-joint measures of how smoothly the plant followed its plans (tracking data only), (n,) each.
 
     velocity_error_rms: RMS of the true velocity minus the planned one, rad/s.
     sign_flip_rate: fraction of consecutive sample pairs whose true velocity changes have opposite

@@ -153,7 +153,7 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
                            sample_period=training_data.sample_period)
     if half:
         learned = HeldInputSubsteps(learned, 2, name=model)
-    baselines = physics_baselines(dataset.sample_period, 12, 6, plant=False)
+    baselines = physics_baselines(dataset.sample_period, robot.state_dim, robot.action_dim, plant=False)
     mine, euler, stays = compare_with_baselines([learned] + baselines, dataset.transitions(test),
                                                 trajectory_rollout_data(dataset, test, HORIZON))
     return dict(cell=cell.name, data_seed=data_seed, init=init, model=model, alpha=alpha, train_trajectories=n_train,

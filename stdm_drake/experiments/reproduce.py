@@ -30,7 +30,7 @@ from stdm_drake.files import json_default
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.robots.robot import UR10, Robot
+from stdm_drake.robots.robot import Robot
 
 def dataset_settings(robot: Robot) -> dict:
     """`ensure_dataset` settings of the four datasets for `robot`: the files its config's `defaults` names
@@ -52,12 +52,11 @@ def dataset_settings(robot: Robot) -> dict:
 
 
 def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True,
-              robot: Robot | None = None, runner=None):
-    """Run every stage for `robot` (default: the UR-10 preset); returns the report path and the MPC
+              *, robot: Robot, runner=None):
+    """Run every stage for `robot`; returns the report path and the MPC
     stage's failures (`comparison.closed_loop_failures`: closed loops that left the robot's limits or fell
     back). runner: a RunnerConfig for the training jobs (default: the local pool of `workers` processes)."""
     from stdm_drake.experiments import sine_sum
-    robot = robot or UR10
     robot.check_can_track()  # the tracked-plan experiments and MPC need it (before any work)
     settings = dataset_settings(robot)
     output = pathlib.Path(output)
@@ -92,7 +91,7 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     timings["sine_sum"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot)
+    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot=robot)
     timings["mpc"] = time.perf_counter() - tick
     path = write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
                         timings)
@@ -111,8 +110,8 @@ def reused_sine_sum(path: pathlib.Path, study_config):
     return stored if stored.get("config") == expected and stored.get("runs") else None
 
 
-def run_mpc(profile, identification, results, cache, folder, progress, workers: int = 2,
-            robot: Robot | None = None) -> dict:
+def run_mpc(profile, identification, results, cache, folder, progress, workers: int = 2, *,
+            robot: Robot) -> dict:
     """MPC with the plant and every seed of the control experiment's D, DD, PE, PED models on held-out
     plans of the identification dataset, the models split over `workers` processes; returns
     {"runs": per model instance, "types": mpc_statistics, "failures": one line per failed closed loop}."""
@@ -151,7 +150,6 @@ def _mpc_group(arguments) -> list:
     from stdm_drake.closed_loop.comparison import compare_controllers
     from stdm_drake.closed_loop.mpc import mpc_config_for
     specs, references, sample_period, progress, robot = arguments
-    robot = robot or UR10
     models = [PlantModel(sample_period, robot=robot) if path is None else LearnedModel(path, name=name, robot=robot)
               for name, path in specs]
     return compare_controllers(models, references, mpc_config_for(robot), progress=progress, robot=robot)
@@ -180,7 +178,8 @@ def run(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
     from stdm_drake.data.compatibility import robot_for
-    robot = robot_for(args.robot)
+    from stdm_drake.robots.robot import UR10_CONFIG
+    robot = robot_for(args.robot or UR10_CONFIG)
     robot.check_can_track()
     output = args.output or pathlib.Path("out/reproduce" if args.robot is None else f"out/reproduce-{robot.name}")
     check_output_folder("-o/--output", output, inputs=[args.robot], own_files=("report.md", "cache"), force=args.force)

@@ -139,10 +139,11 @@ class ModelErrors:
                     over_noise_floor_v=self.floor_ratio_v, verdict=self.verdict)
 
 
-def physics_baselines(sample_period: float, state_dim: int, action_dim: int, robot=None,
-                      plant: bool = True) -> list:
+def physics_baselines(sample_period: float, state_dim: int, action_dim: int, robot=None, plant: bool = True) -> list:
     """The baselines every learned number stands beside: the Euler step (q) / "v unchanged" (v), "stays
-    put" (open loop), and, with plant, the robot's own rigid-body plant stepping the recorded torque."""
+    put" (open loop), and, with plant, `robot`'s own rigid-body plant stepping the recorded torque."""
+    if plant and robot is None:
+        raise ValueError("the plant baseline needs the robot (or plant=False)")
     from stdm_drake.learning.physics import ConstantVelocity, PlantModel, StaysPut
     models = [ConstantVelocity(state_dim, action_dim, sample_period), StaysPut(state_dim, action_dim, sample_period)]
     if plant:
@@ -184,7 +185,7 @@ def _ratio(baseline: float, model: float) -> float:
 
 
 def trajectory_rollout_data(dataset, indices, horizon: int | None = None):
-    """(x_0 (B, 12), tau (B, H, 6), [q, v] of steps 1..H (B, H, 12)) for dataset trajectories; H is the
+    """(x_0 (B, 2n), tau (B, H, m), [q, v] of steps 1..H (B, H, 2n)) for dataset trajectories; H is the
     shortest selected trajectory's length, capped at `horizon`."""
     trajectories = [dataset.trajectory(int(i)) for i in indices]
     if not trajectories:
@@ -229,6 +230,7 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
     from stdm_drake.data.compatibility import robot_for
+    from stdm_drake.robots.robot import UR10_CONFIG
 
     check_output_file("--json", args.json, kind="json", inputs=[args.checkpoint, args.dataset, args.robot],
                       force=args.force)
@@ -237,7 +239,7 @@ def run(args: argparse.Namespace) -> int:
         robot = robot_for(args.robot, dataset)
     else:  # the UR-10 preset when the dataset is its; another robot's data get no plant baseline
         try:
-            robot = robot_for(None, dataset)
+            robot = robot_for(UR10_CONFIG, dataset)
         except InputError:
             robot = None
     checkpoint = load_checkpoint(args.checkpoint)

@@ -24,9 +24,9 @@ class LearnedModel(DynamicsModel):
 
     sample_period (s) comes from the checkpoint's metadata (else the `sample_period` given); with
     require_sample_period a checkpoint without one is refused (the closed loop needs it). A model of other sizes than the robot's, or one
-    trained on another robot's description, is refused. The robot (default: the UR-10 preset) is also
-    the nominal model of nominal-acceleration inputs; check_robot=False takes a checkpoint without a
-    robot (raw inputs only) as it is.
+    trained on another robot's description, is refused. The robot is also the nominal model of
+    nominal-acceleration inputs; a checkpoint needs it, unless check_robot=False takes the checkpoint
+    (raw inputs only) as it is.
     """
     learned = True
 
@@ -60,17 +60,14 @@ class LearnedModel(DynamicsModel):
         if self.structure.predicts == "velocity" and self.sample_period is None:
             raise InputError("a velocity-structured model needs its sample period (the trapezoid step)")
         if robot is None and self.checkpoint is not None and check_robot:
-            from stdm_drake.robots.robot import UR10
-            robot = UR10
+            raise InputError(f"{self.checkpoint.path}: pass the robot the model was trained on")
         self.robot = robot
         if robot is not None:
             self._check_robot(robot)
         self.features = None
         if self.structure.uses_nominal_model:
             if robot is None:
-                from stdm_drake.robots.robot import UR10
-                self.robot = UR10
-                self._check_robot(UR10)
+                raise InputError(f"{self.name}: inputs {self.structure.inputs!r} need the robot's nominal model")
             self.features = self.structure.nominal_features(self.robot, self.sample_period)
         self._workspaces = {}
 

@@ -100,13 +100,12 @@ class PlantModel(DynamicsModel):
     """
     name = "plant"
 
-    def __init__(self, sample_period: float, plant_config=None, robot=None):
+    def __init__(self, sample_period: float, plant_config=None, *, robot):
         from stdm_drake.robots.plant import PlantConfig, PlantSimulator, make_plant
-        from stdm_drake.robots.robot import UR10
-        self.robot = robot or UR10
+        self.robot = robot
         self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
         self.sample_period = float(sample_period)
-        self.simulation = PlantSimulator(plant_config, self.robot)
+        self.simulation = PlantSimulator(plant_config, robot=self.robot)
         continuous, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
         self.autodiff_plant = continuous.ToAutoDiffXd()
         self.autodiff_context = self.autodiff_plant.CreateDefaultContext()
@@ -142,7 +141,7 @@ class RungeKuttaPlantModel(DynamicsModel):
     discretized), one AutoDiff evaluation per row."""
     name = "plant (RK4)"
 
-    def __init__(self, sample_period: float, robot=None):
+    def __init__(self, sample_period: float, *, robot):
         self.acceleration = NominalAcceleration(robot)
         self.robot = self.acceleration.robot
         self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
@@ -221,10 +220,9 @@ class NominalAcceleration:
     forward-mode AutoDiff pass per row; jacobians(q, v, tau) d q̈ / d(q, v, τ) (N, n, 2n + m).
     """
 
-    def __init__(self, robot=None):
+    def __init__(self, robot):
         from stdm_drake.robots.plant import PlantConfig, make_plant
-        from stdm_drake.robots.robot import UR10
-        self.robot = robot or UR10
+        self.robot = robot
         self.num_joints, self.action_dim = self.robot.num_joints, self.robot.action_dim
         self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
@@ -295,7 +293,7 @@ class PeriodAcceleration(NominalAcceleration):
     the values (ε = 1e-6 of the row's scale; exact to ~1e-9 relative); values_and_jacobians with Ψ held
     constant (d φ̄ ≈ Ψ_v [A_c B_c] / T: the linearization's own Jacobian, for the MPC's iLQR)."""
 
-    def __init__(self, robot=None, sample_period: float = 0.01):
+    def __init__(self, robot, sample_period: float):
         super().__init__(robot)
         if sample_period is None or not (np.isfinite(sample_period) and sample_period > 0):
             raise InputError(f"period acceleration needs a sample period > 0 s, got {sample_period}")

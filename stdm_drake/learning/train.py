@@ -190,14 +190,15 @@ def training_problem(dataset, split, *, model_type: str = "DD", activation: str 
     "val", "test"} -> trajectory indices). State and action sizes come from the data; derivative
     targets from `derivative_source` (None: the dataset's default) and `action_rate`; what the network
     predicts and sees from `structure` (default the paper's; `robot` is the nominal model of
-    nominal-acceleration inputs, default the UR-10 preset)."""
+    nominal-acceleration inputs, required by them)."""
     kind = parse_model_type(model_type)
     source = derivative_source or dataset.default_derivative_source
     parts = split.as_dict() if hasattr(split, "as_dict") else split
     features = None
     if structure.uses_nominal_model:
-        from stdm_drake.robots.robot import UR10
-        features = structure.nominal_features(robot or UR10, dataset.sample_period)
+        if robot is None:
+            raise InputError(f"model inputs {structure.inputs!r} need the robot's nominal model; pass its robot")
+        features = structure.nominal_features(robot, dataset.sample_period)
 
     def pairs(indices) -> RegressionData:
         transitions = dataset.transitions(list(indices), derivative_source=source, action_rate=action_rate)
@@ -301,7 +302,8 @@ def run(args: argparse.Namespace) -> int:
     robot = None
     if args.robot is not None or structure.uses_nominal_model:
         from stdm_drake.data.compatibility import robot_for
-        robot = robot_for(args.robot, dataset)
+        from stdm_drake.robots.robot import UR10_CONFIG
+        robot = robot_for(args.robot or UR10_CONFIG, dataset)
     if derivative and robot is not None:   # (without a robot, train loads no Drake plant at all)
         warn_about_fast_damped_joints(robot, dataset.sample_period)
     per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"

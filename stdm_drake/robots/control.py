@@ -165,7 +165,7 @@ class SampledJointController:
     by one period; `reset()` starts a new trajectory.
     """
 
-    def __init__(self, config: ControllerConfig, sample_period: float, robot: Robot | None = None):
+    def __init__(self, config: ControllerConfig, sample_period: float, robot: Robot):
         config.validate()
         self.config = config
         self.sample_period = sample_period

@@ -30,7 +30,7 @@ from pydrake.solvers import Solve  # noqa: E402
 
 from stdm_drake.errors import InputError, PlanningError  # noqa: E402
 from stdm_drake.robots.plant import PlantConfig, joint_limits, make_plant  # noqa: E402
-from stdm_drake.robots.robot import POSE_DIM, UR10, Robot  # noqa: E402
+from stdm_drake.robots.robot import POSE_DIM, Robot  # noqa: E402
 
 
 def _skew(w: np.ndarray) -> np.ndarray:
@@ -70,13 +70,12 @@ def pose_text(X: RigidTransform) -> str:
 class RobotKinematics:
     """Forward/inverse kinematics of the robot's tool frame (poses in the world frame).
 
-    robot: the Robot (default: the UR-10 preset); plant: a finalized MultibodyPlant holding it
+    robot: the Robot; plant: a finalized MultibodyPlant holding it
     (default: make_plant with time_step=0). The object owns one plant context, so it is not
     thread-safe.
     """
 
-    def __init__(self, plant: MultibodyPlant | None = None, robot: Robot | None = None):
-        robot = robot or UR10
+    def __init__(self, plant: MultibodyPlant | None = None, *, robot: Robot):
         if plant is None:
             plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
         n = robot.num_joints

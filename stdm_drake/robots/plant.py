@@ -1,4 +1,4 @@
-"""Drake plants and simulators of a Robot (default: the UR-10 preset): the plant + scene-graph builder,
+"""Drake plants and simulators of a Robot: the plant + scene-graph builder,
 the held-torque simulator, joint limits, rigid-body dynamics and the self-collision check."""
 import dataclasses
 import os
@@ -12,7 +12,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, Multibody
 from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 
 from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.robots.robot import UR10, Robot  # noqa: E402
+from stdm_drake.robots.robot import Robot  # noqa: E402
 
 
 @dataclasses.dataclass
@@ -28,13 +28,12 @@ class PlantConfig:
     self_collision: bool = True
 
 
-def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None = None, robot: Robot | None = None):
-    """Add the finalized plant of `robot` (default: the UR-10 preset) and a SceneGraph to `builder`.
+def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None = None, *, robot: Robot):
+    """Add the finalized plant of `robot` and a SceneGraph to `builder`.
 
     Returns (plant, scene_graph). With builder=None a bare plant without SceneGraph is returned
     as (plant, None), for kinematics and dynamics queries.
     """
-    robot = robot or UR10
     config = config or PlantConfig()
     if config.time_step < 0:
         raise ValueError(f"time_step must be >= 0, got {config.time_step}")
@@ -65,7 +64,7 @@ class PlantSimulator:
     (2n,) and holds the action tau (m,) N m (one torque per actuated joint), so what follows depends only
     on its own inputs (the parameters are never changed)."""
 
-    def __init__(self, plant_config: PlantConfig | None = None, robot: Robot | None = None):
+    def __init__(self, plant_config: PlantConfig | None = None, *, robot: Robot):
         from pydrake.systems.analysis import Simulator
 
         builder = DiagramBuilder()
@@ -152,14 +151,14 @@ def joint_limits(plant: MultibodyPlant) -> JointLimits:
 
 
 class Dynamics:
-    """Continuous-time rigid-body dynamics of `robot` (default: the UR-10; a bare plant of its own).
+    """Continuous-time rigid-body dynamics of `robot` (a bare plant of its own).
 
     acceleration(q, v, tau) = M(q)^-1 (B tau + tau_g(q) - C(q, v) v) for q, v (n,) and the action tau
     (m,) N m of the m actuated joints; B places each torque on its joint (B = I when m = n).
     """
 
-    def __init__(self, robot: Robot | None = None):
-        self.robot = robot or UR10
+    def __init__(self, robot: Robot):
+        self.robot = robot
         self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
         self._actuated = None if self.robot.fully_actuated else self.robot.actuated_indices
@@ -212,9 +211,8 @@ class SelfCollisionChecker:
     not adjacent and whose pair the robot's SRDF or config does not disable. InputError when the robot's
     home is in self-collision."""
 
-    def __init__(self, robot: Robot | None = None):
+    def __init__(self, robot: Robot):
         builder = DiagramBuilder()
-        robot = robot or UR10
         self.plant, self.scene_graph = make_plant(PlantConfig(time_step=0.0), builder=builder, robot=robot)
         self.diagram = builder.Build()
         self.context = self.diagram.CreateDefaultContext()

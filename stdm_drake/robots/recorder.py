@@ -1,8 +1,8 @@
-"""Meshcat recordings of UR-10 trajectories, live and as standalone HTML pages.
+"""Meshcat recordings of a robot's joint trajectories, live and as standalone HTML pages.
 
 Recordings replay stored joint angles in a visualization-only diagram (plant + scene graph +
 MeshcatVisualizer), so what is shown never feeds back into the simulation that produced it.
-With `ghost=True` a second, translucent UR-10 shows another trajectory beside the robot, e.g. a
+With `ghost=True` a second, translucent copy of the robot shows another trajectory beside the robot, e.g. a
 learned model's open-loop prediction from the same initial state and actions, or an MPC reference.
 """
 import logging
@@ -15,7 +15,7 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.files import write_text_atomic
-from stdm_drake.robots.robot import UR10, Robot
+from stdm_drake.robots.robot import Robot
 
 GHOST_COLOR = Rgba(1.0, 0.55, 0.1, 0.35)  # translucent orange
 
@@ -25,13 +25,12 @@ class TrajectoryRecorder:
     Meshcat animation that plays them one after another (with `pause` s of rest between)."""
 
     def __init__(self, sample_period: float, meshcat: Meshcat | None = None, pause: float = 0.25,
-                 ghost: bool = False, robot: Robot | None = None):
+                 ghost: bool = False, *, robot: Robot):
         self.meshcat = meshcat or Meshcat()
         self.sample_period = sample_period
         self.pause = pause
         builder = DiagramBuilder()
         self.plant, scene_graph = AddMultibodyPlantSceneGraph(builder, 0.0)
-        robot = robot or UR10
         self.robot = robot.add_to(self.plant)
         self.ghost = robot.add_to(self.plant, model_name_prefix="ghost") if ghost else None
         self.plant.Finalize()
@@ -51,7 +50,7 @@ class TrajectoryRecorder:
         self.num_trajectories = 0
 
     def add(self, q: np.ndarray, ghost_q: np.ndarray | None = None, realtime: bool = False) -> None:
-        """Show and record one trajectory q: (T+1, 6) rad, with the ghost following ghost_q
+        """Show and record one trajectory q: (T+1, n) rad, with the ghost following ghost_q
         (same shape; required when the recorder has a ghost). realtime=True paces the live view."""
         q = np.asarray(q)
         if (ghost_q is None) != (self.ghost is None):

@@ -379,11 +379,8 @@ class Robot:
                 joint.set_velocity_limits([-velocity], [velocity])
 
 
-def load_robot(path=UR10_CONFIG) -> Robot:
-    """The Robot of a robot config YAML (default: the UR-10 preset, models/ur10.yaml)."""
+def load_robot(path) -> Robot:
+    """The Robot of a robot config YAML (the UR-10 preset: `UR10_CONFIG`, models/ur10.yaml)."""
     from stdm_drake.config import load_yaml_config
     path = pathlib.Path(path)
     return Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
-
-
-UR10 = load_robot()  # the default robot of every command

@@ -13,19 +13,19 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.robots.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
 from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
-from stdm_drake.robots.robot import UR10, Robot
+from stdm_drake.robots.robot import Robot
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 
 
 @dataclasses.dataclass
 class StationConfig:
-    """What every protocol shares: sample period (s), plant, sensor, tracking controller and robot."""
+    """What every protocol shares: the robot, sample period (s), plant, sensor and tracking controller."""
+    robot: Robot
     sample_period: float = DEFAULT_SAMPLE_PERIOD
     plant: PlantConfig = dataclasses.field(default_factory=PlantConfig)
     sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig)
     controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
-    robot: Robot = dataclasses.field(default_factory=lambda: UR10)
 
     def substeps(self) -> int:
         """Plant steps per sample period; the period must be a whole multiple of the plant step."""
@@ -51,7 +51,7 @@ class Station:
         self.settings = settings
         settings.substeps()
         self.robot = settings.robot
-        self.simulation = PlantSimulator(settings.plant, settings.robot)
+        self.simulation = PlantSimulator(settings.plant, robot=settings.robot)
         self.plant = self.simulation.plant
         self.limits = joint_limits(self.plant)
         self.dynamics = Dynamics(settings.robot)
