@@ -1,8 +1,8 @@
 """The `stdm-drake` command line: one subcommand per stage of the data flow.
 
-Each subcommand lives in its stage's module, which provides `add_arguments(parser)` and
-`run(args) -> int`; modules are imported only when their command runs, so `stdm-drake collect`
-does not pay for importing PyTorch and `stdm-drake train` does not pay for Drake.
+Each subcommand is one thin module in `stdm_drake.commands` with `add_arguments(parser)` and
+`run(args) -> int` over its stage's library; modules are imported only when their command runs, so
+`stdm-drake collect` does not pay for importing PyTorch and `stdm-drake train` does not pay for Drake.
 """
 from __future__ import annotations
 
@@ -18,17 +18,17 @@ from stdm_drake.paths import expand_shipped
 
 # name -> (module, one-line help)
 COMMANDS = {
-    "collect": ("stdm_drake.collection.collect", "simulate the UR-10 under a data protocol and write a dataset"),
-    "inspect": ("stdm_drake.data.inspect", "print a summary of a dataset file"),
-    "train": ("stdm_drake.learning.train", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
-    "evaluate": ("stdm_drake.learning.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
-    "sine-sum": ("stdm_drake.experiments.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
-    "mpc": ("stdm_drake.closed_loop.comparison",
+    "collect": ("stdm_drake.commands.collect", "simulate a robot under a data protocol and write a dataset"),
+    "inspect": ("stdm_drake.commands.inspect", "print a summary of a dataset file"),
+    "train": ("stdm_drake.commands.train", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
+    "evaluate": ("stdm_drake.commands.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
+    "sine-sum": ("stdm_drake.commands.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
+    "mpc": ("stdm_drake.commands.mpc",
             "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
-    "view": ("stdm_drake.closed_loop.view",
+    "view": ("stdm_drake.commands.view",
              "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
-    "reproduce": ("stdm_drake.experiments.reproduce",
-                  "the paper's UR-10 experiments end to end, with a report beside its numbers"),
+    "reproduce": ("stdm_drake.commands.reproduce",
+                  "the paper's experiments end to end for a robot, with a report beside their numbers"),
 }
 
 

@@ -12,7 +12,7 @@ from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.physics import ConstantVelocity, NominalAcceleration, PlantModel, StaysPut
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.structure import DEFAULT, PAPER, ModelStructure
-from stdm_drake.learning.train import training_problem
+from stdm_drake.learning.problem import training_problem
 from stdm_drake.learning.trainer import fit_model
 
 

@@ -147,7 +147,7 @@ def test_mpc_exits_2_when_a_closed_loop_leaves_the_limits(tracking_dataset, tmp_
     import dataclasses
 
     from stdm_drake.cli import main
-    from stdm_drake.closed_loop import comparison
+    from stdm_drake.commands import mpc as comparison
     real = comparison.compare_controllers
 
     def violating(*args, **kwargs):

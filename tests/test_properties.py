@@ -162,7 +162,7 @@ def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypat
     import math
 
     from stdm_drake.cli import main
-    from stdm_drake.collection import collect
+    from stdm_drake.commands import collect
 
     class ReachedTheWork(Exception):
         """Raised where the simulation would start."""

@@ -12,6 +12,7 @@ PACKAGE = ROOT / "stdm_drake"
 # stage -> the stages it must not import (the flow: robots -> collection -> data -> learning -> closed_loop;
 # experiments use them all)
 FORBIDDEN = {
+    "commands": (),
     "robots": ("collection", "data", "learning", "closed_loop", "experiments"),
     "collection": ("learning", "closed_loop", "experiments"),
     "data": ("collection", "learning", "closed_loop", "experiments"),
@@ -82,10 +83,33 @@ def test_no_module_imports_itself_back():
     assert not cycles, f"import cycles: {cycles}"
 
 
+def test_only_the_command_line_imports_commands():
+    """Commands sit on top: no library module (stage or top level) imports one; the command line loads
+    them by name."""
+    edges = [(name, module) for name, modules in module_graph().items() if not name.startswith("stdm_drake.commands")
+             for module in modules if module.startswith("stdm_drake.commands")]
+    assert not edges, f"library modules import commands: {edges}"
+
+
+def test_every_command_is_a_thin_module_with_add_arguments_and_run():
+    """One module per `stdm-drake` subcommand in `stdm_drake.commands`, each defining add_arguments(parser)
+    and run(args); the stages define neither (their command-line code lives in the commands)."""
+    from stdm_drake.cli import COMMANDS
+    modules = {module for module, _ in COMMANDS.values()}
+    assert all(module.startswith("stdm_drake.commands.") for module in modules), modules
+    for path in PACKAGE.rglob("*.py"):
+        names = {node.name for node in ast.parse(path.read_text()).body if isinstance(node, ast.FunctionDef)}
+        module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        if module in modules:
+            assert {"add_arguments", "run"} <= names, f"{module} lacks add_arguments or run"
+        else:
+            assert not {"add_arguments", "run"} & names, f"{module} defines a command's add_arguments or run"
+
+
 def test_top_level_modules_import_no_stage():
     """The modules at the package's top (files, config, paths, errors, ...) sit below every stage; only
     the command line (cli, which loads commands by name) stands above them."""
-    stages = tuple(f"stdm_drake.{stage}" for stage in ("robots", "collection", "data", "learning", "closed_loop", "experiments"))
+    stages = tuple(f"stdm_drake.{stage}" for stage in ("commands", "robots", "collection", "data", "learning", "closed_loop", "experiments"))
     edges = [(name, module) for name, modules in module_graph().items() if name.count(".") == 1 and name != "stdm_drake.cli"
              for module in modules if module.startswith(stages)]
     assert not edges, f"top-level modules import a stage: {edges}"
@@ -103,7 +127,6 @@ def test_importing_collection_loads_no_learning_code():
 # module, one past its ceiling, or one listed here that is no longer long fails the test.
 LONG_MODULES = {
     "collection/planners.py": 600,      # three planners with their shared task-space checks
-    "collection/collect.py": 600,       # protocols, rig, pool and the command, to be split
     "experiments/reproduce_report.py": 580,
     "experiments/sine_sum.py": 600,
 }

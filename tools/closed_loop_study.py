@@ -32,7 +32,7 @@ TYPES = {"D": 0.0, "DD": ALPHA}
 
 def identification_dataset(folder: pathlib.Path, count: int):
     from stdm_drake.experiments.jobs import ensure_dataset
-    return ensure_dataset("tracking", count, 0, folder, False, name="identification",
+    return ensure_dataset("tracking", count, 0, folder, False, name="identification", robot=UR10_CONFIG,
                           controller=str(ROOT / "controllers" / "pid_dither.yaml"),
                           sensor=str(ROOT / "controllers" / "sensor_ideal.yaml"))
 
@@ -46,7 +46,7 @@ def train_job(path: str, split: dict, model_type: str, seed: int, epochs: int, f
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.settings import TrainingConfig
     from stdm_drake.learning.structure import PAPER
-    from stdm_drake.learning.train import training_problem
+    from stdm_drake.learning.problem import training_problem
     from stdm_drake.learning.trainer import fit_model
     torch.set_num_threads(1)
     dataset = load_dataset(path)

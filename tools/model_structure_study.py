@@ -81,7 +81,7 @@ def problem(train_path, name: str):
     """The TrainingProblem of configuration `name` (features computed once, shared by every seed)."""
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.structure import ModelStructure
-    from stdm_drake.learning.train import training_problem
+    from stdm_drake.learning.problem import training_problem
     predicts, inputs, n_train, _ = CONFIGS[name]
     dataset = load_dataset(train_path)
     order = np.random.default_rng(0).permutation(dataset.num_trajectories)

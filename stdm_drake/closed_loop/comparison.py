@@ -1,14 +1,12 @@
 """Closed-loop comparison of prediction models under the same MPC on held-out plans (metrics, summary,
-plots) and the `stdm-drake mpc` command."""
+plots), what `stdm-drake mpc` runs."""
 import dataclasses
-import sys
 
 import numpy as np
 
-from stdm_drake.closed_loop.mpc import MpcConfig, MpcLog, Reference, mpc_config_for, run_closed_loop
+from stdm_drake.closed_loop.mpc import MpcConfig, MpcLog, Reference, run_closed_loop
 from stdm_drake.learning.physics import PlantModel
 from stdm_drake.errors import InputError
-from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
 from stdm_drake.report import markdown_table
 from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
 from stdm_drake.robots.robot import Robot
@@ -174,101 +172,6 @@ def held_out_references(dataset, checkpoints: list, count: int) -> list[tuple[in
         else:
             references.append((index, Reference(q=traj["q_true"], v=traj["v_true"])))
     return references
-
-
-def add_arguments(parser) -> None:
-    import pathlib
-    parser.add_argument("dataset", type=pathlib.Path, help="tracking dataset whose held-out plans are the references")
-    parser.add_argument("--model", action="append", default=[], metavar="NAME=CHECKPOINT",
-                        help="a learned model to compare (repeatable), e.g. DD=runs/dd/seed0/checkpoint.pt")
-    parser.add_argument("--no-plant", action="store_true", help="leave out the plant-as-model reference MPC")
-    parser.add_argument("--excitation-references", action="store_true",
-                        help="with an excitation dataset (no plans): track its recorded trajectories instead, e.g. "
-                             "for an arm too small for task-space plans")
-    parser.add_argument("--plans", type=int, default=3, help="held-out plans to track (default 3)")
-    parser.add_argument("--config", type=pathlib.Path,
-                        help="MPC settings YAML (default: controllers/mpc.yaml; for another robot, its effort "
-                             "weights derived from the robot's inertia, see README)")
-    parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML (default: the UR-10 preset); must be the dataset's robot")
-    parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/mpc"),
-                        help="folder for mpc.md, mpc.csv, mpc.json and mpc.png")
-    parser.add_argument("--html", type=pathlib.Path, help="Meshcat recording: plant (robot) vs reference (ghost)")
-    parser.add_argument("--quiet", action="store_true")
-    add_force_argument(parser)
-
-
-def run(args) -> int:
-    import json
-
-    import torch
-
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.files import write_text_atomic
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.data.compatibility import robot_for
-    from stdm_drake.robots.robot import UR10_CONFIG
-    torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
-    if args.plans < 1:
-        raise InputError(f"--plans must be >= 1, got {args.plans}")
-    for entry in args.model:
-        name, separator, path = entry.partition("=")
-        if not separator or not name or not path:
-            raise InputError(f"--model takes NAME=CHECKPOINT, got {entry!r}")
-    checkpoints = [entry.partition("=")[2] for entry in args.model]
-    names = [entry.partition("=")[0] for entry in args.model]
-    repeated = sorted({name for name in names if names.count(name) > 1})
-    if repeated:
-        raise InputError(f"--model names must differ; {', '.join(repeated)} given more than once")
-    inputs = [args.dataset, args.config, args.robot, *checkpoints]
-    check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
-    check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
-    dataset = load_dataset(args.dataset)
-    robot = robot_for(args.robot or UR10_CONFIG, dataset)
-    robot.check_fully_actuated("MPC")
-    if dataset.protocol != "tracking" and not args.excitation_references:
-        raise InputError(f"{args.dataset} is an excitation dataset: it has no plans to track; give a tracking "
-                         "dataset, or --excitation-references to track its recorded trajectories")
-    config = mpc_config_for(robot, args.config)
-    learned = []
-    for entry in args.model:
-        name, separator, path = entry.partition("=")
-        if not separator or not name or not path:
-            raise InputError(f"--model takes NAME=CHECKPOINT, got {entry!r}")
-        learned.append(LearnedModel(path, name=name, robot=robot))
-    for model in learned:
-        model.checkpoint.check_fits(dataset)
-    models = ([] if args.no_plant else [PlantModel(dataset.sample_period, robot=robot)]) + learned
-    if not models:
-        raise InputError("nothing to compare: give --model NAME=CHECKPOINT or keep the plant model")
-    references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
-    if len(references) < args.plans:
-        raise InputError(f"--plans {args.plans}: {args.dataset} has only {len(references)} held-out plans")
-    recorder = None
-    if args.html:
-        from stdm_drake.robots.recorder import TrajectoryRecorder
-        recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot)
-    results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder,
-                                  robot=robot, announce=lambda line: print(line, file=sys.stderr, flush=True))
-    rows = summarize(results, dataset.sample_period)
-    table = summary_table(rows)
-    print(table)
-    out = args.output
-    mark_output_folder(out)
-    write_text_atomic(out / "mpc.md", table + "\n")
-    write_text_atomic(out / "mpc.json", json.dumps(dict(summary=rows, runs=[dataclasses.asdict(r) for r in results]),
-                                                   indent=1))
-    columns = [field.name for field in dataclasses.fields(ClosedLoopResult) if field.name != "q_error"]
-    write_text_atomic(out / "mpc.csv", "\n".join([",".join(columns)] + [
-        ",".join(str(getattr(result, column)) for column in columns) for result in results]) + "\n")
-    plot_results(results, dataset.sample_period, out / "mpc.png")
-    print(f"wrote {out}/mpc.md, mpc.csv, mpc.json, mpc.png")
-    if recorder is not None:
-        recorder.finish(args.html, what="robot: plant under MPC; translucent orange: the reference")
-    failures = closed_loop_failures(results)
-    for failure in failures:
-        print(f"stdm-drake mpc: error: {failure}", file=sys.stderr)
-    return 2 if failures else 0
 
 
 def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5) -> list[str]:

@@ -1,9 +1,10 @@
-"""Collect UR-10 datasets in Drake under the paper's two data protocols.
+"""Collect a robot's datasets in Drake under the paper's two data protocols (`stdm-drake collect` is
+`stdm_drake.commands.collect`).
 
 - excitation (paper V.A.2, eq. 10): per-joint random sine torques A sin(f t + phi) + B added to
   gravity compensation; the action recorded is the total torque applied.
 - tracking (paper V.B.1): task-space plans from `stdm_drake.collection.plan`, tracked by a joint-space
-  controller (`stdm_drake.robots.control`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
+  controller (`stdm_drake.robots.control`, in the station `stdm_drake.robots.station`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
   are recorded as the "real robot" derivative targets.
 
 Every trajectory is simulated sample by sample: at t_k the controller sees the measurement y_k,
@@ -12,31 +13,27 @@ x_k+1 is exactly a function of (x_k, a_k). Trajectory i draws its randomness fro
 numpy.random.default_rng([seed, i]), so a dataset does not depend on how many worker processes
 collected it.
 
-Longer than 400 lines on purpose: the two protocols, the worker pool that runs them and the dataset
-metadata that records their settings change together (a setting not recorded here would make
+The two protocols, the worker pool that runs them and the dataset metadata that records their
+settings live together because they change together (a setting not recorded here would make
 `reproduce` reuse a dataset collected differently).
 """
 
-import argparse
 import concurrent.futures
 import contextlib
 import dataclasses
 import multiprocessing
 import os
-import pathlib
 import sys
 from importlib import metadata as importlib_metadata
 
 import numpy as np
 
 from stdm_drake.config import check_joint_vector, load_yaml_config
-from stdm_drake.data.dataset import write_dataset
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, load_controller_config
 from stdm_drake.robots.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, robot_joint_limits
-from stdm_drake.robots.robot import UR10_CONFIG, Robot, load_robot
+from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 
 PROTOCOLS = ("excitation", "tracking")   # their files: --config, the robot's `defaults`, or derived
@@ -354,37 +351,6 @@ def collection_metadata(request: CollectionRequest) -> dict:
 
 # ---- command line ------------------------------------------------------------------------------
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--protocol", choices=PROTOCOLS, default="tracking",
-                        help="data protocol (default: tracking)")
-    parser.add_argument("--config", type=pathlib.Path,
-                        help="protocol YAML (default: the file the robot config's `defaults` names, for the UR-10 "
-                             "trajectories/excitation.yaml or tracking.yaml; without one, excitation ranges and "
-                             "tracking poses derived from the robot, see README)")
-    parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
-                        help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml)")
-    parser.add_argument("--sensor", type=pathlib.Path,
-                        help="sensor noise/filter YAML (default: controllers/sensor.yaml for tracking, "
-                             "an ideal sensor for excitation)")
-    parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML (default: the UR-10 preset, models/ur10.yaml)")
-    parser.add_argument("--count", type=int, help="number of trajectories, >= 1 (default: the paper's, 200 / 100)")
-    parser.add_argument("--seed", type=int, default=0, help="random seed (same seed -> same file)")
-    parser.add_argument("--sample-period", type=float, default=DEFAULT_SAMPLE_PERIOD,
-                        help="data sample period in s (default 0.01; the learned model steps at this period)")
-    parser.add_argument("--plant-time-step", type=float, default=PlantConfig.time_step,
-                        help="discrete plant step in s (default 0.001)")
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                        help="worker processes (default: min(2, cores)); the data do not depend on it")
-    parser.add_argument("--meshcat", action="store_true",
-                        help="show each trajectory in Meshcat at real time as it is collected (prints the URL; "
-                             "from a terminal, the server stays up until Ctrl+C)")
-    parser.add_argument("--html", type=pathlib.Path,
-                        help="save a standalone Meshcat HTML file that replays every collected trajectory")
-    parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_force_argument(parser)
-
 
 def collection_request(protocol: str = "tracking", *, count: int | None = None, seed: int = 0, config=None,
                        controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
@@ -443,38 +409,3 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
         else:
             request.tracking_spec = load_tracking_spec(config_path, robot=robot)
     return request
-
-
-def request_from_args(args: argparse.Namespace) -> CollectionRequest:
-    """`collection_request` from the command line's arguments."""
-    return collection_request(args.protocol, count=args.count, seed=args.seed, config=args.config,
-                              controller=args.controller, sensor=args.sensor, sample_period=args.sample_period,
-                              plant_time_step=args.plant_time_step, robot=args.robot or UR10_CONFIG, workers=args.workers)
-
-
-def run(args: argparse.Namespace) -> int:
-    import time
-
-    request = request_from_args(args)
-    robot = request.settings.robot
-    inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path]
-    check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
-    check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
-    recorder = None
-    if args.meshcat or args.html:
-        from stdm_drake.robots.recorder import TrajectoryRecorder
-        recorder = TrajectoryRecorder(request.settings.sample_period, robot=request.settings.robot)
-        if args.meshcat:
-            print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)
-    started = time.perf_counter()
-    trajectories, groups, metadata = collect(
-        request, progress=not args.quiet,
-        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj["q_true"], realtime=args.meshcat))
-    elapsed = time.perf_counter() - started
-    path = write_dataset(args.output, trajectories, groups, metadata)
-    simulated = sum(len(t["tau"]) for t in trajectories) * request.settings.sample_period
-    print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
-          f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
-    if recorder is not None:
-        recorder.finish(args.html, keep_serving=args.meshcat)
-    return 0

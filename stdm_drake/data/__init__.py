@@ -1,2 +1,2 @@
-"""Datasets: the file format, loading and checks, trajectory splits, transitions for learning, and
-`stdm-drake inspect`."""
+"""Datasets: the file format, loading and checks, trajectory splits, transitions for learning, their
+summaries, and which robot a dataset belongs to."""

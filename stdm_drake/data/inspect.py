@@ -1,13 +1,9 @@
-"""`stdm-drake inspect DATASET`: counts, ranges and tracking errors of a dataset file."""
+"""Counts, ranges, tracking errors and noise floors of a dataset (what `stdm-drake inspect` prints)."""
 from __future__ import annotations
-
-import argparse
-import pathlib
 
 import numpy as np
 
-from stdm_drake.data.dataset import Dataset, load_dataset
-
+from stdm_drake.data.dataset import Dataset
 
 
 def tracking_errors(dataset: Dataset) -> dict:
@@ -108,18 +104,3 @@ def summary(dataset: Dataset) -> str:
                            ("peak_acceleration", "|qdd| peak"), ("peak_planned_acceleration", "plan |qdd| pk")):
             lines.append(f"{label:14s}" + "".join(f"{value:>17.3g}" for value in smooth[key]))
     return "\n".join(lines)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("dataset", type=pathlib.Path, help="dataset file (.h5) written by `stdm-drake collect`")
-    parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML: refuse a dataset collected with another robot (default: no check)")
-
-
-def run(args: argparse.Namespace) -> int:
-    dataset = load_dataset(args.dataset)
-    if args.robot is not None:
-        from stdm_drake.data.compatibility import robot_for
-        robot_for(args.robot, dataset)
-    print(summary(dataset))
-    return 0

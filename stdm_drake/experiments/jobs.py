@@ -189,7 +189,7 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
     from stdm_drake.learning.checkpoint import save_checkpoint
     from stdm_drake.learning.models import parse_model_type
     from stdm_drake.learning.settings import TrainingConfig
-    from stdm_drake.learning.train import training_problem
+    from stdm_drake.learning.problem import training_problem
     from stdm_drake.learning.trainer import fit_model, train_alpha_grid
 
     key = job.key()

@@ -1,4 +1,4 @@
-"""`stdm-drake reproduce`: the paper's UR-10 experiments (section V) end to end, with a report.
+"""The paper's robot experiments (section V) end to end for a robot, with a report (`stdm-drake reproduce`).
 
 Stages: (1) datasets: excitation (simulated UR-10, V.A) and tracked task-space plans (our stand-in
 for the real robot, V.B); (2) training jobs, two worker processes, each checkpoint cached under
@@ -10,25 +10,20 @@ clearly labelled "paper" columns and a plain statement wherever ours differ. Raw
 `results.json` and CSV files. Every other number is computed by the run.
 
 Modules: `jobs` (profiles, datasets, training jobs), `reproduce_report` (tables, figures, report),
-this one (the stages in order, the MPC comparison, the command).
+this one (the stages in order and the MPC comparison); the command is `stdm_drake.commands.reproduce`.
 """
-import argparse
 import concurrent.futures
 import dataclasses
 import json
 import math
 import multiprocessing
 import pathlib
-import sys
 import time
 
-from stdm_drake.errors import InputError
-from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, FULL, IDENTIFICATION_SETTINGS, QUICK, Profile,
-                                         ensure_dataset, plan_jobs, run_jobs)
+from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, IDENTIFICATION_SETTINGS, Profile, ensure_dataset, plan_jobs, run_jobs)
 from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
 from stdm_drake.files import json_default
-from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
-from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
+from stdm_drake.outputs import mark_output_folder
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.robot import Robot
 
@@ -153,42 +148,3 @@ def _mpc_group(arguments) -> list:
     models = [PlantModel(sample_period, robot=robot) if path is None else LearnedModel(path, name=name, robot=robot)
               for name, path in specs]
     return compare_controllers(models, references, mpc_config_for(robot), progress=progress, robot=robot)
-
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--quick", action="store_true", help="every stage at reduced size (about 35 s on 2 cores)")
-    parser.add_argument("--output", "-o", type=pathlib.Path,
-                        help="report folder (default out/reproduce, or out/reproduce-NAME with --robot); datasets and "
-                             "checkpoints there are reused")
-    parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML (default: the UR-10 preset); another fully actuated arm of 6 or more "
-                             "joints runs the same experiments with its protocols derived from its model")
-    parser.add_argument("--seed", type=int, default=0, help="data collection seed")
-    parser.add_argument("--workers", type=int, default=2,
-                        help="training processes (default 2); with --backend ray and no cluster, the local Ray "
-                             "instance's CPUs")
-    add_runner_arguments(parser)
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    add_force_argument(parser)
-
-
-def run(args: argparse.Namespace) -> int:
-    if args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
-    if args.seed < 0:
-        raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
-    from stdm_drake.data.compatibility import robot_for
-    from stdm_drake.robots.robot import UR10_CONFIG
-    robot = robot_for(args.robot or UR10_CONFIG)
-    robot.check_can_track()
-    output = args.output or pathlib.Path("out/reproduce" if args.robot is None else f"out/reproduce-{robot.name}")
-    check_output_folder("-o/--output", output, inputs=[args.robot], own_files=("report.md", "cache"), force=args.force)
-    profile = QUICK if args.quick else FULL
-    started = time.perf_counter()
-    runner = runner_config_from_args(args)
-    path, failures = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet,
-                               robot=robot, runner=runner)
-    print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
-    for failure in failures:
-        print(f"stdm-drake reproduce: error: MPC stage: {failure}", file=sys.stderr)
-    return 2 if failures else 0

@@ -1,4 +1,4 @@
-"""The paper's sine-sum study (Kim, Lee & Ryu 2022, section III.B, eq. 6) and `stdm-drake sine-sum`.
+"""The paper's sine-sum study (Kim, Lee & Ryu 2022, section III.B, eq. 6), run by `stdm-drake sine-sum`.
 
 Fit y = sin x + sin 0.5x + sin 0.1x on x in [-30π, 30π] from 100 training points (1000
 validation, 4000 test; uniform interval sampling) with MLPs of width 100 and 1/3/5 hidden layers,
@@ -27,12 +27,10 @@ tables and command); the figures read the run records' exact layout.
 """
 from __future__ import annotations
 
-import argparse
 import concurrent.futures
 import contextlib
 import dataclasses
 import json
-import os
 import pathlib
 import time
 
@@ -41,10 +39,8 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, rows_csv, write_text_atomic
-from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import TrainingConfig
-from stdm_drake.learning.train import parse_alpha
 from stdm_drake.learning.trainer import train_alpha_grid, train_model
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import ModelConfig
@@ -525,54 +521,3 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
 
 
 # -- `stdm-drake sine-sum` ----------------------------------------------------------------------------
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("runs/sine-sum"),
-                        help="output folder (default runs/sine-sum)")
-    parser.add_argument("--quick", action="store_true",
-                        help="small CI profile: 1 and 5 layers, tanh/relu/swish, 2 networks, 150 steps")
-    parser.add_argument("--alpha", type=parse_alpha,
-                        help="derivative-loss weight as in eq. 9, or 'auto' (default: chosen by validation)")
-    parser.add_argument("--epochs", type=int, help="override the profile's epochs (full-batch steps)")
-    parser.add_argument("--seeds", type=int,
-                        help="override the profile's networks per configuration (5-layer swish included)")
-    parser.add_argument("--layers", type=int, nargs="+", help="override the hidden-layer counts (must include 5)")
-    parser.add_argument("--activations", nargs="+", choices=ACTIVATION_NAMES,
-                        help="override the activations (must include tanh, relu, swish)")
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                        help="processes, one torch thread each (default min(2, cores)); results do not depend on it")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_force_argument(parser)
-    from stdm_drake.cluster import add_runner_arguments
-    add_runner_arguments(parser)
-
-
-def run(args: argparse.Namespace) -> int:
-    config = QUICK if args.quick else FULL
-    overrides = {key: (tuple(value) if isinstance(value, list) else value)
-                 for key, value in (("epochs", args.epochs), ("seeds", args.seeds), ("headline_seeds", args.seeds),
-                                    ("layers", args.layers), ("activations", args.activations),
-                                    ("alpha", args.alpha)) if value is not None}
-    if args.seeds is not None:
-        overrides["table_seeds"] = min(config.table_seeds, args.seeds)
-    if overrides.get("alpha") == 0:
-        raise InputError("--alpha 0 is naive learning, which the study runs anyway; give a positive alpha or auto")
-    if overrides:
-        config = dataclasses.replace(config, **overrides)
-    if args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
-    check_output_folder("-o/--output", args.output, own_files=("results.json",), force=args.force)
-    from stdm_drake.cluster import runner_config_from_args
-    runner = runner_config_from_args(args)
-    study = run_study(config, workers=args.workers, progress=not args.quiet, runner=runner)
-    mark_output_folder(args.output)
-    written = write_reports(study, args.output, quick=args.quick, partial=bool(overrides))
-    print(f"{len(study['runs'])} runs in {study['wall_seconds']:.1f} s; wrote {len(written)} files to {args.output}")
-    top = headline(study)
-    print(f"  {top['layers']} layers swish (alpha {top['alpha']:g}): derivative {top['derivative_mean_test_mse']:.3g}, "
-          f"naive {top['naive_mean_test_mse']:.3g} (paired ratio {top['ratio']:.3g}x "
-          f"[{top['ratio_low']:.3g}, {top['ratio_high']:.3g}], {top['verdict']}; paper {top['paper_derivative']:g})")
-    for row in table1_rows(study):
-        print(f"  table 1  {row['loss']:>5} {row['activation']:>6}: test MSE {row['mean_test_mse']:.4g} "
-              f"(paper {row['paper']:.4g})")
-    return 0

@@ -1,2 +1,2 @@
-"""Learning: the networks (models), training with the derivative loss (train), checkpoints,
+"""Learning: the networks (models), the training problem (problem), training with the derivative loss (trainer), checkpoints,
 NumPy inference and rollouts (predict), and test errors (evaluate)."""

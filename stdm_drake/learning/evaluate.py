@@ -1,4 +1,4 @@
-"""Test errors of trained STDMs and `stdm-drake evaluate`.
+"""Test errors of trained STDMs beside the physics baselines (what `stdm-drake evaluate` reports).
 
 One-step error: predict x_{t+1} from the recorded (x_t, a_t) of every test transition.
 Multi-step error: from each test trajectory's x_0, roll the model out open loop under the
@@ -8,18 +8,13 @@ velocities v ((rad/s)²): the state is x = [q, v], so q is the first half and v 
 """
 from __future__ import annotations
 
-import argparse
 import dataclasses
-import json
-import pathlib
 
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import write_text_atomic
-from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.learning.dynamics_model import DynamicsModel
-from stdm_drake.learning.predict import PROPAGATIONS, as_inference_model
+from stdm_drake.learning.predict import as_inference_model
 
 REPORT_STEPS = (1, 5, 10, 20, 50, 100)
 
@@ -201,119 +196,3 @@ def trajectory_rollout_data(dataset, indices, horizon: int | None = None):
 
 
 # -- `stdm-drake evaluate` --------------------------------------------------------------------------
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("checkpoint", type=pathlib.Path, help="model checkpoint written by `stdm-drake train`")
-    parser.add_argument("dataset", type=pathlib.Path, help="dataset file (.h5)")
-    parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML (default: the UR-10 preset when the dataset is its): the plant "
-                             "baseline and the nominal model; a dataset collected with another robot is refused")
-    parser.add_argument("--split", choices=("test", "val", "train", "all"), default="test",
-                        help="trajectories to evaluate: the checkpoint's split of this dataset, or all (default test)")
-    parser.add_argument("--horizon", type=int,
-                        help="multi-step horizon in steps, at most the trajectories' length (default: that length, "
-                             "capped at 100)")
-    parser.add_argument("--propagation", choices=PROPAGATIONS, default="mean",
-                        help="multi-step propagation: mean, ts1 or tsinf (PETS; default mean)")
-    parser.add_argument("--particles", type=int, default=20, help="particles per trajectory for ts1/tsinf")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the TS particles")
-    parser.add_argument("--no-plant", action="store_true",
-                        help="leave out the plant baseline (the robot's rigid-body plant stepping the recorded torque: "
-                             "about a millisecond per step)")
-    parser.add_argument("--json", type=pathlib.Path, help="also write every number (and the curves) to this JSON file")
-    add_force_argument(parser)
-
-
-def run(args: argparse.Namespace) -> int:
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.checkpoint import load_checkpoint
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
-    from stdm_drake.data.compatibility import robot_for
-    from stdm_drake.robots.robot import UR10_CONFIG
-
-    check_output_file("--json", args.json, kind="json", inputs=[args.checkpoint, args.dataset, args.robot],
-                      force=args.force)
-    dataset = load_dataset(args.dataset)
-    if args.robot is not None:
-        robot = robot_for(args.robot, dataset)
-    else:  # the UR-10 preset when the dataset is its; another robot's data get no plant baseline
-        try:
-            robot = robot_for(UR10_CONFIG, dataset)
-        except InputError:
-            robot = None
-    checkpoint = load_checkpoint(args.checkpoint)
-    checkpoint.check_fits(dataset)
-    trained_on_this = checkpoint.trained_on(dataset)
-    if args.split == "all":
-        indices = np.arange(dataset.num_trajectories)
-    else:
-        split = checkpoint.split_indices(dataset, args.split)
-        if split is None:
-            raise InputError(f"{args.dataset} is not the dataset {args.checkpoint} was trained on (sha256 differs), "
-                             f"so its {args.split} split does not apply; use --split all")
-        indices = np.asarray(split, dtype=int)
-        if not len(indices):
-            raise InputError(f"the checkpoint's {args.split} split is empty")
-    shortest = min(len(dataset.trajectory(int(i))["tau"]) for i in indices)
-    if args.horizon is not None and not 1 <= args.horizon <= shortest:
-        raise InputError(f"--horizon must be in 1..{shortest} (the shortest selected trajectory's steps), "
-                         f"got {args.horizon}")
-    model = LearnedModel(checkpoint, name=checkpoint.metadata.model_type or "model", robot=robot,
-                         sample_period=dataset.sample_period, require_sample_period=False,
-                         check_robot=robot is not None)
-    transitions = dataset.transitions(indices)
-    rollout_data = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
-    plant = robot is not None and not args.no_plant
-    baselines = physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, robot=robot, plant=plant)
-    from stdm_drake.data.inspect import noise_floor
-    floor = noise_floor(dataset, indices)
-    rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=args.propagation,
-                                  particles=args.particles, seed=args.seed, noise_floor=floor)
-    config = checkpoint.model_config
-    alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
-    print(f"model {model.name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
-          f"{config.ensemble_size} member(s), {'probabilistic' if config.probabilistic else 'deterministic'}, "
-          f"{'delta' if config.residual else 'direct'}, {model.structure.label}, derivative alpha {alpha:g}")
-    print(f"dataset {args.dataset} ({'the training dataset' if trained_on_this else 'another dataset'}); "
-          f"split {args.split}: {len(indices)} trajectories, {rows[0].one_step.transitions} transitions")
-    multi = rows[0].multi_step
-    shown = sorted({s for s in REPORT_STEPS if s <= multi.horizon} | {multi.horizon})
-    print(f"one-step MSE and open-loop ({multi.propagation} propagation, {multi.horizon} steps, mean over "
-          f"{multi.trajectories} trajectories) q MSE at step k, beside the physics baselines:")
-    header = f"  {'model':<12} {'q [rad^2]':>10} {'v [(rad/s)^2]':>13}  " + " ".join(f"{'q@' + str(k):>9}" for k in shown)
-    print(header)
-    for row in rows:
-        print(f"  {row.name[:12]:<12} {row.one_step.angle_mse:>10.3e} {row.one_step.velocity_mse:>13.3e}  "
-              + " ".join(f"{row.multi_step.angle_mse[k - 1]:>9.2e}" for k in shown))
-    if not plant:
-        print("  (no plant baseline: " + ("--no-plant" if args.no_plant else "pass the dataset's robot with --robot")
-              + ")")
-    learned = rows[0]
-    if floor["q"] > 0 or floor["v"] > 0:
-        print(f"  {'noise floor':<12} {floor['q']:>10.3e} {floor['v']:>13.3e}  (a model that knows the true change "
-              f"of state, from the recorded state; {model.name} is at {learned.floor_ratio_q or 0:.3g}x / "
-              f"{learned.floor_ratio_v or 0:.3g}x of it)")
-    print(f"{model.name} against the physics-free baselines: one-step q {learned.ratio_q:.3g}x better than the Euler "
-          f"step, v {learned.ratio_v:.3g}x better than 'v unchanged' -> {learned.verdict}"
-          + ("" if learned.verdict.startswith("learned") else
-             f" (needs {LEARNED_FACTOR:g}x in both, or within {FLOOR_FACTOR:g}x of the noise floor; comparisons "
-             "with other such models are uninformative)"))
-    print(f"multi-step MSE of {model.name} (mean +- std over {multi.trajectories} trajectories):")
-    print(f"  {'step':>5}  {'q [rad^2]':>24}  {'v [(rad/s)^2]':>24}")
-    for step in shown:
-        i = step - 1
-        print(f"  {step:>5}  {multi.angle_mse[i]:>11.4e} +- {multi.angle_mse_std[i]:<9.2e}  "
-              f"{multi.velocity_mse[i]:>11.4e} +- {multi.velocity_mse_std[i]:<9.2e}")
-    print(f"  {'mean':>5}  {multi.angle_mse_mean:>11.4e}{'':13}  {multi.velocity_mse_mean:>11.4e}")
-    if args.json:
-        report = dict(written_by="stdm-drake evaluate", checkpoint=str(args.checkpoint), dataset=str(args.dataset),
-                      dataset_sha256=dataset.sha256, trained_on_this_dataset=trained_on_this, split=args.split,
-                      structure=model.structure.as_dict(), trajectories=[int(i) for i in indices],
-                      one_step=learned.one_step.as_dict(), multi_step=multi.as_dict(),
-                      ratio_to_euler_q=learned.ratio_q, ratio_to_velocity_unchanged_v=learned.ratio_v,
-                      over_noise_floor_q=learned.floor_ratio_q, over_noise_floor_v=learned.floor_ratio_v,
-                      noise_floor=floor, verdict=learned.verdict, baselines=[row.as_dict() for row in rows[1:]])
-        write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
-        print(f"wrote {args.json}")
-    return 0

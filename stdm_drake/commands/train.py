@@ -1,7 +1,5 @@
 """`stdm-drake train`: split a dataset, train one model per seed, and write checkpoints, learning curves
-and the alpha selection. `training_problem` (the network, the training pairs and the checkpoint
-metadata of one model type on one dataset split) is the programmatic entry point that this command
-and `stdm-drake reproduce` share; `fit_model` / `train_alpha_grid` then train it."""
+and the alpha selection."""
 from __future__ import annotations
 
 import argparse
@@ -15,19 +13,20 @@ import sys
 import numpy as np
 import torch
 
-from stdm_drake.errors import InputError
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
-from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
+from stdm_drake.commands.arguments import add_robot_argument, command_robot, parse_alpha
+from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, write_text_atomic
-from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata
 from stdm_drake.learning.activations import ACTIVATION_NAMES
-from stdm_drake.learning.models import (DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, ModelConfig,
-                                        parse_model_type)
-from stdm_drake.learning.regression import RegressionData
-from stdm_drake.learning.settings import (DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainingConfig,
-                                          TrainSettings)
-from stdm_drake.learning.structure import INPUT_SETS, PAPER, PREDICTS, ModelStructure
+from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, parse_model_type
+from stdm_drake.learning.problem import default_split_sizes, training_problem
+from stdm_drake.learning.settings import (
+    DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainingConfig, TrainSettings
+)
+from stdm_drake.learning.structure import INPUT_SETS, PREDICTS, ModelStructure
 from stdm_drake.learning.trainer import AlphaSelection, fit_model
+from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 
 
 def history_csv(history: dict) -> str:
@@ -40,15 +39,12 @@ def history_csv(history: dict) -> str:
     return buffer.getvalue()
 
 
-# -- `stdm-drake train` -----------------------------------------------------------------------------
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("dataset", type=pathlib.Path, help="dataset file written by `stdm-drake collect` (.h5)")
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
                         help="output folder: seed<N>/checkpoint.pt, seed<N>/curves.csv, summary.json")
-    parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML (default: the UR-10 preset): the nominal model of "
-                             "nominal-acceleration inputs; a dataset collected with another robot is refused")
+    add_robot_argument(parser, "the nominal model of nominal-acceleration inputs; a dataset collected with "
+                               "another robot is refused")
     parser.add_argument("--config", type=pathlib.Path,
                         help="training settings YAML (TrainSettings: keys as the flags below with '_' for '-'); "
                              "flags given on the command line override it")
@@ -124,20 +120,6 @@ def training_settings(args: argparse.Namespace) -> TrainSettings:
     return settings
 
 
-def parse_alpha(text: str):
-    """--alpha: a number >= 0 or the word 'auto'."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
-    if not (np.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}")
-    return value
-
-
-
 def alpha_selection_csv(selection: AlphaSelection) -> str:
     """The alpha grid's validation curve as CSV: alpha, val_state_mse_standardized, best_epoch, chosen."""
     lines = ["alpha,val_state_mse_standardized,best_epoch,chosen"]
@@ -169,79 +151,6 @@ def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pa
         figure.savefig(temp, format="png", dpi=110, bbox_inches="tight")
     plt.close(figure)
     return path
-
-
-@dataclasses.dataclass
-class TrainingProblem:
-    """One model type on one dataset split: the network to fit (`model_config`), the training and
-    validation pairs (raw units), and the checkpoint metadata that records where they came from."""
-    model_config: ModelConfig
-    train: RegressionData
-    val: RegressionData
-    metadata: CheckpointMetadata
-
-
-def training_problem(dataset, split, *, model_type: str = "DD", activation: str = "swish", hidden_width: int = 100,
-                     hidden_layers: int = 3, ensemble_size: int = DEFAULT_ENSEMBLE_SIZE, delta: bool = True,
-                     derivative_source: str | None = None, action_rate: str = "forward_difference",
-                     structure: ModelStructure = PAPER, robot=None, **metadata_fields) -> TrainingProblem:
-    """The TrainingProblem of `model_type` ("D" ... "PED"; it decides probabilistic heads and whether
-    the ensemble size applies) on `dataset` (a loaded Dataset) with `split` (a Split or {"train",
-    "val", "test"} -> trajectory indices). State and action sizes come from the data; derivative
-    targets from `derivative_source` (None: the dataset's default) and `action_rate`; what the network
-    predicts and sees from `structure` (default the paper's; `robot` is the nominal model of
-    nominal-acceleration inputs, required by them)."""
-    kind = parse_model_type(model_type)
-    source = derivative_source or dataset.default_derivative_source
-    parts = split.as_dict() if hasattr(split, "as_dict") else split
-    features = None
-    if structure.uses_nominal_model:
-        if robot is None:
-            raise InputError(f"model inputs {structure.inputs!r} need the robot's nominal model; pass its robot")
-        features = structure.nominal_features(robot, dataset.sample_period)
-
-    def pairs(indices) -> RegressionData:
-        transitions = dataset.transitions(list(indices), derivative_source=source, action_rate=action_rate)
-        return structure.regression_data(transitions, features)
-
-    train, val = pairs(parts["train"]), pairs(parts["val"])
-    first = dataset.trajectory(0)
-    state_dim, action_dim = 2 * first["q"].shape[1], first["tau"].shape[1]
-    input_dim, output_dim = structure.network_sizes(state_dim, action_dim)
-    config = ModelConfig(input_dim=input_dim, output_dim=output_dim, residual=delta, hidden_width=hidden_width,
-                         hidden_layers=hidden_layers, activation=activation,
-                         ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
-    metadata = dataset_metadata(dataset, parts, model_type=model_type, derivative_source=source,
-                                action_rate=action_rate,
-                                structure=None if structure == PAPER else structure.as_dict(), **metadata_fields)
-    return TrainingProblem(model_config=config, train=train, val=val, metadata=metadata)
-
-
-def dataset_metadata(dataset, split, *, model_type: str, derivative_source: str, action_rate: str,
-                     **fields) -> CheckpointMetadata:
-    """Checkpoint metadata of a model trained on `dataset` (a loaded Dataset) with `split` (a Split or
-    {"train", "val", "test"} -> indices); `fields`: further CheckpointMetadata fields."""
-    from stdm_drake import __version__
-    parts = split.as_dict() if hasattr(split, "as_dict") else split
-    return CheckpointMetadata(model_type=model_type, dataset_path=str(dataset.path), dataset_sha256=dataset.sha256,
-                              protocol=dataset.protocol, sample_period=dataset.sample_period,
-                              split={key: [int(i) for i in value] for key, value in parts.items()},
-                              derivative_source=derivative_source, action_rate=action_rate,
-                              torch_version=torch.__version__, stdm_drake_version=__version__,
-                              robot_name=dataset.metadata.get("robot", {}).get("name"),
-                              robot_model_sha256=dataset.metadata.get("robot_model_sha256"),
-                              joint_names=dataset.metadata.get("joint_names"), **fields)
-
-
-def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
-    """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation,
-    20 % test, the rest training; n_test None means "all the rest" for split_trajectories."""
-    n_val = n_val if n_val is not None else max(1, round(0.2 * pool))
-    if n_train is None:
-        n_train = pool - n_val - (n_test if n_test is not None else max(1, round(0.2 * pool)))
-    if n_train < 1:
-        raise InputError(f"the split leaves {n_train} training trajectories (of {pool} per split unit)")
-    return n_train, n_val, n_test
 
 
 def fit_seed(model_config, training_config, train_data, val_data, fit_options: dict, threads: int):
@@ -301,9 +210,7 @@ def run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     robot = None
     if args.robot is not None or structure.uses_nominal_model:
-        from stdm_drake.data.compatibility import robot_for
-        from stdm_drake.robots.robot import UR10_CONFIG
-        robot = robot_for(args.robot or UR10_CONFIG, dataset)
+        robot = command_robot(args, dataset)
     if derivative and robot is not None:   # (without a robot, train loads no Drake plant at all)
         warn_about_fast_damped_joints(robot, dataset.sample_period)
     per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"
@@ -399,4 +306,3 @@ def run(args: argparse.Namespace) -> int:
         finish(seed, result, selection)
     write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
     return 0
-

@@ -4,8 +4,9 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.robots.recorder import TrajectoryRecorder
+from stdm_drake.commands.arguments import add_robot_argument, command_robot
 from stdm_drake.outputs import add_force_argument, check_output_file
+from stdm_drake.robots.recorder import TrajectoryRecorder
 
 
 def add_arguments(parser) -> None:
@@ -17,8 +18,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--index", type=int, action="append", help="replay these trajectory indices instead")
     parser.add_argument("--html", type=pathlib.Path, help="save the recording as a standalone HTML file")
     parser.add_argument("--meshcat", action="store_true", help="play live in Meshcat (prints the URL)")
-    parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML (default: the UR-10 preset); must be the dataset's robot")
+    add_robot_argument(parser, "must be the dataset's robot")
     add_force_argument(parser)
 
 
@@ -26,8 +26,6 @@ def run(args) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.errors import InputError
     from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.data.compatibility import robot_for
-    from stdm_drake.robots.robot import UR10_CONFIG
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
     if not args.index and args.trajectories < 1:
@@ -35,7 +33,7 @@ def run(args) -> int:
     check_output_file("--html", args.html, kind="html", inputs=[args.checkpoint, args.dataset, args.robot],
                       force=args.force)
     dataset = load_dataset(args.dataset)
-    robot = robot_for(args.robot or UR10_CONFIG, dataset)
+    robot = command_robot(args, dataset)
     model = LearnedModel(args.checkpoint, robot=robot)
     model.checkpoint.check_fits(dataset)
     if args.index:

@@ -1,0 +1,33 @@
+"""What several commands' command lines share: the `--robot` option (the UR-10 preset when absent) and
+the `--alpha` value type."""
+import argparse
+import pathlib
+
+import numpy as np
+
+
+def add_robot_argument(parser: argparse.ArgumentParser, role: str) -> None:
+    """`--robot PATH`: a robot config YAML; `role` says what the command does with it."""
+    parser.add_argument("--robot", type=pathlib.Path, help=f"robot config YAML (default: the UR-10 preset, "
+                                                           f"models/ur10.yaml); {role}")
+
+
+def command_robot(args: argparse.Namespace, dataset=None):
+    """The Robot `--robot` names (the UR-10 preset when absent), its plant loaded and its home checked
+    free of self-collision; with `dataset`, InputError unless the dataset was collected with it."""
+    from stdm_drake.data.compatibility import robot_for
+    from stdm_drake.robots.robot import UR10_CONFIG
+    return robot_for(args.robot or UR10_CONFIG, dataset)
+
+
+def parse_alpha(text: str):
+    """--alpha: a number >= 0 or the word 'auto'."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}")
+    return value

@@ -1,0 +1,80 @@
+"""`stdm-drake collect`: simulate a robot under a data protocol (excitation or tracking) and write a
+dataset."""
+import argparse
+import os
+import pathlib
+import sys
+
+from stdm_drake.collection.collect import DEFAULT_CONTROLLER, PROTOCOLS, CollectionRequest, collect, collection_request
+from stdm_drake.commands.arguments import add_robot_argument
+from stdm_drake.data.dataset import write_dataset
+from stdm_drake.outputs import add_force_argument, check_output_file
+from stdm_drake.robots.plant import PlantConfig
+from stdm_drake.robots.robot import UR10_CONFIG
+from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--protocol", choices=PROTOCOLS, default="tracking",
+                        help="data protocol (default: tracking)")
+    parser.add_argument("--config", type=pathlib.Path,
+                        help="protocol YAML (default: the file the robot config's `defaults` names, for the UR-10 "
+                             "trajectories/excitation.yaml or tracking.yaml; without one, excitation ranges and "
+                             "tracking poses derived from the robot, see README)")
+    parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
+                        help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml)")
+    parser.add_argument("--sensor", type=pathlib.Path,
+                        help="sensor noise/filter YAML (default: controllers/sensor.yaml for tracking, "
+                             "an ideal sensor for excitation)")
+    add_robot_argument(parser, "the robot to simulate")
+    parser.add_argument("--count", type=int, help="number of trajectories, >= 1 (default: the paper's, 200 / 100)")
+    parser.add_argument("--seed", type=int, default=0, help="random seed (same seed -> same file)")
+    parser.add_argument("--sample-period", type=float, default=DEFAULT_SAMPLE_PERIOD,
+                        help="data sample period in s (default 0.01; the learned model steps at this period)")
+    parser.add_argument("--plant-time-step", type=float, default=PlantConfig.time_step,
+                        help="discrete plant step in s (default 0.001)")
+    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
+                        help="worker processes (default: min(2, cores)); the data do not depend on it")
+    parser.add_argument("--meshcat", action="store_true",
+                        help="show each trajectory in Meshcat at real time as it is collected (prints the URL; "
+                             "from a terminal, the server stays up until Ctrl+C)")
+    parser.add_argument("--html", type=pathlib.Path,
+                        help="save a standalone Meshcat HTML file that replays every collected trajectory")
+    parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_force_argument(parser)
+
+
+def request_from_args(args: argparse.Namespace) -> CollectionRequest:
+    """`collection_request` from the command line's arguments."""
+    return collection_request(args.protocol, count=args.count, seed=args.seed, config=args.config,
+                              controller=args.controller, sensor=args.sensor, sample_period=args.sample_period,
+                              plant_time_step=args.plant_time_step, robot=args.robot or UR10_CONFIG, workers=args.workers)
+
+
+def run(args: argparse.Namespace) -> int:
+    import time
+
+    request = request_from_args(args)
+    robot = request.settings.robot
+    inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path]
+    check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
+    check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
+    recorder = None
+    if args.meshcat or args.html:
+        from stdm_drake.robots.recorder import TrajectoryRecorder
+        recorder = TrajectoryRecorder(request.settings.sample_period, robot=request.settings.robot)
+        if args.meshcat:
+            print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)
+    started = time.perf_counter()
+    trajectories, groups, metadata = collect(
+        request, progress=not args.quiet,
+        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj["q_true"], realtime=args.meshcat))
+    elapsed = time.perf_counter() - started
+    path = write_dataset(args.output, trajectories, groups, metadata)
+    simulated = sum(len(t["tau"]) for t in trajectories) * request.settings.sample_period
+    print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
+          f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
+    if recorder is not None:
+        recorder.finish(args.html, keep_serving=args.meshcat)
+    return 0

@@ -1,0 +1,49 @@
+"""`stdm-drake reproduce`: the paper's experiments end to end for a robot, with a report beside their
+numbers."""
+import argparse
+import pathlib
+import sys
+import time
+
+from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
+from stdm_drake.commands.arguments import add_robot_argument, command_robot
+from stdm_drake.errors import InputError
+from stdm_drake.experiments.jobs import FULL, QUICK
+from stdm_drake.experiments.reproduce import reproduce
+from stdm_drake.outputs import add_force_argument, check_output_folder
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="every stage at reduced size (about 35 s on 2 cores)")
+    parser.add_argument("--output", "-o", type=pathlib.Path,
+                        help="report folder (default out/reproduce, or out/reproduce-NAME with --robot); datasets and "
+                             "checkpoints there are reused")
+    add_robot_argument(parser, "another fully actuated arm of 6 or more joints runs the same experiments with "
+                               "its protocols derived from its model")
+    parser.add_argument("--seed", type=int, default=0, help="data collection seed")
+    parser.add_argument("--workers", type=int, default=2,
+                        help="training processes (default 2); with --backend ray and no cluster, the local Ray "
+                             "instance's CPUs")
+    add_runner_arguments(parser)
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    add_force_argument(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    if args.seed < 0:
+        raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
+    robot = command_robot(args)
+    robot.check_can_track()
+    output = args.output or pathlib.Path("out/reproduce" if args.robot is None else f"out/reproduce-{robot.name}")
+    check_output_folder("-o/--output", output, inputs=[args.robot], own_files=("report.md", "cache"), force=args.force)
+    profile = QUICK if args.quick else FULL
+    started = time.perf_counter()
+    runner = runner_config_from_args(args)
+    path, failures = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet,
+                               robot=robot, runner=runner)
+    print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
+    for failure in failures:
+        print(f"stdm-drake reproduce: error: MPC stage: {failure}", file=sys.stderr)
+    return 2 if failures else 0

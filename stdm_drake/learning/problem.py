@@ -1,0 +1,91 @@
+"""The training problem of one model type on one dataset split: the network's config, the training and
+validation pairs and the checkpoint metadata (`training_problem`), the default split sizes. It is the
+programmatic entry point that `stdm-drake train`, `reproduce` and the tools share; `fit_model` /
+`train_alpha_grid` (`learning.trainer`) then train it."""
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+
+from stdm_drake.errors import InputError
+from stdm_drake.learning.checkpoint import CheckpointMetadata
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, ModelConfig, parse_model_type
+from stdm_drake.learning.regression import RegressionData
+from stdm_drake.learning.structure import PAPER, ModelStructure
+
+
+# -- `stdm-drake train` -----------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class TrainingProblem:
+    """One model type on one dataset split: the network to fit (`model_config`), the training and
+    validation pairs (raw units), and the checkpoint metadata that records where they came from."""
+    model_config: ModelConfig
+    train: RegressionData
+    val: RegressionData
+    metadata: CheckpointMetadata
+
+
+def training_problem(dataset, split, *, model_type: str = "DD", activation: str = "swish", hidden_width: int = 100,
+                     hidden_layers: int = 3, ensemble_size: int = DEFAULT_ENSEMBLE_SIZE, delta: bool = True,
+                     derivative_source: str | None = None, action_rate: str = "forward_difference",
+                     structure: ModelStructure = PAPER, robot=None, **metadata_fields) -> TrainingProblem:
+    """The TrainingProblem of `model_type` ("D" ... "PED"; it decides probabilistic heads and whether
+    the ensemble size applies) on `dataset` (a loaded Dataset) with `split` (a Split or {"train",
+    "val", "test"} -> trajectory indices). State and action sizes come from the data; derivative
+    targets from `derivative_source` (None: the dataset's default) and `action_rate`; what the network
+    predicts and sees from `structure` (default the paper's; `robot` is the nominal model of
+    nominal-acceleration inputs, required by them)."""
+    kind = parse_model_type(model_type)
+    source = derivative_source or dataset.default_derivative_source
+    parts = split.as_dict() if hasattr(split, "as_dict") else split
+    features = None
+    if structure.uses_nominal_model:
+        if robot is None:
+            raise InputError(f"model inputs {structure.inputs!r} need the robot's nominal model; pass its robot")
+        features = structure.nominal_features(robot, dataset.sample_period)
+
+    def pairs(indices) -> RegressionData:
+        transitions = dataset.transitions(list(indices), derivative_source=source, action_rate=action_rate)
+        return structure.regression_data(transitions, features)
+
+    train, val = pairs(parts["train"]), pairs(parts["val"])
+    first = dataset.trajectory(0)
+    state_dim, action_dim = 2 * first["q"].shape[1], first["tau"].shape[1]
+    input_dim, output_dim = structure.network_sizes(state_dim, action_dim)
+    config = ModelConfig(input_dim=input_dim, output_dim=output_dim, residual=delta, hidden_width=hidden_width,
+                         hidden_layers=hidden_layers, activation=activation,
+                         ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
+    metadata = dataset_metadata(dataset, parts, model_type=model_type, derivative_source=source,
+                                action_rate=action_rate,
+                                structure=None if structure == PAPER else structure.as_dict(), **metadata_fields)
+    return TrainingProblem(model_config=config, train=train, val=val, metadata=metadata)
+
+
+def dataset_metadata(dataset, split, *, model_type: str, derivative_source: str, action_rate: str,
+                     **fields) -> CheckpointMetadata:
+    """Checkpoint metadata of a model trained on `dataset` (a loaded Dataset) with `split` (a Split or
+    {"train", "val", "test"} -> indices); `fields`: further CheckpointMetadata fields."""
+    from stdm_drake import __version__
+    parts = split.as_dict() if hasattr(split, "as_dict") else split
+    return CheckpointMetadata(model_type=model_type, dataset_path=str(dataset.path), dataset_sha256=dataset.sha256,
+                              protocol=dataset.protocol, sample_period=dataset.sample_period,
+                              split={key: [int(i) for i in value] for key, value in parts.items()},
+                              derivative_source=derivative_source, action_rate=action_rate,
+                              torch_version=torch.__version__, stdm_drake_version=__version__,
+                              robot_name=dataset.metadata.get("robot", {}).get("name"),
+                              robot_model_sha256=dataset.metadata.get("robot_model_sha256"),
+                              joint_names=dataset.metadata.get("joint_names"), **fields)
+
+
+def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
+    """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation,
+    20 % test, the rest training; n_test None means "all the rest" for split_trajectories."""
+    n_val = n_val if n_val is not None else max(1, round(0.2 * pool))
+    if n_train is None:
+        n_train = pool - n_val - (n_test if n_test is not None else max(1, round(0.2 * pool)))
+    if n_train < 1:
+        raise InputError(f"the split leaves {n_train} training trajectories (of {pool} per split unit)")
+    return n_train, n_val, n_test
