@@ -1,7 +1,7 @@
 """Where sweeps run: the local process pool (default) or a Ray cluster (`--backend ray`): the runner
-settings, joining a cluster, a concurrent.futures-style pool over either backend, one-line task
-errors, and datasets written once per node. Used by `train --seeds`, `sine-sum` and `reproduce`
-(whose training jobs: `stdm_drake.experiments.runner`).
+settings, joining a cluster, the one concurrent.futures-style pool over this process, local processes
+or Ray (`job_pool`), one-line task errors, and datasets written once per node. Used by `collect`,
+`train --seeds`, `sine-sum`, `reproduce` (training jobs and MPC runs) and the studies in tools/.
 
 A task runs with one torch thread and its own seed, so its numbers do not depend on where it ran. A
 task whose worker process dies is retried (`max_retries`); a task that raises fails the sweep with its
@@ -107,19 +107,97 @@ def _check_reachable(address: str, timeout: float = 3.0) -> None:
                          "--head` running there?)") from None
 
 
-class RayPool:
-    """The part of concurrent.futures.Executor the studies use, on Ray: submit(function, *arguments) ->
-    a concurrent.futures.Future (ObjectRef.future()), so `concurrent.futures.wait` works unchanged. The
-    function must be importable on the workers (a module-level function of stdm_drake)."""
-
-    def __init__(self, ray, config: RunnerConfig):
-        self.ray, self.config, self._remote = ray, config, {}
+class InProcessPool:
+    """One worker: this process. submit runs the call at once and returns its finished Future (an
+    exception is kept in it, as a process pool's would be); map is the built-in map."""
 
     def submit(self, function, *arguments):
-        if function not in self._remote:
-            self._remote[function] = self.ray.remote(num_cpus=self.config.cpus_per_job,
-                                                     max_retries=self.config.max_retries)(function)
-        return self._remote[function].remote(*arguments).future()
+        import concurrent.futures
+        future = concurrent.futures.Future()
+        try:
+            future.set_result(function(*arguments))
+        except Exception as error:  # noqa: BLE001 (re-raised by future.result(), as in a process pool)
+            future.set_exception(error)
+        return future
+
+    def map(self, function, iterable, chunksize: int = 1):
+        return map(function, iterable)
+
+    def completed(self, calls):
+        """(position, finished Future) of each (function, arguments) in `calls`, one at a time, in order."""
+        for position, (function, arguments) in enumerate(calls):
+            yield position, self.submit(function, *arguments)
+
+
+class ProcessPool:
+    """Spawned local processes (concurrent.futures.ProcessPoolExecutor), each set up once by the
+    pool's initializer."""
+
+    def __init__(self, workers: int, initializer=None, initargs=()):
+        import concurrent.futures
+        import multiprocessing
+        self.executor = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                                               initializer=initializer, initargs=initargs)
+
+    def submit(self, function, *arguments):
+        return self.executor.submit(function, *arguments)
+
+    def map(self, function, iterable, chunksize: int = 1):
+        return self.executor.map(function, iterable, chunksize=chunksize)
+
+    def completed(self, calls):
+        """(position, Future) of each (function, arguments) in `calls`, all submitted at once, as they finish."""
+        import concurrent.futures
+        futures = {self.submit(function, *arguments): position for position, (function, arguments) in enumerate(calls)}
+        for future in concurrent.futures.as_completed(futures):
+            yield futures[future], future
+
+
+_RAY_INITIALIZED: set = set()
+
+
+def _ray_task(setup, function, *arguments):
+    """A task on a Ray worker: the pool's initializer once per worker process (setup: (key, initializer,
+    initargs) or None), then function(*arguments)."""
+    marker = os.environ.get(KILL_ONCE_VARIABLE)
+    if marker and not os.path.exists(marker):  # fault injection for the retry test: die once, like a lost node
+        pathlib.Path(marker).write_text(str(os.getpid()))
+        os._exit(1)
+    if setup is not None and setup[0] not in _RAY_INITIALIZED:
+        setup[1](*setup[2])
+        _RAY_INITIALIZED.add(setup[0])
+    return function(*arguments)
+
+
+class RayPool:
+    """The same pool on Ray: submit(function, *arguments) -> a concurrent.futures.Future
+    (ObjectRef.future()), so `concurrent.futures.wait` and `as_completed` work unchanged; map in order.
+    The function must be importable on the workers (a module-level function of stdm_drake)."""
+
+    def __init__(self, ray, config: RunnerConfig, initializer=None, initargs=()):
+        import uuid
+        self.ray, self.config = ray, config
+        self.setup = (uuid.uuid4().hex, initializer, initargs) if initializer is not None else None
+        self.task = ray.remote(num_cpus=config.cpus_per_job, max_retries=config.max_retries)(_ray_task)
+
+    def submit(self, function, *arguments):
+        return self.task.remote(self.setup, function, *arguments).future()
+
+    def map(self, function, iterable, chunksize: int = 1):
+        return [future.result() for future in [self.submit(function, item) for item in iterable]]
+
+    def completed(self, calls):
+        """(position, Future) of each (function, arguments) in `calls`, all submitted at once, as they finish;
+        the tasks still pending are cancelled when the caller stops early (an error)."""
+        refs = {self.task.remote(self.setup, function, *arguments): position
+                for position, (function, arguments) in enumerate(calls)}
+        try:
+            while refs:
+                done, _ = self.ray.wait(list(refs), num_returns=1)
+                yield refs.pop(done[0]), done[0].future()
+        finally:
+            for ref in refs:
+                self.ray.cancel(ref)
 
     def share(self, value):
         """`value` in the object store once (an ObjectRef: tasks given it as an argument get the value)."""
@@ -133,16 +211,28 @@ def shared(pool, value):
 
 
 @contextlib.contextmanager
-def job_pool(config: RunnerConfig):
-    """A pool with submit(function, *arguments) -> Future: `config.workers` spawned local processes, or Ray."""
+def job_pool(config: RunnerConfig, initializer=None, initargs=()):
+    """The one pool every sweep uses (collection, training jobs, train's seeds, MPC runs, studies):
+    submit(function, *arguments) -> Future, map(function, iterable, chunksize) -> results in order and
+    completed([(function, arguments), ...]) -> (position, Future) as each finishes, on
+    this process (local, 1 worker), `config.workers` spawned processes (local), or Ray. initializer
+    (initargs) sets up each worker process once, this process too when it is the worker. On an error
+    the tasks not yet started are cancelled."""
     if config.backend == "ray":
-        yield RayPool(connect(config), config)
+        yield RayPool(connect(config), config, initializer, initargs)
         return
-    import concurrent.futures
-    import multiprocessing
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(config.workers, mp_context=context) as pool:
+    if config.workers == 1:
+        if initializer is not None:
+            initializer(*initargs)
+        yield InProcessPool()
+        return
+    pool = ProcessPool(config.workers, initializer, initargs)
+    try:
         yield pool
+    except BaseException:
+        pool.executor.shutdown(wait=True, cancel_futures=True)
+        raise
+    pool.executor.shutdown(wait=True)
 
 
 def task_error(error: BaseException, what: str) -> InputError:

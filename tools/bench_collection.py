@@ -33,8 +33,9 @@ from pydrake.systems.primitives import Adder, TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.collection.collect import (CollectionRequest, collect,  # noqa: E402
-                                           plan_tracking, tracking_trajectory, worker_pool)
+from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
+from stdm_drake.collection.collect import (CollectionRequest, init_station_worker, collect, plan_tracking,  # noqa: E402
+                                           tracking_trajectory)
 from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.robots.control import SensorConfig, load_controller_config  # noqa: E402
 from stdm_drake.collection.plan import load_tracking_spec  # noqa: E402
@@ -90,8 +91,8 @@ def main():
                                   plant=PlantConfig(time_step=0.001))
     request = CollectionRequest(protocol="tracking", count=args.count, seed=0, settings=settings,
                                 tracking_spec=load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10), workers=args.workers)
-    with worker_pool(1, settings) as map_jobs:
-        plans, _ = plan_tracking(request, map_jobs)
+    with job_pool(RunnerConfig(workers=1), initializer=init_station_worker, initargs=(settings,)) as pool:
+        plans, _ = plan_tracking(request, pool)
     simulated = sum(len(plan.q) - 1 for plan in plans) * settings.sample_period
 
     bare = min(bare_drake_seconds(plans, settings) for _ in range(args.repeats))

@@ -8,9 +8,7 @@ averaged within a seed) gets a Student-t 95 % interval over seeds.
 Usage: python tools/closed_loop_study.py [--seeds 10] [--plans 10] [--quick] [-o docs/results/closed_loop]
 """
 import argparse
-import concurrent.futures
 import json
-import multiprocessing
 import os
 import pathlib
 import sys
@@ -23,6 +21,7 @@ import numpy as np  # noqa: E402
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
 from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
 from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
 
@@ -106,18 +105,18 @@ def main(argv=None) -> int:
     dataset = identification_dataset(args.data, count)
     split = split_trajectories(dataset.groups, *per_pose, seed=0, per_group=True).as_dict()
     split = {key: [int(i) for i in value] for key, value in split.items()}
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:
-        trained = list(pool.map(train_job, *zip(*[(str(dataset.path), split, model_type, seed, epochs, str(args.data))
-                                                   for seed in range(seeds) for model_type in TYPES])))
+    with job_pool(RunnerConfig(workers=args.workers)) as pool:
+        trained = [future.result() for future in [pool.submit(train_job, str(dataset.path), split, model_type, seed,
+                                                              epochs, str(args.data))
+                                                  for seed in range(seeds) for model_type in TYPES]]
         print(f"{len(trained)} models trained ({time.perf_counter() - started:.0f} s)", flush=True)
         references = held_out_references(dataset, [load_checkpoint(row["checkpoint"]) for row in trained], plans)
         if args.quick:
             from stdm_drake.closed_loop.mpc import Reference
             references = [(i, Reference(q=r.q[:31], v=r.v[:31])) for i, r in references]
         specs = [("plant", None)] + [(f"{row['model_type']} seed {row['seed']}", row["checkpoint"]) for row in trained]
-        runs = [run for result in pool.map(mpc_job, *zip(*[(name, path, references, dataset.sample_period)
-                                                           for name, path in specs])) for run in result]
+        runs = [run for future in [pool.submit(mpc_job, name, path, references, dataset.sample_period)
+                                   for name, path in specs] for run in future.result()]
     print(f"{len(runs)} closed-loop runs ({time.perf_counter() - started:.0f} s)", flush=True)
 
     def per_seed(model_type):   # geometric mean over plans of each seed's closed-loop q MSE

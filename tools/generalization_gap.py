@@ -23,9 +23,7 @@ naive test q MSE against the baseline's and of naive against derivative within t
 Usage: python tools/generalization_gap.py [--quick] [--seeds N] [-o out/generalization_gap]
 """
 import argparse
-import concurrent.futures
 import json
-import multiprocessing
 import os
 import pathlib
 import sys
@@ -37,6 +35,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
+from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
 from stdm_drake.files import write_text_atomic  # noqa: E402
 from stdm_drake.stats import paired_ratio  # noqa: E402
 from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
@@ -158,8 +157,7 @@ def main() -> int:
     variants, seeds, epochs = (["baseline", "sincos"], 1, 20) if args.quick else (list(VARIANTS), args.seeds, 500)
     jobs = [(str(path), variant, seed, split, epochs) for variant in variants for seed in range(seeds)]
     started = time.perf_counter()
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:
+    with job_pool(RunnerConfig(workers=args.workers)) as pool:
         rows = []
         for row in pool.map(run_job, jobs):
             rows.append(row)

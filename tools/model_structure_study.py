@@ -25,9 +25,7 @@ baselines (Euler step for q, "v unchanged" for v, "stays put" for open-loop q). 
 Usage: python tools/model_structure_study.py [--quick] [--seeds N] [--workers 2] [-o docs/results/model_structure]
 """
 import argparse
-import concurrent.futures
 import json
-import multiprocessing
 import os
 import pathlib
 import sys
@@ -39,6 +37,7 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
 
+from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
 from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
 from stdm_drake.stats import paired_ratio  # noqa: E402
 from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
@@ -163,12 +162,11 @@ def main(argv=None) -> int:
           "those are left out", flush=True)
     problems = {name: problem(train_path, name) for name in CONFIGS}
     print(f"training pairs ready in {time.perf_counter() - started:.1f} s", flush=True)
-    context = multiprocessing.get_context("spawn")
     rows = []
-    with concurrent.futures.ProcessPoolExecutor(args.workers, mp_context=context) as pool:
-        futures = [pool.submit(run_job, name, seed, problems[name], str(held_out_path), epochs, keep)
-                   for seed in range(seeds) for name in CONFIGS]
-        for future in concurrent.futures.as_completed(futures):
+    with job_pool(RunnerConfig(workers=args.workers)) as pool:
+        calls = [(run_job, (name, seed, problems[name], str(held_out_path), epochs, keep))
+                 for seed in range(seeds) for name in CONFIGS]
+        for _, future in pool.completed(calls):
             row = future.result()
             rows.append(row)
             print(f"{row['config']:>13} seed {row['seed']}: q {row['ratio_q']:.3g}x, v {row['ratio_v']:.3g}x, "

@@ -18,16 +18,14 @@ settings live together because they change together (a setting not recorded here
 `reproduce` reuse a dataset collected differently).
 """
 
-import concurrent.futures
-import contextlib
 import dataclasses
-import multiprocessing
 import os
 import sys
 from importlib import metadata as importlib_metadata
 
 import numpy as np
 
+from stdm_drake.cluster import RunnerConfig, job_pool
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR
@@ -190,7 +188,8 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
 _WORKER_RIG: Station | None = None
 
 
-def _init_worker(settings: StationConfig) -> None:
+def init_station_worker(settings: StationConfig) -> None:
+    """Set up a collection worker process: its own Station of `settings`, used by the jobs it runs."""
     global _WORKER_RIG
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     _WORKER_RIG = Station(settings)
@@ -202,20 +201,6 @@ def _collect_one(job: tuple) -> dict:
     if protocol == "excitation":
         return excitation_trajectory(_WORKER_RIG, payload, rng)
     return tracking_trajectory(_WORKER_RIG, payload, rng)
-
-
-@contextlib.contextmanager
-def worker_pool(workers: int, settings: StationConfig):
-    """Yield map_jobs(function, jobs, chunksize) -> results in order, in this process (1 worker)
-    or in `workers` spawned processes that each build their own Station."""
-    if workers == 1:
-        _init_worker(settings)
-        yield lambda function, jobs, chunksize: map(function, jobs)
-        return
-    context = multiprocessing.get_context("spawn")
-    with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context, initializer=_init_worker,
-                                                initargs=(settings,)) as pool:
-        yield lambda function, jobs, chunksize: pool.map(function, jobs, chunksize=chunksize)
 
 
 @dataclasses.dataclass
@@ -250,9 +235,9 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
     return [PlanSamples(q=plan.q, qd=plan.qd, qdd=plan.qdd) for _, plan in sampled]
 
 
-def plan_tracking(request: "CollectionRequest", map_jobs) -> tuple[list[PlanSamples], list[int]]:
+def plan_tracking(request: "CollectionRequest", pool) -> tuple[list[PlanSamples], list[int]]:
     """Plans for `request.count` tracking trajectories, spread evenly over the initial poses,
-    ordered by pose: returns (plans, groups). map_jobs comes from `worker_pool`."""
+    ordered by pose: returns (plans, groups). pool: a `cluster.job_pool` whose workers hold a Station."""
     sampling, _ = request.tracking_spec
     if request.count > len(sampling.initial_poses) * sampling.num_final_per_initial:
         raise InputError(f"tracking spec yields {len(sampling.initial_poses)} poses x "
@@ -261,7 +246,7 @@ def plan_tracking(request: "CollectionRequest", map_jobs) -> tuple[list[PlanSamp
     jobs = [(request.tracking_spec, pose, n, request.seed, request.settings.sample_period)
             for pose, n in enumerate(counts) if n]
     plans, groups = [], []
-    for (_, pose, *_), pose_plans in zip(jobs, map_jobs(_plan_pose, jobs, 1)):
+    for (_, pose, *_), pose_plans in zip(jobs, pool.map(_plan_pose, jobs)):
         plans += pose_plans
         groups += [pose] * len(pose_plans)
     return plans, groups
@@ -298,14 +283,15 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
         bar.update()
 
     workers = max(1, min(request.workers, request.count))
-    with worker_pool(workers, settings) as map_jobs:
+    # in this process (1 worker) or in `workers` spawned processes that each build their own Station
+    with job_pool(RunnerConfig(workers=workers), initializer=init_station_worker, initargs=(settings,)) as pool:
         if request.protocol == "excitation":
             request.excitation.validate()
             payloads, groups = [request.excitation] * request.count, [0] * request.count
         else:
-            payloads, groups = plan_tracking(request, map_jobs)
+            payloads, groups = plan_tracking(request, pool)
         jobs = [(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
-        for traj in map_jobs(_collect_one, jobs, max(1, len(jobs) // (4 * workers))):
+        for traj in pool.map(_collect_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))):
             finished(traj)
     bar.close()
     metadata = collection_metadata(request)

@@ -19,12 +19,10 @@ from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
-from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES, parse_model_type
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
 from stdm_drake.learning.problem import default_split_sizes, training_problem
-from stdm_drake.learning.settings import (
-    DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainingConfig, TrainSettings
-)
-from stdm_drake.learning.structure import INPUT_SETS, PREDICTS, ModelStructure
+from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainSettings
+from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainer import AlphaSelection, fit_model
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 
@@ -153,21 +151,6 @@ def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pa
     return path
 
 
-def fit_seed(model_config, training_config, train_data, val_data, fit_options: dict, threads: int):
-    """One seed of `train` on a Ray worker: fit_model with `threads` torch threads into a scratch
-    checkpoint; returns (result, selection, the checkpoint file's bytes)."""
-    import shutil
-    import tempfile
-    torch.set_num_threads(threads)
-    scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-seed-"))
-    try:
-        result, selection = fit_model(model_config, training_config, train_data, val_data,
-                                      checkpoint_path=scratch / "checkpoint.pt", **fit_options)
-        return result, selection, (scratch / "checkpoint.pt").read_bytes()
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-
-
 def warn_about_fast_damped_joints(robot, sample_period: float) -> None:
     """One warning line when derivative learning is asked for a robot with joints whose description's
     damping stops them faster than the sample period (`Dynamics.damping_time_constants` at home): on
@@ -183,126 +166,150 @@ def warn_about_fast_damped_joints(robot, sample_period: float) -> None:
               "train --model D for it", file=sys.stderr)
 
 
-def run(args: argparse.Namespace) -> int:
+def fit_seed(model_config, training_config, train_data, val_data, fit_options: dict, threads: int,
+             checkpoint_path: pathlib.Path | None = None, progress: str | None = None):
+    """One seed of `train` in a pool's worker: fit_model with `threads` torch threads. With checkpoint_path
+    (this machine) it trains into that file, resuming it when it exists, with a per-epoch progress bar
+    labelled `progress`; returns (result, selection, None). Without (a Ray worker) it trains into a
+    scratch file and returns its bytes third."""
+    import shutil
+    import tempfile
+
     from tqdm import tqdm
-
-    from stdm_drake.data.dataset import load_dataset, split_trajectories
-
-    args = argparse.Namespace(**(vars(args) | dataclasses.asdict(training_settings(args))))
-    torch.set_num_threads(args.threads)
-    model_type = parse_model_type(args.model)
-    derivative = model_type.derivative if args.derivative is None else args.derivative == "on"
-    auto = args.alpha == "auto"
-    if derivative and not auto and not args.alpha > 0:
-        raise InputError(f"derivative learning needs --alpha > 0 or --alpha auto, got {args.alpha}")
-    if auto and not derivative:
-        raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {args.model} trains without "
-                         "it (use DD, PD, DED or PED, or --derivative on)")
-    check_output_folder("-o/--output", args.output, inputs=[args.dataset, args.config, args.robot],
-                        own_files=("summary.json",), force=args.force)
-    if args.backend == "ray" and args.resume:
-        raise InputError("--resume continues runs in a local folder; with --backend ray, train without it")
-    existing = [seed for seed in args.seeds if (pathlib.Path(args.output) / f"seed{seed}" / "checkpoint.pt").exists()]
-    if existing and not args.resume:
-        raise InputError(f"{pathlib.Path(args.output) / f'seed{existing[0]}' / 'checkpoint.pt'} exists; pass --resume "
-                         "to continue it or choose another --output")
-    structure = ModelStructure(predicts=args.predicts, inputs=args.inputs)
-    dataset = load_dataset(args.dataset)
-    robot = None
-    if args.robot is not None or structure.uses_nominal_model:
-        robot = command_robot(args, dataset)
-    if derivative and robot is not None:   # (without a robot, train loads no Drake plant at all)
-        warn_about_fast_damped_joints(robot, dataset.sample_period)
-    per_group = (dataset.protocol == "tracking") if args.per_group is None else args.per_group == "on"
-    pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
-    n_train, n_val, n_test = default_split_sizes(pool, args.train, args.val, args.test)
-    split = split_trajectories(dataset.groups, n_train, n_val, n_test, args.split_seed, per_group)
-    name = (("P" if model_type.probabilistic else "D") + ("E" if model_type.ensemble else "")
-            + ("D" if derivative else ""))
-    problem = training_problem(dataset, split, model_type=name, activation=args.activation,
-                               hidden_width=args.hidden_width, hidden_layers=args.hidden_layers,
-                               ensemble_size=args.ensemble_size, delta=not args.direct,
-                               derivative_source=args.derivative_source, action_rate=args.action_rate,
-                               structure=structure, robot=robot, split_seed=args.split_seed, per_group=per_group, threads=args.threads)
-    model_config, train_data, val_data = problem.model_config, problem.train, problem.val
-    output = pathlib.Path(args.output)
-
-    def training_config_for(seed: int) -> TrainingConfig:
-        return TrainingConfig(
-            alpha=(0.0 if auto else args.alpha) if derivative else 0.0, state_loss=args.state_loss,
-            derivative_loss=args.derivative_loss, learning_rate=args.lr, batch_size=args.batch_size,
-            max_epochs=args.epochs, patience=args.patience, seed=seed, lr_schedule=args.lr_schedule,
-            min_learning_rate=args.min_lr, weight_decay=args.weight_decay)
-
-    training_config_for(args.seeds[0])  # its checks, before the output folder is made
-    runner = runner_config_from_args(args)  # joins the cluster now: an unreachable one stops before any work
-    mark_output_folder(output)
-    summary = dict(model_type=name, structure=structure.as_dict(), dataset=str(args.dataset), dataset_sha256=dataset.sha256,
-                   split={key: list(map(int, value)) for key, value in split.as_dict().items()}, seeds={})
-    print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "
-          f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}, "
-          f"{structure.label}; "
-          f"train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
-          f"({len(train_data)} / {len(val_data)} transitions)")
-    fit_options = dict(alpha="auto" if auto else "fixed", alphas=tuple(args.alpha_grid),
-                       checkpoint_every=args.checkpoint_every, metadata=problem.metadata)
-
-    def finish(seed: int, result, selection) -> None:
-        """The files and the summary entry of one trained seed (its checkpoint is written already)."""
-        folder = output / f"seed{seed}"
-        checkpoint_path = folder / "checkpoint.pt"
-        write_text_atomic(folder / "curves.csv", history_csv(result.history))
-        if selection is not None:
-            write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
-            plot_alpha_selection(selection, folder / "alpha_selection.png", title=f"{name} seed {seed}")
-            summary.setdefault("alpha_selection", {})[str(seed)] = selection.as_dict()
-            print(f"seed {seed}: alpha chosen by validation: {selection.alpha:g} (validation state MSE "
-                  + ", ".join(f"{a:g}: {v:.3g}" for a, v in zip(selection.alphas, selection.val_mse)) + ")")
-        summary["seeds"][str(seed)] = dict(checkpoint=str(checkpoint_path), epochs=result.epochs_run,
-                                           stopped_early=result.stopped_early, best_epochs=result.best_epochs,
-                                           best_val_mse_standardized=result.best_scores)
-        print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
-              f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {checkpoint_path}")
-
-    if runner.backend == "ray":  # every seed at once on the cluster; files written here as they finish
-        import concurrent.futures
-
-        from stdm_drake.cluster import job_pool, shared, task_error
-        bar = tqdm(total=len(args.seeds), desc=f"train {name} (ray)", unit="seed", disable=args.quiet)
-        outcomes = {}
-        with job_pool(runner) as pool:
-            train_ref, val_ref = shared(pool, train_data), shared(pool, val_data)   # once, not once per seed
-            pending = {pool.submit(fit_seed, model_config, training_config_for(seed), train_ref, val_ref,
-                                   fit_options, args.threads): seed for seed in args.seeds}
-            for future in concurrent.futures.as_completed(pending):
-                seed = pending[future]
-                try:
-                    result, selection, checkpoint = future.result()
-                except Exception as error:
-                    raise task_error(error, f"seed {seed} on the cluster") from None
-                with atomic_path(output / f"seed{seed}" / "checkpoint.pt") as temp:
-                    temp.write_bytes(checkpoint)
-                outcomes[seed] = result, selection
-                bar.update()
-        bar.close()
-        for seed in args.seeds:
-            finish(seed, *outcomes[seed])
-    for seed in args.seeds if runner.backend != "ray" else ():
-        checkpoint_path = output / f"seed{seed}" / "checkpoint.pt"
+    torch.set_num_threads(threads)
+    if checkpoint_path is not None:
         resume = checkpoint_path.exists()  # (only with --resume: checked before any work)
-        bar = tqdm(total=args.epochs, desc=f"train {name} seed {seed}", unit="epoch", disable=args.quiet,
+        bar = tqdm(total=training_config.max_epochs, desc=progress, unit="epoch", disable=progress is None,
                    dynamic_ncols=True)
 
-        def on_epoch(row, bar=bar):
+        def on_epoch(row):
             bar.update(row["epoch"] - bar.n)
             bar.set_postfix(train=f"{row['train_loss']:.3g}", val_mse=f"{row['val_mse']:.3g}")
 
         try:
-            result, selection = fit_model(model_config, training_config_for(seed), train_data, val_data,
+            result, selection = fit_model(model_config, training_config, train_data, val_data,
                                           checkpoint_path=checkpoint_path, resume=resume, on_epoch=on_epoch,
                                           **fit_options)
         finally:
             bar.close()
-        finish(seed, result, selection)
+        return result, selection, None
+    scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-seed-"))
+    try:
+        result, selection = fit_model(model_config, training_config, train_data, val_data,
+                                      checkpoint_path=scratch / "checkpoint.pt", **fit_options)
+        return result, selection, (scratch / "checkpoint.pt").read_bytes()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+
+
+def fit_seeds(problem, settings: TrainSettings, fit_options: dict, runner, output: pathlib.Path, quiet: bool):
+    """Train every seed of `settings` on the one pool (`cluster.job_pool`): in this process, one after
+    another (each with its epoch bar), or all at once on Ray (one bar over the seeds, the checkpoints
+    written here as they come back). Yields (seed, result, selection) as each finishes."""
+    from tqdm import tqdm
+
+    from stdm_drake.cluster import RunnerConfig, job_pool, shared, task_error
+    remote = runner.backend == "ray"
+    name = settings.model_name()
+    bar = tqdm(total=len(settings.seeds), desc=f"train {name} (ray)", unit="seed", disable=quiet or not remote)
+    with job_pool(runner if remote else RunnerConfig(workers=1)) as pool:
+        train_data, val_data = shared(pool, problem.train), shared(pool, problem.val)  # on Ray: once, not per seed
+        calls = [(fit_seed, (problem.model_config, settings.training_config(seed), train_data, val_data, fit_options,
+                             settings.threads) + (() if remote else (output / f"seed{seed}" / "checkpoint.pt",
+                                                                      None if quiet else f"train {name} seed {seed}")))
+                 for seed in settings.seeds]
+        for position, future in pool.completed(calls):
+            seed = settings.seeds[position]
+            try:
+                result, selection, checkpoint = future.result()
+            except Exception as error:
+                if not remote:
+                    raise
+                raise task_error(error, f"seed {seed} on the cluster") from None
+            if checkpoint is not None:
+                with atomic_path(output / f"seed{seed}" / "checkpoint.pt") as temp:
+                    temp.write_bytes(checkpoint)
+            bar.update()
+            yield seed, result, selection
+    bar.close()
+
+
+def dataset_split(dataset, settings: TrainSettings):
+    """(Split, per_group) of `dataset` by `settings`: per initial-pose group by default on tracking data,
+    the sizes `default_split_sizes` fills in, the split seed's shuffle."""
+    from stdm_drake.data.dataset import split_trajectories
+    per_group = (dataset.protocol == "tracking") if settings.per_group is None else settings.per_group == "on"
+    pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
+    n_train, n_val, n_test = default_split_sizes(pool, settings.train, settings.val, settings.test)
+    return split_trajectories(dataset.groups, n_train, n_val, n_test, settings.split_seed, per_group), per_group
+
+
+def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selection) -> dict:
+    """A trained seed's learning curves and alpha selection (CSV, PNG) beside its checkpoint, one line
+    printed; returns its summary entry."""
+    write_text_atomic(folder / "curves.csv", history_csv(result.history))
+    entry = dict(checkpoint=str(folder / "checkpoint.pt"), epochs=result.epochs_run, stopped_early=result.stopped_early,
+                 best_epochs=result.best_epochs, best_val_mse_standardized=result.best_scores)
+    if selection is not None:
+        write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
+        plot_alpha_selection(selection, folder / "alpha_selection.png", title=f"{name} seed {seed}")
+        entry["alpha_selection"] = selection.as_dict()
+        print(f"seed {seed}: alpha chosen by validation: {selection.alpha:g} (validation state MSE "
+              + ", ".join(f"{a:g}: {v:.3g}" for a, v in zip(selection.alphas, selection.val_mse)) + ")")
+    print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
+          f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {folder / 'checkpoint.pt'}")
+    return entry
+
+
+def run(args: argparse.Namespace) -> int:
+    from stdm_drake.data.dataset import load_dataset
+
+    settings = training_settings(args)
+    torch.set_num_threads(settings.threads)
+    output = pathlib.Path(args.output)
+    check_output_folder("-o/--output", output, inputs=[args.dataset, args.config, args.robot],
+                        own_files=("summary.json",), force=args.force)
+    if args.backend == "ray" and args.resume:
+        raise InputError("--resume continues runs in a local folder; with --backend ray, train without it")
+    existing = [seed for seed in settings.seeds if (output / f"seed{seed}" / "checkpoint.pt").exists()]
+    if existing and not args.resume:
+        raise InputError(f"{output / f'seed{existing[0]}' / 'checkpoint.pt'} exists; pass --resume "
+                         "to continue it or choose another --output")
+    structure = settings.structure()
+    dataset = load_dataset(args.dataset)
+    robot = None   # (without a robot, train loads no Drake plant at all)
+    if args.robot is not None or structure.uses_nominal_model:
+        robot = command_robot(args, dataset)
+    if settings.uses_derivative() and robot is not None:
+        warn_about_fast_damped_joints(robot, dataset.sample_period)
+    split, per_group = dataset_split(dataset, settings)
+    name = settings.model_name()
+    problem = training_problem(dataset, split, model_type=name, activation=settings.activation,
+                               hidden_width=settings.hidden_width, hidden_layers=settings.hidden_layers,
+                               ensemble_size=settings.ensemble_size, delta=not settings.direct,
+                               derivative_source=settings.derivative_source, action_rate=settings.action_rate,
+                               structure=structure, robot=robot, split_seed=settings.split_seed, per_group=per_group,
+                               threads=settings.threads)
+    model_config = problem.model_config
+    settings.training_config(settings.seeds[0])  # its checks, before the output folder is made
+    runner = runner_config_from_args(args)  # joins the cluster now: an unreachable one stops before any work
+    mark_output_folder(output)
+    print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "
+          f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}, "
+          f"{structure.label}; train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
+          f"({len(problem.train)} / {len(problem.val)} transitions)")
+    fit_options = dict(alpha="auto" if settings.alpha == "auto" else "fixed", alphas=tuple(settings.alpha_grid),
+                       checkpoint_every=settings.checkpoint_every, metadata=problem.metadata)
+    entries = {seed: write_seed_files(output / f"seed{seed}", name, seed, result, selection)
+               for seed, result, selection in fit_seeds(problem, settings, fit_options, runner, output, args.quiet)}
+    summary = dict(model_type=name, structure=structure.as_dict(), dataset=str(args.dataset),
+                   dataset_sha256=dataset.sha256,
+                   split={key: list(map(int, value)) for key, value in split.as_dict().items()},
+                   seeds={str(seed): {k: v for k, v in entries[seed].items() if k != "alpha_selection"}
+                          for seed in settings.seeds})
+    selections = {str(seed): entries[seed]["alpha_selection"] for seed in settings.seeds
+                  if "alpha_selection" in entries[seed]}
+    if selections:
+        summary["alpha_selection"] = selections
     write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
     return 0

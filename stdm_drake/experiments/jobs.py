@@ -1,11 +1,9 @@
 """`stdm-drake reproduce`, stages 1 and 2: the run profiles, the datasets (collected unless a file
 collected with exactly the same settings exists), and the training jobs (each checkpoint cached under
 `<output>/cache` by a hash of its dataset and settings), run in worker processes, longest first."""
-import concurrent.futures
 import dataclasses
 import hashlib
 import json
-import multiprocessing
 import pathlib
 import sys
 import time
@@ -253,9 +251,26 @@ def cached_rows(job: TrainJob, cache: pathlib.Path) -> list[dict] | None:
     return [row | labels | {"reused": True} for row in json.loads(result_path.read_text())]
 
 
-def _run_job(arguments):
-    job, cache = arguments
-    return run_job(job, cache)
+def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset=None) -> tuple[list[dict], dict]:
+    """`run_job` in a pool's worker: (rows, {file name: bytes}). With a cache folder (a local worker) it
+    trains into it and returns no files; with dataset (ObjectRef of the file's bytes, its SHA-256), a
+    Ray worker on any node: the dataset from the object store, written once per node, and the job
+    trained into a scratch folder whose files go back to the driver's cache."""
+    if dataset is None:
+        return run_job(job, cache), {}
+    import shutil
+    import tempfile
+
+    from stdm_drake.cluster import node_local_dataset
+    local = dataclasses.replace(job, dataset=str(node_local_dataset(*dataset)))
+    scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-job-"))
+    try:
+        rows = run_job(local, scratch)
+        files = {path.name: path.read_bytes() for path in scratch.iterdir() if path.is_file()}
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    labels = {"experiment": job.experiment, "train_size": job.train_size}
+    return [row | labels | {"reused": False} for row in rows], files
 
 
 # relative training cost of a job, to start the longest first (measured on the full profile: an
@@ -272,33 +287,51 @@ def job_cost(job: TrainJob) -> float:
 
 
 def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: bool, runner=None) -> list[dict]:
-    """Train every job (the most expensive first, so the workers finish together); rows in job order.
-    runner: a RunnerConfig (stdm_drake.experiments.runner) for another backend than the local pool."""
+    """Train every job not in `cache` yet, the most expensive first (so the workers finish together), on
+    `runner` (a `cluster.RunnerConfig`; default: the local pool of `workers` processes); rows in job
+    order. On Ray each dataset goes into the object store once and the checkpoints and results come back
+    into `cache`, written by this process."""
+    import hashlib
+
     from tqdm import tqdm
-    if runner is not None and runner.backend == "ray":
-        from stdm_drake.experiments.runner import run_jobs_on_ray
-        order = sorted(range(len(jobs)), key=lambda index: -job_cost(jobs[index]))
-        rows_of = run_jobs_on_ray(jobs, cache, runner, progress, order, run_job=run_job, cached_rows=cached_rows)
-        return [row for index in range(len(jobs)) for row in rows_of[index]]
-    bar = tqdm(total=len(jobs), desc="train", unit="model", disable=not progress, file=sys.stderr)
-    results = []
-    if workers > 1:
-        context = multiprocessing.get_context("spawn")
-        order = sorted(range(len(jobs)), key=lambda index: -job_cost(jobs[index]))
-        rows_of: dict[int, list] = {}
-        with concurrent.futures.ProcessPoolExecutor(workers, mp_context=context) as pool:
-            futures = {pool.submit(_run_job, (jobs[index], cache)): index for index in order}
-            for future in concurrent.futures.as_completed(futures):
-                rows_of[futures[future]] = future.result()
+
+    from stdm_drake.cluster import RunnerConfig, job_pool, shared, task_error
+    from stdm_drake.files import atomic_path
+    runner = runner or RunnerConfig(workers=workers)
+    remote = runner.backend == "ray"
+    rows_of, missing = {}, []
+    for index in sorted(range(len(jobs)), key=lambda index: -job_cost(jobs[index])):
+        rows = cached_rows(jobs[index], cache)
+        if rows is not None:
+            rows_of[index] = rows
+        else:
+            missing.append(index)
+    bar = tqdm(total=len(jobs), initial=len(rows_of), desc="train (ray)" if remote else "train", unit="model",
+               disable=not progress, file=sys.stderr)
+    if missing:
+        with job_pool(runner) as pool:
+            datasets = {}
+            for path in dict.fromkeys(jobs[index].dataset for index in missing) if remote else ():
+                content = pathlib.Path(path).read_bytes()
+                datasets[path] = (shared(pool, content), hashlib.sha256(content).hexdigest())
+            calls = [(run_job_anywhere, (jobs[index], None if remote else cache, datasets.get(jobs[index].dataset)))
+                     for index in missing]
+            for position, future in pool.completed(calls):
+                index = missing[position]
+                try:
+                    rows, files = future.result()
+                except Exception as error:
+                    if not remote:
+                        raise
+                    raise task_error(error, f"training job {index} ({jobs[index].experiment} {jobs[index].model_type} "
+                                            f"seed {jobs[index].seed}) on the cluster") from None
+                for name, content in files.items():
+                    with atomic_path(cache / name) as temp:
+                        temp.write_bytes(content)
+                rows_of[index] = rows
                 bar.update()
-        for index in range(len(jobs)):
-            results.extend(rows_of[index])
-    else:
-        for job in jobs:
-            results.extend(run_job(job, cache))
-            bar.update()
     bar.close()
-    return results
+    return [row for index in range(len(jobs)) for row in rows_of[index]]
 
 
 def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> list[TrainJob]:

@@ -12,14 +12,13 @@ clearly labelled "paper" columns and a plain statement wherever ours differ. Raw
 Modules: `jobs` (profiles, datasets, training jobs), `reproduce_report` (tables, figures, report),
 this one (the stages in order and the MPC comparison); the command is `stdm_drake.commands.reproduce`.
 """
-import concurrent.futures
 import dataclasses
 import json
 import math
-import multiprocessing
 import pathlib
 import time
 
+from stdm_drake.cluster import RunnerConfig, job_pool
 from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, IDENTIFICATION_SETTINGS, Profile, ensure_dataset, plan_jobs, run_jobs)
 from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
 from stdm_drake.files import json_default
@@ -125,12 +124,8 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     groups = [specs[:1], specs[1:]] if workers > 1 else [specs]
     jobs = [(group, references, identification.sample_period, progress and index == len(groups) - 1, robot)
             for index, group in enumerate(groups)]
-    if len(jobs) > 1:
-        context = multiprocessing.get_context("spawn")
-        with concurrent.futures.ProcessPoolExecutor(len(jobs), mp_context=context) as pool:
-            runs = [run for group_runs in pool.map(_mpc_group, jobs) for run in group_runs]
-    else:
-        runs = _mpc_group(jobs[0])
+    with job_pool(RunnerConfig(workers=len(jobs))) as pool:
+        runs = [run for group_runs in pool.map(_mpc_group, jobs) for run in group_runs]
     plot_results(runs, identification.sample_period, folder / "mpc.png")
     return dict(runs=summarize(runs, identification.sample_period), types=mpc_statistics(runs),
                 failures=closed_loop_failures(runs))

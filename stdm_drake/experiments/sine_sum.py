@@ -222,8 +222,8 @@ def _call(function, *arguments):
 
 
 def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True, runner=None) -> dict:
-    """The alpha sweep (alpha="auto") and every run, in `workers` processes (or on `runner`, a RunnerConfig
-    of stdm_drake.experiments.runner: Ray): naive runs start at once, derivative runs once alpha is known.
+    """The alpha sweep (alpha="auto") and every run, in `workers` processes (or on `runner`, a
+    `cluster.RunnerConfig`: local processes or Ray): naive runs start at once, derivative runs once alpha is known.
     Returns {"runs": [...] in run_specs order, "alpha_sweep", timings}; the results do not depend on
     `workers` or the backend."""
     from tqdm import tqdm

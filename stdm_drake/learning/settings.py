@@ -191,3 +191,34 @@ class TrainSettings:
             if not (math.isfinite(value) and (value > 0 if name == "lr" else value >= 0)):
                 bound = "> 0" if name == "lr" else ">= 0"
                 raise InputError(f"{key(name)} must be a finite number {bound}, got {value}")
+        if self.uses_derivative() and self.alpha != "auto" and not self.alpha > 0:
+            raise InputError(f"derivative learning needs --alpha > 0 or --alpha auto, got {self.alpha}")
+        if self.alpha == "auto" and not self.uses_derivative():
+            raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {self.model} trains "
+                             "without it (use DD, PD, DED or PED, or --derivative on)")
+
+    def uses_derivative(self) -> bool:
+        """Whether the derivative loss is on: what the model type implies, unless `derivative` says."""
+        from stdm_drake.learning.models import parse_model_type
+        return parse_model_type(self.model).derivative if self.derivative is None else self.derivative == "on"
+
+    def model_name(self) -> str:
+        """The model type as trained ("D", "PED", ...): the type's heads and ensemble, "D" suffixed when the
+        derivative loss is on (so --model D --derivative on trains a "DD")."""
+        from stdm_drake.learning.models import parse_model_type
+        kind = parse_model_type(self.model)
+        return ("P" if kind.probabilistic else "D") + ("E" if kind.ensemble else "") + \
+            ("D" if self.uses_derivative() else "")
+
+    def structure(self):
+        """The `ModelStructure` of predicts and inputs."""
+        from stdm_drake.learning.structure import ModelStructure
+        return ModelStructure(predicts=self.predicts, inputs=self.inputs)
+
+    def training_config(self, seed: int) -> TrainingConfig:
+        """How the model of `seed` is fitted (alpha 0 without the derivative loss, and while "auto" picks it)."""
+        alpha = (0.0 if self.alpha == "auto" else float(self.alpha)) if self.uses_derivative() else 0.0
+        return TrainingConfig(alpha=alpha, state_loss=self.state_loss, derivative_loss=self.derivative_loss,
+                              learning_rate=self.lr, batch_size=self.batch_size, max_epochs=self.epochs,
+                              patience=self.patience, seed=seed, lr_schedule=self.lr_schedule,
+                              min_learning_rate=self.min_lr, weight_decay=self.weight_decay)
