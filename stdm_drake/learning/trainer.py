@@ -91,156 +91,197 @@ def build_model(model_config: ModelConfig, seed: int) -> EnsembleMLP:
     return EnsembleMLP(model_config, generator=torch.Generator().manual_seed(_seeds(seed)[0]))
 
 
+class Trainer:
+    """Fits one model (an EnsembleMLP of `model_config`) with Adam on minibatches, keeping each member's
+    best weights by validation, in small steps (the shape of mbrl-lib's `ModelTrainer`):
+
+    - `train_epoch()`: one pass over each member's bootstrap rows in a fresh order -> mean loss terms;
+    - `validate()`: the validation scores; `keep_best(scores)`: each improved member's weights kept;
+    - `history_row(...)`: one learning-curve row; `write_checkpoint(finished)`: the best weights and
+      everything resuming needs (`resume_state`), atomically; `resume(path)`: continue from that file
+      exactly as if training had not stopped (same weights, same curves);
+    - `fit(on_epoch)`: the loop (early stopping after `patience` epochs without a member improving)
+      -> TrainResult with each member at its best epoch.
+
+    Same seed, data and configs -> the same weights, bit for bit.
+    """
+
+    def __init__(self, model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+                 val_data: RegressionData, *, checkpoint_path=None, checkpoint_every: int = 10,
+                 metadata: CheckpointMetadata | dict | None = None):
+        train_data.check(model_config, need_rates=training_config.derivative, name="training")
+        val_data.check(model_config, need_rates=False, name="validation")
+        self.model_config, self.config = model_config, training_config
+        self.checkpoint_path, self.checkpoint_every, self.metadata = checkpoint_path, checkpoint_every, metadata
+        self.members = members = model_config.ensemble_size
+        self.grid = training_config.alpha_grid is not None
+        training_config.member_alphas(members)  # checks the grid size
+        self.fingerprint = hashlib.sha256((train_data.fingerprint() + val_data.fingerprint()).encode()).hexdigest()
+        self.model = model = build_model(model_config, training_config.seed)
+        if self.grid:  # every member starts from the single model this seed gives
+            single = build_model(dataclasses.replace(model_config, ensemble_size=1), training_config.seed)
+            with torch.no_grad():
+                for name, value in single.named_parameters():
+                    model.get_parameter(name).copy_(value.expand_as(model.get_parameter(name)))
+        fit_normalizers(model, train_data)
+        # fused: one kernel for all parameters (elementwise, deterministic; about 1 ms less per step on a CPU)
+        if training_config.weight_decay > 0:
+            self.optimizer = torch.optim.AdamW(model.parameters(), lr=training_config.learning_rate,
+                                               weight_decay=training_config.weight_decay, fused=True)
+        else:
+            self.optimizer = torch.optim.Adam(model.parameters(), lr=training_config.learning_rate, fused=True)
+        self.generator = torch.Generator().manual_seed(_seeds(training_config.seed)[1])
+        self.count = count = len(train_data)
+        if members > 1 and training_config.bootstrap and not self.grid:
+            self.bootstrap = torch.randint(0, count, (members, count), generator=self.generator)
+        else:
+            self.bootstrap = torch.arange(count).expand(members, count).clone()
+        self.history = {column: [] for column in HISTORY_COLUMNS}
+        self.best_weights = {name: value.detach().clone() for name, value in model.state_dict().items()}
+        self.best_scores = torch.full((members,), float("inf"), dtype=torch.float64)
+        self.best_epochs = torch.zeros(members, dtype=torch.int64)
+        self.epoch, self.since_improvement, self.stopped_early, self.finished = 0, 0, False, False
+        self.train_data, self.val_data = train_data, val_data
+
+    def resume(self) -> None:
+        """Continue from `checkpoint_path`: InputError unless it holds the training state of the same
+        model and training configs on the same data."""
+        path = self.checkpoint_path
+        if path is None:
+            raise InputError("resume=True needs the checkpoint_path to continue from")
+        state = load_checkpoint(path)
+        saved = state.resume
+        if saved is None:
+            raise InputError(f"{path}: checkpoint holds no training state to resume")
+        if state.model_config != self.model_config or state.training_config != self.config:
+            raise InputError(f"{path}: model or training options differ from the checkpoint's; "
+                             "resume with the same options")
+        if saved["data_fingerprint"] != self.fingerprint:
+            raise InputError(f"{path}: training/validation data differ from the checkpoint's")
+        self.model.load_state_dict(saved["weights"])
+        self.optimizer.load_state_dict(saved["optimizer"])
+        self.generator.set_state(saved["generator"])
+        self.bootstrap, self.best_weights = saved["bootstrap"], saved["best_weights"]
+        self.best_scores, self.best_epochs = saved["best_scores"], saved["best_epochs"]
+        self.epoch, self.since_improvement = int(saved["epoch"]), int(saved["epochs_since_improvement"])
+        self.stopped_early, self.finished = bool(saved["stopped_early"]), bool(saved["finished"])
+        self.history = {column: list(state.history.get(column, [])) for column in HISTORY_COLUMNS}
+
+    def resume_state(self, finished: bool) -> dict:
+        """Everything `resume` needs to continue exactly: weights, optimizer, generator, bootstrap rows,
+        the best weights and scores so far, the epoch and early-stopping counters."""
+        return dict(epoch=self.epoch, weights={k: v.detach().clone() for k, v in self.model.state_dict().items()},
+                    optimizer=self.optimizer.state_dict(), generator=self.generator.get_state(),
+                    bootstrap=self.bootstrap, best_weights=self.best_weights, best_scores=self.best_scores,
+                    best_epochs=self.best_epochs, epochs_since_improvement=self.since_improvement,
+                    stopped_early=self.stopped_early, finished=finished, data_fingerprint=self.fingerprint)
+
+    def write_checkpoint(self, finished: bool) -> None:
+        """The best weights so far, the curves, the metadata and the resume state to `checkpoint_path`."""
+        if self.checkpoint_path is None:
+            return
+        best_model = EnsembleMLP(self.model_config).to(next(self.model.parameters()).dtype)
+        best_model.load_state_dict(self.best_weights)
+        save_checkpoint(self.checkpoint_path, best_model, training_config=self.config, history=self.history,
+                        metadata=self.metadata, resume_state=self.resume_state(finished))
+
+    def train_epoch(self, tensors: StandardizedData, sums: np.ndarray) -> None:
+        """One epoch of minibatch steps, each step's (total, state, derivative) loss terms added to
+        sums[:3] and its count to sums[3]."""
+        config, members, count = self.config, self.members, self.count
+        self.model.train()
+        if self.grid:  # one minibatch order shared by every member
+            order = torch.argsort(torch.rand(1, count, generator=self.generator), dim=1).expand(members, count)
+        else:
+            order = torch.argsort(torch.rand(members, count, generator=self.generator), dim=1)
+        epoch_rows = self.bootstrap.gather(1, order)
+        steps_per_epoch = -(-count // config.batch_size)
+        total_steps = steps_per_epoch * config.max_epochs
+        for index, start in enumerate(range(0, count, config.batch_size)):
+            if config.lr_schedule != "constant":
+                rate = config.learning_rate_at(self.epoch * steps_per_epoch + index, total_steps)
+                for group in self.optimizer.param_groups:
+                    group["lr"] = rate
+            sums[:3] += training_step(self.model, self.optimizer, config, tensors,
+                                      epoch_rows[:, start:start + config.batch_size])
+            sums[3] += 1
+        self.epoch += 1
+
+    def keep_best(self, member_mse: torch.Tensor) -> None:
+        """Keep the weights of each member whose validation MSE (E,) improved; count epochs without one."""
+        improved = member_mse < self.best_scores
+        if bool(improved.any()):
+            for name, value in self.model.state_dict().items():
+                if name.split(".")[0] in MEMBER_PARAMETERS:
+                    self.best_weights[name][improved] = value.detach()[improved]
+                else:
+                    self.best_weights[name] = value.detach().clone()
+            self.best_scores = torch.where(improved, member_mse, self.best_scores)
+            self.best_epochs = torch.where(improved, torch.tensor(self.epoch), self.best_epochs)
+            self.since_improvement = 0
+        else:
+            self.since_improvement += self.config.validation_interval
+        self.stopped_early = self.since_improvement >= self.config.patience
+
+    def history_row(self, means: np.ndarray, scores: dict, seconds: float) -> dict:
+        """One learning-curve row (HISTORY_COLUMNS), appended to the history."""
+        row = dict(epoch=self.epoch, train_loss=means[0], train_state_loss=means[1], train_derivative_loss=means[2],
+                   val_loss=scores["loss"], val_state_loss=scores["state"], val_derivative_loss=scores["derivative"],
+                   val_mse=float(scores["member_mse"].mean()), seconds=seconds)
+        for column in HISTORY_COLUMNS:
+            self.history[column].append(row[column])
+        return row
+
+    def fit(self, on_epoch: Callable[[dict], None] | None = None) -> TrainResult:
+        """Train until max_epochs or early stopping, validating every `validation_interval` epochs (and
+        at the last), checkpointing every `checkpoint_every` epochs and at the end; on_epoch(row) with
+        each new history row. Returns each member at its best validation epoch."""
+        config = self.config
+        train_tensors, val_tensors = standardize(self.model, self.train_data), standardize(self.model, self.val_data)
+        member_curves = []  # this call's validation rows only (not restored on resume)
+        sums, started, last_written = np.zeros(4), time.perf_counter(), self.epoch
+        while not self.finished and self.epoch < config.max_epochs and self.since_improvement < config.patience:
+            self.train_epoch(train_tensors, sums)
+            if self.epoch % config.validation_interval and self.epoch < config.max_epochs:
+                continue
+            self.model.eval()
+            scores = validation_scores(self.model, config, val_tensors)
+            self.keep_best(scores["member_mse"])
+            row = self.history_row(sums[:3] / max(sums[3], 1), scores, time.perf_counter() - started)
+            member_curves.append(scores["member_mse"].tolist())
+            sums, started = np.zeros(4), time.perf_counter()
+            done = self.stopped_early or self.epoch >= config.max_epochs
+            if self.checkpoint_path is not None and (done or self.epoch - last_written >= self.checkpoint_every):
+                self.write_checkpoint(finished=done)
+                last_written = self.epoch
+            if on_epoch is not None:
+                on_epoch(row)
+            self.finished = done
+        if self.checkpoint_path is not None and not self.history["epoch"]:
+            self.write_checkpoint(finished=True)
+        self.model.load_state_dict(self.best_weights)
+        self.model.eval()
+        return TrainResult(model=self.model, history=self.history, best_epochs=self.best_epochs.tolist(),
+                           best_scores=self.best_scores.tolist(), epochs_run=self.epoch,
+                           stopped_early=self.stopped_early, member_val_mse=member_curves)
+
+
 def train_model(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
                 val_data: RegressionData, *, checkpoint_path=None, checkpoint_every: int = 10,
                 metadata: CheckpointMetadata | dict | None = None, resume: bool = False,
                 on_epoch: Callable[[dict], None] | None = None) -> TrainResult:
-    """Fit a model with Adam on minibatches; keep per-member best-by-validation weights.
+    """Fit a model with a `Trainer`; keep per-member best-by-validation weights.
 
     checkpoint_path: written atomically every `checkpoint_every` epochs and at the end (weights =
     current best, plus everything needed to resume), only at validation epochs. resume=True
     continues from that file exactly as if training had not stopped (same weights, same curves).
     on_epoch(row) is called with each new history row.
     """
-    derivative = training_config.derivative
-    train_data.check(model_config, need_rates=derivative, name="training")
-    val_data.check(model_config, need_rates=False, name="validation")
-    members = model_config.ensemble_size
-    grid = training_config.alpha_grid is not None
-    training_config.member_alphas(members)  # checks the grid size
-    data_seed = _seeds(training_config.seed)[1]
-    fingerprint = hashlib.sha256((train_data.fingerprint() + val_data.fingerprint()).encode()).hexdigest()
-
-    model = build_model(model_config, training_config.seed)
-    if grid:  # every member starts from the single model this seed gives
-        single = build_model(dataclasses.replace(model_config, ensemble_size=1), training_config.seed)
-        with torch.no_grad():
-            for name, value in single.named_parameters():
-                model.get_parameter(name).copy_(value.expand_as(model.get_parameter(name)))
-    fit_normalizers(model, train_data)
-    # fused: one kernel for all parameters (elementwise, deterministic; about 1 ms less per step on a CPU)
-    if training_config.weight_decay > 0:
-        optimizer = torch.optim.AdamW(model.parameters(), lr=training_config.learning_rate,
-                                      weight_decay=training_config.weight_decay, fused=True)
-    else:
-        optimizer = torch.optim.Adam(model.parameters(), lr=training_config.learning_rate, fused=True)
-    generator = torch.Generator().manual_seed(data_seed)
-    count = len(train_data)
-    if members > 1 and training_config.bootstrap and not grid:
-        bootstrap = torch.randint(0, count, (members, count), generator=generator)
-    else:
-        bootstrap = torch.arange(count).expand(members, count).clone()
-    history = {column: [] for column in HISTORY_COLUMNS}
-    best_weights = {name: value.detach().clone() for name, value in model.state_dict().items()}
-    best_scores = torch.full((members,), float("inf"), dtype=torch.float64)
-    best_epochs = torch.zeros(members, dtype=torch.int64)
-    epoch, since_improvement, stopped_early, finished = 0, 0, False, False
-
+    trainer = Trainer(model_config, training_config, train_data, val_data, checkpoint_path=checkpoint_path,
+                      checkpoint_every=checkpoint_every, metadata=metadata)
     if resume:
-        if checkpoint_path is None:
-            raise InputError("resume=True needs the checkpoint_path to continue from")
-        state = load_checkpoint(checkpoint_path)
-        resume_state = state.resume
-        if resume_state is None:
-            raise InputError(f"{checkpoint_path}: checkpoint holds no training state to resume")
-        if state.model_config != model_config or state.training_config != training_config:
-            raise InputError(f"{checkpoint_path}: model or training options differ from the checkpoint's; "
-                             "resume with the same options")
-        if resume_state["data_fingerprint"] != fingerprint:
-            raise InputError(f"{checkpoint_path}: training/validation data differ from the checkpoint's")
-        model.load_state_dict(resume_state["weights"])
-        optimizer.load_state_dict(resume_state["optimizer"])
-        generator.set_state(resume_state["generator"])
-        bootstrap = resume_state["bootstrap"]
-        best_weights = resume_state["best_weights"]
-        best_scores = resume_state["best_scores"]
-        best_epochs = resume_state["best_epochs"]
-        epoch = int(resume_state["epoch"])
-        since_improvement = int(resume_state["epochs_since_improvement"])
-        stopped_early = bool(resume_state["stopped_early"])
-        finished = bool(resume_state["finished"])
-        history = {column: list(state.history.get(column, [])) for column in HISTORY_COLUMNS}
-
-    train_tensors = standardize(model, train_data)
-    val_tensors = standardize(model, val_data)
-    batch_size = training_config.batch_size
-
-    def snapshot(finished: bool) -> dict:
-        return dict(epoch=epoch, weights={k: v.detach().clone() for k, v in model.state_dict().items()},
-                    optimizer=optimizer.state_dict(), generator=generator.get_state(), bootstrap=bootstrap,
-                    best_weights=best_weights, best_scores=best_scores, best_epochs=best_epochs,
-                    epochs_since_improvement=since_improvement, stopped_early=stopped_early,
-                    finished=finished, data_fingerprint=fingerprint)
-
-    def write_checkpoint(finished: bool) -> None:
-        if checkpoint_path is None:
-            return
-        best_model = EnsembleMLP(model_config).to(next(model.parameters()).dtype)
-        best_model.load_state_dict(best_weights)
-        save_checkpoint(checkpoint_path, best_model, training_config=training_config, history=history,
-                        metadata=metadata, resume_state=snapshot(finished))
-
-    member_curves = []  # this call's validation rows only (not restored on resume)
-    interval = training_config.validation_interval
-    steps_per_epoch = -(-count // batch_size)
-    total_steps = steps_per_epoch * training_config.max_epochs
-    scheduled = training_config.lr_schedule != "constant"
-    sums, batches, started, last_written = np.zeros(3), 0, time.perf_counter(), epoch
-    while not finished and epoch < training_config.max_epochs and since_improvement < training_config.patience:
-        model.train()
-        if grid:  # one minibatch order shared by every member
-            order = torch.argsort(torch.rand(1, count, generator=generator), dim=1).expand(members, count)
-        else:
-            order = torch.argsort(torch.rand(members, count, generator=generator), dim=1)
-        epoch_rows = bootstrap.gather(1, order)
-        for index, start in enumerate(range(0, count, batch_size)):
-            if scheduled:
-                rate = training_config.learning_rate_at(epoch * steps_per_epoch + index, total_steps)
-                for group in optimizer.param_groups:
-                    group["lr"] = rate
-            sums += training_step(model, optimizer, training_config, train_tensors,
-                                  epoch_rows[:, start:start + batch_size])
-            batches += 1
-        epoch += 1
-        if epoch % interval and epoch < training_config.max_epochs:
-            continue
-        model.eval()
-        scores = validation_scores(model, training_config, val_tensors)
-        improved = scores["member_mse"] < best_scores
-        if bool(improved.any()):
-            for name, value in model.state_dict().items():
-                if name.split(".")[0] in MEMBER_PARAMETERS:
-                    best_weights[name][improved] = value.detach()[improved]
-                else:
-                    best_weights[name] = value.detach().clone()
-            best_scores = torch.where(improved, scores["member_mse"], best_scores)
-            best_epochs = torch.where(improved, torch.tensor(epoch), best_epochs)
-            since_improvement = 0
-        else:
-            since_improvement += interval
-        stopped_early = since_improvement >= training_config.patience
-        means = sums / max(batches, 1)
-        row = dict(epoch=epoch, train_loss=means[0], train_state_loss=means[1], train_derivative_loss=means[2],
-                   val_loss=scores["loss"], val_state_loss=scores["state"], val_derivative_loss=scores["derivative"],
-                   val_mse=float(scores["member_mse"].mean()), seconds=time.perf_counter() - started)
-        for column in HISTORY_COLUMNS:
-            history[column].append(row[column])
-        member_curves.append(scores["member_mse"].tolist())
-        sums, batches, started = np.zeros(3), 0, time.perf_counter()
-        done = stopped_early or epoch >= training_config.max_epochs
-        if checkpoint_path is not None and (done or epoch - last_written >= checkpoint_every):
-            write_checkpoint(finished=done)
-            last_written = epoch
-        if on_epoch is not None:
-            on_epoch(row)
-        finished = done
-    if checkpoint_path is not None and not history["epoch"]:
-        write_checkpoint(finished=True)
-    model.load_state_dict(best_weights)
-    model.eval()
-    return TrainResult(model=model, history=history, best_epochs=best_epochs.tolist(),
-                       best_scores=best_scores.tolist(), epochs_run=epoch, stopped_early=stopped_early,
-                       member_val_mse=member_curves)
+        trainer.resume()
+    return trainer.fit(on_epoch)
 
 
 @dataclasses.dataclass
