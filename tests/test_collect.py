@@ -36,8 +36,8 @@ def test_next_state_is_a_function_of_state_and_held_torque(name, request):
 def test_excitation_dataset_contents(excitation_dataset):
     dataset = load_dataset(excitation_dataset)
     assert dataset.protocol == "excitation" and dataset.num_trajectories == 4
-    assert dataset.sample_period == 0.01 and dataset.metadata["plant"]["time_step"] == 0.001
-    params = np.array(dataset.metadata["excitation_parameters"])
+    assert dataset.sample_period == 0.01 and dataset.metadata.record["plant"]["time_step"] == 0.001
+    params = np.array(dataset.metadata.record["excitation_parameters"])
     assert params.shape == (4, 24)
     for i in range(4):
         traj = dataset.trajectory(i)
@@ -82,9 +82,9 @@ def test_tracking_dataset_tracks_tightly(tracking_dataset):
         assert not np.array_equal(traj["q"], traj["q_true"])  # measured with noise
         for key in ("v_planned", "qdd_planned"):
             assert np.abs(traj[key][[0, -1]]).max() < 1e-6  # plans start and end at rest
-    assert dataset.metadata["controller"]["kind"] == "inverse_dynamics"
-    assert dataset.metadata["controller"]["velocity_filter_time_constant"] == 0.015
-    assert dataset.metadata["planner"]["kind"] == "quintic"
+    assert dataset.metadata.record["controller"]["kind"] == "inverse_dynamics"
+    assert dataset.metadata.record["controller"]["velocity_filter_time_constant"] == 0.015
+    assert dataset.metadata.record["planner"]["kind"] == "quintic"
 
 
 def test_sensor_filter_is_a_causal_moving_average():
@@ -102,7 +102,7 @@ def test_default_controller_does_not_chatter_where_pid_does(tmp_path, tracking_d
     assert main(["collect", "--protocol", "tracking", "--controller", "controllers/pid.yaml",
                  "--count", "8", "--seed", "5", "--workers", "1", "--quiet", "-o", str(path)]) == 0
     pid, default = load_dataset(path), load_dataset(tracking_dataset)
-    assert pid.metadata["controller"]["kind"] == "pid"
+    assert pid.metadata.record["controller"]["kind"] == "pid"
     rough, smooth = tracking_smoothness(pid), tracking_smoothness(default)
     wrists = slice(3, 6)
     assert np.all(rough["sign_flip_rate"][wrists] > 0.5)  # chatter: close to white noise's 2/3
@@ -219,5 +219,5 @@ def test_torque_dither_is_recorded_and_seeded(tmp_path):
     difference = dithered.trajectory(0)["tau"] - plain.trajectory(0)["tau"]
     assert np.abs(difference[:, 0]).max() > 1.0  # the dither is in the recorded (applied) torque
     np.testing.assert_array_equal(dithered.trajectory(0)["tau"], again.trajectory(0)["tau"])
-    assert dithered.metadata["controller"]["dither_std"] == [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]
+    assert dithered.metadata.record["controller"]["dither_std"] == [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]
     assert tracking_errors(dithered)["true_q"] < 1e-4

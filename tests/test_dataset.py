@@ -33,7 +33,7 @@ def test_round_trip_and_byte_identical(tmp_path, trajectories):
     assert (tmp_path / "a.h5").read_bytes() == (tmp_path / "b.h5").read_bytes()
     dataset = load_dataset(tmp_path / "a.h5")
     assert dataset.num_trajectories == 4 and dataset.sample_period == DT and dataset.protocol == "tracking"
-    assert dataset.metadata["seed"] == 7
+    assert dataset.metadata.seed == 7
     np.testing.assert_array_equal(dataset.groups, [0, 0, 1, 1])
     for i, traj in enumerate(trajectories):
         for key, value in traj.items():

@@ -248,7 +248,7 @@ def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
         assert main(["collect", "--robot", str(tmp_path / "slow.yaml"), "--count", "8", "--workers", "1", "--quiet",
                      "-o", str(tmp_path / "slow.h5")]) == 0
     dataset = load_dataset(tmp_path / "slow.h5")
-    sampling = dataset.metadata["task_space_sampling"]
+    sampling = dataset.metadata.record["task_space_sampling"]
     assert sampling["position_offset"][0] < 0.5 * fast_sampling.position_offset[0]
     assert sampling["orientation_max_angle"] < 0.5 * fast_sampling.orientation_max_angle
     assert "rejected" not in caplog.text
@@ -270,7 +270,7 @@ def test_shipped_files_are_named_from_any_folder_with_the_stdm_drake_prefix(tmp_
     assert main(["collect", "--count", "1", "--workers", "1", "--quiet", "--controller",
                  "stdm-drake:controllers/pid_dither_sized.yaml", "--sensor=stdm-drake:controllers/sensor_ideal.yaml",
                  "-o", "ident.h5"]) == 0
-    metadata = load_dataset(tmp_path / "ident.h5").metadata
+    metadata = load_dataset(tmp_path / "ident.h5").metadata.record
     assert metadata["controller"]["kind"] == "pid" and len(metadata["controller"]["dither_std"]) == 6
     assert metadata["sensor"]["position_noise_std"] == 0.0
     assert main(["collect", "--count", "1", "--controller", "stdm-drake:controllers/pid_fast.yaml",

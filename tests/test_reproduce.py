@@ -195,7 +195,7 @@ def test_datasets_are_reused_only_when_collected_with_the_same_settings(tmp_path
     other = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans",
                            controller="controllers/pid.yaml")
     assert other.path == first.path and other.path.stat().st_mtime_ns != stamp
-    assert other.metadata["controller"]["kind"] == "pid"
+    assert other.metadata.record["controller"]["kind"] == "pid"
 
 
 def test_reproduce_exits_2_when_an_mpc_run_left_the_limits(tmp_path, monkeypatch, capsys):

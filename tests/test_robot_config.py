@@ -132,9 +132,9 @@ def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     robot, data = collect_two_link(tmp_path, 30)
     dataset = load_dataset(data)
     assert dataset.trajectory(0)["q"].shape == (31, 2) and dataset.trajectory(0)["tau"].shape == (30, 2)
-    assert dataset.metadata["robot"]["name"] == "two_link"
-    assert dataset.metadata["joint_names"] == ["shoulder", "elbow"]
-    assert dataset.metadata["excitation"]["offset_max"] == [1.0, 1.0]          # one value for both joints
+    assert dataset.metadata.robot_name == "two_link"
+    assert dataset.metadata.joint_names == ["shoulder", "elbow"]
+    assert dataset.metadata.record["excitation"]["offset_max"] == [1.0, 1.0]          # one value for both joints
     assert main(["inspect", str(data), "--robot", str(robot)]) == 0
     assert "shoulder" in capsys.readouterr().out
     from stdm_drake.robots.robot import UR10_CONFIG
@@ -235,7 +235,7 @@ def test_excitation_ranges_are_derived_for_a_robot_without_an_excitation_file(tm
     data = tmp_path / "data.h5"
     assert main(["collect", "--protocol", "excitation", "--robot", str(robot), "--count", "3", "--workers", "1",
                  "--quiet", "-o", str(data)]) == 0
-    excitation = load_dataset(data).metadata["excitation"]
+    excitation = load_dataset(data).metadata.record["excitation"]
     assert excitation["initial_position_lower"] == pytest.approx([-0.2, -1.1])
     assert excitation["initial_position_upper"] == pytest.approx([0.8, -0.1])
     plant, _ = make_plant(PlantConfig(time_step=0.0), robot=load_robot(robot))
@@ -254,7 +254,7 @@ def test_the_ur10_preset_named_with_robot_collects_the_default_data(tmp_path):
         assert main(["collect", "--protocol", "excitation", "--count", "2", "--seed", "7", "--workers", "1",
                      "--quiet", "-o", str(path), *extra]) == 0
     default, named = (load_dataset(path) for path in paths)
-    assert named.metadata["excitation"] == default.metadata["excitation"]
+    assert named.metadata.record["excitation"] == default.metadata.record["excitation"]
     np.testing.assert_array_equal(named.trajectory(1)["tau"], default.trajectory(1)["tau"])
 
 

@@ -129,8 +129,8 @@ def test_panda_collect_train_evaluate_mpc_view(tmp_path, capsys, panda):
     assert main(["collect", "--robot", robot, "--count", "12", "--workers", "1", "--quiet", "-o", str(data)]) == 0
     dataset = load_dataset(data)
     assert dataset.trajectory(0)["q"].shape == (101, 7) and dataset.trajectory(0)["tau"].shape == (100, 7)
-    assert dataset.metadata["controller"]["kp"] == [225.0] * 7          # recorded per joint
-    assert len(dataset.metadata["task_space_sampling"]["initial_poses"]) == 4
+    assert dataset.metadata.record["controller"]["kp"] == [225.0] * 7          # recorded per joint
+    assert len(dataset.metadata.record["task_space_sampling"]["initial_poses"]) == 4
     assert main(["inspect", str(data), "--robot", robot]) == 0
     summary = capsys.readouterr().out
     true_q_mse = float(summary.split("true            q ")[1].split()[0])
@@ -267,7 +267,7 @@ def test_reproduce_quick_on_the_panda(tmp_path, capsys):
     assert len(datasets) == 4
     for path in datasets:
         dataset = load_dataset(path)
-        assert dataset.metadata["robot"]["name"] == "panda" and dataset.trajectory(0)["q"].shape[1] == 7
+        assert dataset.metadata.robot_name == "panda" and dataset.trajectory(0)["q"].shape[1] == 7
     plant = json.loads((out / "results.json").read_text())["tables"]["mpc"][0]
     assert plant["model"] == "plant" and plant["q_mse_rad2"] < 1e-5 and plant["limit_violations"] == 0
     capsys.readouterr()

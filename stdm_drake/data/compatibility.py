@@ -25,11 +25,11 @@ def check_dataset_robot(dataset, robot: Robot, limits: JointLimits) -> None:
     file, as its metadata records them, and states within `limits` (the robot's joint limits) give or take
     `check_within_limits`'s margins."""
     recorded = dataset.metadata
-    name = recorded.get("robot", {}).get("name", "?")
-    if recorded.get("joint_names") is not None and list(recorded["joint_names"]) != list(robot.joint_names):
-        raise InputError(f"{dataset.path} was collected with robot {name} (joints {recorded['joint_names']}), "
+    name = recorded.robot_name or "?"
+    if recorded.joint_names is not None and recorded.joint_names != list(robot.joint_names):
+        raise InputError(f"{dataset.path} was collected with robot {name} (joints {recorded.joint_names}), "
                          f"not {robot.name}; pass its config with --robot")
-    if recorded.get("robot_model_sha256") not in (None, robot.model_sha256()):
+    if recorded.robot_model_sha256 not in (None, robot.model_sha256()):
         raise InputError(f"{dataset.path} was collected with another model file than {robot.model_path.name} "
                          f"(robot {name}); pass its config with --robot")
     check_within_limits(dataset, robot, limits)

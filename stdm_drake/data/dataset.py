@@ -82,10 +82,43 @@ class Split:
         return {name: getattr(self, name).tolist() for name in ("train", "val", "test")}
 
 
-class Dataset:
-    """A loaded, validated dataset: metadata plus per-trajectory arrays (float64)."""
+@dataclasses.dataclass(frozen=True)
+class DatasetMetadata:
+    """What a dataset file records about how it was collected (its `metadata_json` attribute), typed where
+    the library reads it: protocol ("excitation" or "tracking"), sample_period (s), seed, robot_name,
+    joint_names (the n arm joints), robot_model_sha256 (of the robot's model file), plant_time_step (s).
+    `record` is the whole JSON object as written (sections robot, plant, sensor, controller, planner,
+    task_space_sampling, excitation, package_versions, ...): `section(name)` reads one. None where the
+    file does not record a value."""
+    protocol: str
+    sample_period: float
+    seed: int | None = None
+    robot_name: str | None = None
+    joint_names: list | None = None
+    robot_model_sha256: str | None = None
+    plant_time_step: float | None = None
+    record: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
-    def __init__(self, path: pathlib.Path, metadata: dict, trajectories: list[dict], groups: np.ndarray,
+    @classmethod
+    def from_record(cls, record: dict) -> "DatasetMetadata":
+        """The typed view of a record (checked by `load_dataset`: protocol and sample_period present)."""
+        robot, plant = record.get("robot") or {}, record.get("plant") or {}
+        names = record.get("joint_names")
+        return cls(protocol=record["protocol"], sample_period=float(record["sample_period"]), seed=record.get("seed"),
+                   robot_name=robot.get("name"), joint_names=list(names) if names is not None else None,
+                   robot_model_sha256=record.get("robot_model_sha256"), plant_time_step=plant.get("time_step"),
+                   record=record)
+
+    def section(self, name: str) -> dict:
+        """One section of the record ({} when absent), e.g. "controller", "planner", "robot"."""
+        value = self.record.get(name)
+        return dict(value) if isinstance(value, dict) else {}
+
+
+class Dataset:
+    """A loaded, validated dataset: its metadata (DatasetMetadata) plus per-trajectory arrays (float64)."""
+
+    def __init__(self, path: pathlib.Path, metadata: DatasetMetadata, trajectories: list[dict], groups: np.ndarray,
                  sha256: str):
         self.path = pathlib.Path(path)
         self.metadata = metadata
@@ -95,11 +128,11 @@ class Dataset:
 
     @property
     def protocol(self) -> str:
-        return self.metadata["protocol"]
+        return self.metadata.protocol
 
     @property
     def sample_period(self) -> float:
-        return float(self.metadata["sample_period"])
+        return self.metadata.sample_period
 
     @property
     def num_trajectories(self) -> int:
@@ -310,4 +343,5 @@ def load_dataset(path) -> Dataset:
     except (OSError, KeyError, ValueError, RuntimeError) as error:
         first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise InputError(f"{path}: unreadable dataset (truncated or not HDF5?): {first_line}") from None
-    return Dataset(path, metadata, trajectories, np.asarray(groups, dtype=int), file_sha256(path))
+    return Dataset(path, DatasetMetadata.from_record(metadata), trajectories, np.asarray(groups, dtype=int),
+                   file_sha256(path))

@@ -69,20 +69,20 @@ def summary(dataset: Dataset) -> str:
         f"trajectories    {dataset.num_trajectories}  steps each {min(steps)}..{max(steps)}  "
         f"transitions {sum(steps)}",
         "groups          " + ", ".join(f"{g}: {c}" for g, c in zip(groups, counts)),
-        f"sample period   {dataset.sample_period} s  (plant step {meta.get('plant', {}).get('time_step')} s)",
-        f"seed            {meta.get('seed')}   robot model sha256 {str(meta.get('robot_model_sha256'))[:16]}…",
+        f"sample period   {dataset.sample_period} s  (plant step {meta.plant_time_step} s)",
+        f"seed            {meta.seed}   robot model sha256 {str(meta.robot_model_sha256)[:16]}…",
     ]
     if dataset.protocol == "tracking":
-        lines.append(f"planner         {meta.get('planner', {}).get('kind')}   controller "
-                     f"{meta.get('controller', {}).get('kind')}   sensor {meta.get('sensor')}")
-    versions = meta.get("package_versions", {})
+        lines.append(f"planner         {meta.section('planner').get('kind')}   controller "
+                     f"{meta.section('controller').get('kind')}   sensor {meta.record.get('sensor')}")
+    versions = meta.section("package_versions")
     lines.append("packages        " + ", ".join(f"{k} {v}" for k, v in sorted(versions.items())))
-    labels = [name.removesuffix("_joint") for name in dataset.metadata.get("joint_names", [])]
+    labels = [name.removesuffix("_joint") for name in meta.joint_names or []]
     labels = labels or [f"joint{j}" for j in range(dataset.trajectory(0)["q"].shape[1])]
     header = f"{'':14s}" + "".join(f"{label:>17s}" for label in labels)
     lines += ["", "ranges (min..max over all samples)", f"{'':14s}" + "".join(f"{label:>21s}" for label in labels)]
-    unactuated = set(meta.get("robot", {}).get("unactuated_joints", []))
-    actuated = [j for j, name in enumerate(meta.get("joint_names", labels)) if name not in unactuated]
+    unactuated = set(meta.section("robot").get("unactuated_joints", []))
+    actuated = [j for j, name in enumerate(meta.joint_names or labels) if name not in unactuated]
     for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), ("qdd", "rad/s^2")):
         values = np.concatenate([dataset.trajectory(i)[key] for i in range(dataset.num_trajectories)])
         columns = actuated if key == "tau" and len(actuated) == values.shape[1] else range(values.shape[1])

@@ -114,7 +114,7 @@ def _reusable_dataset(path: pathlib.Path, request):
         return None
     expected = json.loads(json.dumps(collection_metadata(request)))
     expected.pop("package_versions")
-    same = all(dataset.metadata.get(key) == value for key, value in expected.items())
+    same = all(dataset.metadata.record.get(key) == value for key, value in expected.items())
     return dataset if same else None
 
 

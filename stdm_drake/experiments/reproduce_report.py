@@ -342,12 +342,12 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                  mpc_rows, timings: dict) -> pathlib.Path:
     from stdm_drake.data.inspect import tracking_errors
     figures = folder / "figures"
-    robot = excitation.metadata.get("robot", {}).get("name", "ur10")
+    robot = excitation.metadata.robot_name or "ur10"
     robot_label = "UR-10" if robot == "ur10" else robot
     report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'"
                     + ("" if robot == "ur10" else f", robot {robot}"))
     if robot != "ur10":
-        report.text(f"Robot: {robot} ({len(excitation.metadata.get('joint_names', []))} joints), with the excitation "
+        report.text(f"Robot: {robot} ({len(excitation.metadata.joint_names or [])} joints), with the excitation "
                     "ranges, tracking poses, PID gains and MPC weights derived from its model (README, 'Using your "
                     "own robot'). The 'paper' columns quote the paper's UR-10 numbers for scale, not as a target.")
     report.text("Every number below is computed by this run except the columns labelled 'paper', which quote "

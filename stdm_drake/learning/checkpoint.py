@@ -111,10 +111,10 @@ class Checkpoint:
             raise InputError(f"{self.path}: model steps at {period} s, {dataset.path} at {dataset.sample_period} s")
         recorded = dataset.metadata
         for field, what in (("robot_model_sha256", "robot model"), ("joint_names", "joints")):
-            mine, theirs = getattr(self.metadata, field), recorded.get(field)
+            mine, theirs = getattr(self.metadata, field), getattr(recorded, field)
             if mine is not None and theirs is not None and mine != theirs:
                 raise InputError(f"{self.path}: trained on another robot than {dataset.path} ({what} differ: "
-                                 f"{self.metadata.robot_name or '?'} vs {recorded.get('robot', {}).get('name', '?')})")
+                                 f"{self.metadata.robot_name or '?'} vs {recorded.robot_name or '?'})")
 
     def split_indices(self, dataset, part: str) -> list[int] | None:
         """Trajectory indices of the model's `part` ("train", "val", "test") split of `dataset`, or None

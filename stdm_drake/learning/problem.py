@@ -75,9 +75,9 @@ def dataset_metadata(dataset, split, *, model_type: str, derivative_source: str,
                               split={key: [int(i) for i in value] for key, value in parts.items()},
                               derivative_source=derivative_source, action_rate=action_rate,
                               torch_version=torch.__version__, stdm_drake_version=__version__,
-                              robot_name=dataset.metadata.get("robot", {}).get("name"),
-                              robot_model_sha256=dataset.metadata.get("robot_model_sha256"),
-                              joint_names=dataset.metadata.get("joint_names"), **fields)
+                              robot_name=dataset.metadata.robot_name,
+                              robot_model_sha256=dataset.metadata.robot_model_sha256,
+                              joint_names=dataset.metadata.joint_names, **fields)
 
 
 def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
