@@ -5,6 +5,7 @@ import math
 import numpy as np
 import pytest
 
+from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
@@ -189,10 +190,10 @@ def test_grid_variants_are_paired_members_of_one_grid(quick_report):
 @pytest.mark.slow
 def test_datasets_are_reused_only_when_collected_with_the_same_settings(tmp_path):
     from stdm_drake.experiments.jobs import ensure_dataset
-    first = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans")
+    first = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans", robot=UR10)
     stamp = first.path.stat().st_mtime_ns
-    assert ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans").path.stat().st_mtime_ns == stamp
-    other = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans",
+    assert ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans", robot=UR10).path.stat().st_mtime_ns == stamp
+    other = ensure_dataset("tracking", 4, 1, tmp_path, False, name="plans", robot=UR10,
                            controller="controllers/pid.yaml")
     assert other.path == first.path and other.path.stat().st_mtime_ns != stamp
     assert other.metadata.record["controller"]["kind"] == "pid"
