@@ -34,7 +34,7 @@ def spec():
 
 @pytest.fixture(scope="module")
 def start(kinematics, spec):
-    sampling, planner = spec
+    sampling, planner = spec.sampling, spec.planner
     return initial_configuration(kinematics, sampling.initial_poses[0], planner)
 
 
@@ -48,7 +48,7 @@ def goal(kinematics, start):
 
 
 def planner_config(spec, kind: str) -> PlannerConfig:
-    return dataclasses.replace(spec[1], kind=kind)
+    return dataclasses.replace(spec.planner, kind=kind)
 
 
 def pose_errors(X_a: RigidTransform, X_b: RigidTransform) -> tuple[float, float]:
@@ -103,7 +103,7 @@ def test_ik_round_trip_from_nearby_seed(kinematics, start):
 
 
 def test_global_ik_reaches_initial_pose_from_rough_seed(kinematics, spec):
-    pose = spec[0].initial_poses[3]
+    pose = spec.sampling.initial_poses[3]
     q = kinematics.inverse_kinematics_global(pose.pose(), np.asarray(pose.q_seed) + 0.3)
     position_error, rotation_error = pose_errors(kinematics.tool_pose(q), pose.pose())
     assert position_error < 1e-9 and rotation_error < 1e-9
@@ -308,12 +308,12 @@ def test_toppra_too_short_horizon_is_a_planning_error(kinematics, spec, start, g
 # ---------------------------------------------------------------------------------------------
 
 def small_sampling(spec, **changes) -> TaskSpaceSamplingConfig:
-    return dataclasses.replace(spec[0], initial_poses=spec[0].initial_poses[:2], num_final_per_initial=3, **changes)
+    return dataclasses.replace(spec.sampling, initial_poses=spec.sampling.initial_poses[:2], num_final_per_initial=3, **changes)
 
 
 @pytest.mark.slow
 def test_sample_task_plans_resamples_rejected_and_is_deterministic(kinematics, spec):
-    sampling, planner = small_sampling(spec), spec[1]  # both initial poses are at z = 0.45 m
+    sampling, planner = small_sampling(spec), spec.planner  # both initial poses are at z = 0.45 m
     z_max = 0.48
 
     def is_collision_free(q):  # stands in for a SceneGraph check: rejects tool heights above z_max
@@ -345,7 +345,7 @@ def test_sample_task_plans_gives_up_naming_the_initial_pose(kinematics, spec, st
     messages = []
     with pytest.raises(PlanningError, match=r"initial pose 0 \(xyz=\(0\.650, 0\.350, 0\.450\) m .*\): no feasible "
                                             r"final pose for plan 0 after 3 attempts; last: .*self-collision"):
-        sample_task_plans(kinematics, sampling, spec[1], DT, np.random.default_rng(0),
+        sample_task_plans(kinematics, sampling, spec.planner, DT, np.random.default_rng(0),
                           is_collision_free=lambda q: np.allclose(q, start, atol=1e-12), on_reject=messages.append)
     assert len(messages) == 3
 
@@ -353,7 +353,7 @@ def test_sample_task_plans_gives_up_naming_the_initial_pose(kinematics, spec, st
 @pytest.mark.slow
 def test_sample_task_plans_rejects_limit_violations(kinematics, spec):
     # Tight acceleration limits reject some final poses; the kept ones all respect them.
-    planner = dataclasses.replace(spec[1], acceleration_limits=[1.2] * 6)
+    planner = dataclasses.replace(spec.planner, acceleration_limits=[1.2] * 6)
     sampling = small_sampling(spec, max_resample_attempts=50)
     messages = []
     plans = sample_task_plans(kinematics, sampling, planner, DT, np.random.default_rng(2), on_reject=messages.append)
@@ -364,16 +364,17 @@ def test_sample_task_plans_rejects_limit_violations(kinematics, spec):
 
 
 def test_unreachable_initial_pose_is_named(kinematics, spec):
-    far = InitialPose(xyz=[2.5, 0.0, 0.4], rpy=[np.pi, 0.0, 0.0], q_seed=spec[0].initial_poses[0].q_seed)
-    sampling = dataclasses.replace(spec[0], initial_poses=[spec[0].initial_poses[0], far], num_final_per_initial=1)
+    far = InitialPose(xyz=[2.5, 0.0, 0.4], rpy=[np.pi, 0.0, 0.0], q_seed=spec.sampling.initial_poses[0].q_seed)
+    sampling = dataclasses.replace(spec.sampling, initial_poses=[spec.sampling.initial_poses[0], far], num_final_per_initial=1)
     with pytest.raises(PlanningError, match=r"initial pose 1 \(xyz=\(2\.500, 0\.000, 0\.400\) .*\) is unreachable"):
-        sample_task_plans(kinematics, sampling, spec[1], DT, np.random.default_rng(0))
+        sample_task_plans(kinematics, sampling, spec.planner, DT, np.random.default_rng(0))
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", PLANNER_KINDS)
 def test_default_spec_yields_100_valid_plans(kinematics, kind):
-    sampling, planner = load_tracking_spec(TRAJECTORIES_DIR / SPEC_FILES[kind], robot=UR10)
+    loaded = load_tracking_spec(TRAJECTORIES_DIR / SPEC_FILES[kind], robot=UR10)
+    sampling, planner = loaded.sampling, loaded.planner
     assert planner.kind == kind
     messages = []
     started = time.perf_counter()
@@ -402,15 +403,16 @@ def test_default_spec_yields_100_valid_plans(kinematics, kind):
 
 def test_spec_variants_share_the_sampling_protocol():
     specs = {kind: load_tracking_spec(TRAJECTORIES_DIR / name, robot=UR10) for kind, name in SPEC_FILES.items()}
-    reference_sampling, reference_planner = specs["quintic"]
+    reference_sampling, reference_planner = specs["quintic"].sampling, specs["quintic"].planner
     assert len(reference_sampling.initial_poses) == 4 and reference_sampling.num_final_per_initial == 25
     assert reference_sampling.num_steps == 100
-    for kind, (sampling, planner) in specs.items():
+    for kind, spec in specs.items():
+        sampling, planner = spec.sampling, spec.planner
         assert planner.kind == kind
         assert sampling == reference_sampling
         assert dataclasses.replace(planner, kind="quintic") == reference_planner
-    _, overridden = load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10, planner_kind="toppra")
-    assert overridden.kind == "toppra"
+    overridden = load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10, planner_kind="toppra")
+    assert overridden.planner.kind == "toppra"
 
 
 @pytest.mark.parametrize("text, message", [

@@ -243,7 +243,7 @@ def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
     slow = slow.replace("model: ur10.urdf", "model: stdm-drake:models/ur10.urdf")   # the shipped file, from here
     slow += "velocity_limits: {" + ", ".join(f"{joint}: 0.628" for joint in UR10.joint_names) + "}\n"
     (tmp_path / "slow.yaml").write_text(slow)
-    fast_sampling, _ = derived_tracking_spec(UR10)
+    fast_sampling = derived_tracking_spec(UR10).sampling
     with caplog.at_level("WARNING"):
         assert main(["collect", "--robot", str(tmp_path / "slow.yaml"), "--count", "8", "--workers", "1", "--quiet",
                      "-o", str(tmp_path / "slow.h5")]) == 0

@@ -67,7 +67,8 @@ def test_redundant_arm_plans_have_exact_derivatives(panda):
     from stdm_drake.collection.plan import derived_tracking_spec, initial_configuration, sample_final_pose
     from stdm_drake.collection.planners import plan_trajectory
 
-    sampling, planner = derived_tracking_spec(panda)
+    spec = derived_tracking_spec(panda)
+    sampling, planner = spec.sampling, spec.planner
     kinematics = RobotKinematics(robot=panda)
     assert len(kinematics.redundant_joints) == 1
     (r,) = kinematics.redundant_joints
@@ -101,7 +102,8 @@ def test_redundant_arm_plans_have_exact_derivatives(panda):
 
 def test_derived_tracking_spec_starts_at_home_within_reach(panda):
     from stdm_drake.collection.plan import derived_tracking_spec
-    sampling, planner = derived_tracking_spec(panda)
+    spec = derived_tracking_spec(panda)
+    sampling, planner = spec.sampling, spec.planner
     assert len(sampling.initial_poses) == 4 and sampling.initial_poses[0].q_seed == panda.home.tolist()
     seeds = np.array([pose.q_seed for pose in sampling.initial_poses])
     assert np.all(np.abs(seeds - panda.home) <= 0.3)

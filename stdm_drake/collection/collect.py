@@ -4,8 +4,8 @@
 - excitation (paper V.A.2, eq. 10): per-joint random sine torques A sin(f t + phi) + B added to
   gravity compensation; the action recorded is the total torque applied.
 - tracking (paper V.B.1): task-space plans from `stdm_drake.collection.plan`, tracked by a joint-space
-  controller (`stdm_drake.robots.control`, in the station `stdm_drake.robots.station`) on measured (noisy, filtered) states; the plan's q̇_d, q̈_d
-  are recorded as the "real robot" derivative targets.
+  controller (`stdm_drake.robots.control`, in the station `stdm_drake.robots.station`) on measured
+  (noisy, filtered) states; the plan's q̇_d, q̈_d are recorded as the "real robot" derivative targets.
 
 Every trajectory is simulated sample by sample: at t_k the controller sees the measurement y_k,
 returns a_k, and a_k is held while the discrete plant integrates to t_k+1 at its own step, so
@@ -26,6 +26,7 @@ from importlib import metadata as importlib_metadata
 import numpy as np
 
 from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.collection.plan import TrackingSpec, derived_tracking_spec, load_tracking_spec
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR
@@ -195,28 +196,48 @@ def init_station_worker(settings: StationConfig) -> None:
     _WORKER_RIG = Station(settings)
 
 
-def _collect_one(job: tuple) -> dict:
-    protocol, index, seed, payload = job
-    rng = np.random.default_rng([seed, index])
-    if protocol == "excitation":
-        return excitation_trajectory(_WORKER_RIG, payload, rng)
-    return tracking_trajectory(_WORKER_RIG, payload, rng)
+@dataclasses.dataclass(frozen=True)
+class TrajectoryJob:
+    """One trajectory for a collection worker: trajectory `index` of the dataset of `seed` under
+    `protocol`, with its payload (the ExcitationConfig, or the PlanSamples to track)."""
+    protocol: str
+    index: int
+    seed: int
+    payload: ExcitationConfig | PlanSamples
+
+
+def _collect_one(job: TrajectoryJob) -> dict:
+    rng = np.random.default_rng([job.seed, job.index])
+    if job.protocol == "excitation":
+        return excitation_trajectory(_WORKER_RIG, job.payload, rng)
+    return tracking_trajectory(_WORKER_RIG, job.payload, rng)
 
 
 @dataclasses.dataclass
 class CollectionRequest:
-    """One dataset to collect. config: ExcitationConfig or the tracking spec pair."""
+    """One dataset to collect: its protocol's settings are `excitation` or `tracking_spec`."""
     protocol: str
     count: int
     seed: int
     settings: StationConfig
     excitation: ExcitationConfig | None = None
-    tracking_spec: tuple | None = None
+    tracking_spec: TrackingSpec | None = None
     workers: int = 1
 
 
-def _plan_pose(job: tuple) -> list[PlanSamples]:
-    """Plan `count` trajectories from one initial pose, with that pose's own random stream.
+@dataclasses.dataclass(frozen=True)
+class PoseJob:
+    """The plans of one initial pose for a collection worker: `count` plans from pose `pose_index` of
+    `spec`, sampled at `sample_period` s, for the dataset of `seed`."""
+    spec: TrackingSpec
+    pose_index: int
+    count: int
+    seed: int
+    sample_period: float
+
+
+def _plan_pose(job: PoseJob) -> list[PlanSamples]:
+    """Plan `job.count` trajectories from one initial pose, with that pose's own random stream.
 
     Pose p draws from numpy.random.default_rng([seed, 2**31, p]); plan k of a pose does not
     depend on how many plans are requested after it.
@@ -224,12 +245,12 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
     from stdm_drake.robots.kinematics import RobotKinematics
     from stdm_drake.collection.plan import sample_task_plans
 
-    (sampling, planner), pose_index, count, seed, sample_period = job
+    sampling, pose_index = job.spec.sampling, job.pose_index
     one_pose = dataclasses.replace(sampling, initial_poses=[sampling.initial_poses[pose_index]],
-                                   num_final_per_initial=count)
-    rng = np.random.default_rng([seed, 2**31, pose_index])
+                                   num_final_per_initial=job.count)
+    rng = np.random.default_rng([job.seed, 2**31, pose_index])
     kinematics = RobotKinematics(_WORKER_RIG.dynamics.plant, robot=_WORKER_RIG.robot)
-    sampled = sample_task_plans(kinematics, one_pose, planner, sample_period, rng,
+    sampled = sample_task_plans(kinematics, one_pose, job.spec.planner, job.sample_period, rng,
                                 is_collision_free=_WORKER_RIG.collision_checker.is_collision_free,
                                 first_index=pose_index)
     return [PlanSamples(q=plan.q, qd=plan.qd, qdd=plan.qdd) for _, plan in sampled]
@@ -238,17 +259,17 @@ def _plan_pose(job: tuple) -> list[PlanSamples]:
 def plan_tracking(request: "CollectionRequest", pool) -> tuple[list[PlanSamples], list[int]]:
     """Plans for `request.count` tracking trajectories, spread evenly over the initial poses,
     ordered by pose: returns (plans, groups). pool: a `cluster.job_pool` whose workers hold a Station."""
-    sampling, _ = request.tracking_spec
+    sampling = request.tracking_spec.sampling
     if request.count > len(sampling.initial_poses) * sampling.num_final_per_initial:
         raise InputError(f"tracking spec yields {len(sampling.initial_poses)} poses x "
                          f"{sampling.num_final_per_initial} final poses, {request.count} requested")
     counts = plans_per_pose(request.count, len(sampling.initial_poses))
-    jobs = [(request.tracking_spec, pose, n, request.seed, request.settings.sample_period)
+    jobs = [PoseJob(request.tracking_spec, pose, n, request.seed, request.settings.sample_period)
             for pose, n in enumerate(counts) if n]
     plans, groups = [], []
-    for (_, pose, *_), pose_plans in zip(jobs, pool.map(_plan_pose, jobs)):
+    for job, pose_plans in zip(jobs, pool.map(_plan_pose, jobs)):
         plans += pose_plans
-        groups += [pose] * len(pose_plans)
+        groups += [job.pose_index] * len(pose_plans)
     return plans, groups
 
 
@@ -290,7 +311,7 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
             payloads, groups = [request.excitation] * request.count, [0] * request.count
         else:
             payloads, groups = plan_tracking(request, pool)
-        jobs = [(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
+        jobs = [TrajectoryJob(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
         for traj in pool.map(_collect_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))):
             finished(traj)
     bar.close()
@@ -328,10 +349,9 @@ def collection_metadata(request: CollectionRequest) -> dict:
         metadata["excitation_parameters_columns"] = (f"amplitude ({m}) N m, frequency ({m}) rad/s, offset ({m}) N m, "
                                                      f"phase ({m}) rad")
     else:
-        sampling, planner = request.tracking_spec
         metadata["controller"] = dataclasses.asdict(settings.controller)
-        metadata["planner"] = dataclasses.asdict(planner)
-        metadata["task_space_sampling"] = dataclasses.asdict(sampling)
+        metadata["planner"] = dataclasses.asdict(request.tracking_spec.planner)
+        metadata["task_space_sampling"] = dataclasses.asdict(request.tracking_spec.sampling)
     return metadata
 
 
@@ -389,7 +409,6 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
         except InputError as error:
             raise InputError(f"{config_path}: {error}") from None
     else:
-        from stdm_drake.collection.plan import derived_tracking_spec, load_tracking_spec
         if config_path is None:
             request.tracking_spec = derived_tracking_spec(robot, sample_period=sample_period)
         else:

@@ -93,7 +93,7 @@ class TrackingSpec:
 
 
 def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: float = 0.3, seed: int = 0,
-                          sample_period: float = 0.01) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
+                          sample_period: float = 0.01) -> TrackingSpec:
     """A tracking spec for a robot without a tracking file, by the rules behind the UR-10's:
 
     - initial poses: the tool pose at home, then at configurations drawn uniformly in home +- `box`
@@ -149,7 +149,7 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
     sampling.orientation_max_angle = round(scale * sampling.orientation_max_angle, 3)
     sampling.validate()
     planner.validate()
-    return sampling, planner
+    return TrackingSpec(sampling=sampling, planner=planner)
 
 
 def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampling: TaskSpaceSamplingConfig,
@@ -182,7 +182,7 @@ def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampli
 
 
 def load_tracking_spec(path: str | os.PathLike, *, robot: Robot,
-                       planner_kind: str | None = None) -> tuple[TaskSpaceSamplingConfig, PlannerConfig]:
+                       planner_kind: str | None = None) -> TrackingSpec:
     """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`) for `robot`:
     per-joint lists of its length (or one value), IK seeds of its joints.
 
@@ -199,7 +199,7 @@ def load_tracking_spec(path: str | os.PathLike, *, robot: Robot,
             setattr(spec, section, getattr(spec, section).for_robot(robot))
         except InputError as error:
             raise InputError(f"{path}: {section}: {error}") from None
-    return spec.sampling, spec.planner
+    return spec
 
 
 def initial_configuration(kinematics: RobotKinematics, pose: InitialPose, config: PlannerConfig) -> np.ndarray:

@@ -19,7 +19,8 @@ import pathlib
 import time
 
 from stdm_drake.cluster import RunnerConfig, job_pool
-from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, IDENTIFICATION_SETTINGS, Profile, ensure_dataset, plan_jobs, run_jobs)
+from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, IDENTIFICATION_SETTINGS, Profile, ensure_dataset,
+                                         plan_jobs, run_jobs)
 from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
 from stdm_drake.files import json_default
 from stdm_drake.outputs import mark_output_folder
@@ -122,7 +123,7 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
         references = [(i, Reference(q=r.q[:profile.mpc_steps + 1], v=r.v[:profile.mpc_steps + 1])) for i, r in references]
     # the plant-as-model MPC costs about as much as all learned models together: it gets a worker of its own
     groups = [specs[:1], specs[1:]] if workers > 1 else [specs]
-    jobs = [(group, references, identification.sample_period, progress and index == len(groups) - 1, robot)
+    jobs = [MpcGroup(group, references, identification.sample_period, progress and index == len(groups) - 1, robot)
             for index, group in enumerate(groups)]
     with job_pool(RunnerConfig(workers=len(jobs))) as pool:
         runs = [run for group_runs in pool.map(_mpc_group, jobs) for run in group_runs]
@@ -131,15 +132,26 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
                 failures=closed_loop_failures(runs))
 
 
-def _mpc_group(arguments) -> list:
-    """Closed-loop runs of the models named in `specs` ((name, checkpoint path or None for the plant))."""
+@dataclasses.dataclass(frozen=True)
+class MpcGroup:
+    """Closed-loop runs for one worker: the models in `specs` ((name, checkpoint path, or None for the
+    plant)) on every reference, at `sample_period` s, for `robot`; `progress`: show its bar."""
+    specs: list
+    references: list
+    sample_period: float
+    progress: bool
+    robot: Robot
+
+
+def _mpc_group(group: MpcGroup) -> list:
+    """The ClosedLoopResults of one MpcGroup."""
     import torch
     torch.set_num_threads(1)
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.physics import PlantModel
     from stdm_drake.closed_loop.comparison import compare_controllers
     from stdm_drake.closed_loop.mpc import mpc_config_for
-    specs, references, sample_period, progress, robot = arguments
-    models = [PlantModel(sample_period, robot=robot) if path is None else LearnedModel(path, name=name, robot=robot)
-              for name, path in specs]
-    return compare_controllers(models, references, mpc_config_for(robot), progress=progress, robot=robot)
+    robot = group.robot
+    models = [PlantModel(group.sample_period, robot=robot) if path is None else LearnedModel(path, name=name, robot=robot)
+              for name, path in group.specs]
+    return compare_controllers(models, group.references, mpc_config_for(robot), progress=group.progress, robot=robot)
