@@ -67,6 +67,8 @@ def dataset_summary(path, keys) -> tuple[dict, str]:
     if "controller" in kept:  # fields added since (PID sizing), empty in files of gains given by hand
         kept["controller"] = {key: value for key, value in kept["controller"].items()
                               if not (key in ("bandwidth", "dither_acceleration") and value == [])}
+        if kept["controller"]["kind"] == "inverse_dynamics":   # a PID-only field it recorded (unused) until
+            kept["controller"].setdefault("gravity_feedforward", True)   # the controllers became tagged types
     return sums, hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
 
 

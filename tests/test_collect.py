@@ -8,7 +8,7 @@ import pytest
 from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.collection.collect import StationConfig, Station
-from stdm_drake.robots.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
+from stdm_drake.robots.control import JointSensor, Pid, SampledJointController, SensorConfig
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.data.inspect import tracking_errors, tracking_smoothness
 
@@ -116,8 +116,8 @@ def test_default_controller_does_not_chatter_where_pid_does(tmp_path, tracking_d
 def test_controller_velocity_filter_is_first_order():
     """D-only controller (kp = ki = 0, kd = 1, no gravity): torque = -v_filtered; with a time constant
     equal to the period the filter moves halfway each sample, starting at the first reading."""
-    config = ControllerConfig(kind="pid", kp=[0.0] * 6, ki=[0.0] * 6, kd=[1.0] * 6, gravity_feedforward=False,
-                              velocity_filter_time_constant=0.01)
+    config = Pid(kp=[0.0] * 6, ki=[0.0] * 6, kd=[1.0] * 6, gravity_feedforward=False,
+                 velocity_filter_time_constant=0.01)
     controller = SampledJointController(config, 0.01, UR10)
     zeros = np.zeros(6)
     torques = [controller.torque(zeros, np.full(6, v), zeros, zeros, zeros)[0] for v in (2.0, 0.0, 0.0, 4.0)]
@@ -182,7 +182,7 @@ def test_unreachable_pose_fails_clearly(tmp_path):
 @pytest.mark.slow
 def test_bad_controller_and_period(tmp_path):
     gains = tmp_path / "gains.yaml"
-    gains.write_text("kind: pid\nkp: [1, 2, 3]\nki: [0]\nkd: [1]\n")
+    gains.write_text("controller: !Pid\n  kp: [1, 2, 3]\n  ki: [0]\n  kd: [1]\n")
     result = run_cli("collect", "--controller", str(gains), "-o", str(tmp_path / "out.h5"))
     assert result.returncode == 2 and "controller kp has 3 values; the robot has 6 joints" in result.stderr
     gains.write_text(open("controllers/inverse_dynamics.yaml").read().replace(
@@ -221,3 +221,21 @@ def test_torque_dither_is_recorded_and_seeded(tmp_path):
     np.testing.assert_array_equal(dithered.trajectory(0)["tau"], again.trajectory(0)["tau"])
     assert dithered.metadata.record["controller"]["dither_std"] == [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]
     assert tracking_errors(dithered)["true_q"] < 1e-4
+
+
+def test_controller_files_are_tagged_and_the_old_kind_layout_loads_with_a_warning(tmp_path, capsys):
+    """`controller: !Pid {...}` picks the type by its tag; a file in the layout before the tags (top-level
+    `kind: pid`) loads to the same config and says in one line how to update it."""
+    from stdm_drake.robots.control import InverseDynamics, load_controller_config
+    new = tmp_path / "new.yaml"
+    new.write_text("controller: !Pid\n  kp: [1.0]\n  ki: [2.0]\n  kd: [0.5]\n  gravity_feedforward: false\n")
+    old = tmp_path / "old.yaml"
+    old.write_text("kind: pid\nkp: [1.0]\nki: [2.0]\nkd: [0.5]\ngravity_feedforward: false\n")
+    assert load_controller_config(new) == Pid(kp=[1.0], ki=[2.0], kd=[0.5], gravity_feedforward=False)
+    assert capsys.readouterr().err == ""
+    assert load_controller_config(old) == load_controller_config(new)
+    warning = capsys.readouterr().err.strip()
+    assert len(warning.splitlines()) == 1 and "old `kind: pid` layout" in warning and "controller: !Pid" in warning
+    assert isinstance(load_controller_config("controllers/inverse_dynamics.yaml"), InverseDynamics)
+    assert Pid(kp=[1.0], ki=[1.0], kd=[1.0]).record()["kind"] == "pid"
+

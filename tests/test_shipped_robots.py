@@ -246,7 +246,7 @@ def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
     traj = load_dataset(data).trajectory(0)
     assert np.mean((traj["q_true"] - traj["q_planned"]) ** 2) < 1e-4
     both = tmp_path / "both.yaml"
-    both.write_text("kind: pid\nkp: [100.0]\nbandwidth: [25.0]\n")
+    both.write_text("controller: !Pid\n  kp: [100.0]\n  bandwidth: [25.0]\n")
     with pytest.raises(InputError, match="give kp, ki, kd or bandwidth, not both"):
         collection_request("tracking", count=1, robot=panda, controller=both)
 

@@ -349,7 +349,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
         metadata["excitation_parameters_columns"] = (f"amplitude ({m}) N m, frequency ({m}) rad/s, offset ({m}) N m, "
                                                      f"phase ({m}) rad")
     else:
-        metadata["controller"] = dataclasses.asdict(settings.controller)
+        metadata["controller"] = settings.controller.record()
         metadata["planner"] = dataclasses.asdict(request.tracking_spec.planner)
         metadata["task_space_sampling"] = dataclasses.asdict(request.tracking_spec.sampling)
     return metadata

@@ -5,88 +5,83 @@ hold). stdm-drake does the same: the control law is evaluated once per sample pe
 measured state, and the torque is held while the plant integrates at its finer step. The
 control laws are Drake's own systems, evaluated in their own contexts:
 
-- "pid": `PidController` (kp, ki, kd) on [q, v] error plus gravity feed-forward g(q_measured);
-- "inverse_dynamics": `InverseDynamicsController` (computed torque with PID on the error and the
-  planned acceleration as reference).
+- `Pid` (YAML `controller: !Pid`): Drake's `PidController` (kp, ki, kd) on the [q, v] error plus
+  gravity feed-forward g(q_measured);
+- `InverseDynamics` (`controller: !InverseDynamics`): Drake's `InverseDynamicsController` (computed
+  torque with PID on the error and the planned acceleration as reference).
 
 The integral of the position error is kept by the sampled loop (rectangle rule at the sample
 period) and written into the Drake controller's context before each evaluation.
 """
 
 import dataclasses
+import pathlib
+import typing
 
 import numpy as np
+from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.controllers import InverseDynamicsController, PidController
 
-from stdm_drake.config import check_joint_vector, load_yaml_config
+from stdm_drake.config import check_joint_vector
 from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import Dynamics, joint_limits
 from stdm_drake.robots.robot import Robot
 
-CONTROLLER_KINDS = ("pid", "inverse_dynamics")
-
-
 @dataclasses.dataclass
-class ControllerConfig:
-    """Gains of the joint-space tracking controller: per joint (in the robot's arm-joint order), or one
-    value for every joint.
+class JointGains:
+    """What both tracking controllers share: gains per joint (in the robot's arm-joint order), or one
+    value for every joint, the torque dither and the velocity filter.
 
-    pid: kp N m/rad, ki N m/(rad s), kd N m s/rad.
-    inverse_dynamics: kp 1/s^2, ki 1/s^3, kd 1/s (they scale the mass matrix).
     dither_std (N m): white torque dither added to each sample's torque (persistent excitation, as
     in system identification), held and recorded like the rest of the torque; zeros = off.
     velocity_filter_time_constant (s): the velocity the controller acts on (its D term, and C(q, v) v
-    for inverse_dynamics) is the measured one passed through a first-order low-pass filter,
+    for inverse dynamics) is the measured one passed through a first-order low-pass filter,
     v_f,k = v_f,k-1 + beta (v_k - v_f,k-1) with beta = T / (T + time_constant) at the sample period T,
     started at the first measurement; 0 = the raw measurement.
-    bandwidth (rad/s, pid only; instead of kp, ki, kd): gains sized for any robot from each joint's
-    effective inertia M_eff,i = 1 / (M^-1)_ii, its smallest over home and 50 poses within +-0.5 rad of
-    it (the smallest decides stability at a held torque): kp = M_eff w^2, kd = 2 M_eff w (critically
-    damped), ki = 2 kp, the rule behind controllers/pid.yaml's UR-10 gains.
-    dither_acceleration (rad/s^2; instead of dither_std): dither_std = dither_acceleration x M_eff.
+    dither_acceleration (rad/s^2; instead of dither_std): dither_std = dither_acceleration x M_eff,
+    M_eff,i = 1 / (M^-1)_ii, its smallest over home and 50 poses within +-0.5 rad of it.
     """
-    kind: str = "pid"
-    kp: list[float] = dataclasses.field(default_factory=list)
-    ki: list[float] = dataclasses.field(default_factory=list)
-    kd: list[float] = dataclasses.field(default_factory=list)
-    gravity_feedforward: bool = True
-    dither_std: list[float] = dataclasses.field(default_factory=lambda: [0.0])
+    kind: typing.ClassVar[str] = ""
+    kp: typing.List[float] = dataclasses.field(default_factory=list)
+    ki: typing.List[float] = dataclasses.field(default_factory=list)
+    kd: typing.List[float] = dataclasses.field(default_factory=list)
+    dither_std: typing.List[float] = dataclasses.field(default_factory=lambda: [0.0])
     velocity_filter_time_constant: float = 0.0
-    bandwidth: list[float] = dataclasses.field(default_factory=list)
-    dither_acceleration: list[float] = dataclasses.field(default_factory=list)
+    dither_acceleration: typing.List[float] = dataclasses.field(default_factory=list)
+
+    def sizing(self) -> list:
+        """The sizing rule given instead of kp, ki, kd (none here)."""
+        return []
 
     def validate(self) -> None:
         if not self.velocity_filter_time_constant >= 0:
             raise InputError("controller velocity_filter_time_constant must be >= 0 s, "
                              f"got {self.velocity_filter_time_constant}")
         check_joint_vector("controller dither_std", self.dither_std, nonnegative=True)
-        if self.kind not in CONTROLLER_KINDS:
-            raise InputError(f"controller kind must be one of {CONTROLLER_KINDS}, got {self.kind!r}")
-        if self.bandwidth and self.kind != "pid":
-            raise InputError("controller bandwidth sizes pid gains; inverse_dynamics gains are per unit inertia already")
         given = [name for name in ("kp", "ki", "kd") if getattr(self, name)]
-        if self.bandwidth:
-            check_joint_vector("controller bandwidth", self.bandwidth, nonnegative=True)
+        if self.sizing():
+            check_joint_vector("controller bandwidth", self.sizing(), nonnegative=True)
             if given:
                 raise InputError(f"controller: give kp, ki, kd or bandwidth, not both (got {', '.join(given)})")
         elif len(given) != 3:
-            raise InputError("controller needs kp, ki and kd (or, for pid, a bandwidth to size them from)")
+            raise InputError("controller needs kp, ki and kd" + (" (or a bandwidth to size them from)"
+                                                                 if self.kind == "pid" else ""))
         for name in given:
             check_joint_vector(f"controller gain {name}", getattr(self, name), nonnegative=True)
         if self.dither_acceleration:
             check_joint_vector("controller dither_acceleration", self.dither_acceleration, nonnegative=True)
 
-    def for_robot(self, robot: Robot) -> "ControllerConfig":
+    def for_robot(self, robot: Robot):
         """This config with kp, ki, kd and dither_std of the robot's length (one value broadcast, or
-        sized from its inertia by bandwidth and dither_acceleration, which are then left empty), as
+        sized from its inertia by a bandwidth and dither_acceleration, which are then left empty), as
         datasets record it; InputError when a list has another length."""
         self.validate()
         n = robot.num_joints
         config = self
-        if self.bandwidth or self.dither_acceleration:
+        if self.sizing() or self.dither_acceleration:
             inertia = smallest_effective_inertia(robot)
-            if self.bandwidth:
-                w = check_joint_vector("controller bandwidth", self.bandwidth, count=n)
+            if self.sizing():
+                w = check_joint_vector("controller bandwidth", self.sizing(), count=n)
                 kp = inertia * w**2
                 config = dataclasses.replace(config, kp=kp.tolist(), ki=(2.0 * kp).tolist(),
                                              kd=(2.0 * inertia * w).tolist(), bandwidth=[])
@@ -101,6 +96,45 @@ class ControllerConfig:
         return tuple(check_joint_vector(f"controller {name}", getattr(self, name), count=joints, nonnegative=True)
                      for name in ("kp", "ki", "kd", "dither_std"))
 
+    def record(self) -> dict:
+        """What a dataset records of this controller: its kind and its fields."""
+        return dict(kind=self.kind, **dataclasses.asdict(self))
+
+
+@dataclasses.dataclass
+class Pid(JointGains):
+    """Drake's `PidController` on the [q, v] error plus gravity feed-forward g(q_measured) (YAML tag
+    `!Pid`): kp N m/rad, ki N m/(rad s), kd N m s/rad.
+
+    bandwidth (rad/s; instead of kp, ki, kd): gains sized for any robot from each joint's effective
+    inertia M_eff,i (its smallest near home: it decides stability at a held torque): kp = M_eff w^2,
+    kd = 2 M_eff w (critically damped), ki = 2 kp, the rule behind controllers/pid.yaml's UR-10 gains.
+    """
+    kind: typing.ClassVar[str] = "pid"
+    gravity_feedforward: bool = True
+    bandwidth: typing.List[float] = dataclasses.field(default_factory=list)
+
+    def sizing(self) -> list:
+        return self.bandwidth
+
+
+@dataclasses.dataclass
+class InverseDynamics(JointGains):
+    """Drake's `InverseDynamicsController` (YAML tag `!InverseDynamics`): computed torque with PID on
+    the error and the planned acceleration as reference; kp 1/s^2, ki 1/s^3, kd 1/s (they scale the
+    mass matrix, so one value suits every joint of any robot)."""
+    kind: typing.ClassVar[str] = "inverse_dynamics"
+
+
+ControllerConfig = typing.Union[Pid, InverseDynamics]   # a tracking controller's settings, tagged in YAML
+CONTROLLER_TYPES = {cls.kind: cls for cls in typing.get_args(ControllerConfig)}
+
+
+@dataclasses.dataclass
+class ControllerFile:
+    """Schema of controllers/*.yaml: `controller: !Pid {...}` or `controller: !InverseDynamics {...}`."""
+    controller: ControllerConfig = dataclasses.field(default_factory=InverseDynamics)
+
 
 def smallest_effective_inertia(robot: Robot, box: float = 0.5, samples: int = 50) -> np.ndarray:
     """Per joint (n,) kg m^2, the smallest 1 / (M(q)^-1)_ii over home and `samples` poses drawn
@@ -113,7 +147,36 @@ def smallest_effective_inertia(robot: Robot, box: float = 0.5, samples: int = 50
 
 
 def load_controller_config(path) -> ControllerConfig:
-    return load_yaml_config(path, ControllerConfig, what="controller config")
+    """The tracking controller of a controller YAML (`ControllerFile`). A file in the layout before
+    the tags (top-level `kind: pid` and the fields) still loads, with one warning line saying how to
+    update it."""
+    import sys
+
+    import yaml
+    from stdm_drake.config import load_yaml_config, one_line
+    try:
+        text = pathlib.Path(path).read_text()
+        old = yaml.safe_load(text)
+    except (OSError, yaml.YAMLError):
+        old = None  # load_yaml_config reports it
+    if isinstance(old, dict) and "kind" in old and "controller" not in old:
+        kind = old.pop("kind")
+        if kind not in CONTROLLER_TYPES:
+            raise InputError(f"{path}: controller kind must be one of {tuple(CONTROLLER_TYPES)}, got {kind!r}")
+        cls = CONTROLLER_TYPES[kind]
+        print(f"stdm-drake: warning: {path} uses the old `kind: {kind}` layout; write `controller: "
+              f"!{cls.__name__}` with its fields indented under it", file=sys.stderr)
+        try:
+            config = yaml_load_typed(schema=cls, data=yaml.safe_dump(old), defaults=cls())
+        except Exception as error:  # Drake's schema checks raise several types
+            raise InputError(f"{path}: malformed controller config: {one_line(error)}") from None
+    else:
+        config = load_yaml_config(path, ControllerFile, what="controller config").controller
+    try:
+        config.validate()
+    except InputError as error:
+        raise InputError(f"{path}: {error}") from None
+    return config
 
 
 @dataclasses.dataclass
@@ -173,7 +236,7 @@ class SampledJointController:
         self.effort_limit = joint_limits(self.dynamics.plant).effort
         joints = len(self.effort_limit)
         kp, ki, kd, self.dither_std = config.gains(joints)
-        if config.kind == "pid":
+        if isinstance(config, Pid):
             self._system = PidController(kp=kp, ki=ki, kd=kd)
         else:
             self._system = InverseDynamicsController(
@@ -197,10 +260,10 @@ class SampledJointController:
         context.SetContinuousState(self._integral)
         system.get_input_port_estimated_state().FixValue(context, np.concatenate([q, v]))
         system.get_input_port_desired_state().FixValue(context, np.concatenate([q_d, v_d]))
-        if self.config.kind == "inverse_dynamics":
+        if isinstance(self.config, InverseDynamics):
             system.get_input_port_desired_acceleration().FixValue(context, qdd_d)
         tau = np.array(system.get_output_port_control().Eval(context))
-        if self.config.kind == "pid" and self.config.gravity_feedforward:
+        if isinstance(self.config, Pid) and self.config.gravity_feedforward:
             tau += self.dynamics.gravity_torque(q)
         self._integral += (q_d - q) * self.sample_period
         return np.clip(tau, -self.effort_limit, self.effort_limit)

@@ -11,7 +11,7 @@ import math
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.robots.control import ControllerConfig, JointSensor, SampledJointController, SensorConfig
+from stdm_drake.robots.control import ControllerConfig, InverseDynamics, JointSensor, SampledJointController, SensorConfig
 from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
 from stdm_drake.robots.robot import Robot
 
@@ -25,7 +25,7 @@ class StationConfig:
     sample_period: float = DEFAULT_SAMPLE_PERIOD
     plant: PlantConfig = dataclasses.field(default_factory=PlantConfig)
     sensor: SensorConfig = dataclasses.field(default_factory=SensorConfig)
-    controller: ControllerConfig = dataclasses.field(default_factory=ControllerConfig)
+    controller: ControllerConfig = dataclasses.field(default_factory=InverseDynamics)
 
     def substeps(self) -> int:
         """Plant steps per sample period; the period must be a whole multiple of the plant step."""
