@@ -298,8 +298,8 @@ def run(args: argparse.Namespace) -> int:
           f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}, "
           f"{structure.label}; train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
           f"({len(problem.train)} / {len(problem.val)} transitions)")
-    fit_options = dict(alpha="auto" if settings.alpha == "auto" else "fixed", alphas=tuple(settings.alpha_grid),
-                       checkpoint_every=settings.checkpoint_every, metadata=problem.metadata)
+    fit_options = dict(alpha_grid=settings.alpha_choices(), checkpoint_every=settings.checkpoint_every,
+                       metadata=problem.metadata)
     entries = {seed: write_seed_files(output / f"seed{seed}", name, seed, result, selection)
                for seed, result, selection in fit_seeds(problem, settings, fit_options, runner, output, args.quiet)}
     summary = dict(model_type=name, structure=structure.as_dict(), dataset=str(args.dataset),

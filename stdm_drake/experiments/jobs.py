@@ -222,8 +222,9 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
         saved_training = dataclasses.replace(training, alpha=0.0, alpha_grid=tuple(job.alphas))
         metadata.alpha_selection = selection.as_dict()
     else:
-        trained, selection = fit_model(config, training, train, val, alpha=job.alpha_mode if kind.derivative else
-                                       "fixed", metadata=metadata)
+        choose = job.alpha_mode == "auto" and kind.derivative
+        trained, selection = fit_model(config, training, train, val, alpha_grid=DEFAULT_ALPHA_GRID if choose else None,
+                                       metadata=metadata)
         seconds = time.perf_counter() - started
         alpha = selection.alpha if selection is not None else training.alpha
         rows.append(dict(common, model_type=job.model_type, alpha=alpha, train_seconds=seconds,

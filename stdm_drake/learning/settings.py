@@ -215,6 +215,11 @@ class TrainSettings:
         from stdm_drake.learning.structure import ModelStructure
         return ModelStructure(predicts=self.predicts, inputs=self.inputs)
 
+    def alpha_choices(self) -> tuple | None:
+        """The alphas that alpha "auto" chooses from by validation (`trainer.fit_model`'s alpha_grid);
+        None for a fixed alpha."""
+        return tuple(float(a) for a in self.alpha_grid) if self.alpha == "auto" else None
+
     def training_config(self, seed: int) -> TrainingConfig:
         """How the model of `seed` is fitted (alpha 0 without the derivative loss, and while "auto" picks it)."""
         alpha = (0.0 if self.alpha == "auto" else float(self.alpha)) if self.uses_derivative() else 0.0

@@ -340,17 +340,18 @@ def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, tra
 
 
 def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
-              val_data: RegressionData, *, alpha="fixed", alphas=DEFAULT_ALPHA_GRID, checkpoint_path=None,
+              val_data: RegressionData, *, alpha_grid: tuple | None = None, checkpoint_path=None,
               checkpoint_every: int = 10, metadata: CheckpointMetadata | dict | None = None, resume: bool = False,
               on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection | None]:
-    """Train one model as `stdm-drake train` does. alpha="fixed": training_config.alpha as given;
-    alpha="auto": `select_alpha` over `alphas` first; a single-member model is then the chosen grid
-    member itself, an ensemble is trained at the chosen alpha. The selection is stored in the
-    checkpoint's metadata (`alpha_selection`); resuming an "auto" run reuses a stored selection."""
+    """Train one model as `stdm-drake train` does, at the derivative-loss weight training_config.alpha
+    (eq. 9), or, given `alpha_grid`, at the alpha `select_alpha` chooses from it by validation first: a
+    single-member model is then the chosen grid member itself, an ensemble is trained at the chosen
+    alpha. The selection is stored in the checkpoint's metadata (`alpha_selection`); resuming a run
+    that chose its alpha reuses the stored selection."""
     metadata = (dataclasses.replace(metadata) if isinstance(metadata, CheckpointMetadata)
                 else CheckpointMetadata.from_dict(dict(metadata or {})))
     selection = None
-    if alpha == "auto":
+    if alpha_grid is not None:
         stored = None
         if resume and checkpoint_path is not None and pathlib.Path(checkpoint_path).exists():
             stored = load_checkpoint(checkpoint_path)
@@ -363,7 +364,7 @@ def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_
                                    epochs_run=int(stored.history.get("epoch", [0])[-1] if stored.history.get("epoch")
                                                   else 0), stopped_early=False), selection
         else:
-            chosen, selection = select_alpha(model_config, training_config, train_data, val_data, alphas=alphas,
+            chosen, selection = select_alpha(model_config, training_config, train_data, val_data, alphas=alpha_grid,
                                              on_epoch=on_epoch)
             resume = False
             if model_config.ensemble_size == 1:
