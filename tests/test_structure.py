@@ -127,8 +127,8 @@ def test_importing_collection_loads_no_learning_code():
 # module, one past its ceiling, or one listed here that is no longer long fails the test.
 LONG_MODULES = {
     "collection/planners.py": 600,      # three planners with their shared task-space checks
-    "experiments/reproduce_report.py": 580,
-    "experiments/sine_sum.py": 600,
+    "experiments/reproduce_report.py": 520,   # its sections, the tables they show and the verdicts
+    "experiments/sine_sum.py": 570,          # the study, its figures and its summary
 }
 
 

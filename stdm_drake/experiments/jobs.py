@@ -392,3 +392,8 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
 # (for another robot than the UR-10: pid_dither_sized.yaml, the same rule sized from its inertia)
 IDENTIFICATION_SETTINGS = dict(controller=CONTROLLERS_DIR / "pid_dither.yaml",
                                sensor=CONTROLLERS_DIR / "sensor_ideal.yaml")
+
+
+def select_rows(results, **conditions):
+    """The result rows whose fields equal `conditions` (e.g. experiment="sim", model_type="DD")."""
+    return [r for r in results if all(r[key] == value for key, value in conditions.items())]

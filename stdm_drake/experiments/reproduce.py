@@ -20,8 +20,8 @@ import time
 
 from stdm_drake.cluster import RunnerConfig, job_pool
 from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, IDENTIFICATION_SETTINGS, Profile, ensure_dataset,
-                                         plan_jobs, run_jobs)
-from stdm_drake.experiments.reproduce_report import select_rows, mpc_statistics, write_report
+                                         plan_jobs, run_jobs, select_rows)
+from stdm_drake.experiments.reproduce_report import mpc_statistics, write_report
 from stdm_drake.files import json_default
 from stdm_drake.outputs import mark_output_folder
 from stdm_drake.paths import CONTROLLERS_DIR

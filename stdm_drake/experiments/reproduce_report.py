@@ -9,7 +9,9 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.experiments.jobs import Profile
+from stdm_drake.experiments.jobs import Profile, select_rows
+from stdm_drake.experiments.reproduce_figures import (figure_path, plot_activations, plot_learning_curves, plot_multistep,
+                                                      plot_sizes)
 from stdm_drake.files import json_default, write_text_atomic
 from stdm_drake.learning.models import MODEL_TYPES
 from stdm_drake.report import Report
@@ -24,10 +26,6 @@ PAPER = {
     "real_sample_efficiency_percent": {"q": {1: 17, 3: 7, 5: 56}, "v": {1: 54, 3: 47, 5: 77}},
     "rollout_seconds_100_steps": {"single": 0.033, "ensemble": 0.15},
 }
-
-
-def select_rows(results, **conditions):
-    return [r for r in results if all(r[key] == value for key, value in conditions.items())]
 
 
 def _mean_std(values):
@@ -102,8 +100,6 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
     return row
 
 
-
-
 def activation_table(results, experiment: str, size: int) -> list[dict]:
     activations = dict.fromkeys(r["activation"] for r in select_rows(results, experiment=experiment, train_size=size))
     return [comparison_row(results, experiment, size, activation, ONE_STEP) for activation in activations]
@@ -142,88 +138,6 @@ def ratio_text(ratio: dict | None, learned: bool = True) -> str:
         return f"{ratio['ratio']:.3g}x (1 pair)"
     reading = ratio["verdict"] if learned else "uninformative"
     return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}] {reading}"
-
-
-def _figure_path(folder, name):
-    return folder / f"{name}.png"
-
-
-def _save(figure, path):
-    import matplotlib.pyplot as plt
-
-    from stdm_drake.files import atomic_path
-    with atomic_path(path) as temp:
-        figure.savefig(temp, format="png", dpi=100)
-    plt.close(figure)
-
-
-def plot_activations(rows, title, path):
-    import matplotlib.pyplot as plt
-    figure, axes = plt.subplots(1, 2, figsize=(12, 4))
-    x = np.arange(len(rows))
-    for axis, quantity, unit in zip(axes, ("q", "v"), ("rad²", "(rad/s)²")):
-        axis.bar(x - 0.2, [r[f"{quantity}_naive"] for r in rows], 0.4, label="naive (D)")
-        axis.bar(x + 0.2, [r[f"{quantity}_DD"] for r in rows], 0.4, label="derivative, alpha 1e-3 (our units) (DD)")
-        for i, row in enumerate(rows):
-            ratio = row[f"{quantity}_DD_ratio"]
-            axis.annotate(f"{ratio['ratio']:.2g}x", (i, max(row[f"{quantity}_naive"], row[f"{quantity}_DD"])),
-                          ha="center", va="bottom", fontsize=8, fontweight="bold" if ratio["verdict"] != "no clear "
-                          "difference" else "normal")
-        axis.set(xticks=x, xticklabels=[r["activation"] for r in rows], yscale="log",
-                 ylabel=f"one-step test MSE ({unit})",
-                 title=f"{title}: {'joint angles' if quantity == 'q' else 'velocities'} (naive/DD, bold: 95 % CI excludes 1)")
-        axis.legend()
-    figure.tight_layout()
-    _save(figure, path)
-
-
-def plot_sizes(rows, title, xlabel, path):
-    import matplotlib.pyplot as plt
-    figure, axes = plt.subplots(1, 2, figsize=(11, 4))
-    sizes = [r["train_trajectories"] for r in rows]
-    for axis, quantity in zip(axes, ("q", "v")):
-        for key, label in (("naive", "naive (D)"), ("DD", "paper alpha (DD)"), ("DD-auto", "alpha by validation")):
-            if f"{quantity}_{key}" not in rows[0]:
-                continue
-            axis.errorbar(sizes, [r[f"{quantity}_{key}"] for r in rows], yerr=[r[f"{quantity}_{key}_std"] for r in rows],
-                          marker="o", capsize=4, label=label)
-        axis.set(xlabel=xlabel, ylabel="one-step test MSE", yscale="log",
-                 title=f"{title}: {'joint angles' if quantity == 'q' else 'velocities'} (swish, mean ± std over seeds)")
-        axis.legend()
-    figure.tight_layout()
-    _save(figure, path)
-
-
-def plot_learning_curves(results, size, path):
-    import matplotlib.pyplot as plt
-    figure, axis = plt.subplots(figsize=(7, 4.5))
-    for model_type, color in (("D", "tab:blue"), ("DD", "tab:orange"), ("DD-auto", "tab:green")):
-        for index, run in enumerate(select_rows(results, experiment="sim", model_type=model_type, activation="swish",
-                                            train_size=size)):
-            axis.semilogy(run["epoch_axis"], run["val_mse_curve"], color=color, alpha=0.6,
-                          label=model_type if index == 0 else None)
-    axis.set(xlabel="epoch", ylabel="validation state MSE (standardized)",
-             title="validation curves, every seed (paired grids: one initialization per seed)")
-    axis.legend()
-    figure.tight_layout()
-    _save(figure, path)
-
-
-def plot_multistep(results, horizon, path):
-    import matplotlib.pyplot as plt
-    figure, axes = plt.subplots(1, 2, figsize=(12, 4))
-    for run in select_rows(results, experiment="multistep"):
-        steps = np.arange(1, len(run["multistep_q"]) + 1)[:horizon]
-        style = "--" if run["model_type"] in ("DD", "PD", "DED", "PED") else "-"
-        for axis, key in zip(axes, ("multistep_q", "multistep_v")):
-            mean, std = np.array(run[key])[:horizon], np.array(run[f"{key}_std"])[:horizon]
-            line, = axis.semilogy(steps, mean, style, label=run["model_type"])
-            axis.fill_between(steps, np.maximum(mean - std, 1e-12), mean + std, color=line.get_color(), alpha=0.1)
-    for axis, name in zip(axes, ("joint angles (rad²)", "velocities ((rad/s)²)")):
-        axis.set(xlabel="prediction step", ylabel=f"MSE, {name}", title=f"open-loop prediction, {horizon} steps")
-        axis.legend(ncol=2, fontsize=8)
-    figure.tight_layout()
-    _save(figure, path)
 
 
 def _flat(row: dict) -> dict:
@@ -338,23 +252,9 @@ def add_coverage_section(report, rows):
                     + ", ".join(f"{alpha:g}" for alpha in r["alphas"]) + ".")
 
 
-def write_report(folder: pathlib.Path, profile: Profile, excitation, local, tracking, identification, results, sine,
-                 mpc_rows, timings: dict) -> pathlib.Path:
+def add_data_section(report, excitation, local, tracking, identification, robot: str) -> None:
+    """The datasets: sizes and tracking errors beside the paper's, and what the identification data are."""
     from stdm_drake.data.inspect import tracking_errors
-    figures = folder / "figures"
-    robot = excitation.metadata.robot_name or "ur10"
-    robot_label = "UR-10" if robot == "ur10" else robot
-    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'"
-                    + ("" if robot == "ur10" else f", robot {robot}"))
-    if robot != "ur10":
-        report.text(f"Robot: {robot} ({len(excitation.metadata.joint_names or [])} joints), with the excitation "
-                    "ranges, tracking poses, PID gains and MPC weights derived from its model (README, 'Using your "
-                    "own robot'). The 'paper' columns quote the paper's UR-10 numbers for scale, not as a target.")
-    report.text("Every number below is computed by this run except the columns labelled 'paper', which quote "
-                "the values stated in the paper's text. MSE in rad² (joint angles, q) and (rad/s)² (velocities, v); "
-                "improvement = (MSE_naive - MSE_derivative) / MSE_derivative x 100 (the paper's definition). "
-                f"Stage times (s): {', '.join(f'{k} {v:.0f}' for k, v in timings.items())}.")
-
     report.heading("Data")
     errors, identification_errors = tracking_errors(tracking), tracking_errors(identification)
     report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
@@ -373,16 +273,19 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                 "for the closed-loop MPC comparison are trained on it, since closed-loop PID torques alone do not "
                 "identify the torque response.")
 
-    largest_sim, largest_real = max(profile.sim_train_sizes), max(profile.real_train_sizes)
+
+def add_simulated_sections(report, results, profile: Profile, figures, robot_label: str) -> tuple[list, list]:
+    """Figs. 11-13 on the simulated robot's excitation data; returns (activation rows, size rows)."""
+    largest_sim = max(profile.sim_train_sizes)
     report.heading(f"Simulated {robot_label}: activations at {largest_sim} training trajectories (Fig. 11)")
     sim_rows = activation_table(results, "sim", largest_sim)
-    plot_activations(sim_rows, f"simulated {robot_label}", _figure_path(figures, "fig11_activations_sim"))
+    plot_activations(sim_rows, f"simulated {robot_label}", figure_path(figures, "fig11_activations_sim"))
     add_activation_section(report, sim_rows, PAPER["sim_activation_improvement"], lambda activation: (200, 200))
     report.image("figures/fig11_activations_sim.png", "Fig. 11: one-step test MSE, naive vs derivative learning")
 
     report.heading(f"Simulated {robot_label}: sample efficiency (Fig. 12)")
     sim_sizes = size_table(results, "sim")
-    plot_sizes(sim_sizes, f"simulated {robot_label}", "training trajectories", _figure_path(figures, "fig12_sizes_sim"))
+    plot_sizes(sim_sizes, f"simulated {robot_label}", "training trajectories", figure_path(figures, "fig12_sizes_sim"))
     paper_factor = PAPER["sim_sample_efficiency_factor"]
     add_size_section(report, sim_sizes, lambda size: tuple(100 * (paper_factor[name][size] - 1)
                                                            if size in paper_factor[name] else None
@@ -393,13 +296,17 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                 "the verdict is 'helps' only if the whole interval is above 1. DD-auto is the grid member with the "
                 "lowest validation state MSE (naive included, so it is never worse than naive on validation).")
     report.image("figures/fig12_sizes_sim.png", "Fig. 12: MSE vs number of training trajectories (mean ± std)")
-    plot_learning_curves(results, largest_sim, _figure_path(figures, "fig13_learning_curves"))
+    plot_learning_curves(results, largest_sim, figure_path(figures, "fig13_learning_curves"))
     report.image("figures/fig13_learning_curves.png",
                  f"Fig. 13: learning curves, swish, {largest_sim} training trajectories, every seed")
+    return sim_rows, sim_sizes
 
+def add_tracked_sections(report, results, profile: Profile, figures) -> tuple[list, list]:
+    """Figs. 16-17 on the tracked plans ('real robot' protocol); returns (activation rows, size rows)."""
+    largest_real = max(profile.real_train_sizes)
     report.heading(f"Tracked plans ('real robot' protocol): activations at {4 * largest_real} training trajectories (Fig. 16)")
     real_rows = activation_table(results, "real", largest_real)
-    plot_activations(real_rows, "tracked plans", _figure_path(figures, "fig16_activations_real"))
+    plot_activations(real_rows, "tracked plans", figure_path(figures, "fig16_activations_real"))
     paper_real = PAPER["real_swish_improvement_percent"]
     add_activation_section(report, real_rows, f"swish: q +{paper_real['q']}%, v +{paper_real['v']}%",
                            lambda activation: (paper_real["q"], paper_real["v"]) if activation == "swish" else (None, None))
@@ -407,12 +314,16 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
 
     report.heading("Tracked plans: sample efficiency (Fig. 17)")
     real_sizes = size_table(results, "real")
-    plot_sizes(real_sizes, "tracked plans", "training trajectories per initial pose", _figure_path(figures, "fig17_sizes_real"))
+    plot_sizes(real_sizes, "tracked plans", "training trajectories per initial pose", figure_path(figures, "fig17_sizes_real"))
     paper_percent = PAPER["real_sample_efficiency_percent"]
     add_size_section(report, real_sizes, lambda size: (paper_percent["q"].get(size), paper_percent["v"].get(size)),
                      "train traj. per pose")
     report.image("figures/fig17_sizes_real.png", "Fig. 17: tracked plans, MSE vs training trajectories")
+    return real_rows, real_sizes
 
+def add_coverage_sections(report, results, profile: Profile) -> list:
+    """Global against local start poses at the largest simulated size; returns the coverage rows."""
+    largest_sim = max(profile.sim_train_sizes)
     report.heading(f"Coverage of the training data ({largest_sim} trajectories)")
     coverage = coverage_table(results, largest_sim)
     report.text("Two simulated regimes, same protocol otherwise: 'global' (the excitation data above, start poses "
@@ -420,12 +331,17 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                 "±0.5 rad around a home pose). Swish, paired grids per seed; open-loop errors from each test "
                 "trajectory's first state under its recorded torques.")
     add_coverage_section(report, coverage)
+    return coverage
 
+def add_multistep_section(report, results, profile: Profile, figures) -> list:
+    """Figs. 18-19: open-loop errors beside 'stays put', rollout times, each derivative type against its
+    naive twin; returns the rows."""
     report.heading("Multi-step prediction (Figs. 18, 19)")
     multistep = sorted(select_rows(results, experiment="multistep"), key=lambda r: tuple(MODEL_TYPES).index(r["model_type"]))
-    plot_multistep(results, profile.horizon, _figure_path(figures, "fig18_multistep"))
-    plot_multistep(results, 20, _figure_path(figures, "fig19_multistep_20"))
+    plot_multistep(results, profile.horizon, figure_path(figures, "fig18_multistep"))
+    plot_multistep(results, 20, figure_path(figures, "fig19_multistep_20"))
     paper_time = PAPER["rollout_seconds_100_steps"]
+
     def stays(row, step):
         curve = row.get("stays_put_multistep_q")
         return _g(curve[min(step, len(curve)) - 1]) if curve else ""
@@ -458,9 +374,12 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                               "coverage study above has paired seeds.")
     for line in statements:
         report.text(line)
+    return multistep
 
+def add_sine_sum_section(report, sine: dict) -> None:
+    """The sine-sum study's headline and Table 1 (full figures in sine_sum/)."""
+    from stdm_drake.experiments.sine_sum import headline, table1_rows
     report.heading("Sine-sum study (section III.B)")
-    from stdm_drake.experiments.sine_sum import headline
     top = headline(sine)
     report.text(f"Profile '{sine['profile']}', {len(sine['runs'])} runs in {sine['wall_seconds']:.0f} s; "
                 "full figures and tables in sine_sum/ (summary.md). Raw input x as in the paper, cosine "
@@ -471,10 +390,13 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                    _g(top["derivative_mean_test_mse"]),
                    f"{top['ratio']:.3g}x [{top['ratio_low']:.3g}, {top['ratio_high']:.3g}] {top['verdict']}",
                    top["paper_derivative"]]])
-    from stdm_drake.experiments.sine_sum import table1_rows
     report.table(["loss", "activation", "ours (test MSE)", "paper"],
                  [[r["loss"], r["activation"], _g(r["mean_test_mse"]), r["paper"]] for r in table1_rows(sine)])
 
+
+def add_mpc_section(report, mpc_rows: dict | None) -> None:
+    """The closed-loop MPC comparison: each model's tracking error against the plant model's and its naive
+    twin's."""
     report.heading("Closed-loop MPC (plant + iLQR MPC with each prediction model)")
     if mpc_rows:
         types = mpc_rows["types"]
@@ -495,14 +417,12 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
         report.text("The paper has no MPC experiment; the plant-as-model MPC is the reference. Per model "
                     "instance: mpc_runs.csv.")
 
+
+def write_result_files(folder: pathlib.Path, report, tables: dict, results) -> None:
+    """report.md, report.html, results.json (tables and every run) and one CSV per table, atomically."""
     markdown, page = report.markdown(), report.html()
     write_text_atomic(folder / "report.md", markdown + "\n")
     write_text_atomic(folder / "report.html", page + "\n")
-    tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
-                  coverage=coverage,
-                  multistep=[{k: v for k, v in r.items() if k not in ("epoch_axis", "val_mse_curve")} for r in multistep],
-                  mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [],
-                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
     write_text_atomic(folder / "results.json", json.dumps(dict(tables=tables, runs=results), default=json_default))
     for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage", "mpc", "mpc_runs"):
         rows = [_flat(row) for row in tables[name]]
@@ -510,6 +430,38 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
             columns = list(dict.fromkeys(key for row in rows for key in row))
             write_text_atomic(folder / f"{name}.csv", "\n".join(
                 [",".join(columns)] + [",".join(str(row.get(key, "")) for key in columns) for row in rows]) + "\n")
+
+
+def write_report(folder: pathlib.Path, profile: Profile, excitation, local, tracking, identification, results, sine,
+                 mpc_rows, timings: dict) -> pathlib.Path:
+    """The report of a reproduction run in `folder`, section by section, with the result files behind it;
+    returns the HTML page's path."""
+    figures = folder / "figures"
+    robot = excitation.metadata.robot_name or "ur10"
+    robot_label = "UR-10" if robot == "ur10" else robot
+    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'"
+                    + ("" if robot == "ur10" else f", robot {robot}"))
+    if robot != "ur10":
+        report.text(f"Robot: {robot} ({len(excitation.metadata.joint_names or [])} joints), with the excitation "
+                    "ranges, tracking poses, PID gains and MPC weights derived from its model (README, 'Using your "
+                    "own robot'). The 'paper' columns quote the paper's UR-10 numbers for scale, not as a target.")
+    report.text("Every number below is computed by this run except the columns labelled 'paper', which quote "
+                "the values stated in the paper's text. MSE in rad² (joint angles, q) and (rad/s)² (velocities, v); "
+                "improvement = (MSE_naive - MSE_derivative) / MSE_derivative x 100 (the paper's definition). "
+                f"Stage times (s): {', '.join(f'{k} {v:.0f}' for k, v in timings.items())}.")
+    add_data_section(report, excitation, local, tracking, identification, robot)
+    sim_rows, sim_sizes = add_simulated_sections(report, results, profile, figures, robot_label)
+    real_rows, real_sizes = add_tracked_sections(report, results, profile, figures)
+    coverage = add_coverage_sections(report, results, profile)
+    multistep = add_multistep_section(report, results, profile, figures)
+    add_sine_sum_section(report, sine)
+    add_mpc_section(report, mpc_rows)
+    tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
+                  coverage=coverage,
+                  multistep=[{k: v for k, v in r.items() if k not in ("epoch_axis", "val_mse_curve")} for r in multistep],
+                  mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [],
+                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
+    write_result_files(folder, report, tables, results)
     return folder / "report.html"
 
 

@@ -349,27 +349,16 @@ def _save_figure(figure, path) -> None:
         figure.savefig(temp, format="png", dpi=110, bbox_inches="tight")
 
 
-def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool = False) -> list[pathlib.Path]:
-    """Write results.json, CSV/JSON tables, PNG figures and summary.md into `output`."""
+def _pyplot():
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    return plt
 
-    output = pathlib.Path(output)
-    config = study["config"]
-    written = []
 
-    def text(name, content):
-        written.append(write_text_atomic(output / name, content))
-
-    def figure(name, fig):
-        _save_figure(fig, output / name)
-        plt.close(fig)
-        written.append(output / name)
-
-    text("results.json", json.dumps(study, indent=1) + "\n")
-    fig6 = fig6_rows(study)
-    text("fig6_mse_vs_activation.csv", rows_csv(fig6))
+def plot_fig6(fig6: list[dict], config: dict):
+    """Fig. 6: test MSE per activation, naive against derivative learning, one panel per depth."""
+    plt = _pyplot()
     fig, axes = plt.subplots(1, len(config["layers"]), figsize=(5 * len(config["layers"]), 4), squeeze=False)
     for ax, layers in zip(axes[0], config["layers"]):
         rows = [row for row in fig6 if row["layers"] == layers]
@@ -384,8 +373,13 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
         ax.set_ylabel("test MSE")
     axes[0][0].legend(title="dots: best by validation", fontsize=8)
     fig.suptitle("Fig. 6: test MSE vs activation, naive vs derivative learning")
-    figure("fig6_mse_vs_activation.png", fig)
+    return fig
 
+
+def plot_fig7(study: dict):
+    """Fig. 7: the best network's prediction over the domain per shown activation, both modes."""
+    plt = _pyplot()
+    config = study["config"]
     x = np.linspace(*DOMAIN, config["test_points"])
     train_x = np.linspace(*DOMAIN, config["train_points"])
     shown = config["table_activations"]
@@ -402,8 +396,13 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
                      f"(best of {_networks(config, config['table_layers'], activation)} by validation)")
         ax.legend(fontsize=7, loc="upper right", ncol=4)
     axes[-1, 0].set_xlabel("x")
-    figure("fig7_predictions.png", fig)
+    return fig
 
+
+def plot_fig8(study: dict):
+    """Fig. 8: the headline configuration's learning curves, both modes; returns (figure, {mode: history})."""
+    plt = _pyplot()
+    config = study["config"]
     curves = {}
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for derivative, color in ((False, "tab:blue"), (True, "tab:orange")):
@@ -419,16 +418,21 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
     ax.set_ylabel(f"loss (standardized, mean of {config['headline_seeds']} networks)")
     ax.set_title(f"Fig. 8: learning curves, swish, {config['table_layers']} hidden layers")
     ax.legend(fontsize=8)
-    figure("fig8_learning_curves.png", fig)
+    return fig, curves
+
+
+def learning_curves_csv(curves: dict) -> str:
+    """Fig. 8's curves as CSV: mode, epoch, train_loss, val_loss, val_mse_standardized."""
     lines = ["mode,epoch,train_loss,val_loss,val_mse_standardized"]
     for mode, history in curves.items():
         for values in zip(history["epoch"], history["train_loss"], history["val_loss"], history["val_mse"]):
             lines.append(f"{mode},{int(values[0])}," + ",".join(f"{v:.6g}" for v in values[1:]))
-    text("fig8_learning_curves.csv", "\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
 
-    table = table1_rows(study)
-    text("table1.csv", rows_csv(table, ["loss", "activation", "mean_test_mse", "paper"]))
-    text("table1.json", json.dumps(table, indent=1) + "\n")
+
+def plot_table1(table: list[dict], config: dict):
+    """Table 1 as bars: this run's test MSE per loss and activation beside the paper's."""
+    plt = _pyplot()
     fig, ax = plt.subplots(figsize=(7, 4))
     labels = [f"{row['loss']}\n{row['activation']}" for row in table]
     positions = np.arange(len(table))
@@ -439,28 +443,67 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
     ax.set_ylabel(f"test MSE (mean of {config['table_seeds']})")
     ax.set_title(f"Table 1: loss x activation, derivative learning, {config['table_layers']} hidden layers")
     ax.legend()
-    figure("table1.png", fig)
+    return fig
 
+
+def alpha_sweep_csv(sweep: dict) -> str:
+    """The alpha sweep as CSV: alpha, val_mse_standardized, test_mse, chosen."""
+    return "alpha,val_mse_standardized,test_mse,chosen\n" + "".join(
+        f"{a:g},{v:.6g},{t:.6g},{int(i == sweep['chosen_index'])}\n"
+        for i, (a, v, t) in enumerate(zip(sweep["alphas"], sweep["val_mse"], sweep["test_mse"])))
+
+
+def plot_alpha_sweep(sweep: dict, config: dict):
+    """Validation (which chooses) and test MSE against alpha, naive dashed, the chosen alpha marked."""
+    plt = _pyplot()
+    fig, ax = plt.subplots(figsize=(6, 4))
+    alphas = np.asarray(sweep["alphas"])
+    positive = alphas > 0
+    for key, color, label in (("val_mse", "tab:orange", "validation (standardized), chooses"),
+                              ("test_mse", "tab:green", "test (y units), reported only")):
+        values = np.asarray(sweep[key])
+        ax.loglog(alphas[positive], values[positive], "o-", color=color, label=label)
+        ax.axhline(values[~positive][0] if (~positive).any() else np.nan, color=color, linestyle="--",
+                   linewidth=0.8)
+    ax.axvline(sweep["chosen_alpha"], color="k", linestyle=":", label=f"chosen alpha {sweep['chosen_alpha']:g}")
+    ax.set_xlabel("alpha (dashed: naive, alpha = 0)")
+    ax.set_ylabel("MSE")
+    ax.set_title(f"alpha chosen by validation: {config['table_layers']} layers, swish, one initialization")
+    ax.legend(fontsize=8)
+    return fig
+
+
+def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool = False) -> list[pathlib.Path]:
+    """Write results.json, CSV/JSON tables, PNG figures and summary.md into `output`; returns their paths."""
+    plt = _pyplot()
+    output = pathlib.Path(output)
+    config = study["config"]
+    written = []
+
+    def text(name, content):
+        written.append(write_text_atomic(output / name, content))
+
+    def figure(name, fig):
+        _save_figure(fig, output / name)
+        plt.close(fig)
+        written.append(output / name)
+
+    text("results.json", json.dumps(study, indent=1) + "\n")
+    fig6 = fig6_rows(study)
+    text("fig6_mse_vs_activation.csv", rows_csv(fig6))
+    figure("fig6_mse_vs_activation.png", plot_fig6(fig6, config))
+    figure("fig7_predictions.png", plot_fig7(study))
+    fig, curves = plot_fig8(study)
+    figure("fig8_learning_curves.png", fig)
+    text("fig8_learning_curves.csv", learning_curves_csv(curves))
+    table = table1_rows(study)
+    text("table1.csv", rows_csv(table, ["loss", "activation", "mean_test_mse", "paper"]))
+    text("table1.json", json.dumps(table, indent=1) + "\n")
+    figure("table1.png", plot_table1(table, config))
     sweep = study.get("alpha_sweep")
     if sweep:
-        text("alpha_sweep.csv", "alpha,val_mse_standardized,test_mse,chosen\n" + "".join(
-            f"{a:g},{v:.6g},{t:.6g},{int(i == sweep['chosen_index'])}\n"
-            for i, (a, v, t) in enumerate(zip(sweep["alphas"], sweep["val_mse"], sweep["test_mse"]))))
-        fig, ax = plt.subplots(figsize=(6, 4))
-        alphas = np.asarray(sweep["alphas"])
-        positive = alphas > 0
-        for key, color, label in (("val_mse", "tab:orange", "validation (standardized), chooses"),
-                                  ("test_mse", "tab:green", "test (y units), reported only")):
-            values = np.asarray(sweep[key])
-            ax.loglog(alphas[positive], values[positive], "o-", color=color, label=label)
-            ax.axhline(values[~positive][0] if (~positive).any() else np.nan, color=color, linestyle="--",
-                       linewidth=0.8)
-        ax.axvline(sweep["chosen_alpha"], color="k", linestyle=":", label=f"chosen alpha {sweep['chosen_alpha']:g}")
-        ax.set_xlabel("alpha (dashed: naive, alpha = 0)")
-        ax.set_ylabel("MSE")
-        ax.set_title(f"alpha chosen by validation: {config['table_layers']} layers, swish, one initialization")
-        ax.legend(fontsize=8)
-        figure("alpha_sweep.png", fig)
+        text("alpha_sweep.csv", alpha_sweep_csv(sweep))
+        figure("alpha_sweep.png", plot_alpha_sweep(sweep, config))
     text("summary.md", summary_markdown(study, fig6, table, quick, partial))
     return written
 
