@@ -55,6 +55,11 @@ def pytest_unconfigure(config):
     status = config.stash.get(_EXIT_STATUS, None)
     if status is None:
         return
+    coverage = sys.modules.get("coverage")   # under `coverage run`: save its data, which os._exit would skip
+    measuring = coverage.Coverage.current() if coverage is not None else None
+    if measuring is not None:
+        measuring.stop()
+        measuring.save()
     sys.stdout.flush()
     sys.stderr.flush()
     os._exit(status)

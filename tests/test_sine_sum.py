@@ -96,6 +96,24 @@ def test_quick_study_end_to_end(tmp_path, capsys):
     assert "chosen by validation" in summary and "95 % interval" in summary
 
 
+def test_a_five_step_study_writes_every_report_file(tmp_path, capsys):
+    """The command end to end in seconds (fast tier): a fixed alpha (no sweep, so no alpha_sweep files), 5
+    full-batch steps; every figure, table and the summary are written, the headline printed."""
+    output = tmp_path / "sine"
+    assert main(["sine-sum", "--quick", "--epochs", "5", "--seeds", "2", "--alpha", "1e-3", "--workers", "1",
+                 "--quiet", "-o", str(output)]) == 0
+    printed = capsys.readouterr().out
+    assert "alpha 0.001" in printed and printed.count("table 1") == 9
+    written = {path.name for path in output.iterdir()}
+    assert {"results.json", "summary.md", "fig6_mse_vs_activation.csv", "fig6_mse_vs_activation.png",
+            "fig7_predictions.png", "fig8_learning_curves.png", "fig8_learning_curves.csv", "table1.csv",
+            "table1.json", "table1.png"} <= written and "alpha_sweep.csv" not in written
+    curves = (output / "fig8_learning_curves.csv").read_text().splitlines()
+    assert curves[0] == "mode,epoch,train_loss,val_loss,val_mse_standardized"
+    assert {line.split(",")[0] for line in curves[1:]} == {"naive", "derivative"}
+    assert all(line.split(",")[1] == "5" for line in curves[1:])   # validated at the last of the 5 steps
+
+
 @pytest.mark.slow
 def test_flushing_subnormals_changes_speed_not_results():
     """Raw x in ±94 drives gelu's exp(-h²/2) into subnormals; flushing them to zero (the default) must
