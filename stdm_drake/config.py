@@ -3,10 +3,11 @@
 Bad files (missing, malformed YAML, unknown keys, wrong types, not a mapping, values the schema's
 `validate()` rejects) raise InputError with one line that names the file.
 """
+import dataclasses
 import pathlib
 
 import numpy as np
-
+import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from stdm_drake.errors import InputError
@@ -17,20 +18,60 @@ def one_line(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def load_yaml_config(path, schema, what: str = "config"):
+def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | None = None):
     """Load `path` into a new instance of the dataclass `schema`; keys left out keep their defaults.
 
-    what: how errors name the file's contents, e.g. "tracking spec".
+    what: how errors name the file's contents, e.g. "tracking spec". old_layouts: {field: (types by
+    kind, tag hint)} for Union-typed fields whose files may still be in the layout before tags (`field:`
+    holding `kind:` and the fields, or, for the field "", the whole file): read by `from_kind_layout`.
     """
     path = pathlib.Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found: {path}")
+    if old_layouts:
+        config = _load_old_layout(path, schema, what, old_layouts)
+        if config is not None:
+            return config
     try:
         config = yaml_load_typed(schema=schema, filename=str(path), defaults=schema())
     except Exception as error:  # the YAML parser and Drake's schema checks raise several types
         raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
     if not isinstance(config, schema):
         raise InputError(f"{path}: malformed {what}: expected a mapping of {schema.__name__} fields")
+    if hasattr(config, "validate"):
+        try:
+            config.validate()
+        except InputError as error:
+            raise InputError(f"{path}: {error}") from None
+    return config
+
+
+def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
+    """`schema` from a file in the layout before tags (see load_yaml_config), or None when it is not one."""
+    try:
+        document = yaml.safe_load(path.read_text())
+    except (OSError, yaml.YAMLError):
+        return None   # load_yaml_config reports it
+    if not isinstance(document, dict):
+        return None
+    old = {name: layout for name, layout in old_layouts.items()
+           if isinstance(document.get(name) if name else document, dict)
+           and "kind" in (document.get(name) if name else document)}
+    if not old:
+        return None
+    if "" in old:   # the whole file is the one tagged field's value
+        name, (types, tagged) = next((key, value) for key, value in old_layouts.items() if key == "")
+        field = next(field.name for field in dataclasses.fields(schema))
+        config = schema(**{field: from_kind_layout(document, types, path, tagged)})
+    else:
+        converted = {name: from_kind_layout(document.pop(name), old[name][0], f"{path}: {name}", old[name][1])
+                     for name in old}
+        try:
+            config = yaml_load_typed(schema=schema, data=yaml.safe_dump(document), defaults=schema())
+        except Exception as error:  # the YAML parser and Drake's schema checks raise several types
+            raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
+        for name, value in converted.items():
+            setattr(config, name, value)
     if hasattr(config, "validate"):
         try:
             config.validate()
@@ -59,3 +100,28 @@ def require(condition: bool, message: str, value) -> None:
     """InputError "<message>, got <value>" unless `condition` holds (config validation)."""
     if not condition:
         raise InputError(f"{message}, got {value!r}")
+
+
+def from_kind_layout(mapping: dict, types: dict, where, tagged: str):
+    """A config from a mapping in the layout before YAML tags (`kind: NAME` beside the fields), for the
+    files written then: the instance of types[NAME] with the fields it has (fields only other kinds have,
+    which that kind ignored, are dropped), and one warning line saying how to write it now (`tagged`:
+    e.g. "controller: !Pid"). InputError on an unknown kind or a field no kind has."""
+    import sys
+    mapping = dict(mapping)
+    kind = mapping.pop("kind")
+    if kind not in types:
+        raise InputError(f"{where}: kind must be one of {', '.join(types)}, got {kind!r}")
+    target = types[kind]
+    known = {field.name for cls in types.values() for field in dataclasses.fields(cls)}
+    unknown = sorted(set(mapping) - known)
+    if unknown:
+        raise InputError(f"{where}: unknown fields {unknown}")
+    own = {field.name for field in dataclasses.fields(target)}
+    print(f"stdm-drake: warning: {where} uses the old `kind: {kind}` layout; write `{tagged.format(target.__name__)}` "
+          "with its fields indented under it", file=sys.stderr)
+    try:
+        return yaml_load_typed(schema=target, data=yaml.safe_dump({k: v for k, v in mapping.items() if k in own}),
+                               defaults=target())
+    except Exception as error:  # Drake's schema checks raise several types
+        raise InputError(f"{where}: {one_line(error)}") from None

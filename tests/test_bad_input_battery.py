@@ -196,11 +196,11 @@ CASES = [
     (yaml_case("ctrl", "controller: !Pid\n  kp: [1]\n"), "needs kp, ki and kd"),
     (yaml_case("ctrl", "controller: !Magic\n  kp: [1]\n"), "did not match any of the allowed type options"),
     (yaml_case("ctrl", "kind: magic\nkp: [1]\nki: [1]\nkd: [1]\n"), "kind must be one of"),   # the old layout
-    (yaml_case("ctrl", "kind: pid\nkp: [1]\n"), "needs kp, ki and kd"),
     (yaml_case("ctrl", "controller: !Pid\n  bandwidth: [25]\n  kp: [1]\n"), "not both"),
     (yaml_case("ctrl", "controller: !InverseDynamics\n  bandwidth: [25]\n"), "bandwidth"),
     (yaml_case("ctrl", "controller: !Pid\n  kp: [-1]\n  ki: [0]\n  kd: [0]\n"), "non-negative"),
-    (yaml_case("tspec", "planner:\n  kind: teleport\n"), "planner kind"),
+    (yaml_case("tspec", "planner:\n  kind: teleport\n"), "kind must be one of"),
+    (yaml_case("tspec", "planner: !Teleport\n  velocity_scale: 0.5\n"), "allowed type options"),
     (yaml_case("tspec", "sampling:\n  initial_poses: []\n"), "initial_poses"),
     (yaml_case("tspec", "planner:\n  velocity_scale: 2.0\n"), "velocity_scale"),
     (yaml_case("mpc", "horizon: 0\n"), "horizon"), (yaml_case("mpc", "effort_weight: [0.0]\n"), "effort_weight"),

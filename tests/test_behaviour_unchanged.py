@@ -69,6 +69,9 @@ def dataset_summary(path, keys) -> tuple[dict, str]:
                               if not (key in ("bandwidth", "dither_acceleration") and value == [])}
         if kept["controller"]["kind"] == "inverse_dynamics":   # a PID-only field it recorded (unused) until
             kept["controller"].setdefault("gravity_feedforward", True)   # the controllers became tagged types
+    if "planner" in kept and kept["planner"]["kind"] == "quintic":   # the other planners' fields it recorded
+        kept["planner"] = dict(kept["planner"], jerk_limits=[30.0, 30.0, 40.0, 60.0, 60.0, 60.0], path_waypoints=51,
+                               toppra_gridpoints=201, toppra_limit_margin=0.02)   # (unused) until they were tagged
     return sums, hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
 
 

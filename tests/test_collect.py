@@ -206,7 +206,7 @@ def test_html_recording(tmp_path):
 @pytest.mark.slow
 def test_torque_dither_is_recorded_and_seeded(tmp_path):
     gains = tmp_path / "dither.yaml"
-    gains.write_text(open("controllers/pid.yaml").read() + "dither_std: [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]\n")
+    gains.write_text(open("controllers/pid.yaml").read() + "  dither_std: [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]\n")
 
     def collect(controller, name):
         path = tmp_path / name

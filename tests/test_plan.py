@@ -13,8 +13,8 @@ from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.robots.kinematics import RobotKinematics, rotation_exp, rotation_log
 from stdm_drake.collection.plan import (InitialPose, TaskSpaceSamplingConfig, initial_configuration,
                                         load_tracking_spec, sample_task_plans)
-from stdm_drake.collection.planners import (PLANNER_KINDS, PlannedTrajectory, PlannerConfig, check_position_extrema,
-                                            plan_trajectory)
+from stdm_drake.collection.planner_configs import PLANNER_KINDS, PlannerConfig, Quintic, Ruckig
+from stdm_drake.collection.planners import PlannedTrajectory, check_position_extrema, plan_trajectory
 from stdm_drake.paths import TRAJECTORIES_DIR
 
 NUM_STEPS = 100
@@ -48,7 +48,8 @@ def goal(kinematics, start):
 
 
 def planner_config(spec, kind: str) -> PlannerConfig:
-    return dataclasses.replace(spec.planner, kind=kind)
+    """The spec's planner limits under planner `kind` (the spec files of the three kinds share them)."""
+    return spec.planner.as_kind(kind)
 
 
 def pose_errors(X_a: RigidTransform, X_b: RigidTransform) -> tuple[float, float]:
@@ -410,13 +411,32 @@ def test_spec_variants_share_the_sampling_protocol():
         sampling, planner = spec.sampling, spec.planner
         assert planner.kind == kind
         assert sampling == reference_sampling
-        assert dataclasses.replace(planner, kind="quintic") == reference_planner
-    overridden = load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10, planner_kind="toppra")
-    assert overridden.planner.kind == "toppra"
+        assert planner.as_kind("quintic") == reference_planner       # the same shared limits
+
+
+def test_planners_are_tagged_and_the_old_kind_layout_loads_with_a_warning(tmp_path, capsys):
+    """`planner: !Ruckig {...}` picks the type by its tag; a planner in the layout before the tags (`kind:`
+    among the fields, the other kinds' fields too) loads to the same config with one warning line."""
+    text = (TRAJECTORIES_DIR / "tracking.yaml").read_text()
+    sampling = text[:text.index("\nplanner:") + 1]
+    new = tmp_path / "new.yaml"
+    new.write_text(sampling + "planner: !Ruckig\n  jerk_limits: [20.0]\n  velocity_scale: 0.4\n")
+    old = tmp_path / "old.yaml"
+    old.write_text(sampling + "planner:\n  kind: ruckig\n  jerk_limits: [20.0]\n  velocity_scale: 0.4\n"
+                   "  toppra_gridpoints: 99\n  max_linear_speed: 0.5\n")
+    loaded = load_tracking_spec(new, robot=UR10).planner
+    assert isinstance(loaded, Ruckig) and loaded.jerk_limits == [20.0] * 6 and loaded.velocity_scale == 0.4
+    assert capsys.readouterr().err == ""
+    assert load_tracking_spec(old, robot=UR10).planner == loaded
+    warning = capsys.readouterr().err.strip()
+    assert len(warning.splitlines()) == 1 and "old `kind: ruckig` layout" in warning and "planner: !Ruckig" in warning
+    assert loaded.record()["kind"] == "ruckig" and "toppra_gridpoints" not in loaded.record()
 
 
 @pytest.mark.parametrize("text, message", [
-    ("planner:\n  kind: spline\n", r"planner: planner kind must be one of quintic, ruckig, toppra, got 'spline'"),
+    ("planner:\n  kind: spline\n", r"planner: kind must be one of quintic, ruckig, toppra, got 'spline'"),
+    ("planner: !Spline\n  velocity_scale: 0.5\n", r"did not match any of the allowed type options"),
+    ("planner: !Quintic\n  jerk_limits: [1.0]\n", r"The fields \['jerk_limits'\] were unknown"),
     ("planner:\n  knd: quintic\n", r"malformed tracking spec: The fields \['knd'\] were unknown"),
     ("planner:\n  velocity_scale: fast\n", r"malformed tracking spec: could not convert string to float"),
     ("sampling:\n  num_steps: 1.5\n", r"malformed tracking spec: Expected a <class 'int'> value for 'num_steps'"),
@@ -441,7 +461,7 @@ def test_missing_spec_file_is_an_input_error(tmp_path):
 
 def test_invalid_planner_config_in_code_is_an_input_error(kinematics, start, goal):
     with pytest.raises(InputError, match="velocity_scale must be in"):
-        plan_trajectory(kinematics, start, goal, config=PlannerConfig(velocity_scale=1.5))
+        plan_trajectory(kinematics, start, goal, config=Quintic(velocity_scale=1.5))
 
 
 def test_near_singular_jacobian_is_a_planning_error(kinematics, spec, start, goal):

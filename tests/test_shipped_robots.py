@@ -95,7 +95,7 @@ def test_redundant_arm_plans_have_exact_derivatives(panda):
         np.testing.assert_allclose((q_plus - q_minus) / (2 * h), qd, atol=1e-6)
         np.testing.assert_allclose((qd_plus - qd_minus) / (2 * h), qdd, atol=1e-4)
     for kind in ("ruckig", "toppra"):
-        other = plan_trajectory(kinematics, q0, X_goal, config=dataclasses.replace(planner, kind=kind),
+        other = plan_trajectory(kinematics, q0, X_goal, config=planner.as_kind(kind),
                                 num_steps=100, sample_period=0.01)
         np.testing.assert_allclose(other.q_goal, plan.q_goal, atol=1e-9)
 

@@ -350,7 +350,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
                                                      f"phase ({m}) rad")
     else:
         metadata["controller"] = settings.controller.record()
-        metadata["planner"] = dataclasses.asdict(request.tracking_spec.planner)
+        metadata["planner"] = request.tracking_spec.planner.record()
         metadata["task_space_sampling"] = dataclasses.asdict(request.tracking_spec.sampling)
     return metadata
 

@@ -11,7 +11,8 @@ import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_exp
-from stdm_drake.collection.planners import PlannedTrajectory, PlannerConfig, plan_trajectory
+from stdm_drake.collection.planner_configs import PLANNER_TYPES, PlannerConfig, Quintic
+from stdm_drake.collection.planners import PlannedTrajectory, plan_trajectory
 from stdm_drake.config import load_yaml_config, require
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.robots.robot import Robot
@@ -87,9 +88,10 @@ class TaskSpaceSamplingConfig:
 
 @dataclasses.dataclass
 class TrackingSpec:
-    """Schema of trajectories/tracking*.yaml: the sampling protocol and the planner."""
+    """Schema of trajectories/tracking*.yaml: the sampling protocol and the planner (`planner: !Quintic`,
+    `!Ruckig` or `!Toppra`)."""
     sampling: TaskSpaceSamplingConfig = dataclasses.field(default_factory=TaskSpaceSamplingConfig)
-    planner: PlannerConfig = dataclasses.field(default_factory=PlannerConfig)
+    planner: PlannerConfig = dataclasses.field(default_factory=Quintic)
 
 
 def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: float = 0.3, seed: int = 0,
@@ -106,8 +108,7 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
       `sample_period` s must stay within the planner's share of the joint velocity limits).
     - planner: quintic with the UR-10 file's task-space limits; joint acceleration limits of
       5 rad/s^2, or a tenth of what a joint's actuator gives beyond gravity at home (effort - |g_i|)
-      / M_ii when that is less (the UR-10's 4-5 rad/s^2 are 0.06-0.15 of it on the arm joints);
-      jerk limits ten times those (the UR-10 file's are 7.5-12 times).
+      / M_ii when that is less (the UR-10's 4-5 rad/s^2 are 0.06-0.15 of it on the arm joints).
 
     Raises PlanningError when fewer than `num_initial_poses` usable configurations are found.
     """
@@ -121,8 +122,7 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
     inertia = np.diag(dynamics.mass_matrix(robot.home))
     capability = (limits.effort - np.abs(dynamics.gravity_torque(robot.home))) / inertia
     acceleration = np.minimum(5.0, 0.1 * np.maximum(capability, 0.0))
-    planner = PlannerConfig(acceleration_limits=np.round(acceleration, 3).tolist(),
-                            jerk_limits=np.round(10.0 * acceleration, 3).tolist())
+    planner = Quintic(acceleration_limits=np.round(acceleration, 3).tolist())
     rng = np.random.default_rng(seed)
     configurations, attempts = [], 0
     candidate = robot.home.copy()
@@ -181,18 +181,16 @@ def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampli
     return scale
 
 
-def load_tracking_spec(path: str | os.PathLike, *, robot: Robot,
-                       planner_kind: str | None = None) -> TrackingSpec:
+def load_tracking_spec(path: str | os.PathLike, *, robot: Robot) -> TrackingSpec:
     """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`) for `robot`:
-    per-joint lists of its length (or one value), IK seeds of its joints.
+    per-joint lists of its length (or one value), IK seeds of its joints. A planner in the layout before
+    the tags (`kind:` among its fields) still loads, with one warning line saying how to update it.
 
-    planner_kind: if given, overrides `planner.kind` (same poses and limits, other planner).
     Raises InputError, naming the file, on a missing or malformed file, unknown keys, wrong
     types or invalid values.
     """
-    spec = load_yaml_config(path, TrackingSpec, what="tracking spec")
-    if planner_kind is not None:
-        spec.planner = dataclasses.replace(spec.planner, kind=planner_kind)
+    spec = load_yaml_config(path, TrackingSpec, what="tracking spec",
+                            old_layouts={"planner": (PLANNER_TYPES, "planner: !{}")})
     for section in ("planner", "sampling"):
         try:
             getattr(spec, section).validate()

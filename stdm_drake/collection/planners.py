@@ -1,13 +1,13 @@
 """Trajectory planners for the tracked task-space data protocol (paper section V.B.1): a plan of
-`num_steps` samples from rest to rest between two tool poses. Three planners, chosen by
-`PlannerConfig.kind`:
+`num_steps` samples from rest to rest between two tool poses. Three planners, one config type each
+(`planner_configs.PlannerConfig`, tagged in YAML):
 
-- "quintic": straight line in position and geodesic (axis-angle) in orientation, both timed by
+- `Quintic`: straight line in position and geodesic (axis-angle) in orientation, both timed by
   s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5, mapped to joint space by inverse kinematics (IK)
   seeded with the previous sample; q_dot = J^-1 V and q_ddot = J^-1 (A - J_dot v).
-- "ruckig": jerk-limited, time-synchronized joint-space point-to-point motion to the IK
+- `Ruckig`: jerk-limited, time-synchronized joint-space point-to-point motion to the IK
   solution of the goal pose.
-- "toppra": the IK'd task-space straight line as a joint-space path, re-timed time-optimally
+- `Toppra`: the IK'd task-space straight line as a joint-space path, re-timed time-optimally
   under joint velocity and acceleration limits.
 
 Frames: every pose is the pose of the robot's tool frame in the world frame (the UR-10: tool0;
@@ -18,9 +18,8 @@ the origin of the tool frame. Joint order: the robot's arm joints. An arm of mor
 also moves its redundant joints linearly along the path (task coordinates: see
 stdm_drake.robots.kinematics); an arm of fewer than 6 cannot follow a task-space plan.
 
-Longer than 400 lines on purpose: the three planners share the IK continuation along the task-space
-line, the horizon and the joint-limit checks, so that the same goal gives the same end
-configuration whichever planner is chosen.
+The three planners share the IK continuation along the task-space line, the horizon and the
+joint-limit checks, so that the same goal gives the same end configuration whichever planner is chosen.
 """
 import dataclasses
 import math
@@ -29,103 +28,13 @@ from typing import Callable
 import numpy as np
 from pydrake.math import RigidTransform, RotationMatrix
 
+from stdm_drake.collection.planner_configs import PlannerConfig
 from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_exp, rotation_log
-from stdm_drake.config import require
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.robots.robot import Robot
-
-PLANNER_KINDS = ("quintic", "ruckig", "toppra")
 
 # Peak of ds/dtau and of d2s/dtau2 for s(tau) = 10 tau^3 - 15 tau^4 + 6 tau^5.
 _QUINTIC_PEAK_VELOCITY = 15.0 / 8.0
 _QUINTIC_PEAK_ACCELERATION = 10.0 / math.sqrt(3.0)
-
-
-@dataclasses.dataclass
-class PlannerConfig:
-    """How one rest-to-rest plan is made and which limits it must respect.
-
-    kind: "quintic", "ruckig" or "toppra".
-    duration_fraction: quintic: motion time T = max(duration_fraction * horizon, shortest T
-        under the task-space limits below); ruckig: ruckig's minimum_duration =
-        duration_fraction * horizon (0 gives the time-optimal jerk-limited motion); toppra:
-        ignored (the re-timing is time-optimal). horizon = num_steps * sample_period (s).
-    velocity_scale: joint velocity limit as a fraction of the published limits (0, 1].
-    acceleration_limits: (n,) joint acceleration limits, rad/s^2 (none are published), or one for all.
-    jerk_limits: (n,) joint jerk limits for ruckig, rad/s^3, or one for all.
-    max_linear_speed, max_linear_acceleration: quintic task-space limits on the tool0 origin,
-        m/s and m/s^2.
-    max_angular_speed, max_angular_acceleration: quintic task-space limits on the tool
-        rotation, rad/s and rad/s^2.
-    ik_tolerance: IK convergence on both the position (m) and rotation (rad) error.
-    ik_max_iterations: Newton iterations per IK solve.
-    ik_damping: damped-least-squares factor; the damping is ik_damping * min(1, |error|), so
-        it vanishes near convergence (plain Newton steps, quadratic convergence).
-    ik_continuity_tolerance: largest allowed distance (rad, any joint) between an IK solution
-        and its first-order prediction from the previous sample (catches branch flips).
-    max_jacobian_condition: largest allowed 2-norm condition number of the task Jacobian (the 6x6
-        tool Jacobian of a 6-joint arm) along the paths (singularity guard).
-    path_waypoints: IK waypoints along the task-space line for the toppra path and for the
-        continuation that finds the goal configuration for ruckig.
-    toppra_gridpoints: number of toppra discretization points along the path.
-    toppra_limit_margin: toppra plans under (1 - margin) times the limits, so that its
-        interpolation error stays inside the limits that are checked afterwards.
-    limit_tolerance: relative slack when checking sampled velocities and accelerations against
-        their limits (floating-point round-off only).
-    """
-    kind: str = "quintic"
-    duration_fraction: float = 1.0
-    velocity_scale: float = 0.5
-    acceleration_limits: list[float] = dataclasses.field(
-        default_factory=lambda: [4.0, 4.0, 5.0, 5.0, 5.0, 5.0])
-    jerk_limits: list[float] = dataclasses.field(
-        default_factory=lambda: [30.0, 30.0, 40.0, 60.0, 60.0, 60.0])
-    max_linear_speed: float = 0.6
-    max_linear_acceleration: float = 2.0
-    max_angular_speed: float = 1.0
-    max_angular_acceleration: float = 3.0
-    ik_tolerance: float = 1e-10
-    ik_max_iterations: int = 50
-    ik_damping: float = 1e-3
-    ik_continuity_tolerance: float = 0.02
-    max_jacobian_condition: float = 100.0
-    path_waypoints: int = 51
-    toppra_gridpoints: int = 201
-    toppra_limit_margin: float = 0.02
-    limit_tolerance: float = 1e-9
-
-    def for_robot(self, robot: Robot) -> "PlannerConfig":
-        """This config with the per-joint limits of the robot's length (one value broadcast)."""
-        from stdm_drake.config import check_joint_vector
-        return dataclasses.replace(self, **{
-            name: check_joint_vector(f"planner {name}", getattr(self, name), count=robot.num_joints).tolist()
-            for name in ("acceleration_limits", "jerk_limits")})
-
-    def validate(self) -> None:
-        """Raise InputError (one line) on a malformed configuration."""
-        if self.kind not in PLANNER_KINDS:
-            raise InputError(f"planner kind must be one of {', '.join(PLANNER_KINDS)}, got {self.kind!r}")
-        require(0.0 <= self.duration_fraction <= 1.0, "duration_fraction must be in [0, 1]",
-                 self.duration_fraction)
-        require(0.0 < self.velocity_scale <= 1.0, "velocity_scale must be in (0, 1]", self.velocity_scale)
-        for name in ("acceleration_limits", "jerk_limits"):
-            values = getattr(self, name)
-            require(len(values) >= 1 and all(math.isfinite(v) and v > 0 for v in values),
-                     f"{name} must be positive numbers (one per joint, or one for all)", values)
-        for name in ("max_linear_speed", "max_linear_acceleration", "max_angular_speed",
-                     "max_angular_acceleration", "ik_tolerance", "ik_continuity_tolerance"):
-            value = getattr(self, name)
-            require(math.isfinite(value) and value > 0, f"{name} must be positive", value)
-        require(self.ik_damping >= 0, "ik_damping must be >= 0", self.ik_damping)
-        require(self.ik_max_iterations >= 1, "ik_max_iterations must be >= 1", self.ik_max_iterations)
-        require(self.max_jacobian_condition > 1, "max_jacobian_condition must be > 1",
-                 self.max_jacobian_condition)
-        require(self.path_waypoints >= 2, "path_waypoints must be >= 2", self.path_waypoints)
-        require(self.toppra_gridpoints >= 2, "toppra_gridpoints must be >= 2", self.toppra_gridpoints)
-        require(0.0 <= self.toppra_limit_margin < 1.0, "toppra_limit_margin must be in [0, 1)",
-                 self.toppra_limit_margin)
-        require(0.0 <= self.limit_tolerance < 0.1, "limit_tolerance must be in [0, 0.1)",
-                 self.limit_tolerance)
 
 
 @dataclasses.dataclass(eq=False)

@@ -15,14 +15,12 @@ period) and written into the Drake controller's context before each evaluation.
 """
 
 import dataclasses
-import pathlib
 import typing
 
 import numpy as np
-from pydrake.common.yaml import yaml_load_typed
 from pydrake.systems.controllers import InverseDynamicsController, PidController
 
-from stdm_drake.config import check_joint_vector
+from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import Dynamics, joint_limits
 from stdm_drake.robots.robot import Robot
@@ -150,28 +148,8 @@ def load_controller_config(path) -> ControllerConfig:
     """The tracking controller of a controller YAML (`ControllerFile`). A file in the layout before
     the tags (top-level `kind: pid` and the fields) still loads, with one warning line saying how to
     update it."""
-    import sys
-
-    import yaml
-    from stdm_drake.config import load_yaml_config, one_line
-    try:
-        text = pathlib.Path(path).read_text()
-        old = yaml.safe_load(text)
-    except (OSError, yaml.YAMLError):
-        old = None  # load_yaml_config reports it
-    if isinstance(old, dict) and "kind" in old and "controller" not in old:
-        kind = old.pop("kind")
-        if kind not in CONTROLLER_TYPES:
-            raise InputError(f"{path}: controller kind must be one of {tuple(CONTROLLER_TYPES)}, got {kind!r}")
-        cls = CONTROLLER_TYPES[kind]
-        print(f"stdm-drake: warning: {path} uses the old `kind: {kind}` layout; write `controller: "
-              f"!{cls.__name__}` with its fields indented under it", file=sys.stderr)
-        try:
-            config = yaml_load_typed(schema=cls, data=yaml.safe_dump(old), defaults=cls())
-        except Exception as error:  # Drake's schema checks raise several types
-            raise InputError(f"{path}: malformed controller config: {one_line(error)}") from None
-    else:
-        config = load_yaml_config(path, ControllerFile, what="controller config").controller
+    config = load_yaml_config(path, ControllerFile, what="controller config",
+                              old_layouts={"": (CONTROLLER_TYPES, "controller: !{}")}).controller
     try:
         config.validate()
     except InputError as error:
