@@ -21,16 +21,16 @@ def test_next_state_is_a_function_of_state_and_held_torque(name, request):
     rig = Station(StationConfig(robot=UR10)).simulation
     traj = dataset.trajectory(1)
     for k in (0, 17, 49):
-        x_k = np.concatenate([traj["q_true"][k], traj["v_true"][k]])
+        x_k = np.concatenate([traj.q_true[k], traj.v_true[k]])
         rig.diagram.SetDefaultContext(rig.context)
         rig.context.SetTime(0.0)
         rig.plant.SetPositionsAndVelocities(rig.plant_context, x_k)
-        rig.diagram.GetInputPort("actuation").FixValue(rig.context, traj["tau"][k])
+        rig.diagram.GetInputPort("actuation").FixValue(rig.context, traj.tau[k])
         rig.simulator.Initialize()
         rig.simulator.AdvanceTo(dataset.sample_period)
         x_next = rig.plant.GetPositionsAndVelocities(rig.plant_context)
-        np.testing.assert_allclose(x_next[:6], traj["q_true"][k + 1], atol=1e-12)
-        np.testing.assert_allclose(x_next[6:], traj["v_true"][k + 1], atol=1e-10)
+        np.testing.assert_allclose(x_next[:6], traj.q_true[k + 1], atol=1e-12)
+        np.testing.assert_allclose(x_next[6:], traj.v_true[k + 1], atol=1e-10)
 
 
 def test_excitation_dataset_contents(excitation_dataset):
@@ -41,18 +41,18 @@ def test_excitation_dataset_contents(excitation_dataset):
     assert params.shape == (4, 24)
     for i in range(4):
         traj = dataset.trajectory(i)
-        assert traj["q"].shape == (51, 6) and traj["tau"].shape == (50, 6)
-        np.testing.assert_array_equal(traj["q"], traj["q_true"])  # ideal sensor by default
+        assert traj.q.shape == (51, 6) and traj.tau.shape == (50, 6)
+        np.testing.assert_array_equal(traj.q, traj.q_true)  # ideal sensor by default
         # the recorded action is the total applied torque: gravity compensation + eq. (10)
         amplitude, frequency, offset, phase = params[i].reshape(4, 6)
         t = np.arange(50)[:, None] * dataset.sample_period
         from stdm_drake.robots.plant import Dynamics
-        gravity = np.array([Dynamics(UR10).gravity_torque(q) for q in traj["q_true"][:-1]])
-        np.testing.assert_allclose(traj["tau"], gravity + amplitude * np.sin(frequency * t + phase) + offset,
+        gravity = np.array([Dynamics(UR10).gravity_torque(q) for q in traj.q_true[:-1]])
+        np.testing.assert_allclose(traj.tau, gravity + amplitude * np.sin(frequency * t + phase) + offset,
                                    atol=1e-9)
         # true accelerations agree with the velocity differences (first order in dt)
-        v_diff = np.diff(traj["v_true"], axis=0) / dataset.sample_period
-        midpoint = 0.5 * (traj["qdd"][:-1] + traj["qdd_end"])
+        v_diff = np.diff(traj.v_true, axis=0) / dataset.sample_period
+        midpoint = 0.5 * (traj.qdd[:-1] + traj.qdd_end)
         assert np.abs(v_diff - midpoint).max() < 0.05 * np.abs(v_diff).max() + 1e-3
 
 
@@ -78,10 +78,10 @@ def test_tracking_dataset_tracks_tightly(tracking_dataset):
     assert errors["true_q"] < 3e-5 and errors["measured_v"] < 0.029
     for i in range(dataset.num_trajectories):
         traj = dataset.trajectory(i)
-        np.testing.assert_allclose(traj["q_true"][0], traj["q_planned"][0], atol=1e-12)  # starts on the plan
-        assert not np.array_equal(traj["q"], traj["q_true"])  # measured with noise
+        np.testing.assert_allclose(traj.q_true[0], traj.q_planned[0], atol=1e-12)  # starts on the plan
+        assert not np.array_equal(traj.q, traj.q_true)  # measured with noise
         for key in ("v_planned", "qdd_planned"):
-            assert np.abs(traj[key][[0, -1]]).max() < 1e-6  # plans start and end at rest
+            assert np.abs(getattr(traj, key)[[0, -1]]).max() < 1e-6  # plans start and end at rest
     assert dataset.metadata.record["controller"]["kind"] == "inverse_dynamics"
     assert dataset.metadata.record["controller"]["velocity_filter_time_constant"] == 0.015
     assert dataset.metadata.record["planner"]["kind"] == "quintic"
@@ -216,9 +216,9 @@ def test_torque_dither_is_recorded_and_seeded(tmp_path):
 
     plain, dithered, again = (collect("controllers/pid.yaml", "a.h5"), collect(gains, "b.h5"),
                               collect(gains, "c.h5"))
-    difference = dithered.trajectory(0)["tau"] - plain.trajectory(0)["tau"]
+    difference = dithered.trajectory(0).tau - plain.trajectory(0).tau
     assert np.abs(difference[:, 0]).max() > 1.0  # the dither is in the recorded (applied) torque
-    np.testing.assert_array_equal(dithered.trajectory(0)["tau"], again.trajectory(0)["tau"])
+    np.testing.assert_array_equal(dithered.trajectory(0).tau, again.trajectory(0).tau)
     assert dithered.metadata.record["controller"]["dither_std"] == [2.0, 2.0, 1.0, 0.1, 0.02, 0.002]
     assert tracking_errors(dithered)["true_q"] < 1e-4
 

@@ -3,7 +3,7 @@ import h5py
 import numpy as np
 import pytest
 
-from stdm_drake.data.dataset import load_dataset, split_trajectories, write_dataset
+from stdm_drake.data.dataset import Trajectory, load_dataset, split_trajectories, write_dataset
 from stdm_drake.errors import InputError
 
 DT = 0.01
@@ -24,7 +24,8 @@ def trajectories():
 
 
 def write(path, trajectories, protocol="tracking", groups=(0, 0, 1, 1)):
-    return write_dataset(path, trajectories, list(groups), dict(protocol=protocol, sample_period=DT, seed=7))
+    return write_dataset(path, [Trajectory(**traj) for traj in trajectories], list(groups),
+                         dict(protocol=protocol, sample_period=DT, seed=7))
 
 
 def test_round_trip_and_byte_identical(tmp_path, trajectories):
@@ -37,7 +38,7 @@ def test_round_trip_and_byte_identical(tmp_path, trajectories):
     np.testing.assert_array_equal(dataset.groups, [0, 0, 1, 1])
     for i, traj in enumerate(trajectories):
         for key, value in traj.items():
-            np.testing.assert_array_equal(dataset.trajectory(i)[key], value)
+            np.testing.assert_array_equal(getattr(dataset.trajectory(i), key), value)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.h5", "b.h5"]  # no temp files left
 
 
@@ -80,7 +81,6 @@ def test_planned_source_needs_tracking_data(tmp_path):
 @pytest.mark.parametrize("corrupt, message", [
     (lambda t: t[0]["q"].__setitem__((2, 3), np.nan), "NaN"),
     (lambda t: t[1].__setitem__("v", t[1]["v"][:-1]), "shape"),
-    (lambda t: t[2].pop("tau"), "missing"),
     (lambda t: t[3].__setitem__("tau_next", np.inf * np.ones(6)), "NaN or inf"),
 ])
 def test_bad_arrays_rejected_and_no_file_left(tmp_path, trajectories, corrupt, message):
@@ -88,6 +88,17 @@ def test_bad_arrays_rejected_and_no_file_left(tmp_path, trajectories, corrupt, m
     with pytest.raises(InputError, match=message):
         write(tmp_path / "bad.h5", trajectories)
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_trajectory_needs_every_array_and_no_other(trajectories):
+    arrays = dict(trajectories[2])
+    arrays.pop("tau")
+    with pytest.raises(InputError, match=r"trajectory 000002: missing arrays \['tau'\]"):
+        Trajectory.from_arrays("000002", arrays, planned=True)
+    with pytest.raises(InputError, match=r"trajectory 000001: unknown arrays \['torque'\]"):
+        Trajectory.from_arrays("000001", dict(trajectories[1], torque=trajectories[1]["tau"]), planned=True)
+    loaded = Trajectory.from_arrays("000000", trajectories[0], planned=True)
+    assert loaded.num_steps == 5 and sorted(loaded.arrays()) == sorted(trajectories[0])
 
 
 def test_bad_metadata_rejected(tmp_path, trajectories):

@@ -77,9 +77,9 @@ def test_nominal_acceleration_rates_are_its_time_derivative(excitation):
     at a sample equals the plant's recorded acceleration there."""
     features = NominalAcceleration(UR10)
     traj = excitation.trajectory(3)
-    q, v, tau = traj["q_true"][:5], traj["v_true"][:5], traj["tau"][:5]
-    np.testing.assert_allclose(features.values(q, v, tau), traj["qdd"][:5], rtol=1e-9, atol=1e-9)
-    q_rate, v_rate, tau_rate = v, traj["qdd"][:5], np.random.default_rng(0).normal(size=tau.shape)
+    q, v, tau = traj.q_true[:5], traj.v_true[:5], traj.tau[:5]
+    np.testing.assert_allclose(features.values(q, v, tau), traj.qdd[:5], rtol=1e-9, atol=1e-9)
+    q_rate, v_rate, tau_rate = v, traj.qdd[:5], np.random.default_rng(0).normal(size=tau.shape)
     h = 1e-6
     numeric = (features.values(q + h * q_rate, v + h * v_rate, tau + h * tau_rate)
                - features.values(q - h * q_rate, v - h * v_rate, tau - h * tau_rate)) / (2 * h)
@@ -91,10 +91,10 @@ def test_chain_rule_identity_against_the_plant(excitation):
     its Jacobian times the recorded [q̇_k, q̈_k] gives the recorded [q̇_{k+1}, q̈_{k+1}^-] to 1 %."""
     plant = PlantModel(excitation.sample_period, robot=UR10)
     traj = excitation.trajectory(5)
-    x = np.hstack([traj["q_true"], traj["v_true"]])
-    A, _ = plant.jacobians(x[10:20], traj["tau"][10:20])
-    rate = np.hstack([traj["v_true"][10:20], traj["qdd"][10:20]])
-    target = np.hstack([traj["v_true"][11:21], traj["qdd_end"][10:20]])
+    x = np.hstack([traj.q_true, traj.v_true])
+    A, _ = plant.jacobians(x[10:20], traj.tau[10:20])
+    rate = np.hstack([traj.v_true[10:20], traj.qdd[10:20]])
+    target = np.hstack([traj.v_true[11:21], traj.qdd_end[10:20]])
     predicted = np.einsum("kij,kj->ki", A, rate)
     assert np.linalg.norm(predicted - target) / np.linalg.norm(target) < 1e-2
 
@@ -167,7 +167,7 @@ def test_the_leaf_system_steps_any_dynamics_model_as_its_rollout(excitation, kin
     from stdm_drake.closed_loop.learned_system import LearnedDynamicsSystem
     model = trained(excitation, DEFAULT, epochs=5) if kind == "default" else ConstantVelocity(12, 6, 0.01)
     traj = excitation.trajectory(33)
-    x0, torques = np.concatenate([traj["q"][0], traj["v"][0]]), traj["tau"][:10]
+    x0, torques = np.concatenate([traj.q[0], traj.v[0]]), traj.tau[:10]
     times = np.arange(11) * model.sample_period
     builder = DiagramBuilder()
     system = builder.AddSystem(LearnedDynamicsSystem(model))

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from stdm_drake.cli import main
-from stdm_drake.data.dataset import load_dataset, write_dataset
+from stdm_drake.data.dataset import Trajectory, load_dataset, write_dataset
 from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
 from stdm_drake.learning.trainer import build_model
 from stdm_drake.learning.checkpoint import load_model, save_checkpoint
@@ -30,7 +30,8 @@ def synthetic_trajectory(rng, steps=30, dt=0.01):
         q[k + 1] = q[k] + dt * v[k + 1]
         qdd_end[k] = acceleration(q[k + 1], v[k + 1], tau[k])
     qdd[steps] = acceleration(q[steps], v[steps], tau_next)
-    return dict(q=q, v=v, tau=tau, tau_next=tau_next, q_true=q.copy(), v_true=v.copy(), qdd=qdd, qdd_end=qdd_end)
+    return Trajectory(q=q, v=v, tau=tau, tau_next=tau_next, q_true=q.copy(), v_true=v.copy(), qdd=qdd,
+                      qdd_end=qdd_end)
 
 
 def write_tiny_dataset(path, count, seed):

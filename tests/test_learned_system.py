@@ -59,9 +59,9 @@ def simulate_system(model, x0, torques, measured=None):
 def test_system_trajectory_equals_rollout(checkpoints, tracking_dataset):
     model = LearnedModel(checkpoints["PE"], robot=UR10)
     traj = load_dataset(tracking_dataset).trajectory(3)
-    x0 = np.concatenate([traj["q"][0], traj["v"][0]])
-    states, variances = simulate_system(model, x0, traj["tau"])
-    expected = rollout(model.engine, x0, traj["tau"])
+    x0 = np.concatenate([traj.q[0], traj.v[0]])
+    states, variances = simulate_system(model, x0, traj.tau)
+    expected = rollout(model.engine, x0, traj.tau)
     np.testing.assert_array_equal(states, expected.mean)
     # variances: same float32 formula, summed in another order by rollout's batched path (1e-4 observed)
     np.testing.assert_allclose(variances, expected.variance, rtol=1e-3)
@@ -71,11 +71,11 @@ def test_system_trajectory_equals_rollout(checkpoints, tracking_dataset):
 def test_measured_state_reanchors_every_step(checkpoints, tracking_dataset):
     model = LearnedModel(checkpoints["D"], robot=UR10)
     traj = load_dataset(tracking_dataset).trajectory(0)
-    measured = np.concatenate([traj["q"][10], traj["v"][10]])
-    states, variances = simulate_system(model, np.zeros(12), traj["tau"][:3], measured=measured)
+    measured = np.concatenate([traj.q[10], traj.v[10]])
+    states, variances = simulate_system(model, np.zeros(12), traj.tau[:3], measured=measured)
     assert variances.size == 0  # a single deterministic model has no variance port
     for k in range(3):
-        np.testing.assert_allclose(states[k], predict(model.engine, measured, traj["tau"][k]).mean, rtol=1e-6)
+        np.testing.assert_allclose(states[k], predict(model.engine, measured, traj.tau[k]).mean, rtol=1e-6)
 
 
 def test_non_finite_torque_is_refused(checkpoints):

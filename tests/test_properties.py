@@ -55,7 +55,7 @@ def test_a_corrupted_dataset_file_loads_or_is_refused(tmp_path, dataset_bytes, c
         return
     for index in range(dataset.num_trajectories):          # what loads is finite, well-shaped robot data
         traj = dataset.trajectory(index)
-        assert np.all(np.isfinite(traj["q"])) and traj["q"].shape[0] == traj["tau"].shape[0] + 1
+        assert np.all(np.isfinite(traj.q)) and traj.q.shape[0] == traj.tau.shape[0] + 1
 
 
 @pytest.fixture(scope="module")
@@ -107,12 +107,12 @@ def test_a_dataset_with_a_replaced_array_loads_or_is_refused(tmp_path, excitatio
         assert one_line(error), str(error)
         return
     traj = dataset.trajectory(0)
-    assert np.all(np.isfinite(traj[key])) and np.max(np.abs(traj[key]), initial=0.0) < 1e7
+    assert np.all(np.isfinite(getattr(traj, key))) and np.max(np.abs(getattr(traj, key)), initial=0.0) < 1e7
 
 
 def schemas():
     from stdm_drake.closed_loop.mpc import MpcConfig
-    from stdm_drake.collection.collect import ExcitationConfig
+    from stdm_drake.collection.excitation import ExcitationConfig
     from stdm_drake.robots.control import Pid, SensorConfig
     from stdm_drake.collection.plan import TrackingSpec
     from stdm_drake.learning.settings import TrainSettings

@@ -380,7 +380,8 @@ def test_a_robot_config_names_its_default_files_and_the_rest_is_derived(tmp_path
     preset names its five); a robot naming none gets derived settings; a named file that is missing is
     a one-line error."""
     from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, mpc_config_for
-    from stdm_drake.collection.collect import ExcitationConfig, collection_request
+    from stdm_drake.collection.excitation import ExcitationConfig
+    from stdm_drake.collection.collect import collection_request
     from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
     assert UR10.default_file("tracking") == TRAJECTORIES_DIR / "tracking.yaml"
     assert UR10.default_file("mpc") == CONTROLLERS_DIR / "mpc.yaml"

@@ -1,6 +1,7 @@
 """`stdm-drake reproduce`: the quick profile end to end, the paper's split sizes, report verdicts."""
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -72,7 +73,7 @@ def test_full_profile_uses_the_papers_splits():
             self.groups, self.path, self.sha256 = np.asarray(groups), name, name
 
         def trajectory(self, index):
-            return {"tau": np.zeros((50, 6))}
+            return SimpleNamespace(tau=np.zeros((50, 6)))
 
     excitation, tracking = Stub(np.zeros(200, int), "ex"), Stub(np.repeat(np.arange(4), 25), "tr")
     local = Stub(np.zeros(200, int), "lo")
@@ -124,10 +125,10 @@ def test_multistep_rollout_equals_repeated_one_step_prediction(quick_report):
     model = load_checkpoint(quick_report / "cache" / f"{run['key']}.pt").model
     dataset = load_dataset(next((quick_report / "data").glob("tracking*.h5")))
     traj = dataset.trajectory(0)
-    x = np.concatenate([traj["q"][0], traj["v"][0]])
-    path = rollout(model, x, traj["tau"][:30]).mean
+    x = np.concatenate([traj.q[0], traj.v[0]])
+    path = rollout(model, x, traj.tau[:30]).mean
     for k in range(30):
-        x = predict(model, x, traj["tau"][k]).mean
+        x = predict(model, x, traj.tau[k]).mean
         np.testing.assert_array_equal(path[k], x)
 
 

@@ -131,7 +131,7 @@ def test_collect_train_evaluate_on_a_robot_brought_as_a_urdf(tmp_path, capsys):
     from stdm_drake.data.dataset import load_dataset
     robot, data = collect_two_link(tmp_path, 30)
     dataset = load_dataset(data)
-    assert dataset.trajectory(0)["q"].shape == (31, 2) and dataset.trajectory(0)["tau"].shape == (30, 2)
+    assert dataset.trajectory(0).q.shape == (31, 2) and dataset.trajectory(0).tau.shape == (30, 2)
     assert dataset.metadata.robot_name == "two_link"
     assert dataset.metadata.joint_names == ["shoulder", "elbow"]
     assert dataset.metadata.record["excitation"]["offset_max"] == [1.0, 1.0]          # one value for both joints
@@ -255,7 +255,7 @@ def test_the_ur10_preset_named_with_robot_collects_the_default_data(tmp_path):
                      "--quiet", "-o", str(path), *extra]) == 0
     default, named = (load_dataset(path) for path in paths)
     assert named.metadata.record["excitation"] == default.metadata.record["excitation"]
-    np.testing.assert_array_equal(named.trajectory(1)["tau"], default.trajectory(1)["tau"])
+    np.testing.assert_array_equal(named.trajectory(1).tau, default.trajectory(1).tau)
 
 
 def test_a_robot_that_does_not_load_fails_collect_in_one_line_before_any_worker(tmp_path, capsys):

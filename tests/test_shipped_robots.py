@@ -130,7 +130,7 @@ def test_panda_collect_train_evaluate_mpc_view(tmp_path, capsys, panda):
     robot = str(PANDA_CONFIG)
     assert main(["collect", "--robot", robot, "--count", "12", "--workers", "1", "--quiet", "-o", str(data)]) == 0
     dataset = load_dataset(data)
-    assert dataset.trajectory(0)["q"].shape == (101, 7) and dataset.trajectory(0)["tau"].shape == (100, 7)
+    assert dataset.trajectory(0).q.shape == (101, 7) and dataset.trajectory(0).tau.shape == (100, 7)
     assert dataset.metadata.record["controller"]["kp"] == [225.0] * 7          # recorded per joint
     assert len(dataset.metadata.record["task_space_sampling"]["initial_poses"]) == 4
     assert main(["inspect", str(data), "--robot", robot]) == 0
@@ -171,11 +171,11 @@ def test_acrobot_excitation_train_evaluate_and_refusals(tmp_path, capsys, acrobo
                  "--quiet", "-o", str(data)]) == 0
     dataset = load_dataset(data)
     traj = dataset.trajectory(0)
-    assert traj["q"].shape == (51, 2) and traj["tau"].shape == (50, 1) and traj["tau_next"].shape == (1,)
-    assert np.ptp(traj["q_true"][:, 0]) > 0.01                          # the free shoulder swings
+    assert traj.q.shape == (51, 2) and traj.tau.shape == (50, 1) and traj.tau_next.shape == (1,)
+    assert np.ptp(traj.q_true[:, 0]) > 0.01                          # the free shoulder swings
     dynamics = Dynamics(acrobot)   # the recorded accelerations are the plant's under the elbow torque alone
-    np.testing.assert_allclose(dynamics.acceleration(traj["q_true"][3], traj["v_true"][3], traj["tau"][3]),
-                               traj["qdd"][3], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(dynamics.acceleration(traj.q_true[3], traj.v_true[3], traj.tau[3]),
+                               traj.qdd[3], rtol=1e-9, atol=1e-9)
     assert main(["inspect", str(data), "--robot", robot]) == 0
     assert "(none)" in capsys.readouterr().out                          # no torque column for the shoulder
     assert main(["train", str(data), "--robot", robot, "--model", "DD", "--epochs", "3", "--train", "4", "--val", "1",
@@ -244,7 +244,7 @@ def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
     assert main(["collect", "--robot", str(PANDA_CONFIG), "--controller", str(CONTROLLERS_DIR / "pid_sized.yaml"),
                  "--count", "4", "--workers", "1", "--quiet", "-o", str(data)]) == 0
     traj = load_dataset(data).trajectory(0)
-    assert np.mean((traj["q_true"] - traj["q_planned"]) ** 2) < 1e-4
+    assert np.mean((traj.q_true - traj.q_planned) ** 2) < 1e-4
     both = tmp_path / "both.yaml"
     both.write_text("controller: !Pid\n  kp: [100.0]\n  bandwidth: [25.0]\n")
     with pytest.raises(InputError, match="give kp, ki, kd or bandwidth, not both"):
@@ -269,7 +269,7 @@ def test_reproduce_quick_on_the_panda(tmp_path, capsys):
     assert len(datasets) == 4
     for path in datasets:
         dataset = load_dataset(path)
-        assert dataset.metadata.robot_name == "panda" and dataset.trajectory(0)["q"].shape[1] == 7
+        assert dataset.metadata.robot_name == "panda" and dataset.trajectory(0).q.shape[1] == 7
     plant = json.loads((out / "results.json").read_text())["tables"]["mpc"][0]
     assert plant["model"] == "plant" and plant["q_mse_rad2"] < 1e-5 and plant["limit_violations"] == 0
     capsys.readouterr()

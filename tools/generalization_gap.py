@@ -136,7 +136,8 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("out/generalization_gap"))
     args = parser.parse_args()
-    from stdm_drake.collection.collect import CollectionRequest, ExcitationConfig, collect
+    from stdm_drake.collection.excitation import ExcitationConfig
+    from stdm_drake.collection.collect import CollectionRequest, collect
     from stdm_drake.robots.station import StationConfig
     from stdm_drake.config import load_yaml_config
     from stdm_drake.data.dataset import load_dataset, split_trajectories, write_dataset

@@ -34,8 +34,8 @@ def torque_jacobian_errors(model: LearnedModel, plant: PlantModel, dataset, indi
     errors = []
     for index in indices:
         traj = dataset.trajectory(index)
-        x = np.hstack([traj["q_true"], traj["v_true"]])[:-1:stride]
-        u = traj["tau"][::stride]
+        x = np.hstack([traj.q_true, traj.v_true])[:-1:stride]
+        u = traj.tau[::stride]
         _, B_plant = plant.jacobians(x, u)
         _, B_model = model.jacobians(x, u)
         velocity_rows = slice(UR10.num_joints, UR10.state_dim)

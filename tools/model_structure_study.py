@@ -101,9 +101,9 @@ def contact_free_trajectories(path) -> tuple[list[int], list[int]]:
     keep, contact = [], []
     for index in range(dataset.num_trajectories):
         traj = dataset.trajectory(index)
-        x = np.hstack([traj["q_true"], traj["v_true"]])
-        predicted = free.step(x[:-1], traj["tau"])
-        (contact if np.abs(predicted - x[1:])[:, dataset.trajectory(index)["q"].shape[1]:].max() > 1e-6
+        x = np.hstack([traj.q_true, traj.v_true])
+        predicted = free.step(x[:-1], traj.tau)
+        (contact if np.abs(predicted - x[1:])[:, dataset.trajectory(index).q.shape[1]:].max() > 1e-6
          else keep).append(index)
     return keep, contact
 

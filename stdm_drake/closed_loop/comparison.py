@@ -168,9 +168,9 @@ def held_out_references(dataset, checkpoints: list, count: int) -> list[tuple[in
     for index in indices[:count]:
         traj = dataset.trajectory(index)
         if dataset.protocol == "tracking":
-            references.append((index, Reference(q=traj["q_planned"], v=traj["v_planned"])))
+            references.append((index, Reference(q=traj.q_planned, v=traj.v_planned)))
         else:
-            references.append((index, Reference(q=traj["q_true"], v=traj["v_true"])))
+            references.append((index, Reference(q=traj.q_true, v=traj.v_true)))
     return references
 
 

@@ -1,8 +1,8 @@
 """Collect a robot's datasets in Drake under the paper's two data protocols (`stdm-drake collect` is
 `stdm_drake.commands.collect`).
 
-- excitation (paper V.A.2, eq. 10): per-joint random sine torques A sin(f t + phi) + B added to
-  gravity compensation; the action recorded is the total torque applied.
+- excitation (paper V.A.2, eq. 10; `stdm_drake.collection.excitation`): per-joint random sine torques
+  A sin(f t + phi) + B added to gravity compensation; the action recorded is the total torque applied.
 - tracking (paper V.B.1): task-space plans from `stdm_drake.collection.plan`, tracked by a joint-space
   controller (`stdm_drake.robots.control`, in the station `stdm_drake.robots.station`) on measured
   (noisy, filtered) states; the plan's q̇_d, q̈_d are recorded as the "real robot" derivative targets.
@@ -13,7 +13,7 @@ x_k+1 is exactly a function of (x_k, a_k). Trajectory i draws its randomness fro
 numpy.random.default_rng([seed, i]), so a dataset does not depend on how many worker processes
 collected it.
 
-The two protocols, the worker pool that runs them and the dataset metadata that records their
+The requests of both protocols, the jobs the pool runs and the dataset metadata that records their
 settings live together because they change together (a setting not recorded here would make
 `reproduce` reuse a dataset collected differently).
 """
@@ -26,12 +26,14 @@ from importlib import metadata as importlib_metadata
 import numpy as np
 
 from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.collection.excitation import ExcitationConfig, excitation_trajectory
 from stdm_drake.collection.plan import TrackingSpec, derived_tracking_spec, load_tracking_spec
-from stdm_drake.config import check_joint_vector, load_yaml_config
+from stdm_drake.config import load_yaml_config
+from stdm_drake.data.dataset import Trajectory
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, load_controller_config
-from stdm_drake.robots.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, robot_joint_limits
+from stdm_drake.robots.plant import PlantConfig, SelfCollisionChecker
 from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 
@@ -39,122 +41,6 @@ PROTOCOLS = ("excitation", "tracking")   # their files: --config, the robot's `d
 DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
 PAPER_COUNTS = {"excitation": 200, "tracking": 100}
-
-
-@dataclasses.dataclass
-class ExcitationConfig:
-    """Random sine torques (paper eq. 10) on top of gravity compensation, per actuated joint (amplitude,
-    offset; the start positions: per arm joint). An unactuated joint gets no torque and no compensation.
-
-    tau_i(t) = g_i(q_k) + A_i sin(f_i t + phi_i) + B_i with A_i ~ U[0, amplitude_max_i] N m,
-    f_i ~ U[frequency_range] rad/s, B_i ~ U[-offset_max_i, offset_max_i] N m,
-    phi_i ~ U[phase_range] rad; t is the time since the trajectory's start.
-    q0 ~ U[initial_position_lower, initial_position_upper] rad, v0 = 0.
-    A trajectory is resampled when it comes within position_margin (rad) of a joint limit,
-    exceeds velocity_fraction of a velocity limit, or (check_self_collision) makes two
-    non-adjacent links touch; after max_attempts failed attempts collection stops with an error.
-    """
-    num_steps: int = 50
-    amplitude_max: list[float] = dataclasses.field(default_factory=lambda: [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015])
-    offset_max: list[float] = dataclasses.field(default_factory=lambda: [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015])
-    frequency_range: list[float] = dataclasses.field(default_factory=lambda: [1.0, 10.0])
-    phase_range: list[float] = dataclasses.field(default_factory=lambda: [-1.0, 1.0])
-    gravity_compensation: bool = True
-    initial_position_lower: list[float] = dataclasses.field(
-        default_factory=lambda: [-3.1, -2.6, -2.6, -3.1, -3.1, -3.1])
-    initial_position_upper: list[float] = dataclasses.field(
-        default_factory=lambda: [3.1, -0.5, 2.6, 3.1, 3.1, 3.1])
-    position_margin: float = 0.05
-    velocity_fraction: float = 1.0
-    check_self_collision: bool = True
-    max_attempts: int = 200
-
-    def validate(self) -> None:
-        for name in ("amplitude_max", "offset_max", "initial_position_lower", "initial_position_upper"):
-            check_joint_vector(f"excitation {name}", getattr(self, name))
-        for name in ("frequency_range", "phase_range"):
-            low_high = getattr(self, name)
-            if len(low_high) != 2 or not low_high[0] <= low_high[1]:
-                raise InputError(f"excitation {name} must be [low, high] with low <= high, got {low_high}")
-        if np.any(np.asarray(self.amplitude_max) < 0) or np.any(np.asarray(self.offset_max) < 0):
-            raise InputError("excitation amplitude_max and offset_max must be >= 0")
-        if np.any(np.asarray(self.initial_position_lower) > np.asarray(self.initial_position_upper)):
-            raise InputError("excitation initial_position_lower must be <= initial_position_upper")
-        if self.num_steps < 2 or self.max_attempts < 1:
-            raise InputError("excitation num_steps must be >= 2 and max_attempts >= 1")
-
-    @classmethod
-    def derived_for(cls, robot: Robot, acceleration: float = 0.5, box: float = 0.5) -> "ExcitationConfig":
-        """Default ranges for a robot without an excitation file, by the rule behind the UR-10's:
-        amplitude and offset limits `acceleration` (rad/s^2) times each joint's effective inertia
-        M_ii at the home pose (N m), start poses in a box of +-`box` rad around home, kept 0.05 rad
-        inside the position limits (box=math.pi: the whole range, as trajectories/excitation.yaml's
-        nearly whole-range UR-10 start poses)."""
-        dynamics = Dynamics(robot)
-        torque = acceleration * np.diag(dynamics.mass_matrix(robot.home))[robot.actuated_indices]
-        limits = joint_limits(dynamics.plant)
-        lower = np.maximum(robot.home - box, limits.position_lower + 0.05)
-        upper = np.minimum(robot.home + box, limits.position_upper - 0.05)
-        return cls(amplitude_max=torque.tolist(), offset_max=torque.tolist(), initial_position_lower=lower.tolist(),
-                   initial_position_upper=upper.tolist())
-
-    def check_start_poses(self, robot: Robot) -> None:
-        """InputError naming the joint if the start-pose box is not `position_margin` inside its limits
-        (every start would be rejected, after the simulation, as a limit violation)."""
-        limits = robot_joint_limits(robot)
-        lower, upper = np.asarray(self.initial_position_lower), np.asarray(self.initial_position_upper)
-        for j, name in enumerate(robot.joint_names):
-            low, high = limits.position_lower[j] + self.position_margin, limits.position_upper[j] - self.position_margin
-            if lower[j] < low or upper[j] > high:
-                raise InputError(f"excitation start poses of {name} [{lower[j]:.4g}, {upper[j]:.4g}] rad leave its "
-                                 f"limits less the {self.position_margin} rad margin [{low:.4g}, {high:.4g}] rad")
-
-    def for_robot(self, robot: Robot) -> "ExcitationConfig":
-        """This config with every per-joint list of the robot's length (one value broadcast): torques per
-        actuated joint, start positions per arm joint; InputError when a list has another length."""
-        counts = dict(amplitude_max=robot.action_dim, offset_max=robot.action_dim,
-                      initial_position_lower=robot.num_joints, initial_position_upper=robot.num_joints)
-        return dataclasses.replace(self, **{
-            name: check_joint_vector(f"excitation {name}", getattr(self, name), count=count).tolist()
-            for name, count in counts.items()})
-
-
-def excitation_trajectory(rig: Station, config: ExcitationConfig, rng: np.random.Generator) -> dict:
-    """Sample eq. (10) parameters and q0 until a trajectory stays inside the limits."""
-    lower, upper = np.asarray(config.initial_position_lower), np.asarray(config.initial_position_upper)
-    reasons: dict[str, int] = {}
-    sensor_config = rig.settings.sensor
-    for _ in range(config.max_attempts):
-        amplitude = rng.uniform(0.0, config.amplitude_max)
-        frequency = rng.uniform(*config.frequency_range, size=rig.robot.action_dim)
-        offset = rng.uniform(-np.asarray(config.offset_max), config.offset_max)
-        phase = rng.uniform(*config.phase_range, size=rig.robot.action_dim)
-        q0 = rng.uniform(lower, upper)
-        if config.check_self_collision and not rig.collision_checker.is_collision_free(q0):
-            reasons["initial self-collision"] = reasons.get("initial self-collision", 0) + 1
-            continue
-
-        def control(k, t, q, v):
-            tau = amplitude * np.sin(frequency * t + phase) + offset
-            return tau + rig.dynamics.actuated_gravity_torque(q) if config.gravity_compensation else tau
-
-        try:
-            traj = rig.run(q0, config.num_steps, control, JointSensor(sensor_config, rng))
-        except RuntimeError as error:  # Drake refuses a state gone non-finite: the draw diverged, draw again
-            if "non-finite" not in str(error):
-                raise
-            reasons["simulation diverged"] = reasons.get("simulation diverged", 0) + 1
-            continue
-        reason = rig.limit_violation(traj, config.position_margin, config.velocity_fraction,
-                                     config.check_self_collision)
-        if reason is None:
-            traj["excitation"] = np.concatenate([amplitude, frequency, offset, phase])
-            return traj
-        key = reason.split(" at step")[0]
-        reasons[key] = reasons.get(key, 0) + 1
-    summary = ", ".join(f"{name} x{count}" for name, count in sorted(reasons.items(), key=lambda item: -item[1]))
-    raise InputError(f"excitation: no trajectory within limits after {config.max_attempts} attempts "
-                     f"({summary}); lower the torque ranges")
 
 
 @dataclasses.dataclass
@@ -278,7 +164,8 @@ def plans_per_pose(count: int, num_poses: int) -> list[int]:
     return [count // num_poses + (1 if pose < count % num_poses else 0) for pose in range(num_poses)]
 
 
-def collect(request: CollectionRequest, progress: bool = True, on_trajectory=None) -> tuple[list[dict], list[int], dict]:
+def collect(request: CollectionRequest, progress: bool = True,
+            on_trajectory=None) -> tuple[list[Trajectory], list[int], dict]:
     """Simulate `request.count` trajectories; returns (trajectories, groups, metadata).
 
     on_trajectory(traj): called with each finished trajectory, in order (e.g. to show it in Meshcat).
@@ -295,9 +182,12 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
     settings.controller.validate()
     bar = tqdm(total=request.count, desc=f"collect {request.protocol}", unit="traj", disable=not progress,
                file=sys.stderr)
-    trajectories = []
+    trajectories, excitation_parameters = [], []
 
-    def finished(traj):
+    def finished(arrays: dict) -> None:
+        if "excitation" in arrays:   # eq. (10)'s draw: recorded in the metadata, not as an array
+            excitation_parameters.append(arrays.pop("excitation").tolist())
+        traj = Trajectory(**arrays)
         trajectories.append(traj)
         if on_trajectory is not None:
             on_trajectory(traj)
@@ -317,7 +207,7 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
     bar.close()
     metadata = collection_metadata(request)
     if request.protocol == "excitation":
-        metadata["excitation_parameters"] = [traj.pop("excitation").tolist() for traj in trajectories]
+        metadata["excitation_parameters"] = excitation_parameters
     return trajectories, groups, metadata
 
 

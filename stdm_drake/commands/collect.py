@@ -69,10 +69,10 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     trajectories, groups, metadata = collect(
         request, progress=not args.quiet,
-        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj["q_true"], realtime=args.meshcat))
+        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj.q_true, realtime=args.meshcat))
     elapsed = time.perf_counter() - started
     path = write_dataset(args.output, trajectories, groups, metadata)
-    simulated = sum(len(t["tau"]) for t in trajectories) * request.settings.sample_period
+    simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period
     print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
     if recorder is not None:

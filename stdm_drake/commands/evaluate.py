@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         indices = np.asarray(split, dtype=int)
         if not len(indices):
             raise InputError(f"the checkpoint's {args.split} split is empty")
-    shortest = min(len(dataset.trajectory(int(i))["tau"]) for i in indices)
+    shortest = min(dataset.trajectory(int(i)).num_steps for i in indices)
     if args.horizon is not None and not 1 <= args.horizon <= shortest:
         raise InputError(f"--horizon must be in 1..{shortest} (the shortest selected trajectory's steps), "
                          f"got {args.horizon}")

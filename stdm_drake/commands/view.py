@@ -49,12 +49,12 @@ def run(args) -> int:
         if not 0 <= index < dataset.num_trajectories:
             raise InputError(f"trajectory index {index} out of range 0..{dataset.num_trajectories - 1}")
         traj = dataset.trajectory(index)
-        x0 = np.concatenate([traj["q"][0], traj["v"][0]])
-        predicted = model.rollout(x0[None], traj["tau"][None]).mean[0]
-        ghost_q = np.vstack([traj["q"][:1], predicted[:, :robot.num_joints]])
+        x0 = np.concatenate([traj.q[0], traj.v[0]])
+        predicted = model.rollout(x0[None], traj.tau[None]).mean[0]
+        ghost_q = np.vstack([traj.q[:1], predicted[:, :robot.num_joints]])
         label = model.checkpoint.metadata.model_type or "model"
         print(f"trajectory {index}: {open_loop_error_line(label, traj['q'], traj['v'][0], ghost_q, dataset.sample_period)}")
-        recorder.add(traj["q_true"], ghost_q, realtime=args.meshcat)
+        recorder.add(traj.q_true, ghost_q, realtime=args.meshcat)
     recorder.finish(args.html, keep_serving=args.meshcat,
                     what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")
     return 0

@@ -43,12 +43,12 @@ def check_within_limits(dataset, robot: Robot, limits: JointLimits, position_mar
         traj = dataset.trajectory(index)
         for key, low, high in (("q", limits.position_lower - position_margin, limits.position_upper + position_margin),
                                ("v", -velocity_factor * limits.velocity, velocity_factor * limits.velocity)):
-            if traj[key].shape[1] != robot.num_joints:
-                raise InputError(f"{dataset.path}: {key} has {traj[key].shape[1]} joints, robot {robot.name} has "
+            if getattr(traj, key).shape[1] != robot.num_joints:
+                raise InputError(f"{dataset.path}: {key} has {getattr(traj, key).shape[1]} joints, robot {robot.name} has "
                                  f"{robot.num_joints}")
-            outside = (traj[key] < low) | (traj[key] > high)
+            outside = (getattr(traj, key) < low) | (getattr(traj, key) > high)
             if outside.any():
                 step, joint = np.argwhere(outside)[0]
                 raise InputError(f"{dataset.path}: trajectory {index} {key} of {robot.joint_names[joint]} is "
-                                 f"{traj[key][step, joint]:.4g} at step {step}, far outside robot {robot.name}'s "
+                                 f"{getattr(traj, key)[step, joint]:.4g} at step {step}, far outside robot {robot.name}'s "
                                  "limits; not this robot's data")

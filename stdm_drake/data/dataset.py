@@ -48,6 +48,40 @@ DERIVATIVE_SOURCES = ("true", "planned")
 ACTION_RATE_SCHEMES = ("forward_difference", "zero_order_hold")
 
 
+@dataclasses.dataclass(frozen=True, eq=False)
+class Trajectory:
+    """One trajectory's arrays (float64; names, shapes and units in the module docstring): T steps, n
+    joints, m actuated ones. The planned arrays exist in tracking data only (None otherwise)."""
+    q: np.ndarray
+    v: np.ndarray
+    tau: np.ndarray
+    tau_next: np.ndarray
+    q_true: np.ndarray
+    v_true: np.ndarray
+    qdd: np.ndarray
+    qdd_end: np.ndarray
+    q_planned: np.ndarray | None = None
+    v_planned: np.ndarray | None = None
+    qdd_planned: np.ndarray | None = None
+
+    @classmethod
+    def from_arrays(cls, name: str, arrays: dict, planned: bool) -> "Trajectory":
+        """The trajectory of a mapping name -> array, checked (`_check_trajectory`: every array present,
+        no other, shapes, finite numbers, plausible magnitudes); InputError naming trajectory `name`."""
+        _check_trajectory(name, arrays, planned)
+        return cls(**{key: np.asarray(value, dtype=np.float64) for key, value in arrays.items()})
+
+    def arrays(self) -> dict:
+        """Name -> array of the arrays it holds (the planned ones only in tracking data)."""
+        return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)
+                if getattr(self, field.name) is not None}
+
+    @property
+    def num_steps(self) -> int:
+        """T: the transitions it holds (len(tau))."""
+        return len(self.tau)
+
+
 @dataclasses.dataclass
 class Transitions:
     """One-step training pairs, stacked over trajectories (N = sum of T over trajectories).
@@ -118,7 +152,7 @@ class DatasetMetadata:
 class Dataset:
     """A loaded, validated dataset: its metadata (DatasetMetadata) plus per-trajectory arrays (float64)."""
 
-    def __init__(self, path: pathlib.Path, metadata: DatasetMetadata, trajectories: list[dict], groups: np.ndarray,
+    def __init__(self, path: pathlib.Path, metadata: DatasetMetadata, trajectories: list[Trajectory], groups: np.ndarray,
                  sha256: str):
         self.path = pathlib.Path(path)
         self.metadata = metadata
@@ -143,8 +177,8 @@ class Dataset:
         """Derivative targets the protocol calls for: true for simulation, planned for "real"."""
         return "planned" if self.protocol == "tracking" else "true"
 
-    def trajectory(self, index: int) -> dict:
-        """Arrays of trajectory `index` (see the module docstring for names and shapes)."""
+    def trajectory(self, index: int) -> Trajectory:
+        """Trajectory `index` (see the module docstring for its arrays' names and shapes)."""
         return self._trajectories[index]
 
     def transitions(self, indices=None, derivative_source: str | None = None,
@@ -175,21 +209,21 @@ class Dataset:
         parts = []
         for index in indices:
             traj = self._trajectories[index]
-            tau_all = np.vstack([traj["tau"], traj["tau_next"][None]])
+            tau_all = np.vstack([traj.tau, traj.tau_next[None]])
             if source == "true":
-                qd, qdd_after = traj["v_true"], traj["qdd"]
+                qd, qdd_after = traj.v_true, traj.qdd
             else:
-                qd, qdd_after = traj["v_planned"], traj["qdd_planned"]
+                qd, qdd_after = traj.v_planned, traj.qdd_planned
             if action_rate == "forward_difference":
                 rate = np.diff(tau_all, axis=0) / dt
                 target_qdd = qdd_after[1:]
             else:
-                rate = np.zeros_like(traj["tau"])
-                target_qdd = traj["qdd_end"]
-            x = np.hstack([traj["q"], traj["v"]])
-            num_steps = len(traj["tau"])
+                rate = np.zeros_like(traj.tau)
+                target_qdd = traj.qdd_end
+            x = np.hstack([traj.q, traj.v])
+            num_steps = traj.num_steps
             parts.append(dict(
-                state=x[:-1], action=traj["tau"], next_state=x[1:],
+                state=x[:-1], action=traj.tau, next_state=x[1:],
                 state_rate=np.hstack([qd[:-1], qdd_after[:-1]]), action_rate=rate,
                 next_state_rate=np.hstack([qd[1:], target_qdd]),
                 trajectory=np.full(num_steps, index), step=np.arange(num_steps)))
@@ -233,6 +267,10 @@ def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
     missing = [key for key in REQUIRED_ARRAYS + (PLANNED_ARRAYS if planned else ()) if key not in traj]
     if missing:
         raise InputError(f"trajectory {name}: missing arrays {missing}")
+    unknown = sorted(set(traj) - set(REQUIRED_ARRAYS + PLANNED_ARRAYS))
+    if unknown:
+        raise InputError(f"trajectory {name}: unknown arrays {unknown} (a dataset holds {', '.join(REQUIRED_ARRAYS)}"
+                         f" and, tracked, {', '.join(PLANNED_ARRAYS)})")
     num_steps = len(traj["q"]) - 1 if np.ndim(traj["q"]) == 2 else -1  # the samples are the reference
     if num_steps < 2:
         raise InputError(f"trajectory {name}: needs at least 2 steps (3 samples of q), has {num_steps}")
@@ -254,10 +292,10 @@ def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
                              f"range (|{key}| <= {PLAUSIBLE_MAGNITUDE[key]:g}); not robot data")
 
 
-def write_dataset(path, trajectories: list[dict], groups, metadata: dict) -> pathlib.Path:
+def write_dataset(path, trajectories: list[Trajectory], groups, metadata: dict) -> pathlib.Path:
     """Validate and write a dataset atomically (temp file in the same folder, then rename).
 
-    trajectories: list of dicts of arrays named as in the module docstring.
+    trajectories: the Trajectory of each (arrays named as in the module docstring).
     groups: (num_trajectories,) ints. metadata: JSON-serializable dict with at least
     "protocol" and "sample_period" (s). On any error no file (and no temp file) is left.
     """
@@ -273,7 +311,8 @@ def write_dataset(path, trajectories: list[dict], groups, metadata: dict) -> pat
     if not trajectories:
         raise InputError("a dataset needs at least one trajectory")
     planned = metadata["protocol"] == "tracking"
-    for i, traj in enumerate(trajectories):
+    arrays = [traj.arrays() for traj in trajectories]
+    for i, traj in enumerate(arrays):
         _check_trajectory(f"{i:06d}", traj, planned)
     metadata_json = json.dumps(metadata, sort_keys=True, default=json_default)
     with atomic_path(path) as temp_name, h5py.File(temp_name, "w", libver=("earliest", "v110"), track_order=False) as f:
@@ -284,7 +323,7 @@ def write_dataset(path, trajectories: list[dict], groups, metadata: dict) -> pat
         f.attrs["num_trajectories"] = len(trajectories)
         f.attrs["metadata_json"] = metadata_json
         root = f.create_group("trajectories")
-        for i, traj in enumerate(trajectories):
+        for i, traj in enumerate(arrays):
             group = root.create_group(f"{i:06d}")
             group.attrs["group"] = int(groups[i])
             for key in sorted(traj):
@@ -334,9 +373,7 @@ def load_dataset(path) -> Dataset:
             trajectories, groups = [], []
             for name in names:
                 group = f["trajectories"][name]
-                traj = {key: group[key][()] for key in group}
-                _check_trajectory(name, traj, planned)
-                trajectories.append(traj)
+                trajectories.append(Trajectory.from_arrays(name, {key: group[key][()] for key in group}, planned))
                 groups.append(int(group.attrs.get("group", 0)))
     except InputError:
         raise

@@ -12,7 +12,7 @@ def tracking_errors(dataset: Dataset) -> dict:
     measured_*: learner's (measured, filtered) state minus the plan; true_*: the plant's state
     minus the plan. Units rad^2 and (rad/s)^2.
     """
-    stack = lambda key: np.concatenate([dataset.trajectory(i)[key] for i in range(dataset.num_trajectories)])
+    stack = lambda key: np.concatenate([getattr(dataset.trajectory(i), key) for i in range(dataset.num_trajectories)])
     q_plan, v_plan = stack("q_planned"), stack("v_planned")
     return dict(measured_q=float(np.mean((stack("q") - q_plan) ** 2)),
                 measured_v=float(np.mean((stack("v") - v_plan) ** 2)),
@@ -30,8 +30,8 @@ def noise_floor(dataset: Dataset, indices=None) -> dict:
     q_err, v_err = [], []
     for i in (range(dataset.num_trajectories) if indices is None else indices):
         traj = dataset.trajectory(int(i))
-        q_err.append(np.diff(traj["q"] - traj["q_true"], axis=0))
-        v_err.append(np.diff(traj["v"] - traj["v_true"], axis=0))
+        q_err.append(np.diff(traj.q - traj.q_true, axis=0))
+        v_err.append(np.diff(traj.v - traj.v_true, axis=0))
     return dict(q=float(np.mean(np.concatenate(q_err) ** 2)), v=float(np.mean(np.concatenate(v_err) ** 2)))
 
 
@@ -47,13 +47,13 @@ def tracking_smoothness(dataset: Dataset) -> dict:
     errors, flips, pairs, peak, planned_peak = [], 0, 0, 0.0, 0.0
     for i in range(dataset.num_trajectories):
         traj = dataset.trajectory(i)
-        errors.append(traj["v_true"] - traj["v_planned"])
-        change = np.diff(traj["v_true"], axis=0)
+        errors.append(traj.v_true - traj.v_planned)
+        change = np.diff(traj.v_true, axis=0)
         product = change[1:] * change[:-1]
         flips = flips + (product < 0).sum(axis=0)
         pairs += len(product)
-        peak = np.maximum(peak, np.abs(traj["qdd"]).max(axis=0))
-        planned_peak = np.maximum(planned_peak, np.abs(traj["qdd_planned"]).max(axis=0))
+        peak = np.maximum(peak, np.abs(traj.qdd).max(axis=0))
+        planned_peak = np.maximum(planned_peak, np.abs(traj.qdd_planned).max(axis=0))
     return dict(velocity_error_rms=np.sqrt(np.mean(np.concatenate(errors) ** 2, axis=0)),
                 sign_flip_rate=flips / max(pairs, 1), peak_acceleration=peak,
                 peak_planned_acceleration=planned_peak)
@@ -61,7 +61,7 @@ def tracking_smoothness(dataset: Dataset) -> dict:
 
 def summary(dataset: Dataset) -> str:
     meta = dataset.metadata
-    steps = [len(dataset.trajectory(i)["tau"]) for i in range(dataset.num_trajectories)]
+    steps = [len(dataset.trajectory(i).tau) for i in range(dataset.num_trajectories)]
     groups, counts = np.unique(dataset.groups, return_counts=True)
     lines = [
         f"file            {dataset.path}  (sha256 {dataset.sha256[:16]}…)",
@@ -78,13 +78,13 @@ def summary(dataset: Dataset) -> str:
     versions = meta.section("package_versions")
     lines.append("packages        " + ", ".join(f"{k} {v}" for k, v in sorted(versions.items())))
     labels = [name.removesuffix("_joint") for name in meta.joint_names or []]
-    labels = labels or [f"joint{j}" for j in range(dataset.trajectory(0)["q"].shape[1])]
+    labels = labels or [f"joint{j}" for j in range(dataset.trajectory(0).q.shape[1])]
     header = f"{'':14s}" + "".join(f"{label:>17s}" for label in labels)
     lines += ["", "ranges (min..max over all samples)", f"{'':14s}" + "".join(f"{label:>21s}" for label in labels)]
     unactuated = set(meta.section("robot").get("unactuated_joints", []))
     actuated = [j for j, name in enumerate(meta.joint_names or labels) if name not in unactuated]
     for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), ("qdd", "rad/s^2")):
-        values = np.concatenate([dataset.trajectory(i)[key] for i in range(dataset.num_trajectories)])
+        values = np.concatenate([getattr(dataset.trajectory(i), key) for i in range(dataset.num_trajectories)])
         columns = actuated if key == "tau" and len(actuated) == values.shape[1] else range(values.shape[1])
         ranges = {j: f"{f'{lo:.3g}..{hi:.3g}':>21s}" for j, lo, hi in zip(columns, values.min(0), values.max(0))}
         cells = "".join(ranges.get(j, f"{'(none)':>21s}") for j in range(len(labels)))   # 2 spaces at least

@@ -65,7 +65,7 @@ ENDPOINTS = (("one_step_q", "one-step q"), ("one_step_v", "one-step v"), ("open_
 
 
 def excitation_config(cell: Cell):
-    from stdm_drake.collection.collect import ExcitationConfig
+    from stdm_drake.collection.excitation import ExcitationConfig
     lower, upper = {"fixed": (HOME, HOME), "box": ([h - 0.5 for h in HOME], [h + 0.5 for h in HOME]),
                     "global": (GLOBAL_LOWER, GLOBAL_UPPER)}[cell.start]
     ranges = SCALED if cell.compensated else None

@@ -344,7 +344,7 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
 
     def comparison(experiment, dataset, sizes, n_val, n_test, per_group, multistep=False):
         """One grid job per seed: all activations at the largest size, swish at the others."""
-        horizon = len(dataset.trajectory(0)["tau"])
+        horizon = len(dataset.trajectory(0).tau)
         for size in sizes:
             split = split_trajectories(dataset.groups, size, n_val, n_test, seed=0, per_group=per_group)
             for activation in (profile.activations if size == max(sizes) else ("swish",)):

@@ -33,7 +33,7 @@ def dataset_settings(robot: Robot) -> dict:
     model (excitation ranges from its inertia, start poses over its whole range for "excitation" and
     within +-0.5 rad of home for "excitation_local", tracking poses around home, PID gains and dither
     sized from its inertia)."""
-    from stdm_drake.collection.collect import ExcitationConfig
+    from stdm_drake.collection.excitation import ExcitationConfig
     excitation, local = robot.default_file("excitation"), robot.default_file("excitation_local")
     controller = robot.default_file("identification_controller")
     return dict(

@@ -258,14 +258,14 @@ def add_data_section(report, excitation, local, tracking, identification, robot:
     report.heading("Data")
     errors, identification_errors = tracking_errors(tracking), tracking_errors(identification)
     report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
-                 [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0)["tau"]), "", "", ""],
+                 [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0).tau), "", "", ""],
                   ["excitation, local start poses (coverage study)", local.num_trajectories,
-                   len(local.trajectory(0)["tau"]), "", "", ""],
-                  ["tracked plans (V.B)", tracking.num_trajectories, len(tracking.trajectory(0)["tau"]),
+                   len(local.trajectory(0).tau), "", "", ""],
+                  ["tracked plans (V.B)", tracking.num_trajectories, len(tracking.trajectory(0).tau),
                    _g(errors["true_q"]), _g(errors["measured_v"]),
                    f"q {PAPER['tracking_mse']['q']}, v {PAPER['tracking_mse']['v']}"],
                   ["identification (MPC models)", identification.num_trajectories,
-                   len(identification.trajectory(0)["tau"]), _g(identification_errors["true_q"]),
+                   len(identification.trajectory(0).tau), _g(identification_errors["true_q"]),
                    _g(identification_errors["measured_v"]), ""]])
     controller_file = "pid_dither.yaml" if robot == "ur10" else "pid_dither_sized.yaml"
     report.text(f"The identification dataset tracks the same kind of plans with controllers/{controller_file} (white "

@@ -105,7 +105,7 @@ class Checkpoint:
         """InputError unless the model can predict `dataset`'s transitions: the state (2 x joints) and
         action (joints) sizes match, and the model steps at the dataset's sample period (when recorded)."""
         first = dataset.trajectory(0)
-        self.check_sizes(state_dim=2 * first["q"].shape[1], action_dim=first["tau"].shape[1])
+        self.check_sizes(state_dim=2 * first.q.shape[1], action_dim=first.tau.shape[1])
         period = self.metadata.sample_period
         if period is not None and abs(float(period) - dataset.sample_period) > 1e-12:
             raise InputError(f"{self.path}: model steps at {period} s, {dataset.path} at {dataset.sample_period} s")

@@ -185,13 +185,13 @@ def trajectory_rollout_data(dataset, indices, horizon: int | None = None):
     trajectories = [dataset.trajectory(int(i)) for i in indices]
     if not trajectories:
         raise InputError("no trajectories selected")
-    length = min(len(t["tau"]) for t in trajectories)
+    length = min(len(t.tau) for t in trajectories)
     if horizon is not None:
         if horizon < 1:
             raise InputError(f"horizon must be >= 1, got {horizon}")
         length = min(length, horizon)
-    states = np.stack([np.hstack([t["q"][:length + 1], t["v"][:length + 1]]) for t in trajectories])
-    actions = np.stack([t["tau"][:length] for t in trajectories])
+    states = np.stack([np.hstack([t.q[:length + 1], t.v[:length + 1]]) for t in trajectories])
+    actions = np.stack([t.tau[:length] for t in trajectories])
     return states[:, 0], actions, states[:, 1:]
 
 

@@ -53,7 +53,7 @@ def training_problem(dataset, split, *, model_type: str = "DD", activation: str 
 
     train, val = pairs(parts["train"]), pairs(parts["val"])
     first = dataset.trajectory(0)
-    state_dim, action_dim = 2 * first["q"].shape[1], first["tau"].shape[1]
+    state_dim, action_dim = 2 * first.q.shape[1], first.tau.shape[1]
     input_dim, output_dim = structure.network_sizes(state_dim, action_dim)
     config = ModelConfig(input_dim=input_dim, output_dim=output_dim, residual=delta, hidden_width=hidden_width,
                          hidden_layers=hidden_layers, activation=activation,
