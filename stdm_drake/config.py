@@ -5,6 +5,7 @@ Bad files (missing, malformed YAML, unknown keys, wrong types, not a mapping, va
 """
 import dataclasses
 import pathlib
+import sys
 
 import numpy as np
 import yaml
@@ -46,12 +47,33 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     return config
 
 
+class _TagsAsPlainValues(yaml.SafeLoader):
+    """A YAML loader that reads a tagged node (`!Pid {...}`) as its plain mapping, list or scalar."""
+
+
+def _plain(loader, suffix, node):
+    if isinstance(node, yaml.MappingNode):
+        return loader.construct_mapping(node, deep=True)
+    if isinstance(node, yaml.SequenceNode):
+        return loader.construct_sequence(node, deep=True)
+    return loader.construct_scalar(node)
+
+
+_TagsAsPlainValues.add_multi_constructor("!", _plain)
+
+
+def read_yaml_document(path):
+    """A YAML file's document as plain Python values, tags ignored (to see its layout before the typed
+    load); None when it cannot be read or parsed (the typed load then says why)."""
+    try:
+        return yaml.load(pathlib.Path(path).read_text(), Loader=_TagsAsPlainValues)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        return None
+
+
 def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
     """`schema` from a file in the layout before tags (see load_yaml_config), or None when it is not one."""
-    try:
-        document = yaml.safe_load(path.read_text())
-    except (OSError, yaml.YAMLError):
-        return None   # load_yaml_config reports it
+    document = read_yaml_document(path)
     if not isinstance(document, dict):
         return None
     old = {name: layout for name, layout in old_layouts.items()
@@ -59,13 +81,19 @@ def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
            and "kind" in (document.get(name) if name else document)}
     if not old:
         return None
+    warnings = []
     if "" in old:   # the whole file is the one tagged field's value
-        name, (types, tagged) = next((key, value) for key, value in old_layouts.items() if key == "")
+        types, tagged = old[""]
         field = next(field.name for field in dataclasses.fields(schema))
-        config = schema(**{field: from_kind_layout(document, types, path, tagged)})
+        value, warning = from_kind_layout(document, types, path, tagged)
+        config = schema(**{field: value})
+        warnings.append(warning)
     else:
-        converted = {name: from_kind_layout(document.pop(name), old[name][0], f"{path}: {name}", old[name][1])
-                     for name in old}
+        converted = {}
+        for name in old:
+            converted[name], warning = from_kind_layout(document.pop(name), old[name][0], f"{path}: {name}",
+                                                        old[name][1])
+            warnings.append(warning)
         try:
             config = yaml_load_typed(schema=schema, data=yaml.safe_dump(document), defaults=schema())
         except Exception as error:  # the YAML parser and Drake's schema checks raise several types
@@ -77,6 +105,8 @@ def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
             config.validate()
         except InputError as error:
             raise InputError(f"{path}: {error}") from None
+    for warning in warnings:   # once the file is known to be good: a bad one gets its one error line only
+        print(warning, file=sys.stderr)
     return config
 
 
@@ -102,12 +132,12 @@ def require(condition: bool, message: str, value) -> None:
         raise InputError(f"{message}, got {value!r}")
 
 
-def from_kind_layout(mapping: dict, types: dict, where, tagged: str):
+def from_kind_layout(mapping: dict, types: dict, where, tagged: str) -> tuple:
     """A config from a mapping in the layout before YAML tags (`kind: NAME` beside the fields), for the
-    files written then: the instance of types[NAME] with the fields it has (fields only other kinds have,
-    which that kind ignored, are dropped), and one warning line saying how to write it now (`tagged`:
-    e.g. "controller: !Pid"). InputError on an unknown kind or a field no kind has."""
-    import sys
+    files written then: (the instance of types[NAME] with the fields it has (fields only other kinds have,
+    which that kind ignored, are dropped), the warning line to print once it is known to be good, saying
+    how to write it now (`tagged`: e.g. "controller: !{}")). InputError on an unknown kind or a field no
+    kind has."""
     mapping = dict(mapping)
     kind = mapping.pop("kind")
     if kind not in types:
@@ -118,10 +148,11 @@ def from_kind_layout(mapping: dict, types: dict, where, tagged: str):
     if unknown:
         raise InputError(f"{where}: unknown fields {unknown}")
     own = {field.name for field in dataclasses.fields(target)}
-    print(f"stdm-drake: warning: {where} uses the old `kind: {kind}` layout; write `{tagged.format(target.__name__)}` "
-          "with its fields indented under it", file=sys.stderr)
+    warning = (f"stdm-drake: warning: {where} uses the old `kind: {kind}` layout; write "
+               f"`{tagged.format(target.__name__)}` with its fields indented under it")
     try:
-        return yaml_load_typed(schema=target, data=yaml.safe_dump({k: v for k, v in mapping.items() if k in own}),
-                               defaults=target())
+        config = yaml_load_typed(schema=target, data=yaml.safe_dump({k: v for k, v in mapping.items() if k in own}),
+                                 defaults=target())
     except Exception as error:  # Drake's schema checks raise several types
         raise InputError(f"{where}: {one_line(error)}") from None
+    return config, warning

@@ -239,3 +239,28 @@ def test_controller_files_are_tagged_and_the_old_kind_layout_loads_with_a_warnin
     assert isinstance(load_controller_config("controllers/inverse_dynamics.yaml"), InverseDynamics)
     assert Pid(kp=[1.0], ki=[1.0], kd=[1.0]).record()["kind"] == "pid"
 
+
+
+def test_protocol_files_are_tagged_and_name_their_protocol(tmp_path, capsys):
+    """`protocol: !Excitation` / `!Tracking` picks the protocol (collect --config needs no --protocol); a file
+    asked for as the other protocol is refused; the layout before the tags loads as the protocol asked for,
+    with one warning line (without one: tracking, the default before the tags)."""
+    from stdm_drake.collection.collect import collection_request
+    from stdm_drake.collection.planner_configs import Ruckig
+    from stdm_drake.errors import InputError
+    ruckig = collection_request(config="trajectories/tracking_ruckig.yaml", robot=UR10, count=1, workers=1)
+    assert ruckig.protocol == "tracking" and isinstance(ruckig.tracking_spec.planner, Ruckig)
+    assert collection_request(config="trajectories/excitation.yaml", robot=UR10, count=1, workers=1).protocol \
+        == "excitation"
+    with pytest.raises(InputError, match="holds the tracking protocol, not the excitation protocol"):
+        collection_request("excitation", config="trajectories/tracking.yaml", robot=UR10, count=1, workers=1)
+    assert capsys.readouterr().err == ""
+    old = tmp_path / "old.yaml"   # the layout before the tags: the fields at the top
+    old.write_text("\n".join(line[2:] for line in open("trajectories/excitation.yaml").read().splitlines()
+                             if line.startswith("  ")) + "\n")
+    request = collection_request("excitation", config=old, robot=UR10, count=1, workers=1)
+    assert request.excitation == collection_request("excitation", robot=UR10, count=1, workers=1).excitation
+    warning = capsys.readouterr().err.strip()
+    assert len(warning.splitlines()) == 1 and "write `protocol: !Excitation`" in warning
+    with pytest.raises(InputError, match=r"malformed tracking spec"):   # untagged, no protocol: tracking, as before
+        collection_request(config=old, robot=UR10, count=1, workers=1)

@@ -11,8 +11,8 @@ from pydrake.math import RigidTransform, RotationMatrix
 from presets import UR10
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.robots.kinematics import RobotKinematics, rotation_exp, rotation_log
-from stdm_drake.collection.plan import (InitialPose, TaskSpaceSamplingConfig, initial_configuration,
-                                        load_tracking_spec, sample_task_plans)
+from stdm_drake.collection.plan import InitialPose, TaskSpaceSamplingConfig, initial_configuration, sample_task_plans
+from stdm_drake.collection.protocols import load_tracking_spec
 from stdm_drake.collection.planner_configs import PLANNER_KINDS, PlannerConfig, Quintic, Ruckig
 from stdm_drake.collection.planners import PlannedTrajectory, check_position_extrema, plan_trajectory
 from stdm_drake.paths import TRAJECTORIES_DIR
@@ -418,18 +418,20 @@ def test_planners_are_tagged_and_the_old_kind_layout_loads_with_a_warning(tmp_pa
     """`planner: !Ruckig {...}` picks the type by its tag; a planner in the layout before the tags (`kind:`
     among the fields, the other kinds' fields too) loads to the same config with one warning line."""
     text = (TRAJECTORIES_DIR / "tracking.yaml").read_text()
-    sampling = text[:text.index("\nplanner:") + 1]
+    sampling = text[:text.index("\n  planner:") + 1]       # `protocol: !Tracking` and its sampling section
     new = tmp_path / "new.yaml"
-    new.write_text(sampling + "planner: !Ruckig\n  jerk_limits: [20.0]\n  velocity_scale: 0.4\n")
-    old = tmp_path / "old.yaml"
-    old.write_text(sampling + "planner:\n  kind: ruckig\n  jerk_limits: [20.0]\n  velocity_scale: 0.4\n"
+    new.write_text(sampling + "  planner: !Ruckig\n    jerk_limits: [20.0]\n    velocity_scale: 0.4\n")
+    old_sampling = "\n".join(line[2:] for line in sampling.splitlines() if line.startswith("  "))
+    old = tmp_path / "old.yaml"   # the layout before the tags: sampling and planner at the top, planner `kind:`
+    old.write_text(old_sampling + "\nplanner:\n  kind: ruckig\n  jerk_limits: [20.0]\n  velocity_scale: 0.4\n"
                    "  toppra_gridpoints: 99\n  max_linear_speed: 0.5\n")
     loaded = load_tracking_spec(new, robot=UR10).planner
     assert isinstance(loaded, Ruckig) and loaded.jerk_limits == [20.0] * 6 and loaded.velocity_scale == 0.4
     assert capsys.readouterr().err == ""
     assert load_tracking_spec(old, robot=UR10).planner == loaded
-    warning = capsys.readouterr().err.strip()
-    assert len(warning.splitlines()) == 1 and "old `kind: ruckig` layout" in warning and "planner: !Ruckig" in warning
+    warnings = capsys.readouterr().err.strip().splitlines()
+    assert len(warnings) == 2 and "old `kind: ruckig` layout" in warnings[0] and "planner: !Ruckig" in warnings[0]
+    assert "write `protocol: !Tracking`" in warnings[1]
     assert loaded.record()["kind"] == "ruckig" and "toppra_gridpoints" not in loaded.record()
 
 

@@ -112,12 +112,12 @@ def test_a_dataset_with_a_replaced_array_loads_or_is_refused(tmp_path, excitatio
 
 def schemas():
     from stdm_drake.closed_loop.mpc import MpcConfig
-    from stdm_drake.collection.excitation import ExcitationConfig
+    from stdm_drake.collection.excitation import Excitation
     from stdm_drake.robots.control import Pid, SensorConfig
-    from stdm_drake.collection.plan import TrackingSpec
+    from stdm_drake.collection.plan import Tracking
     from stdm_drake.learning.settings import TrainSettings
     from stdm_drake.robots.robot import RobotConfig
-    return [ExcitationConfig, Pid, SensorConfig, TrackingSpec, TrainSettings, RobotConfig, MpcConfig]
+    return [Excitation, Pid, SensorConfig, Tracking, TrainSettings, RobotConfig, MpcConfig]
 
 
 @pytest.mark.slow

@@ -380,7 +380,7 @@ def test_a_robot_config_names_its_default_files_and_the_rest_is_derived(tmp_path
     preset names its five); a robot naming none gets derived settings; a named file that is missing is
     a one-line error."""
     from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, mpc_config_for
-    from stdm_drake.collection.excitation import ExcitationConfig
+    from stdm_drake.collection.excitation import Excitation
     from stdm_drake.collection.collect import collection_request
     from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR
     assert UR10.default_file("tracking") == TRAJECTORIES_DIR / "tracking.yaml"
@@ -394,7 +394,7 @@ def test_a_robot_config_names_its_default_files_and_the_rest_is_derived(tmp_path
     assert request.excitation.num_steps == 7
     assert mpc_config_for(named) == load_mpc_config(tmp_path / "mpc.yaml")
     plain = load_robot(write_robot(tmp_path, two_link_urdf(), GOOD))
-    assert collection_request("excitation", count=1, robot=plain, workers=1).excitation == ExcitationConfig.derived_for(plain)
+    assert collection_request("excitation", count=1, robot=plain, workers=1).excitation == Excitation.derived_for(plain)
     assert mpc_config_for(plain) == MpcConfig.derived_for(plain)
     missing = load_robot(write_robot(tmp_path, two_link_urdf(), GOOD + "defaults: {mpc: gone.yaml}\n"))
     with pytest.raises(InputError, match="robot two_link: defaults.mpc file not found"):

@@ -38,7 +38,7 @@ from stdm_drake.collection.collect import (CollectionRequest, init_station_worke
                                            tracking_trajectory)
 from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.robots.control import SensorConfig, load_controller_config  # noqa: E402
-from stdm_drake.collection.plan import load_tracking_spec  # noqa: E402
+from stdm_drake.collection.protocols import load_tracking_spec  # noqa: E402
 from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR  # noqa: E402
 from stdm_drake.robots.plant import PlantConfig, make_plant  # noqa: E402
 from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402

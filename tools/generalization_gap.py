@@ -136,10 +136,9 @@ def main() -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("out/generalization_gap"))
     args = parser.parse_args()
-    from stdm_drake.collection.excitation import ExcitationConfig
     from stdm_drake.collection.collect import CollectionRequest, collect
     from stdm_drake.robots.station import StationConfig
-    from stdm_drake.config import load_yaml_config
+    from stdm_drake.collection.protocols import load_protocol
     from stdm_drake.data.dataset import load_dataset, split_trajectories, write_dataset
     from stdm_drake.paths import TRAJECTORIES_DIR
 
@@ -148,7 +147,7 @@ def main() -> int:
     count = largest + VALIDATION + TEST
     path = args.output / f"excitation_n{count}_seed0.h5"
     if not path.exists():
-        excitation = load_yaml_config(TRAJECTORIES_DIR / "excitation.yaml", ExcitationConfig, what="excitation config")
+        excitation = load_protocol(TRAJECTORIES_DIR / "excitation.yaml", "excitation")
         request = CollectionRequest("excitation", count, 0, StationConfig(robot=load_robot(UR10_CONFIG)), excitation=excitation,
                                     workers=args.workers)
         write_dataset(path, *collect(request, progress=False))

@@ -26,8 +26,9 @@ from importlib import metadata as importlib_metadata
 import numpy as np
 
 from stdm_drake.cluster import RunnerConfig, job_pool
-from stdm_drake.collection.excitation import ExcitationConfig, excitation_trajectory
-from stdm_drake.collection.plan import TrackingSpec, derived_tracking_spec, load_tracking_spec
+from stdm_drake.collection.excitation import Excitation, excitation_trajectory
+from stdm_drake.collection.plan import Tracking, derived_tracking_spec
+from stdm_drake.collection.protocols import PROTOCOLS, load_excitation, load_tracking_spec, protocol_named_in
 from stdm_drake.config import load_yaml_config
 from stdm_drake.data.dataset import Trajectory
 from stdm_drake.errors import InputError, PlanningError
@@ -37,7 +38,6 @@ from stdm_drake.robots.plant import PlantConfig, SelfCollisionChecker
 from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 
-PROTOCOLS = ("excitation", "tracking")   # their files: --config, the robot's `defaults`, or derived
 DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
 PAPER_COUNTS = {"excitation": 200, "tracking": 100}
@@ -85,11 +85,11 @@ def init_station_worker(settings: StationConfig) -> None:
 @dataclasses.dataclass(frozen=True)
 class TrajectoryJob:
     """One trajectory for a collection worker: trajectory `index` of the dataset of `seed` under
-    `protocol`, with its payload (the ExcitationConfig, or the PlanSamples to track)."""
+    `protocol`, with its payload (the Excitation, or the PlanSamples to track)."""
     protocol: str
     index: int
     seed: int
-    payload: ExcitationConfig | PlanSamples
+    payload: Excitation | PlanSamples
 
 
 def _collect_one(job: TrajectoryJob) -> dict:
@@ -106,8 +106,8 @@ class CollectionRequest:
     count: int
     seed: int
     settings: StationConfig
-    excitation: ExcitationConfig | None = None
-    tracking_spec: TrackingSpec | None = None
+    excitation: Excitation | None = None
+    tracking_spec: Tracking | None = None
     workers: int = 1
 
 
@@ -115,7 +115,7 @@ class CollectionRequest:
 class PoseJob:
     """The plans of one initial pose for a collection worker: `count` plans from pose `pose_index` of
     `spec`, sampled at `sample_period` s, for the dataset of `seed`."""
-    spec: TrackingSpec
+    spec: Tracking
     pose_index: int
     count: int
     seed: int
@@ -248,15 +248,18 @@ def collection_metadata(request: CollectionRequest) -> dict:
 # ---- command line ------------------------------------------------------------------------------
 
 
-def collection_request(protocol: str = "tracking", *, count: int | None = None, seed: int = 0, config=None,
+def collection_request(protocol: str | None = None, *, count: int | None = None, seed: int = 0, config=None,
                        controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
                        plant_time_step: float = PlantConfig.time_step, robot,
                        workers: int = min(2, os.cpu_count() or 1),
-                       excitation: ExcitationConfig | None = None) -> CollectionRequest:
+                       excitation: Excitation | None = None) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
     sensor: YAML paths, None for the defaults; robot: a Robot or its config's path; excitation: an
-    ExcitationConfig to use instead of a file). Reads every config file and checks it against the
-    robot, so errors come before any simulation starts."""
+    Excitation to use instead of a file). protocol: "excitation" or "tracking"; None: the one the
+    config file's tag names, else tracking. Reads every config file and checks it against the robot, so
+    errors come before any simulation starts."""
+    if protocol is None:
+        protocol = (protocol_named_in(config) if config is not None else None) or "tracking"
     if protocol not in PROTOCOLS:
         raise InputError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
     sensor_config = SensorConfig()
@@ -289,15 +292,9 @@ def collection_request(protocol: str = "tracking", *, count: int | None = None, 
             request.excitation = excitation.for_robot(robot)
             return request
         if config_path is None:
-            request.excitation = ExcitationConfig.derived_for(robot)
+            request.excitation = Excitation.derived_for(robot)
             return request
-        excitation = load_yaml_config(config_path, ExcitationConfig, what="excitation config")
-        try:
-            request.excitation = excitation.for_robot(robot)
-            request.excitation.validate()
-            request.excitation.check_start_poses(robot)
-        except InputError as error:
-            raise InputError(f"{config_path}: {error}") from None
+        request.excitation = load_excitation(config_path, robot=robot)
     else:
         if config_path is None:
             request.tracking_spec = derived_tracking_spec(robot, sample_period=sample_period)

@@ -1,7 +1,8 @@
 """The excitation protocol (paper V.A.2, eq. 10): per-joint random sine torques A sin(f t + phi) + B
 added to gravity compensation, drawn until a trajectory stays inside the robot's limits.
-`ExcitationConfig` is the schema of trajectories/excitation*.yaml."""
+`Excitation` is the schema of trajectories/excitation*.yaml."""
 import dataclasses
+import typing
 
 import numpy as np
 
@@ -14,7 +15,7 @@ from stdm_drake.robots.station import Station
 
 
 @dataclasses.dataclass
-class ExcitationConfig:
+class Excitation:
     """Random sine torques (paper eq. 10) on top of gravity compensation, per actuated joint (amplitude,
     offset; the start positions: per arm joint). An unactuated joint gets no torque and no compensation.
 
@@ -26,6 +27,7 @@ class ExcitationConfig:
     exceeds velocity_fraction of a velocity limit, or (check_self_collision) makes two
     non-adjacent links touch; after max_attempts failed attempts collection stops with an error.
     """
+    kind: typing.ClassVar[str] = "excitation"
     num_steps: int = 50
     amplitude_max: list[float] = dataclasses.field(default_factory=lambda: [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015])
     offset_max: list[float] = dataclasses.field(default_factory=lambda: [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015])
@@ -56,7 +58,7 @@ class ExcitationConfig:
             raise InputError("excitation num_steps must be >= 2 and max_attempts >= 1")
 
     @classmethod
-    def derived_for(cls, robot: Robot, acceleration: float = 0.5, box: float = 0.5) -> "ExcitationConfig":
+    def derived_for(cls, robot: Robot, acceleration: float = 0.5, box: float = 0.5) -> "Excitation":
         """Default ranges for a robot without an excitation file, by the rule behind the UR-10's:
         amplitude and offset limits `acceleration` (rad/s^2) times each joint's effective inertia
         M_ii at the home pose (N m), start poses in a box of +-`box` rad around home, kept 0.05 rad
@@ -81,7 +83,7 @@ class ExcitationConfig:
                 raise InputError(f"excitation start poses of {name} [{lower[j]:.4g}, {upper[j]:.4g}] rad leave its "
                                  f"limits less the {self.position_margin} rad margin [{low:.4g}, {high:.4g}] rad")
 
-    def for_robot(self, robot: Robot) -> "ExcitationConfig":
+    def for_robot(self, robot: Robot) -> "Excitation":
         """This config with every per-joint list of the robot's length (one value broadcast): torques per
         actuated joint, start positions per arm joint; InputError when a list has another length."""
         counts = dict(amplitude_max=robot.action_dim, offset_max=robot.action_dim,
@@ -91,7 +93,7 @@ class ExcitationConfig:
             for name, count in counts.items()})
 
 
-def excitation_trajectory(rig: Station, config: ExcitationConfig, rng: np.random.Generator) -> dict:
+def excitation_trajectory(rig: Station, config: Excitation, rng: np.random.Generator) -> dict:
     """Sample eq. (10) parameters and q0 until a trajectory stays inside the limits."""
     lower, upper = np.asarray(config.initial_position_lower), np.asarray(config.initial_position_upper)
     reasons: dict[str, int] = {}

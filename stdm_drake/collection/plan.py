@@ -1,20 +1,20 @@
 """Plan specifications of the tracked data protocol (paper section V.B.1): initial tool poses, final
-poses sampled near each (`TaskSpaceSamplingConfig`), the planner settings (`TrackingSpec`, from
+poses sampled near each (`TaskSpaceSamplingConfig`), the planner settings (`Tracking`, from
 trajectories/*.yaml), and the sampling of plans for every initial pose."""
 import dataclasses
 import logging
 import math
-import os
+import typing
 from typing import Callable
 
 import numpy as np
 from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_exp
-from stdm_drake.collection.planner_configs import PLANNER_TYPES, PlannerConfig, Quintic
+from stdm_drake.collection.planner_configs import PlannerConfig, Quintic
 from stdm_drake.collection.planners import PlannedTrajectory, plan_trajectory
-from stdm_drake.config import load_yaml_config, require
-from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.config import require
+from stdm_drake.errors import PlanningError
 from stdm_drake.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
@@ -87,15 +87,16 @@ class TaskSpaceSamplingConfig:
 
 
 @dataclasses.dataclass
-class TrackingSpec:
-    """Schema of trajectories/tracking*.yaml: the sampling protocol and the planner (`planner: !Quintic`,
-    `!Ruckig` or `!Toppra`)."""
+class Tracking:
+    """The tracking protocol (YAML `protocol: !Tracking`, trajectories/tracking*.yaml): the sampling of
+    initial and final poses and the planner (`planner: !Quintic`, `!Ruckig` or `!Toppra`)."""
+    kind: typing.ClassVar[str] = "tracking"
     sampling: TaskSpaceSamplingConfig = dataclasses.field(default_factory=TaskSpaceSamplingConfig)
     planner: PlannerConfig = dataclasses.field(default_factory=Quintic)
 
 
 def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: float = 0.3, seed: int = 0,
-                          sample_period: float = 0.01) -> TrackingSpec:
+                          sample_period: float = 0.01) -> Tracking:
     """A tracking spec for a robot without a tracking file, by the rules behind the UR-10's:
 
     - initial poses: the tool pose at home, then at configurations drawn uniformly in home +- `box`
@@ -149,7 +150,7 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
     sampling.orientation_max_angle = round(scale * sampling.orientation_max_angle, 3)
     sampling.validate()
     planner.validate()
-    return TrackingSpec(sampling=sampling, planner=planner)
+    return Tracking(sampling=sampling, planner=planner)
 
 
 def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampling: TaskSpaceSamplingConfig,
@@ -179,25 +180,6 @@ def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampli
                             f"{scale:.3g} of the usual to stay within the velocity limits; give a tracking spec with "
                             "--config")
     return scale
-
-
-def load_tracking_spec(path: str | os.PathLike, *, robot: Robot) -> TrackingSpec:
-    """Load and validate a tracking spec YAML (top-level keys `sampling` and `planner`) for `robot`:
-    per-joint lists of its length (or one value), IK seeds of its joints. A planner in the layout before
-    the tags (`kind:` among its fields) still loads, with one warning line saying how to update it.
-
-    Raises InputError, naming the file, on a missing or malformed file, unknown keys, wrong
-    types or invalid values.
-    """
-    spec = load_yaml_config(path, TrackingSpec, what="tracking spec",
-                            old_layouts={"planner": (PLANNER_TYPES, "planner: !{}")})
-    for section in ("planner", "sampling"):
-        try:
-            getattr(spec, section).validate()
-            setattr(spec, section, getattr(spec, section).for_robot(robot))
-        except InputError as error:
-            raise InputError(f"{path}: {section}: {error}") from None
-    return spec
 
 
 def initial_configuration(kinematics: RobotKinematics, pose: InitialPose, config: PlannerConfig) -> np.ndarray:

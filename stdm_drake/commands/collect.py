@@ -5,7 +5,8 @@ import os
 import pathlib
 import sys
 
-from stdm_drake.collection.collect import DEFAULT_CONTROLLER, PROTOCOLS, CollectionRequest, collect, collection_request
+from stdm_drake.collection.protocols import PROTOCOLS
+from stdm_drake.collection.collect import DEFAULT_CONTROLLER, CollectionRequest, collect, collection_request
 from stdm_drake.commands.arguments import add_robot_argument
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.outputs import add_force_argument, check_output_file
@@ -15,8 +16,9 @@ from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--protocol", choices=PROTOCOLS, default="tracking",
-                        help="data protocol (default: tracking)")
+    parser.add_argument("--protocol", choices=PROTOCOLS,
+                        help="data protocol (default: the one --config's tag names, `protocol: !Excitation` or "
+                             "`!Tracking`; else tracking)")
     parser.add_argument("--config", type=pathlib.Path,
                         help="protocol YAML (default: the file the robot config's `defaults` names, for the UR-10 "
                              "trajectories/excitation.yaml or tracking.yaml; without one, excitation ranges and "

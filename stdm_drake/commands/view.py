@@ -53,7 +53,7 @@ def run(args) -> int:
         predicted = model.rollout(x0[None], traj.tau[None]).mean[0]
         ghost_q = np.vstack([traj.q[:1], predicted[:, :robot.num_joints]])
         label = model.checkpoint.metadata.model_type or "model"
-        print(f"trajectory {index}: {open_loop_error_line(label, traj['q'], traj['v'][0], ghost_q, dataset.sample_period)}")
+        print(f"trajectory {index}: {open_loop_error_line(label, traj.q, traj.v[0], ghost_q, dataset.sample_period)}")
         recorder.add(traj.q_true, ghost_q, realtime=args.meshcat)
     recorder.finish(args.html, keep_serving=args.meshcat,
                     what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")

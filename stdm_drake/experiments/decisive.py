@@ -65,11 +65,11 @@ ENDPOINTS = (("one_step_q", "one-step q"), ("one_step_v", "one-step v"), ("open_
 
 
 def excitation_config(cell: Cell):
-    from stdm_drake.collection.excitation import ExcitationConfig
+    from stdm_drake.collection.excitation import Excitation
     lower, upper = {"fixed": (HOME, HOME), "box": ([h - 0.5 for h in HOME], [h + 0.5 for h in HOME]),
                     "global": (GLOBAL_LOWER, GLOBAL_UPPER)}[cell.start]
     ranges = SCALED if cell.compensated else None
-    return ExcitationConfig(amplitude_max=ranges or [0.3] * 6, offset_max=ranges or [1.0] * 6,
+    return Excitation(amplitude_max=ranges or [0.3] * 6, offset_max=ranges or [1.0] * 6,
                             gravity_compensation=cell.compensated, initial_position_lower=list(lower),
                             initial_position_upper=list(upper), position_margin=0.0,
                             velocity_fraction=SPEED_BOUND / 1e4, check_self_collision=False, max_attempts=200)

@@ -252,18 +252,19 @@ def cached_rows(job: TrainJob, cache: pathlib.Path) -> list[dict] | None:
     return [row | labels | {"reused": True} for row in json.loads(result_path.read_text())]
 
 
-def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset=None) -> tuple[list[dict], dict]:
+def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset_content: bytes | None = None,
+                     dataset_sha256: str | None = None) -> tuple[list[dict], dict]:
     """`run_job` in a pool's worker: (rows, {file name: bytes}). With a cache folder (a local worker) it
-    trains into it and returns no files; with dataset (ObjectRef of the file's bytes, its SHA-256), a
-    Ray worker on any node: the dataset from the object store, written once per node, and the job
-    trained into a scratch folder whose files go back to the driver's cache."""
-    if dataset is None:
+    trains into it and returns no files; with the dataset file's content (passed as an ObjectRef, which
+    Ray resolves as a top-level argument) and its SHA-256, a Ray worker on any node: the dataset written
+    once per node, the job trained into a scratch folder whose files go back to the driver's cache."""
+    if dataset_content is None:
         return run_job(job, cache), {}
     import shutil
     import tempfile
 
     from stdm_drake.cluster import node_local_dataset
-    local = dataclasses.replace(job, dataset=str(node_local_dataset(*dataset)))
+    local = dataclasses.replace(job, dataset=str(node_local_dataset(dataset_content, dataset_sha256)))
     scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-job-"))
     try:
         rows = run_job(local, scratch)
@@ -315,8 +316,8 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
             for path in dict.fromkeys(jobs[index].dataset for index in missing) if remote else ():
                 content = pathlib.Path(path).read_bytes()
                 datasets[path] = (shared(pool, content), hashlib.sha256(content).hexdigest())
-            calls = [(run_job_anywhere, (jobs[index], None if remote else cache, datasets.get(jobs[index].dataset)))
-                     for index in missing]
+            calls = [(run_job_anywhere, (jobs[index], None if remote else cache,
+                                         *datasets.get(jobs[index].dataset, (None, None)))) for index in missing]
             for position, future in pool.completed(calls):
                 index = missing[position]
                 try:

@@ -33,14 +33,14 @@ def dataset_settings(robot: Robot) -> dict:
     model (excitation ranges from its inertia, start poses over its whole range for "excitation" and
     within +-0.5 rad of home for "excitation_local", tracking poses around home, PID gains and dither
     sized from its inertia)."""
-    from stdm_drake.collection.excitation import ExcitationConfig
+    from stdm_drake.collection.excitation import Excitation
     excitation, local = robot.default_file("excitation"), robot.default_file("excitation_local")
     controller = robot.default_file("identification_controller")
     return dict(
         excitation=(dict(robot=robot, config=excitation) if excitation else
-                    dict(robot=robot, excitation=ExcitationConfig.derived_for(robot, box=math.pi))),
+                    dict(robot=robot, excitation=Excitation.derived_for(robot, box=math.pi))),
         local=(dict(robot=robot, config=local) if local else
-               dict(robot=robot, excitation=ExcitationConfig.derived_for(robot))),
+               dict(robot=robot, excitation=Excitation.derived_for(robot))),
         tracking=dict(robot=robot),
         identification=dict(IDENTIFICATION_SETTINGS, robot=robot,
                             controller=controller or CONTROLLERS_DIR / "pid_dither_sized.yaml"))

@@ -133,6 +133,9 @@ class ControllerFile:
     """Schema of controllers/*.yaml: `controller: !Pid {...}` or `controller: !InverseDynamics {...}`."""
     controller: ControllerConfig = dataclasses.field(default_factory=InverseDynamics)
 
+    def validate(self) -> None:
+        self.controller.validate()
+
 
 def smallest_effective_inertia(robot: Robot, box: float = 0.5, samples: int = 50) -> np.ndarray:
     """Per joint (n,) kg m^2, the smallest 1 / (M(q)^-1)_ii over home and `samples` poses drawn
@@ -148,13 +151,8 @@ def load_controller_config(path) -> ControllerConfig:
     """The tracking controller of a controller YAML (`ControllerFile`). A file in the layout before
     the tags (top-level `kind: pid` and the fields) still loads, with one warning line saying how to
     update it."""
-    config = load_yaml_config(path, ControllerFile, what="controller config",
-                              old_layouts={"": (CONTROLLER_TYPES, "controller: !{}")}).controller
-    try:
-        config.validate()
-    except InputError as error:
-        raise InputError(f"{path}: {error}") from None
-    return config
+    return load_yaml_config(path, ControllerFile, what="controller config",
+                            old_layouts={"": (CONTROLLER_TYPES, "controller: !{}")}).controller
 
 
 @dataclasses.dataclass
