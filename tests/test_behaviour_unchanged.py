@@ -69,6 +69,8 @@ def dataset_summary(path, keys) -> tuple[dict, str]:
                               if not (key in ("bandwidth", "dither_acceleration") and value == [])}
         if kept["controller"]["kind"] == "inverse_dynamics":   # a PID-only field it recorded (unused) until
             kept["controller"].setdefault("gravity_feedforward", True)   # the controllers became tagged types
+    kept["plant"] = {key: kept["plant"][key] for key in ("time_step", "discrete_contact_approximation",
+                                                        "self_collision")}   # Drake's other fields recorded since
     if "planner" in kept and kept["planner"]["kind"] == "quintic":   # the other planners' fields it recorded
         kept["planner"] = dict(kept["planner"], jerk_limits=[30.0, 30.0, 40.0, 60.0, 60.0, 60.0], path_waypoints=51,
                                toppra_gridpoints=201, toppra_limit_margin=0.02)   # (unused) until they were tagged

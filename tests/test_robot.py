@@ -105,3 +105,24 @@ def test_self_collision_checker():
     folded = np.array([0, 0, 3.1, 0, 0, 0])
     assert not checker.is_collision_free(folded)
     assert ("shoulder_link", "forearm_link") in checker.colliding_links(folded)
+
+
+def test_the_plant_takes_drakes_own_multibody_plant_config():
+    """PlantConfig embeds Drake's MultibodyPlantConfig: what it holds reaches AddMultibodyPlant, a dataset
+    records every field of it, and it crosses to worker processes (pickled as its YAML)."""
+    import pickle
+
+    from pydrake.multibody.plant import DiscreteContactApproximation
+    from pydrake.systems.framework import DiagramBuilder
+
+    from stdm_drake.robots.plant import PlantConfig
+    config = PlantConfig.discrete(0.002)
+    config.multibody.discrete_contact_approximation = "lagged"
+    config.multibody.penetration_allowance = 0.005
+    plant, _ = make_plant(config, builder=DiagramBuilder(), robot=UR10)
+    assert plant.time_step() == 0.002
+    assert plant.get_discrete_contact_approximation() == DiscreteContactApproximation.kLagged
+    record = config.record()
+    assert record["penetration_allowance"] == 0.005 and record["self_collision"] is True
+    assert pickle.loads(pickle.dumps(config)).record() == record
+    assert PlantConfig.continuous().time_step == 0.0 and PlantConfig().record()["discrete_contact_approximation"] == "sap"

@@ -56,7 +56,7 @@ tool_frame: tool
 
 def test_ur10_preset_is_the_default_robot():
     assert UR10.name == "ur10" and UR10.num_joints == 6 and UR10.tool_frame == "tool0"
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=UR10)
+    plant, _ = make_plant(PlantConfig.continuous(), robot=UR10)
     limits = joint_limits(plant)
     assert np.all(UR10.home > limits.position_lower) and np.all(UR10.home < limits.position_upper)
     assert [plant.get_joint_actuator(i).joint().name() for i in plant.GetJointActuatorIndices()] == \
@@ -65,7 +65,7 @@ def test_ur10_preset_is_the_default_robot():
 
 def test_an_arm_without_transmissions_gets_actuators_from_its_file(tmp_path):
     robot = load_robot(write_robot(tmp_path, two_link_urdf(), GOOD))
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+    plant, _ = make_plant(PlantConfig.continuous(), robot=robot)
     assert plant.num_positions() == 2 and robot.joint_names == ("shoulder", "elbow")   # the finger is welded
     np.testing.assert_array_equal(joint_limits(plant).effort, [40.0, 20.0])
     np.testing.assert_array_equal(joint_limits(plant).velocity, [3.0, 3.0])
@@ -79,7 +79,7 @@ def test_an_arm_without_transmissions_gets_actuators_from_its_file(tmp_path):
 def test_configured_limits_fill_gaps_and_replace_the_files(tmp_path):
     path = write_robot(tmp_path, two_link_urdf(effort=False),
                        GOOD + "effort_limits: {shoulder: 35.0, elbow: 12.0}\nvelocity_limits: {elbow: 1.5}\n")
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=load_robot(path))
+    plant, _ = make_plant(PlantConfig.continuous(), robot=load_robot(path))
     np.testing.assert_array_equal(joint_limits(plant).effort, [35.0, 12.0])
     np.testing.assert_array_equal(joint_limits(plant).velocity, [3.0, 1.5])
 
@@ -107,7 +107,7 @@ def test_bad_robot_configs_are_one_line_errors(tmp_path, urdf, config, message):
                             "  <joint name=\"world_joint\" type=\"fixed\"><parent link=\"world\"/><child link=\"base\"/>"
                             "</joint>\n")
     with pytest.raises(InputError, match=None) as error:
-        make_plant(PlantConfig(time_step=0.0), robot=load_robot(write_robot(tmp_path, text, config)))
+        make_plant(PlantConfig.continuous(), robot=load_robot(write_robot(tmp_path, text, config)))
     assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
 
 
@@ -238,7 +238,7 @@ def test_excitation_ranges_are_derived_for_a_robot_without_an_excitation_file(tm
     excitation = load_dataset(data).metadata.record["excitation"]
     assert excitation["initial_position_lower"] == pytest.approx([-0.2, -1.1])
     assert excitation["initial_position_upper"] == pytest.approx([0.8, -0.1])
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=load_robot(robot))
+    plant, _ = make_plant(PlantConfig.continuous(), robot=load_robot(robot))
     context = plant.CreateDefaultContext()
     plant.SetPositions(context, np.array([0.3, -0.6]))
     np.testing.assert_allclose(excitation["amplitude_max"], 0.5 * np.diag(plant.CalcMassMatrix(context)))

@@ -37,7 +37,7 @@ def modified_dh(a: float, d: float, alpha: float, theta: float) -> np.ndarray:
 def test_panda_file_is_the_published_arm(panda):
     from tools_import import generate_panda_urdf
     assert panda.model_path.read_text() == generate_panda_urdf.urdf_text()   # written by its generator
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=panda)
+    plant, _ = make_plant(PlantConfig.continuous(), robot=panda)
     limits = joint_limits(plant)
     assert panda.num_joints == 7 and panda.action_dim == 7
     np.testing.assert_array_equal(limits.position_upper, [2.8973, 1.7628, 2.8973, -0.0698, 2.8973, 3.7525, 2.8973])
@@ -163,7 +163,7 @@ def test_acrobot_excitation_train_evaluate_and_refusals(tmp_path, capsys, acrobo
     from stdm_drake.data.dataset import load_dataset
 
     assert acrobot.joint_names == ("shoulder", "elbow") and acrobot.actuated_joint_names == ("elbow",)
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=acrobot)
+    plant, _ = make_plant(PlantConfig.continuous(), robot=acrobot)
     assert plant.num_actuators() == 1 and joint_limits(plant).effort.tolist() == [20.0]
     data = tmp_path / "acrobot.h5"
     robot = str(ACROBOT_CONFIG)
@@ -204,7 +204,7 @@ def test_robot_config_underactuation_and_model_package_errors(tmp_path):
         path = tmp_path / "robot.yaml"
         path.write_text(text.replace(*replace))
         with pytest.raises(InputError) as error:
-            make_plant(PlantConfig(time_step=0.0), robot=load_robot(path))
+            make_plant(PlantConfig.continuous(), robot=load_robot(path))
         assert message in str(error.value) and "\n" not in str(error.value), str(error.value)
 
 
@@ -216,7 +216,7 @@ def test_actuators_follow_the_arm_order_when_the_file_gives_only_some(tmp_path):
                     '<joint name="elbow"><hardwareInterface>hardware_interface/EffortJointInterface'
                     '</hardwareInterface></joint><actuator name="elbow_motor"/></transmission>\n</robot>')
     robot = load_robot(write_robot(tmp_path, two_link_urdf().replace("</robot>", transmission), GOOD))
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+    plant, _ = make_plant(PlantConfig.continuous(), robot=robot)
     names = [plant.get_joint_actuator(index).joint().name() for index in plant.GetJointActuatorIndices()]
     assert names == ["shoulder", "elbow"]
     np.testing.assert_array_equal(joint_limits(plant).effort, [40.0, 20.0])
@@ -288,12 +288,12 @@ def test_locked_mimic_fingers_load_and_a_mimic_on_an_arm_joint_is_refused(tmp_pa
     fingers = two_link_urdf().replace("</robot>", finger2.format(leader="finger_joint"))
     robot = load_robot(write_robot(tmp_path, fingers, GOOD.replace("{finger_joint: 0.02}",
                                                                    "{finger_joint: 0.02, finger_joint2: 0.02}")))
-    plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+    plant, _ = make_plant(PlantConfig.continuous(), robot=robot)
     assert plant.num_positions() == 2 and plant.num_constraints() == 0
     for leader, locked, message in (("elbow", "{finger_joint: 0.02, finger_joint2: 0.02}", "arm joint 'elbow' is in a <mimic>"),
                                     ("finger_joint", "{finger_joint: 0.02}", "lock every joint of a mimic pair")):
         config = GOOD.replace("{finger_joint: 0.02}", locked)
         path = write_robot(tmp_path, two_link_urdf().replace("</robot>", finger2.format(leader=leader)), config)
         with pytest.raises(InputError) as error:
-            make_plant(PlantConfig(time_step=0.0), robot=load_robot(path))
+            make_plant(PlantConfig.continuous(), robot=load_robot(path))
         assert message in str(error.value) and "\n" not in str(error.value), str(error.value)

@@ -88,7 +88,7 @@ def main():
 
     settings = StationConfig(robot=UR10, sensor=load_yaml_config(CONTROLLERS_DIR / "sensor.yaml", SensorConfig),
                                   controller=load_controller_config(CONTROLLERS_DIR / "pid.yaml"),
-                                  plant=PlantConfig(time_step=0.001))
+                                  plant=PlantConfig.discrete(0.001))
     request = CollectionRequest(protocol="tracking", count=args.count, seed=0, settings=settings,
                                 tracking_spec=load_tracking_spec(TRAJECTORIES_DIR / "tracking.yaml", robot=UR10), workers=args.workers)
     with job_pool(RunnerConfig(workers=1), initializer=init_station_worker, initargs=(settings,)) as pool:

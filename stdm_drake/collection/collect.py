@@ -34,7 +34,7 @@ from stdm_drake.data.dataset import Trajectory
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, load_controller_config
-from stdm_drake.robots.plant import PlantConfig, SelfCollisionChecker
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker
 from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 
@@ -230,7 +230,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
         protocol=request.protocol, sample_period=settings.sample_period, seed=request.seed,
         num_trajectories=request.count, robot_model_sha256=settings.robot.model_sha256(),
         joint_names=list(settings.robot.joint_names), robot=dataclasses.asdict(settings.robot.config),
-        plant=dataclasses.asdict(settings.plant), sensor=dataclasses.asdict(settings.sensor),
+        plant=settings.plant.record(), sensor=dataclasses.asdict(settings.sensor),
         package_versions=_package_versions(),
         torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")
     if request.protocol == "excitation":
@@ -250,7 +250,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
 
 def collection_request(protocol: str | None = None, *, count: int | None = None, seed: int = 0, config=None,
                        controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
-                       plant_time_step: float = PlantConfig.time_step, robot,
+                       plant_time_step: float = DEFAULT_PLANT_TIME_STEP, robot,
                        workers: int = min(2, os.cpu_count() or 1),
                        excitation: Excitation | None = None) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
@@ -270,7 +270,7 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
     SelfCollisionChecker(robot)  # a model that does not load, or a home in self-collision, fails before any worker
     # the protocol file: --config, else the one the robot's config names, else derived from the robot
     config_path = config or robot.default_file(protocol)
-    settings = StationConfig(sample_period=sample_period, plant=PlantConfig(time_step=plant_time_step),
+    settings = StationConfig(sample_period=sample_period, plant=PlantConfig.discrete(plant_time_step),
                                   sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     settings.substeps()  # the sample period and the plant step, before any work
     if protocol == "tracking":

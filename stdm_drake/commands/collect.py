@@ -10,7 +10,7 @@ from stdm_drake.collection.collect import DEFAULT_CONTROLLER, CollectionRequest,
 from stdm_drake.commands.arguments import add_robot_argument
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.outputs import add_force_argument, check_output_file
-from stdm_drake.robots.plant import PlantConfig
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 from stdm_drake.robots.robot import UR10_CONFIG
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD
 
@@ -33,7 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="random seed (same seed -> same file)")
     parser.add_argument("--sample-period", type=float, default=DEFAULT_SAMPLE_PERIOD,
                         help="data sample period in s (default 0.01; the learned model steps at this period)")
-    parser.add_argument("--plant-time-step", type=float, default=PlantConfig.time_step,
+    parser.add_argument("--plant-time-step", type=float, default=DEFAULT_PLANT_TIME_STEP,
                         help="discrete plant step in s (default 0.001)")
     parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
                         help="worker processes (default: min(2, cores)); the data do not depend on it")

@@ -106,7 +106,7 @@ class PlantModel(DynamicsModel):
         self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
         self.sample_period = float(sample_period)
         self.simulation = PlantSimulator(plant_config, robot=self.robot)
-        continuous, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
+        continuous, _ = make_plant(PlantConfig.continuous(), robot=self.robot)
         self.autodiff_plant = continuous.ToAutoDiffXd()
         self.autodiff_context = self.autodiff_plant.CreateDefaultContext()
 
@@ -224,7 +224,7 @@ class NominalAcceleration:
         from stdm_drake.robots.plant import PlantConfig, make_plant
         self.robot = robot
         self.num_joints, self.action_dim = self.robot.num_joints, self.robot.action_dim
-        self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
+        self.plant, _ = make_plant(PlantConfig.continuous(), robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
         self.autodiff_plant = self.plant.ToAutoDiffXd()
         self.autodiff_context = self.autodiff_plant.CreateDefaultContext()

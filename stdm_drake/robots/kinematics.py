@@ -77,7 +77,7 @@ class RobotKinematics:
 
     def __init__(self, plant: MultibodyPlant | None = None, *, robot: Robot):
         if plant is None:
-            plant, _ = make_plant(PlantConfig(time_step=0.0), robot=robot)
+            plant, _ = make_plant(PlantConfig.continuous(), robot=robot)
         n = robot.num_joints
         if plant.num_positions() != n or plant.num_velocities() != n:
             raise InputError(f"RobotKinematics needs the {n}-joint plant of {robot.name}, got "

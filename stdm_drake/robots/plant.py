@@ -15,17 +15,55 @@ from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.robots.robot import Robot  # noqa: E402
 
 
+DEFAULT_PLANT_TIME_STEP = 0.001   # s
+
+
+def _default_multibody() -> MultibodyPlantConfig:
+    return MultibodyPlantConfig(time_step=DEFAULT_PLANT_TIME_STEP, discrete_contact_approximation="sap")
+
+
 @dataclasses.dataclass
 class PlantConfig:
     """How the robot's plant is simulated.
 
-    time_step: discrete plant step (s); 0 gives a continuous-time plant.
-    discrete_contact_approximation: Drake's discrete solver ("tamsi", "sap", "lagged", "similar").
+    multibody: Drake's own `MultibodyPlantConfig` (time_step s, 0 for a continuous-time plant;
+        discrete_contact_approximation "sap" here, Drake's other settings at Drake's defaults), as
+        `AddMultibodyPlant` takes it.
     self_collision: keep contact between the robot's own (non-adjacent) links.
     """
-    time_step: float = 0.001
-    discrete_contact_approximation: str = "sap"
+    multibody: MultibodyPlantConfig = dataclasses.field(default_factory=_default_multibody)
     self_collision: bool = True
+
+    @classmethod
+    def discrete(cls, time_step: float = DEFAULT_PLANT_TIME_STEP, **fields) -> "PlantConfig":
+        """A discrete plant stepping every `time_step` s (the other settings as the default)."""
+        config = cls(**fields)
+        config.multibody.time_step = float(time_step)
+        return config
+
+    @classmethod
+    def continuous(cls) -> "PlantConfig":
+        """A continuous-time plant (time_step 0): for kinematics and dynamics queries."""
+        return cls.discrete(0.0)
+
+    @property
+    def time_step(self) -> float:
+        return self.multibody.time_step
+
+    def __getstate__(self) -> dict:   # to worker processes: Drake's config as its YAML (it does not pickle)
+        from pydrake.common.yaml import yaml_dump_typed
+        return dict(multibody=yaml_dump_typed(self.multibody), self_collision=self.self_collision)
+
+    def __setstate__(self, state: dict) -> None:
+        from pydrake.common.yaml import yaml_load_typed
+        self.multibody = yaml_load_typed(schema=MultibodyPlantConfig, data=state["multibody"])
+        self.self_collision = state["self_collision"]
+
+    def record(self) -> dict:
+        """What a dataset records of the plant: self_collision and every MultibodyPlantConfig field."""
+        import yaml
+        from pydrake.common.yaml import yaml_dump_typed
+        return dict(yaml.safe_load(yaml_dump_typed(self.multibody)) or {}, self_collision=self.self_collision)
 
 
 def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None = None, *, robot: Robot):
@@ -41,10 +79,7 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
         plant = MultibodyPlant(config.time_step)
         scene_graph = None
     else:
-        plant_config = MultibodyPlantConfig(
-            time_step=config.time_step,
-            discrete_contact_approximation=config.discrete_contact_approximation)
-        plant, scene_graph = AddMultibodyPlant(plant_config, builder)
+        plant, scene_graph = AddMultibodyPlant(config.multibody, builder)
     instance = robot.add_to(plant)
     plant.Finalize()
     robot.check_plant(plant, instance)
@@ -138,7 +173,7 @@ class JointLimits:
 
 def robot_joint_limits(robot: Robot) -> JointLimits:
     """The limits of `robot` as its plant states them (a bare plant built for the purpose)."""
-    return joint_limits(make_plant(PlantConfig(time_step=0.0), robot=robot)[0])
+    return joint_limits(make_plant(PlantConfig.continuous(), robot=robot)[0])
 
 
 def joint_limits(plant: MultibodyPlant) -> JointLimits:
@@ -159,7 +194,7 @@ class Dynamics:
 
     def __init__(self, robot: Robot):
         self.robot = robot
-        self.plant, _ = make_plant(PlantConfig(time_step=0.0), robot=self.robot)
+        self.plant, _ = make_plant(PlantConfig.continuous(), robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
         self._actuated = None if self.robot.fully_actuated else self.robot.actuated_indices
 
@@ -213,7 +248,7 @@ class SelfCollisionChecker:
 
     def __init__(self, robot: Robot):
         builder = DiagramBuilder()
-        self.plant, self.scene_graph = make_plant(PlantConfig(time_step=0.0), builder=builder, robot=robot)
+        self.plant, self.scene_graph = make_plant(PlantConfig.continuous(), builder=builder, robot=robot)
         self.diagram = builder.Build()
         self.context = self.diagram.CreateDefaultContext()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)
