@@ -203,7 +203,7 @@ def test_datasets_are_reused_only_when_collected_with_the_same_settings(tmp_path
 def test_reproduce_exits_2_when_an_mpc_run_left_the_limits(tmp_path, monkeypatch, capsys):
     """The report is written and each failed closed loop named in one line; the exit status says the
     run is not a clean result."""
-    from stdm_drake.experiments import reproduce as command
+    from stdm_drake.commands import reproduce as command
     report = tmp_path / "out" / "report.html"
     monkeypatch.setattr(command, "reproduce", lambda *args, **kwargs: (
         report, ["model DD seed 1 left the robot's joint limits on 7 of 2000 steps (1 of 20 plans)"]))
