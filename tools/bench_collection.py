@@ -129,7 +129,8 @@ def main():
         f"stdm-drake loop costs {100 * (ours / bare - 1):+.0f}% against bare Drake in one process, so Drake's plant "
         f"step ({1e6 * bare / (simulated / 0.001):.0f} µs per 1 ms step here) bounds the rate; two workers add process "
         "start-up and planning.", "",
-        f"Machine: {machine_description()}.", "Command: `python tools/bench_collection.py --write`."])
+        f"Machine: {machine_description()}.",
+        f"Command: `python tools/bench_collection.py --count {args.count} --workers {args.workers} --write`."])
     print(report)
     if args.write:
         write_benchmark_section("Data collection", "Collection speed (tools/bench_collection.py)", report)
