@@ -14,6 +14,7 @@ import os
 import re
 import sys
 
+from stdm_drake.errors import deferred_warnings
 from stdm_drake.paths import expand_shipped
 
 # name -> (module, one-line help)
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit_:  # --help (0) or a malformed command line (2, one line printed)
         return int(exit_.code or 0)
     try:
-        with drake_warnings_once(name):
+        with drake_warnings_once(name), deferred_warnings():   # a failing command prints its one error line only
             return int(module.run(args) or 0)
     except (ValueError, OSError) as error:  # InputError is a ValueError; OSError: files, folders, HDF5
         print(f"stdm-drake {name}: error: {error_line(error)}", file=sys.stderr)

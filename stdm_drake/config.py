@@ -5,13 +5,12 @@ Bad files (missing, malformed YAML, unknown keys, wrong types, not a mapping, va
 """
 import dataclasses
 import pathlib
-import sys
 
 import numpy as np
 import yaml
 from pydrake.common.yaml import yaml_load_typed
 
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, warn
 
 
 def one_line(error: BaseException) -> str:
@@ -47,13 +46,21 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     return config
 
 
+class TaggedMapping(dict):
+    """A YAML mapping that carried a tag (`!Pid {...}`): `tag` is its name."""
+    tag = ""
+
+
 class _TagsAsPlainValues(yaml.SafeLoader):
-    """A YAML loader that reads a tagged node (`!Pid {...}`) as its plain mapping, list or scalar."""
+    """A YAML loader that reads a tagged node (`!Pid {...}`) as its plain mapping (a TaggedMapping),
+    list or scalar."""
 
 
 def _plain(loader, suffix, node):
     if isinstance(node, yaml.MappingNode):
-        return loader.construct_mapping(node, deep=True)
+        mapping = TaggedMapping(loader.construct_mapping(node, deep=True))
+        mapping.tag = suffix
+        return mapping
     if isinstance(node, yaml.SequenceNode):
         return loader.construct_sequence(node, deep=True)
     return loader.construct_scalar(node)
@@ -76,17 +83,17 @@ def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
     document = read_yaml_document(path)
     if not isinstance(document, dict):
         return None
+    first = dataclasses.fields(schema)[0].name   # the field the whole file holds, for the layout ""
     old = {name: layout for name, layout in old_layouts.items()
-           if isinstance(document.get(name) if name else document, dict)
-           and "kind" in (document.get(name) if name else document)}
+           if (first not in document if name == "" else
+               isinstance(document.get(name), dict) and not isinstance(document.get(name), TaggedMapping))}
     if not old:
         return None
     warnings = []
     if "" in old:   # the whole file is the one tagged field's value
         types, tagged = old[""]
-        field = next(field.name for field in dataclasses.fields(schema))
         value, warning = from_kind_layout(document, types, path, tagged)
-        config = schema(**{field: value})
+        config = schema(**{first: value})
         warnings.append(warning)
     else:
         converted = {}
@@ -105,8 +112,8 @@ def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
             config.validate()
         except InputError as error:
             raise InputError(f"{path}: {error}") from None
-    for warning in warnings:   # once the file is known to be good: a bad one gets its one error line only
-        print(warning, file=sys.stderr)
+    for warning in warnings:
+        warn(warning)
     return config
 
 
@@ -133,13 +140,14 @@ def require(condition: bool, message: str, value) -> None:
 
 
 def from_kind_layout(mapping: dict, types: dict, where, tagged: str) -> tuple:
-    """A config from a mapping in the layout before YAML tags (`kind: NAME` beside the fields), for the
-    files written then: (the instance of types[NAME] with the fields it has (fields only other kinds have,
-    which that kind ignored, are dropped), the warning line to print once it is known to be good, saying
-    how to write it now (`tagged`: e.g. "controller: !{}")). InputError on an unknown kind or a field no
-    kind has."""
+    """A config from a mapping in the layout before YAML tags (`kind: NAME` beside the fields; without
+    one, the first kind, the default then), for the files written then: (the instance of types[NAME]
+    with the fields it has (fields only other kinds have, which that kind ignored, are dropped), the
+    warning line to print once it is known to be good, saying how to write it now (`tagged`: e.g.
+    "controller: !{}")). InputError on an unknown kind or a field no kind has."""
     mapping = dict(mapping)
-    kind = mapping.pop("kind")
+    given = "kind" in mapping
+    kind = mapping.pop("kind", next(iter(types)))
     if kind not in types:
         raise InputError(f"{where}: kind must be one of {', '.join(types)}, got {kind!r}")
     target = types[kind]
@@ -148,8 +156,9 @@ def from_kind_layout(mapping: dict, types: dict, where, tagged: str) -> tuple:
     if unknown:
         raise InputError(f"{where}: unknown fields {unknown}")
     own = {field.name for field in dataclasses.fields(target)}
-    warning = (f"stdm-drake: warning: {where} uses the old `kind: {kind}` layout; write "
-               f"`{tagged.format(target.__name__)}` with its fields indented under it")
+    layout = f"uses the old `kind: {kind}` layout" if given else f"has no type tag (read as the default, {kind})"
+    warning = (f"stdm-drake: warning: {where} {layout}; write `{tagged.format(target.__name__)}` with its fields "
+               "indented under it")
     try:
         config = yaml_load_typed(schema=target, data=yaml.safe_dump({k: v for k, v in mapping.items() if k in own}),
                                  defaults=target())

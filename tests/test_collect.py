@@ -264,3 +264,28 @@ def test_protocol_files_are_tagged_and_name_their_protocol(tmp_path, capsys):
     assert len(warning.splitlines()) == 1 and "write `protocol: !Excitation`" in warning
     with pytest.raises(InputError, match=r"malformed tracking spec"):   # untagged, no protocol: tracking, as before
         collection_request(config=old, robot=UR10, count=1, workers=1)
+
+
+def test_an_old_layout_warning_waits_for_the_command_to_succeed(tmp_path, capsys):
+    """A controller file without tag or kind reads as the default (Pid) with one warning line, printed once
+    the command has succeeded; when the command fails (here --count 0) only its one error line appears."""
+    from stdm_drake.cli import main
+    from stdm_drake.robots.control import load_controller_config
+    old = tmp_path / "gains.yaml"
+    old.write_text("kp: [1.0]\nki: [2.0]\nkd: [0.5]\n")
+    assert load_controller_config(old) == Pid(kp=[1.0], ki=[2.0], kd=[0.5])
+    assert "has no type tag (read as the default, pid)" in capsys.readouterr().err
+    assert main(["collect", "--controller", str(old), "--count", "0", "-o", str(tmp_path / "out.h5")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "--count must be >= 1" in lines[0]
+
+
+def test_a_dataset_is_reused_when_its_record_agrees_field_by_field():
+    """Fields only one side records (Drake's added plant settings, a controller kind's dropped unused ones)
+    do not make reproduce collect a dataset again; a field both record and that differs does."""
+    from stdm_drake.experiments.jobs import _agrees
+    old = dict(time_step=0.001, discrete_contact_approximation="sap", self_collision=True)
+    new = dict(old, penetration_allowance=0.001, stiction_tolerance=1e-4)
+    assert _agrees(old, new) and _agrees(dict(kind="inverse_dynamics", gravity_feedforward=True), {"kind": "inverse_dynamics"})
+    assert not _agrees(old, dict(new, time_step=0.002)) and not _agrees(3, 4)
+

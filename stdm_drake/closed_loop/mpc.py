@@ -140,7 +140,7 @@ class MpcController(LeafSystem):
     """Discrete-time MPC: every `model.sample_period` it solves the tracking problem from the measured
     state (iLQR unless another optimizer is given) and holds the first torque until the next sample.
 
-    For a robot of n joints (`robot`, default the UR-10 preset): input "state" (2n: [q rad, v rad/s]);
+    For a robot of n joints (`robot`): input "state" (2n: [q rad, v rad/s]);
     output "torque" (n, N m).
 
     Timing: a discrete plant steps at multiples of its step h; the controller updates at

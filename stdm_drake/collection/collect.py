@@ -179,7 +179,8 @@ def collect(request: CollectionRequest, progress: bool = True,
     settings = request.settings
     settings.substeps()
     settings.sensor.validate()
-    settings.controller.validate()
+    if request.protocol == "tracking":   # (excitation has no tracking controller)
+        settings.controller.validate()
     bar = tqdm(total=request.count, desc=f"collect {request.protocol}", unit="traj", disable=not progress,
                file=sys.stderr)
     trajectories, excitation_parameters = [], []
@@ -245,7 +246,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
     return metadata
 
 
-# ---- command line ------------------------------------------------------------------------------
+# ---- requests ----------------------------------------------------------------------------------
 
 
 def collection_request(protocol: str | None = None, *, count: int | None = None, seed: int = 0, config=None,

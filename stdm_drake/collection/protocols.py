@@ -6,14 +6,13 @@ protocol's fields at the top; a planner's `kind:` among its fields) still load, 
 command asks for, with one warning line saying how to update them."""
 import dataclasses
 import os
-import sys
 import typing
 
 from stdm_drake.collection.excitation import Excitation
 from stdm_drake.collection.plan import Tracking
 from stdm_drake.collection.planner_configs import PLANNER_TYPES
 from stdm_drake.config import load_yaml_config, read_yaml_document
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, warn
 from stdm_drake.robots.robot import Robot
 
 ProtocolConfig = typing.Union[Excitation, Tracking]   # a data protocol's settings, tagged in YAML
@@ -43,7 +42,7 @@ def load_protocol(path, kind: str | None = None) -> ProtocolConfig:
     one). Not yet checked against a robot (`load_excitation`, `load_tracking_spec` do that)."""
     config, warning = _read_protocol(path, kind)
     if warning:
-        print(warning, file=sys.stderr)
+        warn(warning)
     return config
 
 
@@ -77,7 +76,7 @@ def load_excitation(path, *, robot: Robot) -> Excitation:
     except InputError as error:
         raise InputError(f"{path}: {error}") from None
     if warning:   # once the file is known to be good: a bad one gets its one error line only
-        print(warning, file=sys.stderr)
+        warn(warning)
     return excitation
 
 
@@ -98,5 +97,5 @@ def load_tracking_spec(path: str | os.PathLike, *, robot: Robot) -> Tracking:
         except InputError as error:
             raise InputError(f"{path}: {section}: {error}") from None
     if warning:
-        print(warning, file=sys.stderr)
+        warn(warning)
     return spec

@@ -20,10 +20,11 @@ from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
-from stdm_drake.learning.problem import default_split_sizes, training_problem
+from stdm_drake.learning.problem import training_problem
+from stdm_drake.learning.seeds import dataset_split, fit_seeds
 from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainSettings
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
-from stdm_drake.learning.trainer import AlphaSelection, fit_model
+from stdm_drake.learning.trainer import AlphaSelection
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 
 
@@ -115,6 +116,7 @@ def training_settings(args: argparse.Namespace) -> TrainSettings:
              if hasattr(args, field.name)}
     settings = dataclasses.replace(settings, **given)
     settings.validate()
+    settings.check_alpha()
     return settings
 
 
@@ -164,84 +166,6 @@ def warn_about_fast_damped_joints(robot, sample_period: float) -> None:
         print(f"stdm-drake train: warning: robot {robot.name}: the damping of {listed} stops these joints faster than "
               f"the {1e3 * sample_period:g} ms period; derivative learning failed on such an arm (docs/published_arms.md), "
               "train --model D for it", file=sys.stderr)
-
-
-def fit_seed(model_config, training_config, train_data, val_data, fit_options: dict, threads: int,
-             checkpoint_path: pathlib.Path | None = None, progress: str | None = None):
-    """One seed of `train` in a pool's worker: fit_model with `threads` torch threads. With checkpoint_path
-    (this machine) it trains into that file, resuming it when it exists, with a per-epoch progress bar
-    labelled `progress`; returns (result, selection, None). Without (a Ray worker) it trains into a
-    scratch file and returns its bytes third."""
-    import shutil
-    import tempfile
-
-    from tqdm import tqdm
-    torch.set_num_threads(threads)
-    if checkpoint_path is not None:
-        resume = checkpoint_path.exists()  # (only with --resume: checked before any work)
-        bar = tqdm(total=training_config.max_epochs, desc=progress, unit="epoch", disable=progress is None,
-                   dynamic_ncols=True)
-
-        def on_epoch(row):
-            bar.update(row["epoch"] - bar.n)
-            bar.set_postfix(train=f"{row['train_loss']:.3g}", val_mse=f"{row['val_mse']:.3g}")
-
-        try:
-            result, selection = fit_model(model_config, training_config, train_data, val_data,
-                                          checkpoint_path=checkpoint_path, resume=resume, on_epoch=on_epoch,
-                                          **fit_options)
-        finally:
-            bar.close()
-        return result, selection, None
-    scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-seed-"))
-    try:
-        result, selection = fit_model(model_config, training_config, train_data, val_data,
-                                      checkpoint_path=scratch / "checkpoint.pt", **fit_options)
-        return result, selection, (scratch / "checkpoint.pt").read_bytes()
-    finally:
-        shutil.rmtree(scratch, ignore_errors=True)
-
-
-def fit_seeds(problem, settings: TrainSettings, fit_options: dict, runner, output: pathlib.Path, quiet: bool):
-    """Train every seed of `settings` on the one pool (`cluster.job_pool`): in this process, one after
-    another (each with its epoch bar), or all at once on Ray (one bar over the seeds, the checkpoints
-    written here as they come back). Yields (seed, result, selection) as each finishes."""
-    from tqdm import tqdm
-
-    from stdm_drake.cluster import RunnerConfig, job_pool, shared, task_error
-    remote = runner.backend == "ray"
-    name = settings.model_name()
-    bar = tqdm(total=len(settings.seeds), desc=f"train {name} (ray)", unit="seed", disable=quiet or not remote)
-    with job_pool(runner if remote else RunnerConfig(workers=1)) as pool:
-        train_data, val_data = shared(pool, problem.train), shared(pool, problem.val)  # on Ray: once, not per seed
-        calls = [(fit_seed, (problem.model_config, settings.training_config(seed), train_data, val_data, fit_options,
-                             settings.threads) + (() if remote else (output / f"seed{seed}" / "checkpoint.pt",
-                                                                      None if quiet else f"train {name} seed {seed}")))
-                 for seed in settings.seeds]
-        for position, future in pool.completed(calls):
-            seed = settings.seeds[position]
-            try:
-                result, selection, checkpoint = future.result()
-            except Exception as error:
-                if not remote:
-                    raise
-                raise task_error(error, f"seed {seed} on the cluster") from None
-            if checkpoint is not None:
-                with atomic_path(output / f"seed{seed}" / "checkpoint.pt") as temp:
-                    temp.write_bytes(checkpoint)
-            bar.update()
-            yield seed, result, selection
-    bar.close()
-
-
-def dataset_split(dataset, settings: TrainSettings):
-    """(Split, per_group) of `dataset` by `settings`: per initial-pose group by default on tracking data,
-    the sizes `default_split_sizes` fills in, the split seed's shuffle."""
-    from stdm_drake.data.dataset import split_trajectories
-    per_group = (dataset.protocol == "tracking") if settings.per_group is None else settings.per_group == "on"
-    pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
-    n_train, n_val, n_test = default_split_sizes(pool, settings.train, settings.val, settings.test)
-    return split_trajectories(dataset.groups, n_train, n_val, n_test, settings.split_seed, per_group), per_group
 
 
 def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selection) -> dict:

@@ -5,6 +5,7 @@ import pathlib
 import numpy as np
 
 from stdm_drake.commands.arguments import add_robot_argument, command_robot
+from stdm_drake.learning.evaluate import open_loop_error_line
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.recorder import TrajectoryRecorder
 
@@ -58,27 +59,3 @@ def run(args) -> int:
     recorder.finish(args.html, keep_serving=args.meshcat,
                     what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")
     return 0
-
-
-def open_loop_error_line(name: str, q: np.ndarray, v0: np.ndarray, predicted: np.ndarray, sample_period: float,
-                         steps=(1, 10, 50)) -> str:
-    """One line of open-loop joint-angle errors: the RMS over joints of predicted - q at a few steps
-    (those of `steps` within the trajectory, and its last), beside the physics-free rollouts from the
-    same start, "stays put" (q_0 held) and "v unchanged" (q_0 + k h v_0), and the first step from which
-    the model is further off than staying put (a rollout's error grows with the horizon, so a long
-    trajectory's whole-length figure alone says little).
-
-    q, predicted: (T + 1, n) rad, both starting at q_0; v0: (n,) rad/s; sample_period h: s."""
-    last = len(q) - 1
-    shown = [k for k in steps if k < last] + [last]
-    k = np.arange(len(q))[:, None]
-    rollouts = {name: predicted, "stays put": np.broadcast_to(q[0], q.shape),
-                "v unchanged": q[0] + k * sample_period * v0}
-    errors = {label: np.sqrt(np.mean((rollout - q) ** 2, axis=1)) for label, rollout in rollouts.items()}
-    table = "; ".join(f"{label} " + " / ".join(f"{error[step]:.3g}" for step in shown)
-                      for label, error in errors.items())
-    worse = np.flatnonzero(errors[name][1:] > errors["stays put"][1:])
-    verdict = (f"further off than staying put from step {worse[0] + 1}" if len(worse)
-               else "closer than staying put throughout")
-    return (f"open-loop RMS joint-angle error (rad) at steps {' / '.join(map(str, shown))}: {table}; "
-            f"{name} {verdict}")

@@ -561,6 +561,3 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
               "Files: fig6_mse_vs_activation.csv/.png, fig7_predictions.png, fig8_learning_curves.csv/.png, "
               "table1.csv/.json/.png, " + ("alpha_sweep.csv/.png, " if sweep else "") + "results.json.", ""]
     return "\n".join(lines)
-
-
-# -- `stdm-drake sine-sum` ----------------------------------------------------------------------------

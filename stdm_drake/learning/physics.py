@@ -91,7 +91,7 @@ class StaysPut(_Kinematic):
 
 
 class PlantModel(DynamicsModel):
-    """The plant of `robot` (default: the UR-10 preset) as a model at the sample period.
+    """The plant of `robot` as a model at the sample period.
 
     step: the same discrete Drake plant as the simulation (plant step h, torque held for the whole
     period), so where the data come from this description its predictions are exact. jacobians:

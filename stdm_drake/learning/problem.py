@@ -15,9 +15,6 @@ from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.structure import PAPER, ModelStructure
 
 
-# -- `stdm-drake train` -----------------------------------------------------------------------------
-
-
 @dataclasses.dataclass
 class TrainingProblem:
     """One model type on one dataset split: the network to fit (`model_config`), the training and

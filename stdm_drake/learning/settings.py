@@ -191,6 +191,10 @@ class TrainSettings:
             if not (math.isfinite(value) and (value > 0 if name == "lr" else value >= 0)):
                 bound = "> 0" if name == "lr" else ">= 0"
                 raise InputError(f"{key(name)} must be a finite number {bound}, got {value}")
+
+    def check_alpha(self) -> None:
+        """InputError unless alpha suits the model type: > 0 or "auto" with the derivative loss, no "auto"
+        without it (checked on the merged settings: a file's alone may be completed by flags)."""
         if self.uses_derivative() and self.alpha != "auto" and not self.alpha > 0:
             raise InputError(f"derivative learning needs --alpha > 0 or --alpha auto, got {self.alpha}")
         if self.alpha == "auto" and not self.uses_derivative():

@@ -95,8 +95,10 @@ class Trainer:
     """Fits one model (an EnsembleMLP of `model_config`) with Adam on minibatches, keeping each member's
     best weights by validation, in small steps (the shape of mbrl-lib's `ModelTrainer`):
 
-    - `train_epoch()`: one pass over each member's bootstrap rows in a fresh order -> mean loss terms;
-    - `validate()`: the validation scores; `keep_best(scores)`: each improved member's weights kept;
+    - `train_epoch(tensors, sums)`: one pass over each member's bootstrap rows in a fresh order, the
+      loss terms summed into `sums`;
+    - `validation_scores` (module function) for the scores; `keep_best(member_mse)`: each improved
+      member's weights kept;
     - `history_row(...)`: one learning-curve row; `write_checkpoint(finished)`: the best weights and
       everything resuming needs (`resume_state`), atomically; `resume(path)`: continue from that file
       exactly as if training had not stopped (same weights, same curves);
