@@ -89,18 +89,12 @@ def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
                isinstance(document.get(name), dict) and not isinstance(document.get(name), TaggedMapping))}
     if not old:
         return None
-    warnings = []
     if "" in old:   # the whole file is the one tagged field's value
         types, tagged = old[""]
-        value, warning = from_kind_layout(document, types, path, tagged)
-        config = schema(**{first: value})
-        warnings.append(warning)
+        config = schema(**{first: from_kind_layout(document, types, path, tagged)})
     else:
-        converted = {}
-        for name in old:
-            converted[name], warning = from_kind_layout(document.pop(name), old[name][0], f"{path}: {name}",
-                                                        old[name][1])
-            warnings.append(warning)
+        converted = {name: from_kind_layout(document.pop(name), old[name][0], f"{path}: {name}", old[name][1])
+                     for name in old}
         try:
             config = yaml_load_typed(schema=schema, data=yaml.safe_dump(document), defaults=schema())
         except Exception as error:  # the YAML parser and Drake's schema checks raise several types
@@ -112,8 +106,6 @@ def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
             config.validate()
         except InputError as error:
             raise InputError(f"{path}: {error}") from None
-    for warning in warnings:
-        warn(warning)
     return config
 
 
@@ -139,12 +131,12 @@ def require(condition: bool, message: str, value) -> None:
         raise InputError(f"{message}, got {value!r}")
 
 
-def from_kind_layout(mapping: dict, types: dict, where, tagged: str) -> tuple:
+def from_kind_layout(mapping: dict, types: dict, where, tagged: str):
     """A config from a mapping in the layout before YAML tags (`kind: NAME` beside the fields; without
-    one, the first kind, the default then), for the files written then: (the instance of types[NAME]
-    with the fields it has (fields only other kinds have, which that kind ignored, are dropped), the
-    warning line to print once it is known to be good, saying how to write it now (`tagged`: e.g.
-    "controller: !{}")). InputError on an unknown kind or a field no kind has."""
+    one, the first kind, the default then), for the files written then: the instance of types[NAME]
+    with the fields it has (fields only other kinds have, which that kind ignored, are dropped), and one
+    warning line (`errors.warn`) saying how to write it now (`tagged`: e.g. "controller: !{}").
+    InputError on an unknown kind or a field no kind has."""
     mapping = dict(mapping)
     given = "kind" in mapping
     kind = mapping.pop("kind", next(iter(types)))
@@ -156,12 +148,12 @@ def from_kind_layout(mapping: dict, types: dict, where, tagged: str) -> tuple:
     if unknown:
         raise InputError(f"{where}: unknown fields {unknown}")
     own = {field.name for field in dataclasses.fields(target)}
-    layout = f"uses the old `kind: {kind}` layout" if given else f"has no type tag (read as the default, {kind})"
-    warning = (f"stdm-drake: warning: {where} {layout}; write `{tagged.format(target.__name__)}` with its fields "
-               "indented under it")
     try:
         config = yaml_load_typed(schema=target, data=yaml.safe_dump({k: v for k, v in mapping.items() if k in own}),
                                  defaults=target())
     except Exception as error:  # Drake's schema checks raise several types
         raise InputError(f"{where}: {one_line(error)}") from None
-    return config, warning
+    layout = f"uses the old `kind: {kind}` layout" if given else f"has no type tag (read as the default, {kind})"
+    warn(f"stdm-drake: warning: {where} {layout}; write `{tagged.format(target.__name__)}` with its fields "
+         "indented under it")
+    return config

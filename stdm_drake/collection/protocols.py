@@ -12,12 +12,12 @@ from stdm_drake.collection.excitation import Excitation
 from stdm_drake.collection.plan import Tracking
 from stdm_drake.collection.planner_configs import PLANNER_TYPES
 from stdm_drake.config import load_yaml_config, read_yaml_document
+from stdm_drake.data.dataset import PROTOCOLS
 from stdm_drake.errors import InputError, warn
 from stdm_drake.robots.robot import Robot
 
 ProtocolConfig = typing.Union[Excitation, Tracking]   # a data protocol's settings, tagged in YAML
-PROTOCOL_TYPES = {cls.kind: cls for cls in typing.get_args(ProtocolConfig)}
-PROTOCOLS = tuple(PROTOCOL_TYPES)
+PROTOCOL_TYPES = {cls.kind: cls for cls in typing.get_args(ProtocolConfig)}   # one per dataset PROTOCOLS
 WHAT = {"excitation": "excitation config", "tracking": "tracking spec"}   # how errors name each file
 
 
@@ -39,15 +39,9 @@ def protocol_named_in(path) -> str | None:
 def load_protocol(path, kind: str | None = None) -> ProtocolConfig:
     """The protocol config in a protocol YAML; `kind` ("excitation", "tracking"): the protocol asked for,
     InputError when the file holds the other (None: whatever it holds; a file without a tag then needs
-    one). Not yet checked against a robot (`load_excitation`, `load_tracking_spec` do that)."""
-    config, warning = _read_protocol(path, kind)
-    if warning:
-        warn(warning)
-    return config
-
-
-def _read_protocol(path, kind: str | None) -> tuple:
-    """(the protocol config, the warning line owed for a file in the layout before the tags, or None)."""
+    one). Not yet checked against a robot (`load_excitation`, `load_tracking_spec` do that). A file in
+    the layout before the tags owes one warning line (`errors.warn`: a command prints it once it has
+    succeeded)."""
     if kind is not None and kind not in PROTOCOL_TYPES:
         raise InputError(f"protocol must be one of {PROTOCOLS}, got {kind!r}")
     document = read_yaml_document(path)
@@ -55,28 +49,27 @@ def _read_protocol(path, kind: str | None) -> tuple:
         config = load_yaml_config(path, ProtocolFile, what=WHAT.get(kind, "protocol file")).protocol
         if kind is not None and config.kind != kind:
             raise InputError(f"{path} holds the {config.kind} protocol, not the {kind} protocol")
-        return config, None
+        return config
     if kind is None:
         raise InputError(f"{path}: a protocol file starts with `protocol: !Excitation` or `protocol: !Tracking`")
     cls = PROTOCOL_TYPES[kind]
     config = load_yaml_config(path, cls, what=WHAT[kind],
                               old_layouts={"planner": (PLANNER_TYPES, "planner: !{}")} if cls is Tracking else None)
-    return config, (f"stdm-drake: warning: {path} holds the {kind} protocol's fields at the top; write "
-                    f"`protocol: !{cls.__name__}` with them indented under it")
+    warn(f"stdm-drake: warning: {path} holds the {kind} protocol's fields at the top; write "
+         f"`protocol: !{cls.__name__}` with them indented under it")
+    return config
 
 
 def load_excitation(path, *, robot: Robot) -> Excitation:
     """The excitation protocol of a protocol YAML for `robot`: per-joint lists of its length (or one
     value), start poses inside its limits; InputError naming the file otherwise."""
-    excitation, warning = _read_protocol(path, "excitation")
+    excitation = load_protocol(path, "excitation")
     try:
         excitation = excitation.for_robot(robot)
         excitation.validate()
         excitation.check_start_poses(robot)
     except InputError as error:
         raise InputError(f"{path}: {error}") from None
-    if warning:   # once the file is known to be good: a bad one gets its one error line only
-        warn(warning)
     return excitation
 
 
@@ -89,13 +82,11 @@ def load_tracking_spec(path: str | os.PathLike, *, robot: Robot) -> Tracking:
     Raises InputError, naming the file, on a missing or malformed file, unknown keys, wrong
     types or invalid values, or another protocol.
     """
-    spec, warning = _read_protocol(path, "tracking")
+    spec = load_protocol(path, "tracking")
     for section in ("planner", "sampling"):
         try:
             getattr(spec, section).validate()
             setattr(spec, section, getattr(spec, section).for_robot(robot))
         except InputError as error:
             raise InputError(f"{path}: {section}: {error}") from None
-    if warning:
-        warn(warning)
     return spec
