@@ -28,16 +28,14 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     path = pathlib.Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found: {path}")
-    if old_layouts:
-        config = _load_old_layout(path, schema, what, old_layouts)
-        if config is not None:
-            return config
-    try:
-        config = yaml_load_typed(schema=schema, filename=str(path), defaults=schema())
-    except Exception as error:  # the YAML parser and Drake's schema checks raise several types
-        raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
-    if not isinstance(config, schema):
-        raise InputError(f"{path}: malformed {what}: expected a mapping of {schema.__name__} fields")
+    config = _load_old_layout(path, schema, what, old_layouts) if old_layouts else None
+    if config is None:
+        try:
+            config = yaml_load_typed(schema=schema, filename=str(path), defaults=schema())
+        except Exception as error:  # the YAML parser and Drake's schema checks raise several types
+            raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
+        if not isinstance(config, schema):
+            raise InputError(f"{path}: malformed {what}: expected a mapping of {schema.__name__} fields")
     if hasattr(config, "validate"):
         try:
             config.validate()
@@ -79,7 +77,8 @@ def read_yaml_document(path):
 
 
 def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
-    """`schema` from a file in the layout before tags (see load_yaml_config), or None when it is not one."""
+    """`schema` from a file in the layout before tags (see load_yaml_config; not yet validated), or None
+    when it is not one."""
     document = read_yaml_document(path)
     if not isinstance(document, dict):
         return None
@@ -101,11 +100,6 @@ def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
             raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
         for name, value in converted.items():
             setattr(config, name, value)
-    if hasattr(config, "validate"):
-        try:
-            config.validate()
-        except InputError as error:
-            raise InputError(f"{path}: {error}") from None
     return config
 
 
