@@ -244,6 +244,23 @@ def task_error(error: BaseException, what: str) -> InputError:
     return InputError(f"{what} failed: {message}")
 
 
+def shared_file(pool, path) -> tuple:
+    """(content, sha256) to pass, as top-level task arguments, for a file every task on `pool` reads: on
+    Ray its bytes in the object store once (Ray hands the task the bytes) and their SHA-256; locally
+    (None, None), and the task reads `path` itself (`file_on_this_node`)."""
+    if not isinstance(pool, RayPool):
+        return None, None
+    import hashlib
+    content = pathlib.Path(path).read_bytes()
+    return pool.share(content), hashlib.sha256(content).hexdigest()
+
+
+def file_on_this_node(path, content: bytes | None, sha256: str | None) -> str:
+    """Where a task finds the file `shared_file` sent: `path` itself locally (content None), on a Ray
+    node this node's copy of the bytes (`node_local_dataset`)."""
+    return str(path) if content is None else str(node_local_dataset(content, sha256))
+
+
 def node_local_dataset(content: bytes, sha256: str) -> pathlib.Path:
     """The dataset `content` as a file in this node's scratch folder, written once per node (atomic)."""
     folder = pathlib.Path(tempfile.gettempdir()) / "stdm-drake-ray" / "datasets"

@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import concurrent.futures
 import dataclasses
-import hashlib
 import math
 import pathlib
 import time
@@ -107,15 +106,6 @@ def collect_dataset(cell: Cell, data_seed: int, count: int, half: bool = False) 
         shutil.rmtree(scratch, ignore_errors=True)
 
 
-def local_path(path: str | None, content: bytes | None, sha256: str | None) -> str | None:
-    """A dataset's path on this node: on a Ray cluster (content given) this node's scratch copy of the
-    bytes, else `path` itself."""
-    if content is None:
-        return path
-    from stdm_drake.cluster import node_local_dataset
-    return str(node_local_dataset(content, sha256))
-
-
 def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, path: str,
             content: bytes | None = None, sha256: str | None = None, half_path: str | None = None,
             half_content: bytes | None = None, half_sha256: str | None = None) -> dict:
@@ -125,6 +115,7 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
     `path`'s test trajectories."""
     import torch
 
+    from stdm_drake.cluster import file_on_this_node
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.dynamics_model import HeldInputSubsteps
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
@@ -138,8 +129,8 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
     train, validation, tested = sizes
     alpha, factor, half = MODELS[model]
     n_train = factor * train
-    dataset = load_dataset(local_path(path, content, sha256))
-    training_data = load_dataset(local_path(half_path, half_content, half_sha256)) if half else dataset
+    dataset = load_dataset(file_on_this_node(path, content, sha256))
+    training_data = load_dataset(file_on_this_node(half_path, half_content, half_sha256)) if half else dataset
     test = list(range(2 * train + validation, 2 * train + validation + tested))
     split = dict(train=list(range(n_train)), val=list(range(2 * train, 2 * train + validation)), test=test)
     robot = load_robot(MODELS_DIR / "ur10_limit_free.yaml")
@@ -226,7 +217,7 @@ def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, i
     evaluate every model on `runner` (`cluster.RunnerConfig`: local processes or Ray; on Ray each dataset
     travels once through the object store); rows in `done` (from an earlier run of the same design) are
     kept and their models not trained again. Returns {"summary", "runs", "seconds", "reused"}."""
-    from stdm_drake.cluster import job_pool, shared, task_error
+    from stdm_drake.cluster import job_pool, shared_file, task_error
     from stdm_drake.files import atomic_path
     train, validation, test = sizes
     count = 2 * train + validation + test
@@ -260,13 +251,8 @@ def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, i
                 temp.write_bytes(content)
             paths[name] = str(path)
         progress(f"{len(paths)} datasets in {time.perf_counter() - started:.0f} s")
-        sources = {}
-        for name, path in paths.items():   # Ray: the bytes once into the object store, a scratch file per node
-            if runner.backend == "ray":
-                content = pathlib.Path(path).read_bytes()
-                sources[name] = (path, shared(pool, content), hashlib.sha256(content).hexdigest())
-            else:
-                sources[name] = (path, None, None)
+        # Ray: the bytes once into the object store, a scratch file per node
+        sources = {name: (path, *shared_file(pool, path)) for name, path in paths.items()}
         jobs = {pool.submit(run_job, cell, seed, init, model, sizes, *sources[dataset_name(cell, seed, count)],
                             *(sources[dataset_name(cell, seed, count, half=True)] if MODELS[model][2] else ())):
                 (cell.name, seed, init, model) for cell, seed, init, model in todo}

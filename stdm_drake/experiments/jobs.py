@@ -272,8 +272,8 @@ def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset_content:
     import shutil
     import tempfile
 
-    from stdm_drake.cluster import node_local_dataset
-    local = dataclasses.replace(job, dataset=str(node_local_dataset(dataset_content, dataset_sha256)))
+    from stdm_drake.cluster import file_on_this_node
+    local = dataclasses.replace(job, dataset=file_on_this_node(job.dataset, dataset_content, dataset_sha256))
     scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-job-"))
     try:
         rows = run_job(local, scratch)
@@ -302,11 +302,10 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
     `runner` (a `cluster.RunnerConfig`; default: the local pool of `workers` processes); rows in job
     order. On Ray each dataset goes into the object store once and the checkpoints and results come back
     into `cache`, written by this process."""
-    import hashlib
 
     from tqdm import tqdm
 
-    from stdm_drake.cluster import RunnerConfig, job_pool, shared, task_error
+    from stdm_drake.cluster import RunnerConfig, job_pool, shared_file, task_error
     from stdm_drake.files import atomic_path
     runner = runner or RunnerConfig(workers=workers)
     remote = runner.backend == "ray"
@@ -321,12 +320,9 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
                disable=not progress, file=sys.stderr)
     if missing:
         with job_pool(runner) as pool:
-            datasets = {}
-            for path in dict.fromkeys(jobs[index].dataset for index in missing) if remote else ():
-                content = pathlib.Path(path).read_bytes()
-                datasets[path] = (shared(pool, content), hashlib.sha256(content).hexdigest())
-            calls = [(run_job_anywhere, (jobs[index], None if remote else cache,
-                                         *datasets.get(jobs[index].dataset, (None, None)))) for index in missing]
+            datasets = {path: shared_file(pool, path) for path in dict.fromkeys(jobs[index].dataset for index in missing)}
+            calls = [(run_job_anywhere, (jobs[index], None if remote else cache, *datasets[jobs[index].dataset]))
+                     for index in missing]
             for position, future in pool.completed(calls):
                 index = missing[position]
                 try:
