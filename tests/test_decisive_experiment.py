@@ -1,5 +1,6 @@
 """The decisive experiment's statistics and verdict rules, its limit-free robot, and its pipeline."""
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from tools_import import decisive_experiment as experiment
 
 
 def rows(values, model):
-    return [dict(data_seed=seed, init=init, model=model, one_step_q=value)
+    return [SimpleNamespace(data_seed=seed, init=init, model=model, one_step_q=value)
             for seed, per_seed in enumerate(values) for init, value in enumerate(per_seed)]
 
 

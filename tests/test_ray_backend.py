@@ -82,7 +82,9 @@ def assert_close(actual, expected, where="runs"):
 
 
 def clean(rows):
-    return [{key: value for key, value in row.items() if key not in TIMING} for row in rows]
+    """Result rows (TrainingResults or their JSON) without the timing fields."""
+    return [{key: value for key, value in (row if isinstance(row, dict) else dataclasses.asdict(row)).items()
+             if key not in TIMING} for row in rows]
 
 
 def test_ray_gives_the_local_results_bit_for_bit_and_retries_a_killed_worker(head, tmp_path, excitation_dataset):
@@ -103,7 +105,7 @@ def test_ray_gives_the_local_results_bit_for_bit_and_retries_a_killed_worker(hea
             assert a.keys() == b.keys() and all(torch.equal(a[key], b[key]) for key in a), name
     again = run_jobs(jobs, tmp_path / "ray", workers=2, progress=False,
                      runner=RunnerConfig(backend="ray", ray_address=address))
-    assert all(row["reused"] for row in again) and clean(again) == clean(local)   # the same cache, reused
+    assert all(row.reused for row in again) and clean(again) == clean(local)   # the same cache, reused
 
 
 def test_a_job_that_raises_reports_its_own_error(head, tmp_path, excitation_dataset):
@@ -184,7 +186,8 @@ def test_the_decisive_experiment_runs_on_ray_with_the_local_results(head, tmp_pa
     options = dict(cells=decisive.CELLS[:1], data_seeds=1, inits=2, sizes=(6, 4, 6), progress=lambda text: None)
     local = decisive.run_study(tmp_path / "local", RunnerConfig(workers=1), **options)
     remote = decisive.run_study(tmp_path / "ray", RunnerConfig(backend="ray", ray_address=address), **options)
-    strip = lambda rows: [{k: v for k, v in row.items() if k != "train_seconds"} for row in rows]  # noqa: E731
+    strip = lambda rows: [{k: v for k, v in dataclasses.asdict(row).items() if k != "train_seconds"}  # noqa: E731
+                          for row in rows]
     assert_close(strip(remote["runs"]), strip(local["runs"]))
     assert (tmp_path / "ray" / "literal-10ms_seed0_n22.h5").read_bytes() == \
         (tmp_path / "local" / "literal-10ms_seed0_n22.h5").read_bytes()

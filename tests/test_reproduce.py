@@ -1,4 +1,5 @@
 """`stdm-drake reproduce`: the quick profile end to end, the paper's split sizes, report verdicts."""
+import dataclasses
 import json
 import math
 from types import SimpleNamespace
@@ -10,7 +11,8 @@ from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
-from stdm_drake.experiments.jobs import FULL, QUICK, plan_jobs
+from stdm_drake.experiments.jobs import FULL, QUICK, TrainJob, cached_rows, plan_jobs, run_job
+from stdm_drake.experiments.results import TrainingResult
 from stdm_drake.learning.models import MODEL_TYPES
 from stdm_drake.experiments.reproduce_report import improvement_percent, verdict
 from stdm_drake.stats import paired_ratio
@@ -210,3 +212,23 @@ def test_reproduce_exits_2_when_an_mpc_run_left_the_limits(tmp_path, monkeypatch
     assert main(["reproduce", "--quick", "-o", str(tmp_path / "out"), "--quiet"]) == 2
     assert "stdm-drake reproduce: error: MPC stage: model DD seed 1 left the robot's joint limits on 7 of 2000" in \
         capsys.readouterr().err
+
+
+def test_training_results_are_typed_cached_and_retrained_when_stale(excitation_dataset, tmp_path):
+    """A grid job yields one TrainingResult per variant with the physics baselines beside the model; the
+    cache returns the same results marked reused; a cached row of another schema is trained again."""
+    dataset = load_dataset(excitation_dataset)
+    job = TrainJob("sim", str(excitation_dataset), dataset.sha256, (0, 1), (2,), (3,), "D", "tanh", 0,
+                   ensemble_size=1, max_epochs=2, patience=2, horizon=10, multistep=True, train_size=2,
+                   alphas=(0.0, DEFAULT_ALPHA))
+    rows = run_job(job, tmp_path)
+    assert [row.model_type for row in rows] == ["D", "DD"] and all(isinstance(row, TrainingResult) for row in rows)
+    for row in rows:
+        assert (row.experiment, row.train_size, row.reused) == ("sim", 2, False)
+        assert row.q_mse > 0 and row.euler_q_mse > 0 and row.unchanged_v_mse > 0
+        assert len(row.multistep_q) == len(row.stays_put_multistep_q) == 10 and row.rollout_ms > 0
+    again = cached_rows(job, tmp_path)
+    assert again == [dataclasses.replace(row, reused=True) for row in rows]
+    stored = tmp_path / f"{job.key()}.json"
+    stored.write_text(json.dumps([dict(row.stored(), old_field=1) for row in rows]))
+    assert cached_rows(job, tmp_path) is None

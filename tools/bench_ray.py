@@ -13,6 +13,7 @@ Reported: wall time, per-job overhead against the 1-worker local pool (wall / jo
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import pathlib
 import secrets
@@ -51,7 +52,8 @@ def timed(jobs, cache, workers, runner=None):
     from stdm_drake.experiments.jobs import run_jobs
     started = time.perf_counter()
     rows = run_jobs(jobs, cache, workers, progress=False, runner=runner)
-    return time.perf_counter() - started, [{k: v for k, v in row.items() if k not in TIMING} for row in rows]
+    return time.perf_counter() - started, [{k: v for k, v in dataclasses.asdict(row).items() if k not in TIMING}
+                                                for row in rows]
 
 
 def ray_head(cpus: int) -> str:

@@ -22,8 +22,8 @@ sys.path.insert(0, str(ROOT))
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.experiments.decisive import (ALPHA, CELLS, CONTROLS, ENDPOINTS, HORIZON, TEST,  # noqa: E402
-                                             TRAIN, VALIDATION, run_study)
-from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
+                                             TRAIN, VALIDATION, DecisiveRun, run_study)
+from stdm_drake.files import json_default, rows_csv, write_text_atomic  # noqa: E402
 
 
 def main(argv=None) -> int:
@@ -58,13 +58,13 @@ def main(argv=None) -> int:
                  naive_vs_unchanged_v=s["naive_vs_unchanged_v"], gated=s["gated"], verdict=s["verdict"],
                  **{f"{which} {label} {part}": s[which][label][part] for which in ratios if which in s
                     for _, label in ENDPOINTS for part in ("ratio", "low", "high")}) for s in summary]
-    write_text_atomic(args.output / "runs.csv", rows_csv(rows))
+    write_text_atomic(args.output / "runs.csv", rows_csv([dataclasses.asdict(row) for row in rows]))
     write_text_atomic(args.output / "cells.csv", rows_csv(flat))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
         written_by="tools/decisive_experiment.py", **design, seconds=study["seconds"],
-        train_seconds_total=round(sum(row["train_seconds"] for row in rows), 1),
+        train_seconds_total=round(sum(row.train_seconds for row in rows), 1),
         reused_rows=study["reused"], cells=[dataclasses.asdict(c) for c in cells], summary=summary, runs=rows),
-        indent=2) + "\n")
+        indent=2, default=json_default) + "\n")
     for s in summary:
         print(f"\n{s['cell']} ({s['switch']}): naive vs Euler q {s['naive_vs_euler_q']:.3g}x, vs 'v unchanged' "
               f"{s['naive_vs_unchanged_v']:.3g}x -> {s['verdict']}")
@@ -77,7 +77,7 @@ def main(argv=None) -> int:
     return 0
 
 
-def earlier_rows(path: pathlib.Path, design: dict, cells) -> list[dict]:
+def earlier_rows(path: pathlib.Path, design: dict, cells) -> list[DecisiveRun]:
     """The rows of an earlier results.json of the same design, for --resume (none if it does not exist)."""
     if not path.exists():
         return []
@@ -93,7 +93,11 @@ def earlier_rows(path: pathlib.Path, design: dict, cells) -> list[dict]:
     rows = [row for row in earlier.get("runs", []) if row.get("cell") in periods]
     for row in rows:   # rows written before D-half existed trained at their cell's own period
         row.setdefault("train_sample_period", periods[row["cell"]])
-    return rows
+    try:
+        return [DecisiveRun(**row) for row in rows]
+    except TypeError as error:
+        raise InputError(f"--resume: {path} has runs of another format ({error}); choose another -o or leave "
+                         "out --resume") from None
 
 
 if __name__ == "__main__":

@@ -106,9 +106,35 @@ def collect_dataset(cell: Cell, data_seed: int, count: int, half: bool = False) 
         shutil.rmtree(scratch, ignore_errors=True)
 
 
+@dataclasses.dataclass(frozen=True)
+class DecisiveRun:
+    """One trained model of the decisive experiment, tested on its cell's test trajectories: a row of
+    `runs.csv`. MSE in rad² (q) and (rad/s)² (v); open_loop_q at step HORIZON; the ratios are baseline
+    MSE / this model's (above 1: the model is better); verdict: `compare_with_baselines`'s word on
+    whether the model learned. train_sample_period: the period it was trained at (s; half the cell's for
+    D-half); train_seconds: wall time of its training."""
+    cell: str
+    data_seed: int
+    init: int
+    model: str
+    alpha: float
+    train_trajectories: int
+    train_sample_period: float
+    epochs: int
+    best_epoch: int
+    train_seconds: float
+    one_step_q: float
+    one_step_v: float
+    open_loop_q: float
+    ratio_to_euler_q: float
+    ratio_to_unchanged_v: float
+    ratio_to_stays_put_open_loop_q: float
+    verdict: str
+
+
 def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, path: str,
             content: bytes | None = None, sha256: str | None = None, half_path: str | None = None,
-            half_content: bytes | None = None, half_sha256: str | None = None) -> dict:
+            half_content: bytes | None = None, half_sha256: str | None = None) -> DecisiveRun:
     """Train and evaluate one model on the cell's dataset `path` (on a Ray cluster its bytes `content`
     and their `sha256`; top-level arguments, so Ray hands the task the bytes, not a reference). D-half
     trains on the half-period dataset (`half_*`, the same way) and is tested, like every model, on
@@ -147,7 +173,7 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
     baselines = physics_baselines(dataset.sample_period, robot.state_dim, robot.action_dim, plant=False)
     mine, euler, stays = compare_with_baselines([learned] + baselines, dataset.transitions(test),
                                                 trajectory_rollout_data(dataset, test, HORIZON))
-    return dict(cell=cell.name, data_seed=data_seed, init=init, model=model, alpha=alpha, train_trajectories=n_train,
+    return DecisiveRun(cell=cell.name, data_seed=data_seed, init=init, model=model, alpha=alpha, train_trajectories=n_train,
                 train_sample_period=training_data.sample_period, epochs=result.epochs_run,
                 best_epoch=int(result.best_epochs[0]), train_seconds=round(seconds, 2),
                 one_step_q=mine.one_step.angle_mse, one_step_v=mine.one_step.velocity_mse,
@@ -156,16 +182,16 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
                     stays.multi_step.angle_mse[-1] / mine.multi_step.angle_mse[-1]), verdict=mine.verdict)
 
 
-def two_level_ratio(rows_base: list[dict], rows_method: list[dict], key: str) -> dict:
+def two_level_ratio(rows_base: list[DecisiveRun], rows_method: list[DecisiveRun], key: str) -> dict:
     """Ratio base/method: per (data seed, init) pair, log-averaged over inits per data seed, then a
     Student-t 95 % interval over the data seeds' means."""
     from scipy import stats
-    method = {(r["data_seed"], r["init"]): r[key] for r in rows_method}
+    method = {(r.data_seed, r.init): getattr(r, key) for r in rows_method}
     per_seed = {}
     for r in rows_base:
-        pair = (r["data_seed"], r["init"])
+        pair = (r.data_seed, r.init)
         if pair in method:
-            per_seed.setdefault(r["data_seed"], []).append(math.log(r[key] / method[pair]))
+            per_seed.setdefault(r.data_seed, []).append(math.log(getattr(r, key) / method[pair]))
     means = np.array([np.mean(values) for values in per_seed.values()])
     pairs = sum(len(values) for values in per_seed.values())
     mean = float(means.mean())
@@ -189,16 +215,16 @@ def cell_verdict(gated: bool, ratios: dict) -> str:
 
 
 
-def summarize(cells, rows: list[dict]) -> list[dict]:
+def summarize(cells, rows: list[DecisiveRun]) -> list[dict]:
     """Per cell: the naive models' gate, the two-level ratios D/DD and control/DD per endpoint (for each
     label-matched control in the rows), the verdict."""
     summary = []
     for cell in cells:
-        mine = [r for r in rows if r["cell"] == cell.name]
-        by_model = {model: [r for r in mine if r["model"] == model] for model in MODELS}
+        mine = [r for r in rows if r.cell == cell.name]
+        by_model = {model: [r for r in mine if r.model == model] for model in MODELS}
         naive = by_model["D"]
-        gate_q = float(np.exp(np.mean([np.log(r["ratio_to_euler_q"]) for r in naive])))
-        gate_v = float(np.exp(np.mean([np.log(r["ratio_to_unchanged_v"]) for r in naive])))
+        gate_q = float(np.exp(np.mean([np.log(r.ratio_to_euler_q) for r in naive])))
+        gate_v = float(np.exp(np.mean([np.log(r.ratio_to_unchanged_v) for r in naive])))
         gated = gate_q >= 2 and gate_v >= 2
         ratios = {label: two_level_ratio(naive, by_model["DD"], key) for key, label in ENDPOINTS}
         controls = {control: {label: two_level_ratio(by_model[control], by_model["DD"], key)
@@ -211,7 +237,7 @@ def summarize(cells, rows: list[dict]) -> list[dict]:
 
 
 def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, inits: int = 5,
-              sizes: tuple = (TRAIN, VALIDATION, TEST), models=tuple(MODELS), done: list[dict] = (),
+              sizes: tuple = (TRAIN, VALIDATION, TEST), models=tuple(MODELS), done: list[DecisiveRun] = (),
               progress=print) -> dict:
     """Collect every cell's datasets into `data` (once; cells that share data share the files), train and
     evaluate every model on `runner` (`cluster.RunnerConfig`: local processes or Ray; on Ray each dataset
@@ -223,7 +249,7 @@ def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, i
     count = 2 * train + validation + test
     pathlib.Path(data).mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    key = lambda row: (row["cell"], row["data_seed"], row["init"], row["model"])  # noqa: E731
+    key = lambda row: (row.cell, row.data_seed, row.init, row.model)  # noqa: E731
     wanted = [(cell, seed, init, model) for cell in cells for seed in range(data_seeds) for init in range(inits)
               for model in models]
     kept = {key(row): row for row in done}
@@ -266,6 +292,6 @@ def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, i
             if finished % 15 == 0:
                 progress(f"{finished}/{len(jobs)} models trained ({time.perf_counter() - started:.0f} s)")
     names, order = [c.name for c in cells], list(MODELS)
-    rows.sort(key=lambda r: (names.index(r["cell"]), r["data_seed"], r["init"], order.index(r["model"])))
+    rows.sort(key=lambda r: (names.index(r.cell), r.data_seed, r.init, order.index(r.model)))
     return dict(summary=summarize(cells, rows), runs=rows, seconds=round(time.perf_counter() - started, 1),
                 reused=len(rows) - len(jobs))

@@ -11,6 +11,7 @@ import time
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.experiments.results import TrainingResult
 from stdm_drake.files import json_default, write_text_atomic
 from stdm_drake.learning.checkpoint import CHECKPOINT_VERSION
 from stdm_drake.learning.activations import ACTIVATION_NAMES
@@ -188,8 +189,8 @@ def grid_variants(alphas) -> dict:
     return variants
 
 
-def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
-    """Train (or reuse) one job; return one result row per model it yields (test metrics, curves)."""
+def run_job(job: TrainJob, cache: pathlib.Path) -> list[TrainingResult]:
+    """Train (or reuse) one job; return one result per model it yields (test metrics, curves)."""
     import torch
     torch.set_num_threads(1)
     from stdm_drake.data.dataset import load_dataset
@@ -201,7 +202,6 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
 
     key = job.key()
     result_path = cache / f"{key}.json"
-    labels = {"experiment": job.experiment, "train_size": job.train_size}
     reused = cached_rows(job, cache)
     if reused is not None:
         return reused
@@ -213,7 +213,8 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
     config, train, val, metadata = problem.model_config, problem.train, problem.val, problem.metadata
     training = TrainingConfig(alpha=DEFAULT_ALPHA if kind.derivative else 0.0, seed=job.seed,
                               max_epochs=job.max_epochs, patience=job.patience)
-    common = dict(key=key, activation=job.activation, seed=job.seed, train_trajectories=len(job.train))
+    common = dict(key=key, activation=job.activation, seed=job.seed, train_trajectories=len(job.train),
+                  experiment=job.experiment, train_size=job.train_size)
     started = time.perf_counter()
     rows = []
     if job.alphas is not None:
@@ -221,7 +222,7 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
         seconds = time.perf_counter() - started
         for name, index in grid_variants(job.alphas).items():
             index = selection.index if index is None else index
-            rows.append(dict(common, model_type=name, alpha=float(job.alphas[index]), train_seconds=seconds,
+            rows.append(TrainingResult(**common, model_type=name, alpha=float(job.alphas[index]), train_seconds=seconds,
                              epochs=grid.epochs_run, best_epoch=int(grid.best_epochs[index]),
                              val_mse=float(grid.best_scores[index]), epoch_axis=grid.history["epoch"],
                              val_mse_curve=[scores[index] for scores in grid.member_val_mse],
@@ -236,7 +237,7 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
                                        metadata=metadata)
         seconds = time.perf_counter() - started
         alpha = selection.alpha if selection is not None else training.alpha
-        rows.append(dict(common, model_type=job.model_type, alpha=alpha, train_seconds=seconds,
+        rows.append(TrainingResult(**common, model_type=job.model_type, alpha=alpha, train_seconds=seconds,
                          epochs=trained.epochs_run, epoch_axis=trained.history["epoch"],
                          val_mse_curve=trained.history["val_mse"],
                          alpha_selection=selection.as_dict() if selection is not None else None,
@@ -247,22 +248,25 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[dict]:
             metadata.alpha_selection = selection.as_dict()
     save_checkpoint(cache / f"{key}.pt", saved, training_config=saved_training, history=history,
                     metadata=metadata)
-    write_text_atomic(result_path, json.dumps(rows, default=json_default))
-    return [row | labels | {"reused": False} for row in rows]
+    write_text_atomic(result_path, json.dumps([row.stored() for row in rows], default=json_default))
+    return rows
 
 
-def cached_rows(job: TrainJob, cache: pathlib.Path) -> list[dict] | None:
-    """The job's result rows from the cache (marked reused), or None when it has not run yet."""
+def cached_rows(job: TrainJob, cache: pathlib.Path) -> list[TrainingResult] | None:
+    """The job's results from the cache (marked reused), or None when it has not run yet (or its stored
+    rows do not have the fields of a `TrainingResult`: trained again)."""
     key = job.key()
     result_path = cache / f"{key}.json"
     if not (result_path.exists() and (cache / f"{key}.pt").exists()):
         return None
-    labels = {"experiment": job.experiment, "train_size": job.train_size}
-    return [row | labels | {"reused": True} for row in json.loads(result_path.read_text())]
+    try:
+        return [TrainingResult.from_stored(row, job.experiment, job.train_size, reused=True) for row in json.loads(result_path.read_text())]
+    except (TypeError, ValueError):
+        return None
 
 
 def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset_content: bytes | None = None,
-                     dataset_sha256: str | None = None) -> tuple[list[dict], dict]:
+                     dataset_sha256: str | None = None) -> tuple[list[TrainingResult], dict]:
     """`run_job` in a pool's worker: (rows, {file name: bytes}). With a cache folder (a local worker) it
     trains into it and returns no files; with the dataset file's content (passed as an ObjectRef, which
     Ray resolves as a top-level argument) and its SHA-256, a Ray worker on any node: the dataset written
@@ -280,8 +284,7 @@ def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset_content:
         files = {path.name: path.read_bytes() for path in scratch.iterdir() if path.is_file()}
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    labels = {"experiment": job.experiment, "train_size": job.train_size}
-    return [row | labels | {"reused": False} for row in rows], files
+    return rows, files
 
 
 # relative training cost of a job, to start the longest first (measured on the full profile: an
@@ -297,7 +300,8 @@ def job_cost(job: TrainJob) -> float:
     return JOB_COST.get(job.experiment, 1.0) * members * derivative * len(job.train)
 
 
-def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: bool, runner=None) -> list[dict]:
+def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: bool,
+             runner=None) -> list[TrainingResult]:
     """Train every job not in `cache` yet, the most expensive first (so the workers finish together), on
     `runner` (a `cluster.RunnerConfig`; default: the local pool of `workers` processes); rows in job
     order. On Ray each dataset goes into the object store once and the checkpoints and results come back
@@ -398,8 +402,3 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
 # (for another robot than the UR-10: pid_dither_sized.yaml, the same rule sized from its inertia)
 IDENTIFICATION_SETTINGS = dict(controller=CONTROLLERS_DIR / "pid_dither.yaml",
                                sensor=CONTROLLERS_DIR / "sensor_ideal.yaml")
-
-
-def select_rows(results, **conditions):
-    """The result rows whose fields equal `conditions` (e.g. experiment="sim", model_type="DD")."""
-    return [r for r in results if all(r[key] == value for key, value in conditions.items())]

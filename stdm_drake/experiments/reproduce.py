@@ -20,7 +20,8 @@ import time
 
 from stdm_drake.cluster import RunnerConfig, job_pool
 from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, IDENTIFICATION_SETTINGS, Profile, ensure_dataset,
-                                         plan_jobs, run_jobs, select_rows)
+                                         plan_jobs, run_jobs)
+from stdm_drake.experiments.results import select_rows
 from stdm_drake.experiments.reproduce_report import mpc_statistics, write_report
 from stdm_drake.files import json_default
 from stdm_drake.outputs import mark_output_folder
@@ -115,8 +116,8 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     from stdm_drake.closed_loop.comparison import closed_loop_failures, held_out_references, plot_results, summarize
     specs = [("plant", None)]
     for model_type in CONTROL_MODEL_TYPES:
-        for match in sorted(select_rows(results, experiment="control", model_type=model_type), key=lambda r: r["seed"]):
-            specs.append((f"{model_type} seed {match['seed']}", str(cache / f"{match['key']}.pt")))
+        for match in sorted(select_rows(results, experiment="control", model_type=model_type), key=lambda r: r.seed):
+            specs.append((f"{model_type} seed {match.seed}", str(cache / f"{match.key}.pt")))
     checkpoints = [LearnedModel(path, robot=robot).checkpoint for _, path in specs[1:]]
     references = held_out_references(identification, checkpoints, profile.mpc_plans)
     if profile.mpc_steps is not None:

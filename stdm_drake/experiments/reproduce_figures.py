@@ -2,7 +2,7 @@
 (sample efficiency), 13 (learning curves) and 18/19 (multi-step errors)."""
 import numpy as np
 
-from stdm_drake.experiments.jobs import select_rows
+from stdm_drake.experiments.results import select_rows
 
 
 def figure_path(folder, name):
@@ -61,7 +61,7 @@ def plot_learning_curves(results, size, path):
     for model_type, color in (("D", "tab:blue"), ("DD", "tab:orange"), ("DD-auto", "tab:green")):
         for index, run in enumerate(select_rows(results, experiment="sim", model_type=model_type, activation="swish",
                                             train_size=size)):
-            axis.semilogy(run["epoch_axis"], run["val_mse_curve"], color=color, alpha=0.6,
+            axis.semilogy(run.epoch_axis, run.val_mse_curve, color=color, alpha=0.6,
                           label=model_type if index == 0 else None)
     axis.set(xlabel="epoch", ylabel="validation state MSE (standardized)",
              title="validation curves, every seed (paired grids: one initialization per seed)")
@@ -74,11 +74,11 @@ def plot_multistep(results, horizon, path):
     import matplotlib.pyplot as plt
     figure, axes = plt.subplots(1, 2, figsize=(12, 4))
     for run in select_rows(results, experiment="multistep"):
-        steps = np.arange(1, len(run["multistep_q"]) + 1)[:horizon]
-        style = "--" if run["model_type"] in ("DD", "PD", "DED", "PED") else "-"
+        steps = np.arange(1, len(run.multistep_q) + 1)[:horizon]
+        style = "--" if run.model_type in ("DD", "PD", "DED", "PED") else "-"
         for axis, key in zip(axes, ("multistep_q", "multistep_v")):
-            mean, std = np.array(run[key])[:horizon], np.array(run[f"{key}_std"])[:horizon]
-            line, = axis.semilogy(steps, mean, style, label=run["model_type"])
+            mean, std = np.array(getattr(run, key))[:horizon], np.array(getattr(run, f"{key}_std"))[:horizon]
+            line, = axis.semilogy(steps, mean, style, label=run.model_type)
             axis.fill_between(steps, np.maximum(mean - std, 1e-12), mean + std, color=line.get_color(), alpha=0.1)
     for axis, name in zip(axes, ("joint angles (rad²)", "velocities ((rad/s)²)")):
         axis.set(xlabel="prediction step", ylabel=f"MSE, {name}", title=f"open-loop prediction, {horizon} steps")

@@ -9,7 +9,8 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.experiments.jobs import Profile, select_rows
+from stdm_drake.experiments.jobs import Profile
+from stdm_drake.experiments.results import select_rows
 from stdm_drake.experiments.reproduce_figures import (figure_path, plot_activations, plot_learning_curves, plot_multistep,
                                                       plot_sizes)
 from stdm_drake.files import json_default, write_text_atomic
@@ -44,9 +45,9 @@ ONE_STEP = {"q": "q_mse", "v": "v_mse"}
 
 def paired(results, experiment: str, size: int, activation: str, variant: str, metric) -> tuple[list, list]:
     """(naive values, variant values) of one metric, paired by seed (the grid's shared initialization).
-    metric: a result key, or a function of a result row."""
-    value = metric if callable(metric) else (lambda row: row[metric])
-    rows = {variant_name: {r["seed"]: value(r) for r in select_rows(results, experiment=experiment, train_size=size,
+    metric: a `TrainingResult` field name, or a function of a result."""
+    value = metric if callable(metric) else (lambda row: getattr(row, metric))
+    rows = {variant_name: {r.seed: value(r) for r in select_rows(results, experiment=experiment, train_size=size,
                                                                activation=activation, model_type=variant_name)}
             for variant_name in ("D", variant)}
     seeds = sorted(set(rows["D"]) & set(rows[variant]))
@@ -58,17 +59,18 @@ BASELINE_KEYS = {"q": "euler_q_mse", "v": "unchanged_v_mse"}
 
 def learned_ratios(results, experiment: str, size: int, activation: str, model_type: str) -> dict:
     """Geometric means over seeds of baseline MSE / model MSE for one-step q (the Euler step) and v ("v
-    unchanged"); empty for rows written before baselines were recorded."""
+    unchanged"); empty when the comparison has no such model."""
     rows = select_rows(results, experiment=experiment, train_size=size, activation=activation, model_type=model_type)
-    if not rows or any(key not in row for row in rows for key in BASELINE_KEYS.values()):
+    if not rows:
         return {}
-    found = {quantity: float(np.exp(np.mean([np.log(row[key] / row[ONE_STEP[quantity]]) for row in rows])))
+    found = {quantity: float(np.exp(np.mean([np.log(getattr(row, key) / getattr(row, ONE_STEP[quantity]))
+                                             for row in rows])))
              for quantity, key in BASELINE_KEYS.items()}
     for quantity in BASELINE_KEYS:       # model MSE / sensor noise floor (absent for an ideal sensor)
-        floors = [row.get(f"noise_floor_{quantity}", 0.0) for row in rows]
+        floors = [getattr(row, f"noise_floor_{quantity}") for row in rows]
         if all(floor > 0 for floor in floors):
             found[f"{quantity}_over_floor"] = float(np.exp(np.mean(
-                [np.log(row[ONE_STEP[quantity]] / floor) for row, floor in zip(rows, floors)])))
+                [np.log(getattr(row, ONE_STEP[quantity]) / floor) for row, floor in zip(rows, floors)])))
     return found
 
 
@@ -76,7 +78,7 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
     """Means and paired ratios (naive / variant, 95 % CI) of every metric for the derivative variants
     present, and each model type's ratios to the physics-free baselines (`<type>_vs_baseline`: q vs the
     Euler step, v vs "v unchanged") with `learned`: whether every model type beat both by LEARNED_FACTOR.
-    metrics: label -> result key or function of a row."""
+    metrics: label -> `TrainingResult` field name or function of a result."""
     from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
     row = dict(activation=activation, train_trajectories=size)
     ratios = {}
@@ -101,12 +103,12 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
 
 
 def activation_table(results, experiment: str, size: int) -> list[dict]:
-    activations = dict.fromkeys(r["activation"] for r in select_rows(results, experiment=experiment, train_size=size))
+    activations = dict.fromkeys(r.activation for r in select_rows(results, experiment=experiment, train_size=size))
     return [comparison_row(results, experiment, size, activation, ONE_STEP) for activation in activations]
 
 
 def size_table(results, experiment: str) -> list[dict]:
-    sizes = sorted({r["train_size"] for r in select_rows(results, experiment=experiment, activation="swish")})
+    sizes = sorted({r.train_size for r in select_rows(results, experiment=experiment, activation="swish")})
     return [comparison_row(results, experiment, size, "swish", ONE_STEP) for size in sizes]
 
 
@@ -117,14 +119,14 @@ def coverage_table(results, size: int) -> list[dict]:
     for experiment, regime in (("sim", "global"), ("sim_local", "local")):
         if not select_rows(results, experiment=experiment, train_size=size, activation="swish", model_type="D"):
             continue
-        horizon = len(select_rows(results, experiment=experiment, train_size=size, activation="swish")[0]["multistep_q"])
+        horizon = len(select_rows(results, experiment=experiment, train_size=size, activation="swish")[0].multistep_q)
         metrics = dict(ONE_STEP)
         for step in sorted({min(20, horizon), horizon}):
-            metrics[f"q{step}"] = lambda row, step=step: row["multistep_q"][step - 1]
-            metrics[f"v{step}"] = lambda row, step=step: row["multistep_v"][step - 1]
+            metrics[f"q{step}"] = lambda row, step=step: row.multistep_q[step - 1]
+            metrics[f"v{step}"] = lambda row, step=step: row.multistep_v[step - 1]
         row = comparison_row(results, experiment, size, "swish", metrics)
         row.update(regime=regime, metrics=list(metrics), alphas=sorted(
-            r["alpha"] for r in select_rows(results, experiment=experiment, train_size=size, activation="swish",
+            r.alpha for r in select_rows(results, experiment=experiment, train_size=size, activation="swish",
                                         model_type="DD-auto")))
         rows.append(row)
     return rows
@@ -337,39 +339,39 @@ def add_multistep_section(report, results, profile: Profile, figures) -> list:
     """Figs. 18-19: open-loop errors beside 'stays put', rollout times, each derivative type against its
     naive twin; returns the rows."""
     report.heading("Multi-step prediction (Figs. 18, 19)")
-    multistep = sorted(select_rows(results, experiment="multistep"), key=lambda r: tuple(MODEL_TYPES).index(r["model_type"]))
+    multistep = sorted(select_rows(results, experiment="multistep"), key=lambda r: tuple(MODEL_TYPES).index(r.model_type))
     plot_multistep(results, profile.horizon, figure_path(figures, "fig18_multistep"))
     plot_multistep(results, 20, figure_path(figures, "fig19_multistep_20"))
     paper_time = PAPER["rollout_seconds_100_steps"]
 
     def stays(row, step):
-        curve = row.get("stays_put_multistep_q")
+        curve = row.stays_put_multistep_q
         return _g(curve[min(step, len(curve)) - 1]) if curve else ""
 
     report.table(["model", "alpha", f"q MSE at step {profile.horizon}", f"stays put q at {profile.horizon}",
                   f"v MSE at step {profile.horizon}", "q MSE at step 20", "stays put q at 20", "v MSE at step 20",
                   "rollout ms (batch 1)", "paper rollout ms (100 steps)"],
-                 [[r["model_type"], f"{r['alpha']:g}" + (" (by validation)" if r.get("alpha_selection") else ""),
-                   _g(r["multistep_q"][-1]), stays(r, len(r["multistep_q"])), _g(r["multistep_v"][-1]),
-                   _g(r["multistep_q"][min(19, len(r["multistep_q"]) - 1)]), stays(r, 20),
-                   _g(r["multistep_v"][min(19, len(r["multistep_v"]) - 1)]), f"{r['rollout_ms']:.2f}",
-                   1e3 * paper_time["ensemble" if "E" in r["model_type"] else "single"]] for r in multistep])
+                 [[r.model_type, f"{r.alpha:g}" + (" (by validation)" if r.alpha_selection else ""),
+                   _g(r.multistep_q[-1]), stays(r, len(r.multistep_q)), _g(r.multistep_v[-1]),
+                   _g(r.multistep_q[min(19, len(r.multistep_q) - 1)]), stays(r, 20),
+                   _g(r.multistep_v[min(19, len(r.multistep_v) - 1)]), f"{r.rollout_ms:.2f}",
+                   1e3 * paper_time["ensemble" if "E" in r.model_type else "single"]] for r in multistep])
     report.text("'stays put': the open-loop error of predicting that the robot stays at its first state (q̂ = q₀); "
                 "an open-loop model that does not beat it has not learned the dynamics.")
     report.image("figures/fig18_multistep.png", f"Fig. 18: open-loop MSE up to {profile.horizon} steps (mean ± std)")
     report.image("figures/fig19_multistep_20.png", "Fig. 19: the first 20 steps")
     pairs = [(naive, naive + "D" if naive in ("D", "P") else naive[:-1] + "ED") for naive in ("D", "P", "DE", "PE")]
-    by_type = {r["model_type"]: r for r in multistep}
+    by_type = {r.model_type: r for r in multistep}
     statements = []
     for naive, derivative in pairs:
-        if naive in by_type and derivative in by_type and by_type[derivative]["alpha"] == 0:
+        if naive in by_type and derivative in by_type and by_type[derivative].alpha == 0:
             statements.append(f"{derivative}: validation chose alpha 0, so it is the naive {naive} model.")
         elif naive in by_type and derivative in by_type:
             parts = []
             for key, label in (("multistep_q", "q"), ("multistep_v", "v")):
-                ours, theirs = np.mean(by_type[derivative][key]), np.mean(by_type[naive][key])
+                ours, theirs = np.mean(getattr(by_type[derivative], key)), np.mean(getattr(by_type[naive], key))
                 parts.append(f"{label} {_g(ours)} vs {_g(theirs)} ({'lower, as the paper reports' if ours < theirs else 'NOT lower, unlike the paper'})")
-            statements.append(f"{derivative} (alpha {by_type[derivative]['alpha']:g}) vs {naive}, MSE averaged over "
+            statements.append(f"{derivative} (alpha {by_type[derivative].alpha:g}) vs {naive}, MSE averaged over "
                               "the horizon: " + "; ".join(parts) + ". One model each (seed 0): no interval; the "
                               "coverage study above has paired seeds.")
     for line in statements:
@@ -458,7 +460,8 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
     add_mpc_section(report, mpc_rows)
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
                   coverage=coverage,
-                  multistep=[{k: v for k, v in r.items() if k not in ("epoch_axis", "val_mse_curve")} for r in multistep],
+                  multistep=[{k: v for k, v in dataclasses.asdict(r).items() if k not in ("epoch_axis", "val_mse_curve")}
+                             for r in multistep],
                   mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [],
                   paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
     write_result_files(folder, report, tables, results)
