@@ -18,8 +18,9 @@ def one_line(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | None = None):
-    """Load `path` into a new instance of the dataclass `schema`; keys left out keep their defaults.
+def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | None = None, defaults=None):
+    """Load `path` into a new instance of `schema` (a dataclass, or a Drake config type); keys left out
+    keep the values of `defaults` (default: `schema()`).
 
     what: how errors name the file's contents, e.g. "tracking spec". old_layouts: {field: (types by
     kind, tag hint)} for Union-typed fields whose files may still be in the layout before tags (`field:`
@@ -31,7 +32,8 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     config = _load_old_layout(path, schema, what, old_layouts) if old_layouts else None
     if config is None:
         try:
-            config = yaml_load_typed(schema=schema, filename=str(path), defaults=schema())
+            config = yaml_load_typed(schema=schema, filename=str(path),
+                                     defaults=schema() if defaults is None else defaults)
         except Exception as error:  # the YAML parser and Drake's schema checks raise several types
             raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
         if not isinstance(config, schema):

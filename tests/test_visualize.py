@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from presets import UR10
-from stdm_drake.robots.recorder import TrajectoryRecorder
+from stdm_drake.robots.recorder import TrajectoryRecorder, load_visualization_config
 
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
@@ -52,6 +52,20 @@ def test_recorder_checks_its_inputs():
     with_ghost = TrajectoryRecorder(0.01, ghost=True, robot=UR10)
     with pytest.raises(ValueError, match="shape"):
         with_ghost.add(np.zeros((3, 6)), np.zeros((2, 6)))
+
+
+def test_a_visualization_config_chooses_what_the_recording_shows(tmp_path):
+    """Drake's VisualizationConfig from YAML: the default recording shows the illustration geometry
+    only; `publish_proximity: true` adds the collision geometry."""
+    (tmp_path / "collision.yaml").write_text("publish_proximity: true\ninitial_proximity_alpha: 0.3\n")
+    config = load_visualization_config(tmp_path / "collision.yaml")
+    assert config.publish_proximity and config.initial_proximity_alpha == 0.3 and not config.publish_inertia
+    for visualization, shows_collision in ((None, False), (config, True)):
+        recorder = TrajectoryRecorder(0.01, robot=UR10, visualization=visualization)
+        recorder.add(np.zeros((3, UR10.num_joints)))
+        assert recorder.meshcat.HasPath("/drake/illustration")
+        assert recorder.meshcat.HasPath("/drake/proximity") == shows_collision
+        assert not recorder.meshcat.HasPath("/drake/inertia")
 
 
 def test_view_reports_open_loop_errors_at_steps_beside_the_physics_free_rollouts():

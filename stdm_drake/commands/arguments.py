@@ -1,5 +1,5 @@
-"""What several commands' command lines share: the `--robot` option (the UR-10 preset when absent) and
-the `--alpha` value type."""
+"""What several commands' command lines share: the `--robot` option (the UR-10 preset when absent), the
+`--visualization` option of the commands that record Meshcat animations, and the `--alpha` value type."""
 import argparse
 import pathlib
 
@@ -18,6 +18,21 @@ def command_robot(args: argparse.Namespace, dataset=None):
     from stdm_drake.data.compatibility import robot_for
     from stdm_drake.robots.robot import UR10_CONFIG
     return robot_for(args.robot or UR10_CONFIG, dataset)
+
+
+def add_visualization_argument(parser: argparse.ArgumentParser) -> None:
+    """`--visualization PATH`: Drake's VisualizationConfig YAML for the Meshcat recording."""
+    parser.add_argument("--visualization", type=pathlib.Path,
+                        help="Drake VisualizationConfig YAML for the Meshcat recording, e.g. `publish_proximity: "
+                             "true` to show the collision geometry (default: the illustration geometry only)")
+
+
+def command_visualization(args: argparse.Namespace):
+    """The VisualizationConfig `--visualization` names (None when absent: the recorder's default)."""
+    if args.visualization is None:
+        return None
+    from stdm_drake.robots.recorder import load_visualization_config
+    return load_visualization_config(args.visualization)
 
 
 def parse_alpha(text: str):

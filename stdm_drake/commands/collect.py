@@ -7,7 +7,7 @@ import sys
 
 from stdm_drake.collection.protocols import PROTOCOLS
 from stdm_drake.collection.collect import DEFAULT_CONTROLLER, CollectionRequest, collect, collection_request
-from stdm_drake.commands.arguments import add_robot_argument
+from stdm_drake.commands.arguments import add_robot_argument, add_visualization_argument, command_visualization
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
@@ -42,6 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "from a terminal, the server stays up until Ctrl+C)")
     parser.add_argument("--html", type=pathlib.Path,
                         help="save a standalone Meshcat HTML file that replays every collected trajectory")
+    add_visualization_argument(parser)
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_force_argument(parser)
@@ -59,13 +60,15 @@ def run(args: argparse.Namespace) -> int:
 
     request = request_from_args(args)
     robot = request.settings.robot
-    inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path]
+    inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path, args.visualization]
+    visualization = command_visualization(args)
     check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
     recorder = None
     if args.meshcat or args.html:
         from stdm_drake.robots.recorder import TrajectoryRecorder
-        recorder = TrajectoryRecorder(request.settings.sample_period, robot=request.settings.robot)
+        recorder = TrajectoryRecorder(request.settings.sample_period, robot=request.settings.robot,
+                                      visualization=visualization)
         if args.meshcat:
             print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)
     started = time.perf_counter()

@@ -8,7 +8,8 @@ from stdm_drake.closed_loop.comparison import (
     summary_table
 )
 from stdm_drake.closed_loop.mpc import mpc_config_for
-from stdm_drake.commands.arguments import add_robot_argument, command_robot
+from stdm_drake.commands.arguments import (add_robot_argument, add_visualization_argument, command_robot,
+                                            command_visualization)
 from stdm_drake.errors import InputError
 from stdm_drake.learning.physics import PlantModel
 from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
@@ -31,6 +32,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/mpc"),
                         help="folder for mpc.md, mpc.csv, mpc.json and mpc.png")
     parser.add_argument("--html", type=pathlib.Path, help="Meshcat recording: plant (robot) vs reference (ghost)")
+    add_visualization_argument(parser)
     parser.add_argument("--quiet", action="store_true")
     add_force_argument(parser)
 
@@ -55,9 +57,10 @@ def run(args) -> int:
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
         raise InputError(f"--model names must differ; {', '.join(repeated)} given more than once")
-    inputs = [args.dataset, args.config, args.robot, *checkpoints]
+    inputs = [args.dataset, args.config, args.robot, args.visualization, *checkpoints]
     check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
+    visualization = command_visualization(args)
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)
     robot.check_fully_actuated("MPC")
@@ -82,7 +85,7 @@ def run(args) -> int:
     recorder = None
     if args.html:
         from stdm_drake.robots.recorder import TrajectoryRecorder
-        recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot)
+        recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)
     results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder,
                                   robot=robot, announce=lambda line: print(line, file=sys.stderr, flush=True))
     rows = summarize(results, dataset.sample_period)

@@ -4,7 +4,8 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.commands.arguments import add_robot_argument, command_robot
+from stdm_drake.commands.arguments import (add_robot_argument, add_visualization_argument, command_robot,
+                                            command_visualization)
 from stdm_drake.learning.evaluate import open_loop_error_line
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.recorder import TrajectoryRecorder
@@ -20,6 +21,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--html", type=pathlib.Path, help="save the recording as a standalone HTML file")
     parser.add_argument("--meshcat", action="store_true", help="play live in Meshcat (prints the URL)")
     add_robot_argument(parser, "must be the dataset's robot")
+    add_visualization_argument(parser)
     add_force_argument(parser)
 
 
@@ -31,8 +33,9 @@ def run(args) -> int:
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
     if not args.index and args.trajectories < 1:
         raise InputError(f"--trajectories must be >= 1, got {args.trajectories}")
-    check_output_file("--html", args.html, kind="html", inputs=[args.checkpoint, args.dataset, args.robot],
-                      force=args.force)
+    check_output_file("--html", args.html, kind="html",
+                      inputs=[args.checkpoint, args.dataset, args.robot, args.visualization], force=args.force)
+    visualization = command_visualization(args)
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)
     model = LearnedModel(args.checkpoint, robot=robot)
@@ -43,7 +46,7 @@ def run(args) -> int:
         test = model.checkpoint.split_indices(dataset, "test")
         pool = test if test is not None else list(range(dataset.num_trajectories))[::-1]
         indices = pool[:args.trajectories]
-    recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot)
+    recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)
     if args.meshcat:
         print(f"Meshcat: {recorder.meshcat.web_url()}")
     for index in indices:

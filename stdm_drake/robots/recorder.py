@@ -1,31 +1,51 @@
 """Meshcat recordings of a robot's joint trajectories, live and as standalone HTML pages.
 
-Recordings replay stored joint angles in a visualization-only diagram (plant + scene graph +
-MeshcatVisualizer), so what is shown never feeds back into the simulation that produced it.
+Recordings replay stored joint angles in a visualization-only diagram (plant + scene graph + the
+visualizers Drake's `ApplyVisualizationConfig` adds for a `VisualizationConfig`), so what is shown
+never feeds back into the simulation that produced it.
 With `ghost=True` a second, translucent copy of the robot shows another trajectory beside the robot, e.g. a
 learned model's open-loop prediction from the same initial state and actions, or an MPC reference.
 """
+import copy
 import logging
 import time
 
 import numpy as np
-from pydrake.geometry import (IllustrationProperties, Meshcat, MeshcatVisualizer, MeshcatVisualizerParams, Rgba,
-                              Role, RoleAssign)
+from pydrake.geometry import IllustrationProperties, Meshcat, Rgba, RoleAssign
+from pydrake.lcm import DrakeLcm
 from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
+from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
 from stdm_drake.files import write_text_atomic
 from stdm_drake.robots.robot import Robot
 
 GHOST_COLOR = Rgba(1.0, 0.55, 0.1, 0.35)  # translucent orange
+# what a recording shows unless told otherwise: the illustration geometry only (no collision shapes,
+# contact forces or inertia ellipsoids); `publish_period` is always the recording's sample period
+RECORDING = VisualizationConfig(publish_proximity=False, publish_contacts=False, publish_inertia=False)
+
+
+def load_visualization_config(path) -> VisualizationConfig:
+    """Drake's `VisualizationConfig` from a YAML file (its field names: `publish_proximity: true` shows
+    the collision geometry, `default_illustration_color`, `initial_proximity_alpha`, ...); fields left
+    out keep the recording's defaults (RECORDING). InputError for a missing or malformed file."""
+    from stdm_drake.config import load_yaml_config
+    from stdm_drake.errors import InputError
+    config = load_yaml_config(path, VisualizationConfig, what="visualization config", defaults=RECORDING)
+    if config.lcm_bus != "default":
+        raise InputError(f"{path}: lcm_bus: recordings publish to Meshcat only, got {config.lcm_bus!r}")
+    return config
 
 
 class TrajectoryRecorder:
     """Appends joint trajectories q (T+1, n) rad, sampled every `sample_period` s, to one
-    Meshcat animation that plays them one after another (with `pause` s of rest between)."""
+    Meshcat animation that plays them one after another (with `pause` s of rest between).
+    visualization: Drake's VisualizationConfig of what is shown (default RECORDING); its
+    publish_period is replaced by sample_period and its LCM publishers go to an in-memory bus."""
 
     def __init__(self, sample_period: float, meshcat: Meshcat | None = None, pause: float = 0.25,
-                 ghost: bool = False, *, robot: Robot):
+                 ghost: bool = False, *, robot: Robot, visualization: VisualizationConfig | None = None):
         self.meshcat = meshcat or Meshcat()
         self.sample_period = sample_period
         self.pause = pause
@@ -36,16 +56,19 @@ class TrajectoryRecorder:
         self.plant.Finalize()
         if ghost:
             _recolor(self.plant, scene_graph, self.ghost, GHOST_COLOR)
-        self.visualizer = MeshcatVisualizer.AddToBuilder(
-            builder, scene_graph, self.meshcat,
-            MeshcatVisualizerParams(role=Role.kIllustration, publish_period=sample_period))
+        config = copy.copy(visualization if visualization is not None else RECORDING)
+        config.publish_period = sample_period
+        # Drake's visualizers for the config; its LCM visualizer (for Meldis) publishes in memory (the
+        # diagram keeps a pointer to the bus, so the recorder holds it)
+        self.lcm = DrakeLcm("memq://")
+        ApplyVisualizationConfig(config, builder, plant=self.plant, scene_graph=scene_graph, meshcat=self.meshcat,
+                                 lcm=self.lcm)
         self.diagram = builder.Build()
         self.context = self.diagram.CreateDefaultContext()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)
-        self.visualizer_context = self.visualizer.GetMyContextFromRoot(self.context)
-        self.visualizer.ForcedPublish(self.visualizer_context)  # creates the geometry in Meshcat
+        self.diagram.ForcedPublish(self.context)  # creates the geometry in Meshcat
         self.meshcat.SetCameraPose(camera_in_world=[1.6, -1.9, 1.1], target_in_world=[0.4, 0.0, 0.45])
-        self.visualizer.StartRecording(set_transforms_while_recording=True)
+        self.meshcat.StartRecording(frames_per_second=1.0 / sample_period, set_visualizations_while_recording=True)
         self.time = 0.0
         self.num_trajectories = 0
 
@@ -62,7 +85,7 @@ class TrajectoryRecorder:
             self.plant.SetPositions(self.plant_context, self.robot, q_k)
             if ghost_q is not None:
                 self.plant.SetPositions(self.plant_context, self.ghost, ghost_q[k])
-            self.visualizer.ForcedPublish(self.visualizer_context)
+            self.diagram.ForcedPublish(self.context)
             self.time += self.sample_period
             if realtime:
                 time.sleep(self.sample_period)
@@ -71,8 +94,8 @@ class TrajectoryRecorder:
 
     def publish(self) -> None:
         """End recording and send the animation to Meshcat (play it with its Animation controls)."""
-        self.visualizer.StopRecording()
-        self.visualizer.PublishRecording()
+        self.meshcat.StopRecording()
+        self.meshcat.PublishRecording()
 
     def write_html(self, path) -> None:
         """Save Meshcat's self-contained HTML page (with the published recording) atomically."""
