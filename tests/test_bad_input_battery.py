@@ -186,6 +186,14 @@ CASES = [
     ([*T, "--config", "BADYAML", "-o", "NEW"], "malformed"), ([*T, "--config", "NEW.yaml", "-o", "NEW"], "not found"),
     ([*M, "--config", "BADYAML", "-o", "NEW"], "malformed"), ([*M, "--robot", "NEW.yaml", "-o", "NEW"], "not found"),
     ([*R, "--robot", "BADYAML", "-o", "NEW"], "malformed"),
+    ([*E, "--plant-effects", "BADYAML", "-o", "NEW.h5"], "malformed plant effects"),
+    ([*E, "--plant-effects", "NEW.yaml", "-o", "NEW.h5"], "plant effects not found"),
+    ([*E, "--plant-effects", "SPEC", "-o", "NEW.h5"], "unknown to the schema"),
+    ([*M, "--plant-effects", "BADYAML", "-o", "NEW"], "malformed plant effects"),
+    (yaml_case("effects", "viscous_friction: [1, 2]\n"), "the robot has 6 joints"),
+    (yaml_case("effects", "mass_scale: {elbow_link: 2}\n"), "does not have: elbow_link"),
+    (yaml_case("effects", "coulomb_friction: [50]\ncoulomb_velocity_scale: [0.001]\n"), "unstable at the plant step"),
+    (yaml_case("effects", "payload: {mass: -1}\n"), "payload mass"),
     ([*W, "--visualization", "BADYAML", "--html", "NEW.html"], "malformed visualization config"),
     ([*W, "--visualization", "NEW.yaml", "--html", "NEW.html"], "visualization config not found"),
     ([*E, "--visualization", "BADYAML", "--html", "NEW.html", "-o", "NEW.h5"], "malformed visualization config"),
@@ -220,7 +228,7 @@ CASES = [
 YAML_COMMANDS = {  # where a written YAML case goes in
     "spec": [*E, "--config", "CASE", "-o", "NEW.h5"], "ctrl": [*C, "--controller", "CASE", "-o", "NEW.h5"],
     "tspec": [*C, "--config", "CASE", "-o", "NEW.h5"], "mpc": [*M, "--config", "CASE", "-o", "NEW"],
-    "robot": [*E, "--robot", "CASE", "-o", "NEW.h5"],
+    "robot": [*E, "--robot", "CASE", "-o", "NEW.h5"], "effects": [*E, "--plant-effects", "CASE", "-o", "NEW.h5"],
 }
 
 

@@ -274,7 +274,9 @@ def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     x0 = np.concatenate([reference.q[0], np.zeros(len(reference.q[0]))])
-    plant.SetPositionsAndVelocities(plant.GetMyContextFromRoot(context), x0)
+    plant_context = plant.GetMyContextFromRoot(context)
+    (plant_config or PlantConfig()).set_parameters(plant, plant_context)
+    plant.SetPositionsAndVelocities(plant_context, x0)
     period = model.sample_period
     duration = (len(reference.q) - 1) * period if duration is None else duration
     simulator.Initialize()

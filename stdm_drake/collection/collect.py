@@ -34,7 +34,7 @@ from stdm_drake.data.dataset import Trajectory
 from stdm_drake.errors import InputError, PlanningError
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, load_controller_config
-from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker, plant_effects_for
 from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 
@@ -62,7 +62,7 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
         torque = controller.torque(q, v, plan.q[k], plan.qd[k], plan.qdd[k])
         return torque + dither * rng.standard_normal(len(dither)) if dither.any() else torque
 
-    traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng))
+    traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng), rng)
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
     if reason is not None:
         raise PlanningError(f"tracking left the limits ({reason}); check the controller gains")
@@ -253,10 +253,11 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
                        controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
                        plant_time_step: float = DEFAULT_PLANT_TIME_STEP, robot,
                        workers: int = min(2, os.cpu_count() or 1),
-                       excitation: Excitation | None = None) -> CollectionRequest:
+                       excitation: Excitation | None = None, plant_effects=None) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
     sensor: YAML paths, None for the defaults; robot: a Robot or its config's path; excitation: an
-    Excitation to use instead of a file). protocol: "excitation" or "tracking"; None: the one the
+    Excitation to use instead of a file; plant_effects: a PlantEffects or its YAML path, None for the
+    robot's description as it is). protocol: "excitation" or "tracking"; None: the one the
     config file's tag names, else tracking. Reads every config file and checks it against the robot, so
     errors come before any simulation starts."""
     if protocol is None:
@@ -271,8 +272,9 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
     SelfCollisionChecker(robot)  # a model that does not load, or a home in self-collision, fails before any worker
     # the protocol file: --config, else the one the robot's config names, else derived from the robot
     config_path = config or robot.default_file(protocol)
-    settings = StationConfig(sample_period=sample_period, plant=PlantConfig.discrete(plant_time_step),
-                                  sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
+    effects = plant_effects_for(plant_effects, robot, plant_time_step)
+    settings = StationConfig(sample_period=sample_period, plant=PlantConfig.discrete(plant_time_step, effects=effects),
+                             sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     settings.substeps()  # the sample period and the plant step, before any work
     if protocol == "tracking":
         robot.check_can_track()

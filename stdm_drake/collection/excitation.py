@@ -113,7 +113,7 @@ def excitation_trajectory(rig: Station, config: Excitation, rng: np.random.Gener
             return tau + rig.dynamics.actuated_gravity_torque(q) if config.gravity_compensation else tau
 
         try:
-            traj = rig.run(q0, config.num_steps, control, JointSensor(sensor_config, rng))
+            traj = rig.run(q0, config.num_steps, control, JointSensor(sensor_config, rng), rng)
         except RuntimeError as error:  # Drake refuses a state gone non-finite: the draw diverged, draw again
             if "non-finite" not in str(error):
                 raise

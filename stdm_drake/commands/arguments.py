@@ -35,6 +35,13 @@ def command_visualization(args: argparse.Namespace):
     return load_visualization_config(args.visualization)
 
 
+def add_plant_effects_argument(parser: argparse.ArgumentParser, role: str) -> None:
+    """`--plant-effects PATH`: the effects the simulated plant has beyond the robot's description."""
+    parser.add_argument("--plant-effects", type=pathlib.Path, metavar="FILE",
+                        help="plant effects YAML (friction, rotor inertia, payload, mass scales, torque noise; e.g. "
+                             f"models/ur10_effects.yaml): {role}; the robot file stays the nominal model")
+
+
 def parse_alpha(text: str):
     """--alpha: a number >= 0 or the word 'auto'."""
     if text.strip().lower() == "auto":

@@ -7,7 +7,8 @@ import sys
 
 from stdm_drake.collection.protocols import PROTOCOLS
 from stdm_drake.collection.collect import DEFAULT_CONTROLLER, CollectionRequest, collect, collection_request
-from stdm_drake.commands.arguments import add_robot_argument, add_visualization_argument, command_visualization
+from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot_argument, add_visualization_argument,
+                                           command_visualization)
 from stdm_drake.data.dataset import write_dataset
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
@@ -42,6 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "from a terminal, the server stays up until Ctrl+C)")
     parser.add_argument("--html", type=pathlib.Path,
                         help="save a standalone Meshcat HTML file that replays every collected trajectory")
+    add_plant_effects_argument(parser, "the data come from the affected plant")
     add_visualization_argument(parser)
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -52,7 +54,8 @@ def request_from_args(args: argparse.Namespace) -> CollectionRequest:
     """`collection_request` from the command line's arguments."""
     return collection_request(args.protocol, count=args.count, seed=args.seed, config=args.config,
                               controller=args.controller, sensor=args.sensor, sample_period=args.sample_period,
-                              plant_time_step=args.plant_time_step, robot=args.robot or UR10_CONFIG, workers=args.workers)
+                              plant_time_step=args.plant_time_step, robot=args.robot or UR10_CONFIG, workers=args.workers,
+                              plant_effects=args.plant_effects)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,7 +63,8 @@ def run(args: argparse.Namespace) -> int:
 
     request = request_from_args(args)
     robot = request.settings.robot
-    inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path, args.visualization]
+    inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path, args.visualization,
+              args.plant_effects]
     visualization = command_visualization(args)
     check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)

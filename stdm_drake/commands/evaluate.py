@@ -104,6 +104,9 @@ def run(args: argparse.Namespace) -> int:
     if not plant:
         print("  (no plant baseline: " + ("--no-plant" if args.no_plant else "pass the dataset's robot with --robot")
               + ")")
+    elif dataset.metadata.plant_effects is not None:
+        print("  (plant: the robot's description, the nominal model; the data come from a plant with effects it "
+              f"lacks: {dataset.metadata.plant_effects.summary()})")
     learned = rows[0]
     if floor["q"] > 0 or floor["v"] > 0:
         print(f"  {'noise floor':<12} {floor['q']:>10.3e} {floor['v']:>13.3e}  (a model that knows the true change "

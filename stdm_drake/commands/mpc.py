@@ -1,5 +1,7 @@
-"""`stdm-drake mpc`: closed-loop MPC of the robot's plant with the plant itself and learned models as
-predictors."""
+"""`stdm-drake mpc`: closed-loop MPC of the robot's plant with the plant model and learned models as
+predictors. On an affected plant (`--plant-effects`, or the effects the dataset records) the plant model
+is the robot's description (the nominal model a user has, "plant"), beside the affected plant itself
+("true-plant", an oracle)."""
 import dataclasses
 import sys
 
@@ -8,10 +10,11 @@ from stdm_drake.closed_loop.comparison import (
     summary_table
 )
 from stdm_drake.closed_loop.mpc import mpc_config_for
-from stdm_drake.commands.arguments import (add_robot_argument, add_visualization_argument, command_robot,
-                                            command_visualization)
+from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot_argument, add_visualization_argument,
+                                           command_robot, command_visualization)
 from stdm_drake.errors import InputError
 from stdm_drake.learning.physics import PlantModel
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, plant_effects_for
 from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
 
 
@@ -20,7 +23,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("dataset", type=pathlib.Path, help="tracking dataset whose held-out plans are the references")
     parser.add_argument("--model", action="append", default=[], metavar="NAME=CHECKPOINT",
                         help="a learned model to compare (repeatable), e.g. DD=runs/dd/seed0/checkpoint.pt")
-    parser.add_argument("--no-plant", action="store_true", help="leave out the plant-as-model reference MPC")
+    parser.add_argument("--no-plant", action="store_true",
+                        help="leave out the plant-as-model reference MPCs (nominal and, on an affected plant, true)")
     parser.add_argument("--excitation-references", action="store_true",
                         help="with an excitation dataset (no plans): track its recorded trajectories instead, e.g. "
                              "for an arm too small for task-space plans")
@@ -29,6 +33,8 @@ def add_arguments(parser) -> None:
                         help="MPC settings YAML (default: controllers/mpc.yaml; for another robot, its effort "
                              "weights derived from the robot's inertia, see README)")
     add_robot_argument(parser, "must be the dataset's robot")
+    add_plant_effects_argument(parser, "the closed loops run on the affected plant (default: the effects the dataset "
+                                       "records, if any)")
     parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("out/mpc"),
                         help="folder for mpc.md, mpc.csv, mpc.json and mpc.png")
     parser.add_argument("--html", type=pathlib.Path, help="Meshcat recording: plant (robot) vs reference (ghost)")
@@ -57,7 +63,7 @@ def run(args) -> int:
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
         raise InputError(f"--model names must differ; {', '.join(repeated)} given more than once")
-    inputs = [args.dataset, args.config, args.robot, args.visualization, *checkpoints]
+    inputs = [args.dataset, args.config, args.robot, args.visualization, args.plant_effects, *checkpoints]
     check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
     visualization = command_visualization(args)
@@ -68,6 +74,12 @@ def run(args) -> int:
         raise InputError(f"{args.dataset} is an excitation dataset: it has no plans to track; give a tracking "
                          "dataset, or --excitation-references to track its recorded trajectories")
     config = mpc_config_for(robot, args.config)
+    effects = plant_effects_for(args.plant_effects if args.plant_effects is not None else
+                                dataset.metadata.plant_effects, robot, DEFAULT_PLANT_TIME_STEP)
+    plant_config = PlantConfig.discrete(DEFAULT_PLANT_TIME_STEP, effects=effects)
+    if effects is not None:
+        print(f"plant effects: {args.plant_effects or 'as recorded in ' + str(args.dataset)}"
+              + (f" ({effects.source})" if effects.source else ""), file=sys.stderr)
     learned = []
     for entry in args.model:
         name, separator, path = entry.partition("=")
@@ -76,7 +88,10 @@ def run(args) -> int:
         learned.append(LearnedModel(path, name=name, robot=robot))
     for model in learned:
         model.checkpoint.check_fits(dataset)
-    models = ([] if args.no_plant else [PlantModel(dataset.sample_period, robot=robot)]) + learned
+    plants = [PlantModel(dataset.sample_period, robot=robot)]
+    if effects is not None:
+        plants.append(PlantModel(dataset.sample_period, plant_config, robot=robot))
+    models = ([] if args.no_plant else plants) + learned
     if not models:
         raise InputError("nothing to compare: give --model NAME=CHECKPOINT or keep the plant model")
     references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
@@ -86,7 +101,7 @@ def run(args) -> int:
     if args.html:
         from stdm_drake.robots.recorder import TrajectoryRecorder
         recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)
-    results = compare_controllers(models, references, config, progress=not args.quiet, recorder=recorder,
+    results = compare_controllers(models, references, config, plant_config, progress=not args.quiet, recorder=recorder,
                                   robot=robot, announce=lambda line: print(line, file=sys.stderr, flush=True))
     rows = summarize(results, dataset.sample_period)
     table = summary_table(rows)

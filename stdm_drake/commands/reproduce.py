@@ -6,11 +6,12 @@ import sys
 import time
 
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
-from stdm_drake.commands.arguments import add_robot_argument, command_robot
+from stdm_drake.commands.arguments import add_plant_effects_argument, add_robot_argument, command_robot
 from stdm_drake.errors import InputError
 from stdm_drake.experiments.jobs import FULL, QUICK
 from stdm_drake.experiments.reproduce import reproduce
 from stdm_drake.outputs import add_force_argument, check_output_folder
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, plant_effects_for
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -20,6 +21,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "checkpoints there are reused")
     add_robot_argument(parser, "another fully actuated arm of 6 or more joints runs the same experiments with "
                                "its protocols derived from its model")
+    add_plant_effects_argument(parser, "every dataset and closed loop on the affected plant (report in "
+                                       "out/reproduce-effects by default)")
     parser.add_argument("--seed", type=int, default=0, help="data collection seed")
     parser.add_argument("--workers", type=int, default=2,
                         help="training processes (default 2); with --backend ray and no cluster, the local Ray "
@@ -36,13 +39,16 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
     robot = command_robot(args)
     robot.check_can_track()
-    output = args.output or pathlib.Path("out/reproduce" if args.robot is None else f"out/reproduce-{robot.name}")
-    check_output_folder("-o/--output", output, inputs=[args.robot], own_files=("report.md", "cache"), force=args.force)
+    effects = plant_effects_for(args.plant_effects, robot, DEFAULT_PLANT_TIME_STEP)
+    default = "out/reproduce" + ("" if args.robot is None else f"-{robot.name}") + ("" if effects is None else "-effects")
+    output = args.output or pathlib.Path(default)
+    check_output_folder("-o/--output", output, inputs=[args.robot, args.plant_effects], own_files=("report.md", "cache"),
+                        force=args.force)
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()
     runner = runner_config_from_args(args)
     path, failures = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet,
-                               robot=robot, runner=runner)
+                               robot=robot, runner=runner, plant_effects=effects)
     print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
     for failure in failures:
         print(f"stdm-drake reproduce: error: MPC stage: {failure}", file=sys.stderr)

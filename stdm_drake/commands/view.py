@@ -46,6 +46,12 @@ def run(args) -> int:
         test = model.checkpoint.split_indices(dataset, "test")
         pool = test if test is not None else list(range(dataset.num_trajectories))[::-1]
         indices = pool[:args.trajectories]
+    nominal = None
+    if dataset.metadata.plant_effects is not None:   # data of an affected plant: the user's model beside the learned
+        from stdm_drake.learning.physics import PlantModel
+        nominal = PlantModel(dataset.sample_period, robot=robot)
+        print(f"plant effects of the data: {dataset.metadata.plant_effects.summary()}; 'nominal plant': the robot's "
+              "description stepping the same torques")
     recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)
     if args.meshcat:
         print(f"Meshcat: {recorder.meshcat.web_url()}")
@@ -58,6 +64,9 @@ def run(args) -> int:
         ghost_q = np.vstack([traj.q[:1], predicted[:, :robot.num_joints]])
         label = model.checkpoint.metadata.model_type or "model"
         print(f"trajectory {index}: {open_loop_error_line(label, traj.q, traj.v[0], ghost_q, dataset.sample_period)}")
+        if nominal is not None:
+            plant_q = np.vstack([traj.q[:1], nominal.rollout(x0[None], traj.tau[None]).mean[0][:, :robot.num_joints]])
+            print(f"  {open_loop_error_line('nominal plant', traj.q, traj.v[0], plant_q, dataset.sample_period)}")
         recorder.add(traj.q_true, ghost_q, realtime=args.meshcat)
     recorder.finish(args.html, keep_serving=args.meshcat,
                     what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")

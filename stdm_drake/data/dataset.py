@@ -34,6 +34,7 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, json_default
 from stdm_drake.outputs import DATASET_FORMAT
+from stdm_drake.robots.effects import PlantEffects
 
 FORMAT = DATASET_FORMAT
 FORMAT_VERSION = 1
@@ -120,7 +121,8 @@ class Split:
 class DatasetMetadata:
     """What a dataset file records about how it was collected (its `metadata_json` attribute), typed where
     the library reads it: protocol ("excitation" or "tracking"), sample_period (s), seed, robot_name,
-    joint_names (the n arm joints), robot_model_sha256 (of the robot's model file), plant_time_step (s).
+    joint_names (the n arm joints), robot_model_sha256 (of the robot's model file), plant_time_step (s),
+    plant_effects (the `robots.effects.PlantEffects` of the simulated plant; None: the description as is).
     `record` is the whole JSON object as written (sections robot, plant, sensor, controller, planner,
     task_space_sampling, excitation, package_versions, ...): `section(name)` reads one. None where the
     file does not record a value."""
@@ -131,6 +133,7 @@ class DatasetMetadata:
     joint_names: list | None = None
     robot_model_sha256: str | None = None
     plant_time_step: float | None = None
+    plant_effects: PlantEffects | None = None
     record: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -141,6 +144,7 @@ class DatasetMetadata:
         return cls(protocol=record["protocol"], sample_period=float(record["sample_period"]), seed=record.get("seed"),
                    robot_name=robot.get("name"), joint_names=list(names) if names is not None else None,
                    robot_model_sha256=record.get("robot_model_sha256"), plant_time_step=plant.get("time_step"),
+                   plant_effects=PlantEffects.from_record(plant["effects"]) if plant.get("effects") else None,
                    record=record)
 
     def section(self, name: str) -> dict:

@@ -75,6 +75,9 @@ def summary(dataset: Dataset) -> str:
     if dataset.protocol == "tracking":
         lines.append(f"planner         {meta.section('planner').get('kind')}   controller "
                      f"{meta.section('controller').get('kind')}   sensor {meta.record.get('sensor')}")
+    effects = meta.plant_effects
+    lines.append("plant effects   " + ("none (the robot's description as it is)" if effects is None else
+                                     effects.summary()))
     versions = meta.section("package_versions")
     lines.append("packages        " + ", ".join(f"{k} {v}" for k, v in sorted(versions.items())))
     labels = [name.removesuffix("_joint") for name in meta.joint_names or []]

@@ -26,35 +26,40 @@ from stdm_drake.experiments.reproduce_report import mpc_statistics, write_report
 from stdm_drake.files import json_default
 from stdm_drake.outputs import mark_output_folder
 from stdm_drake.paths import CONTROLLERS_DIR
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig
 from stdm_drake.robots.robot import Robot
 
-def dataset_settings(robot: Robot) -> dict:
+def dataset_settings(robot: Robot, plant_effects=None) -> dict:
     """`ensure_dataset` settings of the four datasets for `robot`: the files its config's `defaults` names
     (the UR-10 preset names all four), and for the ones it does not, the same protocols derived from its
     model (excitation ranges from its inertia, start poses over its whole range for "excitation" and
     within +-0.5 rad of home for "excitation_local", tracking poses around home, PID gains and dither
-    sized from its inertia)."""
+    sized from its inertia); every one collected on the plant with `plant_effects` (None: the robot's
+    description as it is)."""
     from stdm_drake.collection.excitation import Excitation
     excitation, local = robot.default_file("excitation"), robot.default_file("excitation_local")
     controller = robot.default_file("identification_controller")
+    common = dict(robot=robot, plant_effects=plant_effects)
     return dict(
-        excitation=(dict(robot=robot, config=excitation) if excitation else
-                    dict(robot=robot, excitation=Excitation.derived_for(robot, box=math.pi))),
-        local=(dict(robot=robot, config=local) if local else
-               dict(robot=robot, excitation=Excitation.derived_for(robot))),
-        tracking=dict(robot=robot),
-        identification=dict(IDENTIFICATION_SETTINGS, robot=robot,
+        excitation=(dict(common, config=excitation) if excitation else
+                    dict(common, excitation=Excitation.derived_for(robot, box=math.pi))),
+        local=(dict(common, config=local) if local else
+               dict(common, excitation=Excitation.derived_for(robot))),
+        tracking=dict(common),
+        identification=dict(IDENTIFICATION_SETTINGS, **common,
                             controller=controller or CONTROLLERS_DIR / "pid_dither_sized.yaml"))
 
 
 def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: int = 2, progress: bool = True,
-              *, robot: Robot, runner=None):
+              *, robot: Robot, runner=None, plant_effects=None):
     """Run every stage for `robot`; returns the report path and the MPC
     stage's failures (`comparison.closed_loop_failures`: closed loops that left the robot's limits or fell
-    back). runner: a RunnerConfig for the training jobs (default: the local pool of `workers` processes)."""
+    back). runner: a RunnerConfig for the training jobs (default: the local pool of `workers` processes).
+    plant_effects: a checked PlantEffects: every dataset and closed loop on that affected plant, the MPC
+    stage's plant model the robot's description (nominal) beside the affected plant ("true-plant")."""
     from stdm_drake.experiments import sine_sum
     robot.check_can_track()  # the tracked-plan experiments and MPC need it (before any work)
-    settings = dataset_settings(robot)
+    settings = dataset_settings(robot, plant_effects)
     output = pathlib.Path(output)
     cache = output / "cache"
     mark_output_folder(output)
@@ -87,7 +92,8 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     timings["sine_sum"] = time.perf_counter() - tick
 
     tick = time.perf_counter()
-    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot=robot)
+    mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot=robot,
+                       plant_effects=plant_effects)
     timings["mpc"] = time.perf_counter() - tick
     path = write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
                         timings)
@@ -107,25 +113,30 @@ def reused_sine_sum(path: pathlib.Path, study_config):
 
 
 def run_mpc(profile, identification, results, cache, folder, progress, workers: int = 2, *,
-            robot: Robot) -> dict:
+            robot: Robot, plant_effects=None) -> dict:
     """MPC with the plant and every seed of the control experiment's D, DD, PE, PED models on held-out
-    plans of the identification dataset, the models split over `workers` processes; returns
+    plans of the identification dataset, the models split over `workers` processes, on the plant with
+    `plant_effects` (then "plant" is the nominal model and "true-plant" the affected one); returns
     {"runs": per model instance, "types": mpc_statistics, "failures": one line per failed closed loop}."""
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.closed_loop.mpc import Reference
     from stdm_drake.closed_loop.comparison import closed_loop_failures, held_out_references, plot_results, summarize
-    specs = [("plant", None)]
+    specs = [("plant", None)] + ([("true-plant", "true")] if plant_effects is not None else [])
     for model_type in CONTROL_MODEL_TYPES:
         for match in sorted(select_rows(results, experiment="control", model_type=model_type), key=lambda r: r.seed):
             specs.append((f"{model_type} seed {match.seed}", str(cache / f"{match.key}.pt")))
-    checkpoints = [LearnedModel(path, robot=robot).checkpoint for _, path in specs[1:]]
+    learned = [spec for spec in specs if spec[1] not in (None, "true")]
+    checkpoints = [LearnedModel(path, robot=robot).checkpoint for _, path in learned]
     references = held_out_references(identification, checkpoints, profile.mpc_plans)
     if profile.mpc_steps is not None:
         references = [(i, Reference(q=r.q[:profile.mpc_steps + 1], v=r.v[:profile.mpc_steps + 1])) for i, r in references]
     # the plant-as-model MPC costs about as much as all learned models together: it gets a worker of its own
-    groups = [specs[:1], specs[1:]] if workers > 1 else [specs]
-    jobs = [MpcGroup(group, references, identification.sample_period, progress and index == len(groups) - 1, robot)
-            for index, group in enumerate(groups)]
+    plants = [spec for spec in specs if spec not in learned]
+    groups = [plants, learned] if workers > 1 else [specs]
+    plant_config = PlantConfig.discrete(identification.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP,
+                                        effects=plant_effects)
+    jobs = [MpcGroup(group, references, identification.sample_period, progress and index == len(groups) - 1, robot,
+                     plant_config) for index, group in enumerate(groups)]
     with job_pool(RunnerConfig(workers=len(jobs))) as pool:
         runs = [run for group_runs in pool.map(_mpc_group, jobs) for run in group_runs]
     plot_results(runs, identification.sample_period, folder / "mpc.png")
@@ -135,13 +146,15 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
 
 @dataclasses.dataclass(frozen=True)
 class MpcGroup:
-    """Closed-loop runs for one worker: the models in `specs` ((name, checkpoint path, or None for the
-    plant)) on every reference, at `sample_period` s, for `robot`; `progress`: show its bar."""
+    """Closed-loop runs for one worker: the models in `specs` ((name, checkpoint path, None for the nominal
+    plant, "true" for the affected plant itself)) on every reference, at `sample_period` s, for `robot`, on
+    the plant of `plant_config`; `progress`: show its bar."""
     specs: list
     references: list
     sample_period: float
     progress: bool
     robot: Robot
+    plant_config: PlantConfig
 
 
 def _mpc_group(group: MpcGroup) -> list:
@@ -153,6 +166,8 @@ def _mpc_group(group: MpcGroup) -> list:
     from stdm_drake.closed_loop.comparison import compare_controllers
     from stdm_drake.closed_loop.mpc import mpc_config_for
     robot = group.robot
-    models = [PlantModel(group.sample_period, robot=robot) if path is None else LearnedModel(path, name=name, robot=robot)
-              for name, path in group.specs]
-    return compare_controllers(models, group.references, mpc_config_for(robot), progress=group.progress, robot=robot)
+    models = [PlantModel(group.sample_period, robot=robot) if path is None else
+              PlantModel(group.sample_period, group.plant_config, robot=robot) if path == "true" else
+              LearnedModel(path, name=name, robot=robot) for name, path in group.specs]
+    return compare_controllers(models, group.references, mpc_config_for(robot), group.plant_config,
+                               progress=group.progress, robot=robot)

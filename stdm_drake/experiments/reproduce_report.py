@@ -258,6 +258,10 @@ def add_data_section(report, excitation, local, tracking, identification, robot:
     """The datasets: sizes and tracking errors beside the paper's, and what the identification data are."""
     from stdm_drake.data.inspect import tracking_errors
     report.heading("Data")
+    if excitation.metadata.plant_effects is not None:
+        report.text("Every dataset comes from an **affected plant**: the robot's description (the nominal model) "
+                    f"with {excitation.metadata.plant_effects.summary()}. Controllers and the MPC's plant model "
+                    "know only the nominal model (README, 'Plant effects').")
     errors, identification_errors = tracking_errors(tracking), tracking_errors(identification)
     report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
                  [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0).tau), "", "", ""],
@@ -415,6 +419,10 @@ def add_mpc_section(report, mpc_rows: dict | None) -> None:
                        ratio_text(r.get("naive_over_derivative")),
                        f"{r['solve_ms_mean']:.2f} / {r['solve_ms_p95']:.2f}", r["limit_violations"], r["fallbacks"]]
                       for r in types])
+        if any(r["model"] == "true-plant" for r in types):
+            report.text("On the affected plant, 'plant' is the nominal model (the robot's description, what a user "
+                        "has) and 'true-plant' the affected plant itself (an oracle no user has); the ratios compare "
+                        "every model with the nominal model.")
         report.image("mpc/mpc.png", "MPC tracking error, plant model vs learned models")
         report.text("The paper has no MPC experiment; the plant-as-model MPC is the reference. Per model "
                     "instance: mpc_runs.csv.")

@@ -33,7 +33,8 @@ class CheckpointMetadata:
     ("forward_difference"/"zero_order_hold"): how the derivative targets were formed; threads,
     torch_version, stdm_drake_version: the software that trained it; alpha_selection: the alpha grid's
     validation curve when alpha was chosen by validation (`AlphaSelection.as_dict`); robot_name,
-    robot_model_sha256, joint_names: the robot of the training dataset.
+    robot_model_sha256, joint_names: the robot of the training dataset; plant_effects: the effects of
+    the plant that produced it (`PlantEffects.record`; absent: the robot's description as it is).
     """
     model_type: str | None = None
     dataset_path: str | None = None
@@ -53,6 +54,7 @@ class CheckpointMetadata:
     robot_model_sha256: str | None = None
     joint_names: list | None = None
     structure: dict | None = None
+    plant_effects: dict | None = None
 
     @classmethod
     def from_dict(cls, values: dict) -> "CheckpointMetadata":

@@ -96,7 +96,9 @@ class PlantModel(DynamicsModel):
     step: the same discrete Drake plant as the simulation (plant step h, torque held for the whole
     period), so where the data come from this description its predictions are exact. jacobians:
     Drake AutoDiff linearization of the continuous dynamics at (x_k, u_k), discretized over the
-    period (`zero_order_hold_discretization`).
+    period (`zero_order_hold_discretization`). With `plant_config.effects` it is the affected plant's
+    (the true plant of data collected with those effects, an oracle no user has; named "true-plant"),
+    else the robot's description (the nominal model a user has; named "plant").
     """
     name = "plant"
 
@@ -106,9 +108,22 @@ class PlantModel(DynamicsModel):
         self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
         self.sample_period = float(sample_period)
         self.simulation = PlantSimulator(plant_config, robot=self.robot)
-        continuous, _ = make_plant(PlantConfig.continuous(), robot=self.robot)
+        self.effects = plant_config.effects if plant_config is not None else None
+        if self.effects is not None:
+            self.name = "true-plant"
+        continuous_config = PlantConfig.discrete(0.0, effects=self.effects)
+        continuous, _ = make_plant(continuous_config, robot=self.robot)
         self.autodiff_plant = continuous.ToAutoDiffXd()
         self.autodiff_context = self.autodiff_plant.CreateDefaultContext()
+        if self.effects is not None:   # the effects' parameters, set on a double context and converted
+            parameters = continuous.CreateDefaultContext()
+            continuous_config.set_parameters(continuous, parameters)
+            self.autodiff_context.SetTimeStateAndParametersFrom(parameters)
+        self._coulomb = None
+        if self.effects is not None and self.effects.has_coulomb():
+            n = robot.num_joints
+            self._coulomb = (self.effects.joint_values("coulomb_friction", n),
+                             self.effects.joint_values("coulomb_velocity_scale", n))
 
     def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         x, u = np.atleast_2d(x), np.atleast_2d(u)
@@ -127,6 +142,12 @@ class PlantModel(DynamicsModel):
             z = InitializeAutoDiff(np.concatenate([x[k], u[k]])).ravel()
             self.autodiff_plant.SetPositionsAndVelocities(self.autodiff_context, z[:n])
             self.autodiff_plant.get_actuation_input_port().FixValue(self.autodiff_context, z[n:])
+            if self._coulomb is not None:   # -F_c tanh(v / v_s), differentiated with the state
+                from pydrake.math import tanh
+                friction, scale = self._coulomb
+                v = z[n // 2:n]
+                force = np.array([-friction[i] * tanh(v[i] / scale[i]) for i in range(len(v))])
+                self.autodiff_plant.get_applied_generalized_force_input_port().FixValue(self.autodiff_context, force)
             derivatives = self.autodiff_plant.EvalTimeDerivatives(self.autodiff_context).CopyToVector()
             gradient = ExtractGradient(derivatives)
             A[k], B[k] = zero_order_hold_discretization(gradient[:, :n], gradient[:, n:], self.sample_period)

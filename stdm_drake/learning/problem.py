@@ -74,7 +74,9 @@ def dataset_metadata(dataset, split, *, model_type: str, derivative_source: str,
                               torch_version=torch.__version__, stdm_drake_version=__version__,
                               robot_name=dataset.metadata.robot_name,
                               robot_model_sha256=dataset.metadata.robot_model_sha256,
-                              joint_names=dataset.metadata.joint_names, **fields)
+                              joint_names=dataset.metadata.joint_names,
+                              plant_effects=(dataset.metadata.plant_effects.record()
+                                             if dataset.metadata.plant_effects is not None else None), **fields)
 
 
 def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):

@@ -9,9 +9,11 @@ os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet  # noqa: E402
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig  # noqa: E402
-from pydrake.systems.framework import DiagramBuilder  # noqa: E402
+from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem  # noqa: E402
 
 from stdm_drake.errors import InputError  # noqa: E402
+from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,  # noqa: E402
+                                       set_effect_parameters)
 from stdm_drake.robots.robot import Robot  # noqa: E402
 
 
@@ -30,9 +32,12 @@ class PlantConfig:
         discrete_contact_approximation "sap" here, Drake's other settings at Drake's defaults), as
         `AddMultibodyPlant` takes it.
     self_collision: keep contact between the robot's own (non-adjacent) links.
+    effects: what the simulated plant has beyond the robot's description (`robots.effects`); None: the
+        description as it is (the nominal model).
     """
     multibody: MultibodyPlantConfig = dataclasses.field(default_factory=_default_multibody)
     self_collision: bool = True
+    effects: PlantEffects | None = None
 
     @classmethod
     def discrete(cls, time_step: float = DEFAULT_PLANT_TIME_STEP, **fields) -> "PlantConfig":
@@ -52,25 +57,39 @@ class PlantConfig:
 
     def __getstate__(self) -> dict:   # to worker processes: Drake's config as its YAML (it does not pickle)
         from pydrake.common.yaml import yaml_dump_typed
-        return dict(multibody=yaml_dump_typed(self.multibody), self_collision=self.self_collision)
+        return dict(multibody=yaml_dump_typed(self.multibody), self_collision=self.self_collision,
+                    effects=self.effects)
 
     def __setstate__(self, state: dict) -> None:
         from pydrake.common.yaml import yaml_load_typed
         self.multibody = yaml_load_typed(schema=MultibodyPlantConfig, data=state["multibody"])
         self.self_collision = state["self_collision"]
+        self.effects = state.get("effects")
 
     def record(self) -> dict:
-        """What a dataset records of the plant: self_collision and every MultibodyPlantConfig field."""
+        """What a dataset records of the plant: self_collision, every MultibodyPlantConfig field and, for an
+        affected plant, its effects (`PlantEffects.record`)."""
         import yaml
         from pydrake.common.yaml import yaml_dump_typed
-        return dict(yaml.safe_load(yaml_dump_typed(self.multibody)) or {}, self_collision=self.self_collision)
+        record = dict(yaml.safe_load(yaml_dump_typed(self.multibody)) or {}, self_collision=self.self_collision)
+        if self.effects is not None:
+            record["effects"] = self.effects.record()
+        return record
+
+    def set_parameters(self, plant, plant_context) -> None:
+        """The effects' parameters (per-link mass scales) in a context of a plant `make_plant` built."""
+        if self.effects is not None:
+            set_effect_parameters(plant, plant_context, self.effects)
 
 
 def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None = None, *, robot: Robot):
     """Add the finalized plant of `robot` and a SceneGraph to `builder`.
 
     Returns (plant, scene_graph). With builder=None a bare plant without SceneGraph is returned
-    as (plant, None), for kinematics and dynamics queries.
+    as (plant, None), for kinematics and dynamics queries. With `config.effects`: the viscous friction,
+    rotor inertia and payload in the plant and, in a diagram (`builder`), the Coulomb friction system
+    driving the plant's applied generalized force; the mass scales are Context parameters
+    (`config.set_parameters` on every context made of the diagram).
     """
     config = config or PlantConfig()
     if config.time_step < 0:
@@ -81,14 +100,45 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
     else:
         plant, scene_graph = AddMultibodyPlant(config.multibody, builder)
     instance = robot.add_to(plant)
+    if config.effects is not None:
+        add_effects_to_plant(plant, instance, robot, config.effects)
     plant.Finalize()
     robot.check_plant(plant, instance)
+    if builder is not None and config.effects is not None and config.effects.has_coulomb():
+        indices = [plant.GetJointByName(name, instance).velocity_start() for name in robot.joint_names]
+        n = robot.num_joints
+        friction = builder.AddSystem(JointFriction(plant, indices, config.effects.joint_values("coulomb_friction", n),
+                                                   config.effects.joint_values("coulomb_velocity_scale", n)))
+        friction.set_name("joint_friction")
+        builder.Connect(plant.get_state_output_port(), friction.get_input_port())
+        builder.Connect(friction.get_output_port(), plant.get_applied_generalized_force_input_port())
     if scene_graph is not None:
         if config.self_collision:
             _filter_disabled_collisions(plant, scene_graph, instance, robot)
         else:
             _filter_self_collisions(plant, scene_graph, instance)
     return plant, scene_graph
+
+
+class JointFriction(LeafSystem):
+    """Coulomb joint friction of the arm joints as a generalized force: input "state" (the plant's
+    [q, v]), output "generalized_force" (the plant's velocities), -F_c tanh(v / v_s) on each arm
+    joint's velocity, 0 elsewhere. Direct feedthrough: a discrete plant samples it every step."""
+
+    def __init__(self, plant, joint_velocity_indices, friction: np.ndarray, velocity_scale: np.ndarray):
+        super().__init__()
+        self._indices = np.asarray(joint_velocity_indices, dtype=int)
+        self._friction = np.asarray(friction, dtype=float)
+        self._scale = np.asarray(velocity_scale, dtype=float)
+        self._nq, self._nv = plant.num_positions(), plant.num_velocities()
+        self._state = self.DeclareVectorInputPort("state", self._nq + self._nv)
+        self.DeclareVectorOutputPort("generalized_force", BasicVector(self._nv), self._output)
+
+    def _output(self, context, output) -> None:
+        v = self._state.Eval(context)[self._nq:]
+        force = np.zeros(self._nv)
+        force[self._indices] = coulomb_torque(v[self._indices], self._friction, self._scale)
+        output.SetFromVector(force)
 
 
 class PlantSimulator:
@@ -103,12 +153,14 @@ class PlantSimulator:
         from pydrake.systems.analysis import Simulator
 
         builder = DiagramBuilder()
-        self.plant, _ = make_plant(plant_config or PlantConfig(), builder=builder, robot=robot)
+        plant_config = plant_config or PlantConfig()
+        self.plant, _ = make_plant(plant_config, builder=builder, robot=robot)
         builder.ExportInput(self.plant.get_actuation_input_port(), "actuation")
         self.diagram = builder.Build()
         self.simulator = Simulator(self.diagram)
         self.context = self.simulator.get_mutable_context()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)
+        plant_config.set_parameters(self.plant, self.plant_context)
         self._actuation = self.diagram.GetInputPort("actuation")
         self._initial_state = self.diagram.CreateDefaultContext()  # what `start` resets the state to
 
@@ -186,17 +238,32 @@ def joint_limits(plant: MultibodyPlant) -> JointLimits:
 
 
 class Dynamics:
-    """Continuous-time rigid-body dynamics of `robot` (a bare plant of its own).
+    """Continuous-time rigid-body dynamics of `robot` (a bare plant of its own), with `effects` those of
+    an affected plant (None: the description, the nominal model).
 
-    acceleration(q, v, tau) = M(q)^-1 (B tau + tau_g(q) - C(q, v) v) for q, v (n,) and the action tau
-    (m,) N m of the m actuated joints; B places each torque on its joint (B = I when m = n).
+    acceleration(q, v, tau) = M(q)^-1 (B tau + tau_g(q) - C(q, v) v - D v + tau_c(v)) for q, v (n,) and
+    the action tau (m,) N m of the m actuated joints; B places each torque on its joint (B = I when
+    m = n); D the joint damping (the description's plus viscous friction), tau_c the smoothed Coulomb
+    friction; M includes reflected rotor inertia and the payload.
     """
 
-    def __init__(self, robot: Robot):
+    def __init__(self, robot: Robot, effects: PlantEffects | None = None):
         self.robot = robot
-        self.plant, _ = make_plant(PlantConfig.continuous(), robot=self.robot)
+        self.effects = effects
+        config = PlantConfig.discrete(0.0, effects=effects)
+        self.plant, _ = make_plant(config, robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
+        config.set_parameters(self.plant, self.context)
         self._actuated = None if self.robot.fully_actuated else self.robot.actuated_indices
+        self._damping = np.zeros(self.plant.num_velocities())   # D (n,) N m s/rad
+        for index in self.plant.GetJointIndices():
+            joint = self.plant.get_joint(index)
+            start = joint.velocity_start()
+            self._damping[start:start + joint.num_velocities()] = joint.default_damping_vector()
+        self._coulomb = (effects.joint_values("coulomb_friction", robot.num_joints)
+                         if effects is not None and effects.has_coulomb() else None)
+        self._velocity_scale = (effects.joint_values("coulomb_velocity_scale", robot.num_joints)
+                                if self._coulomb is not None else None)
 
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
         """Torque (n,) N m on every joint that holds the arm still at q."""
@@ -229,7 +296,7 @@ class Dynamics:
         """Per arm joint (n,), s: how fast its description's viscous <dynamics damping> d_i stops it
         alone, M_eff,i / d_i with M_eff = `effective_inertia` at q (default home); inf without damping."""
         q = self.robot.home if q is None else q
-        damping = np.array([self.plant.GetJointByName(name).default_damping() for name in self.robot.joint_names])
+        damping = self._damping
         inertia = self.effective_inertia(q)
         with np.errstate(divide="ignore"):
             return np.where(damping > 0, inertia / np.where(damping > 0, damping, 1.0), np.inf)
@@ -238,6 +305,10 @@ class Dynamics:
         plant, context = self.plant, self.context
         plant.SetPositionsAndVelocities(context, np.concatenate([q, v]))
         rhs = self.generalized_force(tau) + plant.CalcGravityGeneralizedForces(context) - plant.CalcBiasTerm(context)
+        if self._damping.any():
+            rhs = rhs - self._damping * v
+        if self._coulomb is not None:
+            rhs = rhs + coulomb_torque(v, self._coulomb, self._velocity_scale)
         return np.linalg.solve(plant.CalcMassMatrix(context), rhs)
 
 
@@ -268,3 +339,53 @@ class SelfCollisionChecker:
     def is_collision_free(self, q: np.ndarray) -> bool:
         self.plant.SetPositions(self.plant_context, q)
         return not self.plant.get_geometry_query_input_port().Eval(self.plant_context).HasCollisions()
+
+
+def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
+    """InputError unless `effects` fit `robot` (per-joint lists of its length, links it has) and the
+    explicit Coulomb term is stable at the plant step: h F_c / (v_s M_eff) <= 1 on every joint, with
+    M_eff the joint's smallest effective inertia over the robot's home (reflected inertia included)."""
+    n = robot.num_joints
+    for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio",
+                 "torque_noise_std"):
+        try:
+            effects.joint_values(name, n)
+        except InputError as error:
+            raise InputError(f"plant effects {error}") from None
+    if effects.rotor_inertia and not robot.fully_actuated:
+        raise InputError(f"plant effects rotor_inertia: robot {robot.name} has unactuated arm joints")
+    bare = MultibodyPlant(0.0)
+    instance = robot.add_to(bare)
+    links = {bare.get_body(index).name() for index in bare.GetBodyIndices(instance)}
+    unknown = sorted(set(effects.mass_scale) - links)
+    if unknown:
+        raise InputError(f"plant effects mass_scale names links robot {robot.name} does not have: {', '.join(unknown)} "
+                         f"(its links: {', '.join(sorted(links))})")
+    if effects.has_coulomb() and time_step > 0:
+        inertia = Dynamics(robot).effective_inertia(robot.home) + effects.reflected_inertia(n)
+        scale = effects.joint_values("coulomb_velocity_scale", n)
+        gain = time_step * effects.joint_values("coulomb_friction", n) / (scale * inertia)
+        if np.any(gain > 1.0):
+            joint = int(np.argmax(gain))
+            raise InputError(f"plant effects: Coulomb friction {effects.joint_values('coulomb_friction', n)[joint]:g} "
+                             f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
+                             f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
+                             f"raise its coulomb_velocity_scale to at least {scale[joint] * gain[joint]:.3g} rad/s or "
+                             "lower the plant step")
+
+
+def plant_effects_for(effects, robot: Robot, time_step: float) -> PlantEffects | None:
+    """`effects` (a PlantEffects, its YAML path, or None for the robot's description as it is) checked
+    against `robot` and the plant step `time_step` s (`check_plant_effects`)."""
+    if effects is None:
+        return None
+    if not isinstance(effects, PlantEffects):
+        path = effects
+        effects = load_plant_effects(path)
+        try:
+            check_plant_effects(effects, robot, time_step)
+        except InputError as error:
+            raise InputError(f"{path}: {error}") from None
+        return effects
+    check_plant_effects(effects, robot, time_step)
+    return effects

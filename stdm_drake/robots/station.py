@@ -54,7 +54,12 @@ class Station:
         self.simulation = PlantSimulator(settings.plant, robot=settings.robot)
         self.plant = self.simulation.plant
         self.limits = joint_limits(self.plant)
-        self.dynamics = Dynamics(settings.robot)
+        self.dynamics = Dynamics(settings.robot)   # the nominal model: what controllers and protocols know
+        effects = settings.plant.effects
+        # the simulated plant's own dynamics: the recorded true accelerations
+        self.true_dynamics = self.dynamics if effects is None else Dynamics(settings.robot, effects)
+        self._torque_noise = (effects.joint_values("torque_noise_std", settings.robot.action_dim)
+                              if effects is not None and effects.has_torque_noise() else None)
         self.collision_checker = SelfCollisionChecker(settings.robot)
         self._controller = None
 
@@ -66,19 +71,24 @@ class Station:
             self._controller = SampledJointController(settings.controller, settings.sample_period, settings.robot)
         return self._controller
 
-    def run(self, q0: np.ndarray, num_steps: int, control, sensor: JointSensor) -> dict:
+    def run(self, q0: np.ndarray, num_steps: int, control, sensor: JointSensor,
+            rng: np.random.Generator | None = None) -> dict:
         """Simulate one trajectory from rest at q0 (n,) rad for num_steps sample periods.
 
         control(k, t, q_measured, v_measured) -> action (m,) N m for [t_k, t_k+1); t = k * period;
         the controller gets the raw measurement, the dataset records q_measured and the filtered v.
+        With the plant effects' torque noise, the plant gets the action plus a draw from `rng` each
+        period (the dataset records the action; qdd, the applied torque's acceleration).
         Returns the arrays of one dataset trajectory (see stdm_drake.data.dataset).
         """
+        if self._torque_noise is not None and rng is None:
+            raise ValueError("a plant with torque noise needs the trajectory's rng")
         dt = self.settings.sample_period
         simulation = self.simulation
         n = self.robot.num_joints
         simulation.start(np.concatenate([q0, np.zeros(n)]), np.zeros(self.robot.action_dim))
         x = simulation.plant.GetPositionsAndVelocities(simulation.plant_context)
-        q_true, v_true, q_meas, v_meas, tau = [], [], [], [], []
+        q_true, v_true, q_meas, v_meas, tau, applied = [], [], [], [], [], []
         for k in range(num_steps + 1):
             q_true.append(x[:n])
             v_true.append(x[n:])
@@ -87,12 +97,16 @@ class Station:
             v_meas.append(v_filtered)
             tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
             tau.append(tau_k)
+            if self._torque_noise is not None:
+                tau_k = np.clip(tau_k + self._torque_noise * rng.standard_normal(len(tau_k)), -self.limits.effort,
+                                self.limits.effort)
+            applied.append(tau_k)
             if k < num_steps:
                 simulation.hold(tau_k)
                 x = simulation.advance_to((k + 1) * dt)
-        acceleration = self.dynamics.acceleration
-        qdd = [acceleration(q_true[k], v_true[k], tau[k]) for k in range(num_steps + 1)]
-        qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], tau[k]) for k in range(num_steps)]
+        acceleration = self.true_dynamics.acceleration
+        qdd = [acceleration(q_true[k], v_true[k], applied[k]) for k in range(num_steps + 1)]
+        qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], applied[k]) for k in range(num_steps)]
         return dict(q=np.array(q_meas), v=np.array(v_meas), tau=np.array(tau[:-1]), tau_next=tau[-1],
                     q_true=np.array(q_true), v_true=np.array(v_true), qdd=np.array(qdd), qdd_end=np.array(qdd_end))
 

@@ -1,0 +1,168 @@
+"""Plant effects: what a real robot has and its description leaves out, simulated on top of the
+nominal model (the robot file, which stays what a user has).
+
+`PlantEffects` is the typed YAML a `--plant-effects FILE` names (per-joint lists, or one value for all
+joints): viscous friction (added to the description's joint damping, which Drake's discrete plant
+integrates implicitly), Coulomb friction smoothed near zero velocity, -F_c tanh(v / v_s) (a
+`plant.JointFriction` system feeding the plant's applied generalized force, sampled every plant step),
+reflected rotor inertia (Drake's JointActuator rotor inertia and gear ratio: G² I_r on the mass
+matrix's diagonal), a payload rigidly attached to the tool frame, per-link mass scales (parameters in
+the plant's Context), and white torque noise added to the held action each sample period (process
+noise: not recorded, so a re-simulation from the recorded (x_k, a_k) is exact only without it).
+"""
+import dataclasses
+
+import numpy as np
+
+from stdm_drake.config import check_joint_vector, load_yaml_config, require
+from stdm_drake.errors import InputError
+
+
+@dataclasses.dataclass
+class Payload:
+    """A rigid payload welded to the robot's tool frame: mass kg, centre of mass (3,) m in the tool
+    frame, rotational inertia about its centre of mass [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] kg m²
+    (zeros: a point mass)."""
+    mass: float = 0.0
+    center_of_mass: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
+    inertia: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
+
+    def validate(self) -> None:
+        require(np.isfinite(self.mass) and self.mass >= 0, "payload mass must be a finite number >= 0 kg", self.mass)
+        require(len(self.center_of_mass) == 3 and np.all(np.isfinite(self.center_of_mass)),
+                "payload center_of_mass must be 3 finite numbers (m, tool frame)", self.center_of_mass)
+        require(len(self.inertia) == 6 and np.all(np.isfinite(self.inertia)),
+                "payload inertia must be 6 finite numbers [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m²)", self.inertia)
+        if self.mass > 0 and any(self.inertia):
+            from pydrake.multibody.tree import RotationalInertia
+            if not RotationalInertia(*self.inertia).CouldBePhysicallyValid():
+                raise InputError(f"payload inertia {self.inertia} is not physically valid (positive moments that "
+                                 "satisfy the triangle inequality)")
+
+
+@dataclasses.dataclass
+class PlantEffects:
+    """Effects of the simulated plant beyond the robot's description (see the module docstring).
+
+    source: where the magnitudes come from (a citation; recorded with the data).
+    viscous_friction: N m s/rad per joint (or one value), added to the description's damping.
+    coulomb_friction: N m per joint; coulomb_velocity_scale: v_s rad/s of the tanh smoothing (per joint
+        or one value; 2/phi_2 for the sigmoid model phi_1 / (1 + exp(-phi_2 v)) of Gaz et al., whose
+        amplitude is then F_c = phi_1 / 2).
+    rotor_inertia: motor-side kg m² per joint; gear_ratio: per joint (reflected inertia G² I_r).
+    payload: a Payload on the tool frame.
+    mass_scale: link name -> factor on that link's mass and rotational inertia (centre of mass kept).
+    torque_noise_std: N m per joint, white noise on the held action, one draw per sample period.
+    """
+    source: str = ""
+    viscous_friction: list[float] = dataclasses.field(default_factory=list)
+    coulomb_friction: list[float] = dataclasses.field(default_factory=list)
+    coulomb_velocity_scale: list[float] = dataclasses.field(default_factory=lambda: [0.05])
+    rotor_inertia: list[float] = dataclasses.field(default_factory=list)
+    gear_ratio: list[float] = dataclasses.field(default_factory=list)
+    payload: Payload = dataclasses.field(default_factory=Payload)
+    mass_scale: dict[str, float] = dataclasses.field(default_factory=dict)
+    torque_noise_std: list[float] = dataclasses.field(default_factory=list)
+
+    def validate(self) -> None:
+        for name in ("viscous_friction", "coulomb_friction", "rotor_inertia", "torque_noise_std"):
+            if getattr(self, name):
+                check_joint_vector(name, getattr(self, name), nonnegative=True)
+        if self.gear_ratio:
+            ratio = check_joint_vector("gear_ratio", self.gear_ratio)
+            require(bool(np.all(ratio > 0)), "gear_ratio must be > 0", self.gear_ratio)
+        require(bool(self.rotor_inertia) or not self.gear_ratio, "gear_ratio needs rotor_inertia", self.gear_ratio)
+        scale = check_joint_vector("coulomb_velocity_scale", self.coulomb_velocity_scale)
+        require(bool(np.all(scale > 0)), "coulomb_velocity_scale must be > 0 rad/s", self.coulomb_velocity_scale)
+        for link, factor in self.mass_scale.items():
+            require(np.isfinite(factor) and factor > 0, f"mass_scale of {link} must be a finite number > 0", factor)
+        self.payload.validate()
+
+    def joint_values(self, name: str, joints: int) -> np.ndarray:
+        """Field `name` as (joints,) values (zeros when empty; one value broadcast); InputError when a
+        list has another length."""
+        values = getattr(self, name)
+        if not values:
+            return np.zeros(joints)
+        return check_joint_vector(name, values, count=joints, nonnegative=True)
+
+    def reflected_inertia(self, joints: int) -> np.ndarray:
+        """G² I_r (joints,) kg m² (gear ratio 1 where none is given)."""
+        ratio = self.joint_values("gear_ratio", joints) if self.gear_ratio else np.ones(joints)
+        return ratio**2 * self.joint_values("rotor_inertia", joints)
+
+    def has_coulomb(self) -> bool:
+        return bool(self.coulomb_friction) and bool(np.any(np.asarray(self.coulomb_friction, dtype=float) > 0))
+
+    def has_torque_noise(self) -> bool:
+        return bool(self.torque_noise_std) and bool(np.any(np.asarray(self.torque_noise_std, dtype=float) > 0))
+
+    def summary(self) -> str:
+        """One line naming the effects that are on (and the source)."""
+        parts = [name.replace("_", " ") for name in ("viscous_friction", "coulomb_friction", "rotor_inertia",
+                                                     "torque_noise_std")
+                 if getattr(self, name) and any(float(value) > 0 for value in getattr(self, name))]
+        if self.payload.mass > 0:
+            parts.append(f"payload {self.payload.mass:g} kg")
+        if self.mass_scale:
+            parts.append("mass scale " + ", ".join(f"{link} x{factor:g}" for link, factor in self.mass_scale.items()))
+        return (", ".join(parts) or "none") + (f"  ({self.source})" if self.source else "")
+
+    def record(self) -> dict:
+        """What a dataset or checkpoint records of the effects (every field)."""
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_record(cls, record: dict) -> "PlantEffects":
+        fields = dict(record)
+        fields["payload"] = Payload(**fields.get("payload", {}))
+        return cls(**fields)
+
+
+def load_plant_effects(path) -> PlantEffects:
+    """The PlantEffects of a YAML file (InputError with one line for a missing or malformed one)."""
+    return load_yaml_config(path, PlantEffects, what="plant effects")
+
+
+def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
+    """Before `plant.Finalize()`: the viscous friction on the arm joints' damping, rotor inertia and gear
+    ratio on their actuators, the payload welded to the tool frame."""
+    from pydrake.math import RigidTransform
+    from pydrake.multibody.tree import RotationalInertia, SpatialInertia
+    n = robot.num_joints
+    viscous = effects.joint_values("viscous_friction", n)
+    rotor = effects.joint_values("rotor_inertia", n)
+    ratio = effects.joint_values("gear_ratio", n) if effects.gear_ratio else np.ones(n)
+    actuators = {}   # (GetJointActuatorIndices(instance) lists none before Finalize)
+    for index in plant.GetJointActuatorIndices():
+        actuator = plant.get_joint_actuator(index)
+        if actuator.model_instance() == instance:
+            actuators[actuator.joint().name()] = actuator
+    for i, name in enumerate(robot.joint_names):
+        joint = plant.GetJointByName(name, instance)
+        if viscous[i] > 0:
+            joint.set_default_damping(joint.default_damping() + viscous[i])
+        if rotor[i] > 0:
+            actuators[name].set_default_rotor_inertia(rotor[i])
+            actuators[name].set_default_gear_ratio(ratio[i])
+    payload = effects.payload
+    if payload.mass > 0:
+        inertia = SpatialInertia.MakeFromCentralInertia(payload.mass, np.asarray(payload.center_of_mass, dtype=float),
+                                                        RotationalInertia(*payload.inertia))
+        body = plant.AddRigidBody("payload", instance, inertia)
+        plant.WeldFrames(plant.GetFrameByName(robot.tool_frame, instance), body.body_frame(), RigidTransform())
+
+
+def set_effect_parameters(plant, context, effects: PlantEffects) -> None:
+    """The per-link mass scales as parameters of the plant's `context` (mass and rotational inertia
+    times the factor, centre of mass kept)."""
+    for link, factor in effects.mass_scale.items():
+        body = plant.GetBodyByName(link)
+        nominal = body.default_spatial_inertia()   # SpatialInertia of the plant's scalar type
+        body.SetSpatialInertiaInBodyFrame(context, type(nominal)(nominal.get_mass() * factor, nominal.get_com(),
+                                                                 nominal.get_unit_inertia()))
+
+
+def coulomb_torque(velocity: np.ndarray, friction: np.ndarray, velocity_scale: np.ndarray) -> np.ndarray:
+    """-F_c tanh(v / v_s) (n,) N m for joint velocities v (n,) rad/s, F_c (n,) N m, v_s (n,) rad/s."""
+    return -friction * np.tanh(velocity / velocity_scale)

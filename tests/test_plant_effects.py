@@ -1,0 +1,209 @@
+"""Plant effects (issue 22): each effect does to the dynamics what physics says, the affected plant
+re-simulates its own data exactly while the nominal model does not, and the files are checked."""
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from presets import UR10
+from stdm_drake.cli import main
+from stdm_drake.data.dataset import load_dataset
+from stdm_drake.errors import InputError
+from stdm_drake.learning.physics import PlantModel
+from stdm_drake.paths import MODELS_DIR
+from stdm_drake.robots.effects import Payload, PlantEffects, load_plant_effects
+from stdm_drake.robots.plant import Dynamics, PlantConfig, make_plant, plant_effects_for
+
+Q = np.array([0.3, -1.1, 1.4, -1.6, -1.4, 0.4])
+V = np.array([0.4, -0.3, 0.5, 0.8, -0.6, 0.9])
+TAU = np.array([5.0, -60.0, -20.0, 1.0, 0.5, -0.2])
+
+
+def payload_gravity_torque(q, mass, center_of_mass):
+    """Joint torques (n,) that hold a point mass at `center_of_mass` (tool frame) still: J_v^T m g, with J_v
+    the Jacobian of that point on the nominal plant's tool frame."""
+    from pydrake.multibody.tree import JacobianWrtVariable
+    plant, _ = make_plant(PlantConfig.continuous(), robot=UR10)
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, q)
+    jacobian = plant.CalcJacobianTranslationalVelocity(context, JacobianWrtVariable.kV, plant.GetFrameByName("tool0"),
+                                                       np.asarray(center_of_mass), plant.world_frame(),
+                                                       plant.world_frame())
+    return jacobian.T @ (mass * np.array([0.0, 0.0, 9.81]))
+
+
+def test_each_effect_changes_the_dynamics_as_physics_says():
+    nominal = Dynamics(UR10)
+    M = nominal.mass_matrix(Q)
+    base = nominal.acceleration(Q, V, TAU)
+    viscous = np.array([21.0, 20.0, 10.0, 3.5, 2.5, 3.0])
+    damped = Dynamics(UR10, PlantEffects(viscous_friction=viscous.tolist()))
+    np.testing.assert_allclose(damped.acceleration(Q, V, TAU) - base, np.linalg.solve(M, -viscous * V), atol=1e-9)
+    coulomb = Dynamics(UR10, PlantEffects(coulomb_friction=[12.0, 13.0, 5.0, 2.0, 2.7, 2.3],
+                                          coulomb_velocity_scale=[0.05]))
+    expected = np.linalg.solve(M, -np.array([12.0, 13.0, 5.0, 2.0, 2.7, 2.3]) * np.tanh(V / 0.05))
+    np.testing.assert_allclose(coulomb.acceleration(Q, V, TAU) - base, expected, atol=1e-9)
+    rotor = Dynamics(UR10, PlantEffects(rotor_inertia=[1e-4, 2e-4, 0.0, 0.0, 0.0, 3e-5], gear_ratio=[100.0]))
+    np.testing.assert_allclose(rotor.mass_matrix(Q) - M, np.diag([1.0, 2.0, 0.0, 0.0, 0.0, 0.3]), atol=1e-12)
+    loaded = Dynamics(UR10, PlantEffects(payload=Payload(mass=5.0, center_of_mass=[0.0, 0.0, 0.1])))
+    np.testing.assert_allclose(loaded.gravity_torque(Q) - nominal.gravity_torque(Q),
+                               payload_gravity_torque(Q, 5.0, [0.0, 0.0, 0.1]), atol=1e-9)
+    heavier = Dynamics(UR10, PlantEffects(mass_scale={"wrist_3_link": 3.0}))
+    link = nominal.plant.GetBodyByName("wrist_3_link")
+    # two more copies of the link's mass at its centre of mass (wrist_3_link and tool0 are one rigid frame chain)
+    com_in_tool = nominal.plant.CalcRelativeTransform(nominal.context, nominal.plant.GetFrameByName("tool0"),
+                                                      link.body_frame()).multiply(link.default_com())
+    nominal.plant.SetPositions(nominal.context, Q)
+    com_in_tool = nominal.plant.CalcRelativeTransform(nominal.context, nominal.plant.GetFrameByName("tool0"),
+                                                      link.body_frame()).multiply(link.default_com())
+    np.testing.assert_allclose(heavier.gravity_torque(Q) - nominal.gravity_torque(Q),
+                               payload_gravity_torque(Q, 2.0 * link.default_mass(), com_in_tool), atol=1e-9)
+
+
+@pytest.fixture(scope="module")
+def affected_dataset(tmp_path_factory):
+    path = tmp_path_factory.mktemp("effects") / "affected.h5"
+    assert main(["collect", "--protocol", "tracking", "--count", "2", "--seed", "4", "--workers", "1", "--quiet",
+                 "--plant-effects", str(MODELS_DIR / "ur10_effects.yaml"), "-o", str(path)]) == 0
+    return load_dataset(path)
+
+
+def test_the_affected_plant_resimulates_its_data_exactly_and_the_nominal_model_does_not(affected_dataset):
+    """x_{k+1} from (x_k, a_k): exact on the affected plant (its effects as the dataset records them),
+    far off on the robot's description; the recorded accelerations are the affected plant's."""
+    effects = affected_dataset.metadata.plant_effects
+    assert effects == load_plant_effects(MODELS_DIR / "ur10_effects.yaml")
+    true_plant = PlantModel(affected_dataset.sample_period, PlantConfig.discrete(0.001, effects=effects), robot=UR10)
+    nominal = PlantModel(affected_dataset.sample_period, robot=UR10)
+    assert (true_plant.name, nominal.name) == ("true-plant", "plant")
+    traj = affected_dataset.trajectory(1)
+    x = np.hstack([traj.q_true, traj.v_true])
+    steps = range(0, len(traj.tau), 9)
+    exact = max(np.abs(true_plant.step(x[k], traj.tau[k])[0] - x[k + 1]).max() for k in steps)
+    nominal_error = max(np.abs(nominal.step(x[k], traj.tau[k])[0] - x[k + 1]).max() for k in steps)
+    assert exact == 0.0 and nominal_error > 0.05
+    truth = Dynamics(UR10, effects)
+    np.testing.assert_allclose(traj.qdd[5], truth.acceleration(traj.q_true[5], traj.v_true[5], traj.tau[5]), atol=1e-9)
+
+
+def test_the_true_plant_linearization_includes_the_effects(affected_dataset):
+    """The affected plant's Jacobian (Coulomb friction differentiated with the state, mass scales as AutoDiff
+    parameters) matches central differences of its own step to the zero-order-hold discretization's 2 %."""
+    effects = dataclasses.replace(affected_dataset.metadata.plant_effects, mass_scale={"forearm_link": 1.3})
+    model = PlantModel(affected_dataset.sample_period, PlantConfig.discrete(0.001, effects=effects), robot=UR10)
+    traj = affected_dataset.trajectory(0)
+    x, u = np.concatenate([traj.q_true[20], traj.v_true[20]]), traj.tau[20]
+    A, _ = model.jacobians(x[None], u[None])
+    numeric = np.empty((12, 12))
+    for i in range(12):
+        dx = np.zeros(12)
+        dx[i] = 1e-6
+        numeric[:, i] = (model.step(x + dx, u) - model.step(x - dx, u))[0] / 2e-6
+    assert np.linalg.norm(A[0] - numeric) / np.linalg.norm(numeric) < 0.02
+
+
+def test_torque_noise_is_seeded_process_noise(tmp_path):
+    """The same seed gives the same data; the noise reaches the plant (the recorded action alone no longer
+    re-simulates the next state) and the recorded accelerations are those of the torque applied."""
+    noisy = tmp_path / "noise.yaml"
+    noisy.write_text("torque_noise_std: [1.0, 1.0, 0.5, 0.05, 0.02, 0.002]\n")
+    paths = [tmp_path / f"{name}.h5" for name in ("a", "b")]
+    for path in paths:
+        assert main(["collect", "--protocol", "tracking", "--count", "1", "--seed", "2", "--workers", "1", "--quiet",
+                     "--plant-effects", str(noisy), "-o", str(path)]) == 0
+    first, second = (load_dataset(path).trajectory(0) for path in paths)
+    assert all(np.array_equal(getattr(first, name), getattr(second, name)) for name in ("q", "v", "tau", "qdd"))
+    model = PlantModel(0.01, robot=UR10)
+    x = np.hstack([first.q_true, first.v_true])
+    assert np.abs(model.step(x[3], first.tau[3])[0] - x[4]).max() > 1e-4
+
+
+def test_effects_files_are_checked_against_the_robot(tmp_path):
+    effects = load_plant_effects(MODELS_DIR / "ur10_effects.yaml")
+    assert effects.source and plant_effects_for(effects, UR10, 0.001) is effects
+    bad = {"viscous_friction: [1, 2]\n": "the robot has 6 joints",
+           "coulomb_friction: [-1]\n": "non-negative",
+           "gear_ratio: [100]\n": "gear_ratio needs rotor_inertia",
+           "mass_scale: {elbow_link: 2}\n": "does not have: elbow_link",
+           "mass_scale: {forearm_link: 0}\n": "> 0",
+           "payload: {mass: 1, inertia: [1, 0, 0, 0, 0, 0]}\n": "not physically valid",
+           "coulomb_friction: [40]\ncoulomb_velocity_scale: [0.001]\n": "raise its coulomb_velocity_scale",
+           "viscous_fiction: [1]\n": "malformed plant effects"}
+    for number, (text, message) in enumerate(bad.items()):
+        path = tmp_path / f"bad{number}.yaml"
+        path.write_text(text)
+        with pytest.raises(InputError, match=message) as caught:
+            plant_effects_for(path, UR10, 0.001)
+        assert "\n" not in str(caught.value) and str(path) in str(caught.value)
+
+
+def test_the_panda_preset_loads_on_the_panda():
+    from stdm_drake.robots.robot import load_robot
+    panda = load_robot(MODELS_DIR / "panda.yaml")
+    effects = plant_effects_for(MODELS_DIR / "panda_effects.yaml", panda, 0.001)
+    assert len(effects.coulomb_friction) == panda.num_joints == 7
+    loaded = Dynamics(panda, effects)
+    assert np.all(np.abs(loaded.gravity_torque(panda.home) - Dynamics(panda).gravity_torque(panda.home)) < 15)
+
+
+@pytest.mark.slow
+def test_mpc_on_the_affected_plant_compares_the_nominal_and_the_true_plant_model(affected_dataset, tmp_path):
+    """`mpc` on a dataset with effects: the closed loops run on the affected plant; the nominal plant model
+    ("plant", what a user has) and the true plant ("true-plant") both track, the true plant better."""
+    code = main(["mpc", str(affected_dataset.path), "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc")])
+    rows = {row["model"]: row for row in json.loads((tmp_path / "mpc" / "mpc.json").read_text())["summary"]}
+    assert code == 0 and set(rows) == {"plant", "true-plant"}
+    assert rows["true-plant"]["q_mse_rad2"] < rows["plant"]["q_mse_rad2"]
+
+
+def test_reproduce_collects_and_closes_the_loop_on_the_affected_plant(affected_dataset):
+    """`reproduce --plant-effects`: every dataset's settings carry the effects; an MPC group runs the nominal
+    plant ("plant") and the affected plant ("true-plant") on the affected plant."""
+    from stdm_drake.closed_loop.comparison import held_out_references
+    from stdm_drake.closed_loop.mpc import Reference
+    from stdm_drake.experiments.reproduce import MpcGroup, _mpc_group, dataset_settings
+    effects = affected_dataset.metadata.plant_effects
+    settings = dataset_settings(UR10, effects)
+    assert set(settings) == {"excitation", "local", "tracking", "identification"}
+    assert all(entry["plant_effects"] is effects for entry in settings.values())
+    references = [(i, Reference(q=r.q[:11], v=r.v[:11])) for i, r in held_out_references(affected_dataset, [], 1)]
+    group = MpcGroup([("plant", None), ("true-plant", "true")], references, affected_dataset.sample_period, False,
+                     UR10, PlantConfig.discrete(0.001, effects=effects))
+    runs = _mpc_group(group)
+    assert [run.model for run in runs] == ["plant", "true-plant"] and all(run.steps >= 10 for run in runs)
+
+
+@pytest.mark.slow
+def test_the_reality_gap_tool_runs_end_to_end(tmp_path):
+    """tools/reality_gap.py --quick: both parts, every model beside the nominal plant, and a rerun reuses the
+    datasets and checkpoints."""
+    from tools_import import reality_gap
+    assert reality_gap.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    results = json.loads((tmp_path / "out" / "results.json").read_text())
+    closed = {(row["observer"], row["model"]) for row in results["closed_loop"]}
+    assert closed == {(True, "plant"), (True, "true-plant"), (True, "D"), (True, "DD"), (False, "plant"),
+                      (False, "D"), (False, "DD")}
+    assert [row["model"] for row in results["torque_jacobian"]] == ["plant", "D", "DD"]
+    plants = {row["plant"] for row in results["open_loop"]}
+    assert plants == {"friction", "rotor inertia", "payload", "all"} and len(results["open_loop"]) == 4 * 4
+    assert (tmp_path / "out" / "closed_loop.csv").exists() and (tmp_path / "out" / "open_loop.csv").exists()
+    checkpoints = sorted((tmp_path / "data" / "runs").rglob("checkpoint.pt"))
+    stamps = [path.stat().st_mtime_ns for path in checkpoints]
+    assert reality_gap.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    assert [path.stat().st_mtime_ns for path in checkpoints] == stamps
+
+
+@pytest.mark.slow
+def test_a_model_of_the_affected_plant_records_it_and_view_shows_the_nominal_model_beside_it(affected_dataset,
+                                                                                            tmp_path, capsys):
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    assert main(["train", str(affected_dataset.path), "--model", "D", "--epochs", "2", "--train", "1", "--val", "1",
+                 "--per-group", "off", "--quiet", "-o", str(tmp_path / "run")]) == 0
+    checkpoint = tmp_path / "run" / "seed0" / "checkpoint.pt"
+    assert load_checkpoint(checkpoint).metadata.plant_effects == affected_dataset.metadata.plant_effects.record()
+    capsys.readouterr()
+    assert main(["view", str(checkpoint), str(affected_dataset.path), "--index", "1", "--html",
+                 str(tmp_path / "view.html")]) == 0
+    out = capsys.readouterr().out
+    assert "plant effects of the data" in out and ": nominal plant " in out
