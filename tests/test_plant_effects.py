@@ -52,8 +52,6 @@ def test_each_effect_changes_the_dynamics_as_physics_says():
     heavier = Dynamics(UR10, PlantEffects(mass_scale={"wrist_3_link": 3.0}))
     link = nominal.plant.GetBodyByName("wrist_3_link")
     # two more copies of the link's mass at its centre of mass (wrist_3_link and tool0 are one rigid frame chain)
-    com_in_tool = nominal.plant.CalcRelativeTransform(nominal.context, nominal.plant.GetFrameByName("tool0"),
-                                                      link.body_frame()).multiply(link.default_com())
     nominal.plant.SetPositions(nominal.context, Q)
     com_in_tool = nominal.plant.CalcRelativeTransform(nominal.context, nominal.plant.GetFrameByName("tool0"),
                                                       link.body_frame()).multiply(link.default_com())
@@ -81,26 +79,60 @@ def test_the_affected_plant_resimulates_its_data_exactly_and_the_nominal_model_d
     x = np.hstack([traj.q_true, traj.v_true])
     steps = range(0, len(traj.tau), 9)
     exact = max(np.abs(true_plant.step(x[k], traj.tau[k])[0] - x[k + 1]).max() for k in steps)
-    nominal_error = max(np.abs(nominal.step(x[k], traj.tau[k])[0] - x[k + 1]).max() for k in steps)
-    assert exact == 0.0 and nominal_error > 0.05
+    nominal_error = max(np.abs(nominal.step(x[k], traj.tau[k])[0] - x[k + 1])[6:].max() for k in steps)
+    assert exact == 0.0 and nominal_error > 0.5      # rad/s within one sample (the wrists, 1.3 here)
     truth = Dynamics(UR10, effects)
     np.testing.assert_allclose(traj.qdd[5], truth.acceleration(traj.q_true[5], traj.v_true[5], traj.tau[5]), atol=1e-9)
 
 
 def test_the_true_plant_linearization_includes_the_effects(affected_dataset):
-    """The affected plant's Jacobian (Coulomb friction differentiated with the state, mass scales as AutoDiff
-    parameters) matches central differences of its own step to the zero-order-hold discretization's 2 %."""
-    effects = dataclasses.replace(affected_dataset.metadata.plant_effects, mass_scale={"forearm_link": 1.3})
-    model = PlantModel(affected_dataset.sample_period, PlantConfig.discrete(0.001, effects=effects), robot=UR10)
+    """The affected plant's state Jacobian: what the effects change in it (A_affected - A_nominal) matches
+    the same change in central differences of the two plants' steps to 10 %. Near rest (step 2) the Coulomb
+    term's slope dominates the change (leaving it out of the AutoDiff dynamics is 60 % off); heavier links
+    (mass scales as AutoDiff parameters) change it alone in the second case (100 % off without them)."""
     traj = affected_dataset.trajectory(0)
-    x, u = np.concatenate([traj.q_true[20], traj.v_true[20]]), traj.tau[20]
-    A, _ = model.jacobians(x[None], u[None])
-    numeric = np.empty((12, 12))
-    for i in range(12):
-        dx = np.zeros(12)
-        dx[i] = 1e-6
-        numeric[:, i] = (model.step(x + dx, u) - model.step(x - dx, u))[0] / 2e-6
-    assert np.linalg.norm(A[0] - numeric) / np.linalg.norm(numeric) < 0.02
+    nominal = PlantModel(affected_dataset.sample_period, robot=UR10)
+    cases = [(affected_dataset.metadata.plant_effects, 2),
+             (PlantEffects(mass_scale={"upper_arm_link": 2.0, "forearm_link": 2.0}), 20)]
+    for effects, k in cases:
+        affected = PlantModel(affected_dataset.sample_period, PlantConfig.discrete(0.001, effects=effects), robot=UR10)
+        x, u = np.concatenate([traj.q_true[k], traj.v_true[k]]), traj.tau[k]
+
+        def numeric(model):
+            columns = []
+            for i in range(12):
+                dx = np.zeros(12)
+                dx[i] = 1e-6
+                columns.append((model.step(x + dx, u) - model.step(x - dx, u))[0] / 2e-6)
+            return np.array(columns).T
+
+        analytic = affected.jacobians(x[None], u[None])[0][0] - nominal.jacobians(x[None], u[None])[0][0]
+        measured = numeric(affected) - numeric(nominal)
+        assert np.linalg.norm(analytic - measured) < 0.1 * np.linalg.norm(measured), k
+
+
+def test_dynamics_is_drakes_forward_dynamics_with_damping_and_friction():
+    """Dynamics.acceleration (the recorded true accelerations) equals Drake's own forward dynamics of a
+    continuous plant: with a description's joint damping (the acrobot's) and with every effect (the Coulomb
+    friction fed as the applied generalized force)."""
+    from stdm_drake.robots.effects import coulomb_torque
+    from stdm_drake.robots.robot import load_robot
+    acrobot = load_robot(MODELS_DIR / "acrobot.yaml")
+    effects = load_plant_effects(MODELS_DIR / "ur10_effects.yaml")
+    cases = [(acrobot, None, np.array([0.3, -0.5]), np.array([1.0, -2.0]), np.array([1.0])), (UR10, effects, Q, V, TAU)]
+    for robot, plant_effects, q, v, tau in cases:
+        config = PlantConfig.discrete(0.0, effects=plant_effects)
+        plant, _ = make_plant(config, robot=robot)
+        context = plant.CreateDefaultContext()
+        config.set_parameters(plant, context)
+        plant.SetPositionsAndVelocities(context, np.concatenate([q, v]))
+        plant.get_actuation_input_port().FixValue(context, tau)
+        if plant_effects is not None:
+            n = robot.num_joints
+            plant.get_applied_generalized_force_input_port().FixValue(context, coulomb_torque(
+                v, plant_effects.joint_values("coulomb_friction", n), plant_effects.joint_values("coulomb_velocity_scale", n)))
+        drake = plant.EvalTimeDerivatives(context).CopyToVector()[len(q):]
+        np.testing.assert_allclose(Dynamics(robot, plant_effects).acceleration(q, v, tau), drake, rtol=1e-9, atol=1e-9)
 
 
 def test_torque_noise_is_seeded_process_noise(tmp_path):
@@ -117,6 +149,8 @@ def test_torque_noise_is_seeded_process_noise(tmp_path):
     model = PlantModel(0.01, robot=UR10)
     x = np.hstack([first.q_true, first.v_true])
     assert np.abs(model.step(x[3], first.tau[3])[0] - x[4]).max() > 1e-4
+    recorded_torque = [Dynamics(UR10).acceleration(first.q_true[k], first.v_true[k], first.tau[k]) for k in range(5)]
+    assert np.abs(np.array(recorded_torque) - first.qdd[:5]).max() > 1e-3   # qdd: the noisy torque's
 
 
 def test_effects_files_are_checked_against_the_robot(tmp_path):
@@ -207,3 +241,14 @@ def test_a_model_of_the_affected_plant_records_it_and_view_shows_the_nominal_mod
                  str(tmp_path / "view.html")]) == 0
     out = capsys.readouterr().out
     assert "plant effects of the data" in out and ": nominal plant " in out
+
+
+def test_a_dataset_of_another_plant_is_not_reused():
+    """reproduce reuses a dataset whose record agrees field by field; a plant with effects and one without
+    never agree, whatever else they share."""
+    from stdm_drake.experiments.jobs import _agrees
+    nominal = {"plant": {"time_step": 0.001, "self_collision": True}}
+    affected = {"plant": {"time_step": 0.001, "self_collision": True,
+                          "effects": PlantEffects(viscous_friction=[1.0]).record()}}
+    assert _agrees(nominal, dict(nominal)) and _agrees(affected, json.loads(json.dumps(affected)))
+    assert not _agrees(nominal, affected) and not _agrees(affected, nominal)

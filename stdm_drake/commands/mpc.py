@@ -74,12 +74,14 @@ def run(args) -> int:
         raise InputError(f"{args.dataset} is an excitation dataset: it has no plans to track; give a tracking "
                          "dataset, or --excitation-references to track its recorded trajectories")
     config = mpc_config_for(robot, args.config)
+    time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP   # the data's plant step
     effects = plant_effects_for(args.plant_effects if args.plant_effects is not None else
-                                dataset.metadata.plant_effects, robot, DEFAULT_PLANT_TIME_STEP)
-    plant_config = PlantConfig.discrete(DEFAULT_PLANT_TIME_STEP, effects=effects)
+                                dataset.metadata.plant_effects, robot, time_step)
+    plant_config = PlantConfig.discrete(time_step, effects=effects)
     if effects is not None:
-        print(f"plant effects: {args.plant_effects or 'as recorded in ' + str(args.dataset)}"
-              + (f" ({effects.source})" if effects.source else ""), file=sys.stderr)
+        print(f"plant effects: {args.plant_effects or 'as recorded in ' + str(args.dataset)}: {effects.summary()}"
+              + ("; the closed loops run without the torque noise" if effects.has_torque_noise() else ""),
+              file=sys.stderr)
     learned = []
     for entry in args.model:
         name, separator, path = entry.partition("=")

@@ -119,11 +119,18 @@ def _reusable_dataset(path: pathlib.Path, request):
     return dataset if same else None
 
 
+# sections whose presence itself is a setting: a plant with effects records them, one without does not
+PRESENCE_MATTERS = ("effects",)
+
+
 def _agrees(recorded, expected) -> bool:
     """Whether a recorded metadata value says what `expected` says: equal, or, for a section (a mapping),
     equal in every field both record (a field only one of them has was added or dropped by a later
-    stdm-drake or Drake, such as Drake's plant settings or a controller kind's unused fields)."""
+    stdm-drake or Drake, such as Drake's plant settings or a controller kind's unused fields), except the
+    fields of PRESENCE_MATTERS, which both record or neither."""
     if isinstance(recorded, dict) and isinstance(expected, dict):
+        if any((key in recorded) != (key in expected) for key in PRESENCE_MATTERS):
+            return False
         return all(_agrees(recorded[key], expected[key]) for key in recorded.keys() & expected.keys())
     return recorded == expected
 

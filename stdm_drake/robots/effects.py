@@ -29,6 +29,7 @@ class Payload:
 
     def validate(self) -> None:
         require(np.isfinite(self.mass) and self.mass >= 0, "payload mass must be a finite number >= 0 kg", self.mass)
+        require(self.mass > 0 or not any(self.inertia), "payload inertia needs a payload mass > 0", self.inertia)
         require(len(self.center_of_mass) == 3 and np.all(np.isfinite(self.center_of_mass)),
                 "payload center_of_mass must be 3 finite numbers (m, tool frame)", self.center_of_mass)
         require(len(self.inertia) == 6 and np.all(np.isfinite(self.inertia)),

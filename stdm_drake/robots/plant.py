@@ -344,14 +344,19 @@ class SelfCollisionChecker:
 def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     """InputError unless `effects` fit `robot` (per-joint lists of its length, links it has) and the
     explicit Coulomb term is stable at the plant step: h F_c / (v_s M_eff) <= 1 on every joint, with
-    M_eff the joint's smallest effective inertia over the robot's home (reflected inertia included)."""
+    M_eff the joint's effective inertia at the robot's home on the affected plant (reflected inertia,
+    payload and mass scales included; checked at home only)."""
     n = robot.num_joints
-    for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio",
-                 "torque_noise_std"):
+    effects.validate()
+    for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio"):
         try:
             effects.joint_values(name, n)
         except InputError as error:
             raise InputError(f"plant effects {error}") from None
+    try:   # noise on the action: one value per actuated joint
+        effects.joint_values("torque_noise_std", robot.action_dim)
+    except InputError as error:
+        raise InputError(f"plant effects {error} (torque_noise_std: one per actuated joint)") from None
     if effects.rotor_inertia and not robot.fully_actuated:
         raise InputError(f"plant effects rotor_inertia: robot {robot.name} has unactuated arm joints")
     bare = MultibodyPlant(0.0)
@@ -361,8 +366,8 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     if unknown:
         raise InputError(f"plant effects mass_scale names links robot {robot.name} does not have: {', '.join(unknown)} "
                          f"(its links: {', '.join(sorted(links))})")
-    if effects.has_coulomb() and time_step > 0:
-        inertia = Dynamics(robot).effective_inertia(robot.home) + effects.reflected_inertia(n)
+    if effects.has_coulomb() and time_step > 0:   # (the affected plant's inertia: rotor, payload, mass scales)
+        inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[])).effective_inertia(robot.home)
         scale = effects.joint_values("coulomb_velocity_scale", n)
         gain = time_step * effects.joint_values("coulomb_friction", n) / (scale * inertia)
         if np.any(gain > 1.0):
