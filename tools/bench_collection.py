@@ -8,12 +8,15 @@ All three are measured in the same run, on the same default tracking plans (plan
 - stdm-drake, 1 process: `Station.run` as `stdm-drake collect` uses it (sampled PID on the
   sensor model, zero-order hold, logging, true accelerations);
 - stdm-drake, N processes: `collect()` end to end with N workers, planning and process start-up
-  included.
+  included;
+- stdm-drake on the affected plant (models/ur10_effects.yaml: the Coulomb friction system in the
+  diagram, rotor inertia, payload), 1 process: what `--plant-effects` costs.
 
 Usage: python tools/bench_collection.py [--count 40] [--workers 2] [--write]
 (--write replaces its subsection of BENCHMARKS.md).
 """
 import argparse
+import dataclasses
 import os
 import pathlib
 import sys
@@ -39,7 +42,8 @@ from stdm_drake.collection.collect import (CollectionRequest, init_station_worke
 from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.robots.control import SensorConfig, load_controller_config  # noqa: E402
 from stdm_drake.collection.protocols import load_tracking_spec  # noqa: E402
-from stdm_drake.paths import CONTROLLERS_DIR, TRAJECTORIES_DIR  # noqa: E402
+from stdm_drake.paths import CONTROLLERS_DIR, MODELS_DIR, TRAJECTORIES_DIR  # noqa: E402
+from stdm_drake.robots.effects import load_plant_effects  # noqa: E402
 from stdm_drake.robots.plant import PlantConfig, make_plant  # noqa: E402
 from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
 from stdm_drake.robots.station import Station, StationConfig  # noqa: E402
@@ -112,11 +116,22 @@ def main():
         return time.perf_counter() - started
 
     parallel = min(parallel_once() for _ in range(args.repeats))
+    affected_rig = Station(dataclasses.replace(settings, plant=PlantConfig.discrete(
+        0.001, effects=load_plant_effects(MODELS_DIR / "ur10_effects.yaml"))))
+
+    def affected_once():
+        started = time.perf_counter()
+        for i, plan in enumerate(plans):
+            tracking_trajectory(affected_rig, plan, np.random.default_rng([0, i]))
+        return time.perf_counter() - started
+
+    affected = min(affected_once() for _ in range(args.repeats))
 
     rows = [
         ("bare Drake plant + PidController, no logging (baseline), 1 process", bare),
         ("stdm-drake sampled PID + sensor + logging, 1 process", ours),
         (f"stdm-drake `collect()` end to end, {args.workers} workers (planning, start-up included)", parallel),
+        ("stdm-drake on the affected plant (`--plant-effects models/ur10_effects.yaml`), 1 process", affected),
     ]
     table = ["| loop | wall s | x real time | vs baseline |", "|---|---|---|---|"]
     for name, seconds in rows:
@@ -128,7 +143,8 @@ def main():
         f"Goal {'met' if simulated / parallel >= 40 else 'not met'}: {simulated / parallel:.1f}x end to end. The "
         f"stdm-drake loop costs {100 * (ours / bare - 1):+.0f}% against bare Drake in one process, so Drake's plant "
         f"step ({1e6 * bare / (simulated / 0.001):.0f} µs per 1 ms step here) bounds the rate; two workers add process "
-        "start-up and planning.", "",
+        f"start-up and planning. The plant effects cost {100 * (affected / ours - 1):+.0f}% against the same loop on "
+        "the nominal plant.", "",
         f"Machine: {machine_description()}.",
         f"Command: `python tools/bench_collection.py --count {args.count} --workers {args.workers} --write`."])
     print(report)

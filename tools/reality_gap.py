@@ -94,7 +94,8 @@ def main(argv=None) -> int:
     write_text_atomic(args.output / "results.json", json.dumps(dict(
         written_by="tools/reality_gap.py", quick=args.quick, design=design, effects=preset.record(),
         seconds=round(time.perf_counter() - started, 1), closed_loop=summary, torque_jacobian=jacobians,
-        open_loop=open_loop, runs=runs), indent=1, default=json_default) + "\n")
+        open_loop=open_loop, runs=[{k: v for k, v in run.items() if k != "q_error"} for run in runs]),
+        indent=1, default=json_default) + "\n")
     for row in summary:
         ratio = row["nominal_over_model"]
         interval = f" [{ratio['low']:.3g}, {ratio['high']:.3g}]" if "low" in ratio else ""
