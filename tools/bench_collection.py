@@ -100,15 +100,16 @@ def main():
     simulated = sum(len(plan.q) - 1 for plan in plans) * settings.sample_period
 
     bare = min(bare_drake_seconds(plans, settings) for _ in range(args.repeats))
-    rig = Station(settings)
 
-    def ours_once():
+    def station_seconds(rig: Station) -> float:
+        """Wall time of `Station.run` (as `collect` uses it) over every plan."""
         started = time.perf_counter()
         for i, plan in enumerate(plans):
             tracking_trajectory(rig, plan, np.random.default_rng([0, i]))
         return time.perf_counter() - started
 
-    ours = min(ours_once() for _ in range(args.repeats))
+    rig = Station(settings)
+    ours = min(station_seconds(rig) for _ in range(args.repeats))
 
     def parallel_once():
         started = time.perf_counter()
@@ -118,14 +119,7 @@ def main():
     parallel = min(parallel_once() for _ in range(args.repeats))
     affected_rig = Station(dataclasses.replace(settings, plant=PlantConfig.discrete(
         0.001, effects=load_plant_effects(MODELS_DIR / "ur10_effects.yaml"))))
-
-    def affected_once():
-        started = time.perf_counter()
-        for i, plan in enumerate(plans):
-            tracking_trajectory(affected_rig, plan, np.random.default_rng([0, i]))
-        return time.perf_counter() - started
-
-    affected = min(affected_once() for _ in range(args.repeats))
+    affected = min(station_seconds(affected_rig) for _ in range(args.repeats))
 
     rows = [
         ("bare Drake plant + PidController, no logging (baseline), 1 process", bare),
