@@ -182,13 +182,18 @@ def test_the_panda_preset_loads_on_the_panda():
 
 
 @pytest.mark.slow
-def test_mpc_on_the_affected_plant_compares_the_nominal_and_the_true_plant_model(affected_dataset, tmp_path):
-    """`mpc` on a dataset with effects: the closed loops run on the affected plant; the nominal plant model
-    ("plant", what a user has) and the true plant ("true-plant") both track, the true plant better."""
+def test_mpc_on_the_affected_plant_compares_the_nominal_and_the_true_plant_model(affected_dataset, tmp_path,
+                                                                                capsys):
+    """`mpc` on a dataset with effects: the closed loops run on the affected plant (it says so); the nominal
+    plant model ("plant", what a user has) and the true plant ("true-plant") both track within the limits.
+    (Which tracks better depends on the MPC cost: docs/reality_gap.md.)"""
     code = main(["mpc", str(affected_dataset.path), "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc")])
     rows = {row["model"]: row for row in json.loads((tmp_path / "mpc" / "mpc.json").read_text())["summary"]}
     assert code == 0 and set(rows) == {"plant", "true-plant"}
-    assert rows["true-plant"]["q_mse_rad2"] < rows["plant"]["q_mse_rad2"]
+    assert "plant effects: as recorded in" in capsys.readouterr().err
+    for row in rows.values():
+        assert row["q_mse_rad2"] < 1e-2 and row["limit_violations"] == 0
+    assert rows["plant"]["q_mse_rad2"] != rows["true-plant"]["q_mse_rad2"]
 
 
 def test_reproduce_collects_and_closes_the_loop_on_the_affected_plant(affected_dataset):
