@@ -1,6 +1,5 @@
 """Plant effects (issue 22): each effect does to the dynamics what physics says, the affected plant
 re-simulates its own data exactly while the nominal model does not, and the files are checked."""
-import dataclasses
 import json
 
 import numpy as np
@@ -130,7 +129,7 @@ def test_dynamics_is_drakes_forward_dynamics_with_damping_and_friction():
         if plant_effects is not None:
             n = robot.num_joints
             plant.get_applied_generalized_force_input_port().FixValue(context, coulomb_torque(
-                v, plant_effects.joint_values("coulomb_friction", n), plant_effects.joint_values("coulomb_velocity_scale", n)))
+                v, *plant_effects.coulomb(n)))
         drake = plant.EvalTimeDerivatives(context).CopyToVector()[len(q):]
         np.testing.assert_allclose(Dynamics(robot, plant_effects).acceleration(q, v, tau), drake, rtol=1e-9, atol=1e-9)
 

@@ -198,10 +198,10 @@ def open_loop_rows(name: str, dataset_path: str, folders: dict, seeds: int) -> l
 
     by_name = {row.name: row for row in errors[:len(baselines)]}
     nominal = figures(by_name["plant"])
+    stays = figures(by_name["stays put"])   # one step: the Euler step's; open loop: staying put
+    physics_free = figures(by_name["Euler step"]) | {key: stays[key] for key in ("open_loop_q_20", "open_loop_q_end")}
     rows = [dict(plant=name, model="nominal plant", **nominal),
-            dict(plant=name, model="Euler step / v unchanged / stays put", **figures(by_name["Euler step"])
-                 | dict(open_loop_q_20=figures(by_name["stays put"])["open_loop_q_20"],
-                        open_loop_q_end=figures(by_name["stays put"])["open_loop_q_end"]))]
+            dict(plant=name, model="Euler step / v unchanged / stays put", **physics_free)]
     position = len(baselines)
     for model_type, models in learned.items():
         found = [figures(row) for row in errors[position:position + len(models)]]

@@ -119,11 +119,7 @@ class PlantModel(DynamicsModel):
             parameters = continuous.CreateDefaultContext()
             continuous_config.set_parameters(continuous, parameters)
             self.autodiff_context.SetTimeStateAndParametersFrom(parameters)
-        self._coulomb = None
-        if self.effects is not None and self.effects.has_coulomb():
-            n = robot.num_joints
-            self._coulomb = (self.effects.joint_values("coulomb_friction", n),
-                             self.effects.joint_values("coulomb_velocity_scale", n))
+        self._coulomb = self.effects.coulomb(robot.num_joints) if self.effects is not None else None   # (F_c, v_s)
 
     def step(self, x: np.ndarray, u: np.ndarray) -> np.ndarray:
         x, u = np.atleast_2d(x), np.atleast_2d(u)
@@ -143,10 +139,8 @@ class PlantModel(DynamicsModel):
             self.autodiff_plant.SetPositionsAndVelocities(self.autodiff_context, z[:n])
             self.autodiff_plant.get_actuation_input_port().FixValue(self.autodiff_context, z[n:])
             if self._coulomb is not None:   # -F_c tanh(v / v_s), differentiated with the state
-                from pydrake.math import tanh
-                friction, scale = self._coulomb
-                v = z[n // 2:n]
-                force = np.array([-friction[i] * tanh(v[i] / scale[i]) for i in range(len(v))])
+                from stdm_drake.robots.effects import coulomb_torque
+                force = coulomb_torque(z[n // 2:n], *self._coulomb)
                 self.autodiff_plant.get_applied_generalized_force_input_port().FixValue(self.autodiff_context, force)
             derivatives = self.autodiff_plant.EvalTimeDerivatives(self.autodiff_context).CopyToVector()
             gradient = ExtractGradient(derivatives)

@@ -87,22 +87,23 @@ class PlantEffects:
             return np.zeros(joints)
         return check_joint_vector(name, values, count=joints, nonnegative=True)
 
-    def reflected_inertia(self, joints: int) -> np.ndarray:
-        """G² I_r (joints,) kg m² (gear ratio 1 where none is given)."""
-        ratio = self.joint_values("gear_ratio", joints) if self.gear_ratio else np.ones(joints)
-        return ratio**2 * self.joint_values("rotor_inertia", joints)
+    def is_on(self, name: str) -> bool:
+        """Whether the per-joint field `name` is non-zero on some joint."""
+        return any(float(value) > 0 for value in getattr(self, name))
 
-    def has_coulomb(self) -> bool:
-        return bool(self.coulomb_friction) and bool(np.any(np.asarray(self.coulomb_friction, dtype=float) > 0))
+    def coulomb(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(F_c (joints,) N m, v_s (joints,) rad/s) of the Coulomb friction, or None without it."""
+        if not self.is_on("coulomb_friction"):
+            return None
+        return self.joint_values("coulomb_friction", joints), self.joint_values("coulomb_velocity_scale", joints)
 
     def has_torque_noise(self) -> bool:
-        return bool(self.torque_noise_std) and bool(np.any(np.asarray(self.torque_noise_std, dtype=float) > 0))
+        return self.is_on("torque_noise_std")
 
     def summary(self) -> str:
         """One line naming the effects that are on (and the source)."""
         parts = [name.replace("_", " ") for name in ("viscous_friction", "coulomb_friction", "rotor_inertia",
-                                                     "torque_noise_std")
-                 if getattr(self, name) and any(float(value) > 0 for value in getattr(self, name))]
+                                                     "torque_noise_std") if self.is_on(name)]
         if self.payload.mass > 0:
             parts.append(f"payload {self.payload.mass:g} kg")
         if self.mass_scale:

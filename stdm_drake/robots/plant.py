@@ -104,11 +104,10 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
         add_effects_to_plant(plant, instance, robot, config.effects)
     plant.Finalize()
     robot.check_plant(plant, instance)
-    if builder is not None and config.effects is not None and config.effects.has_coulomb():
+    coulomb = config.effects.coulomb(robot.num_joints) if config.effects is not None else None
+    if builder is not None and coulomb is not None:
         indices = [plant.GetJointByName(name, instance).velocity_start() for name in robot.joint_names]
-        n = robot.num_joints
-        friction = builder.AddSystem(JointFriction(plant, indices, config.effects.joint_values("coulomb_friction", n),
-                                                   config.effects.joint_values("coulomb_velocity_scale", n)))
+        friction = builder.AddSystem(JointFriction(plant, indices, *coulomb))
         friction.set_name("joint_friction")
         builder.Connect(plant.get_state_output_port(), friction.get_input_port())
         builder.Connect(friction.get_output_port(), plant.get_applied_generalized_force_input_port())
@@ -260,10 +259,7 @@ class Dynamics:
             joint = self.plant.get_joint(index)
             start = joint.velocity_start()
             self._damping[start:start + joint.num_velocities()] = joint.default_damping_vector()
-        self._coulomb = (effects.joint_values("coulomb_friction", robot.num_joints)
-                         if effects is not None and effects.has_coulomb() else None)
-        self._velocity_scale = (effects.joint_values("coulomb_velocity_scale", robot.num_joints)
-                                if self._coulomb is not None else None)
+        self._coulomb = effects.coulomb(robot.num_joints) if effects is not None else None   # (F_c, v_s)
 
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
         """Torque (n,) N m on every joint that holds the arm still at q."""
@@ -308,7 +304,7 @@ class Dynamics:
         if self._damping.any():
             rhs = rhs - self._damping * v
         if self._coulomb is not None:
-            rhs = rhs + coulomb_torque(v, self._coulomb, self._velocity_scale)
+            rhs = rhs + coulomb_torque(v, *self._coulomb)
         return np.linalg.solve(plant.CalcMassMatrix(context), rhs)
 
 
@@ -366,13 +362,14 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     if unknown:
         raise InputError(f"plant effects mass_scale names links robot {robot.name} does not have: {', '.join(unknown)} "
                          f"(its links: {', '.join(sorted(links))})")
-    if effects.has_coulomb() and time_step > 0:   # (the affected plant's inertia: rotor, payload, mass scales)
+    coulomb = effects.coulomb(n)
+    if coulomb is not None and time_step > 0:   # (the affected plant's inertia: rotor, payload, mass scales)
         inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[])).effective_inertia(robot.home)
-        scale = effects.joint_values("coulomb_velocity_scale", n)
-        gain = time_step * effects.joint_values("coulomb_friction", n) / (scale * inertia)
+        friction, scale = coulomb
+        gain = time_step * friction / (scale * inertia)
         if np.any(gain > 1.0):
             joint = int(np.argmax(gain))
-            raise InputError(f"plant effects: Coulomb friction {effects.joint_values('coulomb_friction', n)[joint]:g} "
+            raise InputError(f"plant effects: Coulomb friction {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
                              f"raise its coulomb_velocity_scale to at least {scale[joint] * gain[joint]:.3g} rad/s or "
