@@ -155,6 +155,7 @@ CASES = [
     ([*W, "--index", "999", "--html", "NEW.html"], "out of range"), ([*W, "--index", "-1", "--html", "NEW.html"], "out of range"),
     ([*W], "nothing to show"),
     ([*M, "--plans", "0", "-o", "NEW"], "--plans must be >= 1"), ([*M, "--plans", "1000", "-o", "NEW"], "held-out plans"),
+    ([*M, "--tune", "-1", "-o", "NEW"], "--tune must be >= 0"), ([*M, "--tune", "1000", "-o", "NEW"], "neither tracked"),
     ([*M, "--model", "D=CK", "-o", "NEW"], "given more than once"), (["mpc", "DATA", "--model", "D", "-o", "NEW"], "NAME=CHECKPOINT"),
     (["mpc", "DATA", "--model", "=CK", "-o", "NEW"], "NAME=CHECKPOINT"),
     (["mpc", "DATA", "--no-plant", "--excitation-references", "-o", "NEW"], "nothing to compare"),

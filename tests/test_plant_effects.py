@@ -1,6 +1,7 @@
 """Plant effects (issue 22): each effect does to the dynamics what physics says, the affected plant
 re-simulates its own data exactly while the nominal model does not, and the files are checked."""
 import json
+import pathlib
 
 import numpy as np
 import pytest
@@ -152,6 +153,27 @@ def test_torque_noise_is_seeded_process_noise(tmp_path):
     assert np.abs(np.array(recorded_torque) - first.qdd[:5]).max() > 1e-3   # qdd: the noisy torque's
 
 
+def test_closed_loops_meet_the_torque_noise_seeded_by_plan(affected_dataset):
+    """With torque_noise_std the MPC's plant gets the controller's torque plus the held draws of
+    default_rng(seed) (the same every run of that seed, so every model meets the same noise on a plan):
+    each logged transition re-simulates exactly with them, and another seed gives another run."""
+    from stdm_drake.closed_loop.mpc import MpcConfig, Reference, run_closed_loop
+    std = np.array([2.0, 2.0, 1.0, 0.1, 0.05, 0.01])
+    plant = PlantConfig.discrete(0.001, effects=PlantEffects(torque_noise_std=std.tolist()))
+    traj = affected_dataset.trajectory(0)
+    reference = Reference(q=traj.q_planned[:9], v=traj.v_planned[:9])
+    model = PlantModel(0.01, robot=UR10)
+    runs = [np.array(run_closed_loop(model, reference, MpcConfig(horizon=3), plant, robot=UR10, noise_seed=seed).state)
+            for seed in (4, 4, 5)]
+    quiet = np.array(run_closed_loop(model, reference, MpcConfig(horizon=3), PlantConfig.discrete(0.001), robot=UR10).state)
+    assert np.array_equal(runs[0], runs[1]) and not np.allclose(runs[0], runs[2]) and not np.allclose(runs[0], quiet)
+    log = run_closed_loop(model, reference, MpcConfig(horizon=3), plant, robot=UR10, noise_seed=4)
+    noise = std * np.random.default_rng(4).standard_normal((len(reference.q), 6))
+    states, torques = np.array(log.state), np.array(log.torque)
+    stepped = model.step(states[:-1], torques[:-1] + noise[:len(torques) - 1])
+    assert np.abs(stepped - states[1:]).max() < 1e-9
+
+
 def test_effects_files_are_checked_against_the_robot(tmp_path):
     effects = load_plant_effects(MODELS_DIR / "ur10_effects.yaml")
     assert effects.source and plant_effects_for(effects, UR10, 0.001) is effects
@@ -205,6 +227,8 @@ def test_reproduce_collects_and_closes_the_loop_on_the_affected_plant(affected_d
     settings = dataset_settings(UR10, effects)
     assert set(settings) == {"excitation", "local", "tracking", "identification"}
     assert all(entry["plant_effects"] is effects for entry in settings.values())
+    assert settings["identification"]["controller"].name == "pid_dither_sized.yaml"   # sized for the affected plant
+    assert dataset_settings(UR10)["identification"]["controller"].name == "pid_dither.yaml"
     references = [(i, Reference(q=r.q[:11], v=r.v[:11])) for i, r in held_out_references(affected_dataset, [], 1)]
     group = MpcGroup([("plant", None), ("true-plant", "true")], references, affected_dataset.sample_period, False,
                      UR10, PlantConfig.discrete(0.001, effects=effects))
@@ -212,24 +236,111 @@ def test_reproduce_collects_and_closes_the_loop_on_the_affected_plant(affected_d
     assert [run.model for run in runs] == ["plant", "true-plant"] and all(run.steps >= 10 for run in runs)
 
 
-@pytest.mark.slow
-def test_the_reality_gap_tool_runs_end_to_end(tmp_path):
-    """tools/reality_gap.py --quick: both parts, every model beside the nominal plant, and a rerun reuses the
-    datasets and checkpoints."""
+def test_the_reality_gap_tool_refuses_a_bad_effects_file_in_one_line(tmp_path, capsys):
     from tools_import import reality_gap
-    assert reality_gap.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
-    results = json.loads((tmp_path / "out" / "results.json").read_text())
-    closed = {(row["observer"], row["model"]) for row in results["closed_loop"]}
-    assert closed == {(True, "plant"), (True, "true-plant"), (True, "D"), (True, "DD"), (False, "plant"),
-                      (False, "D"), (False, "DD")}
-    assert [row["model"] for row in results["torque_jacobian"]] == ["plant", "D", "DD"]
-    plants = {row["plant"] for row in results["open_loop"]}
-    assert plants == {"friction", "rotor inertia", "payload", "all"} and len(results["open_loop"]) == 4 * 4
-    assert (tmp_path / "out" / "closed_loop.csv").exists() and (tmp_path / "out" / "open_loop.csv").exists()
-    checkpoints = sorted((tmp_path / "data" / "runs").rglob("checkpoint.pt"))
-    stamps = [path.stat().st_mtime_ns for path in checkpoints]
-    assert reality_gap.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
-    assert [path.stat().st_mtime_ns for path in checkpoints] == stamps
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("viscous_friction: [1.0, 2.0]\n")
+    assert reality_gap.main(["--quick", "--plant-effects", str(bad), "-o", str(tmp_path / "out"),
+                             "--data", str(tmp_path / "data")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "bad.yaml" in err and not (tmp_path / "out").exists()
+
+
+def test_each_model_gets_the_mpc_setting_it_tracks_best_with_inside_the_limits():
+    """The reality gap's tuning rule: no limit violation on the validation plans first, then the lowest
+    geometric-mean q MSE; if every setting violates, the fewest violations."""
+    from stdm_drake.experiments.reality_gap import choose_settings
+    grid = ((1.0, 1.0), (1e-2, 0.0), (1e-4, 0.3))
+
+    def runs(model, setting, mses, violations):
+        return [dict(model=model, effort_scale=setting[0], observer_gain=setting[1], q_mse_rad2=mse,
+                     limit_violations=v) for mse, v in zip(mses, violations)]
+    found = (runs("DD seed 0", grid[0], [1e-4, 1e-4], [0, 0]) + runs("DD seed 0", grid[1], [1e-6, 1e-6], [0, 1])
+             + runs("DD seed 0", grid[2], [1e-5, 4e-5], [0, 0])
+             + runs("plant", grid[0], [1e-3, 1e-3], [2, 0]) + runs("plant", grid[1], [1e-2, 1e-2], [1, 0])
+             + runs("plant", grid[2], [np.inf, 1.0], [3, 1]))
+    assert choose_settings(found, grid) == {"DD seed 0": grid[2], "plant": grid[1]}
+
+
+def test_tuning_plans_are_validation_plans_never_tracked_or_trained_on(affected_dataset):
+    from stdm_drake.closed_loop.comparison import tuning_references
+
+    class Split:   # a checkpoint trained on a 6-trajectory dataset
+        def split_indices(self, dataset, part):
+            return dict(train=[0, 1], val=[4, 2], test=[3, 5])[part]
+
+    class Five:
+        num_trajectories, protocol, path = 6, "tracking", "five.h5"
+        trajectory = staticmethod(lambda index: affected_dataset.trajectory(index % 2))
+    assert [index for index, _ in tuning_references(Five(), [Split()], 2, held_out=[3, 2])] == [4, 5]
+    with pytest.raises(InputError, match="--tune 3: five.h5 has only 2 plans"):
+        tuning_references(Five(), [Split()], 3, held_out=[3, 2])
+
+
+def test_the_goal_verdict_follows_the_interval_and_the_violations():
+    from stdm_drake.experiments.reality_gap import verdict
+
+    def summary(low, high, violations, ratio=3.0):
+        row = dict(setting="tuned", model="DD", models=5, plans=20, limit_violations=violations,
+                   nominal_over_model=dict(ratio=ratio, low=low, high=high, seeds=5))
+        return [row, dict(row, model="D", nominal_over_model=dict(ratio=0.5, low=0.4, high=0.6, seeds=5)),
+                dict(row, setting="shipped", nominal_over_model=dict(ratio=9.0, low=8.0, high=10.0, seeds=5))]
+    assert verdict(summary(2.5, 3.5, 0))["met"] and verdict(summary(2.5, 3.5, 0))["best"] == "DD"
+    assert not verdict(summary(2.5, 3.5, 1))["met"] and "left the limits" in verdict(summary(2.5, 3.5, 1))["text"]
+    assert not verdict(summary(1.5, 5.0, 0))["met"] and "below 2" in verdict(summary(1.5, 5.0, 0))["text"]
+    assert "nominal model tracks better" in verdict(summary(0.2, 0.4, 0, ratio=0.3))["text"]
+
+
+def test_sized_gains_follow_the_plant_they_drive(capsys):
+    """A PID sized by bandwidth on an affected plant uses that plant's inertia (reflected rotor inertia,
+    payload): the UR-10 wrist 3's gain grows with its rotor inertia (0.4365 kg m^2 against ~3e-4 bare),
+    enough to break its 2.3 N m of Coulomb friction loose within 0.01 rad; collect records the sized gains."""
+    from stdm_drake.collection.collect import collection_request
+    from stdm_drake.paths import CONTROLLERS_DIR
+    from stdm_drake.robots.control import Pid, smallest_effective_inertia
+    effects = load_plant_effects(MODELS_DIR / "ur10_effects.yaml")
+    nominal = Pid(bandwidth=[25.0]).for_robot(UR10)
+    affected = Pid(bandwidth=[25.0]).for_robot(UR10, effects)
+    assert affected.kp[5] > 500 * nominal.kp[5] and affected.kp[5] * 0.01 > effects.coulomb_friction[5]
+    assert np.allclose(affected.kp, smallest_effective_inertia(UR10, effects) * 25.0 ** 2)
+    request = collection_request("tracking", count=1, robot=UR10, controller=CONTROLLERS_DIR / "pid_dither_sized.yaml",
+                                 plant_effects=effects, workers=1)
+    assert request.settings.controller.kp == affected.kp
+    assert capsys.readouterr().err == ""
+    for controller, stiffness in (("pid.yaml", "0.42 N m/rad needs 5.47 rad"), ("inverse_dynamics.yaml", "")):
+        collection_request("tracking", count=1, robot=UR10, plant_effects=effects, workers=1,
+                           controller=CONTROLLERS_DIR / controller)   # gains made for the description
+        warning = capsys.readouterr().err
+        assert warning.count("\n") == 1 and f"wrist_3_joint: stiffness {stiffness}" in warning
+        assert "pid_dither_sized.yaml" in warning and "shoulder_pan_joint" not in warning and controller in warning
+
+
+def test_the_per_effect_plants_are_the_effects_a_file_has():
+    from stdm_drake.experiments.reality_gap import effect_plants
+    from stdm_drake.robots.robot import load_robot
+    panda = load_plant_effects(MODELS_DIR / "panda_effects.yaml")
+    plants = effect_plants(panda, load_robot(MODELS_DIR / "panda.yaml"))
+    assert list(plants) == ["friction", "payload", "all"] and plants["all"] is panda
+    assert plants["payload"].payload == panda.payload and not plants["payload"].coulomb_friction
+    ur10 = effect_plants(load_plant_effects(MODELS_DIR / "ur10_effects.yaml"), UR10)
+    assert list(ur10) == ["friction", "rotor inertia", "payload", "all"]
+    assert ur10["friction"].coulomb_velocity_scale[5] > 1.0   # wrist 3 without its rotor: made stable
+    friction_only = PlantEffects(coulomb_friction=[1.0], rotor_inertia=[0.0], mass_scale={"forearm_link": 1.0})
+    assert list(effect_plants(friction_only, UR10)) == ["friction", "all"]
+
+
+@pytest.mark.slow
+def test_the_reality_gap_reuses_models_only_of_the_same_data_and_settings(tmp_path):
+    from stdm_drake.experiments.reality_gap import dataset, train
+    data = dataset(tmp_path, "closed_loop", load_plant_effects(MODELS_DIR / "ur10_effects.yaml"), 12, 0, UR10, 1)
+    folder = str(tmp_path / "runs" / "D")
+    first = train(str(data.path), "D", (1, 1, 1), 1, 1, folder)
+    checkpoint = pathlib.Path(first) / "seed0" / "checkpoint.pt"
+    stamp = checkpoint.stat().st_mtime_ns
+    assert train(str(data.path), "D", (1, 1, 1), 1, 1, folder) == first and checkpoint.stat().st_mtime_ns == stamp
+    other = train(str(data.path), "D", (1, 1, 1), 1, 2, folder)   # other epochs: another model
+    assert other != first and (pathlib.Path(other) / "seed0" / "checkpoint.pt").exists()
+    assert data.sha256[:12] in first and data.metadata.section("controller")["kp"][5] > 100   # sized for the affected wrist
 
 
 @pytest.mark.slow
@@ -245,6 +356,31 @@ def test_a_model_of_the_affected_plant_records_it_and_view_shows_the_nominal_mod
                  str(tmp_path / "view.html")]) == 0
     out = capsys.readouterr().out
     assert "plant effects of the data" in out and ": nominal plant " in out
+
+
+@pytest.mark.slow
+def test_mpc_tunes_each_model_on_validation_plans_before_tracking_the_held_out_ones(tmp_path, capsys):
+    """`mpc --tune 1`: each model's setting is chosen on a validation plan of its checkpoint (never the
+    tracked one), said in one line per model, recorded in mpc.json, and the tracked plans run with it."""
+    data = tmp_path / "three.h5"
+    assert main(["collect", "--protocol", "tracking", "--count", "3", "--seed", "5", "--workers", "1", "--quiet",
+                 "--plant-effects", str(MODELS_DIR / "ur10_effects.yaml"), "-o", str(data)]) == 0
+    assert main(["train", str(data), "--model", "D", "--epochs", "2", "--train", "1", "--val", "1", "--test", "1",
+                 "--per-group", "off", "--quiet", "-o", str(tmp_path / "run")]) == 0
+    capsys.readouterr()
+    code = main(["mpc", str(data), "--no-plant", "--model", f"D={tmp_path / 'run' / 'seed0' / 'checkpoint.pt'}",
+                 "--plans", "1", "--tune", "1", "--quiet", "-o", str(tmp_path / "mpc")])
+    assert code in (0, 2)   # 2: a 2-epoch model may leave the limits
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    split = load_checkpoint(tmp_path / "run" / "seed0" / "checkpoint.pt").split_indices(load_dataset(data), "val")
+    record = json.loads((tmp_path / "mpc" / "mpc.json").read_text())
+    chosen = tuple(record["tuning"]["chosen"]["D"])
+    assert record["tuning"]["plans"] == split and record["runs"][0]["trajectory"] not in split
+    assert len(record["tuning"]["runs"]) == 9 and chosen in {(r["effort_scale"], r["observer_gain"])
+                                                             for r in record["tuning"]["runs"]}
+    err = capsys.readouterr().err
+    assert f"MPC setting of D (chosen on 1 validation plans): effort weights x {chosen[0]:g}" in err
+    assert "MPC settings chosen on the validation plans (indices" in (tmp_path / "mpc" / "mpc.md").read_text()
 
 
 def test_a_dataset_of_another_plant_is_not_reused():

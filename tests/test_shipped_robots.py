@@ -9,6 +9,7 @@ import pytest
 from conftest import closed_loop_status
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots.effects import load_plant_effects
 from stdm_drake.paths import MODELS_DIR
 from stdm_drake.robots.plant import Dynamics, PlantConfig, SelfCollisionChecker, joint_limits, make_plant
 from presets import UR10
@@ -252,26 +253,50 @@ def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
 
 
 @pytest.mark.slow
-def test_reproduce_quick_on_the_panda(tmp_path, capsys):
-    """`reproduce --quick --robot` runs every stage on the 7-joint arm with its derived protocols, and
-    refuses the underactuated Acrobot before any work."""
+def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_path, capsys):
+    """`reproduce --quick --robot panda --plant-effects`: every stage on the 7-joint arm with its derived
+    protocols, on the plant with models/panda_effects.yaml, and the reality-gap stage: its files, figures
+    and report section with a verdict; each model's MPC setting chosen on validation plans only, the test
+    plans run with it and with the shipped one. The underactuated Acrobot is refused before any work."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
     out = tmp_path / "reproduce"
-    code = main(["reproduce", "--quick", "--robot", str(PANDA_CONFIG), "--quiet", "-o", str(out)])
-    # the quick profile's models (25 epochs) leave the Panda's limits in MPC: the report is written and the
-    # exit status says so
-    assert code == closed_loop_status(json.loads((out / "results.json").read_text())["tables"]["mpc_runs"])
+    code = main(["reproduce", "--quick", "--robot", str(PANDA_CONFIG), "--quiet", "--plant-effects",
+                 str(MODELS_DIR / "panda_effects.yaml"), "-o", str(out)])
+    # the quick profile's models (25 epochs) may leave the Panda's limits in MPC: the report is written and
+    # the exit status says so
+    tables = json.loads((out / "results.json").read_text())["tables"]
+    assert code == closed_loop_status(tables["mpc_runs"])
     report = (out / "report.md").read_text()
     assert "profile 'quick', robot panda" in report and "Simulated panda: activations" in report
-    assert "pid_dither_sized.yaml" in report and "## Closed-loop MPC" in report
+    assert "pid_dither_sized.yaml" in report and "## Closed-loop MPC" in report and "affected plant" in report
     datasets = sorted((out / "data").glob("*.h5"))
     assert len(datasets) == 4
     for path in datasets:
         dataset = load_dataset(path)
         assert dataset.metadata.robot_name == "panda" and dataset.trajectory(0).q.shape[1] == 7
-    plant = json.loads((out / "results.json").read_text())["tables"]["mpc"][0]
-    assert plant["model"] == "plant" and plant["q_mse_rad2"] < 1e-5 and plant["limit_violations"] == 0
+        assert dataset.metadata.plant_effects == load_plant_effects(MODELS_DIR / "panda_effects.yaml")
+    rows = {row["model"]: row for row in tables["mpc"]}
+    assert rows["true-plant"]["limit_violations"] == 0 and rows["plant"]["limit_violations"] == 0
+    # the reality-gap stage
+    assert "## Reality gap" in report and "**Verdict**" in report and "reality_gap/open_loop.png" in report
+    for name in ("results.json", "closed_loop.csv", "open_loop.csv", "closed_loop.png", "open_loop.png"):
+        assert (out / "reality_gap" / name).stat().st_size > 0
+    results = json.loads((out / "reality_gap" / "results.json").read_text())
+    closed = {(row["setting"], row["model"]) for row in results["closed_loop"]}
+    assert closed == {(setting, model) for setting in ("tuned", "shipped") for model in ("plant", "true-plant", "D", "DD")}
+    assert {row["plant"] for row in results["open_loop"]} == {"friction", "payload", "all"}
+    grid = {tuple(setting) for setting in results["design"]["mpc_grid"]}
+    assert {run["split"] for run in results["tuning_runs"]} == {"val"} and {run["split"] for run in results["runs"]} == {"test"}
+    tuning_plans = {run["trajectory"] for run in results["tuning_runs"]}
+    assert tuning_plans and not tuning_plans & {run["trajectory"] for run in results["runs"]}
+    for name, setting in results["chosen_mpc_settings"].items():
+        assert tuple(setting) in grid
+        assert {(run["effort_scale"], run["observer_gain"]) for run in results["runs"]
+                if run["model"] == name and run["setting"] == "tuned"} == {tuple(setting)}
+    assert tables["reality_gap"]["verdict"]["text"] == results["verdict"]["text"]
+    checkpoints = sorted((out / "data" / "reality_gap" / "runs").rglob("checkpoint.pt"))
+    assert len(checkpoints) == 2 * 2 + 2 * 3   # D, DD: 2 seeds closed loop, 1 seed on each of 3 plants
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
     assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()

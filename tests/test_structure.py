@@ -127,7 +127,7 @@ def test_importing_collection_loads_no_learning_code():
 # module, one past its ceiling, or one listed here that is no longer long fails the test.
 LONG_MODULES = {
     "collection/planners.py": 480,      # three planners with their shared task-space checks
-    "experiments/reproduce_report.py": 520,   # its sections, the tables they show and the verdicts
+    "experiments/reproduce_report.py": 530,   # its sections, the tables they show and the verdicts
     "experiments/sine_sum.py": 570,          # the study, its figures and its summary
 }
 

@@ -54,7 +54,8 @@ def compare_controllers(models: list, references: list[tuple[int, Reference]], c
                         plant_config: PlantConfig | None = None, progress: bool = True, recorder=None, *,
                         robot: Robot, announce=None, announce_after: float = 20.0):
     """Run plant + MPC(model) on every reference for every model (the plant of `robot`); returns
-    [ClosedLoopResult].
+    [ClosedLoopResult]. With the plant effects' torque noise, a reference's index seeds its draws, so
+    every model meets the same noise on the same plan (paired comparisons).
 
     recorder: an optional ghost TrajectoryRecorder; each run is added (robot = plant, ghost = reference).
     announce: called with one line after a model's first plan when its other plans will take more than
@@ -76,7 +77,7 @@ def compare_controllers(models: list, references: list[tuple[int, Reference]], c
     for model in models:
         for number, (index, reference) in enumerate(references):
             start = time.perf_counter()
-            log = run_closed_loop(model, reference, config, plant_config, robot=robot)
+            log = run_closed_loop(model, reference, config, plant_config, robot=robot, noise_seed=index)
             results.append(closed_loop_metrics(model.name, index, log, reference, limits, gravity[index]))
             elapsed, remaining = time.perf_counter() - start, len(references) - 1
             if number == 0 and announce is not None and elapsed * remaining > announce_after:
@@ -164,14 +165,33 @@ def held_out_references(dataset, checkpoints: list, count: int) -> list[tuple[in
     if not indices:
         raise InputError(f"{dataset.path}: every trajectory was used to train or validate the models; "
                          "no held-out plan to track")
-    references = []
-    for index in indices[:count]:
-        traj = dataset.trajectory(index)
-        if dataset.protocol == "tracking":
-            references.append((index, Reference(q=traj.q_planned, v=traj.v_planned)))
-        else:
-            references.append((index, Reference(q=traj.q_true, v=traj.v_true)))
-    return references
+    return [(index, reference_of(dataset, index)) for index in indices[:count]]
+
+
+def tuning_references(dataset, checkpoints: list, count: int, held_out: list[int]) -> list[tuple[int, Reference]]:
+    """`count` plans to tune the MPC on (as `held_out_references` gives them), never one of `held_out`
+    (the test plans) nor one a checkpoint trained on: the checkpoints' validation plans (of this
+    dataset) first, then any other trajectory, from the start of the file."""
+    trained, validation = set(), []
+    for checkpoint in checkpoints:
+        if checkpoint.split_indices(dataset, "train") is not None:
+            trained |= set(checkpoint.split_indices(dataset, "train"))
+            validation += [index for index in checkpoint.split_indices(dataset, "val") if index not in validation]
+    excluded = trained | set(held_out)
+    indices = [index for index in validation if index not in excluded]
+    indices += [index for index in range(dataset.num_trajectories) if index not in excluded and index not in indices]
+    if len(indices) < count:
+        raise InputError(f"--tune {count}: {dataset.path} has only {len(indices)} plans that are neither tracked "
+                         "(held out) nor trained on")
+    return [(index, reference_of(dataset, index)) for index in indices[:count]]
+
+
+def reference_of(dataset, index: int) -> Reference:
+    """Trajectory `index` as a reference: its planned q, v (tracking data) or recorded q, v (excitation)."""
+    traj = dataset.trajectory(index)
+    if dataset.protocol == "tracking":
+        return Reference(q=traj.q_planned, v=traj.v_planned)
+    return Reference(q=traj.q_true, v=traj.v_true)
 
 
 def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5) -> list[str]:

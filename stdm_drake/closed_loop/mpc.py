@@ -247,9 +247,11 @@ class MpcController(LeafSystem):
 
 
 def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
-                      meshcat=None, *, robot: Robot, optimizer: TrajectoryOptimizer | None = None):
-    """Diagram: the robot's plant (discrete) <-> MpcController(model,
-    optimizer). Returns (diagram, plant, controller)."""
+                      meshcat=None, *, robot: Robot, optimizer: TrajectoryOptimizer | None = None, noise_seed: int = 0):
+    """Diagram: the robot's plant (discrete) <-> MpcController(model, optimizer); with the plant effects'
+    torque noise, a `TorqueNoise` (seeded by `noise_seed`, one draw per control period over the
+    reference) between them. Returns (diagram, plant, controller)."""
+    from stdm_drake.robots.effects import TorqueNoise
     from stdm_drake.robots.plant import make_plant
     plant_config = plant_config or PlantConfig()
     builder = DiagramBuilder()
@@ -257,7 +259,17 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
     controller = builder.AddSystem(MpcController(model, reference, config, plant_config.time_step, robot, optimizer))
     controller.set_name("mpc")
     builder.Connect(plant.get_state_output_port(), controller.get_state_input_port())
-    builder.Connect(controller.get_torque_output_port(), plant.get_actuation_input_port())
+    effects = plant_config.effects
+    if effects is not None and effects.has_torque_noise():
+        period = model.sample_period
+        noise = builder.AddSystem(TorqueNoise(effects.joint_values("torque_noise_std", robot.action_dim),
+                                              controller.effort_limit, period, period - 0.5 * plant_config.time_step,
+                                              len(reference.q), noise_seed))
+        noise.set_name("torque_noise")
+        builder.Connect(controller.get_torque_output_port(), noise.get_input_port())
+        builder.Connect(noise.get_output_port(), plant.get_actuation_input_port())
+    else:
+        builder.Connect(controller.get_torque_output_port(), plant.get_actuation_input_port())
     if meshcat is not None:
         from pydrake.geometry import MeshcatVisualizer
         MeshcatVisualizer.AddToBuilder(builder, scene_graph, meshcat)
@@ -266,11 +278,12 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
 
 def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,
                     duration: float | None = None, *, robot: Robot,
-                    optimizer: TrajectoryOptimizer | None = None) -> MpcLog:
-    """Simulate plant + MPC from rest at the reference's start; returns the controller's log."""
+                    optimizer: TrajectoryOptimizer | None = None, noise_seed: int = 0) -> MpcLog:
+    """Simulate plant + MPC from rest at the reference's start; returns the controller's log. noise_seed:
+    the torque noise's draws, when the plant effects have it (`build_closed_loop`)."""
     from pydrake.systems.analysis import Simulator
     diagram, plant, controller = build_closed_loop(model, reference, config, plant_config, robot=robot,
-                                                   optimizer=optimizer)
+                                                   optimizer=optimizer, noise_seed=noise_seed)
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()
     x0 = np.concatenate([reference.q[0], np.zeros(len(reference.q[0]))])

@@ -31,9 +31,9 @@ from stdm_drake.collection.plan import Tracking, derived_tracking_spec
 from stdm_drake.collection.protocols import PROTOCOLS, load_excitation, load_tracking_spec, protocol_named_in
 from stdm_drake.config import load_yaml_config
 from stdm_drake.data.dataset import Trajectory
-from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.errors import InputError, PlanningError, warn
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.robots.control import JointSensor, SensorConfig, load_controller_config
+from stdm_drake.robots.control import JointSensor, SensorConfig, friction_bound_joints, load_controller_config
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker, plant_effects_for
 from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
@@ -279,9 +279,16 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
     if protocol == "tracking":
         robot.check_can_track()
         try:  # per-joint lists of the robot's length, or one value for all
-            settings.controller = settings.controller.for_robot(robot)
+            settings.controller = settings.controller.for_robot(robot, effects)
         except InputError as error:
             raise InputError(f"{controller}: {error}") from None
+        stuck = friction_bound_joints(settings.controller, robot, effects)
+        if stuck:
+            sized = bool(load_controller_config(controller).sizing())
+            warn(f"stdm-drake: warning: the tracking controller of {controller} barely moves {len(stuck)} joint(s) "
+                 f"of the affected plant ({'; '.join(stuck)})" + ("" if sized else
+                 "; a controller sized by bandwidth (controllers/pid_dither_sized.yaml) takes its gains from the "
+                 "affected plant's inertia"))
     if count is not None and count < 1:
         raise InputError(f"--count must be >= 1, got {count}")
     if workers < 1:

@@ -10,6 +10,7 @@ from stdm_drake.closed_loop.comparison import (
     summary_table
 )
 from stdm_drake.closed_loop.mpc import mpc_config_for
+from stdm_drake.closed_loop.tuning import with_setting
 from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot_argument, add_visualization_argument,
                                            command_robot, command_visualization)
 from stdm_drake.errors import InputError
@@ -29,6 +30,10 @@ def add_arguments(parser) -> None:
                         help="with an excitation dataset (no plans): track its recorded trajectories instead, e.g. "
                              "for an arm too small for task-space plans")
     parser.add_argument("--plans", type=int, default=3, help="held-out plans to track (default 3)")
+    parser.add_argument("--tune", type=int, default=0, metavar="N",
+                        help="first choose each model's MPC setting (effort-weight scale 1, 1e-2, 1e-4 x observer gain "
+                             "0, 0.3, 1) on N validation plans, never the tracked ones (9 closed loops per plan "
+                             "and model; README, 'Plant effects')")
     parser.add_argument("--config", type=pathlib.Path,
                         help="MPC settings YAML (default: controllers/mpc.yaml; for another robot, its effort "
                              "weights derived from the robot's inertia, see README)")
@@ -54,6 +59,8 @@ def run(args) -> int:
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     if args.plans < 1:
         raise InputError(f"--plans must be >= 1, got {args.plans}")
+    if args.tune < 0:
+        raise InputError(f"--tune must be >= 0 (0: off), got {args.tune}")
     for entry in args.model:
         name, separator, path = entry.partition("=")
         if not separator or not name or not path:
@@ -80,7 +87,8 @@ def run(args) -> int:
     plant_config = PlantConfig.discrete(time_step, effects=effects)
     if effects is not None:
         print(f"plant effects: {args.plant_effects or 'as recorded in ' + str(args.dataset)}: {effects.summary()}"
-              + ("; the closed loops run without the torque noise" if effects.has_torque_noise() else ""),
+              + ("; torque noise seeded by plan index: every model meets the same draws on a plan"
+                 if effects.has_torque_noise() else ""),
               file=sys.stderr)
     learned = []
     for entry in args.model:
@@ -103,16 +111,40 @@ def run(args) -> int:
     if args.html:
         from stdm_drake.robots.recorder import TrajectoryRecorder
         recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)
-    results = compare_controllers(models, references, config, plant_config, progress=not args.quiet, recorder=recorder,
-                                  robot=robot, announce=lambda line: print(line, file=sys.stderr, flush=True))
+    announce = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
+    tuning = None
+    chosen = {model.name: None for model in models}
+    if args.tune:
+        from stdm_drake.closed_loop.comparison import tuning_references
+        from stdm_drake.closed_loop.tuning import tune
+        plans = tuning_references(dataset, [model.checkpoint for model in learned], args.tune,
+                                  [index for index, _ in references])
+        chosen, tried = tune(models, plans, config, plant_config, robot=robot, progress=not args.quiet)
+        tuning = dict(plans=[index for index, _ in plans], chosen=chosen,
+                      runs=[dict(dataclasses.asdict(result), effort_scale=setting[0], observer_gain=setting[1])
+                            for setting, result in tried])
+        for name, setting in chosen.items():
+            print(f"MPC setting of {name} (chosen on {len(plans)} validation plans): effort weights x {setting[0]:g}, "
+                  f"observer gain {setting[1]:g}", file=sys.stderr)
+    results = []
+    for setting in dict.fromkeys(chosen.values()):   # each model with its own setting (None: as given)
+        group = [model for model in models if chosen[model.name] == setting]
+        group_config = config if setting is None else with_setting(config, setting)
+        results += compare_controllers(group, references, group_config, plant_config, progress=not args.quiet,
+                                       recorder=recorder, robot=robot, announce=announce)
+    order = [model.name for model in models]
+    results.sort(key=lambda result: order.index(result.model))
     rows = summarize(results, dataset.sample_period)
     table = summary_table(rows)
+    if tuning is not None:
+        table += "\n\nMPC settings chosen on the validation plans (indices " + ", ".join(map(str, tuning["plans"])) + "): " + "; ".join(
+            f"{name} effort x {setting[0]:g}, observer gain {setting[1]:g}" for name, setting in chosen.items())
     print(table)
     out = args.output
     mark_output_folder(out)
     write_text_atomic(out / "mpc.md", table + "\n")
-    write_text_atomic(out / "mpc.json", json.dumps(dict(summary=rows, runs=[dataclasses.asdict(r) for r in results]),
-                                                   indent=1))
+    write_text_atomic(out / "mpc.json", json.dumps(dict(summary=rows, runs=[dataclasses.asdict(r) for r in results],
+                                                        tuning=tuning), indent=1))
     columns = [field.name for field in dataclasses.fields(ClosedLoopResult) if field.name != "q_error"]
     write_text_atomic(out / "mpc.csv", "\n".join([",".join(columns)] + [
         ",".join(str(getattr(result, column)) for column in columns) for result in results]) + "\n")

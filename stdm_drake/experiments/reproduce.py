@@ -16,6 +16,7 @@ import dataclasses
 import json
 import math
 import pathlib
+import sys
 import time
 
 from stdm_drake.cluster import RunnerConfig, job_pool
@@ -35,10 +36,12 @@ def dataset_settings(robot: Robot, plant_effects=None) -> dict:
     model (excitation ranges from its inertia, start poses over its whole range for "excitation" and
     within +-0.5 rad of home for "excitation_local", tracking poses around home, PID gains and dither
     sized from its inertia); every one collected on the plant with `plant_effects` (None: the robot's
-    description as it is)."""
+    description as it is). On a plant with effects the identification data's PID gains and dither are
+    sized from that plant's inertia (a servo is tuned on the robot it drives; gains sized for the
+    description leave a geared wrist held by its friction: docs/reality_gap.md)."""
     from stdm_drake.collection.excitation import Excitation
     excitation, local = robot.default_file("excitation"), robot.default_file("excitation_local")
-    controller = robot.default_file("identification_controller")
+    controller = None if plant_effects is not None else robot.default_file("identification_controller")
     common = dict(robot=robot, plant_effects=plant_effects)
     return dict(
         excitation=(dict(common, config=excitation) if excitation else
@@ -95,8 +98,19 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot=robot,
                        plant_effects=plant_effects)
     timings["mpc"] = time.perf_counter() - tick
+    reality = None
+    if plant_effects is not None:   # the reality-gap stage (docs/reality_gap.md): tuned MPC and per-effect tables,
+        # in local processes (its jobs share files in the output folder) whatever the training backend
+        from stdm_drake.experiments import reality_gap
+        from stdm_drake.experiments.reality_gap_report import write_results
+        tick = time.perf_counter()
+        reality = reality_gap.run_experiment(reality_gap.QUICK if profile.name == "quick" else reality_gap.FULL,
+                                  output / "data" / "reality_gap", robot, plant_effects, workers=workers,
+                                  say=lambda line: print(line, file=sys.stderr, flush=True) if progress else None)
+        write_results(reality, output / "reality_gap")
+        timings["reality_gap"] = time.perf_counter() - tick
     path = write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
-                        timings)
+                        timings, reality)
     return path, mpc_rows["failures"]
 
 

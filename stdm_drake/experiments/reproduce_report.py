@@ -259,9 +259,10 @@ def add_data_section(report, excitation, local, tracking, identification, robot:
     from stdm_drake.data.inspect import tracking_errors
     report.heading("Data")
     if excitation.metadata.plant_effects is not None:
-        report.text("Every dataset comes from an **affected plant**: the robot's description (the nominal model) "
-                    f"with {excitation.metadata.plant_effects.summary()}. Controllers and the MPC's plant model "
-                    "know only the nominal model (README, 'Plant effects').")
+        effects = excitation.metadata.plant_effects.summary()
+        report.text(f"Every dataset comes from an **affected plant**: the nominal model with {effects}. The MPC's plant "
+                    "model knows only the nominal model; the identification data's PID gains and dither are sized "
+                    "from the affected plant's inertia (README, 'Plant effects').")
     errors, identification_errors = tracking_errors(tracking), tracking_errors(identification)
     report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
                  [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0).tau), "", "", ""],
@@ -273,7 +274,8 @@ def add_data_section(report, excitation, local, tracking, identification, robot:
                   ["identification (MPC models)", identification.num_trajectories,
                    len(identification.trajectory(0).tau), _g(identification_errors["true_q"]),
                    _g(identification_errors["measured_v"]), ""]])
-    controller_file = "pid_dither.yaml" if robot == "ur10" else "pid_dither_sized.yaml"
+    affected = identification.metadata.plant_effects is not None
+    controller_file = "pid_dither.yaml" if robot == "ur10" and not affected else "pid_dither_sized.yaml"
     report.text(f"The identification dataset tracks the same kind of plans with controllers/{controller_file} (white "
                 "torque dither, persistent excitation) and controllers/sensor_ideal.yaml (true states): the models "
                 "for the closed-loop MPC comparison are trained on it, since closed-loop PID torques alone do not "
@@ -443,9 +445,9 @@ def write_result_files(folder: pathlib.Path, report, tables: dict, results) -> N
 
 
 def write_report(folder: pathlib.Path, profile: Profile, excitation, local, tracking, identification, results, sine,
-                 mpc_rows, timings: dict) -> pathlib.Path:
+                 mpc_rows, timings: dict, reality_gap: dict | None = None) -> pathlib.Path:
     """The report of a reproduction run in `folder`, section by section, with the result files behind it;
-    returns the HTML page's path."""
+    returns the HTML page's path. reality_gap: the reality-gap stage's results (files in folder/reality_gap)."""
     figures = folder / "figures"
     robot = excitation.metadata.robot_name or "ur10"
     robot_label = "UR-10" if robot == "ur10" else robot
@@ -466,12 +468,16 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
     multistep = add_multistep_section(report, results, profile, figures)
     add_sine_sum_section(report, sine)
     add_mpc_section(report, mpc_rows)
+    if reality_gap is not None:
+        from stdm_drake.experiments.reality_gap_report import report_section
+        report_section(report, reality_gap)
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
                   coverage=coverage,
                   multistep=[{k: v for k, v in dataclasses.asdict(r).items() if k not in ("epoch_axis", "val_mse_curve")}
                              for r in multistep],
                   mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [],
-                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
+                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings, reality_gap=reality_gap and {
+                      key: reality_gap[key] for key in ("chosen_mpc_settings", "closed_loop", "verdict", "open_loop")})
     write_result_files(folder, report, tables, results)
     return folder / "report.html"
 

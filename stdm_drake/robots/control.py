@@ -69,15 +69,17 @@ class JointGains:
         if self.dither_acceleration:
             check_joint_vector("controller dither_acceleration", self.dither_acceleration, nonnegative=True)
 
-    def for_robot(self, robot: Robot):
+    def for_robot(self, robot: Robot, effects=None):
         """This config with kp, ki, kd and dither_std of the robot's length (one value broadcast, or
         sized from its inertia by a bandwidth and dither_acceleration, which are then left empty), as
-        datasets record it; InputError when a list has another length."""
+        datasets record it; InputError when a list has another length. effects: the PlantEffects of the
+        plant it will drive (sized gains use that plant's inertia, reflected rotor inertia and payload
+        included, as a servo tuned on the real robot would)."""
         self.validate()
         n = robot.num_joints
         config = self
         if self.sizing() or self.dither_acceleration:
-            inertia = smallest_effective_inertia(robot)
+            inertia = smallest_effective_inertia(robot, effects)
             if self.sizing():
                 w = check_joint_vector("controller bandwidth", self.sizing(), count=n)
                 kp = inertia * w**2
@@ -137,10 +139,31 @@ class ControllerFile:
         self.controller.validate()
 
 
-def smallest_effective_inertia(robot: Robot, box: float = 0.5, samples: int = 50) -> np.ndarray:
+def friction_bound_joints(gains: "JointGains", robot: Robot, effects, error: float = 0.1) -> list[str]:
+    """One line per joint the tracking controller cannot break loose from its Coulomb friction F_c with a
+    tracking error below `error` rad: stiffness x error < F_c, the stiffness kp N m/rad for a PID and
+    kp M_ii(home) for inverse dynamics (which scales by the description's mass matrix). Gains made for the
+    description of a geared joint are far too small for the robot with its rotor and friction. Empty for
+    a plant without Coulomb friction."""
+    if effects is None or not effects.coulomb_friction:
+        return []
+    stiffness = np.asarray(gains.kp, dtype=float)   # (m,): one gain per actuated joint
+    coulomb = effects.joint_values("coulomb_friction", robot.num_joints)
+    inertia = np.diag(Dynamics(robot).mass_matrix(robot.home))
+    if not robot.fully_actuated:
+        coulomb, inertia = coulomb[robot.actuated_indices], inertia[robot.actuated_indices]
+    if isinstance(gains, InverseDynamics):
+        stiffness = stiffness * inertia
+    return [f"{name}: stiffness {k:.3g} N m/rad needs {c / k if k > 0 else float('inf'):.3g} rad of error to overcome "
+            f"its {c:.3g} N m of Coulomb friction"
+            for name, k, c in zip(robot.actuated_joint_names, stiffness, coulomb) if k * error < c]
+
+
+def smallest_effective_inertia(robot: Robot, effects=None, box: float = 0.5, samples: int = 50) -> np.ndarray:
     """Per joint (n,) kg m^2, the smallest 1 / (M(q)^-1)_ii over home and `samples` poses drawn
-    uniformly within +-box rad of it inside the position limits (numpy.random.default_rng(0))."""
-    dynamics = Dynamics(robot)
+    uniformly within +-box rad of it inside the position limits (numpy.random.default_rng(0)); of the
+    plant with `effects` (PlantEffects; None: the description)."""
+    dynamics = Dynamics(robot, effects)
     limits = joint_limits(dynamics.plant)
     poses = np.clip(robot.home + np.random.default_rng(0).uniform(-box, box, size=(samples, robot.num_joints)),
                     limits.position_lower, limits.position_upper)

@@ -13,6 +13,7 @@ noise: not recorded, so a re-simulation from the recorded (x_k, a_k) is exact on
 import dataclasses
 
 import numpy as np
+from pydrake.systems.framework import BasicVector, LeafSystem
 
 from stdm_drake.config import check_joint_vector, load_yaml_config, require
 from stdm_drake.errors import InputError
@@ -168,3 +169,35 @@ def set_effect_parameters(plant, context, effects: PlantEffects) -> None:
 def coulomb_torque(velocity: np.ndarray, friction: np.ndarray, velocity_scale: np.ndarray) -> np.ndarray:
     """-F_c tanh(v / v_s) (n,) N m for joint velocities v (n,) rad/s, F_c (n,) N m, v_s (n,) rad/s."""
     return -friction * np.tanh(velocity / velocity_scale)
+
+
+class TorqueNoise(LeafSystem):
+    """The plant effects' torque noise inside a diagram: input "torque" (m,) N m, output "noisy_torque"
+    (m,) = clip(torque + n_k, -effort, effort), n_k = std * z_k with z_k the rows of
+    numpy.random.default_rng(seed).standard_normal((steps, m)), one per sample period and held over it,
+    like the action (the same draws as `Station`'s data: white, zero-order hold). Row k applies from the
+    update at k period + offset s (the controller's update times), row 0 from initialization; past
+    the last row the noise is 0. The rows are fixed at construction, so the output is a function of
+    the Context (its discrete state: the current row)."""
+
+    def __init__(self, std, effort_limit, period: float, offset: float, steps: int, seed: int):
+        super().__init__()
+        self._std = np.asarray(std, dtype=float)
+        self._limit = np.asarray(effort_limit, dtype=float)
+        self._period = period
+        m = len(self._std)
+        self._rows = self._std * np.random.default_rng(seed).standard_normal((steps, m))
+        self._input = self.DeclareVectorInputPort("torque", m)
+        self._noise = self.DeclareDiscreteState(m)
+        self.DeclareVectorOutputPort("noisy_torque", BasicVector(m), self._output)
+        self.DeclareInitializationDiscreteUpdateEvent(self._draw)
+        self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._draw)
+
+    def _draw(self, context, discrete_state):
+        k = int(round(context.get_time() / self._period))
+        row = self._rows[k] if k < len(self._rows) else np.zeros(len(self._std))
+        discrete_state.get_mutable_vector(0).SetFromVector(row)
+
+    def _output(self, context, output) -> None:
+        noisy = self._input.Eval(context) + context.get_discrete_state(0).get_value()
+        output.SetFromVector(np.clip(noisy, -self._limit, self._limit))

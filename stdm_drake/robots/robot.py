@@ -117,8 +117,11 @@ class Robot:
     """A robot built from a RobotConfig: adds itself to a MultibodyPlant and says what it is.
 
     joint_names: the arm joints in order; num_joints; home (n,) rad; tool_frame; model_path and
-    model_sha256 (of the description file, recorded in datasets).
+    model_sha256 (of the description file, recorded in datasets); config_path: the YAML it was loaded
+    from (`load_robot`; None for a Robot built from a RobotConfig in code).
     """
+
+    config_path: pathlib.Path | None = None
 
     def __init__(self, config: RobotConfig, folder: pathlib.Path):
         config.validate()
@@ -383,4 +386,6 @@ def load_robot(path) -> Robot:
     """The Robot of a robot config YAML (the UR-10 preset: `UR10_CONFIG`, models/ur10.yaml)."""
     from stdm_drake.config import load_yaml_config
     path = pathlib.Path(path)
-    return Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
+    robot = Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
+    robot.config_path = path.resolve()
+    return robot
