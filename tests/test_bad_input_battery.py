@@ -156,6 +156,7 @@ CASES = [
     ([*W], "nothing to show"),
     ([*M, "--plans", "0", "-o", "NEW"], "--plans must be >= 1"), ([*M, "--plans", "1000", "-o", "NEW"], "held-out plans"),
     ([*M, "--tune", "-1", "-o", "NEW"], "--tune must be >= 0"), ([*M, "--tune", "1000", "-o", "NEW"], "neither tracked"),
+    (["mpc", "DATA", "--model", "plant=CK", "--quiet", "-o", "NEW"], "is the plant model's"),
     ([*M, "--model", "D=CK", "-o", "NEW"], "given more than once"), (["mpc", "DATA", "--model", "D", "-o", "NEW"], "NAME=CHECKPOINT"),
     (["mpc", "DATA", "--model", "=CK", "-o", "NEW"], "NAME=CHECKPOINT"),
     (["mpc", "DATA", "--no-plant", "--excitation-references", "-o", "NEW"], "nothing to compare"),

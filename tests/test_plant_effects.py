@@ -379,8 +379,8 @@ def test_mpc_tunes_each_model_on_validation_plans_before_tracking_the_held_out_o
     assert len(record["tuning"]["runs"]) == 9 and chosen in {(r["effort_scale"], r["observer_gain"])
                                                              for r in record["tuning"]["runs"]}
     err = capsys.readouterr().err
-    assert f"MPC setting of D (chosen on 1 validation plans): effort weights x {chosen[0]:g}" in err
-    assert "MPC settings chosen on the validation plans (indices" in (tmp_path / "mpc" / "mpc.md").read_text()
+    assert f"MPC setting of D (chosen on 1 tuning plans): effort weights x {chosen[0]:g}" in err
+    assert "MPC settings chosen on the tuning plans (indices" in (tmp_path / "mpc" / "mpc.md").read_text()
 
 
 def test_a_dataset_of_another_plant_is_not_reused():

@@ -205,7 +205,8 @@ class MpcController(LeafSystem):
 
     def _update(self, context, state):
         x = self._state_input.Eval(context)
-        k = int(round(context.get_time() / self._period))
+        # updates fall at k period - h/2 (h <= period): the nearest sample at or after, also when h = period
+        k = int(np.floor(context.get_time() / self._period + 0.5 + 1e-9))
         horizon = self.config.horizon
         reference = self.reference.window(k, horizon + 1)
         u_ff = self._feedforward[np.minimum(np.arange(k, k + horizon), len(self._feedforward) - 1)]

@@ -19,7 +19,8 @@ import math
 
 import numpy as np
 
-# (effort-weight scale, observer gain): the grid every model chooses from, and the settings as given
+# (effort-weight scale, observer gain): the grid every model chooses from; SHIPPED: controllers/mpc.yaml
+# as it is (its observer gain is 1; the gain of a setting replaces the file's)
 MPC_GRID = tuple((scale, gain) for scale in (1.0, 1e-2, 1e-4) for gain in (0.0, 0.3, 1.0))
 SHIPPED = (1.0, 1.0)
 # a closed loop whose q MSE is not finite (the state left every bound) counts as this q MSE (rad^2)

@@ -32,8 +32,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--plans", type=int, default=3, help="held-out plans to track (default 3)")
     parser.add_argument("--tune", type=int, default=0, metavar="N",
                         help="first choose each model's MPC setting (effort-weight scale 1, 1e-2, 1e-4 x observer gain "
-                             "0, 0.3, 1) on N validation plans, never the tracked ones (9 closed loops per plan "
-                             "and model; README, 'Plant effects')")
+                             "0, 0.3, 1) on N tuning plans: the models' validation plans, then any plan neither "
+                             "tracked nor trained on (9 closed loops per plan and model; README, 'Plant effects')")
     parser.add_argument("--config", type=pathlib.Path,
                         help="MPC settings YAML (default: controllers/mpc.yaml; for another robot, its effort "
                              "weights derived from the robot's inertia, see README)")
@@ -70,6 +70,9 @@ def run(args) -> int:
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
         raise InputError(f"--model names must differ; {', '.join(repeated)} given more than once")
+    reserved = sorted(set(names) & {"plant", "true-plant"})
+    if reserved:
+        raise InputError(f"--model name {reserved[0]!r} is the plant model's; name the learned model otherwise")
     inputs = [args.dataset, args.config, args.robot, args.visualization, args.plant_effects, *checkpoints]
     check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
@@ -124,7 +127,7 @@ def run(args) -> int:
                       runs=[dict(dataclasses.asdict(result), effort_scale=setting[0], observer_gain=setting[1])
                             for setting, result in tried])
         for name, setting in chosen.items():
-            print(f"MPC setting of {name} (chosen on {len(plans)} validation plans): effort weights x {setting[0]:g}, "
+            print(f"MPC setting of {name} (chosen on {len(plans)} tuning plans): effort weights x {setting[0]:g}, "
                   f"observer gain {setting[1]:g}", file=sys.stderr)
     results = []
     for setting in dict.fromkeys(chosen.values()):   # each model with its own setting (None: as given)
@@ -137,7 +140,7 @@ def run(args) -> int:
     rows = summarize(results, dataset.sample_period)
     table = summary_table(rows)
     if tuning is not None:
-        table += "\n\nMPC settings chosen on the validation plans (indices " + ", ".join(map(str, tuning["plans"])) + "): " + "; ".join(
+        table += "\n\nMPC settings chosen on the tuning plans (indices " + ", ".join(map(str, tuning["plans"])) + "): " + "; ".join(
             f"{name} effort x {setting[0]:g}, observer gain {setting[1]:g}" for name, setting in chosen.items())
     print(table)
     out = args.output

@@ -29,7 +29,7 @@ EFFECTS_PRESET = MODELS_DIR / "ur10_effects.yaml"
 # UR-10's 4 start poses: 100 and 40 plans)
 # every prediction model's MPC setting comes from closed_loop.tuning.MPC_GRID (QUICK: two of them)
 FULL = dict(closed=(18, 2, 5, 5, 300), open=(7, 1, 2, 3, 300), mpc_steps=None, mpc_grid=MPC_GRID)
-QUICK = dict(closed=(1, 1, 1, 2, 5), open=(1, 1, 1, 1, 5), mpc_steps=15, mpc_grid=(SHIPPED, (1e-4, 0.0)))
+QUICK = dict(closed=(1, 1, 1, 2, 5), open=(1, 1, 1, 1, 5), mpc_steps=8, mpc_grid=(SHIPPED, (1e-4, 0.0)))
 # the collection controller: PID and dither sized from the affected plant's inertia (run 1 used
 # pid_dither.yaml, sized for the description, which cannot move the affected wrists)
 COLLECTION_CONTROLLER = "pid_dither_sized.yaml"

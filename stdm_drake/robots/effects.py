@@ -175,7 +175,7 @@ class TorqueNoise(LeafSystem):
     """The plant effects' torque noise inside a diagram: input "torque" (m,) N m, output "noisy_torque"
     (m,) = clip(torque + n_k, -effort, effort), n_k = std * z_k with z_k the rows of
     numpy.random.default_rng(seed).standard_normal((steps, m)), one per sample period and held over it,
-    like the action (the same draws as `Station`'s data: white, zero-order hold). Row k applies from the
+    like the action (the same process as `Station`'s data: white, zero-order hold). Row k applies from the
     update at k period + offset s (the controller's update times), row 0 from initialization; past
     the last row the noise is 0. The rows are fixed at construction, so the output is a function of
     the Context (its discrete state: the current row)."""
@@ -194,10 +194,10 @@ class TorqueNoise(LeafSystem):
         self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._draw)
 
     def _draw(self, context, discrete_state):
-        k = int(round(context.get_time() / self._period))
+        k = int(np.floor(context.get_time() / self._period + 0.5 + 1e-9))   # as MpcController's update
         row = self._rows[k] if k < len(self._rows) else np.zeros(len(self._std))
-        discrete_state.get_mutable_vector(0).SetFromVector(row)
+        discrete_state.get_mutable_vector(int(self._noise)).SetFromVector(row)
 
     def _output(self, context, output) -> None:
-        noisy = self._input.Eval(context) + context.get_discrete_state(0).get_value()
+        noisy = self._input.Eval(context) + context.get_discrete_state(int(self._noise)).get_value()
         output.SetFromVector(np.clip(noisy, -self._limit, self._limit))
