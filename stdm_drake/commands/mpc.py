@@ -130,13 +130,11 @@ def run(args) -> int:
             print(f"MPC setting of {name} (chosen on {len(plans)} tuning plans): effort weights x {setting[0]:g}, "
                   f"observer gain {setting[1]:g}", file=sys.stderr)
     results = []
-    for setting in dict.fromkeys(chosen.values()):   # each model with its own setting (None: as given)
-        group = [model for model in models if chosen[model.name] == setting]
-        group_config = config if setting is None else with_setting(config, setting)
-        results += compare_controllers(group, references, group_config, plant_config, progress=not args.quiet,
-                                       recorder=recorder, robot=robot, announce=announce)
-    order = [model.name for model in models]
-    results.sort(key=lambda result: order.index(result.model))
+    for model in models:   # each model with its own setting (None: as given), in order (the recording's too)
+        setting = chosen[model.name]
+        results += compare_controllers([model], references, config if setting is None else with_setting(config, setting),
+                                       plant_config, progress=not args.quiet, recorder=recorder, robot=robot,
+                                       announce=announce)
     rows = summarize(results, dataset.sample_period)
     table = summary_table(rows)
     if tuning is not None:
