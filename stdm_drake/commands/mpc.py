@@ -116,7 +116,6 @@ def run(args) -> int:
         recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)
     announce = lambda line: print(line, file=sys.stderr, flush=True)  # noqa: E731
     tuning = None
-    chosen = {model.name: None for model in models}
     if args.tune:
         from stdm_drake.closed_loop.comparison import tuning_references
         from stdm_drake.closed_loop.tuning import tune
@@ -129,12 +128,11 @@ def run(args) -> int:
         for name, setting in chosen.items():
             print(f"MPC setting of {name} (chosen on {len(plans)} tuning plans): effort weights x {setting[0]:g}, "
                   f"observer gain {setting[1]:g}", file=sys.stderr)
-    results = []
-    for model in models:   # each model with its own setting (None: as given), in order (the recording's too)
-        setting = chosen[model.name]
-        results += compare_controllers([model], references, config if setting is None else with_setting(config, setting),
-                                       plant_config, progress=not args.quiet, recorder=recorder, robot=robot,
-                                       announce=announce)
+    runs = [(models, config)] if tuning is None else [([model], with_setting(config, chosen[model.name]))
+                                                      for model in models]   # tuned: each with its own, in order
+    results = [result for group, group_config in runs
+               for result in compare_controllers(group, references, group_config, plant_config, progress=not args.quiet,
+                                                 recorder=recorder, robot=robot, announce=announce)]
     rows = summarize(results, dataset.sample_period)
     table = summary_table(rows)
     if tuning is not None:
