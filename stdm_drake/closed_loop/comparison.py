@@ -186,6 +186,15 @@ def tuning_references(dataset, checkpoints: list, count: int, held_out: list[int
     return [(index, reference_of(dataset, index)) for index in indices[:count]]
 
 
+def spec_models(specs: list, sample_period: float, plant_config: PlantConfig, *, robot: Robot) -> list:
+    """The prediction models of `specs` ((name, checkpoint path), the path None for the robot's description
+    as a plant model ("plant") and "true" for the plant of `plant_config` itself ("true-plant"))."""
+    from stdm_drake.learning.learned_model import LearnedModel
+    return [PlantModel(sample_period, robot=robot) if path is None else
+            PlantModel(sample_period, plant_config, robot=robot) if path == "true" else
+            LearnedModel(path, name=name, robot=robot) for name, path in specs]
+
+
 def reference_of(dataset, index: int) -> Reference:
     """Trajectory `index` as a reference: its planned q, v (tracking data) or recorded q, v (excitation)."""
     traj = dataset.trajectory(index)

@@ -278,13 +278,13 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
     settings.substeps()  # the sample period and the plant step, before any work
     if protocol == "tracking":
         robot.check_can_track()
+        sized = bool(settings.controller.sizing())   # gains from the plant's inertia (then filled in)
         try:  # per-joint lists of the robot's length, or one value for all
             settings.controller = settings.controller.for_robot(robot, effects)
         except InputError as error:
             raise InputError(f"{controller}: {error}") from None
         stuck = friction_bound_joints(settings.controller, robot, effects)
         if stuck:
-            sized = bool(load_controller_config(controller).sizing())
             warn(f"stdm-drake: warning: the tracking controller of {controller} barely moves {len(stuck)} joint(s) "
                  f"of the affected plant ({'; '.join(stuck)})" + ("" if sized else
                  "; a controller sized by bandwidth (controllers/pid_dither_sized.yaml) takes its gains from the "

@@ -98,15 +98,13 @@ def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: 
 def plan_references(data, checkpoint_path: str, split: str, steps) -> list:
     """(index, Reference) of every plan of a learned checkpoint's `split` ("val" or "test"): the planned
     q, v (`steps` control steps of each, None: all)."""
+    from stdm_drake.closed_loop.comparison import reference_of
     from stdm_drake.closed_loop.mpc import Reference
     from stdm_drake.learning.checkpoint import load_checkpoint
-    indices = load_checkpoint(checkpoint_path).split_indices(data, split)
-    references = []
-    for index in indices:
-        traj = data.trajectory(index)
-        end = None if steps is None else steps + 1
-        references.append((index, Reference(q=traj.q_planned[:end], v=traj.v_planned[:end])))
-    return references
+    end = None if steps is None else steps + 1
+    return [(index, Reference(q=reference.q[:end], v=reference.v[:end]))
+            for index in load_checkpoint(checkpoint_path).split_indices(data, split)
+            for reference in [reference_of(data, index)]]
 
 
 def closed_loop_group(specs: list, dataset_path: str, split_checkpoint: str, split: str, steps, setting: tuple,
@@ -117,26 +115,17 @@ def closed_loop_group(specs: list, dataset_path: str, split_checkpoint: str, spl
     scale on the robot's MPC settings, observer gain)."""
     import torch
     torch.set_num_threads(1)
-    from stdm_drake.closed_loop.comparison import compare_controllers
+    from stdm_drake.closed_loop.comparison import compare_controllers, spec_models
     from stdm_drake.closed_loop.mpc import mpc_config_for
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import PlantModel
     from stdm_drake.robots.plant import PlantConfig
     data = load_dataset(dataset_path)
     plant = PlantConfig.discrete(data.metadata.plant_time_step, effects=data.metadata.plant_effects)
     references = plan_references(data, split_checkpoint, split, steps)
     scale, gain = setting
     config = with_setting(mpc_config_for(robot), setting)
-    models = []
-    for name, path in specs:
-        if path is None:
-            models.append(PlantModel(data.sample_period, robot=robot))
-        elif path == "true":
-            models.append(PlantModel(data.sample_period, plant, robot=robot))
-        else:
-            models.append(LearnedModel(path, name=name, robot=robot))
-    results = compare_controllers(models, references, config, plant, progress=False, robot=robot)
+    results = compare_controllers(spec_models(specs, data.sample_period, plant, robot=robot), references, config,
+                                  plant, progress=False, robot=robot)
     return [dict({k: v for k, v in dataclasses.asdict(result).items() if k != "q_error"}, split=split,
                  effort_scale=scale, observer_gain=gain) for result in results]
 

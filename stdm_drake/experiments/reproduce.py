@@ -175,13 +175,9 @@ def _mpc_group(group: MpcGroup) -> list:
     """The ClosedLoopResults of one MpcGroup."""
     import torch
     torch.set_num_threads(1)
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import PlantModel
-    from stdm_drake.closed_loop.comparison import compare_controllers
+    from stdm_drake.closed_loop.comparison import compare_controllers, spec_models
     from stdm_drake.closed_loop.mpc import mpc_config_for
     robot = group.robot
-    models = [PlantModel(group.sample_period, robot=robot) if path is None else
-              PlantModel(group.sample_period, group.plant_config, robot=robot) if path == "true" else
-              LearnedModel(path, name=name, robot=robot) for name, path in group.specs]
+    models = spec_models(group.specs, group.sample_period, group.plant_config, robot=robot)
     return compare_controllers(models, group.references, mpc_config_for(robot), group.plant_config,
                                progress=group.progress, robot=robot)

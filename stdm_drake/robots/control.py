@@ -145,10 +145,11 @@ def friction_bound_joints(gains: "JointGains", robot: Robot, effects, error: flo
     kp M_ii(home) for inverse dynamics (which scales by the description's mass matrix). Gains made for the
     description of a geared joint are far too small for the robot with its rotor and friction. Empty for
     a plant without Coulomb friction."""
-    if effects is None or not effects.coulomb_friction:
+    friction = None if effects is None else effects.coulomb(robot.num_joints)
+    if friction is None:
         return []
     stiffness = np.asarray(gains.kp, dtype=float)   # (m,): one gain per actuated joint
-    coulomb = effects.joint_values("coulomb_friction", robot.num_joints)
+    coulomb = friction[0]
     inertia = np.diag(Dynamics(robot).mass_matrix(robot.home))
     if not robot.fully_actuated:
         coulomb, inertia = coulomb[robot.actuated_indices], inertia[robot.actuated_indices]
