@@ -22,6 +22,8 @@ COMMANDS = {
     "collect": ("stdm_drake.commands.collect", "simulate a robot under a data protocol and write a dataset"),
     "inspect": ("stdm_drake.commands.inspect", "print a summary of a dataset file"),
     "train": ("stdm_drake.commands.train", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
+    "identify": ("stdm_drake.commands.identify",
+                 "identify the robot's link inertias and joint friction from a dataset (physically consistent)"),
     "evaluate": ("stdm_drake.commands.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
     "sine-sum": ("stdm_drake.commands.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
     "mpc": ("stdm_drake.commands.mpc",

@@ -19,6 +19,7 @@ from stdm_drake.errors import InputError
 FOLDER_MARKER = ".stdm-drake-output"
 # The first line of every HTML file stdm-drake writes, and the key of every JSON file.
 HTML_MARKER = "<!-- written by stdm-drake -->"
+IDENTIFIED_MARKER = "# An identified robot, written by `stdm-drake identify`"   # first line of identified.yaml
 JSON_MARKER = "written_by"
 DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every dataset (stdm_drake.data.dataset)
 
@@ -56,7 +57,8 @@ def _check_not_input(option: str, path: pathlib.Path, inputs) -> None:
 
 
 def _written_by_us(path: pathlib.Path, kind: str) -> bool:
-    """Whether the regular file at `path` is a stdm-drake output of `kind` ("dataset", "json", "html")."""
+    """Whether the regular file at `path` is a stdm-drake output of `kind` ("dataset", "json", "identified",
+    "html")."""
     try:
         if kind == "dataset":
             import h5py
@@ -66,6 +68,9 @@ def _written_by_us(path: pathlib.Path, kind: str) -> bool:
             with open(path, encoding="utf-8") as f:
                 data = json.load(f)
             return isinstance(data, dict) and str(data.get(JSON_MARKER, "")).startswith("stdm-drake")
+        if kind == "identified":
+            with open(path, encoding="utf-8", errors="replace") as f:
+                return f.readline().startswith(IDENTIFIED_MARKER)
         if kind == "html":
             with open(path, encoding="utf-8", errors="replace") as f:
                 return f.readline().strip() == HTML_MARKER
@@ -75,8 +80,8 @@ def _written_by_us(path: pathlib.Path, kind: str) -> bool:
 
 
 def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = False) -> pathlib.Path | None:
-    """Check a file the command will write (option: its flag, for messages; kind: "dataset", "json" or
-    "html"; inputs: the files the command reads). Returns the path (None stays None)."""
+    """Check a file the command will write (option: its flag, for messages; kind: "dataset", "json",
+    "identified" or "html"; inputs: the files the command reads). Returns the path (None stays None)."""
     if path is None:
         return None
     path = pathlib.Path(path)

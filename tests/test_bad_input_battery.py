@@ -157,8 +157,8 @@ CASES = [
     ([*M, "--plans", "0", "-o", "NEW"], "--plans must be >= 1"), ([*M, "--plans", "1000", "-o", "NEW"], "held-out plans"),
     ([*M, "--tune", "-1", "-o", "NEW"], "--tune must be >= 0"), ([*M, "--tune", "1000", "-o", "NEW"], "neither tracked"),
     (["mpc", "DATA", "--model", "plant=CK", "--quiet", "-o", "NEW"], "is the plant model's"),
-    ([*M, "--model", "D=CK", "-o", "NEW"], "given more than once"), (["mpc", "DATA", "--model", "D", "-o", "NEW"], "NAME=CHECKPOINT"),
-    (["mpc", "DATA", "--model", "=CK", "-o", "NEW"], "NAME=CHECKPOINT"),
+    ([*M, "--model", "D=CK", "-o", "NEW"], "given more than once"), (["mpc", "DATA", "--model", "D", "-o", "NEW"], "NAME=FILE"),
+    (["mpc", "DATA", "--model", "=CK", "-o", "NEW"], "NAME=FILE"),
     (["mpc", "DATA", "--no-plant", "--excitation-references", "-o", "NEW"], "nothing to compare"),
     (["mpc", "DATA", "--model", "D=CK", "-o", "NEW"], "is an excitation dataset: it has no plans"),
     (["inspect", "STRINGS"], "not numbers"), (["inspect", "SHORTTAU"], "tau has shape"),
@@ -201,6 +201,21 @@ CASES = [
     ([*E, "--visualization", "BADYAML", "--html", "NEW.html", "-o", "NEW.h5"], "malformed visualization config"),
     ([*M, "--visualization", "SPEC", "--html", "NEW.html", "-o", "NEW"], "unknown to the schema"),
     ([*W, "--visualization", "--html", "NEW.html"], "expected one argument"),
+    (["identify"], "required"), (["identify", "DATA"], "required"), (["identify", "DATA", "-o", "NEW.txt"], ".yaml file"),
+    (["identify", "NOTES", "-o", "NEW.yaml"], ""), (["identify", "DATA", "-o", "SPEC"], "did not write it"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--velocity-scales", "0"], "velocity scales"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--velocity-scales", "nan"], "velocity scales"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--regularizations", "-1"], "regularizations"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--windows", "4"], "odd"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--train", "100"], "split needs"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--derivatives", "magic"], "invalid choice"),
+    (["identify", "DATA", "-o", "DIR/x.yaml", "--robot", "NOTES"], ""),
+    (["train", "DATA", "--model", "D", "--physics", "SPEC", "-o", "NEW"], "--physics is the grey box's plant"),
+    (["train", "DATA", "--model", "G", "--physics", "SPEC", "-o", "NEW"], "malformed identified robot"),
+    (["train", "DATA", "--model", "GX", "-o", "NEW"], "invalid choice"),
+    (["evaluate", "SPEC", "DATA"], "malformed identified robot"), (["evaluate", "NEW.yaml", "DATA"], "not found"),
+    (["view", "TSPEC", "DATA", "--html", "NEW.html"], "malformed identified robot"),
+    (["mpc", "TRACK", "--model", "D=SPEC", "-o", "NEW"], "malformed identified robot"),
     (yaml_case("spec", "amplitude_max: [1, 2, 3]\n"), "amplitude_max"),
     (yaml_case("spec", "initial_position_lower: [1.0]\ninitial_position_upper: [0.0]\n"), "initial_position_lower"),
     (yaml_case("spec", "initial_position_lower: [-9.0]\ninitial_position_upper: [9.0]\n"), "leave its limits"),
@@ -265,7 +280,7 @@ def test_bad_input_is_one_line_exit_2_and_touches_nothing(sandbox, capsys, monke
                 (str(sandbox / PLACEHOLDERS[token.split("/")[0]]) + "/" + token.split("/", 1)[1]
                  if "/" in token and token.split("/")[0] in PLACEHOLDERS else
                  token.replace("ZEROSTD", str(sandbox / "zero_std.pt")).replace("CK", str(sandbox / "ck.pt"))
-                 .replace("TRUNCPT", str(sandbox / "truncated.pt"))
+                 .replace("TRUNCPT", str(sandbox / "truncated.pt")).replace("=SPEC", "=" + str(sandbox / "spec.yaml"))
                  if token.startswith(("D=", "=")) else token)
                 for token in argv]
     capsys.readouterr()

@@ -9,14 +9,15 @@ import pytest
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "stdm_drake"
-# stage -> the stages it must not import (the flow: robots -> collection -> data -> learning -> closed_loop;
-# experiments use them all)
+# stage -> the stages it must not import (the flow: robots -> collection -> data -> learning ->
+# identification -> closed_loop; experiments use them all)
 FORBIDDEN = {
     "commands": (),
-    "robots": ("collection", "data", "learning", "closed_loop", "experiments"),
-    "collection": ("learning", "closed_loop", "experiments"),
-    "data": ("collection", "learning", "closed_loop", "experiments"),
-    "learning": ("collection", "closed_loop", "experiments"),
+    "robots": ("collection", "data", "learning", "identification", "closed_loop", "experiments"),
+    "collection": ("learning", "identification", "closed_loop", "experiments"),
+    "data": ("collection", "learning", "identification", "closed_loop", "experiments"),
+    "learning": ("collection", "identification", "closed_loop", "experiments"),
+    "identification": ("collection", "closed_loop", "experiments"),
     "closed_loop": ("experiments",),
 }
 
@@ -109,7 +110,8 @@ def test_every_command_is_a_thin_module_with_add_arguments_and_run():
 def test_top_level_modules_import_no_stage():
     """The modules at the package's top (files, config, paths, errors, ...) sit below every stage; only
     the command line (cli, which loads commands by name) stands above them."""
-    stages = tuple(f"stdm_drake.{stage}" for stage in ("commands", "robots", "collection", "data", "learning", "closed_loop", "experiments"))
+    stages = tuple(f"stdm_drake.{stage}" for stage in ("commands", "robots", "collection", "data", "learning", "identification",
+                                                           "closed_loop", "experiments"))
     edges = [(name, module) for name, modules in module_graph().items() if name.count(".") == 1 and name != "stdm_drake.cli"
              for module in modules if module.startswith(stages)]
     assert not edges, f"top-level modules import a stage: {edges}"

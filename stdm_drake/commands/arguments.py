@@ -53,3 +53,47 @@ def parse_alpha(text: str):
     if not (np.isfinite(value) and value >= 0):
         raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}")
     return value
+
+
+def load_model_file(path):
+    """The file behind a model: a `Checkpoint` that `train` wrote (.pt) or an `IdentifiedRobot` that
+    `identify` wrote (.yaml); both know their dataset (`check_fits`, `trained_on`, `split_indices`)."""
+    from stdm_drake.identification.identified import is_identified_file, load_identified
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    return load_identified(path) if is_identified_file(path) else load_checkpoint(pathlib.Path(path))
+
+
+def command_model(source, robot, *, name: str | None = None, **learned_options):
+    """The model of a model file (a path, or what `load_model_file` loaded), its file as `model.checkpoint`:
+    a checkpoint as a `LearnedModel` (`learned_options` passed on), an identified robot as the
+    description's plant with its parameters (which needs `robot`). Without `name`: the checkpoint's model
+    type ("model" if it has none), or "identified"."""
+    from stdm_drake.errors import InputError
+    from stdm_drake.identification.identified import IdentifiedRobot
+    from stdm_drake.learning.learned_model import LearnedModel
+    if isinstance(source, (str, pathlib.Path)):
+        source = load_model_file(source)
+    if isinstance(source, IdentifiedRobot):
+        if robot is None:
+            raise InputError(f"{source.path}: an identified robot needs its robot (--robot)")
+        return source.model(robot, name=name or "identified")
+    model = LearnedModel(source, name=name, robot=robot, **learned_options)
+    if name is None:
+        model.name = model.checkpoint.metadata.model_type or "model"
+    return model
+
+
+def model_description(model) -> str:
+    """One line on what a model file's model is (architecture and training, or the identification)."""
+    from stdm_drake.learning.learned_model import LearnedModel
+    if not isinstance(model, LearnedModel):
+        record = model.checkpoint.identification
+        return (f"model {model.name}: identified rigid-body model of {record.robot} from {pathlib.Path(record.dataset).name}"
+                f" ({record.derivative_source} derivatives, Coulomb velocity scale {record.coulomb_velocity_scale:g} "
+                f"rad/s; test torque error {record.test_torque_error:.3g})")
+    checkpoint = model.checkpoint
+    config = checkpoint.model_config
+    alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
+    return (f"model {model.name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
+            f"{config.ensemble_size} member(s), {'probabilistic' if config.probabilistic else 'deterministic'}, "
+            f"{'delta' if config.residual else 'direct'}, {model.structure.label}, derivative alpha {alpha:g}")

@@ -18,7 +18,9 @@ from stdm_drake.outputs import add_force_argument, check_output_file
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("checkpoint", type=pathlib.Path, help="model checkpoint written by `stdm-drake train`")
+    parser.add_argument("checkpoint", type=pathlib.Path, metavar="MODEL",
+                        help="model checkpoint written by `stdm-drake train` (.pt), or an identified robot written by "
+                             "`stdm-drake identify` (.yaml)")
     parser.add_argument("dataset", type=pathlib.Path, help="dataset file (.h5)")
     parser.add_argument("--robot", type=pathlib.Path,
                         help="robot config YAML (default: the UR-10 preset when the dataset is its): the plant "
@@ -42,8 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.compatibility import robot_for
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.checkpoint import load_checkpoint
-    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.commands.arguments import command_model, load_model_file, model_description
     from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
     from stdm_drake.robots.robot import UR10_CONFIG
 
@@ -57,26 +58,25 @@ def run(args: argparse.Namespace) -> int:
             robot = robot_for(UR10_CONFIG, dataset)
         except InputError:
             robot = None
-    checkpoint = load_checkpoint(args.checkpoint)
-    checkpoint.check_fits(dataset)
-    trained_on_this = checkpoint.trained_on(dataset)
+    source = load_model_file(args.checkpoint)   # a checkpoint or an identified robot: which dataset and split
+    source.check_fits(dataset)
+    trained_on_this = source.trained_on(dataset)
     if args.split == "all":
         indices = np.arange(dataset.num_trajectories)
     else:
-        split = checkpoint.split_indices(dataset, args.split)
+        split = source.split_indices(dataset, args.split)
         if split is None:
             raise InputError(f"{args.dataset} is not the dataset {args.checkpoint} was trained on (sha256 differs), "
                              f"so its {args.split} split does not apply; use --split all")
         indices = np.asarray(split, dtype=int)
         if not len(indices):
-            raise InputError(f"the checkpoint's {args.split} split is empty")
+            raise InputError(f"the model's {args.split} split is empty")
     shortest = min(dataset.trajectory(int(i)).num_steps for i in indices)
     if args.horizon is not None and not 1 <= args.horizon <= shortest:
         raise InputError(f"--horizon must be in 1..{shortest} (the shortest selected trajectory's steps), "
                          f"got {args.horizon}")
-    model = LearnedModel(checkpoint, name=checkpoint.metadata.model_type or "model", robot=robot,
-                         sample_period=dataset.sample_period, require_sample_period=False,
-                         check_robot=robot is not None)
+    model = command_model(source, robot, sample_period=dataset.sample_period, require_sample_period=False,
+                          check_robot=robot is not None)
     transitions = dataset.transitions(indices)
     rollout_data = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
     plant = robot is not None and not args.no_plant
@@ -85,11 +85,7 @@ def run(args: argparse.Namespace) -> int:
     floor = noise_floor(dataset, indices)
     rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=args.propagation,
                                   particles=args.particles, seed=args.seed, noise_floor=floor)
-    config = checkpoint.model_config
-    alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
-    print(f"model {model.name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
-          f"{config.ensemble_size} member(s), {'probabilistic' if config.probabilistic else 'deterministic'}, "
-          f"{'delta' if config.residual else 'direct'}, {model.structure.label}, derivative alpha {alpha:g}")
+    print(model_description(model))
     print(f"dataset {args.dataset} ({'the training dataset' if trained_on_this else 'another dataset'}); "
           f"split {args.split}: {len(indices)} trajectories, {rows[0].one_step.transitions} transitions")
     multi = rows[0].multi_step
@@ -127,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         report = dict(written_by="stdm-drake evaluate", checkpoint=str(args.checkpoint), dataset=str(args.dataset),
                       dataset_sha256=dataset.sha256, trained_on_this_dataset=trained_on_this, split=args.split,
-                      structure=model.structure.as_dict(), trajectories=[int(i) for i in indices],
+                      structure=model.structure.as_dict() if hasattr(model, "structure") else None,
+                      model=model_description(model), trajectories=[int(i) for i in indices],
                       one_step=learned.one_step.as_dict(), multi_step=multi.as_dict(),
                       ratio_to_euler_q=learned.ratio_q, ratio_to_velocity_unchanged_v=learned.ratio_v,
                       over_noise_floor_q=learned.floor_ratio_q, over_noise_floor_v=learned.floor_ratio_v,

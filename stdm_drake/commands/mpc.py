@@ -22,8 +22,9 @@ from stdm_drake.outputs import add_force_argument, check_output_file, check_outp
 def add_arguments(parser) -> None:
     import pathlib
     parser.add_argument("dataset", type=pathlib.Path, help="tracking dataset whose held-out plans are the references")
-    parser.add_argument("--model", action="append", default=[], metavar="NAME=CHECKPOINT",
-                        help="a learned model to compare (repeatable), e.g. DD=runs/dd/seed0/checkpoint.pt")
+    parser.add_argument("--model", action="append", default=[], metavar="NAME=FILE",
+                        help="a model to compare (repeatable): a checkpoint, e.g. DD=runs/dd/seed0/checkpoint.pt, or an "
+                             "identified robot, e.g. identified=identified.yaml")
     parser.add_argument("--no-plant", action="store_true",
                         help="leave out the plant-as-model reference MPCs (nominal and, on an affected plant, true)")
     parser.add_argument("--excitation-references", action="store_true",
@@ -55,7 +56,7 @@ def run(args) -> int:
 
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.files import write_text_atomic
-    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.commands.arguments import command_model
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
     if args.plans < 1:
         raise InputError(f"--plans must be >= 1, got {args.plans}")
@@ -64,7 +65,7 @@ def run(args) -> int:
     for entry in args.model:
         name, separator, path = entry.partition("=")
         if not separator or not name or not path:
-            raise InputError(f"--model takes NAME=CHECKPOINT, got {entry!r}")
+            raise InputError(f"--model takes NAME=FILE, got {entry!r}")
     checkpoints = [entry.partition("=")[2] for entry in args.model]
     names = [entry.partition("=")[0] for entry in args.model]
     repeated = sorted({name for name in names if names.count(name) > 1})
@@ -97,8 +98,8 @@ def run(args) -> int:
     for entry in args.model:
         name, separator, path = entry.partition("=")
         if not separator or not name or not path:
-            raise InputError(f"--model takes NAME=CHECKPOINT, got {entry!r}")
-        learned.append(LearnedModel(path, name=name, robot=robot))
+            raise InputError(f"--model takes NAME=FILE, got {entry!r}")
+        learned.append(command_model(path, robot, name=name))
     for model in learned:
         model.checkpoint.check_fits(dataset)
     plants = [PlantModel(dataset.sample_period, robot=robot)]
@@ -106,7 +107,7 @@ def run(args) -> int:
         plants.append(PlantModel(dataset.sample_period, plant_config, robot=robot))
     models = ([] if args.no_plant else plants) + learned
     if not models:
-        raise InputError("nothing to compare: give --model NAME=CHECKPOINT or keep the plant model")
+        raise InputError("nothing to compare: give --model NAME=FILE or keep the plant model")
     references = held_out_references(dataset, [model.checkpoint for model in learned], args.plans)
     if len(references) < args.plans:
         raise InputError(f"--plans {args.plans}: {args.dataset} has only {len(references)} held-out plans")

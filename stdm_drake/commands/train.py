@@ -19,7 +19,7 @@ from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, write_text_atomic
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
-from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
 from stdm_drake.learning.problem import training_problem
 from stdm_drake.learning.seeds import dataset_split, fit_seeds
 from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainSettings
@@ -47,8 +47,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=pathlib.Path,
                         help="training settings YAML (TrainSettings: keys as the flags below with '_' for '-'); "
                              "flags given on the command line override it")
-    parser.add_argument("--model", default="DD", type=str.upper, choices=tuple(MODEL_TYPES),
-                        help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (default DD)")
+    parser.add_argument("--model", default="DD", type=str.upper, choices=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES),
+                        help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (default DD); G/GD "
+                             "the grey box: a D/DD whose delta adds to the plant model's next state (--inputs "
+                             "plant_step; the plant: the robot's description, or --physics)")
+    parser.add_argument("--physics", type=pathlib.Path, metavar="IDENTIFIED",
+                        help="the grey box's plant: an identified robot (`stdm-drake identify`'s .yaml) instead of the "
+                             "robot's description; recorded in the checkpoint")
     parser.add_argument("--derivative", choices=("on", "off"),
                         help="override the derivative loss the model type implies")
     parser.add_argument("--alpha", type=parse_alpha, default=DEFAULT_ALPHA,
@@ -70,7 +75,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="nominal_acceleration: [q, v, tau] and the acceleration the robot's nominal model "
                              "(--robot) gives (default); period_acceleration: that model's mean acceleration over "
                              "the sample period instead (for joints damped faster than the period); raw: [q, v, "
-                             "tau] (the paper's)")
+                             "tau] (the paper's); plant_step: the grey box (the network's delta adds to the plant "
+                             "model's next state; what --model G/GD use)")
     parser.add_argument("--state-loss", choices=LOSS_KINDS, default="mse")
     parser.add_argument("--derivative-loss", choices=LOSS_KINDS, default="mse")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="one model per seed (default 0)")
@@ -185,13 +191,26 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
     return entry
 
 
+def grey_box_physics(path, robot, settings) -> dict | None:
+    """The structure's physics record of `--physics` (an identified robot of `robot`'s description), or None."""
+    if path is None:
+        return None
+    if settings.inputs != "plant_step":
+        raise InputError("--physics is the grey box's plant: use it with --model G/GD (or --inputs plant_step)")
+    from stdm_drake.identification.identified import load_identified
+    identified = load_identified(path)
+    identified.check_robot(robot)
+    return dict(effects=identified.effects.record(), plant_time_step=identified.identification.plant_time_step,
+                source=str(path))
+
+
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.dataset import load_dataset
 
     settings = training_settings(args)
     torch.set_num_threads(settings.threads)
     output = pathlib.Path(args.output)
-    check_output_folder("-o/--output", output, inputs=[args.dataset, args.config, args.robot],
+    check_output_folder("-o/--output", output, inputs=[args.dataset, args.config, args.robot, args.physics],
                         own_files=("summary.json",), force=args.force)
     if args.backend == "ray" and args.resume:
         raise InputError("--resume continues runs in a local folder; with --backend ray, train without it")
@@ -199,11 +218,11 @@ def run(args: argparse.Namespace) -> int:
     if existing and not args.resume:
         raise InputError(f"{output / f'seed{existing[0]}' / 'checkpoint.pt'} exists; pass --resume "
                          "to continue it or choose another --output")
-    structure = settings.structure()
     dataset = load_dataset(args.dataset)
     robot = None   # (without a robot, train loads no Drake plant at all)
-    if args.robot is not None or structure.uses_nominal_model:
+    if args.robot is not None or settings.structure().uses_nominal_model:
         robot = command_robot(args, dataset)
+    structure = settings.structure(grey_box_physics(args.physics, robot, settings))
     if settings.uses_derivative() and robot is not None:
         warn_about_fast_damped_joints(robot, dataset.sample_period)
     split, per_group = dataset_split(dataset, settings)

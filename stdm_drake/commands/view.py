@@ -12,7 +12,8 @@ from stdm_drake.robots.recorder import TrajectoryRecorder
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("checkpoint", type=pathlib.Path, help="trained model (checkpoint.pt)")
+    parser.add_argument("checkpoint", type=pathlib.Path, metavar="MODEL",
+                        help="trained model (checkpoint.pt) or identified robot (identified.yaml)")
     parser.add_argument("dataset", type=pathlib.Path, help="dataset with the trajectories to replay")
     parser.add_argument("--trajectories", type=int, default=3,
                         help="how many test trajectories (the checkpoint's test split when it was trained on "
@@ -28,7 +29,7 @@ def add_arguments(parser) -> None:
 def run(args) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.errors import InputError
-    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.commands.arguments import command_model
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
     if not args.index and args.trajectories < 1:
@@ -38,7 +39,7 @@ def run(args) -> int:
     visualization = command_visualization(args)
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)
-    model = LearnedModel(args.checkpoint, robot=robot)
+    model = command_model(args.checkpoint, robot)
     model.checkpoint.check_fits(dataset)
     if args.index:
         indices = args.index
@@ -62,8 +63,7 @@ def run(args) -> int:
         x0 = np.concatenate([traj.q[0], traj.v[0]])
         predicted = model.rollout(x0[None], traj.tau[None]).mean[0]
         ghost_q = np.vstack([traj.q[:1], predicted[:, :robot.num_joints]])
-        label = model.checkpoint.metadata.model_type or "model"
-        print(f"trajectory {index}: {open_loop_error_line(label, traj.q, traj.v[0], ghost_q, dataset.sample_period)}")
+        print(f"trajectory {index}: {open_loop_error_line(model.name, traj.q, traj.v[0], ghost_q, dataset.sample_period)}")
         if nominal is not None:
             plant_q = np.vstack([traj.q[:1], nominal.rollout(x0[None], traj.tau[None]).mean[0][:, :robot.num_joints]])
             print(f"  {open_loop_error_line('nominal plant', traj.q, traj.v[0], plant_q, dataset.sample_period)}")

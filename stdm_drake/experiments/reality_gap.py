@@ -74,11 +74,12 @@ def dataset(folder: pathlib.Path, name: str, effects, plans: int, seed: int, rob
 
 
 def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: int, folder: str,
-          robot_config: str | None = None) -> str:
+          robot_config: str | None = None, extra: tuple = ()) -> str:
     """`stdm-drake train` of one model type, every seed (in a pool worker); the run folder: `folder` with
     the split, the epochs and the first 12 hex digits of the dataset's SHA-256 appended (other data or
     settings get new models). A folder whose every seed's checkpoint exists is reused. robot_config: the
-    robot's YAML (None: the UR-10 preset)."""
+    robot's YAML (None: the UR-10 preset); extra: more `train` arguments (the folder name must tell them
+    apart, e.g. a grey box's --physics)."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
     sha = load_dataset(dataset_path).sha256[:12]
@@ -89,7 +90,8 @@ def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: 
     code = main(["train", dataset_path, "--model", model_type, "--train", str(train_count), "--val", str(val_count),
                  "--test", str(test_count), "--per-group", "on", "--derivative-source", "true",
                  "--action-rate", "zero_order_hold", "--epochs", str(epochs), "--seeds", *map(str, range(seeds)),
-                 "--quiet", "--force", "-o", str(folder), *(["--robot", str(robot_config)] if robot_config else [])])
+                 "--quiet", "--force", "-o", str(folder), *(["--robot", str(robot_config)] if robot_config else []),
+                 *extra])
     if code != 0:
         raise RuntimeError(f"train {model_type} on {dataset_path} failed ({code})")
     return str(folder)

@@ -88,7 +88,7 @@ class LearnedModel(DynamicsModel):
         features = None
         if self.features is not None:   # a diverged rollout state gets NaN features (Drake refuses it)
             n, finite = self.num_joints, np.isfinite(x).all(axis=1) & np.isfinite(a).all(axis=1)
-            features = np.full((len(x), n), np.nan)
+            features = np.full((len(x), self.features.width), np.nan)
             if finite.any():
                 features[finite] = self.features.values(x[finite, :n], x[finite, n:], a[finite])
         return self.structure.split(x, a, features)
@@ -136,6 +136,9 @@ class LearnedModel(DynamicsModel):
         return Prediction(mean=mean, variance=variance, member_means=members, member_variances=member_variances)
 
     def _rollout_step(self, x, a):
+        if self.structure.grey_box:   # no checks: a state the plant cannot step gives a NaN row (a diverged rollout)
+            mean = self.step(x, a)
+            return mean, np.zeros_like(mean)
         result = self.predict(x, a)
         return result.mean, result.variance
 
@@ -165,13 +168,18 @@ class LearnedModel(DynamicsModel):
         network = self.engine.mean_jacobian(rows).astype(np.float64)     # (H, out, network inputs)
         width = S + self.action_dim
         # d(network inputs) / d(x, a): the structure's permutation of [q, v, τ], then φ's Jacobian
+        # (plant-step inputs: the plant step's Jacobian [A B] (its v̂ rows for "velocity"), then [x, τ])
         count = len(x)
         order = np.eye(width)
-        if self.structure.predicts == "velocity":
-            order = np.vstack([order[n:S], order[:n], order[S:]])        # [v, q, τ]
-        inputs = np.broadcast_to(order, (count, width, width))
-        if feature_jacobian is not None:
-            inputs = np.concatenate([inputs, feature_jacobian], axis=1)
+        if self.structure.grey_box:
+            part = feature_jacobian if self.structure.predicts == "state" else feature_jacobian[:, n:]
+            inputs = np.concatenate([part, np.broadcast_to(order, (count, width, width))], axis=1)
+        else:
+            if self.structure.predicts == "velocity":
+                order = np.vstack([order[n:S], order[:n], order[S:]])    # [v, q, τ]
+            inputs = np.broadcast_to(order, (count, width, width))
+            if feature_jacobian is not None:
+                inputs = np.concatenate([inputs, feature_jacobian], axis=1)
         jacobian = network @ inputs                                      # (H, out, 2n + m)
         if self.structure.predicts == "velocity":
             angle = 0.5 * self.sample_period * jacobian

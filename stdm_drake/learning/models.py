@@ -55,13 +55,17 @@ MODEL_TYPES: dict[str, ModelType] = {
                              ("DD", True), ("PD", True), ("DED", True), ("PED", True))
 }
 DEFAULT_ENSEMBLE_SIZE = 5
+# The grey box (issue 23): a D (G) or DD (GD) whose delta adds to a plant model's next state
+# (`structure.ModelStructure` with plant-step inputs); not one of the paper's types.
+GREY_BOX_TYPES: dict[str, ModelType] = {"G": ModelType("G", False, False, False), "GD": ModelType("GD", False, False, True)}
 
 
 def parse_model_type(name: str) -> ModelType:
     key = name.upper()
-    if key not in MODEL_TYPES:
-        raise InputError(f"unknown model type {name!r}; choose from {', '.join(MODEL_TYPES)}")
-    return MODEL_TYPES[key]
+    kinds = {**MODEL_TYPES, **GREY_BOX_TYPES}
+    if key not in kinds:
+        raise InputError(f"unknown model type {name!r}; choose from {', '.join(kinds)}")
+    return kinds[key]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -73,6 +77,9 @@ class ModelConfig:
     standardize_inputs: scale inputs to zero mean and unit spread (False: the network sees raw z,
     e.g. the sine-sum's x in [-30π, 30π], whose Xavier-scale first layer then starts with
     frequencies of order 1 instead of 1/σ_x).
+    zero_output: the output layer's weights start at 0, so a delta model starts predicting its residual
+    part plus the targets' mean delta (a grey box starts as its plant model with a constant correction;
+    the hidden layers keep their random start, and reach the loss as soon as the output layer moves).
     """
     input_dim: int
     output_dim: int
@@ -83,6 +90,7 @@ class ModelConfig:
     ensemble_size: int = 1
     probabilistic: bool = False
     standardize_inputs: bool = True
+    zero_output: bool = False
 
     def __post_init__(self):
         for field in ("input_dim", "output_dim", "hidden_width", "hidden_layers", "ensemble_size"):
@@ -240,6 +248,8 @@ class EnsembleMLP(nn.Module):
             for weight in self.weights:
                 for member_weight in weight:
                     nn.init.xavier_uniform_(member_weight, generator=generator)
+            if config.zero_output:
+                self.weights[-1].zero_()
         if config.probabilistic:
             self.min_logvar = nn.Parameter(torch.full((members, 1, config.output_dim), MIN_LOGVAR_INIT))
             self.max_logvar = nn.Parameter(torch.full((members, 1, config.output_dim), MAX_LOGVAR_INIT))

@@ -98,11 +98,13 @@ class PlantModel(DynamicsModel):
     Drake AutoDiff linearization of the continuous dynamics at (x_k, u_k), discretized over the
     period (`zero_order_hold_discretization`). With `plant_config.effects` it is the affected plant's
     (the true plant of data collected with those effects, an oracle no user has; named "true-plant"),
-    else the robot's description (the nominal model a user has; named "plant").
+    else the robot's description (the nominal model a user has; named "plant"); an identified robot's
+    model is the description with the identified parameters as effects (`identification.identified`).
     """
     name = "plant"
+    checkpoint = None     # an identified robot's model: its `IdentifiedRobot` (the file, its dataset and split)
 
-    def __init__(self, sample_period: float, plant_config=None, *, robot):
+    def __init__(self, sample_period: float, plant_config=None, *, robot, name: str | None = None):
         from stdm_drake.robots.plant import PlantConfig, PlantSimulator, make_plant
         self.robot = robot
         self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
@@ -111,6 +113,8 @@ class PlantModel(DynamicsModel):
         self.effects = plant_config.effects if plant_config is not None else None
         if self.effects is not None:
             self.name = "true-plant"
+        if name is not None:
+            self.name = name
         continuous_config = PlantConfig.discrete(0.0, effects=self.effects)
         continuous, _ = make_plant(continuous_config, robot=self.robot)
         self.autodiff_plant = continuous.ToAutoDiffXd()
@@ -239,6 +243,7 @@ class NominalAcceleration:
         from stdm_drake.robots.plant import PlantConfig, make_plant
         self.robot = robot
         self.num_joints, self.action_dim = self.robot.num_joints, self.robot.action_dim
+        self.width = self.num_joints      # values per row
         self.plant, _ = make_plant(PlantConfig.continuous(), robot=self.robot)
         self.context = self.plant.CreateDefaultContext()
         self.autodiff_plant = self.plant.ToAutoDiffXd()
@@ -349,3 +354,4 @@ class PeriodAcceleration(NominalAcceleration):
         rates = np.zeros_like(forward)
         rates[moving] = (forward[moving] - backward[moving]) / (2.0 * step[moving])
         return rates
+

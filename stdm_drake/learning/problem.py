@@ -54,7 +54,8 @@ def training_problem(dataset, split, *, model_type: str = "DD", activation: str 
     input_dim, output_dim = structure.network_sizes(state_dim, action_dim)
     config = ModelConfig(input_dim=input_dim, output_dim=output_dim, residual=delta, hidden_width=hidden_width,
                          hidden_layers=hidden_layers, activation=activation,
-                         ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic)
+                         ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic,
+                         zero_output=structure.grey_box and delta)   # a grey box starts as its plant model
     metadata = dataset_metadata(dataset, parts, model_type=model_type, derivative_source=source,
                                 action_rate=action_rate,
                                 structure=None if structure == PAPER else structure.as_dict(), **metadata_fields)

@@ -10,7 +10,7 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
-from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, MODEL_TYPES
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 
 LOSS_KINDS = ("mse", "mae", "huber")
@@ -104,13 +104,14 @@ class TrainSettings:
     file (`--config FILE`; keys left out keep these defaults; a command-line flag overrides its key).
     Field names are the flags' names with "_" for "-"; see `stdm-drake train --help` for each.
 
-    model: "D", "P", "DE", "PE" (naive) or "DD", "PD", "DED", "PED" (derivative loss); derivative:
+    model: "D", "P", "DE", "PE" (naive) or "DD", "PD", "DED", "PED" (derivative loss), "G" / "GD" (the
+    grey box: D / DD with inputs "plant_step"); derivative:
     "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto";
     alpha_grid: alphas tried by "auto"; network: activation, hidden_width, hidden_layers,
     ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
     predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's) and inputs
     ("nominal_acceleration": [q, v, τ] and the robot's nominal acceleration; "period_acceleration":
-    its mean over the sample period instead; "raw": [q, v, τ], the paper's), see
+    its mean over the sample period instead; "raw": [q, v, τ], the paper's; "plant_step": the grey box), see
     `learning.structure`; losses: state_loss,
     derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
     trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
@@ -160,7 +161,9 @@ class TrainSettings:
                 raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}") from None
         elif isinstance(self.alpha, str):
             self.alpha = "auto"
-        choices = dict(model=tuple(MODEL_TYPES), derivative=(None, "on", "off"), activation=ACTIVATION_NAMES,
+        if self.model in GREY_BOX_TYPES:   # G / GD: a D / DD on the plant step
+            self.inputs = "plant_step"
+        choices = dict(model=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES), derivative=(None, "on", "off"), activation=ACTIVATION_NAMES,
                        state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
                        derivative_source=(None, "true", "planned"),
                        action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES,
@@ -211,13 +214,15 @@ class TrainSettings:
         derivative loss is on (so --model D --derivative on trains a "DD")."""
         from stdm_drake.learning.models import parse_model_type
         kind = parse_model_type(self.model)
+        if self.inputs == "plant_step" and not (kind.probabilistic or kind.ensemble):
+            return "G" + ("D" if self.uses_derivative() else "")
         return ("P" if kind.probabilistic else "D") + ("E" if kind.ensemble else "") + \
             ("D" if self.uses_derivative() else "")
 
-    def structure(self):
-        """The `ModelStructure` of predicts and inputs."""
+    def structure(self, physics: dict | None = None):
+        """The `ModelStructure` of predicts and inputs (and a grey box's `physics` record, see there)."""
         from stdm_drake.learning.structure import ModelStructure
-        return ModelStructure(predicts=self.predicts, inputs=self.inputs)
+        return ModelStructure(predicts=self.predicts, inputs=self.inputs, physics=physics)
 
     def alpha_choices(self) -> tuple | None:
         """The alphas that alpha "auto" chooses from by validation (`trainer.fit_model`'s alpha_grid);

@@ -18,9 +18,14 @@
                          its next velocity; equal to φ up to O(Δt) on a UR-10, and the one that stays
                          meaningful on joints whose damping decays faster than the period (light
                          wrists of published descriptions with <dynamics damping>)
+    inputs="plant_step"  the grey box: the network's delta adds to a plant model's next state x̂_{k+1}
+                         (`plant_step.PlantStep`: the robot's description, or with `physics` the description
+                         with an identified robot's parameters) instead of to x_k, and it sees [x̂ (or v̂),
+                         x, τ]: it learns only what the plant model misses; ẋ̂ = A ẋ + B τ̇ by the plant's
+                         linearization, once per training sample
 
 The network's own input order puts the part its delta adds first: [x, τ, (φ)] for "state",
-[v, q, τ, (φ)] for "velocity". Derivative learning needs the time derivative of every input: ẋ and
+[v, q, τ, (φ)] for "velocity"; with plant-step inputs [x̂, x, τ] and [v̂, x, τ]. Derivative learning needs the time derivative of every input: ẋ and
 Δτ/Δt from the dataset, φ̇ = ∂φ/∂(q, v, τ) (q̇, q̈, Δτ/Δt) by forward-mode AutoDiff through the plant.
 For "velocity" the state loss is the velocity MSE and the derivative target q̈_{t+1}: the angle's
 error is (Δt/2)² times the velocity's, so nothing is lost by leaving it out.
@@ -37,33 +42,46 @@ import numpy as np
 from stdm_drake.errors import InputError
 
 PREDICTS = ("state", "velocity")
-INPUT_SETS = ("raw", "nominal_acceleration", "period_acceleration")
+INPUT_SETS = ("raw", "nominal_acceleration", "period_acceleration", "plant_step")
 
 
 @dataclasses.dataclass(frozen=True)
 class ModelStructure:
-    """What the network predicts ("state" or "velocity") and sees ("raw", "nominal_acceleration" or
-    "period_acceleration")."""
+    """What the network predicts ("state" or "velocity") and sees ("raw", "nominal_acceleration",
+    "period_acceleration" or "plant_step"); physics: for plant-step inputs, the plant model's parameters
+    when they are not the description's ({"effects": a PlantEffects record, "plant_time_step": s,
+    "source": the identified robot's file}), None for the description."""
     predicts: str = "velocity"
     inputs: str = "nominal_acceleration"
+    physics: dict | None = None
 
     def __post_init__(self):
         if self.predicts not in PREDICTS:
             raise InputError(f"model structure: predicts must be one of {PREDICTS}, got {self.predicts!r}")
         if self.inputs not in INPUT_SETS:
             raise InputError(f"model structure: inputs must be one of {INPUT_SETS}, got {self.inputs!r}")
+        if self.physics is not None and (self.inputs != "plant_step" or not isinstance(self.physics, dict)
+                                         or set(self.physics) != {"effects", "plant_time_step", "source"}):
+            raise InputError("model structure: physics (effects, plant_time_step, source) belongs to plant-step "
+                             f"inputs only, got {self.physics!r}")
+
+    def __hash__(self):
+        return hash((self.predicts, self.inputs, repr(self.physics)))
 
     @classmethod
     def from_dict(cls, values: dict | None) -> "ModelStructure":
         """From checkpoint metadata; None (checkpoints written before structures existed) is the paper's."""
         if values is None:
             return PAPER
-        if not isinstance(values, dict) or set(values) - {"predicts", "inputs"}:
-            raise InputError(f"model structure: expected keys predicts and inputs, got {values!r}")
+        if not isinstance(values, dict) or set(values) - {"predicts", "inputs", "physics"}:
+            raise InputError(f"model structure: expected keys predicts, inputs (and physics), got {values!r}")
         return cls(**values)
 
     def as_dict(self) -> dict:
-        return dataclasses.asdict(self)
+        values = dataclasses.asdict(self)
+        if values["physics"] is None:     # (the record of structures without physics stays as it was)
+            del values["physics"]
+        return values
 
     @property
     def uses_nominal_model(self) -> bool:
@@ -71,33 +89,49 @@ class ModelStructure:
 
     def nominal_features(self, robot, sample_period: float):
         """The nominal-model input of this structure for `robot` at `sample_period` s (None for raw
-        inputs): a `NominalAcceleration` or a `PeriodAcceleration`."""
+        inputs): a `NominalAcceleration`, a `PeriodAcceleration` or a `PlantStep`."""
         from stdm_drake.learning.physics import NominalAcceleration, PeriodAcceleration
+        from stdm_drake.learning.plant_step import PlantStep
         if self.inputs == "raw":
             return None
         if self.inputs == "period_acceleration":
             return PeriodAcceleration(robot, sample_period)
+        if self.inputs == "plant_step":
+            if self.physics is None:
+                return PlantStep(robot, sample_period)
+            from stdm_drake.robots.effects import PlantEffects
+            return PlantStep(robot, sample_period, PlantEffects.from_record(self.physics["effects"]),
+                             self.physics["plant_time_step"])
         return NominalAcceleration(robot)
+
+    @property
+    def grey_box(self) -> bool:
+        """Whether the network's delta adds to a plant model's next state (plant-step inputs)."""
+        return self.inputs == "plant_step"
 
     @property
     def label(self) -> str:
         """Short description for tables: e.g. "velocity + trapezoid, nominal-acceleration inputs"."""
         what = "next state" if self.predicts == "state" else "next velocity, q by trapezoid"
         seen = {"raw": "raw inputs", "nominal_acceleration": "nominal-acceleration inputs",
-                "period_acceleration": "period-acceleration inputs"}[self.inputs]
+                "period_acceleration": "period-acceleration inputs",
+                "plant_step": "grey box on the " + ("identified" if self.physics else "description's") + " plant step"
+                }[self.inputs]
         return f"{what}, {seen}"
 
     def network_sizes(self, state_dim: int, action_dim: int) -> tuple[int, int]:
         """(input_dim, output_dim) of the network for a state of state_dim = 2n and action_dim = m."""
         joints = state_dim // 2
-        extra = joints if self.uses_nominal_model else 0
         output = state_dim if self.predicts == "state" else joints
+        if self.grey_box:     # [x̂ or v̂, x, τ]
+            return output + state_dim + action_dim, output
+        extra = joints if self.uses_nominal_model else 0
         return state_dim + action_dim + extra, output
 
     def model_sizes(self, input_dim: int, output_dim: int) -> tuple[int, int]:
         """(state_dim, action_dim) of the model a network of these sizes serves (network_sizes inverted)."""
         joints = output_dim // 2 if self.predicts == "state" else output_dim
-        extra = joints if self.uses_nominal_model else 0
+        extra = output_dim if self.grey_box else joints if self.uses_nominal_model else 0
         action = input_dim - 2 * joints - extra
         if action < 0 or (self.predicts == "state" and output_dim % 2):
             raise InputError(f"a network of {input_dim} inputs and {output_dim} outputs does not fit the structure "
@@ -105,9 +139,11 @@ class ModelStructure:
         return 2 * joints, action
 
     def split(self, x: np.ndarray, a: np.ndarray, features: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """The network's (state part, rest) of its input rows for x (N, 2n), a (N, m), φ (N, n) or None:
-        the state part is what its delta adds to (x or v)."""
+        """The network's (state part, rest) of its input rows for x (N, 2n), a (N, m), φ (N, n) or None
+        (plant-step inputs: x̂ (N, 2n)): the state part is what its delta adds to (x or v; x̂ or v̂)."""
         joints = x.shape[1] // 2
+        if self.grey_box:
+            return (features if self.predicts == "state" else features[:, joints:]), np.hstack([x, a])
         extra = [] if features is None else [features]
         if self.predicts == "state":
             return x, np.hstack([a] + extra)

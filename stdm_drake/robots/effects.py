@@ -20,26 +20,36 @@ from stdm_drake.errors import InputError
 
 
 @dataclasses.dataclass
-class Payload:
-    """A rigid payload welded to the robot's tool frame: mass kg, centre of mass (3,) m in the tool
-    frame, rotational inertia about its centre of mass [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] kg m²
-    (zeros: a point mass)."""
+class RigidInertia:
+    """A rigid body's inertia: mass kg, centre of mass (3,) m in its frame, rotational inertia about the
+    centre of mass [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] kg m² (zeros: a point mass)."""
     mass: float = 0.0
     center_of_mass: list[float] = dataclasses.field(default_factory=lambda: [0.0, 0.0, 0.0])
     inertia: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
 
-    def validate(self) -> None:
-        require(np.isfinite(self.mass) and self.mass >= 0, "payload mass must be a finite number >= 0 kg", self.mass)
-        require(self.mass > 0 or not any(self.inertia), "payload inertia needs a payload mass > 0", self.inertia)
+    def validate(self, what: str = "payload") -> None:
+        require(np.isfinite(self.mass) and self.mass >= 0, f"{what} mass must be a finite number >= 0 kg", self.mass)
+        require(self.mass > 0 or not any(self.inertia), f"{what} inertia needs a mass > 0", self.inertia)
         require(len(self.center_of_mass) == 3 and np.all(np.isfinite(self.center_of_mass)),
-                "payload center_of_mass must be 3 finite numbers (m, tool frame)", self.center_of_mass)
+                f"{what} center_of_mass must be 3 finite numbers (m)", self.center_of_mass)
         require(len(self.inertia) == 6 and np.all(np.isfinite(self.inertia)),
-                "payload inertia must be 6 finite numbers [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m²)", self.inertia)
+                f"{what} inertia must be 6 finite numbers [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m²)", self.inertia)
         if self.mass > 0 and any(self.inertia):
             from pydrake.multibody.tree import RotationalInertia
             if not RotationalInertia(*self.inertia).CouldBePhysicallyValid():
-                raise InputError(f"payload inertia {self.inertia} is not physically valid (positive moments that "
+                raise InputError(f"{what} inertia {self.inertia} is not physically valid (positive moments that "
                                  "satisfy the triangle inequality)")
+
+    def spatial_inertia(self):
+        """Drake's SpatialInertia about the body frame's origin."""
+        from pydrake.multibody.tree import RotationalInertia, SpatialInertia
+        return SpatialInertia.MakeFromCentralInertia(self.mass, np.asarray(self.center_of_mass, dtype=float),
+                                                     RotationalInertia(*self.inertia))
+
+
+@dataclasses.dataclass
+class Payload(RigidInertia):
+    """A rigid payload welded to the robot's tool frame (its inertia in the tool frame)."""
 
 
 @dataclasses.dataclass
@@ -51,10 +61,15 @@ class PlantEffects:
     coulomb_friction: N m per joint; coulomb_velocity_scale: v_s rad/s of the tanh smoothing (per joint
         or one value; 2/phi_2 for the sigmoid model phi_1 / (1 + exp(-phi_2 v)) of Gaz et al., whose
         amplitude is then F_c = phi_1 / 2).
-    rotor_inertia: motor-side kg m² per joint; gear_ratio: per joint (reflected inertia G² I_r).
+    rotor_inertia: motor-side kg m² per joint, replacing the description's; gear_ratio: per joint
+        (reflected inertia G² I_r).
     payload: a Payload on the tool frame.
     mass_scale: link name -> factor on that link's mass and rotational inertia (centre of mass kept).
     torque_noise_std: N m per joint, white noise on the held action, one draw per sample period.
+    joint_damping: N m s/rad per joint (or one value): replaces the description's joint damping
+        (viscous_friction is added to it); an identified robot's total viscous friction.
+    link_inertia: link name -> RigidInertia (in the link's frame) replacing the description's (Context
+        parameters, like the mass scales): an identified robot's links.
     """
     source: str = ""
     viscous_friction: list[float] = dataclasses.field(default_factory=list)
@@ -65,9 +80,11 @@ class PlantEffects:
     payload: Payload = dataclasses.field(default_factory=Payload)
     mass_scale: dict[str, float] = dataclasses.field(default_factory=dict)
     torque_noise_std: list[float] = dataclasses.field(default_factory=list)
+    joint_damping: list[float] = dataclasses.field(default_factory=list)
+    link_inertia: dict[str, RigidInertia] = dataclasses.field(default_factory=dict)
 
     def validate(self) -> None:
-        for name in ("viscous_friction", "coulomb_friction", "rotor_inertia", "torque_noise_std"):
+        for name in ("viscous_friction", "coulomb_friction", "rotor_inertia", "torque_noise_std", "joint_damping"):
             if getattr(self, name):
                 check_joint_vector(name, getattr(self, name), nonnegative=True)
         if self.gear_ratio:
@@ -79,6 +96,11 @@ class PlantEffects:
         for link, factor in self.mass_scale.items():
             require(np.isfinite(factor) and factor > 0, f"mass_scale of {link} must be a finite number > 0", factor)
         self.payload.validate()
+        for link, inertia in self.link_inertia.items():
+            inertia.validate(f"link_inertia of {link}:")
+            require(inertia.mass > 0, f"link_inertia of {link}: mass must be > 0 kg", inertia.mass)
+        both = sorted(set(self.link_inertia) & set(self.mass_scale))
+        require(not both, "a link has either link_inertia or a mass_scale, not both", both)
 
     def joint_values(self, name: str, joints: int) -> np.ndarray:
         """Field `name` as (joints,) values (zeros when empty; one value broadcast); InputError when a
@@ -107,6 +129,10 @@ class PlantEffects:
                                                      "torque_noise_std") if self.is_on(name)]
         if self.payload.mass > 0:
             parts.append(f"payload {self.payload.mass:g} kg")
+        if self.joint_damping:
+            parts.append("joint damping")
+        if self.link_inertia:
+            parts.append(f"inertia of {len(self.link_inertia)} links")
         if self.mass_scale:
             parts.append("mass scale " + ", ".join(f"{link} x{factor:g}" for link, factor in self.mass_scale.items()))
         return (", ".join(parts) or "none") + (f"  ({self.source})" if self.source else "")
@@ -119,6 +145,7 @@ class PlantEffects:
     def from_record(cls, record: dict) -> "PlantEffects":
         fields = dict(record)
         fields["payload"] = Payload(**fields.get("payload", {}))
+        fields["link_inertia"] = {link: RigidInertia(**values) for link, values in fields.get("link_inertia", {}).items()}
         return cls(**fields)
 
 
@@ -128,11 +155,11 @@ def load_plant_effects(path) -> PlantEffects:
 
 
 def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
-    """Before `plant.Finalize()`: the viscous friction on the arm joints' damping, rotor inertia and gear
-    ratio on their actuators, the payload welded to the tool frame."""
+    """Before `plant.Finalize()`: the joint damping (replaced) and viscous friction (added) on the arm
+    joints, rotor inertia and gear ratio on their actuators, the payload welded to the tool frame."""
     from pydrake.math import RigidTransform
-    from pydrake.multibody.tree import RotationalInertia, SpatialInertia
     n = robot.num_joints
+    damping = effects.joint_values("joint_damping", n) if effects.joint_damping else None
     viscous = effects.joint_values("viscous_friction", n)
     rotor = effects.joint_values("rotor_inertia", n)
     ratio = effects.joint_values("gear_ratio", n) if effects.gear_ratio else np.ones(n)
@@ -143,22 +170,24 @@ def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
             actuators[actuator.joint().name()] = actuator
     for i, name in enumerate(robot.joint_names):
         joint = plant.GetJointByName(name, instance)
+        if damping is not None:
+            joint.set_default_damping(damping[i])
         if viscous[i] > 0:
             joint.set_default_damping(joint.default_damping() + viscous[i])
-        if rotor[i] > 0:
+        if effects.rotor_inertia:   # (replaces the description's, also by 0)
             actuators[name].set_default_rotor_inertia(rotor[i])
             actuators[name].set_default_gear_ratio(ratio[i])
     payload = effects.payload
     if payload.mass > 0:
-        inertia = SpatialInertia.MakeFromCentralInertia(payload.mass, np.asarray(payload.center_of_mass, dtype=float),
-                                                        RotationalInertia(*payload.inertia))
-        body = plant.AddRigidBody("payload", instance, inertia)
+        body = plant.AddRigidBody("payload", instance, payload.spatial_inertia())
         plant.WeldFrames(plant.GetFrameByName(robot.tool_frame, instance), body.body_frame(), RigidTransform())
 
 
 def set_effect_parameters(plant, context, effects: PlantEffects) -> None:
-    """The per-link mass scales as parameters of the plant's `context` (mass and rotational inertia
-    times the factor, centre of mass kept)."""
+    """The link inertias and per-link mass scales (mass and rotational inertia times the factor, centre
+    of mass kept) as parameters of the plant's `context` (a double plant's for link inertias)."""
+    for link, inertia in effects.link_inertia.items():
+        plant.GetBodyByName(link).SetSpatialInertiaInBodyFrame(context, inertia.spatial_inertia())
     for link, factor in effects.mass_scale.items():
         body = plant.GetBodyByName(link)
         nominal = body.default_spatial_inertia()   # SpatialInertia of the plant's scalar type

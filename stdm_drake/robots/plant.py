@@ -344,7 +344,8 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     payload and mass scales included; checked at home only)."""
     n = robot.num_joints
     effects.validate()
-    for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio"):
+    for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio",
+                 "joint_damping"):
         try:
             effects.joint_values(name, n)
         except InputError as error:
@@ -358,9 +359,9 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     bare = MultibodyPlant(0.0)
     instance = robot.add_to(bare)
     links = {bare.get_body(index).name() for index in bare.GetBodyIndices(instance)}
-    unknown = sorted(set(effects.mass_scale) - links)
+    unknown = sorted((set(effects.mass_scale) | set(effects.link_inertia)) - links)
     if unknown:
-        raise InputError(f"plant effects mass_scale names links robot {robot.name} does not have: {', '.join(unknown)} "
+        raise InputError(f"plant effects mass_scale or link_inertia names links robot {robot.name} does not have: {', '.join(unknown)} "
                          f"(its links: {', '.join(sorted(links))})")
     coulomb = effects.coulomb(n)
     if coulomb is not None and time_step > 0:   # (the affected plant's inertia: rotor, payload, mass scales)

@@ -74,17 +74,21 @@ class TrajectoryRecorder:
 
     def add(self, q: np.ndarray, ghost_q: np.ndarray | None = None, realtime: bool = False) -> None:
         """Show and record one trajectory q: (T+1, n) rad, with the ghost following ghost_q
-        (same shape; required when the recorder has a ghost). realtime=True paces the live view."""
+        (same shape; required when the recorder has a ghost; from a non-finite row on, a diverged
+        prediction, the ghost stays at its last finite pose). realtime=True paces the live view."""
         q = np.asarray(q)
         if (ghost_q is None) != (self.ghost is None):
             raise ValueError("ghost_q must be given exactly when the recorder was made with ghost=True")
         if ghost_q is not None and np.shape(ghost_q) != q.shape:
             raise ValueError(f"ghost_q has shape {np.shape(ghost_q)}, q has {q.shape}")
+        shown = None   # the ghost's last finite pose: a diverged prediction (NaN) stays where it left
         for k, q_k in enumerate(q):
             self.context.SetTime(self.time)
             self.plant.SetPositions(self.plant_context, self.robot, q_k)
             if ghost_q is not None:
-                self.plant.SetPositions(self.plant_context, self.ghost, ghost_q[k])
+                if np.all(np.isfinite(ghost_q[k])) or shown is None:
+                    shown = ghost_q[k] if np.all(np.isfinite(ghost_q[k])) else q_k
+                self.plant.SetPositions(self.plant_context, self.ghost, shown)
             self.diagram.ForcedPublish(self.context)
             self.time += self.sample_period
             if realtime:

@@ -1,0 +1,242 @@
+"""The identification study (docs/identification.md, its amendment): white-box identification of an affected
+plant (the UR-10 with models/ur10_effects.yaml by default) against the number of training plans and the
+sensor model.
+
+Runs (each at every training size per start pose, validation and test plans fixed):
+    A  ideal sensor, the simulation's true q, q̇, q̈ (the goal: torque error <= 1 %, friction within 5 %)
+    B  ideal sensor, smoothed derivatives (parallel filtering: what the filter alone costs)
+    C  the paper's sensor (controllers/sensor.yaml), smoothed derivatives (the degradation)
+For A and C at the largest size, the identified model's one-step and 20-step errors on the test plans
+beside the physics baselines and the nominal plant. `run_study` does it.
+
+Grey box against black box (`run_grey_box`, on both sensors' data at the largest size, the same split):
+D and DD (`train`'s black boxes), G (grey box on the description's plant step), G-id and GD-id (grey box on
+the plant identified from the same training plans: run A's for the ideal sensor, C's for the paper's),
+`SEEDS` seeds each; one-step and 20-step q MSE on the test plans, each grey box's ratio to D paired by seed
+with a 95 % interval. `tools/identification_study.py` writes the files of both.
+"""
+import pathlib
+
+import numpy as np
+
+from stdm_drake.robots.robot import Robot
+
+# (plans, plans per pose: training sizes, validation, test; smoothing windows searched)
+FULL = dict(plans=100, train_sizes=(5, 10, 18), val=2, test=5, windows=None, seeds=5, epochs=300)
+QUICK = dict(plans=12, train_sizes=(1,), val=1, test=1, windows=(5, 9), seeds=2, epochs=3)
+# the grey-box comparison: name -> (train --model, the grey box's physics: None or "identified")
+GREY_BOX_MODELS = {"D": ("D", None), "DD": ("DD", None), "G": ("G", None), "G-id": ("G", "identified"),
+                   "GD-id": ("GD", "identified")}
+DATA_SEED = 1            # the amendment's fresh data (seed 0 was the development data)
+RUNS = {"A": ("ideal", "true"), "B": ("ideal", "smoothed"), "C": ("paper", "smoothed")}
+SENSORS = {"ideal": "sensor_ideal.yaml", "paper": "sensor.yaml"}
+ROLLOUT_STEPS = 20
+
+
+def dataset(folder: pathlib.Path, sensor: str, effects, plans: int, robot: Robot, workers: int = 2):
+    """The affected plant's tracking data (dithered PID sized from its inertia) with `sensor`, reused when
+    collected with the same settings."""
+    from stdm_drake.experiments.jobs import ensure_dataset
+    from stdm_drake.experiments.reality_gap import COLLECTION_CONTROLLER
+    from stdm_drake.paths import CONTROLLERS_DIR
+    return ensure_dataset("tracking", plans, DATA_SEED, folder, progress=False, name=f"identification_{sensor}",
+                          robot=robot, plant_effects=effects, workers=workers,
+                          controller=CONTROLLERS_DIR / COLLECTION_CONTROLLER, sensor=CONTROLLERS_DIR / SENSORS[sensor])
+
+
+def model_errors(identified, data, robot: Robot, split) -> list[dict]:
+    """One-step and ROLLOUT_STEPS-step q and v MSE on the test plans of the identified model, the Euler
+    step, "stays put" and the nominal plant; the identified model's verdict against the physics-free
+    baselines and the sensor's noise floor (as `evaluate` gives it)."""
+    from stdm_drake.data.inspect import noise_floor
+    from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
+    model = identified.model(robot)
+    baselines = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot)
+    rows = compare_with_baselines([model] + baselines, data.transitions(split.test),
+                                  trajectory_rollout_data(data, split.test, ROLLOUT_STEPS),
+                                  noise_floor=noise_floor(data, split.test))
+    return [dict(model=row.name, one_step_q=row.one_step.angle_mse, one_step_v=row.one_step.velocity_mse,
+                 q_at_20=float(row.multi_step.angle_mse[ROLLOUT_STEPS - 1]), verdict=row.verdict) for row in rows]
+
+
+def run_study(profile: dict, folder: pathlib.Path, robot: Robot, effects, workers: int = 2, say=print) -> dict:
+    """Every run of the study: a summary row per (run, training size), the identify reports, the model
+    errors of A and C at the largest size."""
+    from stdm_drake.data.dataset import split_trajectories
+    from stdm_drake.identification.identify import IdentifySettings, identify
+    folder.mkdir(parents=True, exist_ok=True)
+    datasets = {sensor: dataset(folder, sensor, effects, profile["plans"], robot, workers) for sensor in SENSORS}
+    rows, reports, errors, identified_files = [], {}, {}, {}
+    largest = max(profile["train_sizes"])
+    for run, (sensor, source) in RUNS.items():
+        data = datasets[sensor]
+        settings = IdentifySettings(derivative_source=source)
+        if profile["windows"]:
+            settings.windows = profile["windows"]
+        for size in profile["train_sizes"]:
+            split = split_trajectories(data.groups, size, profile["val"], profile["test"], seed=0, per_group=True)
+            identified, report = identify(data, robot, split, settings)
+            truth = report["truth"]["joints"]
+            row = dict(run=run, sensor=sensor, derivatives=source, train_per_pose=size,
+                       train_plans=len(split.train), samples=report["samples_train"],
+                       condition_number=report["least_squares"]["condition_number"],
+                       velocity_scale=report["chosen"]["velocity_scale"],
+                       regularization=report["chosen"]["regularization"],
+                       window=report["smoothing_window"],
+                       torque_error=report["test"]["torque_error"],
+                       least_squares_torque_error=report["test"]["least_squares_torque_error"],
+                       description_torque_error=report["test"]["description_torque_error"],
+                       torque_error_on_true_states=report["test"].get("torque_error_on_true_states",
+                                                                      report["test"]["torque_error"]),
+                       worst_viscous_error=_worst(truth["viscous"]["relative_error"]),
+                       worst_coulomb_error=_worst(truth["coulomb"]["relative_error"]))
+            rows.append(row)
+            reports[f"{run}_train{size}"] = report
+            say(f"{run} ({sensor} sensor, {source} derivatives), {size} plans per pose: torque error "
+                f"{row['torque_error']:.3g} (description {row['description_torque_error']:.3g}), friction within "
+                f"{row['worst_viscous_error']:.3g} (viscous) / {row['worst_coulomb_error']:.3g} (Coulomb)")
+            if size == largest and run in ("A", "C"):
+                errors[run] = model_errors(identified, data, robot, split)
+                identified_files[sensor] = _write_identified(folder / f"identified_{sensor}.yaml", identified)
+    return dict(rows=rows, reports=reports, model_errors=errors, profile={k: v for k, v in profile.items()},
+                data_seed=DATA_SEED, datasets={sensor: dict(path=str(d.path), sha256=d.sha256)
+                                               for sensor, d in datasets.items()},
+                identified_files={sensor: str(path) for sensor, path in identified_files.items()})
+
+
+def _write_identified(path: pathlib.Path, identified) -> pathlib.Path:
+    """The identified robot's file (what a grey box's --physics names), written only when it changed."""
+    from stdm_drake.files import write_text_atomic
+    from stdm_drake.identification.identified import identified_text
+    text = identified_text(identified)
+    if not path.exists() or path.read_text() != text:
+        write_text_atomic(path, text)
+    return path
+
+
+def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: dict, workers: int = 2,
+                 say=print) -> dict:
+    """GREY_BOX_MODELS on each sensor's data (`white_box`: run_study's results, for its datasets and identified
+    files), trained in a pool of `workers` processes (checkpoints in `folder`/runs, reused by a rerun);
+    per sensor and model type the test errors of every seed and, for each type, its ratio to D (one-step and
+    20-step q MSE, paired by seed, 95 % interval); the identified model and the baselines beside them."""
+    import time
+    from stdm_drake.cluster import RunnerConfig, job_pool
+    from stdm_drake.experiments.reality_gap import train
+    started = time.perf_counter()
+    size, seeds, epochs = max(profile["train_sizes"]), profile["seeds"], profile["epochs"]
+    split = (size, profile["val"], profile["test"])
+    config = None if robot.config_path is None else str(robot.config_path)
+    jobs = {}
+    for sensor, data in white_box["datasets"].items():
+        for name, (model_type, physics) in GREY_BOX_MODELS.items():
+            extra = ("--physics", white_box["identified_files"][sensor]) if physics else ()
+            jobs[(sensor, name)] = (data["path"], model_type, split, seeds, epochs,
+                                    str(folder / "runs" / f"{sensor}_{name}"), config, extra)
+    with job_pool(RunnerConfig(workers=workers)) as pool:
+        futures = {key: pool.submit(train, *call) for key, call in jobs.items()}
+        folders = {key: future.result() for key, future in futures.items()}
+    say(f"grey box: {len(folders)} model types trained in {time.perf_counter() - started:.0f} s")
+    results = {}
+    for sensor in white_box["datasets"]:
+        results[sensor] = grey_box_errors(white_box["datasets"][sensor]["path"],
+                                          {name: folders[(sensor, name)] for name in GREY_BOX_MODELS}, seeds, robot,
+                                          white_box["identified_files"][sensor])
+        say(f"grey box, {sensor} sensor: " + "; ".join(
+            f"{row['model']} one step {row['one_step_q']:.3g}, q@20 {row['q_at_20']:.3g}"
+            for row in results[sensor]["rows"]))
+    return dict(split_per_pose=list(split), seeds=seeds, epochs=epochs, sensors=results,
+                seconds=round(time.perf_counter() - started, 1))
+
+
+def grey_box_errors(dataset_path: str, folders: dict, seeds: int, robot: Robot, identified_file: str) -> dict:
+    """Test errors (one-step q and v MSE, q MSE at ROLLOUT_STEPS) of every seed of every type in `folders`,
+    the identified robot and the baselines; per type the geometric mean over seeds and the ratio D / type
+    paired by seed."""
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.data.inspect import noise_floor
+    from stdm_drake.identification.identified import load_identified
+    from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
+    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.stats import paired_ratio
+    data = load_dataset(dataset_path)
+    learned = {name: [LearnedModel(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot=robot,
+                                   name=f"{name} seed {seed}") for seed in range(seeds)]
+               for name, folder in folders.items()}
+    test = next(iter(learned.values()))[0].checkpoint.split_indices(data, "test")
+    fixed = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot)
+    fixed.append(load_identified(identified_file).model(robot))
+    models = fixed + [model for group in learned.values() for model in group]
+    rows = compare_with_baselines(models, data.transitions(list(test)),
+                                  trajectory_rollout_data(data, test, ROLLOUT_STEPS), noise_floor=noise_floor(data, test))
+    per_model = {row.name: dict(one_step_q=row.one_step.angle_mse, one_step_v=row.one_step.velocity_mse,
+                                q_at_20=_finite(float(row.multi_step.angle_mse[ROLLOUT_STEPS - 1])), verdict=row.verdict)
+                 for row in rows}
+    table = [dict(model=model.name, seeds=None, **per_model[model.name]) for model in fixed]
+    for name, group in learned.items():
+        values = [per_model[model.name] for model in group]
+        entry = dict(model=name, seeds=len(group),
+                     one_step_q=_geometric([value["one_step_q"] for value in values]),
+                     one_step_v=_geometric([value["one_step_v"] for value in values]),
+                     q_at_20=_geometric([value["q_at_20"] for value in values]),
+                     verdict=", ".join(sorted({value["verdict"] for value in values})))
+        for key in ("one_step_q", "q_at_20"):
+            entry[f"d_over_model_{key}"] = paired_ratio([per_model[m.name][key] for m in learned["D"]],
+                                                        [value[key] for value in values]).as_dict()
+        table.append(entry)
+    return dict(test_plans=[int(i) for i in test], rows=table, per_seed=per_model)
+
+
+DIVERGED = 1e12      # rad²: the q MSE a diverged rollout (non-finite) counts as, so ratios stay defined
+
+
+def _finite(value: float) -> float:
+    return value if np.isfinite(value) else DIVERGED
+
+
+def _geometric(values) -> float:
+    return float(np.exp(np.mean(np.log(np.asarray(values, dtype=float)))))
+
+
+def _worst(errors: list) -> float:
+    known = [error for error in errors if error is not None]
+    return float(max(known)) if known else float("nan")
+
+
+def summary_table(results: dict) -> str:
+    """The rows as a Markdown table."""
+    from stdm_drake.report import markdown_table
+    columns = ["run", "sensor", "derivatives", "train_per_pose", "condition_number", "window", "velocity_scale",
+               "regularization", "torque_error", "least_squares_torque_error", "torque_error_on_true_states",
+               "description_torque_error", "worst_viscous_error", "worst_coulomb_error"]
+    return markdown_table(columns, [[_cell(row[column]) for column in columns] for row in results["rows"]])
+
+
+def _cell(value):
+    if isinstance(value, float):
+        return "-" if not np.isfinite(value) else f"{value:.3g}"
+    return "-" if value is None else value
+
+
+def grey_box_table(grey: dict) -> str:
+    """Per sensor: every model's test errors (geometric mean over seeds) and each type's ratio to D."""
+    from stdm_drake.report import markdown_table
+    lines = []
+    for sensor, result in grey["sensors"].items():
+        body = []
+        for row in result["rows"]:
+            ratios = [row.get(f"d_over_model_{key}") for key in ("one_step_q", "q_at_20")]
+            body.append([row["model"], row["seeds"] or "-", f"{row['one_step_q']:.3g}", f"{row['one_step_v']:.3g}",
+                         f"{row['q_at_20']:.3g}"] + [_ratio_text(ratio) for ratio in ratios] + [row["verdict"] or "-"])
+        lines += [f"{sensor} sensor, {len(result['test_plans'])} test plans, {grey['seeds']} seeds:", "",
+                  markdown_table(["model", "seeds", "one-step q MSE (rad²)", "one-step v MSE", f"q MSE at step {ROLLOUT_STEPS}",
+                                  "D / model, one step", f"D / model, step {ROLLOUT_STEPS}", "verdict"], body), ""]
+    return "\n".join(lines)
+
+
+def _ratio_text(ratio) -> str:
+    if not ratio:
+        return "-"
+    if ratio["pairs"] < 2:
+        return f"{ratio['ratio']:.3g}x"
+    return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}]"

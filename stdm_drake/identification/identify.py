@@ -1,0 +1,188 @@
+"""`identify`: a robot's parameters from one of its datasets, settings chosen on validation data.
+
+On the training trajectories, for every candidate setting (Coulomb velocity scale v_s, regularization
+lambda and, for smoothed derivatives, the Savitzky-Golay window) the physically consistent fit
+(`fit.consistent_fit`); the setting with the smallest torque error on the validation trajectories wins
+(a v_s whose Coulomb term would be unstable at the plant step is skipped). With it: least squares on the
+base parameters (condition number, covariance), and the test trajectories' torque errors, on the data's
+own states and, for simulated data, on the true ones. Where the dataset records the plant effects it was
+simulated with, every identified friction and rotor coefficient and every link's inertia (the link's
+welded group with any payload) stands beside the true value.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.identification.fit import (
+    consistent_fit, identification_data, least_squares, relative_torque_error
+)
+from stdm_drake.identification.identified import Identification, IdentifiedRobot, link_inertia
+from stdm_drake.identification.regressor import LINK_PARAMETERS, InverseDynamicsRegressor, link_parameters
+
+VELOCITY_SCALES = (0.01, 0.05, 0.2)            # rad/s: the Coulomb term's tanh smoothing
+REGULARIZATIONS = (1e-8, 1e-6, 1e-4, 1e-2)     # toward the description's parameters (relative)
+SMOOTHING_WINDOWS = (5, 9, 15, 21, 31, 45)            # samples (odd) of the Savitzky-Golay differentiator
+
+
+@dataclasses.dataclass
+class IdentifySettings:
+    """The candidate settings (`VELOCITY_SCALES`, `REGULARIZATIONS`, `SMOOTHING_WINDOWS`) and the
+    derivative source ("true" or "smoothed")."""
+    derivative_source: str = "true"
+    velocity_scales: tuple = VELOCITY_SCALES
+    regularizations: tuple = REGULARIZATIONS
+    windows: tuple = SMOOTHING_WINDOWS
+
+    def validate(self) -> None:
+        for name in ("velocity_scales", "regularizations", "windows"):
+            values = getattr(self, name)
+            if not len(values) or not all(np.isfinite(value) for value in values):
+                raise InputError(f"identify: {name.replace('_', ' ')} must be a non-empty list of numbers")
+        if min(self.velocity_scales) <= 0 or min(self.regularizations) < 0:
+            raise InputError("identify: velocity scales must be > 0 rad/s and regularizations >= 0")
+
+
+def _stable(scale: float, parameters: np.ndarray, regressor, robot, time_step: float) -> bool:
+    """Whether a Coulomb term of velocity scale `scale` is stable at the plant step (check_plant_effects)."""
+    from stdm_drake.robots.plant import check_plant_effects
+    try:
+        check_plant_effects(_effects(parameters, regressor, scale, ""), robot, time_step)
+    except InputError:
+        return False
+    return True
+
+
+def _effects(parameters: np.ndarray, regressor: InverseDynamicsRegressor, scale: float, source: str):
+    from stdm_drake.robots.effects import PlantEffects
+    n, links = regressor.num_joints, regressor.links
+    joint = parameters[10 * len(links):]
+    return PlantEffects(source=source, joint_damping=joint[:n].tolist(), coulomb_friction=joint[n:2 * n].tolist(),
+                        coulomb_velocity_scale=[float(scale)], rotor_inertia=joint[2 * n:].tolist(),
+                        link_inertia={link: link_inertia(parameters[10 * k:10 * k + 10]) for k, link in enumerate(links)})
+
+
+def true_parameters(regressor: InverseDynamicsRegressor, effects) -> np.ndarray:
+    """pi (P,) of the plant `effects` describe (data simulated with them): each link's welded group with
+    any payload (its composite inertia about the link frame's origin), joint damping plus viscous friction,
+    Coulomb friction, reflected rotor inertia."""
+    from pydrake.multibody.plant import MultibodyPlant
+    from stdm_drake.robots.effects import add_effects_to_plant, set_effect_parameters
+    robot, n = regressor.robot, regressor.num_joints
+    plant = MultibodyPlant(0.0)
+    instance = robot.add_to(plant)
+    add_effects_to_plant(plant, instance, robot, effects)
+    plant.Finalize()
+    context = plant.CreateDefaultContext()
+    set_effect_parameters(plant, context, effects)
+    inertial = []
+    for link in regressor.links:
+        body = plant.GetBodyByName(link, instance)
+        group = [other.index() for other in plant.GetBodiesWeldedTo(body)]
+        inertial.append(link_parameters(plant.CalcSpatialInertia(context, body.body_frame(), group)))
+    damping = np.array([plant.GetJointByName(name, instance).default_damping() for name in robot.joint_names])
+    actuators = {plant.get_joint_actuator(i).joint().name(): plant.get_joint_actuator(i)
+                 for i in plant.GetJointActuatorIndices(instance)}
+    rotor = np.array([actuators[name].default_reflected_inertia() for name in robot.joint_names])
+    return np.concatenate(inertial + [damping, effects.joint_values("coulomb_friction", n), rotor])
+
+
+def identify(dataset, robot, split, settings: IdentifySettings | None = None, announce=lambda line: None):
+    """(IdentifiedRobot, report dict) of `dataset` (of `robot`) with `split` (train / val / test indices)."""
+    settings = settings or IdentifySettings()
+    settings.validate()
+    if not len(split.train) or not len(split.val):
+        raise InputError("identify needs training and validation trajectories")
+    source = settings.derivative_source
+    regressor = InverseDynamicsRegressor(robot)
+    prior = regressor.nominal_parameters()
+    time_step = dataset.metadata.plant_time_step or 0.001
+    windows = settings.windows if source == "smoothed" else (0,)
+    candidates, best = [], None
+    for window in windows:
+        train = identification_data(regressor, dataset, split.train, source, window or None)
+        val = identification_data(regressor, dataset, split.val, source, window or None)
+        for scale in settings.velocity_scales:
+            rows, target = train.system(regressor, scale)
+            for regularization in settings.regularizations:
+                parameters = consistent_fit(rows, target, prior, len(regressor.links), regularization)
+                if not _stable(scale, parameters, regressor, robot, time_step):
+                    candidates.append(dict(window=window, velocity_scale=scale, regularization=regularization,
+                                           val_torque_error=None, skipped="Coulomb term unstable at the plant step"))
+                    continue
+                error = relative_torque_error(val.predicted_torque(regressor, parameters, scale), val.torque)[0]
+                candidates.append(dict(window=window, velocity_scale=scale, regularization=regularization,
+                                       val_torque_error=error))
+                if best is None or error < best[0]:
+                    best = (error, window, scale, regularization, parameters, train)
+        announce(f"identify: window {window or '-'}: best validation torque error so far "
+                 f"{best[0] if best else float('nan'):.3g}")
+    if best is None:
+        raise InputError("identify: every candidate Coulomb velocity scale is unstable at the plant step; give larger "
+                         "ones (--velocity-scales)")
+    val_error, window, scale, regularization, parameters, train = best
+    rows, target = train.system(regressor, scale)
+    ordinary = least_squares(rows, target)
+    report = dict(written_by="stdm-drake identify", robot=robot.name, dataset=str(dataset.path),
+                  dataset_sha256=dataset.sha256, derivative_source=source, smoothing_window=window or None,
+                  split={key: [int(i) for i in value] for key, value in split.as_dict().items()},
+                  samples_train=int(len(target) // regressor.num_joints), parameters=list(regressor.names),
+                  links=list(regressor.links), candidates=candidates,
+                  chosen=dict(velocity_scale=scale, regularization=regularization, val_torque_error=val_error),
+                  least_squares=dict(base_parameters=int(len(ordinary.base)), condition_number=ordinary.condition,
+                                     residual_std=ordinary.residual_std,
+                                     base=[regressor.names[i] for i in ordinary.base],
+                                     relative_std=_finite(_relative_std(ordinary))),
+                  description=prior.tolist(), identified=parameters.tolist())
+    test_error = float("nan")   # (the file's record; the report leaves out "test" without test trajectories)
+    if len(split.test):
+        test = identification_data(regressor, dataset, split.test, source, window or None)
+        test_error, per_joint = relative_torque_error(test.predicted_torque(regressor, parameters, scale), test.torque)
+        ls_error = relative_torque_error(test.predicted_torque(regressor, ordinary.parameters, scale), test.torque)[0]
+        nominal_error = relative_torque_error(test.predicted_torque(regressor, prior, scale), test.torque)[0]
+        report["test"] = dict(torque_error=test_error, torque_error_per_joint=per_joint.tolist(),
+                              least_squares_torque_error=ls_error, description_torque_error=nominal_error)
+        if source != "true":
+            exact = identification_data(regressor, dataset, split.test, "true")
+            report["test"]["torque_error_on_true_states"] = relative_torque_error(
+                exact.predicted_torque(regressor, parameters, scale), exact.torque)[0]
+    truth = dataset.metadata.plant_effects
+    if truth is not None:
+        report["truth"] = _against_truth(regressor, parameters, true_parameters(regressor, truth))
+    record = Identification(robot=robot.name, robot_model_sha256=robot.model_sha256(), dataset=str(dataset.path),
+                            dataset_sha256=dataset.sha256, sample_period=dataset.sample_period,
+                            plant_time_step=time_step, derivative_source=source, smoothing_window=int(window),
+                            split=report["split"], coulomb_velocity_scale=float(scale),
+                            regularization=float(regularization), test_torque_error=float(test_error))
+    effects = _effects(parameters, regressor, scale, f"identified by stdm-drake identify from {dataset.path.name} "
+                                                     f"(sha256 {dataset.sha256[:12]})")
+    return IdentifiedRobot(effects=effects, identification=record), report
+
+
+def _finite(values) -> list:
+    """A list for JSON: non-finite values (a zero true value's relative error) as None."""
+    return [float(value) if np.isfinite(value) else None for value in values]
+
+
+def _relative_std(fit) -> np.ndarray:
+    """Standard deviation / |value| of each base parameter (inf for a zero value)."""
+    std = np.sqrt(np.diag(fit.covariance))
+    values = np.abs(fit.parameters[fit.base])
+    return np.divide(std, values, out=np.full_like(std, np.inf), where=values > 0)
+
+
+def _against_truth(regressor, identified: np.ndarray, truth: np.ndarray) -> dict:
+    """Per joint parameter: identified, true and relative error; per link: the identified and true values."""
+    n, links = regressor.num_joints, len(regressor.links)
+    joint_part = {}
+    for k, kind in enumerate(("viscous", "coulomb", "rotor_inertia")):
+        mine = identified[10 * links + k * n:10 * links + (k + 1) * n]
+        true = truth[10 * links + k * n:10 * links + (k + 1) * n]
+        error = np.divide(np.abs(mine - true), np.abs(true), out=np.full(n, np.nan), where=np.abs(true) > 0)
+        joint_part[kind] = dict(identified=mine.tolist(), true=true.tolist(), relative_error=_finite(error))
+    link_part = {link: dict(zip(LINK_PARAMETERS, zip(identified[10 * k:10 * k + 10].tolist(),
+                                                     truth[10 * k:10 * k + 10].tolist())))
+                 for k, link in enumerate(regressor.links)}
+    return dict(joints=joint_part, links=link_part, true=truth.tolist())

@@ -1,0 +1,92 @@
+"""The identification study: white-box identification of an affected plant against the number of training
+plans and the sensor model (design, amendment and results in docs/identification.md, fixed before the runs).
+
+Usage: python tools/identification_study.py [--quick] [--workers 2] [-o docs/results/identification]
+       [--data out/identification_data] [--robot models/ur10.yaml] [--plant-effects models/ur10_effects.yaml]
+
+Part "white": runs A (ideal sensor, true derivatives), B (ideal sensor, smoothed), C (paper's sensor,
+smoothed) at 5, 10 and 18 training plans per pose (--quick: 1, on 12 plans); for A and C at 18, the
+identified model's one-step and 20-step errors beside the physics baselines. Writes summary.md,
+summary.csv, results.json (the rows and model errors) and one identify report per run (reports/*.json).
+Part "grey" (after "white", whose results.json it reads): D, DD, G, G-id, GD-id (5 seeds, 300 epochs) on
+both sensors' data at 18 plans per pose; writes grey_box.md and grey_box.json. Datasets and checkpoints are
+kept in --data and reused.
+"""
+import argparse
+import json
+import os
+import pathlib
+import sys
+
+os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from stdm_drake.experiments import identification_study as study  # noqa: E402
+from stdm_drake.experiments.reality_gap import EFFECTS_PRESET  # noqa: E402
+from stdm_drake.robots.robot import UR10_CONFIG  # noqa: E402
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "identification")
+    parser.add_argument("--data", type=pathlib.Path, default=ROOT / "out" / "identification_data")
+    parser.add_argument("--robot", type=pathlib.Path, default=UR10_CONFIG, help="robot config (the nominal model)")
+    parser.add_argument("--plant-effects", type=pathlib.Path, default=EFFECTS_PRESET,
+                        help="the affected plant's effects (default: models/ur10_effects.yaml)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--quick", action="store_true", help="tiny sizes: a pipeline check (about 2 min)")
+    parser.add_argument("--part", choices=("white", "grey", "all"), default="all",
+                        help="white box only, grey box only (reads the white box's results.json), or both")
+    args = parser.parse_args(argv)
+    from stdm_drake.errors import InputError
+    from stdm_drake.files import json_default, write_text_atomic
+    from stdm_drake.robots.plant import plant_effects_for
+    from stdm_drake.robots.robot import load_robot
+    try:
+        robot = load_robot(args.robot)
+        effects = plant_effects_for(args.plant_effects, robot, 0.001)
+    except InputError as error:
+        print(f"identification_study: error: {error}", file=sys.stderr)
+        return 2
+    profile = study.QUICK if args.quick else study.FULL
+    say = lambda line: print(line, flush=True)  # noqa: E731
+    out = args.output
+    if args.part in ("white", "all"):
+        write_white_box(study.run_study(profile, args.data, robot, effects, workers=args.workers, say=say), out,
+                        args.quick)
+    if args.part in ("grey", "all"):
+        white = json.loads((out / "results.json").read_text())
+        grey = study.run_grey_box(profile, args.data, robot, white, workers=args.workers, say=say)
+        grey = dict(written_by="tools/identification_study.py", quick=args.quick, **grey)
+        write_text_atomic(out / "grey_box.json", json.dumps(grey, indent=1, default=json_default) + "\n")
+        text = study.grey_box_table(grey)
+        write_text_atomic(out / "grey_box.md", text + "\n")
+        print(text)
+    print(f"wrote {out}")
+    return 0
+
+
+def write_white_box(results: dict, out: pathlib.Path, quick: bool) -> None:
+    """The white box's files: reports/*.json, results.json, summary.csv, summary.md."""
+    from stdm_drake.files import json_default, rows_csv, write_text_atomic
+    (out / "reports").mkdir(parents=True, exist_ok=True)
+    for name, report in results.pop("reports").items():
+        write_text_atomic(out / "reports" / f"{name}.json", json.dumps(report, indent=1, default=json_default) + "\n")
+    results = dict(written_by="tools/identification_study.py", quick=quick, **results)
+    write_text_atomic(out / "results.json", json.dumps(results, indent=1, default=json_default) + "\n")
+    write_text_atomic(out / "summary.csv", rows_csv(results["rows"]))
+    table = study.summary_table(results)
+    lines = [table, ""]
+    for run, rows in results["model_errors"].items():
+        lines.append(f"Run {run}, test plans: one-step q / v MSE and q MSE at step {study.ROLLOUT_STEPS}")
+        lines += [f"- {row['model']}: {row['one_step_q']:.3g} rad², {row['one_step_v']:.3g} (rad/s)², "
+                  f"{row['q_at_20']:.3g} rad²" + (f" ({row['verdict']})" if row["verdict"] else "") for row in rows]
+        lines.append("")
+    write_text_atomic(out / "summary.md", "\n".join(lines))
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
