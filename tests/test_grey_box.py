@@ -137,9 +137,16 @@ def test_train_g_and_gd_record_the_grey_box_and_its_plant(affected, tmp_path, ca
     assert main(["evaluate", str(tmp_path / "gd" / "seed0" / "checkpoint.pt"), str(data), "--split", "val",
                  "--horizon", "5"]) == 0
     assert "grey box on the identified plant step" in capsys.readouterr().out
-    assert main(["train", str(data), "--model", "D", "--physics", str(identified), "-o", str(tmp_path / "bad"),
-                 *common]) == 2
-    assert "--physics is the grey box's plant" in capsys.readouterr().err
+    refused = [(["--model", "D", "--physics", str(identified)], "--physics is the grey box's plant"),
+               (["--model", "GD", "--physics", str(identified), "--per-group", "off", "--train", "3"],
+                "holds out for testing"),
+               (["--model", "G", "--inputs", "raw"], "its inputs are plant_step"),
+               (["--model", "PE", "--inputs", "plant_step"], "single deterministic network"),
+               (["--model", "G", "--direct"], "with --direct")]
+    for options, message in refused:
+        assert main(["train", str(data), *common, *options, "-o", str(tmp_path / "bad")]) == 2, options
+        assert message in capsys.readouterr().err, options
+    assert not (tmp_path / "bad").exists()
 
 
 @pytest.mark.slow

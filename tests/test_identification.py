@@ -12,7 +12,6 @@ from stdm_drake.data.dataset import load_dataset
 from stdm_drake.errors import InputError
 from stdm_drake.identification.fit import consistent_fit, least_squares, nearest_physical, smoothed_samples
 from stdm_drake.identification.identified import load_identified
-from stdm_drake.identification.identify import true_parameters
 from stdm_drake.identification.regressor import InverseDynamicsRegressor, link_parameters, pseudo_inertia
 from stdm_drake.paths import CONTROLLERS_DIR, MODELS_DIR
 from stdm_drake.robots.effects import PlantEffects, RigidInertia, load_plant_effects
@@ -55,7 +54,7 @@ def test_the_regressor_gives_the_affected_plants_torques_exactly(regressor):
     and the payload absorbed by the last link), and pi_description gives the description's."""
     for effects in (load_plant_effects(MODELS_DIR / "ur10_effects.yaml"), None):
         dynamics = Dynamics(UR10, effects)
-        parameters = true_parameters(regressor, effects) if effects is not None else regressor.nominal_parameters()
+        parameters = regressor.parameters(effects)
         q, v, tau = random_states(5)
         acceleration = np.array([dynamics.acceleration(*row) for row in zip(q, v, tau)])
         rigid, fixed = regressor.rigid_body_rows(q, v, acceleration)
@@ -102,7 +101,7 @@ def test_the_consistent_fit_is_physical_where_least_squares_is_not(regressor):
     ordinary = np.linalg.lstsq(rows, target, rcond=None)[0]
     eigenvalues = [np.linalg.eigvalsh(pseudo_inertia(ordinary[10 * k:10 * k + 10]).astype(float)).min() for k in range(6)]
     assert min(eigenvalues) < 0
-    consistent = consistent_fit(rows, target, regressor.nominal_parameters(), 6, 1e-4)
+    consistent = consistent_fit(rows, target, regressor.parameters(), 6, 1e-4)
     for k in range(6):
         assert np.linalg.eigvalsh(pseudo_inertia(consistent[10 * k:10 * k + 10]).astype(float)).min() >= -1e-12
         assert consistent[10 * k] > 0
@@ -116,13 +115,22 @@ def test_smoothed_samples_are_exact_for_cubic_motion_and_average_the_held_torque
     q = np.stack([1 + 2 * t - 3 * t ** 2 + 4 * t ** 3, 0.5 * t ** 2], axis=1)
     tau = np.stack([np.arange(40.0), np.full(40, 2.0)], axis=1)
     angle, velocity, acceleration, torque = smoothed_samples(q, tau, h, 9)
-    k = np.arange(1, 40)
+    k = np.arange(5, 36)            # the window's half (4) left out at each end
     np.testing.assert_allclose(angle, q[k], atol=1e-12)
     np.testing.assert_allclose(velocity[:, 0], 2 - 6 * t[k] + 12 * t[k] ** 2 + 4 * h ** 2, atol=1e-9)
     np.testing.assert_allclose(acceleration[:, 0], -6 + 24 * t[k], atol=1e-7)
     np.testing.assert_allclose(torque[:, 0], k - 0.5, atol=1e-9)
     with pytest.raises(InputError, match="odd number"):
         smoothed_samples(q, tau, h, 8)
+    raw = smoothed_samples(q, tau, h, 1)     # no smoother: the raw central differences (exact for cubics too)
+    np.testing.assert_allclose(raw[2][:, 0], -6 + 24 * t[1:40], atol=1e-7)
+    rng = np.random.default_rng(0)           # any motion: filtering then differencing = differencing then filtering
+    noisy, held = q + rng.normal(scale=1e-3, size=q.shape), rng.normal(size=tau.shape)
+    _, _, acceleration, torque = smoothed_samples(noisy, held, h, 9)
+    from scipy.signal import savgol_filter
+    second = (noisy[2:] - 2 * noisy[1:-1] + noisy[:-2]) / h ** 2
+    np.testing.assert_allclose(acceleration, savgol_filter(second, 9, 3, axis=0)[4:-4], rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(torque, savgol_filter(0.5 * (held[:-1] + held[1:]), 9, 3, axis=0)[4:-4], atol=1e-12)
 
 
 def test_identify_meets_the_goals_on_noise_free_affected_data(identified, affected_data):

@@ -102,7 +102,7 @@ def main(argv=None) -> int:
     start = time.perf_counter()
     decompositions = [symbolic.lumped(q[i], v[i], vd[i]) for i in range(symbolic_count)]
     rows["Drake symbolic + DecomposeLumpedParameters"] = (time.perf_counter() - start) / symbolic_count
-    parameters = regressor.nominal_parameters()[:regressor.num_link_parameters] * rng.uniform(0.5, 1.5)
+    parameters = regressor.parameters()[:regressor.num_link_parameters] * rng.uniform(0.5, 1.5)
     environment = dict(zip(symbolic.variables, parameters))
     for i, (W, alpha, w0) in enumerate(decompositions):
         lumped = np.array([a.Evaluate(env=environment) for a in alpha])

@@ -26,7 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--regularizations", type=float, nargs="+", default=list(REGULARIZATIONS), metavar="LAMBDA",
                         help="candidate weights toward the description's parameters (default %(default)s)")
     parser.add_argument("--windows", type=int, nargs="+", default=list(SMOOTHING_WINDOWS), metavar="SAMPLES",
-                        help="candidate Savitzky-Golay windows with --derivatives smoothed (default %(default)s)")
+                        help="candidate Savitzky-Golay windows with --derivatives smoothed (default %(default)s; 1: "
+                             "no smoothing, the raw differences)")
     parser.add_argument("--train", type=int, help="training trajectories (per group with --per-group)")
     parser.add_argument("--val", type=int, help="validation trajectories (per group with --per-group)")
     parser.add_argument("--test", type=int, help="test trajectories (default: all the rest)")
@@ -53,8 +54,8 @@ def run(args: argparse.Namespace) -> int:
                                 regularizations=tuple(args.regularizations), windows=tuple(args.windows))
     settings.validate()
     for window in settings.windows:
-        if window < 5 or window % 2 == 0:
-            raise InputError(f"--windows must be odd numbers of samples >= 5, got {window}")
+        if window != 1 and (window < 5 or window % 2 == 0):
+            raise InputError(f"--windows must be 1 (no smoothing) or odd numbers of samples >= 5, got {window}")
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)
     robot.check_fully_actuated("identification")

@@ -94,12 +94,7 @@ def run(args) -> int:
               + ("; torque noise seeded by plan index: every model meets the same draws on a plan"
                  if effects.has_torque_noise() else ""),
               file=sys.stderr)
-    learned = []
-    for entry in args.model:
-        name, separator, path = entry.partition("=")
-        if not separator or not name or not path:
-            raise InputError(f"--model takes NAME=FILE, got {entry!r}")
-        learned.append(command_model(path, robot, name=name))
+    learned = [command_model(path, robot, name=name) for name, path in zip(names, checkpoints)]
     for model in learned:
         model.checkpoint.check_fits(dataset)
     plants = [PlantModel(dataset.sample_period, robot=robot)]

@@ -191,8 +191,10 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
     return entry
 
 
-def grey_box_physics(path, robot, settings) -> dict | None:
-    """The structure's physics record of `--physics` (an identified robot of `robot`'s description), or None."""
+def grey_box_physics(path, robot, settings, dataset, split) -> dict | None:
+    """The structure's physics record of `--physics` (an identified robot of `robot`'s description), or None.
+    An identified robot fitted on `dataset` must have been fitted and validated on plans this grey box
+    trains or validates on (`split`), or its test plans would not be held out from the model as a whole."""
     if path is None:
         return None
     if settings.inputs != "plant_step":
@@ -200,6 +202,14 @@ def grey_box_physics(path, robot, settings) -> dict | None:
     from stdm_drake.identification.identified import load_identified
     identified = load_identified(path)
     identified.check_robot(robot)
+    identified.check_fits(dataset)
+    if identified.trained_on(dataset):
+        fitted = set(identified.split_indices(dataset, "train")) | set(identified.split_indices(dataset, "val"))
+        unseen = sorted(fitted - set(split.train.tolist()) - set(split.val.tolist()))
+        if unseen:
+            raise InputError(f"--physics {path} was identified on plans this grey box holds out for testing "
+                             f"({', '.join(map(str, unseen[:5]))}{' ...' if len(unseen) > 5 else ''}); train with "
+                             "the split options `identify` used")
     return dict(effects=identified.effects.record(), plant_time_step=identified.identification.plant_time_step,
                 source=str(path))
 
@@ -222,10 +232,10 @@ def run(args: argparse.Namespace) -> int:
     robot = None   # (without a robot, train loads no Drake plant at all)
     if args.robot is not None or settings.structure().uses_nominal_model:
         robot = command_robot(args, dataset)
-    structure = settings.structure(grey_box_physics(args.physics, robot, settings))
     if settings.uses_derivative() and robot is not None:
         warn_about_fast_damped_joints(robot, dataset.sample_period)
     split, per_group = dataset_split(dataset, settings)
+    structure = settings.structure(grey_box_physics(args.physics, robot, settings, dataset, split))
     name = settings.model_name()
     problem = training_problem(dataset, split, model_type=name, activation=settings.activation,
                                hidden_width=settings.hidden_width, hidden_layers=settings.hidden_layers,

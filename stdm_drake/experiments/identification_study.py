@@ -170,7 +170,7 @@ def grey_box_errors(dataset_path: str, folders: dict, seeds: int, robot: Robot, 
     rows = compare_with_baselines(models, data.transitions(list(test)),
                                   trajectory_rollout_data(data, test, ROLLOUT_STEPS), noise_floor=noise_floor(data, test))
     per_model = {row.name: dict(one_step_q=row.one_step.angle_mse, one_step_v=row.one_step.velocity_mse,
-                                q_at_20=_finite(float(row.multi_step.angle_mse[ROLLOUT_STEPS - 1])), verdict=row.verdict)
+                                q_at_20=_diverged_as_large(float(row.multi_step.angle_mse[ROLLOUT_STEPS - 1])), verdict=row.verdict)
                  for row in rows}
     table = [dict(model=model.name, seeds=None, **per_model[model.name]) for model in fixed]
     for name, group in learned.items():
@@ -190,7 +190,7 @@ def grey_box_errors(dataset_path: str, folders: dict, seeds: int, robot: Robot, 
 DIVERGED = 1e12      # rad²: the q MSE a diverged rollout (non-finite) counts as, so ratios stay defined
 
 
-def _finite(value: float) -> float:
+def _diverged_as_large(value: float) -> float:
     return value if np.isfinite(value) else DIVERGED
 
 

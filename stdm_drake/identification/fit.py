@@ -54,24 +54,36 @@ class IdentificationData:
 
 
 def smoothed_samples(q: np.ndarray, tau: np.ndarray, sample_period: float, window: int):
-    """(q, q̇, q̈, tau) (T − 1, n) at samples k = 1 .. T − 1 of measured angles q (T + 1, n) rad and held
-    torques tau (T, n) N m, filtered alike: the angles through a Savitzky-Golay smoother K (cubic,
-    `window` samples, odd, >= 5), then central differences: q̈_k = (q̃_{k+1} − 2 q̃_k + q̃_{k−1}) / h², the
-    filtered acceleration K * (q_{k+1} − 2 q_k + q_{k−1}) / h², which under torques held over each
-    period answers the torque (tau_{k−1} + tau_k) / 2 (the triangle kernel of the second difference
-    weighs the two periods alike); that torque goes through the same K. The rigid-body dynamics' linear
-    part then sees the same filter on both sides (the idea of parallel filtering in robot
-    identification); q̇_k = (q̃_{k+1} − q̃_{k−1}) / 2h."""
+    """(q, q̇, q̈, tau) (T − 1 − 2 r, n) at the samples k = r + 1 .. T − 1 − r (r = window // 2) of measured
+    angles q (T + 1, n) rad and held torques tau (T, n) N m, filtered alike: the angles through a
+    Savitzky-Golay smoother K (cubic, `window` samples, odd, >= 5), then central differences:
+    q̈_k = (q̃_{k+1} − 2 q̃_k + q̃_{k−1}) / h², the filtered acceleration K * (q_{k+1} − 2 q_k + q_{k−1}) / h²,
+    which under torques held over each period answers the torque (tau_{k−1} + tau_k) / 2 (the triangle kernel
+    of the second difference weighs the two periods alike); that torque goes through the same K. The
+    rigid-body dynamics' linear part then sees the same filter on both sides (the idea of parallel filtering
+    in robot identification); q̇_k = (q̃_{k+1} − q̃_{k−1}) / 2h. Filtering and differencing commute only where
+    every window lies inside the trajectory, so the r samples at each end are left out. window 1: no
+    smoother (the raw differences: what the filter recovers is measured against it)."""
     from scipy.signal import savgol_filter
     q, tau = np.asarray(q, dtype=float), np.asarray(tau, dtype=float)
-    if window < 5 or window % 2 == 0 or window > len(tau) - 1:
-        raise InputError(f"smoothing window must be an odd number of samples in 5..{len(tau) - 1}, got {window}")
-    smooth = savgol_filter(q, window, SMOOTHING_ORDER, axis=0, mode="interp")
+    half = window // 2
+    if window != 1 and (window < 5 or window % 2 == 0 or len(tau) - 1 - 2 * half < 1):
+        raise InputError(f"smoothing window must be 1 (none) or an odd number >= 5 of samples that leaves samples "
+                         f"inside a trajectory of {len(tau)} steps, got {window}")
+    smoothed = (lambda values: values) if window == 1 else (
+        lambda values: savgol_filter(values, window, SMOOTHING_ORDER, axis=0, mode="interp"))
+    smooth = smoothed(q)
     h = sample_period
     velocity = (smooth[2:] - smooth[:-2]) / (2 * h)
     acceleration = (smooth[2:] - 2 * smooth[1:-1] + smooth[:-2]) / h ** 2
-    torque = savgol_filter(0.5 * (tau[:-1] + tau[1:]), window, SMOOTHING_ORDER, axis=0, mode="interp")
-    return smooth[1:-1][:len(torque)], velocity[:len(torque)], acceleration[:len(torque)], torque
+    torque = smoothed(0.5 * (tau[:-1] + tau[1:]))
+    inside = slice(half, len(torque) - half)    # samples k = half + 1 .. T - 1 - half
+    return smooth[1:-1][inside], velocity[inside], acceleration[inside], torque[inside]
+
+
+def fits_window(steps: int, window: int) -> bool:
+    """Whether a trajectory of `steps` sample periods keeps samples inside a smoothing window."""
+    return window == 1 or steps - 1 - 2 * (window // 2) >= 1
 
 
 def identification_data(regressor: InverseDynamicsRegressor, dataset, indices, source: str = "true",

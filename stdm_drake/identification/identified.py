@@ -106,11 +106,8 @@ class IdentifiedRobot:
         from stdm_drake.robots.plant import PlantConfig
         record = self.identification
         self.check_robot(robot)
-        model = PlantModel(record.sample_period, PlantConfig.discrete(record.plant_time_step, effects=self.effects),
-                           robot=robot, name=name)
-        model.learned = True      # fitted to data: rated against the physics-free baselines like a network
-        model.checkpoint = self   # the file it came from, which knows its dataset and split (as a Checkpoint)
-        return model
+        return PlantModel(record.sample_period, PlantConfig.discrete(record.plant_time_step, effects=self.effects),
+                          robot=robot, name=name, source=self)
 
 
 def is_identified_file(path) -> bool:

@@ -17,10 +17,11 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.identification.fit import (
-    consistent_fit, identification_data, least_squares, relative_torque_error
+    consistent_fit, fits_window, identification_data, least_squares, relative_torque_error
 )
 from stdm_drake.identification.identified import Identification, IdentifiedRobot, link_inertia
-from stdm_drake.identification.regressor import LINK_PARAMETERS, InverseDynamicsRegressor, link_parameters
+from stdm_drake.identification.regressor import LINK_PARAMETERS, InverseDynamicsRegressor
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 
 VELOCITY_SCALES = (0.01, 0.05, 0.2)            # rad/s: the Coulomb term's tanh smoothing
 REGULARIZATIONS = (1e-8, 1e-6, 1e-4, 1e-2)     # toward the description's parameters (relative)
@@ -43,16 +44,17 @@ class IdentifySettings:
                 raise InputError(f"identify: {name.replace('_', ' ')} must be a non-empty list of numbers")
         if min(self.velocity_scales) <= 0 or min(self.regularizations) < 0:
             raise InputError("identify: velocity scales must be > 0 rad/s and regularizations >= 0")
+        for window in self.windows:
+            if window != 1 and (window < 5 or window % 2 == 0):
+                raise InputError(f"identify: smoothing windows must be 1 (no smoothing) or odd numbers of samples "
+                                 f">= 5, got {window}")
 
 
 def _stable(scale: float, parameters: np.ndarray, regressor, robot, time_step: float) -> bool:
-    """Whether a Coulomb term of velocity scale `scale` is stable at the plant step (check_plant_effects)."""
-    from stdm_drake.robots.plant import check_plant_effects
-    try:
-        check_plant_effects(_effects(parameters, regressor, scale, ""), robot, time_step)
-    except InputError:
-        return False
-    return True
+    """Whether the identified Coulomb term of velocity scale `scale` is stable at the plant step."""
+    from stdm_drake.robots.plant import coulomb_stability_gains
+    gains = coulomb_stability_gains(_effects(parameters, regressor, scale, ""), robot, time_step)
+    return gains is None or bool(np.all(gains <= 1.0))
 
 
 def _effects(parameters: np.ndarray, regressor: InverseDynamicsRegressor, scale: float, source: str):
@@ -64,31 +66,6 @@ def _effects(parameters: np.ndarray, regressor: InverseDynamicsRegressor, scale:
                         link_inertia={link: link_inertia(parameters[10 * k:10 * k + 10]) for k, link in enumerate(links)})
 
 
-def true_parameters(regressor: InverseDynamicsRegressor, effects) -> np.ndarray:
-    """pi (P,) of the plant `effects` describe (data simulated with them): each link's welded group with
-    any payload (its composite inertia about the link frame's origin), joint damping plus viscous friction,
-    Coulomb friction, reflected rotor inertia."""
-    from pydrake.multibody.plant import MultibodyPlant
-    from stdm_drake.robots.effects import add_effects_to_plant, set_effect_parameters
-    robot, n = regressor.robot, regressor.num_joints
-    plant = MultibodyPlant(0.0)
-    instance = robot.add_to(plant)
-    add_effects_to_plant(plant, instance, robot, effects)
-    plant.Finalize()
-    context = plant.CreateDefaultContext()
-    set_effect_parameters(plant, context, effects)
-    inertial = []
-    for link in regressor.links:
-        body = plant.GetBodyByName(link, instance)
-        group = [other.index() for other in plant.GetBodiesWeldedTo(body)]
-        inertial.append(link_parameters(plant.CalcSpatialInertia(context, body.body_frame(), group)))
-    damping = np.array([plant.GetJointByName(name, instance).default_damping() for name in robot.joint_names])
-    actuators = {plant.get_joint_actuator(i).joint().name(): plant.get_joint_actuator(i)
-                 for i in plant.GetJointActuatorIndices(instance)}
-    rotor = np.array([actuators[name].default_reflected_inertia() for name in robot.joint_names])
-    return np.concatenate(inertial + [damping, effects.joint_values("coulomb_friction", n), rotor])
-
-
 def identify(dataset, robot, split, settings: IdentifySettings | None = None, announce=lambda line: None):
     """(IdentifiedRobot, report dict) of `dataset` (of `robot`) with `split` (train / val / test indices)."""
     settings = settings or IdentifySettings()
@@ -97,9 +74,15 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
         raise InputError("identify needs training and validation trajectories")
     source = settings.derivative_source
     regressor = InverseDynamicsRegressor(robot)
-    prior = regressor.nominal_parameters()
-    time_step = dataset.metadata.plant_time_step or 0.001
-    windows = settings.windows if source == "smoothed" else (0,)
+    prior = regressor.parameters()
+    time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP
+    windows = (0,)
+    if source == "smoothed":    # the windows that leave samples inside the shortest trajectory
+        shortest = min(dataset.trajectory(int(i)).num_steps for i in [*split.train, *split.val, *split.test])
+        windows = tuple(window for window in settings.windows if fits_window(shortest, window))
+        if not windows:
+            raise InputError(f"identify: no smoothing window of {list(settings.windows)} fits trajectories of "
+                             f"{shortest} steps")
     candidates, best = [], None
     for window in windows:
         train = identification_data(regressor, dataset, split.train, source, window or None)
@@ -107,21 +90,26 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
         for scale in settings.velocity_scales:
             rows, target = train.system(regressor, scale)
             for regularization in settings.regularizations:
-                parameters = consistent_fit(rows, target, prior, len(regressor.links), regularization)
+                setting = dict(window=window, velocity_scale=scale, regularization=regularization)
+                try:
+                    parameters = consistent_fit(rows, target, prior, len(regressor.links), regularization)
+                except InputError as error:
+                    candidates.append(dict(setting, val_torque_error=None, skipped=str(error)))
+                    continue
                 if not _stable(scale, parameters, regressor, robot, time_step):
-                    candidates.append(dict(window=window, velocity_scale=scale, regularization=regularization,
-                                           val_torque_error=None, skipped="Coulomb term unstable at the plant step"))
+                    candidates.append(dict(setting, val_torque_error=None,
+                                           skipped="Coulomb term unstable at the plant step"))
                     continue
                 error = relative_torque_error(val.predicted_torque(regressor, parameters, scale), val.torque)[0]
-                candidates.append(dict(window=window, velocity_scale=scale, regularization=regularization,
-                                       val_torque_error=error))
+                candidates.append(dict(setting, val_torque_error=error))
                 if best is None or error < best[0]:
                     best = (error, window, scale, regularization, parameters, train)
         announce(f"identify: window {window or '-'}: best validation torque error so far "
                  f"{best[0] if best else float('nan'):.3g}")
     if best is None:
-        raise InputError("identify: every candidate Coulomb velocity scale is unstable at the plant step; give larger "
-                         "ones (--velocity-scales)")
+        raise InputError("identify: no candidate setting gave a usable fit (" + "; ".join(
+            sorted({candidate["skipped"] for candidate in candidates})) + "); larger --velocity-scales make the "
+            "Coulomb term stable")
     val_error, window, scale, regularization, parameters, train = best
     rows, target = train.system(regressor, scale)
     ordinary = least_squares(rows, target)
@@ -134,7 +122,7 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
                   least_squares=dict(base_parameters=int(len(ordinary.base)), condition_number=ordinary.condition,
                                      residual_std=ordinary.residual_std,
                                      base=[regressor.names[i] for i in ordinary.base],
-                                     relative_std=_finite(_relative_std(ordinary))),
+                                     relative_std=_json_numbers(_relative_std(ordinary))),
                   description=prior.tolist(), identified=parameters.tolist())
     test_error = float("nan")   # (the file's record; the report leaves out "test" without test trajectories)
     if len(split.test):
@@ -150,7 +138,7 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
                 exact.predicted_torque(regressor, parameters, scale), exact.torque)[0]
     truth = dataset.metadata.plant_effects
     if truth is not None:
-        report["truth"] = _against_truth(regressor, parameters, true_parameters(regressor, truth))
+        report["truth"] = _against_truth(regressor, parameters, regressor.parameters(truth))
     record = Identification(robot=robot.name, robot_model_sha256=robot.model_sha256(), dataset=str(dataset.path),
                             dataset_sha256=dataset.sha256, sample_period=dataset.sample_period,
                             plant_time_step=time_step, derivative_source=source, smoothing_window=int(window),
@@ -161,7 +149,7 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
     return IdentifiedRobot(effects=effects, identification=record), report
 
 
-def _finite(values) -> list:
+def _json_numbers(values) -> list:
     """A list for JSON: non-finite values (a zero true value's relative error) as None."""
     return [float(value) if np.isfinite(value) else None for value in values]
 
@@ -181,7 +169,7 @@ def _against_truth(regressor, identified: np.ndarray, truth: np.ndarray) -> dict
         mine = identified[10 * links + k * n:10 * links + (k + 1) * n]
         true = truth[10 * links + k * n:10 * links + (k + 1) * n]
         error = np.divide(np.abs(mine - true), np.abs(true), out=np.full(n, np.nan), where=np.abs(true) > 0)
-        joint_part[kind] = dict(identified=mine.tolist(), true=true.tolist(), relative_error=_finite(error))
+        joint_part[kind] = dict(identified=mine.tolist(), true=true.tolist(), relative_error=_json_numbers(error))
     link_part = {link: dict(zip(LINK_PARAMETERS, zip(identified[10 * k:10 * k + 10].tolist(),
                                                      truth[10 * k:10 * k + 10].tolist())))
                  for k, link in enumerate(regressor.links)}

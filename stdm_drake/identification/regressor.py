@@ -15,8 +15,8 @@ parameter body keep their description's inertia). Parameters in this order: `nam
 
 Y comes from Drake: the description's plant converted to AutoDiff, each link's `SpatialInertia`
 seeded with the derivatives of its 10 parameters, `CalcInverseDynamics` with gravity; since tau is
-linear in pi, its gradient is Y exactly (at any parameter point) and tau_0 = tau − Y pi. About half a
-millisecond per sample for a 6-joint arm (tools/bench_regressor.py).
+linear in pi, its gradient is Y exactly (at any parameter point) and tau_0 = tau − Y pi. About 0.3 ms
+per sample for a 6-joint arm (tools/bench_regressor.py, BENCHMARKS.md).
 """
 from __future__ import annotations
 
@@ -84,7 +84,8 @@ class InverseDynamicsRegressor:
         self.num_link_parameters = 10 * len(self.links)
         self._autodiff = plant.ToAutoDiffXd()
         self._context = self._autodiff.CreateDefaultContext()
-        seeded = InitializeAutoDiff(np.tile(_EVALUATION_POINT, len(self.links))).ravel()
+        self._point = np.tile(_EVALUATION_POINT, len(self.links))
+        seeded = InitializeAutoDiff(self._point).ravel()
         for k, link in enumerate(self.links):
             p = seeded[10 * k:10 * k + 10]
             mass, com = p[0], p[1:4] / p[0]
@@ -94,7 +95,6 @@ class InverseDynamicsRegressor:
             body = self._autodiff.GetBodyByName(link, instance)
             body.SetSpatialInertiaInBodyFrame(self._context, SpatialInertia_[AutoDiffXd](mass, com, unit, True))
         self._forces = MultibodyForces_[AutoDiffXd](self._autodiff)
-        self._point = np.tile(_EVALUATION_POINT, len(self.links))
 
     @staticmethod
     def _parameter_bodies(plant, instance) -> tuple:
@@ -110,30 +110,44 @@ class InverseDynamicsRegressor:
             links.append(heaviest.name())
         return tuple(links)
 
-    @property
-    def num_parameters(self) -> int:
-        return len(self.names)
-
-    def nominal_parameters(self) -> np.ndarray:
-        """pi of the description (P,): its links' inertias (each link's welded group is not summed: the
-        other bodies stay fixed in tau_0), damping as viscous friction, no Coulomb friction, reflected
-        rotor inertia G² I_r of its actuators."""
+    def parameters(self, effects=None) -> np.ndarray:
+        """pi (P,) of the description (effects None: the regression's prior) or of the plant `effects`
+        describe (the truth of data simulated with them): each link's welded group's composite inertia
+        about the link frame's origin (a payload included) less what the description's other bodies of the
+        group hold fixed in tau_0; each joint's total damping (the description's, or the effects'
+        joint_damping, plus viscous friction), Coulomb friction and reflected rotor inertia."""
         from pydrake.multibody.plant import MultibodyPlant
-        plant = MultibodyPlant(0.0)
-        instance = self.robot.add_to(plant)
-        plant.Finalize()
-        context = plant.CreateDefaultContext()
-        inertial = [link_parameters(plant.GetBodyByName(link, instance).CalcSpatialInertiaInBodyFrame(context))
+        from stdm_drake.robots.effects import add_effects_to_plant, set_effect_parameters
+
+        def plant_of(plant_effects):
+            plant = MultibodyPlant(0.0)
+            instance = self.robot.add_to(plant)
+            if plant_effects is not None:
+                add_effects_to_plant(plant, instance, self.robot, plant_effects)
+            plant.Finalize()
+            context = plant.CreateDefaultContext()
+            if plant_effects is not None:
+                set_effect_parameters(plant, context, plant_effects)
+            return plant, instance, context
+
+        def composite(plant, instance, context, link, others_only):
+            body = plant.GetBodyByName(link, instance)
+            group = [other.index() for other in plant.GetBodiesWeldedTo(body)
+                     if not (others_only and other.index() == body.index())]
+            return link_parameters(plant.CalcSpatialInertia(context, body.body_frame(), group))
+
+        description = plant_of(None)
+        plant, instance, context = plant_of(effects) if effects is not None else description
+        inertial = [composite(plant, instance, context, link, False) - composite(*description, link, True)
                     for link in self.links]
-        damping, rotor = np.zeros(self.num_joints), np.zeros(self.num_joints)
         actuators = {plant.get_joint_actuator(i).joint().name(): plant.get_joint_actuator(i)
                      for i in plant.GetJointActuatorIndices(instance)}
-        for j, name in enumerate(self.robot.joint_names):
-            damping[j] = plant.GetJointByName(name, instance).default_damping()
-            actuator = actuators.get(name)
-            if actuator is not None:
-                rotor[j] = actuator.default_reflected_inertia()
-        return np.concatenate(inertial + [damping, np.zeros(self.num_joints), rotor])
+        damping = np.array([plant.GetJointByName(name, instance).default_damping() for name in self.robot.joint_names])
+        rotor = np.array([actuators[name].default_reflected_inertia() if name in actuators else 0.0
+                          for name in self.robot.joint_names])
+        coulomb = (effects.joint_values("coulomb_friction", self.num_joints) if effects is not None
+                   else np.zeros(self.num_joints))
+        return np.concatenate(inertial + [damping, coulomb, rotor])
 
     def rigid_body_rows(self, q: np.ndarray, v: np.ndarray, vd: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(Y_rb (N, n, 10 B), tau_0 (N, n)) for q, v (N, n) rad, rad/s and v̇ (N, n) rad/s²."""

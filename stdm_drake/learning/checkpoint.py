@@ -142,7 +142,8 @@ def save_checkpoint(path, model: EnsembleMLP, *, training_config: TrainingConfig
     content = {
         "format": CHECKPOINT_FORMAT,
         "format_version": CHECKPOINT_VERSION,
-        "model_config": dataclasses.asdict(model.config),
+        "model_config": {key: value for key, value in dataclasses.asdict(model.config).items()
+                         if key != "zero_output"},   # (how the weights started: the weights themselves are stored)
         "weights": {name: value.detach().cpu().clone() for name, value in model.state_dict().items()},
         "training_config": dataclasses.asdict(training_config) if training_config is not None else None,
         "history": {column: [float(v) for v in values] for column, values in (history or {}).items()},

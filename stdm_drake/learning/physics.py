@@ -102,9 +102,9 @@ class PlantModel(DynamicsModel):
     model is the description with the identified parameters as effects (`identification.identified`).
     """
     name = "plant"
-    checkpoint = None     # an identified robot's model: its `IdentifiedRobot` (the file, its dataset and split)
+    checkpoint = None     # source: an identified robot's `IdentifiedRobot` (the file, its dataset and split)
 
-    def __init__(self, sample_period: float, plant_config=None, *, robot, name: str | None = None):
+    def __init__(self, sample_period: float, plant_config=None, *, robot, name: str | None = None, source=None):
         from stdm_drake.robots.plant import PlantConfig, PlantSimulator, make_plant
         self.robot = robot
         self.state_dim, self.action_dim = self.robot.state_dim, self.robot.action_dim
@@ -115,6 +115,8 @@ class PlantModel(DynamicsModel):
             self.name = "true-plant"
         if name is not None:
             self.name = name
+        if source is not None:   # an identified robot: fitted to data, rated against the physics-free baselines
+            self.checkpoint, self.learned = source, True
         continuous_config = PlantConfig.discrete(0.0, effects=self.effects)
         continuous, _ = make_plant(continuous_config, robot=self.robot)
         self.autodiff_plant = continuous.ToAutoDiffXd()
@@ -340,18 +342,25 @@ class PeriodAcceleration(NominalAcceleration):
 
     def rates(self, q, v, tau, q_rate, v_rate, tau_rate) -> np.ndarray:
         """d φ̄ / dt (N, n) along the tangent rows (q̇, v̇, τ̇): central differences of `values`."""
-        q, v, tau = self._rows(q, v, tau)
-        n = self.num_joints
-        point = np.hstack([q, v, tau])
-        tangent = np.hstack([np.atleast_2d(q_rate), np.atleast_2d(v_rate), np.atleast_2d(tau_rate)])
-        size = np.abs(tangent).max(axis=1)
-        moving = size > 0
-        step = np.zeros((len(point), 1))      # a zero tangent has a zero rate
-        step[moving, 0] = 1e-6 * np.maximum(np.abs(point[moving]).max(axis=1), 1.0) / size[moving]
-        ahead, behind = point + step * tangent, point - step * tangent
-        forward = self.values(ahead[:, :n], ahead[:, n:2 * n], ahead[:, 2 * n:])
-        backward = self.values(behind[:, :n], behind[:, n:2 * n], behind[:, 2 * n:])
-        rates = np.zeros_like(forward)
-        rates[moving] = (forward[moving] - backward[moving]) / (2.0 * step[moving])
-        return rates
+        return central_difference_rates(self.values, self.num_joints, q, v, tau, q_rate, v_rate, tau_rate)
+
+
+def central_difference_rates(values, joints: int, q, v, tau, q_rate, v_rate, tau_rate) -> np.ndarray:
+    """d values(q, v, τ) / dt (N, width) along the tangent rows (q̇, v̇, τ̇) by central differences: a step of
+    1e-6 of each row's scale along its tangent (exact to ~1e-9 relative for smooth values); a zero tangent
+    has a zero rate. values: a function of q, v (N, n) and τ (N, m)."""
+    q, v, tau = (np.atleast_2d(np.asarray(array, dtype=np.float64)) for array in (q, v, tau))
+    n = joints
+    point = np.hstack([q, v, tau])
+    tangent = np.hstack([np.atleast_2d(q_rate), np.atleast_2d(v_rate), np.atleast_2d(tau_rate)])
+    size = np.abs(tangent).max(axis=1)
+    moving = size > 0
+    step = np.zeros((len(point), 1))
+    step[moving, 0] = 1e-6 * np.maximum(np.abs(point[moving]).max(axis=1), 1.0) / size[moving]
+    ahead, behind = point + step * tangent, point - step * tangent
+    forward = values(ahead[:, :n], ahead[:, n:2 * n], ahead[:, 2 * n:])
+    backward = values(behind[:, :n], behind[:, n:2 * n], behind[:, 2 * n:])
+    rates = np.zeros_like(forward)
+    rates[moving] = (forward[moving] - backward[moving]) / (2.0 * step[moving])
+    return rates
 

@@ -2,7 +2,7 @@
 `learning.structure`, plant-step inputs)."""
 import numpy as np
 
-from stdm_drake.learning.physics import PlantModel
+from stdm_drake.learning.physics import PlantModel, central_difference_rates
 
 
 class PlantStep:
@@ -54,17 +54,4 @@ class PlantStep:
 
     def rates(self, q, v, tau, q_rate, v_rate, tau_rate) -> np.ndarray:
         """d x̂_{k+1} / dt (N, 2n) along the tangent rows (q̇, v̇, τ̇): central differences of `values`."""
-        x, tau = self._rows(q, v, tau)
-        point = np.hstack([x, tau])
-        tangent = np.hstack([np.atleast_2d(q_rate), np.atleast_2d(v_rate), np.atleast_2d(tau_rate)])
-        size = np.abs(tangent).max(axis=1)
-        moving = size > 0
-        step = np.zeros((len(point), 1))      # a zero tangent has a zero rate
-        step[moving, 0] = 1e-6 * np.maximum(np.abs(point[moving]).max(axis=1), 1.0) / size[moving]
-        n = self.num_joints
-        ahead, behind = point + step * tangent, point - step * tangent
-        forward = self.values(ahead[:, :n], ahead[:, n:2 * n], ahead[:, 2 * n:])
-        backward = self.values(behind[:, :n], behind[:, n:2 * n], behind[:, 2 * n:])
-        rates = np.zeros_like(forward)
-        rates[moving] = (forward[moving] - backward[moving]) / (2.0 * step[moving])
-        return rates
+        return central_difference_rates(self.values, self.num_joints, q, v, tau, q_rate, v_rate, tau_rate)

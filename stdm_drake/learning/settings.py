@@ -162,6 +162,9 @@ class TrainSettings:
         elif isinstance(self.alpha, str):
             self.alpha = "auto"
         if self.model in GREY_BOX_TYPES:   # G / GD: a D / DD on the plant step
+            if self.inputs not in ("nominal_acceleration", "plant_step"):    # (the default, or the grey box's own)
+                raise InputError(f"{key('model')} {self.model} is the grey box: its inputs are plant_step, not "
+                                 f"{self.inputs}")
             self.inputs = "plant_step"
         choices = dict(model=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES), derivative=(None, "on", "off"), activation=ACTIVATION_NAMES,
                        state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
@@ -172,6 +175,11 @@ class TrainSettings:
             if getattr(self, name) not in allowed:
                 raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "
                                  f"got {getattr(self, name)!r}")
+        if self.inputs == "plant_step":
+            kind = MODEL_TYPES.get(self.model) or GREY_BOX_TYPES[self.model]
+            if kind.probabilistic or kind.ensemble or self.direct:
+                raise InputError("a grey box (inputs plant_step) is a single deterministic network whose delta adds "
+                                 f"to the plant step: not model {self.model}" + (" with --direct" if self.direct else ""))
         if self.alpha != "auto" and not (math.isfinite(self.alpha) and self.alpha >= 0):
             raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}")
         if not self.alpha_grid or not all(math.isfinite(a) and a >= 0 for a in self.alpha_grid):

@@ -21,8 +21,8 @@
     inputs="plant_step"  the grey box: the network's delta adds to a plant model's next state x̂_{k+1}
                          (`plant_step.PlantStep`: the robot's description, or with `physics` the description
                          with an identified robot's parameters) instead of to x_k, and it sees [x̂ (or v̂),
-                         x, τ]: it learns only what the plant model misses; ẋ̂ = A ẋ + B τ̇ by the plant's
-                         linearization, once per training sample
+                         x, τ]: it learns only what the plant model misses; ẋ̂ is the plant step's own
+                         derivative along (ẋ, τ̇), two plant steps per training sample
 
 The network's own input order puts the part its delta adds first: [x, τ, (φ)] for "state",
 [v, q, τ, (φ)] for "velocity"; with plant-step inputs [x̂, x, τ] and [v̂, x, τ]. Derivative learning needs the time derivative of every input: ẋ and

@@ -138,8 +138,13 @@ class PlantEffects:
         return (", ".join(parts) or "none") + (f"  ({self.source})" if self.source else "")
 
     def record(self) -> dict:
-        """What a dataset or checkpoint records of the effects (every field)."""
-        return dataclasses.asdict(self)
+        """What a dataset or checkpoint records of the effects (every field; joint_damping and link_inertia
+        only when given, so files of effects without them read as before)."""
+        record = dataclasses.asdict(self)
+        for name in ("joint_damping", "link_inertia"):
+            if not record[name]:
+                del record[name]
+        return record
 
     @classmethod
     def from_record(cls, record: dict) -> "PlantEffects":

@@ -363,11 +363,9 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     if unknown:
         raise InputError(f"plant effects mass_scale or link_inertia names links robot {robot.name} does not have: {', '.join(unknown)} "
                          f"(its links: {', '.join(sorted(links))})")
-    coulomb = effects.coulomb(n)
-    if coulomb is not None and time_step > 0:   # (the affected plant's inertia: rotor, payload, mass scales)
-        inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[])).effective_inertia(robot.home)
-        friction, scale = coulomb
-        gain = time_step * friction / (scale * inertia)
+    gain = coulomb_stability_gains(effects, robot, time_step)
+    if gain is not None:
+        friction, scale = effects.coulomb(n)
         if np.any(gain > 1.0):
             joint = int(np.argmax(gain))
             raise InputError(f"plant effects: Coulomb friction {friction[joint]:g} "
@@ -375,6 +373,19 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
                              f"raise its coulomb_velocity_scale to at least {scale[joint] * gain[joint]:.3g} rad/s or "
                              "lower the plant step")
+
+
+def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:
+    """h F_c / (v_s M_eff) per arm joint (n,): the explicit Coulomb term is stable at the plant step h s where
+    it is <= 1; M_eff the joint's effective inertia at the robot's home on the affected plant (reflected
+    inertia, payload, link inertias and mass scales included). None without Coulomb friction or for a
+    continuous plant (h = 0)."""
+    coulomb = effects.coulomb(robot.num_joints)
+    if coulomb is None or time_step <= 0:
+        return None
+    inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[])).effective_inertia(robot.home)
+    friction, scale = coulomb
+    return time_step * friction / (scale * inertia)
 
 
 def plant_effects_for(effects, robot: Robot, time_step: float) -> PlantEffects | None:
