@@ -340,6 +340,9 @@ def test_the_reality_gap_reuses_models_only_of_the_same_data_and_settings(tmp_pa
     assert train(str(data.path), "D", (1, 1, 1), 1, 1, folder) == first and checkpoint.stat().st_mtime_ns == stamp
     other = train(str(data.path), "D", (1, 1, 1), 1, 2, folder)   # other epochs: another model
     assert other != first and (pathlib.Path(other) / "seed0" / "checkpoint.pt").exists()
+    (pathlib.Path(first) / "summary.json").unlink()      # as if interrupted (a checkpoint, no summary): resumed
+    assert train(str(data.path), "D", (1, 1, 1), 1, 1, folder) == first
+    assert (pathlib.Path(first) / "summary.json").exists()
     assert data.sha256[:12] in first and data.metadata.section("controller")["kp"][5] > 100   # sized for the affected wrist
 
 

@@ -77,24 +77,37 @@ def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: 
           robot_config: str | None = None, extra: tuple = ()) -> str:
     """`stdm-drake train` of one model type, every seed (in a pool worker); the run folder: `folder` with
     the split, the epochs and the first 12 hex digits of the dataset's SHA-256 appended (other data or
-    settings get new models). A folder whose every seed's checkpoint exists is reused. robot_config: the
+    settings get new models). A folder where `train` finished every seed is reused; an interrupted one is
+    resumed (`train --resume`: the same weights as an uninterrupted run). robot_config: the
     robot's YAML (None: the UR-10 preset); extra: more `train` arguments (the folder name must tell them
     apart, e.g. a grey box's --physics)."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
     sha = load_dataset(dataset_path).sha256[:12]
     folder = pathlib.Path(f"{folder}_{'-'.join(map(str, split))}_e{epochs}_{sha}")
-    if all((folder / f"seed{seed}" / "checkpoint.pt").exists() for seed in range(seeds)):
+    if _finished(folder, seeds):
         return str(folder)
     train_count, val_count, test_count = split
     code = main(["train", dataset_path, "--model", model_type, "--train", str(train_count), "--val", str(val_count),
                  "--test", str(test_count), "--per-group", "on", "--derivative-source", "true",
                  "--action-rate", "zero_order_hold", "--epochs", str(epochs), "--seeds", *map(str, range(seeds)),
                  "--quiet", "--force", "-o", str(folder), *(["--robot", str(robot_config)] if robot_config else []),
-                 *extra])
+                 *(["--resume"] if any(folder.glob("seed*/checkpoint.pt")) else []), *extra])
     if code != 0:
         raise RuntimeError(f"train {model_type} on {dataset_path} failed ({code})")
     return str(folder)
+
+
+def _finished(folder: pathlib.Path, seeds: int) -> bool:
+    """Whether `train` finished every seed in `folder`: its summary.json (written last) lists them all (a
+    checkpoint alone may be an interrupted run's periodic one)."""
+    import json
+    try:
+        summary = json.loads((folder / "summary.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return all(str(seed) in summary.get("seeds", {}) and (folder / f"seed{seed}" / "checkpoint.pt").exists()
+               for seed in range(seeds))
 
 
 def plan_references(data, checkpoint_path: str, split: str, steps) -> list:
