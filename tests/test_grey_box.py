@@ -166,3 +166,21 @@ def test_a_physics_record_belongs_to_plant_step_inputs():
     with pytest.raises(InputError, match="belongs to plant-step inputs"):
         ModelStructure(predicts="state", inputs="raw", physics=dict(effects={}, plant_time_step=0.001, source="x"))
     assert ModelStructure.from_dict(ModelStructure(inputs="plant_step").as_dict()) == ModelStructure(inputs="plant_step")
+
+
+def test_a_delta_models_output_spread_has_a_floor_at_its_targets_scale():
+    """Residual targets of rounding size (a grey box on an exact plant) are not standardized into unit
+    noise: the output spread is at least DELTA_SPREAD_FLOOR x the targets' own spread; a real delta's
+    spread is kept as it is."""
+    from stdm_drake.learning.regression import DELTA_SPREAD_FLOOR, RegressionData, fit_normalizers
+    rng = np.random.default_rng(0)
+    inputs = rng.normal(size=(200, 3))
+    for delta, expected in ((1e-12, DELTA_SPREAD_FLOOR), (0.1, None)):
+        targets = inputs[:, :1] + delta * rng.normal(size=(200, 1))
+        network = EnsembleMLP(ModelConfig(input_dim=3, output_dim=1, residual=True))
+        fit_normalizers(network, RegressionData(inputs=inputs, targets=targets))
+        spread = float(network.output_normalizer.std[0])
+        if expected is None:
+            assert spread == pytest.approx(float(np.std(targets - inputs[:, :1])))
+        else:
+            assert spread == pytest.approx(expected * float(np.std(targets)))

@@ -156,7 +156,7 @@ def test_unreachable_cluster_and_missing_ray_are_one_line_errors(tmp_path, capsy
 
 def test_train_seeds_on_ray_write_the_local_checkpoints(head, tmp_path, excitation_dataset, capsys):
     """`train --seeds 0 1 2 --backend ray`: every seed trained on the cluster, the files written here,
-    checkpoints bitwise equal to the local run's; --resume is refused with Ray."""
+    checkpoints bitwise equal to the local run's (a DD and a grey box G); --resume is refused with Ray."""
     from stdm_drake.cli import main
     address, _ = head
     common = ["train", str(excitation_dataset), "--model", "DD", "--epochs", "4", "--train", "2", "--val", "1",
@@ -175,6 +175,14 @@ def test_train_seeds_on_ray_write_the_local_checkpoints(head, tmp_path, excitati
     capsys.readouterr()
     assert main(common + ["--backend", "ray", "--resume", "-o", str(tmp_path / "ray")]) == 2
     assert "--resume continues runs in a local folder" in capsys.readouterr().err
+    grey = ["train", str(excitation_dataset), "--model", "G", "--epochs", "2", "--train", "2", "--val", "1",
+            "--seeds", "0", "1", "--quiet"]       # the grey box (plant-step inputs) on the cluster too
+    assert main(grey + ["-o", str(tmp_path / "grey_local")]) == 0
+    assert main(grey + ["--backend", "ray", "--ray-address", address, "-o", str(tmp_path / "grey_ray")]) == 0
+    for seed in (0, 1):
+        a = torch.load(tmp_path / "grey_local" / f"seed{seed}" / "checkpoint.pt", weights_only=True)["weights"]
+        b = torch.load(tmp_path / "grey_ray" / f"seed{seed}" / "checkpoint.pt", weights_only=True)["weights"]
+        assert all(torch.equal(a[key], b[key]) for key in a)
 
 
 def test_the_decisive_experiment_runs_on_ray_with_the_local_results(head, tmp_path):

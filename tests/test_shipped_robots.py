@@ -257,7 +257,7 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
     """`reproduce --quick --robot panda --plant-effects`: every stage on the 7-joint arm with its derived
     protocols, on the plant with models/panda_effects.yaml, and the reality-gap stage: its files, figures
     and report section with a verdict; each model's MPC setting chosen on validation plans only, the test
-    plans run with it and with the shipped one. The underactuated Acrobot is refused before any work."""
+    plans run with it and with the shipped one; the system-identification stage's files and section. The underactuated Acrobot is refused before any work."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
     out = tmp_path / "reproduce"
@@ -297,6 +297,14 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
     assert tables["reality_gap"]["verdict"]["text"] == results["verdict"]["text"]
     checkpoints = sorted((out / "data" / "reality_gap" / "runs").rglob("checkpoint.pt"))
     assert len(checkpoints) == 2 * 2 + 2 * 3   # D, DD: 2 seeds closed loop, 1 seed on each of 3 plants
+    # the system-identification stage: the white box on the 7-joint arm (torques to 0.1 % with true derivatives;
+    # its preset's Coulomb velocity scale differs per joint, the model's is one for all), the grey and black boxes
+    assert "## System identification" in report
+    white = json.loads((out / "sysid" / "results.json").read_text())
+    assert [row["run"] for row in white["rows"]] == ["A", "C"]      # (the quick profile's runs)
+    assert white["rows"][0]["torque_error"] < 0.01 < white["rows"][0]["description_torque_error"]
+    grey = json.loads((out / "sysid" / "grey_box.json").read_text())
+    assert {row["model"] for row in grey["sensors"]["ideal"]["rows"]} >= {"D", "G", "G-id", "identified", "plant"}
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
     assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()

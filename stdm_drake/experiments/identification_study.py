@@ -13,7 +13,9 @@ Grey box against black box (`run_grey_box`, on both sensors' data at the largest
 D and DD (`train`'s black boxes), G (grey box on the description's plant step), G-id and GD-id (grey box on
 the plant identified from the same training plans: run A's for the ideal sensor, C's for the paper's),
 `SEEDS` seeds each; one-step and 20-step q MSE on the test plans, each grey box's ratio to D paired by seed
-with a 95 % interval. `tools/identification_study.py` writes the files of both.
+with a 95 % interval. `write_white_box` and `write_grey_box` write their files, `report_section` adds both
+to a report: `tools/identification_study.py` and `stdm-drake reproduce --plant-effects` (its "system
+identification" stage) call them.
 """
 import pathlib
 
@@ -21,9 +23,12 @@ import numpy as np
 
 from stdm_drake.robots.robot import Robot
 
-# (plans, plans per pose: training sizes, validation, test; smoothing windows searched)
-FULL = dict(plans=100, train_sizes=(5, 10, 18), val=2, test=5, windows=None, seeds=5, epochs=300)
-QUICK = dict(plans=12, train_sizes=(1,), val=1, test=1, windows=(5, 9), seeds=2, epochs=3)
+# plans per start pose: training sizes, validation, test; smoothing windows searched (None: identify's); the
+# learned models' seeds and epochs (the UR-10's 4 start poses: 100 plans, and 12 with QUICK)
+FULL = dict(train_sizes=(5, 10, 18), val=2, test=5, windows=None, seeds=5, epochs=300, runs=("A", "B", "C"),
+            grey_models=("D", "DD", "G", "G-id", "GD-id"))
+QUICK = dict(train_sizes=(1,), val=1, test=1, windows=(5, 9), seeds=2, epochs=3, runs=("A", "C"),
+             grey_models=("D", "G", "G-id"))
 # the grey-box comparison: name -> (train --model, the grey box's physics: None or "identified")
 GREY_BOX_MODELS = {"D": ("D", None), "DD": ("DD", None), "G": ("G", None), "G-id": ("G", "identified"),
                    "GD-id": ("GD", "identified")}
@@ -64,11 +69,14 @@ def run_study(profile: dict, folder: pathlib.Path, robot: Robot, effects, worker
     errors of A and C at the largest size."""
     from stdm_drake.data.dataset import split_trajectories
     from stdm_drake.identification.identify import IdentifySettings, identify
+    from stdm_drake.experiments.reality_gap import start_poses
     folder.mkdir(parents=True, exist_ok=True)
-    datasets = {sensor: dataset(folder, sensor, effects, profile["plans"], robot, workers) for sensor in SENSORS}
+    plans = start_poses(robot) * (max(profile["train_sizes"]) + profile["val"] + profile["test"])
+    datasets = {sensor: dataset(folder, sensor, effects, plans, robot, workers) for sensor in SENSORS}
     rows, reports, errors, identified_files = [], {}, {}, {}
     largest = max(profile["train_sizes"])
-    for run, (sensor, source) in RUNS.items():
+    for run in profile["runs"]:
+        sensor, source = RUNS[run]
         data = datasets[sensor]
         settings = IdentifySettings(derivative_source=source)
         if profile["windows"]:
@@ -129,7 +137,8 @@ def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: d
     config = None if robot.config_path is None else str(robot.config_path)
     jobs = {}
     for sensor, data in white_box["datasets"].items():
-        for name, (model_type, physics) in GREY_BOX_MODELS.items():
+        for name in profile["grey_models"]:
+            model_type, physics = GREY_BOX_MODELS[name]
             extra = ("--physics", white_box["identified_files"][sensor]) if physics else ()
             jobs[(sensor, name)] = (data["path"], model_type, split, seeds, epochs,
                                     str(folder / "runs" / f"{sensor}_{name}"), config, extra)
@@ -140,7 +149,7 @@ def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: d
     results = {}
     for sensor in white_box["datasets"]:
         results[sensor] = grey_box_errors(white_box["datasets"][sensor]["path"],
-                                          {name: folders[(sensor, name)] for name in GREY_BOX_MODELS}, seeds, robot,
+                                          {name: folders[(sensor, name)] for name in profile["grey_models"]}, seeds, robot,
                                           white_box["identified_files"][sensor])
         say(f"grey box, {sensor} sensor: " + "; ".join(
             f"{row['model']} one step {row['one_step_q']:.3g}, q@20 {row['q_at_20']:.3g}"
@@ -203,13 +212,18 @@ def _worst(errors: list) -> float:
     return float(max(known)) if known else float("nan")
 
 
-def summary_table(results: dict) -> str:
-    """The rows as a Markdown table."""
-    from stdm_drake.report import markdown_table
+def summary_rows(results: dict) -> tuple[list, list]:
+    """(header, rows) of the white box's table."""
     columns = ["run", "sensor", "derivatives", "train_per_pose", "condition_number", "window", "velocity_scale",
                "regularization", "torque_error", "least_squares_torque_error", "torque_error_on_true_states",
                "description_torque_error", "worst_viscous_error", "worst_coulomb_error"]
-    return markdown_table(columns, [[_cell(row[column]) for column in columns] for row in results["rows"]])
+    return columns, [[_cell(row[column]) for column in columns] for row in results["rows"]]
+
+
+def summary_table(results: dict) -> str:
+    """The white box's rows as a Markdown table."""
+    from stdm_drake.report import markdown_table
+    return markdown_table(*summary_rows(results))
 
 
 def _cell(value):
@@ -218,19 +232,28 @@ def _cell(value):
     return "-" if value is None else value
 
 
+GREY_BOX_HEADER = ["model", "seeds", "one-step q MSE (rad²)", "one-step v MSE", f"q MSE at step {ROLLOUT_STEPS}",
+                   "D / model, one step", f"D / model, step {ROLLOUT_STEPS}", "verdict"]
+
+
+def grey_box_rows(result: dict) -> list:
+    """One sensor's grey-box table rows (GREY_BOX_HEADER): every model's test errors (geometric mean over
+    seeds) and each type's ratio to D."""
+    rows = []
+    for row in result["rows"]:
+        ratios = [row.get(f"d_over_model_{key}") for key in ("one_step_q", "q_at_20")]
+        rows.append([row["model"], row["seeds"] or "-", f"{row['one_step_q']:.3g}", f"{row['one_step_v']:.3g}",
+                     f"{row['q_at_20']:.3g}"] + [_ratio_text(ratio) for ratio in ratios] + [row["verdict"] or "-"])
+    return rows
+
+
 def grey_box_table(grey: dict) -> str:
-    """Per sensor: every model's test errors (geometric mean over seeds) and each type's ratio to D."""
+    """Per sensor, the grey-box table in Markdown."""
     from stdm_drake.report import markdown_table
     lines = []
     for sensor, result in grey["sensors"].items():
-        body = []
-        for row in result["rows"]:
-            ratios = [row.get(f"d_over_model_{key}") for key in ("one_step_q", "q_at_20")]
-            body.append([row["model"], row["seeds"] or "-", f"{row['one_step_q']:.3g}", f"{row['one_step_v']:.3g}",
-                         f"{row['q_at_20']:.3g}"] + [_ratio_text(ratio) for ratio in ratios] + [row["verdict"] or "-"])
         lines += [f"{sensor} sensor, {len(result['test_plans'])} test plans, {grey['seeds']} seeds:", "",
-                  markdown_table(["model", "seeds", "one-step q MSE (rad²)", "one-step v MSE", f"q MSE at step {ROLLOUT_STEPS}",
-                                  "D / model, one step", f"D / model, step {ROLLOUT_STEPS}", "verdict"], body), ""]
+                  markdown_table(GREY_BOX_HEADER, grey_box_rows(result)), ""]
     return "\n".join(lines)
 
 
@@ -240,3 +263,57 @@ def _ratio_text(ratio) -> str:
     if ratio["pairs"] < 2:
         return f"{ratio['ratio']:.3g}x"
     return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}]"
+
+
+def write_white_box(results: dict, out: pathlib.Path, quick: bool) -> dict:
+    """The white box's files in `out`: reports/*.json (one identify report per run), results.json (the rows,
+    model errors, datasets and identified files), summary.csv and summary.md; returns what results.json holds."""
+    import json
+    from stdm_drake.files import json_default, rows_csv, write_text_atomic
+    results = dict(results)
+    (out / "reports").mkdir(parents=True, exist_ok=True)
+    for name, report in results.pop("reports").items():
+        write_text_atomic(out / "reports" / f"{name}.json", json.dumps(report, indent=1, default=json_default) + "\n")
+    results = dict(written_by="stdm-drake identification study", quick=quick, **results)
+    write_text_atomic(out / "results.json", json.dumps(results, indent=1, default=json_default) + "\n")
+    write_text_atomic(out / "summary.csv", rows_csv(results["rows"]))
+    lines = [summary_table(results), ""]
+    for run, rows in results["model_errors"].items():
+        lines.append(f"Run {run}, test plans: one-step q / v MSE and q MSE at step {ROLLOUT_STEPS}")
+        lines += [f"- {row['model']}: {row['one_step_q']:.3g} rad², {row['one_step_v']:.3g} (rad/s)², "
+                  f"{row['q_at_20']:.3g} rad²" + (f" ({row['verdict']})" if row["verdict"] else "") for row in rows]
+        lines.append("")
+    write_text_atomic(out / "summary.md", "\n".join(lines))
+    return results
+
+
+def write_grey_box(grey: dict, out: pathlib.Path, quick: bool) -> dict:
+    """The grey box's files in `out`: grey_box.json and grey_box.md; returns what grey_box.json holds."""
+    import json
+    from stdm_drake.files import json_default, write_text_atomic
+    grey = dict(written_by="stdm-drake identification study", quick=quick, **grey)
+    write_text_atomic(out / "grey_box.json", json.dumps(grey, indent=1, default=json_default) + "\n")
+    write_text_atomic(out / "grey_box.md", grey_box_table(grey) + "\n")
+    return grey
+
+
+def report_section(report, white: dict, grey: dict | None) -> None:
+    """The study in a `Report`: the white box's table (torque errors and friction against the number of
+    training plans and the sensor), its identified models' open-loop errors, and the grey-box tables."""
+    report.heading("System identification: white box, grey box and black box on the affected plant")
+    report.text("Design: docs/identification.md. White box: `identify` (physically consistent fit, settings chosen "
+                "on validation plans) at each number of training plans per start pose, with the simulation's true "
+                "derivatives (A), smoothed ones on the ideal sensor (B) and on the paper's sensor (C). Torque error: "
+                "RMS error / RMS torque on the test plans; friction: the largest relative error of any joint's "
+                "viscous and Coulomb coefficient against the plant's.")
+    report.table(*summary_rows(white))
+    for run, rows in white["model_errors"].items():
+        report.text(f"Run {run}'s identified robot on the test plans (one-step q MSE / q MSE at step {ROLLOUT_STEPS}): "
+                    + "; ".join(f"{row['model']} {row['one_step_q']:.3g} / {row['q_at_20']:.3g}" for row in rows) + ".")
+    if grey is not None:
+        report.text("Grey box against black box (same data and split; D / model paired by seed, 95 % interval; above "
+                    "1 the model predicts better than D): G is the grey box on the description's plant step, G-id and "
+                    "GD-id on the robot identified from the same training plans.")
+        for sensor, result in grey["sensors"].items():
+            report.text(f"{sensor} sensor: {len(result['test_plans'])} test plans, {grey['seeds']} seeds per type.")
+            report.table(GREY_BOX_HEADER, grey_box_rows(result))

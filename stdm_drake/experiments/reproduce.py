@@ -109,8 +109,23 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
                                   say=lambda line: print(line, file=sys.stderr, flush=True) if progress else None)
         write_results(reality, output / "reality_gap")
         timings["reality_gap"] = time.perf_counter() - tick
+    sysid = None
+    if plant_effects is not None:   # the system-identification stage (docs/identification.md): white box against
+        # the number of plans and the sensor, grey and black boxes (local processes, as the reality gap)
+        from stdm_drake.experiments import identification_study as study
+        tick = time.perf_counter()
+        design = study.QUICK if profile.name == "quick" else study.FULL
+        say = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else (lambda line: None)
+        white = study.write_white_box(study.run_study(design, output / "data" / "sysid", robot, plant_effects,
+                                                      workers=workers, say=say), output / "sysid",
+                                      profile.name == "quick")
+        grey = study.write_grey_box(study.run_grey_box(design, output / "data" / "sysid", robot, white,
+                                                       workers=workers, say=say), output / "sysid",
+                                    profile.name == "quick")
+        sysid = (white, grey)
+        timings["sysid"] = time.perf_counter() - tick
     path = write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
-                        timings, reality)
+                        timings, reality, sysid)
     return path, mpc_rows["failures"]
 
 

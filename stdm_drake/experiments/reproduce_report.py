@@ -445,9 +445,10 @@ def write_result_files(folder: pathlib.Path, report, tables: dict, results) -> N
 
 
 def write_report(folder: pathlib.Path, profile: Profile, excitation, local, tracking, identification, results, sine,
-                 mpc_rows, timings: dict, reality_gap: dict | None = None) -> pathlib.Path:
+                 mpc_rows, timings: dict, reality_gap: dict | None = None, sysid: tuple | None = None) -> pathlib.Path:
     """The report of a reproduction run in `folder`, section by section, with the result files behind it;
-    returns the HTML page's path. reality_gap: the reality-gap stage's results (files in folder/reality_gap)."""
+    returns the HTML page's path. reality_gap: the reality-gap stage's results (files in folder/reality_gap);
+    sysid: the system-identification stage's (white box, grey box) results (files in folder/sysid)."""
     figures = folder / "figures"
     robot = excitation.metadata.robot_name or "ur10"
     robot_label = "UR-10" if robot == "ur10" else robot
@@ -471,6 +472,9 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
     if reality_gap is not None:
         from stdm_drake.experiments.reality_gap_report import report_section
         report_section(report, reality_gap)
+    if sysid is not None:
+        from stdm_drake.experiments import identification_study
+        identification_study.report_section(report, *sysid)
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
                   coverage=coverage,
                   multistep=[{k: v for k, v in dataclasses.asdict(r).items() if k not in ("epoch_axis", "val_mse_curve")}

@@ -139,13 +139,16 @@ class Normalizer(nn.Module):
         self.register_buffer("mean", torch.zeros(dim))
         self.register_buffer("std", torch.ones(dim))
 
-    def fit(self, data) -> "Normalizer":
-        """Set mean/std from data (N, dim) (numpy or torch), computed in float64."""
+    def fit(self, data, minimum=None) -> "Normalizer":
+        """Set mean/std from data (N, dim) (numpy or torch), computed in float64; minimum (dim,): a floor
+        on std (a spread below it is noise, not signal: see `regression.fit_normalizers`)."""
         values = np.asarray(data.detach().cpu().numpy() if isinstance(data, Tensor) else data, dtype=np.float64)
         if values.ndim != 2 or values.shape[1] != self.mean.numel() or len(values) == 0:
             raise InputError(f"normalizer: data must have shape (N>0, {self.mean.numel()}), got {values.shape}")
         mean = values.mean(axis=0)
         std = values.std(axis=0)
+        if minimum is not None:
+            std = np.maximum(std, minimum)
         std[~(std > 1e-8 * np.maximum(1.0, np.abs(mean)))] = 1.0
         self.mean.copy_(torch.from_numpy(mean))
         self.std.copy_(torch.from_numpy(std))

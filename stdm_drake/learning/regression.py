@@ -78,13 +78,22 @@ class StandardizedData:
     target_rates: torch.Tensor | None
 
 
+# A delta model's output spread is at least this fraction of its targets' own spread: a grey box on an exact
+# plant model has residual targets of rounding size (1e-10 rad/s), which standardized would be fitted as
+# signal (and Adam's scale-free steps would move the outputs of all-zero ones by 1e-3 of a unit).
+DELTA_SPREAD_FLOOR = 1e-4
+
+
 def fit_normalizers(model: EnsembleMLP, data: RegressionData) -> None:
     """Input and output statistics from training data (raw units, float64). With
-    standardize_inputs=False the input normalizer stays the identity."""
+    standardize_inputs=False the input normalizer stays the identity; a delta model's output spread has
+    the floor DELTA_SPREAD_FLOOR x its targets' spread."""
     inputs = np.asarray(data.inputs, dtype=np.float64)
     if model.config.standardize_inputs:
         model.input_normalizer.fit(inputs)
-    model.output_normalizer.fit(np.asarray(data.targets, dtype=np.float64) - _residual(model.config, inputs))
+    targets = np.asarray(data.targets, dtype=np.float64)
+    floor = DELTA_SPREAD_FLOOR * targets.std(axis=0) if model.config.residual else None
+    model.output_normalizer.fit(targets - _residual(model.config, inputs), minimum=floor)
 
 
 def _residual(config: ModelConfig, values: np.ndarray) -> np.ndarray:
