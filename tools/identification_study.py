@@ -39,9 +39,13 @@ def main(argv=None) -> int:
     parser.add_argument("--quick", action="store_true", help="tiny sizes: a pipeline check (about 2 min)")
     parser.add_argument("--part", choices=("white", "grey", "all"), default="all",
                         help="white box only, grey box only (reads the white box's results.json), or both")
+    parser.add_argument("--grey-models", nargs="+", choices=tuple(study.GREY_BOX_MODELS), metavar="NAME",
+                        help="the grey-box part's models (D always; default: the profile's: "
+                             f"{' '.join(study.FULL['grey_models'])}); e.g. D G-id-state GD-id-state for run 2")
+    parser.add_argument("--grey-output", default="grey_box", metavar="STEM",
+                        help="the grey-box part's file names, STEM.json and STEM.md (default grey_box)")
     args = parser.parse_args(argv)
     from stdm_drake.errors import InputError
-    from stdm_drake.files import json_default, write_text_atomic
     from stdm_drake.robots.plant import plant_effects_for
     from stdm_drake.robots.robot import load_robot
     try:
@@ -50,42 +54,22 @@ def main(argv=None) -> int:
     except InputError as error:
         print(f"identification_study: error: {error}", file=sys.stderr)
         return 2
-    profile = study.QUICK if args.quick else study.FULL
+    profile = dict(study.QUICK if args.quick else study.FULL)
+    if args.grey_models:
+        profile["grey_models"] = tuple(dict.fromkeys(["D", *args.grey_models]))
     say = lambda line: print(line, flush=True)  # noqa: E731
     out = args.output
     if args.part in ("white", "all"):
-        write_white_box(study.run_study(profile, args.data, robot, effects, workers=args.workers, say=say), out,
-                        args.quick)
+        white = study.write_white_box(study.run_study(profile, args.data, robot, effects, workers=args.workers,
+                                                      say=say), out, args.quick)
+        print((out / "summary.md").read_text())
     if args.part in ("grey", "all"):
         white = json.loads((out / "results.json").read_text())
-        grey = study.run_grey_box(profile, args.data, robot, white, workers=args.workers, say=say)
-        grey = dict(written_by="tools/identification_study.py", quick=args.quick, **grey)
-        write_text_atomic(out / "grey_box.json", json.dumps(grey, indent=1, default=json_default) + "\n")
-        text = study.grey_box_table(grey)
-        write_text_atomic(out / "grey_box.md", text + "\n")
-        print(text)
+        grey = study.write_grey_box(study.run_grey_box(profile, args.data, robot, white, workers=args.workers, say=say),
+                                    out, args.quick, args.grey_output)
+        print(study.grey_box_table(grey))
     print(f"wrote {out}")
     return 0
-
-
-def write_white_box(results: dict, out: pathlib.Path, quick: bool) -> None:
-    """The white box's files: reports/*.json, results.json, summary.csv, summary.md."""
-    from stdm_drake.files import json_default, rows_csv, write_text_atomic
-    (out / "reports").mkdir(parents=True, exist_ok=True)
-    for name, report in results.pop("reports").items():
-        write_text_atomic(out / "reports" / f"{name}.json", json.dumps(report, indent=1, default=json_default) + "\n")
-    results = dict(written_by="tools/identification_study.py", quick=quick, **results)
-    write_text_atomic(out / "results.json", json.dumps(results, indent=1, default=json_default) + "\n")
-    write_text_atomic(out / "summary.csv", rows_csv(results["rows"]))
-    table = study.summary_table(results)
-    lines = [table, ""]
-    for run, rows in results["model_errors"].items():
-        lines.append(f"Run {run}, test plans: one-step q / v MSE and q MSE at step {study.ROLLOUT_STEPS}")
-        lines += [f"- {row['model']}: {row['one_step_q']:.3g} rad², {row['one_step_v']:.3g} (rad/s)², "
-                  f"{row['q_at_20']:.3g} rad²" + (f" ({row['verdict']})" if row["verdict"] else "") for row in rows]
-        lines.append("")
-    write_text_atomic(out / "summary.md", "\n".join(lines))
-    print("\n".join(lines))
 
 
 if __name__ == "__main__":

@@ -31,7 +31,10 @@ QUICK = dict(train_sizes=(1,), val=1, test=1, windows=(5, 9), seeds=2, epochs=3,
              grey_models=("D", "G", "G-id"))
 # the grey-box comparison: name -> (train --model, the grey box's physics: None or "identified")
 GREY_BOX_MODELS = {"D": ("D", None), "DD": ("DD", None), "G": ("G", None), "G-id": ("G", "identified"),
-                   "GD-id": ("GD", "identified")}
+                   "GD-id": ("GD", "identified"),
+                   # the follow-up (docs/identification.md, run 2): the delta on the plant's whole next state
+                   # (predicts "state": the plant's own q̂ kept, no trapezoid rule)
+                   "G-id-state": ("G", "identified", "state"), "GD-id-state": ("GD", "identified", "state")}
 DATA_SEED = 1            # the amendment's fresh data (seed 0 was the development data)
 RUNS = {"A": ("ideal", "true"), "B": ("ideal", "smoothed"), "C": ("paper", "smoothed")}
 SENSORS = {"ideal": "sensor_ideal.yaml", "paper": "sensor.yaml"}
@@ -138,8 +141,9 @@ def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: d
     jobs = {}
     for sensor, data in white_box["datasets"].items():
         for name in profile["grey_models"]:
-            model_type, physics = GREY_BOX_MODELS[name]
-            extra = ("--physics", white_box["identified_files"][sensor]) if physics else ()
+            model_type, physics, *predicts = GREY_BOX_MODELS[name]
+            extra = (("--physics", white_box["identified_files"][sensor]) if physics else ()) + (
+                ("--predicts", predicts[0]) if predicts else ())
             jobs[(sensor, name)] = (data["path"], model_type, split, seeds, epochs,
                                     str(folder / "runs" / f"{sensor}_{name}"), config, extra)
     with job_pool(RunnerConfig(workers=workers)) as pool:
@@ -287,13 +291,13 @@ def write_white_box(results: dict, out: pathlib.Path, quick: bool) -> dict:
     return results
 
 
-def write_grey_box(grey: dict, out: pathlib.Path, quick: bool) -> dict:
-    """The grey box's files in `out`: grey_box.json and grey_box.md; returns what grey_box.json holds."""
+def write_grey_box(grey: dict, out: pathlib.Path, quick: bool, stem: str = "grey_box") -> dict:
+    """The grey box's files in `out`: {stem}.json and {stem}.md; returns what the JSON holds."""
     import json
     from stdm_drake.files import json_default, write_text_atomic
     grey = dict(written_by="stdm-drake identification study", quick=quick, **grey)
-    write_text_atomic(out / "grey_box.json", json.dumps(grey, indent=1, default=json_default) + "\n")
-    write_text_atomic(out / "grey_box.md", grey_box_table(grey) + "\n")
+    write_text_atomic(out / f"{stem}.json", json.dumps(grey, indent=1, default=json_default) + "\n")
+    write_text_atomic(out / f"{stem}.md", grey_box_table(grey) + "\n")
     return grey
 
 
