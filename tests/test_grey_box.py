@@ -126,11 +126,13 @@ def test_train_g_and_gd_record_the_grey_box_and_its_plant(affected, tmp_path, ca
     assert main(["train", str(data), "--model", "G", "-o", str(tmp_path / "g"), *common]) == 0
     checkpoint = load_checkpoint(tmp_path / "g" / "seed0" / "checkpoint.pt")
     assert checkpoint.metadata.model_type == "G" and checkpoint.structure.inputs == "plant_step"
-    assert checkpoint.structure.physics is None
+    assert checkpoint.structure.physics is None and checkpoint.structure.predicts == "state"   # the plant's whole x̂
     assert main(["train", str(data), "--model", "GD", "--physics", str(identified), "-o", str(tmp_path / "gd"),
                  "--derivative-source", "true", *common]) == 0
     checkpoint = load_checkpoint(tmp_path / "gd" / "seed0" / "checkpoint.pt")
     assert checkpoint.metadata.model_type == "GD" and checkpoint.structure.physics["source"] == str(identified)
+    assert main(["train", str(data), "--model", "G", "--predicts", "velocity", "-o", str(tmp_path / "gv"), *common]) == 0
+    assert load_checkpoint(tmp_path / "gv" / "seed0" / "checkpoint.pt").structure.predicts == "velocity"
     model = LearnedModel(checkpoint, robot=UR10)
     assert model.features.model.name == "true-plant" or model.features.model.effects is not None
     capsys.readouterr()

@@ -68,9 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="members of DE/PE-type models (default 5)")
     parser.add_argument("--direct", action="store_true",
                         help="predict the next state (or velocity) directly instead of its delta from the current one")
-    parser.add_argument("--predicts", choices=PREDICTS, default="velocity",
+    parser.add_argument("--predicts", choices=PREDICTS,
                         help="velocity: the network predicts v_{t+1} and q_{t+1} follows by the trapezoid rule "
-                             "(default); state: it predicts x_{t+1} (the paper's)")
+                             "(default); state: it predicts x_{t+1} (the paper's; the default of the grey box G/GD, "
+                             "whose delta then adds to the plant's whole next state)")
     parser.add_argument("--inputs", choices=INPUT_SETS, default="nominal_acceleration",
                         help="nominal_acceleration: [q, v, tau] and the acceleration the robot's nominal model "
                              "(--robot) gives (default); period_acceleration: that model's mean acceleration over "

@@ -26,14 +26,14 @@ from stdm_drake.robots.robot import Robot
 # plans per start pose: training sizes, validation, test; smoothing windows searched (None: identify's); the
 # learned models' seeds and epochs (the UR-10's 4 start poses: 100 plans, and 12 with QUICK)
 FULL = dict(train_sizes=(5, 10, 18), val=2, test=5, windows=None, seeds=5, epochs=300, runs=("A", "B", "C"),
-            grey_models=("D", "DD", "G", "G-id", "GD-id"))
+            grey_models=("D", "DD", "G", "G-id", "GD-id", "G-id-state", "GD-id-state"))
 QUICK = dict(train_sizes=(1,), val=1, test=1, windows=(5, 9), seeds=2, epochs=3, runs=("A", "C"),
-             grey_models=("D", "G", "G-id"))
+             grey_models=("D", "G", "G-id-state"))
 # the grey-box comparison: name -> (train --model, the grey box's physics: None or "identified")
-GREY_BOX_MODELS = {"D": ("D", None), "DD": ("DD", None), "G": ("G", None), "G-id": ("G", "identified"),
-                   "GD-id": ("GD", "identified"),
-                   # the follow-up (docs/identification.md, run 2): the delta on the plant's whole next state
-                   # (predicts "state": the plant's own q̂ kept, no trapezoid rule)
+GREY_BOX_MODELS = {"D": ("D", None, "velocity"), "DD": ("DD", None, "velocity"), "G": ("G", None, "velocity"),
+                   "G-id": ("G", "identified", "velocity"), "GD-id": ("GD", "identified", "velocity"),
+                   # run 2 (docs/identification.md): the delta on the plant's whole next state (predicts "state":
+                   # the plant's own q̂ kept, no trapezoid rule), since then `train --model G`'s default
                    "G-id-state": ("G", "identified", "state"), "GD-id-state": ("GD", "identified", "state")}
 DATA_SEED = 1            # the amendment's fresh data (seed 0 was the development data)
 RUNS = {"A": ("ideal", "true"), "B": ("ideal", "smoothed"), "C": ("paper", "smoothed")}
@@ -141,9 +141,9 @@ def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: d
     jobs = {}
     for sensor, data in white_box["datasets"].items():
         for name in profile["grey_models"]:
-            model_type, physics, *predicts = GREY_BOX_MODELS[name]
+            model_type, physics, predicts = GREY_BOX_MODELS[name]
             extra = (("--physics", white_box["identified_files"][sensor]) if physics else ()) + (
-                ("--predicts", predicts[0]) if predicts else ())
+                ("--predicts", predicts) if model_type.startswith("G") else ())   # (D, DD: train's default)
             jobs[(sensor, name)] = (data["path"], model_type, split, seeds, epochs,
                                     str(folder / "runs" / f"{sensor}_{name}"), config, extra)
     with job_pool(RunnerConfig(workers=workers)) as pool:

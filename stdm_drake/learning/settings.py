@@ -109,7 +109,8 @@ class TrainSettings:
     "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto";
     alpha_grid: alphas tried by "auto"; network: activation, hidden_width, hidden_layers,
     ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
-    predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's) and inputs
+    predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's; None: "state" for a
+    grey box, "velocity" otherwise) and inputs
     ("nominal_acceleration": [q, v, τ] and the robot's nominal acceleration; "period_acceleration":
     its mean over the sample period instead; "raw": [q, v, τ], the paper's; "plant_step": the grey box), see
     `learning.structure`; losses: state_loss,
@@ -128,7 +129,7 @@ class TrainSettings:
     hidden_layers: int = 3
     ensemble_size: int = DEFAULT_ENSEMBLE_SIZE
     direct: bool = False
-    predicts: str = "velocity"
+    predicts: typing.Optional[str] = None
     inputs: str = "nominal_acceleration"
     state_loss: str = "mse"
     derivative_loss: str = "mse"
@@ -161,7 +162,7 @@ class TrainSettings:
                 raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}") from None
         elif isinstance(self.alpha, str):
             self.alpha = "auto"
-        if self.model in GREY_BOX_TYPES:   # G / GD: a D / DD on the plant step
+        if self.model in GREY_BOX_TYPES:   # G / GD: a D / DD on the plant step's whole next state
             if self.inputs not in ("nominal_acceleration", "plant_step"):    # (the default, or the grey box's own)
                 raise InputError(f"{key('model')} {self.model} is the grey box: its inputs are plant_step, not "
                                  f"{self.inputs}")
@@ -170,7 +171,7 @@ class TrainSettings:
                        state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
                        derivative_source=(None, "true", "planned"),
                        action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES,
-                       predicts=PREDICTS, inputs=INPUT_SETS)
+                       predicts=(None, *PREDICTS), inputs=INPUT_SETS)
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "
@@ -230,7 +231,14 @@ class TrainSettings:
     def structure(self, physics: dict | None = None):
         """The `ModelStructure` of predicts and inputs (and a grey box's `physics` record, see there)."""
         from stdm_drake.learning.structure import ModelStructure
-        return ModelStructure(predicts=self.predicts, inputs=self.inputs, physics=physics)
+        return ModelStructure(predicts=self.predicted(), inputs=self.inputs, physics=physics)
+
+    def predicted(self) -> str:
+        """What the network predicts: `predicts`, or None's default: the next state for a grey box (the plant
+        step's own q̂ kept; docs/identification.md, run 2), the next velocity otherwise."""
+        if self.predicts is not None:
+            return self.predicts
+        return "state" if self.inputs == "plant_step" else "velocity"
 
     def alpha_choices(self) -> tuple | None:
         """The alphas that alpha "auto" chooses from by validation (`trainer.fit_model`'s alpha_grid);
