@@ -236,14 +236,16 @@ def test_reproduce_collects_and_closes_the_loop_on_the_affected_plant(affected_d
     assert [run.model for run in runs] == ["plant", "true-plant"] and all(run.steps >= 10 for run in runs)
 
 
-def test_the_reality_gap_tool_refuses_a_bad_effects_file_in_one_line(tmp_path, capsys):
-    from tools_import import reality_gap
+def test_the_affected_plant_tools_refuse_a_bad_effects_file_in_one_line(tmp_path, capsys):
+    """tools/reality_gap.py and tools/identification_study.py (their shared command line)."""
+    from tools_import import identification_study, reality_gap
     bad = tmp_path / "bad.yaml"
     bad.write_text("viscous_friction: [1.0, 2.0]\n")
-    assert reality_gap.main(["--quick", "--plant-effects", str(bad), "-o", str(tmp_path / "out"),
-                             "--data", str(tmp_path / "data")]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "bad.yaml" in err and not (tmp_path / "out").exists()
+    for tool in (reality_gap, identification_study):
+        assert tool.main(["--quick", "--plant-effects", str(bad), "-o", str(tmp_path / "out"),
+                          "--data", str(tmp_path / "data")]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and "bad.yaml" in err and not (tmp_path / "out").exists()
 
 
 def test_each_model_gets_the_mpc_setting_it_tracks_best_with_inside_the_limits():

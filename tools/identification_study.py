@@ -12,7 +12,6 @@ Part "grey" (after "white", whose results.json it reads): D, DD, G, G-id, GD-id 
 both sensors' data at 18 plans per pose; writes grey_box.md and grey_box.json. Datasets and checkpoints are
 kept in --data and reused.
 """
-import argparse
 import json
 import os
 import pathlib
@@ -22,21 +21,14 @@ os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
 
+from affected_plant import parser_for, robot_and_effects  # noqa: E402
 from stdm_drake.experiments import identification_study as study  # noqa: E402
-from stdm_drake.experiments.reality_gap import EFFECTS_PRESET  # noqa: E402
-from stdm_drake.robots.robot import UR10_CONFIG  # noqa: E402
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "identification")
-    parser.add_argument("--data", type=pathlib.Path, default=ROOT / "out" / "identification_data")
-    parser.add_argument("--robot", type=pathlib.Path, default=UR10_CONFIG, help="robot config (the nominal model)")
-    parser.add_argument("--plant-effects", type=pathlib.Path, default=EFFECTS_PRESET,
-                        help="the affected plant's effects (default: models/ur10_effects.yaml)")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--quick", action="store_true", help="tiny sizes: a pipeline check (about 2 min)")
+    parser = parser_for(__doc__, "identification", quick_minutes=2)
     parser.add_argument("--part", choices=("white", "grey", "all"), default="all",
                         help="white box only, grey box only (reads the white box's results.json), or both")
     parser.add_argument("--grey-models", nargs="+", choices=tuple(study.GREY_BOX_MODELS), metavar="NAME",
@@ -45,23 +37,18 @@ def main(argv=None) -> int:
     parser.add_argument("--grey-output", default="grey_box", metavar="STEM",
                         help="the grey-box part's file names, STEM.json and STEM.md (default grey_box)")
     args = parser.parse_args(argv)
-    from stdm_drake.errors import InputError
-    from stdm_drake.robots.plant import plant_effects_for
-    from stdm_drake.robots.robot import load_robot
-    try:
-        robot = load_robot(args.robot)
-        effects = plant_effects_for(args.plant_effects, robot, 0.001)
-    except InputError as error:
-        print(f"identification_study: error: {error}", file=sys.stderr)
+    loaded = robot_and_effects(args, "identification_study")
+    if loaded is None:
         return 2
+    robot, effects = loaded
     profile = dict(study.QUICK if args.quick else study.FULL)
     if args.grey_models:
         profile["grey_models"] = tuple(dict.fromkeys(["D", *args.grey_models]))
     say = lambda line: print(line, flush=True)  # noqa: E731
     out = args.output
     if args.part in ("white", "all"):
-        white = study.write_white_box(study.run_study(profile, args.data, robot, effects, workers=args.workers,
-                                                      say=say), out, args.quick)
+        study.write_white_box(study.run_study(profile, args.data, robot, effects, workers=args.workers, say=say),
+                              out, args.quick)
         print((out / "summary.md").read_text())
     if args.part in ("grey", "all"):
         white = json.loads((out / "results.json").read_text())

@@ -13,7 +13,6 @@ time and all of them: one-step and 20/100-step errors of the nominal model, the 
 physics-free baselines. Datasets and checkpoints are kept in --data and reused by a rerun.
 `stdm-drake reproduce --plant-effects FILE` runs the same as its "reality gap" stage.
 """
-import argparse
 import os
 import pathlib
 import sys
@@ -23,31 +22,19 @@ os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "tools"))
 
+from affected_plant import parser_for, robot_and_effects  # noqa: E402
 from stdm_drake.experiments import reality_gap  # noqa: E402
 from stdm_drake.experiments.reality_gap_report import write_results  # noqa: E402
-from stdm_drake.robots.robot import UR10_CONFIG  # noqa: E402
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "reality_gap")
-    parser.add_argument("--data", type=pathlib.Path, default=ROOT / "out" / "reality_gap_data")
-    parser.add_argument("--robot", type=pathlib.Path, default=UR10_CONFIG, help="robot config (the nominal model)")
-    parser.add_argument("--plant-effects", type=pathlib.Path, default=reality_gap.EFFECTS_PRESET,
-                        help="the affected plant's effects (default: models/ur10_effects.yaml)")
-    parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--quick", action="store_true", help="tiny sizes: a pipeline check (about 1 min)")
-    args = parser.parse_args(argv)
-    from stdm_drake.errors import InputError
-    from stdm_drake.robots.plant import plant_effects_for
-    from stdm_drake.robots.robot import load_robot
-    try:
-        robot = load_robot(args.robot)
-        effects = plant_effects_for(args.plant_effects, robot, 0.001)
-    except InputError as error:
-        print(f"reality_gap: error: {error}", file=sys.stderr)
+    args = parser_for(__doc__, "reality_gap", quick_minutes=1).parse_args(argv)
+    loaded = robot_and_effects(args, "reality_gap")
+    if loaded is None:
         return 2
+    robot, effects = loaded
     results = reality_gap.run_experiment(reality_gap.QUICK if args.quick else reality_gap.FULL, args.data, robot, effects,
                               workers=args.workers, say=lambda line: print(line, flush=True))
     results = dict(written_by="tools/reality_gap.py", quick=args.quick, **results)
