@@ -146,7 +146,9 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
                             regularization=float(regularization), test_torque_error=float(test_error))
     effects = _effects(parameters, regressor, scale, f"identified by stdm-drake identify from {dataset.path.name} "
                                                      f"(sha256 {dataset.sha256[:12]})")
-    return IdentifiedRobot(effects=effects, identification=record), report
+    identified = IdentifiedRobot(effects=effects, identification=record)
+    identified.check_robot(robot)    # a model every command can build (before anything is written)
+    return identified, report
 
 
 def _json_numbers(values) -> list:
