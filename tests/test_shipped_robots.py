@@ -304,7 +304,7 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
     assert [row["run"] for row in white["rows"]] == ["A", "C"]      # (the quick profile's runs)
     assert white["rows"][0]["torque_error"] < 0.01 < white["rows"][0]["description_torque_error"]
     grey = json.loads((out / "sysid" / "grey_box.json").read_text())
-    assert {row["model"] for row in grey["sensors"]["ideal"]["rows"]} >= {"D", "G", "G-id", "identified", "plant"}
+    assert {row["model"] for row in grey["sensors"]["ideal"]["rows"]} >= {"D", "G-id-state", "identified", "plant"}
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
     assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()
