@@ -95,7 +95,11 @@ class IlqrSolver(TrajectoryOptimizer):
             Q_uu = R_regularized + B_k.T @ V_xx_B
             Q_u = effort_gradient[k] + B_k.T @ V_x
             Q_ux = B_k.T @ V_xx_A
-            if not np.all(np.isfinite(Q_uu)) or np.linalg.eigvalsh(Q_uu)[0] <= 0:   # (NaN: a diverged linearization)
+            try:
+                smallest = np.linalg.eigvalsh(Q_uu)[0]
+            except np.linalg.LinAlgError:   # NaN entries: a diverged linearization
+                return None
+            if not smallest > 0:
                 return None
             gains = -np.linalg.solve(Q_uu, np.column_stack([Q_u, Q_ux]))
             d, K = gains[:, 0], gains[:, 1:]
