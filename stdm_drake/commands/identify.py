@@ -19,8 +19,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
                         help="identified robot to write (.yaml); the report goes beside it (.json)")
     parser.add_argument("--derivatives", choices=("true", "smoothed"), default="true",
-                        help="states and accelerations: the simulation's true ones (default; simulated data), or a "
-                             "Savitzky-Golay differentiator of the measured angles, its window chosen on validation")
+                        help="states and accelerations: the simulation's true ones (default; simulated data), or "
+                             "central differences of the Savitzky-Golay-smoothed measured angles, the torques through "
+                             "the same smoother (its window chosen on validation)")
     parser.add_argument("--velocity-scales", type=float, nargs="+", default=list(VELOCITY_SCALES), metavar="V_S",
                         help="candidate Coulomb smoothing scales, rad/s (default %(default)s)")
     parser.add_argument("--regularizations", type=float, nargs="+", default=list(REGULARIZATIONS), metavar="LAMBDA",
@@ -52,10 +53,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_file("report", report_path, kind="json", inputs=inputs, force=args.force)
     settings = IdentifySettings(derivative_source=args.derivatives, velocity_scales=tuple(args.velocity_scales),
                                 regularizations=tuple(args.regularizations), windows=tuple(args.windows))
-    settings.validate()
-    for window in settings.windows:
-        if window != 1 and (window < 5 or window % 2 == 0):
-            raise InputError(f"--windows must be 1 (no smoothing) or odd numbers of samples >= 5, got {window}")
+    settings.validate()     # (before any work: windows, scales and weights)
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)
     robot.check_fully_actuated("identification")

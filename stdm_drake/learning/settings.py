@@ -177,7 +177,8 @@ class TrainSettings:
                 raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "
                                  f"got {getattr(self, name)!r}")
         if self.inputs == "plant_step":
-            kind = MODEL_TYPES.get(self.model) or GREY_BOX_TYPES[self.model]
+            from stdm_drake.learning.models import parse_model_type
+            kind = parse_model_type(self.model)
             if kind.probabilistic or kind.ensemble or self.direct:
                 raise InputError("a grey box (inputs plant_step) is a single deterministic network whose delta adds "
                                  f"to the plant step: not model {self.model}" + (" with --direct" if self.direct else ""))
