@@ -187,11 +187,14 @@ def tuning_references(dataset, checkpoints: list, count: int, held_out: list[int
 
 
 def spec_models(specs: list, sample_period: float, plant_config: PlantConfig, *, robot: Robot) -> list:
-    """The prediction models of `specs` ((name, checkpoint path), the path None for the robot's description
-    as a plant model ("plant") and "true" for the plant of `plant_config` itself ("true-plant"))."""
+    """The prediction models of `specs` ((name, path): a checkpoint `train` wrote or a robot `identify` wrote;
+    None for the robot's description as a plant model ("plant") and "true" for the plant of `plant_config`
+    itself ("true-plant"))."""
+    from stdm_drake.identification.identified import is_identified_file, load_identified
     from stdm_drake.learning.learned_model import LearnedModel
     return [PlantModel(sample_period, robot=robot) if path is None else
             PlantModel(sample_period, plant_config, robot=robot) if path == "true" else
+            load_identified(path).model(robot, name=name) if is_identified_file(path) else
             LearnedModel(path, name=name, robot=robot) for name, path in specs]
 
 

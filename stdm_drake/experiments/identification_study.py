@@ -25,10 +25,18 @@ from stdm_drake.robots.robot import Robot
 
 # plans per start pose: training sizes, validation, test; smoothing windows searched (None: identify's); the
 # learned models' seeds and epochs (the UR-10's 4 start poses: 100 plans, and 12 with QUICK)
+# grey_sizes: the learned models' training sizes (plans per pose; each grey box on the robot identified from the
+# same plans); closed_loop: the models in the tuned closed loop (at the largest size) and the MPC settings
+# (effort-weight scale, observer gain) each prediction model chooses from on the validation plans (run 3)
 FULL = dict(train_sizes=(5, 10, 18), val=2, test=5, windows=None, seeds=5, epochs=300, runs=("A", "B", "C"),
-            grey_models=("D", "DD", "G", "G-id", "GD-id", "G-id-state", "GD-id-state"))
+            grey_models=("D", "DD", "G-id-state", "GD-id-state"), grey_sizes=(5, 10, 18),
+            closed_loop_models=("D", "G-id-state"), closed_loop_grid=((1e-4, 0.0), (1e-4, 0.3), (1e-4, 1.0)),
+            closed_loop_steps=None)
 QUICK = dict(train_sizes=(1,), val=1, test=1, windows=(9,), seeds=2, epochs=3, runs=("A", "C"),
-             grey_models=("D", "G-id-state"))
+             grey_models=("D", "G-id-state"), grey_sizes=(1,), closed_loop_models=("D", "G-id-state"),
+             closed_loop_grid=((1e-4, 1.0),), closed_loop_steps=8)
+# the closed loop's question (issue 23): does this model track with the lowest error of all models a user has
+CLOSED_LOOP_TARGET = "G-id-state"
 # the grey-box comparison: name -> (train --model, the grey box's physics: None or "identified")
 GREY_BOX_MODELS = {"D": ("D", None, "velocity"), "DD": ("DD", None, "velocity"), "G": ("G", None, "velocity"),
                    "G-id": ("G", "identified", "velocity"), "GD-id": ("GD", "identified", "velocity"),
@@ -106,13 +114,15 @@ def run_study(profile: dict, folder: pathlib.Path, robot: Robot, effects, worker
             say(f"{run} ({sensor} sensor, {source} derivatives), {size} plans per pose: torque error "
                 f"{row['torque_error']:.3g} (description {row['description_torque_error']:.3g}), friction within "
                 f"{row['worst_viscous_error']:.3g} (viscous) / {row['worst_coulomb_error']:.3g} (Coulomb)")
-            if size == largest and run in ("A", "C"):
-                errors[run] = model_errors(identified, data, robot, split)
-                identified_files[sensor] = _write_identified(folder / f"identified_{sensor}.yaml", identified)
+            if run in ("A", "C"):   # the grey boxes' physics at each size (run A's robot for the ideal sensor)
+                identified_files.setdefault(sensor, {})[str(size)] = str(_write_identified(
+                    folder / f"identified_{sensor}_train{size}.yaml", identified))
+                if size == largest:
+                    errors[run] = model_errors(identified, data, robot, split)
     return dict(rows=rows, reports=reports, model_errors=errors, profile={k: v for k, v in profile.items()},
                 data_seed=DATA_SEED, datasets={sensor: dict(path=str(d.path), sha256=d.sha256)
                                                for sensor, d in datasets.items()},
-                identified_files={sensor: str(path) for sensor, path in identified_files.items()})
+                identified_files=identified_files)
 
 
 def _write_identified(path: pathlib.Path, identified) -> pathlib.Path:
@@ -125,40 +135,56 @@ def _write_identified(path: pathlib.Path, identified) -> pathlib.Path:
     return path
 
 
-def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: dict, workers: int = 2,
-                 say=print) -> dict:
-    """GREY_BOX_MODELS on each sensor's data (`white_box`: run_study's results, for its datasets and identified
-    files), trained in a pool of `workers` processes (checkpoints in `folder`/runs, reused by a rerun);
-    per sensor and model type the test errors of every seed and, for each type, its ratio to D (one-step and
-    20-step q MSE, paired by seed, 95 % interval); the identified model and the baselines beside them."""
-    import time
+def grey_box_folders(profile: dict, folder: pathlib.Path, robot: Robot, white_box: dict, names, sizes,
+                     workers: int = 2) -> dict:
+    """The run folders of the models `names` (GREY_BOX_MODELS) on each sensor's data at each training size in
+    `sizes` (plans per pose), trained in a pool of `workers` processes (`reality_gap.train`: a finished folder is
+    reused, an interrupted one resumed); a grey box's physics is the robot identified from the same training
+    plans (`white_box`: run_study's results). Returns {(sensor, name, size): folder}."""
     from stdm_drake.cluster import RunnerConfig, job_pool
+    from stdm_drake.errors import InputError
     from stdm_drake.experiments.reality_gap import train
-    started = time.perf_counter()
-    size, seeds, epochs = max(profile["train_sizes"]), profile["seeds"], profile["epochs"]
-    split = (size, profile["val"], profile["test"])
     config = None if robot.config_path is None else str(robot.config_path)
     jobs = {}
     for sensor, data in white_box["datasets"].items():
-        for name in profile["grey_models"]:
-            model_type, physics, predicts = GREY_BOX_MODELS[name]
-            extra = (("--physics", white_box["identified_files"][sensor]) if physics else ()) + (
-                ("--predicts", predicts) if model_type.startswith("G") else ())   # (D, DD: train's default)
-            jobs[(sensor, name)] = (data["path"], model_type, split, seeds, epochs,
-                                    str(folder / "runs" / f"{sensor}_{name}"), config, extra)
+        for size in sizes:
+            identified = white_box["identified_files"][sensor].get(str(size))
+            if identified is None:
+                raise InputError(f"identification study: no robot identified from {size} plans per pose on the "
+                                 f"{sensor} sensor's data (the white box ran at {profile['train_sizes']})")
+            for name in names:
+                model_type, physics, predicts = GREY_BOX_MODELS[name]
+                extra = (("--physics", identified) if physics else ()) + (
+                    ("--predicts", predicts) if model_type.startswith("G") else ())   # (D, DD: train's default)
+                jobs[(sensor, name, size)] = (data["path"], model_type, (size, profile["val"], profile["test"]),
+                                              profile["seeds"], profile["epochs"], str(folder / "runs" / f"{sensor}_{name}"),
+                                              config, extra)
     with job_pool(RunnerConfig(workers=workers)) as pool:
         futures = {key: pool.submit(train, *call) for key, call in jobs.items()}
-        folders = {key: future.result() for key, future in futures.items()}
-    say(f"grey box: {len(folders)} model types trained in {time.perf_counter() - started:.0f} s")
+        return {key: future.result() for key, future in futures.items()}
+
+
+def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: dict, workers: int = 2,
+                 say=print) -> dict:
+    """The profile's grey_models on each sensor's data at each of its grey_sizes (checkpoints in `folder`/runs,
+    reused by a rerun); per sensor, size and model type the test errors of every seed and each type's ratio to D
+    at the same size (one-step and 20-step q MSE, paired by seed, 95 % interval); the robot identified from the
+    same plans and the baselines beside them."""
+    import time
+    started = time.perf_counter()
+    names = tuple(dict.fromkeys(["D", *profile["grey_models"]]))
+    folders = grey_box_folders(profile, folder, robot, white_box, names, profile["grey_sizes"], workers)
+    say(f"grey box: {len(folders)} model types and sizes trained in {time.perf_counter() - started:.0f} s")
     results = {}
-    for sensor in white_box["datasets"]:
-        results[sensor] = grey_box_errors(white_box["datasets"][sensor]["path"],
-                                          {name: folders[(sensor, name)] for name in profile["grey_models"]}, seeds, robot,
-                                          white_box["identified_files"][sensor])
-        say(f"grey box, {sensor} sensor: " + "; ".join(
-            f"{row['model']} one step {row['one_step_q']:.3g}, q@20 {row['q_at_20']:.3g}"
-            for row in results[sensor]["rows"]))
-    return dict(split_per_pose=list(split), seeds=seeds, epochs=epochs, sensors=results,
+    for sensor, data in white_box["datasets"].items():
+        for size in profile["grey_sizes"]:
+            found = grey_box_errors(data["path"], {name: folders[(sensor, name, size)] for name in names},
+                                    profile["seeds"], robot, white_box["identified_files"][sensor][str(size)])
+            results.setdefault(sensor, {})[str(size)] = found
+            say(f"grey box, {sensor} sensor, {size} plans per pose: " + "; ".join(
+                f"{row['model']} one step {row['one_step_q']:.3g}, q@20 {row['q_at_20']:.3g}" for row in found["rows"]))
+    return dict(split_per_pose=[profile["val"], profile["test"]], train_sizes=list(profile["grey_sizes"]),
+                seeds=profile["seeds"], epochs=profile["epochs"], sensors=results,
                 seconds=round(time.perf_counter() - started, 1))
 
 
@@ -198,6 +224,153 @@ def grey_box_errors(dataset_path: str, folders: dict, seeds: int, robot: Robot, 
                                                         [value[key] for value in values]).as_dict()
         table.append(entry)
     return dict(test_plans=[int(i) for i in test], rows=table, per_seed=per_model)
+
+
+def run_closed_loop(profile: dict, folder: pathlib.Path, robot: Robot, white_box: dict, workers: int = 2,
+                    say=print) -> dict:
+    """The tuned closed loop (docs/identification.md, run 3) on each sensor's data at the largest grey size:
+    MPC with the nominal plant, the true plant (an oracle), the identified robot and every seed of the
+    profile's closed_loop_models, on the affected plant the dataset records (the MPC sees the plant's state);
+    each prediction model's setting chosen from closed_loop_grid on the validation plans
+    (`tuning.best_setting`), then the test plans with it. Per sensor: every run, the chosen settings and
+    `closed_loop_summary`."""
+    import time
+    from stdm_drake.cluster import RunnerConfig, job_pool
+    from stdm_drake.experiments.reality_gap import choose_settings, closed_loop_group
+    started = time.perf_counter()
+    size, seeds, grid = max(profile["grey_sizes"]), profile["seeds"], tuple(map(tuple, profile["closed_loop_grid"]))
+    names = tuple(dict.fromkeys(["D", *profile["closed_loop_models"]]))
+    folders = grey_box_folders(profile, folder, robot, white_box, names, (size,), workers)
+    specs = {sensor: [("plant", None), ("true-plant", "true"), ("identified", white_box["identified_files"][sensor][str(size)])]
+             + [(f"{name} seed {seed}", str(pathlib.Path(folders[(sensor, name, size)]) / f"seed{seed}" / "checkpoint.pt"))
+                for name in names for seed in range(seeds)] for sensor in white_box["datasets"]}
+    splits = {sensor: str(pathlib.Path(folders[(sensor, "D", size)]) / "seed0" / "checkpoint.pt")
+              for sensor in white_box["datasets"]}   # every model here has this split (same data, sizes, seed)
+    steps = profile["closed_loop_steps"]
+
+    def group(pool, sensor, spec, split, setting):
+        return pool.submit(closed_loop_group, [spec], white_box["datasets"][sensor]["path"], splits[sensor], split,
+                           steps, setting, robot)
+
+    runner = RunnerConfig(workers=workers)
+    with job_pool(runner) as pool:   # tuning: validation plans only
+        futures = [(sensor, group(pool, sensor, spec, "val", setting)) for sensor in specs for spec in specs[sensor]
+                   for setting in grid]
+        tuning = [dict(row, sensor=sensor) for sensor, future in futures for row in future.result()]
+    chosen = {sensor: choose_settings([run for run in tuning if run["sensor"] == sensor], grid) for sensor in specs}
+    say(f"closed loop: settings chosen on the validation plans in {time.perf_counter() - started:.0f} s")
+    with job_pool(runner) as pool:   # then the test plans, every choice made
+        futures = [(sensor, group(pool, sensor, spec, "test", chosen[sensor][spec[0]])) for sensor in specs
+                   for spec in specs[sensor]]
+        runs = [dict(row, sensor=sensor) for sensor, future in futures for row in future.result()]
+    sensors = {}
+    for sensor in specs:
+        mine = [run for run in runs if run["sensor"] == sensor]
+        rows = closed_loop_summary(mine, names, seeds)
+        sensors[sensor] = dict(chosen={name: list(setting) for name, setting in chosen[sensor].items()}, rows=rows,
+                               verdict=closed_loop_verdict(rows), runs=mine,
+                               tuning_runs=[run for run in tuning if run["sensor"] == sensor])
+        say(f"closed loop, {sensor} sensor: " + "; ".join(f"{row['model']} q MSE {row['q_mse']:.3g}"
+                                                          for row in sensors[sensor]["rows"]))
+    return dict(train_per_pose=size, seeds=seeds, grid=[list(setting) for setting in grid], steps=steps,
+                target=CLOSED_LOOP_TARGET, sensors=sensors, seconds=round(time.perf_counter() - started, 1))
+
+
+def closed_loop_summary(runs: list, names, seeds: int, target: str = CLOSED_LOOP_TARGET) -> list:
+    """Per model (the plants, "identified", each learned type over its seeds): the geometric-mean q MSE over
+    its test runs, limit violations, fallbacks, solve time; and the ratio (other model's q MSE / the target's)
+    paired by test plan within a seed, a geometric mean per seed, with a Student-t 95 % interval over the
+    target's seeds (a learned model paired seed with seed; above 1: the target tracks better)."""
+    import math
+    from stdm_drake.closed_loop.tuning import finite_mse
+    from stdm_drake.experiments.reality_gap import seed_interval
+    labels = ["plant", "true-plant", "identified", *names]
+
+    def members(label):
+        return [run for run in runs if run["model"] == label or run["model"].startswith(f"{label} seed ")]
+
+    def per_plan(model_runs):
+        return {run["trajectory"]: math.log(finite_mse(run["q_mse_rad2"])) for run in model_runs}
+
+    target_seeds = [per_plan([run for run in runs if run["model"] == f"{target} seed {seed}"]) for seed in range(seeds)]
+    rows = []
+    for label in labels:
+        mine = members(label)
+        if not mine:
+            continue
+        row = dict(model=label, runs=len(mine), q_mse=float(np.exp(np.mean([math.log(finite_mse(run["q_mse_rad2"]))
+                                                                           for run in mine]))),
+                   diverged=sum(not math.isfinite(run["q_mse_rad2"]) for run in mine),
+                   limit_violations=int(sum(run["limit_violations"] for run in mine)),
+                   fallbacks=int(sum(run["fallbacks"] for run in mine)),
+                   solve_ms_mean=float(np.mean([run["solve_ms_mean"] for run in mine])))
+        if label != target and all(target_seeds):
+            logs = []
+            for seed, target_logs in enumerate(target_seeds):
+                other = per_plan([run for run in mine if run["model"] in (label, f"{label} seed {seed}")])
+                logs.append(float(np.mean([other[plan] - target_logs[plan] for plan in target_logs])))
+            row["model_over_target"] = seed_interval(logs)
+        rows.append(row)
+    return rows
+
+
+def closed_loop_verdict(rows: list, target: str = CLOSED_LOOP_TARGET) -> dict:
+    """Issue 23's closed-loop goal: the target tracks with the lowest error of all models a user has (every
+    other model's ratio to it, the oracle true plant aside, with its interval above 1) and no limit violation."""
+    others = [row for row in rows if "model_over_target" in row and row["model"] != "true-plant"]
+    mine = next((row for row in rows if row["model"] == target), None)
+    if mine is None or not others:
+        return dict(met=False, text=f"{target} or the models to compare it with were not run")
+    undecided = [row["model"] for row in others if row["model_over_target"]["low"] is None]
+    if undecided:
+        return dict(met=False, text=f"one seed: no interval for {', '.join(undecided)}; goal not decided")
+    below = [row["model"] for row in others if row["model_over_target"]["low"] <= 1]
+    met = not below and mine["limit_violations"] == 0
+    text = (f"{target} tracks with the lowest error of all models" if met else
+            f"not met: {target}'s error is not below {', '.join(below)}'s (interval reaches 1 or below)" if below else
+            f"not met: {target}'s closed loops left the limits ({mine['limit_violations']} steps)")
+    return dict(met=met, text=text, not_below=below, limit_violations=mine["limit_violations"])
+
+
+CLOSED_LOOP_HEADER = ["model", "test runs", "q MSE (rad²)", "model / target [95 % CI]", "steps outside the limits",
+                      "fallbacks", "solve ms / step", "MPC setting (effort scale, observer gain)"]
+
+
+def closed_loop_rows(result: dict) -> list:
+    """One sensor's closed-loop table rows (CLOSED_LOOP_HEADER)."""
+    rows = []
+    for row in result["rows"]:
+        ratio = row.get("model_over_target")
+        settings = sorted({tuple(setting) for name, setting in result["chosen"].items()
+                           if name == row["model"] or name.startswith(f"{row['model']} seed ")})
+        rows.append([row["model"], row["runs"], f"{row['q_mse']:.3g}",
+                     "-" if ratio is None else _ratio_text(dict(ratio, pairs=ratio["seeds"])),
+                     row["limit_violations"], row["fallbacks"], f"{row['solve_ms_mean']:.1f}",
+                     " ".join(f"({scale:g}, {gain:g})" for scale, gain in settings)])
+    return rows
+
+
+def closed_loop_table(closed: dict) -> str:
+    """Per sensor, the closed-loop table in Markdown with the goal's verdict."""
+    from stdm_drake.report import markdown_table
+    lines = []
+    for sensor, result in closed["sensors"].items():
+        lines += [f"{sensor} sensor's models, {closed['train_per_pose']} training plans per pose, tuned MPC on the "
+                  f"test plans, {closed['seeds']} seeds per learned type (target {closed['target']}):", "",
+                  markdown_table(CLOSED_LOOP_HEADER, closed_loop_rows(result)), "",
+                  f"Verdict: {result['verdict']['text']}.", ""]
+    return "\n".join(lines)
+
+
+def write_closed_loop(closed: dict, out: pathlib.Path, quick: bool, stem: str = "closed_loop") -> dict:
+    """The closed loop's files in `out`: {stem}.json (every run, the choices, the summary and verdict per sensor)
+    and {stem}.md; returns what the JSON holds."""
+    import json
+    from stdm_drake.files import json_default, write_text_atomic
+    closed = dict(written_by="stdm-drake identification study", quick=quick, **closed)
+    write_text_atomic(out / f"{stem}.json", json.dumps(closed, indent=1, default=json_default) + "\n")
+    write_text_atomic(out / f"{stem}.md", closed_loop_table(closed) + "\n")
+    return closed
 
 
 DIVERGED = 1e12      # rad²: the q MSE a diverged rollout (non-finite) counts as, so ratios stay defined
@@ -252,12 +425,13 @@ def grey_box_rows(result: dict) -> list:
 
 
 def grey_box_table(grey: dict) -> str:
-    """Per sensor, the grey-box table in Markdown."""
+    """Per sensor and training size, the grey-box table in Markdown."""
     from stdm_drake.report import markdown_table
     lines = []
-    for sensor, result in grey["sensors"].items():
-        lines += [f"{sensor} sensor, {len(result['test_plans'])} test plans, {grey['seeds']} seeds:", "",
-                  markdown_table(GREY_BOX_HEADER, grey_box_rows(result)), ""]
+    for sensor, by_size in grey["sensors"].items():
+        for size, result in by_size.items():
+            lines += [f"{sensor} sensor, {size} training plans per pose, {len(result['test_plans'])} test plans, "
+                      f"{grey['seeds']} seeds:", "", markdown_table(GREY_BOX_HEADER, grey_box_rows(result)), ""]
     return "\n".join(lines)
 
 
@@ -301,9 +475,10 @@ def write_grey_box(grey: dict, out: pathlib.Path, quick: bool, stem: str = "grey
     return grey
 
 
-def report_section(report, white: dict, grey: dict | None) -> None:
+def report_section(report, white: dict, grey: dict | None, closed: dict | None = None) -> None:
     """The study in a `Report`: the white box's table (torque errors and friction against the number of
-    training plans and the sensor), its identified models' open-loop errors, and the grey-box tables."""
+    training plans and the sensor), its identified models' open-loop errors, the grey-box tables (per sensor
+    and training size) and the tuned closed loop with its verdict."""
     report.heading("System identification: white box, grey box and black box on the affected plant")
     report.text("Design: docs/identification.md. White box: `identify` (physically consistent fit, settings chosen "
                 "on validation plans) at each number of training plans per start pose, with the simulation's true "
@@ -316,8 +491,20 @@ def report_section(report, white: dict, grey: dict | None) -> None:
                     + "; ".join(f"{row['model']} {row['one_step_q']:.3g} / {row['q_at_20']:.3g}" for row in rows) + ".")
     if grey is not None:
         report.text("Grey box against black box (same data and split; D / model paired by seed, 95 % interval; above "
-                    "1 the model predicts better than D): G is the grey box on the description's plant step, G-id and "
-                    "GD-id on the robot identified from the same training plans.")
-        for sensor, result in grey["sensors"].items():
-            report.text(f"{sensor} sensor: {len(result['test_plans'])} test plans, {grey['seeds']} seeds per type.")
-            report.table(GREY_BOX_HEADER, grey_box_rows(result))
+                    "1 the model predicts better than D): G-id-state / GD-id-state are grey boxes (G; its derivative-"
+                    "trained twin GD) on the robot identified from the same training plans, predicting the next state "
+                    "(G on the description's plant step and the next-velocity structure: docs/identification.md, "
+                    "runs 1 and 2).")
+        for sensor, by_size in grey["sensors"].items():
+            for size, result in by_size.items():
+                report.text(f"{sensor} sensor, {size} training plans per pose: {len(result['test_plans'])} test plans, "
+                            f"{grey['seeds']} seeds per type.")
+                report.table(GREY_BOX_HEADER, grey_box_rows(result))
+    if closed is not None:
+        report.text(f"Tuned closed loop (MPC on the affected plant, each prediction model's setting chosen on the "
+                    f"validation plans; model / {closed['target']}: the ratio of q MSE paired by plan and seed, 95 % "
+                    f"interval over {closed['seeds']} seeds; above 1 the target tracks better; true-plant is an oracle).")
+        for sensor, result in closed["sensors"].items():
+            report.text(f"{sensor} sensor's models, {closed['train_per_pose']} training plans per pose:")
+            report.table(CLOSED_LOOP_HEADER, closed_loop_rows(result))
+            report.text(f"Verdict: {result['verdict']['text']}.")

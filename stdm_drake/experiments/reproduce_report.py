@@ -448,7 +448,7 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
                  mpc_rows, timings: dict, reality_gap: dict | None = None, sysid: tuple | None = None) -> pathlib.Path:
     """The report of a reproduction run in `folder`, section by section, with the result files behind it;
     returns the HTML page's path. reality_gap: the reality-gap stage's results (files in folder/reality_gap);
-    sysid: the system-identification stage's (white box, grey box) results (files in folder/sysid)."""
+    sysid: the system-identification stage's (white box, grey box, closed loop) results (files in folder/sysid)."""
     figures = folder / "figures"
     robot = excitation.metadata.robot_name or "ur10"
     robot_label = "UR-10" if robot == "ur10" else robot
