@@ -221,3 +221,34 @@ def test_effects_replace_link_inertias_and_joint_damping():
         check_plant_effects(PlantEffects(link_inertia={"hand": heavy}), UR10, 0.001)
     assert PlantConfig.discrete(0.001, effects=effects).record()["effects"]["link_inertia"]["forearm_link"]["mass"] == 20.0
     assert PlantEffects.from_record(effects.record()) == effects
+
+
+def _closed_loop_run(model, plan, q_mse, violations=0):
+    return dict(model=model, trajectory=plan, q_mse_rad2=q_mse, limit_violations=violations, fallbacks=0,
+                solve_ms_mean=1.0)
+
+
+def test_the_closed_loop_ratio_pairs_plans_within_each_grey_box_seed_and_the_verdict_follows_the_interval():
+    """Run 3's closed-loop summary: other model / G-id-state paired by test plan, one geometric mean per seed (D
+    seed with seed), an interval over seeds; met only when every model a user has is above 1 and no limit is left."""
+    from stdm_drake.experiments.identification_study import closed_loop_summary, closed_loop_verdict
+    plans, seeds = (3, 7), 3
+    runs = [_closed_loop_run("plant", plan, 1e-3) for plan in plans]
+    runs += [_closed_loop_run("true-plant", plan, 1e-9) for plan in plans]
+    runs += [_closed_loop_run("identified", plan, 4e-9 * (plan == 3) + 1e-9 * (plan == 7)) for plan in plans]
+    for seed in range(seeds):
+        runs += [_closed_loop_run(f"D seed {seed}", plan, 1e-8 * (seed + 1)) for plan in plans]
+        runs += [_closed_loop_run(f"G-id-state seed {seed}", plan, 1e-9 * (seed + 1)) for plan in plans]
+    rows = {row["model"]: row for row in closed_loop_summary(runs, ("D", "G-id-state"), seeds)}
+    assert rows["D"]["model_over_target"]["ratio"] == pytest.approx(10.0)       # seed with seed: 10x every time
+    assert rows["D"]["model_over_target"]["low"] == pytest.approx(10.0)
+    assert rows["identified"]["model_over_target"]["ratio"] == pytest.approx(2.0 / np.exp(np.mean(np.log([1, 2, 3]))))
+    assert "model_over_target" not in rows["G-id-state"] and rows["G-id-state"]["runs"] == 6
+    assert rows["plant"]["q_mse"] == pytest.approx(1e-3)
+    verdict = closed_loop_verdict(list(rows.values()))
+    assert not verdict["met"] and verdict["not_below"] == ["identified"]   # its interval reaches below 1
+    better = [dict(run, q_mse_rad2=run["q_mse_rad2"] * 10) if run["model"] == "identified" else run for run in runs]
+    assert closed_loop_verdict(closed_loop_summary(better, ("D", "G-id-state"), seeds))["met"]
+    left = [dict(run, limit_violations=2) if run["model"] == "G-id-state seed 1" else run for run in better]
+    verdict = closed_loop_verdict(closed_loop_summary(left, ("D", "G-id-state"), seeds))
+    assert not verdict["met"] and "left the limits" in verdict["text"]

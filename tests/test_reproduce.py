@@ -2,6 +2,10 @@
 import dataclasses
 import json
 import math
+import os
+import pathlib
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -18,11 +22,45 @@ from stdm_drake.experiments.reproduce_report import improvement_percent, verdict
 from stdm_drake.stats import paired_ratio
 
 
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
 @pytest.fixture(scope="module")
-def quick_report(tmp_path_factory):
-    folder = tmp_path_factory.mktemp("reproduce")
-    assert main(["reproduce", "--quick", "-o", str(folder), "--quiet"]) == 0
-    return folder
+def regular_install(tmp_path_factory):
+    """A wheel built from the checkout, installed into a folder of its own: (environment that imports it without
+    the checkout on the path, a working folder outside the checkout, the install folder). Its commands run as
+    `python -S` with the dependencies' folder on PYTHONPATH: without `site`, the editable install's import hook
+    (a .pth file) is not loaded, so a module the wheel lacks is an ImportError, not the checkout's copy."""
+    wheels, target, work = (tmp_path_factory.mktemp(name) for name in ("wheels", "site", "work"))
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    subprocess.run(pip + ["wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
+                   cwd=work, timeout=300)
+    (wheel,) = wheels.glob("stdm_drake-*.whl")
+    subprocess.run(pip + ["install", "--no-deps", "--target", str(target), str(wheel)], check=True, timeout=300)
+    dependencies = pathlib.Path(pytest.importorskip("numpy").__file__).parents[1]   # the venv's site-packages
+    return (dict(os.environ, PYTHONPATH=os.pathsep.join([str(target), str(dependencies)]), DRAKE_ALLOW_NETWORK="meshcat"),
+            work, target)
+
+
+@pytest.fixture(scope="module")
+def quick_report(regular_install):
+    """`reproduce --quick` (the README's main job on built-in defaults) run by the regular install: it finds the
+    robot, plan and controller files inside the package."""
+    env, work, _ = regular_install
+    result = subprocess.run([sys.executable, "-S", "-m", "stdm_drake.cli", "reproduce", "--quick", "-o", "out", "--quiet"],
+                            cwd=work, env=env, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return work / "out"
+
+
+@pytest.mark.slow
+def test_a_regular_install_imports_itself_and_its_files_from_the_package(regular_install, quick_report):
+    env, work, target = regular_install
+    where = subprocess.run([sys.executable, "-S", "-c", "import stdm_drake, stdm_drake.paths as p; "
+                            "print(stdm_drake.__file__); print(p.MODELS_DIR)"],
+                           cwd=work, env=env, capture_output=True, text=True, check=True, timeout=120).stdout.split()
+    assert all(pathlib.Path(line).is_relative_to(target) for line in where), where
+    assert (quick_report / "report.html").is_file()
 
 
 @pytest.mark.slow

@@ -257,7 +257,8 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
     """`reproduce --quick --robot panda --plant-effects`: every stage on the 7-joint arm with its derived
     protocols, on the plant with models/panda_effects.yaml, and the reality-gap stage: its files, figures
     and report section with a verdict; each model's MPC setting chosen on validation plans only, the test
-    plans run with it and with the shipped one; the system-identification stage's files and section. The underactuated Acrobot is refused before any work."""
+    plans run with it and with the shipped one; the system-identification stage's files and section (its
+    tuned closed loop included). The underactuated Acrobot is refused before any work."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
     out = tmp_path / "reproduce"
@@ -304,7 +305,12 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
     assert [row["run"] for row in white["rows"]] == ["A", "C"]      # (the quick profile's runs)
     assert white["rows"][0]["torque_error"] < 0.01 < white["rows"][0]["description_torque_error"]
     grey = json.loads((out / "sysid" / "grey_box.json").read_text())
-    assert {row["model"] for row in grey["sensors"]["ideal"]["rows"]} >= {"D", "G-id-state", "identified", "plant"}
+    assert {row["model"] for row in grey["sensors"]["ideal"]["1"]["rows"]} >= {"D", "G-id-state", "identified", "plant"}
+    # its tuned closed loop: every model a user has beside the grey box, tuned on validation plans, then the test plans
+    closed = json.loads((out / "sysid" / "closed_loop.json").read_text())["sensors"]["paper"]
+    assert [row["model"] for row in closed["rows"]] == ["plant", "true-plant", "identified", "D", "G-id-state"]
+    assert {run["split"] for run in closed["tuning_runs"]} == {"val"} and {run["split"] for run in closed["runs"]} == {"test"}
+    assert closed["verdict"]["text"] in report
     capsys.readouterr()
     assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
     assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()
