@@ -231,7 +231,7 @@ def _closed_loop_run(model, plan, q_mse, violations=0):
 def test_the_closed_loop_ratio_pairs_plans_within_each_grey_box_seed_and_the_verdict_follows_the_interval():
     """Run 3's closed-loop summary: other model / G-id-state paired by test plan, one geometric mean per seed (D
     seed with seed), an interval over seeds; met only when every model a user has is above 1 and no limit is left."""
-    from stdm_drake.experiments.identification_study import closed_loop_summary, closed_loop_verdict
+    from stdm_drake.experiments.identification_closed_loop import closed_loop_summary, closed_loop_verdict
     plans, seeds = (3, 7), 3
     runs = [_closed_loop_run("plant", plan, 1e-3) for plan in plans]
     runs += [_closed_loop_run("true-plant", plan, 1e-9) for plan in plans]

@@ -67,9 +67,10 @@ def main(argv=None) -> int:
         print(study.grey_box_table(grey))
     if args.part in ("closed", "all"):
         white = json.loads((out / "results.json").read_text())
-        closed = study.write_closed_loop(study.run_closed_loop(profile, args.data, robot, white, workers=args.workers,
-                                                               say=say), out, args.quick)
-        print(study.closed_loop_table(closed))
+        from stdm_drake.experiments import identification_closed_loop as closed_loop
+        closed = closed_loop.write_closed_loop(closed_loop.run_closed_loop(profile, args.data, robot, white,
+                                                                           workers=args.workers, say=say), out, args.quick)
+        print(closed_loop.closed_loop_table(closed))
     print(f"wrote {out}")
     return 0
 

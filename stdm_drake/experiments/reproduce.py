@@ -122,9 +122,10 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
         grey = study.write_grey_box(study.run_grey_box(design, output / "data" / "sysid", robot, white,
                                                        workers=workers, say=say), output / "sysid",
                                     profile.name == "quick")
-        closed = study.write_closed_loop(study.run_closed_loop(design, output / "data" / "sysid", robot, white,
-                                                               workers=workers, say=say), output / "sysid",
-                                         profile.name == "quick")
+        from stdm_drake.experiments import identification_closed_loop as closed_loop
+        closed = closed_loop.write_closed_loop(closed_loop.run_closed_loop(design, output / "data" / "sysid", robot, white,
+                                                                           workers=workers, say=say), output / "sysid",
+                                               profile.name == "quick")
         sysid = (white, grey, closed)
         timings["sysid"] = time.perf_counter() - tick
     path = write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,

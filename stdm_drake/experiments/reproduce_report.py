@@ -473,8 +473,10 @@ def write_report(folder: pathlib.Path, profile: Profile, excitation, local, trac
         from stdm_drake.experiments.reality_gap_report import report_section
         report_section(report, reality_gap)
     if sysid is not None:
-        from stdm_drake.experiments import identification_study
-        identification_study.report_section(report, *sysid)
+        from stdm_drake.experiments import identification_closed_loop, identification_study
+        white, grey, closed = sysid
+        identification_study.report_section(report, white, grey)
+        identification_closed_loop.report_section(report, closed)
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
                   coverage=coverage,
                   multistep=[{k: v for k, v in dataclasses.asdict(r).items() if k not in ("epoch_axis", "val_mse_curve")}
