@@ -20,6 +20,8 @@ from stdm_drake.paths import expand_shipped
 # name -> (module, one-line help)
 COMMANDS = {
     "collect": ("stdm_drake.commands.collect", "simulate a robot under a data protocol and write a dataset"),
+    "import": ("stdm_drake.commands.import_log",
+               "a real robot's log (UR RTDE CSV, ROS 2 bag) as a dataset: resampled, split, checked"),
     "inspect": ("stdm_drake.commands.inspect", "print a summary of a dataset file"),
     "train": ("stdm_drake.commands.train", "train D/P/DE/PE dynamics models, with or without the derivative loss"),
     "identify": ("stdm_drake.commands.identify",

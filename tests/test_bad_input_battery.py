@@ -56,10 +56,55 @@ def sandbox(tmp_path_factory, excitation_dataset, tracking_dataset):
                  "--quiet", "-o", str(box / "slow.h5")]) == 0
     edited_copy(box, "strings.h5", "q", lambda q: np.array([[str(v).encode() for v in row] for row in q]))
     edited_copy(box, "short_tau.h5", "tau", lambda tau: tau[:-1])
+    write_logs(box)
     content = torch.load(box / "ck.pt", weights_only=True)    # a checkpoint whose output spread is zero
     content["weights"]["output_normalizer.std"] = torch.zeros_like(content["weights"]["output_normalizer.std"])
     torch.save(content, box / "zero_std.pt")
     return box
+
+
+def write_logs(box) -> None:
+    """Logs of the tracking dataset as the recorders write them (RTDE CSV, a ROS 2 bag) and malformed ones."""
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.data.logs import simulated
+    from stdm_drake.robots.robot import UR10_CONFIG, load_robot
+    data = load_dataset(box / "track.h5")
+    joints = load_robot(UR10_CONFIG).joint_names
+    simulated.write_rtde_csv(data, box / "log.csv")
+    lines = (box / "log.csv").read_text().splitlines(keepends=True)
+    header = lines[0].split()
+
+    def variant(name: str, rows: list, head=None) -> None:
+        (box / name).write_text(" ".join(head or header) + "\n" + "".join(rows))
+
+    def replaced(line: str, field: str, value: str) -> str:
+        cells = line.split()
+        cells[header.index(field)] = value
+        return " ".join(cells) + "\n"
+
+    body = lines[1:]
+    variant("log_nots.csv", body, ["time" if name == "timestamp" else name for name in header])
+    keep = [i for i, name in enumerate(header) if name != "actual_qd_3"]
+    variant("log_missing.csv", [" ".join(line.split()[i] for i in keep) + "\n" for line in body], [header[i] for i in keep])
+    variant("log_back.csv", body[:40] + [replaced(body[40], "timestamp", body[20].split()[0])] + body[41:])
+    variant("log_dup.csv", body[:40] + [body[40], body[40]] + body[41:])
+    variant("log_nan.csv", body[:30] + [replaced(body[30], "actual_q_2", "nan")] + body[31:])
+    variant("log_text.csv", body[:30] + [replaced(body[30], "actual_qd_1", "fast")] + body[31:])
+    variant("log_cut.csv", body[:-1] + [" ".join(body[-1].split()[:7]) + "\n"])
+    variant("log_head.csv", [])
+    degrees = [header.index(f"actual_q_{j}") for j in range(6)]
+    variant("log_deg.csv", [" ".join(str(float(c) * 57.29577951308232) if i in degrees else c
+                                      for i, c in enumerate(line.split())) + "\n" for line in body])
+    seventh = header + ["actual_q_6"]
+    variant("log_seven.csv", [line.rstrip("\n") + " 0.0\n" for line in body], seventh)
+    simulated.write_ros2_bag(data, box / "bag", joints, storage="mcap")
+    (box / "bag_cut").mkdir()
+    for path in (box / "bag").iterdir():
+        content = path.read_bytes()
+        (box / "bag_cut" / path.name).write_bytes(content[:len(content) // 3] if path.suffix == ".mcap" else content)
+    simulated.write_ros2_bag(data, box / "bag_four", joints[:4], storage="sqlite3", controller_state=False)
+    (box / "map_bad.yaml").write_text("torque_source: current\ntorque_constants: [13, 13]\n")
+    (box / "map_key.yaml").write_text("torque_sorce: current\n")
 
 
 def edited_copy(box, name: str, key: str, edit) -> None:
@@ -80,7 +125,11 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "DIR": "empty", "SPEC": "spec.yaml", "TSPEC": "tspec.yaml", "CTRL": "ctrl.yaml", "MPCY": "mpc.yaml",
                 "ROBOT": "ur10.yaml", "BADYAML": "bad.yaml", "TEXTH5": "text.h5", "TRUNC": "truncated.h5",
                 "TRUNCPT": "truncated.pt", "HUGE": "huge.h5", "SLOW": "slow.h5", "NEW": "new_output",
-                "STRINGS": "strings.h5", "SHORTTAU": "short_tau.h5", "ZEROSTD": "zero_std.pt"}
+                "STRINGS": "strings.h5", "SHORTTAU": "short_tau.h5", "ZEROSTD": "zero_std.pt",
+                "LOG": "log.csv", "BAG": "bag", "MAPBAD": "map_bad.yaml", "MAPKEY": "map_key.yaml",
+                **{f"LOG{kind.upper()}": f"log_{kind}.csv" for kind in ("nots", "missing", "back", "dup", "nan", "text",
+                                                                        "cut", "head", "deg", "seven")},
+                "BAGCUT": "bag_cut", "BAGFOUR": "bag_four"}
 
 C = ["collect", "--count", "1", "--workers", "1", "--quiet"]           # a cheap collect if a check were missing
 E = ["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet"]
@@ -90,9 +139,39 @@ W = ["view", "CK", "DATA"]
 M = ["mpc", "DATA", "--model", "D=CK", "--plans", "1", "--excitation-references", "--quiet"]
 S = ["sine-sum", "--quick", "--quiet"]
 R = ["reproduce", "--quick", "--quiet"]
+I = ["import", "--quiet"]
 
 # (argv, a fragment the one-line message must contain ("" = any))
 CASES = [
+    # --- logs to import (issue 24): malformed recordings, wrong units, bad mappings, outputs
+    ([*I, "LOGNOTS", "-o", "NEW.h5"], "not a log this import reads"), ([*I, "LOGMISSING", "-o", "NEW.h5"], "actual_qd_3"),
+    ([*I, "LOGBACK", "-o", "NEW.h5"], "goes back in time"), ([*I, "LOGDUP", "-o", "NEW.h5"], "repeats"),
+    ([*I, "LOGNAN", "-o", "NEW.h5"], "NaN"), ([*I, "LOGTEXT", "-o", "NEW.h5"], "not a number"),
+    ([*I, "LOGCUT", "-o", "NEW.h5"], "fields, the header"), ([*I, "LOGHEAD", "-o", "NEW.h5"], "fewer than 3 rows"),
+    ([*I, "LOGDEG", "-o", "NEW.h5"], "degrees"), ([*I, "LOGSEVEN", "-o", "NEW.h5"], "logs 7 joints"),
+    ([*I, "LOG", "--torque-source", "current", "-o", "NEW.h5"], "needs torque_constants"),
+    ([*I, "LOG", "--mapping", "MAPBAD", "-o", "NEW.h5"], "torque_constants has 2 values"),
+    ([*I, "LOG", "--mapping", "MAPKEY", "-o", "NEW.h5"], "malformed log mapping"),
+    ([*I, "LOG", "--mapping", "BADYAML", "-o", "NEW.h5"], "malformed log mapping"),
+    ([*I, "LOG", "--torque-source", "effort", "-o", "NEW.h5"], "not in a rtde_csv log"),
+    ([*I, "LOG", "--sample-period", "0.001", "-o", "NEW.h5"], "would invent samples"),
+    ([*I, "LOG", "--sample-period", "-1", "-o", "NEW.h5"], "sample_period must be in"),
+    ([*I, "LOG", "-o", "LOG"], "a dataset is an .h5 file"), ([*I, "LOG", "-o", "TRUNC"], "did not write it"),
+    ([*I, "LOG", "-o", "NOTES/x.h5"], "is not a folder"),
+    ([*I, "NOTES", "-o", "NEW.h5"], "not a log this import reads"), ([*I, "NEW.csv", "-o", "NEW.h5"], "log not found"),
+    ([*I, "LOG", "--format", "ros2_bag", "-o", "NEW.h5"], "does not read"),
+    ([*I, "BAG", "--format", "rtde_csv", "-o", "NEW.h5"], "is a folder"),
+    ([*I, "BAG", "-o", "BAG/x.h5"], "inside the bag folder"), ([*I, "BAGCUT", "-o", "NEW.h5"], "truncated"),
+    ([*I, "BAG", "--joint-states-topic", "/nope", "-o", "NEW.h5"], "no topic /nope"),
+    ([*I, "BAG", "--joint-states-topic", "/joint_trajectory_controller/controller_state", "-o", "NEW.h5"],
+     "not sensor_msgs/msg/JointState"),
+    ([*I, "BAGFOUR", "-o", "NEW.h5"], "lacks joint wrist_2_joint"),
+    ([*I, "BAG", "--joint-names", "a", "b", "-o", "NEW.h5"], "names 2 joints"),
+    ([*I, "DIR", "-o", "NEW.h5"], "holds no metadata.yaml"), ([*I, "LOG", "--robot", "BADYAML", "-o", "NEW.h5"], ""),
+    ([*I, "LOG", "-o", "NEW.h5", "--format", "csv"], "invalid choice"), (["import", "LOG"], "required: --output"),
+    ([*E, "--export-plans", "NEW", "-o", "NEW.h5"], "only with --protocol tracking"),
+    ([*C, "--export-plans", "FOREIGN", "-o", "NEW.h5"], "not empty"),
+    ([*C, "--export-plans", "NOTES", "-o", "NEW.h5"], "not a folder"),
     # --- the command line itself
     ([], "usage"), (["frobnicate"], "invalid choice"), (["collect"], "required: --output"),
     (["train"], "required"), (["evaluate", "CK"], "required"), (["view"], "required"), (["mpc"], "required"),

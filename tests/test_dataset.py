@@ -3,7 +3,8 @@ import h5py
 import numpy as np
 import pytest
 
-from stdm_drake.data.dataset import Trajectory, load_dataset, split_trajectories, write_dataset
+from stdm_drake.data.dataset import Trajectory, load_dataset, split_trajectories
+from stdm_drake.data.writer import write_dataset
 from stdm_drake.errors import InputError
 
 DT = 0.01
@@ -74,8 +75,10 @@ def test_planned_source_needs_tracking_data(tmp_path):
     rng = np.random.default_rng(1)
     dataset = load_dataset(write(tmp_path / "e.h5", [make_trajectory(rng, planned=False)], "excitation", [0]))
     assert dataset.default_derivative_source == "true"
-    with pytest.raises(InputError, match="planned derivative targets"):
+    with pytest.raises(InputError, match="derivative source 'planned' is not in this excitation dataset"):
         dataset.transitions(derivative_source="planned")
+    with pytest.raises(InputError, match="derivative source 'smoothed' is not in this excitation dataset"):
+        dataset.transitions(derivative_source="smoothed")
 
 
 @pytest.mark.parametrize("corrupt, message", [
@@ -94,10 +97,10 @@ def test_a_trajectory_needs_every_array_and_no_other(trajectories):
     arrays = dict(trajectories[2])
     arrays.pop("tau")
     with pytest.raises(InputError, match=r"trajectory 000002: missing arrays \['tau'\]"):
-        Trajectory.from_arrays("000002", arrays, planned=True)
-    with pytest.raises(InputError, match=r"trajectory 000001: unknown arrays \['torque'\]"):
-        Trajectory.from_arrays("000001", dict(trajectories[1], torque=trajectories[1]["tau"]), planned=True)
-    loaded = Trajectory.from_arrays("000000", trajectories[0], planned=True)
+        Trajectory.from_arrays("000002", arrays, "tracking")
+    with pytest.raises(InputError, match=r"trajectory 000001: arrays \['torque'\] do not belong to tracking data"):
+        Trajectory.from_arrays("000001", dict(trajectories[1], torque=trajectories[1]["tau"]), "tracking")
+    loaded = Trajectory.from_arrays("000000", trajectories[0], "tracking")
     assert loaded.num_steps == 5 and sorted(loaded.arrays()) == sorted(trajectories[0])
 
 

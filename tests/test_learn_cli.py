@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from stdm_drake.cli import main
-from stdm_drake.data.dataset import Trajectory, load_dataset, write_dataset
+from stdm_drake.data.dataset import Trajectory, load_dataset
+from stdm_drake.data.writer import write_dataset
 from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
 from stdm_drake.learning.trainer import build_model
 from stdm_drake.learning.checkpoint import load_model, save_checkpoint

@@ -139,7 +139,8 @@ def main() -> int:
     from stdm_drake.collection.collect import CollectionRequest, collect
     from stdm_drake.robots.station import StationConfig
     from stdm_drake.collection.protocols import load_protocol
-    from stdm_drake.data.dataset import load_dataset, split_trajectories, write_dataset
+    from stdm_drake.data.dataset import load_dataset, split_trajectories
+    from stdm_drake.data.writer import write_dataset
     from stdm_drake.paths import TRAJECTORIES_DIR
 
     args.output.mkdir(parents=True, exist_ok=True)

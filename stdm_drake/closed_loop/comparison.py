@@ -199,11 +199,14 @@ def spec_models(specs: list, sample_period: float, plant_config: PlantConfig, *,
 
 
 def reference_of(dataset, index: int) -> Reference:
-    """Trajectory `index` as a reference: its planned q, v (tracking data) or recorded q, v (excitation)."""
+    """Trajectory `index` as a reference: its planned q, v (data with plans) or recorded q, v (the true ones
+    of excitation data, the measured ones of a log without the plan)."""
     traj = dataset.trajectory(index)
-    if dataset.protocol == "tracking":
+    if traj.has_plan:
         return Reference(q=traj.q_planned, v=traj.v_planned)
-    return Reference(q=traj.q_true, v=traj.v_true)
+    if traj.is_simulated:
+        return Reference(q=traj.q_true, v=traj.v_true)
+    return Reference(q=traj.q, v=traj.v)
 
 
 def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5) -> list[str]:

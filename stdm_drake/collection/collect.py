@@ -21,7 +21,6 @@ settings live together because they change together (a setting not recorded here
 import dataclasses
 import os
 import sys
-from importlib import metadata as importlib_metadata
 
 import numpy as np
 
@@ -31,6 +30,7 @@ from stdm_drake.collection.plan import Tracking, derived_tracking_spec
 from stdm_drake.collection.protocols import PROTOCOLS, load_excitation, load_tracking_spec, protocol_named_in
 from stdm_drake.config import load_yaml_config
 from stdm_drake.data.dataset import Trajectory
+from stdm_drake.data.writer import package_versions
 from stdm_drake.errors import InputError, PlanningError, warn
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, friction_bound_joints, load_controller_config
@@ -212,17 +212,6 @@ def collect(request: CollectionRequest, progress: bool = True,
     return trajectories, groups, metadata
 
 
-def _package_versions() -> dict:
-    versions = {}
-    for name in ("stdm-drake", "drake", "numpy", "h5py", "ruckig", "toppra"):
-        try:
-            versions[name] = importlib_metadata.version(name)
-        except importlib_metadata.PackageNotFoundError:
-            versions[name] = None
-    versions["python"] = ".".join(map(str, sys.version_info[:3]))
-    return versions
-
-
 def collection_metadata(request: CollectionRequest) -> dict:
     """What a dataset file records about how it was collected (JSON-ready; per-trajectory excitation
     parameters are added by `collect`)."""
@@ -232,7 +221,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
         num_trajectories=request.count, robot_model_sha256=settings.robot.model_sha256(),
         joint_names=list(settings.robot.joint_names), robot=dataclasses.asdict(settings.robot.config),
         plant=settings.plant.record(), sensor=dataclasses.asdict(settings.sensor),
-        package_versions=_package_versions(),
+        package_versions=package_versions(),
         torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")
     if request.protocol == "excitation":
         metadata["excitation"] = dataclasses.asdict(request.excitation)

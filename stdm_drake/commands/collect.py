@@ -9,7 +9,8 @@ from stdm_drake.collection.protocols import PROTOCOLS
 from stdm_drake.collection.collect import DEFAULT_CONTROLLER, CollectionRequest, collect, collection_request
 from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot_argument, add_visualization_argument,
                                            command_visualization)
-from stdm_drake.data.dataset import write_dataset
+from stdm_drake.data.writer import write_dataset
+from stdm_drake.errors import InputError
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 from stdm_drake.robots.robot import UR10_CONFIG
@@ -46,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_plant_effects_argument(parser, "the data come from the affected plant")
     add_visualization_argument(parser)
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True, help="dataset file to write (.h5)")
+    parser.add_argument("--export-plans", type=pathlib.Path, metavar="DIR",
+                        help="tracking: also write every plan for a real controller into DIR (new or empty): CSV files "
+                             "(t, q, q̇, q̈ per joint), a ROS 2 bag of trajectory_msgs/JointTrajectory, plans.json")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_force_argument(parser)
 
@@ -68,6 +72,11 @@ def run(args: argparse.Namespace) -> int:
     visualization = command_visualization(args)
     check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
+    if args.export_plans is not None:
+        from stdm_drake.collection.export import check_export_folder
+        if request.protocol != "tracking":
+            raise InputError("--export-plans: plans exist only with --protocol tracking")
+        check_export_folder(args.export_plans)
     recorder = None
     if args.meshcat or args.html:
         from stdm_drake.robots.recorder import TrajectoryRecorder
@@ -84,6 +93,11 @@ def run(args: argparse.Namespace) -> int:
     simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period
     print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
+    if args.export_plans is not None:
+        from stdm_drake.collection.export import export_plans
+        written = export_plans(args.export_plans, trajectories, metadata, robot)
+        print(f"wrote {len(trajectories)} plans to {args.export_plans} ({len(written)} files: CSV, a ROS 2 bag, "
+              "plans.json); run them on the robot, then `stdm-drake import` its log")
     if recorder is not None:
         recorder.finish(args.html, keep_serving=args.meshcat)
     return 0

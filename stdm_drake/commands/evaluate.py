@@ -104,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
         print("  (plant: the robot's description, the nominal model; the data come from a plant with effects it "
               f"lacks: {dataset.metadata.plant_effects.summary()})")
     learned = rows[0]
-    if floor["q"] > 0 or floor["v"] > 0:
+    if floor and (floor["q"] > 0 or floor["v"] > 0):
         print(f"  {'noise floor':<12} {floor['q']:>10.3e} {floor['v']:>13.3e}  (a model that knows the true change "
               f"of state, from the recorded state; {model.name} is at {learned.floor_ratio_q or 0:.3g}x / "
               f"{learned.floor_ratio_v or 0:.3g}x of it)")

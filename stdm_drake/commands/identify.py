@@ -18,10 +18,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_robot_argument(parser, "the description whose parameters are identified; must be the dataset's robot")
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
                         help="identified robot to write (.yaml); the report goes beside it (.json)")
-    parser.add_argument("--derivatives", choices=("true", "smoothed"), default="true",
-                        help="states and accelerations: the simulation's true ones (default; simulated data), or "
+    parser.add_argument("--derivatives", choices=("true", "smoothed"),
+                        help="states and accelerations: the simulation's true ones (default for simulated data), or "
                              "central differences of the Savitzky-Golay-smoothed measured angles, the torques through "
-                             "the same smoother (its window chosen on validation)")
+                             "the same smoother (its window chosen on validation; default for a real robot's log)")
     parser.add_argument("--velocity-scales", type=float, nargs="+", default=list(VELOCITY_SCALES), metavar="V_S",
                         help="candidate Coulomb smoothing scales, rad/s (default %(default)s)")
     parser.add_argument("--regularizations", type=float, nargs="+", default=list(REGULARIZATIONS), metavar="LAMBDA",
@@ -51,16 +51,18 @@ def run(args: argparse.Namespace) -> int:
     inputs = [args.dataset, args.robot]
     check_output_file("-o/--output", args.output, kind="identified", inputs=inputs, force=args.force)
     check_output_file("report", report_path, kind="json", inputs=inputs, force=args.force)
-    settings = IdentifySettings(derivative_source=args.derivatives, velocity_scales=tuple(args.velocity_scales),
+    settings = IdentifySettings(derivative_source=args.derivatives or "true", velocity_scales=tuple(args.velocity_scales),
                                 regularizations=tuple(args.regularizations), windows=tuple(args.windows))
     settings.validate()     # (before any work: windows, scales and weights)
     dataset = load_dataset(args.dataset)
+    if args.derivatives is None and not dataset.is_simulated:
+        settings.derivative_source = "smoothed"     # (a log has no true accelerations)
     robot = command_robot(args, dataset)
     robot.check_fully_actuated("identification")
     split, _ = dataset_split(dataset, args)
     if not args.quiet:
         print(f"identify {robot.name} from {args.dataset}: train {len(split.train)} / val {len(split.val)} / "
-              f"test {len(split.test)} trajectories, derivatives {args.derivatives}", file=sys.stderr)
+              f"test {len(split.test)} trajectories, derivatives {settings.derivative_source}", file=sys.stderr)
     announce = (lambda line: None) if args.quiet else (lambda line: print(line, file=sys.stderr, flush=True))
     identified, report = identify(dataset, robot, split, settings, announce=announce)
     text, report_text = identified_text(identified), json.dumps(report, indent=1, default=json_default) + "\n"

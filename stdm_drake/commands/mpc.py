@@ -81,9 +81,10 @@ def run(args) -> int:
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)
     robot.check_fully_actuated("MPC")
-    if dataset.protocol != "tracking" and not args.excitation_references:
-        raise InputError(f"{args.dataset} is an excitation dataset: it has no plans to track; give a tracking "
-                         "dataset, or --excitation-references to track its recorded trajectories")
+    if not dataset.has_plan and not args.excitation_references:
+        raise InputError(f"{args.dataset} is {'an excitation dataset' if dataset.is_simulated else 'a log without the plan'}"
+                         ": it has no plans to track; give a dataset with plans, or --excitation-references to track "
+                         "its recorded trajectories")
     config = mpc_config_for(robot, args.config)
     time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP   # the data's plant step
     effects = plant_effects_for(args.plant_effects if args.plant_effects is not None else

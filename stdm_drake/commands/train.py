@@ -87,8 +87,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--per-group", choices=("on", "off"),
                         help="split per initial-pose group (default: on for tracking data, off otherwise)")
     parser.add_argument("--split-seed", type=int, default=0, help="seed of the trajectory split (default 0)")
-    parser.add_argument("--derivative-source", choices=("true", "planned"),
-                        help="derivative targets (default: the dataset's: true for excitation, planned for tracking)")
+    parser.add_argument("--derivative-source", choices=("true", "planned", "measured", "smoothed"),
+                        help="derivative targets (default: the dataset's: the plan where it has one, else the "
+                             "simulation's truth, or for a real robot's log the smoothed angles; measured: a log's "
+                             "velocities and their smoothed derivative)")
     parser.add_argument("--action-rate", choices=("forward_difference", "zero_order_hold"),
                         default="forward_difference", help="how Δa/Δt is formed (default forward_difference)")
     parser.add_argument("--epochs", type=int, default=500, help="maximum epochs (default 500)")

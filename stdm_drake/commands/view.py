@@ -67,7 +67,7 @@ def run(args) -> int:
         if nominal is not None:
             plant_q = np.vstack([traj.q[:1], nominal.rollout(x0[None], traj.tau[None]).mean[0][:, :robot.num_joints]])
             print(f"  {open_loop_error_line('nominal plant', traj.q, traj.v[0], plant_q, dataset.sample_period)}")
-        recorder.add(traj.q_true, ghost_q, realtime=args.meshcat)
+        recorder.add(traj.q_true if traj.is_simulated else traj.q, ghost_q, realtime=args.meshcat)
     recorder.finish(args.html, keep_serving=args.meshcat,
                     what=f"robot: recorded; translucent orange: {model.name} open-loop prediction")
     return 0

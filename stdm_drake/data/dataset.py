@@ -1,25 +1,32 @@
 """Dataset files: one self-describing HDF5 file per dataset, one group per trajectory.
 
-Layout (format "stdm-drake-dataset", version 1):
+Layout (format "stdm-drake-dataset", version 2; version 1 files, simulation only, still load):
 
     /                      attrs: format, format_version, protocol, sample_period (s),
                                   num_trajectories, metadata_json (everything else, see below)
-    /trajectories/000000   attrs: group (int; initial-pose index, 0 for excitation)
+    /trajectories/000000   attrs: group (int; initial-pose index, 0 for excitation and logs)
         q        (T+1, n) rad     joint angles as the learner sees them (measured: noise + filter)
         v        (T+1, n) rad/s   joint velocities as the learner sees them
         tau      (T, m)   N m     action: torques of the m actuated joints over [t_k, t_k+1)
                                   (zero-order hold); m = n unless the robot is underactuated
-        tau_next (m,)     N m     action the controller computes at t_T (not applied); closes the
+        tau_next (m,)     N m     action at t_T (the controller's next, not applied; in a log the next
+                                  logged torque, or the last one repeated at the log's end): closes the
                                   forward difference of the action rate at the last step
+      simulated data (protocols "excitation", "tracking") only:
         q_true, v_true (T+1, n)   the plant's true state at the sample instants
         qdd      (T+1, n) rad/s^2 true acceleration just after t_k (under the torque from t_k on)
         qdd_end  (T, n)   rad/s^2 true acceleration just before t_k+1 (under tau_k)
-        q_planned, v_planned, qdd_planned (T+1, n)   tracking protocol only: the plan
+      the plan: "tracking" always, "logged" when the log has it (all three or none):
+        q_planned, v_planned, qdd_planned (T+1, n)
+      logged data (protocol "logged", a real robot's log through `stdm-drake import`) only:
+        v_smoothed, qdd_smoothed (T+1, n)   Savitzky-Golay derivatives of the measured angles
+        qdd_measured (T+1, n)               the same differentiator of the measured velocities
 
 n is the robot's arm-joint count (the UR-10: 6), recorded with the joint names and the robot's config.
 metadata_json holds the robot model hash, plant time step, protocol settings (planner,
-controller gains, excitation ranges, noise and filter), seed and package versions. Files are
-written atomically and deterministically (same content -> same bytes).
+controller gains, excitation ranges, noise and filter; for logs the import's choices and counts), seed and
+package versions. Files are written atomically and deterministically (same content -> same bytes), one
+trajectory at a time (`data.writer.DatasetWriter`).
 """
 from __future__ import annotations
 
@@ -32,50 +39,77 @@ import h5py
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import atomic_path, json_default
 from stdm_drake.outputs import DATASET_FORMAT
 from stdm_drake.robots.effects import PlantEffects
 
 FORMAT = DATASET_FORMAT
-FORMAT_VERSION = 1
-PROTOCOLS = ("excitation", "tracking")
-REQUIRED_ARRAYS = ("q", "v", "tau", "tau_next", "q_true", "v_true", "qdd", "qdd_end")
+FORMAT_VERSION = 2
+READABLE_VERSIONS = (1, 2)
+SIMULATED_PROTOCOLS = ("excitation", "tracking")
+PROTOCOLS = SIMULATED_PROTOCOLS + ("logged",)
+RECORDED_ARRAYS = ("q", "v", "tau", "tau_next")
+SIMULATION_ARRAYS = ("q_true", "v_true", "qdd", "qdd_end")
+PLANNED_ARRAYS = ("q_planned", "v_planned", "qdd_planned")
+LOG_ARRAYS = ("v_smoothed", "qdd_smoothed", "qdd_measured")
 # Bounds no robot's data reaches (rad or m, rad/s, rad/s^2: a continuous joint may wind up many turns,
 # a light joint accelerate fast): a value beyond them is a corrupted or foreign file. The robot's own
 # limits are checked where the robot is known (data.compatibility.check_dataset_robot).
-PLAUSIBLE_MAGNITUDE = {"q": 1e4, "q_true": 1e4, "v": 1e4, "v_true": 1e4, "qdd": 1e7, "qdd_end": 1e7}
-PLANNED_ARRAYS = ("q_planned", "v_planned", "qdd_planned")
-DERIVATIVE_SOURCES = ("true", "planned")
+PLAUSIBLE_MAGNITUDE = {"q": 1e4, "q_true": 1e4, "v": 1e4, "v_true": 1e4, "qdd": 1e7, "qdd_end": 1e7,
+                       "v_smoothed": 1e4, "qdd_smoothed": 1e7, "qdd_measured": 1e7}
+# where the derivative targets (q̇, q̈) come from: the simulation's truth, the tracked plan, a log's measured
+# velocities (and their smoothed derivative) or the smoothed measured angles
+DERIVATIVE_SOURCES = ("true", "planned", "measured", "smoothed")
 ACTION_RATE_SCHEMES = ("forward_difference", "zero_order_hold")
+
+
+def required_arrays(protocol: str, planned: bool = False) -> tuple:
+    """The arrays every trajectory of `protocol` holds (planned: a log with the plan)."""
+    if protocol == "logged":
+        return RECORDED_ARRAYS + LOG_ARRAYS + (PLANNED_ARRAYS if planned else ())
+    return RECORDED_ARRAYS + SIMULATION_ARRAYS + (PLANNED_ARRAYS if protocol == "tracking" else ())
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
 class Trajectory:
     """One trajectory's arrays (float64; names, shapes and units in the module docstring): T steps, n
-    joints, m actuated ones. The planned arrays exist in tracking data only (None otherwise)."""
+    joints, m actuated ones. An array its protocol does not hold is None (the simulation's truth in a log,
+    the plan in excitation data, the log's derivatives in simulated data)."""
     q: np.ndarray
     v: np.ndarray
     tau: np.ndarray
     tau_next: np.ndarray
-    q_true: np.ndarray
-    v_true: np.ndarray
-    qdd: np.ndarray
-    qdd_end: np.ndarray
+    q_true: np.ndarray | None = None
+    v_true: np.ndarray | None = None
+    qdd: np.ndarray | None = None
+    qdd_end: np.ndarray | None = None
     q_planned: np.ndarray | None = None
     v_planned: np.ndarray | None = None
     qdd_planned: np.ndarray | None = None
+    v_smoothed: np.ndarray | None = None
+    qdd_smoothed: np.ndarray | None = None
+    qdd_measured: np.ndarray | None = None
 
     @classmethod
-    def from_arrays(cls, name: str, arrays: dict, planned: bool) -> "Trajectory":
-        """The trajectory of a mapping name -> array, checked (`_check_trajectory`: every array present,
-        no other, shapes, finite numbers, plausible magnitudes); InputError naming trajectory `name`."""
-        _check_trajectory(name, arrays, planned)
+    def from_arrays(cls, name: str, arrays: dict, protocol: str) -> "Trajectory":
+        """The trajectory of a mapping name -> array, checked (`check_trajectory`: every array of the
+        protocol present, no other, shapes, finite numbers, plausible magnitudes); InputError naming
+        trajectory `name`."""
+        check_trajectory(name, arrays, protocol)
         return cls(**{key: np.asarray(value, dtype=np.float64) for key, value in arrays.items()})
 
     def arrays(self) -> dict:
-        """Name -> array of the arrays it holds (the planned ones only in tracking data)."""
+        """Name -> array of the arrays it holds."""
         return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)
                 if getattr(self, field.name) is not None}
+
+    @property
+    def has_plan(self) -> bool:
+        return self.q_planned is not None
+
+    @property
+    def is_simulated(self) -> bool:
+        """Whether it holds the simulation's true state (q_true, v_true, qdd, qdd_end)."""
+        return self.q_true is not None
 
     @property
     def num_steps(self) -> int:
@@ -177,9 +211,27 @@ class Dataset:
         return len(self._trajectories)
 
     @property
+    def has_plan(self) -> bool:
+        """Whether its trajectories hold the plan they tracked (tracking data; a log with the plan)."""
+        return self._trajectories[0].has_plan
+
+    @property
+    def is_simulated(self) -> bool:
+        """Whether it holds the simulation's truth (not a log of a real robot)."""
+        return self.protocol in SIMULATED_PROTOCOLS
+
+    @property
+    def derivative_sources(self) -> tuple:
+        """The derivative sources its arrays give (see DERIVATIVE_SOURCES)."""
+        if self.is_simulated:
+            return ("true", "planned") if self.has_plan else ("true",)
+        return (("planned",) if self.has_plan else ()) + ("measured", "smoothed")
+
+    @property
     def default_derivative_source(self) -> str:
-        """Derivative targets the protocol calls for: true for simulation, planned for "real"."""
-        return "planned" if self.protocol == "tracking" else "true"
+        """Derivative targets the protocol calls for: the plan where there is one (the paper's real-robot
+        protocol), else the truth for simulation and the smoothed angles for a log."""
+        return "planned" if self.has_plan else "true" if self.is_simulated else "smoothed"
 
     def trajectory(self, index: int) -> Trajectory:
         """Trajectory `index` (see the module docstring for its arrays' names and shapes)."""
@@ -201,10 +253,11 @@ class Dataset:
             raise InputError(f"derivative source must be one of {DERIVATIVE_SOURCES}, got {source!r}")
         if action_rate not in ACTION_RATE_SCHEMES:
             raise InputError(f"action rate scheme must be one of {ACTION_RATE_SCHEMES}, got {action_rate!r}")
-        if source == "planned" and self.protocol != "tracking":
-            raise InputError(f"{self.path}: planned derivative targets exist only in tracking data, "
-                             f"this dataset's protocol is {self.protocol!r}")
-        if source == "planned" and action_rate == "zero_order_hold":
+        if source not in self.derivative_sources:
+            raise InputError(f"{self.path}: derivative source {source!r} is not in this {self.protocol} dataset "
+                             f"({'with' if self.has_plan else 'without'} a plan), which gives "
+                             f"{', '.join(self.derivative_sources)}")
+        if source != "true" and action_rate == "zero_order_hold":
             raise InputError("the zero_order_hold scheme needs true accelerations (derivative source 'true')")
         indices = np.arange(self.num_trajectories) if indices is None else np.asarray(indices, dtype=int)
         if indices.size and (indices.min() < 0 or indices.max() >= self.num_trajectories):
@@ -214,10 +267,7 @@ class Dataset:
         for index in indices:
             traj = self._trajectories[index]
             tau_all = np.vstack([traj.tau, traj.tau_next[None]])
-            if source == "true":
-                qd, qdd_after = traj.v_true, traj.qdd
-            else:
-                qd, qdd_after = traj.v_planned, traj.qdd_planned
+            qd, qdd_after = derivative_arrays(traj, source)
             if action_rate == "forward_difference":
                 rate = np.diff(tau_all, axis=0) / dt
                 target_qdd = qdd_after[1:]
@@ -235,6 +285,12 @@ class Dataset:
             raise InputError("no trajectories selected")
         stacked = {key: np.concatenate([part[key] for part in parts]) for key in parts[0]}
         return Transitions(sample_period=dt, **stacked)
+
+
+def derivative_arrays(traj: Trajectory, source: str) -> tuple:
+    """(q̇, q̈) of `traj` (each (T+1, n)) from derivative `source` (DERIVATIVE_SOURCES)."""
+    return {"true": (traj.v_true, traj.qdd), "planned": (traj.v_planned, traj.qdd_planned),
+            "measured": (traj.v, traj.qdd_measured), "smoothed": (traj.v_smoothed, traj.qdd_smoothed)}[source]
 
 
 def split_trajectories(groups, n_train: int, n_val: int, n_test: int | None, seed: int,
@@ -266,15 +322,17 @@ def split_trajectories(groups, n_train: int, n_val: int, n_test: int | None, see
     return Split(*(np.sort(np.concatenate(part)).astype(int) for part in (train, val, test)))
 
 
-def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
+def check_trajectory(name: str, traj: dict, protocol: str) -> None:
     """Shapes and finiteness of one trajectory's arrays; raises InputError naming the field."""
-    missing = [key for key in REQUIRED_ARRAYS + (PLANNED_ARRAYS if planned else ()) if key not in traj]
+    planned = protocol == "tracking" or (protocol == "logged" and any(key in traj for key in PLANNED_ARRAYS))
+    expected_arrays = required_arrays(protocol, planned)
+    missing = [key for key in expected_arrays if key not in traj]
     if missing:
         raise InputError(f"trajectory {name}: missing arrays {missing}")
-    unknown = sorted(set(traj) - set(REQUIRED_ARRAYS + PLANNED_ARRAYS))
+    unknown = sorted(set(traj) - set(expected_arrays))
     if unknown:
-        raise InputError(f"trajectory {name}: unknown arrays {unknown} (a dataset holds {', '.join(REQUIRED_ARRAYS)}"
-                         f" and, tracked, {', '.join(PLANNED_ARRAYS)})")
+        raise InputError(f"trajectory {name}: arrays {unknown} do not belong to {protocol} data (it holds "
+                         f"{', '.join(expected_arrays)})")
     num_steps = len(traj["q"]) - 1 if np.ndim(traj["q"]) == 2 else -1  # the samples are the reference
     if num_steps < 2:
         raise InputError(f"trajectory {name}: needs at least 2 steps (3 samples of q), has {num_steps}")
@@ -296,45 +354,6 @@ def _check_trajectory(name: str, traj: dict, planned: bool) -> None:
                              f"range (|{key}| <= {PLAUSIBLE_MAGNITUDE[key]:g}); not robot data")
 
 
-def write_dataset(path, trajectories: list[Trajectory], groups, metadata: dict) -> pathlib.Path:
-    """Validate and write a dataset atomically (temp file in the same folder, then rename).
-
-    trajectories: the Trajectory of each (arrays named as in the module docstring).
-    groups: (num_trajectories,) ints. metadata: JSON-serializable dict with at least
-    "protocol" and "sample_period" (s). On any error no file (and no temp file) is left.
-    """
-    path = pathlib.Path(path)
-    if metadata.get("protocol") not in PROTOCOLS:
-        raise InputError(f"metadata protocol must be one of {PROTOCOLS}, got {metadata.get('protocol')!r}")
-    sample_period = float(metadata.get("sample_period", 0.0))
-    if not (np.isfinite(sample_period) and sample_period > 0):
-        raise InputError(f"metadata sample_period must be a positive number of seconds, got {sample_period}")
-    groups = np.asarray(groups, dtype=int)
-    if groups.shape != (len(trajectories),):
-        raise InputError(f"groups has shape {groups.shape}, expected ({len(trajectories)},)")
-    if not trajectories:
-        raise InputError("a dataset needs at least one trajectory")
-    planned = metadata["protocol"] == "tracking"
-    arrays = [traj.arrays() for traj in trajectories]
-    for i, traj in enumerate(arrays):
-        _check_trajectory(f"{i:06d}", traj, planned)
-    metadata_json = json.dumps(metadata, sort_keys=True, default=json_default)
-    with atomic_path(path) as temp_name, h5py.File(temp_name, "w", libver=("earliest", "v110"), track_order=False) as f:
-        f.attrs["format"] = FORMAT
-        f.attrs["format_version"] = FORMAT_VERSION
-        f.attrs["protocol"] = metadata["protocol"]
-        f.attrs["sample_period"] = sample_period
-        f.attrs["num_trajectories"] = len(trajectories)
-        f.attrs["metadata_json"] = metadata_json
-        root = f.create_group("trajectories")
-        for i, traj in enumerate(arrays):
-            group = root.create_group(f"{i:06d}")
-            group.attrs["group"] = int(groups[i])
-            for key in sorted(traj):
-                group.create_dataset(key, data=np.asarray(traj[key], dtype=np.float64), track_times=False)
-    return path
-
-
 def file_sha256(path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as f:
@@ -353,8 +372,9 @@ def load_dataset(path) -> Dataset:
             if f.attrs.get("format") != FORMAT:
                 raise InputError(f"{path}: not a stdm-drake dataset (format attribute missing or wrong)")
             version = int(f.attrs.get("format_version", -1))
-            if version != FORMAT_VERSION:
-                raise InputError(f"{path}: dataset format version {version}, this stdm-drake reads {FORMAT_VERSION}")
+            if version not in READABLE_VERSIONS:
+                raise InputError(f"{path}: dataset format version {version}, this stdm-drake reads versions "
+                                 f"{', '.join(map(str, READABLE_VERSIONS))}")
             try:
                 metadata = json.loads(f.attrs["metadata_json"])
             except (KeyError, json.JSONDecodeError) as error:
@@ -362,8 +382,8 @@ def load_dataset(path) -> Dataset:
             for key in ("protocol", "sample_period"):
                 if key not in metadata:
                     raise InputError(f"{path}: metadata lacks required field {key!r}")
-            if metadata["protocol"] not in PROTOCOLS:
-                raise InputError(f"{path}: unknown protocol {metadata['protocol']!r}")
+            if metadata["protocol"] not in (PROTOCOLS if version >= 2 else SIMULATED_PROTOCOLS):
+                raise InputError(f"{path}: unknown protocol {metadata['protocol']!r} (format version {version})")
             period = float(f.attrs.get("sample_period", np.nan))
             if not (period > 0 and period == float(metadata["sample_period"])):
                 raise InputError(f"{path}: sample period {period} missing, non-positive or inconsistent with metadata")
@@ -373,12 +393,14 @@ def load_dataset(path) -> Dataset:
             declared = int(f.attrs.get("num_trajectories", -1))
             if declared != len(names) or not names:
                 raise InputError(f"{path}: header declares {declared} trajectories, file holds {len(names)}")
-            planned = metadata["protocol"] == "tracking"
             trajectories, groups = [], []
             for name in names:
                 group = f["trajectories"][name]
-                trajectories.append(Trajectory.from_arrays(name, {key: group[key][()] for key in group}, planned))
+                trajectories.append(Trajectory.from_arrays(name, {key: group[key][()] for key in group},
+                                                           metadata["protocol"]))
                 groups.append(int(group.attrs.get("group", 0)))
+            if len({trajectory.has_plan for trajectory in trajectories}) > 1:
+                raise InputError(f"{path}: some trajectories hold the plan and others do not")
     except InputError:
         raise
     except (OSError, KeyError, ValueError, RuntimeError) as error:

@@ -7,26 +7,31 @@ from stdm_drake.data.dataset import Dataset
 
 
 def tracking_errors(dataset: Dataset) -> dict:
-    """Mean squared tracking errors over all samples (tracking data only).
+    """Mean squared tracking errors over all samples (data with a plan).
 
     measured_*: learner's (measured, filtered) state minus the plan; true_*: the plant's state
-    minus the plan. Units rad^2 and (rad/s)^2.
+    minus the plan (simulated data only). Units rad^2 and (rad/s)^2.
     """
     stack = lambda key: np.concatenate([getattr(dataset.trajectory(i), key) for i in range(dataset.num_trajectories)])
     q_plan, v_plan = stack("q_planned"), stack("v_planned")
-    return dict(measured_q=float(np.mean((stack("q") - q_plan) ** 2)),
-                measured_v=float(np.mean((stack("v") - v_plan) ** 2)),
-                true_q=float(np.mean((stack("q_true") - q_plan) ** 2)),
-                true_v=float(np.mean((stack("v_true") - v_plan) ** 2)))
+    errors = dict(measured_q=float(np.mean((stack("q") - q_plan) ** 2)),
+                  measured_v=float(np.mean((stack("v") - v_plan) ** 2)))
+    if dataset.is_simulated:
+        errors.update(true_q=float(np.mean((stack("q_true") - q_plan) ** 2)),
+                      true_v=float(np.mean((stack("v_true") - v_plan) ** 2)))
+    return errors
 
 
-def noise_floor(dataset: Dataset, indices=None) -> dict:
+def noise_floor(dataset: Dataset, indices=None) -> dict | None:
     """The one-step error floor the sensor sets, q rad^2 and v (rad/s)^2: the MSE of an oracle that knows
     the plant's true change of state over each step but, like any model, starts from the recorded state:
     x̂_{t+1} = x_t + (x^true_{t+1} - x^true_t), whose error is the change of the measurement error
     e = x - x^true over the step. For white noise of std σ on v that is 2σ²; through a w-sample moving
     average 2σ²/w² (the new sample enters, the oldest leaves); 0 for an ideal sensor. No model's one-step
-    error on these data can be expected much below it. indices: the trajectories (default all)."""
+    error on these data can be expected much below it. indices: the trajectories (default all). None for a
+    real robot's log (no truth to measure it against)."""
+    if not dataset.is_simulated:
+        return None
     q_err, v_err = [], []
     for i in (range(dataset.num_trajectories) if indices is None else indices):
         traj = dataset.trajectory(int(i))
@@ -75,9 +80,12 @@ def summary(dataset: Dataset) -> str:
     if dataset.protocol == "tracking":
         lines.append(f"planner         {meta.section('planner').get('kind')}   controller "
                      f"{meta.section('controller').get('kind')}   sensor {meta.record.get('sensor')}")
-    effects = meta.plant_effects
-    lines.append("plant effects   " + ("none (the robot's description as it is)" if effects is None else
-                                     effects.summary()))
+    if dataset.is_simulated:
+        effects = meta.plant_effects
+        lines.append("plant effects   " + ("none (the robot's description as it is)" if effects is None else
+                                         effects.summary()))
+    else:
+        lines += import_lines(meta.section("import"))
     versions = meta.section("package_versions")
     lines.append("packages        " + ", ".join(f"{k} {v}" for k, v in sorted(versions.items())))
     labels = [name.removesuffix("_joint") for name in meta.joint_names or []]
@@ -86,16 +94,22 @@ def summary(dataset: Dataset) -> str:
     lines += ["", "ranges (min..max over all samples)", f"{'':14s}" + "".join(f"{label:>21s}" for label in labels)]
     unactuated = set(meta.section("robot").get("unactuated_joints", []))
     actuated = [j for j, name in enumerate(meta.joint_names or labels) if name not in unactuated]
-    for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), ("qdd", "rad/s^2")):
+    acceleration = "qdd" if dataset.is_simulated else "qdd_smoothed"
+    for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), (acceleration, "rad/s^2")):
         values = np.concatenate([getattr(dataset.trajectory(i), key) for i in range(dataset.num_trajectories)])
         columns = actuated if key == "tau" and len(actuated) == values.shape[1] else range(values.shape[1])
         ranges = {j: f"{f'{lo:.3g}..{hi:.3g}':>21s}" for j, lo, hi in zip(columns, values.min(0), values.max(0))}
         cells = "".join(ranges.get(j, f"{'(none)':>21s}") for j in range(len(labels)))   # 2 spaces at least
         lines.append(f"{key + ' ' + unit:14s}{cells}")
     floor = noise_floor(dataset)
-    lines += ["", "sensor noise floor (one-step MSE of a model that knows the true change of state, from the "
-              "recorded state)",
-              f"                q {floor['q']:.3e} rad^2   v {floor['v']:.3e} (rad/s)^2"]
+    if floor is not None:
+        lines += ["", "sensor noise floor (one-step MSE of a model that knows the true change of state, from the "
+                  "recorded state)",
+                  f"                q {floor['q']:.3e} rad^2   v {floor['v']:.3e} (rad/s)^2"]
+    if not dataset.is_simulated and dataset.has_plan:
+        errors = tracking_errors(dataset)
+        lines += ["", "tracking error of the log (MSE of the measured state against the logged plan)",
+                  f"measured        q {errors['measured_q']:.3e} rad^2   v {errors['measured_v']:.3e} (rad/s)^2"]
     if dataset.protocol == "tracking":
         errors = tracking_errors(dataset)
         lines += ["", "tracking error (MSE against the plan; paper's real UR-10: q 1.818e-5 rad^2, v 0.029 (rad/s)^2)",
@@ -107,3 +121,18 @@ def summary(dataset: Dataset) -> str:
                            ("peak_acceleration", "|qdd| peak"), ("peak_planned_acceleration", "plan |qdd| pk")):
             lines.append(f"{label:14s}" + "".join(f"{value:>17.3g}" for value in smooth[key]))
     return "\n".join(lines)
+
+
+def import_lines(record: dict) -> list[str]:
+    """What `stdm-drake import` recorded about a log (its metadata's "import" section) as summary lines."""
+    if not record:
+        return ["import          (not recorded)"]
+    resampling = record.get("resampling", {})
+    pieces = record.get("trajectories", {})
+    return [f"imported from   {record.get('format')} {record.get('source')}",
+            f"resampling      {resampling.get('method')}; estimated q error {resampling.get('estimated_q_error_rad')} "
+            f"rad; log period {resampling.get('log_period_s')} s, stamp jitter RMS {resampling.get('jitter_rms_s')} s",
+            f"pieces          {pieces.get('kept')} kept, {pieces.get('dropped_short')} too short dropped; split at "
+            f"{pieces.get('gaps')} gaps, {pieces.get('pauses')} pauses, {pieces.get('mode_changes')} mode changes, "
+            f"{pieces.get('cuts')} cuts",
+            f"torque          {record.get('torque_source')}; derivatives {record.get('derivatives')}"]

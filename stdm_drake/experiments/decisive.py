@@ -86,7 +86,7 @@ def collect_dataset(cell: Cell, data_seed: int, count: int, half: bool = False) 
     import tempfile
 
     from stdm_drake.collection.collect import collect, collection_request
-    from stdm_drake.data.dataset import write_dataset
+    from stdm_drake.data.writer import write_dataset
     from stdm_drake.paths import MODELS_DIR
     from stdm_drake.robots.robot import load_robot
     robot = load_robot(MODELS_DIR / "ur10_limit_free.yaml")

@@ -140,7 +140,8 @@ def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, p
     """Collect the dataset (`collection_request` with its defaults plus `settings`, e.g. controller=PATH)
     unless a file of that name collected with exactly these settings exists."""
     from stdm_drake.collection.collect import collect, collection_request
-    from stdm_drake.data.dataset import load_dataset, write_dataset
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.data.writer import write_dataset
     path = folder / f"{name or protocol}_n{count}_seed{seed}.h5"
     request = collection_request(protocol, count=count, seed=seed, **settings)
     dataset = _reusable_dataset(path, request)
@@ -166,7 +167,7 @@ def _evaluate(model, dataset, job: TrainJob) -> dict:
     euler = one_step_errors(ConstantVelocity(state_dim, action_dim, dataset.sample_period), test.state, test.action,
                             test.next_state)
     from stdm_drake.data.inspect import noise_floor
-    floor = noise_floor(dataset, job.test)
+    floor = noise_floor(dataset, job.test) or dict(q=float("nan"), v=float("nan"))   # (a log: no truth, no floor)
     result = dict(q_mse=errors.angle_mse, v_mse=errors.velocity_mse, euler_q_mse=euler.angle_mse,
                   unchanged_v_mse=euler.velocity_mse, noise_floor_q=floor["q"], noise_floor_v=floor["v"])
     if job.multistep:

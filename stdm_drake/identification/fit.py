@@ -94,6 +94,9 @@ def identification_data(regressor: InverseDynamicsRegressor, dataset, indices, s
         raise InputError(f"derivative source must be one of {DERIVATIVE_SOURCES}, got {source!r}")
     if not len(indices):
         raise InputError("no trajectories selected for identification")
+    if source == "true" and not dataset.is_simulated:
+        raise InputError(f"{dataset.path}: a real robot's log has no true accelerations; identify it with "
+                         "--derivatives smoothed")
     parts = []
     for index in indices:
         trajectory = dataset.trajectory(int(index))

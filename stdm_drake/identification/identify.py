@@ -132,7 +132,7 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
         nominal_error = relative_torque_error(test.predicted_torque(regressor, prior, scale), test.torque)[0]
         report["test"] = dict(torque_error=test_error, torque_error_per_joint=per_joint.tolist(),
                               least_squares_torque_error=ls_error, description_torque_error=nominal_error)
-        if source != "true":
+        if source != "true" and dataset.is_simulated:
             exact = identification_data(regressor, dataset, split.test, "true")
             report["test"]["torque_error_on_true_states"] = relative_torque_error(
                 exact.predicted_torque(regressor, parameters, scale), exact.torque)[0]

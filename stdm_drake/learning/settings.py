@@ -8,6 +8,7 @@ import typing
 import numpy as np
 import torch
 
+from stdm_drake.data.dataset import DERIVATIVE_SOURCES
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
@@ -116,7 +117,7 @@ class TrainSettings:
     `learning.structure`; losses: state_loss,
     derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
     trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
-    derivative_source ("true", "planned"; None: the dataset's), action_rate ("forward_difference",
+    derivative_source ("true", "planned", "measured", "smoothed"; None: the dataset's), action_rate ("forward_difference",
     "zero_order_hold"); optimization: epochs, patience, batch_size, lr, lr_schedule ("constant",
     "cosine"), min_lr, weight_decay; checkpoint_every (epochs); threads (torch CPU threads).
     """
@@ -169,7 +170,7 @@ class TrainSettings:
             self.inputs = "plant_step"
         choices = dict(model=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES), derivative=(None, "on", "off"), activation=ACTIVATION_NAMES,
                        state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
-                       derivative_source=(None, "true", "planned"),
+                       derivative_source=(None, *DERIVATIVE_SOURCES),
                        action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES,
                        predicts=(None, *PREDICTS), inputs=INPUT_SETS)
         for name, allowed in choices.items():

@@ -1,0 +1,138 @@
+"""Writing dataset files (the layout: `data.dataset`'s docstring): `DatasetWriter` one trajectory at a time,
+atomically; `write_dataset` for trajectories in memory; `package_versions`, what a file records of the software
+that wrote it."""
+import json
+import pathlib
+import sys
+
+import h5py
+import numpy as np
+
+from stdm_drake.data.dataset import FORMAT, FORMAT_VERSION, PLANNED_ARRAYS, PROTOCOLS, Trajectory, check_trajectory
+from stdm_drake.errors import InputError
+from stdm_drake.files import atomic_path, json_default
+
+
+def check_metadata(metadata: dict) -> float:
+    """A dataset's metadata before anything is written: a known protocol and a positive sample period (s),
+    which it returns."""
+    if metadata.get("protocol") not in PROTOCOLS:
+        raise InputError(f"metadata protocol must be one of {PROTOCOLS}, got {metadata.get('protocol')!r}")
+    try:
+        sample_period = float(metadata.get("sample_period", 0.0))
+    except (TypeError, ValueError):
+        sample_period = float("nan")
+    if not (np.isfinite(sample_period) and sample_period > 0):
+        raise InputError(f"metadata sample_period must be a positive number of seconds, got "
+                         f"{metadata.get('sample_period')!r}")
+    return sample_period
+
+
+class DatasetWriter:
+    """Writes a dataset one trajectory at a time (memory: one trajectory), atomically: into a temporary file
+    beside `path`, renamed onto it when the `with` block ends without an error (on any error no file and no
+    temporary file is left). The metadata (protocol and sample period first, checked at once) may gain
+    entries until the end (`metadata.update`): the header is written last.
+
+        with DatasetWriter(path, metadata) as writer:
+            writer.add(trajectory, group)
+    """
+
+    def __init__(self, path, metadata: dict):
+        self.path = pathlib.Path(path)
+        self.metadata = dict(metadata)
+        self.sample_period = check_metadata(self.metadata)
+        self.protocol = self.metadata["protocol"]
+        self.count = 0
+        self._planned = None   # whether the trajectories hold the plan (None: none written yet)
+        self._atomic = self._file = None
+
+    @property
+    def has_plan(self) -> bool:
+        """Whether the trajectories written so far hold the plan."""
+        return bool(self._planned)
+
+    def __enter__(self) -> "DatasetWriter":
+        self._atomic = atomic_path(self.path)
+        temp_name = self._atomic.__enter__()
+        try:
+            self._file = h5py.File(temp_name, "w", libver=("earliest", "v110"), track_order=False)
+            self._root = self._file.create_group("trajectories")
+        except BaseException:
+            self._atomic.__exit__(*sys.exc_info())
+            raise
+        return self
+
+    def add(self, trajectory: Trajectory, group: int = 0) -> None:
+        """Check and write the next trajectory (its index: the count so far)."""
+        arrays = trajectory.arrays()
+        name = f"{self.count:06d}"
+        check_trajectory(name, arrays, self.protocol)
+        planned = any(key in arrays for key in PLANNED_ARRAYS)
+        if self._planned is not None and planned != self._planned:
+            raise InputError(f"trajectory {name}: {'has' if planned else 'lacks'} the plan the others "
+                             f"{'lack' if planned else 'have'} (a dataset's trajectories all have it or none)")
+        self._planned = planned
+        entry = self._root.create_group(name)
+        entry.attrs["group"] = int(group)
+        for key in sorted(arrays):
+            entry.create_dataset(key, data=np.asarray(arrays[key], dtype=np.float64), track_times=False)
+        self.count += 1
+
+    def __exit__(self, kind, error, trace):
+        try:
+            try:
+                if error is None:
+                    self._write_header()
+            finally:
+                self._file.close()
+        except BaseException:
+            self._atomic.__exit__(*sys.exc_info())
+            raise
+        return self._atomic.__exit__(kind, error, trace)
+
+    def _write_header(self) -> None:
+        if not self.count:
+            raise InputError("a dataset needs at least one trajectory")
+        attrs = self._file.attrs
+        attrs["format"] = FORMAT
+        attrs["format_version"] = FORMAT_VERSION
+        attrs["protocol"] = self.protocol
+        attrs["sample_period"] = self.sample_period
+        attrs["num_trajectories"] = self.count
+        attrs["metadata_json"] = json.dumps(self.metadata, sort_keys=True, default=json_default)
+
+
+def write_dataset(path, trajectories: list[Trajectory], groups, metadata: dict) -> pathlib.Path:
+    """Validate and write a dataset atomically (`DatasetWriter`; every trajectory checked before the file
+    is opened).
+
+    trajectories: the Trajectory of each (arrays named as in the module docstring).
+    groups: (num_trajectories,) ints. metadata: JSON-serializable dict with at least
+    "protocol" and "sample_period" (s). On any error no file (and no temp file) is left.
+    """
+    check_metadata(metadata)
+    groups = np.asarray(groups, dtype=int)
+    if groups.shape != (len(trajectories),):
+        raise InputError(f"groups has shape {groups.shape}, expected ({len(trajectories)},)")
+    if not trajectories:
+        raise InputError("a dataset needs at least one trajectory")
+    for i, traj in enumerate(trajectories):
+        check_trajectory(f"{i:06d}", traj.arrays(), metadata["protocol"])
+    with DatasetWriter(path, metadata) as writer:
+        for traj, group in zip(trajectories, groups):
+            writer.add(traj, int(group))
+    return pathlib.Path(path)
+
+
+def package_versions(*extra: str) -> dict:
+    """The versions of the packages that shape a dataset (and of `extra` ones), as its metadata records them."""
+    from importlib import metadata
+    versions = {}
+    for name in ("stdm-drake", "drake", "numpy", "h5py", "ruckig", "toppra", *extra):
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    versions["python"] = ".".join(map(str, sys.version_info[:3]))
+    return versions
