@@ -237,3 +237,17 @@ def test_collect_exports_its_plans_as_csv_and_a_ros2_bag_of_joint_trajectories(t
     assert main(["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet",
                  "-o", str(tmp_path / "e.h5"), "--export-plans", str(tmp_path / "new")]) == 2
     assert "only with --protocol tracking" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_a_model_trained_on_the_import_is_as_accurate_as_one_trained_on_the_original(tmp_path):
+    """tools/import_round_trip.py's quick profile: D trained on a simulated dataset and on its RTDE log's import
+    (the same split), both evaluated on the original's test plans; the ratio import / original paired by seed
+    (the full experiment's numbers: docs/real_logs.md)."""
+    from tools_import import import_round_trip
+    assert import_round_trip.main(["--quick", "--data", str(tmp_path / "data"), "-o", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "round_trip.json").read_text())
+    one_step = result["import_over_original"]["one_step_q"]
+    assert one_step["pairs"] == 2 and 0.8 <= one_step["ratio"] <= 1.25
+    assert result["trajectories"]["kept"] == 8 and result["errors"]["test_plans"]
+    assert {"Euler step", "stays put", "plant", "original seed 1", "import seed 1"} <= set(result["errors"])
