@@ -105,6 +105,8 @@ def write_logs(box) -> None:
     simulated.write_ros2_bag(data, box / "bag_four", joints[:4], storage="sqlite3", controller_state=False)
     (box / "map_bad.yaml").write_text("torque_source: current\ntorque_constants: [13, 13]\n")
     (box / "map_key.yaml").write_text("torque_sorce: current\n")
+    (box / "map_short.yaml").write_text("max_duration: 0.05\nmin_duration: 0.01\npause_duration: 0.02\n")
+    (box / "map_pause.yaml").write_text("pause_duration: 20\n")
 
 
 def edited_copy(box, name: str, key: str, edit) -> None:
@@ -127,6 +129,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "TRUNCPT": "truncated.pt", "HUGE": "huge.h5", "SLOW": "slow.h5", "NEW": "new_output",
                 "STRINGS": "strings.h5", "SHORTTAU": "short_tau.h5", "ZEROSTD": "zero_std.pt",
                 "LOG": "log.csv", "BAG": "bag", "MAPBAD": "map_bad.yaml", "MAPKEY": "map_key.yaml",
+                "MAPSHORT": "map_short.yaml", "MAPPAUSE": "map_pause.yaml",
                 **{f"LOG{kind.upper()}": f"log_{kind}.csv" for kind in ("nots", "missing", "back", "dup", "nan", "text",
                                                                         "cut", "head", "deg", "seven")},
                 "BAGCUT": "bag_cut", "BAGFOUR": "bag_four"}
@@ -172,6 +175,9 @@ CASES = [
     ([*E, "--export-plans", "NEW", "-o", "NEW.h5"], "only with --protocol tracking"),
     ([*C, "--export-plans", "FOREIGN", "-o", "NEW.h5"], "not empty"),
     ([*C, "--export-plans", "NOTES", "-o", "NEW.h5"], "not a folder"),
+    ([*C, "--export-plans", "NEW", "-o", "NEW/x.h5"], "inside --export-plans"),
+    ([*I, "LOG", "--mapping", "MAPSHORT", "-o", "NEW.h5"], "must be at least 10 sample periods"),
+    ([*I, "LOG", "--mapping", "MAPPAUSE", "-o", "NEW.h5"], "pause_duration"),
     # --- the command line itself
     ([], "usage"), (["frobnicate"], "invalid choice"), (["collect"], "required: --output"),
     (["train"], "required"), (["evaluate", "CK"], "required"), (["view"], "required"), (["mpc"], "required"),

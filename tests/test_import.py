@@ -251,3 +251,43 @@ def test_a_model_trained_on_the_import_is_as_accurate_as_one_trained_on_the_orig
     assert one_step["pairs"] == 2 and 0.8 <= one_step["ratio"] <= 1.25
     assert result["trajectories"]["kept"] == 8 and result["errors"]["test_plans"]
     assert {"Euler step", "stays put", "plant", "original seed 1", "import seed 1"} <= set(result["errors"])
+
+
+def test_a_bag_of_urs_driver_currents_and_a_reference_without_accelerations(simulated_500hz, tmp_path):
+    """UR's ROS 2 driver reports motor currents as effort, and its scaled trajectory controller's reference has
+    no accelerations: --torque-source current gives the torques, the planned accelerations are the reference
+    velocities' derivative; controller_state_topic none leaves the plan out."""
+    original = load_dataset(simulated_500hz)
+    bag = simulated.write_ros2_bag(original, tmp_path / "ur_bag", UR10.joint_names, effort_as_current=True,
+                                   reference_accelerations=False)
+    constants = [str(value) for value in simulated.TORQUE_CONSTANTS]
+    data = load_dataset(imported(bag, tmp_path / "ur.h5", "--torque-source", "current", "--torque-constants", *constants))
+    reference = load_dataset(imported(simulated.write_ros2_bag(original, tmp_path / "plain_bag", UR10.joint_names),
+                                      tmp_path / "plain.h5"))
+    assert np.allclose(data.trajectory(0).tau, reference.trajectory(0).tau, rtol=1e-12, atol=1e-9)
+    planned, derived = reference.trajectory(1).qdd_planned, data.trajectory(1).qdd_planned
+    assert np.sqrt(np.mean((derived - planned) ** 2)) < 0.05 * np.sqrt(np.mean(planned ** 2))
+    (tmp_path / "no_plan.yaml").write_text("controller_state_topic: none\n")
+    assert not load_dataset(imported(bag, tmp_path / "no_plan.h5", "--mapping", str(tmp_path / "no_plan.yaml"),
+                                     "--torque-source", "current", "--torque-constants", *constants)).has_plan
+
+
+def test_blank_lines_are_skipped_and_errors_name_the_right_line(logs, tmp_path, capsys):
+    lines = logs["rtde_space"][0].read_text().splitlines(keepends=True)
+    spaced = lines[:10] + ["\n", "   \n"] + lines[10:] + ["\n"]
+    (tmp_path / "spaced.csv").write_text("".join(spaced))
+    assert load_dataset(imported(tmp_path / "spaced.csv", tmp_path / "spaced.h5")).num_trajectories == 4
+    cells = spaced[40].split()
+    cells[5] = "nan"
+    spaced[40] = " ".join(cells) + "\n"
+    (tmp_path / "bad.csv").write_text("".join(spaced))
+    capsys.readouterr()
+    assert main(["import", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "bad.h5")]) == 2
+    assert "line 41 holds NaN" in capsys.readouterr().err and not (tmp_path / "bad.h5").exists()
+
+
+def test_a_hole_longer_than_the_longest_piece_ends_it_whatever_the_gap_factor():
+    moving = np.full((200, 2), 0.5)
+    t = np.arange(200) * 0.01 + np.where(np.arange(200) >= 100, 5.0, 0.0)
+    found, counts = pieces_of([rows_of(t, moving)], gap_factor=1000.0, max_duration=2.0)
+    assert [len(piece) for piece in found] == [100, 100] and counts.gaps == 1 and counts.cuts == 0

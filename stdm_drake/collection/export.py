@@ -34,17 +34,33 @@ def plan_table(trajectory, sample_period: float) -> np.ndarray:
 
 
 def export_plans(folder, trajectories: list, metadata: dict, robot) -> list[pathlib.Path]:
-    """Write the plans of `trajectories` (tracking data) into `folder` (new or empty): plan_NNNN.csv, plans.bag/
-    (a rosbag2 bag, sqlite3) and plans.json. Returns the files written."""
+    """Write the plans of `trajectories` (tracking data) into `folder` (new or empty): plan_NNNN.csv,
+    plans_rosbag2/ (a rosbag2 bag, sqlite3) and plans.json, all first into a temporary folder beside it that is
+    renamed onto it at the end (on an error nothing is left). Returns the files written."""
+    import shutil
+    import tempfile
+    folder = check_export_folder(folder)
+    folder.parent.mkdir(parents=True, exist_ok=True)
+    temporary = pathlib.Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
+    try:
+        written = _write_plans(temporary, trajectories, metadata, robot)
+        if folder.exists():
+            folder.rmdir()      # (checked empty)
+        temporary.rename(folder)
+    finally:
+        if temporary.exists():
+            shutil.rmtree(temporary)
+    return [folder / path.relative_to(temporary) for path in written]
+
+
+def _write_plans(folder: pathlib.Path, trajectories: list, metadata: dict, robot) -> list[pathlib.Path]:
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
     from stdm_drake.robots.plant import robot_joint_limits
-    folder = check_export_folder(folder)
     if not trajectories or trajectories[0].q_planned is None:
         raise InputError("--export-plans needs tracking data (plans)")
     sample_period = float(metadata["sample_period"])
     names = list(robot.joint_names)
-    folder.mkdir(parents=True, exist_ok=True)
     header = ",".join(["t"] + [f"{kind}_{name}" for kind in ("q", "qd", "qdd") for name in names])
     written = []
     for index, trajectory in enumerate(trajectories):

@@ -77,6 +77,9 @@ def run(args: argparse.Namespace) -> int:
         if request.protocol != "tracking":
             raise InputError("--export-plans: plans exist only with --protocol tracking")
         check_export_folder(args.export_plans)
+        if pathlib.Path(args.output).absolute().is_relative_to(pathlib.Path(args.export_plans).absolute()):
+            raise InputError(f"-o/--output {args.output} is inside --export-plans {args.export_plans}; write the "
+                             "dataset elsewhere")
     recorder = None
     if args.meshcat or args.html:
         from stdm_drake.robots.recorder import TrajectoryRecorder

@@ -80,16 +80,21 @@ class DatasetWriter:
         self.count += 1
 
     def __exit__(self, kind, error, trace):
+        if error is not None:   # the block's error is the one to report: the file is closed and removed
+            try:
+                self._file.close()
+            except Exception:
+                pass
+            return self._atomic.__exit__(kind, error, trace)
         try:
             try:
-                if error is None:
-                    self._write_header()
+                self._write_header()
             finally:
                 self._file.close()
         except BaseException:
             self._atomic.__exit__(*sys.exc_info())
             raise
-        return self._atomic.__exit__(kind, error, trace)
+        return self._atomic.__exit__(None, None, None)
 
     def _write_header(self) -> None:
         if not self.count:

@@ -88,7 +88,7 @@ class Pieces:
                 self.last = (self.last[0], self.last[1], True)
             return self._take_closed()
         previous_t = np.concatenate([[np.nan if self.last is None else self.last[0]], kept.t[:-1]])
-        gap = (kept.t - previous_t) > self.mapping.gap_factor * self.h
+        gap = (kept.t - previous_t) > min(self.mapping.gap_factor * self.h, self.mapping.max_duration)
         mode_change = skipped_before.copy()
         if kept.mode is not None:
             previous_mode = np.concatenate([[kept.mode[0] if self.last is None else self.last[1]], kept.mode[:-1]])
@@ -131,16 +131,20 @@ class Pieces:
         if run.t[-1] - self.rest_since >= self.mapping.pause_duration:   # a pause: what came before it is a piece
             self._emit(self._before(self.rest_since))
             self.parts, self.in_pause = [], True
+            self.counts.pauses += 1
 
     def _move(self, run: Rows) -> None:
-        if self.in_pause:
-            self.counts.pauses += 1
-            self.in_pause = False
+        self.in_pause = False
         self.rest_since = None
         self.parts.append(run)
+        self._cut()
+
+    def _cut(self) -> None:
+        """Pieces of max_duration off the open piece's front while it is longer (the next starts at the last row
+        of the one cut off)."""
         while self.parts and self.parts[-1].t[-1] - self.parts[0].t[0] > self.mapping.max_duration:
             rows = Rows.concatenate(self.parts)
-            end = int(np.searchsorted(rows.t, rows.t[0] + self.mapping.max_duration, side="right"))
+            end = max(int(np.searchsorted(rows.t, rows.t[0] + self.mapping.max_duration, side="right")), 2)
             self._emit(rows.take(slice(0, end)))
             self.parts = [rows.take(slice(end - 1, None))]
             self.counts.cuts += 1
@@ -154,7 +158,10 @@ class Pieces:
             rows = Rows.concatenate(self.parts)
             if self.rest_since is not None and rows.t[-1] - self.rest_since >= self.mapping.pause_duration:
                 rows = self._before(self.rest_since)
-            self._emit(rows)
+            self.parts = [rows] if rows is not None and len(rows) else []
+            self._cut()
+            if self.parts:
+                self._emit(Rows.concatenate(self.parts))
         self.parts, self.rest_since, self.in_pause = [], None, False
 
     def _emit(self, rows) -> None:
@@ -181,7 +188,7 @@ def sample_period_of(block: Rows, given: float) -> tuple[float, float]:
     return period, (given or period)
 
 
-def check_stamps(block: Rows, previous: float | None, source) -> None:
+def check_stamps(block: Rows, previous: float | None, source: str, place: str) -> None:
     """InputError naming the row where a stamp repeats or goes back."""
     t = block.t if previous is None else np.concatenate([[previous], block.t])
     steps = np.diff(t)
@@ -190,21 +197,17 @@ def check_stamps(block: Rows, previous: float | None, source) -> None:
         row = bad[0] if previous is None else bad[0] - 1
         where = block.where[row + 1] if previous is None else block.where[max(row + 1, 0)]
         kind = "repeats" if steps[bad[0]] == 0 else "goes back in time"
-        raise InputError(f"{source}: the timestamp at {_place(source)} {where} {kind} ({t[bad[0] + 1]!r} after "
+        raise InputError(f"{source}: the timestamp at {place} {where} {kind} ({t[bad[0] + 1]!r} after "
                          f"{t[bad[0]]!r}); a log's stamps must increase")
-
-
-def _place(source) -> str:
-    return "message" if "bag" in str(source) else "line"
 
 
 class LimitCheck:
     """The robot's limits against a resampled trajectory (units: a log in degrees or mN m fails here), and the
     logged velocities against the angles' own rate of change over the whole log."""
 
-    def __init__(self, robot, source):
+    def __init__(self, robot, source: str, place: str):
         from stdm_drake.robots.plant import robot_joint_limits
-        self.robot, self.source = robot, source
+        self.robot, self.source, self.place = robot, source, place
         self.limits = robot_joint_limits(robot)
         self.sums = np.zeros(3)   # sums of squares of the logged q̇ and the angles' rate, and their count
 
@@ -222,7 +225,7 @@ class LimitCheck:
                 hint = {"angle": "degrees instead of radians, or another robot's log?",
                         "velocity": "degrees per second?", "torque": "another unit, or wrong torque constants?"}[what]
                 raise InputError(f"{self.source}: {names[joint]}'s {what} is {values[step, joint]:.4g} {unit} in the piece "
-                                 f"starting at {_place(self.source)} {start_where}, beyond robot {self.robot.name}'s limits "
+                                 f"starting at {self.place} {start_where}, beyond robot {self.robot.name}'s limits "
                                  f"({low[joint]:.4g}..{high[joint]:.4g}); {hint}")
 
     def rows(self, piece: Rows) -> None:
@@ -250,6 +253,7 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
     robot.check_fully_actuated("importing a log")
     mapping = mapping.with_format(detect_format(path, mapping.format))
     source = f"{'ROS 2 bag' if mapping.format == 'ros2_bag' else 'RTDE log'} {path}"
+    place = "joint-state message" if mapping.format == "ros2_bag" else "line"
     blocks = iter(log_rows(path, robot, mapping))
     first = next(blocks, None)
     if first is None or len(first) < 3:
@@ -258,9 +262,13 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
     if sample_period < period * (1 - 1e-6):
         raise InputError(f"sample period {sample_period:g} s is shorter than the log's row period {period:g} s: "
                          "resampling would invent samples")
+    if mapping.max_duration < 10 * sample_period or mapping.max_duration <= mapping.gap_factor * period:
+        raise InputError(f"max_duration {mapping.max_duration:g} s must be at least 10 sample periods "
+                         f"({10 * sample_period:g} s) and longer than a gap (gap_factor x the log's period, "
+                         f"{mapping.gap_factor * period:g} s)")
     counts = Counts()
     pieces = Pieces(mapping, period, counts)
-    checks = LimitCheck(robot, source)
+    checks = LimitCheck(robot, source, place)
     sums = dict(loo=0.0, loo_count=0, jitter=0.0, jitter_count=0, longest=0.0)
     starts, spans = [], []
     metadata = dict(protocol="logged", sample_period=sample_period, seed=None, joint_names=list(robot.joint_names),
@@ -270,7 +278,9 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
     previous = None
     with DatasetWriter(output, metadata) as writer:
         for block in _chain(first, blocks):
-            check_stamps(block, previous, source)
+            if not len(block):
+                continue
+            check_stamps(block, previous, source, place)
             previous = float(block.t[-1])
             for piece in pieces.feed(block):
                 _write_piece(piece, writer, checks, mapping, period, sample_period, counts, sums, starts, spans)

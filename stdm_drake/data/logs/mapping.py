@@ -2,12 +2,13 @@
 its fields overridden by the command's options.
 
     format: rtde_csv                 # or ros2_bag; "" (default): from the file
-    torque_source: current           # RTDE: target_moment (default) or current; bags: effort
+    torque_source: current           # RTDE: target_moment (default) or current (actual_current); bags: effort
+                                     # (default) or current (effort in A, as UR's ROS 2 driver reports it)
     torque_constants: [13.3, 13.3, 13.3, 9.3, 9.3, 9.3]   # N m / A per joint, with torque_source current
     joint_names: [shoulder_pan_joint, ...]   # bags: the log's name of each of the robot's arm joints, in
                                              # the robot's order ([]: the robot's own names)
     joint_states_topic: /joint_states
-    controller_state_topic: ""       # "": the bag's JointTrajectoryControllerState topic, if it has one
+    controller_state_topic: ""       # "": the bag's JointTrajectoryControllerState topic, if any; none: no plan
     sample_period: 0.0               # s; 0: the log's median period
     gap_factor: 3.0                  # a trajectory ends where no row comes for gap_factor x the log's period
     pause_velocity: 0.01             # rad/s: every joint slower than this ...
@@ -22,7 +23,9 @@ import typing
 from stdm_drake.errors import InputError
 
 FORMATS = ("rtde_csv", "ros2_bag")
-TORQUE_SOURCES = {"rtde_csv": ("target_moment", "current"), "ros2_bag": ("effort",)}
+# per format, its torque sources (the first the default); "current": the logged currents (RTDE actual_current,
+# a bag's effort where the driver reports currents there, as UR's ROS 2 driver does) times torque_constants
+TORQUE_SOURCES = {"rtde_csv": ("target_moment", "current"), "ros2_bag": ("effort", "current")}
 
 
 @dataclasses.dataclass
@@ -64,6 +67,9 @@ class LogMapping:
             if not (low <= value <= high) or (name in ("gap_factor", "max_duration") and value == low):
                 raise InputError(f"{name} must be in {'(' if name in ('gap_factor', 'max_duration') else '['}{low:g}, "
                                  f"{high:g}], got {value!r}")
+        if self.pause_duration >= self.max_duration:
+            raise InputError(f"pause_duration ({self.pause_duration:g} s) must be below max_duration "
+                             f"({self.max_duration:g} s)")
         if self.min_duration >= self.max_duration:
             raise InputError(f"min_duration ({self.min_duration:g} s) must be below max_duration "
                              f"({self.max_duration:g} s)")

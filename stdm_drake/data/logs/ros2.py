@@ -1,11 +1,14 @@
 """ROS 2 bags (sqlite3 or MCAP storage; a bag folder with metadata.yaml, or one .db3 / .mcap file) read with
 `rosbags` (pure Python, no ROS installation): `sensor_msgs/msg/JointState` on the mapping's joint-states topic
 (stamp: header.stamp; position rad, velocity rad/s, effort N m, matched to the robot's arm joints by name, other
-joints ignored) and, when the bag has it, the plan from `control_msgs/msg/JointTrajectoryControllerState` (the
-`reference` point, or `desired` from controllers before it existed) interpolated to each joint state's stamp.
-Message definitions come from the bag where it carries them (rosbag2 since Iron, MCAP), else from ROS 2
-Humble's (control_msgs: `CONTROLLER_STATE_DEFINITION`, its 4.x layout). Joint states stream in blocks; the
-controller state (published at the controller's rate) is read first, whole."""
+joints ignored; effort is a torque, or with torque_source current a motor current times the mapping's torque
+constants: UR's ROS 2 driver reports currents there) and, when the bag has it, the plan from
+`control_msgs/msg/JointTrajectoryControllerState` (the `reference` point, or `desired` from controllers before it
+existed; its accelerations, which a controller without an acceleration interface leaves empty, else the
+derivative of its velocities) interpolated to each joint state's stamp. Message definitions come from the bag
+where it carries them (rosbag2 since Iron, MCAP), else from ROS 2 Humble's (control_msgs:
+`CONTROLLER_STATE_DEFINITION`, its 4.x layout). Joint states stream in blocks; the controller state (published at
+the controller's rate) is read first, whole. controller_state_topic "none": the plan is not read."""
 import pathlib
 
 import numpy as np
@@ -36,11 +39,13 @@ trajectory_msgs/MultiDOFJointTrajectoryPoint multi_dof_actual
 """
 
 
-def typestore():
-    """ROS 2 Humble's message types with control_msgs' controller state added."""
+def typestore(connection=None):
+    """ROS 2 Humble's message types with a connection's own definition registered where the bag carries one, and
+    control_msgs' controller state (4.x) where it does not."""
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     store = get_typestore(Stores.ROS2_HUMBLE)
-    store.register(get_types_from_msg(CONTROLLER_STATE_DEFINITION, CONTROLLER_STATE))
+    if connection is None or not _register_own(connection, store):
+        store.register(get_types_from_msg(CONTROLLER_STATE_DEFINITION, CONTROLLER_STATE))
     return store
 
 
@@ -83,22 +88,25 @@ def _topic(reader, path, topic: str, msgtype: str, required: bool):
     return found[0]
 
 
-def _store_for(connection, base):
-    """`base` with the connection's own message definition registered when the bag carries one."""
+def _register_own(connection, store) -> bool:
+    """Register in `store` the message definition the bag carries for `connection` (its type and the types it
+    uses that Humble lacks); False when it carries none, or one rosbags cannot read or that contradicts Humble's
+    own types (then Humble's stay)."""
     from rosbags.interfaces import MessageDefinitionFormat
     from rosbags.typesys import get_types_from_idl, get_types_from_msg
     definition = connection.msgdef
     if definition is None or definition.format == MessageDefinitionFormat.NONE or not definition.data:
-        return base
+        return False
     try:
         if definition.format == MessageDefinitionFormat.MSG:
             types = get_types_from_msg(definition.data, connection.msgtype)
         else:
             types = get_types_from_idl(definition.data)
-        base.register(types)
-    except Exception:   # a definition rosbags cannot parse, or one that conflicts with Humble's: keep Humble's
-        pass
-    return base
+        store.register({name: fields for name, fields in types.items() if name not in store.types or
+                        name == connection.msgtype})
+    except Exception:   # rosbags' parse and registration errors: the definition is not usable
+        return False
+    return connection.msgtype in store.types
 
 
 def _messages(reader, path, connection, store):
@@ -146,23 +154,37 @@ def _columns(names, wanted: list, path, what: str, index: int, cache: dict) -> n
 def controller_plan(reader, path, connection, store, wanted: list, origin: int):
     """(stamps (K,) s from `origin`, q_d, v_d, a_d (K, n)) of the controller-state messages, or None without them."""
     stamps, q, v, a, cache = [], [], [], [], {}
+    with_accelerations = None
     for index, message in _messages(reader, path, connection, store):
-        point = message.reference if len(message.reference.positions) else message.desired
+        point = getattr(message, "reference", None)
+        if point is None or not len(point.positions):
+            point = getattr(message, "desired", None)
+        joints = len(message.joint_names)
+        if point is None or not (len(point.positions) == len(point.velocities) == joints):
+            raise InputError(f"ROS 2 bag {path}: controller-state message {index} has no reference (positions and "
+                             "velocities of every joint)")
+        has = len(point.accelerations) == joints
+        if with_accelerations is not None and has != with_accelerations:
+            raise InputError(f"ROS 2 bag {path}: controller-state message {index} {'has' if has else 'lacks'} the "
+                             "reference accelerations the messages before it "
+                             f"{'lack' if has else 'have'}")
+        with_accelerations = has
         columns = _columns(message.joint_names, wanted, path, "controller-state", index, cache)
-        if not (len(point.positions) == len(point.velocities) == len(point.accelerations) == len(message.joint_names)):
-            raise InputError(f"ROS 2 bag {path}: controller-state message {index} has no complete reference "
-                             "(positions, velocities and accelerations of every joint)")
         stamps.append(_stamp(message, origin))
         q.append(np.asarray(point.positions)[columns])
         v.append(np.asarray(point.velocities)[columns])
-        a.append(np.asarray(point.accelerations)[columns])
+        if has:
+            a.append(np.asarray(point.accelerations)[columns])
     if not stamps:
         return None
     stamps = np.asarray(stamps)
     if np.any(np.diff(stamps) <= 0):
         bad = int(np.flatnonzero(np.diff(stamps) <= 0)[0]) + 2
         raise InputError(f"ROS 2 bag {path}: controller-state message {bad}'s stamp does not increase")
-    return stamps, np.asarray(q), np.asarray(v), np.asarray(a)
+    v = np.asarray(v)
+    if not with_accelerations:   # (a controller without an acceleration interface: the velocities' derivative)
+        a = np.gradient(v, stamps, axis=0) if len(stamps) > 1 else np.zeros_like(v)
+    return stamps, np.asarray(q), v, np.asarray(a)
 
 
 def rows(path, robot, mapping, block_messages: int = BLOCK_MESSAGES):
@@ -174,15 +196,23 @@ def rows(path, robot, mapping, block_messages: int = BLOCK_MESSAGES):
         raise InputError(f"joint_names names {len(wanted)} joints, robot {robot.name} has {robot.num_joints}")
     reader = open_bag(path)
     try:
-        store = typestore()
         states = _topic(reader, path, mapping.joint_states_topic, JOINT_STATE, required=True)
-        control = _topic(reader, path, mapping.controller_state_topic, CONTROLLER_STATE, required=False)
-        store = _store_for(states, store)
+        control = None if mapping.controller_state_topic == "none" else \
+            _topic(reader, path, mapping.controller_state_topic, CONTROLLER_STATE, required=False)
+        store = typestore(states)
         origin = first_stamp_second(reader, path, states, store)
         plan = None
         if control is not None:
-            plan = controller_plan(reader, path, control, _store_for(control, store), wanted, origin)
-        yield from _joint_state_blocks(reader, path, states, store, wanted, plan, block_messages, origin)
+            plan = controller_plan(reader, path, control, typestore(control), wanted, origin)
+        constants = None
+        if mapping.torque_source == "current":
+            constants = np.asarray(mapping.torque_constants, dtype=float)
+            if constants.shape != (len(wanted),):
+                raise InputError(f"torque_constants has {len(constants)} values, the robot has {len(wanted)} joints")
+        for block in _joint_state_blocks(reader, path, states, store, wanted, plan, block_messages, origin):
+            if constants is not None:
+                block.tau = block.tau * constants
+            yield block
     finally:
         reader.close()
 

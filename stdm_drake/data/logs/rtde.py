@@ -4,8 +4,9 @@ delimited (the RTDE client library's recorder) or comma delimited (ur_rtde's fil
 target_moment_i (N m) or actual_current_i (A) times the mapping's torque constants; the plan from
 target_q_i, target_qd_i, target_qdd_i when all three are there (the paper's real-robot protocol); the modes
 from robot_mode, safety_mode and runtime_state when there (a row runs normally in robot mode 7 RUNNING, safety
-mode 1 NORMAL, runtime state 2 PLAYING). Other fields are ignored. Read in blocks of lines (`rows`): memory
-does not grow with the file."""
+mode 1 NORMAL or 2 REDUCED, runtime state 2 PLAYING). Other fields are ignored; blank lines are skipped, and every
+other line must hold as many fields as the header. Read in blocks of lines (`rows`): memory does not grow with
+the file."""
 import itertools
 import pathlib
 
@@ -14,7 +15,8 @@ import numpy as np
 from stdm_drake.data.logs.rows import Rows
 from stdm_drake.errors import InputError
 
-MODE_FIELDS = {"robot_mode": 7, "safety_mode": 1, "runtime_state": 2}   # field -> its value when running normally
+# field -> its values while the robot runs normally (a change of any of them starts a new trajectory)
+MODE_FIELDS = {"robot_mode": (7,), "safety_mode": (1, 2), "runtime_state": (2,)}
 BLOCK_ROWS = 65536
 
 
@@ -99,7 +101,6 @@ def rows(path, joints: int, mapping, block_rows: int = BLOCK_ROWS):
         constants = np.asarray(mapping.torque_constants, dtype=float)
         if constants.shape != (joints,):
             raise InputError(f"torque_constants has {len(constants)} values, the robot has {joints} joints")
-    running_values = np.asarray([MODE_FIELDS[field] for field in mode_fields], dtype=float)
     with open(path, encoding="utf-8", errors="replace") as file:
         file.readline()
         line = 2
@@ -107,39 +108,55 @@ def rows(path, joints: int, mapping, block_rows: int = BLOCK_ROWS):
             lines = list(itertools.islice(file, block_rows))
             if not lines:
                 break
-            values = _parse(lines, delimiter, order, path, line, len(names))
+            numbers = np.arange(line, line + len(lines))
+            line += len(lines)
+            filled = [index for index, text in enumerate(lines) if text.strip()]
+            if len(filled) < len(lines):      # blank lines: skipped, the others keep their line numbers
+                lines, numbers = [lines[index] for index in filled], numbers[filled]
+            if not lines:
+                continue
+            _check_field_counts(lines, delimiter, len(names), path, numbers)
+            values = _parse(lines, delimiter, order, path, numbers)
             if not np.all(np.isfinite(values)):
                 bad = int(np.flatnonzero(~np.all(np.isfinite(values), axis=1))[0])
-                raise InputError(f"RTDE log {path}: line {line + bad} holds NaN or inf")
+                raise InputError(f"RTDE log {path}: line {numbers[bad]} holds NaN or inf")
             block = {key: values[:, span] for key, span in spans.items()}
             tau = block["tau"] * constants if constants is not None else block["tau"]
             mode = running = None
             if "modes" in block:
                 codes = block["modes"]
                 mode = (codes * (1000 ** np.arange(codes.shape[1]))).sum(axis=1).astype(np.int64)
-                running = np.all(codes == running_values, axis=1)
-            yield Rows(t=block["t"][:, 0], q=block["q"], v=block["v"], tau=tau,
-                       where=np.arange(line, line + len(lines)), q_planned=block.get("q_planned"),
-                       v_planned=block.get("v_planned"), qdd_planned=block.get("qdd_planned"), mode=mode,
-                       running=running)
-            line += len(lines)
+                running = np.all([np.isin(codes[:, column], MODE_FIELDS[field])
+                                  for column, field in enumerate(mode_fields)], axis=0)
+            yield Rows(t=block["t"][:, 0], q=block["q"], v=block["v"], tau=tau, where=numbers,
+                       q_planned=block.get("q_planned"), v_planned=block.get("v_planned"),
+                       qdd_planned=block.get("qdd_planned"), mode=mode, running=running)
 
 
-def _parse(lines: list, delimiter, order: list, path, first_line: int, fields: int) -> np.ndarray:
-    """The chosen columns of `lines` as floats; on a malformed line, an InputError naming it."""
+def _check_field_counts(lines: list, delimiter, fields: int, path, numbers: np.ndarray) -> None:
+    """InputError naming the first of `lines` (none blank) whose field count is not the header's."""
+    separator = delimiter or " "
+    counts = np.fromiter((text.count(separator) for text in lines), dtype=np.int64, count=len(lines)) + 1
+    for index in np.flatnonzero(counts != fields):   # (whitespace runs: count the fields themselves)
+        found = len(lines[index].split(delimiter) if delimiter else lines[index].split())
+        if found != fields:
+            raise InputError(f"RTDE log {path}: line {numbers[index]} has {found} fields, the header {fields} (a "
+                             "truncated or hand-edited file?)")
+
+
+def _parse(lines: list, delimiter, order: list, path, numbers: np.ndarray) -> np.ndarray:
+    """The chosen columns of `lines` (none blank, every one with the header's fields) as floats; a field that is
+    not a number is an InputError naming its line."""
     try:
-        return np.loadtxt(lines, delimiter=delimiter, usecols=order, ndmin=2, dtype=float, comments=None)
+        values = np.loadtxt(lines, delimiter=delimiter, usecols=order, ndmin=2, dtype=float, comments=None)
     except ValueError:
-        pass
-    for offset, text in enumerate(lines):   # (only on an error: find the line and say what is wrong with it)
+        values = None
+    if values is not None and len(values) == len(lines):
+        return values
+    for index, text in enumerate(lines):   # (only on an error: find the line)
         cells = text.split(delimiter) if delimiter else text.split()
-        if not text.strip():
-            raise InputError(f"RTDE log {path}: line {first_line + offset} is empty")
-        if len(cells) != fields:
-            raise InputError(f"RTDE log {path}: line {first_line + offset} has {len(cells)} fields, the header "
-                             f"{fields} (a truncated or hand-edited file?)")
         try:
-            [float(cells[index]) for index in order]
+            [float(cells[column]) for column in order]
         except ValueError:
-            raise InputError(f"RTDE log {path}: line {first_line + offset} holds a field that is not a number") from None
-    raise InputError(f"RTDE log {path}: lines {first_line}..{first_line + len(lines) - 1} do not read as numbers")
+            raise InputError(f"RTDE log {path}: line {numbers[index]} holds a field that is not a number") from None
+    raise InputError(f"RTDE log {path}: lines {numbers[0]}..{numbers[-1]} do not read as numbers")

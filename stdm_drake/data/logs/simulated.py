@@ -143,11 +143,15 @@ def write_rtde_csv(dataset, path, *, delimiter: str = " ", timing: LogTiming | N
 
 def write_ros2_bag(dataset, path, joint_names: list, *, storage: str = "sqlite3", timing: LogTiming | None = None,
                    controller_state: bool = True, topic: str = "/joint_states",
-                   controller_topic: str = "/joint_trajectory_controller/controller_state") -> pathlib.Path:
+                   controller_topic: str = "/joint_trajectory_controller/controller_state",
+                   effort_as_current: bool = False, reference_accelerations: bool = True) -> pathlib.Path:
     """The dataset as a ROS 2 bag (folder `path`, storage "sqlite3" or "mcap"): JointState messages (the robot's
     joints in `joint_names`, then EXTRA_JOINT, which the robot does not have) stamped at the log's times and, for
     tracking data with `controller_state`, JointTrajectoryControllerState messages every
-    JOINT_STATE_RATE_DIVIDER rows and at each trajectory's last row (the plan as `reference`)."""
+    JOINT_STATE_RATE_DIVIDER rows and at each trajectory's last row (the plan as `reference`).
+    effort_as_current: effort holds the torque over TORQUE_CONSTANTS (A), as UR's ROS 2 driver reports it;
+    reference_accelerations False: the reference carries no accelerations (a controller without an acceleration
+    interface, as UR's scaled trajectory controller)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
     from stdm_drake.data.logs.ros2 import CONTROLLER_STATE, CONTROLLER_STATE_DEFINITION, JOINT_STATE, typestore
     if not dataset.is_simulated:
@@ -160,6 +164,8 @@ def write_ros2_bag(dataset, path, joint_names: list, *, storage: str = "sqlite3"
     MultiPoint, ControllerState = types["trajectory_msgs/msg/MultiDOFJointTrajectoryPoint"], types[CONTROLLER_STATE]
     Duration = types["builtin_interfaces/msg/Duration"]
     names = list(joint_names) + [EXTRA_JOINT]
+    n = len(joint_names)
+    constants = np.asarray(TORQUE_CONSTANTS[:n] if n <= len(TORQUE_CONSTANTS) else [10.0] * n)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     empty = np.zeros(0)
 
@@ -184,14 +190,16 @@ def write_ros2_bag(dataset, path, joint_names: list, *, storage: str = "sqlite3"
             for row in range(count):
                 header = Header(stamp=stamp(values["t"][row]), frame_id="")
                 extra = np.zeros(1)
+                effort = values["tau"][row] / constants if effort_as_current else values["tau"][row]
                 message = JointState(header=header, name=names, position=np.concatenate([values["q"][row], extra]),
                                      velocity=np.concatenate([values["v"][row], extra]),
-                                     effort=np.concatenate([values["tau"][row], extra]))
+                                     effort=np.concatenate([effort, extra]))
                 received = (BAG_CLOCK_SECONDS + values["t"][row]) * 1e9 // 1 + 200_000   # (received 0.2 ms after its stamp)
                 received = int(received)
                 writer.write(states, received, store.serialize_cdr(message, JOINT_STATE))
                 if control is not None and (row % JOINT_STATE_RATE_DIVIDER == 0 or row == count - 1):
-                    reference = point(values["q_planned"][row], values["v_planned"][row], values["qdd_planned"][row])
+                    reference = point(values["q_planned"][row], values["v_planned"][row],
+                                      values["qdd_planned"][row] if reference_accelerations else empty)
                     feedback = point(values["q"][row], values["v"][row])
                     state = ControllerState(header=header, joint_names=list(joint_names), reference=reference,
                                             feedback=feedback, error=point(), output=point(), desired=reference,
