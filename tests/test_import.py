@@ -248,7 +248,7 @@ def test_a_model_trained_on_the_import_is_as_accurate_as_one_trained_on_the_orig
     assert import_round_trip.main(["--quick", "--data", str(tmp_path / "data"), "-o", str(tmp_path / "out")]) == 0
     result = json.loads((tmp_path / "out" / "round_trip.json").read_text())
     one_step = result["import_over_original"]["one_step_q"]
-    assert one_step["pairs"] == 2 and 0.8 <= one_step["ratio"] <= 1.25
+    assert one_step["pairs"] == 2 and 0.8 <= one_step["ratio"] <= 1.25 and "every_model_learned" in result
     assert result["trajectories"]["kept"] == 8 and result["errors"]["test_plans"]
     assert {"Euler step", "stays put", "plant", "original seed 1", "import seed 1"} <= set(result["errors"])
 
