@@ -1,6 +1,7 @@
 """Writing dataset files (the layout: `data.dataset`'s docstring): `DatasetWriter` one trajectory at a time,
 atomically; `write_dataset` for trajectories in memory; `package_versions`, what a file records of the software
 that wrote it."""
+import contextlib
 import json
 import pathlib
 import sys
@@ -81,10 +82,8 @@ class DatasetWriter:
 
     def __exit__(self, kind, error, trace):
         if error is not None:   # the block's error is the one to report: the file is closed and removed
-            try:
+            with contextlib.suppress(Exception):
                 self._file.close()
-            except Exception:
-                pass
             return self._atomic.__exit__(kind, error, trace)
         try:
             try:

@@ -327,7 +327,7 @@ def _write_piece(piece: Rows, writer, checks: LimitCheck, mapping, period, sampl
     checks.trajectory(trajectory, int(piece.where[0]))
     checks.rows(piece)
     loo, count = resampling.leave_one_out_errors(piece)
-    offsets = (piece.t - origin) - np.round((piece.t - origin) / period) * period
+    offsets = resampling.clock_offsets(piece.t, origin, period)
     sums.update(loo=sums["loo"] + loo, loo_count=sums["loo_count"] + count,
                 jitter=sums["jitter"] + float(np.sum(offsets ** 2)), jitter_count=sums["jitter_count"] + len(offsets),
                 longest=max(sums["longest"], float(np.diff(piece.t).max())))

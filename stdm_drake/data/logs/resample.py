@@ -17,11 +17,22 @@ from stdm_drake.data.logs.rows import Rows
 SMOOTHING_ORDER = 3
 
 
+def clock_offsets(t: np.ndarray, origin: float, period: float) -> np.ndarray:
+    """(N,) s: each stamp's offset from the tick of the clock (`origin`, `period`) it rounds to."""
+    return (t - origin) - np.round((t - origin) / period) * period
+
+
 def clock_origin(t: np.ndarray, period: float) -> float:
     """The first tick of the regular clock of `period` (s) that the stamps t (N,) follow: t_0 plus their
     mean offset from the ticks they round to."""
-    offsets = (t - t[0]) - np.round((t - t[0]) / period) * period
-    return float(t[0] + offsets.mean())
+    return float(t[0] + clock_offsets(t, t[0], period).mean())
+
+
+def hermite3(s, span, y0, d0, y1, d1):
+    """The cubic Hermite interpolant at s in [0, 1] of an interval of length `span` (values y and first
+    derivatives d at both ends)."""
+    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
+    return h00 * y0 + h10 * span * d0 + h01 * y1 + h11 * span * d1
 
 
 def grid_size(piece: Rows, period: float, sample_period: float) -> int:
@@ -93,7 +104,5 @@ def leave_one_out_errors(piece: Rows) -> tuple[float, int]:
     left, right = slice(0, -2), slice(2, None)
     span = (t[right] - t[left])[:, None]
     s = (t[1:-1, None] - t[left, None]) / span
-    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-    predicted = h00 * q[left] + h10 * span * v[left] + h01 * q[right] + h11 * span * v[right]
-    errors = predicted - q[1:-1]
+    errors = hermite3(s, span, q[left], v[left], q[right], v[right]) - q[1:-1]
     return float(np.sum(errors**2)), errors.size

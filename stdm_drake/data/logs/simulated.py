@@ -13,6 +13,7 @@ import pathlib
 
 import numpy as np
 
+from stdm_drake.data.logs.resample import hermite3
 from stdm_drake.errors import InputError
 
 JOINT_STATE_RATE_DIVIDER = 5      # bags: a controller-state message every this many joint states (and at the end)
@@ -66,11 +67,6 @@ def _hermite5(s, span, y0, d0, a0, y1, d1, a1):
     return h0 * y0 + h1 * span * d0 + h2 * span**2 * a0 + g0 * y1 + g1 * span * d1 + g2 * span**2 * a1
 
 
-def _hermite3(s, span, y0, d0, y1, d1):
-    h00, h10, h01, h11 = 2 * s**3 - 3 * s**2 + 1, s**3 - 2 * s**2 + s, -2 * s**3 + 3 * s**2, s**3 - s**2
-    return h00 * y0 + h10 * span * d0 + h01 * y1 + h11 * span * d1
-
-
 def true_state_at(trajectory, h: float, times: np.ndarray) -> tuple:
     """(q, v) (len(times), n) of a simulated trajectory's true motion at `times` (s from its sample 0, inside
     [0, T h]): the quintic Hermite interpolant of (q_true, v_true, q̈) for q, the cubic one of (v_true, q̈) for v."""
@@ -79,7 +75,7 @@ def true_state_at(trajectory, h: float, times: np.ndarray) -> tuple:
     s = ((times - k * h) / h)[:, None]
     q0, q1, v0, v1 = trajectory.q_true[k], trajectory.q_true[k + 1], trajectory.v_true[k], trajectory.v_true[k + 1]
     a0, a1 = trajectory.qdd[k], trajectory.qdd_end[k]
-    return _hermite5(s, h, q0, v0, a0, q1, v1, a1), _hermite3(s, h, v0, a0, v1, a1)
+    return _hermite5(s, h, q0, v0, a0, q1, v1, a1), hermite3(s, h, v0, a0, v1, a1)
 
 
 def planned_at(trajectory, h: float, times: np.ndarray) -> tuple:
@@ -88,7 +84,7 @@ def planned_at(trajectory, h: float, times: np.ndarray) -> tuple:
     k = np.clip(np.floor(times / h).astype(int), 0, steps - 1)
     s = ((times - k * h) / h)[:, None]
     p, v, a = trajectory.q_planned, trajectory.v_planned, trajectory.qdd_planned
-    return (_hermite3(s, h, p[k], v[k], p[k + 1], v[k + 1]), _hermite3(s, h, v[k], a[k], v[k + 1], a[k + 1]),
+    return (hermite3(s, h, p[k], v[k], p[k + 1], v[k + 1]), hermite3(s, h, v[k], a[k], v[k + 1], a[k + 1]),
             a[k] + s * (a[k + 1] - a[k]))
 
 
