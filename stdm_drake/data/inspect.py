@@ -74,7 +74,8 @@ def summary(dataset: Dataset) -> str:
         f"trajectories    {dataset.num_trajectories}  steps each {min(steps)}..{max(steps)}  "
         f"transitions {sum(steps)}",
         "groups          " + ", ".join(f"{g}: {c}" for g, c in zip(groups, counts)),
-        f"sample period   {dataset.sample_period} s  (plant step {meta.plant_time_step} s)",
+        f"sample period   {dataset.sample_period} s  " + (f"(plant step {meta.plant_time_step} s)" if dataset.is_simulated
+                                                        else "(a real robot's log, resampled)"),
         f"seed            {meta.seed}   robot model sha256 {str(meta.robot_model_sha256)[:16]}…",
     ]
     if dataset.protocol == "tracking":
@@ -127,12 +128,16 @@ def import_lines(record: dict) -> list[str]:
     """What `stdm-drake import` recorded about a log (its metadata's "import" section) as summary lines."""
     if not record:
         return ["import          (not recorded)"]
-    resampling = record.get("resampling", {})
-    pieces = record.get("trajectories", {})
+    resampling, pieces = record.get("resampling", {}), record.get("trajectories", {})
+    derivatives = record.get("derivatives", {})
+    number = lambda value: "-" if value is None else f"{value:.3g}"  # noqa: E731
     return [f"imported from   {record.get('format')} {record.get('source')}",
-            f"resampling      {resampling.get('method')}; estimated q error {resampling.get('estimated_q_error_rad')} "
-            f"rad; log period {resampling.get('log_period_s')} s, stamp jitter RMS {resampling.get('jitter_rms_s')} s",
+            f"resampling      cubic Hermite on the log's clock; estimated q error "
+            f"{number(resampling.get('estimated_q_error_rad'))} rad; log period {number(resampling.get('log_period_s'))} s, "
+            f"stamp jitter RMS {number(resampling.get('jitter_rms_s'))} s",
             f"pieces          {pieces.get('kept')} kept, {pieces.get('dropped_short')} too short dropped; split at "
             f"{pieces.get('gaps')} gaps, {pieces.get('pauses')} pauses, {pieces.get('mode_changes')} mode changes, "
-            f"{pieces.get('cuts')} cuts",
-            f"torque          {record.get('torque_source')}; derivatives {record.get('derivatives')}"]
+            f"{pieces.get('cuts')} cuts; {pieces.get('rows_not_running')} rows not running left out",
+            f"torque          {record.get('torque_source')}",
+            "derivatives     " + ("planned (default), " if derivatives.get("planned") else "")
+            + f"measured, smoothed ({derivatives.get('smoothed')})"]
