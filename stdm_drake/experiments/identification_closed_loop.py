@@ -2,7 +2,7 @@
 the nominal plant, the true plant (an oracle), the identified robot and every seed of the learned models (D and
 the grey box G-id-state), each prediction model's setting chosen on the validation plans; does the grey box
 track with the lowest error of all models a user has? `run_closed_loop` runs it, `write_closed_loop` writes
-closed_loop.json and .md; `identification_study.report_section` shows it."""
+closed_loop.json and .md, `report_section` adds it to a report (after `identification_study.report_section`)."""
 import pathlib
 
 import numpy as np
