@@ -57,6 +57,7 @@ def sandbox(tmp_path_factory, excitation_dataset, tracking_dataset):
     edited_copy(box, "strings.h5", "q", lambda q: np.array([[str(v).encode() for v in row] for row in q]))
     edited_copy(box, "short_tau.h5", "tau", lambda tau: tau[:-1])
     write_logs(box)
+    write_hand_edited(box)
     content = torch.load(box / "ck.pt", weights_only=True)    # a checkpoint whose output spread is zero
     content["weights"]["output_normalizer.std"] = torch.zeros_like(content["weights"]["output_normalizer.std"])
     torch.save(content, box / "zero_std.pt")
@@ -109,6 +110,40 @@ def write_logs(box) -> None:
     (box / "map_pause.yaml").write_text("pause_duration: 20\n")
 
 
+def write_hand_edited(box) -> None:
+    """Copies of data.h5 edited by hand the way a user with h5py might (issue 25, class 8)."""
+    import json as json_module
+
+    def copy(name: str, edit) -> None:
+        shutil.copy(box / "data.h5", box / name)
+        with h5py.File(box / name, "r+") as f:
+            edit(f)
+
+    def metadata(change):
+        def edit(f):
+            record = json_module.loads(f.attrs["metadata_json"])
+            f.attrs["metadata_json"] = json_module.dumps(change(record))
+        return edit
+
+    first = lambda f: f["trajectories"][sorted(f["trajectories"])[0]]  # noqa: E731
+    copy("meta_int.h5", lambda f: f.attrs.__setitem__("metadata_json", "123"))
+    copy("meta_null.h5", lambda f: f.attrs.__setitem__("metadata_json", "null"))
+    copy("meta_period.h5", metadata(lambda record: dict(record, sample_period=[0.01, 0.01])))
+    copy("meta_robot.h5", metadata(lambda record: dict(record, robot="ur10")))
+    copy("meta_names.h5", metadata(lambda record: dict(record, joint_names="shoulder")))
+    copy("attr_version.h5", lambda f: f.attrs.__setitem__("format_version", np.array([2, 2])))
+    copy("attr_group.h5", lambda f: first(f).attrs.__setitem__("group", np.array([0, 1])))
+    copy("attr_count.h5", lambda f: f.attrs.__setitem__("num_trajectories", "four"))
+    copy("sub_group.h5", lambda f: first(f).create_group("notes"))
+
+    def flatten(f):
+        name = sorted(f["trajectories"])[0]
+        q = f["trajectories"][name]["q"][()]
+        del f["trajectories"][name]
+        f["trajectories"][name] = q
+    copy("flat_trajectory.h5", flatten)
+
+
 def edited_copy(box, name: str, key: str, edit) -> None:
     """A copy of data.h5 with array `key` of its first trajectory replaced by edit(array)."""
     shutil.copy(box / "data.h5", box / name)
@@ -132,7 +167,10 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "MAPSHORT": "map_short.yaml", "MAPPAUSE": "map_pause.yaml",
                 **{f"LOG{kind.upper()}": f"log_{kind}.csv" for kind in ("nots", "missing", "back", "dup", "nan", "text",
                                                                         "cut", "head", "deg", "seven")},
-                "BAGCUT": "bag_cut", "BAGFOUR": "bag_four"}
+                "BAGCUT": "bag_cut", "BAGFOUR": "bag_four",
+                **{name.upper().replace("_", ""): f"{name}.h5" for name in (
+                    "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
+                    "attr_count", "sub_group", "flat_trajectory")}}
 
 C = ["collect", "--count", "1", "--workers", "1", "--quiet"]           # a cheap collect if a check were missing
 E = ["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet"]
@@ -172,6 +210,13 @@ CASES = [
     ([*I, "BAG", "--joint-names", "a", "b", "-o", "NEW.h5"], "names 2 joints"),
     ([*I, "DIR", "-o", "NEW.h5"], "holds no metadata.yaml"), ([*I, "LOG", "--robot", "BADYAML", "-o", "NEW.h5"], ""),
     ([*I, "LOG", "-o", "NEW.h5", "--format", "csv"], "invalid choice"), (["import", "LOG"], "required: --output"),
+    # --- datasets edited by hand (issue 25)
+    (["inspect", "METAINT"], "metadata must be a JSON object"), (["inspect", "METANULL"], "metadata must be a JSON object"),
+    (["inspect", "METAPERIOD"], "sample_period must be one number"), (["inspect", "METAROBOT"], "robot must be a mapping"),
+    (["inspect", "METANAMES"], "joint_names must be a list of names"),
+    (["inspect", "ATTRVERSION"], "format_version must be one number"), (["inspect", "ATTRGROUP"], "group must be one number"),
+    (["inspect", "ATTRCOUNT"], "num_trajectories must be a number"), (["inspect", "SUBGROUP"], "which is not an array"),
+    (["inspect", "FLATTRAJECTORY"], "is not a group of arrays"), ([*T[:1], "METAROBOT", *T[2:], "-o", "NEW"], "robot must be a mapping"),
     ([*E, "--export-plans", "NEW", "-o", "NEW.h5"], "only with --protocol tracking"),
     ([*C, "--export-plans", "FOREIGN", "-o", "NEW.h5"], "not empty"),
     ([*C, "--export-plans", "NOTES", "-o", "NEW.h5"], "not a folder"),
@@ -246,6 +291,9 @@ CASES = [
     (["mpc", "DATA", "--model", "=CK", "-o", "NEW"], "NAME=FILE"),
     (["mpc", "DATA", "--no-plant", "--excitation-references", "-o", "NEW"], "nothing to compare"),
     (["mpc", "DATA", "--model", "D=CK", "-o", "NEW"], "is an excitation dataset: it has no plans"),
+    (["mpc", "TRACK", "--model", "a,b=model.pt", "-o", "NEW"], "letters, digits"),
+    (["mpc", "TRACK", "--model", "a|b=model.pt", "-o", "NEW"], "letters, digits"),
+    (["mpc", "TRACK", "--model", "plant=model.pt", "-o", "NEW"], "is the plant model's"),
     (["inspect", "STRINGS"], "not numbers"), (["inspect", "SHORTTAU"], "tau has shape"),
     (["evaluate", "ZEROSTD", "DATA"], "zero or negative spread"), (["mpc", "TRACK", "--model", "D=ZEROSTD", "-o", "NEW"], "spread"),
     ([*S, "--epochs", "0", "-o", "NEW"], "epochs"), ([*S, "--workers", "0", "-o", "NEW"], "--workers must be >= 1"),
@@ -319,6 +367,13 @@ CASES = [
     (yaml_case("tspec", "sampling:\n  initial_poses: []\n"), "initial_poses"),
     (yaml_case("tspec", "planner:\n  velocity_scale: 2.0\n"), "velocity_scale"),
     (yaml_case("mpc", "horizon: 0\n"), "horizon"), (yaml_case("mpc", "effort_weight: [0.0]\n"), "effort_weight"),
+    (yaml_case("mpc", "line_search: [0]\n"), "line_search steps must be in (0, 1]"),
+    (yaml_case("mpc", "line_search: [-1]\n"), "line_search steps must be in (0, 1]"),
+    (yaml_case("mpc", "regularization: -1\n"), "regularization must be in [0, 1e6]"),
+    (yaml_case("mpc", "terminal_factor: -10\n"), "terminal_factor must be in"),
+    (yaml_case("mpc", "velocity_weight: [1e300]\n"), "velocity_weight must be at most"),
+    (yaml_case("mpc", "horizon: 100000\n"), "horizon must be in 1..1000"),
+    (yaml_case("mpc", "max_iterations: 100000\n"), "max_iterations must be in 1..100"),
     (yaml_case("mpc", "effort_weight: [1, 2]\n"), "effort_weight"), (yaml_case("mpc", "disturbance_gain: 2\n"), "disturbance_gain"),
     (yaml_case("robot", "name: x\nmodel: missing.urdf\narm_joints: [a]\nhome: [0]\ntool_frame: t\n"), "model file not found"),
     (yaml_case("robot", "name: x\nmodel: ur10.urdf\nweld_frame: base_link\narm_joints: [a]\nhome: [0]\ntool_frame: tool0\n"),

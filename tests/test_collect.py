@@ -248,7 +248,7 @@ def test_protocol_files_are_tagged_and_name_their_protocol(tmp_path, capsys):
     from stdm_drake.collection.collect import collection_request
     from stdm_drake.collection.planner_configs import Ruckig
     from stdm_drake.collection.protocols import PROTOCOL_TYPES
-    from stdm_drake.data.dataset import SIMULATED_PROTOCOLS
+    from stdm_drake.data.schema import SIMULATED_PROTOCOLS
     from stdm_drake.errors import InputError
     assert tuple(PROTOCOL_TYPES) == SIMULATED_PROTOCOLS   # one config type per protocol collect simulates
     ruckig = collection_request(config="trajectories/tracking_ruckig.yaml", robot=UR10, count=1, workers=1)

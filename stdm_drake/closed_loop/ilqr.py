@@ -11,6 +11,9 @@ from stdm_drake.closed_loop.optimizer import OptimizerResult, TrackingCost, Traj
 from stdm_drake.errors import InputError
 
 
+MAX_ITERATIONS = 100   # iLQR iterations per control step: more is a run that does not end
+
+
 @dataclasses.dataclass
 class IlqrConfig:
     """iLQR's own settings: iterations per solve, line-search step sizes, the initial
@@ -20,8 +23,17 @@ class IlqrConfig:
     regularization: float = 1e-6
 
     def validate(self) -> None:
-        if self.max_iterations < 1 or not self.line_search:
-            raise InputError("mpc max_iterations must be >= 1 and line_search non-empty")
+        """InputError for settings that would switch the optimizer off or make it diverge: iterations in
+        1..MAX_ITERATIONS, line-search steps in (0, 1] (a step of 0 never moves, a negative one climbs the cost),
+        a finite non-negative regularization."""
+        if not 1 <= self.max_iterations <= MAX_ITERATIONS or not self.line_search:
+            raise InputError(f"mpc max_iterations must be in 1..{MAX_ITERATIONS} and line_search non-empty, got "
+                             f"{self.max_iterations} and {self.line_search}")
+        steps = np.asarray(self.line_search, dtype=float)
+        if not np.all(np.isfinite(steps) & (steps > 0) & (steps <= 1)):
+            raise InputError(f"mpc line_search steps must be in (0, 1], got {self.line_search}")
+        if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
+            raise InputError(f"mpc regularization must be in [0, 1e6], got {self.regularization}")
 
 
 class IlqrSolver(TrajectoryOptimizer):

@@ -44,6 +44,8 @@ from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
 from stdm_drake.robots.robot import Robot
 
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
+MAX_WEIGHT = 1e12      # a cost weight (and the terminal factor) beyond this swamps every other term
+MAX_HORIZON = 1000     # sample periods predicted per control step (10 s at 0.01 s): more is a run that does not end
 
 
 @dataclasses.dataclass
@@ -67,14 +69,22 @@ class MpcConfig:
     disturbance_gain: float = 1.0
 
     def validate(self) -> None:
+        """InputError for settings no controller can use: weights negative, not finite or beyond MAX_WEIGHT
+        (the squared errors they weigh overflow, and the other terms vanish beside them), effort weights not
+        positive, a terminal factor outside [0, MAX_WEIGHT], an observer gain outside [0, 1], a horizon outside
+        1..MAX_HORIZON sample periods, and the optimizer's own settings (`IlqrConfig.validate`)."""
         for name in ("position_weight", "velocity_weight", "effort_weight"):
-            check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
+            weights = check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
+            if np.any(weights > MAX_WEIGHT):
+                raise InputError(f"mpc {name} must be at most {MAX_WEIGHT:g}, got {getattr(self, name)}")
         if np.any(np.asarray(self.effort_weight) <= 0):
             raise InputError("mpc effort_weight must be > 0 for every joint (the torque problem must be convex)")
+        if not (np.isfinite(self.terminal_factor) and 0.0 <= self.terminal_factor <= MAX_WEIGHT):
+            raise InputError(f"mpc terminal_factor must be in [0, {MAX_WEIGHT:g}], got {self.terminal_factor}")
         if not 0.0 <= self.disturbance_gain <= 1.0:
             raise InputError(f"mpc disturbance_gain must be in [0, 1], got {self.disturbance_gain}")
-        if self.horizon < 1:
-            raise InputError("mpc horizon must be >= 1")
+        if not 1 <= self.horizon <= MAX_HORIZON:
+            raise InputError(f"mpc horizon must be in 1..{MAX_HORIZON} sample periods, got {self.horizon}")
         self.ilqr().validate()
 
     def cost(self, joints: int) -> TrackingCost:

@@ -12,7 +12,7 @@ from stdm_drake.collection.excitation import Excitation
 from stdm_drake.collection.plan import Tracking
 from stdm_drake.collection.planner_configs import PLANNER_TYPES
 from stdm_drake.config import load_yaml_config, read_yaml_document
-from stdm_drake.data.dataset import SIMULATED_PROTOCOLS as PROTOCOLS   # what collect simulates
+from stdm_drake.data.schema import SIMULATED_PROTOCOLS as PROTOCOLS   # what collect simulates
 from stdm_drake.errors import InputError, warn
 from stdm_drake.robots.robot import Robot
 

@@ -3,6 +3,7 @@ predictors. On an affected plant (`--plant-effects`, or the effects the dataset 
 is the robot's description (the nominal model a user has, "plant"), beside the affected plant itself
 ("true-plant", an oracle)."""
 import dataclasses
+import re
 import sys
 
 from stdm_drake.closed_loop.comparison import (
@@ -17,6 +18,9 @@ from stdm_drake.errors import InputError
 from stdm_drake.learning.physics import PlantModel
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, plant_effects_for
 from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
+
+
+MODEL_NAME = re.compile(r"[A-Za-z0-9_.+-]{1,40}")   # a --model name: a column of mpc.csv and mpc.md
 
 
 def add_arguments(parser) -> None:
@@ -66,6 +70,9 @@ def run(args) -> int:
         name, separator, path = entry.partition("=")
         if not separator or not name or not path:
             raise InputError(f"--model takes NAME=FILE, got {entry!r}")
+        if not MODEL_NAME.fullmatch(name):
+            raise InputError(f"--model name {name!r}: letters, digits, '_', '-', '.' and '+' only (it heads a column of "
+                             "mpc.csv and mpc.md), at most 40 characters")
     checkpoints = [entry.partition("=")[2] for entry in args.model]
     names = [entry.partition("=")[0] for entry in args.model]
     repeated = sorted({name for name in names if names.count(name) > 1})

@@ -38,6 +38,7 @@ import pathlib
 import h5py
 import numpy as np
 
+from stdm_drake.data.schema import PROTOCOLS, SIMULATED_PROTOCOLS, attribute_number, check_record, check_trajectory
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import DATASET_FORMAT
 from stdm_drake.robots.effects import PlantEffects
@@ -45,28 +46,11 @@ from stdm_drake.robots.effects import PlantEffects
 FORMAT = DATASET_FORMAT
 FORMAT_VERSION = 2
 READABLE_VERSIONS = (1, 2)
-SIMULATED_PROTOCOLS = ("excitation", "tracking")
-PROTOCOLS = SIMULATED_PROTOCOLS + ("logged",)
-RECORDED_ARRAYS = ("q", "v", "tau", "tau_next")
-SIMULATION_ARRAYS = ("q_true", "v_true", "qdd", "qdd_end")
-PLANNED_ARRAYS = ("q_planned", "v_planned", "qdd_planned")
-LOG_ARRAYS = ("v_smoothed", "qdd_smoothed", "qdd_measured")
-# Bounds no robot's data reaches (rad or m, rad/s, rad/s^2: a continuous joint may wind up many turns,
-# a light joint accelerate fast): a value beyond them is a corrupted or foreign file. The robot's own
-# limits are checked where the robot is known (data.compatibility.check_dataset_robot).
-PLAUSIBLE_MAGNITUDE = {"q": 1e4, "q_true": 1e4, "v": 1e4, "v_true": 1e4, "qdd": 1e7, "qdd_end": 1e7,
-                       "v_smoothed": 1e4, "qdd_smoothed": 1e7, "qdd_measured": 1e7}
+# (the protocols and the arrays each one's trajectories hold: data.schema)
 # where the derivative targets (q̇, q̈) come from: the simulation's truth, the tracked plan, a log's measured
 # velocities (and their smoothed derivative) or the smoothed measured angles
 DERIVATIVE_SOURCES = ("true", "planned", "measured", "smoothed")
 ACTION_RATE_SCHEMES = ("forward_difference", "zero_order_hold")
-
-
-def required_arrays(protocol: str, planned: bool = False) -> tuple:
-    """The arrays every trajectory of `protocol` holds (planned: a log with the plan)."""
-    if protocol == "logged":
-        return RECORDED_ARRAYS + LOG_ARRAYS + (PLANNED_ARRAYS if planned else ())
-    return RECORDED_ARRAYS + SIMULATION_ARRAYS + (PLANNED_ARRAYS if protocol == "tracking" else ())
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -322,38 +306,6 @@ def split_trajectories(groups, n_train: int, n_val: int, n_test: int | None, see
     return Split(*(np.sort(np.concatenate(part)).astype(int) for part in (train, val, test)))
 
 
-def check_trajectory(name: str, traj: dict, protocol: str) -> None:
-    """Shapes and finiteness of one trajectory's arrays; raises InputError naming the field."""
-    planned = protocol == "tracking" or (protocol == "logged" and any(key in traj for key in PLANNED_ARRAYS))
-    expected_arrays = required_arrays(protocol, planned)
-    missing = [key for key in expected_arrays if key not in traj]
-    if missing:
-        raise InputError(f"trajectory {name}: missing arrays {missing}")
-    unknown = sorted(set(traj) - set(expected_arrays))
-    if unknown:
-        raise InputError(f"trajectory {name}: arrays {unknown} do not belong to {protocol} data (it holds "
-                         f"{', '.join(expected_arrays)})")
-    num_steps = len(traj["q"]) - 1 if np.ndim(traj["q"]) == 2 else -1  # the samples are the reference
-    if num_steps < 2:
-        raise InputError(f"trajectory {name}: needs at least 2 steps (3 samples of q), has {num_steps}")
-    joints = np.shape(traj["q"])[1] if np.ndim(traj["q"]) == 2 else -1  # the robot's, from its positions
-    actions = np.shape(traj["tau"])[1] if np.ndim(traj["tau"]) == 2 else -1  # torques of its actuated joints
-    expected = {"tau": (num_steps, actions), "qdd_end": (num_steps, joints), "tau_next": (actions,)}
-    for key in traj:
-        if not (np.issubdtype(np.asarray(traj[key]).dtype, np.floating)
-                or np.issubdtype(np.asarray(traj[key]).dtype, np.integer)):
-            raise InputError(f"trajectory {name}: {key} holds {np.asarray(traj[key]).dtype} values, not numbers")
-        shape = np.shape(traj[key])
-        want = expected.get(key, (num_steps + 1, joints))
-        if shape != want:
-            raise InputError(f"trajectory {name}: {key} has shape {shape}, expected {want}")
-        if not np.all(np.isfinite(traj[key])):
-            raise InputError(f"trajectory {name}: {key} contains NaN or inf")
-        if key in PLAUSIBLE_MAGNITUDE and np.max(np.abs(traj[key])) > PLAUSIBLE_MAGNITUDE[key]:
-            raise InputError(f"trajectory {name}: {key} reaches {np.max(np.abs(traj[key])):.3g}, beyond any joint's "
-                             f"range (|{key}| <= {PLAUSIBLE_MAGNITUDE[key]:g}); not robot data")
-
-
 def file_sha256(path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as f:
@@ -371,34 +323,37 @@ def load_dataset(path) -> Dataset:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != FORMAT:
                 raise InputError(f"{path}: not a stdm-drake dataset (format attribute missing or wrong)")
-            version = int(f.attrs.get("format_version", -1))
+            version = attribute_number(f.attrs.get("format_version", -1), f"{path}: format_version", int)
             if version not in READABLE_VERSIONS:
                 raise InputError(f"{path}: dataset format version {version}, this stdm-drake reads versions "
                                  f"{', '.join(map(str, READABLE_VERSIONS))}")
             try:
                 metadata = json.loads(f.attrs["metadata_json"])
-            except (KeyError, json.JSONDecodeError) as error:
+            except (KeyError, TypeError, json.JSONDecodeError) as error:
                 raise InputError(f"{path}: metadata unreadable ({error})") from None
-            for key in ("protocol", "sample_period"):
-                if key not in metadata:
-                    raise InputError(f"{path}: metadata lacks required field {key!r}")
+            check_record(metadata, path)
             if metadata["protocol"] not in (PROTOCOLS if version >= 2 else SIMULATED_PROTOCOLS):
                 raise InputError(f"{path}: unknown protocol {metadata['protocol']!r} (format version {version})")
-            period = float(f.attrs.get("sample_period", np.nan))
+            period = attribute_number(f.attrs.get("sample_period", np.nan), f"{path}: sample_period attribute")
             if not (period > 0 and period == float(metadata["sample_period"])):
                 raise InputError(f"{path}: sample period {period} missing, non-positive or inconsistent with metadata")
-            if "trajectories" not in f:
+            if not isinstance(f.get("trajectories"), h5py.Group):
                 raise InputError(f"{path}: no trajectories group")
             names = sorted(f["trajectories"])
-            declared = int(f.attrs.get("num_trajectories", -1))
+            declared = attribute_number(f.attrs.get("num_trajectories", -1), f"{path}: num_trajectories", int)
             if declared != len(names) or not names:
                 raise InputError(f"{path}: header declares {declared} trajectories, file holds {len(names)}")
             trajectories, groups = [], []
             for name in names:
                 group = f["trajectories"][name]
+                if not isinstance(group, h5py.Group):
+                    raise InputError(f"{path}: trajectory {name} is not a group of arrays")
+                inner = [key for key in group if not isinstance(group[key], h5py.Dataset)]
+                if inner:
+                    raise InputError(f"{path}: trajectory {name} holds {inner[0]!r}, which is not an array")
                 trajectories.append(Trajectory.from_arrays(name, {key: group[key][()] for key in group},
                                                            metadata["protocol"]))
-                groups.append(int(group.attrs.get("group", 0)))
+                groups.append(attribute_number(group.attrs.get("group", 0), f"{path}: trajectory {name}'s group", int))
             if len({trajectory.has_plan for trajectory in trajectories}) > 1:
                 raise InputError(f"{path}: some trajectories hold the plan and others do not")
     except InputError:

@@ -9,7 +9,8 @@ import sys
 import h5py
 import numpy as np
 
-from stdm_drake.data.dataset import FORMAT, FORMAT_VERSION, PLANNED_ARRAYS, PROTOCOLS, Trajectory, check_trajectory
+from stdm_drake.data.dataset import FORMAT, FORMAT_VERSION, Trajectory
+from stdm_drake.data.schema import PLANNED_ARRAYS, PROTOCOLS, check_trajectory
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, json_default
 
