@@ -217,6 +217,13 @@ CASES = [
     (["inspect", "ATTRVERSION"], "format_version must be one number"), (["inspect", "ATTRGROUP"], "group must be one number"),
     (["inspect", "ATTRCOUNT"], "num_trajectories must be a number"), (["inspect", "SUBGROUP"], "which is not an array"),
     (["inspect", "FLATTRAJECTORY"], "is not a group of arrays"), ([*T[:1], "METAROBOT", *T[2:], "-o", "NEW"], "robot must be a mapping"),
+    # --- no upper bound (issue 25, class 13): refused before any allocation
+    ([*T, "--hidden-width", "1000000", "-o", "NEW"], "(--hidden-width) must be at most 8192"),
+    ([*T, "--ensemble-size", "1000000000", "-o", "NEW"], "(--ensemble-size) must be at most 256"),
+    ([*T, "--hidden-width", "8000", "--ensemble-size", "200", "-o", "NEW"], "would hold about"),
+    ([*C, "--count", "1000000000000", "-o", "NEW.h5"], "--count must be in 1..100000"),
+    ([*V, "--propagation", "ts1", "--particles", "1000000000"], "particles must be in 1..10000"),
+    ([*E, "--plant-time-step", "1e-9", "-o", "NEW.h5"], "steps per sample period"),
     ([*E, "--export-plans", "NEW", "-o", "NEW.h5"], "only with --protocol tracking"),
     ([*C, "--export-plans", "FOREIGN", "-o", "NEW.h5"], "not empty"),
     ([*C, "--export-plans", "NOTES", "-o", "NEW.h5"], "not a folder"),
@@ -261,7 +268,7 @@ CASES = [
     ([*S, "-o", "FOREIGN"], "stdm-drake did not write"), ([*R, "-o", "FOREIGN"], "stdm-drake did not write"),
     ([*M, "-o", "NOTES/deeper/x"], "is not a folder"), ([*R, "-o", "NOTES/x"], "is not a folder"),
     # --- counts and sizes
-    ([*C, "--count", "0", "-o", "NEW.h5"], "--count must be >= 1"), ([*C, "--count", "-3", "-o", "NEW.h5"], ">= 1"),
+    ([*C, "--count", "0", "-o", "NEW.h5"], "--count must be in 1.."), ([*C, "--count", "-3", "-o", "NEW.h5"], "in 1.."),
     ([*C, "--workers", "0", "-o", "NEW.h5"], "--workers must be >= 1"), ([*C, "--seed", "-1", "-o", "NEW.h5"], "non-negative"),
     ([*E, "--sample-period", "0", "-o", "NEW.h5"], "sample period"), ([*E, "--sample-period", "-0.01", "-o", "NEW.h5"], "sample period"),
     ([*E, "--sample-period", "nan", "-o", "NEW.h5"], "sample period"), ([*E, "--sample-period", "0.0015", "-o", "NEW.h5"], "multiple"),

@@ -280,7 +280,7 @@ def test_an_old_layout_warning_waits_for_the_command_to_succeed(tmp_path, capsys
     assert "has no type tag (read as the default, pid)" in capsys.readouterr().err
     assert main(["collect", "--controller", str(old), "--count", "0", "-o", str(tmp_path / "out.h5")]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
-    assert len(lines) == 1 and "--count must be >= 1" in lines[0]
+    assert len(lines) == 1 and "--count must be in 1..100000" in lines[0]
 
 
 def test_a_dataset_is_reused_when_its_record_agrees_field_by_field():

@@ -93,7 +93,7 @@ def test_its_own_outputs_are_replaced_without_force(capsys, tmp_path):
 
 
 @pytest.mark.parametrize("argv, message", [
-    (["collect", "--count", "0", "-o", "x.h5"], "--count must be >= 1, got 0"),
+    (["collect", "--count", "0", "-o", "x.h5"], "--count must be in 1..100000, got 0"),
     (["collect", "--workers", "0", "-o", "x.h5"], "--workers must be >= 1, got 0"),
     (["collect", "--seed", "-1", "-o", "x.h5"], "--seed must be a non-negative integer"),
 ])

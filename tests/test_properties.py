@@ -157,8 +157,8 @@ def test_a_yaml_config_loads_or_is_refused(tmp_path, schema_index, document, use
 def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypatch, count, workers, seed, period,
                                                      step):
     """With an output that would be accepted, the simulation is reached exactly when every number is
-    valid (count, workers >= 1; seed >= 0; period and plant step finite > 0, the period a whole multiple
-    of the step, at most 1e7 of them); otherwise exit 2 with one line and no file."""
+    valid (count in 1..100000, workers >= 1; seed >= 0; period and plant step finite > 0, the period a whole
+    multiple of the step, at most 10000 of them); otherwise exit 2 with one line and no file."""
     import math
 
     from stdm_drake.cli import main
@@ -176,8 +176,8 @@ def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypat
     argv = ["collect", "--protocol", "excitation", "--count", str(count), "--workers", str(workers), "--seed",
             str(seed), "--sample-period", repr(period), "--plant-time-step", repr(step), "--quiet", "-o", str(output)]
     ratio = period / step if math.isfinite(period) and math.isfinite(step) and step > 0 else math.nan
-    valid = (count >= 1 and workers >= 1 and seed >= 0 and math.isfinite(period) and period > 0
-             and math.isfinite(step) and step > 0 and ratio <= 1e7 and abs(ratio - round(ratio)) <= 1e-9
+    valid = (1 <= count <= 100_000 and workers >= 1 and seed >= 0 and math.isfinite(period) and period > 0
+             and math.isfinite(step) and step > 0 and ratio <= 10_000 and abs(ratio - round(ratio)) <= 1e-9
              and round(ratio) >= 1)
     try:
         status = main(argv)

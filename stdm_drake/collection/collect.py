@@ -41,6 +41,7 @@ from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationCon
 DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
 PAPER_COUNTS = {"excitation": 200, "tracking": 100}
+MAX_COUNT = 100_000   # trajectories per collection: more is a run of days (and its arrays do not fit in memory)
 
 
 @dataclasses.dataclass
@@ -278,8 +279,8 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
                  f"of the affected plant ({'; '.join(stuck)})" + ("" if sized else
                  "; a controller sized by bandwidth (controllers/pid_dither_sized.yaml) takes its gains from the "
                  "affected plant's inertia"))
-    if count is not None and count < 1:
-        raise InputError(f"--count must be >= 1, got {count}")
+    if count is not None and not 1 <= count <= MAX_COUNT:
+        raise InputError(f"--count must be in 1..{MAX_COUNT}, got {count}")
     if workers < 1:
         raise InputError(f"--workers must be >= 1, got {workers}")
     if seed < 0:

@@ -29,6 +29,7 @@ from stdm_drake.learning.activations import get_activation
 from stdm_drake.learning.models import EnsembleMLP
 
 PROPAGATIONS = ("mean", "ts1", "tsinf")
+MAX_PARTICLES = 10_000   # particles per trajectory (their states are held at once)
 
 
 def _softplus(values):
@@ -296,8 +297,8 @@ def rollout(model, initial_states, actions, *, propagation: str = "mean", partic
     batch, horizon = sequence.shape[:2]
     members, size = engine.ensemble_size, engine.state_dim
     count = 1 if propagation == "mean" else int(particles)
-    if count < 1:
-        raise InputError(f"particles must be >= 1, got {particles}")
+    if not 1 <= count <= MAX_PARTICLES:
+        raise InputError(f"particles must be in 1..{MAX_PARTICLES}, got {particles}")
     rows = batch * count
     inputs = engine.input_rows(np.repeat(x0, count, axis=0),
                                np.repeat(sequence, count, axis=0).transpose(1, 0, 2))   # (T+1, N, S+A+1)

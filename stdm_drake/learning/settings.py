@@ -15,6 +15,9 @@ from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MO
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 
 LOSS_KINDS = ("mse", "mae", "huber")
+# settings beyond which a run does not fit in memory or does not end (checked before any work)
+UPPER_BOUNDS = dict(hidden_width=8192, hidden_layers=64, ensemble_size=256, epochs=1_000_000, batch_size=1_000_000)
+MAX_WEIGHTS = 2e8
 LR_SCHEDULES = ("constant", "cosine")
 DEFAULT_ALPHA = 1e-3   # the paper's derivative-loss weight (found by search over 1e-1 ... 1e-4)
 # alpha values tried by `select_alpha` (`--alpha auto`): naive (0) and a log grid
@@ -197,6 +200,13 @@ class TrainSettings:
                      "checkpoint_every", "threads"):
             if int(getattr(self, name)) < 1:
                 raise InputError(f"{key(name)} must be >= 1, got {getattr(self, name)}")
+            if name in UPPER_BOUNDS and getattr(self, name) > UPPER_BOUNDS[name]:
+                raise InputError(f"{key(name)} must be at most {UPPER_BOUNDS[name]}, got {getattr(self, name)}")
+        weights = self.ensemble_size * self.hidden_layers * self.hidden_width ** 2
+        if weights > MAX_WEIGHTS:
+            raise InputError(f"the network would hold about {weights:.3g} weights ({key('ensemble_size')} x "
+                             f"{key('hidden_layers')} x {key('hidden_width')}²), more than {MAX_WEIGHTS:.0e} "
+                             "(a few GB with the optimizer's state)")
         for name in ("train", "val", "test"):
             if getattr(self, name) is not None and getattr(self, name) < (0 if name == "test" else 1):
                 raise InputError(f"{key(name)} must be >= {0 if name == 'test' else 1}, got {getattr(self, name)}")

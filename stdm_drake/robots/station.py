@@ -16,6 +16,7 @@ from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator, SelfC
 from stdm_drake.robots.robot import Robot
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
+MAX_SUBSTEPS = 10_000        # plant steps per sample period
 
 
 @dataclasses.dataclass
@@ -34,7 +35,10 @@ class StationConfig:
         if not (math.isfinite(self.plant.time_step) and self.plant.time_step > 0):
             raise InputError(f"collection needs a discrete plant (a finite time_step > 0), got {self.plant.time_step}")
         ratio = self.sample_period / self.plant.time_step
-        if not ratio <= 1e7 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        if ratio > MAX_SUBSTEPS:
+            raise InputError(f"plant step {self.plant.time_step} s is {ratio:.3g} steps per sample period; at most "
+                             f"{MAX_SUBSTEPS} (a finer step is a run that does not end)")
+        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
             raise InputError(f"sample period {self.sample_period} s is not a whole multiple of the plant "
                              f"step {self.plant.time_step} s")
         return int(round(ratio))
