@@ -109,8 +109,8 @@ class DatasetWriter:
 
 
 def write_dataset(path, trajectories: list[Trajectory], groups, metadata: dict) -> pathlib.Path:
-    """Validate and write a dataset atomically (`DatasetWriter`; every trajectory checked before the file
-    is opened).
+    """Validate and write a dataset atomically (`DatasetWriter`: each trajectory checked as it is added; on an
+    error the temporary file goes).
 
     trajectories: the Trajectory of each (arrays named as in the module docstring).
     groups: (num_trajectories,) ints. metadata: JSON-serializable dict with at least
@@ -120,10 +120,6 @@ def write_dataset(path, trajectories: list[Trajectory], groups, metadata: dict) 
     groups = np.asarray(groups, dtype=int)
     if groups.shape != (len(trajectories),):
         raise InputError(f"groups has shape {groups.shape}, expected ({len(trajectories)},)")
-    if not trajectories:
-        raise InputError("a dataset needs at least one trajectory")
-    for i, traj in enumerate(trajectories):
-        check_trajectory(f"{i:06d}", traj.arrays(), metadata["protocol"])
     with DatasetWriter(path, metadata) as writer:
         for traj, group in zip(trajectories, groups):
             writer.add(traj, int(group))

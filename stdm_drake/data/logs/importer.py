@@ -5,6 +5,7 @@ the longest duration; each piece is resampled onto the sample period (`resample`
 and written at once (`DatasetWriter`): memory holds one block and one piece. Nothing is written unless the
 whole log imports (the writer's temporary file is removed on any error)."""
 import dataclasses
+import itertools
 import pathlib
 
 import numpy as np
@@ -36,12 +37,23 @@ def detect_format(path, given: str = "") -> str:
 
 
 def log_rows(path, robot, mapping: LogMapping):
-    """The log's reader: an iterator of `Rows` blocks in the robot's joint order."""
+    """The log's rows as `Rows` blocks in the robot's joint order, torques in N m (logged currents times the
+    mapping's torque constants with torque_source current)."""
+    constants = None
+    if mapping.torque_source == "current":
+        constants = np.asarray(mapping.torque_constants, dtype=float)
+        if constants.shape != (robot.num_joints,):
+            raise InputError(f"torque_constants has {len(constants)} values, the robot has {robot.num_joints} joints")
     if mapping.format == "rtde_csv":
         from stdm_drake.data.logs import rtde
-        return rtde.rows(path, robot.num_joints, mapping)
-    from stdm_drake.data.logs import ros2
-    return ros2.rows(path, robot, mapping)
+        blocks = rtde.rows(path, robot.num_joints, mapping)
+    else:
+        from stdm_drake.data.logs import ros2
+        blocks = ros2.rows(path, robot, mapping)
+    for block in blocks:
+        if constants is not None:
+            block.tau = block.tau * constants
+        yield block
 
 
 @dataclasses.dataclass
@@ -194,8 +206,7 @@ def check_stamps(block: Rows, previous: float | None, source: str, place: str) -
     steps = np.diff(t)
     bad = np.flatnonzero(steps <= 0)
     if len(bad):
-        row = bad[0] if previous is None else bad[0] - 1
-        where = block.where[row + 1] if previous is None else block.where[max(row + 1, 0)]
+        where = block.where[bad[0] + (1 if previous is None else 0)]   # (the row whose stamp does not increase)
         kind = "repeats" if steps[bad[0]] == 0 else "goes back in time"
         raise InputError(f"{source}: the timestamp at {place} {where} {kind} ({t[bad[0] + 1]!r} after "
                          f"{t[bad[0]]!r}); a log's stamps must increase")
@@ -254,7 +265,7 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
     mapping = mapping.with_format(detect_format(path, mapping.format))
     source = f"{'ROS 2 bag' if mapping.format == 'ros2_bag' else 'RTDE log'} {path}"
     place = "joint-state message" if mapping.format == "ros2_bag" else "line"
-    blocks = iter(log_rows(path, robot, mapping))
+    blocks = log_rows(path, robot, mapping)
     first = next(blocks, None)
     if first is None or len(first) < 3:
         raise InputError(f"{source}: fewer than 3 rows")
@@ -269,7 +280,7 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
     counts = Counts()
     pieces = Pieces(mapping, period, counts)
     checks = LimitCheck(robot, source, place)
-    sums = dict(loo=0.0, loo_count=0, jitter=0.0, jitter_count=0, longest=0.0)
+    sums = dict(loo=0.0, loo_count=0, jitter=0.0, jitter_count=0, longest=0.0)   # over the pieces written
     starts, spans = [], []
     metadata = dict(protocol="logged", sample_period=sample_period, seed=None, joint_names=list(robot.joint_names),
                     robot_model_sha256=robot.model_sha256(), robot=dataclasses.asdict(robot.config),
@@ -277,7 +288,7 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
                     torque_hold="the mean of the logged commands over each sample period")
     previous = None
     with DatasetWriter(output, metadata) as writer:
-        for block in _chain(first, blocks):
+        for block in itertools.chain([first], blocks):
             if not len(block):
                 continue
             check_stamps(block, previous, source, place)
@@ -291,6 +302,7 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
                              f"{mapping.smoothing_window} samples or more after splitting ({counts.rows} rows, "
                              f"{counts.gaps} gaps, {counts.pauses} pauses, {counts.mode_changes} mode changes)")
         ratio = checks.finish()
+        leave_one_out = float(np.sqrt(sums["loo"] / max(sums["loo_count"], 1)))
         record = dict(
             format=mapping.format, source=str(path), source_sha256=None if path.is_dir() else file_sha256(path),
             mapping=dataclasses.asdict(mapping), torque_source=mapping.torque_source,
@@ -302,19 +314,13 @@ def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
                                    "torque: the mean command over each period; grid: the log's clock",
                             log_period_s=period, jitter_rms_s=float(np.sqrt(sums["jitter"] / max(sums["jitter_count"], 1))),
                             longest_interval_s=sums["longest"],
-                            leave_one_out_q_rms_rad=float(np.sqrt(sums["loo"] / max(sums["loo_count"], 1))),
-                            estimated_q_error_rad=float(np.sqrt(sums["loo"] / max(sums["loo_count"], 1))
-                                                        / resampling.LEAVE_ONE_OUT_FACTOR)),
+                            leave_one_out_q_rms_rad=leave_one_out,
+                            estimated_q_error_rad=leave_one_out / resampling.LEAVE_ONE_OUT_FACTOR),
             velocity_ratio=ratio, trajectories=dataclasses.asdict(counts), start_times_s=starts, rows_spanned=spans)
         writer.metadata["import"] = record
     if announce:
         announce(f"{counts.kept} trajectories from {counts.rows} rows")
     return record
-
-
-def _chain(first, rest):
-    yield first
-    yield from rest
 
 
 def _write_piece(piece: Rows, writer, checks: LimitCheck, mapping, period, sample_period, counts: Counts, sums,

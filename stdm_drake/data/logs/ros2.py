@@ -204,15 +204,7 @@ def rows(path, robot, mapping, block_messages: int = BLOCK_MESSAGES):
         plan = None
         if control is not None:
             plan = controller_plan(reader, path, control, typestore(control), wanted, origin)
-        constants = None
-        if mapping.torque_source == "current":
-            constants = np.asarray(mapping.torque_constants, dtype=float)
-            if constants.shape != (len(wanted),):
-                raise InputError(f"torque_constants has {len(constants)} values, the robot has {len(wanted)} joints")
-        for block in _joint_state_blocks(reader, path, states, store, wanted, plan, block_messages, origin):
-            if constants is not None:
-                block.tau = block.tau * constants
-            yield block
+        yield from _joint_state_blocks(reader, path, states, store, wanted, plan, block_messages, origin)
     finally:
         reader.close()
 

@@ -85,8 +85,8 @@ def columns(names: list, path, joints: int, mapping) -> dict:
 
 
 def rows(path, joints: int, mapping, block_rows: int = BLOCK_ROWS):
-    """The log's rows as `Rows` blocks of up to `block_rows` (torques in N m: currents times the mapping's
-    torque constants); a malformed line is an InputError naming it (line numbers count the header as 1)."""
+    """The log's rows as `Rows` blocks of up to `block_rows` (tau: the torque source's column, currents in A
+    until the importer scales them); a malformed line is an InputError naming it (line numbers count the header as 1)."""
     path = pathlib.Path(path)
     names, delimiter = read_header(path)
     found = columns(names, path, joints, mapping)
@@ -96,11 +96,6 @@ def rows(path, joints: int, mapping, block_rows: int = BLOCK_ROWS):
     for key in found:
         spans[key] = slice(start, start + len(found[key]))
         start += len(found[key])
-    constants = None
-    if mapping.torque_source == "current":
-        constants = np.asarray(mapping.torque_constants, dtype=float)
-        if constants.shape != (joints,):
-            raise InputError(f"torque_constants has {len(constants)} values, the robot has {joints} joints")
     with open(path, encoding="utf-8", errors="replace") as file:
         file.readline()
         line = 2
@@ -121,14 +116,13 @@ def rows(path, joints: int, mapping, block_rows: int = BLOCK_ROWS):
                 bad = int(np.flatnonzero(~np.all(np.isfinite(values), axis=1))[0])
                 raise InputError(f"RTDE log {path}: line {numbers[bad]} holds NaN or inf")
             block = {key: values[:, span] for key, span in spans.items()}
-            tau = block["tau"] * constants if constants is not None else block["tau"]
             mode = running = None
             if "modes" in block:
                 codes = block["modes"]
                 mode = (codes * (1000 ** np.arange(codes.shape[1]))).sum(axis=1).astype(np.int64)
                 running = np.all([np.isin(codes[:, column], MODE_FIELDS[field])
                                   for column, field in enumerate(mode_fields)], axis=0)
-            yield Rows(t=block["t"][:, 0], q=block["q"], v=block["v"], tau=tau, where=numbers,
+            yield Rows(t=block["t"][:, 0], q=block["q"], v=block["v"], tau=block["tau"], where=numbers,
                        q_planned=block.get("q_planned"), v_planned=block.get("v_planned"),
                        qdd_planned=block.get("qdd_planned"), mode=mode, running=running)
 

@@ -24,6 +24,12 @@ EXTRA_JOINT = "gripper_finger_joint"   # a joint state the robot does not have (
 TORQUE_CONSTANTS = (13.0, 13.0, 13.0, 9.0, 9.0, 9.0)
 
 
+def torque_constants(joints: int) -> np.ndarray:
+    """(joints,) N m / A: the simulated logs' torque constants (TORQUE_CONSTANTS, or 10 for every joint of an arm
+    with more joints than it names)."""
+    return np.asarray(TORQUE_CONSTANTS[:joints] if joints <= len(TORQUE_CONSTANTS) else [10.0] * joints)
+
+
 @dataclasses.dataclass
 class LogTiming:
     """Where a log's rows fall: per trajectory, its log time at sample 0 (s) and the kept samples' indices and
@@ -114,7 +120,7 @@ def write_rtde_csv(dataset, path, *, delimiter: str = " ", timing: LogTiming | N
         raise InputError("a simulated log needs simulated data (its true motion)")
     timing = timing or log_timing(dataset)
     n = dataset.trajectory(0).q.shape[1]
-    constants = np.asarray(TORQUE_CONSTANTS[:n] if n <= len(TORQUE_CONSTANTS) else [10.0] * n)
+    constants = torque_constants(n)
     names = ["timestamp"]
     if dataset.has_plan:
         names += [f"{field}_{j}" for field in ("target_q", "target_qd", "target_qdd") for j in range(n)]
@@ -161,7 +167,7 @@ def write_ros2_bag(dataset, path, joint_names: list, *, storage: str = "sqlite3"
     Duration = types["builtin_interfaces/msg/Duration"]
     names = list(joint_names) + [EXTRA_JOINT]
     n = len(joint_names)
-    constants = np.asarray(TORQUE_CONSTANTS[:n] if n <= len(TORQUE_CONSTANTS) else [10.0] * n)
+    constants = torque_constants(n)
     plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
     empty = np.zeros(0)
 
