@@ -14,7 +14,9 @@ import os
 import re
 import sys
 
+from stdm_drake import interrupts
 from stdm_drake.errors import deferred_warnings
+from stdm_drake.outputs import command_outputs
 from stdm_drake.paths import expand_shipped
 
 # name -> (module, one-line help)
@@ -101,8 +103,29 @@ def main(argv: list[str] | None = None) -> int:
             return int(exit_.code or 0)
         return 2
     name = argv[0]
+    try:
+        os.getcwd()
+    except FileNotFoundError:   # (PyTorch and Drake fail on it at import, before any message could be given)
+        print(f"stdm-drake {name}: error: the working folder no longer exists (deleted?); cd to a folder that "
+              "does", file=sys.stderr)
+        return 2
+    try:
+        with interrupts.signals_as_exceptions():   # Ctrl-C, SIGTERM: through every `finally`, from the imports on
+            status = run_command(name, argv[1:])
+            if interrupts.received() is None:
+                return status
+            raise KeyboardInterrupt   # a library swallowed the signal: the run did not end as asked
+    except KeyboardInterrupt as error:
+        status = interrupts.exit_status(error if isinstance(error, interrupts.Terminated) else None)
+        close_progress_bars()
+        print(f"stdm-drake {name}: {'terminated (SIGTERM)' if status == 143 else 'interrupted'}", file=sys.stderr)
+        return status
+
+
+def run_command(name: str, argv: list[str]) -> int:
+    """Parse `argv` for command `name` and run it: its exit status; bad input is one line and status 2."""
     try:  # stdm-drake:controllers/pid.yaml names a shipped file, from any folder
-        argv = [name] + [expand_shipped(argument) for argument in argv[1:]]
+        argv = [expand_shipped(argument) for argument in argv]
     except ValueError as error:
         print(f"stdm-drake {name}: error: {error}", file=sys.stderr)
         return 2
@@ -110,18 +133,24 @@ def main(argv: list[str] | None = None) -> int:
     command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
     module.add_arguments(command_parser)
     try:
-        args = command_parser.parse_args(argv[1:])
+        args = command_parser.parse_args(argv)
     except SystemExit as exit_:  # --help (0) or a malformed command line (2, one line printed)
         return int(exit_.code or 0)
     try:
-        with drake_warnings_once(name), deferred_warnings():   # a failing command prints its one error line only
-            return int(module.run(args) or 0)
+        with command_outputs(name), drake_warnings_once(name), deferred_warnings():   # a failing command prints
+            return int(module.run(args) or 0)                                          # its one error line only
     except (ValueError, OSError) as error:  # InputError is a ValueError; OSError: files, folders, HDF5
+        close_progress_bars()
         print(f"stdm-drake {name}: error: {error_line(error)}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"stdm-drake {name}: interrupted", file=sys.stderr)
-        return 130
+
+
+def close_progress_bars() -> None:
+    """Close the progress bars a failed or interrupted command left open, so that its last line on the
+    terminal is the error (a bar closed later would redraw itself after it)."""
+    tqdm = sys.modules.get("tqdm")
+    for bar in list(getattr(getattr(tqdm, "tqdm", None), "_instances", None) or ()):
+        bar.close()
 
 
 if __name__ == "__main__":

@@ -137,7 +137,20 @@ class ProcessPool:
         import concurrent.futures
         import multiprocessing
         self.executor = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                                               initializer=initializer, initargs=initargs)
+                                                               initializer=_start_worker,
+                                                               initargs=(initializer, initargs))
+
+    def stop(self) -> None:
+        """End at once (Ctrl-C, SIGTERM): pending tasks cancelled, the workers terminated and reaped."""
+        processes = list((self.executor._processes or {}).values())
+        self.executor.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.join(timeout=10)
+            if process.is_alive():
+                process.kill()
+                process.join()
 
     def submit(self, function, *arguments):
         return self.executor.submit(function, *arguments)
@@ -163,6 +176,8 @@ def _ray_task(setup, function, *arguments):
     if marker and not os.path.exists(marker):  # fault injection for the retry test: die once, like a lost node
         pathlib.Path(marker).write_text(str(os.getpid()))
         os._exit(1)
+    from stdm_drake.interrupts import mark_worker
+    mark_worker()
     if setup is not None and setup[0] not in _RAY_INITIALIZED:
         setup[1](*setup[2])
         _RAY_INITIALIZED.add(setup[0])
@@ -229,10 +244,24 @@ def job_pool(config: RunnerConfig, initializer=None, initargs=()):
     pool = ProcessPool(config.workers, initializer, initargs)
     try:
         yield pool
+    except KeyboardInterrupt:   # Ctrl-C or SIGTERM: stop now, nothing left running (a second Ctrl-C waits)
+        from stdm_drake.interrupts import protected
+        with protected():
+            pool.stop()
+        raise
     except BaseException:
         pool.executor.shutdown(wait=True, cancel_futures=True)
         raise
     pool.executor.shutdown(wait=True)
+
+
+def _start_worker(initializer, initargs) -> None:
+    """A local worker process's start: signals left to the parent (`interrupts.ignore_interrupts_in_worker`),
+    then the pool's own initializer."""
+    from stdm_drake.interrupts import ignore_interrupts_in_worker
+    ignore_interrupts_in_worker()
+    if initializer is not None:
+        initializer(*initargs)
 
 
 def task_error(error: BaseException, what: str) -> InputError:

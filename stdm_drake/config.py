@@ -11,6 +11,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from stdm_drake.errors import InputError, warn
+from stdm_drake.paths import check_input_file
 
 
 def one_line(error: BaseException) -> str:
@@ -26,9 +27,7 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     kind, tag hint)} for Union-typed fields whose files may still be in the layout before tags (`field:`
     holding `kind:` and the fields, or, for the field "", the whole file): read by `from_kind_layout`.
     """
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise InputError(f"{what} not found: {path}")
+    path = check_input_file(path, what)
     config = _load_old_layout(path, schema, what, old_layouts) if old_layouts else None
     if config is None:
         try:
@@ -71,7 +70,10 @@ _TagsAsPlainValues.add_multi_constructor("!", _plain)
 
 def read_yaml_document(path):
     """A YAML file's document as plain Python values, tags ignored (to see its layout before the typed
-    load); None when it cannot be read or parsed (the typed load then says why)."""
+    load); None when it cannot be read or parsed, or is no regular file (a FIFO: reading would block; the
+    typed load then says why)."""
+    if not pathlib.Path(path).is_file():
+        return None
     try:
         return yaml.load(pathlib.Path(path).read_text(), Loader=_TagsAsPlainValues)
     except (OSError, UnicodeDecodeError, yaml.YAMLError):

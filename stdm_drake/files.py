@@ -1,30 +1,95 @@
-"""File helpers: atomic writes (temp file in the destination folder, then rename) and JSON of numpy values."""
+"""File helpers: atomic writes (temp file in the destination folder, then rename; a full disk as one line),
+the free space a write needs, the temporary files a killed run left, and JSON of numpy values."""
 import contextlib
 import dataclasses
+import errno
+import glob
 import os
 import pathlib
+import re
 import tempfile
+
+from stdm_drake.errors import InputError
+
+# A write that fails for lack of room (full disk, quota, file size limit, read-only file system).
+NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS)
+TEMP_SUFFIX = ".tmp"
+# `atomic_path`'s temporary files: "." + the file's name + "." + mkstemp's 8 random characters + ".tmp"
+TEMP_NAME = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp$")
+
+
+def megabytes(size: float) -> str:
+    return f"{size / 1e6:.3g} MB"
+
+
+def free_bytes(folder) -> int:
+    """Bytes this process may still write in `folder` (or the nearest folder above it that exists)."""
+    folder = pathlib.Path(folder).absolute()
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    stats = os.statvfs(folder)
+    return stats.f_bavail * stats.f_frsize
+
+
+def check_free_space(path, needed: int) -> None:
+    """InputError (one line naming `path` and the space it needs) unless `needed` bytes fit beside `path`."""
+    path = pathlib.Path(path)
+    free = free_bytes(path.parent)
+    if needed > free:
+        raise InputError(f"not enough space to write {path}: it needs about {megabytes(needed)}, "
+                         f"{megabytes(free)} free there")
+
+
+def no_room_error(path, error: OSError) -> InputError:
+    """The one line for a write to `path` that failed for lack of room (`NO_ROOM`)."""
+    return InputError(f"cannot write {path}: {error.strerror or os.strerror(error.errno)} "
+                      f"({megabytes(free_bytes(pathlib.Path(path).parent))} free there); nothing was replaced")
 
 
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path beside `path`; on success rename it to `path`, on error delete it.
 
-    Readers never see a half-written file, and a failed write leaves no file behind.
+    Readers never see a half-written file, and a failed write leaves no file behind; a write that runs out
+    of room (`NO_ROOM`) is an InputError naming `path`.
     """
+    from stdm_drake.interrupts import protected
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
     os.close(handle)
     umask = os.umask(0)
     os.umask(umask)
     try:
         yield pathlib.Path(temp_name)
-        os.chmod(temp_name, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
-        os.replace(temp_name, path)
+        with protected():
+            os.chmod(temp_name, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
+            os.replace(temp_name, path)
+    except OSError as error:
+        if error.errno in NO_ROOM:
+            raise no_room_error(path, error) from None
+        raise
     finally:
-        if os.path.exists(temp_name):
-            os.unlink(temp_name)
+        with protected():
+            if os.path.exists(temp_name):
+                os.unlink(temp_name)
+
+
+def remove_stale_temporaries(folder, name: str | None = None, recursive: bool = False) -> list[pathlib.Path]:
+    """Delete the temporary files a killed run left in `folder` (those of the file `name` only, or all of
+    them; `recursive`: in its subfolders too). Call it only while holding the output's lock (no live run
+    writes there). Returns what it removed."""
+    folder = pathlib.Path(folder)
+    if not folder.is_dir():
+        return []
+    pattern = f".{glob.escape(name)}.*{TEMP_SUFFIX}" if name else f".*{TEMP_SUFFIX}"
+    removed = []
+    for candidate in (folder.rglob(pattern) if recursive else folder.glob(pattern)):
+        if TEMP_NAME.match(candidate.name) and candidate.is_file() and not candidate.is_symlink():
+            with contextlib.suppress(FileNotFoundError):
+                candidate.unlink()
+                removed.append(candidate)
+    return removed
 
 
 def write_text_atomic(path, text: str) -> pathlib.Path:

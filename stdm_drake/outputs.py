@@ -3,25 +3,114 @@
 - an output is never one of the command's inputs (the same file, whatever the path or link says);
 - a file output is a regular file or nothing yet, a folder output a folder or nothing yet, and the
   folder it goes in can be written;
-- what exists there already is replaced only if stdm-drake wrote it (a dataset file, a JSON or HTML
-  file it marked, a folder it marked or that holds the command's own results), or with --force.
+- what exists there already is replaced only if the same stdm-drake command wrote it (a dataset file, a
+  JSON or HTML file it marked, a folder it marked or that holds the command's own results), or with --force;
+  every output records the command that wrote it;
+- one run at a time per output: while a command runs (`command_outputs`) each output it checks is locked
+  (a lock file beside it, `fcntl.flock`, released by the kernel if the run dies); a second run's error
+  names the first's process. Holding the lock, the temporary files a killed run left there are removed.
 
 Every violation is an InputError of one line, so the command exits with status 2 having done nothing.
 """
+import contextlib
+import errno
+import fcntl
 import json
 import os
 import pathlib
 import stat
 
 from stdm_drake.errors import InputError
+from stdm_drake.files import remove_stale_temporaries
 
 # Written into every output folder a command fills, and looked for before replacing one.
 FOLDER_MARKER = ".stdm-drake-output"
-# The first line of every HTML file stdm-drake writes, and the key of every JSON file.
+# The first line of every HTML file stdm-drake writes: "<!-- written by stdm-drake COMMAND -->" (`html_marker`;
+# older files and the library's: without the command).
 HTML_MARKER = "<!-- written by stdm-drake -->"
+HTML_PREFIX = "<!-- written by stdm-drake"
 IDENTIFIED_MARKER = "# An identified robot, written by `stdm-drake identify`"   # first line of identified.yaml
-JSON_MARKER = "written_by"
 DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every dataset (stdm_drake.data.dataset)
+WRITTEN_BY = "written_by"   # the HDF5 attribute (and JSON key) naming the command: "stdm-drake COMMAND"
+COMMAND_LINE = "command: "  # the folder marker's line naming the command
+
+# while a command runs: {"command": name, "locks": {path: (fd, lock file, the folders made for it)}}
+_running: dict | None = None
+
+
+@contextlib.contextmanager
+def command_outputs(command: str):
+    """While `command` (a CLI command's name) runs: outputs are checked against the command that wrote them,
+    marked with it, and locked until the block ends."""
+    global _running
+    outer, _running = _running, dict(command=command, locks={})
+    try:
+        yield
+    finally:
+        running, _running = _running, outer
+        for fd, lock_file, made in running["locks"].values():
+            with contextlib.suppress(OSError):
+                os.unlink(lock_file)
+            os.close(fd)
+            for folder in made:   # (deepest first) the folders made for the lock that stayed empty
+                with contextlib.suppress(OSError):
+                    folder.rmdir()
+
+
+def running_command() -> str | None:
+    """The CLI command now running (None: stdm-drake used as a library)."""
+    return None if _running is None else _running["command"]
+
+
+def written_by() -> str:
+    """What an output records of the command that wrote it: "stdm-drake COMMAND" ("stdm-drake" from the library)."""
+    command = running_command()
+    return "stdm-drake" if command is None else f"stdm-drake {command}"
+
+
+def html_marker() -> str:
+    """The first line of an HTML file written now."""
+    return f"{HTML_PREFIX} {running_command()} -->" if running_command() else HTML_MARKER
+
+
+def lock_output(option: str, path) -> None:
+    """Lock `path` for this run (a lock file `.NAME.lock` beside it; in it for a folder whose parent cannot be
+    written) and remove the temporary files a killed run left for it; InputError naming the process if another
+    run holds it."""
+    if _running is None:
+        return
+    path = pathlib.Path(path)
+    key = str(path.absolute())
+    if key in _running["locks"]:
+        return
+    lock_file = path.absolute().parent / f".{path.name}.lock"
+    if path.is_dir() and not os.access(lock_file.parent, os.W_OK):   # a folder in a folder this user cannot write
+        lock_file = path.absolute() / f"{FOLDER_MARKER}.lock"
+    made = [folder for folder in lock_file.parents if not folder.exists()]   # removed again if still empty
+    lock_file.parent.mkdir(parents=True, exist_ok=True)
+    while True:
+        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as error:
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            if error.errno not in (errno.EWOULDBLOCK, errno.EACCES):
+                raise
+            raise InputError(f"{option} {path} is being written by another stdm-drake run (process {holder}); "
+                             "wait for it to end or choose another path") from None
+        try:   # the file may have been removed by the run that held it just before: lock the one at the path
+            if os.fstat(fd).st_ino == os.stat(lock_file).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        os.close(fd)
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+    _running["locks"][key] = (fd, lock_file, made)
+    if (path / FOLDER_MARKER).is_file():   # (only in a folder stdm-drake wrote: never a user's files)
+        remove_stale_temporaries(path, recursive=True)
+    remove_stale_temporaries(path.absolute().parent, path.name)
 
 
 def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
@@ -56,32 +145,48 @@ def _check_not_input(option: str, path: pathlib.Path, inputs) -> None:
             raise InputError(f"{option} {path} is one of the command's inputs ({source}); choose another path")
 
 
-def _written_by_us(path: pathlib.Path, kind: str) -> bool:
-    """Whether the regular file at `path` is a stdm-drake output of `kind` ("dataset", "json", "identified",
-    "html")."""
+def _writer_of(path: pathlib.Path, kind: str) -> str | None:
+    """Who wrote the regular file at `path`, an output of `kind` ("dataset", "json", "identified", "html"):
+    "stdm-drake COMMAND", "stdm-drake" (an older file that does not name its command) or None (not stdm-drake)."""
     try:
         if kind == "dataset":
             import h5py
             with h5py.File(path, "r") as f:
-                return f.attrs.get("format") == DATASET_FORMAT
+                if f.attrs.get("format") != DATASET_FORMAT:
+                    return None
+                writer = f.attrs.get(WRITTEN_BY, "stdm-drake")
+                return writer.decode() if isinstance(writer, bytes) else str(writer)
         if kind == "json":
             with open(path, encoding="utf-8") as f:
                 data = json.load(f)
-            return isinstance(data, dict) and str(data.get(JSON_MARKER, "")).startswith("stdm-drake")
+            writer = str(data.get(WRITTEN_BY, "")) if isinstance(data, dict) else ""
+            return writer if writer.startswith("stdm-drake") else None
         if kind == "identified":
             with open(path, encoding="utf-8", errors="replace") as f:
-                return f.readline().startswith(IDENTIFIED_MARKER)
+                return "stdm-drake identify" if f.readline().startswith(IDENTIFIED_MARKER) else None
         if kind == "html":
             with open(path, encoding="utf-8", errors="replace") as f:
-                return f.readline().strip() == HTML_MARKER
+                line = f.readline().strip()
+            if not (line.startswith(HTML_PREFIX) and line.endswith("-->")):
+                return None
+            return line[len("<!-- written by "):-len("-->")].strip()
     except (OSError, ValueError):
-        return False
+        return None
     raise ValueError(f"unknown output kind {kind!r}")
+
+
+def _other_command(writer: str) -> str | None:
+    """The other CLI command `writer` ("stdm-drake COMMAND") names, if it names one and it is not the one
+    running."""
+    command = writer.removeprefix("stdm-drake").strip()
+    running = running_command()
+    return command if command and running and command != running else None
 
 
 def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = False) -> pathlib.Path | None:
     """Check a file the command will write (option: its flag, for messages; kind: "dataset", "json",
-    "identified" or "html"; inputs: the files the command reads). Returns the path (None stays None)."""
+    "identified" or "html"; inputs: the files the command reads) and lock it while the command runs.
+    Returns the path (None stays None)."""
     if path is None:
         return None
     path = pathlib.Path(path)
@@ -93,24 +198,48 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
         if not stat.S_ISREG(mode):
             raise InputError(f"{option} {path} is not a regular file (a device, pipe or broken link); "
                              "give a file path")
-        if not force and not _written_by_us(path, kind):
+        writer = _writer_of(path, kind)
+        if not force and writer is None:
             raise InputError(f"{option} {path} exists and stdm-drake did not write it; pass --force to replace it")
+        if not force and _other_command(writer):
+            raise InputError(f"{option} {path} was written by `{writer}`; choose another path or pass --force to "
+                             "replace it")
         if not os.access(path, os.W_OK) and not os.access(path.parent, os.W_OK):
             raise InputError(f"{option} {path}: cannot replace it (permission denied)")
     _check_parent(option, path)
+    lock_output(option, path)
     return path
 
 
+def folder_writer(path) -> str | None:
+    """The command whose marker is in folder `path` ("" for a marker that does not name one), or None."""
+    try:
+        text = (pathlib.Path(path) / FOLDER_MARKER).read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    for line in text.splitlines():
+        if line.startswith(COMMAND_LINE):
+            return line[len(COMMAND_LINE):].strip()
+    return ""
+
+
 def check_output_folder(option: str, path, *, inputs=(), own_files=(), force: bool = False) -> pathlib.Path:
-    """Check a folder the command will fill: missing, empty, marked by stdm-drake, holding one of the
-    command's own result files (`own_files`, names relative to it, from runs before the marker), or
-    --force. A folder that is one of the inputs, or an existing file, is refused."""
+    """Check a folder the command will fill and lock it while the command runs: missing, empty, marked by
+    this command (or by an older run that did not name its command), holding one of the command's own result
+    files (`own_files`, names relative to it, from runs before the marker), or --force. A folder that is one
+    of the inputs, an existing file or another command's folder is refused."""
     path = pathlib.Path(path)
     _check_not_input(option, path, inputs)
     if path.exists() or path.is_symlink():
         if not path.is_dir():
             raise InputError(f"{option} {path} exists and is not a folder; give a folder path")
-        ours = (path / FOLDER_MARKER).exists() or any((path / name).exists() for name in own_files)
+        writer = folder_writer(path)
+        if not force and writer and running_command() and writer != running_command():
+            raise InputError(f"{option} {path} holds the outputs of `stdm-drake {writer}`; choose another folder "
+                             "or pass --force to write into it")
+        own = any((path / name).exists() for name in own_files)
+        # an older marker does not name its command: the folder is this command's if it holds its results
+        ours = bool(writer) or own or (writer == "" and {child.name for child in path.iterdir()} <= {FOLDER_MARKER})
         if not force and not ours and any(path.iterdir()):
             raise InputError(f"{option} {path} is a folder stdm-drake did not write (not empty); choose another "
                              "or pass --force to write into it")
@@ -118,16 +247,20 @@ def check_output_folder(option: str, path, *, inputs=(), own_files=(), force: bo
             raise InputError(f"{option} {path}: cannot write in it (permission denied)")
     else:
         _check_parent(option, path / "x")
+    lock_output(option, path)
     return path
 
 
 def mark_output_folder(path) -> None:
-    """Create the output folder if needed and mark it as stdm-drake's."""
+    """Create the output folder if needed and mark it as the running command's."""
     path = pathlib.Path(path)
     path.mkdir(parents=True, exist_ok=True)
-    marker = path / FOLDER_MARKER
-    if not marker.exists():
-        marker.write_text("This folder holds stdm-drake outputs; stdm-drake may replace what is in it.\n")
+    command = running_command()
+    if (path / FOLDER_MARKER).exists() and (command is None or folder_writer(path) == command):
+        return
+    from stdm_drake.files import write_text_atomic
+    write_text_atomic(path / FOLDER_MARKER, "This folder holds stdm-drake outputs; stdm-drake may replace what is "
+                      "in it.\n" + (f"{COMMAND_LINE}{command}\n" if command else ""))
 
 
 def add_force_argument(parser) -> None:

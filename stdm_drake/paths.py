@@ -1,8 +1,11 @@
 """Where the robot descriptions (models/), plan specifications (trajectories/) and controller settings
 (controllers/) are: inside the installed package (stdm_drake/_data, put there by a wheel build, see
 pyproject.toml) or, in a source checkout or an editable install, the repository root. A path written
-`stdm-drake:controllers/pid.yaml` names such a shipped file from any folder, installed or not."""
+`stdm-drake:controllers/pid.yaml` names such a shipped file from any folder, installed or not. Also the one
+check of a file a command reads (`check_input_file`)."""
+import errno
 import pathlib
+import stat
 
 SHIPPED_PREFIX = "stdm-drake:"
 
@@ -44,3 +47,26 @@ def expand_shipped(argument: str) -> str:
     if separator and option.startswith("--") and value.startswith(SHIPPED_PREFIX):
         return f"{option}={shipped_file(value)}"
     return argument
+
+
+def check_input_file(path, what: str, missing=None) -> pathlib.Path:
+    """`path` as a Path when it names a regular file to read (a symlink to one included); otherwise an
+    error naming `what` ("dataset", "robot ur10: model file", ...) and what the path is instead: a
+    folder, not a regular file (a FIFO, socket or device, which reading would block on or consume),
+    a symlink loop, or not there. missing: the exception type for a path that is not there (default
+    InputError; FileNotFoundError where callers catch that); the others are InputError."""
+    from stdm_drake.errors import InputError
+    path = pathlib.Path(path)
+    try:
+        mode = path.stat().st_mode
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            raise InputError(f"{what} {path} is a symlink loop (its links point at each other)") from None
+        if error.errno in (errno.ENOENT, errno.ENOTDIR):
+            raise (missing or InputError)(f"{what} not found: {path}") from None
+        raise InputError(f"{what} {path} cannot be read ({error.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise InputError(f"{what} {path} is a folder, not a file")
+    if not stat.S_ISREG(mode):
+        raise InputError(f"{what} {path} is not a regular file (a FIFO, socket or device)")
+    return path

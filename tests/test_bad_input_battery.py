@@ -58,9 +58,11 @@ def sandbox(tmp_path_factory, excitation_dataset, tracking_dataset):
     edited_copy(box, "short_tau.h5", "tau", lambda tau: tau[:-1])
     write_logs(box)
     write_hand_edited(box)
+    write_other_commands_outputs(box)
     content = torch.load(box / "ck.pt", weights_only=True)    # a checkpoint whose output spread is zero
     content["weights"]["output_normalizer.std"] = torch.zeros_like(content["weights"]["output_normalizer.std"])
     torch.save(content, box / "zero_std.pt")
+    write_issue_25_inputs(box)
     return box
 
 
@@ -144,6 +146,96 @@ def write_hand_edited(box) -> None:
     copy("flat_trajectory.h5", flatten)
 
 
+BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacement) (issue 25, class 9)
+    "loop": ('<link name="flange"/>', '<link name="flange"/><joint name="closing" type="fixed"><parent link="wrist_3_link"/>'
+                                      '<child link="forearm_link"/></joint>'),
+    "cycle": ('<link name="flange"/>', '<link name="flange"/><joint name="closing" type="fixed"><parent link="wrist_3_link"/>'
+                                       '<child link="base_link"/></joint>'),
+    "zero_mass": ('<mass value="4.27"/>', '<mass value="0"/>'),
+    "negative_mass": ('<mass value="4.27"/>', '<mass value="-4.27"/>'),
+    "zero_inertia": ('ixx="0.0004" ixy="0" ixz="0" iyy="0.00041" iyz="0" izz="0.00034"',
+                     'ixx="0" ixy="0" ixz="0" iyy="0" iyz="0" izz="0"'),
+    "triangle": ('izz="0.00034"', 'izz="0.002"'),
+    "massless": (r'(<link name="wrist_3_link">\s*)<inertial>.*?</inertial>', r"\1"),   # wrist_3, flange, tool0: no mass
+    "reversed": ('lower="-3.141592653589793" upper="3.141592653589793"', 'lower="3.141592653589793" upper="-3.141592653589793"'),
+    "negative_velocity": ('velocity="3.1416" effort="150"', 'velocity="-3.1416" effort="150"'),
+    "zero_velocity": ('velocity="3.1416" effort="150"', 'velocity="0" effort="150"'),
+    "nan_limit": ('lower="-3.141592653589793" upper="3.141592653589793"', 'lower="nan" upper="3.141592653589793"'),
+}
+
+
+def ur10_config(model: str, tool_frame: str = "tool0") -> str:
+    """The UR-10 preset's robot config with another model file and tool frame (no defaults: derived)."""
+    return (f"name: ur10\nmodel: {model}\nweld_frame: base_link\narm_joints: [shoulder_pan_joint, shoulder_lift_joint, "
+            f"elbow_joint, wrist_1_joint, wrist_2_joint, wrist_3_joint]\nhome: [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]\n"
+            f"tool_frame: {tool_frame}\n")
+
+
+def write_issue_25_inputs(box) -> None:
+    """Issue 25, classes 9, 10, 14: broken copies of ur10.urdf with their robot configs (bad_NAME.yaml), a
+    model path that is a symlink loop, a tool frame the model lacks; datasets whose widths or periods
+    disagree, or whose protocol attribute contradicts the metadata; checkpoints with bad splits or no
+    sample period; FIFOs and symlink loops where input files are expected."""
+    import re
+    urdf = (box / "ur10.urdf").read_text()
+    for name, (pattern, replacement) in BROKEN_UR10.items():
+        broken, found = re.subn(pattern, replacement, urdf, count=1, flags=re.S)
+        assert found, name
+        (box / f"bad_{name}.urdf").write_text(broken)
+        (box / f"bad_{name}.yaml").write_text(ur10_config(f"bad_{name}.urdf"))
+    (box / "bad_tool.yaml").write_text(ur10_config("ur10.urdf", tool_frame="gripper_tip"))
+    (box / "bad_symlink.yaml").write_text(ur10_config("loop_a.urdf"))
+    for suffix in ("urdf", "h5", "pt", "yaml"):
+        os.symlink(f"loop_b.{suffix}", box / f"loop_a.{suffix}")
+        os.symlink(f"loop_a.{suffix}", box / f"loop_b.{suffix}")
+        if suffix != "urdf":
+            os.mkfifo(box / f"fifo.{suffix}")
+
+    def each_trajectory(name: str, edit) -> None:
+        shutil.copy(box / "data.h5", box / name)
+        with h5py.File(box / name, "r+") as f:
+            for group in f["trajectories"].values():
+                edit(group)
+
+    def narrow(group):   # 3 torque columns of the UR-10's 6
+        for key in ("tau", "tau_next"):
+            value = group[key][()][..., :3]
+            del group[key]
+            group[key] = value
+    each_trajectory("tau3.h5", narrow)
+    edited_copy(box, "q_narrow.h5", "q", lambda q: q[:, :5])
+    shutil.copy(box / "data.h5", box / "attr_protocol.h5")
+    with h5py.File(box / "attr_protocol.h5", "r+") as f:
+        f.attrs["protocol"] = "tracking"
+    shutil.copy(box / "data.h5", box / "mixed_period.h5")   # its first trajectory one of slow.h5 (0.02 s)
+    with h5py.File(box / "mixed_period.h5", "r+") as f, h5py.File(box / "slow.h5", "r") as slow:
+        del f["trajectories/000000"]
+        slow.copy("trajectories/000000", f["trajectories"])
+
+    def checkpoint(name: str, edit) -> None:
+        content = torch.load(box / "ck.pt", weights_only=True)
+        edit(content["metadata"])
+        torch.save(content, box / name)
+    checkpoint("negative_split.pt", lambda metadata: metadata["split"].update(test=[-1]))
+    checkpoint("far_split.pt", lambda metadata: metadata["split"].update(test=[99]))
+    checkpoint("twice_split.pt", lambda metadata: metadata["split"].update(val=metadata["split"]["train"][:1]))
+    checkpoint("no_period.pt", lambda metadata: metadata.pop("sample_period"))
+
+
+def write_other_commands_outputs(box) -> None:
+    """Outputs that record the command that wrote them (issue 25, class 1): a reproduce folder, identify's
+    report, an imported dataset, collect's Meshcat page (`run`, train's folder, is the fixture's own)."""
+    import json as json_module
+    (box / "repro").mkdir()
+    (box / "repro" / ".stdm-drake-output").write_text("stdm-drake outputs\ncommand: reproduce\n")
+    (box / "repro" / "results.json").write_text(json_module.dumps(dict(written_by="stdm-drake reproduce")))
+    (box / "id_report.json").write_text(json_module.dumps(dict(written_by="stdm-drake identify")))
+    shutil.copy(box / "data.h5", box / "imported.h5")
+    with h5py.File(box / "imported.h5", "r+") as f:
+        f.attrs["written_by"] = "stdm-drake import"
+    (box / "collect.html").write_text("<!-- written by stdm-drake collect -->\n<html></html>\n")
+
+
 def edited_copy(box, name: str, key: str, edit) -> None:
     """A copy of data.h5 with array `key` of its first trajectory replaced by edit(array)."""
     shutil.copy(box / "data.h5", box / name)
@@ -167,7 +259,8 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "MAPSHORT": "map_short.yaml", "MAPPAUSE": "map_pause.yaml",
                 **{f"LOG{kind.upper()}": f"log_{kind}.csv" for kind in ("nots", "missing", "back", "dup", "nan", "text",
                                                                         "cut", "head", "deg", "seven")},
-                "BAGCUT": "bag_cut", "BAGFOUR": "bag_four",
+                "BAGCUT": "bag_cut", "BAGFOUR": "bag_four", "REPRO": "repro", "TRAINRUN": "run",
+                "IDREPORT": "id_report.json", "IMPORTED": "imported.h5", "COLLECTHTML": "collect.html",
                 **{name.upper().replace("_", ""): f"{name}.h5" for name in (
                     "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
                     "attr_count", "sub_group", "flat_trajectory")}}
@@ -184,6 +277,15 @@ I = ["import", "--quiet"]
 
 # (argv, a fragment the one-line message must contain ("" = any))
 CASES = [
+    # --- another command's outputs (issue 25, class 1): each output records its command; no other replaces it
+    (["sine-sum", "--quick", "-o", "REPRO"], "holds the outputs of `stdm-drake reproduce`"),
+    ([*M, "-o", "REPRO"], "holds the outputs of `stdm-drake reproduce`"),
+    ([*T, "-o", "REPRO"], "holds the outputs of `stdm-drake reproduce`"),
+    (["reproduce", "--quick", "-o", "TRAINRUN"], "holds the outputs of `stdm-drake train`"),
+    (["evaluate", "CK", "DATA", "--json", "IDREPORT"], "was written by `stdm-drake identify`"),
+    ([*E, "-o", "IMPORTED"], "was written by `stdm-drake import`"),
+    ([*I, "LOG", "-o", "DATA"], "was written by `stdm-drake collect`"),
+    (["view", "CK", "DATA", "--html", "COLLECTHTML"], "was written by `stdm-drake collect`"),
     # --- logs to import (issue 24): malformed recordings, wrong units, bad mappings, outputs
     ([*I, "LOGNOTS", "-o", "NEW.h5"], "not a log this import reads"), ([*I, "LOGMISSING", "-o", "NEW.h5"], "actual_qd_3"),
     ([*I, "LOGBACK", "-o", "NEW.h5"], "goes back in time"), ([*I, "LOGDUP", "-o", "NEW.h5"], "repeats"),
@@ -321,7 +423,7 @@ CASES = [
     (["mpc", "SLOW", "--model", "D=CK", "--excitation-references", "-o", "NEW"], "model steps at"), (["mpc", "TRACK", "--model", "D=NEW.pt", "-o", "NEW"], "not found"),
     # --- configuration files
     ([*E, "--config", "NEW.yaml", "-o", "NEW.h5"], "not found"), ([*E, "--config", "BADYAML", "-o", "NEW.h5"], "malformed"),
-    ([*E, "--config", "DATA", "-o", "NEW.h5"], "malformed"), ([*E, "--config", "DIR", "-o", "NEW.h5"], "not found"),
+    ([*E, "--config", "DATA", "-o", "NEW.h5"], "malformed"), ([*E, "--config", "DIR", "-o", "NEW.h5"], "is a folder"),
     ([*C, "--config", "BADYAML", "-o", "NEW.h5"], "malformed"), ([*C, "--controller", "BADYAML", "-o", "NEW.h5"], "malformed"),
     ([*C, "--controller", "NEW.yaml", "-o", "NEW.h5"], "not found"), ([*C, "--sensor", "BADYAML", "-o", "NEW.h5"], "malformed"),
     ([*C, "--robot", "BADYAML", "-o", "NEW.h5"], "malformed"), ([*C, "--robot", "NEW.yaml", "-o", "NEW.h5"], "not found"),
@@ -387,6 +489,38 @@ CASES = [
      "joint 'a' is not in"),
     (yaml_case("robot", "name: x\nmodel: ur10.urdf\narm_joints: [a, a]\nhome: [0, 0]\ntool_frame: t\n"), "distinct"),
     (yaml_case("robot", "model: ur10.urdf\n"), "needs name"),
+    # Issue 25, classes 9, 10, 14
+    ([*E, "--robot", "bad_loop.yaml", "-o", "NEW.h5"], "link 'forearm_link' is the child of joints 'elbow_joint' and 'closing'"),
+    ([*E, "--robot", "bad_cycle.yaml", "-o", "NEW.h5"], "form a cycle through link"),
+    ([*E, "--robot", "bad_zero_mass.yaml", "-o", "NEW.h5"], "link 'forearm_link' moves with the arm and has mass 0 kg"),
+    ([*E, "--robot", "bad_negative_mass.yaml", "-o", "NEW.h5"], "link 'forearm_link' has mass -4.27 kg"),
+    ([*E, "--robot", "bad_zero_inertia.yaml", "-o", "NEW.h5"], "link 'wrist_3_link' has an inertia that is not positive"),
+    ([*E, "--robot", "bad_triangle.yaml", "-o", "NEW.h5"], "break the triangle inequality"),
+    ([*E, "--robot", "bad_massless.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves links wrist_3_link, flange, tool0"),
+    ([*E, "--robot", "bad_reversed.yaml", "-o", "NEW.h5"], "'elbow_joint' has its lower position limit 3.14159 above"),
+    ([*E, "--robot", "bad_negative_velocity.yaml", "-o", "NEW.h5"], "'elbow_joint' has velocity limit -3.1416"),
+    ([*E, "--robot", "bad_zero_velocity.yaml", "-o", "NEW.h5"], "'elbow_joint' has velocity limit 0"),
+    ([*E, "--robot", "bad_nan_limit.yaml", "-o", "NEW.h5"], "'elbow_joint' has a non-finite lower limit"),
+    ([*E, "--robot", "bad_symlink.yaml", "-o", "NEW.h5"], "loop_a.urdf is a symlink loop"),
+    ([*C, "--robot", "bad_tool.yaml", "-o", "NEW.h5"], "tool_frame 'gripper_tip' is not a frame of ur10.urdf (its 10 links end"),
+    (["inspect", "tau3.h5", "--robot", "ROBOT"], "tau has 3 columns, robot ur10 has 6 actuated joints"),
+    ([*T[:1], "tau3.h5", *T[2:], "-o", "NEW"], "tau has 3 columns"),
+    ([*M, "--model", "N=negative_split.pt", "-o", "NEW"], "split test names trajectory -1"),
+    (["evaluate", "negative_split.pt", "DATA"], "split test names trajectory -1"),
+    (["evaluate", "far_split.pt", "DATA"], "split test names trajectory 99, the dataset has 4"),
+    (["view", "far_split.pt", "DATA", "--html", "NEW.html"], "split test names trajectory 99"),
+    (["evaluate", "twice_split.pt", "DATA"], "twice (train and val)"),
+    (["evaluate", "no_period.pt", "SLOW"], "checkpoint metadata has no sample_period"),
+    (["inspect", "mixed_period.h5"], "trajectory 000000: its velocities step its positions at about 0.02 s"),
+    ([*E, "--controller", "CTRL", "-o", "NEW.h5"], "the excitation protocol applies its torques directly"),
+    (["inspect", "attr_protocol.h5"], "protocol attribute 'tracking' contradicts the metadata's protocol 'excitation'"),
+    (["evaluate", "DIR", "DATA"], "is a folder, not a file"),
+    (["train", "FOREIGN", "-o", "NEW"], "is a folder, not a file"), ([*C, "--controller", "DIR", "-o", "NEW.h5"], "is a folder"),
+    (["inspect", "fifo.h5"], "is not a regular file"), (["evaluate", "fifo.pt", "DATA"], "is not a regular file"),
+    ([*E, "--config", "fifo.yaml", "-o", "NEW.h5"], "is not a regular file"),
+    (["inspect", "loop_a.h5"], "is a symlink loop"), (["evaluate", "loop_a.pt", "DATA"], "is a symlink loop"),
+    ([*E, "--config", "loop_a.yaml", "-o", "NEW.h5"], "is a symlink loop"),
+    (["inspect", "q_narrow.h5"], "trajectory 000000: q has shape (51, 5), expected (51, 6)"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

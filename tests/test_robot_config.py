@@ -327,3 +327,31 @@ def test_drakes_parser_warnings_are_shown_once_per_command(tmp_path, caplog, cap
         friction = [record for record in caplog.records if record.name == logger and "friction" in record.getMessage()]
         assert len(friction) == 1, [record.getMessage() for record in friction]
     assert "repeats of Drake's warnings above left out" in capsys.readouterr().err
+
+
+SDF = """<?xml version="1.0"?>
+<sdf version="1.7"><model name="arm">
+  <link name="base"/>
+  <link name="upper"><inertial><mass>{mass}</mass><inertia><ixx>0.01</ixx><iyy>0.01</iyy><izz>0.005</izz></inertia>
+  </inertial></link>
+  <link name="tip"/>
+  <joint name="shoulder" type="revolute"><parent>base</parent><child>upper</child>
+    <axis><xyz>0 1 0</xyz><limit><lower>{lower}</lower><upper>1</upper><velocity>-1</velocity></limit></axis></joint>
+  <joint name="tip_fixed" type="fixed"><parent>upper</parent><child>tip</child></joint>
+</model></sdf>
+"""
+
+
+def test_an_sdf_description_is_checked_like_a_urdf(tmp_path):
+    """The description checks read SDFormat too: its defaults (a link without <inertial> has 1 kg, a
+    velocity limit below 0 is none) pass, a reversed limit and a negative mass are refused by name."""
+    from stdm_drake.robots.description import check_description
+    path = tmp_path / "arm.sdf"
+    path.write_text(SDF.format(mass=2.0, lower=-1))
+    check_description(path, "arm", ["shoulder"])
+    path.write_text(SDF.format(mass=2.0, lower=2))
+    with pytest.raises(InputError, match="arm joint 'shoulder' has its lower position limit 2 above its upper limit 1"):
+        check_description(path, "arm", ["shoulder"])
+    path.write_text(SDF.format(mass=-2.0, lower=-1))
+    with pytest.raises(InputError, match="link 'upper' has mass -2 kg"):
+        check_description(path, "arm", ["shoulder"])

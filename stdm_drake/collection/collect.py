@@ -240,12 +240,13 @@ def collection_metadata(request: CollectionRequest) -> dict:
 
 
 def collection_request(protocol: str | None = None, *, count: int | None = None, seed: int = 0, config=None,
-                       controller=DEFAULT_CONTROLLER, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
+                       controller=None, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
                        plant_time_step: float = DEFAULT_PLANT_TIME_STEP, robot,
                        workers: int = min(2, os.cpu_count() or 1),
                        excitation: Excitation | None = None, plant_effects=None) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
-    sensor: YAML paths, None for the defaults; robot: a Robot or its config's path; excitation: an
+    sensor: YAML paths, None for the defaults (a controller only with the tracking protocol: the
+    excitation protocol applies its torques directly); robot: a Robot or its config's path; excitation: an
     Excitation to use instead of a file; plant_effects: a PlantEffects or its YAML path, None for the
     robot's description as it is). protocol: "excitation" or "tracking"; None: the one the
     config file's tag names, else tracking. Reads every config file and checks it against the robot, so
@@ -254,6 +255,10 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
         protocol = (protocol_named_in(config) if config is not None else None) or "tracking"
     if protocol not in PROTOCOLS:
         raise InputError(f"protocol must be one of {PROTOCOLS}, got {protocol!r}")
+    if controller is not None and protocol == "excitation":
+        raise InputError(f"--controller {controller}: the excitation protocol applies its torques directly, without a "
+                         "controller; give --controller with --protocol tracking")
+    controller = controller or DEFAULT_CONTROLLER
     sensor_config = SensorConfig()
     sensor_path = sensor or (DEFAULT_SENSOR if protocol == "tracking" else None)
     if sensor_path is not None:

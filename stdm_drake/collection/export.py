@@ -24,6 +24,8 @@ def check_export_folder(folder) -> pathlib.Path:
                          "new or empty folder")
     if folder.parent.exists() and not folder.parent.is_dir():
         raise InputError(f"--export-plans {folder}: {folder.parent} is not a folder")
+    from stdm_drake.outputs import lock_output
+    lock_output("--export-plans", folder)
     return folder
 
 

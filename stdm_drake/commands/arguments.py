@@ -27,6 +27,17 @@ def add_visualization_argument(parser: argparse.ArgumentParser) -> None:
                              "true` to show the collision geometry (default: the illustration geometry only)")
 
 
+def check_meshcat_allowed(option: str) -> None:
+    """`option` (--html, --meshcat) needs Meshcat's server: refused at once when DRAKE_ALLOW_NETWORK (a list of
+    the services Drake may open, separated by ":"; unset or empty: all) leaves Meshcat out."""
+    import os
+    allowed = os.environ.get("DRAKE_ALLOW_NETWORK", "")
+    if allowed and "meshcat" not in allowed.split(":"):
+        from stdm_drake.errors import InputError
+        raise InputError(f"{option} needs Meshcat, which DRAKE_ALLOW_NETWORK={allowed} turns off; set "
+                         "DRAKE_ALLOW_NETWORK=meshcat (Meshcat serves on this machine only)")
+
+
 def command_visualization(args: argparse.Namespace):
     """The VisualizationConfig `--visualization` names (None when absent: the recorder's default)."""
     if args.visualization is None:

@@ -6,9 +6,9 @@ import pathlib
 import sys
 
 from stdm_drake.collection.protocols import PROTOCOLS
-from stdm_drake.collection.collect import DEFAULT_CONTROLLER, CollectionRequest, collect, collection_request
+from stdm_drake.collection.collect import CollectionRequest, collect, collection_request
 from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot_argument, add_visualization_argument,
-                                           command_visualization)
+                                           check_meshcat_allowed, command_visualization)
 from stdm_drake.data.writer import write_dataset
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import add_force_argument, check_output_file
@@ -25,8 +25,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="protocol YAML (default: the file the robot config's `defaults` names, for the UR-10 "
                              "trajectories/excitation.yaml or tracking.yaml; without one, excitation ranges and "
                              "tracking poses derived from the robot, see README)")
-    parser.add_argument("--controller", type=pathlib.Path, default=DEFAULT_CONTROLLER,
-                        help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml)")
+    parser.add_argument("--controller", type=pathlib.Path,
+                        help="tracking controller gains YAML (default: controllers/inverse_dynamics.yaml); tracking "
+                             "protocol only")
     parser.add_argument("--sensor", type=pathlib.Path,
                         help="sensor noise/filter YAML (default: controllers/sensor.yaml for tracking, "
                              "an ideal sensor for excitation)")
@@ -70,16 +71,18 @@ def run(args: argparse.Namespace) -> int:
     inputs = [args.config, args.controller, args.sensor, args.robot, robot.model_path, args.visualization,
               args.plant_effects]
     visualization = command_visualization(args)
-    check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
-    check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
-    if args.export_plans is not None:
+    if args.export_plans is not None:   # (first: the outputs' locks would put files in a new folder)
         from stdm_drake.collection.export import check_export_folder
         if request.protocol != "tracking":
             raise InputError("--export-plans: plans exist only with --protocol tracking")
-        check_export_folder(args.export_plans)
         if pathlib.Path(args.output).absolute().is_relative_to(pathlib.Path(args.export_plans).absolute()):
             raise InputError(f"-o/--output {args.output} is inside --export-plans {args.export_plans}; write the "
                              "dataset elsewhere")
+        check_export_folder(args.export_plans)
+    check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
+    check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
+    if args.meshcat or args.html:
+        check_meshcat_allowed("--meshcat" if args.meshcat else "--html")
     recorder = None
     if args.meshcat or args.html:
         from stdm_drake.robots.recorder import TrajectoryRecorder

@@ -75,8 +75,7 @@ def run(args: argparse.Namespace) -> int:
     if args.horizon is not None and not 1 <= args.horizon <= shortest:
         raise InputError(f"--horizon must be in 1..{shortest} (the shortest selected trajectory's steps), "
                          f"got {args.horizon}")
-    model = command_model(source, robot, sample_period=dataset.sample_period, require_sample_period=False,
-                          check_robot=robot is not None)
+    model = command_model(source, robot, check_robot=robot is not None)
     transitions = dataset.transitions(indices)
     rollout_data = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
     plant = robot is not None and not args.no_plant

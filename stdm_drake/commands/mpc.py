@@ -13,7 +13,7 @@ from stdm_drake.closed_loop.comparison import (
 from stdm_drake.closed_loop.mpc import mpc_config_for
 from stdm_drake.closed_loop.tuning import with_setting
 from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot_argument, add_visualization_argument,
-                                           command_robot, command_visualization)
+                                           check_meshcat_allowed, command_robot, command_visualization)
 from stdm_drake.errors import InputError
 from stdm_drake.learning.physics import PlantModel
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, plant_effects_for
@@ -84,6 +84,8 @@ def run(args) -> int:
     inputs = [args.dataset, args.config, args.robot, args.visualization, args.plant_effects, *checkpoints]
     check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
+    if args.html:
+        check_meshcat_allowed("--html")
     visualization = command_visualization(args)
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)

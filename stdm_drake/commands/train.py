@@ -16,7 +16,7 @@ import torch
 from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.commands.arguments import add_robot_argument, command_robot, parse_alpha
 from stdm_drake.errors import InputError
-from stdm_drake.files import atomic_path, write_text_atomic
+from stdm_drake.files import atomic_path, check_free_space, write_text_atomic
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
@@ -27,6 +27,8 @@ from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainer import AlphaSelection
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 
+
+CHECKPOINT_RESERVE_BYTES = 1 << 20   # a checkpoint's history, metadata and the seed's curves, beyond its weights
 
 def history_csv(history: dict) -> str:
     """Learning curves as CSV text (one row per epoch, HISTORY_COLUMNS)."""
@@ -248,6 +250,10 @@ def run(args: argparse.Namespace) -> int:
                                threads=settings.threads)
     model_config = problem.model_config
     settings.training_config(settings.seeds[0])  # its checks, before the output folder is made
+    settings.check_memory(len(problem.train), model_config.ensemble_size)
+    weights = model_config.ensemble_size * model_config.hidden_layers * model_config.hidden_width ** 2
+    check_free_space(output / f"seed{settings.seeds[0]}" / "checkpoint.pt",   # weights, Adam's state (float32)
+                     len(settings.seeds) * (16 * weights + CHECKPOINT_RESERVE_BYTES))
     runner = runner_config_from_args(args)  # joins the cluster now: an unreachable one stops before any work
     mark_output_folder(output)
     print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "

@@ -4,8 +4,8 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.commands.arguments import (add_robot_argument, add_visualization_argument, command_robot,
-                                            command_visualization)
+from stdm_drake.commands.arguments import (add_robot_argument, add_visualization_argument, check_meshcat_allowed,
+                                            command_robot, command_visualization)
 from stdm_drake.learning.evaluate import open_loop_error_line
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.recorder import TrajectoryRecorder
@@ -36,6 +36,7 @@ def run(args) -> int:
         raise InputError(f"--trajectories must be >= 1, got {args.trajectories}")
     check_output_file("--html", args.html, kind="html",
                       inputs=[args.checkpoint, args.dataset, args.robot, args.visualization], force=args.force)
+    check_meshcat_allowed("--html" if args.html else "--meshcat")
     visualization = command_visualization(args)
     dataset = load_dataset(args.dataset)
     robot = command_robot(args, dataset)

@@ -32,20 +32,31 @@ def check_dataset_robot(dataset, robot: Robot, limits: JointLimits) -> None:
     if recorded.robot_model_sha256 not in (None, robot.model_sha256()):
         raise InputError(f"{dataset.path} was collected with another model file than {robot.model_path.name} "
                          f"(robot {name}); pass its config with --robot")
+    check_array_widths(dataset, robot)
     check_within_limits(dataset, robot, limits)
+
+
+def check_array_widths(dataset, robot: Robot) -> None:
+    """InputError unless every array of every trajectory has one column per joint of `robot` (n), the
+    actions (tau, tau_next) one per actuated joint (m)."""
+    for index in range(dataset.num_trajectories):
+        for key, array in dataset.trajectory(index).arrays().items():
+            action = key in ("tau", "tau_next")
+            count = robot.action_dim if action else robot.num_joints
+            if array.shape[-1] != count:
+                raise InputError(f"{dataset.path}: trajectory {index} {key} has {array.shape[-1]} columns, robot "
+                                 f"{robot.name} has {count} {'actuated joints' if action else 'joints'}; not this "
+                                 "robot's data")
 
 
 def check_within_limits(dataset, robot: Robot, limits: JointLimits, position_margin: float = 0.5,
                         velocity_factor: float = 1.5) -> None:
-    """InputError if the dataset's states (q, v: (T, n) per trajectory) leave the position limits by more
+    """InputError if the dataset's states (q, v: (T, n) per trajectory, n: the robot's, `check_array_widths`) leave the position limits by more
     than `position_margin` (rad or m) or the velocity limits by more than `velocity_factor` times."""
     for index in range(dataset.num_trajectories):
         traj = dataset.trajectory(index)
         for key, low, high in (("q", limits.position_lower - position_margin, limits.position_upper + position_margin),
                                ("v", -velocity_factor * limits.velocity, velocity_factor * limits.velocity)):
-            if getattr(traj, key).shape[1] != robot.num_joints:
-                raise InputError(f"{dataset.path}: {key} has {getattr(traj, key).shape[1]} joints, robot {robot.name} has "
-                                 f"{robot.num_joints}")
             outside = (getattr(traj, key) < low) | (getattr(traj, key) > high)
             if outside.any():
                 step, joint = np.argwhere(outside)[0]

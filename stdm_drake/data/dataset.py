@@ -41,6 +41,7 @@ import numpy as np
 from stdm_drake.data.schema import PROTOCOLS, SIMULATED_PROTOCOLS, attribute_number, check_record, check_trajectory
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import DATASET_FORMAT
+from stdm_drake.paths import check_input_file
 from stdm_drake.robots.effects import PlantEffects
 
 FORMAT = DATASET_FORMAT
@@ -74,11 +75,11 @@ class Trajectory:
     qdd_measured: np.ndarray | None = None
 
     @classmethod
-    def from_arrays(cls, name: str, arrays: dict, protocol: str) -> "Trajectory":
+    def from_arrays(cls, name: str, arrays: dict, protocol: str, sample_period: float | None = None) -> "Trajectory":
         """The trajectory of a mapping name -> array, checked (`check_trajectory`: every array of the
-        protocol present, no other, shapes, finite numbers, plausible magnitudes); InputError naming
-        trajectory `name`."""
-        check_trajectory(name, arrays, protocol)
+        protocol present, no other, shapes, finite numbers, plausible magnitudes, and steps at the file's
+        `sample_period` (s) when given); InputError naming trajectory `name`."""
+        check_trajectory(name, arrays, protocol, sample_period)
         return cls(**{key: np.asarray(value, dtype=np.float64) for key, value in arrays.items()})
 
     def arrays(self) -> dict:
@@ -314,11 +315,19 @@ def file_sha256(path) -> str:
     return digest.hexdigest()
 
 
+def check_protocol_attribute(attribute, protocol: str, path) -> None:
+    """InputError when the file's root `protocol` attribute (a string, or None when absent) names another
+    protocol than its metadata's `protocol` (a hand-edited file: which one holds?)."""
+    if attribute is None:
+        return
+    text = attribute.decode() if isinstance(attribute, bytes) else attribute
+    if not isinstance(text, str) or text != protocol:
+        raise InputError(f"{path}: protocol attribute {text!r} contradicts the metadata's protocol {protocol!r}")
+
+
 def load_dataset(path) -> Dataset:
     """Read and validate a dataset file; any problem raises InputError with one clear line."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"dataset not found: {path}")
+    path = check_input_file(path, "dataset", missing=FileNotFoundError)
     try:
         with h5py.File(path, "r") as f:
             if f.attrs.get("format") != FORMAT:
@@ -334,6 +343,7 @@ def load_dataset(path) -> Dataset:
             check_record(metadata, path)
             if metadata["protocol"] not in (PROTOCOLS if version >= 2 else SIMULATED_PROTOCOLS):
                 raise InputError(f"{path}: unknown protocol {metadata['protocol']!r} (format version {version})")
+            check_protocol_attribute(f.attrs.get("protocol"), metadata["protocol"], path)
             period = attribute_number(f.attrs.get("sample_period", np.nan), f"{path}: sample_period attribute")
             if not (period > 0 and period == float(metadata["sample_period"])):
                 raise InputError(f"{path}: sample period {period} missing, non-positive or inconsistent with metadata")
@@ -352,7 +362,7 @@ def load_dataset(path) -> Dataset:
                 if inner:
                     raise InputError(f"{path}: trajectory {name} holds {inner[0]!r}, which is not an array")
                 trajectories.append(Trajectory.from_arrays(name, {key: group[key][()] for key in group},
-                                                           metadata["protocol"]))
+                                                           metadata["protocol"], period))
                 groups.append(attribute_number(group.attrs.get("group", 0), f"{path}: trajectory {name}'s group", int))
             if len({trajectory.has_plan for trajectory in trajectories}) > 1:
                 raise InputError(f"{path}: some trajectories hold the plan and others do not")

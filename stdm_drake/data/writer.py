@@ -3,6 +3,7 @@ atomically; `write_dataset` for trajectories in memory; `package_versions`, what
 that wrote it."""
 import contextlib
 import json
+import os
 import pathlib
 import sys
 
@@ -12,7 +13,16 @@ import numpy as np
 from stdm_drake.data.dataset import FORMAT, FORMAT_VERSION, Trajectory
 from stdm_drake.data.schema import PLANNED_ARRAYS, PROTOCOLS, check_trajectory
 from stdm_drake.errors import InputError
-from stdm_drake.files import atomic_path, json_default
+from stdm_drake.files import atomic_path, check_free_space, json_default
+from stdm_drake.interrupts import protected
+from stdm_drake.outputs import WRITTEN_BY, written_by
+
+# HDF5 crashes the process when the disk fills under it, so it never may: before each trajectory the writer
+# checks that its arrays (plus HDF5's records of each, a bound), what HDF5 may still hold unwritten since its
+# last flush, and a reserve for the file's header fit; it flushes every HDF5_FLUSH_BYTES.
+HDF5_RESERVE_BYTES = 256 << 10
+HDF5_BYTES_PER_ARRAY = 1024
+HDF5_FLUSH_BYTES = 8 << 20
 
 
 def check_metadata(metadata: dict) -> float:
@@ -48,6 +58,8 @@ class DatasetWriter:
         self.count = 0
         self._planned = None   # whether the trajectories hold the plan (None: none written yet)
         self._atomic = self._file = None
+        self._unflushed = 0    # bytes written to HDF5 since its last flush (an upper bound)
+        self._size_at_flush = 0   # the temporary file's size then
 
     @property
     def has_plan(self) -> bool:
@@ -55,11 +67,13 @@ class DatasetWriter:
         return bool(self._planned)
 
     def __enter__(self) -> "DatasetWriter":
+        check_free_space(self.path, HDF5_RESERVE_BYTES)
         self._atomic = atomic_path(self.path)
-        temp_name = self._atomic.__enter__()
+        temp_name = self._temp = self._atomic.__enter__()
         try:
-            self._file = h5py.File(temp_name, "w", libver=("earliest", "v110"), track_order=False)
-            self._root = self._file.create_group("trajectories")
+            with protected():
+                self._file = h5py.File(temp_name, "w", libver=("earliest", "v110"), track_order=False)
+                self._root = self._file.create_group("trajectories")
         except BaseException:
             self._atomic.__exit__(*sys.exc_info())
             raise
@@ -69,38 +83,49 @@ class DatasetWriter:
         """Check and write the next trajectory (its index: the count so far)."""
         arrays = trajectory.arrays()
         name = f"{self.count:06d}"
-        check_trajectory(name, arrays, self.protocol)
+        check_trajectory(name, arrays, self.protocol, self.sample_period)
         planned = any(key in arrays for key in PLANNED_ARRAYS)
         if self._planned is not None and planned != self._planned:
             raise InputError(f"trajectory {name}: {'has' if planned else 'lacks'} the plan the others "
                              f"{'lack' if planned else 'have'} (a dataset's trajectories all have it or none)")
         self._planned = planned
-        entry = self._root.create_group(name)
-        entry.attrs["group"] = int(group)
-        for key in sorted(arrays):
-            entry.create_dataset(key, data=np.asarray(arrays[key], dtype=np.float64), track_times=False)
+        arrays = {key: np.asarray(value, dtype=np.float64) for key, value in arrays.items()}
+        size = sum(value.nbytes + HDF5_BYTES_PER_ARRAY for value in arrays.values())
+        on_disk = os.path.getsize(self._temp) - self._size_at_flush    # of what was written since the flush
+        check_free_space(self.path, max(0, self._unflushed - on_disk) + size + HDF5_RESERVE_BYTES)
+        with protected():   # a signal inside an HDF5 write is swallowed or crashes it: raised after it instead
+            entry = self._root.create_group(name)
+            entry.attrs["group"] = int(group)
+            for key in sorted(arrays):
+                entry.create_dataset(key, data=arrays[key], track_times=False)
+            self._unflushed += size
+            if self._unflushed > HDF5_FLUSH_BYTES:
+                self._file.flush()
+                self._unflushed, self._size_at_flush = 0, os.path.getsize(self._temp)
         self.count += 1
 
     def __exit__(self, kind, error, trace):
-        if error is not None:   # the block's error is the one to report: the file is closed and removed
-            with contextlib.suppress(Exception):
-                self._file.close()
-            return self._atomic.__exit__(kind, error, trace)
-        try:
+        with protected():   # closed, then renamed or removed, whatever signal arrives meanwhile
+            if error is not None:   # the block's error is the one to report: the file is closed and removed
+                with contextlib.suppress(Exception):
+                    self._file.close()
+                return self._atomic.__exit__(kind, error, trace)
             try:
-                self._write_header()
-            finally:
-                self._file.close()
-        except BaseException:
-            self._atomic.__exit__(*sys.exc_info())
-            raise
-        return self._atomic.__exit__(None, None, None)
+                try:
+                    self._write_header()
+                finally:
+                    self._file.close()
+            except Exception:
+                self._atomic.__exit__(*sys.exc_info())
+                raise
+            return self._atomic.__exit__(None, None, None)
 
     def _write_header(self) -> None:
         if not self.count:
             raise InputError("a dataset needs at least one trajectory")
         attrs = self._file.attrs
         attrs["format"] = FORMAT
+        attrs[WRITTEN_BY] = written_by()
         attrs["format_version"] = FORMAT_VERSION
         attrs["protocol"] = self.protocol
         attrs["sample_period"] = self.sample_period

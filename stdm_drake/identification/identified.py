@@ -13,6 +13,7 @@ import pathlib
 
 import numpy as np
 
+from stdm_drake.data.schema import check_split
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import IDENTIFIED_MARKER
 from stdm_drake.robots.effects import PlantEffects, RigidInertia
@@ -64,6 +65,7 @@ class IdentifiedRobot:
             raise InputError(f"identification plant_time_step must be in (0, sample_period], got {record.plant_time_step}")
         if not self.effects.link_inertia:
             raise InputError("an identified robot needs effects.link_inertia (the identified links)")
+        check_split(record.split, "identification")
 
     # -- like a checkpoint: which dataset and split ---------------------------------------------------------
     def trained_on(self, dataset) -> bool:
@@ -75,7 +77,8 @@ class IdentifiedRobot:
         it was identified from another dataset."""
         if not self.trained_on(dataset):
             return None
-        return [int(index) for index in self.identification.split.get(part, [])]
+        return check_split(self.identification.split, f"{self.path or 'identified robot'}: identification",
+                           dataset.num_trajectories)[part]
 
     def check_fits(self, dataset) -> None:
         """InputError unless `dataset` is of the same robot description and sample period."""

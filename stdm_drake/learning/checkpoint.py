@@ -4,16 +4,20 @@ and the one check of whether a checkpoint fits a dataset."""
 from __future__ import annotations
 
 import dataclasses
+import io
 import json
+import math
 import pathlib
 
 import torch
 
+from stdm_drake.data.schema import check_split
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, json_default
 from stdm_drake.learning.models import EnsembleMLP, ModelConfig
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.structure import ModelStructure
+from stdm_drake.paths import check_input_file
 
 CHECKPOINT_FORMAT = "stdm-drake-model"
 CHECKPOINT_VERSION = 2  # 2: derivative loss scaled by the state spread (alpha as in eq. 9), no rate normalizer
@@ -103,27 +107,39 @@ class Checkpoint:
             raise InputError(f"{self.path}: model has state dim {mine[0]} and action dim "
                              f"{mine[1]}, expected state dim {wanted[0]} and action dim {wanted[1]}")
 
+    @property
+    def sample_period(self) -> float:
+        """The period (s) the model steps at, as its metadata records it; InputError when it records none
+        (a model fitted to arrays, not to a dataset file: what its step is cannot be known) or one <= 0."""
+        period = self.metadata.sample_period
+        if period is None:
+            raise InputError(f"{self.path}: checkpoint metadata has no sample_period (train it on a dataset file)")
+        if isinstance(period, bool) or not (isinstance(period, (int, float)) and math.isfinite(period) and period > 0):
+            raise InputError(f"{self.path}: checkpoint metadata has an invalid sample_period {period!r}")
+        return float(period)
+
     def check_fits(self, dataset) -> None:
         """InputError unless the model can predict `dataset`'s transitions: the state (2 x joints) and
-        action (joints) sizes match, and the model steps at the dataset's sample period (when recorded)."""
+        action (joints) sizes match, the robot is the same (when both record it), and the model steps at
+        the dataset's sample period (which it must record: `sample_period`)."""
         first = dataset.trajectory(0)
         self.check_sizes(state_dim=2 * first.q.shape[1], action_dim=first.tau.shape[1])
-        period = self.metadata.sample_period
-        if period is not None and abs(float(period) - dataset.sample_period) > 1e-12:
-            raise InputError(f"{self.path}: model steps at {period} s, {dataset.path} at {dataset.sample_period} s")
         recorded = dataset.metadata
         for field, what in (("robot_model_sha256", "robot model"), ("joint_names", "joints")):
             mine, theirs = getattr(self.metadata, field), getattr(recorded, field)
             if mine is not None and theirs is not None and mine != theirs:
                 raise InputError(f"{self.path}: trained on another robot than {dataset.path} ({what} differ: "
                                  f"{self.metadata.robot_name or '?'} vs {recorded.robot_name or '?'})")
+        period = self.sample_period
+        if abs(period - dataset.sample_period) > 1e-12:
+            raise InputError(f"{self.path}: model steps at {period} s, {dataset.path} at {dataset.sample_period} s")
 
     def split_indices(self, dataset, part: str) -> list[int] | None:
         """Trajectory indices of the model's `part` ("train", "val", "test") split of `dataset`, or None
         when it was not trained on this dataset (so its split does not apply)."""
         if not self.trained_on(dataset) or self.metadata.split is None:
             return None
-        return [int(index) for index in self.metadata.split.get(part, [])]
+        return check_split(self.metadata.split, f"{self.path}: checkpoint", dataset.num_trajectories)[part]
 
 
 def _metadata(metadata: CheckpointMetadata | dict | None) -> CheckpointMetadata:
@@ -151,16 +167,16 @@ def save_checkpoint(path, model: EnsembleMLP, *, training_config: TrainingConfig
         "resume": resume_state,
     }
     path = pathlib.Path(path)
+    buffer = io.BytesIO()   # serialized first: a full disk is then Python's OSError (one line), not torch's
+    torch.save(content, buffer)
     with atomic_path(path) as temp:
-        torch.save(content, temp)
+        temp.write_bytes(buffer.getbuffer())
     return path
 
 
 def load_checkpoint(path) -> Checkpoint:
     """Read and validate a checkpoint; any problem raises InputError (FileNotFoundError if missing)."""
-    path = pathlib.Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"checkpoint not found: {path}")
+    path = check_input_file(path, "checkpoint", missing=FileNotFoundError)
     with open(path, "rb") as f:
         magic = f.read(8)
     if not magic.startswith(b"PK\x03\x04"):  # torch.save writes a zip archive
@@ -191,6 +207,8 @@ def load_checkpoint(path) -> Checkpoint:
     except (KeyError, TypeError, RuntimeError, ValueError) as error:
         detail = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise InputError(f"{path}: inconsistent checkpoint contents: {detail}") from None
+    if metadata.split is not None:
+        check_split(metadata.split, f"{path}: checkpoint")
     if not all(torch.isfinite(value).all() for value in model.state_dict().values()):
         raise InputError(f"{path}: checkpoint weights contain NaN or inf")
     spreads = {name: value for name, value in model.state_dict().items() if name.endswith("normalizer.std")}

@@ -72,7 +72,7 @@ def as_dynamics_model(model):
     from stdm_drake.learning.learned_model import LearnedModel
     if isinstance(model, DynamicsModel):
         return model
-    return LearnedModel(as_inference_model(model), require_sample_period=False)
+    return LearnedModel(as_inference_model(model))
 
 
 def one_step_errors(model, states, actions, next_states) -> OneStepErrors:

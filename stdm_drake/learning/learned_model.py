@@ -22,8 +22,8 @@ class LearnedModel(DynamicsModel):
     """A checkpoint (path or loaded `Checkpoint`) or a bare network (`EnsembleMLP`/`InferenceModel`, then
     with `structure`, default the paper's) as a model of `robot` with n joints and m actuated ones.
 
-    sample_period (s) comes from the checkpoint's metadata (else the `sample_period` given); with
-    require_sample_period a checkpoint without one is refused (the closed loop needs it). A model of other sizes than the robot's, or one
+    sample_period (s): a checkpoint's own (`Checkpoint.sample_period`: one without it is refused), a bare
+    network's the `sample_period` given (None: none). A model of other sizes than the robot's, or one
     trained on another robot's description, is refused. The robot is also the nominal model of
     nominal-acceleration inputs; a checkpoint needs it, unless check_robot=False takes the checkpoint
     (raw inputs only) as it is.
@@ -31,8 +31,7 @@ class LearnedModel(DynamicsModel):
     learned = True
 
     def __init__(self, source, name: str | None = None, robot=None, *, structure: ModelStructure | None = None,
-                 sample_period: float | None = None, require_sample_period: bool = True,
-                 check_robot: bool = True):
+                 sample_period: float | None = None, check_robot: bool = True):
         from stdm_drake.learning.checkpoint import Checkpoint, load_checkpoint
         from stdm_drake.learning.models import EnsembleMLP
         from stdm_drake.learning.predict import InferenceModel
@@ -46,12 +45,7 @@ class LearnedModel(DynamicsModel):
             self.structure = checkpoint.structure
             network = checkpoint.model.double()
             self.name = name or checkpoint.path.stem
-            period = checkpoint.metadata.sample_period
-            if period is not None and not (np.isfinite(float(period)) and float(period) > 0):
-                raise InputError(f"{checkpoint.path}: checkpoint metadata has an invalid sample_period {period!r}")
-            self.sample_period = float(period) if period is not None else sample_period
-            if self.sample_period is None and require_sample_period:
-                raise InputError(f"{checkpoint.path}: checkpoint metadata has no sample_period (train it on a dataset file)")
+            self.sample_period = checkpoint.sample_period
         self.network = network
         self.engine = as_inference_model(network)
         config = self.engine.config

@@ -216,6 +216,24 @@ class TrainSettings:
                 bound = "> 0" if name == "lr" else ">= 0"
                 raise InputError(f"{key(name)} must be a finite number {bound}, got {value}")
 
+    def check_memory(self, transitions: int, ensemble_size: int, available: float | None = None) -> float:
+        """InputError unless one training run on `transitions` (input, target) pairs of a network of
+        `ensemble_size` members fits in memory: float32 weights with their gradients and Adam's two moments (4
+        copies), and per batch each layer's activations for the value, its tangent (the derivative loss) and
+        their gradients (6 copies of ensemble x batch x width). available: bytes (default: the system's
+        available memory). Returns the estimate (bytes)."""
+        batch = min(self.batch_size, max(int(transitions), 1))
+        weights = ensemble_size * self.hidden_layers * self.hidden_width ** 2
+        activations = ensemble_size * batch * self.hidden_width * self.hidden_layers
+        needed = 4.0 * (4 * weights + 6 * activations)
+        available = available_memory() if available is None else available
+        if available is not None and needed > available:
+            raise InputError(f"training would need about {needed / 1e9:.3g} GB of memory ({ensemble_size} "
+                             f"member(s), hidden_layers {self.hidden_layers}, hidden_width "
+                             f"{self.hidden_width}, batches of {batch}), {available / 1e9:.3g} GB is available; "
+                             "lower batch_size, hidden_width or hidden_layers")
+        return needed
+
     def check_alpha(self) -> None:
         """InputError unless alpha suits the model type: > 0 or "auto" with the derivative loss, no "auto"
         without it (checked on the merged settings: a file's alone may be completed by flags)."""
@@ -264,3 +282,15 @@ class TrainSettings:
                               learning_rate=self.lr, batch_size=self.batch_size, max_epochs=self.epochs,
                               patience=self.patience, seed=seed, lr_schedule=self.lr_schedule,
                               min_learning_rate=self.min_lr, weight_decay=self.weight_decay)
+
+
+def available_memory() -> float | None:
+    """Bytes of memory available to a new process here (Linux: MemAvailable; None where unknown)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None

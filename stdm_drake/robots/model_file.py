@@ -15,6 +15,7 @@ from pydrake.multibody.parsing import Parser  # noqa: E402
 from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.errors import InputError  # noqa: E402
+from stdm_drake.paths import check_input_file  # noqa: E402
 
 
 def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
@@ -89,8 +90,7 @@ def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, s
     """The (link1, link2) pairs of a MoveIt SRDF's <disable_collisions> elements; InputError naming robot
     `name` for a missing or unparsable file."""
     import xml.etree.ElementTree as ElementTree
-    if not path.is_file():
-        raise InputError(f"robot {name}: srdf file not found: {path}")
+    check_input_file(path, f"robot {name}: srdf file")
     try:
         root = ElementTree.parse(path).getroot()
     except ElementTree.ParseError as error:

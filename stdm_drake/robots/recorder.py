@@ -103,8 +103,8 @@ class TrajectoryRecorder:
 
     def write_html(self, path) -> None:
         """Save Meshcat's self-contained HTML page (with the published recording) atomically."""
-        from stdm_drake.outputs import HTML_MARKER
-        write_text_atomic(path, HTML_MARKER + "\n" + self.meshcat.StaticHtml())
+        from stdm_drake.outputs import html_marker
+        write_text_atomic(path, html_marker() + "\n" + self.meshcat.StaticHtml())
 
     def finish(self, html=None, keep_serving: bool = False, what: str = "") -> None:
         """Publish the recording; write it to `html` if given (printing the path and `what` it
@@ -138,12 +138,17 @@ def _recolor(plant, scene_graph, instance, color: Rgba) -> None:
 
 def wait_for_interrupt(url: str) -> None:
     """Keep a Meshcat server up for a person at a terminal until Ctrl+C; return at once otherwise."""
+    import signal
     import sys
     if not sys.stdin.isatty():
         return
     print(f"Meshcat stays up at {url}: replay with its Animation controls; Ctrl+C to quit", file=sys.stderr)
+    from stdm_drake import interrupts
     try:
         while True:
             time.sleep(1.0)
+    except interrupts.Terminated:
+        raise
     except KeyboardInterrupt:
+        interrupts.forget(signal.SIGINT)   # Ctrl+C is how this wait ends: the command succeeded
         print("Meshcat closed", file=sys.stderr)

@@ -24,9 +24,10 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
+from stdm_drake.robots.description import check_description  # noqa: E402
 from stdm_drake.robots.model_file import (joint_facts, loadable_model, mesh_cache_dir, offline_parser,  # noqa: E402
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
-from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, shipped_file  # noqa: E402
+from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file  # noqa: E402
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
 POSE_DIM = 6  # coordinates a tool pose fixes: rotation (3) and position (3)
@@ -131,11 +132,10 @@ class Robot:
         for name, path in self.package_paths.items():
             if not path.is_dir():
                 raise InputError(f"robot {config.name}: package {name!r} folder not found: {path}")
-        self.model_path = self._model_file(config.model)
-        if not self.model_path.is_file():
-            raise InputError(f"robot {config.name}: model file not found: {self.model_path}")
+        self.model_path = check_input_file(self._model_file(config.model), f"robot {config.name}: model file")
         if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
+        check_description(self.model_path, self.name, config.arm_joints)
         self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
         for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
             logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
@@ -175,10 +175,7 @@ class Robot:
         value = getattr(self.config.defaults, purpose)
         if not value:
             return None
-        path = self._resolve(value)
-        if not path.is_file():
-            raise InputError(f"robot {self.name}: defaults.{purpose} file not found: {path}")
-        return path
+        return check_input_file(self._resolve(value), f"robot {self.name}: defaults.{purpose} file")
 
     def _model_file(self, model: str, what: str = "model") -> pathlib.Path:
         """The model (or SRDF, `what`) file: a path (relative to the config's folder), or package://NAME/PATH
@@ -201,7 +198,11 @@ class Robot:
             except ValueError as error:
                 raise InputError(f"robot {self.config.name}: {error}") from None
         path = pathlib.Path(path)
-        return (path if path.is_absolute() else self.folder / path).resolve()
+        path = path if path.is_absolute() else self.folder / path
+        try:
+            return path.resolve()
+        except RuntimeError:   # a symlink loop (Python < 3.13): `check_input_file` names it
+            return path.absolute()
 
     @property
     def name(self) -> str:
@@ -292,8 +293,10 @@ class Robot:
                 raise InputError(f"robot {self.name}: cannot weld {config.weld_frame!r} to the world, the model already "
                                  f"fixes it there ({one_line(error)}); leave weld_frame out") from None
         if not plant.HasFrameNamed(config.tool_frame, instance):
+            links = [plant.get_body(index).name() for index in plant.GetBodyIndices(instance)]
+            shown = f"its {len(links)} links end with " if len(links) > 5 else "its links: "
             raise InputError(f"robot {self.name}: tool_frame {config.tool_frame!r} is not a frame of "
-                             f"{self.model_path.name}")
+                             f"{self.model_path.name} ({shown}{', '.join(links[-5:])})")
         for name in list(config.arm_joints) + list(config.locked_joints):
             if not plant.HasJointNamed(name, instance):
                 raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")

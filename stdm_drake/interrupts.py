@@ -1,0 +1,108 @@
+"""Ctrl-C and SIGTERM while a command runs: both end it promptly with an exception (KeyboardInterrupt,
+`Terminated` for SIGTERM), so every `finally` runs (temporary files removed, worker processes stopped) and the
+CLI exits with status 130 or 143; never inside a write that must not be cut (`protected`), where the signal is
+held until the write has finished.
+
+    with signals_as_exceptions():      # the CLI, around a command
+        ...
+        with protected():              # an HDF5 write: a signal here is raised when the block ends
+            ...
+"""
+import contextlib
+import signal
+import threading
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM: the command was asked to stop (exit status 143)."""
+
+
+EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+
+_received: list[int] = []      # the signals that arrived while a command ran (a swallowed one still counts)
+_held: list[int] = []          # signals that arrived inside `protected`, to raise when it ends
+_depth = 0                     # how many `protected` blocks are open
+_in_worker = False             # this process is a pool's worker: its parent handles signals and stops it
+
+
+def _exception(signum: int) -> KeyboardInterrupt:
+    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+
+
+def _handler(signum, frame):
+    _received.append(signum)
+    if _depth:
+        _held.append(signum)
+        return
+    raise _exception(signum)
+
+
+@contextlib.contextmanager
+def signals_as_exceptions():
+    """While the block runs (in the main thread), SIGINT raises KeyboardInterrupt and SIGTERM `Terminated`,
+    except inside `protected`; the previous handlers come back afterwards."""
+    if (_in_worker or threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is _handler):
+        yield   # (a pool's worker, another thread, or a command run inside another: signals are handled there)
+        return
+    _received.clear()
+    _held.clear()
+    previous = {signum: signal.signal(signum, _handler) for signum in EXIT_STATUS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+
+
+def received() -> int | None:
+    """The first signal that arrived during the command (even one a library swallowed), or None."""
+    return _received[0] if _received else None
+
+
+def forget(signum: int) -> None:
+    """The signal `signum` ended a wait that it was meant to end (view's Ctrl-C): the command did not fail."""
+    while signum in _received:
+        _received.remove(signum)
+
+
+def exit_status(error: BaseException | None = None) -> int:
+    """130 for Ctrl-C, 143 for SIGTERM: from the exception, else from the signal that arrived."""
+    if isinstance(error, Terminated) or (error is None and received() == signal.SIGTERM):
+        return 143
+    return 130
+
+
+@contextlib.contextmanager
+def protected():
+    """A block that a signal must not cut (a library that cannot unwind from an exception there, such as
+    HDF5, may swallow it or crash): a signal arriving inside is raised when the outermost block ends."""
+    global _depth
+    _depth += 1
+    try:
+        yield
+    finally:
+        _depth -= 1
+        if not _depth and _held:
+            signum = _held[0]
+            _held.clear()
+            raise _exception(signum)
+
+
+def ignore_interrupts_in_worker() -> None:
+    """In a pool's worker process: Ctrl-C at the terminal reaches the whole process group; the parent stops
+    its workers itself (SIGTERM), so a worker ignores SIGINT and, on Linux, gets SIGTERM when its parent dies
+    (nothing orphaned even if the parent is killed)."""
+    mark_worker()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    with contextlib.suppress(OSError, AttributeError):
+        import ctypes
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))   # PR_SET_PDEATHSIG
+
+
+def mark_worker() -> None:
+    """This process runs a pool's tasks (a local worker, a Ray worker): a command run in it leaves signals as
+    they are (its parent or Ray stops it; what a killed task left is removed by the next run's lock)."""
+    global _in_worker
+    _in_worker = True

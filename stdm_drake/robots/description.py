@@ -1,0 +1,242 @@
+"""The links and joints a robot description file (URDF or SDF) states, read from its XML, and the checks of
+them that Drake's parser leaves out (a negative or zero mass, an inertia no body has: a warning at most)
+or makes late (a kinematic loop: when the plant is finalized; reversed limits: an assertion that ends
+the process). Each is an InputError naming the link or joint. Used by `stdm_drake.robots.robot`."""
+from __future__ import annotations
+
+import dataclasses
+import math
+import pathlib
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+
+MOVABLE = ("revolute", "continuous", "prismatic")
+# Principal moments of published descriptions are rounded (often to 3 or 4 digits): a triangle inequality
+# violated by less than this fraction of the largest moment is taken as rounding.
+TRIANGLE_TOLERANCE = 1e-3
+
+
+@dataclasses.dataclass
+class Inertial:
+    """A link's <inertial>: mass (kg) and its rotational inertia (3, 3) kg m² about the centre of mass;
+    mass None: a value in it is not a number (Drake's parser names it; nothing is checked here)."""
+    mass: float | None
+    inertia: np.ndarray
+
+
+@dataclasses.dataclass
+class Joint:
+    """A joint: its type (URDF's words; SDF's "revolute" and "prismatic" are the same), parent and child
+    link, and the limits the file states (lower, upper: rad or m; velocity: rad/s or m/s; absent: None)."""
+    name: str
+    kind: str
+    parent: str
+    child: str
+    lower: float | None = None
+    upper: float | None = None
+    velocity: float | None = None
+
+
+@dataclasses.dataclass
+class Description:
+    """links: link name -> its Inertial (None: the file gives none, a massless frame); joints in file order."""
+    links: dict
+    joints: list
+
+    def children(self) -> dict:
+        """Link name -> the joints whose parent it is."""
+        table = {}
+        for joint in self.joints:
+            table.setdefault(joint.parent, []).append(joint)
+        return table
+
+    def subtree(self, link: str) -> list[str]:
+        """`link` and every link below it (through any joint), in depth-first order (the tree is checked)."""
+        children, order, stack = self.children(), [], [link]
+        while stack:
+            name = stack.pop()
+            order.append(name)
+            stack += [joint.child for joint in reversed(children.get(name, []))]
+        return order
+
+
+def _number(text) -> float | None:
+    """A number of the file (None for text that is none: Drake's parser names that itself)."""
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
+INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+
+
+def _inertial(mass: str | None, values: dict, defaults: dict) -> Inertial:
+    """The Inertial of the file's texts of a mass and of the inertia entries (`values`: INERTIA_KEYS -> text);
+    an absent text (None) takes its value from `defaults` ("mass" and INERTIA_KEYS), a text that is not a
+    number makes the mass None (nothing checked)."""
+    numbers = {key: defaults[key] if text is None else _number(text) for key, text in dict(values, mass=mass).items()}
+    if any(value is None for value in numbers.values()):
+        return Inertial(None, np.zeros((3, 3)))
+    get = numbers.get
+    return Inertial(get("mass"), np.array([[get("ixx"), get("ixy"), get("ixz")], [get("ixy"), get("iyy"), get("iyz")],
+                                           [get("ixz"), get("iyz"), get("izz")]], dtype=float))
+
+
+def _urdf(root) -> Description:
+    """URDF: a link without <inertial> is a massless frame; absent values in one are 0."""
+    links = {}
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            links[link.get("name")] = None
+            continue
+        mass, inertia = inertial.find("mass"), inertial.find("inertia")
+        values = {key: inertia.get(key) if inertia is not None else None for key in INERTIA_KEYS}
+        links[link.get("name")] = _inertial(mass.get("value") if mass is not None else None, values,
+                                            dict.fromkeys(("mass",) + INERTIA_KEYS, 0.0))
+    joints = []
+    for joint in root.findall("joint"):
+        parent, child, limit = joint.find("parent"), joint.find("child"), joint.find("limit")
+        values = {key: _number(limit.get(key)) for key in ("lower", "upper", "velocity")} if limit is not None else {}
+        if joint.get("type") == "continuous":   # (URDF: its lower and upper are ignored)
+            values.pop("lower", None), values.pop("upper", None)
+        joints.append(Joint(joint.get("name"), joint.get("type"), parent.get("link") if parent is not None else None,
+                            child.get("link") if child is not None else None, **values))
+    return Description(links, joints)
+
+
+def _sdf(root) -> Description:
+    """SDFormat's defaults: a link without <inertial> has mass 1 kg and unit inertia; a velocity limit
+    below 0 means none."""
+    links, joints = {}, []
+    defaults = dict(mass=1.0, ixx=1.0, iyy=1.0, izz=1.0, ixy=0.0, ixz=0.0, iyz=0.0)
+    for link in root.iter("link"):
+        inertial = link.find("inertial")
+        read = inertial.findtext if inertial is not None else (lambda key: None)  # noqa: E731
+        links[link.get("name")] = _inertial(read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS},
+                                            defaults)
+    for joint in root.iter("joint"):
+        values = {key: _number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
+        if values["velocity"] is not None and values["velocity"] < 0:
+            values["velocity"] = None
+        joints.append(Joint(joint.get("name"), joint.get("type"), (joint.findtext("parent") or "").strip(),
+                            (joint.findtext("child") or "").strip(), **values))
+    return Description(links, joints)
+
+
+def read_description(path: pathlib.Path) -> Description | None:
+    """The links and joints of a URDF or SDF file; None when it is not XML (Drake's parser says why)."""
+    import xml.etree.ElementTree as ElementTree
+    try:
+        root = ElementTree.parse(path).getroot()
+    except (ElementTree.ParseError, OSError):
+        return None
+    return _sdf(root) if root.tag == "sdf" else _urdf(root)
+
+
+def check_description(path: pathlib.Path, robot: str, arm_joints) -> None:
+    """InputError naming robot `robot` and the link or joint, before Drake parses the file, for: a kinematic
+    loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass
+    or inertia on any link; on a link an arm joint moves, an <inertial> whose mass is not > 0 or whose
+    inertia is not positive definite or breaks the triangle inequality, and an arm joint that moves no
+    mass at all (a massless frame without <inertial>, such as tool0, is fine); a movable joint whose
+    lower position limit is above its upper one or whose velocity limit is negative (Drake's assertions
+    end the process); an arm joint with a non-finite or zero limit."""
+    description = read_description(path)
+    if description is None:
+        return
+    where = f"robot {robot}: {path.name}"
+    check_tree(description, where)
+    moving = {link for joint in description.joints if joint.name in arm_joints and joint.child in description.links
+              for link in description.subtree(joint.child)}
+    for link, inertial in description.links.items():
+        if inertial is not None:
+            check_inertial(inertial, f"{where}: link {link!r}", moving=link in moving)
+    check_moved_mass(description, arm_joints, where)
+    for joint in description.joints:
+        if joint.kind in MOVABLE:
+            check_limits(joint, f"{where}: {'arm ' if joint.name in arm_joints else ''}joint {joint.name!r}",
+                         arm=joint.name in arm_joints)
+
+
+def check_tree(description: Description, where: str) -> None:
+    """InputError unless the joints form a tree: each link the child of one joint at most, no cycle."""
+    parents = {}
+    for joint in description.joints:
+        if not (joint.parent and joint.child):   # (malformed: Drake's parser names it)
+            continue
+        if joint.child in parents:
+            raise InputError(f"{where}: link {joint.child!r} is the child of joints {parents[joint.child].name!r} and "
+                             f"{joint.name!r}, a kinematic loop; Drake's plant needs a tree (close loops with a "
+                             "constraint, not a joint)")
+        parents[joint.child] = joint
+    for start in parents:
+        link, seen = start, []
+        while link in parents:
+            seen.append(parents[link].name)
+            link = parents[link].parent
+            if link == start:
+                raise InputError(f"{where}: joints {', '.join(seen)} form a cycle through link {start!r}, a kinematic "
+                                 "loop; Drake's plant needs a tree")
+            if len(seen) > len(parents):
+                break
+
+
+def check_inertial(inertial: Inertial, where: str, moving: bool) -> None:
+    """InputError for a negative or non-finite mass (kg) or inertia (kg m²); on a `moving` link also for a
+    mass that is not > 0, an inertia that is not positive definite and principal moments that break the
+    triangle inequality (no body has them)."""
+    mass, inertia = inertial.mass, inertial.inertia
+    if mass is None:
+        return
+    if not math.isfinite(mass) or mass < 0:
+        raise InputError(f"{where} has mass {mass:g} kg; a mass is a finite number > 0 (leave <inertial> out of a "
+                         "massless frame)")
+    if not np.isfinite(inertia).all():
+        raise InputError(f"{where} has a non-finite inertia entry; give finite ixx, ixy, ixz, iyy, iyz, izz (kg m²)")
+    if not moving:
+        return
+    if mass == 0:
+        raise InputError(f"{where} moves with the arm and has mass 0 kg; give its mass (> 0), or leave <inertial> out "
+                         "of a massless frame")
+    moments = np.linalg.eigvalsh(inertia)
+    if moments[0] <= 0:
+        raise InputError(f"{where} has an inertia that is not positive definite (principal moments "
+                         f"{_moments_text(inertia)} kg m²); a body of mass {mass:g} kg has all three > 0")
+    if moments[0] + moments[1] < moments[2] * (1 - TRIANGLE_TOLERANCE):
+        raise InputError(f"{where} has principal moments {_moments_text(inertia)} kg m² that break the triangle "
+                         "inequality (the two smaller ones must add up to the largest at least); no body has them")
+
+
+def _moments_text(inertia: np.ndarray) -> str:
+    """The principal moments (ascending) of a finite (3, 3) inertia, as "[a, b, c]"."""
+    return "[" + ", ".join(f"{value:.4g}" for value in np.linalg.eigvalsh(inertia)) + "]"
+
+
+def check_moved_mass(description: Description, arm_joints, where: str) -> None:
+    """InputError for an arm joint none of whose moved links (its child and all below) has a mass."""
+    for joint in description.joints:
+        if joint.name not in arm_joints or joint.child not in description.links:
+            continue
+        moved = description.subtree(joint.child)
+        masses = [description.links[link].mass for link in moved if description.links.get(link) is not None]
+        if not any(mass is None or mass > 0 for mass in masses):
+            raise InputError(f"{where}: arm joint {joint.name!r} moves links {', '.join(moved)}, none of which has a "
+                             "mass; give them an <inertial>")
+
+
+def check_limits(joint: Joint, where: str, arm: bool) -> None:
+    """InputError for lower position limit > upper or a negative velocity limit; for an `arm` joint also
+    a non-finite limit or a zero velocity limit (it could not move)."""
+    given = {key: getattr(joint, key) for key in ("lower", "upper", "velocity") if getattr(joint, key) is not None}
+    if arm:
+        for key, value in given.items():
+            if not math.isfinite(value):
+                raise InputError(f"{where} has a non-finite {key} limit ({value}); give finite limits")
+    if joint.lower is not None and joint.upper is not None and joint.lower > joint.upper:
+        raise InputError(f"{where} has its lower position limit {joint.lower:g} above its upper limit {joint.upper:g}")
+    if joint.velocity is not None and (joint.velocity < 0 or (arm and joint.velocity == 0)):
+        raise InputError(f"{where} has velocity limit {joint.velocity:g}; a velocity limit is > 0 (rad/s or m/s)")

@@ -1,0 +1,317 @@
+"""A flaky machine and an impatient user (issue 25, classes 1-4 and 11): Ctrl-C and SIGTERM end a command
+promptly with exit status 130 / 143 and leave no worker process and no file behind; a signal inside an HDF5
+write is raised after it (never swallowed, never a crash); a full disk is one line naming the file, with
+nothing left; a killed run's temporary files go with the next run; one run at a time per output; one
+command never replaces another's output without --force.
+
+The commands run as real processes here (signals, disks), started by the tests themselves.
+"""
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import time
+
+import h5py
+import pytest
+
+from stdm_drake import interrupts
+from stdm_drake.cli import main
+from stdm_drake.outputs import FOLDER_MARKER
+
+ENV = dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat", PYTHONUNBUFFERED="1")
+
+
+def command(*argv) -> list[str]:
+    return [sys.executable, "-m", "stdm_drake.cli", *map(str, argv)]
+
+
+def descendants(pid: int) -> set[int]:
+    """Every living process below `pid` (from /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in pathlib.Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            children.setdefault(int(fields[1]), []).append(int(entry.name))
+    found, todo = set(), [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.add(child)
+            todo.append(child)
+    return found
+
+
+def alive(pid: int) -> bool:
+    try:
+        state = pathlib.Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def leftovers(folder: pathlib.Path) -> list[str]:
+    """Temporary and lock files in `folder` (and below)."""
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob(".*") if p.name.endswith((".tmp", ".lock")))
+
+
+def interrupt_when_busy(argv, signum: int, *, group: bool, cwd, busy_for: float = 2.0) -> tuple[int, float, set]:
+    """Start `argv`, wait until it has spawned its worker processes (then `busy_for` s more), send `signum`
+    (to its whole process group, as a terminal's Ctrl-C does, or to it alone, as `kill` does); returns its
+    exit status, the seconds it took to end after the signal, and the processes it had started."""
+    process = subprocess.Popen(argv, cwd=cwd, env=ENV, start_new_session=True, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    workers: set[int] = set()
+    while time.monotonic() < deadline and process.poll() is None:
+        workers = descendants(process.pid)
+        if len([w for w in workers if alive(w)]) >= 2:
+            break
+        time.sleep(0.2)
+    assert process.poll() is None, ("ended before it could be interrupted", process.stderr.read())
+    time.sleep(busy_for)
+    workers |= descendants(process.pid)
+    sent = time.monotonic()
+    if group:
+        os.killpg(process.pid, signum)
+    else:
+        process.send_signal(signum)
+    try:
+        status = process.wait(timeout=60)
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        raise AssertionError("the command did not end within 60 s of the signal")
+    took = time.monotonic() - sent
+    err = process.stderr.read()
+    assert "Traceback" not in err, err
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(alive(w) for w in workers):
+        time.sleep(0.2)
+    assert not [w for w in workers if alive(w)], "worker processes outlived the command"
+    return status, took, workers
+
+
+@pytest.mark.slow
+def test_sigterm_ends_collect_with_143_workers_and_all(tmp_path):
+    status, took, workers = interrupt_when_busy(
+        command("collect", "--protocol", "excitation", "--count", "2000", "--workers", "2", "--quiet",
+                "-o", tmp_path / "data.h5"), signal.SIGTERM, group=False, cwd=tmp_path)
+    assert status == 143 and took < 20 and len(workers) >= 2
+    assert not (tmp_path / "data.h5").exists() and leftovers(tmp_path) == []
+
+
+@pytest.mark.slow
+def test_ctrl_c_ends_sine_sum_with_130_and_no_process_left(tmp_path):
+    status, took, workers = interrupt_when_busy(
+        command("sine-sum", "--quick", "--workers", "2", "--quiet", "-o", tmp_path / "sine"), signal.SIGINT,
+        group=True, cwd=tmp_path)
+    assert status == 130 and took < 20
+    assert not (tmp_path / "sine" / "results.json").exists() and leftovers(tmp_path) == []
+
+
+def test_a_signal_inside_a_protected_write_is_raised_after_it():
+    with interrupts.signals_as_exceptions():
+        finished = False
+        with pytest.raises(KeyboardInterrupt):
+            with interrupts.protected():
+                os.kill(os.getpid(), signal.SIGINT)
+                time.sleep(0.05)
+                finished = True
+        assert finished
+        with pytest.raises(interrupts.Terminated):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(1)
+
+
+def test_ctrl_c_inside_an_hdf5_write_leaves_no_file(tmp_path, monkeypatch, excitation_dataset):
+    """The signal arrives while h5py writes an array: the trajectory is written whole, then the writer stops
+    with KeyboardInterrupt and removes its temporary file."""
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.data.writer import DatasetWriter
+    dataset = load_dataset(excitation_dataset)
+    trajectory = dataset.trajectory(0)
+    original = h5py.Group.create_dataset
+    calls = []
+
+    def create_dataset(self, name, **kwargs):
+        calls.append(name)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+        return original(self, name, **kwargs)
+
+    monkeypatch.setattr(h5py.Group, "create_dataset", create_dataset)
+    path = tmp_path / "out.h5"
+    with interrupts.signals_as_exceptions(), pytest.raises(KeyboardInterrupt):
+        with DatasetWriter(path, dict(protocol=dataset.protocol, sample_period=dataset.sample_period)) as writer:
+            writer.add(trajectory)
+            writer.add(trajectory)
+    assert len(calls) >= 3 and list(tmp_path.iterdir()) == []
+
+
+def test_a_swallowed_signal_does_not_pass_for_success(monkeypatch, capsys):
+    """A library that catches KeyboardInterrupt (h5py's callbacks do) cannot make an interrupted run exit 0."""
+    from stdm_drake.commands import inspect as inspect_command
+
+    def run(args):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.5)
+        except KeyboardInterrupt:
+            pass
+        return 0
+
+    monkeypatch.setattr(inspect_command, "run", run)
+    assert main(["inspect", "x.h5"]) == 130
+    assert capsys.readouterr().err.strip() == "stdm-drake inspect: interrupted"
+
+
+def test_a_killed_runs_temporary_files_go_with_the_next_run(tmp_path, capsys):
+    stale = [tmp_path / ".data.h5.k3j_x9qa.tmp", tmp_path / ".data.h5.lock"]
+    for path in stale:
+        path.write_bytes(b"left by a run killed with SIGKILL")
+    (tmp_path / ".thesis.tex.abcdefgh.tmp").write_text("not ours: another file's name")
+    assert main(["collect", "--protocol", "excitation", "--count", "2", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "data.h5")]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".thesis.tex.abcdefgh.tmp", "data.h5"]
+
+
+def test_a_second_run_into_the_same_output_names_the_first(tmp_path, capsys):
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time\n"
+                               "fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT)\n"
+                               "fcntl.flock(fd, fcntl.LOCK_EX); os.write(fd, str(os.getpid()).encode())\n"
+                               "print('locked', flush=True); time.sleep(60)", str(tmp_path / ".data.h5.lock")],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "locked"
+        capsys.readouterr()
+        assert main(["collect", "--protocol", "excitation", "--count", "2", "--workers", "1", "--quiet",
+                     "-o", str(tmp_path / "data.h5")]) == 2
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and f"being written by another stdm-drake run (process {holder.pid})" in error
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not (tmp_path / "data.h5").exists()
+
+
+def test_one_command_does_not_replace_anothers_outputs(tmp_path, capsys, excitation_dataset):
+    """A folder or file records the command that wrote it; another command needs --force."""
+    (tmp_path / "repro").mkdir()
+    (tmp_path / "repro" / FOLDER_MARKER).write_text("stdm-drake outputs\ncommand: reproduce\n")
+    (tmp_path / "repro" / "results.json").write_text(json.dumps(dict(tables=[])))
+    before = (tmp_path / "repro" / "results.json").read_text()
+    capsys.readouterr()
+    assert main(["sine-sum", "--quick", "--epochs", "1", "-o", str(tmp_path / "repro")]) == 2
+    assert "holds the outputs of `stdm-drake reproduce`" in capsys.readouterr().err
+    assert (tmp_path / "repro" / "results.json").read_text() == before
+    report = tmp_path / "identified.json"
+    report.write_text(json.dumps(dict(written_by="stdm-drake identify")))
+    assert main(["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "a.h5")]) == 0
+    with h5py.File(tmp_path / "a.h5", "r") as f:
+        assert f.attrs["written_by"] == "stdm-drake collect"
+    assert (tmp_path / ".a.h5.lock").exists() is False
+
+
+def on_small_disk(tmp_path, size: str, argv: list[str]) -> tuple[int, str, list[str], str]:
+    """Run `argv` in tmp_path with a tmpfs of `size` mounted there (a private mount namespace: `unshare`;
+    skipped with the reason where it cannot be made); returns its exit status, stderr, what it left there and
+    its stdout."""
+    import shutil
+    if shutil.which("unshare") is None:
+        pytest.skip("no `unshare` here to make a small file system")
+    script = ('mount -t tmpfs -o size="$1" none "$0" || exit 99; cd "$0"; shift; "$@"; status=$?; '
+              'echo "--- left:"; find . -mindepth 1; exit $status')
+    result = subprocess.run(["unshare", "--user", "--map-root-user", "--mount", "sh", "-c", script, str(tmp_path),
+                             size, *argv], env=ENV, capture_output=True, text=True, timeout=300)
+    if result.returncode == 99:
+        pytest.skip(f"cannot mount a small tmpfs here: {result.stderr.strip()[:120]}")
+    out, _, left = result.stdout.rpartition("--- left:")
+    return result.returncode, result.stderr, left.split(), out
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("size", ["64k", "200k"])
+def test_a_full_disk_is_one_line_for_collect_and_leaves_nothing(tmp_path, size):
+    status, err, left, _ = on_small_disk(tmp_path, size, command(
+        "collect", "--protocol", "excitation", "--count", "12", "--workers", "1", "--quiet", "-o", "data.h5"))
+    assert status == 2 and left == [], (status, err[-800:], left)
+    assert err.count("\n") == 1 and "not enough space to write data.h5: it needs about" in err, err
+
+
+@pytest.mark.slow
+def test_a_full_disk_is_one_line_for_train_and_leaves_no_temporary_file(tmp_path, excitation_dataset):
+    status, err, left, _ = on_small_disk(tmp_path, "40k", command(
+        "train", excitation_dataset, "--model", "D", "--epochs", "1", "--train", "2", "--val", "1", "--quiet",
+        "-o", "run"))
+    assert status == 2 and left == [], (status, err[-800:], left)
+    assert err.count("\n") == 1 and "not enough space to write run/seed0/checkpoint.pt: it needs about" in err, err
+
+
+@pytest.mark.slow
+def test_a_write_that_fills_the_disk_is_one_line_naming_the_file_and_leaves_nothing(tmp_path):
+    """Past the checks before the work (another program filled the disk meanwhile): every atomic write turns
+    ENOSPC into one line naming the file it was writing."""
+    script = ("from stdm_drake.cli import error_line\nfrom stdm_drake.files import write_text_atomic\n"
+              "try:\n    write_text_atomic('big.txt', 'x' * 200000)\nexcept Exception as error:\n"
+              "    print(type(error).__name__, error_line(error))\n")
+    status, err, left, out = on_small_disk(tmp_path, "64k", [sys.executable, "-c", script])
+    assert status == 0 and left == [], (err, left)
+    assert out.strip() == "InputError cannot write big.txt: No space left on device (0 MB free there); nothing was " \
+                          "replaced", out
+
+
+def test_no_room_is_one_line_naming_the_file(tmp_path):
+    """(The same without a small disk: the error a full disk raises, turned into the command's one line.)"""
+    import errno
+
+    from stdm_drake.errors import InputError
+    from stdm_drake.files import atomic_path
+    with pytest.raises(InputError, match=r"^cannot write .*out\.txt: No space left on device \(.* free there\); "
+                                         r"nothing was replaced$"):
+        with atomic_path(tmp_path / "out.txt"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_deleted_working_folder_is_one_line(tmp_path):
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    result = subprocess.run(["sh", "-c", 'cd "$0" && rmdir "$0" && exec "$@"', str(gone),
+                             *command("train", "data.h5", "-o", "run")], env=ENV, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr[-800:]
+    assert "the working folder no longer exists" in result.stderr
+
+
+@pytest.mark.parametrize("argv", [["collect", "--protocol", "excitation", "--count", "1", "--html", "NEW.html",
+                                   "-o", "NEW.h5"], ["view", "CK", "DATA", "--meshcat"]])
+def test_meshcat_turned_off_by_drake_allow_network_is_one_line(tmp_path, capsys, monkeypatch, argv):
+    monkeypatch.setenv("DRAKE_ALLOW_NETWORK", "none")
+    monkeypatch.chdir(tmp_path)
+    capsys.readouterr()
+    assert main([str(tmp_path / token) if token.startswith("NEW") else token for token in argv]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "needs Meshcat, which DRAKE_ALLOW_NETWORK=none turns off" in error, error
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_training_run_that_would_not_fit_in_memory_is_refused_before_it_starts(tmp_path, capsys, monkeypatch,
+                                                                                   excitation_dataset):
+    """The estimate (weights with Adam's state, and a batch's activations and tangents) against the memory
+    available: here a machine with 100 MB left and a 2048-wide network of 8 layers."""
+    monkeypatch.setattr("stdm_drake.learning.settings.available_memory", lambda: 1e8)
+    capsys.readouterr()
+    argv = ["train", str(excitation_dataset), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
+            "--quiet", "--hidden-width", "2048", "--hidden-layers", "8", "-o", str(tmp_path / "run")]
+    assert main(argv) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "training would need about 0.562 GB of memory (1 member(s)" in error, error
+    assert "0.1 GB is available" in error and list(tmp_path.iterdir()) == []
+    monkeypatch.setattr("stdm_drake.learning.settings.available_memory", lambda: 1e10)
+    assert main(argv) == 0
