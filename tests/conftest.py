@@ -1,5 +1,7 @@
 """Shared test setup: offline Drake, small datasets collected once per session."""
 import os
+import pathlib
+import subprocess
 import sys
 
 os.environ["DRAKE_ALLOW_NETWORK"] = "meshcat"  # a remote package fails at once; local Meshcat works
@@ -66,3 +68,34 @@ def pytest_unconfigure(config):
 
 
 _EXIT_STATUS = pytest.StashKey[int]()
+
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def regular_install(tmp_path_factory):
+    """A wheel built from the checkout, installed into a folder of its own: (environment that imports it without
+    the checkout on the path, a working folder outside the checkout, the install folder). Its commands run as
+    `python -S` with the dependencies' folder on PYTHONPATH: without `site`, the editable install's import hook
+    (a .pth file) is not loaded, so a module the wheel lacks is an ImportError, not the checkout's copy."""
+    wheels, target, work = (tmp_path_factory.mktemp(name) for name in ("wheels", "site", "work"))
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    subprocess.run(pip + ["wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
+                   cwd=work, timeout=300)
+    (wheel,) = wheels.glob("stdm_drake-*.whl")
+    subprocess.run(pip + ["install", "--no-deps", "--target", str(target), str(wheel)], check=True, timeout=300)
+    dependencies = pathlib.Path(pytest.importorskip("numpy").__file__).parents[1]   # the venv's site-packages
+    return (dict(os.environ, PYTHONPATH=os.pathsep.join([str(target), str(dependencies)]), DRAKE_ALLOW_NETWORK="meshcat"),
+            work, target)
+
+
+@pytest.fixture(scope="session")
+def quick_report(regular_install):
+    """`reproduce --quick` (the README's main job on built-in defaults) run by the regular install: it finds the
+    robot, plan and controller files inside the package (also the local run the Ray backend's must equal)."""
+    env, work, _ = regular_install
+    result = subprocess.run([sys.executable, "-S", "-m", "stdm_drake.cli", "reproduce", "--quick", "-o", "out", "--quiet"],
+                            cwd=work, env=env, capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr[-2000:]
+    return work / "out"

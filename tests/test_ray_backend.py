@@ -118,21 +118,21 @@ def test_a_job_that_raises_reports_its_own_error(head, tmp_path, excitation_data
     assert "training job 0 (sim D seed 0) on the cluster failed: trajectory index out of range" in message and "\n" not in message, message
 
 
-def test_reproduce_quick_on_ray_equals_the_local_report(head, tmp_path, capsys):
+def test_reproduce_quick_on_ray_equals_the_local_report(head, tmp_path, capsys, quick_report):
     """`reproduce --backend ray` against the running head: the same training rows and sine-sum study as the
-    local run (timings aside)."""
+    local run (`quick_report`, the regular install's; timings aside)."""
     from stdm_drake.cli import main
     address, _ = head
     if ray.is_initialized():
         ray.shutdown()
-    assert main(["reproduce", "--quick", "--quiet", "-o", str(tmp_path / "local")]) == 0
     assert main(["reproduce", "--quick", "--quiet", "--backend", "ray", "--ray-address", address,
                  "-o", str(tmp_path / "ray")]) == 0
-    local, remote = (json.loads((tmp_path / name / "results.json").read_text()) for name in ("local", "ray"))
+    folders = dict(local=quick_report, ray=tmp_path / "ray")
+    local, remote = (json.loads((folders[name] / "results.json").read_text()) for name in ("local", "ray"))
     # the training is bitwise the same (curves, epochs); test errors come from the float32 numpy inference,
     # whose BLAS sums in another order with another thread count on some CPUs (AMD EPYC: up to 1e-7 relative)
     assert_close(clean(remote["runs"]), clean(local["runs"]))
-    local, remote = (json.loads((tmp_path / name / "sine_sum" / "results.json").read_text())["runs"]
+    local, remote = (json.loads((folders[name] / "sine_sum" / "results.json").read_text())["runs"]
                      for name in ("local", "ray"))             # the sine-sum study ran on Ray too
     assert [run["member_test_mse"] for run in remote] == [run["member_test_mse"] for run in local]
     assert [run["best_prediction"] for run in remote] == [run["best_prediction"] for run in local]
