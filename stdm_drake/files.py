@@ -1,5 +1,6 @@
 """File helpers: atomic writes (temp file in the destination folder, then rename; a full disk as one line),
-the free space a write needs, the temporary files a killed run left, and JSON of numpy values."""
+the free space a write needs (and the memory a run may use), the temporary files a killed run left, and JSON
+of numpy values."""
 import contextlib
 import dataclasses
 import errno
@@ -29,6 +30,18 @@ def free_bytes(folder) -> int:
         folder = folder.parent
     stats = os.statvfs(folder)
     return stats.f_bavail * stats.f_frsize
+
+
+def available_memory() -> float | None:
+    """Bytes of memory available to a new process here (Linux: MemAvailable; None where unknown)."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
 
 
 def check_free_space(path, needed: int) -> None:

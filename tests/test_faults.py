@@ -236,12 +236,26 @@ def on_small_disk(tmp_path, size: str, argv: list[str]) -> tuple[int, str, list[
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("size", ["64k", "200k"])
-def test_a_full_disk_is_one_line_for_collect_and_leaves_nothing(tmp_path, size):
-    status, err, left, _ = on_small_disk(tmp_path, size, command(
+def test_a_full_disk_is_one_line_for_collect_before_it_simulates(tmp_path):
+    status, err, left, _ = on_small_disk(tmp_path, "200k", command(
         "collect", "--protocol", "excitation", "--count", "12", "--workers", "1", "--quiet", "-o", "data.h5"))
     assert status == 2 and left == [], (status, err[-800:], left)
-    assert err.count("\n") == 1 and "not enough space to write data.h5: it needs about" in err, err
+    assert err.count("\n") == 1 and "not enough space to write data.h5: it needs about 0.615 MB" in err, err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("size", ["64k", "120k", "200k"])
+def test_the_dataset_writer_stops_before_hdf5_fills_the_disk(tmp_path, size, excitation_dataset):
+    """Past the estimate (another program fills the disk meanwhile): the writer checks before every
+    trajectory, so HDF5 never meets a full disk (it would crash the process: exit 139)."""
+    script = ("import sys\nfrom stdm_drake.data.dataset import load_dataset\nfrom stdm_drake.data.writer import "
+              "DatasetWriter\ndata = load_dataset(sys.argv[1])\ntry:\n"
+              "    with DatasetWriter('out.h5', dict(protocol=data.protocol, sample_period=data.sample_period)) as w:\n"
+              "        for _ in range(20):\n            w.add(data.trajectory(0))\n"
+              "except ValueError as error:\n    print(error)\n")
+    status, err, left, out = on_small_disk(tmp_path, size, [sys.executable, "-c", script, str(excitation_dataset)])
+    assert status == 0 and left == [], (status, err[-800:], left)
+    assert out.startswith("not enough space to write out.h5: it needs about"), out
 
 
 @pytest.mark.slow
@@ -305,7 +319,7 @@ def test_a_training_run_that_would_not_fit_in_memory_is_refused_before_it_starts
                                                                                    excitation_dataset):
     """The estimate (weights with Adam's state, and a batch's activations and tangents) against the memory
     available: here a machine with 100 MB left and a 2048-wide network of 8 layers."""
-    monkeypatch.setattr("stdm_drake.learning.settings.available_memory", lambda: 1e8)
+    monkeypatch.setattr("stdm_drake.files.available_memory", lambda: 1e8)
     capsys.readouterr()
     argv = ["train", str(excitation_dataset), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
             "--quiet", "--hidden-width", "2048", "--hidden-layers", "8", "-o", str(tmp_path / "run")]
@@ -313,5 +327,5 @@ def test_a_training_run_that_would_not_fit_in_memory_is_refused_before_it_starts
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "training would need about 0.562 GB of memory (1 member(s)" in error, error
     assert "0.1 GB is available" in error and list(tmp_path.iterdir()) == []
-    monkeypatch.setattr("stdm_drake.learning.settings.available_memory", lambda: 1e10)
+    monkeypatch.setattr("stdm_drake.files.available_memory", lambda: 1e10)
     assert main(argv) == 0

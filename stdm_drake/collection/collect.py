@@ -32,6 +32,7 @@ from stdm_drake.config import load_yaml_config
 from stdm_drake.data.dataset import Trajectory
 from stdm_drake.data.writer import package_versions
 from stdm_drake.errors import InputError, PlanningError, warn
+from stdm_drake import files
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, friction_bound_joints, load_controller_config
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker, plant_effects_for
@@ -165,11 +166,25 @@ def plans_per_pose(count: int, num_poses: int) -> list[int]:
     return [count // num_poses + (1 if pose < count % num_poses else 0) for pose in range(num_poses)]
 
 
-def collect(request: CollectionRequest, progress: bool = True,
-            on_trajectory=None) -> tuple[list[Trajectory], list[int], dict]:
+# Arrays of n columns a collected trajectory holds per sample, at most (the state and its truth, torques,
+# accelerations, the plan): what a dataset's size is estimated from before the simulation starts.
+ARRAYS_PER_SAMPLE = 12
+
+
+def estimated_dataset_bytes(payloads, num_joints: int) -> int:
+    """Bytes that trajectories of `payloads` (an Excitation each: num_steps + 1 samples; or a PlanSamples:
+    its (T+1, n) samples) take in memory and in the dataset file, at most."""
+    samples = sum(payload.num_steps + 1 if isinstance(payload, Excitation) else len(payload.q) for payload in payloads)
+    return samples * num_joints * 8 * ARRAYS_PER_SAMPLE
+
+
+def collect(request: CollectionRequest, progress: bool = True, on_trajectory=None,
+            check_size=None) -> tuple[list[Trajectory], list[int], dict]:
     """Simulate `request.count` trajectories; returns (trajectories, groups, metadata).
 
     on_trajectory(traj): called with each finished trajectory, in order (e.g. to show it in Meshcat).
+    check_size(bytes): called with `estimated_dataset_bytes` once the trajectories are planned, before any is
+    simulated (to refuse a dataset that would not fit in memory or on disk).
     """
     from tqdm import tqdm
 
@@ -203,6 +218,13 @@ def collect(request: CollectionRequest, progress: bool = True,
             payloads, groups = [request.excitation] * request.count, [0] * request.count
         else:
             payloads, groups = plan_tracking(request, pool)
+        size = estimated_dataset_bytes(payloads, settings.robot.num_joints)
+        available = files.available_memory()
+        if available is not None and size > available:
+            raise InputError(f"{request.count} trajectories would take about {size / 1e9:.3g} GB of memory, "
+                             f"{available / 1e9:.3g} GB is available; collect fewer (--count) and merge, or shorter ones")
+        if check_size is not None:
+            check_size(size)
         jobs = [TrajectoryJob(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
         for traj in pool.map(_collect_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))):
             finished(traj)

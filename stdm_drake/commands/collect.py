@@ -9,7 +9,8 @@ from stdm_drake.collection.protocols import PROTOCOLS
 from stdm_drake.collection.collect import CollectionRequest, collect, collection_request
 from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot_argument, add_visualization_argument,
                                            check_meshcat_allowed, command_visualization)
-from stdm_drake.data.writer import write_dataset
+from stdm_drake.data.writer import HDF5_RESERVE_BYTES, write_dataset
+from stdm_drake.files import check_free_space
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
@@ -93,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     trajectories, groups, metadata = collect(
         request, progress=not args.quiet,
-        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj.q_true, realtime=args.meshcat))
+        on_trajectory=None if recorder is None else lambda traj: recorder.add(traj.q_true, realtime=args.meshcat),
+        check_size=lambda size: check_free_space(args.output, size + HDF5_RESERVE_BYTES))
     elapsed = time.perf_counter() - started
     path = write_dataset(args.output, trajectories, groups, metadata)
     simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period

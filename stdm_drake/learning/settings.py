@@ -9,6 +9,7 @@ import numpy as np
 import torch
 
 from stdm_drake.data.dataset import DERIVATIVE_SOURCES
+from stdm_drake import files
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
@@ -226,7 +227,7 @@ class TrainSettings:
         weights = ensemble_size * self.hidden_layers * self.hidden_width ** 2
         activations = ensemble_size * batch * self.hidden_width * self.hidden_layers
         needed = 4.0 * (4 * weights + 6 * activations)
-        available = available_memory() if available is None else available
+        available = files.available_memory() if available is None else available
         if available is not None and needed > available:
             raise InputError(f"training would need about {needed / 1e9:.3g} GB of memory ({ensemble_size} "
                              f"member(s), hidden_layers {self.hidden_layers}, hidden_width "
@@ -283,14 +284,3 @@ class TrainSettings:
                               patience=self.patience, seed=seed, lr_schedule=self.lr_schedule,
                               min_learning_rate=self.min_lr, weight_decay=self.weight_decay)
 
-
-def available_memory() -> float | None:
-    """Bytes of memory available to a new process here (Linux: MemAvailable; None where unknown)."""
-    try:
-        with open("/proc/meminfo", encoding="ascii") as f:
-            for line in f:
-                if line.startswith("MemAvailable:"):
-                    return float(line.split()[1]) * 1024
-    except OSError:
-        pass
-    return None
