@@ -19,8 +19,9 @@ TEMP_SUFFIX = ".tmp"
 TEMP_NAME = re.compile(r"^\..+\.[A-Za-z0-9_]{8}\.tmp$")
 
 
-def megabytes(size: float) -> str:
-    return f"{size / 1e6:.3g} MB"
+def size_text(size: float) -> str:
+    """A size in bytes for a message: "0.615 MB", "2.81 GB"."""
+    return f"{size / 1e9:.3g} GB" if size >= 1e9 else f"{size / 1e6:.3g} MB"
 
 
 def free_bytes(folder) -> int:
@@ -49,14 +50,14 @@ def check_free_space(path, needed: int) -> None:
     path = pathlib.Path(path)
     free = free_bytes(path.parent)
     if needed > free:
-        raise InputError(f"not enough space to write {path}: it needs about {megabytes(needed)}, "
-                         f"{megabytes(free)} free there")
+        raise InputError(f"not enough space to write {path}: it needs about {size_text(needed)}, "
+                         f"{size_text(free)} free there")
 
 
 def no_room_error(path, error: OSError) -> InputError:
     """The one line for a write to `path` that failed for lack of room (`NO_ROOM`)."""
     return InputError(f"cannot write {path}: {error.strerror or os.strerror(error.errno)} "
-                      f"({megabytes(free_bytes(pathlib.Path(path).parent))} free there); nothing was replaced")
+                      f"({size_text(free_bytes(pathlib.Path(path).parent))} free there); nothing was replaced")
 
 
 @contextlib.contextmanager

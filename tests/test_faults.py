@@ -325,7 +325,17 @@ def test_a_training_run_that_would_not_fit_in_memory_is_refused_before_it_starts
             "--quiet", "--hidden-width", "2048", "--hidden-layers", "8", "-o", str(tmp_path / "run")]
     assert main(argv) == 2
     error = capsys.readouterr().err
-    assert error.count("\n") == 1 and "training would need about 0.562 GB of memory (1 member(s)" in error, error
-    assert "0.1 GB is available" in error and list(tmp_path.iterdir()) == []
+    assert error.count("\n") == 1 and "training would need about 562 MB of memory (1 member(s)" in error, error
+    assert "100 MB is available" in error and list(tmp_path.iterdir()) == []
     monkeypatch.setattr("stdm_drake.files.available_memory", lambda: 1e10)
     assert main(argv) == 0
+
+
+def test_a_collection_that_would_not_fit_in_memory_is_refused_before_it_simulates(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("stdm_drake.files.available_memory", lambda: 1e5)
+    capsys.readouterr()
+    assert main(["collect", "--protocol", "excitation", "--count", "8", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "data.h5")]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "8 trajectories would take about 0.235 MB of memory, 0.1 MB is available" in error, error
+    assert list(tmp_path.iterdir()) == []

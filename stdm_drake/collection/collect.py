@@ -221,8 +221,8 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
         size = estimated_dataset_bytes(payloads, settings.robot.num_joints)
         available = files.available_memory()
         if available is not None and size > available:
-            raise InputError(f"{request.count} trajectories would take about {size / 1e9:.3g} GB of memory, "
-                             f"{available / 1e9:.3g} GB is available; collect fewer (--count) and merge, or shorter ones")
+            raise InputError(f"{request.count} trajectories would take about {files.size_text(size)} of memory, "
+                             f"{files.size_text(available)} is available; collect fewer (--count) or shorter ones")
         if check_size is not None:
             check_size(size)
         jobs = [TrajectoryJob(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]

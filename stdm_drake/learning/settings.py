@@ -229,9 +229,9 @@ class TrainSettings:
         needed = 4.0 * (4 * weights + 6 * activations)
         available = files.available_memory() if available is None else available
         if available is not None and needed > available:
-            raise InputError(f"training would need about {needed / 1e9:.3g} GB of memory ({ensemble_size} "
+            raise InputError(f"training would need about {files.size_text(needed)} of memory ({ensemble_size} "
                              f"member(s), hidden_layers {self.hidden_layers}, hidden_width "
-                             f"{self.hidden_width}, batches of {batch}), {available / 1e9:.3g} GB is available; "
+                             f"{self.hidden_width}, batches of {batch}), {files.size_text(available)} is available; "
                              "lower batch_size, hidden_width or hidden_layers")
         return needed
 
