@@ -47,7 +47,8 @@ def signals_as_exceptions():
         return
     _received.clear()
     _held.clear()
-    previous = {signum: signal.signal(signum, _handler) for signum in EXIT_STATUS}
+    previous = {signum: signal.signal(signum, _handler) for signum in EXIT_STATUS   # (one ignored, as under
+                if signal.getsignal(signum) is not signal.SIG_IGN}                    # nohup, stays ignored)
     try:
         yield
     finally:
@@ -68,9 +69,8 @@ def forget(signum: int) -> None:
 
 def exit_status(error: BaseException | None = None) -> int:
     """130 for Ctrl-C, 143 for SIGTERM: from the exception, else from the signal that arrived."""
-    if isinstance(error, Terminated) or (error is None and received() == signal.SIGTERM):
-        return 143
-    return 130
+    terminated = isinstance(error, Terminated) or (error is None and received() == signal.SIGTERM)
+    return EXIT_STATUS[signal.SIGTERM if terminated else signal.SIGINT]
 
 
 @contextlib.contextmanager
