@@ -7,11 +7,15 @@ Each subcommand is one thin module in `stdm_drake.commands` with `add_arguments(
 from __future__ import annotations
 
 import argparse
+import codecs
 import contextlib
+import errno
 import importlib
+import locale
 import logging
 import os
 import re
+import signal
 import sys
 
 from stdm_drake import interrupts
@@ -49,7 +53,10 @@ class CommandParser(argparse.ArgumentParser):
 def error_line(error: BaseException) -> str:
     """One line for the user: the message's first line, with the file an OSError names."""
     if isinstance(error, OSError) and error.strerror:
-        return f"{error.strerror}: {error.filename}" if error.filename else error.strerror
+        if error.filename:
+            return f"{error.strerror}: {error.filename}"
+        # (every file stdm-drake writes is named in its errors: one that names none is the standard output)
+        return f"cannot write the standard output: {error.strerror}" if error.errno == errno.ENOSPC else error.strerror
     text = str(error).strip()
     return text.splitlines()[0] if text else type(error).__name__
 
@@ -109,6 +116,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"stdm-drake {name}: error: the working folder no longer exists (deleted?); cd to a folder that "
               "does", file=sys.stderr)
         return 2
+    encoding = locale.getpreferredencoding(False)
+    if codecs.lookup(encoding).name != "utf-8":   # (Drake fails to initialize: a traceback at import)
+        print(f"stdm-drake {name}: error: the locale's text encoding is {encoding}; Drake needs UTF-8: set "
+              "LC_ALL=C.UTF-8", file=sys.stderr)
+        return 2
     try:
         with interrupts.signals_as_exceptions():   # Ctrl-C, SIGTERM: through every `finally`, from the imports on
             status = run_command(name, argv[1:])
@@ -116,10 +128,14 @@ def main(argv: list[str] | None = None) -> int:
                 return status
             raise KeyboardInterrupt   # a library swallowed the signal: the run did not end as asked
     except KeyboardInterrupt as error:
-        status = interrupts.exit_status(error if isinstance(error, interrupts.Terminated) else None)
-        close_progress_bars()
-        print(f"stdm-drake {name}: {'terminated (SIGTERM)' if status == 143 else 'interrupted'}", file=sys.stderr)
-        return status
+        status, what = interrupts.ending(error if isinstance(error, interrupts.Terminated) else None)
+    except Exception:
+        if interrupts.received() is None:
+            raise
+        status, what = interrupts.ending()   # a library turned the signal into its own error (pydrake: ImportError)
+    close_progress_bars()
+    print(f"stdm-drake {name}: {what}", file=sys.stderr)
+    return status
 
 
 def run_command(name: str, argv: list[str]) -> int:
@@ -129,7 +145,8 @@ def run_command(name: str, argv: list[str]) -> int:
     except ValueError as error:
         print(f"stdm-drake {name}: error: {error}", file=sys.stderr)
         return 2
-    module = importlib.import_module(COMMANDS[name][0])
+    with interrupts.protected():   # (a signal inside pydrake's initialization breaks it: raised after it)
+        module = importlib.import_module(COMMANDS[name][0])
     command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
     module.add_arguments(command_parser)
     try:
@@ -139,6 +156,9 @@ def run_command(name: str, argv: list[str]) -> int:
     try:
         with command_outputs(name), drake_warnings_once(name), deferred_warnings():   # a failing command prints
             return int(module.run(args) or 0)                                          # its one error line only
+    except BrokenPipeError:   # the reader of the output went away (`stdm-drake inspect x.h5 | head -2`): quietly
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # (no second error when Python flushes)
+        return 128 + signal.SIGPIPE
     except (ValueError, OSError) as error:  # InputError is a ValueError; OSError: files, folders, HDF5
         close_progress_bars()
         print(f"stdm-drake {name}: error: {error_line(error)}", file=sys.stderr)

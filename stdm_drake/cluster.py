@@ -241,6 +241,7 @@ def job_pool(config: RunnerConfig, initializer=None, initargs=()):
             initializer(*initargs)
         yield InProcessPool()
         return
+    import concurrent.futures.process
     pool = ProcessPool(config.workers, initializer, initargs)
     try:
         yield pool
@@ -249,6 +250,10 @@ def job_pool(config: RunnerConfig, initializer=None, initargs=()):
         with protected():
             pool.stop()
         raise
+    except concurrent.futures.process.BrokenProcessPool:
+        pool.stop()
+        raise InputError("a worker process ended abruptly (killed, or out of memory?); the run stopped, its "
+                         "finished files are kept") from None
     except BaseException:
         pool.executor.shutdown(wait=True, cancel_futures=True)
         raise

@@ -14,10 +14,15 @@ import threading
 
 
 class Terminated(KeyboardInterrupt):
-    """SIGTERM: the command was asked to stop (exit status 143)."""
+    """SIGTERM (or SIGHUP: the terminal closed): the command was asked to stop (exit status 128 + the signal's
+    number)."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
 
 
-EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
 
 _received: list[int] = []      # the signals that arrived while a command ran (a swallowed one still counts)
 _held: list[int] = []          # signals that arrived inside `protected`, to raise when it ends
@@ -26,7 +31,7 @@ _in_worker = False             # this process is a pool's worker: its parent han
 
 
 def _exception(signum: int) -> KeyboardInterrupt:
-    return Terminated() if signum == signal.SIGTERM else KeyboardInterrupt()
+    return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
 
 
 def _handler(signum, frame):
@@ -67,10 +72,13 @@ def forget(signum: int) -> None:
         _received.remove(signum)
 
 
-def exit_status(error: BaseException | None = None) -> int:
-    """130 for Ctrl-C, 143 for SIGTERM: from the exception, else from the signal that arrived."""
-    terminated = isinstance(error, Terminated) or (error is None and received() == signal.SIGTERM)
-    return EXIT_STATUS[signal.SIGTERM if terminated else signal.SIGINT]
+def ending(error: BaseException | None = None) -> tuple[int, str]:
+    """(exit status, what happened) of a command a signal ended: 130 "interrupted" for Ctrl-C, 143
+    "terminated (SIGTERM)", 129 "terminated (SIGHUP)"; from the exception, else from the first signal."""
+    signum = error.signum if isinstance(error, Terminated) else signal.SIGINT if error is not None else received()
+    signum = signal.SIGINT if signum is None else signum
+    what = "interrupted" if signum == signal.SIGINT else f"terminated ({signal.Signals(signum).name})"
+    return EXIT_STATUS[signum], what
 
 
 @contextlib.contextmanager
@@ -106,3 +114,11 @@ def mark_worker() -> None:
     they are (its parent or Ray stops it; what a killed task left is removed by the next run's lock)."""
     global _in_worker
     _in_worker = True
+
+
+def reraise_exit_status(status: int) -> None:
+    """A command run inside this process (`cli.main`) ended with `status`: if a signal ended it (EXIT_STATUS),
+    raise it here too, so that the caller stops as well."""
+    for signum, code in EXIT_STATUS.items():
+        if status == code:
+            raise _exception(signum)

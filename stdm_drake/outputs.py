@@ -21,7 +21,7 @@ import pathlib
 import stat
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import remove_stale_temporaries
+from stdm_drake.files import free_bytes, remove_stale_temporaries, size_text
 
 # Written into every output folder a command fills, and looked for before replacing one.
 FOLDER_MARKER = ".stdm-drake-output"
@@ -73,19 +73,31 @@ def html_marker() -> str:
     return f"{HTML_PREFIX} {running_command()} -->" if running_command() else HTML_MARKER
 
 
+# An output is refused at once where less than this is free: a command would fail on its first write (and
+# leave a half-filled folder) on a disk that full.
+MIN_FREE_BYTES = 1 << 20
+
+
+def _check_room(option: str, path: pathlib.Path) -> None:
+    free = free_bytes(path.absolute().parent)
+    if free < MIN_FREE_BYTES:
+        raise InputError(f"{option} {path}: only {size_text(free)} free there; stdm-drake needs at least "
+                         f"{size_text(MIN_FREE_BYTES)} free to write an output")
+
+
 def lock_output(option: str, path) -> None:
     """Lock `path` for this run (a lock file `.NAME.lock` beside it; in it for a folder whose parent cannot be
     written) and remove the temporary files a killed run left for it; InputError naming the process if another
     run holds it."""
     if _running is None:
         return
-    path = pathlib.Path(path)
-    key = str(path.absolute())
+    path = pathlib.Path(os.path.realpath(path))   # (the file itself, whatever link or alias names it)
+    key = str(path)
     if key in _running["locks"]:
         return
-    lock_file = path.absolute().parent / f".{path.name}.lock"
+    lock_file = path.parent / f".{path.name}.lock"
     if path.is_dir() and not os.access(lock_file.parent, os.W_OK):   # a folder in a folder this user cannot write
-        lock_file = path.absolute() / f"{FOLDER_MARKER}.lock"
+        lock_file = path / f"{FOLDER_MARKER}.lock"
     made = [folder for folder in lock_file.parents if not folder.exists()]   # removed again if still empty
     lock_file.parent.mkdir(parents=True, exist_ok=True)
     while True:
@@ -110,7 +122,7 @@ def lock_output(option: str, path) -> None:
     _running["locks"][key] = (fd, lock_file, made)
     if (path / FOLDER_MARKER).is_file():   # (only in a folder stdm-drake wrote: never a user's files)
         remove_stale_temporaries(path, recursive=True)
-    remove_stale_temporaries(path.absolute().parent, path.name)
+    remove_stale_temporaries(path.parent, path.name)
 
 
 def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
@@ -136,13 +148,18 @@ def _check_parent(option: str, path: pathlib.Path) -> None:
         raise InputError(f"{option} {path}: cannot write in {existing} (permission denied)")
 
 
-def _check_not_input(option: str, path: pathlib.Path, inputs) -> None:
+def _check_not_input(option: str, path: pathlib.Path, inputs, folder: bool = False) -> None:
+    """An output is none of the inputs; a `folder` output holds none of them (the command replaces files in it)."""
     for source in inputs:
         if source is None:
             continue
         source = pathlib.Path(source)
         if _same_file(path, source) or path.absolute() == source.absolute():
             raise InputError(f"{option} {path} is one of the command's inputs ({source}); choose another path")
+        if folder and (pathlib.Path(os.path.realpath(source)).is_relative_to(os.path.realpath(path))
+                       or source.absolute().is_relative_to(path.absolute())):
+            raise InputError(f"{option} {path} holds the input {source}, and the command replaces files there; move "
+                             "the input out or choose another folder")
 
 
 def _writer_of(path: pathlib.Path, kind: str) -> str | None:
@@ -192,6 +209,8 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
     path = pathlib.Path(path)
     _check_not_input(option, path, inputs)
     if path.exists() or path.is_symlink():
+        if _is_symlink_loop(path):
+            raise InputError(f"{option} {path} is a symlink loop (its links point at each other)")
         mode = os.stat(path).st_mode if path.exists() else 0
         if path.is_dir():
             raise InputError(f"{option} {path} is a folder; give a file path")
@@ -200,6 +219,11 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
                              "give a file path")
         writer = _writer_of(path, kind)
         if not force and writer is None:
+            other = next((found for other_kind in ("dataset", "json", "identified", "html") if other_kind != kind
+                          for found in [_writer_of(path, other_kind)] if found), None)
+            if other:   # (another kind of output: not the one this option writes)
+                raise InputError(f"{option} {path} was written by `{other}`; choose another path or pass --force to "
+                                 "replace it")
             raise InputError(f"{option} {path} exists and stdm-drake did not write it; pass --force to replace it")
         if not force and _other_command(writer):
             raise InputError(f"{option} {path} was written by `{writer}`; choose another path or pass --force to "
@@ -207,6 +231,7 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
         if not os.access(path, os.W_OK) and not os.access(path.parent, os.W_OK):
             raise InputError(f"{option} {path}: cannot replace it (permission denied)")
     _check_parent(option, path)
+    _check_room(option, path)
     lock_output(option, path)
     return path
 
@@ -223,21 +248,56 @@ def folder_writer(path) -> str | None:
     return ""
 
 
-def check_output_folder(option: str, path, *, inputs=(), own_files=(), force: bool = False) -> pathlib.Path:
+# The result files each command's folder holds (runs before the folder marker named its command are known by
+# them): a folder holding another command's is that command's.
+COMMAND_RESULTS = {"train": ("summary.json",), "sine-sum": ("results.json", "summary.md", "table1.csv"),
+                   "mpc": ("mpc.json", "mpc.csv"), "reproduce": ("report.md", "cache", "sine_sum", "results.json")}
+
+
+def _older_owner(path: pathlib.Path, command: str | None) -> str | None:
+    """The other command whose results (COMMAND_RESULTS, beyond the files `command` writes too) the unmarked
+    or older folder `path` holds, or None."""
+    own = set(COMMAND_RESULTS.get(command, ()))
+    for other, names in COMMAND_RESULTS.items():
+        if other != command and any((path / name).exists() for name in set(names) - own):
+            return other
+    return None
+
+
+def _marked_ancestor(path: pathlib.Path) -> tuple[pathlib.Path, str] | None:
+    """(folder, command) of the nearest folder above `path` whose marker names a command, or None."""
+    for parent in path.absolute().parents:
+        writer = folder_writer(parent)
+        if writer:
+            return parent, writer
+    return None
+
+
+def check_output_folder(option: str, path, *, inputs=(), force: bool = False) -> pathlib.Path:
     """Check a folder the command will fill and lock it while the command runs: missing, empty, marked by
-    this command (or by an older run that did not name its command), holding one of the command's own result
-    files (`own_files`, names relative to it, from runs before the marker), or --force. A folder that is one
-    of the inputs, an existing file or another command's folder is refused."""
+    this command (or by an older run that did not name its command), holding this command's result files
+    (COMMAND_RESULTS, from runs before the marker) and no other's, or --force. A folder that is or holds one
+    of the inputs, an existing file, another command's folder or an existing folder inside another command's
+    is refused."""
     path = pathlib.Path(path)
-    _check_not_input(option, path, inputs)
+    _check_not_input(option, path, inputs, folder=True)
+    command = running_command()
     if path.exists() or path.is_symlink():
+        if _is_symlink_loop(path):
+            raise InputError(f"{option} {path} is a symlink loop (its links point at each other)")
         if not path.is_dir():
             raise InputError(f"{option} {path} exists and is not a folder; give a folder path")
         writer = folder_writer(path)
-        if not force and writer and running_command() and writer != running_command():
-            raise InputError(f"{option} {path} holds the outputs of `stdm-drake {writer}`; choose another folder "
+        other = writer if writer and command and writer != command else None
+        if not writer and command:
+            other = _older_owner(path, command)
+            ancestor = _marked_ancestor(path)
+            if other is None and ancestor is not None and ancestor[1] != command and any(path.iterdir()):
+                other = ancestor[1]
+        if not force and other:
+            raise InputError(f"{option} {path} holds the outputs of `stdm-drake {other}`; choose another folder "
                              "or pass --force to write into it")
-        own = any((path / name).exists() for name in own_files)
+        own = any((path / name).exists() for name in COMMAND_RESULTS.get(command, ()))
         # an older marker does not name its command: the folder is this command's if it holds its results
         ours = bool(writer) or own or (writer == "" and {child.name for child in path.iterdir()} <= {FOLDER_MARKER})
         if not force and not ours and any(path.iterdir()):
@@ -247,8 +307,17 @@ def check_output_folder(option: str, path, *, inputs=(), own_files=(), force: bo
             raise InputError(f"{option} {path}: cannot write in it (permission denied)")
     else:
         _check_parent(option, path / "x")
+    _check_room(option, path / "x")
     lock_output(option, path)
     return path
+
+
+def _is_symlink_loop(path: pathlib.Path) -> bool:
+    try:
+        os.stat(path)
+    except OSError as error:
+        return error.errno == errno.ELOOP
+    return False
 
 
 def mark_output_folder(path) -> None:

@@ -234,6 +234,20 @@ def write_other_commands_outputs(box) -> None:
     with h5py.File(box / "imported.h5", "r+") as f:
         f.attrs["written_by"] = "stdm-drake import"
     (box / "collect.html").write_text("<!-- written by stdm-drake collect -->\n<html></html>\n")
+    # (the held-out battery's finds) a reproduce folder of before the marker named its command, reproduce's
+    # sine_sum subfolder, an mpc and a train folder holding a user's input, an output path that is a loop
+    (box / "oldrepro" / "cache").mkdir(parents=True)
+    (box / "oldrepro" / "report.md").write_text("# report\n")
+    (box / "oldrepro" / "results.json").write_text(json_module.dumps(dict(runs=[])))
+    (box / "repro" / "sine_sum").mkdir()
+    (box / "repro" / "sine_sum" / "results.json").write_text(json_module.dumps(dict(runs=[])))
+    for folder, command in (("mpcout", "mpc"), ("trainout", "train")):
+        (box / folder).mkdir()
+        (box / folder / ".stdm-drake-output").write_text(f"stdm-drake outputs\ncommand: {command}\n")
+    shutil.copy(box / "mpc.yaml", box / "mpcout" / "mpc.yaml")
+    shutil.copy(box / "data.h5", box / "trainout" / "data.h5")
+    os.symlink("out_loop_b", box / "out_loop_a")
+    os.symlink("out_loop_a", box / "out_loop_b")
 
 
 def edited_copy(box, name: str, key: str, edit) -> None:
@@ -261,6 +275,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                                                                         "cut", "head", "deg", "seven")},
                 "BAGCUT": "bag_cut", "BAGFOUR": "bag_four", "REPRO": "repro", "TRAINRUN": "run",
                 "IDREPORT": "id_report.json", "IMPORTED": "imported.h5", "COLLECTHTML": "collect.html",
+                "OLDREPRO": "oldrepro", "MPCOUT": "mpcout", "TRAINOUT": "trainout", "OUTLOOP": "out_loop_a",
                 **{name.upper().replace("_", ""): f"{name}.h5" for name in (
                     "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
                     "attr_count", "sub_group", "flat_trajectory")}}
@@ -286,6 +301,14 @@ CASES = [
     ([*E, "-o", "IMPORTED"], "was written by `stdm-drake import`"),
     ([*I, "LOG", "-o", "DATA"], "was written by `stdm-drake collect`"),
     (["view", "CK", "DATA", "--html", "COLLECTHTML"], "was written by `stdm-drake collect`"),
+    (["sine-sum", "--quick", "-o", "OLDREPRO"], "holds the outputs of `stdm-drake reproduce`"),
+    (["sine-sum", "--quick", "-o", "REPRO/sine_sum"], "holds the outputs of `stdm-drake reproduce`"),
+    ([*M, "--config", "MPCOUT/mpc.yaml", "-o", "MPCOUT"], "holds the input"),
+    (["train", "TRAINOUT/data.h5", "--epochs", "1", "--quiet", "-o", "TRAINOUT"], "holds the input"),
+    ([*E, "-o", "IDREPORT"], "was written by `stdm-drake identify`"),
+    ([*T, "-o", "OUTLOOP"], "is a symlink loop"),
+    (["sine-sum", "--quick", "--seeds", "1000000000", "-o", "NEW"], "--seeds must be in 1..1000"),
+    (["sine-sum", "--quick", "--epochs", "1000000000", "-o", "NEW"], "--epochs must be in 1..1000000"),
     # --- logs to import (issue 24): malformed recordings, wrong units, bad mappings, outputs
     ([*I, "LOGNOTS", "-o", "NEW.h5"], "not a log this import reads"), ([*I, "LOGMISSING", "-o", "NEW.h5"], "actual_qd_3"),
     ([*I, "LOGBACK", "-o", "NEW.h5"], "goes back in time"), ([*I, "LOGDUP", "-o", "NEW.h5"], "repeats"),

@@ -237,10 +237,19 @@ def on_small_disk(tmp_path, size: str, argv: list[str]) -> tuple[int, str, list[
 
 @pytest.mark.slow
 def test_a_full_disk_is_one_line_for_collect_before_it_simulates(tmp_path):
-    status, err, left, _ = on_small_disk(tmp_path, "200k", command(
-        "collect", "--protocol", "excitation", "--count", "12", "--workers", "1", "--quiet", "-o", "data.h5"))
+    status, err, left, _ = on_small_disk(tmp_path, "2m", command(
+        "collect", "--protocol", "excitation", "--count", "80", "--workers", "1", "--quiet", "-o", "data.h5"))
     assert status == 2 and left == [], (status, err[-800:], left)
-    assert err.count("\n") == 1 and "not enough space to write data.h5: it needs about 0.615 MB" in err, err
+    assert err.count("\n") == 1 and "not enough space to write data.h5: it needs about 2.61 MB" in err, err
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("argv", [["collect", "--protocol", "excitation", "--count", "2", "-o", "data.h5"],
+                                  ["sine-sum", "--quick", "-o", "study"]])
+def test_a_nearly_full_disk_is_refused_before_any_work(tmp_path, argv):
+    status, err, left, _ = on_small_disk(tmp_path, "200k", command(*argv, "--workers", "1", "--quiet"))
+    assert status == 2 and left == [], (status, err[-800:], left)
+    assert err.count("\n") == 1 and "only 0.205 MB free there; stdm-drake needs at least 1.05 MB free" in err, err
 
 
 @pytest.mark.slow
@@ -260,9 +269,9 @@ def test_the_dataset_writer_stops_before_hdf5_fills_the_disk(tmp_path, size, exc
 
 @pytest.mark.slow
 def test_a_full_disk_is_one_line_for_train_and_leaves_no_temporary_file(tmp_path, excitation_dataset):
-    status, err, left, _ = on_small_disk(tmp_path, "40k", command(
+    status, err, left, _ = on_small_disk(tmp_path, "1200k", command(
         "train", excitation_dataset, "--model", "D", "--epochs", "1", "--train", "2", "--val", "1", "--quiet",
-        "-o", "run"))
+        "--seeds", "0", "1", "-o", "run"))
     assert status == 2 and left == [], (status, err[-800:], left)
     assert err.count("\n") == 1 and "not enough space to write run/seed0/checkpoint.pt: it needs about" in err, err
 

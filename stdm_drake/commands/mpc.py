@@ -17,7 +17,8 @@ from stdm_drake.commands.arguments import (add_plant_effects_argument, add_robot
 from stdm_drake.errors import InputError
 from stdm_drake.learning.physics import PlantModel
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, plant_effects_for
-from stdm_drake.outputs import add_force_argument, check_output_file, check_output_folder, mark_output_folder
+from stdm_drake.outputs import (add_force_argument, check_output_file, check_output_folder, mark_output_folder,
+                                written_by)
 
 
 MODEL_NAME = re.compile(r"[A-Za-z0-9_.+-]{1,40}")   # a --model name: a column of mpc.csv and mpc.md
@@ -82,7 +83,7 @@ def run(args) -> int:
     if reserved:
         raise InputError(f"--model name {reserved[0]!r} is the plant model's; name the learned model otherwise")
     inputs = [args.dataset, args.config, args.robot, args.visualization, args.plant_effects, *checkpoints]
-    check_output_folder("-o/--output", args.output, inputs=inputs, own_files=("mpc.json",), force=args.force)
+    check_output_folder("-o/--output", args.output, inputs=inputs, force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs, force=args.force)
     if args.html:
         check_meshcat_allowed("--html")
@@ -148,7 +149,7 @@ def run(args) -> int:
     out = args.output
     mark_output_folder(out)
     write_text_atomic(out / "mpc.md", table + "\n")
-    write_text_atomic(out / "mpc.json", json.dumps(dict(summary=rows, runs=[dataclasses.asdict(r) for r in results],
+    write_text_atomic(out / "mpc.json", json.dumps(dict(written_by=written_by(), summary=rows, runs=[dataclasses.asdict(r) for r in results],
                                                         tuning=tuning), indent=1))
     columns = [field.name for field in dataclasses.fields(ClosedLoopResult) if field.name != "q_error"]
     write_text_atomic(out / "mpc.csv", "\n".join([",".join(columns)] + [

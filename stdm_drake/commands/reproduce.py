@@ -42,8 +42,7 @@ def run(args: argparse.Namespace) -> int:
     effects = plant_effects_for(args.plant_effects, robot, DEFAULT_PLANT_TIME_STEP)
     default = "out/reproduce" + ("" if args.robot is None else f"-{robot.name}") + ("" if effects is None else "-effects")
     output = args.output or pathlib.Path(default)
-    check_output_folder("-o/--output", output, inputs=[args.robot, args.plant_effects], own_files=("report.md", "cache"),
-                        force=args.force)
+    check_output_folder("-o/--output", output, inputs=[args.robot, args.plant_effects], force=args.force)
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()
     runner = runner_config_from_args(args)

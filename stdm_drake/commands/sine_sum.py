@@ -34,8 +34,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_runner_arguments(parser)
 
 
+# Beyond these the study would not fit in memory or never end (train's own bounds: learning.settings).
+UPPER_BOUNDS = {"--epochs": 1_000_000, "--seeds": 1000}
+
+
 def run(args: argparse.Namespace) -> int:
     config = QUICK if args.quick else FULL
+    for option, value in (("--epochs", args.epochs), ("--seeds", args.seeds)):
+        if value is not None and not 1 <= value <= UPPER_BOUNDS[option]:
+            raise InputError(f"{option} must be in 1..{UPPER_BOUNDS[option]}, got {value}")
     overrides = {key: (tuple(value) if isinstance(value, list) else value)
                  for key, value in (("epochs", args.epochs), ("seeds", args.seeds), ("headline_seeds", args.seeds),
                                     ("layers", args.layers), ("activations", args.activations),
@@ -48,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, **overrides)
     if args.workers < 1:
         raise InputError(f"--workers must be >= 1, got {args.workers}")
-    check_output_folder("-o/--output", args.output, own_files=("results.json",), force=args.force)
+    check_output_folder("-o/--output", args.output, force=args.force)
     from stdm_drake.cluster import runner_config_from_args
     runner = runner_config_from_args(args)
     study = run_study(config, workers=args.workers, progress=not args.quiet, runner=runner)

@@ -25,7 +25,7 @@ from stdm_drake.learning.seeds import dataset_split, fit_seeds
 from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainSettings
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainer import AlphaSelection
-from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
+from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder, written_by
 
 
 CHECKPOINT_RESERVE_BYTES = 1 << 20   # a checkpoint's history, metadata and the seed's curves, beyond its weights
@@ -226,7 +226,7 @@ def run(args: argparse.Namespace) -> int:
     torch.set_num_threads(settings.threads)
     output = pathlib.Path(args.output)
     check_output_folder("-o/--output", output, inputs=[args.dataset, args.config, args.robot, args.physics],
-                        own_files=("summary.json",), force=args.force)
+                        force=args.force)
     if args.backend == "ray" and args.resume:
         raise InputError("--resume continues runs in a local folder; with --backend ray, train without it")
     existing = [seed for seed in settings.seeds if (output / f"seed{seed}" / "checkpoint.pt").exists()]
@@ -264,7 +264,7 @@ def run(args: argparse.Namespace) -> int:
                        metadata=problem.metadata)
     entries = {seed: write_seed_files(output / f"seed{seed}", name, seed, result, selection)
                for seed, result, selection in fit_seeds(problem, settings, fit_options, runner, output, args.quiet)}
-    summary = dict(model_type=name, structure=structure.as_dict(), dataset=str(args.dataset),
+    summary = dict(written_by=written_by(), model_type=name, structure=structure.as_dict(), dataset=str(args.dataset),
                    dataset_sha256=dataset.sha256,
                    split={key: list(map(int, value)) for key, value in split.as_dict().items()},
                    seeds={str(seed): {k: v for k, v in entries[seed].items() if k != "alpha_selection"}

@@ -93,9 +93,8 @@ def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: 
                  "--action-rate", "zero_order_hold", "--epochs", str(epochs), "--seeds", *map(str, range(seeds)),
                  "--quiet", "--force", "-o", str(folder), *(["--robot", str(robot_config)] if robot_config else []),
                  *(["--resume"] if any(folder.glob("seed*/checkpoint.pt")) else []), *extra])
-    if code in (130, 143):   # Ctrl-C or SIGTERM while it ran in this process: the caller stops too
-        from stdm_drake.interrupts import Terminated
-        raise Terminated() if code == 143 else KeyboardInterrupt()
+    from stdm_drake.interrupts import reraise_exit_status
+    reraise_exit_status(code)   # Ctrl-C or SIGTERM while it ran in this process: the caller stops too
     if code != 0:
         raise RuntimeError(f"train {model_type} on {dataset_path} failed ({code})")
     return str(folder)

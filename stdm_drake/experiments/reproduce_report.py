@@ -15,6 +15,7 @@ from stdm_drake.experiments.reproduce_figures import (figure_path, plot_activati
                                                       plot_sizes)
 from stdm_drake.files import json_default, write_text_atomic
 from stdm_drake.learning.models import MODEL_TYPES
+from stdm_drake.outputs import written_by
 from stdm_drake.report import Report
 from stdm_drake.stats import paired_ratio
 
@@ -435,7 +436,8 @@ def write_result_files(folder: pathlib.Path, report, tables: dict, results) -> N
     markdown, page = report.markdown(), report.html()
     write_text_atomic(folder / "report.md", markdown + "\n")
     write_text_atomic(folder / "report.html", page + "\n")
-    write_text_atomic(folder / "results.json", json.dumps(dict(tables=tables, runs=results), default=json_default))
+    write_text_atomic(folder / "results.json", json.dumps(dict(written_by=written_by(), tables=tables, runs=results),
+                                                           default=json_default))
     for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage", "mpc", "mpc_runs"):
         rows = [_flat(row) for row in tables[name]]
         if rows:
