@@ -512,6 +512,8 @@ CASES = [
      "joint 'a' is not in"),
     (yaml_case("robot", "name: x\nmodel: ur10.urdf\narm_joints: [a, a]\nhome: [0, 0]\ntool_frame: t\n"), "distinct"),
     (yaml_case("robot", "model: ur10.urdf\n"), "needs name"),
+    (yaml_case("robot", "name: x\nmodel: ur10.urdf\nweld_frame: base_link\narm_joints: [shoulder_pan_joint, "
+               "wrist_3-flange]\nhome: [0, 0]\ntool_frame: tool0\n"), "arm joint 'wrist_3-flange' is a fixed joint"),
     # Issue 25, classes 9, 10, 14
     ([*E, "--robot", "bad_loop.yaml", "-o", "NEW.h5"], "link 'forearm_link' is the child of joints 'elbow_joint' and 'closing'"),
     ([*E, "--robot", "bad_cycle.yaml", "-o", "NEW.h5"], "form a cycle through link"),

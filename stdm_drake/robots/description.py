@@ -150,6 +150,10 @@ def check_description(path: pathlib.Path, robot: str, arm_joints) -> None:
         return
     where = f"robot {robot}: {path.name}"
     check_tree(description, where)
+    for joint in description.joints:
+        if joint.name in arm_joints and joint.kind not in MOVABLE:
+            raise InputError(f"{where}: arm joint {joint.name!r} is a {joint.kind} joint; arm_joints name the joints "
+                             f"that move ({', '.join(MOVABLE)})")
     moving = {link for joint in description.joints if joint.name in arm_joints and joint.child in description.links
               for link in description.subtree(joint.child)}
     for link, inertial in description.links.items():
