@@ -70,6 +70,8 @@ class RepeatedWarnings(logging.Filter):
         self.seen, self.left_out = set(), 0
 
     def filter(self, record: logging.LogRecord) -> bool:
+        if record.getMessage().startswith("Meshcat listening for connections"):
+            return False   # (the commands print the URL where a person is to open it: --meshcat)
         key = re.sub(r":\d+: ", ": ", record.getMessage())
         if key in self.seen:
             self.left_out += 1
@@ -95,6 +97,7 @@ def drake_warnings_once(command: str):
 
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+    program = argv is None   # (the `stdm-drake` program itself, not a call from Python)
     argv = sys.argv[1:] if argv is None else list(argv)
     parser = CommandParser(prog="stdm-drake", description=__doc__.splitlines()[0])
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -122,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
               "LC_ALL=C.UTF-8", file=sys.stderr)
         return 2
     try:
-        with interrupts.signals_as_exceptions():   # Ctrl-C, SIGTERM: through every `finally`, from the imports on
+        # Ctrl-C, SIGTERM, SIGHUP: through every `finally`, from the imports on (the program's own run: until exit)
+        with interrupts.signals_as_exceptions(until_exit=program):
             status = run_command(name, argv[1:])
             if interrupts.received() is None:
                 return status
@@ -145,8 +149,7 @@ def run_command(name: str, argv: list[str]) -> int:
     except ValueError as error:
         print(f"stdm-drake {name}: error: {error}", file=sys.stderr)
         return 2
-    with interrupts.protected():   # (a signal inside pydrake's initialization breaks it: raised after it)
-        module = importlib.import_module(COMMANDS[name][0])
+    module = importlib.import_module(COMMANDS[name][0])   # (a signal inside an import waits for its end)
     command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
     module.add_arguments(command_parser)
     try:

@@ -136,6 +136,7 @@ class ProcessPool:
     def __init__(self, workers: int, initializer=None, initargs=()):
         import concurrent.futures
         import multiprocessing
+        _start_resource_tracker()
         self.executor = concurrent.futures.ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                                                initializer=_start_worker,
                                                                initargs=(initializer, initargs))
@@ -258,6 +259,23 @@ def job_pool(config: RunnerConfig, initializer=None, initargs=()):
         pool.executor.shutdown(wait=True, cancel_futures=True)
         raise
     pool.executor.shutdown(wait=True)
+
+
+def _start_resource_tracker() -> None:
+    """Start multiprocessing's resource tracker (one per program) with SIGHUP ignored, as it ignores SIGINT and
+    SIGTERM itself: a closing terminal's SIGHUP to the process group would kill it while the pool's
+    semaphores still need it (the parent stops the pool)."""
+    import signal
+    import threading
+    from multiprocessing import resource_tracker
+    if threading.current_thread() is not threading.main_thread():
+        resource_tracker.ensure_running()
+        return
+    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        resource_tracker.ensure_running()
+    finally:
+        signal.signal(signal.SIGHUP, previous)
 
 
 def _start_worker(initializer, initargs) -> None:

@@ -5,6 +5,7 @@ import contextlib
 import dataclasses
 import errno
 import glob
+import math
 import os
 import pathlib
 import re
@@ -45,13 +46,24 @@ def available_memory() -> float | None:
     return None
 
 
-def check_free_space(path, needed: int) -> None:
-    """InputError (one line naming `path` and the space it needs) unless `needed` bytes fit beside `path`."""
+def file_size_limit() -> float:
+    """The largest file this process may write, bytes (`ulimit -f`; inf when unlimited)."""
+    import resource
+    soft, _ = resource.getrlimit(resource.RLIMIT_FSIZE)
+    return math.inf if soft == resource.RLIM_INFINITY else float(soft)
+
+
+def check_free_space(path, needed: int, size: int = 0) -> None:
+    """InputError (one line naming `path` and the space it needs) unless `needed` more bytes fit beside `path`
+    and a file of `size` + `needed` bytes is within the file size limit (past either, HDF5 crashes)."""
     path = pathlib.Path(path)
     free = free_bytes(path.parent)
     if needed > free:
         raise InputError(f"not enough space to write {path}: it needs about {size_text(needed)}, "
                          f"{size_text(free)} free there")
+    if size + needed > file_size_limit():
+        raise InputError(f"cannot write {path}: it would grow to about {size_text(size + needed)}, beyond the file "
+                         f"size limit of {size_text(file_size_limit())} (ulimit -f)")
 
 
 def no_room_error(path, error: OSError) -> InputError:
@@ -70,7 +82,12 @@ def atomic_path(path):
     from stdm_drake.interrupts import protected
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
+    try:
+        handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
+    except OSError as error:   # (no inode left: a full disk too)
+        if error.errno in NO_ROOM:
+            raise no_room_error(path, error) from None
+        raise
     os.close(handle)
     umask = os.umask(0)
     os.umask(umask)

@@ -34,18 +34,50 @@ def _exception(signum: int) -> KeyboardInterrupt:
     return KeyboardInterrupt() if signum == signal.SIGINT else Terminated(signum)
 
 
+# A signal that arrives where an exception cannot unwind is sent again this much later (s), until it can: in
+# an import (an exception inside an extension module's initialization, pydrake's, breaks the module for good)
+# or in a finalizer (`__del__`, a weakref callback: Python prints the exception and carries on).
+RETRY_SECONDS = 0.05
+
+
+def _cannot_unwind(frame) -> bool:
+    if frame is not None and (frame.f_code.co_name == "__del__" or frame.f_code.co_filename.endswith("weakref.py")):
+        return True
+    while frame is not None:
+        if frame.f_code.co_filename.startswith("<frozen importlib._bootstrap"):
+            return True
+        frame = frame.f_back
+    return False
+
+
 def _handler(signum, frame):
-    _received.append(signum)
+    if signum not in _received:
+        _received.append(signum)
     if _depth:
         _held.append(signum)
+        return
+    if _cannot_unwind(frame):
+        import os
+        timer = threading.Timer(RETRY_SECONDS, os.kill, (os.getpid(), signum))
+        timer.daemon = True
+        timer.start()
         return
     raise _exception(signum)
 
 
+def _after_the_command(signum, frame):
+    """A signal once the command has ended (its outputs complete, the process exiting): said, not raised."""
+    import sys
+    print(f"stdm-drake: {signal.Signals(signum).name} after the command had finished; its outputs are complete",
+          file=sys.stderr)
+
+
 @contextlib.contextmanager
-def signals_as_exceptions():
-    """While the block runs (in the main thread), SIGINT raises KeyboardInterrupt and SIGTERM `Terminated`,
-    except inside `protected`; the previous handlers come back afterwards."""
+def signals_as_exceptions(until_exit: bool = False):
+    """While the block runs (in the main thread), SIGINT raises KeyboardInterrupt and SIGTERM and SIGHUP
+    `Terminated`, except inside `protected`, imports and finalizers; the previous handlers come back afterwards (with
+    `until_exit`, for the program's own run: a signal while the process exits is only said, as the command
+    has finished)."""
     if (_in_worker or threading.current_thread() is not threading.main_thread()
             or signal.getsignal(signal.SIGINT) is _handler):
         yield   # (a pool's worker, another thread, or a command run inside another: signals are handled there)
@@ -58,7 +90,7 @@ def signals_as_exceptions():
         yield
     finally:
         for signum, handler in previous.items():
-            signal.signal(signum, handler)
+            signal.signal(signum, _after_the_command if until_exit else handler)
 
 
 def received() -> int | None:
@@ -98,11 +130,12 @@ def protected():
 
 
 def ignore_interrupts_in_worker() -> None:
-    """In a pool's worker process: Ctrl-C at the terminal reaches the whole process group; the parent stops
-    its workers itself (SIGTERM), so a worker ignores SIGINT and, on Linux, gets SIGTERM when its parent dies
-    (nothing orphaned even if the parent is killed)."""
+    """In a pool's worker process: Ctrl-C (and a closing terminal's SIGHUP) reach the whole process group; the
+    parent stops its workers itself (SIGTERM), so a worker ignores SIGINT and SIGHUP and, on Linux, gets SIGTERM
+    when its parent dies (nothing orphaned even if the parent is killed)."""
     mark_worker()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGHUP, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     with contextlib.suppress(OSError, AttributeError):
         import ctypes

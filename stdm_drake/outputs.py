@@ -78,8 +78,10 @@ def html_marker() -> str:
 MIN_FREE_BYTES = 1 << 20
 
 
-def _check_room(option: str, path: pathlib.Path) -> None:
-    free = free_bytes(path.absolute().parent)
+def _check_room(option: str, path: pathlib.Path, folder: pathlib.Path) -> None:
+    """InputError unless MIN_FREE_BYTES are free in `folder` (or the nearest folder above it), where output
+    `path` goes."""
+    free = free_bytes(folder)
     if free < MIN_FREE_BYTES:
         raise InputError(f"{option} {path}: only {size_text(free)} free there; stdm-drake needs at least "
                          f"{size_text(MIN_FREE_BYTES)} free to write an output")
@@ -221,7 +223,10 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
         if not force and writer is None:
             other = next((found for other_kind in ("dataset", "json", "identified", "html") if other_kind != kind
                           for found in [_writer_of(path, other_kind)] if found), None)
-            if other:   # (another kind of output: not the one this option writes)
+            ancestor = _marked_ancestor(path)   # (result files from before they recorded their command)
+            if not other and ancestor is not None and ancestor[1] != running_command():
+                other = f"stdm-drake {ancestor[1]}"
+            if other:   # (another kind of output, or a file of another command's folder)
                 raise InputError(f"{option} {path} was written by `{other}`; choose another path or pass --force to "
                                  "replace it")
             raise InputError(f"{option} {path} exists and stdm-drake did not write it; pass --force to replace it")
@@ -231,7 +236,7 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
         if not os.access(path, os.W_OK) and not os.access(path.parent, os.W_OK):
             raise InputError(f"{option} {path}: cannot replace it (permission denied)")
     _check_parent(option, path)
-    _check_room(option, path)
+    _check_room(option, path, path.absolute().parent)
     lock_output(option, path)
     return path
 
@@ -292,7 +297,7 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
         if not writer and command:
             other = _older_owner(path, command)
             ancestor = _marked_ancestor(path)
-            if other is None and ancestor is not None and ancestor[1] != command and any(path.iterdir()):
+            if other is None and ancestor is not None and ancestor[1] != command:
                 other = ancestor[1]
         if not force and other:
             raise InputError(f"{option} {path} holds the outputs of `stdm-drake {other}`; choose another folder "
@@ -307,7 +312,7 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
             raise InputError(f"{option} {path}: cannot write in it (permission denied)")
     else:
         _check_parent(option, path / "x")
-    _check_room(option, path / "x")
+    _check_room(option, path, path.absolute())
     lock_output(option, path)
     return path
 

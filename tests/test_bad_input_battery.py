@@ -245,6 +245,8 @@ def write_other_commands_outputs(box) -> None:
         (box / folder).mkdir()
         (box / folder / ".stdm-drake-output").write_text(f"stdm-drake outputs\ncommand: {command}\n")
     shutil.copy(box / "mpc.yaml", box / "mpcout" / "mpc.yaml")
+    (box / "mpcout" / "mpc.json").write_text(json_module.dumps(dict(summary=[])))   # (from before written_by)
+    (box / "repro" / "cache").mkdir()
     shutil.copy(box / "data.h5", box / "trainout" / "data.h5")
     os.symlink("out_loop_b", box / "out_loop_a")
     os.symlink("out_loop_a", box / "out_loop_b")
@@ -307,6 +309,8 @@ CASES = [
     (["train", "TRAINOUT/data.h5", "--epochs", "1", "--quiet", "-o", "TRAINOUT"], "holds the input"),
     ([*E, "-o", "IDREPORT"], "was written by `stdm-drake identify`"),
     ([*T, "-o", "OUTLOOP"], "is a symlink loop"),
+    ([*T, "-o", "REPRO/cache"], "holds the outputs of `stdm-drake reproduce`"),
+    (["evaluate", "CK", "DATA", "--json", "MPCOUT/mpc.json"], "was written by `stdm-drake mpc`"),
     (["sine-sum", "--quick", "--seeds", "1000000000", "-o", "NEW"], "--seeds must be in 1..1000"),
     (["sine-sum", "--quick", "--epochs", "1000000000", "-o", "NEW"], "--epochs must be in 1..1000000"),
     # --- logs to import (issue 24): malformed recordings, wrong units, bad mappings, outputs

@@ -105,6 +105,16 @@ def test_sigterm_ends_collect_with_143_workers_and_all(tmp_path):
 
 
 @pytest.mark.slow
+def test_a_closing_terminal_sighup_ends_sine_sum_with_129_and_no_traceback(tmp_path):
+    """SIGHUP to the whole process group (the terminal closed): workers and multiprocessing's resource tracker
+    ignore it, the parent stops them."""
+    status, took, workers = interrupt_when_busy(
+        command("sine-sum", "--quick", "--workers", "2", "--quiet", "-o", tmp_path / "sine"), signal.SIGHUP,
+        group=True, cwd=tmp_path)
+    assert status == 129 and took < 20 and leftovers(tmp_path) == []
+
+
+@pytest.mark.slow
 def test_ctrl_c_ends_sine_sum_with_130_and_no_process_left(tmp_path):
     status, took, workers = interrupt_when_busy(
         command("sine-sum", "--quick", "--workers", "2", "--quiet", "-o", tmp_path / "sine"), signal.SIGINT,
@@ -348,3 +358,35 @@ def test_a_collection_that_would_not_fit_in_memory_is_refused_before_it_simulate
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "8 trajectories would take about 0.235 MB of memory, 0.1 MB is available" in error, error
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("argv", [["collect", "--protocol", "excitation", "--count", "10", "--workers", "1"],
+                                  ["import", "LOG"]])
+def test_a_file_size_limit_is_one_line_not_a_crash(tmp_path, argv, tracking_dataset):
+    """`ulimit -f`: HDF5 would crash (exit 139) or raise from its close; the writer checks the limit first."""
+    import resource
+
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.data.logs import simulated
+    simulated.write_rtde_csv(load_dataset(tracking_dataset), tmp_path / "log.csv")
+    argv = [str(tmp_path / "log.csv") if token == "LOG" else token for token in argv]
+    limit = lambda: resource.setrlimit(resource.RLIMIT_FSIZE, (100 * 1024, resource.RLIM_INFINITY))  # noqa: E731
+    result = subprocess.run(command(*argv, "--quiet", "-o", "big.h5"), cwd=tmp_path, env=ENV, capture_output=True,
+                            text=True, timeout=300, preexec_fn=limit)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr[-800:]
+    assert "beyond the file size limit of 0.102 MB (ulimit -f)" in result.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["log.csv"]
+
+
+def test_a_signal_after_the_command_has_finished_is_said_not_raised(capsys):
+    """(The program's own run: the command's outputs are complete while the process exits.)"""
+    with interrupts.signals_as_exceptions(until_exit=True):
+        pass
+    try:
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.05)
+        assert "SIGTERM after the command had finished; its outputs are complete" in capsys.readouterr().err
+    finally:
+        for signum in interrupts.EXIT_STATUS:
+            signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)

@@ -5,6 +5,7 @@ import contextlib
 import json
 import os
 import pathlib
+import re
 import sys
 
 import h5py
@@ -38,6 +39,12 @@ def check_metadata(metadata: dict) -> float:
         raise InputError(f"metadata sample_period must be a positive number of seconds, got "
                          f"{metadata.get('sample_period')!r}")
     return sample_period
+
+
+def hdf5_failure(error: BaseException) -> str:
+    """The system's reason in an HDF5 write error ("File too large"), or its first 200 characters."""
+    match = re.search(r"error message = '([^']*)'", str(error))
+    return match.group(1) if match else " ".join(str(error).split())[:200]
 
 
 class DatasetWriter:
@@ -91,8 +98,9 @@ class DatasetWriter:
         self._planned = planned
         arrays = {key: np.asarray(value, dtype=np.float64) for key, value in arrays.items()}
         size = sum(value.nbytes + HDF5_BYTES_PER_ARRAY for value in arrays.values())
-        on_disk = os.path.getsize(self._temp) - self._size_at_flush    # of what was written since the flush
-        check_free_space(self.path, max(0, self._unflushed - on_disk) + size + HDF5_RESERVE_BYTES)
+        file_size = os.path.getsize(self._temp)
+        on_disk = file_size - self._size_at_flush    # of what was written since the flush
+        check_free_space(self.path, max(0, self._unflushed - on_disk) + size + HDF5_RESERVE_BYTES, file_size)
         with protected():   # a signal inside an HDF5 write is swallowed or crashes it: raised after it instead
             entry = self._root.create_group(name)
             entry.attrs["group"] = int(group)
@@ -115,6 +123,10 @@ class DatasetWriter:
                     self._write_header()
                 finally:
                     self._file.close()
+            except (RuntimeError, OSError) as failure:   # HDF5 could not write its records (the file system)
+                error = InputError(f"cannot write {self.path}: {hdf5_failure(failure)}; nothing was replaced")
+                self._atomic.__exit__(InputError, error, None)
+                raise error from None
             except Exception:
                 self._atomic.__exit__(*sys.exc_info())
                 raise
