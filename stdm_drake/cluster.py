@@ -154,10 +154,14 @@ class ProcessPool:
                 process.join()
 
     def submit(self, function, *arguments):
-        return self.executor.submit(function, *arguments)
+        from stdm_drake.interrupts import group_signals_blocked
+        with group_signals_blocked():   # (the executor starts its workers inside submit)
+            return self.executor.submit(function, *arguments)
 
     def map(self, function, iterable, chunksize: int = 1):
-        return self.executor.map(function, iterable, chunksize=chunksize)
+        from stdm_drake.interrupts import group_signals_blocked
+        with group_signals_blocked():
+            return self.executor.map(function, iterable, chunksize=chunksize)
 
     def completed(self, calls):
         """(position, Future) of each (function, arguments) in `calls`, all submitted at once, as they finish."""

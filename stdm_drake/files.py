@@ -25,12 +25,17 @@ def size_text(size: float) -> str:
     return f"{size / 1e9:.3g} GB" if size >= 1e9 else f"{size / 1e6:.3g} MB"
 
 
-def free_bytes(folder) -> int:
-    """Bytes this process may still write in `folder` (or the nearest folder above it that exists)."""
+def _existing(folder) -> pathlib.Path:
+    """`folder`, or the nearest folder above it that exists."""
     folder = pathlib.Path(folder).absolute()
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
-    stats = os.statvfs(folder)
+    return folder
+
+
+def free_bytes(folder) -> int:
+    """Bytes this process may still write in `folder` (or the nearest folder above it that exists)."""
+    stats = os.statvfs(_existing(folder))
     return stats.f_bavail * stats.f_frsize
 
 
@@ -53,23 +58,32 @@ def file_size_limit() -> float:
     return math.inf if soft == resource.RLIM_INFINITY else float(soft)
 
 
-def check_free_space(path, needed: int, size: int = 0) -> None:
+def check_free_space(path, needed: int, grown_size: int | None = None) -> None:
     """InputError (one line naming `path` and the space it needs) unless `needed` more bytes fit beside `path`
-    and a file of `size` + `needed` bytes is within the file size limit (past either, HDF5 crashes)."""
+    and (given `grown_size`: the file's size after the write, bytes) the file stays within the file size limit
+    (past either, HDF5 crashes)."""
     path = pathlib.Path(path)
     free = free_bytes(path.parent)
     if needed > free:
         raise InputError(f"not enough space to write {path}: it needs about {size_text(needed)}, "
                          f"{size_text(free)} free there")
-    if size + needed > file_size_limit():
-        raise InputError(f"cannot write {path}: it would grow to about {size_text(size + needed)}, beyond the file "
+    if grown_size is not None and grown_size > file_size_limit():
+        raise InputError(f"cannot write {path}: it would grow to about {size_text(grown_size)}, beyond the file "
                          f"size limit of {size_text(file_size_limit())} (ulimit -f)")
 
 
 def no_room_error(path, error: OSError) -> InputError:
-    """The one line for a write to `path` that failed for lack of room (`NO_ROOM`)."""
-    return InputError(f"cannot write {path}: {error.strerror or os.strerror(error.errno)} "
-                      f"({size_text(free_bytes(pathlib.Path(path).parent))} free there); nothing was replaced")
+    """The one line for a write to `path` that failed for lack of room (`NO_ROOM`): with the free space, the
+    file size limit, or the file system's lack of inodes, whichever it was."""
+    folder = pathlib.Path(path).absolute().parent
+    if error.errno == errno.EFBIG:
+        room = f"the file size limit is {size_text(file_size_limit())}, ulimit -f"
+    elif error.errno == errno.ENOSPC and os.statvfs(_existing(folder)).f_favail == 0:
+        room = "no inode left there: too many files"
+    else:
+        room = f"{size_text(free_bytes(folder))} free there"
+    return InputError(f"cannot write {path}: {error.strerror or os.strerror(error.errno)} ({room}); nothing was "
+                      "replaced")
 
 
 @contextlib.contextmanager

@@ -65,19 +65,13 @@ def _handler(signum, frame):
     raise _exception(signum)
 
 
-def _after_the_command(signum, frame):
-    """A signal once the command has ended (its outputs complete, the process exiting): said, not raised."""
-    import sys
-    print(f"stdm-drake: {signal.Signals(signum).name} after the command had finished; its outputs are complete",
-          file=sys.stderr)
-
-
 @contextlib.contextmanager
 def signals_as_exceptions(until_exit: bool = False):
     """While the block runs (in the main thread), SIGINT raises KeyboardInterrupt and SIGTERM and SIGHUP
     `Terminated`, except inside `protected`, imports and finalizers; the previous handlers come back afterwards (with
-    `until_exit`, for the program's own run: a signal while the process exits is only said, as the command
-    has finished)."""
+    `until_exit`, for the program's own run: the command has finished, its outputs are complete and its exit
+    status stands, so a signal while the process exits is ignored: Python's finalization would otherwise
+    restore the default action and end the process by it)."""
     if (_in_worker or threading.current_thread() is not threading.main_thread()
             or signal.getsignal(signal.SIGINT) is _handler):
         yield   # (a pool's worker, another thread, or a command run inside another: signals are handled there)
@@ -90,7 +84,7 @@ def signals_as_exceptions(until_exit: bool = False):
         yield
     finally:
         for signum, handler in previous.items():
-            signal.signal(signum, _after_the_command if until_exit else handler)
+            signal.signal(signum, signal.SIG_IGN if until_exit else handler)
 
 
 def received() -> int | None:
@@ -137,6 +131,7 @@ def ignore_interrupts_in_worker() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGHUP, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, GROUP_SIGNALS)   # (blocked since its start: `group_signals_blocked`)
     with contextlib.suppress(OSError, AttributeError):
         import ctypes
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))   # PR_SET_PDEATHSIG
@@ -155,3 +150,33 @@ def reraise_exit_status(status: int) -> None:
     for signum, code in EXIT_STATUS.items():
         if status == code:
             raise _exception(signum)
+
+
+GROUP_SIGNALS = {signal.SIGINT, signal.SIGHUP}   # what a terminal sends to the whole process group
+
+
+@contextlib.contextmanager
+def group_signals_blocked():
+    """Start worker processes inside this block: they inherit the blocked Ctrl-C and SIGHUP through fork and
+    exec, so a signal to the process group while a worker starts (imports, unpickling) is held until the
+    worker ignores it (`ignore_interrupts_in_worker`); here the signals wait until the block ends."""
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, GROUP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def exit_at_once_on_signals() -> None:
+    """The program's first step, before its imports: a signal then ends it at once with one line (nothing is
+    open or written yet); `signals_as_exceptions` takes over when the command starts."""
+    def leave(signum, frame):
+        import os
+        import sys
+        name = "interrupted" if signum == signal.SIGINT else f"terminated ({signal.Signals(signum).name})"
+        os.write(sys.stderr.fileno(), f"stdm-drake: {name}\n".encode())
+        os._exit(EXIT_STATUS[signum])
+    if threading.current_thread() is threading.main_thread():
+        for signum in EXIT_STATUS:
+            if signal.getsignal(signum) is not signal.SIG_IGN:
+                signal.signal(signum, leave)

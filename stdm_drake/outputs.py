@@ -223,8 +223,8 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
         if not force and writer is None:
             other = next((found for other_kind in ("dataset", "json", "identified", "html") if other_kind != kind
                           for found in [_writer_of(path, other_kind)] if found), None)
-            ancestor = _marked_ancestor(path)   # (result files from before they recorded their command)
-            if not other and ancestor is not None and ancestor[1] != running_command():
+            ancestor = _marked_ancestor(path, running_command())   # (results from before they named their command)
+            if not other and ancestor is not None:
                 other = f"stdm-drake {ancestor[1]}"
             if other:   # (another kind of output, or a file of another command's folder)
                 raise InputError(f"{option} {path} was written by `{other}`; choose another path or pass --force to "
@@ -269,11 +269,15 @@ def _older_owner(path: pathlib.Path, command: str | None) -> str | None:
     return None
 
 
-def _marked_ancestor(path: pathlib.Path) -> tuple[pathlib.Path, str] | None:
-    """(folder, command) of the nearest folder above `path` whose marker names a command, or None."""
-    for parent in path.absolute().parents:
+def _marked_ancestor(path: pathlib.Path, command: str | None = None) -> tuple[pathlib.Path, str] | None:
+    """(folder, command) of the nearest marked folder above `path` (the real one: whatever link names it)
+    that is another command's than `command`: its marker names it, or (an older marker naming none) its result
+    files do (COMMAND_RESULTS); None when there is none."""
+    for parent in pathlib.Path(os.path.realpath(path)).parents:
         writer = folder_writer(parent)
-        if writer:
+        if writer == "":
+            writer = _older_owner(parent, command)
+        if writer and writer != command:
             return parent, writer
     return None
 
@@ -296,8 +300,8 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
         other = writer if writer and command and writer != command else None
         if not writer and command:
             other = _older_owner(path, command)
-            ancestor = _marked_ancestor(path)
-            if other is None and ancestor is not None and ancestor[1] != command:
+            ancestor = _marked_ancestor(path, command)
+            if other is None and ancestor is not None:
                 other = ancestor[1]
         if not force and other:
             raise InputError(f"{option} {path} holds the outputs of `stdm-drake {other}`; choose another folder "
@@ -333,8 +337,13 @@ def mark_output_folder(path) -> None:
     if (path / FOLDER_MARKER).exists() and (command is None or folder_writer(path) == command):
         return
     from stdm_drake.files import write_text_atomic
-    write_text_atomic(path / FOLDER_MARKER, "This folder holds stdm-drake outputs; stdm-drake may replace what is "
-                      "in it.\n" + (f"{COMMAND_LINE}{command}\n" if command else ""))
+    try:
+        write_text_atomic(path / FOLDER_MARKER, "This folder holds stdm-drake outputs; stdm-drake may replace what "
+                          "is in it.\n" + (f"{COMMAND_LINE}{command}\n" if command else ""))
+    except (OSError, ValueError):
+        with contextlib.suppress(OSError):
+            path.rmdir()   # (made for nothing: only if it is empty)
+        raise
 
 
 def add_force_argument(parser) -> None:

@@ -248,6 +248,10 @@ def write_other_commands_outputs(box) -> None:
     (box / "mpcout" / "mpc.json").write_text(json_module.dumps(dict(summary=[])))   # (from before written_by)
     (box / "repro" / "cache").mkdir()
     shutil.copy(box / "data.h5", box / "trainout" / "data.h5")
+    (box / "oldmarked" / "cache").mkdir(parents=True)   # an older marker (no command line) of a reproduce run
+    (box / "oldmarked" / ".stdm-drake-output").write_text("This folder holds stdm-drake outputs\n")
+    (box / "oldmarked" / "report.md").write_text("# report\n")
+    os.symlink(box / "repro" / "cache", box / "cache_link")
     os.symlink("out_loop_b", box / "out_loop_a")
     os.symlink("out_loop_a", box / "out_loop_b")
 
@@ -278,6 +282,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "BAGCUT": "bag_cut", "BAGFOUR": "bag_four", "REPRO": "repro", "TRAINRUN": "run",
                 "IDREPORT": "id_report.json", "IMPORTED": "imported.h5", "COLLECTHTML": "collect.html",
                 "OLDREPRO": "oldrepro", "MPCOUT": "mpcout", "TRAINOUT": "trainout", "OUTLOOP": "out_loop_a",
+                "OLDMARKED": "oldmarked", "CACHELINK": "cache_link",
                 **{name.upper().replace("_", ""): f"{name}.h5" for name in (
                     "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
                     "attr_count", "sub_group", "flat_trajectory")}}
@@ -310,6 +315,8 @@ CASES = [
     ([*E, "-o", "IDREPORT"], "was written by `stdm-drake identify`"),
     ([*T, "-o", "OUTLOOP"], "is a symlink loop"),
     ([*T, "-o", "REPRO/cache"], "holds the outputs of `stdm-drake reproduce`"),
+    ([*T, "-o", "OLDMARKED/cache"], "holds the outputs of `stdm-drake reproduce`"),
+    ([*T, "-o", "CACHELINK"], "holds the outputs of `stdm-drake reproduce`"),
     (["evaluate", "CK", "DATA", "--json", "MPCOUT/mpc.json"], "was written by `stdm-drake mpc`"),
     (["sine-sum", "--quick", "--seeds", "1000000000", "-o", "NEW"], "--seeds must be in 1..1000"),
     (["sine-sum", "--quick", "--epochs", "1000000000", "-o", "NEW"], "--epochs must be in 1..1000000"),

@@ -24,6 +24,7 @@ from stdm_drake.outputs import WRITTEN_BY, written_by
 HDF5_RESERVE_BYTES = 256 << 10
 HDF5_BYTES_PER_ARRAY = 1024
 HDF5_FLUSH_BYTES = 8 << 20
+HDF5_HEADER_BYTES = 16 << 10   # the file's own header and metadata at the end, within the file size limit
 
 
 def check_metadata(metadata: dict) -> float:
@@ -100,7 +101,8 @@ class DatasetWriter:
         size = sum(value.nbytes + HDF5_BYTES_PER_ARRAY for value in arrays.values())
         file_size = os.path.getsize(self._temp)
         on_disk = file_size - self._size_at_flush    # of what was written since the flush
-        check_free_space(self.path, max(0, self._unflushed - on_disk) + size + HDF5_RESERVE_BYTES, file_size)
+        pending = max(0, self._unflushed - on_disk) + size
+        check_free_space(self.path, pending + HDF5_RESERVE_BYTES, file_size + pending + HDF5_HEADER_BYTES)
         with protected():   # a signal inside an HDF5 write is swallowed or crashes it: raised after it instead
             entry = self._root.create_group(name)
             entry.attrs["group"] = int(group)
