@@ -1,7 +1,9 @@
-"""Ctrl-C and SIGTERM while a command runs: both end it promptly with an exception (KeyboardInterrupt,
-`Terminated` for SIGTERM), so every `finally` runs (temporary files removed, worker processes stopped) and the
-CLI exits with status 130 or 143; never inside a write that must not be cut (`protected`), where the signal is
-held until the write has finished.
+"""Ctrl-C, SIGTERM and SIGHUP while a command runs: each ends it promptly with an exception (KeyboardInterrupt,
+`Terminated` for SIGTERM and SIGHUP), so every `finally` runs (temporary files removed, worker processes
+stopped) and the CLI exits with status 130, 143 or 129; never inside a write that must not be cut
+(`protected`), where the signal is held until the write has finished, nor inside an import or a finalizer,
+where it is sent again a moment later. Pool workers leave signals to their parent (`ignore_interrupts_in_worker`,
+`group_signals_blocked`); the program ends at once on a signal during its imports (`exit_at_once_on_signals`).
 
     with signals_as_exceptions():      # the CLI, around a command
         ...
