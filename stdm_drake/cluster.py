@@ -266,20 +266,14 @@ def job_pool(config: RunnerConfig, initializer=None, initargs=()):
 
 
 def _start_resource_tracker() -> None:
-    """Start multiprocessing's resource tracker (one per program) with SIGHUP ignored, as it ignores SIGINT and
-    SIGTERM itself: a closing terminal's SIGHUP to the process group would kill it while the pool's
-    semaphores still need it (the parent stops the pool)."""
-    import signal
-    import threading
+    """Start multiprocessing's resource tracker (one per program) with Ctrl-C and SIGHUP blocked for good
+    (`interrupts.group_signals_blocked`; it ignores SIGINT and SIGTERM itself): a closing terminal's SIGHUP to
+    the process group would kill it while the pool's semaphores still need it (the parent stops the pool)."""
     from multiprocessing import resource_tracker
-    if threading.current_thread() is not threading.main_thread():
+
+    from stdm_drake.interrupts import group_signals_blocked
+    with group_signals_blocked():
         resource_tracker.ensure_running()
-        return
-    previous = signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    try:
-        resource_tracker.ensure_running()
-    finally:
-        signal.signal(signal.SIGHUP, previous)
 
 
 def _start_worker(initializer, initargs) -> None:

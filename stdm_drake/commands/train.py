@@ -22,7 +22,8 @@ from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
 from stdm_drake.learning.problem import training_problem
 from stdm_drake.learning.seeds import dataset_split, fit_seeds
-from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainSettings
+from stdm_drake.learning.settings import (DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainSettings,
+                                         network_weights)
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainer import AlphaSelection
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder, written_by
@@ -251,7 +252,7 @@ def run(args: argparse.Namespace) -> int:
     model_config = problem.model_config
     settings.training_config(settings.seeds[0])  # its checks, before the output folder is made
     settings.check_memory(len(problem.train), model_config.ensemble_size)
-    weights = model_config.ensemble_size * model_config.hidden_layers * model_config.hidden_width ** 2
+    weights = network_weights(model_config.ensemble_size, model_config.hidden_layers, model_config.hidden_width)
     check_free_space(output / f"seed{settings.seeds[0]}" / "checkpoint.pt",   # weights, Adam's state (float32)
                      len(settings.seeds) * (16 * weights + CHECKPOINT_RESERVE_BYTES))
     runner = runner_config_from_args(args)  # joins the cluster now: an unreachable one stops before any work

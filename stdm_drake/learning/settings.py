@@ -16,6 +16,11 @@ from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MO
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 
 LOSS_KINDS = ("mse", "mae", "huber")
+def network_weights(ensemble_size: int, hidden_layers: int, hidden_width: int) -> int:
+    """About how many weights a network of these sizes holds (its hidden layers' matrices dominate)."""
+    return ensemble_size * hidden_layers * hidden_width ** 2
+
+
 # settings beyond which a run does not fit in memory or does not end (checked before any work)
 UPPER_BOUNDS = dict(hidden_width=8192, hidden_layers=64, ensemble_size=256, epochs=1_000_000, batch_size=1_000_000)
 MAX_WEIGHTS = 2e8
@@ -203,7 +208,7 @@ class TrainSettings:
                 raise InputError(f"{key(name)} must be >= 1, got {getattr(self, name)}")
             if name in UPPER_BOUNDS and getattr(self, name) > UPPER_BOUNDS[name]:
                 raise InputError(f"{key(name)} must be at most {UPPER_BOUNDS[name]}, got {getattr(self, name)}")
-        weights = self.ensemble_size * self.hidden_layers * self.hidden_width ** 2
+        weights = network_weights(self.ensemble_size, self.hidden_layers, self.hidden_width)
         if weights > MAX_WEIGHTS:
             raise InputError(f"the network would hold about {weights:.3g} weights ({key('ensemble_size')} x "
                              f"{key('hidden_layers')} x {key('hidden_width')}²), more than {MAX_WEIGHTS:.0e} "
@@ -224,7 +229,7 @@ class TrainSettings:
         their gradients (6 copies of ensemble x batch x width). available: bytes (default: the system's
         available memory). Returns the estimate (bytes)."""
         batch = min(self.batch_size, max(int(transitions), 1))
-        weights = ensemble_size * self.hidden_layers * self.hidden_width ** 2
+        weights = network_weights(ensemble_size, self.hidden_layers, self.hidden_width)
         activations = ensemble_size * batch * self.hidden_width * self.hidden_layers
         needed = 4.0 * (4 * weights + 6 * activations)
         available = files.available_memory() if available is None else available
