@@ -25,17 +25,19 @@ def size_text(size: float) -> str:
     return f"{size / 1e9:.3g} GB" if size >= 1e9 else f"{size / 1e6:.3g} MB"
 
 
-def _existing(folder) -> pathlib.Path:
-    """`folder`, or the nearest folder above it that exists."""
-    folder = pathlib.Path(folder).absolute()
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
-    return folder
+def nearest_existing(path, broken_links: bool = False) -> pathlib.Path:
+    """`path` (made absolute), or the nearest folder above it that exists; with `broken_links`, a broken
+    symbolic link on the way counts as existing (to name it in an error rather than look past it)."""
+    path = pathlib.Path(path).absolute()
+    for candidate in [path, *path.parents]:
+        if candidate.exists() or (broken_links and candidate.is_symlink()):
+            return candidate
+    return pathlib.Path(path.anchor)
 
 
 def free_bytes(folder) -> int:
     """Bytes this process may still write in `folder` (or the nearest folder above it that exists)."""
-    stats = os.statvfs(_existing(folder))
+    stats = os.statvfs(nearest_existing(folder))
     return stats.f_bavail * stats.f_frsize
 
 
@@ -78,7 +80,7 @@ def no_room_error(path, error: OSError) -> InputError:
     folder = pathlib.Path(path).absolute().parent
     if error.errno == errno.EFBIG:
         room = f"the file size limit is {size_text(file_size_limit())}, ulimit -f"
-    elif error.errno == errno.ENOSPC and os.statvfs(_existing(folder)).f_favail == 0:
+    elif error.errno == errno.ENOSPC and os.statvfs(nearest_existing(folder)).f_favail == 0:
         room = "no inode left there: too many files"
     else:
         room = f"{size_text(free_bytes(folder))} free there"

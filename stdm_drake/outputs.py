@@ -21,7 +21,7 @@ import pathlib
 import stat
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import free_bytes, remove_stale_temporaries, size_text
+from stdm_drake.files import free_bytes, nearest_existing, remove_stale_temporaries, size_text
 
 # Written into every output folder a command fills, and looked for before replacing one.
 FOLDER_MARKER = ".stdm-drake-output"
@@ -134,16 +134,9 @@ def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
         return False
 
 
-def _nearest_existing(path: pathlib.Path) -> pathlib.Path:
-    for parent in [path, *path.parents]:
-        if parent.exists() or parent.is_symlink():
-            return parent
-    return pathlib.Path(".")
-
-
 def _check_parent(option: str, path: pathlib.Path) -> None:
     """The folder `path` goes in is a folder (or can be made one) that can be written."""
-    existing = _nearest_existing(path.absolute().parent)
+    existing = nearest_existing(path.absolute().parent, broken_links=True)
     if not existing.is_dir():
         raise InputError(f"{option} {path}: {existing} is not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
