@@ -24,6 +24,20 @@ from stdm_drake.outputs import FOLDER_MARKER
 ENV = dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat", PYTHONUNBUFFERED="1")
 
 
+@pytest.fixture(autouse=True)
+def signals_not_ignored():
+    """Signals these tests send reach the tests and their commands even where pytest itself was started with
+    them ignored (a shell's background job ignores SIGINT, nohup SIGHUP; a command keeps an ignored signal
+    ignored, and its children inherit that): restored for each test, put back after it."""
+    ignored = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+               if signal.getsignal(signum) is signal.SIG_IGN}
+    for signum in ignored:
+        signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+    yield
+    for signum, handler in ignored.items():
+        signal.signal(signum, handler)
+
+
 def command(*argv) -> list[str]:
     return [sys.executable, "-m", "stdm_drake.cli", *map(str, argv)]
 
