@@ -12,7 +12,6 @@ where it is sent again a moment later. Pool workers leave signals to their paren
 """
 import contextlib
 import signal
-import threading
 
 
 class Terminated(KeyboardInterrupt):
@@ -60,6 +59,7 @@ def _handler(signum, frame):
         return
     if _cannot_unwind(frame):
         import os
+        import threading
         timer = threading.Timer(RETRY_SECONDS, os.kill, (os.getpid(), signum))
         timer.daemon = True
         timer.start()
@@ -74,6 +74,7 @@ def signals_as_exceptions(until_exit: bool = False):
     `until_exit`, for the program's own run: the command has finished, its outputs are complete and its exit
     status stands, so a signal while the process exits is ignored: Python's finalization would otherwise
     restore the default action and end the process by it)."""
+    import threading
     if (_in_worker or threading.current_thread() is not threading.main_thread()
             or signal.getsignal(signal.SIGINT) is _handler):
         yield   # (a pool's worker, another thread, or a command run inside another: signals are handled there)
@@ -171,14 +172,18 @@ def group_signals_blocked():
 
 def exit_at_once_on_signals() -> None:
     """The program's first step, before its imports: a signal then ends it at once with one line (nothing is
-    open or written yet); `signals_as_exceptions` takes over when the command starts."""
+    open or written yet); `signals_as_exceptions` takes over when the command starts. (This module imports only
+    `signal` and `contextlib` for it, both loaded by Python's start already: Python's own handler, a traceback,
+    is in place until this line runs.)"""
     def leave(signum, frame):
         import os
         import sys
         name = "interrupted" if signum == signal.SIGINT else f"terminated ({signal.Signals(signum).name})"
         os.write(sys.stderr.fileno(), f"stdm-drake: {name}\n".encode())
         os._exit(EXIT_STATUS[signum])
-    if threading.current_thread() is threading.main_thread():
-        for signum in EXIT_STATUS:
-            if signal.getsignal(signum) is not signal.SIG_IGN:
+    for signum in EXIT_STATUS:
+        if signal.getsignal(signum) is not signal.SIG_IGN:
+            try:
                 signal.signal(signum, leave)
+            except ValueError:   # not the main thread: the program's signals are not this thread's to handle
+                return
