@@ -336,6 +336,21 @@ def test_a_deleted_working_folder_is_one_line(tmp_path):
     assert "the working folder no longer exists" in result.stderr
 
 
+def test_closed_standard_streams_are_the_null_device_not_the_next_file(tmp_path):
+    """`2>&-`: bad input is still exit status 2 (its line goes nowhere, as asked), and a file the program opens
+    never takes the number of a closed standard stream (a library's terminal output would land in it)."""
+    bad = subprocess.run(["sh", "-c", 'exec "$@" 2>&- >&- <&-', "sh", *command("inspect", "missing.h5")], env=ENV,
+                         cwd=tmp_path, timeout=120)
+    assert bad.returncode == 2
+    probe = ("import os, sys; [os.close(fd) for fd in (0, 1, 2)]; import stdm_drake; stdm_drake._standard_streams_open(); "
+             "fd = os.open(sys.argv[1], os.O_WRONLY | os.O_CREAT); "
+             "os.write(fd, repr([fd, [os.readlink(f'/proc/self/fd/{n}') for n in (0, 1, 2)], "
+             "sys.stderr.fileno(), sys.stdout.fileno()]).encode())")
+    subprocess.run([sys.executable, "-c", probe, str(tmp_path / "probe")], env=ENV, check=True, timeout=60)
+    fd, standard, stderr_fd, stdout_fd = eval((tmp_path / "probe").read_text())
+    assert fd > 2 and standard == [os.devnull] * 3 and (stderr_fd, stdout_fd) == (2, 1)
+
+
 @pytest.mark.parametrize("argv", [["collect", "--protocol", "excitation", "--count", "1", "--html", "NEW.html",
                                    "-o", "NEW.h5"], ["view", "CK", "DATA", "--meshcat"]])
 def test_meshcat_turned_off_by_drake_allow_network_is_one_line(tmp_path, capsys, monkeypatch, argv):
