@@ -137,6 +137,15 @@ def write_hand_edited(box) -> None:
     copy("attr_group.h5", lambda f: first(f).attrs.__setitem__("group", np.array([0, 1])))
     copy("attr_count.h5", lambda f: f.attrs.__setitem__("num_trajectories", "four"))
     copy("sub_group.h5", lambda f: first(f).create_group("notes"))
+    copy("attr_period.h5", lambda f: f.attrs.__setitem__("sample_period", "0.01"))   # text, not a number
+
+    def emptied(f):
+        trajectory = first(f)
+        for key in list(trajectory):
+            shape = trajectory[key].shape
+            del trajectory[key]
+            trajectory[key] = np.zeros((0, *shape[1:]))
+    copy("empty_trajectory.h5", emptied)
 
     def flatten(f):
         name = sorted(f["trajectories"])[0]
@@ -285,7 +294,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "OLDMARKED": "oldmarked", "CACHELINK": "cache_link",
                 **{name.upper().replace("_", ""): f"{name}.h5" for name in (
                     "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
-                    "attr_count", "sub_group", "flat_trajectory")}}
+                    "attr_count", "sub_group", "flat_trajectory", "attr_period", "empty_trajectory")}}
 
 C = ["collect", "--count", "1", "--workers", "1", "--quiet"]           # a cheap collect if a check were missing
 E = ["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet"]
@@ -352,7 +361,9 @@ CASES = [
     (["inspect", "METANAMES"], "joint_names must be a list of names"),
     (["inspect", "ATTRVERSION"], "format_version must be one number"), (["inspect", "ATTRGROUP"], "group must be one number"),
     (["inspect", "ATTRCOUNT"], "num_trajectories must be a number"), (["inspect", "SUBGROUP"], "which is not an array"),
-    (["inspect", "FLATTRAJECTORY"], "is not a group of arrays"), ([*T[:1], "METAROBOT", *T[2:], "-o", "NEW"], "robot must be a mapping"),
+    (["inspect", "FLATTRAJECTORY"], "is not a group of arrays"),
+    (["inspect", "ATTRPERIOD"], "sample_period attribute must be a number, got the text '0.01'"),
+    (["inspect", "EMPTYTRAJECTORY"], "needs at least 3 samples (2 steps), has 0"), ([*T[:1], "METAROBOT", *T[2:], "-o", "NEW"], "robot must be a mapping"),
     # --- no upper bound (issue 25, class 13): refused before any allocation
     ([*T, "--hidden-width", "1000000", "-o", "NEW"], "(--hidden-width) must be at most 8192"),
     ([*T, "--ensemble-size", "1000000000", "-o", "NEW"], "(--ensemble-size) must be at most 256"),

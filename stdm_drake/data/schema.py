@@ -46,8 +46,11 @@ def check_trajectory(name: str, traj: dict, protocol: str, sample_period: float 
         raise InputError(f"trajectory {name}: arrays {unknown} do not belong to {protocol} data (it holds "
                          f"{', '.join(expected_arrays)})")
     num_steps, joints = state_shape(traj, expected_arrays)
+    if joints < 0:
+        raise InputError(f"trajectory {name}: its state arrays are not tables of samples (T+1, n joints): "
+                         + ", ".join(f"{key} {np.shape(traj[key])}" for key in ("q", "v") if key in traj))
     if num_steps < 2:
-        raise InputError(f"trajectory {name}: needs at least 2 steps (3 samples of q), has {num_steps}")
+        raise InputError(f"trajectory {name}: needs at least 3 samples (2 steps), has {num_steps + 1}")
     actions = np.shape(traj["tau"])[1] if np.ndim(traj["tau"]) == 2 else -1  # torques of its actuated joints
     expected = {"tau": (num_steps, actions), "qdd_end": (num_steps, joints), "tau_next": (actions,)}
     for key in traj:
@@ -108,6 +111,8 @@ def attribute_number(value, what: str, kind=float):
     """A scalar attribute or metadata value as `kind` (InputError naming `what` for an array, string or list)."""
     if isinstance(value, (bool, np.bool_)) or np.ndim(value) != 0:
         raise InputError(f"{what} must be one number, got {np.asarray(value).tolist()!r}")
+    if isinstance(value, (str, bytes, np.str_, np.bytes_)):   # (float("0.01") would take a hand-typed string)
+        raise InputError(f"{what} must be a number, got the text {value!r}")
     try:
         number = kind(value)
     except (TypeError, ValueError):
