@@ -170,6 +170,7 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "negative_velocity": ('velocity="3.1416" effort="150"', 'velocity="-3.1416" effort="150"'),
     "zero_velocity": ('velocity="3.1416" effort="150"', 'velocity="0" effort="150"'),
     "nan_limit": ('lower="-3.141592653589793" upper="3.141592653589793"', 'lower="nan" upper="3.141592653589793"'),
+    "nan_origin": ('<origin xyz="-0.232 0.0 0.158"', '<origin xyz="nan 0.0 0.158"'),   # Drake's parser: a ValueError
 }
 
 
@@ -545,6 +546,7 @@ CASES = [
     ([*E, "--robot", "bad_triangle.yaml", "-o", "NEW.h5"], "break the triangle inequality"),
     ([*E, "--robot", "bad_massless.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves links wrist_3_link, flange, tool0"),
     ([*E, "--robot", "bad_reversed.yaml", "-o", "NEW.h5"], "'elbow_joint' has its lower position limit 3.14159 above"),
+    ([*E, "--robot", "bad_nan_origin.yaml", "-o", "NEW.h5"], "bad_nan_origin.urdf does not load: Expected 3 values for attribute xyz"),
     ([*E, "--robot", "bad_negative_velocity.yaml", "-o", "NEW.h5"], "'elbow_joint' has velocity limit -3.1416"),
     ([*E, "--robot", "bad_zero_velocity.yaml", "-o", "NEW.h5"], "'elbow_joint' has velocity limit 0"),
     ([*E, "--robot", "bad_nan_limit.yaml", "-o", "NEW.h5"], "'elbow_joint' has a non-finite lower limit"),

@@ -278,7 +278,7 @@ class Robot:
         try:
             instances = (parser.AddModels(str(self.model_path)) if text is None
                          else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))
-        except RuntimeError as error:
+        except (RuntimeError, ValueError) as error:   # (ValueError: a number Drake's parser cannot read, "nan")
             raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}") from None
         if len(instances) != 1:
             raise InputError(f"robot {self.name}: {self.model_path.name} holds {len(instances)} models, expected one")
