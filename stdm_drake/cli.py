@@ -152,6 +152,7 @@ def run_command(name: str, argv: list[str]) -> int:
     module = importlib.import_module(COMMANDS[name][0])   # (a signal inside an import waits for its end)
     command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
     module.add_arguments(command_parser)
+    interrupts.raise_deferred()   # (a signal inside the imports: before any argument error is printed)
     try:
         args = command_parser.parse_args(argv)
     except SystemExit as exit_:  # --help (0) or a malformed command line (2, one line printed)

@@ -43,6 +43,9 @@ class RunnerConfig:
             raise InputError(f"cpus per job must be > 0, got {self.cpus_per_job}")
         if self.max_retries < 0:
             raise InputError(f"max_retries must be >= 0, got {self.max_retries}")
+        if self.ray_address and self.backend != "ray":
+            raise InputError(f"--ray-address joins a Ray cluster with --backend ray; the {self.backend} backend "
+                             "would ignore it")
 
 
 def add_runner_arguments(parser) -> None:
@@ -144,6 +147,7 @@ class ProcessPool:
     def stop(self) -> None:
         """End at once (Ctrl-C, SIGTERM): pending tasks cancelled, the workers terminated and reaped."""
         processes = list((self.executor._processes or {}).values())
+        _quiet_about_cancelled_futures()
         self.executor.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             process.terminate()
@@ -169,6 +173,26 @@ class ProcessPool:
         futures = {self.submit(function, *arguments): position for position, (function, arguments) in enumerate(calls)}
         for future in concurrent.futures.as_completed(futures):
             yield futures[future], future
+
+
+def _quiet_about_cancelled_futures() -> None:
+    """The executor's own thread marks the futures of a pool whose workers were terminated as broken; on Python
+    3.11 it raises InvalidStateError for one already cancelled (by `shutdown(cancel_futures=True)` or an
+    interrupted `map`), a traceback after the command's one-line ending. Python 3.12 ignores that error there;
+    so does this hook, for that thread only."""
+    import threading
+    from concurrent.futures import InvalidStateError, process
+    previous = threading.excepthook
+    if getattr(previous, "quiet_about_cancelled_futures", False):
+        return
+
+    def hook(args):
+        if not (issubclass(args.exc_type, InvalidStateError)
+                and isinstance(args.thread, process._ExecutorManagerThread)):
+            previous(args)
+
+    hook.quiet_about_cancelled_futures = True
+    threading.excepthook = hook
 
 
 _RAY_INITIALIZED: set = set()

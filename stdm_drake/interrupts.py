@@ -27,6 +27,7 @@ EXIT_STATUS = {signal.SIGINT: 130, signal.SIGTERM: 143, signal.SIGHUP: 129}
 
 _received: list[int] = []      # the signals that arrived while a command ran (a swallowed one still counts)
 _held: list[int] = []          # signals that arrived inside `protected`, to raise when it ends
+_deferred: list[int] = []      # signals that arrived inside an import or a finalizer, sent again until raised
 _depth = 0                     # how many `protected` blocks are open
 _in_worker = False             # this process is a pool's worker: its parent handles signals and stops it
 
@@ -36,8 +37,9 @@ def _exception(signum: int) -> KeyboardInterrupt:
 
 
 # A signal that arrives where an exception cannot unwind is sent again this much later (s), until it can: in
-# an import (an exception inside an extension module's initialization, pydrake's, breaks the module for good)
-# or in a finalizer (`__del__`, a weakref callback: Python prints the exception and carries on).
+# an import (an exception inside an extension module's initialization, pydrake's, breaks the module for good),
+# in a finalizer (`__del__`, a weakref callback: Python prints the exception and carries on) or in the logging
+# module (Drake's C++ log calls into it: its logger prints the exception as a "LOG ERROR" with a stack).
 RETRY_SECONDS = 0.05
 
 
@@ -45,10 +47,18 @@ def _cannot_unwind(frame) -> bool:
     if frame is not None and (frame.f_code.co_name == "__del__" or frame.f_code.co_filename.endswith("weakref.py")):
         return True
     while frame is not None:
-        if frame.f_code.co_filename.startswith("<frozen importlib._bootstrap"):
+        name = frame.f_code.co_filename
+        if name.startswith("<frozen importlib._bootstrap") or name.endswith(("/logging/__init__.py",
+                                                                             "/logging/handlers.py")):
             return True
         frame = frame.f_back
     return False
+
+
+def _send_again(signum: int) -> None:
+    import os
+    if signum in _deferred:   # (not raised meanwhile by `raise_deferred`)
+        os.kill(os.getpid(), signum)
 
 
 def _handler(signum, frame):
@@ -58,13 +68,24 @@ def _handler(signum, frame):
         _held.append(signum)
         return
     if _cannot_unwind(frame):
-        import os
         import threading
-        timer = threading.Timer(RETRY_SECONDS, os.kill, (os.getpid(), signum))
+        if signum not in _deferred:
+            _deferred.append(signum)
+        timer = threading.Timer(RETRY_SECONDS, _send_again, (signum,))
         timer.daemon = True
         timer.start()
         return
+    _deferred.clear()
     raise _exception(signum)
+
+
+def raise_deferred() -> None:
+    """Raise now a signal that arrived inside an import (the import has ended) rather than when it is sent again:
+    the command stops before its next step (an argument error would otherwise print its line first)."""
+    if _deferred:
+        signum = _deferred[0]
+        _deferred.clear()
+        raise _exception(signum)
 
 
 @contextlib.contextmanager
@@ -81,6 +102,7 @@ def signals_as_exceptions(until_exit: bool = False):
         return
     _received.clear()
     _held.clear()
+    _deferred.clear()
     previous = {signum: signal.signal(signum, _handler) for signum in EXIT_STATUS   # (one ignored, as under
                 if signal.getsignal(signum) is not signal.SIG_IGN}                    # nohup, stays ignored)
     try:
@@ -138,6 +160,11 @@ def ignore_interrupts_in_worker() -> None:
     with contextlib.suppress(OSError, AttributeError):
         import ctypes
         ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))   # PR_SET_PDEATHSIG
+    import multiprocessing
+    import os
+    parent = multiprocessing.parent_process()
+    if parent is not None and os.getppid() != parent.pid:   # the parent died while this worker started (SIGKILL):
+        os._exit(1)                                          # no death signal would come, and no task either
 
 
 def mark_worker() -> None:

@@ -18,6 +18,7 @@ import fcntl
 import json
 import os
 import pathlib
+import shutil
 import stat
 
 from stdm_drake.errors import InputError
@@ -34,18 +35,25 @@ DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every da
 WRITTEN_BY = "written_by"   # the HDF5 attribute (and JSON key) naming the command: "stdm-drake COMMAND"
 COMMAND_LINE = "command: "  # the folder marker's line naming the command
 
-# while a command runs: {"command": name, "locks": {path: (fd, lock file, the folders made for it)}}
+# while a command runs: {"command": name, "locks": {path: (fd, lock file, the folders made for it)},
+# "made": output folders (and their parents) that `mark_output_folder` created, deepest first}
 _running: dict | None = None
 
 
 @contextlib.contextmanager
 def command_outputs(command: str):
     """While `command` (a CLI command's name) runs: outputs are checked against the command that wrote them,
-    marked with it, and locked until the block ends."""
+    marked with it, and locked until the block ends. A command that fails (an exception: an error, a signal)
+    leaves no output folder it made that holds nothing but the marker and empty folders."""
     global _running
-    outer, _running = _running, dict(command=command, locks={})
+    outer, _running = _running, dict(command=command, locks={}, made=[])
     try:
         yield
+    except BaseException:
+        for folder in _running["made"]:
+            if _holds_only_its_marker(folder):
+                shutil.rmtree(folder, ignore_errors=True)
+        raise
     finally:
         running, _running = _running, outer
         for fd, lock_file, made in running["locks"].values():
@@ -134,9 +142,10 @@ def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
         return False
 
 
-def _check_parent(option: str, path: pathlib.Path) -> None:
-    """The folder `path` goes in is a folder (or can be made one) that can be written."""
-    existing = nearest_existing(path.absolute().parent, broken_links=True)
+def _check_parent(option: str, path: pathlib.Path, folder: pathlib.Path | None = None) -> None:
+    """The folder `path` goes in (or the new `folder` that is itself) is a folder (or can be made one) that can be
+    written."""
+    existing = nearest_existing(folder if folder is not None else path.absolute().parent, broken_links=True)
     if not existing.is_dir():
         raise InputError(f"{option} {path}: {existing} is not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
@@ -252,13 +261,14 @@ COMMAND_RESULTS = {"train": ("summary.json",), "sine-sum": ("results.json", "sum
                    "mpc": ("mpc.json", "mpc.csv"), "reproduce": ("report.md", "cache", "sine_sum", "results.json")}
 
 
-def _older_owner(path: pathlib.Path, command: str | None) -> str | None:
-    """The other command whose results (COMMAND_RESULTS, beyond the files `command` writes too) the unmarked
-    or older folder `path` holds, or None."""
+def _older_owner(path: pathlib.Path, command: str | None) -> tuple[str, str] | None:
+    """(the other command, its result's name) whose results (COMMAND_RESULTS, beyond the files `command` writes
+    too) the unmarked or older folder `path` holds, or None."""
     own = set(COMMAND_RESULTS.get(command, ()))
     for other, names in COMMAND_RESULTS.items():
-        if other != command and any((path / name).exists() for name in set(names) - own):
-            return other
+        for name in sorted(set(names) - own):
+            if other != command and (path / name).exists():
+                return other, name
     return None
 
 
@@ -269,7 +279,7 @@ def _marked_ancestor(path: pathlib.Path, command: str | None = None) -> tuple[pa
     for parent in pathlib.Path(os.path.realpath(path)).parents:
         writer = folder_writer(parent)
         if writer == "":
-            writer = _older_owner(parent, command)
+            writer = (_older_owner(parent, command) or (None,))[0]
         if writer and writer != command:
             return parent, writer
     return None
@@ -292,10 +302,12 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
         writer = folder_writer(path)
         other = writer if writer and command and writer != command else None
         if not writer and command:
-            other = _older_owner(path, command)
+            found = _older_owner(path, command)
+            if not force and found:   # (a folder from before markers, or a user's own: name the file)
+                raise InputError(f"{option} {path} holds {found[1]}, a result of `stdm-drake {found[0]}`; choose "
+                                 "another folder or pass --force to write into it")
             ancestor = _marked_ancestor(path, command)
-            if other is None and ancestor is not None:
-                other = ancestor[1]
+            other = ancestor[1] if ancestor is not None else None
         if not force and other:
             raise InputError(f"{option} {path} holds the outputs of `stdm-drake {other}`; choose another folder "
                              "or pass --force to write into it")
@@ -308,7 +320,7 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
         if not os.access(path, os.W_OK | os.X_OK):
             raise InputError(f"{option} {path}: cannot write in it (permission denied)")
     else:
-        _check_parent(option, path / "x")
+        _check_parent(option, path, folder=path.absolute())
     _check_room(option, path, path.absolute())
     lock_output(option, path)
     return path
@@ -322,9 +334,20 @@ def _is_symlink_loop(path: pathlib.Path) -> bool:
     return False
 
 
+def _holds_only_its_marker(folder: pathlib.Path) -> bool:
+    """Whether `folder` holds nothing but a folder marker (its own or a subfolder's) and empty folders."""
+    for root, folders, names in os.walk(folder):
+        if any(os.path.islink(os.path.join(root, name)) for name in folders) or any(name != FOLDER_MARKER
+                                                                                      for name in names):
+            return False
+    return True
+
+
 def mark_output_folder(path) -> None:
     """Create the output folder if needed and mark it as the running command's."""
     path = pathlib.Path(path)
+    if _running is not None:
+        _running["made"].extend(folder for folder in (path, *path.absolute().parents) if not folder.exists())
     path.mkdir(parents=True, exist_ok=True)
     command = running_command()
     if (path / FOLDER_MARKER).exists() and (command is None or folder_writer(path) == command):

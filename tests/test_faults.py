@@ -420,3 +420,47 @@ def test_a_signal_after_the_command_has_finished_is_ignored():
     finally:
         for signum in interrupts.EXIT_STATUS:
             signal.signal(signum, signal.default_int_handler if signum == signal.SIGINT else signal.SIG_DFL)
+
+
+def test_a_stopped_pools_thread_is_quiet_about_cancelled_futures(capsys, monkeypatch):
+    """Stopping a pool (Ctrl-C) while an interrupted `map` has cancelled its pending futures: the executor's
+    thread marking them broken raised InvalidStateError on Python 3.11, a traceback after the one line. The
+    hook drops that error from that thread only."""
+    import threading
+    from concurrent.futures import InvalidStateError, process
+    from stdm_drake import cluster
+    monkeypatch.setattr(threading, "excepthook", threading.__excepthook__)
+    cluster._quiet_about_cancelled_futures()
+    cluster._quiet_about_cancelled_futures()   # (once)
+    error = InvalidStateError("CANCELLED: <Future state=cancelled>")
+    threading.excepthook(threading.ExceptHookArgs((InvalidStateError, error, None,
+                                                   object.__new__(process._ExecutorManagerThread))))
+    assert capsys.readouterr().err == ""
+    threading.excepthook(threading.ExceptHookArgs((InvalidStateError, error, None, threading.Thread(name="other"))))
+    assert "InvalidStateError" in capsys.readouterr().err
+
+
+def test_a_signal_held_during_the_imports_ends_the_command_before_an_argument_error(monkeypatch, capsys):
+    """A signal inside the command's imports is sent again a moment later; the command raises it as soon as its
+    imports end, before its argument parser can print an error line of its own."""
+    from stdm_drake.cli import run_command
+    monkeypatch.setattr(interrupts, "_deferred", [signal.SIGTERM])
+    with pytest.raises(interrupts.Terminated):
+        run_command("inspect", ["--no-such-flag"])
+    assert capsys.readouterr().err == "" and interrupts._deferred == []
+
+
+def test_a_signal_inside_a_logging_call_is_sent_again_later():
+    """Drake's C++ log calls into Python's logging: an exception raised there is printed by its logger as a
+    "LOG ERROR" with a stack, so a signal inside logging waits like one inside an import."""
+    import logging
+    frames = []
+
+    class Grab(logging.Handler):
+        def emit(self, record):
+            frames.append(sys._getframe())
+
+    logger = logging.getLogger("stdm-drake-test-logging-frame")
+    logger.addHandler(Grab())
+    logger.warning("a line")
+    assert interrupts._cannot_unwind(frames[0]) and not interrupts._cannot_unwind(sys._getframe())

@@ -237,6 +237,11 @@ def test_collect_exports_its_plans_as_csv_and_a_ros2_bag_of_joint_trajectories(t
     assert main(["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet",
                  "-o", str(tmp_path / "e.h5"), "--export-plans", str(tmp_path / "new")]) == 2
     assert "only with --protocol tracking" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "empty")   # a link to an empty folder: the plans go there
+    assert main(["collect", "--protocol", "tracking", "--count", "1", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "linked.h5"), "--export-plans", str(tmp_path / "link")]) == 0
+    assert (tmp_path / "link").is_symlink() and (tmp_path / "empty" / "plans.json").is_file()
 
 
 @pytest.mark.slow

@@ -159,3 +159,39 @@ def test_mpc_exits_2_when_a_closed_loop_leaves_the_limits(tracking_dataset, tmp_
     assert code == 2
     assert "stdm-drake mpc: error: model plant left the robot's joint limits on 4 of" in err
     assert (tmp_path / "mpc" / "mpc.md").exists()
+
+
+def test_a_new_output_inside_another_commands_folder_is_allowed_and_kept(capsys, tmp_path, excitation_dataset,
+                                                                         checkpoint):
+    """Nothing in another command's folder is replaced by a new file or folder beside its results (evaluate's
+    JSON next to the checkpoint it scored); that command's rerun into its folder leaves it alone."""
+    run = tmp_path / "run"
+    shutil.copytree(checkpoint.parents[1], run)
+    capsys.readouterr()
+    assert main(["evaluate", str(run / "seed0" / "checkpoint.pt"), str(excitation_dataset), "--no-plant",
+                 "--json", str(run / "eval.json")]) == 0
+    scored = digest(run / "eval.json")
+    assert main(["train", str(excitation_dataset), "--model", "D", "--epochs", "1", "--train", "2", "--val", "1",
+                 "--quiet", "--resume", "-o", str(run)]) == 0
+    assert digest(run / "eval.json") == scored
+    fails(capsys, ["evaluate", str(run / "seed0" / "checkpoint.pt"), str(excitation_dataset), "--no-plant",
+                   "--json", str(run / "summary.json")], "was written by `stdm-drake train`")
+
+
+def test_a_failed_command_leaves_no_folder_it_made_for_nothing(tmp_path):
+    """An error or a signal: an output folder this run made that holds only its marker (and empty folders) goes;
+    one with a finished file stays, as does a folder that was there before."""
+    from stdm_drake.outputs import command_outputs, mark_output_folder
+    with pytest.raises(KeyboardInterrupt), command_outputs("train"):
+        mark_output_folder(tmp_path / "new" / "deeper" / "run")
+        (tmp_path / "new" / "deeper" / "run" / "seed0").mkdir()
+        raise KeyboardInterrupt
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "before").mkdir()
+    with pytest.raises(ValueError), command_outputs("train"):
+        mark_output_folder(tmp_path / "before")
+        mark_output_folder(tmp_path / "kept")
+        (tmp_path / "kept" / "seed0").mkdir()
+        (tmp_path / "kept" / "seed0" / "checkpoint.pt").write_bytes(b"a finished checkpoint")
+        raise ValueError("disk full")
+    assert (tmp_path / "before" / FOLDER_MARKER).exists() and (tmp_path / "kept" / "seed0" / "checkpoint.pt").exists()

@@ -70,13 +70,17 @@ class MpcConfig:
 
     def validate(self) -> None:
         """InputError for settings no controller can use: weights negative, not finite or beyond MAX_WEIGHT
-        (the squared errors they weigh overflow, and the other terms vanish beside them), effort weights not
-        positive, a terminal factor outside [0, MAX_WEIGHT], an observer gain outside [0, 1], a horizon outside
-        1..MAX_HORIZON sample periods, and the optimizer's own settings (`IlqrConfig.validate`)."""
+        (the squared errors they weigh overflow, and the other terms vanish beside them), position weights all
+        zero, effort weights not positive, a terminal factor outside [0, MAX_WEIGHT], an observer gain outside
+        [0, 1], a horizon outside 1..MAX_HORIZON sample periods, and the optimizer's own settings
+        (`IlqrConfig.validate`)."""
         for name in ("position_weight", "velocity_weight", "effort_weight"):
             weights = check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
             if np.any(weights > MAX_WEIGHT):
                 raise InputError(f"mpc {name} must be at most {MAX_WEIGHT:g}, got {getattr(self, name)}")
+        if not np.any(np.asarray(self.position_weight, dtype=float) > 0):
+            raise InputError("mpc position_weight must be > 0 for at least one joint (all zero: the controller would not "
+                             "track the plan's positions)")
         if np.any(np.asarray(self.effort_weight) <= 0):
             raise InputError("mpc effort_weight must be > 0 for every joint (the torque problem must be convex)")
         if not (np.isfinite(self.terminal_factor) and 0.0 <= self.terminal_factor <= MAX_WEIGHT):

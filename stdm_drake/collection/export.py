@@ -16,17 +16,15 @@ PLAN_TOPIC = "/scaled_joint_trajectory_controller/joint_trajectory"
 PLAN_TYPE = "trajectory_msgs/msg/JointTrajectory"
 
 
-def check_export_folder(folder) -> pathlib.Path:
-    """The folder plans go to: new or empty (plans of another run are not mixed in)."""
+def check_export_folder(folder, force: bool = False) -> pathlib.Path:
+    """The folder plans go to: new or empty (plans of another run are not mixed in), checked and locked as every
+    output folder is (`outputs.check_output_folder`; force: inside another command's folder)."""
     folder = pathlib.Path(folder)
     if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
         raise InputError(f"--export-plans {folder}: {'not a folder' if not folder.is_dir() else 'not empty'}; give a "
                          "new or empty folder")
-    if folder.parent.exists() and not folder.parent.is_dir():
-        raise InputError(f"--export-plans {folder}: {folder.parent} is not a folder")
-    from stdm_drake.outputs import lock_output
-    lock_output("--export-plans", folder)
-    return folder
+    from stdm_drake.outputs import check_output_folder
+    return check_output_folder("--export-plans", folder, force=force)
 
 
 def plan_table(trajectory, sample_period: float) -> np.ndarray:
@@ -35,13 +33,15 @@ def plan_table(trajectory, sample_period: float) -> np.ndarray:
     return np.hstack([t[:, None], trajectory.q_planned, trajectory.v_planned, trajectory.qdd_planned])
 
 
-def export_plans(folder, trajectories: list, metadata: dict, robot) -> list[pathlib.Path]:
+def export_plans(folder, trajectories: list, metadata: dict, robot, force: bool = False) -> list[pathlib.Path]:
     """Write the plans of `trajectories` (tracking data) into `folder` (new or empty): plan_NNNN.csv,
     plans_rosbag2/ (a rosbag2 bag, sqlite3) and plans.json, all first into a temporary folder beside it that is
     renamed onto it at the end (on an error nothing is left). Returns the files written."""
     import shutil
     import tempfile
-    folder = check_export_folder(folder)
+    folder = check_export_folder(folder, force)
+    if folder.is_symlink():   # (a link to an empty folder: the plans go into the folder it names)
+        folder = folder.resolve()
     folder.parent.mkdir(parents=True, exist_ok=True)
     temporary = pathlib.Path(tempfile.mkdtemp(prefix=f".{folder.name}.", dir=folder.parent))
     try:

@@ -42,6 +42,10 @@ def command_visualization(args: argparse.Namespace):
     """The VisualizationConfig `--visualization` names (None when absent: the recorder's default)."""
     if args.visualization is None:
         return None
+    if not (getattr(args, "html", None) or getattr(args, "meshcat", False)):
+        from stdm_drake.errors import InputError
+        raise InputError("--visualization configures the Meshcat recording: give --html FILE"
+                         + (" or --meshcat" if hasattr(args, "meshcat") else "") + " too, or leave it out")
     from stdm_drake.robots.recorder import load_visualization_config
     return load_visualization_config(args.visualization)
 

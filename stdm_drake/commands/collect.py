@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         if pathlib.Path(args.output).absolute().is_relative_to(pathlib.Path(args.export_plans).absolute()):
             raise InputError(f"-o/--output {args.output} is inside --export-plans {args.export_plans}; write the "
                              "dataset elsewhere")
-        check_export_folder(args.export_plans)
+        check_export_folder(args.export_plans, args.force)
     check_output_file("-o/--output", args.output, kind="dataset", inputs=inputs, force=args.force)
     check_output_file("--html", args.html, kind="html", inputs=inputs + [args.output], force=args.force)
     if args.meshcat or args.html:
@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
     if args.export_plans is not None:
         from stdm_drake.collection.export import export_plans
-        written = export_plans(args.export_plans, trajectories, metadata, robot)
+        written = export_plans(args.export_plans, trajectories, metadata, robot, args.force)
         print(f"wrote {len(trajectories)} plans to {args.export_plans} ({len(written)} files: CSV, a ROS 2 bag, "
               "plans.json); run them on the robot, then `stdm-drake import` its log")
     if recorder is not None:

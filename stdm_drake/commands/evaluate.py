@@ -32,8 +32,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "capped at 100)")
     parser.add_argument("--propagation", choices=PROPAGATIONS, default="mean",
                         help="multi-step propagation: mean, ts1 or tsinf (PETS; default mean)")
-    parser.add_argument("--particles", type=int, default=20, help="particles per trajectory for ts1/tsinf")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the TS particles")
+    parser.add_argument("--particles", type=int, help="particles per trajectory for ts1/tsinf (default 20)")
+    parser.add_argument("--seed", type=int, help="seed of the ts1/tsinf particles (default 0)")
     parser.add_argument("--no-plant", action="store_true",
                         help="leave out the plant baseline (the robot's rigid-body plant stepping the recorded torque: "
                              "about a millisecond per step)")
@@ -48,6 +48,10 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
     from stdm_drake.robots.robot import UR10_CONFIG
 
+    if args.propagation == "mean" and (args.particles is not None or args.seed is not None):
+        raise InputError("--particles and --seed are for --propagation ts1 or tsinf (trajectory sampling); mean "
+                         "propagation uses neither")
+    particles, seed = (20 if args.particles is None else args.particles), (0 if args.seed is None else args.seed)
     check_output_file("--json", args.json, kind="json", inputs=[args.checkpoint, args.dataset, args.robot],
                       force=args.force)
     dataset = load_dataset(args.dataset)
@@ -83,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.inspect import noise_floor
     floor = noise_floor(dataset, indices)
     rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=args.propagation,
-                                  particles=args.particles, seed=args.seed, noise_floor=floor)
+                                  particles=particles, seed=seed, noise_floor=floor)
     print(model_description(model))
     print(f"dataset {args.dataset} ({'the training dataset' if trained_on_this else 'another dataset'}); "
           f"split {args.split}: {len(indices)} trajectories, {rows[0].one_step.transitions} transitions")

@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.identification.identified import identified_text
-    from stdm_drake.identification.identify import IdentifySettings, identify
+    from stdm_drake.identification.identify import SMOOTHING_WINDOWS, IdentifySettings, identify
     from stdm_drake.learning.seeds import dataset_split
     if args.output.suffix.lower() not in (".yaml", ".yml"):
         raise InputError(f"-o/--output {args.output}: an identified robot is a .yaml file")
@@ -57,6 +57,9 @@ def run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     if args.derivatives is None and not dataset.is_simulated:
         settings.derivative_source = "smoothed"     # (a log has no true accelerations)
+    if settings.derivative_source == "true" and settings.windows != SMOOTHING_WINDOWS:
+        raise InputError("--windows are the smoothing windows of --derivatives smoothed; with the simulation's true "
+                         "derivatives they would be ignored")
     robot = command_robot(args, dataset)
     robot.check_fully_actuated("identification")
     split, _ = dataset_split(dataset, args)

@@ -72,15 +72,16 @@ def run(args) -> int:
         if not separator or not name or not path:
             raise InputError(f"--model takes NAME=FILE, got {entry!r}")
         if not MODEL_NAME.fullmatch(name):
-            raise InputError(f"--model name {name!r}: letters, digits, '_', '-', '.' and '+' only (it heads a column of "
+            shown = repr(name) if len(name) <= 48 else repr(name[:40]) + f"... ({len(name)} characters)"
+            raise InputError(f"--model name {shown}: letters, digits, '_', '-', '.' and '+' only (it heads a column of "
                              "mpc.csv and mpc.md), at most 40 characters")
     checkpoints = [entry.partition("=")[2] for entry in args.model]
     names = [entry.partition("=")[0] for entry in args.model]
     repeated = sorted({name for name in names if names.count(name) > 1})
     if repeated:
         raise InputError(f"--model names must differ; {', '.join(repeated)} given more than once")
-    reserved = sorted(set(names) & {"plant", "true-plant"})
-    if reserved:
+    reserved = sorted(name for name in names if name.lower() in ("plant", "true-plant"))   # (in any case: beside
+    if reserved:                                                                            # the plant's own rows)
         raise InputError(f"--model name {reserved[0]!r} is the plant model's; name the learned model otherwise")
     inputs = [args.dataset, args.config, args.robot, args.visualization, args.plant_effects, *checkpoints]
     check_output_folder("-o/--output", args.output, inputs=inputs, force=args.force)

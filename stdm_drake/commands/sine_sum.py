@@ -10,6 +10,7 @@ from stdm_drake.commands.arguments import parse_alpha
 from stdm_drake.errors import InputError
 from stdm_drake.experiments.sine_sum import FULL, QUICK, headline, run_study, table1_rows, write_reports
 from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.settings import UPPER_BOUNDS as TRAIN_BOUNDS
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
 
 
@@ -34,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_runner_arguments(parser)
 
 
-# Beyond these the study would not fit in memory or never end (train's own bounds: learning.settings).
+# Beyond these the study would not fit in memory or never end (train's own bounds: learning.settings, whose
+# hidden-layer bound --layers shares).
 UPPER_BOUNDS = {"--epochs": 1_000_000, "--seeds": 1000}
 
 
@@ -43,6 +45,9 @@ def run(args: argparse.Namespace) -> int:
     for option, value in (("--epochs", args.epochs), ("--seeds", args.seeds)):
         if value is not None and not 1 <= value <= UPPER_BOUNDS[option]:
             raise InputError(f"{option} must be in 1..{UPPER_BOUNDS[option]}, got {value}")
+    layers_bound = TRAIN_BOUNDS["hidden_layers"]
+    if args.layers is not None and not all(1 <= layers <= layers_bound for layers in args.layers):
+        raise InputError(f"--layers must each be in 1..{layers_bound}, got {' '.join(map(str, args.layers))}")
     overrides = {key: (tuple(value) if isinstance(value, list) else value)
                  for key, value in (("epochs", args.epochs), ("seeds", args.seeds), ("headline_seeds", args.seeds),
                                     ("layers", args.layers), ("activations", args.activations),

@@ -108,7 +108,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--checkpoint-every", type=int, default=10, help="epochs between checkpoint writes")
     parser.add_argument("--threads", type=int, default=1,
                         help="torch CPU threads (default 1: bitwise-reproducible on any machine)")
-    parser.add_argument("--resume", action="store_true", help="continue interrupted runs in the output folder")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue interrupted runs in the output folder (a seed with nothing written yet starts "
+                             "from scratch, so a killed run can always be rerun with --resume)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_force_argument(parser)
     add_runner_arguments(parser)

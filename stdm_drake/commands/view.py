@@ -15,10 +15,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("checkpoint", type=pathlib.Path, metavar="MODEL",
                         help="trained model (checkpoint.pt) or identified robot (identified.yaml)")
     parser.add_argument("dataset", type=pathlib.Path, help="dataset with the trajectories to replay")
-    parser.add_argument("--trajectories", type=int, default=3,
+    parser.add_argument("--trajectories", type=int,
                         help="how many test trajectories (the checkpoint's test split when it was trained on "
                              "this dataset, else the dataset's last ones; default 3)")
-    parser.add_argument("--index", type=int, action="append", help="replay these trajectory indices instead")
+    parser.add_argument("--index", type=int, action="append",
+                        help="replay these trajectory indices instead (repeat the flag for several)")
     parser.add_argument("--html", type=pathlib.Path, help="save the recording as a standalone HTML file")
     parser.add_argument("--meshcat", action="store_true", help="play live in Meshcat (prints the URL)")
     add_robot_argument(parser, "must be the dataset's robot")
@@ -32,6 +33,10 @@ def run(args) -> int:
     from stdm_drake.commands.arguments import command_model
     if not (args.html or args.meshcat):
         raise InputError("nothing to show: give --html FILE and/or --meshcat")
+    if args.index and args.trajectories is not None:
+        raise InputError("--index names the trajectories to replay and --trajectories how many to pick: give one")
+    if args.trajectories is None:
+        args.trajectories = 3
     if not args.index and args.trajectories < 1:
         raise InputError(f"--trajectories must be >= 1, got {args.trajectories}")
     check_output_file("--html", args.html, kind="html",

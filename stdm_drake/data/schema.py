@@ -118,7 +118,7 @@ def attribute_number(value, what: str, kind=float):
     except (TypeError, ValueError):
         raise InputError(f"{what} must be a number, got {value!r}") from None
     if kind is int and number != value:
-        raise InputError(f"{what} must be a whole number, got {value!r}")
+        raise InputError(f"{what} must be a whole number, got {np.asarray(value).item()!r}")
     return number
 
 

@@ -26,6 +26,7 @@ from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 VELOCITY_SCALES = (0.01, 0.05, 0.2)            # rad/s: the Coulomb term's tanh smoothing
 REGULARIZATIONS = (1e-8, 1e-6, 1e-4, 1e-2)     # toward the description's parameters (relative)
 SMOOTHING_WINDOWS = (5, 9, 15, 21, 31, 45)            # samples (odd) of the Savitzky-Golay differentiator
+MAX_CANDIDATES = 100   # of each list above that a user gives
 
 
 @dataclasses.dataclass
@@ -42,6 +43,8 @@ class IdentifySettings:
             values = getattr(self, name)
             if not len(values) or not all(np.isfinite(value) for value in values):
                 raise InputError(f"identify: {name.replace('_', ' ')} must be a non-empty list of numbers")
+            if len(values) > MAX_CANDIDATES:   # (each is a fit of its own: thousands would run for hours)
+                raise InputError(f"identify: at most {MAX_CANDIDATES} {name.replace('_', ' ')}, got {len(values)}")
         if min(self.velocity_scales) <= 0 or min(self.regularizations) < 0:
             raise InputError("identify: velocity scales must be > 0 rad/s and regularizations >= 0")
         for window in self.windows:

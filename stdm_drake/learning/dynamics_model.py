@@ -80,8 +80,8 @@ class DynamicsModel(abc.ABC):
         if propagation not in PROPAGATIONS:
             raise InputError(f"propagation must be one of {PROPAGATIONS}, got {propagation!r}")
         if propagation != "mean":
-            raise InputError(f"{self.name}: only 'mean' propagation (ts1/tsinf need an ensemble of networks "
-                             "that predicts the whole state)")
+            raise InputError(f"{self.name}: only 'mean' propagation (ts1/tsinf sample the members of an ensemble "
+                             "in the paper's structure: train --model DE/PE --predicts state --inputs raw)")
         states = check_batch(x0, self.state_dim, "initial_states")
         sequence = check_batch(actions, self.action_dim, "actions", sequence=True)
         if len(sequence) != len(states):

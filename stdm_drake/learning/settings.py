@@ -22,8 +22,12 @@ def network_weights(ensemble_size: int, hidden_layers: int, hidden_width: int) -
 
 
 # settings beyond which a run does not fit in memory or does not end (checked before any work)
-UPPER_BOUNDS = dict(hidden_width=8192, hidden_layers=64, ensemble_size=256, epochs=1_000_000, batch_size=1_000_000)
+UPPER_BOUNDS = dict(hidden_width=8192, hidden_layers=64, ensemble_size=256, epochs=1_000_000, batch_size=1_000_000,
+                    threads=256)   # (torch's thread pool crashed creating a million threads)
 MAX_WEIGHTS = 2e8
+MAX_SEEDS = 1000
+MAX_LR = 1.0        # Adam's step is about lr per weight
+MAX_ALPHA = 1e6     # beyond it the next-state term is below float32's resolution of the summed loss
 LR_SCHEDULES = ("constant", "cosine")
 DEFAULT_ALPHA = 1e-3   # the paper's derivative-loss weight (found by search over 1e-1 ... 1e-4)
 # alpha values tried by `select_alpha` (`--alpha auto`): naive (0) and a log grid
@@ -196,8 +200,16 @@ class TrainSettings:
             raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}")
         if not self.alpha_grid or not all(math.isfinite(a) and a >= 0 for a in self.alpha_grid):
             raise InputError(f"{key('alpha_grid')} needs numbers >= 0, got {self.alpha_grid}")
+        if max([*self.alpha_grid, 0.0 if self.alpha == "auto" else self.alpha]) > MAX_ALPHA:
+            raise InputError(f"{key('alpha')} and {key('alpha_grid')} must be at most {MAX_ALPHA:g}: the next-state "
+                             "loss would vanish beside the derivative loss (float32)")
+        if self.alpha != "auto" and list(self.alpha_grid) != list(DEFAULT_ALPHA_GRID):
+            raise InputError(f"{key('alpha_grid')} is what --alpha auto chooses from; with alpha {self.alpha:g} it "
+                             "would be ignored")
         if not self.seeds:
             raise InputError(f"{key('seeds')} must list at least one seed")
+        if len(self.seeds) > MAX_SEEDS:
+            raise InputError(f"{key('seeds')} lists {len(self.seeds)} seeds, at most {MAX_SEEDS}")
         if any(seed < 0 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             raise InputError(f"{key('seeds')} must be distinct non-negative integers, got {list(self.seeds)}")
         if self.split_seed < 0:   # (numpy's generators take non-negative seeds only)
@@ -221,6 +233,15 @@ class TrainSettings:
             if not (math.isfinite(value) and (value > 0 if name == "lr" else value >= 0)):
                 bound = "> 0" if name == "lr" else ">= 0"
                 raise InputError(f"{key(name)} must be a finite number {bound}, got {value}")
+        if self.lr > MAX_LR:
+            raise InputError(f"{key('lr')} must be at most {MAX_LR:g} (Adam's steps would be as large as the "
+                             f"weights), got {self.lr:g}")
+        if self.lr * self.weight_decay >= 1:
+            raise InputError(f"{key('lr')} x {key('weight_decay')} must be below 1 (each step would scale the "
+                             f"weights by 1 - lr x weight_decay <= 0), got {self.lr:g} x {self.weight_decay:g}")
+        if self.min_lr and self.lr_schedule != "cosine":
+            raise InputError(f"{key('min_lr')} is where --lr-schedule cosine ends; with the {self.lr_schedule} "
+                             "schedule it would be ignored")
 
     def check_memory(self, transitions: int, ensemble_size: int, available: float | None = None) -> float:
         """InputError unless one training run on `transitions` (input, target) pairs of a network of

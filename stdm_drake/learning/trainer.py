@@ -245,9 +245,10 @@ class Trainer:
         while not self.finished and self.epoch < config.max_epochs and self.since_improvement < config.patience:
             self.train_epoch(train_tensors, sums)
             if not np.all(np.isfinite(sums[:3])):
+                weights = f"learning rate {config.learning_rate:g}, weight decay {config.weight_decay:g}" + (
+                    f", derivative-loss weight alpha {config.alpha:g}" if config.alpha else "")
                 raise InputError(f"training diverged in epoch {self.epoch}: the training loss is {sums[0] / max(sums[3], 1)}"
-                                 f" (learning rate {config.learning_rate:g}, weight decay {config.weight_decay:g}); "
-                                 "lower them")
+                                 f" ({weights}); lower them")
             if self.epoch % config.validation_interval and self.epoch < config.max_epochs:
                 continue
             self.model.eval()
