@@ -292,12 +292,20 @@ def job_pool(config: RunnerConfig, initializer=None, initargs=()):
 def _start_resource_tracker() -> None:
     """Start multiprocessing's resource tracker (one per program) with Ctrl-C and SIGHUP blocked for good
     (`interrupts.group_signals_blocked`; it ignores SIGINT and SIGTERM itself): a closing terminal's SIGHUP to
-    the process group would kill it while the pool's semaphores still need it (the parent stops the pool)."""
+    the process group would kill it while the pool's semaphores still need it (the parent stops the pool). Its
+    warning that it cleans up after a program killed with SIGKILL (a Python warning line after the kill) is
+    turned off: it passes the interpreter's -W options on."""
+    import sys
     from multiprocessing import resource_tracker
 
     from stdm_drake.interrupts import group_signals_blocked
-    with group_signals_blocked():
-        resource_tracker.ensure_running()
+    quiet = "ignore:resource_tracker:UserWarning"
+    sys.warnoptions.append(quiet)
+    try:
+        with group_signals_blocked():
+            resource_tracker.ensure_running()
+    finally:
+        sys.warnoptions.remove(quiet)
 
 
 def _start_worker(initializer, initargs) -> None:

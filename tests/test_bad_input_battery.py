@@ -444,6 +444,7 @@ CASES = [
     ([*T, "--model", "DD", "--alpha", "1e30", "-o", "NEW"], "must be at most 1e+06"),
     ([*T, "--model", "DD", "--alpha", "auto", "--alpha-grid", "0", "1e300", "-o", "NEW"], "must be at most 1e+06"),
     ([*T, "--alpha-grid", "1", "2", "-o", "NEW"], "with alpha 0.001 it would be ignored"),
+    ([*T, "--model", "DD", "--alpha", "auto", "--alpha-grid", *["0.001"] * 101, "-o", "NEW"], "lists 101 alphas, at most 100"),
     ([*T, "--min-lr", "1e-5", "-o", "NEW"], "with the constant schedule it would be ignored"),
     ([*T, "--seeds", *map(str, range(1001)), "-o", "NEW"], "lists 1001 seeds, at most 1000"),
     ([*T, "--ray-address", "127.0.0.1:1", "-o", "NEW"], "the local backend would ignore it"),

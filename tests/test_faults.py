@@ -464,3 +464,26 @@ def test_a_signal_inside_a_logging_call_is_sent_again_later():
     logger.addHandler(Grab())
     logger.warning("a line")
     assert interrupts._cannot_unwind(frames[0]) and not interrupts._cannot_unwind(sys._getframe())
+
+
+@pytest.mark.slow
+def test_a_sigkilled_collect_leaves_no_worker_and_no_line_and_the_next_run_takes_its_output(tmp_path):
+    """SIGKILL (nothing of the program can run): its workers end with it (their death signal, or at their start
+    when the parent is already gone), the resource tracker cleans up without a warning line, and the lock file
+    left behind goes with the next run into the same output."""
+    process = subprocess.Popen(command("collect", "--protocol", "tracking", "--count", "16", "--workers", "2",
+                                       "--quiet", "-o", tmp_path / "k.h5"),
+                               cwd=tmp_path, env=ENV, start_new_session=True, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len([w for w in descendants(process.pid) if alive(w)]) < 3:
+        time.sleep(0.05)   # (the resource tracker and two workers, just started)
+    started = descendants(process.pid)
+    process.kill()
+    _, err = process.communicate(timeout=30)   # (its end of file: every process holding stderr has closed it)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(alive(pid) for pid in started):
+        time.sleep(0.1)
+    assert err == "" and not [pid for pid in started if alive(pid)]
+    assert main(["collect", "--protocol", "tracking", "--count", "1", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "k.h5")]) == 0
+    assert leftovers(tmp_path) == []

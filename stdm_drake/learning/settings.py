@@ -28,6 +28,7 @@ MAX_WEIGHTS = 2e8
 MAX_SEEDS = 1000
 MAX_LR = 1.0        # Adam's step is about lr per weight
 MAX_ALPHA = 1e6     # beyond it the next-state term is below float32's resolution of the summed loss
+MAX_ALPHA_GRID = 100
 LR_SCHEDULES = ("constant", "cosine")
 DEFAULT_ALPHA = 1e-3   # the paper's derivative-loss weight (found by search over 1e-1 ... 1e-4)
 # alpha values tried by `select_alpha` (`--alpha auto`): naive (0) and a log grid
@@ -200,6 +201,8 @@ class TrainSettings:
             raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}")
         if not self.alpha_grid or not all(math.isfinite(a) and a >= 0 for a in self.alpha_grid):
             raise InputError(f"{key('alpha_grid')} needs numbers >= 0, got {self.alpha_grid}")
+        if len(self.alpha_grid) > MAX_ALPHA_GRID:   # (each alpha is a network of the grid's stack)
+            raise InputError(f"{key('alpha_grid')} lists {len(self.alpha_grid)} alphas, at most {MAX_ALPHA_GRID}")
         if max([*self.alpha_grid, 0.0 if self.alpha == "auto" else self.alpha]) > MAX_ALPHA:
             raise InputError(f"{key('alpha')} and {key('alpha_grid')} must be at most {MAX_ALPHA:g}: the next-state "
                              "loss would vanish beside the derivative loss (float32)")
