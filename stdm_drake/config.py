@@ -19,9 +19,11 @@ def one_line(error: BaseException) -> str:
     return " ".join(str(error).split()) or type(error).__name__
 
 
-def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | None = None, defaults=None):
+def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | None = None, defaults=None,
+                     validate: bool = True):
     """Load `path` into a new instance of `schema` (a dataclass, or a Drake config type); keys left out
-    keep the values of `defaults` (default: `schema()`).
+    keep the values of `defaults` (default: `schema()`); its `validate()`, if it has one, unless `validate` is
+    False (settings that flags complete or override: the caller validates what they make together).
 
     what: how errors name the file's contents, e.g. "tracking spec". old_layouts: {field: (types by
     kind, tag hint)} for Union-typed fields whose files may still be in the layout before tags (`field:`
@@ -37,7 +39,7 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
             raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
         if not isinstance(config, schema):
             raise InputError(f"{path}: malformed {what}: expected a mapping of {schema.__name__} fields")
-    if hasattr(config, "validate"):
+    if validate and hasattr(config, "validate"):
         try:
             config.validate()
         except InputError as error:

@@ -304,8 +304,8 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
         if not writer and command:
             found = _older_owner(path, command)
             if not force and found:   # (a folder from before markers, or a user's own: name the file)
-                raise InputError(f"{option} {path} holds {found[1]}, a result of `stdm-drake {found[0]}`; choose "
-                                 "another folder or pass --force to write into it")
+                raise InputError(f"{option} {path} holds {found[1]}, the name of a `stdm-drake {found[0]}` result, "
+                                 "and no stdm-drake marker; choose another folder or pass --force to write into it")
             ancestor = _marked_ancestor(path, command)
             other = ancestor[1] if ancestor is not None else None
         if not force and other:

@@ -162,8 +162,8 @@ def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, t
     dataset, _ = tiny
     output = tmp_path / model_type
     arguments = ["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", model_type, "--alpha", "auto",
-                 "--alpha-grid", "0", "1e-3", "1", "--ensemble-size", "2", "--hidden-width", "16", "--hidden-layers",
-                 "2", "--epochs", "5", "--lr-schedule", "cosine", "--train", "6", "--val", "2", "--quiet"]
+                 "--alpha-grid", "0", "1e-3", "1", *(["--ensemble-size", "2"] if model_type == "DED" else []),
+                 "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "5", "--lr-schedule", "cosine", "--train", "6", "--val", "2", "--quiet"]
     assert main(arguments) == 0
     assert "alpha chosen by validation" in capsys.readouterr().out
     summary = json.loads((output / "summary.json").read_text())
@@ -226,6 +226,9 @@ def test_training_settings_file_with_flags_over_it(tiny, tmp_path, capsys):
         err = capsys.readouterr().err
         assert message in err and len(err.strip().splitlines()) == 1, err
         assert not (tmp_path / "bad").exists()  # checks come before any work
+    settings.write_text("lr: 1000000.0\nepochs: 1\ntrain: 6\nval: 2\n")   # a value the flag overrides: unused
+    assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "lr"), "--config",
+                 str(settings), "--lr", "0.001", "--quiet"]) == 0
 
 
 @pytest.mark.parametrize("setting", [["--lr", "1e9"], ["--lr", "1e9", "--model", "DE", "--ensemble-size", "2"]])

@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mapping", type=pathlib.Path,
                         help="typed YAML of what the log does not say (torque constants, joint names, topics, "
                              "splitting and smoothing; see docs/real_logs.md); options below override it")
-    parser.add_argument("--sample-period", type=float, help="the dataset's sample period, s (default: the log's)")
+    parser.add_argument("--sample-period", type=float, help="the dataset's sample period, s (default, or 0: the log's median period)")
     parser.add_argument("--torque-source", choices=("target_moment", "current", "effort"),
                         help="RTDE: target_moment (default) or current (times --torque-constants); bags: effort")
     parser.add_argument("--torque-constants", type=float, nargs="+", metavar="NM_PER_A",

@@ -124,8 +124,8 @@ def training_settings(args: argparse.Namespace) -> TrainSettings:
     """The settings file (`--config`, else the defaults) with every flag given on the command line
     applied over it, validated."""
     from stdm_drake.config import load_yaml_config
-    settings = (load_yaml_config(args.config, TrainSettings, what="training settings") if args.config
-                else TrainSettings())
+    settings = (load_yaml_config(args.config, TrainSettings, what="training settings", validate=False) if args.config
+                else TrainSettings())   # (a file's value that a flag overrides is not checked: it is not used)
     given = {field.name: getattr(args, field.name) for field in dataclasses.fields(TrainSettings)
              if hasattr(args, field.name)}
     settings = dataclasses.replace(settings, **given)

@@ -12,7 +12,7 @@ from stdm_drake.data.dataset import DERIVATIVE_SOURCES
 from stdm_drake import files
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
-from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES, parse_model_type
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 
 LOSS_KINDS = ("mse", "mae", "huber")
@@ -192,7 +192,6 @@ class TrainSettings:
                 raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "
                                  f"got {getattr(self, name)!r}")
         if self.inputs == "plant_step":
-            from stdm_drake.learning.models import parse_model_type
             kind = parse_model_type(self.model)
             if kind.probabilistic or kind.ensemble or self.direct:
                 raise InputError("a grey box (inputs plant_step) is a single deterministic network whose delta adds "
@@ -245,6 +244,14 @@ class TrainSettings:
         if self.min_lr and self.lr_schedule != "cosine":
             raise InputError(f"{key('min_lr')} is where --lr-schedule cosine ends; with the {self.lr_schedule} "
                              "schedule it would be ignored")
+        if self.ensemble_size != DEFAULT_ENSEMBLE_SIZE and not parse_model_type(self.model).ensemble:
+            raise InputError(f"{key('ensemble_size')} is the member count of DE/PE-type models; model "
+                             f"{self.model} is one network, so it would be ignored")
+        if not self.uses_derivative():
+            for name, default in (("alpha", DEFAULT_ALPHA), ("derivative_loss", "mse")):
+                if getattr(self, name) not in (default, "auto"):   # ("auto" without it: check_alpha's line)
+                    raise InputError(f"{key(name)} shapes the derivative loss, which model {self.model} trains "
+                                     "without (a DD/PD/DED/PED type, or --derivative on); it would be ignored")
 
     def check_memory(self, transitions: int, ensemble_size: int, available: float | None = None) -> float:
         """InputError unless one training run on `transitions` (input, target) pairs of a network of
@@ -275,13 +282,11 @@ class TrainSettings:
 
     def uses_derivative(self) -> bool:
         """Whether the derivative loss is on: what the model type implies, unless `derivative` says."""
-        from stdm_drake.learning.models import parse_model_type
         return parse_model_type(self.model).derivative if self.derivative is None else self.derivative == "on"
 
     def model_name(self) -> str:
         """The model type as trained ("D", "PED", ...): the type's heads and ensemble, "D" suffixed when the
         derivative loss is on (so --model D --derivative on trains a "DD")."""
-        from stdm_drake.learning.models import parse_model_type
         kind = parse_model_type(self.model)
         if self.inputs == "plant_step" and not (kind.probabilistic or kind.ensemble):
             return "G" + ("D" if self.uses_derivative() else "")
