@@ -158,13 +158,16 @@ class ProcessPool:
                 process.join()
 
     def submit(self, function, *arguments):
-        from stdm_drake.interrupts import group_signals_blocked
-        with group_signals_blocked():   # (the executor starts its workers inside submit)
+        from stdm_drake.interrupts import group_signals_blocked, protected
+        # The executor starts its workers inside submit: blocked signals reach none of them while they start, and
+        # `protected` holds a signal another thread took until every started worker has been handed its start-up
+        # data (cut in the middle, the worker printed an EOFError traceback)
+        with group_signals_blocked(), protected():
             return self.executor.submit(function, *arguments)
 
     def map(self, function, iterable, chunksize: int = 1):
-        from stdm_drake.interrupts import group_signals_blocked
-        with group_signals_blocked():
+        from stdm_drake.interrupts import group_signals_blocked, protected
+        with group_signals_blocked(), protected():
             return self.executor.map(function, iterable, chunksize=chunksize)
 
     def completed(self, calls):

@@ -22,7 +22,7 @@ import shutil
 import stat
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import free_bytes, nearest_existing, remove_stale_temporaries, size_text
+from stdm_drake.files import NO_ROOM, free_bytes, nearest_existing, no_room_error, remove_stale_temporaries, size_text
 
 # Written into every output folder a command fills, and looked for before replacing one.
 FOLDER_MARKER = ".stdm-drake-output"
@@ -56,13 +56,19 @@ def command_outputs(command: str):
         raise
     finally:
         running, _running = _running, outer
-        for fd, lock_file, made in running["locks"].values():
+        for fd, lock_file, _ in running["locks"].values():
             with contextlib.suppress(OSError):
                 os.unlink(lock_file)
             os.close(fd)
-            for folder in made:   # (deepest first) the folders made for the lock that stayed empty
-                with contextlib.suppress(OSError):
-                    folder.rmdir()
+        for _, _, made in running["locks"].values():   # (after every lock file: two outputs may share a folder)
+            _remove_empty(made)
+
+
+def _remove_empty(folders) -> None:
+    """Remove `folders` (deepest first: the folders made for a lock) that stayed empty."""
+    for folder in folders:
+        with contextlib.suppress(OSError):
+            folder.rmdir()
 
 
 def running_command() -> str | None:
@@ -109,9 +115,14 @@ def lock_output(option: str, path) -> None:
     if path.is_dir() and not os.access(lock_file.parent, os.W_OK):   # a folder in a folder this user cannot write
         lock_file = path / f"{FOLDER_MARKER}.lock"
     made = [folder for folder in lock_file.parents if not folder.exists()]   # removed again if still empty
-    lock_file.parent.mkdir(parents=True, exist_ok=True)
-    while True:
+    try:
+        lock_file.parent.mkdir(parents=True, exist_ok=True)
         fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError as error:   # (no inode or block left for the lock file: the output is named, not the lock)
+        failure = no_room_error(path, error) if error.errno in NO_ROOM else error   # (before its folders go)
+        _remove_empty(made)
+        raise failure from None
+    while True:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as error:
@@ -127,6 +138,7 @@ def lock_output(option: str, path) -> None:
         except FileNotFoundError:
             pass
         os.close(fd)
+        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     _running["locks"][key] = (fd, lock_file, made)

@@ -487,3 +487,11 @@ def test_a_sigkilled_collect_leaves_no_worker_and_no_line_and_the_next_run_takes
     assert main(["collect", "--protocol", "tracking", "--count", "1", "--workers", "1", "--quiet",
                  "-o", str(tmp_path / "k.h5")]) == 0
     assert leftovers(tmp_path) == []
+
+
+@pytest.mark.slow
+def test_no_inode_left_for_a_lock_file_is_one_line_naming_the_output(tmp_path, excitation_dataset):
+    status, err, left, _ = on_small_disk(tmp_path, "20m,nr_inodes=2", command(
+        "identify", excitation_dataset, "--train", "2", "--val", "1", "--quiet", "-o", "sub/i.yaml"))
+    assert status == 2 and err.count("\n") == 1 and "sub/i.yaml: No space left on device (no inode left" in err, err
+    assert left == []

@@ -195,3 +195,11 @@ def test_a_failed_command_leaves_no_folder_it_made_for_nothing(tmp_path):
         (tmp_path / "kept" / "seed0" / "checkpoint.pt").write_bytes(b"a finished checkpoint")
         raise ValueError("disk full")
     assert (tmp_path / "before" / FOLDER_MARKER).exists() and (tmp_path / "kept" / "seed0" / "checkpoint.pt").exists()
+
+
+def test_outputs_sharing_a_new_folder_leave_nothing_when_the_command_fails(capsys, tmp_path, excitation_dataset):
+    """identify's robot and report are locked in the same new folder: both lock files go before the folders made
+    for them, so a refusal after the output checks leaves nothing."""
+    fails(capsys, ["identify", str(excitation_dataset), "--train", "9", "--val", "2", "-o",
+                   str(tmp_path / "new" / "x" / "i.yaml")], "split needs")
+    assert list(tmp_path.iterdir()) == []
