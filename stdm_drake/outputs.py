@@ -278,8 +278,10 @@ def _older_owner(path: pathlib.Path, command: str | None) -> tuple[str, str] | N
     too) the unmarked or older folder `path` holds, or None."""
     own = set(COMMAND_RESULTS.get(command, ()))
     for other, names in COMMAND_RESULTS.items():
+        if other == command:
+            continue
         for name in sorted(set(names) - own):
-            if other != command and (path / name).exists():
+            if (path / name).exists():
                 return other, name
     return None
 
@@ -317,7 +319,7 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
             found = _older_owner(path, command)
             if not force and found:   # (a folder from before markers, or a user's own: name the file)
                 raise InputError(f"{option} {path} holds {found[1]}, the name of a `stdm-drake {found[0]}` result, "
-                                 "and no stdm-drake marker; choose another folder or pass --force to write into it")
+                                 "and no marker naming its command; choose another folder or pass --force to write into it")
             ancestor = _marked_ancestor(path, command)
             other = ancestor[1] if ancestor is not None else None
         if not force and other:
