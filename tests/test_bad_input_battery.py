@@ -449,6 +449,18 @@ CASES = [
     ([*T, "--derivative", "off", "--alpha", "0.5", "-o", "NEW"], "alpha (--alpha) shapes the derivative loss"),
     ([*T, "--model", "D", "--derivative-loss", "huber", "-o", "NEW"], "derivative_loss (--derivative-loss) shapes"),
     ([*T, "--ensemble-size", "7", "-o", "NEW"], "model DD is one network, so it would be ignored"),
+    # a setting the run would ignore is refused also at its default value (held-out run 6, F3)
+    ([*T, "--ensemble-size", "5", "-o", "NEW"], "model DD is one network, so it would be ignored"),
+    ([*T, "--derivative", "off", "--alpha", "0.001", "-o", "NEW"], "alpha (--alpha) shapes the derivative loss"),
+    ([*T, "--model", "D", "--derivative-loss", "mse", "-o", "NEW"], "derivative_loss (--derivative-loss) shapes"),
+    ([*T, "--min-lr", "0", "-o", "NEW"], "with the constant schedule it would be ignored"),
+    ([*T, "--alpha-grid", "0", "1e-5", "1e-4", "1e-3", "1e-2", "0.1", "1", "10", "100", "-o", "NEW"],
+     "with alpha 0.001 it would be ignored"),
+    ([*T, "--model", "G", "--inputs", "nominal_acceleration", "-o", "NEW"], "is the grey box: its inputs are plant_step"),
+    (yaml_case("train", "model: DD\nensemble_size: 5\n"), "model DD is one network, so it would be ignored"),
+    (yaml_case("train", "model: D\nalpha: 0.001\n"), "alpha (--alpha) shapes the derivative loss"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--windows", "5", "9", "15", "21", "31", "45"],
+     "with the simulation's true derivatives"),
     ([*T, "--seeds", *map(str, range(1001)), "-o", "NEW"], "lists 1001 seeds, at most 1000"),
     ([*T, "--ray-address", "127.0.0.1:1", "-o", "NEW"], "the local backend would ignore it"),
     ([*V, "--particles", "7"], "--particles and --seed are for --propagation ts1 or tsinf"),
@@ -599,6 +611,7 @@ YAML_COMMANDS = {  # where a written YAML case goes in
     "spec": [*E, "--config", "CASE", "-o", "NEW.h5"], "ctrl": [*C, "--controller", "CASE", "-o", "NEW.h5"],
     "tspec": [*C, "--config", "CASE", "-o", "NEW.h5"], "mpc": [*M, "--config", "CASE", "-o", "NEW"],
     "robot": [*E, "--robot", "CASE", "-o", "NEW.h5"], "effects": [*E, "--plant-effects", "CASE", "-o", "NEW.h5"],
+    "train": [*T, "--config", "CASE", "-o", "NEW"],
 }
 
 

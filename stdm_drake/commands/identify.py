@@ -26,8 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="candidate Coulomb smoothing scales, rad/s (default %(default)s)")
     parser.add_argument("--regularizations", type=float, nargs="+", default=list(REGULARIZATIONS), metavar="LAMBDA",
                         help="candidate weights toward the description's parameters (default %(default)s)")
-    parser.add_argument("--windows", type=int, nargs="+", default=list(SMOOTHING_WINDOWS), metavar="SAMPLES",
-                        help="candidate Savitzky-Golay windows with --derivatives smoothed (default %(default)s; 1: "
+    parser.add_argument("--windows", type=int, nargs="+", metavar="SAMPLES",
+                        help=f"candidate Savitzky-Golay windows with --derivatives smoothed (default {list(SMOOTHING_WINDOWS)}; 1: "
                              "no smoothing, the raw differences)")
     parser.add_argument("--train", type=int, help="training trajectories (per group with --per-group)")
     parser.add_argument("--val", type=int, help="validation trajectories (per group with --per-group)")
@@ -52,12 +52,13 @@ def run(args: argparse.Namespace) -> int:
     check_output_file("-o/--output", args.output, kind="identified", inputs=inputs, force=args.force)
     check_output_file("report", report_path, kind="json", inputs=inputs, force=args.force)
     settings = IdentifySettings(derivative_source=args.derivatives or "true", velocity_scales=tuple(args.velocity_scales),
-                                regularizations=tuple(args.regularizations), windows=tuple(args.windows))
+                                regularizations=tuple(args.regularizations),
+                                windows=tuple(args.windows or SMOOTHING_WINDOWS))   # (None: not given)
     settings.validate()     # (before any work: windows, scales and weights)
     dataset = load_dataset(args.dataset)
     if args.derivatives is None and not dataset.is_simulated:
         settings.derivative_source = "smoothed"     # (a log has no true accelerations)
-    if settings.derivative_source == "true" and settings.windows != SMOOTHING_WINDOWS:
+    if settings.derivative_source == "true" and args.windows is not None:
         raise InputError("--windows are the smoothing windows of --derivatives smoothed; with the simulation's true "
                          "derivatives they would be ignored")
     robot = command_robot(args, dataset)

@@ -166,9 +166,18 @@ class TrainSettings:
     checkpoint_every: int = 10
     threads: int = 1
 
-    def validate(self) -> None:
-        """InputError (one line, naming the key and its flag) on a value no flag would accept."""
+    def validate(self, given: typing.Collection[str] | None = None) -> None:
+        """InputError (one line, naming the key and its flag) on a value no flag would accept, or on a setting
+        the run would ignore (an alpha grid without alpha auto, ...). given: the keys the user set (flags
+        and the settings file's keys): such a setting is refused whatever its value, the default's too;
+        None: a value other than the default counts as set."""
         key = lambda name: f"{name} (--{name.replace('_', '-')})"  # noqa: E731
+        defaults = TrainSettings()
+        def is_set(name: str) -> bool:
+            value, default = getattr(self, name), getattr(defaults, name)
+            if given is not None:
+                return name in given
+            return list(value) != list(default) if isinstance(default, list) else value != default
         self.model = str(self.model).upper()
         if isinstance(self.alpha, str) and self.alpha.strip().lower() != "auto":
             try:
@@ -178,7 +187,7 @@ class TrainSettings:
         elif isinstance(self.alpha, str):
             self.alpha = "auto"
         if self.model in GREY_BOX_TYPES:   # G / GD: a D / DD on the plant step's whole next state
-            if self.inputs not in ("nominal_acceleration", "plant_step"):    # (the default, or the grey box's own)
+            if self.inputs != "plant_step" and is_set("inputs"):    # (the grey box's own, or left out)
                 raise InputError(f"{key('model')} {self.model} is the grey box: its inputs are plant_step, not "
                                  f"{self.inputs}")
             self.inputs = "plant_step"
@@ -205,7 +214,7 @@ class TrainSettings:
         if max([*self.alpha_grid, 0.0 if self.alpha == "auto" else self.alpha]) > MAX_ALPHA:
             raise InputError(f"{key('alpha')} and {key('alpha_grid')} must be at most {MAX_ALPHA:g}: the next-state "
                              "loss would vanish beside the derivative loss (float32)")
-        if self.alpha != "auto" and list(self.alpha_grid) != list(DEFAULT_ALPHA_GRID):
+        if self.alpha != "auto" and is_set("alpha_grid"):
             raise InputError(f"{key('alpha_grid')} is what --alpha auto chooses from; with alpha {self.alpha:g} it "
                              "would be ignored")
         if not self.seeds:
@@ -241,15 +250,15 @@ class TrainSettings:
         if self.lr * self.weight_decay >= 1:
             raise InputError(f"{key('lr')} x {key('weight_decay')} must be below 1 (each step would scale the "
                              f"weights by 1 - lr x weight_decay <= 0), got {self.lr:g} x {self.weight_decay:g}")
-        if self.min_lr and self.lr_schedule != "cosine":
+        if is_set("min_lr") and self.lr_schedule != "cosine":
             raise InputError(f"{key('min_lr')} is where --lr-schedule cosine ends; with the {self.lr_schedule} "
                              "schedule it would be ignored")
-        if self.ensemble_size != DEFAULT_ENSEMBLE_SIZE and not parse_model_type(self.model).ensemble:
+        if is_set("ensemble_size") and not parse_model_type(self.model).ensemble:
             raise InputError(f"{key('ensemble_size')} is the member count of DE/PE-type models; model "
                              f"{self.model} is one network, so it would be ignored")
         if not self.uses_derivative():
-            for name, default in (("alpha", DEFAULT_ALPHA), ("derivative_loss", "mse")):
-                if getattr(self, name) not in (default, "auto"):   # ("auto" without it: check_alpha's line)
+            for name in ("alpha", "derivative_loss"):
+                if is_set(name) and getattr(self, name) != "auto":   # ("auto" without it: check_alpha's line)
                     raise InputError(f"{key(name)} shapes the derivative loss, which model {self.model} trains "
                                      "without (a DD/PD/DED/PED type, or --derivative on); it would be ignored")
 
