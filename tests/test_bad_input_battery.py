@@ -108,6 +108,7 @@ def write_logs(box) -> None:
     simulated.write_ros2_bag(data, box / "bag_four", joints[:4], storage="sqlite3", controller_state=False)
     (box / "map_bad.yaml").write_text("torque_source: current\ntorque_constants: [13, 13]\n")
     (box / "map_key.yaml").write_text("torque_sorce: current\n")
+    (box / "map_topic.yaml").write_text("joint_states_topic: /joint_states\n")   # (the default, set: refused)
     (box / "map_short.yaml").write_text("max_duration: 0.05\nmin_duration: 0.01\npause_duration: 0.02\n")
     (box / "map_pause.yaml").write_text("pause_duration: 20\n")
 
@@ -285,7 +286,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "ROBOT": "ur10.yaml", "BADYAML": "bad.yaml", "TEXTH5": "text.h5", "TRUNC": "truncated.h5",
                 "TRUNCPT": "truncated.pt", "HUGE": "huge.h5", "SLOW": "slow.h5", "NEW": "new_output",
                 "STRINGS": "strings.h5", "SHORTTAU": "short_tau.h5", "ZEROSTD": "zero_std.pt",
-                "LOG": "log.csv", "BAG": "bag", "MAPBAD": "map_bad.yaml", "MAPKEY": "map_key.yaml",
+                "LOG": "log.csv", "BAG": "bag", "MAPBAD": "map_bad.yaml", "MAPKEY": "map_key.yaml", "MAPTOPIC": "map_topic.yaml",
                 "MAPSHORT": "map_short.yaml", "MAPPAUSE": "map_pause.yaml",
                 **{f"LOG{kind.upper()}": f"log_{kind}.csv" for kind in ("nots", "missing", "back", "dup", "nan", "text",
                                                                         "cut", "head", "deg", "seven")},
@@ -339,6 +340,14 @@ CASES = [
     ([*I, "LOG", "--torque-source", "current", "-o", "NEW.h5"], "needs torque_constants"),
     ([*I, "LOG", "--mapping", "MAPBAD", "-o", "NEW.h5"], "torque_constants has 2 values"),
     ([*I, "LOG", "--mapping", "MAPKEY", "-o", "NEW.h5"], "malformed log mapping"),
+    # a setting the import would ignore, given as an option or a mapping key (at its default value too)
+    ([*I, "LOG", "--joint-states-topic", "/joint_states", "-o", "NEW.h5"], "is for ROS 2 bags; this log is rtde_csv"),
+    ([*I, "LOG", "--controller-state-topic", "none", "-o", "NEW.h5"], "is for ROS 2 bags; this log is rtde_csv"),
+    ([*I, "LOG", "--joint-names", *"abcdef", "-o", "NEW.h5"], "joint_names (--joint-names) is for ROS 2 bags"),
+    ([*I, "LOG", "--mapping", "MAPTOPIC", "-o", "NEW.h5"], "joint_states_topic (--joint-states-topic) is for ROS 2"),
+    ([*I, "LOG", "--torque-constants", *["13"] * 6, "-o", "NEW.h5"], "with torque_source target_moment they would"),
+    ([*I, "BAG", "--torque-source", "effort", "--torque-constants", *["13"] * 6, "-o", "NEW.h5"],
+     "with torque_source effort they would be ignored"),
     ([*I, "LOG", "--mapping", "BADYAML", "-o", "NEW.h5"], "malformed log mapping"),
     ([*I, "LOG", "--torque-source", "effort", "-o", "NEW.h5"], "not in a rtde_csv log"),
     ([*I, "LOG", "--sample-period", "0.001", "-o", "NEW.h5"], "would invent samples"),

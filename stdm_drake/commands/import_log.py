@@ -36,20 +36,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_force_argument(parser)
 
 
-def command_mapping(args: argparse.Namespace):
-    """The LogMapping of --mapping (defaults without it) with the options given on the command line, checked."""
-    from stdm_drake.data.logs.mapping import LogMapping, load_mapping
+def command_mapping(args: argparse.Namespace, log):
+    """The LogMapping of --mapping (defaults without it) with the options given on the command line, for
+    the format of `log`, checked (a setting given, as an option or a file's key, must be one the import uses)."""
+    from stdm_drake.config import read_yaml_document
+    from stdm_drake.data.logs.importer import detect_format
+    from stdm_drake.data.logs.mapping import LogMapping, check_settings_used, load_mapping
     mapping = load_mapping(args.mapping) if args.mapping is not None else LogMapping()
-    given = dict(format=args.format, sample_period=args.sample_period, torque_source=args.torque_source,
-                 torque_constants=args.torque_constants, joint_states_topic=args.joint_states_topic,
-                 controller_state_topic=args.controller_state_topic, joint_names=args.joint_names)
-    mapping = dataclasses.replace(mapping, **{key: value for key, value in given.items() if value is not None})
+    options = dict(format=args.format, sample_period=args.sample_period, torque_source=args.torque_source,
+                   torque_constants=args.torque_constants, joint_states_topic=args.joint_states_topic,
+                   controller_state_topic=args.controller_state_topic, joint_names=args.joint_names)
+    options = {key: value for key, value in options.items() if value is not None}
+    mapping = dataclasses.replace(mapping, **options)
     mapping.validate()
+    file_keys = read_yaml_document(args.mapping) if args.mapping is not None else None
+    mapping = mapping.with_format(detect_format(log, mapping.format))
+    check_settings_used(mapping, set(options) | (set(file_keys) if isinstance(file_keys, dict) else set()))
     return mapping
 
 
 def run(args: argparse.Namespace) -> int:
-    from stdm_drake.data.logs.importer import detect_format, import_log
+    from stdm_drake.data.logs.importer import import_log
     log = args.log
     if not (log.exists() or log.is_symlink()):
         raise InputError(f"log not found: {log}")
@@ -61,9 +68,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"-o/--output {args.output} is inside the bag folder {log}; write the dataset elsewhere")
     check_output_file("-o/--output", args.output, kind="dataset", inputs=[log, args.mapping, args.robot],
                       force=args.force)
-    mapping = command_mapping(args)
+    mapping = command_mapping(args, log)
     robot = command_robot(args)
-    kind = detect_format(log, mapping.format)
+    kind = mapping.format
     if not args.quiet:
         print(f"import {log} ({kind}) as a {robot.name} log", file=sys.stderr)
     record = import_log(log, robot, mapping, args.output)

@@ -84,6 +84,25 @@ class LogMapping:
         return mapping
 
 
+BAG_ONLY = ("joint_names", "joint_states_topic", "controller_state_topic")   # what only a ROS 2 bag's import reads
+
+
+def check_settings_used(mapping: LogMapping, given) -> None:
+    """InputError (one line) for a setting given (an option, or a key of the mapping file: `given` names
+    them) that the import of this log would ignore, whatever its value: the topics and joint names with a
+    log that is not a bag, torque constants without torque_source current. mapping: with its format set
+    (`with_format`)."""
+    flag = lambda name: f"{name} (--{name.replace('_', '-')})"  # noqa: E731
+    if mapping.format != "ros2_bag":
+        for name in BAG_ONLY:
+            if name in given:
+                raise InputError(f"{flag(name)} is for ROS 2 bags; this log is {mapping.format}, so it "
+                                 "would be ignored")
+    if "torque_constants" in given and mapping.torque_source != "current":
+        raise InputError(f"{flag('torque_constants')} convert motor currents (torque_source current); with "
+                         f"torque_source {mapping.torque_source} they would be ignored")
+
+
 def load_mapping(path) -> LogMapping:
     """The LogMapping of a YAML file (InputError with one line for a bad file)."""
     from stdm_drake.config import load_yaml_config
