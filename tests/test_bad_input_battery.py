@@ -463,6 +463,8 @@ CASES = [
     ([*T, "--derivative", "off", "--alpha", "0.001", "-o", "NEW"], "alpha (--alpha) shapes the derivative loss"),
     ([*T, "--model", "D", "--derivative-loss", "mse", "-o", "NEW"], "derivative_loss (--derivative-loss) shapes"),
     ([*T, "--min-lr", "0", "-o", "NEW"], "with the constant schedule it would be ignored"),
+    ([*T, "--model", "D", "--derivative-source", "true", "-o", "NEW"], "derivative_source (--derivative-source) shapes"),
+    ([*T, "--model", "PE", "--action-rate", "forward_difference", "-o", "NEW"], "action_rate (--action-rate) shapes"),
     ([*T, "--alpha-grid", "0", "1e-5", "1e-4", "1e-3", "1e-2", "0.1", "1", "10", "100", "-o", "NEW"],
      "with alpha 0.001 it would be ignored"),
     ([*T, "--model", "G", "--inputs", "nominal_acceleration", "-o", "NEW"], "is the grey box: its inputs are plant_step"),

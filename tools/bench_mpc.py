@@ -63,8 +63,8 @@ def main():
         for name, kind, structure in (("DD", "DD", ["--predicts", "state", "--inputs", "raw"]),
                                       ("PE", "PE", ["--predicts", "state", "--inputs", "raw"]),
                                       ("D-default", "D", [])):
-            assert cli(["train", str(dataset_path), "--model", kind, "--derivative-source", "true",
-                        "--action-rate", "zero_order_hold", "--train", "20", *structure,
+            derivative = ["--derivative-source", "true", "--action-rate", "zero_order_hold"] if kind == "DD" else []
+            assert cli(["train", str(dataset_path), "--model", kind, *derivative, "--train", "20", *structure,
                         "--val", "3", "--test", "2", "--seeds", "0", "--quiet", "-o", str(folder / name)]) == 0
             checkpoints.append(folder / name / "seed0" / "checkpoint.pt")
     dataset = load_dataset(dataset_path)

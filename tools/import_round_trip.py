@@ -58,7 +58,7 @@ def train(dataset: pathlib.Path, folder: pathlib.Path, design: dict) -> pathlib.
         return folder
     train_count, val, test = design["split"]
     assert cli(["train", str(dataset), "--model", "D", "--train", str(train_count), "--val", str(val), "--test",
-                str(test), "--per-group", "off", "--derivative-source", "planned", "--epochs", str(design["epochs"]),
+                str(test), "--per-group", "off", "--epochs", str(design["epochs"]),
                 "--seeds", *map(str, range(design["seeds"])), "--quiet", "--force", "-o", str(folder)]) == 0
     return folder
 

@@ -132,8 +132,9 @@ def run_arm(arm: str, descriptions: pathlib.Path, out: pathlib.Path, quick: bool
     command(steps, folder, "inspect_identification", "inspect", ident)
     model = learned_model_type(robot)
     row["model"] = model
-    command(steps, folder, "train", "train", ident, "--robot", robot, "--model", model, "--action-rate",
-            "zero_order_hold", "--derivative-source", "true", *training, "--quiet", "-o", runs)
+    derivative = ["--action-rate", "zero_order_hold", "--derivative-source", "true"] if model == "DD" else []
+    command(steps, folder, "train", "train", ident, "--robot", robot, "--model", model, *derivative, *training,
+            "--quiet", "-o", runs)
     checkpoint = runs / "seed0" / "checkpoint.pt"
     command(steps, folder, "evaluate", "evaluate", checkpoint, ident, "--robot", robot, "--json", folder / "evaluate.json")
     command(steps, folder, "mpc", "mpc", ident, "--robot", robot, "--model", f"{model}={checkpoint}", "--plans", "3",

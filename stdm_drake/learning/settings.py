@@ -257,7 +257,7 @@ class TrainSettings:
             raise InputError(f"{key('ensemble_size')} is the member count of DE/PE-type models; model "
                              f"{self.model} is one network, so it would be ignored")
         if not self.uses_derivative():
-            for name in ("alpha", "derivative_loss"):
+            for name in ("alpha", "derivative_loss", "derivative_source", "action_rate"):
                 if is_set(name) and getattr(self, name) != "auto":   # ("auto" without it: check_alpha's line)
                     raise InputError(f"{key(name)} shapes the derivative loss, which model {self.model} trains "
                                      "without (a DD/PD/DED/PED type, or --derivative on); it would be ignored")
