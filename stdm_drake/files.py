@@ -159,6 +159,24 @@ def json_default(value):
     raise TypeError(f"not JSON-serializable: {type(value).__name__}")
 
 
+def finite_json(value):
+    """`value` (dicts, lists, numbers, numpy) with every non-finite float as None, for strict JSON (json.dumps
+    would write Infinity / NaN, which JSON does not have): an infinite error (a diverged rollout) is null."""
+    import math
+    import numpy as np
+    if isinstance(value, dict):
+        return {key: finite_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [finite_json(item) for item in value]
+    if isinstance(value, np.ndarray):
+        return finite_json(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def rows_csv(rows: list[dict], columns: list[str] | None = None) -> str:
     """CSV text of result rows (columns: default the first row's keys); floats with 6 significant digits,
     fields quoted only where they hold a comma or quote."""

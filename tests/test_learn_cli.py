@@ -245,3 +245,52 @@ def test_diverged_training_is_an_error_not_a_result(tiny, tmp_path, capsys, monk
     lines = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and "training diverged in epoch 1" in lines[0] and "lower them" in lines[0]
     assert not (tmp_path / "run").exists()
+
+
+def test_a_diverging_rollout_is_an_infinite_error_not_a_failure(tiny, tmp_path, capsys):
+    """A model whose open-loop rollout leaves the finite numbers (held-out run 7: a barely trained model made
+    evaluate and view stop with 'states contain NaN'): evaluate reports the infinite error, the trajectories and
+    the step, and its --json stays strict JSON (null); the rollout of any model holds NaN after the divergence."""
+    import torch
+    from stdm_drake.commands.view import held_after_divergence
+    from stdm_drake.learning.dynamics_model import DynamicsModel
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    dataset, output = tiny
+    checkpoint = load_checkpoint(output / "seed0" / "checkpoint.pt")
+    with torch.no_grad():
+        for parameter in checkpoint.model.parameters():
+            parameter.mul_(30.0)
+    wild = save_checkpoint(tmp_path / "wild.pt", checkpoint.model, training_config=checkpoint.training_config,
+                           metadata=checkpoint.metadata)
+    report = tmp_path / "wild.json"
+    capsys.readouterr()
+    assert main(["evaluate", str(wild), str(dataset), "--json", str(report)]) == 0
+    captured = capsys.readouterr()
+    assert "Warning" not in captured.err and captured.err.count("\n") == 0
+    assert "the open-loop rollout diverged" in captured.out and "of 2 trajectories, the first at step" in captured.out
+
+    def no_constants(name):
+        raise AssertionError(f"{name} in the JSON")
+    content = json.loads(report.read_text(), parse_constant=no_constants)
+    multi = content["multi_step"]
+    assert multi["diverged"] >= 1 and multi["angle_mse"][-1] is None and multi["angle_mse_mean"] is None
+    assert multi["angle_mse"][multi["first_diverged_step"] - 2] is not None
+
+    class Exploding(DynamicsModel):
+        name, state_dim, action_dim, sample_period = "exploding", 2, 1, 0.01
+
+        def step(self, x, a):
+            return x * np.where(x[:, :1] > 0, 1e100, 1.0)   # rows with q > 0: 1e100, 1e200, 1e300, inf
+
+        def jacobians(self, x, a):
+            raise NotImplementedError
+    x0, actions = np.array([[1.0, 0.0], [-1.0, 0.0]]), np.zeros((2, 6, 1))
+    rollout = Exploding().rollout(x0, actions)
+    assert np.isfinite(rollout.mean[1]).all() and np.isfinite(rollout.mean[0, :3]).all()
+    assert np.isinf(rollout.mean[0, 3, 0]) and np.isnan(rollout.mean[0, 4:]).all()
+    errors = multi_step_errors(Exploding(), x0, actions, np.zeros((2, 6, 2)))   # (1e200 squared: inf)
+    assert errors.diverged == 1 and errors.first_diverged_step == 2
+    assert np.isfinite(errors.angle_mse[0]) and np.isinf(errors.angle_mse[1:]).all()
+    held, step = held_after_divergence(np.array([[0.0], [1.0], [np.inf], [np.nan]]))
+    assert step == 2 and held[2:].tolist() == [[1.0], [1.0]]
+    assert held_after_divergence(np.zeros((3, 1)))[1] is None

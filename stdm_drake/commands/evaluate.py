@@ -9,7 +9,7 @@ import pathlib
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import write_text_atomic
+from stdm_drake.files import finite_json, write_text_atomic
 from stdm_drake.learning.evaluate import (
     REPORT_STEPS, compare_with_baselines, physics_baselines, trajectory_rollout_data
 )
@@ -123,6 +123,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {step:>5}  {multi.angle_mse[i]:>11.4e} +- {multi.angle_mse_std[i]:<9.2e}  "
               f"{multi.velocity_mse[i]:>11.4e} +- {multi.velocity_mse_std[i]:<9.2e}")
     print(f"  {'mean':>5}  {multi.angle_mse_mean:>11.4e}{'':13}  {multi.velocity_mse_mean:>11.4e}")
+    for row in rows:
+        if row.multi_step.diverged:
+            print(f"{row.name}: the open-loop rollout diverged (its squared error beyond the finite numbers) in "
+                  f"{row.multi_step.diverged} of {row.multi_step.trajectories} trajectories, the first at step "
+                  f"{row.multi_step.first_diverged_step}; its multi-step MSE is infinite from there"
+                  + (" (null in --json)" if args.json else ""))
     if args.json:
         report = dict(written_by="stdm-drake evaluate", checkpoint=str(args.checkpoint), dataset=str(args.dataset),
                       dataset_sha256=dataset.sha256, trained_on_this_dataset=trained_on_this, split=args.split,
@@ -132,6 +138,6 @@ def run(args: argparse.Namespace) -> int:
                       ratio_to_euler_q=learned.ratio_q, ratio_to_velocity_unchanged_v=learned.ratio_v,
                       over_noise_floor_q=learned.floor_ratio_q, over_noise_floor_v=learned.floor_ratio_v,
                       noise_floor=floor, verdict=learned.verdict, baselines=[row.as_dict() for row in rows[1:]])
-        write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
+        write_text_atomic(args.json, json.dumps(finite_json(report), indent=2, allow_nan=False) + "\n")
         print(f"wrote {args.json}")
     return 0

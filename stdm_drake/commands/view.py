@@ -11,6 +11,18 @@ from stdm_drake.outputs import add_force_argument, check_output_file
 from stdm_drake.robots.recorder import TrajectoryRecorder
 
 
+def held_after_divergence(q: np.ndarray) -> tuple[np.ndarray, int | None]:
+    """q (T + 1, n) rad of a rollout from its start: the rows from the first non-finite one (a diverged
+    rollout) replaced by the last finite row, and that step (None: none)."""
+    finite = np.isfinite(q).all(axis=1)
+    if finite.all():
+        return q, None
+    first = int(np.argmin(finite))
+    held = q.copy()
+    held[first:] = q[first - 1]
+    return held, first
+
+
 def add_arguments(parser) -> None:
     parser.add_argument("checkpoint", type=pathlib.Path, metavar="MODEL",
                         help="trained model (checkpoint.pt) or identified robot (identified.yaml)")
@@ -68,8 +80,13 @@ def run(args) -> int:
         traj = dataset.trajectory(index)
         x0 = np.concatenate([traj.q[0], traj.v[0]])
         predicted = model.rollout(x0[None], traj.tau[None]).mean[0]
-        ghost_q = np.vstack([traj.q[:1], predicted[:, :robot.num_joints]])
-        print(f"trajectory {index}: {open_loop_error_line(model.name, traj.q, traj.v[0], ghost_q, dataset.sample_period)}")
+        ghost_q, diverged = held_after_divergence(np.vstack([traj.q[:1], predicted[:, :robot.num_joints]]))
+        errors_q = ghost_q.copy()
+        if diverged is not None:   # (an infinite error from there on; the ghost holds its last pose)
+            errors_q[diverged:] = np.inf
+        print(f"trajectory {index}: {open_loop_error_line(model.name, traj.q, traj.v[0], errors_q, dataset.sample_period)}"
+              + ("" if diverged is None else f"; the rollout diverged at step {diverged} (the ghost holds its pose "
+                                             "from there)"))
         if nominal is not None:
             plant_q = np.vstack([traj.q[:1], nominal.rollout(x0[None], traj.tau[None]).mean[0][:, :robot.num_joints]])
             print(f"  {open_loop_error_line('nominal plant', traj.q, traj.v[0], plant_q, dataset.sample_period)}")

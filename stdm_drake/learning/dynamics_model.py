@@ -73,7 +73,8 @@ class DynamicsModel(abc.ABC):
         return Prediction(mean=mean, variance=variance, member_means=mean[None], member_variances=None)
 
     def rollout(self, x0, actions, *, propagation: str = "mean", particles: int = 20, seed: int | None = 0) -> Rollout:
-        """Open-loop prediction of steps 1..T from x0 (B, S) under actions (B, T, A): mean (B, T, S).
+        """Open-loop prediction of steps 1..T from x0 (B, S) under actions (B, T, A): mean (B, T, S). A
+        rollout that diverges (a state beyond the finite numbers) holds NaN from the step after on.
 
         Only "mean" propagation (each step from the previous mean); ensembles of networks also offer
         PETS trajectory sampling (`LearnedModel.rollout`)."""
@@ -87,13 +88,17 @@ class DynamicsModel(abc.ABC):
         if len(sequence) != len(states):
             raise InputError(f"initial_states and actions have different batch sizes: {len(states)} and {len(sequence)}")
         horizon = sequence.shape[1]
-        mean = np.empty((len(states), horizon, self.state_dim))
-        variance = np.zeros_like(mean)
-        current = states
-        for k in range(horizon):
-            prediction = self._rollout_step(current, sequence[:, k])
-            mean[:, k], variance[:, k] = prediction
+        mean = np.full((len(states), horizon, self.state_dim), np.nan)
+        variance = np.full_like(mean, np.nan)
+        current, going = states, np.ones(len(states), dtype=bool)
+        for k in range(horizon):   # a row whose state left the finite numbers has diverged: NaN from there on
+            if not going.any():
+                break
+            with np.errstate(over="ignore", invalid="ignore"):   # (reported: the states tell)
+                step_mean, step_variance = self._rollout_step(current[going], sequence[going, k])
+            mean[going, k], variance[going, k] = step_mean, step_variance
             current = mean[:, k]
+            going &= np.isfinite(current).all(axis=1)
         return Rollout(mean=mean, variance=variance)
 
     def _rollout_step(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -42,7 +42,9 @@ class OneStepErrors:
 @dataclasses.dataclass
 class MultiStepErrors:
     """Open-loop MSE at steps 1..H averaged over B trajectories (curves (H,)), their spread over
-    trajectories (std (H,)) and the horizon means."""
+    trajectories (std (H,)) and the horizon means. A rollout that diverged (a predicted state, or its
+    squared error, beyond the finite numbers) counts as an infinite error from that step on: `diverged`
+    trajectories, the first at step `first_diverged_step` (1-based; None: none diverged)."""
     trajectories: int
     horizon: int
     propagation: str
@@ -50,6 +52,8 @@ class MultiStepErrors:
     velocity_mse: np.ndarray
     angle_mse_std: np.ndarray
     velocity_mse_std: np.ndarray
+    diverged: int = 0
+    first_diverged_step: int | None = None
 
     @property
     def angle_mse_mean(self) -> float:
@@ -104,12 +108,27 @@ def multi_step_errors(model, initial_states, actions, true_states, *, propagatio
     predicted = np.asarray(result.mean, dtype=np.float64)
     if predicted.shape != truth.shape:
         raise InputError(f"rollout has shape {predicted.shape}, true_states {truth.shape}")
-    squared = (predicted - truth) ** 2
+    with np.errstate(over="ignore"):
+        squared = (predicted - truth) ** 2
+    lost = ~np.isfinite(squared).all(axis=-1)                   # (B, H): diverged rows
+    lost = np.logical_or.accumulate(lost, axis=1)               # (a diverged rollout stays diverged)
+    squared[lost] = np.inf
     per_trajectory_q = squared[..., :joints].mean(axis=-1)     # (B, H)
     per_trajectory_v = squared[..., joints:].mean(axis=-1)
+    diverged = lost.any(axis=1)
+    first = int(np.argmax(lost.any(axis=0))) + 1 if diverged.any() else None
     return MultiStepErrors(trajectories=len(truth), horizon=truth.shape[1], propagation=propagation,
                            angle_mse=per_trajectory_q.mean(axis=0), velocity_mse=per_trajectory_v.mean(axis=0),
-                           angle_mse_std=per_trajectory_q.std(axis=0), velocity_mse_std=per_trajectory_v.std(axis=0))
+                           angle_mse_std=_spread(per_trajectory_q), velocity_mse_std=_spread(per_trajectory_v),
+                           diverged=int(diverged.sum()), first_diverged_step=first)
+
+
+def _spread(per_trajectory: np.ndarray) -> np.ndarray:
+    """Std over trajectories (B, H) -> (H,); inf where a trajectory's error is infinite (diverged)."""
+    infinite = ~np.isfinite(per_trajectory).all(axis=0)
+    finite = np.where(np.isfinite(per_trajectory), per_trajectory, 0.0)
+    with np.errstate(over="ignore"):
+        return np.where(infinite, np.inf, finite.std(axis=0))
 
 
 @dataclasses.dataclass

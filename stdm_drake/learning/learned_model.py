@@ -143,7 +143,8 @@ class LearnedModel(DynamicsModel):
         if self.structure == PAPER:
             check_batch(x0, self.state_dim, "initial_states")
             check_batch(actions, self.action_dim, "actions", sequence=True)
-            result = rollout(self.engine, x0, actions, propagation=propagation, particles=particles, seed=seed)
+            with np.errstate(over="ignore", invalid="ignore"):   # a diverging rollout runs to inf / NaN
+                result = rollout(self.engine, x0, actions, propagation=propagation, particles=particles, seed=seed)
             return Rollout(mean=result.mean.astype(np.float64), variance=result.variance.astype(np.float64),
                            particles=result.particles)
         return super().rollout(x0, actions, propagation=propagation, particles=particles, seed=seed)

@@ -236,7 +236,8 @@ def _as_batch(values, width: int, name: str, *, sequence: bool) -> tuple[np.ndar
     bad = int(np.count_nonzero(~np.isfinite(array)))
     if bad:
         raise InputError(f"{name} contains {bad} NaN or inf values")
-    return array.astype(np.float32), added
+    with np.errstate(over="ignore"):   # (beyond float32's range: inf, a diverged rollout's state)
+        return array.astype(np.float32), added
 
 
 def _predictive_variance(member_means: np.ndarray, member_variances: np.ndarray | None) -> np.ndarray:
