@@ -124,6 +124,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"stdm-drake {name}: error: the locale's text encoding is {encoding}; Drake needs UTF-8: set "
               "LC_ALL=C.UTF-8", file=sys.stderr)
         return 2
+    threads = os.environ.get("OMP_NUM_THREADS")
+    if threads is not None and not re.fullmatch(r"\s*[1-9][0-9]{0,5}\s*(,\s*[1-9][0-9]{0,5}\s*)*", threads):
+        # (OpenMP, loaded with the imports, would print two warnings about it and go on without it)
+        print(f"stdm-drake {name}: error: OMP_NUM_THREADS={threads[:40]!r} is not a thread count (positive "
+              "integers, comma-separated per nesting level); set one or unset it", file=sys.stderr)
+        return 2
     try:
         # Ctrl-C, SIGTERM, SIGHUP: through every `finally`, from the imports on (the program's own run: until exit)
         with interrupts.signals_as_exceptions(until_exit=program):

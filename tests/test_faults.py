@@ -336,6 +336,18 @@ def test_a_deleted_working_folder_is_one_line(tmp_path):
     assert "the working folder no longer exists" in result.stderr
 
 
+@pytest.mark.parametrize("threads", ["junk", "0", "2,", "-1"])
+def test_a_bad_openmp_thread_count_is_one_line(tmp_path, threads):
+    """OpenMP (loaded with torch) printed two warnings about OMP_NUM_THREADS=junk and went on (held-out run 7)."""
+    result = subprocess.run(command("inspect", "missing.h5"), env={**ENV, "OMP_NUM_THREADS": threads}, cwd=tmp_path,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr[-800:]
+    assert f"OMP_NUM_THREADS='{threads}' is not a thread count" in result.stderr
+    fine = subprocess.run(command("inspect", "missing.h5"), env={**ENV, "OMP_NUM_THREADS": "2,1"}, cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)
+    assert fine.returncode == 2 and fine.stderr.startswith("stdm-drake inspect: error: ") and "OMP" not in fine.stderr
+
+
 def test_closed_standard_streams_are_the_null_device_not_the_next_file(tmp_path):
     """`2>&-`: bad input is still exit status 2 (its line goes nowhere, as asked), and a file the program opens
     never takes the number of a closed standard stream (a library's terminal output would land in it)."""
