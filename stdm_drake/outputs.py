@@ -126,12 +126,14 @@ def lock_output(option: str, path) -> None:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError as error:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip() or "?"
+            holder = os.pread(fd, 64, 0).decode(errors="replace").strip()
             os.close(fd)
             if error.errno not in (errno.EWOULDBLOCK, errno.EACCES):
                 raise
-            raise InputError(f"{option} {path} is being written by another stdm-drake run (process {holder}); "
-                             "wait for it to end or choose another path") from None
+            who = (f"another stdm-drake run (process {holder})" if holder.isdigit() else
+                   f"another process (it locks {lock_file} and does not say which)")
+            raise InputError(f"{option} {path} is being written by {who}; wait for it to end or choose another "
+                             "path") from None
         try:   # the file may have been removed by the run that held it just before: lock the one at the path
             if os.fstat(fd).st_ino == os.stat(lock_file).st_ino:
                 break
