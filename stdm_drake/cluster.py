@@ -48,16 +48,23 @@ class RunnerConfig:
                              "would ignore it")
 
 
+DEFAULT_RAY_CPUS = 2   # a local Ray instance's CPUs for a command without --workers (train)
+
+
 def add_runner_arguments(parser) -> None:
+    """--backend and --ray-address (a local Ray instance gets the command's --workers CPUs, if it has that
+    option, else DEFAULT_RAY_CPUS)."""
+    workers = any(action.dest == "workers" for action in parser._actions)
     parser.add_argument("--backend", choices=BACKENDS, default="local",
                         help="where training jobs run: local processes (default) or a Ray cluster")
     parser.add_argument("--ray-address",
                         help="Ray cluster to join with --backend ray (default: $RAY_ADDRESS, else a local Ray "
-                             "instance with --workers CPUs)")
+                             f"instance with {'--workers' if workers else DEFAULT_RAY_CPUS} CPUs)")
 
 
 def runner_config_from_args(args) -> RunnerConfig:
-    config = RunnerConfig(backend=args.backend, workers=getattr(args, "workers", 2), ray_address=args.ray_address)
+    config = RunnerConfig(backend=args.backend, workers=getattr(args, "workers", DEFAULT_RAY_CPUS),
+                          ray_address=args.ray_address)
     config.validate()
     if config.backend == "ray":
         connect(config)  # an unreachable cluster is an error before any work

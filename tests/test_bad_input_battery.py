@@ -460,7 +460,7 @@ CASES = [
     ([*T, "--ensemble-size", "7", "-o", "NEW"], "model DD is one network, so it would be ignored"),
     # a setting the run would ignore is refused also at its default value (held-out run 6, F3)
     ([*T, "--ensemble-size", "5", "-o", "NEW"], "model DD is one network, so it would be ignored"),
-    ([*T, "--derivative", "off", "--alpha", "0.001", "-o", "NEW"], "alpha (--alpha) shapes the derivative loss"),
+    ([*T, "--derivative", "off", "--alpha", "0.001", "-o", "NEW"], "shapes the derivative loss, and --derivative off"),
     ([*T, "--model", "D", "--derivative-loss", "mse", "-o", "NEW"], "derivative_loss (--derivative-loss) shapes"),
     ([*T, "--min-lr", "0", "-o", "NEW"], "with the constant schedule it would be ignored"),
     ([*T, "--model", "D", "--derivative-source", "true", "-o", "NEW"], "derivative_source (--derivative-source) shapes"),
@@ -469,7 +469,8 @@ CASES = [
      "with alpha 0.001 it would be ignored"),
     ([*T, "--model", "G", "--inputs", "nominal_acceleration", "-o", "NEW"], "is the grey box: its inputs are plant_step"),
     (yaml_case("train", "model: DD\nensemble_size: 5\n"), "model DD is one network, so it would be ignored"),
-    (yaml_case("train", "model: D\nalpha: 0.001\n"), "alpha (--alpha) shapes the derivative loss"),
+    (yaml_case("train", "model: D\nalpha: 0.001\n"), "alpha (--alpha) shapes the derivative loss, and model D trains"),
+    (["mpc", "TRACK", "--model", "D=CK", "--excitation-references", "-o", "NEW"], "has plans, which mpc tracks"),
     (["identify", "DATA", "-o", "NEW.yaml", "--windows", "5", "9", "15", "21", "31", "45"],
      "with the simulation's true derivatives"),
     ([*T, "--seeds", *map(str, range(1001)), "-o", "NEW"], "lists 1001 seeds, at most 1000"),

@@ -96,6 +96,9 @@ def run(args) -> int:
         raise InputError(f"{args.dataset} is {'an excitation dataset' if dataset.is_simulated else 'a log without the plan'}"
                          ": it has no plans to track; give a dataset with plans, or --excitation-references to track "
                          "its recorded trajectories")
+    if dataset.has_plan and args.excitation_references:
+        raise InputError(f"--excitation-references tracks the recorded trajectories of a dataset without plans; "
+                         f"{args.dataset} has plans, which mpc tracks, so it would be ignored")
     config = mpc_config_for(robot, args.config)
     time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP   # the data's plant step
     effects = plant_effects_for(args.plant_effects if args.plant_effects is not None else

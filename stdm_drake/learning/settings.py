@@ -259,8 +259,9 @@ class TrainSettings:
         if not self.uses_derivative():
             for name in ("alpha", "derivative_loss", "derivative_source", "action_rate"):
                 if is_set(name) and getattr(self, name) != "auto":   # ("auto" without it: check_alpha's line)
-                    raise InputError(f"{key(name)} shapes the derivative loss, which model {self.model} trains "
-                                     "without (a DD/PD/DED/PED type, or --derivative on); it would be ignored")
+                    why = ("--derivative off turns it off" if self.derivative == "off" else
+                           f"model {self.model} trains without it (a DD/PD/DED/PED type, or --derivative on, has it)")
+                    raise InputError(f"{key(name)} shapes the derivative loss, and {why}; it would be ignored")
 
     def check_memory(self, transitions: int, ensemble_size: int, available: float | None = None) -> float:
         """InputError unless one training run on `transitions` (input, target) pairs of a network of
