@@ -87,10 +87,13 @@ def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: 
     folder = pathlib.Path(f"{folder}_{'-'.join(map(str, split))}_e{epochs}_{sha}")
     if _finished(folder, seeds):
         return str(folder)
+    from stdm_drake.learning.settings import TrainSettings
     train_count, val_count, test_count = split
+    targets = (["--derivative-source", "true", "--action-rate", "zero_order_hold"]   # (the derivative loss's)
+               if TrainSettings(model=model_type).uses_derivative() else [])
     code = main(["train", dataset_path, "--model", model_type, "--train", str(train_count), "--val", str(val_count),
-                 "--test", str(test_count), "--per-group", "on", "--derivative-source", "true",
-                 "--action-rate", "zero_order_hold", "--epochs", str(epochs), "--seeds", *map(str, range(seeds)),
+                 "--test", str(test_count), "--per-group", "on", *targets, "--epochs", str(epochs),
+                 "--seeds", *map(str, range(seeds)),
                  "--quiet", "--force", "-o", str(folder), *(["--robot", str(robot_config)] if robot_config else []),
                  *(["--resume"] if any(folder.glob("seed*/checkpoint.pt")) else []), *extra])
     from stdm_drake.interrupts import reraise_exit_status
