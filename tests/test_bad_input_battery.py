@@ -487,6 +487,7 @@ CASES = [
     ([*W, "--index", "999", "--html", "NEW.html"], "out of range"), ([*W, "--index", "-1", "--html", "NEW.html"], "out of range"),
     ([*W], "nothing to show"),
     ([*M, "--plans", "0", "-o", "NEW"], "--plans must be >= 1"), ([*M, "--plans", "1000", "-o", "NEW"], "held-out plans"),
+    (["mpc", "TRACK", "--model", "D=CK", "--tune", "1", "--config", "MPCY", "-o", "NEW"], "disturbance_gain of"),
     ([*M, "--tune", "-1", "-o", "NEW"], "--tune must be >= 0"), ([*M, "--tune", "1000", "-o", "NEW"], "neither tracked"),
     (["mpc", "DATA", "--model", "plant=CK", "--quiet", "-o", "NEW"], "is the plant model's"),
     ([*M, "--model", "D=CK", "-o", "NEW"], "given more than once"), (["mpc", "DATA", "--model", "D", "-o", "NEW"], "NAME=FILE"),

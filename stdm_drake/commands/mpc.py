@@ -39,7 +39,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--tune", type=int, default=0, metavar="N",
                         help="first choose each model's MPC setting (effort-weight scale 1, 1e-2, 1e-4 x observer gain "
                              "0, 0.3, 1) on N tuning plans: the models' validation plans, then any plan neither "
-                             "tracked nor trained on (9 closed loops per plan and model; README, 'Plant effects')")
+                             "tracked nor trained on (9 closed loops per plan and model; README, 'Plant effects'); the gain replaces "
+                             "the settings' disturbance_gain, so a --config file that sets it is refused")
     parser.add_argument("--config", type=pathlib.Path,
                         help="MPC settings YAML (default: controllers/mpc.yaml; for another robot, its effort "
                              "weights derived from the robot's inertia, see README)")
@@ -100,6 +101,12 @@ def run(args) -> int:
         raise InputError(f"--excitation-references tracks the recorded trajectories of a dataset without plans; "
                          f"{args.dataset} has plans, which mpc tracks, so it would be ignored")
     config = mpc_config_for(robot, args.config)
+    if args.tune and args.config is not None:
+        from stdm_drake.config import read_yaml_document
+        document = read_yaml_document(args.config)
+        if isinstance(document, dict) and "disturbance_gain" in document:
+            raise InputError(f"--tune chooses the observer gain (0, 0.3 or 1 per model), so the disturbance_gain of "
+                             f"{args.config} would be ignored; leave it out of the file, or leave out --tune")
     time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP   # the data's plant step
     effects = plant_effects_for(args.plant_effects if args.plant_effects is not None else
                                 dataset.metadata.plant_effects, robot, time_step)
