@@ -95,11 +95,19 @@ def drake_warnings_once(command: str):
                   file=sys.stderr)
 
 
+DESCRIPTION = "The `stdm-drake` command line: one subcommand per stage of the data flow."   # (not __doc__: gone
+                                                                                        # under python -OO)
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+    for stream in (sys.stdout, sys.stderr):   # a stream that cannot encode a unit's ² (PYTHONIOENCODING=ascii):
+        if stream is not None and hasattr(stream, "reconfigure") and \
+                codecs.lookup(stream.encoding or "utf-8").name != "utf-8":   # escaped, never an error after the work
+            stream.reconfigure(errors="backslashreplace")
     program = argv is None   # (the `stdm-drake` program itself, not a call from Python)
     argv = sys.argv[1:] if argv is None else list(argv)
-    parser = CommandParser(prog="stdm-drake", description=__doc__.splitlines()[0])
+    parser = CommandParser(prog="stdm-drake", description=DESCRIPTION)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (_, help_text) in COMMANDS.items():
         subparsers.add_parser(name, help=help_text, add_help=False)

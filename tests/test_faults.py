@@ -354,6 +354,21 @@ def test_a_bad_openmp_thread_count_is_one_line(tmp_path, threads):
     assert fine.returncode == 2 and fine.stderr.startswith("stdm-drake inspect: error: ") and "OMP" not in fine.stderr
 
 
+def test_python_flags_that_strip_docstrings_or_narrow_the_output_encoding(tmp_path, excitation_dataset):
+    """Held-out run 8: under PYTHONOPTIMIZE=2 (docstrings gone) every command was a traceback; with
+    PYTHONIOENCODING=ascii a command did its work and then failed printing a unit's ² or an ellipsis."""
+    optimized = subprocess.run(command("train", excitation_dataset, "--model", "D", "--action-rate", "zero_order_hold",
+                                       "-o", tmp_path / "run"), env={**ENV, "PYTHONOPTIMIZE": "2"}, cwd=tmp_path,
+                               capture_output=True, text=True, timeout=120)
+    assert optimized.returncode == 2 and optimized.stderr.count("\n") == 1, optimized.stderr[-800:]
+    assert "action_rate (--action-rate) shapes the derivative loss" in optimized.stderr
+    narrow = subprocess.run(command("inspect", excitation_dataset), env={**ENV, "PYTHONIOENCODING": "ascii"},
+                            cwd=tmp_path, capture_output=True, timeout=120)
+    assert narrow.returncode == 0 and narrow.stderr == b"", narrow.stderr[-800:]
+    assert b"\\u2026" in narrow.stdout and max(narrow.stdout) < 128     # (the ellipsis, escaped)
+    assert sorted(path.name for path in tmp_path.iterdir()) == []
+
+
 def test_closed_standard_streams_are_the_null_device_not_the_next_file(tmp_path):
     """`2>&-`: bad input is still exit status 2 (its line goes nowhere, as asked), and a file the program opens
     never takes the number of a closed standard stream (a library's terminal output would land in it)."""
