@@ -14,6 +14,7 @@ import importlib
 import locale
 import logging
 import os
+import pathlib
 import re
 import signal
 import sys
@@ -99,6 +100,20 @@ DESCRIPTION = "The `stdm-drake` command line: one subcommand per stage of the da
                                                                                         # under python -OO)
 
 
+def _can_be_made_writable(folder: str) -> bool:
+    """Whether `folder` is a writable folder, or could be made as one: a folder made and removed in it (or
+    in its nearest existing ancestor) tells, also for root, for whom os.access says yes to /proc."""
+    import tempfile
+    path = pathlib.Path(folder).absolute()
+    while not os.path.lexists(path) and path != path.parent:
+        path = path.parent
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".stdm-drake-probe.", dir=path))
+    except OSError:
+        return False
+    return True
+
+
 def main(argv: list[str] | None = None) -> int:
     os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     for stream in (sys.stdout, sys.stderr):   # a stream that cannot encode a unit's ² (PYTHONIOENCODING=ascii):
@@ -137,6 +152,12 @@ def main(argv: list[str] | None = None) -> int:
         # (OpenMP, loaded with the imports, would print two warnings about it and go on without it)
         print(f"stdm-drake {name}: error: OMP_NUM_THREADS={threads[:40]!r} is not a thread count (positive "
               "integers, comma-separated per nesting level); set one or unset it", file=sys.stderr)
+        return 2
+    config_folder = os.environ.get("MPLCONFIGDIR")
+    if config_folder and not _can_be_made_writable(config_folder):
+        # (Matplotlib, imported for figures, would warn in two lines and keep its cache in a temporary folder)
+        print(f"stdm-drake {name}: error: MPLCONFIGDIR={config_folder[:80]!r} is not a folder this user can write "
+              "(Matplotlib keeps its cache there); set one or unset it", file=sys.stderr)
         return 2
     try:
         # Ctrl-C, SIGTERM, SIGHUP: through every `finally`, from the imports on (the program's own run: until exit)

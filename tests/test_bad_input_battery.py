@@ -531,6 +531,7 @@ CASES = [
     (yaml_case("effects", "viscous_friction: [1, 2]\n"), "the robot has 6 joints"),
     (yaml_case("effects", "mass_scale: {elbow_link: 2}\n"), "does not have: elbow_link"),
     (yaml_case("effects", "coulomb_velocity_scale: [0.05]\n"), "coulomb_velocity_scale smooths coulomb_friction"),
+    (yaml_case("effects", "payload: {center_of_mass: [0, 0, 0.1]}\n"), "payload center_of_mass needs a mass > 0"),
     (yaml_case("effects", "coulomb_friction: [0]\nrotor_inertia: [0.1]\ncoulomb_velocity_scale: [5]\n"),
      "which is zero or not given, so it would be ignored"),
     (yaml_case("effects", "coulomb_friction: [50]\ncoulomb_velocity_scale: [0.001]\n"), "unstable at the plant step"),

@@ -354,6 +354,20 @@ def test_a_bad_openmp_thread_count_is_one_line(tmp_path, threads):
     assert fine.returncode == 2 and fine.stderr.startswith("stdm-drake inspect: error: ") and "OMP" not in fine.stderr
 
 
+def test_an_unwritable_matplotlib_config_folder_is_one_line(tmp_path):
+    """Held-out run 9: MPLCONFIGDIR=/proc/nonexistent made Matplotlib warn in two lines and use a temporary folder."""
+    (tmp_path / "file").write_text("not a folder")
+    for folder in ("/proc/nonexistent", str(tmp_path / "file"), str(tmp_path / "file" / "below")):
+        result = subprocess.run(command("inspect", "missing.h5"), env={**ENV, "MPLCONFIGDIR": folder}, cwd=tmp_path,
+                                capture_output=True, text=True, timeout=120)
+        assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr[-800:]
+        assert f"MPLCONFIGDIR='{folder}' is not a folder this user can write" in result.stderr
+    fine = subprocess.run(command("inspect", "missing.h5"), env={**ENV, "MPLCONFIGDIR": str(tmp_path / "new" / "cfg")},
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert "MPLCONFIGDIR" not in fine.stderr and "not found" in fine.stderr
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["file"]   # (the probe left nothing)
+
+
 def test_python_flags_that_strip_docstrings_or_narrow_the_output_encoding(tmp_path, excitation_dataset):
     """Held-out run 8: under PYTHONOPTIMIZE=2 (docstrings gone) every command was a traceback; with
     PYTHONIOENCODING=ascii a command did its work and then failed printing a unit's ² or an ellipsis."""
