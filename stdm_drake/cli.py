@@ -100,6 +100,9 @@ DESCRIPTION = "The `stdm-drake` command line: one subcommand per stage of the da
                                                                                         # under python -OO)
 
 
+HDF5_DRIVERS = ("sec2", "stdio", "core")   # HDF5_DRIVER values that keep a dataset one file at its path
+
+
 def _can_be_made_writable(folder: str) -> bool:
     """Whether `folder` is a writable folder, or could be made as one: a folder made and removed in it (or
     in its nearest existing ancestor) tells, also for root, for whom os.access says yes to /proc."""
@@ -152,6 +155,12 @@ def main(argv: list[str] | None = None) -> int:
         # (OpenMP, loaded with the imports, would print two warnings about it and go on without it)
         print(f"stdm-drake {name}: error: OMP_NUM_THREADS={threads[:40]!r} is not a thread count (positive "
               "integers, comma-separated per nesting level); set one or unset it", file=sys.stderr)
+        return 2
+    driver = os.environ.get("HDF5_DRIVER")
+    if driver and driver.strip().lower() not in HDF5_DRIVERS:
+        # (HDF5 segfaults on a driver it lacks; split, family and the others write other files than the one named)
+        print(f"stdm-drake {name}: error: HDF5_DRIVER={driver[:40]!r}: stdm-drake reads and writes each dataset as "
+              f"one HDF5 file, with the {', '.join(HDF5_DRIVERS)} driver; unset it", file=sys.stderr)
         return 2
     config_folder = os.environ.get("MPLCONFIGDIR")
     if config_folder and not _can_be_made_writable(config_folder):

@@ -354,6 +354,18 @@ def test_a_bad_openmp_thread_count_is_one_line(tmp_path, threads):
     assert fine.returncode == 2 and fine.stderr.startswith("stdm-drake inspect: error: ") and "OMP" not in fine.stderr
 
 
+@pytest.mark.parametrize("driver", ["junk", "direct", "split"])
+def test_an_hdf5_driver_other_than_one_file_is_one_line(tmp_path, driver):
+    """Held-out run 9: HDF5_DRIVER=junk (or a driver this HDF5 lacks) segfaulted in the first HDF5 call; split
+    and family write other files than the one named."""
+    result = subprocess.run(command("collect", "--protocol", "excitation", "--count", "1", "--workers", "1",
+                                    "--quiet", "-o", "c.h5"), env={**ENV, "HDF5_DRIVER": driver}, cwd=tmp_path,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr[-800:]
+    assert f"HDF5_DRIVER='{driver}': stdm-drake reads and writes each dataset as one HDF5 file" in result.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_an_unwritable_matplotlib_config_folder_is_one_line(tmp_path):
     """Held-out run 9: MPLCONFIGDIR=/proc/nonexistent made Matplotlib warn in two lines and use a temporary folder."""
     (tmp_path / "file").write_text("not a folder")
