@@ -168,6 +168,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"stdm-drake {name}: error: MPLCONFIGDIR={config_folder[:80]!r} is not a folder this user can write "
               "(Matplotlib keeps its cache there); set one or unset it", file=sys.stderr)
         return 2
+    if os.environ.get("MPLBACKEND"):   # (Matplotlib's import refuses a backend it lacks: after a run's work)
+        try:
+            import matplotlib  # noqa: F401
+        except ValueError:
+            print(f"stdm-drake {name}: error: MPLBACKEND={os.environ['MPLBACKEND'][:40]!r} is no Matplotlib backend; "
+                  "stdm-drake draws its figures into files with agg: unset it", file=sys.stderr)
+            return 2
     try:
         # Ctrl-C, SIGTERM, SIGHUP: through every `finally`, from the imports on (the program's own run: until exit)
         with interrupts.signals_as_exceptions(until_exit=program):

@@ -15,6 +15,14 @@ import tempfile
 
 from stdm_drake.errors import InputError
 
+MAX_WORKERS = 256   # worker processes (each a Python with PyTorch or Drake, 0.2-0.5 GB: 256 is past any one machine)
+
+
+def check_workers(workers: int) -> None:
+    """InputError (one line) unless 1 <= workers <= MAX_WORKERS (--workers of every command)."""
+    if not 1 <= workers <= MAX_WORKERS:
+        raise InputError(f"--workers must be in 1..{MAX_WORKERS}, got {workers}")
+
 BACKENDS = ("local", "ray")
 # Fault injection (tests): a worker that sees this variable, naming a file that does not exist yet, creates
 # the file and dies at once, as a worker on a lost node would; Ray must rerun its job.
@@ -37,8 +45,7 @@ class RunnerConfig:
     def validate(self) -> None:
         if self.backend not in BACKENDS:
             raise InputError(f"--backend must be one of {', '.join(BACKENDS)}, got {self.backend!r}")
-        if self.workers < 1:
-            raise InputError(f"--workers must be >= 1, got {self.workers}")
+        check_workers(self.workers)
         if not self.cpus_per_job > 0:
             raise InputError(f"cpus per job must be > 0, got {self.cpus_per_job}")
         if self.max_retries < 0:

@@ -426,7 +426,7 @@ CASES = [
     ([*M, "-o", "NOTES/deeper/x"], "is not a folder"), ([*R, "-o", "NOTES/x"], "is not a folder"),
     # --- counts and sizes
     ([*C, "--count", "0", "-o", "NEW.h5"], "--count must be in 1.."), ([*C, "--count", "-3", "-o", "NEW.h5"], "in 1.."),
-    ([*C, "--workers", "0", "-o", "NEW.h5"], "--workers must be >= 1"), ([*C, "--seed", "-1", "-o", "NEW.h5"], "non-negative"),
+    ([*C, "--workers", "0", "-o", "NEW.h5"], "--workers must be in 1..256"), ([*C, "--seed", "-1", "-o", "NEW.h5"], "non-negative"),
     ([*E, "--sample-period", "0", "-o", "NEW.h5"], "sample period"), ([*E, "--sample-period", "-0.01", "-o", "NEW.h5"], "sample period"),
     ([*E, "--sample-period", "nan", "-o", "NEW.h5"], "sample period"), ([*E, "--sample-period", "0.0015", "-o", "NEW.h5"], "multiple"),
     ([*E, "--plant-time-step", "0", "-o", "NEW.h5"], "discrete plant"), ([*E, "--plant-time-step", "-1", "-o", "NEW.h5"], ""),
@@ -499,10 +499,12 @@ CASES = [
     (["mpc", "TRACK", "--model", "plant=model.pt", "-o", "NEW"], "is the plant model's"),
     (["inspect", "STRINGS"], "not numbers"), (["inspect", "SHORTTAU"], "tau has shape"),
     (["evaluate", "ZEROSTD", "DATA"], "zero or negative spread"), (["mpc", "TRACK", "--model", "D=ZEROSTD", "-o", "NEW"], "spread"),
-    ([*S, "--epochs", "0", "-o", "NEW"], "epochs"), ([*S, "--workers", "0", "-o", "NEW"], "--workers must be >= 1"),
+    ([*C, "--workers", "1000000", "-o", "NEW.h5"], "--workers must be in 1..256, got 1000000"),
+    ([*S, "--workers", "257", "-o", "NEW"], "--workers must be in 1..256"),
+    ([*S, "--epochs", "0", "-o", "NEW"], "epochs"), ([*S, "--workers", "0", "-o", "NEW"], "--workers must be in 1..256"),
     ([*S, "--seeds", "0", "-o", "NEW"], "seeds"), ([*S, "--alpha", "0", "-o", "NEW"], "--alpha 0"),
     ([*S, "--layers", "2", "-o", "NEW"], "5"), ([*S, "--alpha", "-1", "-o", "NEW"], "alpha"),
-    ([*R, "--workers", "0", "-o", "NEW"], "--workers must be >= 1"), ([*R, "--seed", "-1", "-o", "NEW"], "seed"),
+    ([*R, "--workers", "0", "-o", "NEW"], "--workers must be in 1..256"), ([*R, "--seed", "-1", "-o", "NEW"], "seed"),
     # --- input files that are missing, of the wrong kind, corrupt or implausible
     (["inspect", "NEW.h5"], "not found"), (["inspect", "DIR"], ""), (["inspect", "TEXTH5"], ""), (["inspect", "TRUNC"], ""),
     (["inspect", "SPEC"], ""), (["inspect", "CK"], ""), (["inspect", "HUGE"], "beyond any joint's range"),

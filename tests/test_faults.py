@@ -378,6 +378,10 @@ def test_an_unwritable_matplotlib_config_folder_is_one_line(tmp_path):
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert "MPLCONFIGDIR" not in fine.stderr and "not found" in fine.stderr
     assert sorted(path.name for path in tmp_path.iterdir()) == ["file"]   # (the probe left nothing)
+    backend = subprocess.run(command("inspect", "missing.h5"), env={**ENV, "MPLBACKEND": "nonsense"}, cwd=tmp_path,
+                             capture_output=True, text=True, timeout=120)   # (run 9: refused after sine-sum's work)
+    assert backend.returncode == 2 and backend.stderr.count("\n") == 1, backend.stderr[-800:]
+    assert "MPLBACKEND='nonsense' is no Matplotlib backend" in backend.stderr
 
 
 def test_python_flags_that_strip_docstrings_or_narrow_the_output_encoding(tmp_path, excitation_dataset):

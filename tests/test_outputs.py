@@ -94,7 +94,7 @@ def test_its_own_outputs_are_replaced_without_force(capsys, tmp_path):
 
 @pytest.mark.parametrize("argv, message", [
     (["collect", "--count", "0", "-o", "x.h5"], "--count must be in 1..100000, got 0"),
-    (["collect", "--workers", "0", "-o", "x.h5"], "--workers must be >= 1, got 0"),
+    (["collect", "--workers", "0", "-o", "x.h5"], "--workers must be in 1..256, got 0"),
     (["collect", "--seed", "-1", "-o", "x.h5"], "--seed must be a non-negative integer"),
 ])
 def test_counts_out_of_range_name_the_valid_range(capsys, tmp_path, monkeypatch, argv, message):

@@ -24,7 +24,7 @@ import sys
 
 import numpy as np
 
-from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.cluster import RunnerConfig, check_workers, job_pool
 from stdm_drake.collection.excitation import Excitation, excitation_trajectory
 from stdm_drake.collection.plan import Tracking, derived_tracking_spec
 from stdm_drake.collection.protocols import PROTOCOLS, load_excitation, load_tracking_spec, protocol_named_in
@@ -308,8 +308,7 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
                  "affected plant's inertia"))
     if count is not None and not 1 <= count <= MAX_COUNT:
         raise InputError(f"--count must be in 1..{MAX_COUNT}, got {count}")
-    if workers < 1:
-        raise InputError(f"--workers must be >= 1, got {workers}")
+    check_workers(workers)
     if seed < 0:
         raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {seed}")
     request = CollectionRequest(protocol=protocol, count=PAPER_COUNTS[protocol] if count is None else count, seed=seed,

@@ -5,7 +5,7 @@ import pathlib
 import sys
 import time
 
-from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
+from stdm_drake.cluster import add_runner_arguments, check_workers, runner_config_from_args
 from stdm_drake.commands.arguments import add_plant_effects_argument, add_robot_argument, command_robot
 from stdm_drake.errors import InputError
 from stdm_drake.experiments.jobs import FULL, QUICK
@@ -33,8 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    check_workers(args.workers)
     if args.seed < 0:
         raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
     robot = command_robot(args)

@@ -58,10 +58,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--alpha 0 is naive learning, which the study runs anyway; give a positive alpha or auto")
     if overrides:
         config = dataclasses.replace(config, **overrides)
-    if args.workers < 1:
-        raise InputError(f"--workers must be >= 1, got {args.workers}")
+    from stdm_drake.cluster import check_workers, runner_config_from_args
+    check_workers(args.workers)
     check_output_folder("-o/--output", args.output, force=args.force)
-    from stdm_drake.cluster import runner_config_from_args
     runner = runner_config_from_args(args)
     study = run_study(config, workers=args.workers, progress=not args.quiet, runner=runner)
     mark_output_folder(args.output)
