@@ -23,6 +23,7 @@ def check_workers(workers: int) -> None:
     if not 1 <= workers <= MAX_WORKERS:
         raise InputError(f"--workers must be in 1..{MAX_WORKERS}, got {workers}")
 
+
 BACKENDS = ("local", "ray")
 # Fault injection (tests): a worker that sees this variable, naming a file that does not exist yet, creates
 # the file and dies at once, as a worker on a lost node would; Ray must rerun its job.

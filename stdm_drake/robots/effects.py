@@ -30,10 +30,10 @@ class RigidInertia:
     def validate(self, what: str = "payload") -> None:
         require(np.isfinite(self.mass) and self.mass >= 0, f"{what} mass must be a finite number >= 0 kg", self.mass)
         require(self.mass > 0 or not any(self.inertia), f"{what} inertia needs a mass > 0", self.inertia)
-        require(self.mass > 0 or not any(self.center_of_mass), f"{what} center_of_mass needs a mass > 0 (without "
-                "one there is no body, so it would be ignored)", self.center_of_mass)
         require(len(self.center_of_mass) == 3 and np.all(np.isfinite(self.center_of_mass)),
                 f"{what} center_of_mass must be 3 finite numbers (m)", self.center_of_mass)
+        require(self.mass > 0 or not any(self.center_of_mass), f"{what} center_of_mass needs a mass > 0 (without "
+                "one there is no body, so it would be ignored)", self.center_of_mass)
         require(len(self.inertia) == 6 and np.all(np.isfinite(self.inertia)),
                 f"{what} inertia must be 6 finite numbers [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m²)", self.inertia)
         if self.mass > 0 and any(self.inertia):
