@@ -98,27 +98,24 @@ def atomic_path(path):
     from stdm_drake.interrupts import protected
     path = pathlib.Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    try:
-        handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
-    except OSError as error:   # (no inode left: a full disk too)
-        if error.errno in NO_ROOM:
-            raise no_room_error(path, error) from None
-        raise
-    os.close(handle)
     umask = os.umask(0)
     os.umask(umask)
+    temp_name = None
     try:
+        with protected():   # (a signal as the file appears is raised once its name is known: the finally removes it)
+            handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
+            os.close(handle)
         yield pathlib.Path(temp_name)
         with protected():
             os.chmod(temp_name, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
             os.replace(temp_name, path)
-    except OSError as error:
+    except OSError as error:   # (mkstemp without an inode left: a full disk too)
         if error.errno in NO_ROOM:
             raise no_room_error(path, error) from None
         raise
     finally:
         with protected():
-            if os.path.exists(temp_name):
+            if temp_name is not None and os.path.exists(temp_name):
                 os.unlink(temp_name)
 
 

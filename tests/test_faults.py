@@ -332,6 +332,26 @@ def test_no_room_is_one_line_naming_the_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+def test_a_signal_as_the_temporary_file_appears_leaves_no_file(tmp_path, monkeypatch):
+    """Held-out run 10: SIGHUP sent the moment `.x.h5.*.tmp` appeared left that empty file (2 of 16 tries): the
+    signal came between mkstemp and the block that removes it. Now it is held until the name is known."""
+    import tempfile
+
+    from stdm_drake import files, interrupts
+    made = tempfile.mkstemp
+
+    def make_then_signal(*args, **kwargs):
+        result = made(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGHUP)   # (handled at once: as the file appears)
+        return result
+    monkeypatch.setattr(files.tempfile, "mkstemp", make_then_signal)
+    with pytest.raises(interrupts.Terminated):
+        with interrupts.signals_as_exceptions():
+            with files.atomic_path(tmp_path / "x.h5") as temp:
+                temp.write_text("never finished")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_a_deleted_working_folder_is_one_line(tmp_path):
     gone = tmp_path / "gone"
     gone.mkdir()
