@@ -82,6 +82,13 @@ def read_yaml_document(path):
         return None
 
 
+def file_keys(path) -> set:
+    """The top-level keys a YAML file sets (none without a file, or for one that is no mapping): the settings
+    the user gave there, whatever their values (a key the run would ignore is refused by the caller)."""
+    document = read_yaml_document(path) if path is not None else None
+    return set(document) if isinstance(document, dict) else set()
+
+
 def _load_old_layout(path: pathlib.Path, schema, what: str, old_layouts: dict):
     """`schema` from a file in the layout before tags (see load_yaml_config; not yet validated), or None
     when it is not one."""

@@ -39,7 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def command_mapping(args: argparse.Namespace, log):
     """The LogMapping of --mapping (defaults without it) with the options given on the command line, for
     the format of `log`, checked (a setting given, as an option or a file's key, must be one the import uses)."""
-    from stdm_drake.config import read_yaml_document
+    from stdm_drake.config import file_keys
     from stdm_drake.data.logs.importer import detect_format
     from stdm_drake.data.logs.mapping import LogMapping, check_settings_used, load_mapping
     mapping = load_mapping(args.mapping) if args.mapping is not None else LogMapping()
@@ -49,9 +49,8 @@ def command_mapping(args: argparse.Namespace, log):
     options = {key: value for key, value in options.items() if value is not None}
     mapping = dataclasses.replace(mapping, **options)
     mapping.validate()
-    file_keys = read_yaml_document(args.mapping) if args.mapping is not None else None
     mapping = mapping.with_format(detect_format(log, mapping.format))
-    check_settings_used(mapping, set(options) | (set(file_keys) if isinstance(file_keys, dict) else set()))
+    check_settings_used(mapping, set(options) | file_keys(args.mapping))
     return mapping
 
 

@@ -101,10 +101,9 @@ def run(args) -> int:
         raise InputError(f"--excitation-references tracks the recorded trajectories of a dataset without plans; "
                          f"{args.dataset} has plans, which mpc tracks, so it would be ignored")
     config = mpc_config_for(robot, args.config)
-    if args.tune and args.config is not None:
-        from stdm_drake.config import read_yaml_document
-        document = read_yaml_document(args.config)
-        if isinstance(document, dict) and "disturbance_gain" in document:
+    if args.tune:
+        from stdm_drake.config import file_keys
+        if "disturbance_gain" in file_keys(args.config):
             raise InputError(f"--tune chooses the observer gain (0, 0.3 or 1 per model), so the disturbance_gain of "
                              f"{args.config} would be ignored; leave it out of the file, or leave out --tune")
     time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP   # the data's plant step

@@ -123,22 +123,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def training_settings(args: argparse.Namespace) -> TrainSettings:
     """The settings file (`--config`, else the defaults) with every flag given on the command line
     applied over it, validated."""
-    from stdm_drake.config import load_yaml_config
+    from stdm_drake.config import file_keys, load_yaml_config
     settings = (load_yaml_config(args.config, TrainSettings, what="training settings", validate=False) if args.config
                 else TrainSettings())   # (a file's value that a flag overrides is not checked: it is not used)
     flags = {field.name: getattr(args, field.name) for field in dataclasses.fields(TrainSettings)
              if hasattr(args, field.name)}
     settings = dataclasses.replace(settings, **flags)
-    settings.validate(given=set(flags) | settings_file_keys(args.config))
+    settings.validate(given=set(flags) | file_keys(args.config))
     settings.check_alpha()
     return settings
-
-
-def settings_file_keys(path) -> set:
-    """The keys a training-settings file sets (none without a file); the file has been read as TrainSettings."""
-    from stdm_drake.config import read_yaml_document
-    content = read_yaml_document(path) if path else None
-    return set(content) if isinstance(content, dict) else set()
 
 
 def alpha_selection_csv(selection: AlphaSelection) -> str:

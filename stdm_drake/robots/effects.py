@@ -159,10 +159,9 @@ class PlantEffects:
 def load_plant_effects(path) -> PlantEffects:
     """The PlantEffects of a YAML file (InputError with one line for a missing or malformed one, or one that
     sets a key the plant would not use: the Coulomb smoothing scale without Coulomb friction)."""
-    from stdm_drake.config import read_yaml_document
+    from stdm_drake.config import file_keys
     effects = load_yaml_config(path, PlantEffects, what="plant effects")
-    document = read_yaml_document(path)
-    if isinstance(document, dict) and "coulomb_velocity_scale" in document and not effects.is_on("coulomb_friction"):
+    if "coulomb_velocity_scale" in file_keys(path) and not effects.is_on("coulomb_friction"):
         raise InputError(f"{path}: coulomb_velocity_scale smooths coulomb_friction, which is zero or not given, so "
                          "it would be ignored")
     return effects
