@@ -91,14 +91,14 @@ class DynamicsModel(abc.ABC):
         mean = np.full((len(states), horizon, self.state_dim), np.nan)
         variance = np.full_like(mean, np.nan)
         current, going = states, np.ones(len(states), dtype=bool)
-        for k in range(horizon):   # a row whose state left the finite numbers has diverged: NaN from there on
-            if not going.any():
-                break
-            with np.errstate(over="ignore", invalid="ignore"):   # (reported: the states tell)
+        with np.errstate(over="ignore", invalid="ignore"):   # (a diverging row overflows: the states report it)
+            for k in range(horizon):   # a row whose state left the finite numbers has diverged: NaN from there on
+                if not going.any():
+                    break
                 step_mean, step_variance = self._rollout_step(current[going], sequence[going, k])
-            mean[going, k], variance[going, k] = step_mean, step_variance
-            current = mean[:, k]
-            going &= np.isfinite(current).all(axis=1)
+                mean[going, k], variance[going, k] = step_mean, step_variance
+                current = mean[:, k]
+                going &= np.isfinite(current).all(axis=1)
         return Rollout(mean=mean, variance=variance)
 
     def _rollout_step(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
