@@ -115,13 +115,16 @@ def lock_output(option: str, path) -> None:
     if path.is_dir() and not os.access(lock_file.parent, os.W_OK):   # a folder in a folder this user cannot write
         lock_file = path / f"{FOLDER_MARKER}.lock"
     made = [folder for folder in lock_file.parents if not folder.exists()]   # removed again if still empty
-    try:
-        lock_file.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as error:   # (no inode or block left for the lock file: the output is named, not the lock)
-        failure = no_room_error(path, error) if error.errno in NO_ROOM else error   # (before its folders go)
-        _remove_empty(made)
-        raise failure from None
+
+    def open_lock_file() -> int:
+        try:
+            lock_file.parent.mkdir(parents=True, exist_ok=True)
+            return os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as error:   # (no inode or block left for the lock file: the output is named, not the lock)
+            failure = no_room_error(path, error) if error.errno in NO_ROOM else error   # (before its folders go)
+            _remove_empty(made)
+            raise failure from None
+    fd = open_lock_file()
     while True:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -140,7 +143,7 @@ def lock_output(option: str, path) -> None:
         except FileNotFoundError:
             pass
         os.close(fd)
-        fd = os.open(lock_file, os.O_RDWR | os.O_CREAT, 0o644)
+        fd = open_lock_file()
     os.ftruncate(fd, 0)
     os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
     _running["locks"][key] = (fd, lock_file, made)
