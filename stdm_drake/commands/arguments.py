@@ -1,4 +1,5 @@
-"""What several commands' command lines share: the `--robot` option (the UR-10 preset when absent), the
+"""What several commands' command lines share: the `--robot` option (when absent: the shipped preset a dataset
+was collected with, else the UR-10's), the
 `--visualization` option of the commands that record Meshcat animations, and the `--alpha` value type."""
 import argparse
 import pathlib
@@ -8,16 +9,19 @@ import numpy as np
 
 def add_robot_argument(parser: argparse.ArgumentParser, role: str) -> None:
     """`--robot PATH`: a robot config YAML; `role` says what the command does with it."""
-    parser.add_argument("--robot", type=pathlib.Path, help=f"robot config YAML (default: the UR-10 preset, "
+    parser.add_argument("--robot", type=pathlib.Path, help=f"robot config YAML (default: the shipped preset the "
+                                                           f"dataset was collected with, else the UR-10's, "
                                                            f"models/ur10.yaml); {role}")
 
 
 def command_robot(args: argparse.Namespace, dataset=None):
-    """The Robot `--robot` names (the UR-10 preset when absent), its plant loaded and its home checked
-    free of self-collision; with `dataset`, InputError unless the dataset was collected with it."""
-    from stdm_drake.data.compatibility import robot_for
+    """The Robot `--robot` names, its plant loaded and its home checked free of self-collision; when absent the
+    shipped preset `dataset` was collected with (`data.compatibility.shipped_preset_of`), else the UR-10's; with
+    `dataset`, InputError unless the dataset was collected with it."""
+    from stdm_drake.data.compatibility import robot_for, shipped_preset_of
     from stdm_drake.robots.robot import UR10_CONFIG
-    return robot_for(args.robot or UR10_CONFIG, dataset)
+    path = args.robot or (shipped_preset_of(dataset) if dataset is not None else None) or UR10_CONFIG
+    return robot_for(path, dataset)
 
 
 def add_visualization_argument(parser: argparse.ArgumentParser) -> None:

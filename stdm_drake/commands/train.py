@@ -22,8 +22,7 @@ from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
 from stdm_drake.learning.problem import training_problem
 from stdm_drake.learning.seeds import dataset_split, fit_seeds
-from stdm_drake.learning.settings import (DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, LOSS_KINDS, LR_SCHEDULES, TrainSettings,
-                                         network_weights)
+from stdm_drake.learning.settings import LOSS_KINDS, LR_SCHEDULES, TRAIN_ALPHA_GRID, TrainSettings, network_weights
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainer import AlphaSelection
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder, written_by
@@ -51,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="training settings YAML (TrainSettings: keys as the flags below with '_' for '-'); "
                              "flags given on the command line override it")
     parser.add_argument("--model", default="DD", type=str.upper, choices=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES),
-                        help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (default DD); G/GD "
+                        help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (default DD, its "
+                             "alpha and derivative targets chosen by validation, naive D among them); G/GD "
                              "the grey box: a D/DD whose delta adds to the plant model's next state (--inputs "
                              "plant_step; the plant: the robot's description, or --physics)")
     parser.add_argument("--physics", type=pathlib.Path, metavar="IDENTIFIED",
@@ -59,11 +59,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "robot's description; recorded in the checkpoint")
     parser.add_argument("--derivative", choices=("on", "off"),
                         help="override the derivative loss the model type implies")
-    parser.add_argument("--alpha", type=parse_alpha, default=DEFAULT_ALPHA,
-                        help="derivative loss weight as in the paper's eq. 9 (default 1e-3, the paper's), or 'auto': "
-                             "chosen by validation state MSE from --alpha-grid (naive included)")
-    parser.add_argument("--alpha-grid", type=float, nargs="+", default=list(DEFAULT_ALPHA_GRID),
-                        help="alphas tried by --alpha auto (default 0 and 1e-5 ... 1e2)")
+    parser.add_argument("--alpha", type=parse_alpha, default="auto",
+                        help="derivative loss weight as in the paper's eq. 9 (e.g. 1e-3, the paper's number), or "
+                             "'auto' (default): chosen by validation state MSE from --alpha-grid, 0 (naive training) "
+                             "included, so the model is at worst naive on validation")
+    parser.add_argument("--alpha-grid", type=float, nargs="+", default=list(TRAIN_ALPHA_GRID),
+                        help="alphas tried by --alpha auto (default 0 and the paper's search range 1e-4 ... 1e-1)")
     parser.add_argument("--activation", choices=ACTIVATION_NAMES, default="swish", help="hidden activation")
     parser.add_argument("--hidden-width", type=int, default=100, help="units per hidden layer (default 100)")
     parser.add_argument("--hidden-layers", type=int, default=3, help="hidden layers (default 3)")
@@ -91,9 +92,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="split per initial-pose group (default: on for tracking data, off otherwise)")
     parser.add_argument("--split-seed", type=int, default=0, help="seed of the trajectory split (default 0)")
     parser.add_argument("--derivative-source", choices=("true", "planned", "measured", "smoothed"),
-                        help="derivative targets (default: the dataset's: the plan where it has one, else the "
-                             "simulation's truth, or for a real robot's log the smoothed angles; measured: a log's "
-                             "velocities and their smoothed derivative)")
+                        help="derivative targets (default: with --alpha auto chosen by validation from the plan, where "
+                             "the data have one and its accelerations are within 0.5 (relative RMS) of the recorded "
+                             "ones, and the recorded motion: the simulation's truth, or a log's smoothed angles; with a "
+                             "fixed alpha the first of these; measured: a log's velocities and their smoothed "
+                             "derivative)")
     parser.add_argument("--action-rate", choices=("forward_difference", "zero_order_hold"),
                         default="forward_difference", help="how Δa/Δt is formed (default forward_difference)")
     parser.add_argument("--epochs", type=int, default=500, help="maximum epochs (default 500)")
@@ -129,16 +132,20 @@ def training_settings(args: argparse.Namespace) -> TrainSettings:
     flags = {field.name: getattr(args, field.name) for field in dataclasses.fields(TrainSettings)
              if hasattr(args, field.name)}
     settings = dataclasses.replace(settings, **flags)
-    settings.validate(given=set(flags) | file_keys(args.config))
-    settings.check_alpha()
+    given = set(flags) | file_keys(args.config)
+    settings.validate(given=given)
+    settings.check_alpha(given)
     return settings
 
 
 def alpha_selection_csv(selection: AlphaSelection) -> str:
-    """The alpha grid's validation curve as CSV: alpha, val_state_mse_standardized, best_epoch, chosen."""
-    lines = ["alpha,val_state_mse_standardized,best_epoch,chosen"]
-    for index, (alpha, score, epoch) in enumerate(zip(selection.alphas, selection.val_mse, selection.best_epochs)):
-        lines.append(f"{alpha:g},{score:.9g},{int(epoch)},{int(index == selection.index)}")
+    """The alpha grid's validation curve as CSV: alpha, derivative_source (empty: the dataset's one source),
+    val_state_mse_standardized, best_epoch, chosen."""
+    lines = ["alpha,derivative_source,val_state_mse_standardized,best_epoch,chosen"]
+    sources = selection.sources or ("",) * len(selection.alphas)
+    for index, (alpha, source, score, epoch) in enumerate(zip(selection.alphas, sources, selection.val_mse,
+                                                               selection.best_epochs)):
+        lines.append(f"{alpha:g},{source},{score:.9g},{int(epoch)},{int(index == selection.index)}")
     return "\n".join(lines) + "\n"
 
 
@@ -149,13 +156,17 @@ def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pa
     import matplotlib.pyplot as plt
 
     alphas, scores = np.asarray(selection.alphas), np.asarray(selection.val_mse)
+    sources = np.asarray(selection.sources if selection.sources is not None else [""] * len(alphas))
     figure, axis = plt.subplots(figsize=(5.5, 3.8))
     positive = alphas > 0
-    axis.loglog(alphas[positive], scores[positive], "o-", color="tab:orange", label="derivative learning")
+    for source, color in zip(dict.fromkeys(sources[positive]), ("tab:orange", "tab:green", "tab:purple", "tab:red")):
+        rows = positive & (sources == source)
+        axis.loglog(alphas[rows], scores[rows], "o-", color=color,
+                    label="derivative learning" + (f" ({source} targets)" if source else ""))
     for score in scores[~positive]:
         axis.axhline(score, color="tab:blue", linestyle="--", label="naive (alpha = 0)")
     axis.plot([selection.alpha if selection.alpha > 0 else alphas[positive].min()], [scores[selection.index]], "k*",
-              markersize=14, label=f"chosen: alpha = {selection.alpha:g}")
+              markersize=14, label=f"chosen: {selection.label(selection.index)}")
     axis.set_xlabel("alpha (paper eq. 9)")
     axis.set_ylabel("validation state MSE (standardized)")
     axis.set_title(title or "alpha chosen by validation")
@@ -192,11 +203,120 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
         write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
         plot_alpha_selection(selection, folder / "alpha_selection.png", title=f"{name} seed {seed}")
         entry["alpha_selection"] = selection.as_dict()
-        print(f"seed {seed}: alpha chosen by validation: {selection.alpha:g} (validation state MSE "
-              + ", ".join(f"{a:g}: {v:.3g}" for a, v in zip(selection.alphas, selection.val_mse)) + ")")
+        print(f"seed {seed}: chosen by validation: {selection.label(selection.index)} (validation state MSE, "
+              "standardized: " + "; ".join(f"{selection.label(i)} {v:.3g}" for i, v in enumerate(selection.val_mse))
+              + ")")
     print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
           f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {folder / 'checkpoint.pt'}")
     return entry
+
+
+def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
+    """(derivative_source for `training_problem`, the line that states the choice or None). Given by the user,
+    the source is used as it is (a plan far from the recorded motion gets one warning line with the measured
+    mismatch); else `learning.problem.candidate_sources` on the training and validation trajectories: all of
+    them (a tuple, chosen by validation) with alpha "auto", their first with a fixed alpha. A model without the
+    derivative loss uses none (None, None)."""
+    from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT, candidate_sources
+    if not settings.uses_derivative():
+        return None, None
+    choice = candidate_sources(dataset, np.concatenate([split.train, split.val]))
+    if settings.derivative_source is not None:
+        if settings.derivative_source == "planned" and choice.plan_left_out():
+            print(f"stdm-drake train: warning: --derivative-source planned: the plan's accelerations are "
+                  f"{choice.mismatch['acceleration']:.2f} (relative RMS, mean over joints; per joint "
+                  + ", ".join(f"{value:.2f}" for value in choice.mismatch["acceleration_per_joint"])
+                  + f") from the recorded ones ({choice.mismatch['recorded']}), more than {PLAN_MISMATCH_LIMIT:g}: "
+                  "the model is fitted to derivatives the robot did not have; leave the option out to choose by "
+                  "validation", file=sys.stderr)
+        return settings.derivative_source, None
+    if settings.alpha_choices() is not None and len(choice.sources) > 1:
+        return tuple(choice.sources), choice.describe()
+    if len(choice.sources) > 1:   # a fixed alpha: the first, the plan
+        return choice.sources[0], (f"derivative targets: {choice.sources[0]} (the plan's accelerations are "
+                                   f"{choice.mismatch['acceleration']:.2f} from the recorded ones; --alpha auto "
+                                   f"would also try {', '.join(choice.sources[1:])})")
+    return choice.sources[0], choice.describe()
+
+
+class ValidationVerdict:
+    """What `train` ends with, per seed: the model's one-step MSE on the validation split beside the Euler step
+    (q) and "v unchanged" (v), the alpha grid's naive member where it trained one and the sensor's noise floor,
+    the verdict of `physics.learning_verdict`, and one warning line naming the likely cause when the model has
+    not learned. Validation only: the test split stays for `evaluate`."""
+
+    def __init__(self, dataset, split, robot, structure, name: str, settings: TrainSettings, transitions: int,
+                 sources):
+        from stdm_drake.data.inspect import noise_floor
+        from stdm_drake.learning.problem import candidate_sources
+        self.dataset, self.robot, self.structure, self.name, self.settings = dataset, robot, structure, name, settings
+        self.training_transitions, self.sources = transitions, sources
+        self.val = dataset.transitions(split.val)
+        self.val_trajectories = len(split.val)
+        self.floor = noise_floor(dataset, split.val)
+        self.mismatch = (candidate_sources(dataset, np.concatenate([split.train, split.val])).mismatch
+                         if dataset.has_plan else None)
+
+    def source_record(self) -> dict:
+        """The derivative sources tried and the plan's measured mismatch, for summary.json."""
+        tried = list(self.sources) if isinstance(self.sources, tuple) else [self.sources] if self.sources else []
+        return dict(tried=tried, plan_mismatch=self.mismatch)
+
+    def report(self, seed: int, checkpoint: pathlib.Path, naive, selection) -> dict:
+        """Print seed `seed`'s verdict (its checkpoint; naive: the grid's alpha = 0 network or None) and return
+        its summary entry."""
+        from stdm_drake.learning.evaluate import compare_with_baselines
+        from stdm_drake.learning.learned_model import LearnedModel
+        from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
+        check = self.robot is not None
+        label = self.name + ("" if selection is None else " (alpha 0: naive training)" if selection.alpha == 0
+                             else f" ({selection.label(selection.index)})")
+        models = [LearnedModel(checkpoint, name=label, robot=self.robot, check_robot=check)]
+        if naive is not None and selection is not None and selection.alpha > 0:
+            models.append(LearnedModel(naive, name=f"{self.name[0]} (alpha 0)", robot=self.robot,
+                                       structure=self.structure, sample_period=self.dataset.sample_period))
+        euler = ConstantVelocity(models[0].state_dim, models[0].action_dim, self.dataset.sample_period)
+        rows = compare_with_baselines(models + [euler], self.val, None, noise_floor=self.floor)
+        width = max([len(row.name) for row in rows] + [len("noise floor")]) + 2
+        print(f"seed {seed} on the validation split ({self.val_trajectories} trajectories, "
+              f"{rows[0].one_step.transitions} transitions), one-step MSE:")
+        print(f"  {'':<{width}}{'q [rad^2]':>11} {'v [(rad/s)^2]':>14}  against the Euler step (q) / 'v unchanged' (v)")
+        for row in rows[:-1]:
+            print(f"  {row.name:<{width}}{row.one_step.angle_mse:>11.3e} {row.one_step.velocity_mse:>14.3e}  "
+                  f"{row.ratio_q:.3g}x / {row.ratio_v:.3g}x better -> {row.verdict}")
+        print(f"  {'Euler step':<{width}}{rows[-1].one_step.angle_mse:>11.3e} {rows[-1].one_step.velocity_mse:>14.3e}"
+              "  (q + dt v; 'v unchanged')")
+        if self.floor and (self.floor["q"] > 0 or self.floor["v"] > 0):
+            print(f"  {'noise floor':<{width}}{self.floor['q']:>11.3e} {self.floor['v']:>14.3e}  (the sensor's)")
+        model = rows[0]
+        if not model.verdict.startswith("learned"):
+            print(f"stdm-drake train: warning: seed {seed}'s {self.name} has not learned the dynamics (validation "
+                  f"one-step q {model.ratio_q:.3g}x better than the Euler step, v {model.ratio_v:.3g}x than 'v "
+                  f"unchanged'; it needs {LEARNED_FACTOR:g}x in both, or within {FLOOR_FACTOR:g}x of the noise "
+                  f"floor); likely cause: {self.likely_cause(selection, rows)}", file=sys.stderr)
+        return dict(transitions=model.one_step.transitions, trajectories=self.val_trajectories, noise_floor=self.floor,
+                    models=[row.as_dict() for row in rows])
+
+    def likely_cause(self, selection, rows) -> str:
+        """The first of the usual reasons that fits this run."""
+        from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT
+        settings, chosen = self.settings, (selection.source if selection is not None else None) or self.sources
+        if settings.uses_derivative() and chosen == "planned" and self.mismatch is not None and \
+                self.mismatch["acceleration"] > PLAN_MISMATCH_LIMIT:
+            return (f"the derivative targets: the plan's accelerations are {self.mismatch['acceleration']:.2f} "
+                    "(relative RMS) from the recorded ones; leave out --derivative-source planned")
+        if settings.uses_derivative() and selection is None:
+            return (f"alpha {settings.alpha:g}, fixed: --alpha auto chooses it by validation, 0 (naive) included")
+        if len(rows) > 2 and rows[1].verdict.startswith("learned"):
+            return "the derivative loss: the naive member learned; train --model " + self.name[:-1]
+        if self.training_transitions < 2000:
+            return (f"the data size: {self.training_transitions} training transitions; collect more trajectories "
+                    "(collect --count) or train on more of them (--train)")
+        if self.structure.inputs == "raw" or self.structure.predicts == "state":
+            return ("the model structure: the paper's black box (--inputs raw, --predicts state) did not learn on "
+                    "the shipped protocols (docs/learning.md); leave --inputs and --predicts at their defaults")
+        return ("the data or the training budget: check the data with `stdm-drake inspect` and the learning curves "
+                "(curves.csv); raise --epochs or --patience if the validation error was still falling")
 
 
 def grey_box_physics(path, robot, settings, dataset, split) -> dict | None:
@@ -245,15 +365,17 @@ def run(args: argparse.Namespace) -> int:
     split, per_group = dataset_split(dataset, settings)
     structure = settings.structure(grey_box_physics(args.physics, robot, settings, dataset, split))
     name = settings.model_name()
+    sources, source_line = derivative_sources(dataset, split, settings)
     problem = training_problem(dataset, split, model_type=name, activation=settings.activation,
                                hidden_width=settings.hidden_width, hidden_layers=settings.hidden_layers,
                                ensemble_size=settings.ensemble_size, delta=not settings.direct,
-                               derivative_source=settings.derivative_source, action_rate=settings.action_rate,
+                               derivative_source=sources, action_rate=settings.action_rate,
                                structure=structure, robot=robot, split_seed=settings.split_seed, per_group=per_group,
                                threads=settings.threads)
     model_config = problem.model_config
     settings.training_config(settings.seeds[0])  # its checks, before the output folder is made
-    settings.check_memory(len(problem.train), model_config.ensemble_size)
+    grid = settings.alpha_choices()
+    settings.check_memory(problem.transitions, max(model_config.ensemble_size, len(grid) if grid else 1))
     weights = network_weights(model_config.ensemble_size, model_config.hidden_layers, model_config.hidden_width)
     check_free_space(output / f"seed{settings.seeds[0]}" / "checkpoint.pt",   # weights, Adam's state (float32)
                      len(settings.seeds) * (16 * weights + CHECKPOINT_RESERVE_BYTES))
@@ -262,13 +384,22 @@ def run(args: argparse.Namespace) -> int:
     print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "
           f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}, "
           f"{structure.label}; train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
-          f"({len(problem.train)} / {len(problem.val)} transitions)")
-    fit_options = dict(alpha_grid=settings.alpha_choices(), checkpoint_every=settings.checkpoint_every,
-                       metadata=problem.metadata)
-    entries = {seed: write_seed_files(output / f"seed{seed}", name, seed, result, selection)
-               for seed, result, selection in fit_seeds(problem, settings, fit_options, runner, output, args.quiet)}
+          f"({problem.transitions} / {len(dataset.transitions(split.val))} transitions)")
+    if source_line:
+        print(source_line)
+    if grid is not None:
+        print(f"alpha chosen by validation from {', '.join(f'{a:g}' for a in grid)}"
+              + (f" for each of the derivative sources {', '.join(sources)}" if isinstance(sources, tuple) else "")
+              + (" (0: naive training, so the chosen model is at worst naive on validation)" if 0.0 in grid else ""))
+    fit_options = dict(alpha_grid=grid, checkpoint_every=settings.checkpoint_every, metadata=problem.metadata)
+    verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources)
+    entries = {}
+    for seed, result, selection in fit_seeds(problem, settings, fit_options, runner, output, args.quiet):
+        entries[seed] = write_seed_files(output / f"seed{seed}", name, seed, result, selection)
+        entries[seed]["validation"] = verdict.report(seed, output / f"seed{seed}" / "checkpoint.pt", result.naive,
+                                                     selection)
     summary = dict(written_by=written_by(), model_type=name, structure=structure.as_dict(), dataset=str(args.dataset),
-                   dataset_sha256=dataset.sha256,
+                   dataset_sha256=dataset.sha256, derivative_sources=verdict.source_record(),
                    split={key: list(map(int, value)) for key, value in split.as_dict().items()},
                    seeds={str(seed): {k: v for k, v in entries[seed].items() if k != "alpha_selection"}
                           for seed in settings.seeds})

@@ -9,6 +9,27 @@ from stdm_drake.robots.plant import JointLimits, SelfCollisionChecker, joint_lim
 from stdm_drake.robots.robot import Robot, load_robot
 
 
+def shipped_preset_of(dataset):
+    """The shipped robot preset (models/*.yaml) `dataset` was collected with, by its recorded joint names and
+    description file (SHA-256), the UR-10's first and then by name (so a preset's plant-effects variant, which
+    shares its description, is never picked over it); None when no preset matches (a user's own robot)."""
+    from stdm_drake.paths import MODELS_DIR
+    from stdm_drake.robots.robot import UR10_CONFIG
+    recorded = dataset.metadata
+    if recorded.robot_model_sha256 is None:
+        return None
+    presets = [UR10_CONFIG] + sorted(path for path in MODELS_DIR.glob("*.yaml") if path != UR10_CONFIG)
+    for path in presets:
+        try:
+            robot = load_robot(path)
+        except InputError:   # (a YAML there that is no robot preset)
+            continue
+        if recorded.joint_names in (None, list(robot.joint_names)) and \
+                recorded.robot_model_sha256 == robot.model_sha256():
+            return path
+    return None
+
+
 def robot_for(path, dataset=None) -> Robot:
     """The robot of the config YAML at `path` (a command's `--robot`), its plant built once to check
     that it loads and that home is free of self-collision; with `dataset`, InputError unless the dataset

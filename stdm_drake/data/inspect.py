@@ -40,6 +40,33 @@ def noise_floor(dataset: Dataset, indices=None) -> dict | None:
     return dict(q=float(np.mean(np.concatenate(q_err) ** 2)), v=float(np.mean(np.concatenate(v_err) ** 2)))
 
 
+def plan_mismatch(dataset: Dataset, indices=None) -> dict | None:
+    """How far the plan's derivatives are from the recorded motion's, as derivative targets (data with a plan):
+    per joint the relative RMS difference RMS(planned - recorded) / RMS(recorded) of the accelerations q̈ and
+    of the velocities q̇, over the samples of the trajectories `indices` (default all). recorded: the
+    simulation's truth ("true") or, for a real robot's log, the smoothed derivatives of its measured angles
+    ("smoothed"). 0 is a plan followed exactly; about 1 or more is a plan that says nothing of the
+    accelerations (torque dithered every sample, poor tracking, a coarse reference). Returns
+    dict(recorded=source, acceleration=mean over joints, velocity=mean over joints, acceleration_per_joint=(n,)
+    list, velocity_per_joint=(n,) list), or None without a plan."""
+    from stdm_drake.data.dataset import derivative_arrays
+    if not dataset.has_plan:
+        return None
+    recorded = "true" if dataset.is_simulated else "smoothed"
+    indices = range(dataset.num_trajectories) if indices is None else [int(i) for i in indices]
+    pairs = [(derivative_arrays(dataset.trajectory(i), "planned"), derivative_arrays(dataset.trajectory(i), recorded))
+             for i in indices]
+    result = dict(recorded=recorded)
+    for position, name in ((0, "velocity"), (1, "acceleration")):
+        planned = np.concatenate([plan[position] for plan, _ in pairs])
+        actual = np.concatenate([motion[position] for _, motion in pairs])
+        scale = np.sqrt(np.mean(actual ** 2, axis=0))
+        relative = np.sqrt(np.mean((planned - actual) ** 2, axis=0)) / np.maximum(scale, np.finfo(float).tiny)
+        result[name + "_per_joint"] = [float(value) for value in relative]
+        result[name] = float(np.mean(relative))
+    return result
+
+
 def tracking_smoothness(dataset: Dataset) -> dict:
     """Per-joint measures of how smoothly the plant followed its plans (tracking data only), (n,) each.
 

@@ -139,7 +139,7 @@ class ModelErrors:
     name: str
     learned: bool
     one_step: OneStepErrors
-    multi_step: MultiStepErrors
+    multi_step: MultiStepErrors | None   # None: one-step errors only (`train`'s validation verdict)
     ratio_q: float | None = None
     ratio_v: float | None = None
     verdict: str | None = None
@@ -148,7 +148,7 @@ class ModelErrors:
 
     def as_dict(self) -> dict:
         return dict(name=self.name, learned=self.learned, one_step=self.one_step.as_dict(),
-                    multi_step=self.multi_step.as_dict(), ratio_to_euler_q=self.ratio_q,
+                    multi_step=None if self.multi_step is None else self.multi_step.as_dict(), ratio_to_euler_q=self.ratio_q,
                     ratio_to_velocity_unchanged_v=self.ratio_v, over_noise_floor_q=self.floor_ratio_q,
                     over_noise_floor_v=self.floor_ratio_v, verdict=self.verdict)
 
@@ -167,15 +167,16 @@ def physics_baselines(sample_period: float, state_dim: int, action_dim: int, rob
 
 def compare_with_baselines(models, transitions, rollout_data, *, propagation: str = "mean", particles: int = 20,
                            seed: int = 0, noise_floor: dict | None = None) -> list[ModelErrors]:
-    """Errors of every model (DynamicsModel) on the same transitions and rollouts (x0, actions, truth);
-    learned models are rated against the first ConstantVelocity among them and, given the sensor's
-    noise_floor ({"q", "v"} one-step MSE, `data.inspect.noise_floor`), against it."""
+    """Errors of every model (DynamicsModel) on the same transitions and rollouts (x0, actions, truth; None:
+    one-step errors only); learned models are rated against the first ConstantVelocity among them and, given the
+    sensor's noise_floor ({"q", "v"} one-step MSE, `data.inspect.noise_floor`), against it."""
     from stdm_drake.learning.physics import ConstantVelocity, learning_verdict
     rows = []
     for model in models:
         one = one_step_errors(model, transitions.state, transitions.action, transitions.next_state)
-        multi = multi_step_errors(model, *rollout_data, propagation=propagation if model.learned else "mean",
-                                  particles=particles, seed=seed)
+        multi = None if rollout_data is None else multi_step_errors(
+            model, *rollout_data, propagation=propagation if model.learned else "mean", particles=particles,
+            seed=seed)
         rows.append(ModelErrors(name=model.name, learned=model.learned, one_step=one, multi_step=multi))
     euler = next((row for row, model in zip(rows, models) if isinstance(model, ConstantVelocity)), None)
     if euler is not None:

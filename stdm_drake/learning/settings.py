@@ -31,8 +31,11 @@ MAX_ALPHA = 1e6     # beyond it the next-state term is below float32's resolutio
 MAX_ALPHA_GRID = 100
 LR_SCHEDULES = ("constant", "cosine")
 DEFAULT_ALPHA = 1e-3   # the paper's derivative-loss weight (found by search over 1e-1 ... 1e-4)
-# alpha values tried by `select_alpha` (`--alpha auto`): naive (0) and a log grid
+# alpha values tried by `select_alpha` (`reproduce`'s alpha selection): naive (0) and a log grid
 DEFAULT_ALPHA_GRID = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0)
+# `train`'s default (alpha "auto"): naive (0), so the chosen model is at worst naive training on validation,
+# and the paper's own search range (1e-4 ... 1e-1)
+TRAIN_ALPHA_GRID = (0.0, 1e-4, 1e-3, 1e-2, 1e-1)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -121,8 +124,9 @@ class TrainSettings:
 
     model: "D", "P", "DE", "PE" (naive) or "DD", "PD", "DED", "PED" (derivative loss), "G" / "GD" (the
     grey box: D / DD with inputs "plant_step"); derivative:
-    "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto";
-    alpha_grid: alphas tried by "auto"; network: activation, hidden_width, hidden_layers,
+    "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto" (the default:
+    chosen by validation from alpha_grid, 0 included, with the derivative source; see `derivative_sources`);
+    alpha_grid: alphas tried by "auto" (default TRAIN_ALPHA_GRID); network: activation, hidden_width, hidden_layers,
     ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
     predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's; None: "state" for a
     grey box, "velocity" otherwise) and inputs
@@ -131,14 +135,15 @@ class TrainSettings:
     `learning.structure`; losses: state_loss,
     derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
     trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
-    derivative_source ("true", "planned", "measured", "smoothed"; None: the dataset's), action_rate ("forward_difference",
+    derivative_source ("true", "planned", "measured", "smoothed"; None: chosen from the data, see
+    `learning.targets.candidate_sources`), action_rate ("forward_difference",
     "zero_order_hold"); optimization: epochs, patience, batch_size, lr, lr_schedule ("constant",
     "cosine"), min_lr, weight_decay; checkpoint_every (epochs); threads (torch CPU threads).
     """
     model: str = "DD"
     derivative: typing.Optional[str] = None
-    alpha: typing.Union[float, str] = DEFAULT_ALPHA
-    alpha_grid: typing.List[float] = dataclasses.field(default_factory=lambda: list(DEFAULT_ALPHA_GRID))
+    alpha: typing.Union[float, str] = "auto"
+    alpha_grid: typing.List[float] = dataclasses.field(default_factory=lambda: list(TRAIN_ALPHA_GRID))
     activation: str = "swish"
     hidden_width: int = 100
     hidden_layers: int = 3
@@ -257,7 +262,7 @@ class TrainSettings:
             raise InputError(f"{key('ensemble_size')} is the member count of DE/PE-type models; model "
                              f"{self.model} is one network, so it would be ignored")
         if not self.uses_derivative():
-            for name in ("alpha", "derivative_loss", "derivative_source", "action_rate"):
+            for name in ("alpha", "alpha_grid", "derivative_loss", "derivative_source", "action_rate"):
                 if is_set(name) and getattr(self, name) != "auto":   # ("auto" without it: check_alpha's line)
                     why = ("--derivative off turns it off" if self.derivative == "off" else
                            f"model {self.model} trains without it (a DD/PD/DED/PED type, or --derivative on, has it)")
@@ -281,12 +286,13 @@ class TrainSettings:
                              "lower batch_size, hidden_width or hidden_layers")
         return needed
 
-    def check_alpha(self) -> None:
+    def check_alpha(self, given: typing.Collection[str] | None = None) -> None:
         """InputError unless alpha suits the model type: > 0 or "auto" with the derivative loss, no "auto"
-        without it (checked on the merged settings: a file's alone may be completed by flags)."""
+        without it when the user set it (given: the keys set, as in `validate`; None: any "auto" counts);
+        checked on the merged settings: a file's alone may be completed by flags."""
         if self.uses_derivative() and self.alpha != "auto" and not self.alpha > 0:
             raise InputError(f"derivative learning needs --alpha > 0 or --alpha auto, got {self.alpha}")
-        if self.alpha == "auto" and not self.uses_derivative():
+        if self.alpha == "auto" and not self.uses_derivative() and (given is None or "alpha" in given):
             raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {self.model} trains "
                              "without it (use DD, PD, DED or PED, or --derivative on)")
 
@@ -317,8 +323,8 @@ class TrainSettings:
 
     def alpha_choices(self) -> tuple | None:
         """The alphas that alpha "auto" chooses from by validation (`trainer.fit_model`'s alpha_grid);
-        None for a fixed alpha."""
-        return tuple(float(a) for a in self.alpha_grid) if self.alpha == "auto" else None
+        None for a fixed alpha or a model trained without the derivative loss."""
+        return tuple(float(a) for a in self.alpha_grid) if self.alpha == "auto" and self.uses_derivative() else None
 
     def training_config(self, seed: int) -> TrainingConfig:
         """How the model of `seed` is fitted (alpha 0 without the derivative loss, and while "auto" picks it)."""

@@ -77,6 +77,7 @@ class TrainResult:
     epochs_run: int
     stopped_early: bool
     member_val_mse: list = dataclasses.field(default_factory=list)  # per validation row: (E,) standardized MSE
+    naive: EnsembleMLP | None = None   # an alpha grid's alpha = 0 member (naive training), beside the chosen one
 
 
 def _seeds(seed: int) -> tuple[int, int]:
@@ -293,25 +294,41 @@ def train_model(model_config: ModelConfig, training_config: TrainingConfig, trai
 
 @dataclasses.dataclass
 class AlphaSelection:
-    """Outcome of an alpha grid: per alpha the best validation state MSE (standardized, the mean over
-    outputs of ((x̂ - x)/σ_y)²) and the epoch it was reached; `index` is the chosen entry."""
+    """Outcome of an alpha grid: per entry the alpha, the best validation state MSE (standardized, the mean over
+    outputs of ((x̂ - x)/σ_y)²) and the epoch it was reached; `index` is the chosen entry. sources: per entry the
+    derivative source of its targets when several were tried (`select_alpha` over a dict of data), else None."""
     alphas: tuple
     val_mse: list
     best_epochs: list
     index: int
+    sources: tuple | None = None
 
     @property
     def alpha(self) -> float:
         return float(self.alphas[self.index])
 
+    @property
+    def source(self) -> str | None:
+        """The chosen entry's derivative source (None: one source was tried)."""
+        return None if self.sources is None else self.sources[self.index]
+
+    def label(self, index: int) -> str:
+        """Entry `index` as "alpha 0.001" or, with several sources, "alpha 0.001, true targets"."""
+        source = "" if self.sources is None or self.alphas[index] == 0 else f", {self.sources[index]} targets"
+        return f"alpha {self.alphas[index]:g}{source}"
+
     def as_dict(self) -> dict:
-        return dict(alphas=[float(a) for a in self.alphas], val_mse=[float(v) for v in self.val_mse],
-                    best_epochs=[int(e) for e in self.best_epochs], chosen_alpha=self.alpha, chosen_index=self.index)
+        values = dict(alphas=[float(a) for a in self.alphas], val_mse=[float(v) for v in self.val_mse],
+                      best_epochs=[int(e) for e in self.best_epochs], chosen_alpha=self.alpha, chosen_index=self.index)
+        if self.sources is not None:
+            values.update(sources=list(self.sources), chosen_source=self.source)
+        return values
 
     @classmethod
     def from_dict(cls, values: dict) -> "AlphaSelection":
         return cls(alphas=tuple(values["alphas"]), val_mse=list(values["val_mse"]),
-                   best_epochs=list(values["best_epochs"]), index=int(values["chosen_index"]))
+                   best_epochs=list(values["best_epochs"]), index=int(values["chosen_index"]),
+                   sources=tuple(values["sources"]) if values.get("sources") is not None else None)
 
 
 def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
@@ -331,32 +348,68 @@ def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig,
                                   index=index)
 
 
-def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
-                 val_data: RegressionData, *, alphas=DEFAULT_ALPHA_GRID,
+def data_by_source(data) -> dict:
+    """`data` (RegressionData, or a dict derivative source -> RegressionData in order of preference) as a
+    dict; a lone RegressionData is keyed None."""
+    return dict(data) if isinstance(data, dict) else {None: data}
+
+
+def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, train_data, val_data, *,
+                 alphas=DEFAULT_ALPHA_GRID,
                  on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
     """Choose alpha by validation (`train_alpha_grid`) and return the chosen single-member model (its
-    history is the whole grid's) with the selection. With 0 in `alphas` the chosen model is at least as
-    good as naive training on validation, by construction."""
-    result, selection = train_alpha_grid(model_config, training_config, train_data, val_data, alphas=alphas,
-                                         on_epoch=on_epoch)
-    index = selection.index
-    chosen = TrainResult(model=result.model.member(index), history=result.history,
-                         best_epochs=[result.best_epochs[index]], best_scores=[result.best_scores[index]],
-                         epochs_run=result.epochs_run, stopped_early=result.stopped_early)
+    history is its grid's) with the selection. With 0 in `alphas` the chosen model is at least as good as
+    naive training on validation, by construction; that naive member is returned as the result's `naive`.
+
+    train_data, val_data: RegressionData, or dicts derivative source -> RegressionData (same transitions,
+    the derivative targets of each source; the same keys in both): then one grid per source, alpha 0 only
+    in the first (its member does not see the targets), and the selection is over every (alpha, source)
+    entry, ties going to the earlier entry."""
+    trains, vals = data_by_source(train_data), data_by_source(val_data)
+    if list(trains) != list(vals):
+        raise InputError(f"training and validation data have different derivative sources: {list(trains)}, "
+                         f"{list(vals)}")
+    alphas = tuple(float(a) for a in alphas)
+    grids, entries = [], []   # per source: (result, alphas tried); entries: (source, grid index, member)
+    for position, source in enumerate(trains):
+        tried = alphas if position == 0 else tuple(a for a in alphas if a > 0)
+        if not tried:
+            continue
+        result, _ = train_alpha_grid(model_config, training_config, trains[source], vals[source], alphas=tried,
+                                     on_epoch=on_epoch)
+        grids.append((result, tried))
+        entries += [(source, len(grids) - 1, member) for member in range(len(tried))]
+    scores = np.asarray([grids[grid][0].best_scores[member] for _, grid, member in entries])
+    index = int(np.flatnonzero(scores == scores.min())[0])
+    source, grid, member = entries[index]
+    result = grids[grid][0]
+    naive = grids[0][0].model.member(grids[0][1].index(0.0)) if 0.0 in grids[0][1] else None
+    selection = AlphaSelection(alphas=tuple(grids[g][1][m] for _, g, m in entries), val_mse=scores.tolist(),
+                               best_epochs=[int(grids[g][0].best_epochs[m]) for _, g, m in entries], index=index,
+                               sources=None if list(trains) == [None] else tuple(s for s, _, _ in entries))
+    chosen = TrainResult(model=result.model.member(member), history=result.history,
+                         best_epochs=[result.best_epochs[member]], best_scores=[result.best_scores[member]],
+                         epochs_run=result.epochs_run, stopped_early=result.stopped_early, naive=naive)
     return chosen, selection
 
 
-def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
-              val_data: RegressionData, *, alpha_grid: tuple | None = None, checkpoint_path=None,
+def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_data, val_data, *,
+              alpha_grid: tuple | None = None, checkpoint_path=None,
               checkpoint_every: int = 10, metadata: CheckpointMetadata | dict | None = None, resume: bool = False,
               on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection | None]:
     """Train one model as `stdm-drake train` does, at the derivative-loss weight training_config.alpha
     (eq. 9), or, given `alpha_grid`, at the alpha `select_alpha` chooses from it by validation first: a
     single-member model is then the chosen grid member itself, an ensemble is trained at the chosen
     alpha. The selection is stored in the checkpoint's metadata (`alpha_selection`); resuming a run
-    that chose its alpha reuses the stored selection."""
+    that chose its alpha reuses the stored selection.
+
+    train_data, val_data: RegressionData, or (with alpha_grid) dicts derivative source -> RegressionData, of
+    which the selection chooses the source too (`select_alpha`); the metadata's derivative_source is then the
+    chosen one."""
     metadata = (dataclasses.replace(metadata) if isinstance(metadata, CheckpointMetadata)
                 else CheckpointMetadata.from_dict(dict(metadata or {})))
+    if alpha_grid is None and (isinstance(train_data, dict) or isinstance(val_data, dict)):
+        raise InputError("data of several derivative sources need an alpha grid to choose among them")
     selection = None
     if alpha_grid is not None:
         stored = None
@@ -374,6 +427,8 @@ def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_
             chosen, selection = select_alpha(model_config, training_config, train_data, val_data, alphas=alpha_grid,
                                              on_epoch=on_epoch)
             resume = False
+            if selection.source is not None:
+                metadata.derivative_source = selection.source
             if model_config.ensemble_size == 1:
                 metadata.alpha_selection = selection.as_dict()
                 if checkpoint_path is not None:
@@ -383,7 +438,7 @@ def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_
                 return chosen, selection
         metadata.alpha_selection = selection.as_dict()
         training_config = dataclasses.replace(training_config, alpha=selection.alpha)
+        train_data, val_data = (data_by_source(data)[selection.source] for data in (train_data, val_data))
     result = train_model(model_config, training_config, train_data, val_data, checkpoint_path=checkpoint_path,
                          checkpoint_every=checkpoint_every, metadata=metadata, resume=resume, on_epoch=on_epoch)
     return result, selection
-
