@@ -89,6 +89,7 @@ def test_same_seed_same_dataset_as_before(protocol, request):
 
 def test_same_seed_same_weights_as_before(tracking_dataset, tmp_path):
     assert main(["train", str(tracking_dataset), "--predicts", "state", "--inputs", "raw", "--model", "PED", "--ensemble-size", "2", "--epochs", "3",
+                 "--alpha", "1e-3", "--derivative-source", "planned",   # (train's defaults before they were chosen)
                  "--train", "1", "--val", "1", "--quiet", "-o", str(tmp_path)]) == 0
     weights = torch.load(tmp_path / "seed0" / "checkpoint.pt", weights_only=True)["weights"]
     sums = {name: float(value.double().abs().sum()) for name, value in weights.items()}

@@ -13,7 +13,7 @@ from stdm_drake.learning.physics import ConstantVelocity, NominalAcceleration, P
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.structure import DEFAULT, PAPER, ModelStructure
 from stdm_drake.learning.problem import training_problem
-from stdm_drake.learning.trainer import fit_model
+from stdm_drake.learning.alpha_selection import fit_model
 
 
 @pytest.fixture(scope="module")

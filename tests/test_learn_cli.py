@@ -48,7 +48,7 @@ def tiny(tmp_path_factory):
     dataset = write_tiny_dataset(folder / "tiny.h5", 10, seed=0)
     output = folder / "run"
     code = main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", "DED", "--ensemble-size", "2",
-                 "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
+                 "--alpha", "1e-3", "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
                  "--train", "6", "--val", "2", "--quiet"])
     assert code == 0
     return dataset, output
@@ -75,7 +75,7 @@ def test_train_writes_checkpoints_curves_and_summary(tiny):
 def test_train_refuses_to_overwrite_and_resumes(tiny, capsys):
     dataset, output = tiny
     arguments = ["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", "DED", "--ensemble-size", "2",
-                 "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
+                 "--alpha", "1e-3", "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "4", "--seeds", "0", "1",
                  "--train", "6", "--val", "2", "--quiet"]
     capsys.readouterr()
     assert main(arguments) == 2
@@ -165,7 +165,7 @@ def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, t
                  "--alpha-grid", "0", "1e-3", "1", *(["--ensemble-size", "2"] if model_type == "DED" else []),
                  "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "5", "--lr-schedule", "cosine", "--train", "6", "--val", "2", "--quiet"]
     assert main(arguments) == 0
-    assert "alpha chosen by validation" in capsys.readouterr().out
+    assert "seed 0: chosen by validation: alpha" in capsys.readouterr().out
     summary = json.loads((output / "summary.json").read_text())
     selection = summary["alpha_selection"]["0"]
     assert selection["alphas"] == [0.0, 1e-3, 1.0]
@@ -176,7 +176,7 @@ def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, t
     assert checkpoint.training_config.lr_schedule == "cosine"
     assert checkpoint.model_config.ensemble_size == (2 if model_type == "DED" else 1)
     lines = (output / "seed0" / "alpha_selection.csv").read_text().splitlines()
-    assert lines[0] == "alpha,val_state_mse_standardized,best_epoch,chosen" and len(lines) == 4
+    assert lines[0] == "alpha,derivative_source,val_state_mse_standardized,best_epoch,chosen" and len(lines) == 4
     assert (output / "seed0" / "alpha_selection.png").read_bytes().startswith(b"\x89PNG")
     before = (output / "seed0" / "checkpoint.pt").read_bytes()
     assert main(arguments + ["--resume"]) == 0       # a finished run: nothing is trained again

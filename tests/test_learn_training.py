@@ -10,7 +10,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.loss import batch_losses
-from stdm_drake.learning.trainer import build_model, select_alpha, train_model, training_step, validation_scores
+from stdm_drake.learning.alpha_selection import select_alpha
+from stdm_drake.learning.trainer import build_model, train_model, training_step, validation_scores
 from stdm_drake.learning.checkpoint import load_checkpoint, load_model, save_checkpoint
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import ModelConfig, dynamics_config

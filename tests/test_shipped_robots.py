@@ -152,8 +152,13 @@ def test_panda_collect_train_evaluate_mpc_view(tmp_path, capsys, panda):
     assert main(["view", checkpoint, str(data), "--robot", robot, "--trajectories", "1",
                  "--html", str(tmp_path / "view.html")]) == 0
     assert (tmp_path / "view.html").stat().st_size > 1000
-    assert main(["mpc", str(data), "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc_ur10")]) == 2
-    assert "collected with robot panda" in capsys.readouterr().err      # the UR-10 default refuses it
+    capsys.readouterr()
+    assert main(["mpc", str(data), "--robot", "stdm-drake:models/ur10.yaml", "--plans", "1", "--quiet",
+                 "-o", str(tmp_path / "mpc_ur10")]) == 2
+    assert "collected with robot panda" in capsys.readouterr().err      # another robot is refused
+    from stdm_drake.data.compatibility import shipped_preset_of
+    from stdm_drake.data.dataset import load_dataset
+    assert shipped_preset_of(load_dataset(data)).name == "panda.yaml"  # without --robot: the preset it records
 
 
 @pytest.mark.slow

@@ -46,7 +46,7 @@ def train_job(path: str, split: dict, model_type: str, seed: int, epochs: int, f
     from stdm_drake.learning.settings import TrainingConfig
     from stdm_drake.learning.structure import PAPER
     from stdm_drake.learning.problem import training_problem
-    from stdm_drake.learning.trainer import fit_model
+    from stdm_drake.learning.alpha_selection import fit_model
     torch.set_num_threads(1)
     dataset = load_dataset(path)
     problem = training_problem(dataset, split, model_type=model_type, derivative_source="true",

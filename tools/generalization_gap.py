@@ -82,7 +82,7 @@ def run_job(job: tuple) -> dict:
     torch.set_num_threads(1)
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.settings import TrainingConfig
-    from stdm_drake.learning.trainer import train_alpha_grid
+    from stdm_drake.learning.alpha_selection import train_alpha_grid
     from stdm_drake.learning.models import ModelConfig
 
     path, variant, seed, split, max_epochs = job

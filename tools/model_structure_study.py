@@ -116,7 +116,7 @@ def run_job(name: str, seed: int, job_problem, held_out_path: str, epochs: int, 
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.settings import TrainingConfig
     from stdm_drake.learning.structure import ModelStructure
-    from stdm_drake.learning.trainer import fit_model
+    from stdm_drake.learning.alpha_selection import fit_model
     torch.set_num_threads(1)
     predicts, inputs, n_train, alpha = CONFIGS[name]
     started = time.perf_counter()

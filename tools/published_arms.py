@@ -132,7 +132,8 @@ def run_arm(arm: str, descriptions: pathlib.Path, out: pathlib.Path, quick: bool
     command(steps, folder, "inspect_identification", "inspect", ident)
     model = learned_model_type(robot)
     row["model"] = model
-    derivative = ["--action-rate", "zero_order_hold", "--derivative-source", "true"] if model == "DD" else []
+    derivative = (["--action-rate", "zero_order_hold", "--derivative-source", "true", "--alpha", "1e-3"]
+                  if model == "DD" else [])   # (the alpha of docs/published_arms.md's runs)
     command(steps, folder, "train", "train", ident, "--robot", robot, "--model", model, *derivative, *training,
             "--quiet", "-o", runs)
     checkpoint = runs / "seed0" / "checkpoint.pt"

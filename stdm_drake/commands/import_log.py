@@ -81,6 +81,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"resampling: log period {resampling['log_period_s']:g} s, stamp jitter RMS {resampling['jitter_rms_s']:.3g} s, "
           f"estimated angle error {resampling['estimated_q_error_rad']:.3g} rad; torque from "
           f"{record['torque_source']}; derivative targets: "
-          + ("the logged plan (default), " if record["derivatives"]["planned"] else "")
-          + "measured, smoothed (Savitzky-Golay)")
+          + ("the logged plan, " if record["derivatives"]["planned"] else "")
+          + "measured, smoothed (Savitzky-Golay); train chooses among "
+          + ("the plan (when close to the logged motion) and " if record["derivatives"]["planned"] else "")
+          + "the smoothed ones by validation")
     return 0

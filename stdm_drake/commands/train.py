@@ -24,7 +24,7 @@ from stdm_drake.learning.problem import training_problem
 from stdm_drake.learning.seeds import dataset_split, fit_seeds
 from stdm_drake.learning.settings import LOSS_KINDS, LR_SCHEDULES, TRAIN_ALPHA_GRID, TrainSettings, network_weights
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
-from stdm_drake.learning.trainer import AlphaSelection
+from stdm_drake.learning.alpha_selection import AlphaSelection
 from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder, written_by
 
 

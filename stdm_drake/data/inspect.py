@@ -166,5 +166,7 @@ def import_lines(record: dict) -> list[str]:
             f"{pieces.get('gaps')} gaps, {pieces.get('pauses')} pauses, {pieces.get('mode_changes')} mode changes, "
             f"{pieces.get('cuts')} cuts; {pieces.get('rows_not_running')} rows not running left out",
             f"torque          {record.get('torque_source')}",
-            "derivatives     " + ("planned (default), " if derivatives.get("planned") else "")
-            + f"measured, smoothed ({derivatives.get('smoothed')})"]
+            "derivatives     " + ("planned, " if derivatives.get("planned") else "")
+            + f"measured, smoothed ({derivatives.get('smoothed')}); train's default chooses among "
+            + ("planned (when close to the logged motion) and " if derivatives.get("planned") else "")
+            + "smoothed by validation"]

@@ -148,7 +148,7 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.settings import TrainingConfig
     from stdm_drake.learning.problem import training_problem
-    from stdm_drake.learning.trainer import fit_model
+    from stdm_drake.learning.alpha_selection import fit_model
     from stdm_drake.paths import MODELS_DIR
     from stdm_drake.robots.robot import load_robot
     torch.set_num_threads(1)

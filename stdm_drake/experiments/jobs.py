@@ -206,7 +206,7 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[TrainingResult]:
     from stdm_drake.learning.models import parse_model_type
     from stdm_drake.learning.settings import TrainingConfig
     from stdm_drake.learning.problem import training_problem
-    from stdm_drake.learning.trainer import fit_model, train_alpha_grid
+    from stdm_drake.learning.alpha_selection import fit_model, train_alpha_grid
 
     key = job.key()
     result_path = cache / f"{key}.json"

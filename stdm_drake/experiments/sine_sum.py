@@ -41,7 +41,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, rows_csv, write_text_atomic
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import TrainingConfig
-from stdm_drake.learning.trainer import train_alpha_grid, train_model
+from stdm_drake.learning.alpha_selection import train_alpha_grid
+from stdm_drake.learning.trainer import train_model
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import ModelConfig
 from stdm_drake.outputs import written_by

@@ -1,7 +1,7 @@
 """The training problem of one model type on one dataset split: the network's config, the training and
 validation pairs and the checkpoint metadata (`training_problem`), the default split sizes. It is the
 programmatic entry point that `stdm-drake train`, `reproduce` and the tools share; `fit_model` /
-`train_alpha_grid` (`learning.trainer`) then train it."""
+`train_alpha_grid` (`learning.alpha_selection`) then train it."""
 from __future__ import annotations
 
 import dataclasses

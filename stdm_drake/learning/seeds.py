@@ -11,7 +11,7 @@ import torch
 from stdm_drake.files import atomic_path
 from stdm_drake.learning.problem import default_split_sizes
 from stdm_drake.learning.settings import TrainSettings
-from stdm_drake.learning.trainer import fit_model
+from stdm_drake.learning.alpha_selection import fit_model
 
 
 def fit_seed(model_config, training_config, train_data, val_data, fit_options: dict, threads: int,

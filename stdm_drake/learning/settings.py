@@ -322,7 +322,7 @@ class TrainSettings:
         return "state" if self.inputs == "plant_step" else "velocity"
 
     def alpha_choices(self) -> tuple | None:
-        """The alphas that alpha "auto" chooses from by validation (`trainer.fit_model`'s alpha_grid);
+        """The alphas that alpha "auto" chooses from by validation (`alpha_selection.fit_model`'s alpha_grid);
         None for a fixed alpha or a model trained without the derivative loss."""
         return tuple(float(a) for a in self.alpha_grid) if self.alpha == "auto" and self.uses_derivative() else None
 
