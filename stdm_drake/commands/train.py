@@ -212,15 +212,16 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
 
 
 def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
-    """(derivative_source for `training_problem`, the line that states the choice or None). Given by the user,
+    """(derivative_source for `training_problem`, the line that states the choice or None, the plan's measured
+    mismatch `data.inspect.plan_mismatch` or None). Given by the user,
     the source is used as it is (a plan far from the recorded motion gets one warning line with the measured
     mismatch); else `learning.problem.candidate_sources` on the training and validation trajectories: all of
     them (a tuple, chosen by validation) with alpha "auto", their first with a fixed alpha. A model without the
-    derivative loss uses none (None, None)."""
+    derivative loss uses none (None, None, the mismatch)."""
     from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT, candidate_sources
-    if not settings.uses_derivative():
-        return None, None
     choice = candidate_sources(dataset, np.concatenate([split.train, split.val]))
+    if not settings.uses_derivative():
+        return None, None, choice.mismatch
     if settings.derivative_source is not None:
         if settings.derivative_source == "planned" and choice.plan_left_out():
             print(f"stdm-drake train: warning: --derivative-source planned: the plan's accelerations are "
@@ -229,14 +230,14 @@ def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
                   + f") from the recorded ones ({choice.mismatch['recorded']}), more than {PLAN_MISMATCH_LIMIT:g}: "
                   "the model is fitted to derivatives the robot did not have; leave the option out to choose by "
                   "validation", file=sys.stderr)
-        return settings.derivative_source, None
+        return settings.derivative_source, None, choice.mismatch
     if settings.alpha_choices() is not None and len(choice.sources) > 1:
-        return tuple(choice.sources), choice.describe()
+        return tuple(choice.sources), choice.describe(), choice.mismatch
     if len(choice.sources) > 1:   # a fixed alpha: the first, the plan
         return choice.sources[0], (f"derivative targets: {choice.sources[0]} (the plan's accelerations are "
                                    f"{choice.mismatch['acceleration']:.2f} from the recorded ones; --alpha auto "
-                                   f"would also try {', '.join(choice.sources[1:])})")
-    return choice.sources[0], choice.describe()
+                                   f"would also try {', '.join(choice.sources[1:])})"), choice.mismatch
+    return choice.sources[0], choice.describe(), choice.mismatch
 
 
 class ValidationVerdict:
@@ -246,16 +247,13 @@ class ValidationVerdict:
     not learned. Validation only: the test split stays for `evaluate`."""
 
     def __init__(self, dataset, split, robot, structure, name: str, settings: TrainSettings, transitions: int,
-                 sources):
+                 sources, mismatch: dict | None):
         from stdm_drake.data.inspect import noise_floor
-        from stdm_drake.learning.problem import candidate_sources
         self.dataset, self.robot, self.structure, self.name, self.settings = dataset, robot, structure, name, settings
-        self.training_transitions, self.sources = transitions, sources
+        self.training_transitions, self.sources, self.mismatch = transitions, sources, mismatch
         self.val = dataset.transitions(split.val)
         self.val_trajectories = len(split.val)
         self.floor = noise_floor(dataset, split.val)
-        self.mismatch = (candidate_sources(dataset, np.concatenate([split.train, split.val])).mismatch
-                         if dataset.has_plan else None)
 
     def source_record(self) -> dict:
         """The derivative sources tried and the plan's measured mismatch, for summary.json."""
@@ -365,7 +363,7 @@ def run(args: argparse.Namespace) -> int:
     split, per_group = dataset_split(dataset, settings)
     structure = settings.structure(grey_box_physics(args.physics, robot, settings, dataset, split))
     name = settings.model_name()
-    sources, source_line = derivative_sources(dataset, split, settings)
+    sources, source_line, mismatch = derivative_sources(dataset, split, settings)
     problem = training_problem(dataset, split, model_type=name, activation=settings.activation,
                                hidden_width=settings.hidden_width, hidden_layers=settings.hidden_layers,
                                ensemble_size=settings.ensemble_size, delta=not settings.direct,
@@ -392,7 +390,8 @@ def run(args: argparse.Namespace) -> int:
               + (f" for each of the derivative sources {', '.join(sources)}" if isinstance(sources, tuple) else "")
               + (" (0: naive training, so the chosen model is at worst naive on validation)" if 0.0 in grid else ""))
     fit_options = dict(alpha_grid=grid, checkpoint_every=settings.checkpoint_every, metadata=problem.metadata)
-    verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources)
+    verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
+                                mismatch)
     entries = {}
     for seed, result, selection in fit_seeds(problem, settings, fit_options, runner, output, args.quiet):
         entries[seed] = write_seed_files(output / f"seed{seed}", name, seed, result, selection)
