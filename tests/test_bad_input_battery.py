@@ -454,6 +454,7 @@ CASES = [
     ([*T, "--model", "DD", "--alpha", "auto", "--alpha-grid", "0", "1e300", "-o", "NEW"], "must be at most 1e+06"),
     ([*T, "--alpha", "0.001", "--alpha-grid", "1", "2", "-o", "NEW"], "with alpha 0.001 it would be ignored"),
     ([*T, "--model", "D", "--alpha-grid", "0", "1", "-o", "NEW"], "alpha_grid (--alpha-grid) shapes the derivative loss"),
+    ([*T, "--alpha-grid", "0", "-o", "NEW"], "holds no alpha above 0, so the derivative loss would never be used"),
     ([*T, "--model", "DD", "--alpha", "auto", "--alpha-grid", *["0.001"] * 101, "-o", "NEW"], "lists 101 alphas, at most 100"),
     ([*T, "--min-lr", "1e-5", "-o", "NEW"], "with the constant schedule it would be ignored"),
     ([*T, "--derivative", "off", "--alpha", "0.5", "-o", "NEW"], "alpha (--alpha) shapes the derivative loss"),

@@ -153,3 +153,37 @@ def test_the_default_learns_on_every_shipped_protocol(tmp_path):
         assert default["verdict"].startswith("learned"), (name, default)
         for key in ("q", "v"):
             assert default[key] <= study.MARGIN * naive[key], (name, key, default[key], naive[key])
+
+
+def test_resuming_records_the_chosen_source_and_refuses_a_fixed_alpha_run(tmp_path):
+    """An ensemble resumed from its stored selection records the selection's derivative source (not the first
+    candidate's); a checkpoint trained at a fixed alpha (train's default before it chose alpha) is not resumed by
+    an alpha grid, which would start it over: one line naming the alpha to resume it with."""
+    import dataclasses
+
+    from stdm_drake.errors import InputError
+    from stdm_drake.learning.alpha_selection import fit_model
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    from stdm_drake.learning.models import ModelConfig
+    from stdm_drake.learning.settings import TrainingConfig
+    from stdm_drake.learning.trainer import train_model
+    rng = np.random.default_rng(1)
+    first = _regression_pair(rng, 120, 1.0)
+    second = dataclasses.replace(_regression_pair(rng, 120, 0.1), inputs=first.inputs, targets=first.targets)
+    val = _regression_pair(rng, 40, 1.0)
+    data, vals = {"planned": first, "true": second}, {"planned": val, "true": val}
+    ensemble = ModelConfig(input_dim=3, output_dim=2, hidden_width=8, hidden_layers=1, ensemble_size=2)
+    training = TrainingConfig(max_epochs=3, batch_size=32, seed=4)
+    path = tmp_path / "ensemble.pt"
+    result, selection = fit_model(ensemble, training, data, vals, alpha_grid=(0.0, 1e-2), checkpoint_path=path,
+                                  metadata=dict(derivative_source="measured"))
+    assert result.naive is not None and result.model.config.ensemble_size == 2
+    assert load_checkpoint(path).metadata.derivative_source == selection.source
+    _, resumed = fit_model(ensemble, training, data, vals, alpha_grid=(0.0, 1e-2), checkpoint_path=path,
+                           metadata=dict(derivative_source="measured"), resume=True)
+    assert resumed == selection and load_checkpoint(path).metadata.derivative_source == selection.source
+    single = dataclasses.replace(ensemble, ensemble_size=1)
+    fixed = tmp_path / "fixed.pt"
+    train_model(single, dataclasses.replace(training, alpha=1e-3, max_epochs=2), first, val, checkpoint_path=fixed)
+    with pytest.raises(InputError, match="resume it with --alpha 0.001"):
+        fit_model(single, training, first, val, alpha_grid=(0.0, 1e-2), checkpoint_path=fixed, resume=True)

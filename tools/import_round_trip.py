@@ -2,7 +2,7 @@
 imported by `stdm-drake import` as accurate as one trained on the data the log was written from?
 
 40 tracked plans of the UR-10 at 500 Hz (paper's sensor) are collected, written as an RTDE recording (timing
-jitter, 1 % dropped rows) and imported at 0.002 s; D models (`train`'s default, 5 seeds, 100 epochs, derivative
+jitter, 1 % dropped rows) and imported at 0.002 s; D models (`--model D`, 5 seeds, 100 epochs, derivative
 source planned) are trained on each with the same split (24 / 8 / 8 plans, not per pose: the import keeps the
 plans' order); both are evaluated on the original's 8 test plans (one-step and 20-step q MSE) beside the physics
 baselines; the ratio import / original paired by seed with a 95 % interval. Success: the one-step ratio's

@@ -82,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
           f"estimated angle error {resampling['estimated_q_error_rad']:.3g} rad; torque from "
           f"{record['torque_source']}; derivative targets: "
           + ("the logged plan, " if record["derivatives"]["planned"] else "")
-          + "measured, smoothed (Savitzky-Golay); train chooses among "
-          + ("the plan (when close to the logged motion) and " if record["derivatives"]["planned"] else "")
-          + "the smoothed ones by validation")
+          + "measured, smoothed (Savitzky-Golay)"
+          + ("; train chooses between the plan (when close to the logged motion) and the smoothed ones by validation"
+             if record["derivatives"]["planned"] else "; train uses the smoothed ones"))
     return 0

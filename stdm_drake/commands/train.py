@@ -145,6 +145,7 @@ def alpha_selection_csv(selection: AlphaSelection) -> str:
     sources = selection.sources or ("",) * len(selection.alphas)
     for index, (alpha, source, score, epoch) in enumerate(zip(selection.alphas, sources, selection.val_mse,
                                                                selection.best_epochs)):
+        source = source if alpha > 0 else ""   # (naive training sees no derivative targets)
         lines.append(f"{alpha:g},{source},{score:.9g},{int(epoch)},{int(index == selection.index)}")
     return "\n".join(lines) + "\n"
 
@@ -222,6 +223,8 @@ def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
     choice = candidate_sources(dataset, np.concatenate([split.train, split.val]))
     if not settings.uses_derivative():
         return None, None, choice.mismatch
+    if settings.action_rate == "zero_order_hold" and "true" in choice.sources:   # (the scheme needs true targets)
+        choice = dataclasses.replace(choice, sources=("true",))
     if settings.derivative_source is not None:
         if settings.derivative_source == "planned" and choice.plan_left_out():
             print(f"stdm-drake train: warning: --derivative-source planned: the plan's accelerations are "
@@ -271,7 +274,8 @@ class ValidationVerdict:
                              else f" ({selection.label(selection.index)})")
         models = [LearnedModel(checkpoint, name=label, robot=self.robot, check_robot=check)]
         if naive is not None and selection is not None and selection.alpha > 0:
-            models.append(LearnedModel(naive, name=f"{self.name[0]} (alpha 0)", robot=self.robot,
+            single = "" if models[0].ensemble_size == 1 else ", one network"
+            models.append(LearnedModel(naive, name=f"{self.name[0]} (alpha 0{single})", robot=self.robot,
                                        structure=self.structure, sample_period=self.dataset.sample_period))
         euler = ConstantVelocity(models[0].state_dim, models[0].action_dim, self.dataset.sample_period)
         rows = compare_with_baselines(models + [euler], self.val, None, noise_floor=self.floor)
@@ -290,8 +294,9 @@ class ValidationVerdict:
         if not model.verdict.startswith("learned"):
             print(f"stdm-drake train: warning: seed {seed}'s {self.name} has not learned the dynamics (validation "
                   f"one-step q {model.ratio_q:.3g}x better than the Euler step, v {model.ratio_v:.3g}x than 'v "
-                  f"unchanged'; it needs {LEARNED_FACTOR:g}x in both, or within {FLOOR_FACTOR:g}x of the noise "
-                  f"floor); likely cause: {self.likely_cause(selection, rows)}", file=sys.stderr)
+                  f"unchanged'; it needs {LEARNED_FACTOR:g}x in both"
+                  + (f", or within {FLOOR_FACTOR:g}x of the noise floor" if self.floor and self.floor["v"] > 0 else "")
+                  + f"); likely cause: {self.likely_cause(selection, rows)}", file=sys.stderr)
         return dict(transitions=model.one_step.transitions, trajectories=self.val_trajectories, noise_floor=self.floor,
                     models=[row.as_dict() for row in rows])
 
@@ -299,7 +304,8 @@ class ValidationVerdict:
         """The first of the usual reasons that fits this run."""
         from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT
         settings, chosen = self.settings, (selection.source if selection is not None else None) or self.sources
-        if settings.uses_derivative() and chosen == "planned" and self.mismatch is not None and \
+        targets_used = selection is None or selection.alpha > 0
+        if settings.uses_derivative() and targets_used and chosen == "planned" and self.mismatch is not None and \
                 self.mismatch["acceleration"] > PLAN_MISMATCH_LIMIT:
             return (f"the derivative targets: the plan's accelerations are {self.mismatch['acceleration']:.2f} "
                     "(relative RMS) from the recorded ones; leave out --derivative-source planned")
@@ -310,7 +316,7 @@ class ValidationVerdict:
         if self.training_transitions < 2000:
             return (f"the data size: {self.training_transitions} training transitions; collect more trajectories "
                     "(collect --count) or train on more of them (--train)")
-        if self.structure.inputs == "raw" or self.structure.predicts == "state":
+        if not self.structure.grey_box and (self.structure.inputs == "raw" or self.structure.predicts == "state"):
             return ("the model structure: the paper's black box (--inputs raw, --predicts state) did not learn on "
                     "the shipped protocols (docs/learning.md); leave --inputs and --predicts at their defaults")
         return ("the data or the training budget: check the data with `stdm-drake inspect` and the learning curves "

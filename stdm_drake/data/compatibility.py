@@ -12,7 +12,8 @@ from stdm_drake.robots.robot import Robot, load_robot
 def shipped_preset_of(dataset):
     """The shipped robot preset (models/*.yaml) `dataset` was collected with, by its recorded joint names and
     description file (SHA-256), the UR-10's first and then by name (so a preset's plant-effects variant, which
-    shares its description, is never picked over it); None when no preset matches (a user's own robot)."""
+    shares its description, is never picked over it); None when no preset matches (a user's own robot). A user's
+    own config on a shipped description file gets the preset: the nominal model is the description, the same."""
     from stdm_drake.paths import MODELS_DIR
     from stdm_drake.robots.robot import UR10_CONFIG
     recorded = dataset.metadata

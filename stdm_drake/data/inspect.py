@@ -167,6 +167,6 @@ def import_lines(record: dict) -> list[str]:
             f"{pieces.get('cuts')} cuts; {pieces.get('rows_not_running')} rows not running left out",
             f"torque          {record.get('torque_source')}",
             "derivatives     " + ("planned, " if derivatives.get("planned") else "")
-            + f"measured, smoothed ({derivatives.get('smoothed')}); train's default chooses among "
-            + ("planned (when close to the logged motion) and " if derivatives.get("planned") else "")
-            + "smoothed by validation"]
+            + f"measured, smoothed ({derivatives.get('smoothed')})"
+            + ("; train's default chooses between planned (when close to the logged motion) and smoothed by "
+               "validation" if derivatives.get("planned") else "; train's default: smoothed")]

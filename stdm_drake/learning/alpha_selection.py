@@ -141,6 +141,10 @@ def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_
         stored = None
         if resume and checkpoint_path is not None and pathlib.Path(checkpoint_path).exists():
             stored = load_checkpoint(checkpoint_path)
+        if stored is not None and stored.metadata.alpha_selection is None and stored.resume is not None:
+            raise InputError(f"{checkpoint_path} was being trained at the fixed alpha {stored.training_config.alpha:g} "
+                             "(before train chose alpha by validation by default); resume it with --alpha "
+                             f"{stored.training_config.alpha:g}, or train it anew without --resume")
         if stored is not None and stored.metadata.alpha_selection is not None:
             selection = AlphaSelection.from_dict(stored.metadata.alpha_selection)
             if stored.resume is None:  # a finished single-member selection: nothing left to train
@@ -153,9 +157,9 @@ def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_
             chosen, selection = select_alpha(model_config, training_config, train_data, val_data, alphas=alpha_grid,
                                              on_epoch=on_epoch)
             resume = False
-            if selection.source is not None:
-                metadata.derivative_source = selection.source
             if model_config.ensemble_size == 1:
+                if selection.source is not None:
+                    metadata.derivative_source = selection.source
                 metadata.alpha_selection = selection.as_dict()
                 if checkpoint_path is not None:
                     save_checkpoint(checkpoint_path, chosen.model,
@@ -163,8 +167,12 @@ def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_
                                     history=chosen.history, metadata=metadata)
                 return chosen, selection
         metadata.alpha_selection = selection.as_dict()
+        if selection.source is not None:     # (also when resuming: the stored selection's source)
+            metadata.derivative_source = selection.source
         training_config = dataclasses.replace(training_config, alpha=selection.alpha)
         train_data, val_data = (data_by_source(data)[selection.source] for data in (train_data, val_data))
     result = train_model(model_config, training_config, train_data, val_data, checkpoint_path=checkpoint_path,
                          checkpoint_every=checkpoint_every, metadata=metadata, resume=resume, on_epoch=on_epoch)
+    if selection is not None and stored is None:
+        result.naive = chosen.naive    # the grid's naive single network, beside the ensemble trained at its alpha
     return result, selection

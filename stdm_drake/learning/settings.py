@@ -136,7 +136,7 @@ class TrainSettings:
     derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
     trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
     derivative_source ("true", "planned", "measured", "smoothed"; None: chosen from the data, see
-    `learning.targets.candidate_sources`), action_rate ("forward_difference",
+    `learning.problem.candidate_sources`), action_rate ("forward_difference",
     "zero_order_hold"); optimization: epochs, patience, batch_size, lr, lr_schedule ("constant",
     "cosine"), min_lr, weight_decay; checkpoint_every (epochs); threads (torch CPU threads).
     """
@@ -219,6 +219,9 @@ class TrainSettings:
         if max([*self.alpha_grid, 0.0 if self.alpha == "auto" else self.alpha]) > MAX_ALPHA:
             raise InputError(f"{key('alpha')} and {key('alpha_grid')} must be at most {MAX_ALPHA:g}: the next-state "
                              "loss would vanish beside the derivative loss (float32)")
+        if self.alpha == "auto" and self.uses_derivative() and max(self.alpha_grid) == 0:
+            raise InputError(f"{key('alpha_grid')} holds no alpha above 0, so the derivative loss would never be "
+                             f"used; train --model {self.model_name()[:-1] or 'D'} for naive training")
         if self.alpha != "auto" and is_set("alpha_grid"):
             raise InputError(f"{key('alpha_grid')} is what --alpha auto chooses from; with alpha {self.alpha:g} it "
                              "would be ignored")
