@@ -12,6 +12,8 @@ split's test trajectories (never used for any choice): one-step MSE of q and v b
 seed, D / default with a 95 % interval (`stdm_drake.stats.paired_ratio`).
 
     python tools/default_train_study.py [--quick] [--data /tmp/default_train_study] [-o docs/results/default_train]
+    python tools/default_train_study.py --protocols excitation --seeds 5 6 7 8 9 10 11 12 13 14 \
+        -o docs/results/default_train/replication      # the replication (docs/learning.md)
 """
 from __future__ import annotations
 
@@ -86,11 +88,11 @@ def run_train(arguments: list) -> tuple[int, float, str]:
     return process.returncode, time.perf_counter() - started, process.stdout + process.stderr
 
 
-def train_all(paths: dict, runs: pathlib.Path, design: dict, workers: int) -> dict:
+def train_all(paths: dict, runs: pathlib.Path, design: dict, workers: int, protocols=PROTOCOLS) -> dict:
     """Every (protocol, configuration) trained into runs/<protocol>_<config> (kept when its summary exists);
     returns {folder name: seconds} of the runs made now."""
     jobs = {f"{name}_{config}": train_command(paths[name], runs / f"{name}_{config}", config, design)
-            for name in PROTOCOLS for config in ("default", "D") if not (runs / f"{name}_{config}" / "summary.json").exists()}
+            for name in protocols for config in ("default", "D") if not (runs / f"{name}_{config}" / "summary.json").exists()}
     seconds = {}
     with concurrent.futures.ThreadPoolExecutor(max_workers=workers) as pool:
         futures = {pool.submit(run_train, arguments): folder for folder, arguments in jobs.items()}
@@ -105,7 +107,7 @@ def train_all(paths: dict, runs: pathlib.Path, design: dict, workers: int) -> di
     return seconds
 
 
-def evaluate(paths: dict, runs: pathlib.Path, design: dict) -> dict:
+def evaluate(paths: dict, runs: pathlib.Path, design: dict, protocols=PROTOCOLS) -> dict:
     """Per protocol: each model's test errors beside the Euler step, its verdict, its validation entry from
     train's summary.json, and the paired ratios D / default (q and v one step)."""
     from stdm_drake.data.compatibility import shipped_preset_of
@@ -117,7 +119,7 @@ def evaluate(paths: dict, runs: pathlib.Path, design: dict) -> dict:
     from stdm_drake.robots.robot import load_robot
     from stdm_drake.stats import paired_ratio
     results = {}
-    for name in PROTOCOLS:
+    for name in protocols:
         dataset = load_dataset(paths[name])
         robot = load_robot(shipped_preset_of(dataset))
         summaries = {config: json.loads((runs / f"{name}_{config}" / "summary.json").read_text())
@@ -190,14 +192,21 @@ def main(argv=None) -> int:
     parser.add_argument("--data", type=pathlib.Path, default=pathlib.Path("/tmp/default_train_study"))
     parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "default_train")
     parser.add_argument("--workers", type=int, default=2, help="train runs at once (default 2)")
+    parser.add_argument("--protocols", nargs="+", choices=PROTOCOLS, default=list(PROTOCOLS),
+                        help="the protocols to run (default all five)")
+    parser.add_argument("--seeds", type=int, nargs="+", help="the model seeds (default: the design's, 0-4); other "
+                        "seeds train into their own runs folder")
     args = parser.parse_args(argv)
-    design = QUICK if args.quick else FULL
+    design = dict(QUICK if args.quick else FULL)
+    runs = args.data / "runs"
+    if args.seeds is not None and tuple(args.seeds) != design["seeds"]:
+        design["seeds"] = tuple(args.seeds)
+        runs = args.data / ("runs_seeds_" + "_".join(map(str, args.seeds)))
     started = time.perf_counter()
     paths = collect(args.data, design)
-    runs = args.data / "runs"
     runs.mkdir(parents=True, exist_ok=True)
-    seconds = train_all(paths, runs, design, args.workers)
-    results = evaluate(paths, runs, design)
+    seconds = train_all(paths, runs, design, args.workers, args.protocols)
+    results = evaluate(paths, runs, design, args.protocols)
     from stdm_drake.files import json_default, write_text_atomic
     record = dict(written_by="stdm-drake tools/default_train_study.py", quick=args.quick,
                   design=dict(design, data_seed=DATA_SEED, margin=MARGIN), train_seconds=seconds,
