@@ -115,4 +115,6 @@ def model_description(model) -> str:
     alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
     return (f"model {model.name}: {config.hidden_layers}x{config.hidden_width} {config.activation}, "
             f"{config.ensemble_size} member(s), {'probabilistic' if config.probabilistic else 'deterministic'}, "
-            f"{'delta' if config.residual else 'direct'}, {model.structure.label}, derivative alpha {alpha:g}")
+            f"{'delta' if config.residual else 'direct'}, {model.structure.label}, derivative alpha {alpha:g}"
+            + (f" ({checkpoint.metadata.derivative_source} targets)" if alpha > 0 and checkpoint.metadata.derivative_source
+               else ""))

@@ -23,7 +23,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "`stdm-drake identify` (.yaml)")
     parser.add_argument("dataset", type=pathlib.Path, help="dataset file (.h5)")
     parser.add_argument("--robot", type=pathlib.Path,
-                        help="robot config YAML (default: the UR-10 preset when the dataset is its): the plant "
+                        help="robot config YAML (default: the shipped preset the dataset was collected with, else the "
+                             "UR-10's when the dataset is its): the plant "
                              "baseline and the nominal model; a dataset collected with another robot is refused")
     parser.add_argument("--split", choices=("test", "val", "train", "all"), default="test",
                         help="trajectories to evaluate: the checkpoint's split of this dataset, or all (default test)")
@@ -57,9 +58,10 @@ def run(args: argparse.Namespace) -> int:
     dataset = load_dataset(args.dataset)
     if args.robot is not None:
         robot = robot_for(args.robot, dataset)
-    else:  # the UR-10 preset when the dataset is its; another robot's data get no plant baseline
+    else:  # the shipped preset the dataset records, else the UR-10's; another robot's data get no plant baseline
+        from stdm_drake.data.compatibility import shipped_preset_of
         try:
-            robot = robot_for(UR10_CONFIG, dataset)
+            robot = robot_for(shipped_preset_of(dataset) or UR10_CONFIG, dataset)
         except InputError:
             robot = None
     source = load_model_file(args.checkpoint)   # a checkpoint or an identified robot: which dataset and split
