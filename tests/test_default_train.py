@@ -187,3 +187,31 @@ def test_resuming_records_the_chosen_source_and_refuses_a_fixed_alpha_run(tmp_pa
     train_model(single, dataclasses.replace(training, alpha=1e-3, max_epochs=2), first, val, checkpoint_path=fixed)
     with pytest.raises(InputError, match="resume it with --alpha 0.001"):
         fit_model(single, training, first, val, alpha_grid=(0.0, 1e-2), checkpoint_path=fixed, resume=True)
+
+
+def test_an_alpha_replaces_naive_training_only_with_a_gain_beyond_validations_noise():
+    """naive_gain_bounds: the one-sided 95 % Student-t lower bound of the paired per-trajectory gain, relative to
+    naive's mean error (by hand on a small matrix); select_alpha with validation trajectories keeps naive unless
+    an alpha's bound is above 0, and records the bounds."""
+    from scipy import stats
+
+    from stdm_drake.learning.alpha_selection import naive_gain_bounds, select_alpha
+    from stdm_drake.learning.models import ModelConfig
+    from stdm_drake.learning.settings import TrainingConfig
+    errors = np.array([[1.0, 2.0, 3.0, 4.0],      # naive
+                       [0.9, 1.9, 2.9, 3.9],      # 0.1 better on every trajectory: a clear gain
+                       [0.5, 2.5, 2.0, 4.4]])     # better on average, not beyond the noise
+    bounds = naive_gain_bounds(errors, 0)
+    d = errors[0] - errors[2]
+    expected = (d.mean() - stats.t.ppf(0.95, 3) * d.std(ddof=1) / 2) / errors[0].mean()
+    assert bounds[0] == 0 and bounds[1] == pytest.approx(0.1 / 2.5) and bounds[2] == pytest.approx(expected)
+    assert bounds[1] > 0 > bounds[2]
+    rng = np.random.default_rng(3)
+    train, val = _regression_pair(rng, 200, 1.0), _regression_pair(rng, 60, 1.0)
+    val.groups = np.repeat(np.arange(6), 10)
+    config = ModelConfig(input_dim=3, output_dim=2, hidden_width=16, hidden_layers=2)
+    _, selection = select_alpha(config, TrainingConfig(max_epochs=4, batch_size=32, seed=2), train, val,
+                                alphas=(0.0, 1e-2, 1.0))
+    assert len(selection.gain_low) == 3 and selection.gain_low[0] == 0
+    clear = [i for i, low in enumerate(selection.gain_low) if low > 0]
+    assert selection.index == (min(clear, key=lambda i: selection.val_mse[i]) if clear else 0)

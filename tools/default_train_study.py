@@ -13,7 +13,9 @@ seed, D / default with a 95 % interval (`stdm_drake.stats.paired_ratio`).
 
     python tools/default_train_study.py [--quick] [--data /tmp/default_train_study] [-o docs/results/default_train]
     python tools/default_train_study.py --protocols excitation --seeds 5 6 7 8 9 10 11 12 13 14 \
-        -o docs/results/default_train/replication      # the replication (docs/learning.md)
+        -o docs/results/default_train/replication      # run 1's replication (docs/learning.md)
+    python tools/default_train_study.py --data-seed 28 --data /tmp/default_train_study_28 \
+        -o docs/results/default_train/run2             # run 2: the selection rule, on new data
 """
 from __future__ import annotations
 
@@ -44,12 +46,12 @@ QUICK = dict(count=12, log_count=8, seeds=(0, 1), train_flags=("--epochs", "5"))
 SMALL = dict(count=24, log_count=16, seeds=(0,), train_flags=("--epochs", "60"))   # the test's (tests/test_default_train.py)
 
 
-def collect(folder: pathlib.Path, design: dict) -> dict:
+def collect(folder: pathlib.Path, design: dict, data_seed: int = DATA_SEED) -> dict:
     """The five datasets in `folder` (made once; an existing file is kept), {protocol: path}."""
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.data.logs import simulated
     folder.mkdir(parents=True, exist_ok=True)
-    count, seed = str(design["count"]), str(DATA_SEED)
+    count, seed = str(design["count"]), str(data_seed)
     common = ["--seed", seed, "--workers", "1", "--quiet"]
     commands = {
         "excitation": ["collect", "--protocol", "excitation", "--count", count],
@@ -196,6 +198,8 @@ def main(argv=None) -> int:
                         help="the protocols to run (default all five)")
     parser.add_argument("--seeds", type=int, nargs="+", help="the model seeds (default: the design's, 0-4); other "
                         "seeds train into their own runs folder")
+    parser.add_argument("--data-seed", type=int, default=DATA_SEED,
+                        help=f"seed of the five datasets (default {DATA_SEED}, run 1; run 2: 28)")
     args = parser.parse_args(argv)
     design = dict(QUICK if args.quick else FULL)
     runs = args.data / "runs"
@@ -203,13 +207,13 @@ def main(argv=None) -> int:
         design["seeds"] = tuple(args.seeds)
         runs = args.data / ("runs_seeds_" + "_".join(map(str, args.seeds)))
     started = time.perf_counter()
-    paths = collect(args.data, design)
+    paths = collect(args.data, design, args.data_seed)
     runs.mkdir(parents=True, exist_ok=True)
     seconds = train_all(paths, runs, design, args.workers, args.protocols)
     results = evaluate(paths, runs, design, args.protocols)
     from stdm_drake.files import json_default, write_text_atomic
     record = dict(written_by="stdm-drake tools/default_train_study.py", quick=args.quick,
-                  design=dict(design, data_seed=DATA_SEED, margin=MARGIN), train_seconds=seconds,
+                  design=dict(design, data_seed=args.data_seed, margin=MARGIN), train_seconds=seconds,
                   met=all(result["met"] for result in results.values()), protocols=results,
                   seconds=round(time.perf_counter() - started, 1))
     args.output.mkdir(parents=True, exist_ok=True)

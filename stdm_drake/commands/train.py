@@ -207,6 +207,10 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
         print(f"seed {seed}: chosen by validation: {selection.label(selection.index)} (validation state MSE, "
               "standardized: " + "; ".join(f"{selection.label(i)} {v:.3g}" for i, v in enumerate(selection.val_mse))
               + ")")
+        if selection.gain_low is not None:
+            print(f"seed {seed}: gain over naive training, 95 % lower bound: " + "; ".join(
+                f"{selection.label(i)} {100 * g:+.2g} %" for i, g in enumerate(selection.gain_low) if selection.alphas[i])
+                + ("" if selection.alpha > 0 else " -> naive kept: no alpha > 0 beat it beyond validation's noise"))
     print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
           f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {folder / 'checkpoint.pt'}")
     return entry
@@ -269,10 +273,9 @@ class ValidationVerdict:
         from stdm_drake.learning.evaluate import compare_with_baselines
         from stdm_drake.learning.learned_model import LearnedModel
         from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
-        check = self.robot is not None
         label = self.name + ("" if selection is None else " (alpha 0: naive training)" if selection.alpha == 0
                              else f" ({selection.label(selection.index)})")
-        models = [LearnedModel(checkpoint, name=label, robot=self.robot, check_robot=check)]
+        models = [LearnedModel(checkpoint, name=label, robot=self.robot, check_robot=self.robot is not None)]
         if naive is not None and selection is not None and selection.alpha > 0:
             single = "" if models[0].ensemble_size == 1 else ", one network"
             models.append(LearnedModel(naive, name=f"{self.name[0]} (alpha 0{single})", robot=self.robot,
@@ -394,7 +397,8 @@ def run(args: argparse.Namespace) -> int:
     if grid is not None:
         print(f"alpha chosen by validation from {', '.join(f'{a:g}' for a in grid)}"
               + (f" for each of the derivative sources {', '.join(sources)}" if isinstance(sources, tuple) else "")
-              + (" (0: naive training, so the chosen model is at worst naive on validation)" if 0.0 in grid else ""))
+              + ("; an alpha > 0 replaces naive training (0) only where its gain over it is above 0 at 95 % "
+                 "confidence, paired over the validation trajectories" if 0.0 in grid else ""))
     fit_options = dict(alpha_grid=grid, checkpoint_every=settings.checkpoint_every, metadata=problem.metadata)
     verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
                                 mismatch)

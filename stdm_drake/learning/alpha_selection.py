@@ -28,6 +28,7 @@ class AlphaSelection:
     best_epochs: list
     index: int
     sources: tuple | None = None
+    gain_low: list | None = None   # per entry: the 95 % lower bound of its gain over naive (`naive_gain_bounds`)
 
     @property
     def alpha(self) -> float:
@@ -48,13 +49,17 @@ class AlphaSelection:
                       best_epochs=[int(e) for e in self.best_epochs], chosen_alpha=self.alpha, chosen_index=self.index)
         if self.sources is not None:
             values.update(sources=list(self.sources), chosen_source=self.source)
+        if self.gain_low is not None:
+            values.update(gain_over_naive_low=[float(value) for value in self.gain_low])
         return values
 
     @classmethod
     def from_dict(cls, values: dict) -> "AlphaSelection":
         return cls(alphas=tuple(values["alphas"]), val_mse=list(values["val_mse"]),
                    best_epochs=list(values["best_epochs"]), index=int(values["chosen_index"]),
-                   sources=tuple(values["sources"]) if values.get("sources") is not None else None)
+                   sources=tuple(values["sources"]) if values.get("sources") is not None else None,
+                   gain_low=list(values["gain_over_naive_low"]) if values.get("gain_over_naive_low") is not None
+                   else None)
 
 
 def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
@@ -74,6 +79,33 @@ def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig,
                                   index=index)
 
 
+def member_errors_by_group(model, data: RegressionData) -> np.ndarray:
+    """Each member's validation state MSE (standardized, as `trainer.validation_scores`) per group of rows (the
+    trajectories of `data.groups`), (E, G) float64, groups in sorted order."""
+    import torch
+
+    from stdm_drake.learning.regression import standardize
+    tensors = standardize(model, data)
+    with torch.no_grad():
+        mean, _ = model.split_head(model.normalized_outputs(tensors.inputs))
+        errors = ((mean - tensors.targets) ** 2).mean(dim=2).double().numpy()          # (E, N)
+    _, group = np.unique(np.asarray(data.groups), return_inverse=True)
+    counts = np.bincount(group)
+    return np.stack([np.bincount(group, weights=row) / counts for row in errors])
+
+
+def naive_gain_bounds(errors: np.ndarray, naive: int) -> np.ndarray:
+    """Per entry, the 95 % lower bound (one-sided, Student t over the G validation trajectories, paired) of its
+    relative gain over the naive entry: mean_g (e_naive,g - e_k,g) / mean_g e_naive,g. errors: (K, G) per-entry
+    per-trajectory validation MSE; > 0: the entry beats naive training beyond validation's noise."""
+    from scipy import stats
+    differences = errors[naive][None, :] - errors                                      # (K, G)
+    groups = errors.shape[1]
+    spread = differences.std(axis=1, ddof=1) / np.sqrt(groups)
+    low = differences.mean(axis=1) - stats.t.ppf(0.95, groups - 1) * spread
+    return low / errors[naive].mean()
+
+
 def data_by_source(data) -> dict:
     """`data` (RegressionData, or a dict derivative source -> RegressionData in order of preference) as a
     dict; a lone RegressionData is keyed None."""
@@ -84,8 +116,12 @@ def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, tra
                  alphas=DEFAULT_ALPHA_GRID,
                  on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
     """Choose alpha by validation (`train_alpha_grid`) and return the chosen single-member model (its
-    history is its grid's) with the selection. With 0 in `alphas` the chosen model is at least as good as
-    naive training on validation, by construction; that naive member is returned as the result's `naive`.
+    history is its grid's) with the selection. With 0 in `alphas` and validation data of 3 or more trajectories
+    (`RegressionData.groups`), an alpha > 0 replaces naive training only where its gain over naive is above 0 at
+    95 % confidence (`naive_gain_bounds`: paired over the validation trajectories), and among those the lowest
+    validation MSE wins; otherwise, and without 0 or groups, the lowest validation MSE wins. Either way the chosen
+    model is at least as good as naive training on validation (the rule: on average over its trajectories); that
+    naive member is returned as the result's `naive`.
 
     train_data, val_data: RegressionData, or dicts derivative source -> RegressionData (same transitions,
     the derivative targets of each source; the same keys in both): then one grid per source, alpha 0 only
@@ -103,16 +139,26 @@ def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, tra
             continue
         result, _ = train_alpha_grid(model_config, training_config, trains[source], vals[source], alphas=tried,
                                      on_epoch=on_epoch)
-        grids.append((result, tried))
+        grids.append((result, tried, source))
         entries += [(source, len(grids) - 1, member) for member in range(len(tried))]
     scores = np.asarray([grids[grid][0].best_scores[member] for _, grid, member in entries])
     index = int(np.flatnonzero(scores == scores.min())[0])
+    groups = next(iter(vals.values())).groups
+    gain_low = None
+    if 0.0 in grids[0][1] and groups is not None and len(np.unique(groups)) >= 3:
+        per_grid = [member_errors_by_group(result.model, vals[source]) for result, _, source in grids]
+        errors = np.stack([per_grid[grid][member] for _, grid, member in entries])
+        naive_entry = grids[0][1].index(0.0)
+        gain_low = naive_gain_bounds(errors, naive_entry)
+        clear = np.flatnonzero(gain_low > 0)
+        index = int(clear[np.argmin(scores[clear])]) if len(clear) else naive_entry
     source, grid, member = entries[index]
     result = grids[grid][0]
     naive = grids[0][0].model.member(grids[0][1].index(0.0)) if 0.0 in grids[0][1] else None
     selection = AlphaSelection(alphas=tuple(grids[g][1][m] for _, g, m in entries), val_mse=scores.tolist(),
                                best_epochs=[int(grids[g][0].best_epochs[m]) for _, g, m in entries], index=index,
-                               sources=None if list(trains) == [None] else tuple(s for s, _, _ in entries))
+                               sources=None if list(trains) == [None] else tuple(s for s, _, _ in entries),
+                               gain_low=None if gain_low is None else gain_low.tolist())
     chosen = TrainResult(model=result.model.member(member), history=result.history,
                          best_epochs=[result.best_epochs[member]], best_scores=[result.best_scores[member]],
                          epochs_run=result.epochs_run, stopped_early=result.stopped_early, naive=naive)

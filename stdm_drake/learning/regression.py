@@ -15,11 +15,14 @@ from stdm_drake.learning.models import EnsembleMLP, ModelConfig
 @dataclasses.dataclass
 class RegressionData:
     """Training pairs in raw units. inputs z (N, in); targets y (N, out); for derivative learning
-    also input_rates ż (N, in) (the chain-rule tangent) and target_rates ẏ (N, out)."""
+    also input_rates ż (N, in) (the chain-rule tangent) and target_rates ẏ (N, out); groups (N,) int: the
+    trajectory each pair comes from, where known (the unit of `alpha_selection`'s paired comparison on
+    validation; not part of the fingerprint)."""
     inputs: np.ndarray
     targets: np.ndarray
     input_rates: np.ndarray | None = None
     target_rates: np.ndarray | None = None
+    groups: np.ndarray | None = None
 
     @classmethod
     def from_transitions(cls, transitions) -> "RegressionData":

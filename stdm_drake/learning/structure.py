@@ -173,7 +173,8 @@ class ModelStructure:
             next_state, next_rate = next_state[:, joints:], next_rate[:, joints:]
         return RegressionData(inputs=np.hstack([state, rest]), targets=next_state,
                               input_rates=np.hstack([state_rate, rest_rate]) if rates else None,
-                              target_rates=next_rate if rates else None)
+                              target_rates=next_rate if rates else None,
+                              groups=np.asarray(transitions.trajectory, dtype=int))
 
 
 PAPER = ModelStructure(predicts="state", inputs="raw")
