@@ -18,6 +18,7 @@ def dithered_dataset(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_plan_mismatch_separates_tracked_plans_from_dithered_torque(tracking_dataset, dithered_dataset,
                                                                      excitation_dataset):
     from stdm_drake.data.dataset import load_dataset
@@ -85,6 +86,7 @@ def test_select_alpha_over_sources_trains_naive_once_and_keeps_the_validation_be
     assert fitted == selection                                        # same seed, same data: the same choice
 
 
+@pytest.mark.slow
 def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_dataset, tmp_path, capsys):
     assert main(["train", str(dithered_dataset), "--epochs", "3", "--train", "1", "--val", "1", "--quiet",
                  "-o", str(tmp_path / "default")]) == 0
@@ -112,6 +114,7 @@ def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_
                for line in warnings), captured.err
 
 
+@pytest.mark.slow
 def test_default_alpha_auto_does_not_refuse_a_naive_model(excitation_dataset, tmp_path, capsys):
     """alpha's default "auto" is for derivative models: D trains without it; an alpha or grid given to D is
     refused as before."""
@@ -127,6 +130,7 @@ def test_default_alpha_auto_does_not_refuse_a_naive_model(excitation_dataset, tm
         assert not (tmp_path / "x").exists()
 
 
+@pytest.mark.slow
 def test_a_shipped_presets_data_need_no_robot_flag(excitation_dataset, tmp_path):
     from stdm_drake.data.compatibility import shipped_preset_of
     from stdm_drake.data.dataset import load_dataset
