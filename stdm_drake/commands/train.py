@@ -386,12 +386,14 @@ def run(args: argparse.Namespace) -> int:
     weights = network_weights(model_config.ensemble_size, model_config.hidden_layers, model_config.hidden_width)
     check_free_space(output / f"seed{settings.seeds[0]}" / "checkpoint.pt",   # weights, Adam's state (float32)
                      len(settings.seeds) * (16 * weights + CHECKPOINT_RESERVE_BYTES))
+    verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
+                                mismatch)
     runner = runner_config_from_args(args)  # joins the cluster now: an unreachable one stops before any work
     mark_output_folder(output)
     print(f"{name}: {model_config.hidden_layers}x{model_config.hidden_width} {model_config.activation}, "
           f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}, "
           f"{structure.label}; train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
-          f"({problem.transitions} / {len(dataset.transitions(split.val))} transitions)")
+          f"({problem.transitions} / {len(verdict.val.state)} transitions)")
     if source_line:
         print(source_line)
     if grid is not None:
@@ -400,8 +402,6 @@ def run(args: argparse.Namespace) -> int:
               + ("; an alpha > 0 replaces naive training (0) only where its gain over it is above 0 at 95 % "
                  "confidence, paired over the validation trajectories" if 0.0 in grid else ""))
     fit_options = dict(alpha_grid=grid, checkpoint_every=settings.checkpoint_every, metadata=problem.metadata)
-    verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
-                                mismatch)
     entries = {}
     for seed, result, selection in fit_seeds(problem, settings, fit_options, runner, output, args.quiet):
         entries[seed] = write_seed_files(output / f"seed{seed}", name, seed, result, selection)

@@ -143,18 +143,19 @@ def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, tra
         entries += [(source, len(grids) - 1, member) for member in range(len(tried))]
     scores = np.asarray([grids[grid][0].best_scores[member] for _, grid, member in entries])
     index = int(np.flatnonzero(scores == scores.min())[0])
+    # the first grid's members are the first entries, so alpha 0's member index is its entry index
+    naive_entry = grids[0][1].index(0.0) if 0.0 in grids[0][1] else None
     groups = next(iter(vals.values())).groups
     gain_low = None
-    if 0.0 in grids[0][1] and groups is not None and len(np.unique(groups)) >= 3:
+    if naive_entry is not None and groups is not None and len(np.unique(groups)) >= 3:
         per_grid = [member_errors_by_group(result.model, vals[source]) for result, _, source in grids]
         errors = np.stack([per_grid[grid][member] for _, grid, member in entries])
-        naive_entry = grids[0][1].index(0.0)
         gain_low = naive_gain_bounds(errors, naive_entry)
         clear = np.flatnonzero(gain_low > 0)
         index = int(clear[np.argmin(scores[clear])]) if len(clear) else naive_entry
     source, grid, member = entries[index]
     result = grids[grid][0]
-    naive = grids[0][0].model.member(grids[0][1].index(0.0)) if 0.0 in grids[0][1] else None
+    naive = grids[0][0].model.member(naive_entry) if naive_entry is not None else None
     selection = AlphaSelection(alphas=tuple(grids[g][1][m] for _, g, m in entries), val_mse=scores.tolist(),
                                best_epochs=[int(grids[g][0].best_epochs[m]) for _, g, m in entries], index=index,
                                sources=None if list(trains) == [None] else tuple(s for s, _, _ in entries),
