@@ -50,7 +50,7 @@ def test_mean_jacobian_matches_the_training_jvp(activation, ensemble_size, delta
                        delta=delta).double()
     engine = InferenceModel(model)
     z = np.hstack([STATES[:5], ACTIONS[:5]])
-    jacobian = engine.mean_jacobian(engine.input_rows(STATES[:5], ACTIONS[None, :5])[0])
+    jacobian = engine.mean_and_jacobian(engine.input_rows(STATES[:5], ACTIONS[None, :5])[0])[1]
     assert jacobian.shape == (5, 4, 6) and jacobian.dtype == np.float32
     rows = torch.as_tensor(np.repeat(z, 6, axis=0))
     with torch.no_grad():

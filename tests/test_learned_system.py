@@ -131,6 +131,11 @@ def test_view_and_mpc_commands(checkpoints, tracking_dataset, tmp_path, capsys):
     assert code == closed_loop_status(json.loads((out / "mpc.json").read_text())["summary"])   # tiny D: may leave
     table = (out / "mpc.md").read_text()
     assert "| plant | 1 |" in table and "| D | 1 |" in table
+    summary = {row["model"]: row for row in json.loads((out / "mpc.json").read_text())["summary"]}
+    for name, row in summary.items():      # the solve time against the 10 ms period, in mpc.md and printed
+        verdict = "real time" if row["solve_ms_p95"] <= 10.0 else "not real time"
+        line = f"- {name}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 per control step"
+        assert line in table and f"against the 10 ms control period: {verdict}" in table
     assert (out / "mpc.png").stat().st_size > 10_000 and (out / "mpc.csv").exists()
     assert main(["mpc"]) == 2                                  # argparse's error, as one line
 

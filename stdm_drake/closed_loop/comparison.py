@@ -113,6 +113,16 @@ def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dic
     return rows
 
 
+def real_time_lines(rows: list[dict], sample_period: float) -> list[str]:
+    """One line per model: its solve time per control step against the control period, "real time" when
+    every plan's p95 is within the period, else "not real time"."""
+    period = 1e3 * sample_period
+    return [f"{row['model']}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 per control "
+            f"step against the {period:g} ms control period: "
+            + ("real time" if row["solve_ms_p95"] <= period else
+               f"not real time (p95 {row['solve_ms_p95'] / period:.1f}x the period)") for row in rows]
+
+
 def summary_table(rows: list[dict]) -> str:
     """The `summarize` rows as a Markdown table."""
     header = ["model", "runs", "q MSE (rad²)", "q MSE / plant MPC", "q̇ MSE ((rad/s)²)",
@@ -189,12 +199,13 @@ def tuning_references(dataset, checkpoints: list, count: int, held_out: list[int
 def spec_models(specs: list, sample_period: float, plant_config: PlantConfig, *, robot: Robot) -> list:
     """The prediction models of `specs` ((name, path): a checkpoint `train` wrote or a robot `identify` wrote;
     None for the robot's description as a plant model ("plant") and "true" for the plant of `plant_config`
-    itself ("true-plant"))."""
+    itself ("true-plant")); plant models and identified robots predict with the "rk4" integrator (exact
+    Jacobians, microseconds per step: `PlantModel`)."""
     from stdm_drake.identification.identified import is_identified_file, load_identified
     from stdm_drake.learning.learned_model import LearnedModel
-    return [PlantModel(sample_period, robot=robot) if path is None else
-            PlantModel(sample_period, plant_config, robot=robot) if path == "true" else
-            load_identified(path).model(robot, name=name) if is_identified_file(path) else
+    return [PlantModel(sample_period, robot=robot, integrator="rk4") if path is None else
+            PlantModel(sample_period, plant_config, robot=robot, integrator="rk4") if path == "true" else
+            load_identified(path).model(robot, name=name).for_control() if is_identified_file(path) else
             LearnedModel(path, name=name, robot=robot) for name, path in specs]
 
 

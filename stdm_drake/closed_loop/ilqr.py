@@ -1,11 +1,16 @@
-"""Clamped iLQR (iterative LQR) over a horizon for one prediction model and one tracking cost: the MPC's
-default `TrajectoryOptimizer` (`stdm_drake.closed_loop.optimizer`; the prediction-model interface is in
-`stdm_drake.closed_loop.mpc`). Shapes for n joints, m actuated, horizon H as in `optimizer`."""
+"""Clamped iLQR (iterative LQR) over a horizon for one prediction model and one tracking cost: a
+single-shooting `TrajectoryOptimizer` (`stdm_drake.closed_loop.optimizer`; `optimizer: ilqr` in the MPC
+settings). Each iteration rolls the model out node by node, linearizes every node in one batched call
+(`DynamicsModel.linearize`), runs the Riccati recursion (linear in the horizon) and line-searches the
+step with its feedback gains. The default optimizer is the real-time iteration (`rti`), which needs no
+sequential rollout; the iLQR serves long horizons and line-searched iterations. Shapes for n joints,
+m actuated, horizon H as in `optimizer`."""
 from __future__ import annotations
 
 import dataclasses
 
 import numpy as np
+from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
 from stdm_drake.closed_loop.optimizer import OptimizerResult, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
@@ -46,9 +51,10 @@ class IlqrSolver(TrajectoryOptimizer):
         self.Q, self.R = cost.Q, cost.R
 
     def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
-              offset: np.ndarray | None = None) -> OptimizerResult:
+              offset: np.ndarray | None = None, x_init: np.ndarray | None = None) -> OptimizerResult:
         """x0 (2n,); u_init (H, m) warm start; reference (H+1, 2n); u_ff (H, m); offset (2n,): a
-        constant added to every predicted step (the disturbance estimate; zero by default)."""
+        constant added to every predicted step (the disturbance estimate; zero by default). x_init is
+        ignored: the iLQR shoots from x0 (a rollout of u_init)."""
         horizon = len(u_init)
         offset = np.zeros(self.state_dim) if offset is None else np.asarray(offset, dtype=float)
         u = np.clip(u_init, -self.effort_limit, self.effort_limit)
@@ -60,7 +66,7 @@ class IlqrSolver(TrajectoryOptimizer):
         iterations = 0
         terminal = self.cost_function.step_weights(horizon)
         for iterations in range(1, self.config.max_iterations + 1):
-            A, B = self.model.jacobians(x[:-1], u)
+            _, A, B = self.model.linearize(x[:-1], u)     # every node's Jacobians in one batched call
             if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
                 return OptimizerResult(u, x, cost, iterations, False)
             gains = self._backward(x, u, reference, u_ff, A, B, terminal, mu)
@@ -87,38 +93,41 @@ class IlqrSolver(TrajectoryOptimizer):
         return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x))))
 
     def _backward(self, x, u, reference, u_ff, A, B, terminal, mu):
-        """Riccati recursion; returns (feedforward (H, m), feedback (H, m, 2n)) or None if Q_uu is not PD."""
-        horizon = len(u)
-        feedforward = np.empty((horizon, self.joints))
-        feedback = np.empty((horizon, self.joints, self.state_dim))
+        """Riccati recursion; returns (feedforward (H, m), feedback (H, m, 2n)) or None if Q_uu is not PD.
+
+        Per node one product F^T V_xx F of the stacked Jacobian F = [A_k B_k] gives Q_xx, Q_ux and Q_uu at
+        once, and one solve gives both gains (a handful of small numpy calls per node)."""
+        horizon, S, m = len(u), self.state_dim, self.joints
+        feedforward = np.empty((horizon, m))
+        feedback = np.empty((horizon, m, S))
         # gradients of the running costs, all steps at once
         state_gradient = terminal[:, None] * ((x[1:] - reference[1:]) @ self.Q)
         effort_gradient = (u - u_ff) @ self.R
-        R_regularized = self.R + mu * np.eye(self.joints)
-        V_x = np.zeros(self.state_dim)
-        V_xx = np.zeros((self.state_dim, self.state_dim))
+        stacked = np.concatenate([A, B], axis=2)                      # F_k = [A_k B_k] (H, 2n, 2n + m)
+        R_regularized = self.R + mu * np.eye(m)
+        V_x = np.zeros(S)
+        V_xx = np.zeros((S, S))
         for k in range(horizon - 1, -1, -1):
             # step k's cost: state x_k+1 (weighted by terminal[k]) and torque u_k
             V_x = V_x + state_gradient[k]
             V_xx = V_xx + terminal[k] * self.Q
-            A_k, B_k = A[k], B[k]
-            V_xx_A = V_xx @ A_k
-            V_xx_B = V_xx @ B_k
-            Q_uu = R_regularized + B_k.T @ V_xx_B
-            Q_u = effort_gradient[k] + B_k.T @ V_x
-            Q_ux = B_k.T @ V_xx_A
-            try:
-                smallest = np.linalg.eigvalsh(Q_uu)[0]
-            except np.linalg.LinAlgError:   # NaN entries: a diverged linearization
+            F = stacked[k]
+            Q = F.T @ (V_xx @ F)                                        # [[Q_xx, Q_xu], [Q_ux, Q_uu]] less R
+            gradient = F.T @ V_x                                        # [Q_x, Q_u] less the effort gradient
+            Q_uu = Q[S:, S:] + R_regularized
+            Q_u = gradient[S:] + effort_gradient[k]
+            Q_ux = Q[S:, :S]
+            if not np.all(np.isfinite(Q_uu)):   # a diverged linearization
                 return None
-            if not smallest > 0:
+            factor, info = cholesky(Q_uu, lower=1)      # LAPACK directly: microseconds, not numpy's checks
+            if info != 0:                               # Q_uu not positive definite
                 return None
-            gains = -np.linalg.solve(Q_uu, np.column_stack([Q_u, Q_ux]))
-            d, K = gains[:, 0], gains[:, 1:]
+            gains, _ = cholesky_solve(factor, np.column_stack([Q_u, Q_ux]), lower=1)
+            d, K = -gains[:, 0], -gains[:, 1:]
             feedforward[k], feedback[k] = d, K
             # with regularization the cross terms do not cancel; keep the full expressions
-            K_T_Q_uu = K.T @ Q_uu
-            V_x = A_k.T @ V_x + K_T_Q_uu @ d + K.T @ Q_u + Q_ux.T @ d
-            V_xx = A_k.T @ V_xx_A + K_T_Q_uu @ K + K.T @ Q_ux + Q_ux.T @ K
+            K_T = K.T
+            V_x = gradient[:S] + K_T @ (Q_uu @ d + Q_u) + Q_ux.T @ d
+            V_xx = Q[:S, :S] + K_T @ (Q_uu @ K + Q_ux) + Q_ux.T @ K
             V_xx = 0.5 * (V_xx + V_xx.T)
         return feedforward, feedback

@@ -1,20 +1,20 @@
 """Model predictive control of the UR-10 with a pluggable prediction model.
 
-The default optimizer is iLQR (iterative LQR: a gradient-based shooting method on the model's
-Jacobians); any `optimizer.TrajectoryOptimizer` can replace it. Why iLQR rather than sampling (MPPI/CEM): the learned models are smooth, their
-Jacobians cost one forward-mode pass, and derivative training is exactly what makes those
-Jacobians right, so the controller uses what the method improves; and the plant itself can
-serve as the reference model (exact rollouts through the same discrete plant, Jacobians from
-Drake's AutoDiff), which a sampling method could not afford (tens of thousands of plant steps per
-control step).
+The default optimizer is the real-time iteration (`rti`: one multiple-shooting Gauss-Newton step per
+control step on the model's Jacobians, every node linearized in one batched call); the iLQR (`ilqr`:
+single shooting with a line search) is the other; any `optimizer.TrajectoryOptimizer` can replace them.
+Why gradient-based rather than sampling (MPPI/CEM): the learned models are smooth, their Jacobians cost
+one forward-mode pass, and derivative training is exactly what makes those Jacobians right, so the
+controller uses what the method improves; and the plant itself serves as the reference model (its
+continuous dynamics in RK4 steps with exact Jacobians, `PlantModel(integrator="rk4")`).
 
 Cost over the horizon H (k = 0..H-1, reference r from a planner, u_ff = g(q_ref) the static
 gravity torque at the reference):
     sum_k (x_k+1 - r_k+1)^T Q (x_k+1 - r_k+1) + (u_k - u_ff,k)^T R (u_k - u_ff,k),
 with the last state term weighted by `terminal_factor`. Torques are clipped to the effort limits
 in the forward passes (clamped iLQR). The first torque is applied, the rest warm-starts the next
-solve; by default one iLQR iteration per control step (a real-time iteration: with the warm start,
-more iterations changed the closed-loop tracking by less than 0.5 %).
+solve; by default one iteration per control step (the real-time iteration: with the warm start, more
+iterations changed the closed-loop tracking by less than 0.5 %).
 
 Offset-free MPC: every prediction over the horizon is shifted by a disturbance estimate d, the
 model's latest one-step error x_k - f(x_k-1, u_k-1) (filtered by `disturbance_gain`), so a model's
@@ -24,11 +24,12 @@ Every prediction model provides `sample_period` (s) and two batched methods:
     step(x (N, 2n), u (N, m)) -> x_next (N, 2n)
     jacobians(x (H, 2n), u (H, m)) -> (A (H, 2n, 2n), B (H, 2n, m))   of x_next w.r.t. x and u.
 
-Modules: the tracking cost and the optimizer interface (`optimizer`), the default optimizer (`ilqr`),
+Modules: the tracking cost and the optimizer interface (`optimizer`), the optimizers (`rti`, `ilqr`),
 this controller and its closed loop, and the comparison of prediction models with the `stdm-drake mpc`
 command (`comparison`); the plant as a prediction model is `learning.physics.PlantModel`.
 """
 import dataclasses
+import inspect
 import time
 
 import numpy as np
@@ -36,6 +37,7 @@ from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from stdm_drake.closed_loop.ilqr import IlqrConfig, IlqrSolver
+from stdm_drake.closed_loop.rti import RtiConfig, RtiSolver
 from stdm_drake.closed_loop.optimizer import TrackingCost, TrajectoryOptimizer
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
@@ -46,6 +48,7 @@ from stdm_drake.robots.robot import Robot
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
 MAX_WEIGHT = 1e12      # a cost weight (and the terminal factor) beyond this swamps every other term
 MAX_HORIZON = 1000     # sample periods predicted per control step (10 s at 0.01 s): more is a run that does not end
+OPTIMIZERS = ("rti", "ilqr")
 
 
 @dataclasses.dataclass
@@ -55,8 +58,11 @@ class MpcConfig:
     position_weight (n) 1/rad^2, velocity_weight (n) s^2/rad^2, effort_weight (n) 1/(N m)^2 on the
     torque beyond the reference's gravity torque (one per joint, or one for all); horizon in sample periods; iLQR iterations per
     control step, line-search step sizes and the initial Levenberg-Marquardt regularization;
-    disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off).
+    disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off);
+    optimizer: "rti" (the real-time iteration, the default) or "ilqr" (single shooting, line-searched:
+    for horizons beyond the RTI's dense system); line_search applies to the iLQR only.
     """
+    optimizer: str = "rti"
     horizon: int = 20
     position_weight: list[float] = dataclasses.field(default_factory=lambda: [1e4] * 6)
     velocity_weight: list[float] = dataclasses.field(default_factory=lambda: [10.0] * 6)
@@ -89,7 +95,10 @@ class MpcConfig:
             raise InputError(f"mpc disturbance_gain must be in [0, 1], got {self.disturbance_gain}")
         if not 1 <= self.horizon <= MAX_HORIZON:
             raise InputError(f"mpc horizon must be in 1..{MAX_HORIZON} sample periods, got {self.horizon}")
+        if self.optimizer not in OPTIMIZERS:
+            raise InputError(f"mpc optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
         self.ilqr().validate()
+        self.rti().validate()
 
     def cost(self, joints: int) -> TrackingCost:
         """The tracking cost of these weights for `joints` joints (one weight each, or one for all)."""
@@ -97,6 +106,17 @@ class MpcConfig:
                   for name in ("position_weight", "velocity_weight", "effort_weight")}
         return TrackingCost.from_weights(weight["position_weight"], weight["velocity_weight"],
                                          weight["effort_weight"], self.terminal_factor)
+
+    def rti(self) -> RtiConfig:
+        """The real-time iteration's settings among these."""
+        return RtiConfig(max_iterations=self.max_iterations, regularization=self.regularization)
+
+    def solver(self, model, joints: int, effort_limit: np.ndarray) -> TrajectoryOptimizer:
+        """The optimizer these settings name, for `model` and a robot of `joints` actuated joints."""
+        if self.optimizer == "ilqr":
+            return IlqrSolver(model, self.cost(joints), effort_limit, self.ilqr())
+        self.rti().validate(self.horizon, joints)
+        return RtiSolver(model, self.cost(joints), effort_limit, self.rti())
 
     def ilqr(self) -> IlqrConfig:
         """The iLQR settings among these (the default optimizer's own config)."""
@@ -163,13 +183,14 @@ class MpcController(LeafSystem):
     initialization event at t = 0.
 
     State: the torque being applied, the disturbance estimate and the prediction of the next
-    measured state made with both (discrete), the warm-start plan (abstract).
+    measured state made with both (discrete), the warm-start plan: torques and predicted states, shifted
+    by one period (abstract).
 
     If the model's predictions are not finite, the controller applies gravity compensation at the
     measured q, clipped to the effort limits, and records the step in `log.fallback`.
 
-    optimizer: the `TrajectoryOptimizer` that solves each step (default: `IlqrSolver` of `model` with
-    the config's cost and iLQR settings); it brings its own model, cost and effort limits.
+    optimizer: the `TrajectoryOptimizer` that solves each step (default: `config.solver`, the config's
+    optimizer of `model` with its cost and settings); it brings its own model, cost and effort limits.
     """
 
     def __init__(self, model, reference: Reference, config: MpcConfig, plant_time_step: float,
@@ -184,7 +205,9 @@ class MpcController(LeafSystem):
         self.joints = joints = self.dynamics.robot.num_joints
         self.state_dim = state_dim = 2 * joints
         self.effort_limit = joint_limits(self.dynamics.plant).effort
-        self.solver = optimizer or IlqrSolver(model, config.cost(joints), self.effort_limit, config.ilqr())
+        self.solver = optimizer or config.solver(model, joints, self.effort_limit)
+        # (an optimizer written before warm-start states existed takes no x_init: it gets none)
+        self._warm_states = "x_init" in inspect.signature(self.solver.solve).parameters
         self.log = MpcLog()
         period = model.sample_period
         if not 0 < plant_time_step <= period:
@@ -195,6 +218,8 @@ class MpcController(LeafSystem):
         self._predicted_index = self.DeclareDiscreteState(state_dim)
         self._disturbance_index = self.DeclareDiscreteState(state_dim)
         self._plan_index = self.DeclareAbstractState(AbstractValue.Make(np.zeros((config.horizon, joints))))
+        self._nodes_index = self.DeclareAbstractState(AbstractValue.Make(np.full((config.horizon + 1, state_dim),
+                                                                                 np.nan)))
         self.DeclareStateOutputPort("torque", self._torque_index)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._update)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, period - 0.5 * plant_time_step, self._update)
@@ -225,8 +250,9 @@ class MpcController(LeafSystem):
         reference = self.reference.window(k, horizon + 1)
         u_ff = self._feedforward[np.minimum(np.arange(k, k + horizon), len(self._feedforward) - 1)]
         warm = state.get_mutable_abstract_state(int(self._plan_index)).get_value()
+        nodes = state.get_mutable_abstract_state(int(self._nodes_index)).get_value()
         if k == 0:
-            warm = u_ff  # first solve: start from the reference's gravity torques
+            warm, nodes = u_ff, None  # first solve: start from the reference's gravity torques
         started = time.perf_counter()
         x = np.asarray(x)
         fallback = not np.all(np.isfinite(x))
@@ -235,12 +261,16 @@ class MpcController(LeafSystem):
             with np.errstate(all="ignore"):
                 if k > 0 and self.config.disturbance_gain > 0:
                     disturbance = self._estimate_disturbance(context, x)
-                result = self.solver.solve(x, warm, reference, u_ff, disturbance)
+                if self._warm_states:
+                    result = self.solver.solve(x, warm, reference, u_ff, disturbance,
+                                               x_init=None if nodes is None or not np.all(np.isfinite(nodes)) else nodes)
+                else:
+                    result = self.solver.solve(x, warm, reference, u_ff, disturbance)
             fallback = not (result.finite and np.all(np.isfinite(result.u)))
         if fallback:
             q = np.nan_to_num(x[:self.joints])
             torque = np.clip(self.dynamics.gravity_torque(q), -self.effort_limit, self.effort_limit)
-            next_plan = u_ff
+            next_plan, next_nodes = u_ff, np.full((horizon + 1, self.state_dim), np.nan)
             predicted = np.full(self.state_dim, np.nan)
             if self.config.disturbance_gain > 0:
                 with np.errstate(all="ignore"):
@@ -248,12 +278,14 @@ class MpcController(LeafSystem):
         else:
             torque = result.u[0]
             next_plan = np.vstack([result.u[1:], result.u[-1:]])
+            next_nodes = np.vstack([result.x[1:], result.x[-1:]])
             predicted = result.x[1]  # the solve's own prediction under the torque it applies
         elapsed = time.perf_counter() - started
         state.get_mutable_discrete_state(int(self._torque_index)).set_value(torque)
         state.get_mutable_discrete_state(int(self._predicted_index)).set_value(predicted)
         state.get_mutable_discrete_state(int(self._disturbance_index)).set_value(disturbance)
         state.get_mutable_abstract_state(int(self._plan_index)).set_value(next_plan)
+        state.get_mutable_abstract_state(int(self._nodes_index)).set_value(next_nodes)
         self.log.time.append(context.get_time())
         self.log.state.append(np.array(x))
         self.log.torque.append(torque.copy())

@@ -78,10 +78,12 @@ class TrajectoryOptimizer(abc.ABC):
 
     def predict(self, x: np.ndarray, u: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """One shifted model step: f(x (2n,), u (m,)) + offset (2n,)."""
-        return self.model.step(x[None], u[None])[0] + offset
+        return self.model.step_single(x, u) + offset
 
     @abc.abstractmethod
     def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
-              offset: np.ndarray | None = None) -> OptimizerResult:
+              offset: np.ndarray | None = None, x_init: np.ndarray | None = None) -> OptimizerResult:
         """Torques for x0 (2n,) from the warm start u_init (H, m), against reference (H+1, 2n) and u_ff
-        (H, m); offset (2n,): a constant added to every predicted step (the disturbance estimate)."""
+        (H, m); offset (2n,): a constant added to every predicted step (the disturbance estimate); x_init
+        (H+1, 2n): the previous solution's states shifted by one period (None on the first step), which
+        multiple-shooting optimizers start from and single-shooting ones ignore."""

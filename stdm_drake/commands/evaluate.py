@@ -42,6 +42,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_force_argument(parser)
 
 
+def control_plant_difference(simulator, rk4, transitions, count: int = 2000) -> str:
+    """One line: the one-step MSE of q and v between the MPC's plant model (RK4 steps of the continuous
+    dynamics) and the simulator's discrete plant, on up to `count` of the transitions (evenly spaced)."""
+    rows = np.unique(np.linspace(0, len(transitions.state) - 1, min(count, len(transitions.state))).astype(int))
+    x, u = transitions.state[rows], transitions.action[rows]
+    difference = rk4.step(x, u) - simulator.step(x, u)
+    n = x.shape[1] // 2
+    return (f"(plant (RK4): the plant model the MPC predicts with, the description's continuous dynamics in "
+            f"{rk4.substeps} RK4 step(s) per period with exact Jacobians; its one-step difference from the simulator's "
+            f"discrete plant on {len(rows)} of these transitions: q MSE {np.mean(difference[:, :n] ** 2):.3e} rad^2, "
+            f"v MSE {np.mean(difference[:, n:] ** 2):.3e} (rad/s)^2)")
+
+
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.compatibility import robot_for
     from stdm_drake.data.dataset import load_dataset
@@ -86,6 +99,9 @@ def run(args: argparse.Namespace) -> int:
     rollout_data = trajectory_rollout_data(dataset, indices, args.horizon or min(shortest, 100))
     plant = robot is not None and not args.no_plant
     baselines = physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, robot=robot, plant=plant)
+    if plant:   # the plant model the MPC predicts with, beside the simulator's
+        from stdm_drake.learning.physics import PlantModel
+        baselines.append(PlantModel(dataset.sample_period, robot=robot, integrator="rk4", name="plant (RK4)"))
     from stdm_drake.data.inspect import noise_floor
     floor = noise_floor(dataset, indices)
     rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=args.propagation,
@@ -105,9 +121,11 @@ def run(args: argparse.Namespace) -> int:
     if not plant:
         print("  (no plant baseline: " + ("--no-plant" if args.no_plant else "pass the dataset's robot with --robot")
               + ")")
-    elif dataset.metadata.plant_effects is not None:
-        print("  (plant: the robot's description, the nominal model; the data come from a plant with effects it "
-              f"lacks: {dataset.metadata.plant_effects.summary()})")
+    else:
+        if dataset.metadata.plant_effects is not None:
+            print("  (plant: the robot's description, the nominal model; the data come from a plant with effects it "
+                  f"lacks: {dataset.metadata.plant_effects.summary()})")
+        print("  " + control_plant_difference(baselines[-2], baselines[-1], transitions))
     learned = rows[0]
     if floor and (floor["q"] > 0 or floor["v"] > 0):
         print(f"  {'noise floor':<12} {floor['q']:>10.3e} {floor['v']:>13.3e}  (a model that knows the true change "

@@ -7,8 +7,8 @@ import re
 import sys
 
 from stdm_drake.closed_loop.comparison import (
-    ClosedLoopResult, closed_loop_failures, compare_controllers, held_out_references, plot_results, summarize,
-    summary_table
+    ClosedLoopResult, closed_loop_failures, compare_controllers, held_out_references, plot_results, real_time_lines,
+    summarize, summary_table
 )
 from stdm_drake.closed_loop.mpc import mpc_config_for
 from stdm_drake.closed_loop.tuning import with_setting
@@ -118,9 +118,10 @@ def run(args) -> int:
     learned = [command_model(path, robot, name=name) for name, path in zip(names, checkpoints)]
     for model in learned:
         model.checkpoint.check_fits(dataset)
-    plants = [PlantModel(dataset.sample_period, robot=robot)]
+    learned = [model.for_control() if isinstance(model, PlantModel) else model for model in learned]   # (identified)
+    plants = [PlantModel(dataset.sample_period, robot=robot, integrator="rk4")]
     if effects is not None:
-        plants.append(PlantModel(dataset.sample_period, plant_config, robot=robot))
+        plants.append(PlantModel(dataset.sample_period, plant_config, robot=robot, integrator="rk4"))
     models = ([] if args.no_plant else plants) + learned
     if not models:
         raise InputError("nothing to compare: give --model NAME=FILE or keep the plant model")
@@ -155,6 +156,8 @@ def run(args) -> int:
     if tuning is not None:
         table += "\n\nMPC settings chosen on the tuning plans (indices " + ", ".join(map(str, tuning["plans"])) + "): " + "; ".join(
             f"{name} effort x {setting[0]:g}, observer gain {setting[1]:g}" for name, setting in chosen.items())
+    timing = real_time_lines(rows, dataset.sample_period)
+    table += "\n\n" + "\n".join(f"- {line}" for line in timing)
     print(table)
     out = args.output
     mark_output_folder(out)

@@ -7,11 +7,15 @@ of them. As in mbrl-lib's `mbrl.models.Model`, the contract is small:
 
     sizes           state_dim S = 2n ([q rad, v rad/s]), action_dim A = m (N m), sample_period (s)
     step(x, a)      next states (N, S) for x (N, S), a (N, A): the mean prediction, no input checks
-                    (the MPC's hot path)
+    step_single(x, a)  one row on 1-D arrays, x (S,), a (A,) -> (S,): the same numbers as `step`, for the
+                    MPC's sequential rollouts (models override it where a row costs less than a batch)
     predict(x, a)   a checked one-step `Prediction` (mean, variance); deterministic models give
                     zero variance
     rollout(x0, a)  open-loop prediction of steps 1..T: x0 (B, S), a (B, T, A) -> `Rollout`
     jacobians(x, a) d step / d(x, a) at H rows: A (H, S, S), B (H, S, A)
+    linearize(x, a) a whole horizon at once: next states (H, S), A and B at H rows from one batched call
+                    (the MPC's way to evaluate a horizon; models that share work between the value and
+                    its Jacobians override it)
 """
 from __future__ import annotations
 
@@ -62,6 +66,15 @@ class DynamicsModel(abc.ABC):
     @abc.abstractmethod
     def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """d step / d x (H, S, S) and d step / d a (H, S, A) at the rows x (H, S), a (H, A)."""
+
+    def step_single(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """`step` of one row: x (S,), a (A,) float64 -> (S,), unchecked."""
+        return self.step(x[None], a[None])[0]
+
+    def linearize(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every row of a horizon at once: (next states (H, S), d step / d x (H, S, S), d step / d a (H, S, A))
+        at x (H, S), a (H, A), the same numbers as `step` and `jacobians`."""
+        return (self.step(x, a), *self.jacobians(x, a))
 
     def predict(self, x, a) -> Prediction:
         """Checked one-step prediction for x (B, S), a (B, A) (or unbatched): mean and variance (B, S)."""
@@ -136,13 +149,15 @@ class HeldInputSubsteps(DynamicsModel):
         return x
 
     def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return self.linearize(x, a)[1:]
+
+    def linearize(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """d x_k / d x_0 = A_k ... A_1 and d x_k / d a = sum_j A_k ... A_{j+1} B_j, each A_j, B_j at the
-        j-th intermediate state."""
+        j-th intermediate state (one `linearize` of the inner model per substep)."""
         state_jacobian = np.broadcast_to(np.eye(self.state_dim), (len(x), self.state_dim, self.state_dim)).copy()
         action_jacobian = np.zeros((len(x), self.state_dim, self.action_dim))
         for _ in range(self.substeps):
-            step_x, step_a = self.inner.jacobians(x, a)
+            x, step_x, step_a = self.inner.linearize(x, a)
             state_jacobian = step_x @ state_jacobian
             action_jacobian = step_x @ action_jacobian + step_a
-            x = self.inner.step(x, a)
-        return state_jacobian, action_jacobian
+        return x, state_jacobian, action_jacobian

@@ -3,8 +3,8 @@
 alike.
 
 The network runs on the float32 numpy inference path (`predict.InferenceModel`); nominal-acceleration
-inputs are evaluated by the robot's Drake plant at every step, and their Jacobian (Drake AutoDiff)
-enters the model's Jacobian by the chain rule.
+inputs are evaluated by the robot's rigid-body model at every step (`robots.rigid_body`, built from the
+Drake plant), and their analytic Jacobian enters the model's Jacobian by the chain rule.
 """
 from __future__ import annotations
 
@@ -64,6 +64,7 @@ class LearnedModel(DynamicsModel):
                 raise InputError(f"{self.name}: inputs {self.structure.inputs!r} need the robot's nominal model")
             self.features = self.structure.nominal_features(self.robot, self.sample_period)
         self._workspaces = {}
+        self._row = None    # (input order, input row, workspace) of `step_single`, made on first use
 
     def _check_robot(self, robot) -> None:
         where = self.checkpoint.path if self.checkpoint is not None else self.name
@@ -103,6 +104,8 @@ class LearnedModel(DynamicsModel):
         """Ensemble-mean next states (N, 2n) for x (N, 2n), a (N, m); the MPC's hot path, so it skips
         `predict`'s input checks (the controller checks finiteness itself)."""
         x, a = np.asarray(x, dtype=np.float64), np.asarray(a, dtype=np.float64)
+        if len(x) == 1 and not self.structure.grey_box:
+            return self.step_single(x[0], a[0])[None]
         state, rest = self._network_rows(x, a)
         engine = self.engine
         workspace = self._workspaces.get(len(x))
@@ -113,6 +116,34 @@ class LearnedModel(DynamicsModel):
         if engine.residual:
             mean += state
         return self._assemble(x, mean)
+
+    def step_single(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
+        """`step` of one row x (2n,), a (m,) on 1-D arrays, the same float32 operations as the batch (the
+        MPC's sequential rollouts: a few numpy calls per step)."""
+        if self.structure.grey_box:
+            return super().step_single(x, a)
+        n, engine = self.num_joints, self.engine
+        if self._row is None:
+            order = np.arange(self.state_dim + self.action_dim + (0 if self.features is None else self.features.width))
+            if self.structure.predicts == "velocity":                # network inputs [v, q, τ, (φ)]
+                order[:2 * n] = np.concatenate([order[n:2 * n], order[:n]])
+            self._row = (order, engine.input_rows(np.zeros((1, engine.state_dim), np.float32),
+                                                  np.zeros((1, 1, engine.action_dim), np.float32))[0],
+                         engine.workspace(1))
+        order, row, workspace = self._row
+        if self.features is None:
+            z = np.concatenate([x, a])
+        elif np.isfinite(x).all() and np.isfinite(a).all():
+            z = np.concatenate([x, a, self.features.value_row(x[:n], x[n:], a)])
+        else:                                                       # a diverged rollout state: NaN features
+            z = np.concatenate([x, a, np.full(self.features.width, np.nan)])
+        row[0, :-1] = z[order]
+        mean = engine.ensemble_mean(engine.hidden_features(row, workspace))[0].astype(np.float64)
+        if self.structure.predicts == "state":
+            return mean + x if engine.residual else mean
+        if engine.residual:
+            mean += x[n:]
+        return np.concatenate([x[:n] + 0.5 * self.sample_period * (x[n:] + mean), mean])
 
     def predict(self, x, a) -> Prediction:
         """Checked one-step prediction: mean and variance (B, 2n) (ensemble spread + aleatoric), member means."""
@@ -130,7 +161,9 @@ class LearnedModel(DynamicsModel):
         return Prediction(mean=mean, variance=variance, member_means=members, member_variances=member_variances)
 
     def _rollout_step(self, x, a):
-        if self.structure.grey_box:   # no checks: a state the plant cannot step gives a NaN row (a diverged rollout)
+        # no checks: a state the plant cannot step gives a NaN row (a diverged rollout); one deterministic
+        # network has no variance to propagate, so it takes `step`'s fast path
+        if self.structure.grey_box or (self.ensemble_size == 1 and not self.probabilistic):
             mean = self.step(x, a)
             return mean, np.zeros_like(mean)
         result = self.predict(x, a)
@@ -150,17 +183,23 @@ class LearnedModel(DynamicsModel):
         return super().rollout(x0, actions, propagation=propagation, particles=particles, seed=seed)
 
     def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """d mean / d(x, a) at each row: A (H, 2n, 2n), B (H, 2n, m), from the float32 forward-mode
-        Jacobian of the network (InferenceModel.mean_jacobian) and, for nominal-acceleration inputs, the
-        AutoDiff Jacobian of φ by the chain rule."""
+        """d mean / d(x, a) at each row: A (H, 2n, 2n), B (H, 2n, m) (`linearize`)."""
+        return self.linearize(x, a)[1:]
+
+    def linearize(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every row at once: the ensemble-mean next states (H, 2n) and d mean / d(x, a), A (H, 2n, 2n),
+        B (H, 2n, m), from one float32 forward-mode pass of the network (`InferenceModel.mean_and_jacobian`)
+        and, for nominal-model inputs, one evaluation of φ and its Jacobian, entering by the chain rule."""
         x, a = np.asarray(x, dtype=np.float64), np.asarray(a, dtype=np.float64)
         n, S = self.num_joints, self.state_dim
         features = feature_jacobian = None
-        if self.features is not None:   # φ and its Jacobian from the same AutoDiff pass
+        if self.features is not None:   # φ and its Jacobian from the same evaluation
             features, feature_jacobian = self.features.values_and_jacobians(x[:, :n], x[:, n:], a)
         state, rest = self.structure.split(x, a, features)
         rows = self.engine.input_rows(state.astype(np.float32), rest.astype(np.float32)[None])[0]
-        network = self.engine.mean_jacobian(rows).astype(np.float64)     # (H, out, network inputs)
+        mean, network = self.engine.mean_and_jacobian(rows)     # (H, out), (H, out, network inputs)
+        following = self._assemble(x, mean.astype(np.float64))
+        network = network.astype(np.float64)
         width = S + self.action_dim
         # d(network inputs) / d(x, a): the structure's permutation of [q, v, τ], then φ's Jacobian
         # (plant-step inputs: the plant step's Jacobian [A B] (its v̂ rows for "velocity"), then [x, τ])
@@ -181,4 +220,4 @@ class LearnedModel(DynamicsModel):
             angle[:, :, :n] += np.eye(n)
             angle[:, :, n:S] += 0.5 * self.sample_period * np.eye(n)
             jacobian = np.concatenate([angle, jacobian], axis=1)
-        return jacobian[:, :, :S], jacobian[:, :, S:]
+        return following, jacobian[:, :, :S], jacobian[:, :, S:]

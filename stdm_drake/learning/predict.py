@@ -137,26 +137,32 @@ class InferenceModel:
         mean += self.ensemble_mean_bias
         return mean
 
-    def mean_jacobian(self, inputs: np.ndarray) -> np.ndarray:
-        """d(ensemble-mean next state)/d[x, a] at input rows (N, S+A+1): (N, S, S+A), float32.
+    def mean_and_jacobian(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The ensemble-mean next state (N, S) (residual added) and its Jacobian d/d[x, a] (N, S, S+A) at
+        input rows (N, S+A+1), float32, from one pass.
 
-        One primal pass per row; the Jacobian is carried forward as an (H, S+A) matrix per member
-        and row (forward mode with all unit tangents at once), so each layer is one batched matmul.
+        Forward mode with all unit tangents at once: the tangents of every row and input are the rows of one
+        (N (S+A), H) matrix per member, so each layer is one matrix product per member (not one per row).
         """
         width = self.state_dim + self.action_dim
+        members, count = self.ensemble_size, len(inputs)
         pre = np.matmul(inputs, self.input_member_weight)                                # (E, N, H)
-        tangent = self._slope(pre)[..., None] * self.input_member_weight[:, None, :width, :].transpose(0, 1, 3, 2)
+        tangent = self._slope(pre)[:, :, None, :] * self.input_member_weight[:, None, :width, :]   # (E, N, S+A, H)
         hidden = self._activation(pre, np.empty_like(pre))
         for weight, bias in self.hidden:                                                # weight (E, H, H)
             pre = np.matmul(hidden, weight)
             pre += bias
-            tangent = np.matmul(weight.transpose(0, 2, 1)[:, None], tangent)              # (E, N, H, S+A)
-            tangent *= self._slope(pre)[..., None]
+            tangent = np.matmul(tangent.reshape(members, count * width, -1), weight).reshape(tangent.shape)
+            tangent *= self._slope(pre)[:, :, None, :]
             hidden = self._activation(pre, np.empty_like(pre))
-        jacobian = np.matmul(self.mean_weight.transpose(0, 2, 1)[:, None], tangent).mean(axis=0)   # (N, S, S+A)
+        out = self.mean_weight.shape[-1]
+        jacobian = np.matmul(tangent.reshape(members, count * width, -1), self.mean_weight)   # (E, N (S+A), S)
+        jacobian = jacobian.mean(axis=0).reshape(count, width, out).transpose(0, 2, 1)       # (N, S, S+A)
+        mean = (np.matmul(hidden, self.mean_weight) + self.mean_bias).mean(axis=0)              # (N, S)
         if self.residual:
-            jacobian[:, :, :self.state_dim] += np.eye(self.state_dim, dtype=np.float32)
-        return jacobian
+            jacobian = jacobian + np.eye(out, width, dtype=np.float32)
+            mean += inputs[:, :self.state_dim]
+        return mean, jacobian
 
     def member_outputs(self, hidden: np.ndarray):
         """Per-member outputs from hidden (E, M, H): (mean (E, M, S) raw units, residual not added;

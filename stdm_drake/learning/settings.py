@@ -315,7 +315,8 @@ class TrainSettings:
     def structure(self, physics: dict | None = None):
         """The `ModelStructure` of predicts and inputs (and a grey box's `physics` record, see there)."""
         from stdm_drake.learning.structure import ModelStructure
-        return ModelStructure(predicts=self.predicted(), inputs=self.inputs, physics=physics)
+        return ModelStructure(predicts=self.predicted(), inputs=self.inputs, physics=physics,
+                              plant_integrator="rk4" if self.inputs == "plant_step" else None)
 
     def predicted(self) -> str:
         """What the network predicts: `predicts`, or None's default: the next state for a grey box (the plant

@@ -22,7 +22,9 @@
                          (`plant_step.PlantStep`: the robot's description, or with `physics` the description
                          with an identified robot's parameters) instead of to x_k, and it sees [x̂ (or v̂),
                          x, τ]: it learns only what the plant model misses; ẋ̂ is the plant step's own
-                         derivative along (ẋ, τ̇), two plant steps per training sample
+                         derivative along (ẋ, τ̇). The plant model steps by `plant_integrator`: "rk4" (what
+                         `train` writes: exact Jacobians in microseconds) or "simulator" (the discrete
+                         Drake plant; checkpoints written before the field existed)
 
 The network's own input order puts the part its delta adds first: [x, τ, (φ)] for "state",
 [v, q, τ, (φ)] for "velocity"; with plant-step inputs [x̂, x, τ] and [v̂, x, τ]. Derivative learning needs the time derivative of every input: ẋ and
@@ -54,6 +56,7 @@ class ModelStructure:
     predicts: str = "velocity"
     inputs: str = "nominal_acceleration"
     physics: dict | None = None
+    plant_integrator: str | None = None    # plant-step inputs: the plant model's integrator; None: "simulator"
 
     def __post_init__(self):
         if self.predicts not in PREDICTS:
@@ -64,23 +67,29 @@ class ModelStructure:
                                          or set(self.physics) != {"effects", "plant_time_step", "source"}):
             raise InputError("model structure: physics (effects, plant_time_step, source) belongs to plant-step "
                              f"inputs only, got {self.physics!r}")
+        if self.plant_integrator is not None and (self.inputs != "plant_step"
+                                                  or self.plant_integrator not in ("rk4", "simulator")):
+            raise InputError("model structure: plant_integrator ('rk4' or 'simulator') belongs to plant-step inputs "
+                             f"only, got {self.plant_integrator!r}")
 
     def __hash__(self):
-        return hash((self.predicts, self.inputs, repr(self.physics)))
+        return hash((self.predicts, self.inputs, repr(self.physics), self.plant_integrator))
 
     @classmethod
     def from_dict(cls, values: dict | None) -> "ModelStructure":
         """From checkpoint metadata; None (checkpoints written before structures existed) is the paper's."""
         if values is None:
             return PAPER
-        if not isinstance(values, dict) or set(values) - {"predicts", "inputs", "physics"}:
-            raise InputError(f"model structure: expected keys predicts, inputs (and physics), got {values!r}")
+        if not isinstance(values, dict) or set(values) - {"predicts", "inputs", "physics", "plant_integrator"}:
+            raise InputError(f"model structure: expected keys predicts, inputs (and physics, plant_integrator), got "
+                             f"{values!r}")
         return cls(**values)
 
     def as_dict(self) -> dict:
         values = dataclasses.asdict(self)
-        if values["physics"] is None:     # (the record of structures without physics stays as it was)
-            del values["physics"]
+        for key in ("physics", "plant_integrator"):   # (the record of structures without them stays as it was)
+            if values[key] is None:
+                del values[key]
         return values
 
     @property
@@ -97,11 +106,12 @@ class ModelStructure:
         if self.inputs == "period_acceleration":
             return PeriodAcceleration(robot, sample_period)
         if self.inputs == "plant_step":
+            integrator = self.plant_integrator or "simulator"
             if self.physics is None:
-                return PlantStep(robot, sample_period)
+                return PlantStep(robot, sample_period, integrator=integrator)
             from stdm_drake.robots.effects import PlantEffects
             return PlantStep(robot, sample_period, PlantEffects.from_record(self.physics["effects"]),
-                             self.physics["plant_time_step"])
+                             self.physics["plant_time_step"], integrator=integrator)
         return NominalAcceleration(robot)
 
     @property

@@ -1,0 +1,108 @@
+"""The 2 ms closed loop (docs/realtime.md, design fixed before the run): data, the default model and the
+MPC at a 2 ms control period on the UR-10, beside the same at 10 ms on the same plans.
+
+For each period: `collect --protocol tracking --count 30 --seed 0 --sample-period P`, `train DATA --seeds 0
+--train 20 --val 5 --test 5` (the default model), `mpc DATA --model D=CHECKPOINT --plans 5` (default
+settings; the plant as model runs too). Writes docs/results/realtime/loop.json (--write) and prints the
+verdict the design fixes.
+
+Usage: python tools/realtime_loop.py [--folder DIR] [--write]
+"""
+import argparse
+import json
+import os
+import pathlib
+import sys
+import tempfile
+
+os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):   # one thread (before numpy loads)
+    os.environ.setdefault(_variable, "1")
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+from scipy import stats  # noqa: E402
+
+from stdm_drake.cli import main as cli  # noqa: E402
+
+PERIODS = {"2 ms": 0.002, "10 ms": 0.01}
+
+
+def run_period(folder: pathlib.Path, period: float) -> dict:
+    """collect, train, mpc at one sample period; the mpc.json runs per model."""
+    folder.mkdir(parents=True, exist_ok=True)
+    data = folder / "tracking.h5"
+    if not data.exists():
+        assert cli(["collect", "--protocol", "tracking", "--count", "30", "--seed", "0", "--sample-period", str(period),
+                    "--quiet", "-o", str(data)]) == 0
+    checkpoint = folder / "D" / "seed0" / "checkpoint.pt"
+    if not checkpoint.exists():
+        assert cli(["train", str(data), "--seeds", "0", "--train", "20", "--val", "5", "--test", "5", "--quiet",
+                    "-o", str(folder / "D")]) == 0
+    code = cli(["mpc", str(data), "--model", f"D={checkpoint}", "--plans", "5", "--quiet", "--force",
+                "-o", str(folder / "mpc")])
+    report = json.loads((folder / "mpc" / "mpc.json").read_text())
+    return dict(exit_status=code, runs=report["runs"], summary=report["summary"])
+
+
+def verdict(results: dict) -> tuple[str, list[str]]:
+    """The design's verdict on the 2 ms loop and the tracking lines."""
+    runs = results["2 ms"]["runs"]
+    worst = max(run["solve_ms_p95"] for run in runs)
+    broken = [run for run in runs if run["limit_violations"] or run["fallbacks"]]
+    if broken:
+        outcome = f"failed: {len(broken)} run(s) left the limits or fell back"
+    elif worst < 2.0:
+        outcome = f"real time at 2 ms (worst plan p95 {worst:.2f} ms)"
+    else:
+        outcome = f"not real time at 2 ms (worst plan p95 {worst:.2f} ms, {worst / 2.0:.2f}x the period)"
+    lines = []
+    for model in dict.fromkeys(run["model"] for run in runs):
+        fast = {run["trajectory"]: run["q_mse_rad2"] for run in runs if run["model"] == model}
+        slow = {run["trajectory"]: run["q_mse_rad2"] for run in results["10 ms"]["runs"] if run["model"] == model}
+        shared = sorted(set(fast) & set(slow))
+        if len(shared) < 2:
+            lines.append(f"{model}: fewer than two shared plans, no ratio")
+            continue
+        logs = np.log([fast[i] / slow[i] for i in shared])
+        half = stats.t.ppf(0.975, len(logs) - 1) * logs.std(ddof=1) / np.sqrt(len(logs))
+        lines.append(f"{model}: tracking q MSE 2 ms / 10 ms = {np.exp(logs.mean()):.3g}x "
+                     f"[{np.exp(logs.mean() - half):.3g}, {np.exp(logs.mean() + half):.3g}] over {len(shared)} plans "
+                     f"(2 ms mean {np.mean([fast[i] for i in shared]):.3g}, 10 ms {np.mean([slow[i] for i in shared]):.3g} rad²)")
+    return outcome, lines
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--folder", type=pathlib.Path, help="working folder (kept; default a temporary one)")
+    parser.add_argument("--write", action="store_true", help="write docs/results/realtime/loop.json")
+    args = parser.parse_args()
+    folder = args.folder or pathlib.Path(tempfile.mkdtemp(prefix="realtime_loop_"))
+    results = {label: run_period(folder / label.replace(" ", ""), period) for label, period in PERIODS.items()}
+    outcome, lines = verdict(results)
+    for label, result in results.items():
+        for row in result["summary"]:
+            print(f"{label}: {row['model']}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 "
+                  f"(worst plan), q MSE {row['q_mse_rad2']:.3g} rad², limit violations {row['limit_violations']}, "
+                  f"fallbacks {row['fallbacks']}")
+    print("verdict:", outcome)
+    print("\n".join(lines))
+    if args.write:
+        sys.path.insert(0, str(ROOT / "tools"))
+        from benchmark_report import machine_description
+        from stdm_drake.files import write_text_atomic
+        target = ROOT / "docs" / "results" / "realtime"
+        target.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(target / "loop.json", json.dumps(dict(
+            verdict=outcome, tracking=lines, machine=machine_description(threads=1),
+            command="python tools/realtime_loop.py --write",
+            periods={label: dict(sample_period=PERIODS[label], exit_status=result["exit_status"],
+                                 summary=result["summary"],
+                                 runs=[{key: value for key, value in run.items() if key != "q_error"}
+                                       for run in result["runs"]]) for label, result in results.items()}), indent=1))
+        print(f"wrote {target / 'loop.json'}")
+
+
+if __name__ == "__main__":
+    main()
