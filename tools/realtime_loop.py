@@ -2,7 +2,7 @@
 MPC at a 2 ms control period on the UR-10, beside the same at 10 ms on the same plans.
 
 For each period: `collect --protocol tracking --count 30 --seed 0 --sample-period P`, `train DATA --seeds 0
---train 20 --val 5 --test 5` (the default model), `mpc DATA --model D=CHECKPOINT --plans 5` (default
+--train 10 --val 3 --test 5 --epochs 150` (the default model), `mpc DATA --model D=CHECKPOINT --plans 5` (default
 settings; the plant as model runs too). Writes docs/results/realtime/loop.json (--write) and prints the
 verdict the design fixes.
 
@@ -38,8 +38,8 @@ def run_period(folder: pathlib.Path, period: float) -> dict:
                     "--quiet", "-o", str(data)]) == 0
     checkpoint = folder / "D" / "seed0" / "checkpoint.pt"
     if not checkpoint.exists():
-        assert cli(["train", str(data), "--seeds", "0", "--train", "20", "--val", "5", "--test", "5", "--quiet",
-                    "-o", str(folder / "D")]) == 0
+        assert cli(["train", str(data), "--seeds", "0", "--train", "10", "--val", "3", "--test", "5", "--epochs", "150",
+                    "--quiet", "-o", str(folder / "D")]) == 0
     code = cli(["mpc", str(data), "--model", f"D={checkpoint}", "--plans", "5", "--quiet", "--force",
                 "-o", str(folder / "mpc")])
     report = json.loads((folder / "mpc" / "mpc.json").read_text())
