@@ -1,7 +1,8 @@
 """The 2 ms closed loop (docs/realtime.md, design fixed before the run): data, the default model and the
 MPC at a 2 ms control period on the UR-10, beside the same at 10 ms on the same plans.
 
-For each period: `collect --protocol tracking --count 30 --seed 0 --sample-period P`, `train DATA --seeds 0
+For each period: `collect --protocol tracking --config SPEC --count 30 --seed 0 --sample-period P` (SPEC:
+trajectories/tracking.yaml with 1 s / P steps, the same 1 s plans), `train DATA --seeds 0
 --train 10 --val 3 --test 5 --epochs 150` (the default model), `mpc DATA --model D=CHECKPOINT --plans 5` (default
 settings; the plant as model runs too). Writes docs/results/realtime/loop.json (--write) and prints the
 verdict the design fixes.
@@ -33,9 +34,14 @@ def run_period(folder: pathlib.Path, period: float) -> dict:
     """collect, train, mpc at one sample period; the mpc.json runs per model."""
     folder.mkdir(parents=True, exist_ok=True)
     data = folder / "tracking.h5"
-    if not data.exists():
-        assert cli(["collect", "--protocol", "tracking", "--count", "30", "--seed", "0", "--sample-period", str(period),
-                    "--quiet", "-o", str(data)]) == 0
+    if not data.exists():    # the shipped plans (1 s each) at this period: trajectories/tracking.yaml's steps scaled
+        steps = round(1.0 / period)
+        spec = folder / "tracking.yaml"
+        spec.write_text((ROOT / "trajectories" / "tracking.yaml").read_text().replace(
+            "    num_steps: 100\n", f"    num_steps: {steps}\n"))
+        assert f"num_steps: {steps}" in spec.read_text()
+        assert cli(["collect", "--protocol", "tracking", "--config", str(spec), "--count", "30", "--seed", "0",
+                    "--sample-period", str(period), "--quiet", "-o", str(data)]) == 0
     checkpoint = folder / "D" / "seed0" / "checkpoint.pt"
     if not checkpoint.exists():
         assert cli(["train", str(data), "--seeds", "0", "--train", "10", "--val", "3", "--test", "5", "--epochs", "150",
