@@ -3,7 +3,7 @@ MPC at a 2 ms control period on the UR-10, beside the same at 10 ms on the same 
 
 For each period: `collect --protocol tracking --config SPEC --count 30 --seed 0 --sample-period P` (SPEC:
 trajectories/tracking.yaml with 1 s / P steps, the same 1 s plans), `train DATA --seeds 0
---train 10 --val 3 --test 5 --epochs 150` (the default model), `mpc DATA --model D=CHECKPOINT --plans 5` (default
+--train 4 --val 1 --test 2 --epochs 150` (per initial pose: 16 / 4 / 8 plans; the default model), `mpc DATA --model D=CHECKPOINT --plans 5` (default
 settings; the plant as model runs too). Writes docs/results/realtime/loop.json (--write) and prints the
 verdict the design fixes.
 
@@ -44,7 +44,7 @@ def run_period(folder: pathlib.Path, period: float) -> dict:
                     "--sample-period", str(period), "--quiet", "-o", str(data)]) == 0
     checkpoint = folder / "D" / "seed0" / "checkpoint.pt"
     if not checkpoint.exists():
-        assert cli(["train", str(data), "--seeds", "0", "--train", "10", "--val", "3", "--test", "5", "--epochs", "150",
+        assert cli(["train", str(data), "--seeds", "0", "--train", "4", "--val", "1", "--test", "2", "--epochs", "150",
                     "--quiet", "-o", str(folder / "D")]) == 0
     code = cli(["mpc", str(data), "--model", f"D={checkpoint}", "--plans", "5", "--quiet", "--force",
                 "-o", str(folder / "mpc")])
