@@ -30,8 +30,9 @@ from stdm_drake.cli import main as cli  # noqa: E402
 PERIODS = {"2 ms": 0.002, "10 ms": 0.01}
 
 
-def run_period(folder: pathlib.Path, period: float) -> dict:
-    """collect, train, mpc at one sample period; the mpc.json runs per model."""
+def run_period(folder: pathlib.Path, period: float, control_data: bool) -> dict:
+    """collect, train, mpc at one sample period; the mpc.json runs per model. control_data: the README's control
+    recipe's data (dithered torque, ideal sensor) instead of the default tracker and sensor."""
     folder.mkdir(parents=True, exist_ok=True)
     data = folder / "tracking.h5"
     if not data.exists():    # the shipped plans (1 s each) at this period: trajectories/tracking.yaml's steps scaled
@@ -40,7 +41,9 @@ def run_period(folder: pathlib.Path, period: float) -> dict:
         spec.write_text((ROOT / "trajectories" / "tracking.yaml").read_text().replace(
             "    num_steps: 100\n", f"    num_steps: {steps}\n"))
         assert f"num_steps: {steps}" in spec.read_text()
-        assert cli(["collect", "--protocol", "tracking", "--config", str(spec), "--count", "30", "--seed", "0",
+        recipe = (["--controller", str(ROOT / "controllers" / "pid_dither.yaml"),
+                   "--sensor", str(ROOT / "controllers" / "sensor_ideal.yaml")] if control_data else [])
+        assert cli(["collect", "--protocol", "tracking", "--config", str(spec), *recipe, "--count", "30", "--seed", "0",
                     "--sample-period", str(period), "--quiet", "-o", str(data)]) == 0
     checkpoint = folder / "D" / "seed0" / "checkpoint.pt"
     if not checkpoint.exists():
@@ -82,10 +85,14 @@ def verdict(results: dict) -> tuple[str, list[str]]:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--folder", type=pathlib.Path, help="working folder (kept; default a temporary one)")
-    parser.add_argument("--write", action="store_true", help="write docs/results/realtime/loop.json")
+    parser.add_argument("--control-data", action="store_true",
+                        help="run 2: collect as the README's control recipe (dithered PID, ideal sensor)")
+    parser.add_argument("--write", action="store_true",
+                        help="write docs/results/realtime/loop.json (with --control-data: loop_control_data.json)")
     args = parser.parse_args()
     folder = args.folder or pathlib.Path(tempfile.mkdtemp(prefix="realtime_loop_"))
-    results = {label: run_period(folder / label.replace(" ", ""), period) for label, period in PERIODS.items()}
+    results = {label: run_period(folder / label.replace(" ", ""), period, args.control_data)
+               for label, period in PERIODS.items()}
     outcome, lines = verdict(results)
     for label, result in results.items():
         for row in result["summary"]:
@@ -100,14 +107,15 @@ def main():
         from stdm_drake.files import write_text_atomic
         target = ROOT / "docs" / "results" / "realtime"
         target.mkdir(parents=True, exist_ok=True)
-        write_text_atomic(target / "loop.json", json.dumps(dict(
+        name = "loop_control_data.json" if args.control_data else "loop.json"
+        write_text_atomic(target / name, json.dumps(dict(
             verdict=outcome, tracking=lines, machine=machine_description(threads=1),
-            command="python tools/realtime_loop.py --write",
+            command="python tools/realtime_loop.py --write" + (" --control-data" if args.control_data else ""),
             periods={label: dict(sample_period=PERIODS[label], exit_status=result["exit_status"],
                                  summary=result["summary"],
                                  runs=[{key: value for key, value in run.items() if key != "q_error"}
                                        for run in result["runs"]]) for label, result in results.items()}), indent=1))
-        print(f"wrote {target / 'loop.json'}")
+        print(f"wrote {target / name}")
 
 
 if __name__ == "__main__":
