@@ -139,6 +139,9 @@ def main(argv: list[str] | None = None) -> int:
             return int(exit_.code or 0)
         return 2
     name = argv[0]
+    if name == "mpc":   # a control step's small matrix products lose to BLAS thread hand-offs: one thread (before
+        for variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS"):   # numpy loads; a value the user set is kept)
+            os.environ.setdefault(variable, "1")
     try:
         os.getcwd()
     except FileNotFoundError:   # (PyTorch and Drake fail on it at import, before any message could be given)

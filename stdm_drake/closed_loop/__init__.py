@@ -1,2 +1,2 @@
-"""Deployment in Drake diagrams: the learned model as a LeafSystem, the plant model with AutoDiff
-linearization, the trajectory optimizers (iLQR), the MPC controller and its comparison."""
+"""Deployment in Drake diagrams: the learned model as a LeafSystem, the trajectory optimizers (the real-time
+iteration, iLQR), the MPC controller and its comparison."""

@@ -4,8 +4,9 @@ The file holds the identified parameters as `PlantEffects` of the robot's descri
 link's inertia, every joint's damping, Coulomb friction and reflected rotor inertia) and where they
 came from (`Identification`: robot, dataset, split, derivative source, the fit's settings and test
 error). `IdentifiedRobot.model` is the description's discrete plant with those parameters (a
-`PlantModel`): one step is the simulation's own, its Jacobians Drake's AutoDiff linearization, so it
-serves `evaluate`, `view`, `mpc` and the LeafSystem like any model. Like a checkpoint it knows its
+`PlantModel`): one step is the simulation's own (in `mpc`, `PlantModel.for_control`: the same parameters
+in RK4 steps with exact Jacobians), so it serves `evaluate`, `view`, `mpc` and the LeafSystem like any
+model. Like a checkpoint it knows its
 dataset (`trained_on`, `split_indices`, `check_fits`): held-out plans stay held out.
 """
 import dataclasses
