@@ -268,3 +268,72 @@ def test_an_rti_horizon_beyond_its_dense_system_is_refused_in_one_line():
     dataclasses.replace(config, optimizer="ilqr").solver(ConstantVelocity(12, 6, 0.01), 6, np.full(6, 100.0))
     with pytest.raises(InputError, match="optimizer must be one of"):
         dataclasses.replace(MpcConfig(), optimizer="mppi").validate()
+
+
+BRANCHED = """<?xml version="1.0"?>
+<robot name="branched">
+  <link name="base">{base}</link>
+  <link name="torso">{torso}</link>
+  <link name="left">{left}</link>
+  <link name="left_hand">{hand}</link>
+  <link name="right">{right}</link>
+  <link name="right_hand">{hand}</link>
+  <joint name="waist" type="revolute"><parent link="base"/><child link="torso"/><origin xyz="0 0 0.2"/>
+    <axis xyz="0 0 1"/><limit lower="-3" upper="3" effort="100" velocity="2"/></joint>
+  <joint name="left_shoulder" type="revolute"><parent link="torso"/><child link="left"/>
+    <origin xyz="0 0.2 0.3" rpy="0.3 0 0"/><axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="80" velocity="2"/></joint>
+  <joint name="right_shoulder" type="revolute"><parent link="torso"/><child link="right"/>
+    <origin xyz="0 -0.2 0.3" rpy="-0.3 0 0"/><axis xyz="0 1 0"/><limit lower="-3" upper="3" effort="80" velocity="2"/>
+    <dynamics damping="0.5"/></joint>
+  <joint name="left_elbow" type="revolute"><parent link="left"/><child link="left_hand"/>
+    <origin xyz="0.3 0 0"/><axis xyz="1 0 1"/><limit lower="-3" upper="3" effort="40" velocity="2"/></joint>
+  <joint name="right_elbow" type="prismatic"><parent link="right"/><child link="right_hand"/>
+    <origin xyz="0.3 0 0"/><axis xyz="1 0 0"/><limit lower="-0.1" upper="0.1" effort="40" velocity="1"/></joint>
+</robot>
+"""
+
+
+def test_a_branched_tree_gets_pinocchios_depth_first_order():
+    """Two arms on a torso, the joints listed breadth first in the file (waist, both shoulders, both elbows):
+    Pinocchio's model numbers each subtree's joints together (depth first; a breadth-first numbering gave
+    Jacobians and M⁻¹ off by half their size), and accelerations, M⁻¹ and the derivatives equal Drake's (its
+    forward dynamics, its mass matrix, central differences) to 1e-9 / 1e-6 relative."""
+    from pydrake.multibody.plant import MultibodyPlant
+    from stdm_drake.robots.model_file import offline_parser
+    from stdm_drake.robots.rigid_body import RigidBodyDynamics
+    links = {name: inertial(com, "0 0 0", mass, i, i, 0.8 * i) for name, com, mass, i in (
+        ("base", "0 0 0.1", 5.0, 0.05), ("torso", "0 0 0.2", 4.0, 0.04), ("left", "0.15 0 0", 2.0, 0.02),
+        ("right", "0.15 0.01 0", 2.5, 0.025), ("hand", "0.05 0 0.02", 0.6, 0.004))}
+    plant = MultibodyPlant(0.0)
+    offline_parser(plant).AddModelsFromString(BRANCHED.format(**links), "urdf")
+    plant.WeldFrames(plant.world_frame(), plant.GetFrameByName("base"))
+    for name in ("waist", "left_shoulder", "right_shoulder", "left_elbow", "right_elbow"):
+        plant.AddJointActuator(f"{name}_motor", plant.GetJointByName(name))
+    plant.Finalize()
+    context = plant.CreateDefaultContext()
+    dynamics = RigidBodyDynamics(plant, context)
+    rng = np.random.default_rng(4)
+    q, v, tau = rng.uniform(-1, 1, (4, 5)), rng.uniform(-1, 1, (4, 5)), rng.normal(0, 5, (4, 5))
+
+    def drake(q, v, tau):
+        out = np.empty_like(q)
+        for i in range(len(q)):
+            plant.SetPositionsAndVelocities(context, np.concatenate([q[i], v[i]]))
+            plant.get_actuation_input_port().FixValue(context, tau[i])
+            out[i] = plant.EvalTimeDerivatives(context).CopyToVector()[5:]
+        return out
+    expected = drake(q, v, tau)
+    values, jacobian = dynamics.acceleration_and_jacobians(q, v, tau)
+    np.testing.assert_allclose(values, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
+    np.testing.assert_allclose(dynamics.acceleration(q, v, tau), expected, rtol=0, atol=1e-9 * np.abs(expected).max())
+    plant.SetPositions(context, q[0])
+    inverse = np.linalg.inv(plant.CalcMassMatrix(context))
+    np.testing.assert_allclose(dynamics.inverse_mass_matrix(q[0]), inverse, rtol=0, atol=1e-9 * np.abs(inverse).max())
+    point, numeric = np.hstack([q, v, tau]), np.empty_like(jacobian)
+    for k in range(15):
+        ahead, behind = point.copy(), point.copy()
+        ahead[:, k] += 1e-6
+        behind[:, k] -= 1e-6
+        numeric[:, :, k] = (drake(ahead[:, :5], ahead[:, 5:10], ahead[:, 10:])
+                            - drake(behind[:, :5], behind[:, 5:10], behind[:, 10:])) / 2e-6
+    assert np.abs(jacobian - numeric).max() <= 1e-6 * np.abs(numeric).max()

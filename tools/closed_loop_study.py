@@ -78,7 +78,8 @@ def mpc_job(name: str, checkpoint: str | None, references, sample_period: float)
     from stdm_drake.learning.physics import PlantModel
     torch.set_num_threads(1)
     robot = load_robot(UR10_CONFIG)
-    model = PlantModel(sample_period, robot=robot) if checkpoint is None else LearnedModel(checkpoint, name=name, robot=robot)
+    model = (PlantModel(sample_period, robot=robot, integrator="rk4") if checkpoint is None
+             else LearnedModel(checkpoint, name=name, robot=robot))
     runs = compare_controllers([model], references, load_mpc_config(), progress=False, robot=robot)
     return [dict(model=name, plan=run.trajectory, q_mse=run.q_mse_rad2, v_mse=run.v_mse,
                  limit_violations=run.limit_violations, fallbacks=run.fallbacks, solve_ms=run.solve_ms_mean)

@@ -66,7 +66,7 @@ class IlqrSolver(TrajectoryOptimizer):
         iterations = 0
         terminal = self.cost_function.step_weights(horizon)
         for iterations in range(1, self.config.max_iterations + 1):
-            _, A, B = self.model.linearize(x[:-1], u)     # every node's Jacobians in one batched call
+            _, A, B = self.linearize(x[:-1], u)     # every node's Jacobians in one batched call
             if not (np.all(np.isfinite(A)) and np.all(np.isfinite(B))):
                 return OptimizerResult(u, x, cost, iterations, False)
             gains = self._backward(x, u, reference, u_ff, A, B, terminal, mu)

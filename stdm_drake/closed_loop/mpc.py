@@ -20,9 +20,9 @@ Offset-free MPC: every prediction over the horizon is shifted by a disturbance e
 model's latest one-step error x_k - f(x_k-1, u_k-1) (filtered by `disturbance_gain`), so a model's
 slowly varying bias does not become a tracking error. For the plant as model d is ~0.
 
-Every prediction model provides `sample_period` (s) and two batched methods:
-    step(x (N, 2n), u (N, m)) -> x_next (N, 2n)
-    jacobians(x (H, 2n), u (H, m)) -> (A (H, 2n, 2n), B (H, 2n, m))   of x_next w.r.t. x and u.
+Every prediction model is a `DynamicsModel` (`learning.dynamics_model`) with its `sample_period` (s); the
+optimizers call its one-row `step_single` and its batched `linearize(x (H, 2n), u (H, m)) -> (x_next (H, 2n),
+A (H, 2n, 2n), B (H, 2n, m))`; a model with only `step` and `jacobians` gets both from those.
 
 Modules: the tracking cost and the optimizer interface (`optimizer`), the optimizers (`rti`, `ilqr`),
 this controller and its closed loop, and the comparison of prediction models with the `stdm-drake mpc`

@@ -54,11 +54,16 @@ class OptimizerResult:
 
 
 class TrajectoryOptimizer(abc.ABC):
-    """Minimizes `cost` over torque sequences within +-effort_limit (m,) N m, predicting with `model`
-    (a prediction model: `step(x (N, 2n), u (N, m)) -> (N, 2n)`; see `stdm_drake.closed_loop.mpc`)."""
+    """Minimizes `cost` over torque sequences within +-effort_limit (m,) N m, predicting with `model` (a
+    `DynamicsModel`: `step_single` and `linearize` are what optimizers call, through `predict` and
+    `linearize` here; a model with only `step(x (N, 2n), u (N, m)) -> (N, 2n)` and `jacobians` works too)."""
 
     def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray):
         self.model = model
+        # a `DynamicsModel`'s one-row step and batched linearization; a model with only step and jacobians
+        # (the interface before them) gets both from those
+        self._step_single = getattr(model, "step_single", None) or (lambda x, u: model.step(x[None], u[None])[0])
+        self.linearize = getattr(model, "linearize", None) or (lambda x, u: (model.step(x, u), *model.jacobians(x, u)))
         self.cost_function = cost
         self.effort_limit = np.asarray(effort_limit, dtype=float)
         self.joints = len(self.effort_limit)
@@ -78,7 +83,7 @@ class TrajectoryOptimizer(abc.ABC):
 
     def predict(self, x: np.ndarray, u: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """One shifted model step: f(x (2n,), u (m,)) + offset (2n,)."""
-        return self.model.step_single(x, u) + offset
+        return self._step_single(x, u) + offset
 
     @abc.abstractmethod
     def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,

@@ -90,7 +90,7 @@ class RtiSolver(TrajectoryOptimizer):
         iterations = 0
         for iterations in range(1, self.config.max_iterations + 1):
             step = None
-            following, A, B = self.model.linearize(x[:-1], u)
+            following, A, B = self.linearize(x[:-1], u)
             if np.all(np.isfinite(following)) and np.all(np.isfinite(A)) and np.all(np.isfinite(B)):
                 for _ in range(12):    # raise the regularization until the system is positive definite
                     step = self._step(x, u, reference, u_ff, following + offset, A, B, mu)

@@ -198,7 +198,10 @@ class LearnedModel(DynamicsModel):
         state, rest = self.structure.split(x, a, features)
         rows = self.engine.input_rows(state.astype(np.float32), rest.astype(np.float32)[None])[0]
         mean, network = self.engine.mean_and_jacobian(rows)     # (H, out), (H, out, network inputs)
-        following = self._assemble(x, mean.astype(np.float64))
+        mean = mean.astype(np.float64)
+        if self.engine.residual:      # (in float64, as `step` adds it)
+            mean += state
+        following = self._assemble(x, mean)
         network = network.astype(np.float64)
         width = S + self.action_dim
         # d(network inputs) / d(x, a): the structure's permutation of [q, v, τ], then φ's Jacobian

@@ -2,7 +2,7 @@
 `learning.structure`, plant-step inputs)."""
 import numpy as np
 
-from stdm_drake.learning.physics import PlantModel, central_difference_rates
+from stdm_drake.learning.physics import PlantModel, central_difference_jacobians, central_difference_rates
 
 
 class PlantStep:
@@ -53,9 +53,16 @@ class PlantStep:
         values = np.full_like(x, np.nan)
         out = np.full((len(x), self.width, self.width + self.action_dim), np.nan)
         finite = np.isfinite(x).all(axis=1) & np.isfinite(tau).all(axis=1)
-        if finite.any():
+        if not finite.any():
+            return values, out
+        if self.model.integrator == "rk4":
             following, A, B = self.model.linearize(x[finite], tau[finite])
-            values[finite], out[finite] = following, np.concatenate([A, B], axis=2)
+        else:   # (the simulator: rows it cannot step give NaN, through `values`)
+            n = self.num_joints
+            step = lambda state, action: self.values(state[:, :n], state[:, n:], action)   # noqa: E731
+            following = step(x[finite], tau[finite])
+            A, B = central_difference_jacobians(step, x[finite], tau[finite])
+        values[finite], out[finite] = following, np.concatenate([A, B], axis=2)
         return values, out
 
     def jacobians(self, q, v, tau) -> np.ndarray:

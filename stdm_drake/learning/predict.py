@@ -138,8 +138,9 @@ class InferenceModel:
         return mean
 
     def mean_and_jacobian(self, inputs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The ensemble-mean next state (N, S) (residual added) and its Jacobian d/d[x, a] (N, S, S+A) at
-        input rows (N, S+A+1), float32, from one pass.
+        """The ensemble-mean network output (N, S) (residual not added: the caller adds the state in its own
+        precision) and the Jacobian of the next state d/d[x, a] (N, S, S+A) (residual included) at input rows
+        (N, S+A+1), float32, from one pass.
 
         Forward mode with all unit tangents at once: the tangents of every row and input are the rows of one
         (N (S+A), H) matrix per member, so each layer is one matrix product per member (not one per row).
@@ -161,7 +162,6 @@ class InferenceModel:
         mean = (np.matmul(hidden, self.mean_weight) + self.mean_bias).mean(axis=0)              # (N, S)
         if self.residual:
             jacobian = jacobian + np.eye(out, width, dtype=np.float32)
-            mean += inputs[:, :self.state_dim]
         return mean, jacobian
 
     def member_outputs(self, hidden: np.ndarray):

@@ -78,16 +78,19 @@ class RigidBodyDynamics:
                 body_index = joint.parent_body().index()
             return None
 
-        def depth(joint):
-            count, parent = 0, owner(joint.parent_body().index())
+        def ancestry(joint):
+            """The velocity starts of the moving joints from the root down to `joint`: sorted, they put every
+            joint after its parent and each subtree's joints together (depth first, as Pinocchio numbers them)."""
+            chain, parent = [joint.velocity_start()], owner(joint.parent_body().index())
             while parent is not None:
-                count, parent = count + 1, owner(parent.parent_body().index())
-            return count
+                chain.append(parent.velocity_start())
+                parent = owner(parent.parent_body().index())
+            return tuple(reversed(chain))
 
         model = pin.Model()
         model.gravity = pin.Motion(np.asarray(plant.gravity_field().gravity_vector(), dtype=float), np.zeros(3))
         frames, ids = {}, {}   # Drake joint index -> X_WJ at q = 0 (pin.SE3), Pinocchio joint id
-        order = sorted(moving, key=lambda joint: (depth(joint), joint.velocity_start()))
+        order = sorted(moving, key=ancestry)
         for joint in order:
             X_WF = joint.frame_on_parent().CalcPoseInWorld(zero)
             if isinstance(joint, RevoluteJoint):
