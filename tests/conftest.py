@@ -88,7 +88,8 @@ def regular_install(tmp_path_factory):
     dependencies = pathlib.Path(pytest.importorskip("numpy").__file__).parents[1]   # the venv's site-packages
     # Pinocchio's wheel (a cmeel package) lives under site-packages/cmeel.prefix, put on the path by a .pth file
     # that `python -S` skips: its folder goes on PYTHONPATH as site would put it
-    rigid_body = pathlib.Path(pytest.importorskip("pinocchio").__file__).parents[1]
+    import pinocchio
+    rigid_body = pathlib.Path(pinocchio.__file__).parents[1]
     return (dict(os.environ, PYTHONPATH=os.pathsep.join([str(target), str(dependencies), str(rigid_body)]),
                  DRAKE_ALLOW_NETWORK="meshcat"), work, target)
 
