@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots.effects import coulomb_torque
 
 
 def _rotation_to_axis(axis: np.ndarray) -> np.ndarray:
@@ -149,14 +150,13 @@ class RigidBodyDynamics:
     # -- forces beyond Pinocchio's ABA -----------------------------------------------------------------
 
     def _generalized_force(self, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """B τ − D v + τ_c(v) (N, n), Drake order."""
+        """B τ − D v + τ_c(v) (N, n) for rows (N, ·), or (n,) for one row: Drake order."""
         force = tau if self._torque_is_force else tau @ self.actuation.T
         if not self._extra_forces:
             return force
         force = force - self.damping * v
         if self.coulomb is not None:
-            friction, scale = self.coulomb
-            force -= friction * np.tanh(v / scale)
+            force += coulomb_torque(v, *self.coulomb)
         return force
 
     def _force_velocity_slope(self, v: np.ndarray) -> np.ndarray:
@@ -199,11 +199,7 @@ class RigidBodyDynamics:
 
     def acceleration_row(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
         """q̈ (n,) for one row q, v (n,) float64, τ (m,), unchecked: the hot path of sequential rollouts."""
-        force = tau if self._torque_is_force else self.actuation @ tau
-        if self._extra_forces:
-            force = force - self.damping * v
-            if self.coulomb is not None:
-                force -= self.coulomb[0] * np.tanh(v / self.coulomb[1])
+        force = self._generalized_force(v, tau)
         if self._same_order:
             return self._pin.aba(self.model, self.data, q, v, force)
         to = self._to_pin
