@@ -70,12 +70,14 @@ def add_runner_arguments(parser) -> None:
                              f"instance with {'--workers' if workers else DEFAULT_RAY_CPUS} CPUs)")
 
 
-def runner_config_from_args(args) -> RunnerConfig:
+def runner_config_from_args(args, *, connect_now: bool = True) -> RunnerConfig:
+    """The runner of --backend, --workers and --ray-address, validated; with connect_now a cluster is joined
+    at once (an unreachable one is an error before any work), else the job joins it after its own checks."""
     config = RunnerConfig(backend=args.backend, workers=getattr(args, "workers", DEFAULT_RAY_CPUS),
                           ray_address=args.ray_address)
     config.validate()
-    if config.backend == "ray":
-        connect(config)  # an unreachable cluster is an error before any work
+    if connect_now and config.backend == "ray":
+        connect(config)
     return config
 
 

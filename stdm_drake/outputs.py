@@ -381,6 +381,24 @@ def mark_output_folder(path) -> None:
         raise
 
 
+def fresh_default_folder(default) -> pathlib.Path:
+    """The folder a command writes to when the user names none: `default` (e.g. out/mpc) when it is missing or
+    empty, else the first of default-2, default-3, ... that is, so a second run never replaces the first run's
+    results (a folder the user names is checked by `check_output_folder`, which refuses another run's
+    results without --force)."""
+    default = pathlib.Path(default)
+    candidate, number = default, 1
+    while candidate.exists() and (not candidate.is_dir() or _holds_results(candidate)):
+        number += 1
+        candidate = default.with_name(f"{default.name}-{number}")
+    return candidate
+
+
+def _holds_results(folder: pathlib.Path) -> bool:
+    """Whether `folder` holds anything but folder markers and empty folders."""
+    return not _holds_only_its_marker(folder)
+
+
 def add_force_argument(parser) -> None:
     parser.add_argument("--force", action="store_true",
                         help="replace an existing output that stdm-drake did not write")

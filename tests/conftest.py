@@ -9,8 +9,67 @@ _OWN_CACHE = None
 if "STDM_DRAKE_CACHE" not in os.environ:  # converted meshes go to a folder of this run, not the user's cache
     import tempfile
     _OWN_CACHE = os.environ["STDM_DRAKE_CACHE"] = tempfile.mkdtemp(prefix="stdm-drake-test-cache-")
+# (under pytest-xdist the workers inherit the controller's STDM_DRAKE_CACHE: one cache, written atomically, that
+# the controller removes once they are done)
+_XDIST_WORKER = os.environ.get("PYTEST_XDIST_WORKER")   # "gw0", ... in a pytest-xdist worker, else None
+if _XDIST_WORKER:   # the workers share the cores (CI's 2): one BLAS / OpenMP thread each, before numpy or torch loads
+    for _variable in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[_variable] = "1"
 
 import pytest  # noqa: E402
+
+# Test modules that run on one pytest-xdist worker, one after the other (pyproject's addopts: `--dist loadgroup`,
+# scheduled by pytest_xdist_make_scheduler below): the Ray tests (one Ray head on this machine at a time: its
+# ports, and `ray stop --force` at the module's end stops every Ray process here) and the users of the session's
+# regular install and its `reproduce --quick` report (test_ray_backend compares its report with it): built once,
+# not on each worker. A test elsewhere that takes `quick_report` still passes: its worker builds its own copy.
+_SHARED_WORKER_MODULES = {"test_ray_backend.py", "test_reproduce.py"}
+_SHARED_WORKER_GROUP = "ray-and-quick-report"
+_MAX_AUTO_WORKERS = 4
+
+
+def pytest_addoption(parser, pluginmanager):
+    """Without pytest-xdist (`-p no:xdist`, or not installed) its options in pyproject's addopts are accepted
+    and ignored: the suite runs serially."""
+    if not pluginmanager.has_plugin("xdist"):
+        group = parser.getgroup("xdist", "pytest-xdist is off")
+        # (_addoption, as xdist adds its own -n: pytest reserves lowercase short options to itself and plugins)
+        group._addoption("-n", "--numprocesses", dest="numprocesses", default=None, help="(pytest-xdist is off)")
+        group.addoption("--dist", dest="dist", default="no", help="(pytest-xdist is off)")
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto`: one worker per core, at most _MAX_AUTO_WORKERS (each holds its own Drake, torch and session
+    datasets); PYTEST_XDIST_AUTO_NUM_WORKERS still decides when set."""
+    if os.environ.get("PYTEST_XDIST_AUTO_NUM_WORKERS"):
+        return None
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, _MAX_AUTO_WORKERS))
+
+
+def pytest_configure(config):
+    if _XDIST_WORKER:
+        import torch
+        torch.set_num_threads(1)
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """`--dist loadgroup` with the tests of _SHARED_WORKER_MODULES as one group, by their node ids: an
+    `xdist_group` mark does not group with pytest-xdist 3.8.0 on pytest 9.2 (it renames the node id through a
+    field pytest no longer reads, pytest-xdist issue 1386). Larger groups are sent first (the shared group)."""
+    if config.getvalue("dist") != "loadgroup":
+        return None
+    from xdist.scheduler import LoadGroupScheduling
+
+    class SharedModulesScheduling(LoadGroupScheduling):
+        def _split_scope(self, nodeid: str) -> str:
+            if nodeid.split("::", 1)[0].rsplit("/", 1)[-1] in _SHARED_WORKER_MODULES:
+                return _SHARED_WORKER_GROUP
+            return super()._split_scope(nodeid)
+
+    return SharedModulesScheduling(config, log)
 
 
 @pytest.fixture(scope="session")
@@ -81,8 +140,13 @@ def regular_install(tmp_path_factory):
     (a .pth file) is not loaded, so a module the wheel lacks is an ImportError, not the checkout's copy."""
     wheels, target, work = (tmp_path_factory.mktemp(name) for name in ("wheels", "site", "work"))
     pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    subprocess.run(pip + ["wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
-                   cwd=work, timeout=300)
+    from filelock import FileLock
+    (ROOT / "build").mkdir(exist_ok=True)
+    # setuptools builds in the checkout (build/, *.egg-info): one build at a time, should xdist workers outside
+    # the shared group (another --dist) or another pytest run on this checkout build too
+    with FileLock(str(ROOT / "build" / ".test-wheel.lock"), timeout=600):
+        subprocess.run(pip + ["wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
+                       cwd=work, timeout=300)
     (wheel,) = wheels.glob("stdm_drake-*.whl")
     subprocess.run(pip + ["install", "--no-deps", "--target", str(target), str(wheel)], check=True, timeout=300)
     dependencies = pathlib.Path(pytest.importorskip("numpy").__file__).parents[1]   # the venv's site-packages

@@ -3,7 +3,8 @@
 The reference values were computed with the code of commit 799fd2b (one module per stage, before
 the subpackages) on the session fixtures' datasets and a 3-epoch PED run; the restructured code
 gave identical values (weights bitwise). The collection metadata (every key that existed then,
-package versions aside) is compared exactly; the arrays by the sum of |value| per array name to 1e-9
+package versions aside, as the code records them now: see DATASET_METADATA_SHA256) is compared
+exactly; the arrays by the sum of |value| per array name to 1e-9
 relative and the weights by the sum of |w| per tensor to 1e-6 relative, so that a CPU with other
 vector instructions may round differently without failing (Drake's simulation gives bitwise other
 arrays on an AMD EPYC than on the Intel Xeon the exact hashes were taken on: the array sums below were
@@ -21,8 +22,7 @@ import torch
 from stdm_drake.cli import main
 
 # sum of |value| over every trajectory's array of each name; sha256 over the collection metadata's keys as
-# they were (package versions aside; keys added since, like the robot's name or the controller's empty
-# sizing fields, are not part of the comparison)
+# they were (package versions aside; keys added since, like the robot's name, are not part of the comparison)
 DATASET_ARRAY_ABS_SUMS = {
     "excitation": {"q": 1818.477159353079, "q_true": 1818.477159353079, "qdd": 2345.0447985361334,
                    "qdd_end": 2294.476041213148, "tau": 21075.313964412486, "tau_next": 422.8088496972069,
@@ -32,9 +32,15 @@ DATASET_ARRAY_ABS_SUMS = {
                  "tau": 73231.2510809768, "tau_next": 766.2329628684851, "v": 603.080269181547,
                  "v_planned": 601.2353692853186, "v_true": 600.5534032933464},
 }
+# the metadata as the current code records it. Against commit 799fd2b's (whose sha256 were 5c5be040... and
+# 77379737...) it differs only in its layout, checked field by field by collecting with both: the plant
+# records every field of Drake's MultibodyPlantConfig (the values 799fd2b's plant had as Drake's defaults);
+# the quintic planner no longer records the ruckig/toppra fields (jerk_limits, path_waypoints,
+# toppra_gridpoints, toppra_limit_margin) nor the inverse-dynamics controller the PID's gravity_feedforward
+# and empty bandwidth, fields those kinds never read. The array sums above are unchanged.
 DATASET_METADATA_SHA256 = {
-    "excitation": "5c5be040ce0950ad405a312a39404e7fac1f7157686c81ac758ba933f02fef10",
-    "tracking": "77379737874ac8b889c8d1b013798768049462f5c6d888aed23c951bc4a6c0bb",
+    "excitation": "93ab19036d481c5510769b385b31432f3c019d5ec0afbb0d621cca1267bcd371",
+    "tracking": "42542d26090e8639bdaf402f780d7ac296039e63c529f8783ca5e5c09f743bb2",
 }
 METADATA_KEYS = {
     "excitation": ["excitation", "excitation_parameters", "excitation_parameters_columns", "joint_names",
@@ -64,16 +70,6 @@ def dataset_summary(path, keys) -> tuple[dict, str]:
         f.visititems(visit)
         metadata = json.loads(f.attrs["metadata_json"])
     kept = {key: metadata[key] for key in keys}
-    if "controller" in kept:  # fields added since (PID sizing), empty in files of gains given by hand
-        kept["controller"] = {key: value for key, value in kept["controller"].items()
-                              if not (key in ("bandwidth", "dither_acceleration") and value == [])}
-        if kept["controller"]["kind"] == "inverse_dynamics":   # a PID-only field it recorded (unused) until
-            kept["controller"].setdefault("gravity_feedforward", True)   # the controllers became tagged types
-    kept["plant"] = {key: kept["plant"][key] for key in ("time_step", "discrete_contact_approximation",
-                                                        "self_collision")}   # Drake's other fields recorded since
-    if "planner" in kept and kept["planner"]["kind"] == "quintic":   # the other planners' fields it recorded
-        kept["planner"] = dict(kept["planner"], jerk_limits=[30.0, 30.0, 40.0, 60.0, 60.0, 60.0], path_waypoints=51,
-                               toppra_gridpoints=201, toppra_limit_margin=0.02)   # (unused) until they were tagged
     return sums, hashlib.sha256(json.dumps(kept, sort_keys=True).encode()).hexdigest()
 
 

@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from presets import UR10
-from stdm_drake.experiments import decisive
-from tools_import import decisive_experiment as experiment
+from tools_import import decisive, study
 
 
 def rows(values, model):
@@ -42,7 +41,7 @@ def test_cell_verdicts_follow_the_design():
 def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
     from stdm_drake.robots.plant import Dynamics, robot_joint_limits
     from stdm_drake.robots.robot import load_robot
-    free = load_robot(experiment.ROOT / "models" / "ur10_limit_free.yaml")
+    free = load_robot(decisive.ROOT / "models" / "ur10_limit_free.yaml")
     limits = robot_joint_limits(free)
     assert np.all(np.isinf(limits.position_lower)) and np.all(np.isinf(limits.position_upper))
     np.testing.assert_array_equal(limits.effort, robot_joint_limits(UR10).effort)
@@ -52,7 +51,7 @@ def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
 
 @pytest.mark.slow
 def test_quick_profile_runs_end_to_end(tmp_path):
-    assert experiment.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    assert study.main(["decisive", "--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
     import json
     results = json.loads((tmp_path / "out" / "results.json").read_text())
     assert [cell["cell"] for cell in results["summary"]] == ["literal-10ms", "learned-structure"]
@@ -64,10 +63,10 @@ def test_quick_profile_runs_end_to_end(tmp_path):
     assert sorted(path.name for path in (tmp_path / "data").iterdir()) == sorted(
         f"literal-10ms{half}_seed{seed}_n50.h5" for half in ("", "_half") for seed in (0, 1))
     # --resume keeps every row of the same design and trains nothing
-    assert experiment.main(["--quick", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    assert study.main(["decisive", "--quick", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
     again = json.loads((tmp_path / "out" / "results.json").read_text())
     assert again["reused_rows"] == len(results["runs"]) and again["runs"] == results["runs"]
-    assert experiment.main(["--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 2
+    assert study.main(["decisive", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 2
 
 
 @pytest.mark.slow
@@ -78,8 +77,7 @@ def test_closed_loop_study_quick_profile(tmp_path):
     pipeline size, 20 epochs, one of the naive models does)."""
     import json
 
-    from tools_import import closed_loop_study
-    code = closed_loop_study.main(["--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")])
+    code = study.main(["closed-loop", "--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")])
     results = json.loads((tmp_path / "out" / "results.json").read_text())
     assert code == (2 if any(run["limit_violations"] for run in results["runs"]) else 0)
     summary = results["summary"]

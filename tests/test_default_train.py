@@ -144,11 +144,11 @@ def test_a_shipped_presets_data_need_no_robot_flag(excitation_dataset, tmp_path)
 
 @pytest.mark.slow
 def test_the_default_learns_on_every_shipped_protocol(tmp_path):
-    """Item 3 of issue 38 at a small size (tools/default_train_study.py's SMALL design: 24 trajectories, one
+    """Item 3 of issue 38 at a small size (tools/studies/default_train.py's SMALL design: 24 trajectories, one
     seed, 60 epochs): on default excitation data, tracked plans, identification data, an imported log and the
     Panda preset, the default `train` learns on the test split (2x over the physics-free baselines in q and v,
     or within 1.5x of the noise floor) and its one-step MSE is at most 10 % above `--model D`'s."""
-    from tools_import import default_train_study as study
+    from tools_import import default_train as study
     paths = study.collect(tmp_path / "data", study.SMALL)
     study.train_all(paths, tmp_path / "runs", study.SMALL, workers=2)
     results = study.evaluate(paths, tmp_path / "runs", study.SMALL)

@@ -6,10 +6,10 @@ import pytest
 from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.data.dataset import load_dataset
-from stdm_drake.learning.dynamics_model import DynamicsModel
+from stdm_drake.dynamics.model import DynamicsModel
 from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
 from stdm_drake.learning.learned_model import LearnedModel
-from stdm_drake.learning.physics import ConstantVelocity, NominalAcceleration, PlantModel, StaysPut
+from stdm_drake.dynamics.physics import ConstantVelocity, NominalAcceleration, PlantModel, StaysPut
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.structure import DEFAULT, PAPER, ModelStructure
 from stdm_drake.learning.problem import training_problem
@@ -127,7 +127,7 @@ def test_evaluate_prints_the_baselines_and_the_verdict(excitation, tmp_path, cap
 
 
 def test_the_gate_counts_a_model_at_the_noise_floor_as_learned():
-    from stdm_drake.learning.physics import learning_verdict
+    from stdm_drake.dynamics.physics import learning_verdict
     assert learning_verdict(3.0, 2.5) == "learned"
     assert learning_verdict(1.1, 1.9) == "has not learned the dynamics"
     assert learning_verdict(1.1, 1.9, floor_ratio_q=1.3, floor_ratio_v=1.0) == "learned (at the noise floor)"
@@ -218,7 +218,7 @@ class _Pendulums(DynamicsModel):
 
 
 def test_held_input_substeps_chain_the_inner_steps_and_their_jacobians():
-    from stdm_drake.learning.dynamics_model import HeldInputSubsteps
+    from stdm_drake.dynamics.model import HeldInputSubsteps
     inner = _Pendulums()
     model = HeldInputSubsteps(inner, 3)
     assert model.sample_period == pytest.approx(0.03) and model.state_dim == 4 and model.action_dim == 2
@@ -241,7 +241,7 @@ def test_held_input_substeps_chain_the_inner_steps_and_their_jacobians():
 def test_two_half_period_plant_steps_are_one_full_period_step(excitation):
     """The recorder holds the torque for the whole period, so the plant at Δt/2 run twice with the same
     torque is the plant at Δt: what lets a model trained at half the period be tested on Δt data."""
-    from stdm_drake.learning.dynamics_model import HeldInputSubsteps
+    from stdm_drake.dynamics.model import HeldInputSubsteps
     transitions = excitation.transitions([5])
     x, u = transitions.state[::7], transitions.action[::7]
     halves = HeldInputSubsteps(PlantModel(excitation.sample_period / 2, robot=UR10), 2)

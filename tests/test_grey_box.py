@@ -12,8 +12,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.learning.checkpoint import load_checkpoint
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.models import EnsembleMLP, ModelConfig
-from stdm_drake.learning.physics import PlantModel
-from stdm_drake.learning.plant_step import PlantStep
+from stdm_drake.dynamics.physics import PlantModel
+from stdm_drake.dynamics.plant_step import PlantStep
 from stdm_drake.learning.structure import ModelStructure
 from stdm_drake.paths import CONTROLLERS_DIR, MODELS_DIR
 
@@ -174,13 +174,14 @@ def test_a_delta_models_output_spread_has_a_floor_at_its_targets_scale():
     """Residual targets of rounding size (a grey box on an exact plant) are not standardized into unit
     noise: the output spread is at least DELTA_SPREAD_FLOOR x the targets' own spread; a real delta's
     spread is kept as it is."""
-    from stdm_drake.learning.regression import DELTA_SPREAD_FLOOR, RegressionData, fit_normalizers
+    from stdm_drake.learning.models import DELTA_SPREAD_FLOOR
+    from stdm_drake.learning.regression import RegressionData
     rng = np.random.default_rng(0)
     inputs = rng.normal(size=(200, 3))
     for delta, expected in ((1e-12, DELTA_SPREAD_FLOOR), (0.1, None)):
         targets = inputs[:, :1] + delta * rng.normal(size=(200, 1))
         network = EnsembleMLP(ModelConfig(input_dim=3, output_dim=1, residual=True))
-        fit_normalizers(network, RegressionData(inputs=inputs, targets=targets))
+        network.fit_normalizers(RegressionData(inputs=inputs, targets=targets))
         spread = float(network.output_normalizer.std[0])
         if expected is None:
             assert spread == pytest.approx(float(np.std(targets - inputs[:, :1])))

@@ -152,7 +152,7 @@ def test_the_identified_robot_is_a_model_that_steps_like_the_true_plant(identifi
     """One step of the identified model from recorded states: orders of magnitude closer to the data than the
     description (the nominal model); its LeafSystem runs it in a diagram."""
     from stdm_drake.closed_loop.learned_system import LearnedDynamicsSystem
-    from stdm_drake.learning.physics import PlantModel
+    from stdm_drake.dynamics.physics import PlantModel
     dataset = load_dataset(affected_data)
     model = load_identified(identified).model(UR10)
     assert model.learned and model.name == "identified" and model.checkpoint.trained_on(dataset)
@@ -231,7 +231,9 @@ def _closed_loop_run(model, plan, q_mse, violations=0):
 def test_the_closed_loop_ratio_pairs_plans_within_each_grey_box_seed_and_the_verdict_follows_the_interval():
     """Run 3's closed-loop summary: other model / G-id-state paired by test plan, one geometric mean per seed (D
     seed with seed), an interval over seeds; met only when every model a user has is above 1 and no limit is left."""
-    from stdm_drake.experiments.identification_closed_loop import closed_loop_summary, closed_loop_verdict
+    from tools_import import identification_closed_loop
+    closed_loop_summary, closed_loop_verdict = (identification_closed_loop.closed_loop_summary,
+                                                identification_closed_loop.closed_loop_verdict)
     plans, seeds = (3, 7), 3
     runs = [_closed_loop_run("plant", plan, 1e-3) for plan in plans]
     runs += [_closed_loop_run("true-plant", plan, 1e-9) for plan in plans]

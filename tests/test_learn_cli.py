@@ -255,8 +255,8 @@ def test_a_diverging_rollout_is_an_infinite_error_not_a_failure(tiny, tmp_path, 
     evaluate and view stop with 'states contain NaN'): evaluate reports the infinite error, the trajectories and
     the step, and its --json stays strict JSON (null); the rollout of any model holds NaN after the divergence."""
     import torch
-    from stdm_drake.commands.view import held_after_divergence
-    from stdm_drake.learning.dynamics_model import DynamicsModel
+    from stdm_drake.closed_loop.replay import held_after_divergence
+    from stdm_drake.dynamics.model import DynamicsModel
     from stdm_drake.learning.checkpoint import load_checkpoint
     dataset, output = tiny
     checkpoint = load_checkpoint(output / "seed0" / "checkpoint.pt")

@@ -6,9 +6,9 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize
+from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import TrainingConfig
-from stdm_drake.learning.loss import member_gaussian_nll, batch_losses
+from stdm_drake.learning.loss import member_gaussian_nll
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import (MAX_LOGVAR_INIT, MIN_LOGVAR_INIT, EnsembleMLP, ModelConfig,
                                         bounded_logvar, dynamics_config, get_activation, parse_model_type)
@@ -26,7 +26,7 @@ def _float64_model(config, seed=0):
     model = EnsembleMLP(config).double()
     rng = np.random.default_rng(seed)
     scales = rng.uniform(0.1, 10.0, config.input_dim)
-    fit_normalizers(model, _random_data(rng, 200, config.input_dim, config.output_dim, scale_in=scales))
+    model.fit_normalizers(_random_data(rng, 200, config.input_dim, config.output_dim, scale_in=scales))
     # non-zero biases so every activation is exercised away from 0
     with torch.no_grad():
         for bias in model.biases:
@@ -72,8 +72,8 @@ def test_jvp_function_gradients_pass_gradcheck(name, probabilistic):
         with torch.no_grad():
             for target, value in zip(parameters, values):
                 target.copy_(value)
-        from stdm_drake.learning.models import _TangentPropagation
-        return _TangentPropagation.apply(model.activation, 3, model.per_member(inputs), model.per_member(rates),
+        from stdm_drake.learning.tangent import TangentPropagation
+        return TangentPropagation.apply(model.activation, 3, model.per_member(inputs), model.per_member(rates),
                                          *values[:count], *values[count:])
 
     values = tuple(p.detach().clone().requires_grad_(True) for p in parameters)
@@ -203,9 +203,9 @@ def test_probabilistic_loss_includes_bound_penalty_and_trains_bounds():
     config = ModelConfig(input_dim=2, output_dim=2, probabilistic=True, hidden_width=8, ensemble_size=2)
     model = EnsembleMLP(config)
     data = _random_data(np.random.default_rng(0), 32, 2, 2)
-    fit_normalizers(model, data)
-    tensors = standardize(model, data)
-    terms = batch_losses(model, TrainingConfig(), tensors.inputs, tensors.targets)
+    model.fit_normalizers(data)
+    tensors = model.standardize(data)
+    terms = model.loss(TrainingConfig(), tensors.inputs, tensors.targets)
     mean, logvar = model.split_head(model.normalized_outputs(tensors.inputs))
     penalty = 0.01 * (MAX_LOGVAR_INIT - MIN_LOGVAR_INIT) * 2      # two outputs, per member
     expected = member_gaussian_nll(mean, logvar, tensors.targets.expand(2, -1, -1)) + penalty   # (2,)

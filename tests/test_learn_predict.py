@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.regression import RegressionData, fit_normalizers
+from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.trainer import build_model
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import dynamics_config
@@ -20,7 +20,7 @@ def make_model(ensemble_size=1, probabilistic=False, activation="swish", delta=T
     config = dynamics_config(state_dim=4, action_dim=2, delta=delta, hidden_width=32, hidden_layers=3,
                              activation=activation, ensemble_size=ensemble_size, probabilistic=probabilistic)
     model = build_model(config, seed)
-    fit_normalizers(model, DATA)
+    model.fit_normalizers(DATA)
     with torch.no_grad():
         for bias in model.biases:
             bias.normal_(0.0, 0.3)
@@ -151,7 +151,7 @@ def test_prediction_input_errors_are_clear():
         rollout(model, STATES[0], ACTIONS[0])
     with pytest.raises(InputError, match="NaN or inf"):
         rollout(model, STATES[0], np.full((4, 2), np.nan))
-    with pytest.raises(InputError, match="EnsembleMLP or InferenceModel"):
+    with pytest.raises(InputError, match="a trainable network or its inference engine"):
         predict(object(), STATES[:1], ACTIONS[:1])
 
 

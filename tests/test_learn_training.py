@@ -7,11 +7,10 @@ import pytest
 import torch
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize
+from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import TrainingConfig
-from stdm_drake.learning.loss import batch_losses
 from stdm_drake.learning.alpha_selection import select_alpha
-from stdm_drake.learning.trainer import build_model, train_model, training_step, validation_scores
+from stdm_drake.learning.trainer import build_model, train_model, training_step
 from stdm_drake.learning.checkpoint import load_checkpoint, load_model, save_checkpoint
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import ModelConfig, dynamics_config
@@ -55,8 +54,8 @@ def test_every_activation_trains(activation):
         config = dynamics_config(state_dim=2, action_dim=1, activation=activation, **SMALL)
         training = TrainingConfig(alpha=alpha, learning_rate=3e-3)
         model = build_model(config, seed=0)
-        fit_normalizers(model, TRAIN)
-        data = standardize(model, TRAIN)
+        model.fit_normalizers(TRAIN)
+        data = model.standardize(TRAIN)
         optimizer = torch.optim.Adam(model.parameters(), lr=training.learning_rate)
         rows = torch.arange(len(TRAIN))[None]
         losses = [training_step(model, optimizer, training, data, rows)[0] for _ in range(25)]
@@ -81,7 +80,7 @@ def test_best_weights_are_the_best_validation_epoch():
     history = result.history["val_mse"]
     assert result.best_scores[0] == pytest.approx(min(history), rel=1e-9)
     assert result.best_epochs[0] == result.history["epoch"][int(np.argmin(history))]
-    recomputed = validation_scores(result.model, training, standardize(result.model, VAL))["member_mse"]
+    recomputed = result.model.eval_score(training, result.model.standardize(VAL))["member_mse"]
     assert recomputed.item() == pytest.approx(min(history), rel=1e-5)
 
 
@@ -255,14 +254,14 @@ def test_loss_is_the_papers_eq9_per_output_scaled_by_the_state_spread(residual):
     exactly eq. 9 (raw-unit MSE of the state + alpha MSE of its time derivative) divided by σ²."""
     config = dynamics_config(state_dim=2, action_dim=1, delta=residual, **SMALL)
     model = build_model(config, seed=1).double()
-    fit_normalizers(model, TRAIN)
+    model.fit_normalizers(TRAIN)
     alpha = 0.37
     training = TrainingConfig(alpha=alpha)
 
     def loss():
-        data = standardize(model, TRAIN)
+        data = model.standardize(TRAIN)
         with torch.no_grad():
-            return batch_losses(model, training, data.inputs, data.targets, data.input_rates,
+            return model.loss(training, data.inputs, data.targets, data.input_rates,
                                 data.target_rates).total.item()
 
     state_mse, rate_mse = _eq9_terms(model, TRAIN)
@@ -308,7 +307,7 @@ def test_select_alpha_keeps_the_best_validation_member_never_worse_than_naive():
     assert selection.alphas == alphas and len(selection.val_mse) == 4
     assert selection.val_mse[selection.index] == min(selection.val_mse) <= selection.val_mse[0]
     assert chosen.model.config.ensemble_size == 1
-    score = validation_scores(chosen.model, training, standardize(chosen.model, VAL))["member_mse"].item()
+    score = chosen.model.eval_score(training, chosen.model.standardize(VAL))["member_mse"].item()
     assert score == pytest.approx(selection.val_mse[selection.index], rel=1e-6)
     assert selection.as_dict()["chosen_alpha"] == selection.alpha == alphas[selection.index]
     tie, tied = select_alpha(config, training, TRAIN, VAL, alphas=(0.0, 0.0))

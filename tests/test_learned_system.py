@@ -137,6 +137,9 @@ def test_view_and_mpc_commands(checkpoints, tracking_dataset, tmp_path, capsys):
         line = f"- {name}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 per control step"
         assert line in table and f"against the 10 ms control period: {verdict}" in table
     assert (out / "mpc.png").stat().st_size > 10_000 and (out / "mpc.csv").exists()
+    models = json.loads((out / "mpc.json").read_text())["inputs"]["models"]   # each model with its file and kind
+    assert [(model["name"], model["kind"]) for model in models] == [("plant", "plant"), ("D", "checkpoint")]
+    assert models[1]["file"] == str(checkpoints["D"]) and len(models[1]["sha256"]) == 64
     assert main(["mpc"]) == 2                                  # argparse's error, as one line
 
 
@@ -152,5 +155,5 @@ def test_mpc_needs_a_held_out_plan(tracking_dataset, tmp_path, capsys):
 
 def _short_horizon(tmp_path):
     path = tmp_path / "mpc.yaml"
-    path.write_text("horizon: 5\nmax_iterations: 1\n")
+    path.write_text("horizon: 5\noptimizer: !Rti {iterations: 1}\n")
     return path

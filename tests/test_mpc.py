@@ -6,11 +6,11 @@ import pytest
 
 from presets import UR10
 from stdm_drake.errors import InputError
-from stdm_drake.closed_loop.ilqr import IlqrSolver
+from stdm_drake.closed_loop.ilqr import Ilqr, IlqrSolver
 from stdm_drake.closed_loop.optimizer import OptimizerResult, TrajectoryOptimizer
 from stdm_drake.closed_loop.mpc import MpcConfig, Reference, load_mpc_config, run_closed_loop
-from stdm_drake.learning.dynamics_model import DynamicsModel
-from stdm_drake.learning.physics import PlantModel, zero_order_hold_discretization
+from stdm_drake.dynamics.model import DynamicsModel
+from stdm_drake.dynamics.physics import PlantModel, zero_order_hold_discretization
 
 
 class LinearModel(DynamicsModel):
@@ -55,11 +55,12 @@ def exact_lqr_controls(model, config, x0, reference, u_ff):
 
 def test_ilqr_equals_exact_lqr_on_a_linear_model():
     model = LinearModel()
-    config = MpcConfig(horizon=8, max_iterations=2, regularization=0.0)
+    config = MpcConfig(horizon=8, optimizer=Ilqr(max_iterations=2, regularization=0.0))
     rng = np.random.default_rng(1)
     x0, reference = rng.normal(size=12), rng.normal(size=(9, 12))
     u_ff = rng.normal(size=(8, 6))
-    solver = IlqrSolver(model, config.cost(6), np.full(6, 1e9), config.ilqr())
+    solver = config.solver(model, 6, np.full(6, 1e9))
+    assert isinstance(solver, IlqrSolver)
     result = solver.solve(x0, np.zeros((8, 6)), reference, u_ff)
     expected = exact_lqr_controls(model, config, x0, reference, u_ff)
     np.testing.assert_allclose(result.u, expected, rtol=1e-6, atol=1e-8)
@@ -70,7 +71,7 @@ def test_ilqr_equals_exact_lqr_on_a_linear_model():
 def test_torques_are_clipped_to_effort_limits():
     model = LinearModel()
     config = MpcConfig(horizon=5)
-    solver = IlqrSolver(model, config.cost(6), np.full(6, 0.5), config.ilqr())
+    solver = IlqrSolver(model, config.cost(6), np.full(6, 0.5), Ilqr())
     result = solver.solve(np.zeros(12), np.zeros((5, 6)), np.full((6, 12), 100.0), np.zeros((5, 6)))
     assert np.abs(result.u).max() <= 0.5 + 1e-12 and np.abs(result.u).max() == pytest.approx(0.5)
 

@@ -147,7 +147,7 @@ def test_mpc_exits_2_when_a_closed_loop_leaves_the_limits(tracking_dataset, tmp_
     import dataclasses
 
     from stdm_drake.cli import main
-    from stdm_drake.commands import mpc as comparison
+    from stdm_drake.closed_loop import study as comparison
     real = comparison.compare_controllers
 
     def violating(*args, **kwargs):
@@ -203,3 +203,20 @@ def test_outputs_sharing_a_new_folder_leave_nothing_when_the_command_fails(capsy
     fails(capsys, ["identify", str(excitation_dataset), "--train", "9", "--val", "2", "-o",
                    str(tmp_path / "new" / "x" / "i.yaml")], "split needs")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_default_output_folder_never_replaces_an_earlier_run(tmp_path):
+    """Without -o, mpc, reproduce and sine-sum write to their default folder only while it is missing or
+    empty (markers aside); then to default-2, default-3, ..."""
+    from stdm_drake.outputs import FOLDER_MARKER, fresh_default_folder
+    default = tmp_path / "out" / "mpc"
+    assert fresh_default_folder(default) == default
+    default.mkdir(parents=True)
+    (default / FOLDER_MARKER).write_text("marker\n")
+    assert fresh_default_folder(default) == default           # (only a marker: nothing to lose)
+    (default / "mpc.json").write_text("{}")
+    assert fresh_default_folder(default) == tmp_path / "out" / "mpc-2"
+    (tmp_path / "out" / "mpc-2").mkdir()
+    (tmp_path / "out" / "mpc-2" / "mpc.md").write_text("#")
+    assert fresh_default_folder(default) == tmp_path / "out" / "mpc-3"
+    assert (default / "mpc.json").read_text() == "{}"

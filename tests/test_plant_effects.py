@@ -10,7 +10,7 @@ from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.data.dataset import load_dataset
 from stdm_drake.errors import InputError
-from stdm_drake.learning.physics import PlantModel
+from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.paths import MODELS_DIR
 from stdm_drake.robots.effects import Payload, PlantEffects, load_plant_effects
 from stdm_drake.robots.plant import Dynamics, PlantConfig, make_plant, plant_effects_for
@@ -194,12 +194,29 @@ def test_effects_files_are_checked_against_the_robot(tmp_path):
 
 
 def test_the_panda_preset_loads_on_the_panda():
+    """models/panda_effects.yaml on the Panda: its 1 kg payload hangs on the Panda's tool frame (J_v^T m g
+    more holding torque, small beside the arm's limits) and its Coulomb friction acts on all 7 joints."""
+    from pydrake.multibody.tree import JacobianWrtVariable
+
     from stdm_drake.robots.robot import load_robot
     panda = load_robot(MODELS_DIR / "panda.yaml")
     effects = plant_effects_for(MODELS_DIR / "panda_effects.yaml", panda, 0.001)
-    assert len(effects.coulomb_friction) == panda.num_joints == 7
-    loaded = Dynamics(panda, effects)
-    assert np.all(np.abs(loaded.gravity_torque(panda.home) - Dynamics(panda).gravity_torque(panda.home)) < 15)
+    assert len(effects.coulomb_friction) == panda.num_joints == 7 and effects.payload.mass == 1.0
+    nominal, loaded = Dynamics(panda), Dynamics(panda, effects)
+    q = panda.home
+    nominal.plant.SetPositions(nominal.context, q)
+    tool = nominal.plant.GetFrameByName(panda.tool_frame)
+    jacobian = nominal.plant.CalcJacobianTranslationalVelocity(
+        nominal.context, JacobianWrtVariable.kV, tool, np.array(effects.payload.center_of_mass),
+        nominal.plant.world_frame(), nominal.plant.world_frame())
+    payload_torque = loaded.gravity_torque(q) - nominal.gravity_torque(q)
+    np.testing.assert_allclose(payload_torque, jacobian.T @ np.array([0.0, 0.0, 9.81]), atol=1e-9)
+    assert 1.0 < np.abs(payload_torque).max() < 15
+    v = np.linspace(-0.4, 0.5, 7)
+    payload_only = Dynamics(panda, PlantEffects(payload=effects.payload))
+    friction, scale = effects.coulomb(7)
+    np.testing.assert_allclose(loaded.acceleration(q, v, np.zeros(7)) - payload_only.acceleration(q, v, np.zeros(7)),
+                               np.linalg.solve(loaded.mass_matrix(q), -friction * np.tanh(v / scale)), atol=1e-9)
 
 
 @pytest.mark.slow
@@ -237,13 +254,13 @@ def test_reproduce_collects_and_closes_the_loop_on_the_affected_plant(affected_d
 
 
 def test_the_affected_plant_tools_refuse_a_bad_effects_file_in_one_line(tmp_path, capsys):
-    """tools/reality_gap.py and tools/identification_study.py (their shared command line)."""
-    from tools_import import identification_study, reality_gap
+    """`tools/study.py reality-gap` and `identification` (their shared command line)."""
+    from tools_import import study
     bad = tmp_path / "bad.yaml"
     bad.write_text("viscous_friction: [1.0, 2.0]\n")
-    for tool in (reality_gap, identification_study):
-        assert tool.main(["--quick", "--plant-effects", str(bad), "-o", str(tmp_path / "out"),
-                          "--data", str(tmp_path / "data")]) == 2
+    for name in ("reality-gap", "identification"):
+        assert study.main([name, "--quick", "--plant-effects", str(bad), "-o", str(tmp_path / "out"),
+                           "--data", str(tmp_path / "data")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "bad.yaml" in err and not (tmp_path / "out").exists()
 
@@ -251,7 +268,8 @@ def test_the_affected_plant_tools_refuse_a_bad_effects_file_in_one_line(tmp_path
 def test_each_model_gets_the_mpc_setting_it_tracks_best_with_inside_the_limits():
     """The reality gap's tuning rule: no limit violation on the validation plans first, then the lowest
     geometric-mean q MSE; if every setting violates, the fewest violations."""
-    from stdm_drake.experiments.reality_gap import choose_settings
+    from tools_import import reality_gap
+    choose_settings = reality_gap.choose_settings
     grid = ((1.0, 1.0), (1e-2, 0.0), (1e-4, 0.3))
 
     def runs(model, setting, mses, violations):
@@ -280,7 +298,8 @@ def test_tuning_plans_are_validation_plans_never_tracked_or_trained_on(affected_
 
 
 def test_the_goal_verdict_follows_the_interval_and_the_violations():
-    from stdm_drake.experiments.reality_gap import verdict
+    from tools_import import reality_gap
+    verdict = reality_gap.verdict
 
     def summary(low, high, violations, ratio=3.0):
         row = dict(setting="tuned", model="DD", models=5, plans=20, limit_violations=violations,
@@ -318,7 +337,8 @@ def test_sized_gains_follow_the_plant_they_drive(capsys):
 
 
 def test_the_per_effect_plants_are_the_effects_a_file_has():
-    from stdm_drake.experiments.reality_gap import effect_plants
+    from tools_import import reality_gap
+    effect_plants = reality_gap.effect_plants
     from stdm_drake.robots.robot import load_robot
     panda = load_plant_effects(MODELS_DIR / "panda_effects.yaml")
     plants = effect_plants(panda, load_robot(MODELS_DIR / "panda.yaml"))
@@ -333,7 +353,8 @@ def test_the_per_effect_plants_are_the_effects_a_file_has():
 
 @pytest.mark.slow
 def test_the_reality_gap_reuses_models_only_of_the_same_data_and_settings(tmp_path):
-    from stdm_drake.experiments.reality_gap import dataset, train
+    from tools_import import reality_gap
+    dataset, train = reality_gap.dataset, reality_gap.train
     data = dataset(tmp_path, "closed_loop", load_plant_effects(MODELS_DIR / "ur10_effects.yaml"), 12, 0, UR10, 1)
     folder = str(tmp_path / "runs" / "D")
     first = train(str(data.path), "D", (1, 1, 1), 1, 1, folder)

@@ -162,7 +162,7 @@ def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypat
     import math
 
     from stdm_drake.cli import main
-    from stdm_drake.commands import collect
+    from stdm_drake.collection import collect_job
 
     class ReachedTheWork(Exception):
         """Raised where the simulation would start."""
@@ -170,7 +170,7 @@ def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypat
     def no_simulation(*args, **kwargs):
         raise ReachedTheWork
 
-    monkeypatch.setattr(collect, "collect", no_simulation)
+    monkeypatch.setattr(collect_job, "collect", no_simulation)
     capsys.readouterr()
     output = tmp_path / "data.h5"
     argv = ["collect", "--protocol", "excitation", "--count", str(count), "--workers", str(workers), "--seed",

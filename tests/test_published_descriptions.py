@@ -287,7 +287,7 @@ def test_period_acceleration_gives_the_next_velocity_where_damping_outpaces_the_
     instantaneous nominal acceleration) overshoots by far; on the UR-10 the two agree to O(T). Its
     rates equal a finer central difference, a zero tangent has a zero rate, and its Jacobian (Ψ held
     constant) matches finite differences in v and τ."""
-    from stdm_drake.learning.physics import NominalAcceleration, PeriodAcceleration, PlantModel
+    from stdm_drake.dynamics.physics import NominalAcceleration, PeriodAcceleration, PlantModel
     urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
     stiff = load_robot(write_robot(tmp_path, urdf, GOOD))
     q, v, tau = np.array([[0.3, -0.6], [0.1, 0.2]]), np.array([[0.5, -0.4], [-1.0, 0.3]]), np.array([[3.0, -1.0], [0.5, 2.0]])

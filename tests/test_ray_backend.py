@@ -189,7 +189,7 @@ def test_the_decisive_experiment_runs_on_ray_with_the_local_results(head, tmp_pa
     """The decisive study's cells on the cluster: datasets collected by its workers and sent back, each
     once through the object store to the training tasks; the same rows as the local pool."""
     from stdm_drake.cluster import RunnerConfig
-    from stdm_drake.experiments import decisive
+    from tools_import import decisive   # (tools/studies/decisive.py: its functions travel to the workers by value)
     address, _ = head
     options = dict(cells=decisive.CELLS[:1], data_seeds=1, inits=2, sizes=(6, 4, 6), progress=lambda text: None)
     local = decisive.run_study(tmp_path / "local", RunnerConfig(workers=1), **options)

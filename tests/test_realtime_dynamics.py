@@ -8,10 +8,10 @@ import pytest
 import torch
 
 from presets import UR10
-from stdm_drake.learning.dynamics_model import DynamicsModel, HeldInputSubsteps
+from stdm_drake.dynamics.model import DynamicsModel, HeldInputSubsteps
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.models import EnsembleMLP, ModelConfig
-from stdm_drake.learning.physics import ConstantVelocity, PlantModel, StaysPut, central_difference_jacobians
+from stdm_drake.dynamics.physics import ConstantVelocity, PlantModel, StaysPut, central_difference_jacobians
 from stdm_drake.learning.structure import DEFAULT, PAPER, ModelStructure
 from stdm_drake.robots.effects import PlantEffects, load_plant_effects
 from stdm_drake.robots.plant import Dynamics, PlantConfig
@@ -245,13 +245,13 @@ def test_the_real_time_iteration_finds_the_exact_lqr_solution_on_a_linear_model(
     torque limit active): the same as the iLQR's and as one least-squares solve over all torques."""
     from test_mpc import LinearModel, exact_lqr_controls
     from stdm_drake.closed_loop.mpc import MpcConfig
-    from stdm_drake.closed_loop.rti import RtiSolver
-    model, config = LinearModel(), MpcConfig(horizon=8, regularization=0.0)
+    from stdm_drake.closed_loop.rti import Rti, RtiSolver
+    model, config = LinearModel(), MpcConfig(horizon=8, optimizer=Rti(regularization=0.0))
     rng = np.random.default_rng(3)
     x0 = rng.normal(size=12) * 0.1
     reference = rng.normal(size=(config.horizon + 1, 12)) * 0.1
     u_ff = rng.normal(size=(config.horizon, 6))
-    solver = RtiSolver(model, config.cost(6), np.full(6, 1e9), config.rti())
+    solver = RtiSolver(model, config.cost(6), np.full(6, 1e9), config.optimizer)
     expected = exact_lqr_controls(model, config, x0, reference, u_ff)
     for nodes in (None, rng.normal(size=(config.horizon + 1, 12))):   # a rollout, or arbitrary warm-start states
         result = solver.solve(x0, rng.normal(size=(config.horizon, 6)), reference, u_ff, x_init=nodes)
@@ -260,12 +260,13 @@ def test_the_real_time_iteration_finds_the_exact_lqr_solution_on_a_linear_model(
 
 
 def test_an_rti_horizon_beyond_its_dense_system_is_refused_in_one_line():
+    from stdm_drake.closed_loop.ilqr import Ilqr
     from stdm_drake.closed_loop.mpc import MpcConfig
     from stdm_drake.errors import InputError
     config = dataclasses.replace(MpcConfig(), horizon=200)
-    with pytest.raises(InputError, match="optimizer: ilqr"):
+    with pytest.raises(InputError, match="optimizer: !Ilqr"):
         config.solver(PlantModel(0.01, robot=UR10, integrator="rk4"), 6, np.full(6, 100.0))
-    dataclasses.replace(config, optimizer="ilqr").solver(ConstantVelocity(12, 6, 0.01), 6, np.full(6, 100.0))
+    dataclasses.replace(config, optimizer=Ilqr()).solver(ConstantVelocity(12, 6, 0.01), 6, np.full(6, 100.0))
     with pytest.raises(InputError, match="optimizer must be one of"):
         dataclasses.replace(MpcConfig(), optimizer="mppi").validate()
 

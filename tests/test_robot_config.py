@@ -55,6 +55,20 @@ tool_frame: tool
 
 
 def test_ur10_preset_is_the_default_robot():
+    """A command without --robot (and without a dataset naming a preset) gets models/ur10.yaml, `collect`
+    included: the preset tests use as UR10, 6 joints, actuated in its joints' order."""
+    import argparse
+
+    from stdm_drake.collection.collect_job import CollectJob, job_request
+    from stdm_drake.commands import collect
+    from stdm_drake.commands.arguments import command_robot
+    parser = argparse.ArgumentParser()
+    collect.add_arguments(parser)
+    args = parser.parse_args(["--protocol", "excitation", "-o", "unused.h5"])
+    collected = job_request(CollectJob(output=args.output, protocol=args.protocol, robot=args.robot))
+    for default in (command_robot(argparse.Namespace(robot=None)), collected.settings.robot):
+        assert default.config_path == UR10.config_path and default.config_path.name == "ur10.yaml"
+        assert default.joint_names == UR10.joint_names and default.model_sha256() == UR10.model_sha256()
     assert UR10.name == "ur10" and UR10.num_joints == 6 and UR10.tool_frame == "tool0"
     plant, _ = make_plant(PlantConfig.continuous(), robot=UR10)
     limits = joint_limits(plant)
@@ -275,7 +289,7 @@ def test_plant_model_jacobians_stay_exact_on_stiff_damped_joints(tmp_path):
     model's discrete Jacobians (exact zero-order hold of the continuous linearization) agree with finite
     differences of its own discrete step, and the velocity block decays (a truncated series gave
     eigenvalues in the hundreds)."""
-    from stdm_drake.learning.physics import PlantModel
+    from stdm_drake.dynamics.physics import PlantModel
     urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><dynamics damping="40.0"/>')
     robot = load_robot(write_robot(tmp_path, urdf, GOOD))
     model = PlantModel(0.01, robot=robot)

@@ -113,11 +113,22 @@ def test_derived_tracking_spec_starts_at_home_within_reach(panda):
 
 
 def test_mpc_weights_for_other_robots_follow_the_ur10_fit():
-    """The derived effort weights reproduce the UR-10's hand-tuned ones within a factor of 2.2."""
-    from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config
+    """A robot without an MPC file (the Panda, the Acrobot) gets the effort weights of the power law fitted
+    here, by log-log least squares, to controllers/mpc.yaml's hand-tuned UR-10 weights against the UR-10's
+    effective inertias at home (to the 3 % the rounded law leaves); that fit reproduces every UR-10 weight
+    within a factor of 2.2."""
+    from stdm_drake.closed_loop.mpc import load_mpc_config, mpc_config_for
     tuned = np.array(load_mpc_config().effort_weight)
-    derived = np.array(MpcConfig.derived_for(UR10).effort_weight)
-    assert np.all(np.abs(np.log(derived / tuned)) < np.log(2.2)), derived
+    assert len(tuned) == UR10.num_joints and mpc_config_for(UR10).effort_weight == tuned.tolist()
+    exponent, log_scale = np.polyfit(np.log(Dynamics(UR10).effective_inertia(UR10.home)), np.log(tuned), 1)
+    fitted_ur10 = np.exp(log_scale) * Dynamics(UR10).effective_inertia(UR10.home) ** exponent
+    assert np.all(np.abs(np.log(fitted_ur10 / tuned)) < np.log(2.2)), fitted_ur10 / tuned
+    for config in (PANDA_CONFIG, ACROBOT_CONFIG):
+        robot = load_robot(config)
+        assert robot.default_file("mpc") is None                       # no file of its own: derived
+        derived = np.array(mpc_config_for(robot).effort_weight)
+        fitted = np.exp(log_scale) * Dynamics(robot).effective_inertia(robot.home) ** exponent
+        np.testing.assert_allclose(derived, fitted, rtol=0.03, err_msg=robot.name)
 
 
 @pytest.mark.slow
@@ -258,12 +269,10 @@ def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
 
 
 @pytest.mark.slow
-def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_path, capsys):
+def test_reproduce_quick_on_the_affected_panda(tmp_path, capsys):
     """`reproduce --quick --robot panda --plant-effects`: every stage on the 7-joint arm with its derived
-    protocols, on the plant with models/panda_effects.yaml, and the reality-gap stage: its files, figures
-    and report section with a verdict; each model's MPC setting chosen on validation plans only, the test
-    plans run with it and with the shipped one; the system-identification stage's files and section (its
-    tuned closed loop included). The underactuated Acrobot is refused before any work."""
+    protocols, on the plant with models/panda_effects.yaml (the MPC with the nominal and the true plant). The
+    underactuated Acrobot is refused before any work."""
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
     out = tmp_path / "reproduce"
@@ -284,11 +293,25 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
         assert dataset.metadata.plant_effects == load_plant_effects(MODELS_DIR / "panda_effects.yaml")
     rows = {row["model"]: row for row in tables["mpc"]}
     assert rows["true-plant"]["limit_violations"] == 0 and rows["plant"]["limit_violations"] == 0
-    # the reality-gap stage
-    assert "## Reality gap" in report and "**Verdict**" in report and "reality_gap/open_loop.png" in report
+    capsys.readouterr()
+    assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
+    assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()
+
+
+@pytest.mark.slow
+def test_the_reality_gap_and_identification_studies_on_the_affected_panda(tmp_path):
+    """`tools/study.py reality-gap --quick` and `identification --quick` on the 7-joint arm with its derived
+    protocols and models/panda_effects.yaml. The reality gap: its files and figures with a verdict; each model's
+    MPC setting chosen on validation plans only, the test plans run with it and with the shipped one. The
+    identification study: the white box, the grey and black boxes and the tuned closed loop."""
+    from tools_import import study
+    out, data = tmp_path / "out", tmp_path / "data"
+    affected = ["--quick", "--robot", str(PANDA_CONFIG), "--plant-effects", str(MODELS_DIR / "panda_effects.yaml")]
+    assert study.main(["reality-gap", *affected, "-o", str(out / "reality_gap"), "--data", str(data / "reality_gap")]) == 0
     for name in ("results.json", "closed_loop.csv", "open_loop.csv", "closed_loop.png", "open_loop.png"):
         assert (out / "reality_gap" / name).stat().st_size > 0
     results = json.loads((out / "reality_gap" / "results.json").read_text())
+    assert results["robot"] == "panda" and results["verdict"]["text"]
     closed = {(row["setting"], row["model"]) for row in results["closed_loop"]}
     assert closed == {(setting, model) for setting in ("tuned", "shipped") for model in ("plant", "true-plant", "D", "DD")}
     assert {row["plant"] for row in results["open_loop"]} == {"friction", "payload", "all"}
@@ -300,12 +323,11 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
         assert tuple(setting) in grid
         assert {(run["effort_scale"], run["observer_gain"]) for run in results["runs"]
                 if run["model"] == name and run["setting"] == "tuned"} == {tuple(setting)}
-    assert tables["reality_gap"]["verdict"]["text"] == results["verdict"]["text"]
-    checkpoints = sorted((out / "data" / "reality_gap" / "runs").rglob("checkpoint.pt"))
+    checkpoints = sorted((data / "reality_gap" / "runs").rglob("checkpoint.pt"))
     assert len(checkpoints) == 2 * 2 + 2 * 3   # D, DD: 2 seeds closed loop, 1 seed on each of 3 plants
-    # the system-identification stage: the white box on the 7-joint arm (torques to 0.1 % with true derivatives;
-    # its preset's Coulomb velocity scale differs per joint, the model's is one for all), the grey and black boxes
-    assert "## System identification" in report
+    # the identification study: the white box on the 7-joint arm (torques to 0.1 % with true derivatives; its
+    # preset's Coulomb velocity scale differs per joint, the model's is one for all), the grey and black boxes
+    assert study.main(["identification", *affected, "-o", str(out / "sysid"), "--data", str(data / "sysid")]) == 0
     white = json.loads((out / "sysid" / "results.json").read_text())
     assert [row["run"] for row in white["rows"]] == ["A", "C"]      # (the quick profile's runs)
     assert white["rows"][0]["torque_error"] < 0.01 < white["rows"][0]["description_torque_error"]
@@ -315,10 +337,7 @@ def test_reproduce_quick_on_the_affected_panda_with_its_reality_gap_stage(tmp_pa
     closed = json.loads((out / "sysid" / "closed_loop.json").read_text())["sensors"]["paper"]
     assert [row["model"] for row in closed["rows"]] == ["plant", "true-plant", "identified", "D", "G-id-state"]
     assert {run["split"] for run in closed["tuning_runs"]} == {"val"} and {run["split"] for run in closed["runs"]} == {"test"}
-    assert closed["verdict"]["text"] in report
-    capsys.readouterr()
-    assert main(["reproduce", "--quick", "--robot", str(ACROBOT_CONFIG), "--quiet", "-o", str(tmp_path / "acro")]) == 2
-    assert "acrobot is underactuated" in capsys.readouterr().err and not (tmp_path / "acro").exists()
+    assert closed["verdict"]["text"] in (out / "sysid" / "closed_loop.md").read_text()
 
 
 def test_locked_mimic_fingers_load_and_a_mimic_on_an_arm_joint_is_refused(tmp_path):

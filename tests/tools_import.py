@@ -1,4 +1,4 @@
-"""Makes the scripts in tools/ importable from tests (tools/ is not a package)."""
+"""Makes the scripts in tools/ and the studies in tools/studies/ importable from tests (tools/ is not a package)."""
 import importlib.util
 import pathlib
 import sys
@@ -16,11 +16,15 @@ def _load(name):
 
 generate_ur10_urdf = _load("generate_ur10_urdf")
 benchmark_report = _load("benchmark_report")
-jacobian_accuracy = _load("jacobian_accuracy")
 generate_panda_urdf = _load("generate_panda_urdf")
-decisive_experiment = _load("decisive_experiment")
-closed_loop_study = _load("closed_loop_study")
-reality_gap = _load("reality_gap")
-identification_study = _load("identification_study")
-import_round_trip = _load("import_round_trip")
-default_train_study = _load("default_train_study")
+study = _load("study")   # the studies' launcher, tools/study.py: study.main(["NAME", ...]) runs one
+# the study modules of tools/studies/, imported as `studies.<name>` (the launcher puts tools/ on the path, so
+# their pools' spawned workers import them too)
+jacobian_accuracy = study.load("jacobian-accuracy")
+decisive = study.load("decisive")
+closed_loop = study.load("closed-loop")
+reality_gap = study.load("reality-gap")
+identification = study.load("identification")
+identification_closed_loop = study.load("identification_closed_loop")   # (a part of it, not a study)
+import_round_trip = study.load("import-round-trip")
+default_train = study.load("default-train")

@@ -47,7 +47,7 @@ def closed_loops(code_root: pathlib.Path, dataset_path, checkpoints, identified,
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.identification.identified import load_identified
     from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import PlantModel
+    from stdm_drake.dynamics.physics import PlantModel
     from stdm_drake.robots.robot import UR10_CONFIG, load_robot
     assert pathlib.Path(sys.modules["stdm_drake"].__file__).resolve().is_relative_to(code_root.resolve())
     dataset, ur10 = load_dataset(dataset_path), load_robot(UR10_CONFIG)

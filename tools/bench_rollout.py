@@ -26,7 +26,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.learning.regression import RegressionData, fit_normalizers  # noqa: E402
+from stdm_drake.learning.regression import RegressionData  # noqa: E402
 from stdm_drake.learning.trainer import build_model  # noqa: E402
 from stdm_drake.learning.models import dynamics_config  # noqa: E402
 from stdm_drake.learning.predict import InferenceModel, rollout  # noqa: E402
@@ -46,7 +46,7 @@ def robot_like_data(count: int = 2000, seed: int = 0) -> RegressionData:
 def make_model(ensemble_size: int, probabilistic: bool = False):
     model = build_model(dynamics_config(state_dim=12, action_dim=6, ensemble_size=ensemble_size,
                                         probabilistic=probabilistic), seed=0)
-    fit_normalizers(model, robot_like_data())
+    model.fit_normalizers(robot_like_data())
     return model.eval()
 
 

@@ -27,8 +27,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmark_report import BENCHMARKS_FILE, machine_description, write_benchmark_section  # noqa: E402
-from stdm_drake.learning.loss import losses_from_outputs  # noqa: E402
-from stdm_drake.learning.regression import RegressionData, fit_normalizers, standardize  # noqa: E402
+from stdm_drake.learning.regression import RegressionData  # noqa: E402
 from stdm_drake.learning.settings import TrainingConfig  # noqa: E402
 from stdm_drake.learning.trainer import build_model, training_step  # noqa: E402
 from stdm_drake.learning.models import dynamics_config  # noqa: E402
@@ -53,8 +52,8 @@ def make_steps(seed: int = 0):
 
     def setup(alpha):
         model = build_model(config, seed)
-        fit_normalizers(model, data)
-        tensors = standardize(model, data)
+        model.fit_normalizers(data)
+        tensors = model.standardize(data)
         optimizer = torch.optim.Adam(model.parameters(), lr=1e-3)
         return model, tensors, optimizer, TrainingConfig(alpha=alpha)
 
@@ -68,7 +67,7 @@ def make_steps(seed: int = 0):
 
         def step():
             outputs, tangents = tangent_of(model, batch[0], batch[2])
-            total, _, _ = losses_from_outputs(model, training, outputs, tangents, batch[1], batch[3])
+            total, _, _ = model.losses_from_outputs(training, outputs, tangents, batch[1], batch[3])
             optimizer.zero_grad(set_to_none=True)
             total.backward()
             optimizer.step()

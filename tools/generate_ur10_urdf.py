@@ -1,7 +1,7 @@
 """Write models/ur10.urdf from the published UR-10 (CB-series) numbers.
 
 Sources (numbers only): Universal Robots' DH parameter table and the physical parameters,
-kinematics and joint limits of UR's ROS 2 description for the UR10 (see README, "Robot model").
+kinematics and joint limits of UR's ROS 2 description for the UR10 (see docs/guides/robots.md).
 Run: python tools/generate_ur10_urdf.py  (rewrites models/ur10.urdf).
 """
 import math

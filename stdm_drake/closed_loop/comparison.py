@@ -1,11 +1,12 @@
 """Closed-loop comparison of prediction models under the same MPC on held-out plans (metrics, summary,
-plots), what `stdm-drake mpc` runs."""
+plots), what `stdm-drake mpc` runs (`study.run_mpc_study`)."""
 import dataclasses
 
 import numpy as np
 
 from stdm_drake.closed_loop.mpc import MpcConfig, MpcLog, Reference, run_closed_loop
-from stdm_drake.learning.physics import PlantModel
+from stdm_drake.closed_loop.optimizer import OptimizerSettings
+from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.errors import InputError
 from stdm_drake.report import markdown_table
 from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
@@ -52,10 +53,14 @@ def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference
 
 def compare_controllers(models: list, references: list[tuple[int, Reference]], config: MpcConfig,
                         plant_config: PlantConfig | None = None, progress: bool = True, recorder=None, *,
-                        robot: Robot, announce=None, announce_after: float = 20.0):
+                        robot: Robot, optimizer: OptimizerSettings | None = None, announce=None,
+                        announce_after: float = 20.0):
     """Run plant + MPC(model) on every reference for every model (the plant of `robot`); returns
     [ClosedLoopResult]. With the plant effects' torque noise, a reference's index seeds its draws, so
     every model meets the same noise on the same plan (paired comparisons).
+
+    optimizer: the optimizer's settings every closed loop uses (`rti.Rti`, `ilqr.Ilqr` or any
+    `OptimizerSettings`), in place of those of `config` (None: the config's own, `config.optimizer`).
 
     recorder: an optional ghost TrajectoryRecorder; each run is added (robot = plant, ghost = reference).
     announce: called with one line after a model's first plan when its other plans will take more than
@@ -65,6 +70,9 @@ def compare_controllers(models: list, references: list[tuple[int, Reference]], c
     import time
 
     from tqdm import tqdm
+    if optimizer is not None:
+        config = dataclasses.replace(config, optimizer=optimizer)
+    config.validate()
     dynamics = Dynamics(robot)
     n = dynamics.robot.num_joints
     limits = joint_limits(dynamics.plant)
@@ -201,12 +209,10 @@ def spec_models(specs: list, sample_period: float, plant_config: PlantConfig, *,
     None for the robot's description as a plant model ("plant") and "true" for the plant of `plant_config`
     itself ("true-plant")); plant models and identified robots predict with the "rk4" integrator (exact
     Jacobians, microseconds per step: `PlantModel`)."""
-    from stdm_drake.identification.identified import is_identified_file, load_identified
-    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.dynamics.model_files import load_model
     return [PlantModel(sample_period, robot=robot, integrator="rk4") if path is None else
             PlantModel(sample_period, plant_config, robot=robot, integrator="rk4") if path == "true" else
-            load_identified(path).model(robot, name=name).for_control() if is_identified_file(path) else
-            LearnedModel(path, name=name, robot=robot) for name, path in specs]
+            load_model(path, robot, name=name, for_control=True) for name, path in specs]
 
 
 def reference_of(dataset, index: int) -> Reference:

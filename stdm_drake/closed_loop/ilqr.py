@@ -1,18 +1,17 @@
 """Clamped iLQR (iterative LQR) over a horizon for one prediction model and one tracking cost: a
-single-shooting `TrajectoryOptimizer` (`stdm_drake.closed_loop.optimizer`; `optimizer: ilqr` in the MPC
-settings). Each iteration rolls the model out node by node, linearizes every node in one batched call
-(`DynamicsModel.linearize`), runs the Riccati recursion (linear in the horizon) and line-searches the
-step with its feedback gains. The default optimizer is the real-time iteration (`rti`), which needs no
-sequential rollout; the iLQR serves long horizons and line-searched iterations. Shapes for n joints,
-m actuated, horizon H as in `optimizer`."""
-from __future__ import annotations
-
+single-shooting `TrajectoryOptimizer` (`stdm_drake.closed_loop.optimizer`). Each iteration rolls the model out
+node by node, linearizes every node in one batched call (`DynamicsModel.linearize`), runs the Riccati recursion
+(linear in the horizon) and line-searches the step with its feedback gains. The default optimizer is the
+real-time iteration (`rti`), which needs no sequential rollout; the iLQR serves long horizons and line-searched
+iterations. Its settings: `Ilqr`, in the MPC settings
+`optimizer: !Ilqr {max_iterations: 1, line_search: [1.0, 0.5, 0.25, 0.1], regularization: 1.0e-6}`.
+Shapes for n joints, m actuated, horizon H as in `optimizer`."""
 import dataclasses
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
-from stdm_drake.closed_loop.optimizer import OptimizerResult, TrackingCost, TrajectoryOptimizer
+from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
 
 
@@ -20,9 +19,10 @@ MAX_ITERATIONS = 100   # iLQR iterations per control step: more is a run that do
 
 
 @dataclasses.dataclass
-class IlqrConfig:
-    """iLQR's own settings: iterations per solve, line-search step sizes, the initial
-    Levenberg-Marquardt regularization of Q_uu."""
+class Ilqr(OptimizerSettings):
+    """The iLQR's settings (YAML `optimizer: !Ilqr {...}`): iterations per solve (at most: it stops when a
+    line search finds no lower cost), line-search step sizes, the initial Levenberg-Marquardt regularization
+    of Q_uu."""
     max_iterations: int = 1
     line_search: list[float] = dataclasses.field(default_factory=lambda: [1.0, 0.5, 0.25, 0.1])
     regularization: float = 1e-6
@@ -32,21 +32,25 @@ class IlqrConfig:
         1..MAX_ITERATIONS, line-search steps in (0, 1] (a step of 0 never moves, a negative one climbs the cost),
         a finite non-negative regularization."""
         if not 1 <= self.max_iterations <= MAX_ITERATIONS or not self.line_search:
-            raise InputError(f"mpc max_iterations must be in 1..{MAX_ITERATIONS} and line_search non-empty, got "
-                             f"{self.max_iterations} and {self.line_search}")
+            raise InputError(f"mpc optimizer !Ilqr max_iterations must be in 1..{MAX_ITERATIONS} and line_search "
+                             f"non-empty, got {self.max_iterations} and {self.line_search}")
         steps = np.asarray(self.line_search, dtype=float)
         if not np.all(np.isfinite(steps) & (steps > 0) & (steps <= 1)):
-            raise InputError(f"mpc line_search steps must be in (0, 1], got {self.line_search}")
+            raise InputError(f"mpc optimizer !Ilqr line_search steps must be in (0, 1], got {self.line_search}")
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
-            raise InputError(f"mpc regularization must be in [0, 1e6], got {self.regularization}")
+            raise InputError(f"mpc optimizer !Ilqr regularization must be in [0, 1e6], got {self.regularization}")
+
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "IlqrSolver":
+        """An IlqrSolver (any horizon: its Riccati recursion is linear in it)."""
+        return IlqrSolver(model, cost, effort_limit, self)
 
 
 class IlqrSolver(TrajectoryOptimizer):
     """Clamped iLQR over a horizon for one prediction model and one cost."""
 
-    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: IlqrConfig | None = None):
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: Ilqr | None = None):
         super().__init__(model, cost, effort_limit)
-        self.config = config or IlqrConfig()
+        self.config = config or Ilqr()
         self.config.validate()
         self.Q, self.R = cost.Q, cost.R
 

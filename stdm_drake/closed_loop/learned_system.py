@@ -4,7 +4,7 @@ import numpy as np
 from pydrake.systems.framework import LeafSystem
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.dynamics_model import DynamicsModel
+from stdm_drake.dynamics.model import DynamicsModel
 
 
 class LearnedDynamicsSystem(LeafSystem):

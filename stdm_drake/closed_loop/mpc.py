@@ -1,8 +1,10 @@
 """Model predictive control of the UR-10 with a pluggable prediction model.
 
-The default optimizer is the real-time iteration (`rti`: one multiple-shooting Gauss-Newton step per
-control step on the model's Jacobians, every node linearized in one batched call); the iLQR (`ilqr`:
-single shooting with a line search) is the other; any `optimizer.TrajectoryOptimizer` can replace them.
+The optimizer is a tagged value of the settings (`optimizer: !Rti {...}` in controllers/mpc.yaml; the Union
+`OptimizerConfig` lists those a file may name, each settings class builds its solver): the default is the
+real-time iteration (`rti.Rti`: one multiple-shooting Gauss-Newton step per control step on the model's
+Jacobians, every node linearized in one batched call); the iLQR (`ilqr.Ilqr`: single shooting with a line
+search) is the other; any `optimizer.TrajectoryOptimizer` can replace them.
 Why gradient-based rather than sampling (MPPI/CEM): the learned models are smooth, their Jacobians cost
 one forward-mode pass, and derivative training is exactly what makes those Jacobians right, so the
 controller uses what the method improves; and the plant itself serves as the reference model (its
@@ -20,26 +22,30 @@ Offset-free MPC: every prediction over the horizon is shifted by a disturbance e
 model's latest one-step error x_k - f(x_k-1, u_k-1) (filtered by `disturbance_gain`), so a model's
 slowly varying bias does not become a tracking error. For the plant as model d is ~0.
 
-Every prediction model is a `DynamicsModel` (`learning.dynamics_model`) with its `sample_period` (s); the
+Every prediction model is a `DynamicsModel` (`dynamics.model`) with its `sample_period` (s); the
 optimizers call its one-row `step_single` and its batched `linearize(x (H, 2n), u (H, m)) -> (x_next (H, 2n),
 A (H, 2n, 2n), B (H, 2n, m))`; a model with only `step` and `jacobians` gets both from those.
 
-Modules: the tracking cost and the optimizer interface (`optimizer`), the optimizers (`rti`, `ilqr`),
-this controller and its closed loop, and the comparison of prediction models with the `stdm-drake mpc`
-command (`comparison`); the plant as a prediction model is `learning.physics.PlantModel`.
+Modules: the tracking cost and the optimizer interfaces (`optimizer`), the optimizers and their settings
+(`rti`, `ilqr`), these settings, this controller and its closed loop (here), the comparison of prediction
+models (`comparison`), the setting each model is tuned to (`tuning`) and the study `stdm-drake mpc` runs
+(`study`); the plant as a prediction model is `dynamics.physics.PlantModel`.
 """
 import dataclasses
 import inspect
+import pathlib
 import time
+import typing
 
 import numpy as np
+import yaml
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
-from stdm_drake.closed_loop.ilqr import IlqrConfig, IlqrSolver
-from stdm_drake.closed_loop.rti import RtiConfig, RtiSolver
-from stdm_drake.closed_loop.optimizer import TrackingCost, TrajectoryOptimizer
-from stdm_drake.config import check_joint_vector, load_yaml_config
+from stdm_drake.closed_loop.ilqr import Ilqr
+from stdm_drake.closed_loop.optimizer import OptimizerSettings, TrackingCost, TrajectoryOptimizer
+from stdm_drake.closed_loop.rti import Rti
+from stdm_drake.config import check_joint_vector, load_yaml_config, read_yaml_document
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
@@ -48,38 +54,39 @@ from stdm_drake.robots.robot import Robot
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
 MAX_WEIGHT = 1e12      # a cost weight (and the terminal factor) beyond this swamps every other term
 MAX_HORIZON = 1000     # sample periods predicted per control step (10 s at 0.01 s): more is a run that does not end
-OPTIMIZERS = ("rti", "ilqr")
+
+# The optimizers a settings file may name, each by its class's tag (`optimizer: !Rti {...}`), the first the
+# default: a new optimizer is one `OptimizerSettings` class added here.
+OptimizerConfig = typing.Union[Rti, Ilqr]
+OPTIMIZER_TAGS = tuple(f"!{cls.__name__}" for cls in typing.get_args(OptimizerConfig))
 
 
 @dataclasses.dataclass
 class MpcConfig:
     """MPC settings (controllers/mpc.yaml).
 
-    position_weight (n) 1/rad^2, velocity_weight (n) s^2/rad^2, effort_weight (n) 1/(N m)^2 on the
-    torque beyond the reference's gravity torque (one per joint, or one for all); horizon in sample periods; iLQR iterations per
-    control step, line-search step sizes and the initial Levenberg-Marquardt regularization;
-    disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off);
-    optimizer: "rti" (the real-time iteration, the default) or "ilqr" (single shooting, line-searched:
-    for horizons beyond the RTI's dense system); line_search applies to the iLQR only.
+    optimizer: the optimizer and its own settings, a tagged value (`!Rti {iterations, regularization}`, the
+    real-time iteration, the default; `!Ilqr {max_iterations, line_search, regularization}`, single shooting
+    line-searched: for horizons beyond the RTI's dense system; in code any `OptimizerSettings`);
+    position_weight (n) 1/rad^2, velocity_weight (n) s^2/rad^2, effort_weight (n) 1/(N m)^2 on the torque
+    beyond the reference's gravity torque (one per joint, or one for all); horizon in sample periods;
+    disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off).
     """
-    optimizer: str = "rti"
+    optimizer: OptimizerConfig = dataclasses.field(default_factory=Rti)
     horizon: int = 20
     position_weight: list[float] = dataclasses.field(default_factory=lambda: [1e4] * 6)
     velocity_weight: list[float] = dataclasses.field(default_factory=lambda: [10.0] * 6)
     effort_weight: list[float] = dataclasses.field(
         default_factory=lambda: [1e-4, 1e-4, 1e-3, 0.1, 1.0, 100.0])
     terminal_factor: float = 10.0
-    max_iterations: int = 1
-    line_search: list[float] = dataclasses.field(default_factory=lambda: [1.0, 0.5, 0.25, 0.1])
-    regularization: float = 1e-6
     disturbance_gain: float = 1.0
 
     def validate(self) -> None:
         """InputError for settings no controller can use: weights negative, not finite or beyond MAX_WEIGHT
         (the squared errors they weigh overflow, and the other terms vanish beside them), position weights all
         zero, effort weights not positive, a terminal factor outside [0, MAX_WEIGHT], an observer gain outside
-        [0, 1], a horizon outside 1..MAX_HORIZON sample periods, and the optimizer's own settings
-        (`IlqrConfig.validate`)."""
+        [0, 1], a horizon outside 1..MAX_HORIZON sample periods, an optimizer that is none, and the optimizer's
+        own settings (its `validate`)."""
         for name in ("position_weight", "velocity_weight", "effort_weight"):
             weights = check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
             if np.any(weights > MAX_WEIGHT):
@@ -95,10 +102,10 @@ class MpcConfig:
             raise InputError(f"mpc disturbance_gain must be in [0, 1], got {self.disturbance_gain}")
         if not 1 <= self.horizon <= MAX_HORIZON:
             raise InputError(f"mpc horizon must be in 1..{MAX_HORIZON} sample periods, got {self.horizon}")
-        if self.optimizer not in OPTIMIZERS:
-            raise InputError(f"mpc optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
-        self.ilqr().validate()
-        self.rti().validate()
+        if not isinstance(self.optimizer, OptimizerSettings):
+            raise InputError(f"mpc optimizer must be one of {', '.join(OPTIMIZER_TAGS)} (an OptimizerSettings), got "
+                             f"{self.optimizer!r}")
+        self.optimizer.validate()
 
     def cost(self, joints: int) -> TrackingCost:
         """The tracking cost of these weights for `joints` joints (one weight each, or one for all)."""
@@ -107,21 +114,13 @@ class MpcConfig:
         return TrackingCost.from_weights(weight["position_weight"], weight["velocity_weight"],
                                          weight["effort_weight"], self.terminal_factor)
 
-    def rti(self) -> RtiConfig:
-        """The real-time iteration's settings among these."""
-        return RtiConfig(max_iterations=self.max_iterations, regularization=self.regularization)
-
     def solver(self, model, joints: int, effort_limit: np.ndarray) -> TrajectoryOptimizer:
         """The optimizer these settings name, for `model` and a robot of `joints` actuated joints."""
-        if self.optimizer == "ilqr":
-            return IlqrSolver(model, self.cost(joints), effort_limit, self.ilqr())
-        self.rti().validate(self.horizon, joints)
-        return RtiSolver(model, self.cost(joints), effort_limit, self.rti())
+        return self.optimizer.solver(model, self.cost(joints), effort_limit, self.horizon)
 
-    def ilqr(self) -> IlqrConfig:
-        """The iLQR settings among these (the default optimizer's own config)."""
-        return IlqrConfig(max_iterations=self.max_iterations, line_search=list(self.line_search),
-                          regularization=self.regularization)
+    def record(self) -> dict:
+        """What an output records of these settings: their fields, the optimizer's with its tag as "type"."""
+        return dict(dataclasses.asdict(self), optimizer=self.optimizer.record())
 
     @classmethod
     def derived_for(cls, robot: Robot) -> "MpcConfig":
@@ -135,13 +134,60 @@ class MpcConfig:
 
 
 def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
+    """The MPC settings of a YAML file (`MpcConfig`); a file in the layout before the optimizer's tag (flat
+    `optimizer: ilqr`, `max_iterations`, `line_search`, `regularization`) is an InputError of one line that
+    gives the tagged value to write instead."""
+    _check_optimizer_layout(path)
     return load_yaml_config(path, MpcConfig, what="MPC config")
 
 
+OLD_OPTIMIZER_KEYS = ("max_iterations", "line_search", "regularization")   # top-level keys before the tag
+
+
+def _check_optimizer_layout(path) -> None:
+    """InputError naming the tagged `optimizer:` to write when the file at `path` sets the optimizer the old
+    way (its name as a plain value, its settings at the top level), names an unknown tag or gives a tag no
+    mapping (Drake's typed load would read a plain value into the default optimizer's first field)."""
+    document = read_yaml_document(path)
+    if not isinstance(document, dict):
+        return   # (missing, unreadable, not a mapping: the typed load says why)
+    node = next((value for key, value in yaml.compose(pathlib.Path(path).read_text(), Loader=yaml.SafeLoader).value
+                 if key.value == "optimizer"), None)
+    tag = node.tag[1:] if node is not None and node.tag.startswith("!") else None
+    if tag is not None and f"!{tag}" not in OPTIMIZER_TAGS:
+        raise InputError(f"{path}: unknown optimizer !{tag}; the MPC's optimizers are {', '.join(OPTIMIZER_TAGS)} "
+                         "(e.g. `optimizer: !Rti {iterations: 1}`)")
+    if tag is not None and not isinstance(node, yaml.MappingNode):
+        raise InputError(f"{path}: optimizer !{tag} takes its settings as a mapping: write `optimizer: !{tag} {{}}` "
+                         "for its defaults")
+    if tag == "Rti" and any(key.value == "max_iterations" for key, _ in node.value):
+        raise InputError(f"{path}: optimizer !Rti runs a fixed number of iterations per control step: write "
+                         "`iterations:` for its `max_iterations:`")
+    old = [key for key in OLD_OPTIMIZER_KEYS if key in document]
+    if not old and (node is None or isinstance(node, yaml.MappingNode)):
+        return
+    value = document.get("optimizer")
+    name = str(value if value is not None else "rti").strip().lower()
+    kind = Ilqr if name == "ilqr" else Rti
+    renamed = {"max_iterations": "iterations"} if kind is Rti else {}
+    own = {field.name for field in dataclasses.fields(kind)}
+    fields = {renamed.get(key, key): document[key] for key in old if renamed.get(key, key) in own}
+    tagged = f"optimizer: !{kind.__name__} " + yaml.safe_dump(fields, default_flow_style=True, sort_keys=False).strip()
+    replaced = ", ".join(f"`{key}:`" for key in (["optimizer"] if node is not None else []) + old)
+    unknown = "" if name in ("rti", "ilqr") else f" (optimizer {value!r} is none of rti, ilqr)"
+    raise InputError(f"{path}: the optimizer and its settings are one tagged value now{unknown}: replace "
+                     f"{replaced} with `{tagged}` (one of {', '.join(OPTIMIZER_TAGS)}; see controllers/mpc.yaml)")
+
+
+def mpc_settings_file(robot: Robot, path=None):
+    """The MPC settings file a job reads: `path`, or without one the file the robot's config names
+    (`defaults.mpc`; the UR-10's controllers/mpc.yaml); None: none, the settings are derived."""
+    return path or robot.default_file("mpc")
+
+
 def mpc_config_for(robot: Robot, path=None) -> MpcConfig:
-    """The MPC settings of `path`, or without one: the file the robot's config names (`defaults.mpc`; the
-    UR-10's controllers/mpc.yaml), else `MpcConfig.derived_for` the robot."""
-    path = path or robot.default_file("mpc")
+    """The MPC settings of `mpc_settings_file(robot, path)`, or without one `MpcConfig.derived_for` the robot."""
+    path = mpc_settings_file(robot, path)
     return MpcConfig.derived_for(robot) if path is None else load_mpc_config(path)
 
 
@@ -172,7 +218,7 @@ class MpcLog:
 
 class MpcController(LeafSystem):
     """Discrete-time MPC: every `model.sample_period` it solves the tracking problem from the measured
-    state (iLQR unless another optimizer is given) and holds the first torque until the next sample.
+    state (with the settings' optimizer unless another is given) and holds the first torque until the next sample.
 
     For a robot of n joints (`robot`): input "state" (2n: [q rad, v rad/s]);
     output "torque" (n, N m).

@@ -1,6 +1,12 @@
-"""Trajectory optimization for the MPC, apart from the controller: the tracking cost and the interface
-every optimizer implements. `stdm_drake.closed_loop.ilqr.IlqrSolver` is one; `MpcController` takes any
-(`optimizer=`), so a sampling optimizer (CEM, MPPI) plugs in without touching the controller.
+"""Trajectory optimization for the MPC, apart from the controller: the tracking cost, the interface
+every optimizer implements (`TrajectoryOptimizer`) and the one its settings implement (`OptimizerSettings`).
+`stdm_drake.closed_loop.rti.RtiSolver` and `stdm_drake.closed_loop.ilqr.IlqrSolver` are optimizers, `Rti` and
+`Ilqr` beside them their settings; `MpcController` takes any optimizer (`optimizer=`), so a sampling optimizer
+(CEM, MPPI) plugs in without touching the controller.
+
+A new optimizer for the settings files: a `TrajectoryOptimizer`, a dataclass of its settings deriving from
+`OptimizerSettings` (its class name is its YAML tag: `optimizer: !Name {...}`), and that class added to
+`stdm_drake.closed_loop.mpc.OptimizerConfig`, the one list of the optimizers a file may name.
 
 For a robot of n joints and m actuated ones, a horizon of H steps: states x (H+1, 2n) = [q rad, v rad/s],
 torques u (H, m) N m, the reference r (H+1, 2n) and the feedforward torques u_ff (H, m).
@@ -51,6 +57,24 @@ class OptimizerResult:
     cost: float
     iterations: int
     finite: bool
+
+
+class OptimizerSettings(abc.ABC):
+    """An optimizer's own settings, the value of `optimizer:` in the MPC settings (a dataclass, tagged in YAML
+    by its class name): it checks itself and builds its optimizer."""
+
+    @abc.abstractmethod
+    def validate(self) -> None:
+        """InputError (one line, starting "mpc optimizer !Name") for settings the optimizer cannot run."""
+
+    @abc.abstractmethod
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "TrajectoryOptimizer":
+        """The optimizer of these settings for `model`, `cost` and torques within +-effort_limit (m,) N m over
+        `horizon` sample periods (InputError where it cannot solve that problem)."""
+
+    def record(self) -> dict:
+        """What an output records of these settings: its tag ("type", the class name) and its fields."""
+        return dict(type=type(self).__name__, **dataclasses.asdict(self))
 
 
 class TrajectoryOptimizer(abc.ABC):

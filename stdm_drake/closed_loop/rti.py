@@ -12,20 +12,19 @@ for every δu at once (one small product per node). Stacked, δx = Γ δu + s wi
 (H m) x (H m) positive-definite system, solved by one Cholesky factorization. The torques are clipped to
 the effort limits, the nodes move to their linear prediction (the first one to the model's own step
 from the measurement, which the disturbance observer compares with the next measurement) and warm-start
-the next control step. More iterations per step (`max_iterations`) repeat linearize + solve on the updated
+the next control step. More iterations per step (`iterations`) repeat linearize + solve on the updated
 nodes (a full SQP).
 
+Its settings: `Rti` (`optimizer: !Rti {iterations: 1, regularization: 1.0e-6}` in the MPC settings).
 Shapes for n joints, m actuated, horizon H as in `optimizer`. Horizons with H m > `MAX_CONDENSED` use
-the iLQR (`optimizer: ilqr`), whose Riccati recursion is linear in H.
+the iLQR (`optimizer: !Ilqr {...}`), whose Riccati recursion is linear in H.
 """
-from __future__ import annotations
-
 import dataclasses
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
-from stdm_drake.closed_loop.optimizer import OptimizerResult, TrackingCost, TrajectoryOptimizer
+from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
 
 MAX_CONDENSED = 600    # H m up to which the dense system is solved (its cost grows as (H m)^3: 0.1 ms at 120)
@@ -33,23 +32,28 @@ MAX_ITERATIONS = 100   # Gauss-Newton iterations per control step: more is a run
 
 
 @dataclasses.dataclass
-class RtiConfig:
-    """The RTI's own settings: Gauss-Newton iterations per control step (1: the real-time iteration) and
-    the initial Levenberg-Marquardt regularization added to the Hessian's diagonal (multiplied by 10 until
-    it is positive definite)."""
-    max_iterations: int = 1
+class Rti(OptimizerSettings):
+    """The real-time iteration's settings, the MPC's default optimizer (YAML `optimizer: !Rti {...}`):
+    Gauss-Newton iterations per control step (1: the real-time iteration) and the initial Levenberg-Marquardt
+    regularization added to the Hessian's diagonal (multiplied by 10 until it is positive definite)."""
+    iterations: int = 1
     regularization: float = 1e-6
 
-    def validate(self, horizon: int | None = None, joints: int | None = None) -> None:
+    def validate(self) -> None:
         """InputError for settings the solver cannot run: iterations outside 1..MAX_ITERATIONS, a regularization
-        outside [0, 1e6], a horizon whose dense system is beyond MAX_CONDENSED unknowns."""
-        if not 1 <= self.max_iterations <= MAX_ITERATIONS:
-            raise InputError(f"mpc max_iterations must be in 1..{MAX_ITERATIONS}, got {self.max_iterations}")
+        outside [0, 1e6]."""
+        if not 1 <= self.iterations <= MAX_ITERATIONS:
+            raise InputError(f"mpc optimizer !Rti iterations must be in 1..{MAX_ITERATIONS}, got {self.iterations}")
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
-            raise InputError(f"mpc regularization must be in [0, 1e6], got {self.regularization}")
-        if horizon is not None and joints is not None and horizon * joints > MAX_CONDENSED:
+            raise InputError(f"mpc optimizer !Rti regularization must be in [0, 1e6], got {self.regularization}")
+
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "RtiSolver":
+        """An RtiSolver; InputError for a horizon whose dense system is beyond MAX_CONDENSED unknowns."""
+        joints = len(effort_limit)
+        if horizon * joints > MAX_CONDENSED:
             raise InputError(f"mpc horizon {horizon} x {joints} joints = {horizon * joints} torques is beyond the "
-                             f"real-time iteration's {MAX_CONDENSED}; use optimizer: ilqr for long horizons")
+                             f"real-time iteration's {MAX_CONDENSED}; use `optimizer: !Ilqr {{}}` for long horizons")
+        return RtiSolver(model, cost, effort_limit, self)
 
 
 def affine_recursion(A: np.ndarray, E: np.ndarray) -> np.ndarray:
@@ -66,9 +70,9 @@ def affine_recursion(A: np.ndarray, E: np.ndarray) -> np.ndarray:
 class RtiSolver(TrajectoryOptimizer):
     """The real-time iteration over a horizon for one prediction model and one cost (module docstring)."""
 
-    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: RtiConfig | None = None):
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: Rti | None = None):
         super().__init__(model, cost, effort_limit)
-        self.config = config or RtiConfig()
+        self.config = config or Rti()
         self.config.validate()
         self._weights = {}     # horizon -> (state weights (H 2n,), effort weights (H m,))
 
@@ -88,7 +92,7 @@ class RtiSolver(TrajectoryOptimizer):
             return OptimizerResult(u, x, np.inf, 0, False)
         mu = self.config.regularization
         iterations = 0
-        for iterations in range(1, self.config.max_iterations + 1):
+        for iterations in range(1, self.config.iterations + 1):
             step = None
             following, A, B = self.linearize(x[:-1], u)
             if np.all(np.isfinite(following)) and np.all(np.isfinite(A)) and np.all(np.isfinite(B)):

@@ -11,12 +11,13 @@ from stdm_drake.errors import InputError
 from stdm_drake.experiments.sine_sum import FULL, QUICK, headline, run_study, table1_rows, write_reports
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.settings import UPPER_BOUNDS as TRAIN_BOUNDS
-from stdm_drake.outputs import add_force_argument, check_output_folder, mark_output_folder
+from stdm_drake.outputs import fresh_default_folder, add_force_argument, check_output_folder, mark_output_folder
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--output", "-o", type=pathlib.Path, default=pathlib.Path("runs/sine-sum"),
-                        help="output folder (default runs/sine-sum)")
+    parser.add_argument("--output", "-o", type=pathlib.Path,
+                        help="output folder (default runs/sine-sum, or runs/sine-sum-2, -3, ... where an earlier run's "
+                             "results are)")
     parser.add_argument("--quick", action="store_true",
                         help="small CI profile: 1 and 5 layers, tanh/relu/swish, 2 networks, 150 steps")
     parser.add_argument("--alpha", type=parse_alpha,
@@ -60,6 +61,7 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, **overrides)
     from stdm_drake.cluster import check_workers, runner_config_from_args
     check_workers(args.workers)
+    args.output = args.output or fresh_default_folder("runs/sine-sum")
     check_output_folder("-o/--output", args.output, force=args.force)
     runner = runner_config_from_args(args)
     study = run_study(config, workers=args.workers, progress=not args.quiet, runner=runner)

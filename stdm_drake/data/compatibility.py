@@ -31,6 +31,14 @@ def shipped_preset_of(dataset):
     return None
 
 
+def resolve_robot(path=None, dataset=None) -> Robot:
+    """The robot a job runs with: the config YAML at `path`, else the shipped preset `dataset` was collected with
+    (`shipped_preset_of`), else the UR-10's (the toolbox's default robot); loaded and checked by `robot_for`
+    (with `dataset`: InputError unless the dataset was collected with it)."""
+    from stdm_drake.robots.robot import UR10_CONFIG
+    return robot_for(path or (shipped_preset_of(dataset) if dataset is not None else None) or UR10_CONFIG, dataset)
+
+
 def robot_for(path, dataset=None) -> Robot:
     """The robot of the config YAML at `path` (a command's `--robot`), its plant built once to check
     that it loads and that home is free of self-collision; with `dataset`, InputError unless the dataset

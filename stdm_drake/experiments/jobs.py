@@ -159,7 +159,7 @@ def _evaluate(model, dataset, job: TrainJob) -> dict:
     from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
     from stdm_drake.learning.predict import InferenceModel, rollout
 
-    from stdm_drake.learning.physics import ConstantVelocity, StaysPut
+    from stdm_drake.dynamics.physics import ConstantVelocity, StaysPut
 
     test = dataset.transitions(list(job.test))
     errors = one_step_errors(model, test.state, test.action, test.next_state)
@@ -392,7 +392,7 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
     split = split_trajectories(identification.groups, profile.control_train, profile.control_val,
                                profile.control_test, seed=0, per_group=True)
     # the paper's alpha (not chosen by validation: on these data the grid picked alpha = 0 or 1e-4 for
-    # every DD and PED seed, which makes the closed-loop comparison one of naive models; see README),
+    # every DD and PED seed, which makes the closed-loop comparison one of naive models; see docs/guides/reproduce.md),
     # with the derivative targets of held torques: the dither changes the torque every sample, so the
     # forward-difference tangent (a smooth-torque approximation) teaches a wrong torque response
     control = dict(common, max_epochs=min(profile.max_epochs, profile.control_max_epochs),

@@ -16,7 +16,6 @@ import dataclasses
 import json
 import math
 import pathlib
-import sys
 import time
 
 from stdm_drake.cluster import RunnerConfig, job_pool
@@ -98,38 +97,8 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     mpc_rows = run_mpc(profile, identification, results, cache, output / "mpc", progress, workers, robot=robot,
                        plant_effects=plant_effects)
     timings["mpc"] = time.perf_counter() - tick
-    reality = None
-    if plant_effects is not None:   # the reality-gap stage (docs/reality_gap.md): tuned MPC and per-effect tables,
-        # in local processes (its jobs share files in the output folder) whatever the training backend
-        from stdm_drake.experiments import reality_gap
-        from stdm_drake.experiments.reality_gap_report import write_results
-        tick = time.perf_counter()
-        reality = reality_gap.run_experiment(reality_gap.QUICK if profile.name == "quick" else reality_gap.FULL,
-                                  output / "data" / "reality_gap", robot, plant_effects, workers=workers,
-                                  say=lambda line: print(line, file=sys.stderr, flush=True) if progress else None)
-        write_results(reality, output / "reality_gap")
-        timings["reality_gap"] = time.perf_counter() - tick
-    sysid = None
-    if plant_effects is not None:   # the system-identification stage (docs/identification.md): white box against
-        # the number of plans and the sensor, grey and black boxes (local processes, as the reality gap)
-        from stdm_drake.experiments import identification_study as study
-        tick = time.perf_counter()
-        design = study.QUICK if profile.name == "quick" else study.FULL
-        say = (lambda line: print(line, file=sys.stderr, flush=True)) if progress else (lambda line: None)
-        white = study.write_white_box(study.run_study(design, output / "data" / "sysid", robot, plant_effects,
-                                                      workers=workers, say=say), output / "sysid",
-                                      profile.name == "quick")
-        grey = study.write_grey_box(study.run_grey_box(design, output / "data" / "sysid", robot, white,
-                                                       workers=workers, say=say), output / "sysid",
-                                    profile.name == "quick")
-        from stdm_drake.experiments import identification_closed_loop as closed_loop
-        closed = closed_loop.write_closed_loop(closed_loop.run_closed_loop(design, output / "data" / "sysid", robot, white,
-                                                                           workers=workers, say=say), output / "sysid",
-                                               profile.name == "quick")
-        sysid = (white, grey, closed)
-        timings["sysid"] = time.perf_counter() - tick
     path = write_report(output, profile, excitation, local, tracking, identification, results, sine, mpc_rows,
-                        timings, reality, sysid)
+                        timings, robot=robot, identification_controller=settings["identification"]["controller"])
     return path, mpc_rows["failures"]
 
 

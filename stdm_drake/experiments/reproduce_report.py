@@ -80,7 +80,7 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
     present, and each model type's ratios to the physics-free baselines (`<type>_vs_baseline`: q vs the
     Euler step, v vs "v unchanged") with `learned`: whether every model type beat both by LEARNED_FACTOR.
     metrics: label -> `TrainingResult` field name or function of a result."""
-    from stdm_drake.learning.physics import FLOOR_FACTOR, LEARNED_FACTOR
+    from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR
     row = dict(activation=activation, train_trajectories=size)
     ratios = {}
     for variant in ("D",) + tuple(name for name, _ in DERIVATIVE_VARIANTS):
@@ -255,15 +255,16 @@ def add_coverage_section(report, rows):
                     + ", ".join(f"{alpha:g}" for alpha in r["alphas"]) + ".")
 
 
-def add_data_section(report, excitation, local, tracking, identification, robot: str) -> None:
-    """The datasets: sizes and tracking errors beside the paper's, and what the identification data are."""
+def add_data_section(report, excitation, local, tracking, identification, controller_file: str) -> None:
+    """The datasets: sizes and tracking errors beside the paper's, and what the identification data are
+    (tracked with the controller file `controller_file`)."""
     from stdm_drake.data.inspect import tracking_errors
     report.heading("Data")
     if excitation.metadata.plant_effects is not None:
         effects = excitation.metadata.plant_effects.summary()
         report.text(f"Every dataset comes from an **affected plant**: the nominal model with {effects}. The MPC's plant "
                     "model knows only the nominal model; the identification data's PID gains and dither are sized "
-                    "from the affected plant's inertia (README, 'Plant effects').")
+                    "from the affected plant's inertia (docs/guides/robots.md, 'Plant effects').")
     errors, identification_errors = tracking_errors(tracking), tracking_errors(identification)
     report.table(["dataset", "trajectories", "steps", "tracking q MSE", "tracking v MSE (measured)", "paper"],
                  [["excitation (V.A)", excitation.num_trajectories, len(excitation.trajectory(0).tau), "", "", ""],
@@ -275,8 +276,6 @@ def add_data_section(report, excitation, local, tracking, identification, robot:
                   ["identification (MPC models)", identification.num_trajectories,
                    len(identification.trajectory(0).tau), _g(identification_errors["true_q"]),
                    _g(identification_errors["measured_v"]), ""]])
-    affected = identification.metadata.plant_effects is not None
-    controller_file = "pid_dither.yaml" if robot == "ur10" and not affected else "pid_dither_sized.yaml"
     report.text(f"The identification dataset tracks the same kind of plans with controllers/{controller_file} (white "
                 "torque dither, persistent excitation) and controllers/sensor_ideal.yaml (true states): the models "
                 "for the closed-loop MPC comparison are trained on it, since closed-loop PID torques alone do not "
@@ -447,45 +446,34 @@ def write_result_files(folder: pathlib.Path, report, tables: dict, results) -> N
 
 
 def write_report(folder: pathlib.Path, profile: Profile, excitation, local, tracking, identification, results, sine,
-                 mpc_rows, timings: dict, reality_gap: dict | None = None, sysid: tuple | None = None) -> pathlib.Path:
-    """The report of a reproduction run in `folder`, section by section, with the result files behind it;
-    returns the HTML page's path. reality_gap: the reality-gap stage's results (files in folder/reality_gap);
-    sysid: the system-identification stage's (white box, grey box, closed loop) results (files in folder/sysid)."""
+                 mpc_rows, timings: dict, *, robot, identification_controller: pathlib.Path) -> pathlib.Path:
+    """The report of a reproduction run for `robot` in `folder`, section by section, with the result files behind
+    it; returns the HTML page's path. identification_controller: the controller file the identification data
+    were tracked with."""
     figures = folder / "figures"
-    robot = excitation.metadata.robot_name or "ur10"
-    robot_label = "UR-10" if robot == "ur10" else robot
-    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}'"
-                    + ("" if robot == "ur10" else f", robot {robot}"))
-    if robot != "ur10":
-        report.text(f"Robot: {robot} ({len(excitation.metadata.joint_names or [])} joints), with the excitation "
-                    "ranges, tracking poses, PID gains and MPC weights derived from its model (README, 'Using your "
+    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}', "
+                    f"robot {robot.name}")
+    if robot.default_file("excitation") is None:   # (a robot config without protocol files of its own)
+        report.text(f"Robot: {robot.name} ({robot.num_joints} joints), with the excitation "
+                    "ranges, tracking poses, PID gains and MPC weights derived from its model (docs/guides/robots.md, 'Using your "
                     "own robot'). The 'paper' columns quote the paper's UR-10 numbers for scale, not as a target.")
     report.text("Every number below is computed by this run except the columns labelled 'paper', which quote "
                 "the values stated in the paper's text. MSE in rad² (joint angles, q) and (rad/s)² (velocities, v); "
                 "improvement = (MSE_naive - MSE_derivative) / MSE_derivative x 100 (the paper's definition). "
                 f"Stage times (s): {', '.join(f'{k} {v:.0f}' for k, v in timings.items())}.")
-    add_data_section(report, excitation, local, tracking, identification, robot)
-    sim_rows, sim_sizes = add_simulated_sections(report, results, profile, figures, robot_label)
+    add_data_section(report, excitation, local, tracking, identification, pathlib.Path(identification_controller).name)
+    sim_rows, sim_sizes = add_simulated_sections(report, results, profile, figures, robot.name)
     real_rows, real_sizes = add_tracked_sections(report, results, profile, figures)
     coverage = add_coverage_sections(report, results, profile)
     multistep = add_multistep_section(report, results, profile, figures)
     add_sine_sum_section(report, sine)
     add_mpc_section(report, mpc_rows)
-    if reality_gap is not None:
-        from stdm_drake.experiments.reality_gap_report import report_section
-        report_section(report, reality_gap)
-    if sysid is not None:
-        from stdm_drake.experiments import identification_closed_loop, identification_study
-        white, grey, closed = sysid
-        identification_study.report_section(report, white, grey)
-        identification_closed_loop.report_section(report, closed)
     tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
                   coverage=coverage,
                   multistep=[{k: v for k, v in dataclasses.asdict(r).items() if k not in ("epoch_axis", "val_mse_curve")}
                              for r in multistep],
                   mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [],
-                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings, reality_gap=reality_gap and {
-                      key: reality_gap[key] for key in ("chosen_mpc_settings", "closed_loop", "verdict", "open_loop")})
+                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
     write_result_files(folder, report, tables, results)
     return folder / "report.html"
 

@@ -22,7 +22,7 @@ from stdm_drake.robots.effects import PlantEffects, RigidInertia
 IDENTIFIED_SUFFIXES = (".yaml", ".yml")
 HEADER = (f"{IDENTIFIED_MARKER}: the robot's description with these parameters\n"
           "# (effects: link inertias, joint damping, Coulomb friction, reflected rotor inertia) is the model; use it\n"
-          "# as a model with evaluate, view and mpc --model NAME=FILE (README, 'Identification').\n")
+          "# as a model with evaluate, view and mpc --model NAME=FILE (docs/guides/identification.md).\n")
 
 
 @dataclasses.dataclass
@@ -104,14 +104,32 @@ class IdentifiedRobot:
         except InputError as error:
             raise InputError(f"{where}: {error}") from None
 
+    def describe(self, name: str) -> str:
+        """One line on the model named `name` of this identified robot: what was identified from what."""
+        record = self.identification
+        return (f"model {name}: identified rigid-body model of {record.robot} from {pathlib.Path(record.dataset).name}"
+                f" ({record.derivative_source} derivatives, Coulomb velocity scale {record.coulomb_velocity_scale:g} "
+                f"rad/s; test torque error {record.test_torque_error:.3g})")
+
     def model(self, robot, name: str = "identified"):
         """The identified robot as a `PlantModel` of `robot` (its description must be the identified one)."""
-        from stdm_drake.learning.physics import PlantModel
+        from stdm_drake.dynamics.physics import PlantModel
         from stdm_drake.robots.plant import PlantConfig
         record = self.identification
         self.check_robot(robot)
         return PlantModel(record.sample_period, PlantConfig.discrete(record.plant_time_step, effects=self.effects),
                           robot=robot, name=name, source=self)
+
+
+def identified_model(identified: IdentifiedRobot, robot, *, name: str | None = None, for_control: bool = False,
+                     check_robot: bool = True):
+    """An identified robot's model (the "identified robot" kind of `dynamics.model_files`): the description's
+    plant with the identified parameters (`IdentifiedRobot.model`), its RK4 twin for control. It needs
+    `robot` and always checks it (check_robot is accepted for the checkpoint kind's callers)."""
+    if robot is None:
+        raise InputError(f"{identified.path}: an identified robot needs its robot (--robot)")
+    model = identified.model(robot, name=name or "identified")
+    return model.for_control() if for_control else model
 
 
 def is_identified_file(path) -> bool:

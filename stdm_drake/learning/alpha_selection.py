@@ -12,7 +12,6 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.learning.checkpoint import CheckpointMetadata, load_checkpoint, save_checkpoint
-from stdm_drake.learning.models import ModelConfig
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.settings import DEFAULT_ALPHA_GRID, TrainingConfig
 from stdm_drake.learning.trainer import TrainResult, train_model
@@ -62,7 +61,7 @@ class AlphaSelection:
                    else None)
 
 
-def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+def train_alpha_grid(model_config, training_config: TrainingConfig, train_data: RegressionData,
                      val_data: RegressionData, *, alphas=DEFAULT_ALPHA_GRID,
                      on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
     """One single-member network per alpha, trained as one stack from the same initial weights on the
@@ -80,15 +79,9 @@ def train_alpha_grid(model_config: ModelConfig, training_config: TrainingConfig,
 
 
 def member_errors_by_group(model, data: RegressionData) -> np.ndarray:
-    """Each member's validation state MSE (standardized, as `trainer.validation_scores`) per group of rows (the
+    """Each member's validation state MSE (standardized, as the model's `eval_score`) per group of rows (the
     trajectories of `data.groups`), (E, G) float64, groups in sorted order."""
-    import torch
-
-    from stdm_drake.learning.regression import standardize
-    tensors = standardize(model, data)
-    with torch.no_grad():
-        mean, _ = model.split_head(model.normalized_outputs(tensors.inputs))
-        errors = ((mean - tensors.targets) ** 2).mean(dim=2).double().numpy()          # (E, N)
+    errors = model.member_row_errors(model.standardize(data)).numpy()          # (E, N)
     _, group = np.unique(np.asarray(data.groups), return_inverse=True)
     counts = np.bincount(group)
     return np.stack([np.bincount(group, weights=row) / counts for row in errors])
@@ -112,7 +105,7 @@ def data_by_source(data) -> dict:
     return dict(data) if isinstance(data, dict) else {None: data}
 
 
-def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, train_data, val_data, *,
+def select_alpha(model_config, training_config: TrainingConfig, train_data, val_data, *,
                  alphas=DEFAULT_ALPHA_GRID,
                  on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection]:
     """Choose alpha by validation (`train_alpha_grid`) and return the chosen single-member model (its
@@ -166,7 +159,7 @@ def select_alpha(model_config: ModelConfig, training_config: TrainingConfig, tra
     return chosen, selection
 
 
-def fit_model(model_config: ModelConfig, training_config: TrainingConfig, train_data, val_data, *,
+def fit_model(model_config, training_config: TrainingConfig, train_data, val_data, *,
               alpha_grid: tuple | None = None, checkpoint_path=None,
               checkpoint_every: int = 10, metadata: CheckpointMetadata | dict | None = None, resume: bool = False,
               on_epoch: Callable[[dict], None] | None = None) -> tuple[TrainResult, AlphaSelection | None]:

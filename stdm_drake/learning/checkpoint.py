@@ -4,6 +4,7 @@ and the one check of whether a checkpoint fits a dataset."""
 from __future__ import annotations
 
 import dataclasses
+import typing
 import io
 import json
 import math
@@ -14,7 +15,7 @@ import torch
 from stdm_drake.data.schema import check_split
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, json_default
-from stdm_drake.learning.models import EnsembleMLP, ModelConfig
+from stdm_drake.learning.trainable import DEFAULT_NETWORK, TrainableModel, network_class
 from stdm_drake.learning.settings import TrainingConfig
 from stdm_drake.learning.structure import ModelStructure
 from stdm_drake.paths import check_input_file
@@ -78,8 +79,8 @@ class CheckpointMetadata:
 class Checkpoint:
     """A loaded checkpoint: the model (best weights) and what was stored beside it."""
     path: pathlib.Path
-    model: EnsembleMLP
-    model_config: ModelConfig
+    model: TrainableModel
+    model_config: typing.Any   # the network kind's config record (`TrainableModel.config_type`)
     training_config: TrainingConfig | None
     metadata: CheckpointMetadata
     history: dict
@@ -148,7 +149,7 @@ def _metadata(metadata: CheckpointMetadata | dict | None) -> CheckpointMetadata:
     return CheckpointMetadata.from_dict(dict(metadata or {}))
 
 
-def save_checkpoint(path, model: EnsembleMLP, *, training_config: TrainingConfig | None = None,
+def save_checkpoint(path, model: TrainableModel, *, training_config: TrainingConfig | None = None,
                     history: dict | None = None, metadata: CheckpointMetadata | dict | None = None,
                     resume_state: dict | None = None) -> pathlib.Path:
     """Write one file (atomically) holding weights, architecture, normalizers, options and metadata.
@@ -158,8 +159,8 @@ def save_checkpoint(path, model: EnsembleMLP, *, training_config: TrainingConfig
     content = {
         "format": CHECKPOINT_FORMAT,
         "format_version": CHECKPOINT_VERSION,
-        "model_config": {key: value for key, value in dataclasses.asdict(model.config).items()
-                         if key != "zero_output"},   # (how the weights started: the weights themselves are stored)
+        "network": model.kind,
+        "model_config": model.config_record(),
         "weights": {name: value.detach().cpu().clone() for name, value in model.state_dict().items()},
         "training_config": dataclasses.asdict(training_config) if training_config is not None else None,
         "history": {column: [float(v) for v in values] for column, values in (history or {}).items()},
@@ -195,10 +196,11 @@ def load_checkpoint(path) -> Checkpoint:
         raise InputError(f"{path}: checkpoint format version {content.get('format_version')}, "
                          f"this stdm-drake reads {CHECKPOINT_VERSION}{hint}")
     try:
-        model_config = ModelConfig.from_dict(dict(content["model_config"]))
+        network = network_class(content.get("network", DEFAULT_NETWORK))   # (files before kinds: the MLP)
+        model_config = network.config_type.from_dict(dict(content["model_config"]))
         training = content.get("training_config")
         training_config = TrainingConfig(**training) if training is not None else None
-        model = EnsembleMLP(model_config)
+        model = network(model_config)
         model.load_state_dict(content["weights"])
         metadata = CheckpointMetadata.from_dict(dict(content.get("metadata") or {}))
         ModelStructure.from_dict(metadata.structure).model_sizes(model_config.input_dim, model_config.output_dim)

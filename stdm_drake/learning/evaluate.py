@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.dynamics_model import DynamicsModel
+from stdm_drake.dynamics.model import DynamicsModel
 from stdm_drake.learning.predict import as_inference_model
 
 REPORT_STEPS = (1, 5, 10, 20, 50, 100)
@@ -71,7 +71,7 @@ class MultiStepErrors:
 
 
 def as_dynamics_model(model):
-    """A DynamicsModel as it is; a bare network (EnsembleMLP or InferenceModel) as a LearnedModel of the
+    """A DynamicsModel as it is; a bare network (a `TrainableModel` or its engine) as a LearnedModel of the
     paper's structure (next state from [x, a])."""
     from stdm_drake.learning.learned_model import LearnedModel
     if isinstance(model, DynamicsModel):
@@ -158,7 +158,7 @@ def physics_baselines(sample_period: float, state_dim: int, action_dim: int, rob
     put" (open loop), and, with plant, `robot`'s own rigid-body plant stepping the recorded torque."""
     if plant and robot is None:
         raise ValueError("the plant baseline needs the robot (or plant=False)")
-    from stdm_drake.learning.physics import ConstantVelocity, PlantModel, StaysPut
+    from stdm_drake.dynamics.physics import ConstantVelocity, PlantModel, StaysPut
     models = [ConstantVelocity(state_dim, action_dim, sample_period), StaysPut(state_dim, action_dim, sample_period)]
     if plant:
         models.append(PlantModel(sample_period, robot=robot))
@@ -170,7 +170,7 @@ def compare_with_baselines(models, transitions, rollout_data, *, propagation: st
     """Errors of every model (DynamicsModel) on the same transitions and rollouts (x0, actions, truth; None:
     one-step errors only); learned models are rated against the first ConstantVelocity among them and, given the
     sensor's noise_floor ({"q", "v"} one-step MSE, `data.inspect.noise_floor`), against it."""
-    from stdm_drake.learning.physics import ConstantVelocity, learning_verdict
+    from stdm_drake.dynamics.physics import ConstantVelocity, learning_verdict
     rows = []
     for model in models:
         one = one_step_errors(model, transitions.state, transitions.action, transitions.next_state)

@@ -2,7 +2,8 @@
 `ModelStructure`, so every command treats the paper's black boxes and the physics-structured networks
 alike.
 
-The network runs on the float32 numpy inference path (`predict.InferenceModel`); nominal-acceleration
+The network runs on its float32 inference engine (`TrainableModel.inference`: the MLP's `predict.InferenceModel`,
+any other kind's `trainable.TorchInference`); nominal-acceleration
 inputs are evaluated by the robot's rigid-body model at every step (`robots.rigid_body`, built from the
 Drake plant), and their analytic Jacobian enters the model's Jacobian by the chain rule.
 """
@@ -13,13 +14,13 @@ import pathlib
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.dynamics_model import DynamicsModel, check_batch
-from stdm_drake.learning.predict import Prediction, Rollout, as_inference_model, predict, rollout
+from stdm_drake.dynamics.model import DynamicsModel, Prediction, Rollout, check_batch
+from stdm_drake.learning.predict import as_inference_model, predict, rollout
 from stdm_drake.learning.structure import PAPER, ModelStructure
 
 
 class LearnedModel(DynamicsModel):
-    """A checkpoint (path or loaded `Checkpoint`) or a bare network (`EnsembleMLP`/`InferenceModel`, then
+    """A checkpoint (path or loaded `Checkpoint`) or a bare network (a `TrainableModel` or its engine, then
     with `structure`, default the paper's) as a model of `robot` with n joints and m actuated ones.
 
     sample_period (s): a checkpoint's own (`Checkpoint.sample_period`: one without it is refused), a bare
@@ -33,10 +34,8 @@ class LearnedModel(DynamicsModel):
     def __init__(self, source, name: str | None = None, robot=None, *, structure: ModelStructure | None = None,
                  sample_period: float | None = None, check_robot: bool = True):
         from stdm_drake.learning.checkpoint import Checkpoint, load_checkpoint
-        from stdm_drake.learning.models import EnsembleMLP
-        from stdm_drake.learning.predict import InferenceModel
         self.checkpoint = None
-        if isinstance(source, (EnsembleMLP, InferenceModel)):
+        if not isinstance(source, (str, pathlib.Path, Checkpoint)):   # a bare network or its engine
             self.structure = structure or PAPER
             network, self.name, self.sample_period = source, name or "network", sample_period
         else:
@@ -188,7 +187,7 @@ class LearnedModel(DynamicsModel):
 
     def linearize(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every row at once: the ensemble-mean next states (H, 2n) and d mean / d(x, a), A (H, 2n, 2n),
-        B (H, 2n, m), from one float32 forward-mode pass of the network (`InferenceModel.mean_and_jacobian`)
+        B (H, 2n, m), from one float32 forward-mode pass of the network (the engine's `mean_and_jacobian`)
         and, for nominal-model inputs, one evaluation of φ and its Jacobian, entering by the chain rule."""
         x, a = np.asarray(x, dtype=np.float64), np.asarray(a, dtype=np.float64)
         n, S = self.num_joints, self.state_dim
@@ -224,3 +223,27 @@ class LearnedModel(DynamicsModel):
             angle[:, :, n:S] += 0.5 * self.sample_period * np.eye(n)
             jacobian = np.concatenate([angle, jacobian], axis=1)
         return following, jacobian[:, :, :S], jacobian[:, :, S:]
+
+
+    def describe(self) -> str:
+        """Architecture and training of the checkpoint's network (a bare network: its name)."""
+        checkpoint = self.checkpoint
+        if checkpoint is None:
+            return f"model {self.name}: a network ({self.structure.label})"
+        config = checkpoint.model_config
+        alpha = checkpoint.training_config.alpha if checkpoint.training_config else float("nan")
+        return (f"model {self.name}: {type(checkpoint.model).describe_config(config)}, "
+                f"{config.ensemble_size} member(s), {'probabilistic' if config.probabilistic else 'deterministic'}, "
+                f"{'delta' if config.residual else 'direct'}, {self.structure.label}, derivative alpha {alpha:g}"
+                + (f" ({checkpoint.metadata.derivative_source} targets)"
+                   if alpha > 0 and checkpoint.metadata.derivative_source else ""))
+
+
+def checkpoint_model(checkpoint, robot, *, name: str | None = None, for_control: bool = False, **options) -> LearnedModel:
+    """A checkpoint's model (the "checkpoint" kind of `dynamics.model_files`): a `LearnedModel` of `robot`
+    named `name` or, without one, after the checkpoint's model type ("model" where it has none); the
+    same model for control and evaluation; options: `LearnedModel`'s."""
+    model = LearnedModel(checkpoint, name=name, robot=robot, **options)
+    if name is None:
+        model.name = checkpoint.metadata.model_type or "model"
+    return model

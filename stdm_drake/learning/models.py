@@ -28,6 +28,14 @@ from torch import nn
 
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import get_activation
+from stdm_drake.learning.tangent import TangentPropagation
+from stdm_drake.learning.loss import LossTerms, member_gaussian_nll, member_point_loss
+from stdm_drake.learning.trainable import TrainableModel
+
+# A delta model's output spread is at least this fraction of its targets' own spread: a grey box on an exact
+# plant model has residual targets of rounding size (1e-10 rad/s), which standardized would be fitted as
+# signal (and Adam's scale-free steps would move the outputs of all-zero ones by 1e-3 of a unit).
+DELTA_SPREAD_FLOOR = 1e-4
 
 # PETS soft bounds on the log-variance: initial limits and the weight of their penalty in the loss.
 MIN_LOGVAR_INIT = -10.0
@@ -167,79 +175,20 @@ def bounded_logvar(raw: Tensor, min_logvar: Tensor, max_logvar: Tensor) -> Tenso
     return min_logvar + F.softplus(upper - min_logvar)
 
 
-class _TangentPropagation(torch.autograd.Function):
-    """Forward-mode pass through the stacked MLP: (z_n, ż_n) -> (outputs, J_n ż_n), hand-written backward.
-
-    Primal and tangent travel together layer by layer (h = x W + b, ḣ = ẋ W, then f(h), f'(h) ḣ);
-    the backward pass returns parameter gradients only (inputs are data). Costs one extra GEMM per
-    layer and direction, never a Jacobian.
-    """
-
-    @staticmethod
-    def forward(ctx, activation, tangent_dim, inputs, input_tangents, *parameters):
-        count = len(parameters) // 2
-        weights, biases = parameters[:count], parameters[count:]
-        x, xd = inputs, input_tangents
-        layers = []
-        for weight, bias in zip(weights[:-1], biases[:-1]):
-            h = torch.baddbmm(bias, x, weight)
-            hd = torch.bmm(xd, weight)
-            y, yd, slope, curvature = activation.tangent(h, hd)
-            layers.append((x, xd, slope, curvature))
-            x, xd = y, yd
-        out_weight = weights[-1]
-        outputs = torch.baddbmm(biases[-1], x, out_weight)
-        output_tangents = torch.bmm(xd, out_weight[..., :tangent_dim])
-        ctx.save_for_backward(*weights)
-        ctx.layers = layers
-        ctx.last = (x, xd)
-        ctx.tangent_dim = tangent_dim
-        return outputs, output_tangents
-
-    @staticmethod
-    @torch.autograd.function.once_differentiable
-    def backward(ctx, grad_outputs, grad_tangents):
-        weights = ctx.saved_tensors
-        k = ctx.tangent_dim
-        x, xd = ctx.last
-        if grad_outputs is None:
-            grad_outputs = torch.zeros(x.shape[:2] + (weights[-1].shape[-1],), dtype=x.dtype, device=x.device)
-        if grad_tangents is None:
-            grad_tangents = torch.zeros(xd.shape[:2] + (k,), dtype=x.dtype, device=x.device)
-        out_weight = weights[-1]
-        grad_weight = torch.bmm(x.transpose(1, 2), grad_outputs)
-        grad_weight[..., :k].baddbmm_(xd.transpose(1, 2), grad_tangents)
-        weight_grads = [grad_weight]
-        bias_grads = [grad_outputs.sum(1, keepdim=True)]
-        gy = torch.bmm(grad_outputs, out_weight.transpose(1, 2))
-        gyd = torch.bmm(grad_tangents, out_weight[..., :k].transpose(1, 2))
-        for index in range(len(ctx.layers) - 1, -1, -1):
-            x, xd, slope, curvature = ctx.layers[index]
-            if curvature is None:
-                gh = gy.mul_(slope)
-            else:
-                gh = torch.mul(gyd, curvature).addcmul_(gy, slope)
-            ghd = gyd.mul_(slope)
-            bias_grads.append(gh.sum(1, keepdim=True))
-            weight_grads.append(torch.bmm(x.transpose(1, 2), gh).baddbmm_(xd.transpose(1, 2), ghd))
-            if index > 0:
-                weight_t = weights[index].transpose(1, 2)
-                gy = torch.bmm(gh, weight_t)
-                gyd = torch.bmm(ghd, weight_t)
-        return (None, None, None, None, *reversed(weight_grads), *reversed(bias_grads))
-
-
-class EnsembleMLP(nn.Module):
-    """Ensemble of `ensemble_size` MLPs with stacked weights, built from a ModelConfig.
+class EnsembleMLP(TrainableModel):
+    """Ensemble of `ensemble_size` MLPs with stacked weights, built from a ModelConfig: the paper's D, P, DE,
+    PE networks (the "ensemble_mlp" kind of `trainable.TrainableModel`).
 
     Parameters: weights[l] (E, in_l, out_l), biases[l] (E, 1, out_l), Xavier-uniform weights, zero
     biases; probabilistic members also have min_logvar/max_logvar (E, 1, out_dim). Buffers: input
-    and output normalizers (the output spread σ_y also scales the derivative loss, see learn.py).
+    and output normalizers (the output spread σ_y also scales the derivative loss, see `trainer`).
     """
+    kind = "ensemble_mlp"
+    config_type = ModelConfig
+    member_parameters = MEMBER_PARAMETERS
 
     def __init__(self, config: ModelConfig, generator: torch.Generator | None = None):
-        super().__init__()
-        self.config = config
+        super().__init__(config)
         self.activation = get_activation(config.activation)
         members = config.ensemble_size
         head = config.output_dim * (2 if config.probabilistic else 1)
@@ -285,7 +234,7 @@ class EnsembleMLP(nn.Module):
 
     def normalized_outputs_with_tangent(self, inputs_n: Tensor, tangents_n: Tensor) -> tuple[Tensor, Tensor]:
         """JVP pass: (z_n, ż_n) -> (head outputs (E, B, ·), J_n ż_n of the mean head (E, B, out_dim))."""
-        return _TangentPropagation.apply(self.activation, self.config.output_dim,
+        return TangentPropagation.apply(self.activation, self.config.output_dim,
                                          self.per_member(inputs_n), self.per_member(tangents_n),
                                          *self.weights, *self.biases)
 
@@ -325,3 +274,109 @@ class EnsembleMLP(nn.Module):
                  for name, value in self.state_dict().items()}
         single.load_state_dict(state)
         return single
+
+    # -- the trainable-model interface (`trainable.TrainableModel`) ---------------------------------------
+    @classmethod
+    def problem_config(cls, *, input_dim: int, output_dim: int, residual: bool, ensemble_size: int,
+                       probabilistic: bool, start_at_residual: bool, options: dict) -> ModelConfig:
+        return ModelConfig(input_dim=input_dim, output_dim=output_dim, residual=residual,
+                           hidden_width=options["hidden_width"], hidden_layers=options["hidden_layers"],
+                           activation=options["activation"], ensemble_size=ensemble_size, probabilistic=probabilistic,
+                           zero_output=start_at_residual)
+
+    def fit_normalizers(self, data) -> None:
+        """Input and output statistics from training data (raw units, float64). With standardize_inputs=False
+        the input normalizer stays the identity; a delta model's output spread has the floor
+        DELTA_SPREAD_FLOOR x its targets' spread."""
+        inputs = np.asarray(data.inputs, dtype=np.float64)
+        if self.config.standardize_inputs:
+            self.input_normalizer.fit(inputs)
+        targets = np.asarray(data.targets, dtype=np.float64)
+        floor = DELTA_SPREAD_FLOOR * targets.std(axis=0) if self.config.residual else None
+        self.output_normalizer.fit(targets - self._raw_residual(inputs), minimum=floor)
+
+    def _raw_residual(self, values: np.ndarray) -> np.ndarray:
+        out = self.config.output_dim
+        return values[:, :out] if self.config.residual else np.zeros((len(values), out))
+
+    def standardize(self, data):
+        """Raw arrays -> network units with the normalizers (computed in float64, then cast): z_n, y_n, and
+        for derivative learning ż_n = ż/σ_z and (ẏ - r(ż))/σ_y (see the module docstring)."""
+        from stdm_drake.learning.regression import StandardizedData
+        dtype = next(self.parameters()).dtype
+        z_mean, z_std = (value.double().numpy() for value in (self.input_normalizer.mean, self.input_normalizer.std))
+        y_mean, y_std = (value.double().numpy() for value in (self.output_normalizer.mean, self.output_normalizer.std))
+        inputs = np.asarray(data.inputs, dtype=np.float64)
+        result = StandardizedData(
+            inputs=torch.from_numpy((inputs - z_mean) / z_std).to(dtype),
+            targets=torch.from_numpy((np.asarray(data.targets, np.float64) - self._raw_residual(inputs) - y_mean)
+                                     / y_std).to(dtype),
+            input_rates=None, target_rates=None)
+        if data.has_rates:
+            input_rates = np.asarray(data.input_rates, dtype=np.float64)
+            result.input_rates = torch.from_numpy(input_rates / z_std).to(dtype)
+            result.target_rates = torch.from_numpy((np.asarray(data.target_rates, np.float64)
+                                                    - self._raw_residual(input_rates)) / y_std).to(dtype)
+        return result
+
+    def loss(self, training, inputs, targets, input_rates=None, target_rates=None) -> LossTerms:
+        """Loss terms per member on standardized tensors (E, B, ·) or (B, ·): the state term (MSE, MAE, Huber,
+        or the PETS Gaussian NLL with the log-variance bound penalty) plus alpha times the derivative term on
+        J_n ż_n (one forward-mode pass) where `training.derivative`."""
+        if training.derivative:
+            outputs, tangents = self.normalized_outputs_with_tangent(inputs, input_rates)
+        else:
+            outputs, tangents = self.normalized_outputs(inputs), None
+        return self.losses_from_outputs(training, outputs, tangents, targets, target_rates)
+
+    def losses_from_outputs(self, training, outputs, tangents, targets, target_rates) -> LossTerms:
+        """Loss terms per member from head outputs (E, B, ·) and mean-head tangents J_n ż_n (None: no derivative term)."""
+        mean, logvar = self.split_head(outputs)
+        target = self.per_member(targets)
+        if logvar is None:
+            state_term = member_point_loss(training.state_loss, mean, target, training.huber_delta)
+        else:
+            state_term = member_gaussian_nll(mean, logvar, target) + self.member_logvar_bound_penalty()
+        if tangents is None:
+            return LossTerms(total=state_term, state=state_term, derivative=None)
+        derivative_term = member_point_loss(training.derivative_loss, tangents, self.per_member(target_rates),
+                                            training.huber_delta)
+        alphas = training.member_alphas(self.config.ensemble_size).to(derivative_term.dtype)
+        return LossTerms(total=state_term + alphas * derivative_term, state=state_term, derivative=derivative_term)
+
+    @torch.no_grad()
+    def eval_score(self, training, data) -> dict:
+        """Validation loss terms (the training formula, averaged over members) and each member's standardized
+        state MSE (E,) float64, the selection criterion."""
+        if training.derivative and data.input_rates is not None:
+            outputs, tangents = self.normalized_outputs_with_tangent(data.inputs, data.input_rates)
+        else:
+            outputs, tangents = self.normalized_outputs(data.inputs), None
+        total, state_term, derivative_term = self.losses_from_outputs(training, outputs, tangents, data.targets,
+                                                          data.target_rates).means()
+        mean, _ = self.split_head(outputs)
+        member_mse = ((mean - data.targets) ** 2).mean(dim=(1, 2)).double()
+        return dict(loss=total, state=state_term, derivative=derivative_term, member_mse=member_mse)
+
+    @torch.no_grad()
+    def member_row_errors(self, data) -> torch.Tensor:
+        mean, _ = self.split_head(self.normalized_outputs(data.inputs))
+        return ((mean - data.targets) ** 2).mean(dim=2).double()
+
+    @classmethod
+    def describe_config(cls, config: ModelConfig) -> str:
+        return f"{config.hidden_layers}x{config.hidden_width} {config.activation}"
+
+    @classmethod
+    def weight_count(cls, config: ModelConfig) -> int:
+        """E L W², the hidden layers' weights (the sizing the settings' checks use, without a network built)."""
+        return config.ensemble_size * config.hidden_layers * config.hidden_width ** 2
+
+    def config_record(self) -> dict:
+        """The config without zero_output (how the weights started: the weights themselves are stored)."""
+        return {key: value for key, value in dataclasses.asdict(self.config).items() if key != "zero_output"}
+
+    def inference(self):
+        """The fast float32 NumPy engine (`predict.InferenceModel`)."""
+        from stdm_drake.learning.predict import InferenceModel
+        return InferenceModel(self)

@@ -1,6 +1,7 @@
 """Prediction with trained STDMs: one-step `predict`, open-loop `rollout`, and the fast inference path.
 
-Both functions run on an `InferenceModel`: a float32 numpy copy of an EnsembleMLP with the input
+Both functions run on a network's inference engine (`TrainableModel.inference`; any kind gets
+`trainable.TorchInference`); the ensemble MLP's is `InferenceModel`: a float32 numpy copy with the input
 and output normalizers folded into the first and last layers, the first layer split into a state
 part and an action part (the action part of a whole open-loop action sequence is one matmul before
 the loop), and members stacked so an ensemble step is one batched matmul per layer. No autograd,
@@ -26,9 +27,9 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import get_activation
-from stdm_drake.learning.models import EnsembleMLP
+from stdm_drake.dynamics.model import PROPAGATIONS, Prediction, Rollout
+from stdm_drake.learning.trainable import input_rows
 
-PROPAGATIONS = ("mean", "ts1", "tsinf")
 MAX_PARTICLES = 10_000   # particles per trajectory (their states are held at once)
 
 
@@ -37,14 +38,14 @@ def _softplus(values):
 
 
 class InferenceModel:
-    """Float32 numpy inference copy of an EnsembleMLP used as an STDM (see module docstring).
+    """Float32 numpy inference copy of an `models.EnsembleMLP` used as an STDM (see module docstring).
 
     A snapshot: build a new one after the network's weights change. Inputs are rows [x (S), a (A), 1]:
     the first layer (normalization, bias and the activation's input scale folded in) is one
     (S+A+1, E*H) matrix shared by all members. E members, H width.
     """
 
-    def __init__(self, network: EnsembleMLP):
+    def __init__(self, network):
         config = network.config
         self.config = config
         self.ensemble_size = config.ensemble_size
@@ -88,16 +89,8 @@ class InferenceModel:
             self.log_output_variance = (2.0 * np.log(y_std)).astype(f32)
 
     def input_rows(self, states: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Rows [x, a, 1] for T steps: states (N, S) at step 0, actions (T, N, A) -> (T+1, N, S+A+1).
-
-        Steps 1..T hold zeros in place of states until a rollout writes its predictions there.
-        """
-        steps, count = actions.shape[:2]
-        rows = np.zeros((steps + 1, count, self.state_dim + self.action_dim + 1), dtype=np.float32)
-        rows[0, :, :self.state_dim] = states
-        rows[:steps, :, self.state_dim:-1] = actions
-        rows[..., -1] = 1.0
-        return rows
+        """Rows [x, a, 1] for T steps (`trainable.input_rows`)."""
+        return input_rows(states, actions, self.state_dim, self.action_dim)
 
     def workspace(self, count: int) -> "_Workspace":
         """Buffers for repeated steps on `count` input rows (no allocation inside a rollout loop)."""
@@ -199,31 +192,14 @@ class _Workspace:
                        for index, (weight, bias) in enumerate(engine.hidden)]
 
 
-def as_inference_model(model) -> InferenceModel:
-    """An InferenceModel for an EnsembleMLP (extracted now) or the InferenceModel itself."""
-    if isinstance(model, InferenceModel):
+def as_inference_model(model):
+    """The inference engine of a network (`TrainableModel.inference`: extracted now), or the engine itself."""
+    from stdm_drake.learning.trainable import TrainableModel
+    if isinstance(model, TrainableModel):
+        return model.inference()
+    if hasattr(model, "mean_and_jacobian") and hasattr(model, "hidden_features"):
         return model
-    if isinstance(model, EnsembleMLP):
-        return InferenceModel(model)
-    raise InputError(f"expected an EnsembleMLP or InferenceModel, got {type(model).__name__}")
-
-
-@dataclasses.dataclass
-class Prediction:
-    """One-step prediction for B states. mean, variance (B, S): ensemble mean and total variance
-    (member spread + mean aleatoric); member_means (E, B, S); member_variances (E, B, S) or None."""
-    mean: np.ndarray
-    variance: np.ndarray
-    member_means: np.ndarray
-    member_variances: np.ndarray | None
-
-
-@dataclasses.dataclass
-class Rollout:
-    """Open-loop prediction of steps 1..T. mean, variance (B, T, S); particles (B, P, T, S) for TS."""
-    mean: np.ndarray
-    variance: np.ndarray
-    particles: np.ndarray | None = None
+    raise InputError(f"expected a trainable network or its inference engine, got {type(model).__name__}")
 
 
 def _as_batch(values, width: int, name: str, *, sequence: bool) -> tuple[np.ndarray, bool]:

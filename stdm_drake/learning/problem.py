@@ -10,7 +10,8 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.learning.checkpoint import CheckpointMetadata
-from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, ModelConfig, parse_model_type
+from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, parse_model_type
+from stdm_drake.learning.trainable import DEFAULT_NETWORK, network_class
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.structure import PAPER, ModelStructure
 
@@ -66,7 +67,7 @@ class TrainingProblem:
     validation pairs (raw units), and the checkpoint metadata that records where they came from. With
     several derivative sources `train` and `val` are dicts source -> RegressionData (the same transitions,
     each source's derivative targets; `fit_model` chooses among them by validation)."""
-    model_config: ModelConfig
+    model_config: object   # the network kind's config record
     train: RegressionData | dict
     val: RegressionData | dict
     metadata: CheckpointMetadata
@@ -80,7 +81,8 @@ class TrainingProblem:
 def training_problem(dataset, split, *, model_type: str = "DD", activation: str = "swish", hidden_width: int = 100,
                      hidden_layers: int = 3, ensemble_size: int = DEFAULT_ENSEMBLE_SIZE, delta: bool = True,
                      derivative_source: str | None = None, action_rate: str = "forward_difference",
-                     structure: ModelStructure = PAPER, robot=None, **metadata_fields) -> TrainingProblem:
+                     structure: ModelStructure = PAPER, robot=None, network: str = DEFAULT_NETWORK,
+                     **metadata_fields) -> TrainingProblem:
     """The TrainingProblem of `model_type` ("D" ... "PED"; it decides probabilistic heads and whether
     the ensemble size applies) on `dataset` (a loaded Dataset) with `split` (a Split or {"train",
     "val", "test"} -> trajectory indices). State and action sizes come from the data; derivative
@@ -88,7 +90,8 @@ def training_problem(dataset, split, *, model_type: str = "DD", activation: str 
     predicts and sees from `structure` (default the paper's; `robot` is the nominal model of
     nominal-acceleration inputs, required by them). derivative_source: one source, or a tuple of several:
     then train and val are dicts source -> RegressionData and the metadata names the first (`fit_model`
-    records the chosen one)."""
+    records the chosen one). network: the registered network kind (`trainable.NETWORK_KINDS`), which takes
+    activation, hidden_width and hidden_layers as far as it has them."""
     kind = parse_model_type(model_type)
     sources = tuple(derivative_source) if isinstance(derivative_source, (tuple, list)) else None
     source = sources[0] if sources else (derivative_source or dataset.default_derivative_source)
@@ -111,10 +114,10 @@ def training_problem(dataset, split, *, model_type: str = "DD", activation: str 
     first = dataset.trajectory(0)
     state_dim, action_dim = 2 * first.q.shape[1], first.tau.shape[1]
     input_dim, output_dim = structure.network_sizes(state_dim, action_dim)
-    config = ModelConfig(input_dim=input_dim, output_dim=output_dim, residual=delta, hidden_width=hidden_width,
-                         hidden_layers=hidden_layers, activation=activation,
-                         ensemble_size=ensemble_size if kind.ensemble else 1, probabilistic=kind.probabilistic,
-                         zero_output=structure.grey_box and delta)   # a grey box starts as its plant model
+    config = network_class(network).problem_config(
+        input_dim=input_dim, output_dim=output_dim, residual=delta, ensemble_size=ensemble_size if kind.ensemble else 1,
+        probabilistic=kind.probabilistic, start_at_residual=structure.grey_box and delta,   # a grey box starts as its plant
+        options=dict(activation=activation, hidden_width=hidden_width, hidden_layers=hidden_layers))
     metadata = dataset_metadata(dataset, parts, model_type=model_type, derivative_source=source,
                                 action_rate=action_rate,
                                 structure=None if structure == PAPER else structure.as_dict(), **metadata_fields)

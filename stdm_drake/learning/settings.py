@@ -12,10 +12,11 @@ from stdm_drake.data.dataset import DERIVATIVE_SOURCES
 from stdm_drake import files
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.loss import LOSS_KINDS
+from stdm_drake.learning.trainable import NETWORK_KINDS
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES, parse_model_type
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 
-LOSS_KINDS = ("mse", "mae", "huber")
 def network_weights(ensemble_size: int, hidden_layers: int, hidden_width: int) -> int:
     """About how many weights a network of these sizes holds (its hidden layers' matrices dominate)."""
     return ensemble_size * hidden_layers * hidden_width ** 2
@@ -126,8 +127,9 @@ class TrainSettings:
     grey box: D / DD with inputs "plant_step"); derivative:
     "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto" (the default:
     chosen by validation from alpha_grid, 0 included, with the derivative source; see `derivative_sources`);
-    alpha_grid: alphas tried by "auto" (default TRAIN_ALPHA_GRID); network: activation, hidden_width, hidden_layers,
-    ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
+    alpha_grid: alphas tried by "auto" (default TRAIN_ALPHA_GRID); network: its kind (a name registered in
+    `trainable.NETWORK_KINDS`, default "ensemble_mlp", the paper's MLPs) and its options activation, hidden_width,
+    hidden_layers, ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
     predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's; None: "state" for a
     grey box, "velocity" otherwise) and inputs
     ("nominal_acceleration": [q, v, τ] and the robot's nominal acceleration; "period_acceleration":
@@ -144,6 +146,7 @@ class TrainSettings:
     derivative: typing.Optional[str] = None
     alpha: typing.Union[float, str] = "auto"
     alpha_grid: typing.List[float] = dataclasses.field(default_factory=lambda: list(TRAIN_ALPHA_GRID))
+    network: str = "ensemble_mlp"
     activation: str = "swish"
     hidden_width: int = 100
     hidden_layers: int = 3
@@ -200,7 +203,7 @@ class TrainSettings:
                        state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
                        derivative_source=(None, *DERIVATIVE_SOURCES),
                        action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES,
-                       predicts=(None, *PREDICTS), inputs=INPUT_SETS)
+                       predicts=(None, *PREDICTS), inputs=INPUT_SETS, network=tuple(NETWORK_KINDS))
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "
@@ -291,11 +294,12 @@ class TrainSettings:
 
     def check_alpha(self, given: typing.Collection[str] | None = None) -> None:
         """InputError unless alpha suits the model type: > 0 or "auto" with the derivative loss, no "auto"
-        without it when the user set it (given: the keys set, as in `validate`; None: any "auto" counts);
+        without it when the user set it (given: the keys set, as in `validate`; None: "auto" is the default, so
+        it counts as not set);
         checked on the merged settings: a file's alone may be completed by flags."""
         if self.uses_derivative() and self.alpha != "auto" and not self.alpha > 0:
             raise InputError(f"derivative learning needs --alpha > 0 or --alpha auto, got {self.alpha}")
-        if self.alpha == "auto" and not self.uses_derivative() and (given is None or "alpha" in given):
+        if self.alpha == "auto" and not self.uses_derivative() and given is not None and "alpha" in given:
             raise InputError(f"--alpha auto chooses the derivative-loss weight; model type {self.model} trains "
                              "without it (use DD, PD, DED or PED, or --derivative on)")
 

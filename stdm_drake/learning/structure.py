@@ -99,8 +99,8 @@ class ModelStructure:
     def nominal_features(self, robot, sample_period: float):
         """The nominal-model input of this structure for `robot` at `sample_period` s (None for raw
         inputs): a `NominalAcceleration`, a `PeriodAcceleration` or a `PlantStep`."""
-        from stdm_drake.learning.physics import NominalAcceleration, PeriodAcceleration
-        from stdm_drake.learning.plant_step import PlantStep
+        from stdm_drake.dynamics.physics import NominalAcceleration, PeriodAcceleration
+        from stdm_drake.dynamics.plant_step import PlantStep
         if self.inputs == "raw":
             return None
         if self.inputs == "period_acceleration":

@@ -33,51 +33,35 @@ import torch
 
 from stdm_drake.errors import InputError
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS, CheckpointMetadata, load_checkpoint, save_checkpoint
-from stdm_drake.learning.loss import batch_losses, losses_from_outputs
-from stdm_drake.learning.models import MEMBER_PARAMETERS, EnsembleMLP, ModelConfig
-from stdm_drake.learning.regression import RegressionData, StandardizedData, fit_normalizers, standardize
+from stdm_drake.learning.regression import RegressionData, StandardizedData
 from stdm_drake.learning.settings import TrainingConfig
+from stdm_drake.learning.trainable import TrainableModel, build_network, single_member_config
 
 
-def training_step(model: EnsembleMLP, optimizer: torch.optim.Optimizer, config: TrainingConfig,
+def training_step(model: TrainableModel, optimizer: torch.optim.Optimizer, config: TrainingConfig,
                   data: StandardizedData, indices: torch.Tensor) -> tuple[float, float, float]:
     """One optimizer step on the minibatch data[indices] (indices (E, B): per-member rows).
     Returns the loss terms averaged over members."""
     rates = config.derivative
-    terms = batch_losses(model, config, data.inputs[indices], data.targets[indices],
-                         data.input_rates[indices] if rates else None, data.target_rates[indices] if rates else None)
+    terms = model.loss(config, data.inputs[indices], data.targets[indices],
+                       data.input_rates[indices] if rates else None, data.target_rates[indices] if rates else None)
     optimizer.zero_grad(set_to_none=True)
     terms.objective.backward()
     optimizer.step()
     return terms.means()
 
 
-@torch.no_grad()
-def validation_scores(model: EnsembleMLP, config: TrainingConfig, data: StandardizedData) -> dict:
-    """Validation loss terms (same formula as training, averaged over members) and per-member
-    standardized MSE of the state (the selection criterion), (E,) float64."""
-    if config.derivative and data.input_rates is not None:
-        outputs, tangents = model.normalized_outputs_with_tangent(data.inputs, data.input_rates)
-    else:
-        outputs, tangents = model.normalized_outputs(data.inputs), None
-    total, state_term, derivative_term = losses_from_outputs(model, config, outputs, tangents, data.targets,
-                                                             data.target_rates).means()
-    mean, _ = model.split_head(outputs)
-    member_mse = ((mean - data.targets) ** 2).mean(dim=(1, 2)).double()
-    return dict(loss=total, state=state_term, derivative=derivative_term, member_mse=member_mse)
-
-
 @dataclasses.dataclass
 class TrainResult:
     """A trained model (each member at its best validation epoch) and its learning curves."""
-    model: EnsembleMLP
+    model: TrainableModel
     history: dict
     best_epochs: list
     best_scores: list
     epochs_run: int
     stopped_early: bool
     member_val_mse: list = dataclasses.field(default_factory=list)  # per validation row: (E,) standardized MSE
-    naive: EnsembleMLP | None = None   # an alpha grid's alpha = 0 member (naive training), beside the chosen one
+    naive: TrainableModel | None = None   # an alpha grid's alpha = 0 member (naive training), beside the chosen one
 
 
 def _seeds(seed: int) -> tuple[int, int]:
@@ -86,19 +70,19 @@ def _seeds(seed: int) -> tuple[int, int]:
     return int(init_seed % (2 ** 63)), int(data_seed % (2 ** 63))
 
 
-def build_model(model_config: ModelConfig, seed: int) -> EnsembleMLP:
-    """A freshly initialized model (same seed -> same weights)."""
+def build_model(model_config, seed: int) -> TrainableModel:
+    """A freshly initialized network of `model_config`'s kind (same seed -> same weights)."""
     torch.manual_seed(seed)
-    return EnsembleMLP(model_config, generator=torch.Generator().manual_seed(_seeds(seed)[0]))
+    return build_network(model_config, generator=torch.Generator().manual_seed(_seeds(seed)[0]))
 
 
 class Trainer:
-    """Fits one model (an EnsembleMLP of `model_config`) with Adam on minibatches, keeping each member's
+    """Fits one model (a `TrainableModel` of `model_config`'s kind) with Adam on minibatches, keeping each member's
     best weights by validation, in small steps (the shape of mbrl-lib's `ModelTrainer`):
 
     - `train_epoch(tensors, sums)`: one pass over each member's bootstrap rows in a fresh order, the
       loss terms summed into `sums`;
-    - `validation_scores` (module function) for the scores; `keep_best(member_mse)`: each improved
+    - the model's `eval_score` for the scores; `keep_best(member_mse)`: each improved
       member's weights kept;
     - `history_row(...)`: one learning-curve row; `write_checkpoint(finished)`: the best weights and
       everything resuming needs (`resume_state`), atomically; `resume(path)`: continue from that file
@@ -109,7 +93,7 @@ class Trainer:
     Same seed, data and configs -> the same weights, bit for bit.
     """
 
-    def __init__(self, model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+    def __init__(self, model_config, training_config: TrainingConfig, train_data: RegressionData,
                  val_data: RegressionData, *, checkpoint_path=None, checkpoint_every: int = 10,
                  metadata: CheckpointMetadata | dict | None = None):
         train_data.check(model_config, need_rates=training_config.derivative, name="training")
@@ -122,11 +106,11 @@ class Trainer:
         self.fingerprint = hashlib.sha256((train_data.fingerprint() + val_data.fingerprint()).encode()).hexdigest()
         self.model = model = build_model(model_config, training_config.seed)
         if self.grid:  # every member starts from the single model this seed gives
-            single = build_model(dataclasses.replace(model_config, ensemble_size=1), training_config.seed)
+            single = build_model(single_member_config(model_config), training_config.seed)
             with torch.no_grad():
                 for name, value in single.named_parameters():
                     model.get_parameter(name).copy_(value.expand_as(model.get_parameter(name)))
-        fit_normalizers(model, train_data)
+        model.fit_normalizers(train_data)
         # fused: one kernel for all parameters (elementwise, deterministic; about 1 ms less per step on a CPU)
         if training_config.weight_decay > 0:
             self.optimizer = torch.optim.AdamW(model.parameters(), lr=training_config.learning_rate,
@@ -183,7 +167,7 @@ class Trainer:
         """The best weights so far, the curves, the metadata and the resume state to `checkpoint_path`."""
         if self.checkpoint_path is None:
             return
-        best_model = EnsembleMLP(self.model_config).to(next(self.model.parameters()).dtype)
+        best_model = type(self.model)(self.model_config).to(next(self.model.parameters()).dtype)
         best_model.load_state_dict(self.best_weights)
         save_checkpoint(self.checkpoint_path, best_model, training_config=self.config, history=self.history,
                         metadata=self.metadata, resume_state=self.resume_state(finished))
@@ -215,7 +199,7 @@ class Trainer:
         improved = member_mse < self.best_scores
         if bool(improved.any()):
             for name, value in self.model.state_dict().items():
-                if name.split(".")[0] in MEMBER_PARAMETERS:
+                if name.split(".")[0] in self.model.member_parameters:
                     self.best_weights[name][improved] = value.detach()[improved]
                 else:
                     self.best_weights[name] = value.detach().clone()
@@ -240,7 +224,7 @@ class Trainer:
         at the last), checkpointing every `checkpoint_every` epochs and at the end; on_epoch(row) with
         each new history row. Returns each member at its best validation epoch."""
         config = self.config
-        train_tensors, val_tensors = standardize(self.model, self.train_data), standardize(self.model, self.val_data)
+        train_tensors, val_tensors = self.model.standardize(self.train_data), self.model.standardize(self.val_data)
         member_curves = []  # this call's validation rows only (not restored on resume)
         sums, started, last_written = np.zeros(4), time.perf_counter(), self.epoch
         while not self.finished and self.epoch < config.max_epochs and self.since_improvement < config.patience:
@@ -253,7 +237,7 @@ class Trainer:
             if self.epoch % config.validation_interval and self.epoch < config.max_epochs:
                 continue
             self.model.eval()
-            scores = validation_scores(self.model, config, val_tensors)
+            scores = self.model.eval_score(config, val_tensors)
             self.keep_best(scores["member_mse"])
             row = self.history_row(sums[:3] / max(sums[3], 1), scores, time.perf_counter() - started)
             member_curves.append(scores["member_mse"].tolist())
@@ -274,7 +258,7 @@ class Trainer:
                            stopped_early=self.stopped_early, member_val_mse=member_curves)
 
 
-def train_model(model_config: ModelConfig, training_config: TrainingConfig, train_data: RegressionData,
+def train_model(model_config, training_config: TrainingConfig, train_data: RegressionData,
                 val_data: RegressionData, *, checkpoint_path=None, checkpoint_every: int = 10,
                 metadata: CheckpointMetadata | dict | None = None, resume: bool = False,
                 on_epoch: Callable[[dict], None] | None = None) -> TrainResult:

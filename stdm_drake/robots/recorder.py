@@ -38,6 +38,29 @@ def load_visualization_config(path) -> VisualizationConfig:
     return config
 
 
+def recording_visualization(path, recording: bool, options: str = "--html FILE or --meshcat"):
+    """The VisualizationConfig of the YAML at `path` for a recording (None when `path` is None: the recorder's
+    default); InputError when `path` is given but nothing is recorded (`recording` False; `options`: what
+    records, for the message)."""
+    if path is None:
+        return None
+    if not recording:
+        from stdm_drake.errors import InputError
+        raise InputError(f"--visualization configures the Meshcat recording: give {options} too, or leave it out")
+    return load_visualization_config(path)
+
+
+def check_meshcat_allowed(option: str) -> None:
+    """`option` (--html, --meshcat) needs Meshcat's server: refused at once when DRAKE_ALLOW_NETWORK (a list of
+    the services Drake may open, separated by ":"; unset or empty: all) leaves Meshcat out."""
+    import os
+    allowed = os.environ.get("DRAKE_ALLOW_NETWORK", "")
+    if allowed and "meshcat" not in allowed.split(":"):
+        from stdm_drake.errors import InputError
+        raise InputError(f"{option} needs Meshcat, which DRAKE_ALLOW_NETWORK={allowed} turns off; set "
+                         "DRAKE_ALLOW_NETWORK=meshcat (Meshcat serves on this machine only)")
+
+
 class TrajectoryRecorder:
     """Appends joint trajectories q (T+1, n) rad, sampled every `sample_period` s, to one
     Meshcat animation that plays them one after another (with `pause` s of rest between).

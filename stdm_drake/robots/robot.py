@@ -38,7 +38,7 @@ logger = logging.getLogger(__name__)
 class RobotDefaults:
     """The files commands use for a robot when not told otherwise (paths relative to the robot's YAML
     file, or stdm-drake:FOLDER/NAME); an empty one is derived from the robot's model instead (see the
-    README's table of derived settings). excitation: `collect --protocol excitation` ranges;
+    robots guide's table of derived settings, docs/guides/robots.md). excitation: `collect --protocol excitation` ranges;
     excitation_local: reproduce's local excitation data; tracking: `collect --protocol tracking` poses
     and planner; identification_controller: reproduce's identification data; mpc: `mpc` settings."""
     excitation: str = ""
@@ -262,6 +262,11 @@ class Robot:
         if self.num_joints < POSE_DIM:
             raise InputError(f"robot {self.name} has {self.num_joints} arm joints; task-space plans place the tool's "
                              f"position and orientation and need at least {POSE_DIM}: use the excitation protocol")
+
+    def record(self) -> dict:
+        """What a result file records of the robot: its name, config YAML, description file and its sha256."""
+        return dict(name=self.name, config=None if self.config_path is None else str(self.config_path),
+                    model=str(self.model_path), model_sha256=self.model_sha256())
 
     def model_sha256(self) -> str:
         """SHA-256 of the robot description file, stored in every dataset."""

@@ -1,23 +1,36 @@
-"""The identification study (docs/identification.md, its amendment): white-box identification of an affected
-plant (the UR-10 with models/ur10_effects.yaml by default) against the number of training plans and the
-sensor model.
+"""The identification study: white, grey and black boxes of an affected plant (docs/identification.md).
+
+White-box identification of an affected plant (the UR-10 with models/ur10_effects.yaml by default) against
+the number of training plans and the sensor model (design, amendment and results in docs/identification.md,
+fixed before the runs):
+
+    python tools/study.py identification [--quick] [--workers 2] [-o docs/results/identification]
+        [--data out/identification_data] [--robot models/ur10.yaml] [--plant-effects models/ur10_effects.yaml]
+        [--part white|grey|closed|all]
 
 Runs (each at every training size per start pose, validation and test plans fixed):
     A  ideal sensor, the simulation's true q, q̇, q̈ (the goal: torque error <= 1 %, friction within 5 %)
     B  ideal sensor, smoothed derivatives (parallel filtering: what the filter alone costs)
     C  the paper's sensor (controllers/sensor.yaml), smoothed derivatives (the degradation)
 For A and C at the largest size, the identified model's one-step and 20-step errors on the test plans
-beside the physics baselines and the nominal plant. `run_study` does it.
+beside the physics baselines and the nominal plant. `run_study` does it (part "white"; --quick: 1 plan per
+pose on 12 plans); it writes summary.md, summary.csv, results.json (the rows and model errors) and one
+identify report per run (reports/*.json).
 
-Grey box against black box (`run_grey_box`, on both sensors' data at the largest size, the same split):
-D and DD (`train`'s black boxes), G (grey box on the description's plant step), G-id and GD-id (grey box on
-the plant identified from the same training plans: run A's for the ideal sensor, C's for the paper's),
-`SEEDS` seeds each; one-step and 20-step q MSE on the test plans, each grey box's ratio to D paired by seed
-with a 95 % interval, at every training size of the profile (run 3: each grey box on the robot identified from its
-own plans). `write_white_box` and `write_grey_box` write their files, `report_section` adds them (and the closed
-loop's section comes from `identification_closed_loop`) to a report: `tools/identification_study.py` and `stdm-drake reproduce
---plant-effects` (its "system identification" stage) call them.
+Grey box against black box (`run_grey_box`, part "grey", after "white", whose results.json it reads; on both
+sensors' data, the same split): D and DD (`train`'s black boxes), G (grey box on the description's plant
+step), G-id and GD-id (grey box on the plant identified from the same training plans: run A's for the ideal
+sensor, C's for the paper's), `SEEDS` seeds each (300 epochs; --grey-models for others, e.g. run 1's D DD G
+G-id GD-id); one-step and 20-step q MSE on the test plans, each grey box's ratio to D paired by seed with a
+95 % interval, at every training size of the profile (--grey-sizes; run 3: each grey box on the robot
+identified from its own plans); writes grey_box.md and grey_box.json (--grey-output). Part "closed" (after
+"white"): the tuned closed loop at the largest size (`identification_closed_loop`): MPC with the nominal
+plant, the true plant, the identified robot, D and G-id-state (each seed), each model's setting chosen on
+the validation plans, then the test plans; writes closed_loop.md and closed_loop.json. Datasets and
+checkpoints are kept in --data and reused.
 """
+import argparse
+import json
 import pathlib
 
 import numpy as np
@@ -52,7 +65,7 @@ def dataset(folder: pathlib.Path, sensor: str, effects, plans: int, robot: Robot
     """The affected plant's tracking data (dithered PID sized from its inertia) with `sensor`, reused when
     collected with the same settings."""
     from stdm_drake.experiments.jobs import ensure_dataset
-    from stdm_drake.experiments.reality_gap import COLLECTION_CONTROLLER
+    from studies.reality_gap import COLLECTION_CONTROLLER
     from stdm_drake.paths import CONTROLLERS_DIR
     return ensure_dataset("tracking", plans, DATA_SEED, folder, progress=False, name=f"identification_{sensor}",
                           robot=robot, plant_effects=effects, workers=workers,
@@ -79,7 +92,7 @@ def run_study(profile: dict, folder: pathlib.Path, robot: Robot, effects, worker
     errors of A and C at the largest size."""
     from stdm_drake.data.dataset import split_trajectories
     from stdm_drake.identification.identify import IdentifySettings, identify
-    from stdm_drake.experiments.reality_gap import start_poses
+    from studies.reality_gap import start_poses
     folder.mkdir(parents=True, exist_ok=True)
     plans = start_poses(robot) * (max(profile["train_sizes"]) + profile["val"] + profile["test"])
     datasets = {sensor: dataset(folder, sensor, effects, plans, robot, workers) for sensor in SENSORS}
@@ -142,7 +155,7 @@ def grey_box_folders(profile: dict, folder: pathlib.Path, robot: Robot, white_bo
     plans (`white_box`: run_study's results). Returns {(sensor, name, size): folder}."""
     from stdm_drake.cluster import RunnerConfig, job_pool
     from stdm_drake.errors import InputError
-    from stdm_drake.experiments.reality_gap import train
+    from studies.reality_gap import train
     config = None if robot.config_path is None else str(robot.config_path)
     jobs = {}
     for sensor, data in white_box["datasets"].items():
@@ -153,11 +166,10 @@ def grey_box_folders(profile: dict, folder: pathlib.Path, robot: Robot, white_bo
                                  f"{sensor} sensor's data (the white box ran at {profile['train_sizes']})")
             for name in names:
                 model_type, physics, predicts = GREY_BOX_MODELS[name]
-                extra = (("--physics", identified) if physics else ()) + (
-                    ("--predicts", predicts) if model_type.startswith("G") else ())   # (D, DD: train's default)
                 jobs[(sensor, name, size)] = (data["path"], model_type, (size, profile["val"], profile["test"]),
                                               profile["seeds"], profile["epochs"], str(folder / "runs" / f"{sensor}_{name}"),
-                                              config, extra)
+                                              config, identified if physics else None,
+                                              predicts if model_type.startswith("G") else None)   # (D, DD: train's)
     with job_pool(RunnerConfig(workers=workers)) as pool:
         futures = {key: pool.submit(train, *call) for key, call in jobs.items()}
         return {key: future.result() for key, future in futures.items()}
@@ -193,17 +205,16 @@ def grey_box_errors(dataset_path: str, folders: dict, seeds: int, robot: Robot, 
     paired by seed."""
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.data.inspect import noise_floor
-    from stdm_drake.identification.identified import load_identified
+    from stdm_drake.dynamics.model_files import load_model
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
-    from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.stats import paired_ratio
     data = load_dataset(dataset_path)
-    learned = {name: [LearnedModel(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot=robot,
-                                   name=f"{name} seed {seed}") for seed in range(seeds)]
+    learned = {name: [load_model(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot,
+                                 name=f"{name} seed {seed}") for seed in range(seeds)]
                for name, folder in folders.items()}
     test = next(iter(learned.values()))[0].checkpoint.split_indices(data, "test")
     fixed = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot)
-    fixed.append(load_identified(identified_file).model(robot))
+    fixed.append(load_model(identified_file, robot))
     models = fixed + [model for group in learned.values() for model in group]
     rows = compare_with_baselines(models, data.transitions(list(test)),
                                   trajectory_rollout_data(data, test, ROLLOUT_STEPS), noise_floor=noise_floor(data, test))
@@ -328,28 +339,45 @@ def write_grey_box(grey: dict, out: pathlib.Path, quick: bool, stem: str = "grey
     return grey
 
 
-def report_section(report, white: dict, grey: dict | None) -> None:
-    """The study in a `Report`: the white box's table (torque errors and friction against the number of
-    training plans and the sensor), its identified models' open-loop errors and the grey-box tables (per sensor
-    and training size); `identification_closed_loop.report_section` adds the closed loop."""
-    report.heading("System identification: white box, grey box and black box on the affected plant")
-    report.text("Design: docs/identification.md. White box: `identify` (physically consistent fit, settings chosen "
-                "on validation plans) at each number of training plans per start pose, with the simulation's true "
-                "derivatives (A), smoothed ones on the ideal sensor (B) and on the paper's sensor (C). Torque error: "
-                "RMS error / RMS torque on the test plans; friction: the largest relative error of any joint's "
-                "viscous and Coulomb coefficient against the plant's.")
-    report.table(*summary_rows(white))
-    for run, rows in white["model_errors"].items():
-        report.text(f"Run {run}'s identified robot on the test plans (one-step q MSE / q MSE at step {ROLLOUT_STEPS}): "
-                    + "; ".join(f"{row['model']} {row['one_step_q']:.3g} / {row['q_at_20']:.3g}" for row in rows) + ".")
-    if grey is not None:
-        report.text("Grey box against black box (same data and split; D / model paired by seed, 95 % interval; above "
-                    "1 the model predicts better than D): G-id-state / GD-id-state are grey boxes (G; its derivative-"
-                    "trained twin GD) on the robot identified from the same training plans, predicting the next state "
-                    "(G on the description's plant step and the next-velocity structure: docs/identification.md, "
-                    "runs 1 and 2).")
-        for sensor, by_size in grey["sensors"].items():
-            for size, result in by_size.items():
-                report.text(f"{sensor} sensor, {size} training plans per pose: {len(result['test_plans'])} test plans, "
-                            f"{grey['seeds']} seeds per type.")
-                report.table(GREY_BOX_HEADER, grey_box_rows(result))
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from studies.affected_plant import add_affected_plant_arguments
+    add_affected_plant_arguments(parser, "identification", quick_minutes=2)
+    parser.add_argument("--part", choices=("white", "grey", "closed", "all"), default="all",
+                        help="white box only, grey box only or the closed loop only (both read the white box's "
+                             "results.json), or all three")
+    parser.add_argument("--grey-models", nargs="+", choices=tuple(GREY_BOX_MODELS), metavar="NAME",
+                        help="the grey-box part's models (D always; default: the profile's: "
+                             f"{' '.join(FULL['grey_models'])}); e.g. D G-id-state GD-id-state for run 2")
+    parser.add_argument("--grey-sizes", nargs="+", type=int, metavar="N",
+                        help="the grey-box part's training plans per pose (default: the profile's: "
+                             f"{' '.join(map(str, FULL['grey_sizes']))}; each one the white box ran at)")
+    parser.add_argument("--grey-output", default="grey_box", metavar="STEM",
+                        help="the grey-box part's file names, STEM.json and STEM.md (default grey_box)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from studies import identification_closed_loop as closed_loop
+    from studies.affected_plant import robot_and_effects
+    robot, effects = robot_and_effects(args)
+    profile = dict(QUICK if args.quick else FULL)
+    if args.grey_models:
+        profile["grey_models"] = tuple(dict.fromkeys(["D", *args.grey_models]))
+    if args.grey_sizes:
+        profile["grey_sizes"] = tuple(args.grey_sizes)
+    say = lambda line: print(line, flush=True)  # noqa: E731
+    out = args.output
+    if args.part in ("white", "all"):
+        write_white_box(run_study(profile, args.data, robot, effects, workers=args.workers, say=say), out, args.quick)
+        print((out / "summary.md").read_text())
+    if args.part in ("grey", "all"):
+        white = json.loads((out / "results.json").read_text())
+        grey = write_grey_box(run_grey_box(profile, args.data, robot, white, workers=args.workers, say=say),
+                              out, args.quick, args.grey_output)
+        print(grey_box_table(grey))
+    if args.part in ("closed", "all"):
+        white = json.loads((out / "results.json").read_text())
+        closed = closed_loop.write_closed_loop(closed_loop.run_closed_loop(profile, args.data, robot, white,
+                                                                           workers=args.workers, say=say), out, args.quick)
+        print(closed_loop.closed_loop_table(closed))
+    print(f"wrote {out}")
+    return 0

@@ -8,19 +8,28 @@ the two label-matched controls D-2x (twice the training trajectories) and D-half
 trajectories sampled at half the period, run twice per period with the torque held); the gate: the
 cell's naive models beat the physics-free baselines by 2x. One cell swaps the paper's model class for
 the default structure on the paper-literal data, so the claim is also tested on models that learn.
-`run_study` runs it on the local pool or a Ray cluster (`stdm_drake.cluster`);
-`tools/decisive_experiment.py` is its command line.
+`run_study` runs it on the local pool or a Ray cluster (`stdm_drake.cluster`).
+
+    python tools/study.py decisive [--quick] [--resume] [--workers 2] [--backend local|ray]
+        [--ray-address HOST:PORT] [-o docs/results/decisive] [--data out/decisive_data]
+
+--resume keeps the rows of the output folder's results.json when its design (seeds, split, alpha,
+horizon) is this run's, and trains only the models it lacks (new cells or controls).
 """
 from __future__ import annotations
 
+import argparse
 import concurrent.futures
 import dataclasses
+import json
 import math
 import pathlib
+import sys
 import time
 
 import numpy as np
 
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 HOME = [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]
 GLOBAL_LOWER, GLOBAL_UPPER = [-3.1, -2.6, -2.6, -3.1, -3.1, -3.1], [3.1, -0.5, 2.6, 3.1, 3.1, 3.1]
 SCALED = [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015]           # excitation.yaml's per-joint ranges (N m)
@@ -143,7 +152,7 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
 
     from stdm_drake.cluster import file_on_this_node
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.dynamics_model import HeldInputSubsteps
+    from stdm_drake.dynamics.model import HeldInputSubsteps
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.settings import TrainingConfig
@@ -245,6 +254,11 @@ def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, i
     kept and their models not trained again. Returns {"summary", "runs", "seconds", "reused"}."""
     from stdm_drake.cluster import job_pool, shared_file, task_error
     from stdm_drake.files import atomic_path
+    if runner.backend == "ray":   # a cluster's workers have the package, not tools/studies: this module's
+        from stdm_drake.cluster import import_ray   # functions and classes travel with the tasks, by value
+        import_ray()
+        import ray.cloudpickle
+        ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     train, validation, test = sizes
     count = 2 * train + validation + test
     pathlib.Path(data).mkdir(parents=True, exist_ok=True)
@@ -295,3 +309,78 @@ def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, i
     rows.sort(key=lambda r: (names.index(r.cell), r.data_seed, r.init, order.index(r.model)))
     return dict(summary=summarize(cells, rows), runs=rows, seconds=round(time.perf_counter() - started, 1),
                 reused=len(rows) - len(jobs))
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from stdm_drake.cluster import add_runner_arguments
+    parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "decisive")
+    parser.add_argument("--data", type=pathlib.Path, default=ROOT / "out" / "decisive_data")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--quick", action="store_true",
+                        help="the literal and learned-structure cells, 2 data seeds x 2 inits, 50 trajectories "
+                             "(pipeline check, ~2 min)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the output folder's rows of the same design; train only the missing models")
+    add_runner_arguments(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from stdm_drake.cluster import runner_config_from_args
+    from stdm_drake.files import json_default, rows_csv, write_text_atomic
+    runner = runner_config_from_args(args)
+    cells, data_seeds, inits, sizes = CELLS, 3, 5, (TRAIN, VALIDATION, TEST)
+    if args.quick:
+        cells, data_seeds, inits, sizes = (CELLS[0], CELLS[-1]), 2, 2, (10, 10, 20)
+    design = dict(quick=args.quick, data_seeds=data_seeds, inits=inits,
+                  split=dict(zip(("train", "validation", "test"), sizes)), alpha=ALPHA, horizon=HORIZON)
+    done = earlier_rows(args.output / "results.json", design, cells) if args.resume else []
+    study = run_study(args.data, runner, cells=cells, data_seeds=data_seeds, inits=inits, sizes=sizes, done=done,
+                      progress=lambda text: print(text, flush=True))
+    summary, rows = study["summary"], study["runs"]
+    args.output.mkdir(parents=True, exist_ok=True)
+    ratios = ["D_over_DD"] + [f"{control}_over_DD" for control in CONTROLS]
+    flat = [dict(cell=s["cell"], switch=s["switch"], structure=s["structure"], naive_vs_euler_q=s["naive_vs_euler_q"],
+                 naive_vs_unchanged_v=s["naive_vs_unchanged_v"], gated=s["gated"], verdict=s["verdict"],
+                 **{f"{which} {label} {part}": s[which][label][part] for which in ratios if which in s
+                    for _, label in ENDPOINTS for part in ("ratio", "low", "high")}) for s in summary]
+    write_text_atomic(args.output / "runs.csv", rows_csv([dataclasses.asdict(row) for row in rows]))
+    write_text_atomic(args.output / "cells.csv", rows_csv(flat))
+    write_text_atomic(args.output / "results.json", json.dumps(dict(
+        written_by="tools/study.py decisive", **design, seconds=study["seconds"],
+        train_seconds_total=round(sum(row.train_seconds for row in rows), 1),
+        reused_rows=study["reused"], cells=[dataclasses.asdict(c) for c in cells], summary=summary, runs=rows),
+        indent=2, default=json_default) + "\n")
+    for s in summary:
+        print(f"\n{s['cell']} ({s['switch']}): naive vs Euler q {s['naive_vs_euler_q']:.3g}x, vs 'v unchanged' "
+              f"{s['naive_vs_unchanged_v']:.3g}x -> {s['verdict']}")
+        for _, label in ENDPOINTS:
+            print(f"  {label:>14}: " + "   ".join(
+                f"{which[:-len('_over_DD')]}/DD {s[which][label]['ratio']:.3g}x [{s[which][label]['low']:.3g}, "
+                f"{s[which][label]['high']:.3g}]" for which in ratios if which in s))
+    print(f"\n{len(rows)} models ({study['reused']} kept from the earlier run) in {study['seconds']:.0f} s "
+          f"-> {args.output}")
+    return 0
+
+
+def earlier_rows(path: pathlib.Path, design: dict, cells) -> list[DecisiveRun]:
+    """The rows of an earlier results.json of the same design, for --resume (none if it does not exist)."""
+    from stdm_drake.errors import InputError
+    if not path.exists():
+        return []
+    try:
+        earlier = json.loads(path.read_text())
+    except (OSError, ValueError) as error:
+        raise InputError(f"--resume: cannot read {path}: {error}") from None
+    differs = [name for name, value in design.items() if earlier.get(name) != value]
+    if differs:
+        raise InputError(f"--resume: {path} has another design ({', '.join(differs)} differ); "
+                         "choose another -o or leave out --resume")
+    periods = {cell.name: cell.sample_period for cell in cells}
+    rows = [row for row in earlier.get("runs", []) if row.get("cell") in periods]
+    for row in rows:   # rows written before D-half existed trained at their cell's own period
+        row.setdefault("train_sample_period", periods[row["cell"]])
+    try:
+        return [DecisiveRun(**row) for row in rows]
+    except TypeError as error:
+        raise InputError(f"--resume: {path} has runs of another format ({error}); choose another -o or leave "
+                         "out --resume") from None

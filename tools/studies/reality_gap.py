@@ -1,17 +1,22 @@
-"""The reality-gap experiment (docs/reality_gap.md, run 2): learned models against the nominal model on
-an affected plant (the UR-10 with models/ur10_effects.yaml by default; any robot and effects file).
+"""The reality-gap experiment: learned models against the nominal model on an affected plant (docs/reality_gap.md).
 
-Part 1 (closed loop): D and DD models (`train`'s defaults) on dithered-PID tracking data of the affected
-plant (gains and dither sized from its inertia); every prediction model's MPC setting (effort-weight
+Run 2 of docs/reality_gap.md, on the UR-10 with models/ur10_effects.yaml by default (any robot and effects file):
+
+    python tools/study.py reality-gap [--quick] [--workers 2] [-o docs/results/reality_gap]
+        [--data out/reality_gap_data] [--robot models/ur10.yaml] [--plant-effects models/ur10_effects.yaml]
+
+Part 1 (closed loop): D and DD models (`train`'s defaults, 5 seeds) on dithered-PID tracking data of the
+affected plant (gains and dither sized from its inertia); every prediction model's MPC setting (effort-weight
 scale, observer gain) chosen from one grid on the validation plans; then MPC with the nominal plant, the
 true plant and each learned model on the test plans, with the tuned and the shipped settings; the torque
 Jacobian of each model against the true plant's. Part 2 (open loop per effect): the same per plant with
-one effect of the file at a time (friction, rotor inertia, payload, mass scales) and all of them.
+one effect of the file at a time (friction, rotor inertia, payload, mass scales) and all of them: one-step
+and 20/100-step errors of the nominal model, the learned models and the physics-free baselines. Datasets
+and checkpoints are kept in --data and reused by a rerun.
 
-`run_experiment` does it; `reality_gap_report.write_results` writes its files and figures and
-`reality_gap_report.report_section` adds it to a report: `tools/reality_gap.py` and `stdm-drake
-reproduce --plant-effects` (its "reality gap" stage) call them.
+`run_experiment` does it; `reality_gap_report.write_results` writes its files and figures.
 """
+import argparse
 import dataclasses
 import math
 import pathlib
@@ -74,33 +79,32 @@ def dataset(folder: pathlib.Path, name: str, effects, plans: int, seed: int, rob
 
 
 def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: int, folder: str,
-          robot_config: str | None = None, extra: tuple = ()) -> str:
-    """`stdm-drake train` of one model type, every seed (in a pool worker); the run folder: `folder` with
-    the split, the epochs and the first 12 hex digits of the dataset's SHA-256 appended (other data or
-    settings get new models). A folder where `train` finished every seed is reused; an interrupted one is
-    resumed (`train --resume`: the same weights as an uninterrupted run). robot_config: the
-    robot's YAML (None: the UR-10 preset); extra: more `train` arguments (the folder name must tell them
-    apart, e.g. a grey box's --physics)."""
-    from stdm_drake.cli import main
+          robot_config: str | None = None, physics: str | None = None, predicts: str | None = None) -> str:
+    """`train` (the library's `learning.train_job`) of one model type, every seed (in a pool worker); the run
+    folder: `folder` with the split, the epochs and the first 12 hex digits of the dataset's SHA-256 appended
+    (other data or settings get new models). A folder where `train` finished every seed is reused; an
+    interrupted one is resumed (the same weights as an uninterrupted run). robot_config: the robot's YAML
+    (None: the dataset's shipped preset); physics: a grey box's identified robot, predicts: its structure's
+    (the folder name must tell such settings apart)."""
     from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.learning.settings import TrainSettings
+    from stdm_drake.learning.train_job import TrainJob, train_job
     sha = load_dataset(dataset_path).sha256[:12]
     folder = pathlib.Path(f"{folder}_{'-'.join(map(str, split))}_e{epochs}_{sha}")
     if _finished(folder, seeds):
         return str(folder)
-    from stdm_drake.learning.settings import TrainSettings
     train_count, val_count, test_count = split
-    targets = (["--derivative-source", "true", "--action-rate", "zero_order_hold", "--alpha", "1e-3"]   # (the
-               # derivative loss's; alpha: the paper's number, as in docs/reality_gap.md's runs)
-               if TrainSettings(model=model_type).uses_derivative() else [])
-    code = main(["train", dataset_path, "--model", model_type, "--train", str(train_count), "--val", str(val_count),
-                 "--test", str(test_count), "--per-group", "on", *targets, "--epochs", str(epochs),
-                 "--seeds", *map(str, range(seeds)),
-                 "--quiet", "--force", "-o", str(folder), *(["--robot", str(robot_config)] if robot_config else []),
-                 *(["--resume"] if any(folder.glob("seed*/checkpoint.pt")) else []), *extra])
-    from stdm_drake.interrupts import reraise_exit_status
-    reraise_exit_status(code)   # Ctrl-C or SIGTERM while it ran in this process: the caller stops too
-    if code != 0:
-        raise RuntimeError(f"train {model_type} on {dataset_path} failed ({code})")
+    given = dict(model=model_type, train=train_count, val=val_count, test=test_count, per_group="on", epochs=epochs,
+                 seeds=list(range(seeds)))
+    if predicts is not None:
+        given["predicts"] = predicts
+    if TrainSettings(model=model_type).uses_derivative():   # the derivative loss's targets; alpha: the paper's
+        given.update(derivative_source="true", action_rate="zero_order_hold", alpha=1e-3)   # (docs/reality_gap.md)
+    train_job(TrainJob(dataset=pathlib.Path(dataset_path), output=folder, settings=TrainSettings(**given),
+                       robot=None if robot_config is None else pathlib.Path(robot_config),
+                       physics=None if physics is None else pathlib.Path(physics),
+                       resume=any(folder.glob("seed*/checkpoint.pt")), force=True, progress=False,
+                       given=frozenset(given)))
     return str(folder)
 
 
@@ -207,11 +211,11 @@ def torque_jacobian_errors(dataset_path: str, folders: dict, seeds: int, robot: 
     """Relative Frobenius error ||B_model - B_true|| / ||B_true|| (median over `count` test transitions) of
     the nominal plant and every learned model, B = d x_{k+1} / d u_k, the torque Jacobian iLQR uses."""
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import PlantModel
+    from stdm_drake.dynamics.model_files import load_model
+    from stdm_drake.dynamics.physics import PlantModel
     from stdm_drake.robots.plant import PlantConfig
     data = load_dataset(dataset_path)
-    first = LearnedModel(pathlib.Path(folders[TYPES[0]]) / "seed0" / "checkpoint.pt", robot=robot)
+    first = load_model(pathlib.Path(folders[TYPES[0]]) / "seed0" / "checkpoint.pt", robot)
     test = first.checkpoint.split_indices(data, "test")
     transitions = data.transitions(list(test))
     rows = np.random.default_rng(0).choice(len(transitions.state), size=min(count, len(transitions.state)),
@@ -228,7 +232,7 @@ def torque_jacobian_errors(dataset_path: str, folders: dict, seeds: int, robot: 
 
     result = [dict(model="plant", relative_error=error(PlantModel(data.sample_period, robot=robot)))]
     for model_type, folder in folders.items():
-        values = [error(LearnedModel(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot=robot))
+        values = [error(load_model(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot))
                   for seed in range(seeds)]
         result.append(dict(model=model_type, relative_error=float(np.median(values)), per_seed=values))
     return result
@@ -239,10 +243,10 @@ def open_loop_rows(name: str, dataset_path: str, folders: dict, seeds: int, robo
     type (mean over seeds; a learned type 'captures' the effect at a horizon when every seed beats the
     nominal model there)."""
     from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.dynamics.model_files import load_model
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
-    from stdm_drake.learning.learned_model import LearnedModel
     data = load_dataset(dataset_path)
-    learned = {model_type: [LearnedModel(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot=robot)
+    learned = {model_type: [load_model(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot)
                             for seed in range(seeds)] for model_type, folder in folders.items()}
     test = learned[TYPES[0]][0].checkpoint.split_indices(data, "test")
     baselines = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot)
@@ -303,9 +307,9 @@ def run_experiment(design: dict, data_folder: pathlib.Path, robot: Robot, effect
     plants = {name: dataset(data_folder, f"open_loop_{name}", plant, poses * (o_train + o_val + o_test), 1, robot,
                             workers) for name, plant in effect_plants(effects, robot).items()}
     say(f"reality gap: datasets in {time.perf_counter() - started:.0f} s")
-    config = None if robot.config_path is None else str(robot.config_path)
-    if config is None and robot.name != "ur10":
+    if robot.config_path is None:   # (the training jobs load it from there)
         raise InputError(f"reality gap: robot {robot.name} must be loaded from its config file (load_robot)")
+    config = str(robot.config_path)
     trainings = [(str(closed.path), model_type, (train_count, val_count, test_count), seeds, epochs,
                   str(data_folder / "runs" / f"closed_loop_{model_type}"), config) for model_type in TYPES]
     trainings += [(str(data.path), model_type, (o_train, o_val, o_test), o_seeds, o_epochs,
@@ -374,3 +378,32 @@ def verdict(summary: list, goal: float = 2.0) -> dict:
             f"steps outside the limits in {best['models'] * best['plans']} runs; goal {reading}")
     return dict(best=best["model"], ratio=ratio["ratio"], low=ratio["low"], high=ratio["high"],
                 violations=best["limit_violations"], met=met, text=text)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from studies.affected_plant import add_affected_plant_arguments
+    add_affected_plant_arguments(parser, "reality_gap", quick_minutes=1)
+
+
+def run(args: argparse.Namespace) -> int:
+    from studies.affected_plant import robot_and_effects
+    from studies.reality_gap_report import write_results
+    robot, effects = robot_and_effects(args)
+    results = run_experiment(QUICK if args.quick else FULL, args.data, robot, effects, workers=args.workers,
+                             say=lambda line: print(line, flush=True))
+    results = dict(written_by="tools/study.py reality-gap", quick=args.quick, **results)
+    write_results(results, args.output)
+    for row in results["closed_loop"]:
+        ratio = row["nominal_over_model"]
+        interval = f" [{ratio['low']:.3g}, {ratio['high']:.3g}]" if "low" in ratio else ""
+        print(f"{row['setting']:>7} {row['model']:>10} {row['mpc_settings']}: q MSE {row['q_mse']:.3g} rad², "
+              f"nominal / model {ratio['ratio']:.3g}x{interval}, violations {row['limit_violations']}, "
+              f"solve {row['solve_ms_mean']:.1f} ms")
+    print(results["verdict"]["text"])
+    for row in results["torque_jacobian"]:
+        print(f"torque Jacobian B, {row['model']}: median relative error {row['relative_error']:.3g}")
+    for row in results["open_loop"]:
+        print(f"{row['plant']:>14} {row['model']:>38}: one-step q {row['one_step_q']:.3g}, q@20 "
+              f"{row['open_loop_q_20']:.3g}, q@end {row['open_loop_q_end']:.3g}")
+    print(f"-> {args.output} in {results['seconds']:.0f} s")
+    return 0

@@ -2,12 +2,12 @@
 the nominal plant, the true plant (an oracle), the identified robot and every seed of the learned models (D and
 the grey box G-id-state), each prediction model's setting chosen on the validation plans; does the grey box
 track with the lowest error of all models a user has? `run_closed_loop` runs it, `write_closed_loop` writes
-closed_loop.json and .md, `report_section` adds it to a report (after `identification_study.report_section`)."""
+closed_loop.json and .md (`python tools/study.py identification --part closed`)."""
 import pathlib
 
 import numpy as np
 
-from stdm_drake.experiments.identification_study import grey_box_folders, interval_text
+from studies.identification import grey_box_folders, interval_text
 from stdm_drake.robots.robot import Robot
 
 # the closed loop's question (issue 23): does this model track with the lowest error of all models a user has
@@ -24,7 +24,7 @@ def run_closed_loop(profile: dict, folder: pathlib.Path, robot: Robot, white_box
     `closed_loop_summary`."""
     import time
     from stdm_drake.cluster import RunnerConfig, job_pool
-    from stdm_drake.experiments.reality_gap import choose_settings, closed_loop_group
+    from studies.reality_gap import choose_settings, closed_loop_group
     started = time.perf_counter()
     size, seeds, grid = max(profile["grey_sizes"]), profile["seeds"], tuple(map(tuple, profile["closed_loop_grid"]))
     names = tuple(dict.fromkeys(["D", *profile["closed_loop_models"]]))
@@ -71,7 +71,7 @@ def closed_loop_summary(runs: list, names, seeds: int, target: str = CLOSED_LOOP
     target's seeds (a learned model paired seed with seed; above 1: the target tracks better)."""
     import math
     from stdm_drake.closed_loop.tuning import finite_mse
-    from stdm_drake.experiments.reality_gap import seed_interval
+    from studies.reality_gap import seed_interval
     labels = ["plant", "true-plant", "identified", *names]
 
     def members(label):
@@ -159,14 +159,3 @@ def write_closed_loop(closed: dict, out: pathlib.Path, quick: bool, stem: str = 
     write_text_atomic(out / f"{stem}.json", json.dumps(closed, indent=1, default=json_default) + "\n")
     write_text_atomic(out / f"{stem}.md", closed_loop_table(closed) + "\n")
     return closed
-
-
-def report_section(report, closed: dict) -> None:
-    """The tuned closed loop in a `Report`: per sensor its table and the goal's verdict."""
-    report.text(f"Tuned closed loop (MPC on the affected plant, each prediction model's setting chosen on the "
-                f"validation plans; model / {closed['target']}: the ratio of q MSE paired by plan and seed, 95 % "
-                f"interval over {closed['seeds']} seeds; above 1 the target tracks better; true-plant is an oracle).")
-    for sensor, result in closed["sensors"].items():
-        report.text(f"{sensor} sensor's models, {closed['train_per_pose']} training plans per pose:")
-        report.table(CLOSED_LOOP_HEADER, closed_loop_rows(result))
-        report.text(f"Verdict: {result['verdict']['text']}.")

@@ -2,7 +2,7 @@
 `learning.structure`, plant-step inputs)."""
 import numpy as np
 
-from stdm_drake.learning.physics import PlantModel, central_difference_jacobians, central_difference_rates
+from stdm_drake.dynamics.physics import PlantModel, central_difference_jacobians, central_difference_rates
 
 
 class PlantStep:

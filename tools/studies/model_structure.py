@@ -1,10 +1,10 @@
-"""What each modelling choice buys, on the UR-10's default excitation protocol, beside the physics baselines.
+"""The structure study: what each modelling choice buys on the UR-10's default excitation protocol.
 
-Design and success criteria: docs/learning.md, "Models that learn: the structure study" (written before
-the first run). Training data: `collect --protocol excitation` with the default seed 0; the first 40
-(or 160) trajectories of a seed-0 split train, 40 validate (early stopping, the only selection); every
-number is measured on a second dataset of the same protocol collected with a seed never used before
-(HELD_OUT_SEED), all of its trajectories. Each configuration is trained from SEEDS initializations
+Each choice beside the physics baselines. Design and success criteria: docs/learning.md, "Models that learn:
+the structure study" (written before the first run). Training data: `collect --protocol excitation` with the
+default seed 0; the first 40 (or 160) trajectories of a seed-0 split train, 40 validate (early stopping, the
+only selection); every number is measured on a second dataset of the same protocol collected with a seed never
+used before (HELD_OUT_SEED), all of its trajectories. Each configuration is trained from SEEDS initializations
 (3 x 100 swish, Adam 1e-3, batch 64, <= 500 epochs, patience 50: `stdm-drake train`'s defaults).
 
 Configurations (model D unless named; "state" = the network predicts x_{t+1} - x_t, "velocity" =
@@ -22,25 +22,19 @@ Per run: one-step q and v MSE, open-loop q MSE at step 20, and the ratios to the
 baselines (Euler step for q, "v unchanged" for v, "stays put" for open-loop q). Paired comparisons
 (same initialization seed) with 95 % intervals: each choice against the configuration it changes.
 
-Usage: python tools/model_structure_study.py [--quick] [--seeds N] [--workers 2] [-o docs/results/model_structure]
+    python tools/study.py model-structure [--quick] [--seeds N] [--workers 2] [-o docs/results/model_structure]
 """
 import argparse
 import json
-import os
 import pathlib
-import sys
 import time
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-
-from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
-from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
-from stdm_drake.stats import paired_ratio  # noqa: E402
-from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
+from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.files import rows_csv, write_text_atomic
+from stdm_drake.stats import paired_ratio
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot
 
 HELD_OUT_SEED = 20261124          # never used for anything else; fixed before the first run
 TRAIN_SEED = 0                    # the default collection seed
@@ -67,13 +61,10 @@ ENDPOINTS = (("one_step_q", "one-step q"), ("one_step_v", "one-step v"), ("open_
 
 
 def collect(path: pathlib.Path, seed: int, count: int | None) -> None:
-    from stdm_drake.cli import main
+    """`collect --protocol excitation --seed SEED [--count COUNT]` (the library's job) into `path` unless it exists."""
+    from stdm_drake.collection.collect_job import CollectJob, collect_job
     if not path.exists():
-        arguments = ["collect", "--protocol", "excitation", "--seed", str(seed), "-o", str(path), "--quiet"]
-        if count is not None:
-            arguments += ["--count", str(count)]
-        if main(arguments) != 0:
-            raise SystemExit(f"collecting {path} failed")
+        collect_job(CollectJob(output=path, protocol="excitation", seed=seed, count=count, progress=False))
 
 
 def problem(train_path, name: str):
@@ -94,7 +85,7 @@ def contact_free_trajectories(path) -> tuple[list[int], list[int]]:
     between two samples): every recorded step is replayed on the plant with and without self-contact,
     and a difference above 1e-6 rad/s in any velocity marks contact."""
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.physics import PlantModel
+    from stdm_drake.dynamics.physics import PlantModel
     from stdm_drake.robots.plant import PlantConfig
     dataset = load_dataset(path)
     free = PlantModel(dataset.sample_period, PlantConfig(self_collision=False), robot=load_robot(UR10_CONFIG))
@@ -141,15 +132,16 @@ def run_job(name: str, seed: int, job_problem, held_out_path: str, epochs: int, 
                 verdict=mine.verdict)
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("docs/results/model_structure"))
     parser.add_argument("--data", type=pathlib.Path, default=pathlib.Path("out/model_structure_data"),
                         help="folder for the two datasets (collected when missing)")
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--quick", action="store_true", help="2 seeds, 60 epochs, 50 held-out trajectories (pipeline check)")
-    args = parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
     seeds = 2 if args.quick else args.seeds
     epochs = 60 if args.quick else 500
     args.data.mkdir(parents=True, exist_ok=True)
@@ -196,7 +188,7 @@ def main(argv=None) -> int:
     write_text_atomic(args.output / "summary.csv", rows_csv(summary))
     write_text_atomic(args.output / "comparisons.csv", rows_csv(comparisons))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/model_structure_study.py", quick=args.quick, seeds=seeds, epochs=epochs,
+        written_by="tools/study.py model-structure", quick=args.quick, seeds=seeds, epochs=epochs,
         held_out_seed=HELD_OUT_SEED, test_trajectories=keep, left_out_for_self_contact=contact, horizon=HORIZON, seconds=round(elapsed, 1), configs=CONFIGS,
         summary=summary, comparisons=comparisons, runs=rows), indent=2) + "\n")
     print(f"\n{'config':>13} {'learned':>8} {'q vs Euler':>11} {'v vs unchanged':>15} {'q@20 vs stays put':>18}")
@@ -209,6 +201,3 @@ def main(argv=None) -> int:
     print(f"{len(rows)} runs in {elapsed:.0f} s -> {args.output}")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

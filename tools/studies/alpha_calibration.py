@@ -1,4 +1,4 @@
-"""What does the paper's alpha = 1e-3 mean? A calibration on the sine-sum (paper III.B).
+"""The alpha calibration: what the paper's alpha = 1e-3 means, on the sine-sum (paper III.B).
 
 The paper chose alpha = 1e-3 "by trial and error in the range [0.1, 0.01, 0.001, 0.0001]" for the
 sine-sum. Our loss (docs/learning.md, "Loss units") weighs both terms in raw units over the output
@@ -14,38 +14,34 @@ MSE should be the paper's 1e-3, and its test MSE near the paper's 6e-4 (5-layer 
 Per initialization seed, one stacked alpha grid (5-layer swish, the study's optimizer and budget)
 holds both readings' grids and naive.
 
-Usage: python tools/alpha_calibration.py [--seeds 3] [--quick] [-o docs/results/alpha_calibration]
+    python tools/study.py alpha-calibration [--seeds 3] [--quick] [-o docs/results/alpha_calibration]
 """
 import argparse
 import dataclasses
 import json
-import os
 import pathlib
-import sys
 import time
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+import numpy as np
 
-import numpy as np  # noqa: E402
+from stdm_drake.files import write_text_atomic
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from stdm_drake.files import write_text_atomic  # noqa: E402
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 PAPER_GRID = (1e-4, 1e-3, 1e-2, 0.1)
 PAPER_CHOICE, PAPER_TEST_MSE = 1e-3, 6e-4
 
 
-def main(argv=None) -> int:
-    import torch
-
-    from stdm_drake.experiments.sine_sum import FULL, QUICK, alpha_sweep, sample
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "alpha_calibration")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="the study's quick budget (150 steps): pipeline check")
-    args = parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    import torch
+
+    from stdm_drake.experiments.sine_sum import FULL, QUICK, alpha_sweep, sample
     torch.set_num_threads(1)
     base = QUICK if args.quick else FULL
     x = sample(base.train_points).inputs[:, 0]
@@ -76,7 +72,7 @@ def main(argv=None) -> int:
     naive = [sweep["test_mse"][0] for sweep in sweeps]
     args.output.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/alpha_calibration.py", quick=args.quick, seeds=args.seeds, input_sd=spread,
+        written_by="tools/study.py alpha-calibration", quick=args.quick, seeds=args.seeds, input_sd=spread,
         paper=dict(grid=PAPER_GRID, choice=PAPER_CHOICE, test_mse_5_layer_swish=PAPER_TEST_MSE),
         naive_test_mse=naive, readings=results, sweeps=sweeps, seconds=round(time.perf_counter() - started, 1)),
         indent=2) + "\n")
@@ -87,6 +83,3 @@ def main(argv=None) -> int:
               f"1e-3 {found['test_mse_at_paper_choice_geomean']:.3g} (paper {PAPER_TEST_MSE})")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -21,7 +21,7 @@ import abc
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.dynamics_model import DynamicsModel
+from stdm_drake.dynamics.model import DynamicsModel
 
 # A learned model must beat the physics-free baselines by this factor (one-step MSE) to count as
 # having learned the dynamics; comparisons between models that do not are uninformative. Where the
@@ -139,6 +139,12 @@ class PlantModel(DynamicsModel):
             from stdm_drake.robots.rigid_body import robot_dynamics
             self.dynamics = robot_dynamics(robot, self.effects)
             self.substeps = rk4_substeps(self.dynamics, robot.home, self.sample_period)
+
+    def describe(self) -> str:
+        """An identified robot's line (its `describe`), else the plant's."""
+        if self.checkpoint is not None:
+            return self.checkpoint.describe(self.name)
+        return f"model {self.name}: the robot's rigid-body plant ({self.integrator})"
 
     def for_control(self) -> "PlantModel":
         """The same plant (robot, effects, name, source) with the "rk4" integrator: what an MPC predicts with."""

@@ -1,5 +1,7 @@
-"""Why naive one-step models of the simulated UR-10 generalize poorly, what closes the gap, and
-whether derivative learning helps once the baseline is strong.
+"""The generalization gap of naive one-step models of the simulated UR-10, and what closes it.
+
+Why naive one-step models of the simulated UR-10 generalize poorly, what closes the gap, and whether
+derivative learning helps once the baseline is strong.
 
 Data: excitation trajectories (trajectories/excitation.yaml, start poses over most of joint space),
 collected here with seed 0; validation 40 and test 120 trajectories fixed, training sets nested.
@@ -20,25 +22,19 @@ Per variant: train and test q MSE of the naive model (rad²), test/train (the ga
 MSE of naive and derivative models, and paired ratios (95 % intervals over seeds) of each variant's
 naive test q MSE against the baseline's and of naive against derivative within the variant.
 
-Usage: python tools/generalization_gap.py [--quick] [--seeds N] [-o out/generalization_gap]
+    python tools/study.py generalization-gap [--quick] [--seeds N] [-o out/generalization_gap]
 """
 import argparse
 import json
-import os
 import pathlib
-import sys
 import time
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+import numpy as np
 
-import numpy as np  # noqa: E402
-
-sys.path.insert(0, str(pathlib.Path(__file__).resolve().parents[1]))
-
-from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
-from stdm_drake.files import write_text_atomic  # noqa: E402
-from stdm_drake.stats import paired_ratio  # noqa: E402
-from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
+from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.files import write_text_atomic
+from stdm_drake.stats import paired_ratio
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot
 
 ALPHAS = (0.0, 1e-3, 1e-2, 0.1, 1.0, 10.0)
 VARIANTS = {  # name -> (training trajectories, input features, TrainingConfig changes)
@@ -129,13 +125,14 @@ def summarize(rows: list[dict], seeds: int) -> str:
     return "\n".join(lines)
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="2 variants, 1 seed, 20 epochs (a smoke run)")
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("out/generalization_gap"))
-    args = parser.parse_args()
+
+
+def run(args: argparse.Namespace) -> int:
     from stdm_drake.collection.collect import CollectionRequest, collect
     from stdm_drake.robots.station import StationConfig
     from stdm_drake.collection.protocols import load_protocol
@@ -173,6 +170,3 @@ def main() -> int:
     print(f"{len(jobs)} jobs in {wall:.0f} s wall")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,4 +1,6 @@
-"""The 2 ms closed loop (docs/realtime.md, design fixed before the run): data, the default model and the
+"""The 2 ms loop: data, the default model and the MPC at a 2 ms control period on the UR-10, beside 10 ms.
+
+The 2 ms closed loop (docs/realtime.md, design fixed before the run): data, the default model and the
 MPC at a 2 ms control period on the UR-10, beside the same at 10 ms on the same plans.
 
 For each period: `collect --protocol tracking --config SPEC --count 30 --seed 0 --sample-period P` (SPEC:
@@ -7,7 +9,7 @@ trajectories/tracking.yaml with 1 s / P steps, the same 1 s plans), `train DATA 
 settings; the plant as model runs too). Writes docs/results/realtime/loop.json (--write) and prints the
 verdict the design fixes.
 
-Usage: python tools/realtime_loop.py [--folder DIR] [--write]
+    python tools/study.py realtime-loop [--folder DIR] [--control-data] [--write]
 """
 import argparse
 import json
@@ -16,23 +18,24 @@ import pathlib
 import sys
 import tempfile
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
-for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):   # one thread (before numpy loads)
-    os.environ.setdefault(_variable, "1")
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):   # one thread (before numpy loads:
+    os.environ.setdefault(_variable, "1")                                         # the launcher imports this first)
 
 import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
-from stdm_drake.cli import main as cli  # noqa: E402
-
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 PERIODS = {"2 ms": 0.002, "10 ms": 0.01}
 
 
 def run_period(folder: pathlib.Path, period: float, control_data: bool) -> dict:
     """collect, train, mpc at one sample period; the mpc.json runs per model. control_data: the README's control
-    recipe's data (dithered torque, ideal sensor) instead of the default tracker and sensor."""
+    recipe's data (dithered torque, ideal sensor) instead of the default tracker and sensor (the library's
+    collect, train and mpc: `collect_job`, `train_job`, `run_mpc_study`)."""
+    from stdm_drake.closed_loop.study import MpcStudy, run_mpc_study
+    from stdm_drake.collection.collect_job import CollectJob, collect_job
+    from stdm_drake.learning.settings import TrainSettings
+    from stdm_drake.learning.train_job import TrainJob, train_job
     folder.mkdir(parents=True, exist_ok=True)
     data = folder / "tracking.h5"
     if not data.exists():    # the shipped plans (1 s each) at this period: trajectories/tracking.yaml's steps scaled
@@ -41,16 +44,20 @@ def run_period(folder: pathlib.Path, period: float, control_data: bool) -> dict:
         spec.write_text((ROOT / "trajectories" / "tracking.yaml").read_text().replace(
             "    num_steps: 100\n", f"    num_steps: {steps}\n"))
         assert f"num_steps: {steps}" in spec.read_text()
-        recipe = (["--controller", str(ROOT / "controllers" / "pid_dither.yaml"),
-                   "--sensor", str(ROOT / "controllers" / "sensor_ideal.yaml")] if control_data else [])
-        assert cli(["collect", "--protocol", "tracking", "--config", str(spec), *recipe, "--count", "30", "--seed", "0",
-                    "--sample-period", str(period), "--quiet", "-o", str(data)]) == 0
+        recipe = (dict(controller=ROOT / "controllers" / "pid_dither.yaml",
+                       sensor=ROOT / "controllers" / "sensor_ideal.yaml") if control_data else {})
+        collect_job(CollectJob(output=data, protocol="tracking", config=spec, **recipe, count=30, seed=0,
+                               sample_period=period, progress=False))
     checkpoint = folder / "D" / "seed0" / "checkpoint.pt"
     if not checkpoint.exists():
-        assert cli(["train", str(data), "--seeds", "0", "--train", "4", "--val", "1", "--test", "2", "--epochs", "150",
-                    "--quiet", "-o", str(folder / "D")]) == 0
-    code = cli(["mpc", str(data), "--model", f"D={checkpoint}", "--plans", "5", "--quiet", "--force",
-                "-o", str(folder / "mpc")])
+        given = dict(seeds=[0], train=4, val=1, test=2, epochs=150)
+        train_job(TrainJob(dataset=data, output=folder / "D", settings=TrainSettings(**given), progress=False,
+                           given=frozenset(given)))
+    study = run_mpc_study(MpcStudy(dataset=data, models=[("D", checkpoint)], plans=5, output=folder / "mpc",
+                                   progress=False, force=True))   # (`mpc`'s defaults: the plant as model too)
+    for failure in study.failures:
+        print(f"realtime-loop, {period:g} s: mpc: {failure}", file=sys.stderr)
+    code = 2 if study.failures else 0   # (mpc's exit status)
     report = json.loads((folder / "mpc" / "mpc.json").read_text())
     return dict(exit_status=code, runs=report["runs"], summary=report["summary"])
 
@@ -82,14 +89,15 @@ def verdict(results: dict) -> tuple[str, list[str]]:
     return outcome, lines
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--folder", type=pathlib.Path, help="working folder (kept; default a temporary one)")
     parser.add_argument("--control-data", action="store_true",
                         help="run 2: collect as the README's control recipe (dithered PID, ideal sensor)")
     parser.add_argument("--write", action="store_true",
                         help="write docs/results/realtime/loop.json (with --control-data: loop_control_data.json)")
-    args = parser.parse_args()
+
+
+def run(args: argparse.Namespace) -> int:
     folder = args.folder or pathlib.Path(tempfile.mkdtemp(prefix="realtime_loop_"))
     results = {label: run_period(folder / label.replace(" ", ""), period, args.control_data)
                for label, period in PERIODS.items()}
@@ -102,21 +110,17 @@ def main():
     print("verdict:", outcome)
     print("\n".join(lines))
     if args.write:
-        sys.path.insert(0, str(ROOT / "tools"))
-        from benchmark_report import machine_description
+        from benchmark_report import machine_description   # (tools/benchmark_report.py: tools/ is on the path)
         from stdm_drake.files import write_text_atomic
         target = ROOT / "docs" / "results" / "realtime"
         target.mkdir(parents=True, exist_ok=True)
         name = "loop_control_data.json" if args.control_data else "loop.json"
         write_text_atomic(target / name, json.dumps(dict(
             verdict=outcome, tracking=lines, machine=machine_description(threads=1),
-            command="python tools/realtime_loop.py --write" + (" --control-data" if args.control_data else ""),
+            command="python tools/study.py realtime-loop --write" + (" --control-data" if args.control_data else ""),
             periods={label: dict(sample_period=PERIODS[label], exit_status=result["exit_status"],
                                  summary=result["summary"],
                                  runs=[{key: value for key, value in run.items() if key != "q_error"}
                                        for run in result["runs"]]) for label, result in results.items()}), indent=1))
         print(f"wrote {target / name}")
-
-
-if __name__ == "__main__":
-    main()
+    return 0

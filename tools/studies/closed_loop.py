@@ -5,25 +5,21 @@ the run). Identification data as `stdm-drake reproduce` collects them; D and DD 
 the initialization; every model controls the same held-out plans; the seed-level ratio D/DD (plans
 averaged within a seed) gets a Student-t 95 % interval over seeds.
 
-Usage: python tools/closed_loop_study.py [--seeds 10] [--plans 10] [--quick] [-o docs/results/closed_loop]
+    python tools/study.py closed-loop [--seeds 10] [--plans 10] [--quick] [-o docs/results/closed_loop]
 """
 import argparse
 import json
-import os
 import pathlib
 import sys
 import time
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+import numpy as np
 
-import numpy as np  # noqa: E402
+from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.files import rows_csv, write_text_atomic
+from stdm_drake.robots.robot import UR10_CONFIG, load_robot
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
-from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
-from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 
 ALPHA = 1e-3
 TYPES = {"D": 0.0, "DD": ALPHA}
@@ -41,8 +37,8 @@ def train_job(path: str, split: dict, model_type: str, seed: int, epochs: int, f
 
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.checkpoint import save_checkpoint
+    from stdm_drake.dynamics.model_files import load_model
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
-    from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.learning.settings import TrainingConfig
     from stdm_drake.learning.structure import PAPER
     from stdm_drake.learning.problem import training_problem
@@ -59,7 +55,7 @@ def train_job(path: str, split: dict, model_type: str, seed: int, epochs: int, f
     save_checkpoint(checkpoint, result.model, training_config=TrainingConfig(alpha=TYPES[model_type], seed=seed,
                                                                            max_epochs=epochs),
                     history=result.history, metadata=problem.metadata)
-    model = LearnedModel(checkpoint, robot=load_robot(UR10_CONFIG))
+    model = load_model(checkpoint, load_robot(UR10_CONFIG))
     test = split["test"]
     mine, _, _ = compare_with_baselines([model] + physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, plant=False),
                                         dataset.transitions(test), trajectory_rollout_data(dataset, test, 20))
@@ -74,31 +70,32 @@ def mpc_job(name: str, checkpoint: str | None, references, sample_period: float)
 
     from stdm_drake.closed_loop.comparison import compare_controllers
     from stdm_drake.closed_loop.mpc import load_mpc_config
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import PlantModel
+    from stdm_drake.dynamics.model_files import load_model
+    from stdm_drake.dynamics.physics import PlantModel
     torch.set_num_threads(1)
     robot = load_robot(UR10_CONFIG)
     model = (PlantModel(sample_period, robot=robot, integrator="rk4") if checkpoint is None
-             else LearnedModel(checkpoint, name=name, robot=robot))
+             else load_model(checkpoint, robot, name=name, for_control=True))
     runs = compare_controllers([model], references, load_mpc_config(), progress=False, robot=robot)
     return [dict(model=name, plan=run.trajectory, q_mse=run.q_mse_rad2, v_mse=run.v_mse,
                  limit_violations=run.limit_violations, fallbacks=run.fallbacks, solve_ms=run.solve_ms_mean)
             for run in runs]
 
 
-def main(argv=None) -> int:
-    from stdm_drake.closed_loop.comparison import held_out_references
-    from stdm_drake.data.dataset import split_trajectories
-    from stdm_drake.learning.checkpoint import load_checkpoint
-    from stdm_drake.stats import paired_ratio
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "closed_loop")
     parser.add_argument("--data", type=pathlib.Path, default=ROOT / "out" / "closed_loop_data")
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--plans", type=int, default=10)
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--quick", action="store_true", help="2 seeds, 2 plans of 30 steps, 20 epochs (pipeline check)")
-    args = parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
+    from stdm_drake.closed_loop.comparison import held_out_references
+    from stdm_drake.data.dataset import split_trajectories
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    from stdm_drake.stats import paired_ratio
     seeds, plans, epochs, count = (2, 2, 20, 20) if args.quick else (args.seeds, args.plans, 300, 100)
     per_pose = (3, 1, 1) if args.quick else (18, 2, 5)
     args.data.mkdir(parents=True, exist_ok=True)
@@ -141,7 +138,7 @@ def main(argv=None) -> int:
     write_text_atomic(args.output / "models.csv", rows_csv(trained))
     write_text_atomic(args.output / "runs.csv", rows_csv(runs))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/closed_loop_study.py", quick=args.quick, alpha=ALPHA, epochs=epochs, split=split,
+        written_by="tools/study.py closed-loop", quick=args.quick, alpha=ALPHA, epochs=epochs, split=split,
         references=[index for index, _ in references], seconds=round(elapsed, 1), summary=summary,
         models=trained, runs=runs), indent=2) + "\n")
     print(f"plant MPC q MSE {plant:.3g}; D/DD over {seeds} seeds: {ratio.text()} {ratio.verdict}")
@@ -155,6 +152,3 @@ def main(argv=None) -> int:
         print(f"error: the closed loop of {name} left the robot's joint limits on {steps} steps", file=sys.stderr)
     return 2 if violated else 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

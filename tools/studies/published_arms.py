@@ -1,6 +1,6 @@
-"""Four published arm descriptions, used as they ship, through the README's flows (issue 20's "done when").
+"""Published arms: four published arm descriptions, used as they ship, through the README's flows (issue 20).
 
-    python tools/published_arms.py --descriptions ARMS -o OUT [--arms panda,ur10,...] [--quick]
+    python tools/study.py published-arms --descriptions ARMS -o OUT [--arms panda,ur10,...] [--quick]
 
 ARMS holds the descriptions fetched from their repositories (see `docs/results/published_arms/PROVENANCE.md`
 for the repositories, commits and folder layout); nothing in them is edited. For each arm this writes
@@ -31,10 +31,7 @@ import subprocess
 import sys
 import time
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from stdm_drake.files import rows_csv, write_text_atomic  # noqa: E402
+from stdm_drake.files import rows_csv, write_text_atomic
 
 # Each arm: its robot config, with paths relative to the descriptions folder. The homes are each maker's
 # documented ready/home pose where one exists (Panda "ready", Kinova Gen3 "home"), else an elbow-up
@@ -165,21 +162,23 @@ def run_arm(arm: str, descriptions: pathlib.Path, out: pathlib.Path, quick: bool
     return row
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--descriptions", type=pathlib.Path, required=True,
                         help="folder with the fetched descriptions (PROVENANCE.md's layout)")
     parser.add_argument("-o", "--output", type=pathlib.Path, required=True)
     parser.add_argument("--arms", default=",".join(ARMS), help=f"comma-separated subset of {', '.join(ARMS)}")
     parser.add_argument("--quick", action="store_true", help="8 trajectories, 20 epochs: a smoke run")
-    args = parser.parse_args()
+
+
+def run(args: argparse.Namespace) -> int:
+    from stdm_drake.errors import InputError
     arms = args.arms.split(",")
     unknown = [arm for arm in arms if arm not in ARMS]
     if unknown:
-        parser.error(f"unknown arm {unknown[0]!r}; choose from {', '.join(ARMS)}")
+        raise InputError(f"unknown arm {unknown[0]!r}; choose from {', '.join(ARMS)}")
     missing = [ARMS[arm]["model"] for arm in arms if not (args.descriptions / ARMS[arm]["model"]).is_file()]
     if missing:
-        parser.error(f"{args.descriptions / missing[0]} not found; fetch the descriptions as PROVENANCE.md says")
+        raise InputError(f"{args.descriptions / missing[0]} not found; fetch the descriptions as PROVENANCE.md says")
     rows = []
     for arm in arms:
         print(f"{arm}:", flush=True)
@@ -194,6 +193,3 @@ def main() -> int:
     print(f"wrote {args.output}/summary.json, summary.csv; " + (f"failed: {', '.join(failed)}" if failed else "all passed"))
     return 1 if failed else 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,5 +1,4 @@
-"""The reality-gap experiment's files, figures and report section (the experiment itself:
-`experiments.reality_gap`)."""
+"""The reality-gap study's files and figures (the study itself: `studies.reality_gap`)."""
 import pathlib
 
 import numpy as np
@@ -85,42 +84,3 @@ def plot_open_loop(results: dict, path) -> None:
     with atomic_path(path) as temp:
         figure.savefig(temp, format="png", dpi=110)
     plt.close(figure)
-
-
-def report_section(report, results: dict, folder: str = "reality_gap") -> None:
-    """The reality-gap stage in a `Report`: the closed-loop table and verdict, the torque Jacobian errors,
-    the per-effect open-loop table, and the figures (in `folder`, relative to the report)."""
-    def g(value):
-        return f"{value:.3g}"
-
-    report.heading("Reality gap: learned models against the nominal model on the affected plant")
-    closed_plans, seeds = results["closed_loop_plans"], results["design"]["closed"][3]
-    report.text(f"Design: docs/reality_gap.md (run 2). Data: {closed_plans} plans tracked on the affected plant "
-                "by PID with dither, gains sized from its inertia; D and DD models (`train`'s defaults), "
-                f"{seeds} seeds each. Every prediction model's MPC setting (effort-weight scale, observer gain) "
-                "is chosen on the validation plans; the test plans run with it ('tuned') and with the shipped "
-                "controller settings ('shipped'). Ratio: nominal-model MPC q MSE / the model's (geometric mean "
-                "over plans per seed; 95 % interval over seeds); above 1 the model tracks better.")
-    report.table(["MPC settings", "model", "setting (effort scale / observer gain)", "q MSE (rad²)",
-                  "nominal / model [95 % CI]", "steps outside the limits", "solve ms / step"],
-                 [[row["setting"], row["model"], " ".join(f"{s:g}/{o:g}" for s, o in row["mpc_settings"]),
-                   g(row["q_mse"]), g(row["nominal_over_model"]["ratio"]) + (
-                       f" [{g(row['nominal_over_model']['low'])}, {g(row['nominal_over_model']['high'])}]"
-                       if row["nominal_over_model"].get("low") is not None else ""),
-                   row["limit_violations"], f"{row['solve_ms_mean']:.1f}"] for row in results["closed_loop"]])
-    report.text(f"**Verdict** (goal: the best learned model's interval above 2, no limit violation): "
-                f"{results['verdict']['text']}.")
-    report.text("Torque Jacobian B = dx_k+1/du_k (what iLQR steers with), median relative error against the true "
-                "plant's: " + ", ".join(f"{row['model']} {g(row['relative_error'])}" for row in results["torque_jacobian"])
-                + ".")
-    report.image(f"{folder}/closed_loop.png", "Closed loop on the affected plant: nominal MPC q MSE / each model's")
-    report.table(["plant", "model", "one-step q MSE", "q MSE at step 20", "q MSE at the plan's end",
-                  "beats the nominal (every seed: 1 / 20 / end)", "learned (vs physics-free, per seed)"],
-                 [[row["plant"], row["model"], g(row["one_step_q"]), g(row["open_loop_q_20"]), g(row["open_loop_q_end"]),
-                   " / ".join("yes" if v else "no" for v in row["beats_nominal_every_seed"].values())
-                   if "beats_nominal_every_seed" in row else "",
-                   ", ".join(row.get("learned", []))] for row in results["open_loop"]])
-    report.text("Open loop per effect: the nominal model, the physics-free baselines (one step: the Euler step; "
-                "open loop: the robot stays put) and each learned type (mean over seeds) stepping the recorded "
-                "torques of the test plans of a plant with one effect at a time.")
-    report.image(f"{folder}/open_loop.png", "Open-loop q MSE per effect")

@@ -1,5 +1,6 @@
-"""Does the default `train` learn on every protocol the toolbox ships? (docs/learning.md, "A default that
-learns"; design committed before the first run.)
+"""The default-train study: whether the default `train` learns on every protocol the toolbox ships.
+
+docs/learning.md, "A default that learns"; design committed before the first run.
 
 Five datasets, each as a new user makes it (seed 27, never used by another study): the default excitation
 protocol, tracked plans (the paper's protocol, collect's default sensor), the identification protocol
@@ -11,99 +12,99 @@ split's test trajectories (never used for any choice): one-step MSE of q and v b
 "v unchanged", the sensor's noise floor where the data have a truth, and `physics.learning_verdict`. Paired by
 seed, D / default with a 95 % interval (`stdm_drake.stats.paired_ratio`).
 
-    python tools/default_train_study.py [--quick] [--data /tmp/default_train_study] [-o docs/results/default_train]
-    python tools/default_train_study.py --protocols excitation --seeds 5 6 7 8 9 10 11 12 13 14 \
+    python tools/study.py default-train [--quick] [--data /tmp/default_train_study] [-o docs/results/default_train]
+    python tools/study.py default-train --protocols excitation --seeds 5 6 7 8 9 10 11 12 13 14 \
         -o docs/results/default_train/replication      # run 1's replication (docs/learning.md)
-    python tools/default_train_study.py --data-seed 28 --data /tmp/default_train_study_28 \
+    python tools/study.py default-train --data-seed 28 --data /tmp/default_train_study_28 \
         -o docs/results/default_train/run2             # run 2: the selection rule, on new data
 """
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import json
-import os
 import pathlib
-import subprocess
-import sys
 import time
 
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
-
-from stdm_drake.cli import main as cli  # noqa: E402
-
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 PROTOCOLS = ("excitation", "tracking", "identification", "imported_log", "panda")
 DATA_SEED = 27
 MARGIN = 1.10   # the default's MSE at most 10 % above D's
-# count: trajectories collected (the log: plans); seeds: models per configuration; train_flags: added to both
-# configurations' commands (the full run adds none: train's defaults)
-FULL = dict(count=60, log_count=40, seeds=(0, 1, 2, 3, 4), train_flags=())
-QUICK = dict(count=12, log_count=8, seeds=(0, 1), train_flags=("--epochs", "5"))
-SMALL = dict(count=24, log_count=16, seeds=(0,), train_flags=("--epochs", "60"))   # the test's (tests/test_default_train.py)
+# count: trajectories collected (the log: plans); seeds: models per configuration; train_settings: `TrainSettings`
+# fields set in both configurations (the full run sets none: train's defaults)
+FULL = dict(count=60, log_count=40, seeds=(0, 1, 2, 3, 4), train_settings={})
+QUICK = dict(count=12, log_count=8, seeds=(0, 1), train_settings=dict(epochs=5))
+SMALL = dict(count=24, log_count=16, seeds=(0,), train_settings=dict(epochs=60))   # the test's (tests/test_default_train.py)
 
 
 def collect(folder: pathlib.Path, design: dict, data_seed: int = DATA_SEED) -> dict:
-    """The five datasets in `folder` (made once; an existing file is kept), {protocol: path}."""
+    """The five datasets in `folder` (made once; an existing file is kept), {protocol: path}: `collect` and
+    `import` as a new user runs them (the library's jobs with the commands' defaults)."""
+    from stdm_drake.collection.collect_job import CollectJob, collect_job
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.data.logs import simulated
+    from stdm_drake.data.logs.import_job import ImportJob, import_job
+    from stdm_drake.paths import CONTROLLERS_DIR, MODELS_DIR
     folder.mkdir(parents=True, exist_ok=True)
-    count, seed = str(design["count"]), str(data_seed)
-    common = ["--seed", seed, "--workers", "1", "--quiet"]
-    commands = {
-        "excitation": ["collect", "--protocol", "excitation", "--count", count],
-        "tracking": ["collect", "--protocol", "tracking", "--count", count],
-        "identification": ["collect", "--protocol", "tracking", "--count", count, "--controller",
-                           "stdm-drake:controllers/pid_dither.yaml", "--sensor", "stdm-drake:controllers/sensor_ideal.yaml"],
-        "panda": ["collect", "--protocol", "tracking", "--count", count, "--robot", "stdm-drake:models/panda.yaml"],
+    common = dict(count=design["count"], seed=data_seed, workers=1, progress=False)
+    jobs = {
+        "excitation": dict(protocol="excitation"),
+        "tracking": dict(protocol="tracking"),
+        "identification": dict(protocol="tracking", controller=CONTROLLERS_DIR / "pid_dither.yaml",
+                               sensor=CONTROLLERS_DIR / "sensor_ideal.yaml"),
+        "panda": dict(protocol="tracking", robot=MODELS_DIR / "panda.yaml"),
     }
     paths = {name: folder / f"{name}.h5" for name in PROTOCOLS}
-    for name, command in commands.items():
+    for name, settings in jobs.items():
         if not paths[name].exists():
-            assert cli(command + common + ["-o", str(paths[name])]) == 0, name
+            collect_job(CollectJob(output=paths[name], **common, **settings))
     if not paths["imported_log"].exists():
         original, log = folder / "log_original.h5", folder / "log_record.csv"
         if not original.exists():
-            assert cli(["collect", "--protocol", "tracking", "--count", str(design["log_count"]), "--sensor",
-                        "stdm-drake:controllers/sensor_ideal.yaml", *common, "-o", str(original)]) == 0
+            collect_job(CollectJob(output=original, protocol="tracking", sensor=CONTROLLERS_DIR / "sensor_ideal.yaml",
+                                   **dict(common, count=design["log_count"])))
         simulated.write_rtde_csv(load_dataset(original), log)
-        assert cli(["import", str(log), "--quiet", "-o", str(paths["imported_log"])]) == 0
+        import_job(ImportJob(log=log, output=paths["imported_log"], progress=False))
     return paths
 
 
-def train_command(dataset: pathlib.Path, output: pathlib.Path, config: str, design: dict) -> list:
-    """The `stdm-drake train` arguments of one configuration ("default" or "D") on one dataset."""
-    model = ["--model", "D"] if config == "D" else []
-    seeds = ["--seeds", *map(str, design["seeds"])]
-    return ["train", str(dataset), *model, *seeds, *design["train_flags"], "--quiet", "-o", str(output)]
+def train_settings(config: str, design: dict):
+    """The `TrainSettings` of one configuration ("default": train's defaults, or "D": `--model D`) with the
+    design's seeds and settings, and the fields set (what a user would have given as flags)."""
+    from stdm_drake.learning.settings import TrainSettings
+    given = dict(design["train_settings"], seeds=list(design["seeds"]), **({"model": "D"} if config == "D" else {}))
+    return TrainSettings(**given), frozenset(given)
 
 
-def run_train(arguments: list) -> tuple[int, float, str]:
-    """One `stdm-drake train` in its own process (one torch thread, train's default): (exit status, seconds,
-    its output)."""
+def run_train(dataset: pathlib.Path, output: pathlib.Path, config: str, design: dict) -> tuple[float, str]:
+    """One `train` of a configuration on one dataset (in a pool worker, one torch thread: train's default):
+    (seconds, what it printed)."""
+    import contextlib
+    import io
+
+    from stdm_drake.learning.train_job import TrainJob, train_job
+    settings, given = train_settings(config, design)
+    printed = io.StringIO()
     started = time.perf_counter()
-    process = subprocess.run([sys.executable, "-c", "import sys; from stdm_drake.cli import main; "
-                              "sys.exit(main(sys.argv[1:]))", *arguments], capture_output=True, text=True)
-    return process.returncode, time.perf_counter() - started, process.stdout + process.stderr
+    with contextlib.redirect_stdout(printed), contextlib.redirect_stderr(printed):
+        train_job(TrainJob(dataset=dataset, output=output, settings=settings, progress=False, given=given))
+    return time.perf_counter() - started, printed.getvalue()
 
 
 def train_all(paths: dict, runs: pathlib.Path, design: dict, workers: int, protocols=PROTOCOLS) -> dict:
-    """Every (protocol, configuration) trained into runs/<protocol>_<config> (kept when its summary exists);
-    returns {folder name: seconds} of the runs made now."""
-    jobs = {f"{name}_{config}": train_command(paths[name], runs / f"{name}_{config}", config, design)
+    """Every (protocol, configuration) trained into runs/<protocol>_<config> (kept when its summary exists; what
+    each printed in runs/<protocol>_<config>.log), `workers` at a time; returns {folder name: seconds} of the runs
+    made now."""
+    from stdm_drake.cluster import RunnerConfig, job_pool
+    jobs = {f"{name}_{config}": (paths[name], runs / f"{name}_{config}", config, design)
             for name in protocols for config in ("default", "D") if not (runs / f"{name}_{config}" / "summary.json").exists()}
     seconds = {}
-    with concurrent.futures.ThreadPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(run_train, arguments): folder for folder, arguments in jobs.items()}
-        for future in concurrent.futures.as_completed(futures):
-            code, elapsed, output = future.result()
-            folder = futures[future]
+    with job_pool(RunnerConfig(workers=workers)) as pool:
+        for position, future in pool.completed([(run_train, arguments) for arguments in jobs.values()]):
+            folder = list(jobs)[position]
+            elapsed, output = future.result()
             (runs / f"{folder}.log").write_text(output)
-            if code != 0:
-                raise RuntimeError(f"train {folder} failed ({code}):\n{output[-2000:]}")
             seconds[folder] = round(elapsed, 1)
             print(f"{folder}: {elapsed:.0f} s", flush=True)
     return seconds
@@ -115,9 +116,9 @@ def evaluate(paths: dict, runs: pathlib.Path, design: dict, protocols=PROTOCOLS)
     from stdm_drake.data.compatibility import shipped_preset_of
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.data.inspect import noise_floor
+    from stdm_drake.dynamics.model_files import load_model
+    from stdm_drake.dynamics.physics import ConstantVelocity
     from stdm_drake.learning.evaluate import compare_with_baselines
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.learning.physics import ConstantVelocity
     from stdm_drake.robots.robot import load_robot
     from stdm_drake.stats import paired_ratio
     results = {}
@@ -128,8 +129,8 @@ def evaluate(paths: dict, runs: pathlib.Path, design: dict, protocols=PROTOCOLS)
                      for config in ("default", "D")}
         test = summaries["D"]["split"]["test"]
         assert test == summaries["default"]["split"]["test"], name   # the same held-out trajectories
-        models = [LearnedModel(runs / f"{name}_{config}" / f"seed{seed}" / "checkpoint.pt", robot=robot,
-                               name=f"{config} seed {seed}") for config in ("default", "D") for seed in design["seeds"]]
+        models = [load_model(runs / f"{name}_{config}" / f"seed{seed}" / "checkpoint.pt", robot,
+                             name=f"{config} seed {seed}") for config in ("default", "D") for seed in design["seeds"]]
         floor = noise_floor(dataset, test)
         rows = compare_with_baselines(models + [ConstantVelocity(robot.state_dim, robot.action_dim, dataset.sample_period)],
                                       dataset.transitions(test), None, noise_floor=floor)
@@ -188,8 +189,7 @@ def table(results: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="12 trajectories, 2 seeds, 5 epochs (a check that it runs)")
     parser.add_argument("--data", type=pathlib.Path, default=pathlib.Path("/tmp/default_train_study"))
     parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "default_train")
@@ -200,7 +200,9 @@ def main(argv=None) -> int:
                         "seeds train into their own runs folder")
     parser.add_argument("--data-seed", type=int, default=DATA_SEED,
                         help=f"seed of the five datasets (default {DATA_SEED}, run 1; run 2: 28)")
-    args = parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
     design = dict(QUICK if args.quick else FULL)
     runs = args.data / "runs"
     if args.seeds is not None and tuple(args.seeds) != design["seeds"]:
@@ -212,7 +214,7 @@ def main(argv=None) -> int:
     seconds = train_all(paths, runs, design, args.workers, args.protocols)
     results = evaluate(paths, runs, design, args.protocols)
     from stdm_drake.files import json_default, write_text_atomic
-    record = dict(written_by="stdm-drake tools/default_train_study.py", quick=args.quick,
+    record = dict(written_by="tools/study.py default-train", quick=args.quick,
                   design=dict(design, data_seed=args.data_seed, margin=MARGIN), train_seconds=seconds,
                   met=all(result["met"] for result in results.values()), protocols=results,
                   seconds=round(time.perf_counter() - started, 1))
@@ -223,6 +225,3 @@ def main(argv=None) -> int:
     print(text + f"success (every protocol met): {'met' if record['met'] else 'not met'}")
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

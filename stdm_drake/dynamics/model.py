@@ -2,7 +2,7 @@
 
 Learned models (`learning.learned_model.LearnedModel`: the paper's D/P/DE/PE networks and the
 physics-structured networks), the physics baselines and the robot's own plant as a model
-(`learning.physics`) all implement it, so `evaluate`, `view`, the LeafSystem and the MPC accept any
+(`dynamics.physics`) all implement it, so `evaluate`, `view`, the LeafSystem and the MPC accept any
 of them. As in mbrl-lib's `mbrl.models.Model`, the contract is small:
 
     sizes           state_dim S = 2n ([q rad, v rad/s]), action_dim A = m (N m), sample_period (s)
@@ -20,11 +20,33 @@ of them. As in mbrl-lib's `mbrl.models.Model`, the contract is small:
 from __future__ import annotations
 
 import abc
+import dataclasses
 
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.learning.predict import PROPAGATIONS, Prediction, Rollout
+
+# How a rollout carries an ensemble's spread: "mean", each step from the previous mean; PETS trajectory
+# sampling, each particle following one member: "ts1" draws it again every step, "tsinf" keeps it throughout.
+PROPAGATIONS = ("mean", "ts1", "tsinf")
+
+
+@dataclasses.dataclass
+class Prediction:
+    """One-step prediction for B states. mean, variance (B, S): ensemble mean and total variance
+    (member spread + mean aleatoric); member_means (E, B, S); member_variances (E, B, S) or None."""
+    mean: np.ndarray
+    variance: np.ndarray
+    member_means: np.ndarray
+    member_variances: np.ndarray | None
+
+
+@dataclasses.dataclass
+class Rollout:
+    """Open-loop prediction of steps 1..T. mean, variance (B, T, S); particles (B, P, T, S) for TS."""
+    mean: np.ndarray
+    variance: np.ndarray
+    particles: np.ndarray | None = None
 
 
 def check_batch(values, width: int, name: str, *, sequence: bool = False) -> np.ndarray:
@@ -66,6 +88,10 @@ class DynamicsModel(abc.ABC):
     @abc.abstractmethod
     def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """d step / d x (H, S, S) and d step / d a (H, S, A) at the rows x (H, S), a (H, A)."""
+
+    def describe(self) -> str:
+        """One line on what the model is (a model file's models say how it was trained or identified)."""
+        return f"model {self.name}"
 
     def step_single(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
         """`step` of one row: x (S,), a (A,) float64 -> (S,), unchecked."""

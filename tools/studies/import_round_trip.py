@@ -1,4 +1,6 @@
-"""The import-versus-original experiment (docs/real_logs.md, designed before it ran): is a model trained on a log
+"""The import round trip: a model trained on an imported log against one trained on its original data.
+
+The import-versus-original experiment (docs/real_logs.md, designed before it ran): is a model trained on a log
 imported by `stdm-drake import` as accurate as one trained on the data the log was written from?
 
 40 tracked plans of the UR-10 at 500 Hz (paper's sensor) are collected, written as an RTDE recording (timing
@@ -8,25 +10,18 @@ plans' order); both are evaluated on the original's 8 test plans (one-step and 2
 baselines; the ratio import / original paired by seed with a 95 % interval. Success: the one-step ratio's
 interval inside [0.8, 1.25].
 
-    python tools/import_round_trip.py [--quick] [--data /tmp/import_round_trip] [-o docs/results/real_logs]
+    python tools/study.py import-round-trip [--quick] [--data /tmp/import_round_trip] [-o docs/results/real_logs]
 """
 from __future__ import annotations
 
 import argparse
 import json
-import os
 import pathlib
-import sys
 import time
 
 import numpy as np
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
-
-from stdm_drake.cli import main as cli  # noqa: E402
-
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 FULL = dict(plans=40, split=(24, 8, 8), seeds=5, epochs=100)
 QUICK = dict(plans=8, split=(4, 2, 2), seeds=2, epochs=3)
 ROLLOUT_STEPS = 20
@@ -36,43 +31,50 @@ SUCCESS = (0.8, 1.25)
 def prepare(folder: pathlib.Path, design: dict, sensor: str | None = None) -> tuple[pathlib.Path, pathlib.Path]:
     """(the simulated dataset, its import), made once per folder; sensor: the sensor model's YAML (None: collect's
     default, the paper's)."""
+    from stdm_drake.collection.collect_job import CollectJob, collect_job
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.data.logs import simulated
+    from stdm_drake.data.logs.import_job import ImportJob, import_job
     from stdm_drake.paths import TRAJECTORIES_DIR
     folder.mkdir(parents=True, exist_ok=True)
     original, log, imported = folder / "original.h5", folder / "record.csv", folder / "imported.h5"
     if not original.exists():
         spec = folder / "tracking_500hz.yaml"
         spec.write_text((TRAJECTORIES_DIR / "tracking.yaml").read_text().replace("num_steps: 100", "num_steps: 500"))
-        assert cli(["collect", "--protocol", "tracking", "--config", str(spec), "--count", str(design["plans"]),
-                    "--seed", "3", "--sample-period", "0.002", "--quiet", "-o", str(original),
-                    *(["--sensor", str(sensor)] if sensor else [])]) == 0
+        collect_job(CollectJob(output=original, protocol="tracking", config=spec, count=design["plans"], seed=3,
+                               sample_period=0.002, sensor=None if sensor is None else pathlib.Path(sensor),
+                               progress=False))
     if not imported.exists():
         simulated.write_rtde_csv(load_dataset(original), log)
-        assert cli(["import", str(log), "-o", str(imported), "--quiet"]) == 0
+        import_job(ImportJob(log=log, output=imported, progress=False))
     return original, imported
 
 
 def train(dataset: pathlib.Path, folder: pathlib.Path, design: dict) -> pathlib.Path:
+    """`train DATASET --model D` (the library's job) at the design's split, epochs and seeds, into `folder`
+    (kept when its summary exists)."""
+    from stdm_drake.learning.settings import TrainSettings
+    from stdm_drake.learning.train_job import TrainJob, train_job
     if (folder / "summary.json").exists():
         return folder
     train_count, val, test = design["split"]
-    assert cli(["train", str(dataset), "--model", "D", "--train", str(train_count), "--val", str(val), "--test",
-                str(test), "--per-group", "off", "--epochs", str(design["epochs"]),
-                "--seeds", *map(str, range(design["seeds"])), "--quiet", "--force", "-o", str(folder)]) == 0
+    given = dict(model="D", train=train_count, val=val, test=test, per_group="off", epochs=design["epochs"],
+                 seeds=list(range(design["seeds"])))
+    train_job(TrainJob(dataset=dataset, output=folder, settings=TrainSettings(**given), force=True, progress=False,
+                       given=frozenset(given)))
     return folder
 
 
 def evaluate(original_path, folders: dict, seeds: int) -> dict:
     """Per model (every seed of each folder) and baseline: one-step and 20-step q MSE on the original's test plans."""
     from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.dynamics.model_files import load_model
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
-    from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.robots.robot import UR10_CONFIG, load_robot
     robot = load_robot(UR10_CONFIG)
     data = load_dataset(original_path)
-    models = {name: [LearnedModel(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot=robot,
-                                  name=f"{name} seed {seed}") for seed in range(seeds)] for name, folder in folders.items()}
+    models = {name: [load_model(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot,
+                                name=f"{name} seed {seed}") for seed in range(seeds)] for name, folder in folders.items()}
     test = models["original"][0].checkpoint.split_indices(data, "test")
     imported_test = models["import"][0].checkpoint.metadata.split["test"]
     assert list(test) == list(imported_test), (test, imported_test)   # the same plans held out
@@ -84,15 +86,16 @@ def evaluate(original_path, folders: dict, seeds: int) -> dict:
             for row in rows} | {"test_plans": [int(i) for i in test]}
 
 
-def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="8 plans, 2 seeds, 3 epochs (a check that it runs)")
     parser.add_argument("--data", type=pathlib.Path, default=pathlib.Path("/tmp/import_round_trip"))
     parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / "real_logs")
     parser.add_argument("--sensor", type=pathlib.Path,
                         help="the sensor model the data are collected with (default: collect's, the paper's; run 2: "
                              "controllers/sensor_ideal.yaml)")
-    args = parser.parse_args(argv)
+
+
+def run(args: argparse.Namespace) -> int:
     design = QUICK if args.quick else FULL
     started = time.perf_counter()
     original, imported = prepare(args.data, design, args.sensor)
@@ -110,7 +113,7 @@ def main(argv=None) -> int:
                   for name in ("original", "import") for s in range(design["seeds"]))
     met = learned and one_step["low"] >= SUCCESS[0] and one_step["high"] <= SUCCESS[1]
     record = load_dataset(imported).metadata.record["import"]
-    result = dict(written_by="stdm-drake tools/import_round_trip.py", quick=args.quick, design=design,
+    result = dict(written_by="tools/study.py import-round-trip", quick=args.quick, design=design,
                   sensor=str(args.sensor) if args.sensor else "collect's default (the paper's)",
                   success_interval=list(SUCCESS), every_model_learned=learned, met=met, import_over_original=ratios, errors=errors,
                   resampling=record["resampling"], trajectories=record["trajectories"],
@@ -136,6 +139,3 @@ def main(argv=None) -> int:
     print(text)
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())

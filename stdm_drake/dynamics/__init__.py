@@ -1,0 +1,4 @@
+"""Dynamics: the one model contract (`model.DynamicsModel`), the models that need no learning (the
+physics baselines and the robot's plant as a model: `physics`), a plant model's step as a grey box's
+physics part (`plant_step`), and the way from a model file to a model (`model_files.load_model`).
+It sits below learning, identification and closed_loop and knows none of them."""

@@ -1,0 +1,120 @@
+"""One identification job, the library's `identify`: a robot's link inertias and joint friction from one of its
+datasets, written as an identified robot (.yaml, a model every command takes) with its report beside it (.json).
+
+    job = IdentifyJob(dataset=pathlib.Path("data.h5"), output=pathlib.Path("identified.yaml"))
+    report = identify_job(job)        # what identified.json holds
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import sys
+
+from stdm_drake.errors import InputError
+from stdm_drake.files import json_default, write_text_atomic
+from stdm_drake.identification.identify import REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES
+from stdm_drake.outputs import check_output_file
+
+
+@dataclasses.dataclass
+class IdentifyJob:
+    """What one identification needs.
+
+    dataset: the robot's .h5 file; output: the identified robot to write (.yaml; the report goes beside it,
+    .json); robot: the robot config YAML whose description's parameters are identified (None: the shipped
+    preset the dataset was collected with, else the UR-10's; must be the dataset's robot); derivatives:
+    "true" (the simulation's states and accelerations) or "smoothed" (central differences of the
+    Savitzky-Golay-smoothed angles); None: true for simulated data, smoothed for a log; velocity_scales:
+    candidate Coulomb smoothing scales, rad/s (> 0); regularizations: candidate weights toward the
+    description's parameters (>= 0); windows: candidate Savitzky-Golay windows in samples (1, or odd >= 5;
+    only with smoothed derivatives; None: `SMOOTHING_WINDOWS`); train, val, test: trajectories of each
+    split (per group with per_group; None: the defaults, test all the rest); per_group: "on"/"off", split
+    per initial-pose group (None: on for tracking data); split_seed: the split's seed (the same split as
+    `train` with the same options); progress: the split and each candidate fit as lines on stderr;
+    force: replace files stdm-drake did not write."""
+    dataset: pathlib.Path
+    output: pathlib.Path
+    robot: pathlib.Path | None = None
+    derivatives: str | None = None
+    velocity_scales: tuple = VELOCITY_SCALES
+    regularizations: tuple = REGULARIZATIONS
+    windows: tuple | None = None
+    train: int | None = None
+    val: int | None = None
+    test: int | None = None
+    per_group: str | None = None
+    split_seed: int = 0
+    progress: bool = True
+    force: bool = False
+
+
+def identify_job(job: IdentifyJob) -> dict:
+    """Run `job`: every check first (the output's suffix, the output and report files, the candidate settings,
+    the dataset, the derivative source against the windows, the robot fully actuated, the split), then the
+    identification, its summary printed and both files written; returns the report (what the .json holds).
+    InputError (one line) for a bad input."""
+    from stdm_drake.data.compatibility import resolve_robot
+    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.identification.identified import identified_text
+    from stdm_drake.identification.identify import IdentifySettings, identify
+    from stdm_drake.learning.seeds import dataset_split
+    output = pathlib.Path(job.output)
+    if output.suffix.lower() not in (".yaml", ".yml"):
+        raise InputError(f"-o/--output {job.output}: an identified robot is a .yaml file")
+    report_path = output.with_suffix(".json")
+    inputs = [job.dataset, job.robot]
+    check_output_file("-o/--output", output, kind="identified", inputs=inputs, force=job.force)
+    check_output_file("report", report_path, kind="json", inputs=inputs, force=job.force)
+    settings = IdentifySettings(derivative_source=job.derivatives or "true", velocity_scales=tuple(job.velocity_scales),
+                                regularizations=tuple(job.regularizations),
+                                windows=tuple(job.windows or SMOOTHING_WINDOWS))   # (None: not given)
+    settings.validate()     # (before any work: windows, scales and weights)
+    dataset = load_dataset(job.dataset)
+    if job.derivatives is None and not dataset.is_simulated:
+        settings.derivative_source = "smoothed"     # (a log has no true accelerations)
+    if settings.derivative_source == "true" and job.windows is not None:
+        raise InputError("--windows are the smoothing windows of --derivatives smoothed; with the simulation's true "
+                         "derivatives they would be ignored")
+    robot = resolve_robot(job.robot, dataset)
+    robot.check_fully_actuated("identification")
+    split, _ = dataset_split(dataset, job)   # (the job's train, val, test, per_group and split_seed)
+    if job.progress:
+        print(f"identify {robot.name} from {job.dataset}: train {len(split.train)} / val {len(split.val)} / "
+              f"test {len(split.test)} trajectories, derivatives {settings.derivative_source}", file=sys.stderr)
+    announce = (lambda line: print(line, file=sys.stderr, flush=True)) if job.progress else (lambda line: None)
+    identified, report = identify(dataset, robot, split, settings, announce=announce)
+    text, report_text = identified_text(identified), json.dumps(report, indent=1, default=json_default) + "\n"
+    print(report_summary(report))
+    write_text_atomic(report_path, report_text)
+    write_text_atomic(output, text)
+    print(f"wrote {job.output} (use it as a model: evaluate/view {job.output}, mpc --model NAME={job.output}) "
+          f"and {report_path}")
+    return report
+
+
+def report_summary(report: dict) -> str:
+    """The report's numbers as lines: the excitation, the chosen setting, the test torque errors and, for
+    simulated data, each friction coefficient against the truth."""
+    ordinary, chosen = report["least_squares"], report["chosen"]
+    lines = [f"excitation: {ordinary['base_parameters']} identifiable (base) parameters of {len(report['parameters'])}, "
+             f"condition number {ordinary['condition_number']:.3g} (columns scaled to unit RMS); "
+             f"{report['samples_train']} training samples",
+             f"chosen on validation: Coulomb velocity scale {chosen['velocity_scale']:g} rad/s, regularization "
+             f"{chosen['regularization']:g} (validation torque error {chosen['val_torque_error']:.3g})"]
+    test = report.get("test")
+    if test:
+        lines.append(f"test torque RMS error / torque RMS: identified (consistent) {test['torque_error']:.3g}, "
+                     f"least squares {test['least_squares_torque_error']:.3g}, description "
+                     f"{test['description_torque_error']:.3g}; per joint "
+                     + ", ".join(f"{value:.3g}" for value in test["torque_error_per_joint"]))
+        if "torque_error_on_true_states" in test:
+            lines.append(f"  on the true states and accelerations: {test['torque_error_on_true_states']:.3g}")
+    truth = report.get("truth")
+    if truth:
+        for kind, values in truth["joints"].items():
+            pairs = ", ".join(f"{mine:.4g} ({true:.4g})" for mine, true in zip(values["identified"], values["true"]))
+            known = [error for error in values["relative_error"] if error is not None]
+            worst = f"; largest relative error {max(known):.2%}" if known else ""
+            lines.append(f"{kind.replace('_', ' ')} per joint, identified (true): {pairs}{worst}")
+    return "\n".join(lines)

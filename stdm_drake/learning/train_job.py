@@ -1,0 +1,286 @@
+"""One training job, the library's `train`: split a dataset, train one model per seed, and write checkpoints,
+learning curves, the alpha selection and summary.json; what `stdm-drake train` and every study run.
+
+    job = TrainJob(dataset=pathlib.Path("data.h5"), output=pathlib.Path("runs/dd"),
+                   settings=TrainSettings(model="DD", seeds=[0, 1]))
+    summary = train_job(job)          # the summary.json record; checkpoints at runs/dd/seed<N>/checkpoint.pt
+"""
+from __future__ import annotations
+
+import dataclasses
+import json
+import pathlib
+import sys
+
+import numpy as np
+import torch
+
+from stdm_drake.cluster import RunnerConfig, connect
+from stdm_drake.errors import InputError
+from stdm_drake.files import check_free_space, write_text_atomic
+from stdm_drake.learning.problem import training_problem
+from stdm_drake.learning.seeds import dataset_split, fit_seeds
+from stdm_drake.learning.settings import TrainSettings
+from stdm_drake.learning.trainable import network_class
+from stdm_drake.learning.train_outputs import write_seed_files
+from stdm_drake.outputs import check_output_folder, mark_output_folder, written_by
+
+CHECKPOINT_RESERVE_BYTES = 1 << 20   # a checkpoint's history, metadata and the seed's curves, beyond its weights
+
+
+@dataclasses.dataclass
+class TrainJob:
+    """What one training job needs.
+
+    dataset: the .h5 file `collect` or `import` wrote; output: the folder for seed<N>/checkpoint.pt,
+    seed<N>/curves.csv and summary.json (checked and locked before any work: `outputs.check_output_folder`);
+    settings: the model, its training and the split (`TrainSettings`, validated by the caller or here);
+    robot: the robot config YAML (None: the shipped preset the dataset was collected with, else the UR-10's;
+    loaded only where the model's structure needs the robot's nominal model or a robot is given);
+    physics: the grey box's plant, an identified robot (.yaml); resume: continue interrupted seeds in
+    `output`; force: write into a folder stdm-drake did not write; runner: where the seeds train (this
+    process, or Ray); progress: epoch bars; inputs: further files the output must not overwrite (e.g. the
+    settings file); given: the settings the user set (`TrainSettings.validate`'s given; None: those that
+    differ from the defaults)."""
+    dataset: pathlib.Path
+    output: pathlib.Path
+    settings: TrainSettings = dataclasses.field(default_factory=TrainSettings)
+    robot: pathlib.Path | None = None
+    physics: pathlib.Path | None = None
+    resume: bool = False
+    force: bool = False
+    runner: RunnerConfig = dataclasses.field(default_factory=RunnerConfig)
+    progress: bool = True
+    inputs: tuple = ()
+    given: frozenset | None = None
+
+
+def warn_about_fast_damped_joints(robot, sample_period: float) -> None:
+    """One warning line when derivative learning is asked for a robot with joints whose description's
+    damping stops them faster than the sample period (`Dynamics.damping_time_constants` at home): on
+    such an arm the derivative targets are the fast decay itself, and a DD trained on the ABB IRB 1200's
+    identification data did not learn (docs/published_arms.md)."""
+    from stdm_drake.robots.plant import Dynamics
+    constants = Dynamics(robot).damping_time_constants()
+    fast = [(name, value) for name, value in zip(robot.joint_names, constants) if value < sample_period]
+    if fast:
+        listed = ", ".join(f"{name} {1e3 * value:.2g} ms" for name, value in fast)
+        print(f"stdm-drake train: warning: robot {robot.name}: the damping of {listed} stops these joints faster than "
+              f"the {1e3 * sample_period:g} ms period; derivative learning failed on such an arm (docs/published_arms.md), "
+              "train --model D for it", file=sys.stderr)
+
+
+def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
+    """(derivative_source for `training_problem`, the line that states the choice or None, the plan's measured
+    mismatch `data.inspect.plan_mismatch` or None). Given by the user,
+    the source is used as it is (a plan far from the recorded motion gets one warning line with the measured
+    mismatch); else `learning.problem.candidate_sources` on the training and validation trajectories: all of
+    them (a tuple, chosen by validation) with alpha "auto", their first with a fixed alpha. A model without the
+    derivative loss uses none (None, None, the mismatch)."""
+    from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT, candidate_sources
+    choice = candidate_sources(dataset, np.concatenate([split.train, split.val]))
+    if not settings.uses_derivative():
+        return None, None, choice.mismatch
+    if settings.action_rate == "zero_order_hold" and "true" in choice.sources:   # (the scheme needs true targets)
+        choice = dataclasses.replace(choice, sources=("true",))
+    if settings.derivative_source is not None:
+        if settings.derivative_source == "planned" and choice.plan_left_out():
+            print(f"stdm-drake train: warning: --derivative-source planned: the plan's accelerations are "
+                  f"{choice.mismatch['acceleration']:.2f} (relative RMS, mean over joints; per joint "
+                  + ", ".join(f"{value:.2f}" for value in choice.mismatch["acceleration_per_joint"])
+                  + f") from the recorded ones ({choice.mismatch['recorded']}), more than {PLAN_MISMATCH_LIMIT:g}: "
+                  "the model is fitted to derivatives the robot did not have; leave the option out to choose by "
+                  "validation", file=sys.stderr)
+        return settings.derivative_source, None, choice.mismatch
+    if settings.alpha_choices() is not None and len(choice.sources) > 1:
+        return tuple(choice.sources), choice.describe(), choice.mismatch
+    if len(choice.sources) > 1:   # a fixed alpha: the first, the plan
+        return choice.sources[0], (f"derivative targets: {choice.sources[0]} (the plan's accelerations are "
+                                   f"{choice.mismatch['acceleration']:.2f} from the recorded ones; --alpha auto "
+                                   f"would also try {', '.join(choice.sources[1:])})"), choice.mismatch
+    return choice.sources[0], choice.describe(), choice.mismatch
+
+
+class ValidationVerdict:
+    """What `train` ends with, per seed: the model's one-step MSE on the validation split beside the Euler step
+    (q) and "v unchanged" (v), the alpha grid's naive member where it trained one and the sensor's noise floor,
+    the verdict of `physics.learning_verdict`, and one warning line naming the likely cause when the model has
+    not learned. Validation only: the test split stays for `evaluate`."""
+
+    def __init__(self, dataset, split, robot, structure, name: str, settings: TrainSettings, transitions: int,
+                 sources, mismatch: dict | None):
+        from stdm_drake.data.inspect import noise_floor
+        self.dataset, self.robot, self.structure, self.name, self.settings = dataset, robot, structure, name, settings
+        self.training_transitions, self.sources, self.mismatch = transitions, sources, mismatch
+        self.val = dataset.transitions(split.val)
+        self.val_trajectories = len(split.val)
+        self.floor = noise_floor(dataset, split.val)
+
+    def source_record(self) -> dict:
+        """The derivative sources tried and the plan's measured mismatch, for summary.json."""
+        tried = list(self.sources) if isinstance(self.sources, tuple) else [self.sources] if self.sources else []
+        return dict(tried=tried, plan_mismatch=self.mismatch)
+
+    def report(self, seed: int, checkpoint: pathlib.Path, naive, selection) -> dict:
+        """Print seed `seed`'s verdict (its checkpoint; naive: the grid's alpha = 0 network or None) and return
+        its summary entry."""
+        from stdm_drake.learning.evaluate import compare_with_baselines
+        from stdm_drake.learning.learned_model import LearnedModel
+        from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
+        label = self.name + ("" if selection is None else " (alpha 0: naive training)" if selection.alpha == 0
+                             else f" ({selection.label(selection.index)})")
+        models = [LearnedModel(checkpoint, name=label, robot=self.robot, check_robot=self.robot is not None)]
+        if naive is not None and selection is not None and selection.alpha > 0:
+            single = "" if models[0].ensemble_size == 1 else ", one network"
+            models.append(LearnedModel(naive, name=f"{self.name[0]} (alpha 0{single})", robot=self.robot,
+                                       structure=self.structure, sample_period=self.dataset.sample_period))
+        euler = ConstantVelocity(models[0].state_dim, models[0].action_dim, self.dataset.sample_period)
+        rows = compare_with_baselines(models + [euler], self.val, None, noise_floor=self.floor)
+        width = max([len(row.name) for row in rows] + [len("noise floor")]) + 2
+        print(f"seed {seed} on the validation split ({self.val_trajectories} trajectories, "
+              f"{rows[0].one_step.transitions} transitions), one-step MSE:")
+        print(f"  {'':<{width}}{'q [rad^2]':>11} {'v [(rad/s)^2]':>14}  against the Euler step (q) / 'v unchanged' (v)")
+        for row in rows[:-1]:
+            print(f"  {row.name:<{width}}{row.one_step.angle_mse:>11.3e} {row.one_step.velocity_mse:>14.3e}  "
+                  f"{row.ratio_q:.3g}x / {row.ratio_v:.3g}x better -> {row.verdict}")
+        print(f"  {'Euler step':<{width}}{rows[-1].one_step.angle_mse:>11.3e} {rows[-1].one_step.velocity_mse:>14.3e}"
+              "  (q + dt v; 'v unchanged')")
+        if self.floor and (self.floor["q"] > 0 or self.floor["v"] > 0):
+            print(f"  {'noise floor':<{width}}{self.floor['q']:>11.3e} {self.floor['v']:>14.3e}  (the sensor's)")
+        model = rows[0]
+        if not model.verdict.startswith("learned"):
+            print(f"stdm-drake train: warning: seed {seed}'s {self.name} has not learned the dynamics (validation "
+                  f"one-step q {model.ratio_q:.3g}x better than the Euler step, v {model.ratio_v:.3g}x than 'v "
+                  f"unchanged'; it needs {LEARNED_FACTOR:g}x in both"
+                  + (f", or within {FLOOR_FACTOR:g}x of the noise floor" if self.floor and self.floor["v"] > 0 else "")
+                  + f"); likely cause: {self.likely_cause(selection, rows)}", file=sys.stderr)
+        return dict(transitions=model.one_step.transitions, trajectories=self.val_trajectories, noise_floor=self.floor,
+                    models=[row.as_dict() for row in rows])
+
+    def likely_cause(self, selection, rows) -> str:
+        """The first of the usual reasons that fits this run."""
+        from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT
+        settings, chosen = self.settings, (selection.source if selection is not None else None) or self.sources
+        targets_used = selection is None or selection.alpha > 0
+        if settings.uses_derivative() and targets_used and chosen == "planned" and self.mismatch is not None and \
+                self.mismatch["acceleration"] > PLAN_MISMATCH_LIMIT:
+            return (f"the derivative targets: the plan's accelerations are {self.mismatch['acceleration']:.2f} "
+                    "(relative RMS) from the recorded ones; leave out --derivative-source planned")
+        if settings.uses_derivative() and selection is None:
+            return (f"alpha {settings.alpha:g}, fixed: --alpha auto chooses it by validation, 0 (naive) included")
+        if len(rows) > 2 and rows[1].verdict.startswith("learned"):
+            return "the derivative loss: the naive member learned; train --model " + self.name[:-1]
+        if self.training_transitions < 2000:
+            return (f"the data size: {self.training_transitions} training transitions; collect more trajectories "
+                    "(collect --count) or train on more of them (--train)")
+        if not self.structure.grey_box and (self.structure.inputs == "raw" or self.structure.predicts == "state"):
+            return ("the model structure: the paper's black box (--inputs raw, --predicts state) did not learn on "
+                    "the shipped protocols (docs/learning.md); leave --inputs and --predicts at their defaults")
+        return ("the data or the training budget: check the data with `stdm-drake inspect` and the learning curves "
+                "(curves.csv); raise --epochs or --patience if the validation error was still falling")
+
+
+def grey_box_physics(path, robot, settings, dataset, split) -> dict | None:
+    """The structure's physics record of `--physics` (an identified robot of `robot`'s description), or None.
+    An identified robot fitted on `dataset` must have been fitted and validated on plans this grey box
+    trains or validates on (`split`), or its test plans would not be held out from the model as a whole."""
+    if path is None:
+        return None
+    if settings.inputs != "plant_step":
+        raise InputError("--physics is the grey box's plant: use it with --model G/GD (or --inputs plant_step)")
+    from stdm_drake.dynamics.model_files import kind_of, load_model_file
+    if kind_of(path).name != "identified robot":
+        raise InputError(f"--physics {path}: not an identified robot (`stdm-drake identify`'s .yaml)")
+    identified = load_model_file(path)
+    identified.check_robot(robot)
+    identified.check_fits(dataset)
+    if identified.trained_on(dataset):
+        fitted = set(identified.split_indices(dataset, "train")) | set(identified.split_indices(dataset, "val"))
+        unseen = sorted(fitted - set(split.train.tolist()) - set(split.val.tolist()))
+        if unseen:
+            raise InputError(f"--physics {path} was identified on plans this grey box holds out for testing "
+                             f"({', '.join(map(str, unseen[:5]))}{' ...' if len(unseen) > 5 else ''}); train with "
+                             "the split options `identify` used")
+    return dict(effects=identified.effects.record(), plant_time_step=identified.identification.plant_time_step,
+                source=str(path))
+
+
+def train_job(job: TrainJob) -> dict:
+    """Run `job`: every check first (output folder, settings, dataset, robot, memory, disk), then one model per
+    seed, each seed's verdict against the physics baselines on the validation split printed, and the summary
+    written to `job.output / "summary.json"`; returns that summary (dataset, split, per seed its checkpoint,
+    epochs, alpha selection and validation rows)."""
+    from stdm_drake.data.compatibility import resolve_robot
+    from stdm_drake.data.dataset import load_dataset
+
+    settings, output = job.settings, pathlib.Path(job.output)
+    settings.validate(given=job.given)
+    settings.check_alpha(job.given)
+    torch.set_num_threads(settings.threads)
+    check_output_folder("-o/--output", output, inputs=[job.dataset, job.robot, job.physics, *job.inputs],
+                        force=job.force)
+    if job.runner.backend == "ray" and job.resume:
+        raise InputError("--resume continues runs in a local folder; with --backend ray, train without it")
+    existing = [seed for seed in settings.seeds if (output / f"seed{seed}" / "checkpoint.pt").exists()]
+    if existing and not job.resume:
+        raise InputError(f"{output / f'seed{existing[0]}' / 'checkpoint.pt'} exists; pass --resume "
+                         "to continue it or choose another --output")
+    dataset = load_dataset(job.dataset)
+    robot = None   # (without a robot, train loads no Drake plant at all)
+    if job.robot is not None or settings.structure().uses_nominal_model:
+        robot = resolve_robot(job.robot, dataset)
+    if settings.uses_derivative() and robot is not None:
+        warn_about_fast_damped_joints(robot, dataset.sample_period)
+    split, per_group = dataset_split(dataset, settings)
+    structure = settings.structure(grey_box_physics(job.physics, robot, settings, dataset, split))
+    name = settings.model_name()
+    sources, source_line, mismatch = derivative_sources(dataset, split, settings)
+    problem = training_problem(dataset, split, model_type=name, activation=settings.activation,
+                               hidden_width=settings.hidden_width, hidden_layers=settings.hidden_layers,
+                               ensemble_size=settings.ensemble_size, delta=not settings.direct,
+                               derivative_source=sources, action_rate=settings.action_rate,
+                               structure=structure, robot=robot, split_seed=settings.split_seed, per_group=per_group,
+                               threads=settings.threads, network=settings.network)
+    model_config = problem.model_config
+    settings.training_config(settings.seeds[0])  # its checks, before the output folder is made
+    grid = settings.alpha_choices()
+    settings.check_memory(problem.transitions, max(model_config.ensemble_size, len(grid) if grid else 1))
+    network = network_class(settings.network)
+    weights = network.weight_count(model_config)
+    check_free_space(output / f"seed{settings.seeds[0]}" / "checkpoint.pt",   # weights, Adam's state (float32)
+                     len(settings.seeds) * (16 * weights + CHECKPOINT_RESERVE_BYTES))
+    verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
+                                mismatch)
+    job.runner.validate()
+    if job.runner.backend == "ray":
+        connect(job.runner)   # joins the cluster now: an unreachable one stops before any work
+    mark_output_folder(output)
+    print(f"{name}: {network.describe_config(model_config)}, "
+          f"{model_config.ensemble_size} member(s), {'delta' if model_config.residual else 'direct'}, "
+          f"{structure.label}; train {len(split.train)} / val {len(split.val)} / test {len(split.test)} trajectories "
+          f"({problem.transitions} / {len(verdict.val.state)} transitions)")
+    if source_line:
+        print(source_line)
+    if grid is not None:
+        print(f"alpha chosen by validation from {', '.join(f'{a:g}' for a in grid)}"
+              + (f" for each of the derivative sources {', '.join(sources)}" if isinstance(sources, tuple) else "")
+              + ("; an alpha > 0 replaces naive training (0) only where its gain over it is above 0 at 95 % "
+                 "confidence, paired over the validation trajectories" if 0.0 in grid else ""))
+    fit_options = dict(alpha_grid=grid, checkpoint_every=settings.checkpoint_every, metadata=problem.metadata)
+    entries = {}
+    for seed, result, selection in fit_seeds(problem, settings, fit_options, job.runner, output, not job.progress):
+        entries[seed] = write_seed_files(output / f"seed{seed}", name, seed, result, selection)
+        entries[seed]["validation"] = verdict.report(seed, output / f"seed{seed}" / "checkpoint.pt", result.naive,
+                                                     selection)
+    summary = dict(written_by=written_by(), model_type=name, structure=structure.as_dict(), dataset=str(job.dataset),
+                   dataset_sha256=dataset.sha256, robot=None if robot is None else robot.record(),
+                   physics=None if job.physics is None else str(job.physics), derivative_sources=verdict.source_record(),
+                   split={key: list(map(int, value)) for key, value in split.as_dict().items()},
+                   seeds={str(seed): {k: v for k, v in entries[seed].items() if k != "alpha_selection"}
+                          for seed in settings.seeds})
+    selections = {str(seed): entries[seed]["alpha_selection"] for seed in settings.seeds
+                  if "alpha_selection" in entries[seed]}
+    if selections:
+        summary["alpha_selection"] = selections
+    write_text_atomic(output / "summary.json", json.dumps(summary, indent=2) + "\n")
+    return summary

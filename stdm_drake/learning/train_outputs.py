@@ -1,0 +1,86 @@
+"""The files a training job writes beside each checkpoint: learning curves (curves.csv), the alpha grid's
+validation curve (alpha_selection.csv, alpha_selection.png), and the seed's one-line report."""
+from __future__ import annotations
+
+import csv
+import io
+import pathlib
+
+import numpy as np
+
+from stdm_drake.files import atomic_path, write_text_atomic
+from stdm_drake.learning.alpha_selection import AlphaSelection
+from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
+
+
+def history_csv(history: dict) -> str:
+    """Learning curves as CSV text (one row per epoch, HISTORY_COLUMNS)."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(HISTORY_COLUMNS)
+    for values in zip(*(history[column] for column in HISTORY_COLUMNS)):
+        writer.writerow([int(values[0])] + [f"{value:.9g}" for value in values[1:]])
+    return buffer.getvalue()
+
+
+def alpha_selection_csv(selection: AlphaSelection) -> str:
+    """The alpha grid's validation curve as CSV: alpha, derivative_source (empty: the dataset's one source),
+    val_state_mse_standardized, best_epoch, chosen."""
+    lines = ["alpha,derivative_source,val_state_mse_standardized,best_epoch,chosen"]
+    sources = selection.sources or ("",) * len(selection.alphas)
+    for index, (alpha, source, score, epoch) in enumerate(zip(selection.alphas, sources, selection.val_mse,
+                                                               selection.best_epochs)):
+        source = source if alpha > 0 else ""   # (naive training sees no derivative targets)
+        lines.append(f"{alpha:g},{source},{score:.9g},{int(epoch)},{int(index == selection.index)}")
+    return "\n".join(lines) + "\n"
+
+
+def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pathlib.Path:
+    """Validation state MSE against alpha (log axes; alpha = 0 drawn as a dashed line), PNG, atomically."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    alphas, scores = np.asarray(selection.alphas), np.asarray(selection.val_mse)
+    sources = np.asarray(selection.sources if selection.sources is not None else [""] * len(alphas))
+    figure, axis = plt.subplots(figsize=(5.5, 3.8))
+    positive = alphas > 0
+    for source, color in zip(dict.fromkeys(sources[positive]), ("tab:orange", "tab:green", "tab:purple", "tab:red")):
+        rows = positive & (sources == source)
+        axis.loglog(alphas[rows], scores[rows], "o-", color=color,
+                    label="derivative learning" + (f" ({source} targets)" if source else ""))
+    for score in scores[~positive]:
+        axis.axhline(score, color="tab:blue", linestyle="--", label="naive (alpha = 0)")
+    axis.plot([selection.alpha if selection.alpha > 0 else alphas[positive].min()], [scores[selection.index]], "k*",
+              markersize=14, label=f"chosen: {selection.label(selection.index)}")
+    axis.set_xlabel("alpha (paper eq. 9)")
+    axis.set_ylabel("validation state MSE (standardized)")
+    axis.set_title(title or "alpha chosen by validation")
+    axis.legend(fontsize=8)
+    path = pathlib.Path(path)
+    with atomic_path(path) as temp:
+        figure.savefig(temp, format="png", dpi=110, bbox_inches="tight")
+    plt.close(figure)
+    return path
+
+
+def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selection) -> dict:
+    """A trained seed's learning curves and alpha selection (CSV, PNG) beside its checkpoint, one line
+    printed; returns its summary entry."""
+    write_text_atomic(folder / "curves.csv", history_csv(result.history))
+    entry = dict(checkpoint=str(folder / "checkpoint.pt"), epochs=result.epochs_run, stopped_early=result.stopped_early,
+                 best_epochs=result.best_epochs, best_val_mse_standardized=result.best_scores)
+    if selection is not None:
+        write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
+        plot_alpha_selection(selection, folder / "alpha_selection.png", title=f"{name} seed {seed}")
+        entry["alpha_selection"] = selection.as_dict()
+        print(f"seed {seed}: chosen by validation: {selection.label(selection.index)} (validation state MSE, "
+              "standardized: " + "; ".join(f"{selection.label(i)} {v:.3g}" for i, v in enumerate(selection.val_mse))
+              + ")")
+        if selection.gain_low is not None:
+            print(f"seed {seed}: gain over naive training, 95 % lower bound: " + "; ".join(
+                f"{selection.label(i)} {100 * g:+.2g} %" for i, g in enumerate(selection.gain_low) if selection.alphas[i])
+                + ("" if selection.alpha > 0 else " -> naive kept: no alpha > 0 beat it beyond validation's noise"))
+    print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
+          f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {folder / 'checkpoint.pt'}")
+    return entry
