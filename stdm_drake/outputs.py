@@ -276,6 +276,8 @@ def folder_writer(path) -> str | None:
 # them): a folder holding another command's is that command's.
 COMMAND_RESULTS = {"train": ("summary.json",), "sine-sum": ("results.json", "summary.md", "table1.csv"),
                    "mpc": ("mpc.json", "mpc.csv"), "reproduce": ("report.md", "cache", "sine_sum", "results.json")}
+# (a reproduce run's report: what makes its folder a finished run's for `fresh_default_folder`; its cache is work)
+FINISHED_RESULTS = {**COMMAND_RESULTS, "reproduce": ("report.md", "report.html")}
 
 
 def _older_owner(path: pathlib.Path, command: str | None) -> tuple[str, str] | None:
@@ -381,22 +383,19 @@ def mark_output_folder(path) -> None:
         raise
 
 
-def fresh_default_folder(default) -> pathlib.Path:
-    """The folder a command writes to when the user names none: `default` (e.g. out/mpc) when it is missing or
-    empty, else the first of default-2, default-3, ... that is, so a second run never replaces the first run's
-    results (a folder the user names is checked by `check_output_folder`, which refuses another run's
-    results without --force)."""
+def fresh_default_folder(default, command: str) -> pathlib.Path:
+    """The folder `command` writes to when the user names none: `default` (e.g. out/mpc) unless it holds one of
+    the command's result files (FINISHED_RESULTS: a finished run's), else the first of default-2, default-3, ...
+    that holds none, so a second run never replaces the first run's results, while a run stopped before its
+    results (its cached work kept) continues in its folder. A folder the user names is checked by
+    `check_output_folder`, which refuses another run's results without --force."""
     default = pathlib.Path(default)
     candidate, number = default, 1
-    while candidate.exists() and (not candidate.is_dir() or _holds_results(candidate)):
+    while candidate.exists() and (not candidate.is_dir()
+                                  or any((candidate / name).exists() for name in FINISHED_RESULTS[command])):
         number += 1
         candidate = default.with_name(f"{default.name}-{number}")
     return candidate
-
-
-def _holds_results(folder: pathlib.Path) -> bool:
-    """Whether `folder` holds anything but folder markers and empty folders."""
-    return not _holds_only_its_marker(folder)
 
 
 def add_force_argument(parser) -> None:

@@ -49,6 +49,16 @@ def expand_shipped(argument: str) -> str:
     return argument
 
 
+def shipped_hint(path) -> str:
+    """For a missing relative path FOLDER/NAME whose NAME is a shipped file of models/, trajectories/ or
+    controllers/ (a path copied from a recipe, run outside the checkout): "; the shipped one is
+    stdm-drake:FOLDER/NAME"; else ""."""
+    parts = pathlib.PurePath(path).parts
+    if len(parts) == 2 and parts[0] in ("models", "trajectories", "controllers") and (DATA_ROOT / parts[0] / parts[1]).is_file():
+        return f" (the shipped one is {SHIPPED_PREFIX}{parts[0]}/{parts[1]})"
+    return ""
+
+
 def check_input_file(path, what: str, missing=None) -> pathlib.Path:
     """`path` as a Path when it names a regular file to read (a symlink to one included); otherwise an
     error naming `what` ("dataset", "robot ur10: model file", ...) and what the path is instead: a
@@ -63,7 +73,7 @@ def check_input_file(path, what: str, missing=None) -> pathlib.Path:
         if error.errno == errno.ELOOP:
             raise InputError(f"{what} {path} is a symlink loop (its links point at each other)") from None
         if error.errno in (errno.ENOENT, errno.ENOTDIR):
-            raise (missing or InputError)(f"{what} not found: {path}") from None
+            raise (missing or InputError)(f"{what} not found: {path}{shipped_hint(path)}") from None
         raise InputError(f"{what} {path} cannot be read ({error.strerror})") from None
     if stat.S_ISDIR(mode):
         raise InputError(f"{what} {path} is a folder, not a file")

@@ -62,6 +62,9 @@ def test_each_tag_loads_and_runs_one_plan(tmp_path, plant_model, text, kind, sol
     ("optimizer: rti\nmax_iterations: 1\nline_search: [1.0]\nregularization: 1.0e-6\n",
      "with `optimizer: !Rti {iterations: 1, regularization: 1.0e-06}`"),
     ("optimizer: mppi\n", "(optimizer 'mppi' is none of rti, ilqr)"),
+    # a tagged optimizer beside an old top-level key: the tag's kind, its settings and the old key in one value
+    ("optimizer: !Ilqr {max_iterations: 2}\nregularization: 1.0e-5\n",
+     "now: replace `optimizer:`, `regularization:` with `optimizer: !Ilqr {regularization: 1.0e-05, max_iterations: 2}`"),
 ])
 def test_a_bad_or_old_optimizer_is_a_one_line_error(tmp_path, text, message):
     path = tmp_path / "mpc.yaml"
@@ -151,7 +154,7 @@ def test_the_study_records_its_inputs_and_the_optimizer_it_ran(tracking_dataset,
     assert record["inputs"] == result.record["inputs"]
     inputs = record["inputs"]
     assert inputs["dataset"] == dict(path=str(tracking_dataset), sha256=load_dataset(tracking_dataset).sha256)
-    assert inputs["robot"]["name"] == "ur10" and inputs["robot"]["file"].endswith("ur10.yaml")
+    assert inputs["robot"]["name"] == "ur10" and inputs["robot"]["config"].endswith("ur10.yaml") and len(inputs["robot"]["model_sha256"]) == 64
     assert [(model["name"], model["kind"]) for model in inputs["models"]] == [("plant", "plant")]
     assert inputs["models"][0]["file"] == str(UR10.model_path)
     assert inputs["mpc_settings"]["file"] == str(settings) and inputs["mpc_settings"]["optimizer_given"]

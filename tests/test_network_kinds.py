@@ -158,16 +158,23 @@ def test_a_second_network_kind_trains_saves_loads_and_predicts(affine_registered
 
 
 def test_the_train_command_trains_a_registered_kind(affine_registered, tmp_path, excitation_dataset):
-    """`train --network affine` on a dataset: the job, the split, the verdict and summary.json as for the MLP."""
+    """`train --network affine` on a dataset with train's defaults (DD: the alpha grid with naive training in it,
+    the derivative targets chosen by validation, nominal-acceleration inputs) and as the paper's D: the job, the
+    split, the verdict and summary.json as for the MLP; the checkpoint evaluates."""
     import json
 
     from stdm_drake.cli import main
     from stdm_drake.learning.checkpoint import load_checkpoint
-    assert main(["train", str(excitation_dataset), "--network", "affine", "--model", "D", "--inputs", "raw",
-                 "--predicts", "state", "--epochs", "5", "--quiet", "-o", str(tmp_path / "run")]) == 0
-    checkpoint = load_checkpoint(tmp_path / "run" / "seed0" / "checkpoint.pt")
-    assert isinstance(checkpoint.model, AffineEnsemble)
-    assert json.loads((tmp_path / "run" / "summary.json").read_text())["seeds"]["0"]["validation"]["models"]
+    for name, flags in (("default", []), ("paper-d", ["--model", "D", "--inputs", "raw", "--predicts", "state"])):
+        output = tmp_path / name
+        assert main(["train", str(excitation_dataset), "--network", "affine", *flags, "--epochs", "5", "--quiet",
+                     "-o", str(output)]) == 0
+        checkpoint = load_checkpoint(output / "seed0" / "checkpoint.pt")
+        assert isinstance(checkpoint.model, AffineEnsemble) and checkpoint.model_config.ensemble_size == 1
+        summary = json.loads((output / "summary.json").read_text())
+        assert summary["network"] == "affine" and summary["seeds"]["0"]["validation"]["models"]
+        assert ("alpha_selection" in summary) == (name == "default")
+        assert main(["evaluate", str(output / "seed0" / "checkpoint.pt"), str(excitation_dataset), "--no-plant"]) == 0
 
 
 def test_the_training_stack_names_no_network_kind():

@@ -206,17 +206,23 @@ def test_outputs_sharing_a_new_folder_leave_nothing_when_the_command_fails(capsy
 
 
 def test_a_default_output_folder_never_replaces_an_earlier_run(tmp_path):
-    """Without -o, mpc, reproduce and sine-sum write to their default folder only while it is missing or
-    empty (markers aside); then to default-2, default-3, ..."""
+    """Without -o, mpc, reproduce and sine-sum write to their default folder only while it holds no finished
+    run's results; then to default-2, default-3, ... A reproduce run stopped before its report (its cache
+    only) continues in its folder."""
     from stdm_drake.outputs import FOLDER_MARKER, fresh_default_folder
     default = tmp_path / "out" / "mpc"
-    assert fresh_default_folder(default) == default
+    assert fresh_default_folder(default, "mpc") == default
     default.mkdir(parents=True)
     (default / FOLDER_MARKER).write_text("marker\n")
-    assert fresh_default_folder(default) == default           # (only a marker: nothing to lose)
+    assert fresh_default_folder(default, "mpc") == default           # (only a marker: nothing to lose)
     (default / "mpc.json").write_text("{}")
-    assert fresh_default_folder(default) == tmp_path / "out" / "mpc-2"
+    assert fresh_default_folder(default, "mpc") == tmp_path / "out" / "mpc-2"
     (tmp_path / "out" / "mpc-2").mkdir()
-    (tmp_path / "out" / "mpc-2" / "mpc.md").write_text("#")
-    assert fresh_default_folder(default) == tmp_path / "out" / "mpc-3"
+    (tmp_path / "out" / "mpc-2" / "mpc.csv").write_text("model")
+    assert fresh_default_folder(default, "mpc") == tmp_path / "out" / "mpc-3"
     assert (default / "mpc.json").read_text() == "{}"
+    reproduce = tmp_path / "out" / "reproduce"
+    (reproduce / "cache").mkdir(parents=True)
+    assert fresh_default_folder(reproduce, "reproduce") == reproduce   # unfinished: its cache is reused
+    (reproduce / "report.md").write_text("# report")
+    assert fresh_default_folder(reproduce, "reproduce") == tmp_path / "out" / "reproduce-2"

@@ -369,3 +369,17 @@ def test_an_sdf_description_is_checked_like_a_urdf(tmp_path):
     path.write_text(SDF.format(mass=-2.0, lower=-1))
     with pytest.raises(InputError, match="link 'upper' has mass -2 kg"):
         check_description(path, "arm", ["shoulder"])
+
+
+def test_a_recipe_path_outside_the_checkout_names_the_shipped_file(tmp_path, monkeypatch, capsys):
+    """`--robot models/panda.yaml` run from another folder: the one-line error names `stdm-drake:models/panda.yaml`;
+    a path that is no shipped file gets no hint."""
+    from stdm_drake.cli import main
+    from stdm_drake.paths import shipped_hint
+    monkeypatch.chdir(tmp_path)
+    assert main(["collect", "--protocol", "tracking", "--count", "1", "--robot", "models/panda.yaml",
+                 "-o", str(tmp_path / "x.h5")]) == 2
+    assert "robot config not found: models/panda.yaml (the shipped one is stdm-drake:models/panda.yaml)" in \
+        capsys.readouterr().err
+    assert shipped_hint("controllers/pid_dither.yaml") == " (the shipped one is stdm-drake:controllers/pid_dither.yaml)"
+    assert shipped_hint("controllers/mine.yaml") == "" and shipped_hint("elsewhere/pid_dither.yaml") == ""

@@ -167,12 +167,15 @@ def _check_optimizer_layout(path) -> None:
     if not old and (node is None or isinstance(node, yaml.MappingNode)):
         return
     value = document.get("optimizer")
-    name = str(value if value is not None else "rti").strip().lower()
+    name = tag.lower() if tag is not None else str(value if value is not None else "rti").strip().lower()
     kind = Ilqr if name == "ilqr" else Rti
     renamed = {"max_iterations": "iterations"} if kind is Rti else {}
     own = {field.name for field in dataclasses.fields(kind)}
     fields = {renamed.get(key, key): document[key] for key in old if renamed.get(key, key) in own}
     tagged = f"optimizer: !{kind.__name__} " + yaml.safe_dump(fields, default_flow_style=True, sort_keys=False).strip()
+    if tag is not None:   # (the tagged value's own settings come first; the old keys fill the rest)
+        fields = {**fields, **{key.value: yaml.safe_load(yaml.serialize(item)) for key, item in node.value}}
+        tagged = f"optimizer: !{kind.__name__} " + yaml.safe_dump(fields, default_flow_style=True, sort_keys=False).strip()
     replaced = ", ".join(f"`{key}:`" for key in (["optimizer"] if node is not None else []) + old)
     unknown = "" if name in ("rti", "ilqr") else f" (optimizer {value!r} is none of rti, ilqr)"
     raise InputError(f"{path}: the optimizer and its settings are one tagged value now{unknown}: replace "

@@ -113,7 +113,7 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     from stdm_drake.outputs import check_output_file, check_output_folder, fresh_default_folder
     from stdm_drake.robots.recorder import check_meshcat_allowed, recording_visualization
     study.validate()
-    output = pathlib.Path(study.output) if study.output is not None else fresh_default_folder(DEFAULT_OUTPUT)
+    output = pathlib.Path(study.output) if study.output is not None else fresh_default_folder(DEFAULT_OUTPUT, "mpc")
     check_output_folder("-o/--output", output, inputs=study.inputs(), force=study.force)
     check_output_file("--html", study.html, kind="html", inputs=study.inputs(), force=study.force)
     if study.html:
@@ -152,7 +152,7 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     finally:
         torch.set_num_threads(threads)
     inputs = dict(dataset=dict(path=str(dataset.path), sha256=dataset.sha256),
-                  robot=dict(name=robot.name, file=_text(robot.config_path), model_file=str(robot.model_path)),
+                  robot=robot.record(),
                   plant_effects=effects_record, models=model_records,
                   mpc_settings=dict(file=_text(mpc_settings_file(robot, study.settings)),
                                     optimizer_given=study.optimizer is not None, settings=config.record()))

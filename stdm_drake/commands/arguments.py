@@ -29,22 +29,6 @@ def add_visualization_argument(parser: argparse.ArgumentParser) -> None:
                              "true` to show the collision geometry (default: the illustration geometry only)")
 
 
-def check_meshcat_allowed(option: str) -> None:
-    """`option` (--html, --meshcat) needs Meshcat's server: InputError when DRAKE_ALLOW_NETWORK leaves it out
-    (the library's `robots.recorder.check_meshcat_allowed`)."""
-    from stdm_drake.robots.recorder import check_meshcat_allowed as check
-    check(option)
-
-
-def command_visualization(args: argparse.Namespace):
-    """The VisualizationConfig `--visualization` names (None when absent: the recorder's default); refused
-    without --html (or --meshcat) (`robots.recorder.recording_visualization`)."""
-    from stdm_drake.robots.recorder import recording_visualization
-    recording = bool(getattr(args, "html", None) or getattr(args, "meshcat", False))
-    return recording_visualization(args.visualization, recording,
-                                   "--html FILE" + (" or --meshcat" if hasattr(args, "meshcat") else ""))
-
-
 def add_plant_effects_argument(parser: argparse.ArgumentParser, role: str) -> None:
     """`--plant-effects PATH`: the effects the simulated plant has beyond the robot's description."""
     parser.add_argument("--plant-effects", type=pathlib.Path, metavar="FILE",

@@ -18,8 +18,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="every stage at reduced size (about 35 s on 2 cores)")
     parser.add_argument("--output", "-o", type=pathlib.Path,
                         help="report folder (default out/reproduce, or out/reproduce-NAME with --robot, numbered -2, -3, "
-                             "... where an earlier run's results are); datasets and checkpoints in a folder given "
-                             "here are reused")
+                             "... where an earlier run's report is); the datasets and checkpoints of an unfinished "
+                             "run, or of a folder given here, are reused")
     add_robot_argument(parser, "another fully actuated arm of 6 or more joints runs the same experiments with "
                                "its protocols derived from its model")
     add_plant_effects_argument(parser, "every dataset and closed loop on the affected plant (report in "
@@ -41,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
     robot.check_can_track()
     effects = plant_effects_for(args.plant_effects, robot, DEFAULT_PLANT_TIME_STEP)
     default = "out/reproduce" + ("" if args.robot is None else f"-{robot.name}") + ("" if effects is None else "-effects")
-    output = args.output or fresh_default_folder(default)
+    output = args.output or fresh_default_folder(default, "reproduce")
     check_output_folder("-o/--output", output, inputs=[args.robot, args.plant_effects], force=args.force)
     profile = QUICK if args.quick else FULL
     started = time.perf_counter()

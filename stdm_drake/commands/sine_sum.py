@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, **overrides)
     from stdm_drake.cluster import check_workers, runner_config_from_args
     check_workers(args.workers)
-    args.output = args.output or fresh_default_folder("runs/sine-sum")
+    args.output = args.output or fresh_default_folder("runs/sine-sum", "sine-sum")
     check_output_folder("-o/--output", args.output, force=args.force)
     runner = runner_config_from_args(args)
     study = run_study(config, workers=args.workers, progress=not args.quiet, runner=runner)

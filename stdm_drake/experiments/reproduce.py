@@ -2,7 +2,7 @@
 
 Stages: (1) datasets: excitation (simulated UR-10, V.A) and tracked task-space plans (our stand-in
 for the real robot, V.B); (2) training jobs, two worker processes, each checkpoint cached under
-`<output>/cache` by a hash of its dataset and settings, so a rerun reuses what exists; (3) figures
+`<output>/cache` by a hash of its dataset and settings, so a rerun into the same folder reuses what exists; (3) figures
 and tables: activations (Figs. 11, 16), sample efficiency (Figs. 12, 17), learning curves (Fig. 13),
 multi-step prediction and rollout time (Figs. 18, 19); the sine-sum study (III.B) and the
 closed-loop MPC comparison; (4) `report.md` / `report.html` with the paper's reported values in

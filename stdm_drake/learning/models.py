@@ -265,16 +265,6 @@ class EnsembleMLP(TrainableModel):
             self.input_normalizer.normalize(stacked), rates / self.input_normalizer.std)
         return self.residual(rates) + tangent_n * self.output_normalizer.std
 
-    def member(self, index: int) -> "EnsembleMLP":
-        """A single-member copy of member `index` (same normalizers)."""
-        if not 0 <= index < self.config.ensemble_size:
-            raise InputError(f"member index {index} out of range 0..{self.config.ensemble_size - 1}")
-        single = EnsembleMLP(dataclasses.replace(self.config, ensemble_size=1)).to(next(self.parameters()).dtype)
-        state = {name: (value[index:index + 1] if name.split(".")[0] in MEMBER_PARAMETERS else value)
-                 for name, value in self.state_dict().items()}
-        single.load_state_dict(state)
-        return single
-
     # -- the trainable-model interface (`trainable.TrainableModel`) ---------------------------------------
     @classmethod
     def problem_config(cls, *, input_dim: int, output_dim: int, residual: bool, ensemble_size: int,

@@ -274,7 +274,9 @@ def train_job(job: TrainJob) -> dict:
                                                      selection)
     summary = dict(written_by=written_by(), model_type=name, structure=structure.as_dict(), dataset=str(job.dataset),
                    dataset_sha256=dataset.sha256, robot=None if robot is None else robot.record(),
-                   physics=None if job.physics is None else str(job.physics), derivative_sources=verdict.source_record(),
+                   physics=None if job.physics is None else str(job.physics), network=settings.network,
+                   settings=dataclasses.asdict(settings), settings_files=[str(path) for path in job.inputs if path],
+                   derivative_sources=verdict.source_record(),
                    split={key: list(map(int, value)) for key, value in split.as_dict().items()},
                    seeds={str(seed): {k: v for k, v in entries[seed].items() if k != "alpha_selection"}
                           for seed in settings.seeds})

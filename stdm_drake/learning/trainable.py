@@ -36,6 +36,8 @@ class TrainableModel(nn.Module, abc.ABC):
     input_dim, output_dim, residual (the delta parameterization x̂ = x + f), ensemble_size (E) and
     probabilistic, and `from_dict`). Instance: `config`. `member_parameters`: the state-dict entries with a
     leading member axis (the trainer keeps each member's best weights separately); the rest is shared.
+    Constructor: `__init__(config, generator=None)`, the initial weights drawn from the torch `generator`
+    (same generator state, same weights).
     """
     kind: str = ""
     config_type: type = object
@@ -96,6 +98,17 @@ class TrainableModel(nn.Module, abc.ABC):
         """The config as the checkpoint stores it (plain values; `config_type.from_dict` reads it back)."""
         import dataclasses
         return dataclasses.asdict(self.config)
+
+    def member(self, index: int) -> "TrainableModel":
+        """A one-member copy of member `index` (the alpha grid keeps its chosen member and the naive one):
+        the `member_parameters` entries sliced on their member axis, the rest (normalizers) shared."""
+        import dataclasses
+        if not 0 <= index < self.config.ensemble_size:
+            raise InputError(f"member index {index} out of range 0..{self.config.ensemble_size - 1}")
+        single = type(self)(dataclasses.replace(self.config, ensemble_size=1)).to(next(self.parameters()).dtype)
+        single.load_state_dict({name: (value[index:index + 1] if name.split(".")[0] in self.member_parameters else value)
+                                for name, value in self.state_dict().items()})
+        return single
 
     def inference(self):
         """The float32 NumPy engine `predict` and `LearnedModel` run (see `TorchInference` for its methods);

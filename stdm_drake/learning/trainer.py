@@ -140,7 +140,7 @@ class Trainer:
         saved = state.resume
         if saved is None:
             raise InputError(f"{path}: checkpoint holds no training state to resume")
-        if state.model_config != self.model_config or state.training_config != self.config:
+        if state.model.config_record() != self.model.config_record() or state.training_config != self.config:
             raise InputError(f"{path}: model or training options differ from the checkpoint's; "
                              "resume with the same options")
         if saved["data_fingerprint"] != self.fingerprint:
