@@ -118,22 +118,20 @@ def test_a_job_that_raises_reports_its_own_error(head, tmp_path, excitation_data
     assert "training job 0 (sim D seed 0) on the cluster failed: trajectory index out of range" in message and "\n" not in message, message
 
 
-def test_reproduce_quick_on_ray_equals_the_local_report(head, tmp_path, capsys, quick_report):
-    """`reproduce --backend ray` against the running head: the same training rows and sine-sum study as the
-    local run (`quick_report`, the regular install's; timings aside)."""
+def test_the_sine_sum_study_on_ray_equals_the_local_report(head, tmp_path, quick_report):
+    """`sine-sum --quick --backend ray` against the running head: the same runs as the sine-sum stage of the local
+    `reproduce --quick` (`quick_report`, the regular install's; reproduce's quick stage is this profile).
+    reproduce's training jobs on Ray are `test_ray_gives_the_local_results_bit_for_bit...`'s `run_jobs`, and
+    `train --backend ray` is `test_train_seeds_on_ray_write_the_local_checkpoints`."""
     from stdm_drake.cli import main
     address, _ = head
     if ray.is_initialized():
         ray.shutdown()
-    assert main(["reproduce", "--quick", "--quiet", "--backend", "ray", "--ray-address", address,
+    assert main(["sine-sum", "--quick", "--quiet", "--backend", "ray", "--ray-address", address,
                  "-o", str(tmp_path / "ray")]) == 0
-    folders = dict(local=quick_report, ray=tmp_path / "ray")
-    local, remote = (json.loads((folders[name] / "results.json").read_text()) for name in ("local", "ray"))
-    # the training is bitwise the same (curves, epochs); test errors come from the float32 numpy inference,
-    # whose BLAS sums in another order with another thread count on some CPUs (AMD EPYC: up to 1e-7 relative)
-    assert_close(clean(remote["runs"]), clean(local["runs"]))
-    local, remote = (json.loads((folders[name] / "sine_sum" / "results.json").read_text())["runs"]
-                     for name in ("local", "ray"))             # the sine-sum study ran on Ray too
+    local, remote = (json.loads(path.read_text())["runs"] for path in
+                     (quick_report / "sine_sum" / "results.json", tmp_path / "ray" / "results.json"))
+    assert len(remote) == len(local) > 0
     assert [run["member_test_mse"] for run in remote] == [run["member_test_mse"] for run in local]
     assert [run["best_prediction"] for run in remote] == [run["best_prediction"] for run in local]
 
