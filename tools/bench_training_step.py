@@ -67,7 +67,7 @@ def make_steps(seed: int = 0):
 
         def step():
             outputs, tangents = tangent_of(model, batch[0], batch[2])
-            total, _, _ = model.losses_from_outputs(training, outputs, tangents, batch[1], batch[3])
+            total = model.losses_from_outputs(training, outputs, tangents, batch[1], batch[3]).objective
             optimizer.zero_grad(set_to_none=True)
             total.backward()
             optimizer.step()
