@@ -96,7 +96,7 @@ class Feedforward(OptimizerSettings):
     """Settings of an optimizer defined outside the toolbox: the test's HoldFeedforward."""
 
     def validate(self) -> None:
-        pass
+        """It has no settings, so nothing to check."""
 
     def solver(self, model, cost, effort_limit, horizon):
         return HoldFeedforward(model, cost, effort_limit)
