@@ -16,7 +16,10 @@ Shapes: E members trained side by side (an ensemble, or an alpha grid's stack), 
 from __future__ import annotations
 
 import abc
+import copy
+import dataclasses
 import importlib
+import types
 
 import numpy as np
 import torch
@@ -96,16 +99,14 @@ class TrainableModel(nn.Module, abc.ABC):
 
     def config_record(self) -> dict:
         """The config as the checkpoint stores it (plain values; `config_type.from_dict` reads it back)."""
-        import dataclasses
         return dataclasses.asdict(self.config)
 
     def member(self, index: int) -> "TrainableModel":
         """A one-member copy of member `index` (the alpha grid keeps its chosen member and the naive one):
         the `member_parameters` entries sliced on their member axis, the rest (normalizers) shared."""
-        import dataclasses
         if not 0 <= index < self.config.ensemble_size:
             raise InputError(f"member index {index} out of range 0..{self.config.ensemble_size - 1}")
-        single = type(self)(dataclasses.replace(self.config, ensemble_size=1)).to(next(self.parameters()).dtype)
+        single = type(self)(single_member_config(self.config)).to(next(self.parameters()).dtype)
         single.load_state_dict({name: (value[index:index + 1] if name.split(".")[0] in self.member_parameters else value)
                                 for name, value in self.state_dict().items()})
         return single
@@ -147,7 +148,6 @@ def build_network(config, generator: torch.Generator | None = None) -> Trainable
 
 def single_member_config(config):
     """The same config with one member (an alpha grid's members start from one network's weights)."""
-    import dataclasses
     return dataclasses.replace(config, ensemble_size=1)
 
 
@@ -174,7 +174,6 @@ class TorchInference:
     """
 
     def __init__(self, network: TrainableModel):
-        import copy
         config = network.config
         self.network = copy.deepcopy(network).double().eval()
         self.config, self.ensemble_size = config, config.ensemble_size
@@ -187,7 +186,6 @@ class TorchInference:
 
     def workspace(self, count: int):
         """The buffer a rollout writes its step means into: `.mean` (count, S) float32."""
-        import types
         return types.SimpleNamespace(mean=np.empty((count, self.state_dim), dtype=np.float32))
 
     def _without_residual(self, inputs: torch.Tensor):
