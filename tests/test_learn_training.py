@@ -273,6 +273,59 @@ def test_loss_is_the_papers_eq9_per_output_scaled_by_the_state_spread(residual):
     assert loss() == pytest.approx((state_mse.mean() + alpha * rate_mse.mean()) / 0.25 ** 2, rel=1e-9)
 
 
+@pytest.mark.parametrize("residual", [True, False])
+def test_relative_alpha_scales_each_derivative_residual_by_its_targets_spread(residual):
+    """alpha_scale "relative": L = mean_j [MSE_state,j / σ_j² + alpha MSE_derivative,j / τ_j²] in raw units, τ_j the
+    spread of output j's derivative targets (of ẏ_j - r(ż)_j for the delta model), what the trainer sets; the
+    same data with one output's derivative targets scaled by 1000 get that output's factor divided by 1000."""
+    from stdm_drake.learning.trainer import relative_derivative_scale
+    config = dynamics_config(state_dim=2, action_dim=1, delta=residual, **SMALL)
+    alpha = 0.37
+    training = TrainingConfig(alpha=alpha, alpha_scale="relative")
+
+    def terms(data):
+        model = build_model(config, seed=1).double()
+        model.fit_normalizers(data)
+        tensors = model.standardize(data)
+        model.derivative_scale = relative_derivative_scale(tensors)
+        with torch.no_grad():
+            terms = model.loss(training, tensors.inputs, tensors.targets, tensors.input_rates, tensors.target_rates)
+        return model, terms
+
+    model, loss = terms(TRAIN)
+    state_mse, rate_mse = _eq9_terms(model, TRAIN)
+    sigma = model.output_normalizer.std.numpy()
+    residual_rates = TRAIN.target_rates - (TRAIN.input_rates[:, :2] if residual else 0)
+    tau = residual_rates.std(axis=0)
+    assert not np.allclose(sigma / tau, (sigma / tau)[0])
+    assert loss.total.item() == pytest.approx(np.mean(state_mse / sigma ** 2 + alpha * rate_mse / tau ** 2), rel=1e-9)
+    # derivative targets 1000x larger on one output (a fast wrist, a shorter period): its factor is 1000x smaller,
+    # so its derivative term weighs what it weighed before (on the raw scale: a million times more)
+    fast = RegressionData(TRAIN.inputs, TRAIN.targets, TRAIN.input_rates, TRAIN.target_rates * [1, 1000])
+    if not residual:
+        fast_model, _ = terms(fast)
+        torch.testing.assert_close(fast_model.derivative_scale, model.derivative_scale / torch.tensor([1.0, 1000.0],
+                                   dtype=torch.float64), rtol=1e-9, atol=0)
+    with pytest.raises(InputError, match="alpha_scale must be one of"):
+        TrainingConfig(alpha_scale="percent")
+
+
+def test_relative_alpha_trains_and_is_recorded(tmp_path):
+    """The trainer applies the relative scale (a different fit from the raw one at the same alpha) and the
+    checkpoint and the selection record it."""
+    config = dynamics_config(state_dim=2, action_dim=1, **SMALL)
+    training = TrainingConfig(max_epochs=6, seed=3, learning_rate=3e-3, alpha=1.0)
+    raw = train_model(config, training, TRAIN, VAL)
+    relative = train_model(config, dataclasses.replace(training, alpha_scale="relative"), TRAIN, VAL,
+                           checkpoint_path=tmp_path / "relative.pt")
+    assert raw.model.derivative_scale is None and relative.model.derivative_scale.shape == (2,)
+    assert not weights_equal(raw.model, relative.model)
+    assert load_checkpoint(tmp_path / "relative.pt").training_config.alpha_scale == "relative"
+    _, selection = select_alpha(config, dataclasses.replace(training, max_epochs=3, alpha_scale="relative"), TRAIN,
+                                VAL, alphas=(0.0, 1.0))
+    assert selection.as_dict()["alpha_scale"] == "relative" and selection.label(1) == "relative alpha 1"
+
+
 def test_alpha_grid_members_equal_training_each_alpha_alone():
     """An alpha grid is a stack of independent runs from one initialization: member k equals a single
     model trained with alpha_k and the same seed (bitwise with the derivative term on; naive alone runs

@@ -90,7 +90,7 @@ class AffineEnsemble(TrainableModel):
         if not training.derivative:
             return LossTerms(total=state, state=state, derivative=None)
         tangent = torch.bmm(self._per_member(input_rates), self.weight)
-        derivative = member_point_loss(training.derivative_loss, tangent, self._per_member(target_rates))
+        derivative = self.derivative_term(training, tangent, self._per_member(target_rates))
         alphas = training.member_alphas(self.config.ensemble_size).to(derivative.dtype)
         return LossTerms(total=state + alphas * derivative, state=state, derivative=derivative)
 

@@ -10,7 +10,8 @@ from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.commands.arguments import add_robot_argument, parse_alpha
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
-from stdm_drake.learning.settings import LOSS_KINDS, LR_SCHEDULES, TRAIN_ALPHA_GRID, TrainSettings
+from stdm_drake.learning.settings import (ALPHA_SCALES, LOSS_KINDS, LR_SCHEDULES, RELATIVE_ALPHA_GRID, TRAIN_ALPHA_GRID,
+                                         TrainSettings)
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainable import NETWORK_KINDS
 from stdm_drake.outputs import add_force_argument
@@ -39,8 +40,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="derivative loss weight as in the paper's eq. 9 (e.g. 1e-3, the paper's number), or "
                              "'auto' (default): chosen by validation state MSE from --alpha-grid, 0 (naive training) "
                              "included, so the model is at worst naive on validation")
-    parser.add_argument("--alpha-grid", type=float, nargs="+", default=list(TRAIN_ALPHA_GRID),
-                        help="alphas tried by --alpha auto (default 0 and the paper's search range 1e-4 ... 1e-1)")
+    parser.add_argument("--alpha-grid", type=float, nargs="+",
+                        help="alphas tried by --alpha auto (default: 0 and, for the raw scale, the paper's search "
+                             f"range {TRAIN_ALPHA_GRID[1]:g} ... {TRAIN_ALPHA_GRID[-1]:g}; for the relative scale "
+                             f"{RELATIVE_ALPHA_GRID[1]:g} ... {RELATIVE_ALPHA_GRID[-1]:g})")
+    parser.add_argument("--alpha-scale", choices=ALPHA_SCALES, default="raw",
+                        help="raw: alpha as in the paper's eq. 9 (default); relative: each output's derivative "
+                             "residual over its own target's spread, so alpha 1 weighs the derivative and state terms "
+                             "of every joint alike")
     parser.add_argument("--network", choices=tuple(NETWORK_KINDS), default="ensemble_mlp",
                         help="network kind (default ensemble_mlp: the paper's MLPs; a registered kind, "
                              "stdm_drake.learning.trainable)")

@@ -28,6 +28,7 @@ class AlphaSelection:
     index: int
     sources: tuple | None = None
     gain_low: list | None = None   # per entry: the 95 % lower bound of its gain over naive (`naive_gain_bounds`)
+    scale: str = "raw"             # the alphas' scale (`settings.ALPHA_SCALES`)
 
     @property
     def alpha(self) -> float:
@@ -39,13 +40,16 @@ class AlphaSelection:
         return None if self.sources is None else self.sources[self.index]
 
     def label(self, index: int) -> str:
-        """Entry `index` as "alpha 0.001" or, with several sources, "alpha 0.001, true targets"."""
+        """Entry `index` as "alpha 0.001" ("relative alpha 1" on the relative scale) or, with several sources,
+        "alpha 0.001, true targets"."""
         source = "" if self.sources is None or self.alphas[index] == 0 else f", {self.sources[index]} targets"
-        return f"alpha {self.alphas[index]:g}{source}"
+        scale = "relative " if self.scale == "relative" and self.alphas[index] > 0 else ""
+        return f"{scale}alpha {self.alphas[index]:g}{source}"
 
     def as_dict(self) -> dict:
         values = dict(alphas=[float(a) for a in self.alphas], val_mse=[float(v) for v in self.val_mse],
-                      best_epochs=[int(e) for e in self.best_epochs], chosen_alpha=self.alpha, chosen_index=self.index)
+                      best_epochs=[int(e) for e in self.best_epochs], chosen_alpha=self.alpha, chosen_index=self.index,
+                      alpha_scale=self.scale)
         if self.sources is not None:
             values.update(sources=list(self.sources), chosen_source=self.source)
         if self.gain_low is not None:
@@ -58,7 +62,7 @@ class AlphaSelection:
                    best_epochs=list(values["best_epochs"]), index=int(values["chosen_index"]),
                    sources=tuple(values["sources"]) if values.get("sources") is not None else None,
                    gain_low=list(values["gain_over_naive_low"]) if values.get("gain_over_naive_low") is not None
-                   else None)
+                   else None, scale=values.get("alpha_scale", "raw"))
 
 
 def train_alpha_grid(model_config, training_config: TrainingConfig, train_data: RegressionData,
@@ -75,7 +79,7 @@ def train_alpha_grid(model_config, training_config: TrainingConfig, train_data: 
     scores = np.asarray(result.best_scores)
     index = int(np.flatnonzero(scores == scores.min())[0])
     return result, AlphaSelection(alphas=alphas, val_mse=scores.tolist(), best_epochs=list(result.best_epochs),
-                                  index=index)
+                                  index=index, scale=training_config.alpha_scale)
 
 
 def member_errors_by_group(model, data: RegressionData) -> np.ndarray:
@@ -152,7 +156,8 @@ def select_alpha(model_config, training_config: TrainingConfig, train_data, val_
     selection = AlphaSelection(alphas=tuple(grids[g][1][m] for _, g, m in entries), val_mse=scores.tolist(),
                                best_epochs=[int(grids[g][0].best_epochs[m]) for _, g, m in entries], index=index,
                                sources=None if list(trains) == [None] else tuple(s for s, _, _ in entries),
-                               gain_low=None if gain_low is None else gain_low.tolist())
+                               gain_low=None if gain_low is None else gain_low.tolist(),
+                               scale=training_config.alpha_scale)
     chosen = TrainResult(model=result.model.member(member), history=result.history,
                          best_epochs=[result.best_epochs[member]], best_scores=[result.best_scores[member]],
                          epochs_run=result.epochs_run, stopped_early=result.stopped_early, naive=naive)

@@ -329,8 +329,7 @@ class EnsembleMLP(TrainableModel):
             state_term = member_gaussian_nll(mean, logvar, target) + self.member_logvar_bound_penalty()
         if tangents is None:
             return LossTerms(total=state_term, state=state_term, derivative=None)
-        derivative_term = member_point_loss(training.derivative_loss, tangents, self.per_member(target_rates),
-                                            training.huber_delta)
+        derivative_term = self.derivative_term(training, tangents, self.per_member(target_rates))
         alphas = training.member_alphas(self.config.ensemble_size).to(derivative_term.dtype)
         return LossTerms(total=state_term + alphas * derivative_term, state=state_term, derivative=derivative_term)
 

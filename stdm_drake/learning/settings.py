@@ -37,6 +37,13 @@ DEFAULT_ALPHA_GRID = (0.0, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 100.0)
 # `train`'s default (alpha "auto"): naive (0), so the chosen model is at worst naive training on validation,
 # and the paper's own search range (1e-4 ... 1e-1)
 TRAIN_ALPHA_GRID = (0.0, 1e-4, 1e-3, 1e-2, 1e-1)
+# How alpha weighs the derivative term per output (`TrainingConfig.alpha_scale`): "raw", the paper's eq. 9 (the
+# derivative residual in the state's units, so its weight per output depends on the ratio of rate to one-step
+# change: 1/Δt and each joint's bandwidth), or "relative", each output's derivative residual divided by its own
+# target's spread, so that alpha = 1 weighs the standardized derivative and state terms of every output alike.
+ALPHA_SCALES = ("raw", "relative")
+# `train`'s alphas for the relative scale: naive, and from a hundredth of the state term to ten times it
+RELATIVE_ALPHA_GRID = (0.0, 1e-2, 1e-1, 1.0, 10.0)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +59,8 @@ class TrainingConfig:
     weight_decay: decoupled weight decay (AdamW) per step, as a fraction of the learning rate.
     alpha_grid: train one member per alpha (ensemble_size must equal its length) from the same
     initial weights on the same minibatches (no bootstrap); `alpha` is then ignored.
+    alpha_scale: "raw" (paper eq. 9) or "relative" (each output's derivative residual over its target's spread);
+    see ALPHA_SCALES and `trainer`.
     """
     alpha: float = 0.0
     state_loss: str = "mse"
@@ -68,8 +77,11 @@ class TrainingConfig:
     min_learning_rate: float = 0.0
     weight_decay: float = 0.0
     alpha_grid: tuple | None = None
+    alpha_scale: str = "raw"
 
     def __post_init__(self):
+        if self.alpha_scale not in ALPHA_SCALES:
+            raise InputError(f"training config: alpha_scale must be one of {ALPHA_SCALES}, got {self.alpha_scale!r}")
         for name in ("state_loss", "derivative_loss"):
             if getattr(self, name) not in LOSS_KINDS:
                 raise InputError(f"training config: {name} must be one of {LOSS_KINDS}, got {getattr(self, name)!r}")
@@ -127,7 +139,8 @@ class TrainSettings:
     grey box: D / DD with inputs "plant_step"); derivative:
     "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto" (the default:
     chosen by validation from alpha_grid, 0 included, with the derivative source; see `derivative_sources`);
-    alpha_grid: alphas tried by "auto" (default TRAIN_ALPHA_GRID); network: its kind (a name registered in
+    alpha_grid: alphas tried by "auto" (None: the alpha scale's, TRAIN_ALPHA_GRID or RELATIVE_ALPHA_GRID); alpha_scale:
+    "raw" (paper eq. 9) or "relative" (`TrainingConfig.alpha_scale`); network: its kind (a name registered in
     `trainable.NETWORK_KINDS`, default "ensemble_mlp", the paper's MLPs) and its options activation, hidden_width,
     hidden_layers, ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
     predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's; None: "state" for a
@@ -145,7 +158,8 @@ class TrainSettings:
     model: str = "DD"
     derivative: typing.Optional[str] = None
     alpha: typing.Union[float, str] = "auto"
-    alpha_grid: typing.List[float] = dataclasses.field(default_factory=lambda: list(TRAIN_ALPHA_GRID))
+    alpha_grid: typing.Optional[typing.List[float]] = None
+    alpha_scale: str = "raw"
     network: str = "ensemble_mlp"
     activation: str = "swish"
     hidden_width: int = 100
@@ -203,6 +217,7 @@ class TrainSettings:
                        state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
                        derivative_source=(None, *DERIVATIVE_SOURCES),
                        action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES,
+                       alpha_scale=ALPHA_SCALES,
                        predicts=(None, *PREDICTS), inputs=INPUT_SETS, network=tuple(NETWORK_KINDS))
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
@@ -215,14 +230,16 @@ class TrainSettings:
                                  f"to the plant step: not model {self.model}" + (" with --direct" if self.direct else ""))
         if self.alpha != "auto" and not (math.isfinite(self.alpha) and self.alpha >= 0):
             raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}")
-        if not self.alpha_grid or not all(math.isfinite(a) and a >= 0 for a in self.alpha_grid):
+        if self.alpha_grid is not None and (
+                not self.alpha_grid or not all(math.isfinite(a) and a >= 0 for a in self.alpha_grid)):
             raise InputError(f"{key('alpha_grid')} needs numbers >= 0, got {self.alpha_grid}")
-        if len(self.alpha_grid) > MAX_ALPHA_GRID:   # (each alpha is a network of the grid's stack)
-            raise InputError(f"{key('alpha_grid')} lists {len(self.alpha_grid)} alphas, at most {MAX_ALPHA_GRID}")
-        if max([*self.alpha_grid, 0.0 if self.alpha == "auto" else self.alpha]) > MAX_ALPHA:
+        grid = self.grid()
+        if len(grid) > MAX_ALPHA_GRID:   # (each alpha is a network of the grid's stack)
+            raise InputError(f"{key('alpha_grid')} lists {len(grid)} alphas, at most {MAX_ALPHA_GRID}")
+        if max([*grid, 0.0 if self.alpha == "auto" else self.alpha]) > MAX_ALPHA:
             raise InputError(f"{key('alpha')} and {key('alpha_grid')} must be at most {MAX_ALPHA:g}: the next-state "
                              "loss would vanish beside the derivative loss (float32)")
-        if self.alpha == "auto" and self.uses_derivative() and max(self.alpha_grid) == 0:
+        if self.alpha == "auto" and self.uses_derivative() and max(grid) == 0:
             raise InputError(f"{key('alpha_grid')} holds no alpha above 0, so the derivative loss would never be "
                              f"used; train --model {self.model_name()[:-1] or 'D'} for naive training")
         if self.alpha != "auto" and is_set("alpha_grid"):
@@ -268,7 +285,7 @@ class TrainSettings:
             raise InputError(f"{key('ensemble_size')} is the member count of DE/PE-type models; model "
                              f"{self.model} is one network, so it would be ignored")
         if not self.uses_derivative():
-            for name in ("alpha", "alpha_grid", "derivative_loss", "derivative_source", "action_rate"):
+            for name in ("alpha", "alpha_grid", "alpha_scale", "derivative_loss", "derivative_source", "action_rate"):
                 if is_set(name) and getattr(self, name) != "auto":   # ("auto" without it: check_alpha's line)
                     why = ("--derivative off turns it off" if self.derivative == "off" else
                            f"model {self.model} trains without it (a DD/PD/DED/PED type, or --derivative on, has it)")
@@ -332,7 +349,13 @@ class TrainSettings:
     def alpha_choices(self) -> tuple | None:
         """The alphas that alpha "auto" chooses from by validation (`alpha_selection.fit_model`'s alpha_grid);
         None for a fixed alpha or a model trained without the derivative loss."""
-        return tuple(float(a) for a in self.alpha_grid) if self.alpha == "auto" and self.uses_derivative() else None
+        return self.grid() if self.alpha == "auto" and self.uses_derivative() else None
+
+    def grid(self) -> tuple:
+        """alpha_grid, or the alpha scale's default grid when it is None."""
+        if self.alpha_grid is not None:
+            return tuple(float(a) for a in self.alpha_grid)
+        return RELATIVE_ALPHA_GRID if self.alpha_scale == "relative" else TRAIN_ALPHA_GRID
 
     def training_config(self, seed: int) -> TrainingConfig:
         """How the model of `seed` is fitted (alpha 0 without the derivative loss, and while "auto" picks it)."""
@@ -340,5 +363,6 @@ class TrainSettings:
         return TrainingConfig(alpha=alpha, state_loss=self.state_loss, derivative_loss=self.derivative_loss,
                               learning_rate=self.lr, batch_size=self.batch_size, max_epochs=self.epochs,
                               patience=self.patience, seed=seed, lr_schedule=self.lr_schedule,
-                              min_learning_rate=self.min_lr, weight_decay=self.weight_decay)
+                              min_learning_rate=self.min_lr, weight_decay=self.weight_decay,
+                              alpha_scale=self.alpha_scale)
 

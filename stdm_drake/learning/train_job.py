@@ -262,7 +262,8 @@ def train_job(job: TrainJob) -> dict:
     if source_line:
         print(source_line)
     if grid is not None:
-        print(f"alpha chosen by validation from {', '.join(f'{a:g}' for a in grid)}"
+        print(f"{'relative ' if settings.alpha_scale == 'relative' else ''}alpha chosen by validation from "
+              f"{', '.join(f'{a:g}' for a in grid)}"
               + (f" for each of the derivative sources {', '.join(sources)}" if isinstance(sources, tuple) else "")
               + ("; an alpha > 0 replaces naive training (0) only where its gain over it is above 0 at 95 % "
                  "confidence, paired over the validation trajectories" if 0.0 in grid else ""))

@@ -53,7 +53,8 @@ def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pa
         axis.axhline(score, color="tab:blue", linestyle="--", label="naive (alpha = 0)")
     axis.plot([selection.alpha if selection.alpha > 0 else alphas[positive].min()], [scores[selection.index]], "k*",
               markersize=14, label=f"chosen: {selection.label(selection.index)}")
-    axis.set_xlabel("alpha (paper eq. 9)")
+    axis.set_xlabel("alpha (relative: each output's derivative residual over its target's spread)"
+                    if selection.scale == "relative" else "alpha (paper eq. 9)")
     axis.set_ylabel("validation state MSE (standardized)")
     axis.set_title(title or "alpha chosen by validation")
     axis.legend(fontsize=8)
@@ -81,6 +82,11 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
             print(f"seed {seed}: gain over naive training, 95 % lower bound: " + "; ".join(
                 f"{selection.label(i)} {100 * g:+.2g} %" for i, g in enumerate(selection.gain_low) if selection.alphas[i])
                 + ("" if selection.alpha > 0 else " -> naive kept: no alpha > 0 beat it beyond validation's noise"))
+        if 0.0 in selection.alphas and selection.alpha > 0:
+            naive = selection.val_mse[selection.alphas.index(0.0)]
+            chosen = selection.val_mse[selection.index]
+            print(f"seed {seed}: {selection.label(selection.index)}: validation state MSE {chosen:.4g} against naive "
+                  f"training's {naive:.4g}, a gain of {100 * (1 - chosen / naive):+.3g} %")
     print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
           f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {folder / 'checkpoint.pt'}")
     return entry

@@ -49,6 +49,9 @@ class TrainableModel(nn.Module, abc.ABC):
     def __init__(self, config):
         super().__init__()
         self.config = config
+        # (out,) per-output factor on the standardized derivative residual, set by the trainer for the relative
+        # alpha (`settings.ALPHA_SCALES`); None: 1 (paper eq. 9's raw weighting). Not saved: a training setting.
+        self.derivative_scale: torch.Tensor | None = None
 
     @classmethod
     @abc.abstractmethod
@@ -72,6 +75,16 @@ class TrainableModel(nn.Module, abc.ABC):
         """The training objective's terms per member (`loss.LossTerms`) on a standardized minibatch:
         inputs (E, B, in) or (B, in); targets likewise; the rates only with the derivative loss (paper eq. 9:
         training.alpha weighs the derivative term, `training` a `settings.TrainingConfig`)."""
+
+    def derivative_term(self, training, tangents: torch.Tensor, target_rates: torch.Tensor) -> torch.Tensor:
+        """The derivative term per member (E,): training.derivative_loss of the standardized time derivative
+        (E, B, out) against its target (E, B, out), each output's residual times `derivative_scale` (the
+        relative alpha). Kinds call this in `loss` and `eval_score` so that both alpha scales apply to them."""
+        from stdm_drake.learning.loss import member_point_loss
+        if self.derivative_scale is not None:
+            scale = self.derivative_scale.to(tangents.dtype)
+            tangents, target_rates = tangents * scale, target_rates * scale
+        return member_point_loss(training.derivative_loss, tangents, target_rates, training.huber_delta)
 
     @abc.abstractmethod
     def eval_score(self, training, data) -> dict:

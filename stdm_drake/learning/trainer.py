@@ -10,7 +10,12 @@ raw-unit ratio of eq. 9:
     L = Σ_j (1/σ_j²) [ mean (x̂_j - x_j)² + alpha mean (dx̂_j/dt - ẋ_j)² ] / S,
 which is exactly eq. 9 divided by σ² when every σ_j equals σ. In network units
     e_state = f_n(z_n) - y_n,    e_derivative = J_n(z_n) ż_n - (ẏ - r(ż))/σ_y,
-with J_n ż_n one Jacobian-vector product (see models.py). MAE and Huber replace the squares where
+with J_n ż_n one Jacobian-vector product (see models.py). With the relative alpha
+(`TrainingConfig.alpha_scale="relative"`) the derivative residual of output j is instead divided by τ_j, the
+spread of its own derivative targets (of ẏ_j - r(ż)_j), so alpha = 1 weighs the two standardized terms of every
+output alike whatever the sample period and the joint's bandwidth:
+    L = Σ_j [ mean ((x̂_j - x_j)/σ_j)² + alpha mean ((dx̂_j/dt - ẋ_j)/τ_j)² ] / S
+(`relative_derivative_scale`, applied by `TrainableModel.derivative_term`). MAE and Huber replace the squares where
 asked; probabilistic members use the PETS Gaussian NLL plus the log-variance bound penalty for the
 state term.
 
@@ -225,6 +230,8 @@ class Trainer:
         each new history row. Returns each member at its best validation epoch."""
         config = self.config
         train_tensors, val_tensors = self.model.standardize(self.train_data), self.model.standardize(self.val_data)
+        self.model.derivative_scale = relative_derivative_scale(train_tensors) if (
+            config.alpha_scale == "relative" and config.derivative) else None
         member_curves = []  # this call's validation rows only (not restored on resume)
         sums, started, last_written = np.zeros(4), time.perf_counter(), self.epoch
         while not self.finished and self.epoch < config.max_epochs and self.since_improvement < config.patience:
@@ -256,6 +263,16 @@ class Trainer:
         return TrainResult(model=self.model, history=self.history, best_epochs=self.best_epochs.tolist(),
                            best_scores=self.best_scores.tolist(), epochs_run=self.epoch,
                            stopped_early=self.stopped_early, member_val_mse=member_curves)
+
+
+def relative_derivative_scale(tensors: StandardizedData) -> torch.Tensor:
+    """The relative alpha's factor per output (out,) float64: 1 / the spread of the standardized training derivative
+    targets, i.e. σ_j / τ_j with σ_j the spread of output j's regression targets (the state term's scale) and τ_j
+    that of its derivative targets (of ẏ_j - r(ż)_j for the delta parameterization), so that the derivative
+    residual is measured in units of its own target's spread as the state residual is. A target without spread
+    (below 1e-8 of the state scale) keeps the factor 1, as the normalizers keep constant columns unscaled."""
+    spread = tensors.target_rates.double().std(dim=0, correction=0)
+    return torch.where(spread > 1e-8, 1.0 / spread.clamp_min(1e-8), torch.ones_like(spread))
 
 
 def train_model(model_config, training_config: TrainingConfig, train_data: RegressionData,
