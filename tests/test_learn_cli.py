@@ -188,6 +188,27 @@ def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, t
         assert (output / "seed0" / "checkpoint.pt").read_bytes() == before
 
 
+def test_train_relative_alpha_scale_uses_its_own_grid_and_records_it(tiny, tmp_path, capsys):
+    """--alpha-scale relative: the relative grid by default, the scale in the checkpoint and the selection, and the
+    chosen alpha's validation gain over naive printed; a derivative-free model refuses the flag."""
+    dataset, _ = tiny
+    output = tmp_path / "relative"
+    assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", "DD",
+                 "--alpha-scale", "relative", "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "3",
+                 "--train", "6", "--val", "2", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert "relative alpha chosen by validation from 0, 0.01, 0.1, 1, 10" in out
+    selection = json.loads((output / "summary.json").read_text())["alpha_selection"]["0"]
+    assert selection["alphas"] == [0.0, 0.01, 0.1, 1.0, 10.0] and selection["alpha_scale"] == "relative"
+    checkpoint = load_model(output / "seed0" / "checkpoint.pt", state_dim=12, action_dim=6)
+    assert checkpoint.training_config.alpha_scale == "relative"
+    if selection["chosen_alpha"] > 0:
+        assert "against naive training's" in out
+    assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "naive"),
+                 "--model", "D", "--alpha-scale", "relative", "--quiet"]) == 2
+    assert "alpha_scale (--alpha-scale) shapes the derivative loss" in capsys.readouterr().err
+
+
 def test_alpha_flag_errors(tiny, tmp_path, capsys):
     dataset, _ = tiny
     for extra, message in ((["--model", "D", "--alpha", "auto"], "trains without"),
