@@ -222,6 +222,26 @@ def train_pair(cell: Cell, data_seed: int, init: int, path: str, profile: Profil
     return dict(members=rows, train_rule=rule)
 
 
+def cached_pair(folder, cell: Cell, data_seed: int, init: int, path: str, profile: Profile, scales=SCALES,
+                grids: dict | None = None, extension: bool = False) -> dict:
+    """`train_pair`, its result kept as JSON in `folder`/pairs (named by cell, data seed, init, scales, grids and the
+    profile), so a run stopped part-way keeps what it trained; a file of the same name is read back instead."""
+    import hashlib
+    from stdm_drake.files import write_text_atomic
+    design = json.dumps([dataclasses.asdict(profile), list(scales), {k: list(v) for k, v in (grids or {}).items()},
+                         extension, RAW_GRID, RELATIVE_GRID], sort_keys=True, default=str)
+    name = f"{cell.name}_seed{data_seed}_init{init}_{hashlib.sha256(design.encode()).hexdigest()[:12]}.json"
+    cache = pathlib.Path(folder) / "pairs" / name
+    if cache.exists():
+        stored = json.loads(cache.read_text())
+        return dict(members=[Member(**row) for row in stored["members"]], train_rule=stored["train_rule"])
+    result = train_pair(cell, data_seed, init, path, profile, scales, grids, extension)
+    cache.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(cache, json.dumps(dict(members=[dataclasses.asdict(row) for row in result["members"]],
+                                             train_rule=result["train_rule"])))
+    return result
+
+
 def nominal_plant_row(cell: Cell, data_seed: int, path: str, profile: Profile) -> dict:
     """The nominal plant (the cell's robot description stepping the recorded torque) and the physics-free baselines
     on the cell's test trajectories of one dataset."""
@@ -380,7 +400,7 @@ def run_study(cells, profile: Profile, data: pathlib.Path, runner, progress=prin
             check = chain_rule_check(paths[("literal", profile.data_seeds[0])],
                                      transitions=400 if profile is FULL else 50)
             progress(f"chain-rule check: {check}")
-        jobs = {pool.submit(train_pair, cell, seed, init, paths[(cell.data, seed)], profile): (cell.name, seed, init)
+        jobs = {pool.submit(cached_pair, data, cell, seed, init, paths[(cell.data, seed)], profile): (cell.name, seed, init)
                 for cell in cells for seed in profile.data_seeds for init in profile.inits}
         first = {}   # one cell per data kind: the nominal plant on its test trajectories
         for cell in cells:
@@ -399,8 +419,8 @@ def run_study(cells, profile: Profile, data: pathlib.Path, runner, progress=prin
             if finished % 6 == 0:
                 progress(f"{finished}/{len(jobs)} pairs trained ({time.perf_counter() - started:.0f} s)")
         extended = {(cell.name, scale): needs_extension(rows, cell, scale, profile) for cell in cells for scale in SCALES}
-        extra = {pool.submit(train_pair, cell, seed, init, paths[(cell.data, seed)], profile, scales=(scale,),
-                             grids={scale: (EXTENSION[scale],)}, extension=True): (cell.name, seed, init, scale)
+        extra = {pool.submit(cached_pair, data, cell, seed, init, paths[(cell.data, seed)], profile, (scale,),
+                             {scale: (EXTENSION[scale],)}, True): (cell.name, seed, init, scale)
                  for cell in cells for scale in SCALES if extended[(cell.name, scale)]
                  for seed in profile.data_seeds for init in profile.inits}
         if extra:
