@@ -286,7 +286,7 @@ def test_an_old_layout_warning_waits_for_the_command_to_succeed(tmp_path, capsys
 def test_a_dataset_is_reused_when_its_record_agrees_field_by_field():
     """Fields only one side records (Drake's added plant settings, a controller kind's dropped unused ones)
     do not make reproduce collect a dataset again; a field both record and that differs does."""
-    from stdm_drake.experiments.jobs import _agrees
+    from stdm_drake.experiments.datasets import _agrees
     old = dict(time_step=0.001, discrete_contact_approximation="sap", self_collision=True)
     new = dict(old, penetration_allowance=0.001, stiction_tolerance=1e-4)
     assert _agrees(old, new) and _agrees(dict(kind="inverse_dynamics", gravity_feedforward=True), {"kind": "inverse_dynamics"})

@@ -412,7 +412,7 @@ def test_mpc_tunes_each_model_on_validation_plans_before_tracking_the_held_out_o
 def test_a_dataset_of_another_plant_is_not_reused():
     """reproduce reuses a dataset whose record agrees field by field; a plant with effects and one without
     never agree, whatever else they share."""
-    from stdm_drake.experiments.jobs import _agrees
+    from stdm_drake.experiments.datasets import _agrees
     nominal = {"plant": {"time_step": 0.001, "self_collision": True}}
     affected = {"plant": {"time_step": 0.001, "self_collision": True,
                           "effects": PlantEffects(viscous_friction=[1.0]).record()}}

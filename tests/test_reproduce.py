@@ -62,6 +62,14 @@ def test_quick_profile_writes_a_complete_report(quick_report):
         assert len(row["multistep_q"]) == QUICK.horizon and row["rollout_ms"] > 0
     text = (quick_report / "report.md").read_text()
     assert "paper" in text and "Fig. 11" in text and "Fig. 19" in text and "Sine-sum" in text
+    # the report opens with what the run shows: the default model (trained and gated like any learned model) and
+    # the sine-sum, each with its paired interval, before the paper's sections
+    assert text.index("## Summary: what this run shows") < text.index("## Data") < text.index("Fig. 11")
+    summary = text[text.index("## Summary"):text.index("## Data")]
+    assert "The toolbox's default model" in summary and "Sine-sum" in summary and "need the full profile" in summary
+    (default,) = tables["default_model"]
+    assert default["seeds"] == QUICK.default_model_seeds and default["learned"], default["D_vs_baseline"]
+    assert all(alpha > 0 for alpha in default["alphas"]) and "[" in summary.split("Derivative learning on it")[1]
 
 
 @pytest.mark.slow

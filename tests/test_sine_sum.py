@@ -50,7 +50,9 @@ def test_run_grid_matches_the_paper_design():
 def test_alpha_is_chosen_on_validation_before_any_derivative_run(tmp_path):
     """The sweep's choice is the alpha every derivative run used; naive runs use 0; the chosen alpha
     has the lowest validation MSE of the grid; results do not depend on the number of workers."""
-    config = dataclasses.replace(QUICK, layers=(5,), activations=("tanh", "relu", "swish"), epochs=60)
+    config = dataclasses.replace(QUICK, layers=(5,), activations=("tanh", "relu", "swish"), epochs=60, alpha="auto",
+                                 alpha_grid=(0.0, 1e-2, 1.0), seeds=2, headline_seeds=2, table_seeds=2,
+                                 table_activations=("tanh", "relu", "swish"), table_losses=("mae", "mse", "huber"))
     one, two = run_study(config, workers=1, progress=False), run_study(config, workers=2, progress=False)
     sweep = one["alpha_sweep"]
     assert sweep["chosen_alpha"] == sweep["alphas"][int(np.argmin(sweep["val_mse"]))]
@@ -64,12 +66,13 @@ def test_alpha_is_chosen_on_validation_before_any_derivative_run(tmp_path):
 
 @pytest.mark.slow
 def test_quick_study_end_to_end(tmp_path, capsys):
+    """The quick profile's grid, files and summary (its full 6000 steps run in `reproduce --quick`'s test; here 300)."""
     output = tmp_path / "sine"
-    assert main(["sine-sum", "--quick", "-o", str(output), "--workers", "1", "--quiet"]) == 0
+    assert main(["sine-sum", "--quick", "--epochs", "300", "-o", str(output), "--workers", "1", "--quiet"]) == 0
     assert "table 1" in capsys.readouterr().out
     for name in ("results.json", "summary.md", "fig6_mse_vs_activation.csv", "fig6_mse_vs_activation.png",
                  "fig7_predictions.png", "fig8_learning_curves.png", "fig8_learning_curves.csv", "table1.csv",
-                 "table1.json", "table1.png", "alpha_sweep.csv", "alpha_sweep.png"):
+                 "table1.json", "table1.png"):
         assert (output / name).is_file(), name
     for png in output.glob("*.png"):
         content = png.read_bytes()
@@ -80,20 +83,20 @@ def test_quick_study_end_to_end(tmp_path, capsys):
         assert len(run["member_test_mse"]) == run["spec"]["members"]
         assert np.isfinite(run["member_test_mse"]).all() and run["seconds"] > 0
         assert len(run["best_prediction"]) == QUICK.test_points
-        assert run["history"]["epoch"][-1] == QUICK.epochs
+        assert run["history"]["epoch"][-1] == 300 and run["alpha"] in (0.0, QUICK.alpha)
     with open(output / "fig6_mse_vs_activation.csv") as f:
         rows = list(csv.DictReader(f))
     assert len(rows) == len(QUICK.layers) * len(QUICK.activations)
     assert all(np.isfinite(float(row[key])) for row in rows for key in row if key.endswith("mse"))
     with open(output / "table1.csv") as f:
         table = list(csv.DictReader(f))
-    assert len(table) == 9
+    assert len(table) == len(QUICK.table_losses) * len(QUICK.table_activations) == 1
     for row in table:
         assert float(row["paper"]) == PAPER_TABLE1[(row["loss"], row["activation"])]
         assert np.isfinite(float(row["mean_test_mse"]))
     summary = (output / "summary.md").read_text()
-    assert "quick profile" in summary and "paper 0.0006" in summary and "s wall" in summary
-    assert "chosen by validation" in summary and "95 % interval" in summary
+    assert "quick profile, with overrides" in summary and "paper 0.0006" in summary and "s wall" in summary
+    assert "95 % interval" in summary and not (output / "alpha_sweep.csv").exists()   # the full profile's alpha
 
 
 def test_a_five_step_study_writes_every_report_file(tmp_path, capsys):
@@ -103,7 +106,7 @@ def test_a_five_step_study_writes_every_report_file(tmp_path, capsys):
     assert main(["sine-sum", "--quick", "--epochs", "5", "--seeds", "2", "--alpha", "1e-3", "--workers", "1",
                  "--quiet", "-o", str(output)]) == 0
     printed = capsys.readouterr().out
-    assert "alpha 0.001" in printed and printed.count("table 1") == 9
+    assert "alpha 0.001" in printed and printed.count("table 1") == len(QUICK.table_losses) * len(QUICK.table_activations)
     written = {path.name for path in output.iterdir()}
     assert {"results.json", "summary.md", "fig6_mse_vs_activation.csv", "fig6_mse_vs_activation.png",
             "fig7_predictions.png", "fig8_learning_curves.png", "fig8_learning_curves.csv", "table1.csv",
@@ -121,7 +124,8 @@ def test_flushing_subnormals_changes_speed_not_results():
     import torch
     from stdm_drake.experiments.sine_sum import RunSpec, train_run
     spec = RunSpec(layers=3, activation="gelu", derivative=True, loss="mse", members=2)
-    config = dataclasses.replace(QUICK, epochs=60, validation_interval=20)
+    config = dataclasses.replace(QUICK, epochs=60, validation_interval=20, layers=(3, 5),
+                                 activations=("gelu", "swish"))
     flushed = train_run(spec, config, 1.0)
     plain = train_run(spec, dataclasses.replace(config, flush_subnormals=False), 1.0)
     np.testing.assert_allclose(flushed["member_test_mse"], plain["member_test_mse"], rtol=1e-5)

@@ -1,5 +1,5 @@
-"""`stdm-drake reproduce`, stages 1 and 2: the run profiles, the datasets (collected unless a file
-collected with exactly the same settings exists), and the training jobs (each checkpoint cached under
+"""`stdm-drake reproduce`, stage 2: the run profiles and the training jobs (stage 1, the datasets, is
+`experiments.datasets`; `ensure_dataset` is importable from here too) (each checkpoint cached under
 `<output>/cache` by a hash of its dataset and settings), run in worker processes, longest first."""
 import dataclasses
 import hashlib
@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from stdm_drake.errors import InputError
+from stdm_drake.experiments.datasets import ensure_dataset  # noqa: F401  (stage 1, where the stages' callers find it)
 from stdm_drake.experiments.results import TrainingResult
 from stdm_drake.files import json_default, write_text_atomic
 from stdm_drake.learning.checkpoint import CHECKPOINT_VERSION
@@ -50,6 +50,8 @@ class Profile:
     control_max_epochs: int = 300    # single models stop early at 250-400 epochs; ensembles gain little after
     mpc_plans: int = 20              # held-out plans tracked by every MPC
     mpc_steps: int | None = None  # control steps per MPC run (None: the whole plan)
+    default_model_seeds: int = 5     # initializations of the toolbox's default model (D against DD, paired)
+    default_model_epochs: int = 500
 
 
 FULL = Profile("full")
@@ -57,7 +59,7 @@ QUICK = Profile("quick", excitation_count=40, tracking_count=40, seeds=1, activa
                 sim_train_sizes=(5, 10), sim_val=10, sim_test=20, real_train_sizes=(1, 2), real_val=2, real_test=5,
                 multistep_train=2, ensemble_size=2, max_epochs=25, patience=10, horizon=50, sine_sum="quick",
                 identification_count=20, control_train=3, control_val=1, control_test=1, control_seeds=2, mpc_plans=2,
-                mpc_steps=20)
+                mpc_steps=20, default_model_seeds=3, default_model_epochs=200)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -68,6 +70,7 @@ class TrainJob:
     initialization, one per alpha (see learn.train_alpha_grid); it yields the variants "D" (alpha 0),
     "DD" (the paper's alpha) and, when the grid has more, "DD-auto" (chosen by validation), paired.
     alpha_mode "auto": a derivative model type whose alpha is chosen by validation (learn.fit_model).
+    structure "default", robot_config, alpha_scale: the toolbox's default model (`experiments.default_model`).
     """
     experiment: str
     dataset: str
@@ -88,74 +91,28 @@ class TrainJob:
     alphas: tuple | None = None
     alpha_mode: str = "fixed"
     action_rate: str = "forward_difference"  # Dataset.transitions: how the tangent's Δa/Δt is formed
+    structure: str = "paper"   # or "default"
+    robot_config: str | None = None
+    alpha_scale: str = "raw"
 
     def key(self) -> str:
         fields = dataclasses.asdict(self)
         for label in ("dataset", "experiment", "train_size"):  # the content hash identifies the data
             fields.pop(label)
-        if fields["action_rate"] == "forward_difference":  # the default keeps the keys it always had
-            fields.pop("action_rate")
+        for name, default in dict(action_rate="forward_difference", structure="paper", robot_config=None,
+                                  alpha_scale="raw").items():   # the defaults keep the keys they always had
+            if fields[name] == default:
+                fields.pop(name)
         fields["loss_version"] = CHECKPOINT_VERSION  # results of older loss scalings are not reused
         fields["evaluation_version"] = 2    # 2: rows carry the physics baselines' errors
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:20]
 
 
-# ---- stage 1: datasets ----------------------------------------------------------------------------
-
-def _reusable_dataset(path: pathlib.Path, request):
-    """The dataset at `path` if it is readable and was collected exactly as `request` asks (count, seed,
-    robot, plant, sensor, controller, plan or excitation settings; package versions aside), else None."""
-    from stdm_drake.collection.collect import collection_metadata
-    from stdm_drake.data.dataset import load_dataset
-    if not path.exists():
-        return None
-    try:
-        dataset = load_dataset(path)
-    except InputError:  # unreadable (e.g. truncated): it will be collected again
-        return None
-    expected = json.loads(json.dumps(collection_metadata(request)))
-    expected.pop("package_versions")
-    same = all(_agrees(dataset.metadata.record.get(key), value) for key, value in expected.items())
-    return dataset if same else None
-
-
-# sections whose presence itself is a setting: a plant with effects records them, one without does not
-PRESENCE_MATTERS = ("effects",)
-
-
-def _agrees(recorded, expected) -> bool:
-    """Whether a recorded metadata value says what `expected` says: equal, or, for a section (a mapping),
-    equal in every field both record (a field only one of them has was added or dropped by a later
-    stdm-drake or Drake, such as Drake's plant settings or a controller kind's unused fields), except the
-    fields of PRESENCE_MATTERS, which both record or neither."""
-    if isinstance(recorded, dict) and isinstance(expected, dict):
-        if any((key in recorded) != (key in expected) for key in PRESENCE_MATTERS):
-            return False
-        return all(_agrees(recorded[key], expected[key]) for key in recorded.keys() & expected.keys())
-    return recorded == expected
-
-
-def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, progress: bool,
-                   name: str | None = None, **settings):
-    """Collect the dataset (`collection_request` with its defaults plus `settings`, e.g. controller=PATH)
-    unless a file of that name collected with exactly these settings exists."""
-    from stdm_drake.collection.collect import collect, collection_request
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.data.writer import write_dataset
-    path = folder / f"{name or protocol}_n{count}_seed{seed}.h5"
-    request = collection_request(protocol, count=count, seed=seed, **settings)
-    dataset = _reusable_dataset(path, request)
-    if dataset is not None:
-        return dataset
-    trajectories, groups, metadata = collect(request, progress=progress)
-    write_dataset(path, trajectories, groups, metadata)
-    return load_dataset(path)
-
-
 # ---- stage 2: training jobs (run in worker processes) --------------------------------------------
 
 def _evaluate(model, dataset, job: TrainJob) -> dict:
-    """One-step test MSE (q, v) and, for multistep jobs, the open-loop curves and rollout time."""
+    """One-step test MSE (q, v) and, for multistep jobs, the open-loop curves and (bare networks) rollout time."""
+    import torch
     from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
     from stdm_drake.learning.predict import InferenceModel, rollout
 
@@ -174,7 +131,11 @@ def _evaluate(model, dataset, job: TrainJob) -> dict:
         x0, actions, truth = trajectory_rollout_data(dataset, job.test, job.horizon)
         multi = multi_step_errors(model, x0, actions, truth)
         stays = multi_step_errors(StaysPut(state_dim, action_dim, dataset.sample_period), x0, actions, truth)
-        result.update(stays_put_multistep_q=stays.angle_mse.tolist())
+        result.update(stays_put_multistep_q=stays.angle_mse.tolist(), multistep_q=multi.angle_mse.tolist(),
+                      multistep_v=multi.velocity_mse.tolist(), multistep_q_std=multi.angle_mse_std.tolist(),
+                      multistep_v_std=multi.velocity_mse_std.tolist())
+        if not isinstance(model, torch.nn.Module):   # a LearnedModel (not the paper's black box): no timing
+            return result
         engine = InferenceModel(model)
         rollout(engine, x0[:1], actions[:1])  # warm-up
         timings = []
@@ -182,10 +143,35 @@ def _evaluate(model, dataset, job: TrainJob) -> dict:
             tick = time.perf_counter()
             rollout(engine, x0[:1], actions[:1])
             timings.append(time.perf_counter() - tick)
-        result.update(multistep_q=multi.angle_mse.tolist(), multistep_v=multi.velocity_mse.tolist(),
-                      multistep_q_std=multi.angle_mse_std.tolist(), multistep_v_std=multi.velocity_mse_std.tolist(),
-                      rollout_ms=1e3 * float(np.median(timings)))
+        result.update(rollout_ms=1e3 * float(np.median(timings)))
     return result
+
+
+def job_structure(job: TrainJob):
+    """(ModelStructure, Robot or None) of a job: the paper's black box, or the default structure on its robot."""
+    from stdm_drake.learning.structure import DEFAULT, PAPER
+    if job.structure == "paper":
+        return PAPER, None
+    from stdm_drake.robots.robot import load_robot
+    return DEFAULT, load_robot(job.robot_config)
+
+
+def as_model(network, structure, robot, dataset):
+    """A trained network as what `_evaluate` tests: the bare network (the paper's black box, whose rollout time
+    is measured) or, for another structure, its `LearnedModel`."""
+    from stdm_drake.learning.structure import PAPER
+    if structure == PAPER:
+        return network
+    from stdm_drake.learning.learned_model import LearnedModel
+    return LearnedModel(network, robot=robot, structure=structure, sample_period=dataset.sample_period)
+
+
+def derivative_pair(alphas, best_scores) -> dict:
+    """Variants of a default-model grid: D (alpha 0) and DD, the alpha > 0 member of the lowest validation MSE
+    (derivative learning with alpha by validation, naive not among its choices: docs/settling.md)."""
+    alphas = [float(a) for a in alphas]
+    positive = [k for k, alpha in enumerate(alphas) if alpha > 0]
+    return {"D": alphas.index(0.0), "DD": min(positive, key=lambda k: best_scores[k])}
 
 
 def grid_variants(alphas) -> dict:
@@ -215,12 +201,14 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[TrainingResult]:
         return reused
     dataset = load_dataset(job.dataset)
     kind = parse_model_type(job.model_type)
+    structure, robot = job_structure(job)
     problem = training_problem(dataset, dict(train=job.train, val=job.val, test=job.test), model_type=job.model_type,
                                activation=job.activation, ensemble_size=job.ensemble_size,
-                               derivative_source=job.derivative_source, action_rate=job.action_rate, threads=1)
+                               derivative_source=job.derivative_source, action_rate=job.action_rate, threads=1,
+                               structure=structure, robot=robot)
     config, train, val, metadata = problem.model_config, problem.train, problem.val, problem.metadata
     training = TrainingConfig(alpha=DEFAULT_ALPHA if kind.derivative else 0.0, seed=job.seed,
-                              max_epochs=job.max_epochs, patience=job.patience)
+                              max_epochs=job.max_epochs, patience=job.patience, alpha_scale=job.alpha_scale)
     common = dict(key=key, activation=job.activation, seed=job.seed, train_trajectories=len(job.train),
                   experiment=job.experiment, train_size=job.train_size)
     started = time.perf_counter()
@@ -228,14 +216,15 @@ def run_job(job: TrainJob, cache: pathlib.Path) -> list[TrainingResult]:
     if job.alphas is not None:
         grid, selection = train_alpha_grid(config, training, train, val, alphas=job.alphas)
         seconds = time.perf_counter() - started
-        for name, index in grid_variants(job.alphas).items():
+        for name, index in (grid_variants(job.alphas) if job.structure == "paper" else
+                            derivative_pair(job.alphas, grid.best_scores)).items():
             index = selection.index if index is None else index
             rows.append(TrainingResult(**common, model_type=name, alpha=float(job.alphas[index]), train_seconds=seconds,
                              epochs=grid.epochs_run, best_epoch=int(grid.best_epochs[index]),
                              val_mse=float(grid.best_scores[index]), epoch_axis=grid.history["epoch"],
                              val_mse_curve=[scores[index] for scores in grid.member_val_mse],
                              alpha_selection=selection.as_dict(),
-                             **_evaluate(grid.model.member(index), dataset, job)))
+                             **_evaluate(as_model(grid.model.member(index), structure, robot, dataset), dataset, job)))
         saved, history = grid.model, grid.history
         saved_training = dataclasses.replace(training, alpha=0.0, alpha_grid=tuple(job.alphas))
         metadata.alpha_selection = selection.as_dict()
@@ -297,7 +286,7 @@ def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset_content:
 
 # relative training cost of a job, to start the longest first (measured on the full profile: an
 # ensemble trained with the derivative term on the identification data takes ~100x a 10-trajectory grid)
-JOB_COST = {"control": 20.0, "sim_local": 15.0, "multistep": 2.0, "sim": 1.0, "real": 1.0}
+JOB_COST = {"control": 20.0, "default_model": 15.0, "sim_local": 15.0, "multistep": 2.0, "sim": 1.0, "real": 1.0}
 
 
 def job_cost(job: TrainJob) -> float:
@@ -356,7 +345,8 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
 def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> list[TrainJob]:
     """Every training job (sim, sim_local, real, multistep, control); the splits use split seed 0, the
     seeds vary initialization. Naive/derivative comparisons are grid jobs (TrainJob.alphas): the paper's
-    alpha beside naive for every activation, and the full alpha grid (alpha chosen by validation) for swish."""
+    alpha beside naive for every activation, and the full alpha grid (alpha chosen by validation) for swish
+    (the toolbox's default model's jobs: `default_model.default_model_jobs`)."""
     from stdm_drake.data.dataset import split_trajectories
     common = dict(max_epochs=profile.max_epochs, patience=profile.patience, ensemble_size=profile.ensemble_size)
 

@@ -22,7 +22,9 @@ from stdm_drake.cluster import RunnerConfig, job_pool
 from stdm_drake.experiments.jobs import (CONTROL_MODEL_TYPES, IDENTIFICATION_SETTINGS, Profile, ensure_dataset,
                                          plan_jobs, run_jobs)
 from stdm_drake.experiments.results import select_rows
-from stdm_drake.experiments.reproduce_report import mpc_statistics, write_report
+from stdm_drake.experiments.default_model import default_model_jobs
+from stdm_drake.experiments.reproduce_document import write_report
+from stdm_drake.experiments.reproduce_report import mpc_statistics
 from stdm_drake.files import json_default
 from stdm_drake.outputs import mark_output_folder
 from stdm_drake.paths import CONTROLLERS_DIR
@@ -81,6 +83,8 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
 
     tick = time.perf_counter()
     jobs = plan_jobs(profile, excitation, local, tracking, identification)
+    if robot.config_path is not None:   # the toolbox's own default model beside the paper's black box
+        jobs += default_model_jobs(profile, excitation, str(robot.config_path))
     results = run_jobs(jobs, cache, workers, progress, runner=runner)
     timings["training"] = time.perf_counter() - tick
 

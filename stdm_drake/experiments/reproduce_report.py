@@ -1,11 +1,5 @@
-"""`stdm-drake reproduce`, stage 3: tables (paired ratios with 95 % intervals, verdicts against the
-paper's numbers), figures, and `report.md` / `report.html`.
-
-Longer than 400 lines on purpose: every section of the report is built from the same result rows
-and the same verdict rules, which belong in one place."""
-import dataclasses
-import json
-import pathlib
+"""`stdm-drake reproduce`, stage 3: tables (paired ratios with 95 % intervals, verdicts against the paper's numbers),
+figures, `report.md` / `report.html`; long on purpose: every section shares the result rows and verdict rules."""
 
 import numpy as np
 
@@ -13,10 +7,7 @@ from stdm_drake.experiments.jobs import Profile
 from stdm_drake.experiments.results import select_rows
 from stdm_drake.experiments.reproduce_figures import (figure_path, plot_activations, plot_learning_curves, plot_multistep,
                                                       plot_sizes)
-from stdm_drake.files import json_default, write_text_atomic
 from stdm_drake.learning.models import MODEL_TYPES
-from stdm_drake.outputs import written_by
-from stdm_drake.report import Report
 from stdm_drake.stats import paired_ratio
 
 # The paper's reported values (numbers stated in its text), shown in "paper" columns only.
@@ -428,54 +419,6 @@ def add_mpc_section(report, mpc_rows: dict | None) -> None:
         report.image("mpc/mpc.png", "MPC tracking error, plant model vs learned models")
         report.text("The paper has no MPC experiment; the plant-as-model MPC is the reference. Per model "
                     "instance: mpc_runs.csv.")
-
-
-def write_result_files(folder: pathlib.Path, report, tables: dict, results) -> None:
-    """report.md, report.html, results.json (tables and every run) and one CSV per table, atomically."""
-    markdown, page = report.markdown(), report.html()
-    write_text_atomic(folder / "report.md", markdown + "\n")
-    write_text_atomic(folder / "report.html", page + "\n")
-    write_text_atomic(folder / "results.json", json.dumps(dict(written_by=written_by(), tables=tables, runs=results),
-                                                           default=json_default))
-    for name in ("sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage", "mpc", "mpc_runs"):
-        rows = [_flat(row) for row in tables[name]]
-        if rows:
-            columns = list(dict.fromkeys(key for row in rows for key in row))
-            write_text_atomic(folder / f"{name}.csv", "\n".join(
-                [",".join(columns)] + [",".join(str(row.get(key, "")) for key in columns) for row in rows]) + "\n")
-
-
-def write_report(folder: pathlib.Path, profile: Profile, excitation, local, tracking, identification, results, sine,
-                 mpc_rows, timings: dict, *, robot, identification_controller: pathlib.Path) -> pathlib.Path:
-    """The report of a reproduction run for `robot` in `folder`, section by section, with the result files behind
-    it; returns the HTML page's path. identification_controller: the controller file the identification data
-    were tracked with."""
-    figures = folder / "figures"
-    report = Report(f"stdm-drake reproduction of Kim, Lee & Ryu (IEEE Access 2022), profile '{profile.name}', "
-                    f"robot {robot.name}")
-    if robot.default_file("excitation") is None:   # (a robot config without protocol files of its own)
-        report.text(f"Robot: {robot.name} ({robot.num_joints} joints), with the excitation "
-                    "ranges, tracking poses, PID gains and MPC weights derived from its model (docs/guides/robots.md, 'Using your "
-                    "own robot'). The 'paper' columns quote the paper's UR-10 numbers for scale, not as a target.")
-    report.text("Every number below is computed by this run except the columns labelled 'paper', which quote "
-                "the values stated in the paper's text. MSE in rad² (joint angles, q) and (rad/s)² (velocities, v); "
-                "improvement = (MSE_naive - MSE_derivative) / MSE_derivative x 100 (the paper's definition). "
-                f"Stage times (s): {', '.join(f'{k} {v:.0f}' for k, v in timings.items())}.")
-    add_data_section(report, excitation, local, tracking, identification, pathlib.Path(identification_controller).name)
-    sim_rows, sim_sizes = add_simulated_sections(report, results, profile, figures, robot.name)
-    real_rows, real_sizes = add_tracked_sections(report, results, profile, figures)
-    coverage = add_coverage_sections(report, results, profile)
-    multistep = add_multistep_section(report, results, profile, figures)
-    add_sine_sum_section(report, sine)
-    add_mpc_section(report, mpc_rows)
-    tables = dict(sim_activations=sim_rows, sim_sizes=sim_sizes, real_activations=real_rows, real_sizes=real_sizes,
-                  coverage=coverage,
-                  multistep=[{k: v for k, v in dataclasses.asdict(r).items() if k not in ("epoch_axis", "val_mse_curve")}
-                             for r in multistep],
-                  mpc=mpc_rows["types"] if mpc_rows else [], mpc_runs=mpc_rows["runs"] if mpc_rows else [],
-                  paper=PAPER, profile=dataclasses.asdict(profile), stage_seconds=timings)
-    write_result_files(folder, report, tables, results)
-    return folder / "report.html"
 
 
 def mpc_statistics(runs) -> list[dict]:
