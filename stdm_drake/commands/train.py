@@ -10,8 +10,8 @@ from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.commands.arguments import add_robot_argument, parse_alpha
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
-from stdm_drake.learning.settings import (ALPHA_SCALES, LOSS_KINDS, LR_SCHEDULES, RELATIVE_ALPHA_GRID, TRAIN_ALPHA_GRID,
-                                         TrainSettings)
+from stdm_drake.learning.settings import (ALPHA_SCALES, DEFAULT_ALPHA_SCALE, LOSS_KINDS, LR_SCHEDULES,
+                                         RELATIVE_ALPHA_GRID, TRAIN_ALPHA_GRID, TrainSettings)
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainable import NETWORK_KINDS
 from stdm_drake.outputs import add_force_argument
@@ -44,10 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="alphas tried by --alpha auto (default: 0 and, for the raw scale, the paper's search "
                              f"range {TRAIN_ALPHA_GRID[1]:g} ... {TRAIN_ALPHA_GRID[-1]:g}; for the relative scale "
                              f"{RELATIVE_ALPHA_GRID[1]:g} ... {RELATIVE_ALPHA_GRID[-1]:g})")
-    parser.add_argument("--alpha-scale", choices=ALPHA_SCALES, default="raw",
-                        help="raw: alpha as in the paper's eq. 9 (default); relative: each output's derivative "
-                             "residual over its own target's spread, so alpha 1 weighs the derivative and state terms "
-                             "of every joint alike")
+    parser.add_argument("--alpha-scale", choices=ALPHA_SCALES, default=DEFAULT_ALPHA_SCALE,
+                        help="raw: alpha as in the paper's eq. 9; relative: each output's derivative residual over its "
+                             "own target's spread, so alpha 1 weighs the derivative and state terms of every joint alike "
+                             f"(default {DEFAULT_ALPHA_SCALE}: docs/settling.md)")
     parser.add_argument("--network", choices=tuple(NETWORK_KINDS), default="ensemble_mlp",
                         help="network kind (default ensemble_mlp: the paper's MLPs; a registered kind, "
                              "stdm_drake.learning.trainable)")
