@@ -466,6 +466,30 @@ def flat_rows(summary: list[dict]) -> list[dict]:
     return rows
 
 
+def markdown(summary: list[dict], chain_rule: dict | None) -> str:
+    """results.md: the verdict table (one row per cell and scale) and the chain-rule check."""
+    def ratio(r):
+        return f"{r['ratio']:.3g}x [{r['low']:.3g}, {r['high']:.3g}] (p {r['p_holm']:.2g})"
+    lines = ["| cell | naive vs Euler q / vs 'v unchanged' v | scale | alphas chosen (pairs) | D/DD one-step q | "
+             "D/DD one-step v | D/DD q at step 20 | verdict | train's rule kept naive |", "|---" * 9 + "|"]
+    for s in summary:
+        for scale, values in s["scales"].items():
+            chosen = ", ".join(f"{a}: {n}" for a, n in values["chosen_alphas"].items())
+            extended = " (grid extended)" if values["grid_extended"] else ""
+            lines.append(f"| {s['cell']} | {s['naive_vs_euler_q']:.3g}x / {s['naive_vs_unchanged_v']:.3g}x | {scale} | "
+                         f"{chosen}{extended} | " + " | ".join(ratio(values["DD"][label]) for _, label in ENDPOINTS)
+                         + f" | {values['verdict']} | {values['train_rule']['kept_naive']} of "
+                         f"{values['train_rule']['pairs']} |")
+    lines += ["", "Ratios MSE(D)/MSE(DD), > 1: derivative learning has the lower error; two-level 95 % intervals "
+              "over data seeds; p: Holm-adjusted over the cell's 6 tests."]
+    if chain_rule:
+        lines += ["", "Chain-rule check (relative RMS difference between the targets and the simulator step's time "
+                  f"derivative, {chain_rule['transitions']} transitions): " + "; ".join(
+                      f"{scheme}: q̇ rows {values['velocity_rows']:.3g}, q̈ rows {values['acceleration_rows']:.3g}"
+                      for scheme, values in chain_rule.items() if scheme != "transitions")]
+    return "\n".join(lines) + "\n"
+
+
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.cluster import runner_config_from_args
     from stdm_drake.files import json_default, rows_csv, write_text_atomic
@@ -475,6 +499,7 @@ def run(args: argparse.Namespace) -> int:
     args.output.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.output / "runs.csv", rows_csv([dataclasses.asdict(row) for row in study["runs"]]))
     write_text_atomic(args.output / "cells.csv", rows_csv(flat_rows(study["summary"])))
+    write_text_atomic(args.output / "results.md", markdown(study["summary"], study["chain_rule"]))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
         written_by="tools/study.py settling", quick=args.quick, design="docs/settling.md",
         profile=dataclasses.asdict(profile), raw_grid=RAW_GRID, relative_grid=RELATIVE_GRID, extension=EXTENSION,
