@@ -204,6 +204,10 @@ def test_train_relative_alpha_scale_uses_its_own_grid_and_records_it(tiny, tmp_p
     assert checkpoint.training_config.alpha_scale == "relative"
     if selection["chosen_alpha"] > 0:
         assert "against naive training's" in out
+    assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(output), "--model", "DD",
+                 "--hidden-width", "16", "--hidden-layers", "2", "--epochs", "3", "--train", "6", "--val", "2", "--quiet",
+                 "--resume"]) == 2     # resumed on the other scale: refused, not silently kept
+    assert "chose its alpha on the relative scale; resume it with --alpha-scale relative" in capsys.readouterr().err
     assert main(["train", str(dataset), "--predicts", "state", "--inputs", "raw", "-o", str(tmp_path / "naive"),
                  "--model", "D", "--alpha-scale", "relative", "--quiet"]) == 2
     assert "alpha_scale (--alpha-scale) shapes the derivative loss" in capsys.readouterr().err

@@ -103,6 +103,8 @@ class TrainJob:
                                   alpha_scale="raw").items():   # the defaults keep the keys they always had
             if fields[name] == default:
                 fields.pop(name)
+        if "robot_config" in fields:   # the robot by its file's content, not its path
+            fields["robot_config"] = hashlib.sha256(pathlib.Path(self.robot_config).read_bytes()).hexdigest()
         fields["loss_version"] = CHECKPOINT_VERSION  # results of older loss scalings are not reused
         fields["evaluation_version"] = 2    # 2: rows carry the physics baselines' errors
         return hashlib.sha256(json.dumps(fields, sort_keys=True).encode()).hexdigest()[:20]

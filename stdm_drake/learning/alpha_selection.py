@@ -192,6 +192,9 @@ def fit_model(model_config, training_config: TrainingConfig, train_data, val_dat
                              f"{stored.training_config.alpha:g}, or train it anew without --resume")
         if stored is not None and stored.metadata.alpha_selection is not None:
             selection = AlphaSelection.from_dict(stored.metadata.alpha_selection)
+            if selection.scale != training_config.alpha_scale:
+                raise InputError(f"{checkpoint_path} chose its alpha on the {selection.scale} scale; resume it with "
+                                 f"--alpha-scale {selection.scale}, or train it anew without --resume")
             if stored.resume is None:  # a finished single-member selection: nothing left to train
                 return TrainResult(model=stored.model, history=stored.history,
                                    best_epochs=list(selection.best_epochs[selection.index:selection.index + 1]),
