@@ -93,25 +93,34 @@ def split_of(cell: Cell, profile: Profile, dataset) -> dict:
     return {key: [int(i) for i in value] for key, value in split.as_dict().items()}
 
 
-def collect(kind: str, data_seed: int, count: int, folder: str) -> str:
-    """The dataset of `kind` for `data_seed` in `folder` (collected unless there), its path."""
-    folder = pathlib.Path(folder)
-    from stdm_drake.experiments.jobs import ensure_dataset
-    from stdm_drake.files import atomic_path
+def dataset_name(kind: str, data_seed: int, count: int) -> str:
+    """The file name of a cell data kind's dataset (the name holds every setting that varies)."""
+    if kind == "literal":
+        return f"literal_seed{data_seed}_n{count}.h5"
+    return f"{kind}_n{count}_seed{data_seed}.h5"
+
+
+def collect(kind: str, data_seed: int, count: int) -> bytes:
+    """The dataset of `kind` for `data_seed`, as the bytes of its file (collected in a scratch folder of the worker's
+    node, so the driver gets it from any node of a cluster)."""
+    import shutil
+    import tempfile
     if kind == "literal":
         from studies.decisive import CELLS as DECISIVE_CELLS, collect_dataset
-        path = folder / f"literal_seed{data_seed}_n{count}.h5"
-        if not path.exists():
-            content = collect_dataset(DECISIVE_CELLS[0], data_seed, count)
-            with atomic_path(path) as temp:
-                temp.write_bytes(content)
-        return str(path)
+        return collect_dataset(DECISIVE_CELLS[0], data_seed, count)
+    from stdm_drake.experiments.jobs import ensure_dataset
+    scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-settling-"))
     robot = str(ROOT / "models" / "ur10.yaml")
-    if kind == "excitation":
-        return str(ensure_dataset("excitation", count, data_seed, folder, False, robot=robot).path)
-    return str(ensure_dataset("tracking", count, data_seed, folder, False, name="identification", robot=robot,
-                              controller=str(ROOT / "controllers" / "pid_dither.yaml"),
-                              sensor=str(ROOT / "controllers" / "sensor_ideal.yaml")).path)
+    try:
+        if kind == "excitation":
+            dataset = ensure_dataset("excitation", count, data_seed, scratch, False, robot=robot)
+        else:
+            dataset = ensure_dataset("tracking", count, data_seed, scratch, False, name="identification", robot=robot,
+                                     controller=str(ROOT / "controllers" / "pid_dither.yaml"),
+                                     sensor=str(ROOT / "controllers" / "sensor_ideal.yaml"))
+        return pathlib.Path(dataset.path).read_bytes()
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def chain_rule_check(path: str, transitions: int = 400) -> dict:
@@ -165,11 +174,12 @@ class Member:
     extension: bool = False
 
 
-def train_pair(cell: Cell, data_seed: int, init: int, path: str, profile: Profile, scales=SCALES,
-               grids: dict | None = None, extension: bool = False) -> dict:
+def train_pair(cell: Cell, data_seed: int, init: int, profile: Profile, scales, grids: dict | None, extension: bool,
+               path: str, content: bytes | None = None, sha256: str | None = None) -> dict:
     """Train one pair's grids (raw: RAW_GRID incl. naive, relative: RELATIVE_GRID; or `grids` {scale: alphas})
     on the cell's data and test every member: {"members": [Member], "train_rule": {scale: alpha train's rule picks
-    (0: naive kept)}}. `extension`: the grids are the extension's single alphas (no naive, no rule)."""
+    (0: naive kept)}}. `extension`: the grids are the extension's single alphas (no naive, no rule). The dataset:
+    `path`, or on a Ray cluster its bytes `content` and their `sha256` (top-level arguments: Ray hands over bytes)."""
     import torch
 
     from stdm_drake.data.dataset import load_dataset
@@ -179,9 +189,10 @@ def train_pair(cell: Cell, data_seed: int, init: int, path: str, profile: Profil
     from stdm_drake.learning.problem import training_problem
     from stdm_drake.learning.settings import TrainingConfig
     from stdm_drake.robots.robot import load_robot
+    from stdm_drake.cluster import file_on_this_node
     torch.set_num_threads(1)
     grids = grids or dict(raw=RAW_GRID, relative=RELATIVE_GRID)
-    dataset = load_dataset(path)
+    dataset = load_dataset(file_on_this_node(path, content, sha256))
     split = split_of(cell, profile, dataset)
     robot = load_robot(cell.robot_file)
     structure = cell.model_structure
@@ -222,33 +233,38 @@ def train_pair(cell: Cell, data_seed: int, init: int, path: str, profile: Profil
     return dict(members=rows, train_rule=rule)
 
 
-def cached_pair(folder, cell: Cell, data_seed: int, init: int, path: str, profile: Profile, scales=SCALES,
-                grids: dict | None = None, extension: bool = False) -> dict:
-    """`train_pair`, its result kept as JSON in `folder`/pairs (named by cell, data seed, init, scales, grids and the
-    profile), so a run stopped part-way keeps what it trained; a file of the same name is read back instead."""
+def pair_cache(folder, cell: Cell, data_seed: int, init: int, profile: Profile, scales=SCALES,
+               grids: dict | None = None, extension: bool = False) -> pathlib.Path:
+    """Where the driver keeps a trained pair's result (JSON in `folder`/pairs, named by cell, data seed, init, scales,
+    grids and the profile), so a run stopped part-way keeps what it trained and a rerun reads it back."""
     import hashlib
-    from stdm_drake.files import write_text_atomic
     design = json.dumps([dataclasses.asdict(profile), list(scales), {k: list(v) for k, v in (grids or {}).items()},
                          extension, RAW_GRID, RELATIVE_GRID], sort_keys=True, default=str)
     name = f"{cell.name}_seed{data_seed}_init{init}_{hashlib.sha256(design.encode()).hexdigest()[:12]}.json"
-    cache = pathlib.Path(folder) / "pairs" / name
-    if cache.exists():
-        stored = json.loads(cache.read_text())
-        return dict(members=[Member(**row) for row in stored["members"]], train_rule=stored["train_rule"])
-    result = train_pair(cell, data_seed, init, path, profile, scales, grids, extension)
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(cache, json.dumps(dict(members=[dataclasses.asdict(row) for row in result["members"]],
-                                             train_rule=result["train_rule"])))
-    return result
+    return pathlib.Path(folder) / "pairs" / name
 
 
-def nominal_plant_row(cell: Cell, data_seed: int, path: str, profile: Profile) -> dict:
+def read_pair(path: pathlib.Path) -> dict:
+    stored = json.loads(path.read_text())
+    return dict(members=[Member(**row) for row in stored["members"]], train_rule=stored["train_rule"])
+
+
+def write_pair(path: pathlib.Path, result: dict) -> None:
+    from stdm_drake.files import write_text_atomic
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, json.dumps(dict(members=[dataclasses.asdict(row) for row in result["members"]],
+                                            train_rule=result["train_rule"])))
+
+
+def nominal_plant_row(cell: Cell, data_seed: int, profile: Profile, path: str, content: bytes | None = None,
+                      sha256: str | None = None) -> dict:
     """The nominal plant (the cell's robot description stepping the recorded torque) and the physics-free baselines
-    on the cell's test trajectories of one dataset."""
+    on the cell's test trajectories of one dataset (`path`, or on Ray its bytes, as `train_pair`)."""
+    from stdm_drake.cluster import file_on_this_node
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
     from stdm_drake.robots.robot import load_robot
-    dataset = load_dataset(path)
+    dataset = load_dataset(file_on_this_node(path, content, sha256))
     robot = load_robot(cell.robot_file)
     test = split_of(cell, profile, dataset)["test"]
     rows = compare_with_baselines(physics_baselines(dataset.sample_period, robot.state_dim, robot.action_dim,
@@ -376,7 +392,8 @@ def needs_extension(rows: list[Member], cell: Cell, scale: str, profile: Profile
 def run_study(cells, profile: Profile, data: pathlib.Path, runner, progress=print) -> dict:
     """Collect, run the chain-rule check, train every pair's grids and the extensions the rule asks for, test the
     nominal plant; returns {"chain_rule", "runs", "plant", "summary", "extended", "seconds"}."""
-    from stdm_drake.cluster import job_pool, task_error
+    from stdm_drake.cluster import job_pool, shared_file, task_error
+    from stdm_drake.files import atomic_path
     if runner.backend == "ray":   # this module's functions travel with the tasks, by value
         from stdm_drake.cluster import import_ray
         import_ray()
@@ -386,50 +403,83 @@ def run_study(cells, profile: Profile, data: pathlib.Path, runner, progress=prin
     started = time.perf_counter()
     kinds = sorted({cell.data for cell in cells})
     with job_pool(runner) as pool:
-        futures = {(kind, seed): pool.submit(collect, kind, seed, profile.counts[kind], str(data))
-                   for kind in kinds for seed in profile.data_seeds}
-        paths = {}
+        paths = {(kind, seed): data / dataset_name(kind, seed, profile.counts[kind])
+                 for kind in kinds for seed in profile.data_seeds}
+        futures = {key: pool.submit(collect, key[0], key[1], profile.counts[key[0]])
+                   for key, path in paths.items() if not path.exists()}
         for key, future in futures.items():
             try:
-                paths[key] = future.result()
+                content = future.result()
             except Exception as error:
                 raise task_error(error, f"collecting {key[0]} data seed {key[1]}") from None
+            with atomic_path(paths[key]) as temp:
+                temp.write_bytes(content)
         progress(f"{len(paths)} datasets in {time.perf_counter() - started:.0f} s")
+        # Ray: each file's bytes once into the object store, a scratch copy per node; locally the path itself
+        sources = {key: (str(path), *shared_file(pool, path)) for key, path in paths.items()}
         check = None
         if "literal" in kinds:
-            check = chain_rule_check(paths[("literal", profile.data_seeds[0])],
+            check = chain_rule_check(str(paths[("literal", profile.data_seeds[0])]),
                                      transitions=400 if profile is FULL else 50)
             progress(f"chain-rule check: {check}")
-        jobs = {pool.submit(cached_pair, data, cell, seed, init, paths[(cell.data, seed)], profile): (cell.name, seed, init)
-                for cell in cells for seed in profile.data_seeds for init in profile.inits}
+        rows, rules = [], {scale: {} for scale in SCALES}
+
+        def collect_pair(key, result, cache):
+            nonlocal rows
+            rows += result["members"]
+            for scale, alpha in result["train_rule"].items():
+                rules[scale][key] = alpha
+            if cache is not None:
+                write_pair(cache, result)
+
+        jobs = {}
+        for cell in cells:
+            for seed in profile.data_seeds:
+                for init in profile.inits:
+                    cache = pair_cache(data, cell, seed, init, profile)
+                    if cache.exists():
+                        collect_pair((cell.name, seed, init), read_pair(cache), None)
+                    else:
+                        jobs[pool.submit(train_pair, cell, seed, init, profile, SCALES, None, False,
+                                         *sources[(cell.data, seed)])] = ((cell.name, seed, init), cache)
         first = {}   # one cell per data kind: the nominal plant on its test trajectories
         for cell in cells:
             first.setdefault(cell.data, cell)
-        plants = [pool.submit(nominal_plant_row, cell, seed, paths[(cell.data, seed)], profile)
+        plants = [pool.submit(nominal_plant_row, cell, seed, profile, *sources[(cell.data, seed)])
                   for cell in first.values() for seed in profile.data_seeds]
-        rows, rules = [], {scale: {} for scale in SCALES}
         for finished, future in enumerate(concurrent.futures.as_completed(jobs), start=1):
+            key, cache = jobs[future]
             try:
-                result = future.result()
-                rows += result["members"]
-                for scale, alpha in result["train_rule"].items():
-                    rules[scale][jobs[future]] = alpha
+                collect_pair(key, future.result(), cache)
             except Exception as error:
-                raise task_error(error, "pair {} data seed {} init {}".format(*jobs[future])) from None
+                raise task_error(error, "pair {} data seed {} init {}".format(*key)) from None
             if finished % 6 == 0:
                 progress(f"{finished}/{len(jobs)} pairs trained ({time.perf_counter() - started:.0f} s)")
         extended = {(cell.name, scale): needs_extension(rows, cell, scale, profile) for cell in cells for scale in SCALES}
-        extra = {pool.submit(cached_pair, data, cell, seed, init, paths[(cell.data, seed)], profile, (scale,),
-                             {scale: (EXTENSION[scale],)}, True): (cell.name, seed, init, scale)
-                 for cell in cells for scale in SCALES if extended[(cell.name, scale)]
-                 for seed in profile.data_seeds for init in profile.inits}
-        if extra:
-            progress(f"grid extension: {sorted({key[0] + ' ' + key[3] for key in extra.values()})}")
+        extra = {}
+        for cell in cells:
+            for scale in SCALES:
+                if not extended[(cell.name, scale)]:
+                    continue
+                grids = {scale: (EXTENSION[scale],)}
+                for seed in profile.data_seeds:
+                    for init in profile.inits:
+                        cache = pair_cache(data, cell, seed, init, profile, (scale,), grids, True)
+                        if cache.exists():
+                            rows += read_pair(cache)["members"]
+                        else:
+                            extra[pool.submit(train_pair, cell, seed, init, profile, (scale,), grids, True,
+                                              *sources[(cell.data, seed)])] = ((cell.name, seed, init, scale), cache)
+        if any(extended.values()):
+            progress(f"grid extension: {sorted(f'{cell} {scale}' for (cell, scale), on in extended.items() if on)}")
         for future in concurrent.futures.as_completed(extra):
+            key, cache = extra[future]
             try:
-                rows += future.result()["members"]
+                result = future.result()
             except Exception as error:
-                raise task_error(error, "extension {} data seed {} init {} ({})".format(*extra[future])) from None
+                raise task_error(error, "extension {} data seed {} init {} ({})".format(*key)) from None
+            rows += result["members"]
+            write_pair(cache, result)
         plant_rows = [future.result() for future in plants]
     names = [cell.name for cell in cells]
     rows.sort(key=lambda r: (names.index(r.cell), r.data_seed, r.init, SCALES.index(r.scale), r.alpha))
