@@ -88,11 +88,11 @@ def test_select_alpha_over_sources_trains_naive_once_and_keeps_the_validation_be
 
 @pytest.mark.slow
 def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_dataset, tmp_path, capsys):
-    assert main(["train", str(dithered_dataset), "--epochs", "3", "--train", "1", "--val", "1", "--quiet",
-                 "-o", str(tmp_path / "default")]) == 0
+    assert main(["train", str(dithered_dataset), "--model", "DD", "--epochs", "3", "--train", "1", "--val", "1",
+                 "--quiet", "-o", str(tmp_path / "default")]) == 0
     out = capsys.readouterr().out
     assert "the plan is left out: the plan's accelerations are" in out
-    assert "alpha chosen by validation from 0, 0.0001, 0.001, 0.01, 0.1" in out
+    assert "alpha chosen by validation from 0, 1e-06, 0.0001, 0.001, 0.01, 0.1" in out
     assert "seed 0 on the validation split (4 trajectories" in out and "Euler step" in out
     summary = json.loads((tmp_path / "default" / "summary.json").read_text())
     assert summary["derivative_sources"]["tried"] == ["true"]

@@ -158,14 +158,14 @@ def test_a_second_network_kind_trains_saves_loads_and_predicts(affine_registered
 
 
 def test_the_train_command_trains_a_registered_kind(affine_registered, tmp_path, excitation_dataset):
-    """`train --network affine` on a dataset with train's defaults (DD: the alpha grid with naive training in it,
+    """`train --network affine` on a dataset as DD with train's defaults (the alpha grid with naive training in it,
     the derivative targets chosen by validation, nominal-acceleration inputs) and as the paper's D: the job, the
     split, the verdict and summary.json as for the MLP; the checkpoint evaluates."""
     import json
 
     from stdm_drake.cli import main
     from stdm_drake.learning.checkpoint import load_checkpoint
-    for name, flags in (("default", []), ("paper-d", ["--model", "D", "--inputs", "raw", "--predicts", "state"])):
+    for name, flags in (("dd", ["--model", "DD"]), ("paper-d", ["--model", "D", "--inputs", "raw", "--predicts", "state"])):
         output = tmp_path / name
         assert main(["train", str(excitation_dataset), "--network", "affine", *flags, "--epochs", "5", "--quiet",
                      "-o", str(output)]) == 0
@@ -173,7 +173,7 @@ def test_the_train_command_trains_a_registered_kind(affine_registered, tmp_path,
         assert isinstance(checkpoint.model, AffineEnsemble) and checkpoint.model_config.ensemble_size == 1
         summary = json.loads((output / "summary.json").read_text())
         assert summary["network"] == "affine" and summary["seeds"]["0"]["validation"]["models"]
-        assert ("alpha_selection" in summary) == (name == "default")
+        assert ("alpha_selection" in summary) == (name == "dd")
         assert main(["evaluate", str(output / "seed0" / "checkpoint.pt"), str(excitation_dataset), "--no-plant"]) == 0
 
 

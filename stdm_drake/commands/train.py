@@ -10,8 +10,8 @@ from stdm_drake.cluster import add_runner_arguments, runner_config_from_args
 from stdm_drake.commands.arguments import add_robot_argument, parse_alpha
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES
-from stdm_drake.learning.settings import (ALPHA_SCALES, DEFAULT_ALPHA_SCALE, LOSS_KINDS, LR_SCHEDULES,
-                                         RELATIVE_ALPHA_GRID, TRAIN_ALPHA_GRID, TrainSettings)
+from stdm_drake.learning.settings import (ALPHA_SCALES, DEFAULT_ALPHA_SCALE, DEFAULT_MODEL_TYPE, LOSS_KINDS,
+                                         LR_SCHEDULES, RELATIVE_ALPHA_GRID, TRAIN_ALPHA_GRID, TrainSettings)
 from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
 from stdm_drake.learning.trainable import NETWORK_KINDS
 from stdm_drake.outputs import add_force_argument
@@ -26,11 +26,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", type=pathlib.Path,
                         help="training settings YAML (TrainSettings: keys as the flags below with '_' for '-'); "
                              "flags given on the command line override it")
-    parser.add_argument("--model", default="DD", type=str.upper, choices=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES),
-                        help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (default DD, its "
-                             "alpha and derivative targets chosen by validation, naive D among them); G/GD "
-                             "the grey box: a D/DD whose delta adds to the plant model's next state (--inputs "
-                             "plant_step; the plant: the robot's description, or --physics)")
+    parser.add_argument("--model", default=DEFAULT_MODEL_TYPE, type=str.upper,
+                        choices=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES),
+                        help="model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss (alpha and derivative "
+                             f"targets chosen by validation, naive among them); default {DEFAULT_MODEL_TYPE}: derivative "
+                             "learning helped in no cell of the settling experiment (docs/settling.md); G/GD the grey "
+                             "box: a D/DD whose delta adds to the plant model's next state (--inputs plant_step; the "
+                             "plant: the robot's description, or --physics)")
     parser.add_argument("--physics", type=pathlib.Path, metavar="IDENTIFIED",
                         help="the grey box's plant: an identified robot (`stdm-drake identify`'s .yaml) instead of the "
                              "robot's description; recorded in the checkpoint")
@@ -41,8 +43,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "'auto' (default): chosen by validation state MSE from --alpha-grid, 0 (naive training) "
                              "included, so the model is at worst naive on validation")
     parser.add_argument("--alpha-grid", type=float, nargs="+",
-                        help="alphas tried by --alpha auto (default: 0 and, for the raw scale, the paper's search "
-                             f"range {TRAIN_ALPHA_GRID[1]:g} ... {TRAIN_ALPHA_GRID[-1]:g}; for the relative scale "
+                        help="alphas tried by --alpha auto (default: 0 and, for the raw scale, "
+                             f"{', '.join(f'{a:g}' for a in TRAIN_ALPHA_GRID[1:])} (docs/settling.md); for the relative scale "
                              f"{RELATIVE_ALPHA_GRID[1]:g} ... {RELATIVE_ALPHA_GRID[-1]:g})")
     parser.add_argument("--alpha-scale", choices=ALPHA_SCALES, default=DEFAULT_ALPHA_SCALE,
                         help="raw: alpha as in the paper's eq. 9; relative: each output's derivative residual over its "

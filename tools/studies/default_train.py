@@ -70,10 +70,11 @@ def collect(folder: pathlib.Path, design: dict, data_seed: int = DATA_SEED) -> d
 
 
 def train_settings(config: str, design: dict):
-    """The `TrainSettings` of one configuration ("default": train's defaults, or "D": `--model D`) with the
-    design's seeds and settings, and the fields set (what a user would have given as flags)."""
+    """The `TrainSettings` of one configuration ("default": DD with train's other defaults, what `train` ran by default
+    until the settling experiment made naive D the default (docs/settling.md); "D": `--model D`) with the design's
+    seeds and settings, and the fields set (what a user would have given as flags)."""
     from stdm_drake.learning.settings import TrainSettings
-    given = dict(design["train_settings"], seeds=list(design["seeds"]), **({"model": "D"} if config == "D" else {}))
+    given = dict(design["train_settings"], seeds=list(design["seeds"]), model="D" if config == "D" else "DD")
     return TrainSettings(**given), frozenset(given)
 
 
