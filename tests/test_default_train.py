@@ -104,7 +104,8 @@ def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_
                                                   "has not learned the dynamics")
     # a plan the user asks for: one warning line with the measured mismatch; a model that has not learned: one
     # warning line naming the likely cause (3 epochs on the plan's derivatives at a large fixed alpha)
-    assert main(["train", str(dithered_dataset), "--derivative-source", "planned", "--alpha", "10", "--epochs", "2",
+    assert main(["train", str(dithered_dataset), "--model", "DD", "--derivative-source", "planned", "--alpha", "10",
+                 "--epochs", "2",
                  "--train", "1", "--val", "1", "--quiet", "-o", str(tmp_path / "planned")]) == 0
     captured = capsys.readouterr()
     warnings = [line for line in captured.err.splitlines() if line.startswith("stdm-drake train: warning:")]

@@ -144,7 +144,7 @@ class TrainSettings:
     grey box: D / DD with inputs "plant_step"); derivative:
     "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto" (the default:
     chosen by validation from alpha_grid, 0 included, with the derivative source; see `derivative_sources`);
-    alpha_grid: alphas tried by "auto" (None: the alpha scale's, TRAIN_ALPHA_GRID or RELATIVE_ALPHA_GRID); alpha_scale:
+    alpha_grid: alphas tried by "auto" (empty: the alpha scale's, TRAIN_ALPHA_GRID or RELATIVE_ALPHA_GRID); alpha_scale:
     "raw" (paper eq. 9) or "relative" (`TrainingConfig.alpha_scale`); network: its kind (a name registered in
     `trainable.NETWORK_KINDS`, default "ensemble_mlp", the paper's MLPs) and its options activation, hidden_width,
     hidden_layers, ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
@@ -163,7 +163,7 @@ class TrainSettings:
     model: str = DEFAULT_MODEL_TYPE
     derivative: typing.Optional[str] = None
     alpha: typing.Union[float, str] = "auto"
-    alpha_grid: typing.Optional[typing.List[float]] = None
+    alpha_grid: typing.List[float] = dataclasses.field(default_factory=list)
     alpha_scale: str = DEFAULT_ALPHA_SCALE
     network: str = "ensemble_mlp"
     activation: str = "swish"
@@ -235,8 +235,8 @@ class TrainSettings:
                                  f"to the plant step: not model {self.model}" + (" with --direct" if self.direct else ""))
         if self.alpha != "auto" and not (math.isfinite(self.alpha) and self.alpha >= 0):
             raise InputError(f"{key('alpha')} must be a number >= 0 or 'auto', got {self.alpha!r}")
-        if self.alpha_grid is not None and (
-                not self.alpha_grid or not all(math.isfinite(a) and a >= 0 for a in self.alpha_grid)):
+        if (is_set("alpha_grid") and not self.alpha_grid) or not all(math.isfinite(a) and a >= 0
+                                                                      for a in self.alpha_grid):
             raise InputError(f"{key('alpha_grid')} needs numbers >= 0, got {self.alpha_grid}")
         grid = self.grid()
         if len(grid) > MAX_ALPHA_GRID:   # (each alpha is a network of the grid's stack)
@@ -357,8 +357,8 @@ class TrainSettings:
         return self.grid() if self.alpha == "auto" and self.uses_derivative() else None
 
     def grid(self) -> tuple:
-        """alpha_grid, or the alpha scale's default grid when it is None."""
-        if self.alpha_grid is not None:
+        """alpha_grid, or the alpha scale's default grid when it is empty."""
+        if self.alpha_grid:
             return tuple(float(a) for a in self.alpha_grid)
         return RELATIVE_ALPHA_GRID if self.alpha_scale == "relative" else TRAIN_ALPHA_GRID
 
