@@ -118,19 +118,19 @@ def test_a_job_that_raises_reports_its_own_error(head, tmp_path, excitation_data
     assert "training job 0 (sim D seed 0) on the cluster failed: trajectory index out of range" in message and "\n" not in message, message
 
 
-def test_the_sine_sum_study_on_ray_equals_the_local_report(head, tmp_path, quick_report):
-    """`sine-sum --quick --backend ray` against the running head: the same runs as the sine-sum stage of the local
-    `reproduce --quick` (`quick_report`, the regular install's; reproduce's quick stage is this profile).
-    reproduce's training jobs on Ray are `test_ray_gives_the_local_results_bit_for_bit...`'s `run_jobs`, and
-    `train --backend ray` is `test_train_seeds_on_ray_write_the_local_checkpoints`."""
+def test_the_sine_sum_study_on_ray_equals_the_local_report(head, tmp_path):
+    """`sine-sum --quick --backend ray` against the running head: the same runs as on the local pool (the quick
+    profile at 300 steps; its 6000 run in `reproduce --quick`'s test). reproduce's training jobs on Ray are
+    `test_ray_gives_the_local_results_bit_for_bit...`'s `run_jobs`, and `train --backend ray` is
+    `test_train_seeds_on_ray_write_the_local_checkpoints`."""
     from stdm_drake.cli import main
     address, _ = head
     if ray.is_initialized():
         ray.shutdown()
-    assert main(["sine-sum", "--quick", "--quiet", "--backend", "ray", "--ray-address", address,
+    assert main(["sine-sum", "--quick", "--epochs", "300", "--quiet", "--backend", "ray", "--ray-address", address,
                  "-o", str(tmp_path / "ray")]) == 0
-    local, remote = (json.loads(path.read_text())["runs"] for path in
-                     (quick_report / "sine_sum" / "results.json", tmp_path / "ray" / "results.json"))
+    assert main(["sine-sum", "--quick", "--epochs", "300", "--quiet", "--workers", "2", "-o", str(tmp_path / "local")]) == 0
+    local, remote = (json.loads((tmp_path / name / "results.json").read_text())["runs"] for name in ("local", "ray"))
     assert len(remote) == len(local) > 0
     assert [run["member_test_mse"] for run in remote] == [run["member_test_mse"] for run in local]
     assert [run["best_prediction"] for run in remote] == [run["best_prediction"] for run in local]
