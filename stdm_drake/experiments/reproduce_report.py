@@ -66,12 +66,18 @@ def learned_ratios(results, experiment: str, size: int, activation: str, model_t
     return found
 
 
+def baseline_learned(found: dict) -> bool:
+    """Whether a model type's `learned_ratios` pass `physics.learning_verdict` (the gate every learned model meets)."""
+    from stdm_drake.dynamics.physics import learning_verdict
+    return learning_verdict(found["q"], found["v"], found.get("q_over_floor"),
+                            found.get("v_over_floor")).startswith("learned")
+
+
 def comparison_row(results, experiment: str, size: int, activation: str, metrics: dict) -> dict:
     """Means and paired ratios (naive / variant, 95 % CI) of every metric for the derivative variants
     present, and each model type's ratios to the physics-free baselines (`<type>_vs_baseline`: q vs the
     Euler step, v vs "v unchanged") with `learned`: whether every model type beat both by LEARNED_FACTOR.
     metrics: label -> `TrainingResult` field name or function of a result."""
-    from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR
     row = dict(activation=activation, train_trajectories=size)
     ratios = {}
     for variant in ("D",) + tuple(name for name, _ in DERIVATIVE_VARIANTS):
@@ -79,9 +85,7 @@ def comparison_row(results, experiment: str, size: int, activation: str, metrics
         if found:
             ratios[variant] = found
             row[f"{variant}_vs_baseline"] = found
-    row["learned"] = bool(ratios) and all(
-        found[quantity] >= LEARNED_FACTOR or found.get(f"{quantity}_over_floor", np.inf) <= FLOOR_FACTOR
-        for found in ratios.values() for quantity in BASELINE_KEYS)
+    row["learned"] = bool(ratios) and all(baseline_learned(found) for found in ratios.values())
     for label, metric in metrics.items():
         for variant, _ in DERIVATIVE_VARIANTS:
             naive, derivative = paired(results, experiment, size, activation, variant, metric)

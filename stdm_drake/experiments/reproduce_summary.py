@@ -3,9 +3,8 @@ baselines and with derivative learning, the sine-sum, whether the paper's black 
 need the full profile; and the default model's own section."""
 import numpy as np
 
-from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR
 from stdm_drake.experiments.jobs import Profile
-from stdm_drake.experiments.reproduce_report import BASELINE_NOTE, ONE_STEP, comparison_row, ratio_text
+from stdm_drake.experiments.reproduce_report import BASELINE_NOTE, ONE_STEP, baseline_learned, comparison_row, ratio_text
 from stdm_drake.experiments.results import select_rows
 
 
@@ -21,9 +20,7 @@ def default_model_row(results) -> dict | None:
     metrics = dict(ONE_STEP, **{f"q{step}": lambda row: row.multistep_q[step - 1]})
     row = comparison_row(results, "default_model", size, activation, metrics)
     # the gate is naive D's (docs/settling.md): a DD that derivative learning broke must read "hurts", not "not learned"
-    row["learned"] = all(row["D_vs_baseline"][quantity] >= LEARNED_FACTOR or
-                         row["D_vs_baseline"].get(f"{quantity}_over_floor", np.inf) <= FLOOR_FACTOR
-                         for quantity in ("q", "v"))
+    row["learned"] = baseline_learned(row["D_vs_baseline"])
     naive = select_rows(results, experiment="default_model", model_type="D")
     row.update(step=step, seeds=len(naive), scale=(rows[0].alpha_selection or {}).get("alpha_scale", "raw"),
                stays_put_q=float(np.exp(np.mean([np.log(r.stays_put_multistep_q[step - 1]) for r in naive]))),
