@@ -26,6 +26,8 @@ from stdm_drake.paths import expand_shipped
 
 # name -> (module, one-line help)
 COMMANDS = {
+    "robot": ("stdm_drake.commands.robot",
+              "a starting robot config from a URDF or SDF (init), and the checks of a robot config (check)"),
     "collect": ("stdm_drake.commands.collect", "simulate a robot under a data protocol and write a dataset"),
     "import": ("stdm_drake.commands.import_log",
                "a real robot's log (UR RTDE CSV, ROS 2 bag) as a dataset: resampled, split, checked"),

@@ -12,9 +12,9 @@ import pathlib
 import sys
 import time
 
-from stdm_drake.collection.collect import CollectionRequest, collect, collection_request
+from stdm_drake.collection.collect import CollectionRequest, collect, collection_request, tracking_warning
 from stdm_drake.data.writer import HDF5_RESERVE_BYTES, write_dataset
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, warn
 from stdm_drake.files import check_free_space
 from stdm_drake.outputs import check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
@@ -111,6 +111,10 @@ def collect_job(job: CollectJob) -> dict:
         check_size=lambda size: check_free_space(job.output, size + HDF5_RESERVE_BYTES))
     elapsed = time.perf_counter() - started
     path = write_dataset(job.output, trajectories, groups, metadata)
+    if request.protocol == "tracking":
+        line = tracking_warning(trajectories, robot.joint_names)
+        if line:
+            warn(line)
     simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period
     print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")

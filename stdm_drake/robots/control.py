@@ -226,6 +226,12 @@ class SampledJointController:
     `torque(q, v, q_d, v_d, qdd_d)` returns the torque (n,) N m to hold over the next sample
     period, clamped to the effort limits, and advances the error integral and the velocity filter
     by one period; `reset()` starts a new trajectory.
+
+    Joint damping D (the description's <dynamics damping>): Drake's inverse dynamics cancels it on the
+    measured velocity, D v; held over a sample period against a joint whose damping stops it faster
+    than that (M_eff / D below the period) this cancellation feeds the delay back and the joint
+    chatters. The computed torque here compensates the damping along the plan instead, D v_d: the
+    torque the planned motion needs, while the plant's own damping acts on the tracking error.
     """
 
     def __init__(self, config: ControllerConfig, sample_period: float, robot: Robot):
@@ -263,6 +269,8 @@ class SampledJointController:
         if isinstance(self.config, InverseDynamics):
             system.get_input_port_desired_acceleration().FixValue(context, qdd_d)
         tau = np.array(system.get_output_port_control().Eval(context))
+        if isinstance(self.config, InverseDynamics):   # the description's damping along the plan (see the class)
+            tau += self.dynamics.damping * (np.asarray(v_d) - v)
         if isinstance(self.config, Pid) and self.config.gravity_feedforward:
             tau += self.dynamics.gravity_torque(q)
         self._integral += (q_d - q) * self.sample_period

@@ -13,9 +13,10 @@ import numpy as np
 from stdm_drake.errors import InputError
 
 MOVABLE = ("revolute", "continuous", "prismatic")
-# Principal moments of published descriptions are rounded (often to 3 or 4 digits): a triangle inequality
-# violated by less than this fraction of the largest moment is taken as rounding.
-TRIANGLE_TOLERANCE = 1e-3
+# Principal moments of published descriptions are rounded or estimated (CAD, primitive shapes): a triangle
+# inequality violated by less than this fraction of the largest moment is taken as rounding (pybullet_data's
+# TwoJointRobot: 0.77 %); the dynamics need only positive moments, checked as M(home) positive definite.
+TRIANGLE_TOLERANCE = 1e-2
 
 
 @dataclasses.dataclass
@@ -137,14 +138,17 @@ def read_description(path: pathlib.Path) -> Description | None:
     return _sdf(root) if root.tag == "sdf" else _urdf(root)
 
 
-def check_description(path: pathlib.Path, robot: str, arm_joints) -> None:
+def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None) -> None:
     """InputError naming robot `robot` and the link or joint, before Drake parses the file, for: a kinematic
-    loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass
-    or inertia on any link; on a link an arm joint moves, an <inertial> whose mass is not > 0 or whose
-    inertia is not positive definite or breaks the triangle inequality, and an arm joint that moves no
-    mass at all (a massless frame without <inertial>, such as tool0, is fine); a movable joint whose
-    lower position limit is above its upper one or whose velocity limit is negative (Drake's assertions
-    end the process); an arm joint with a non-finite or zero limit."""
+    loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass or
+    inertia on any link, or an inertia no body has (a negative principal moment, moments that break the
+    triangle inequality); an arm joint that moves no mass at all; a movable joint whose lower position
+    limit is above its upper one or whose velocity limit is negative (Drake's assertions end the process);
+    an arm joint with a non-finite or zero limit. Massless frames (no <inertial>, or mass 0 and no inertia:
+    a flange or tool frame), point masses and thin rods are valid bodies and pass; whether each arm joint
+    moves inertia about its own axis is checked on the plant (M(home) positive definite,
+    `Robot.check_plant`). overrides: per joint name, the limits the robot config gives instead of the
+    file's ({"lower", "upper", "velocity"}: rad or m, rad/s or m/s), applied before the checks."""
     description = read_description(path)
     if description is None:
         return
@@ -154,14 +158,13 @@ def check_description(path: pathlib.Path, robot: str, arm_joints) -> None:
         if joint.name in arm_joints and joint.kind not in MOVABLE:
             raise InputError(f"{where}: arm joint {joint.name!r} is a {joint.kind} joint; arm_joints name the joints "
                              f"that move ({', '.join(MOVABLE)})")
-    moving = {link for joint in description.joints if joint.name in arm_joints and joint.child in description.links
-              for link in description.subtree(joint.child)}
     for link, inertial in description.links.items():
         if inertial is not None:
-            check_inertial(inertial, f"{where}: link {link!r}", moving=link in moving)
+            check_inertial(inertial, f"{where}: link {link!r}")
     check_moved_mass(description, arm_joints, where)
     for joint in description.joints:
         if joint.kind in MOVABLE:
+            joint = dataclasses.replace(joint, **(overrides or {}).get(joint.name, {}))
             check_limits(joint, f"{where}: {'arm ' if joint.name in arm_joints else ''}joint {joint.name!r}",
                          arm=joint.name in arm_joints)
 
@@ -189,28 +192,27 @@ def check_tree(description: Description, where: str) -> None:
                 break
 
 
-def check_inertial(inertial: Inertial, where: str, moving: bool) -> None:
-    """InputError for a negative or non-finite mass (kg) or inertia (kg m²); on a `moving` link also for a
-    mass that is not > 0, an inertia that is not positive definite and principal moments that break the
-    triangle inequality (no body has them)."""
+def check_inertial(inertial: Inertial, where: str) -> None:
+    """InputError for a negative or non-finite mass (kg) or inertia (kg m²), and for principal moments no
+    body has: one below 0, or two that add up to less than the third (the triangle inequality), beyond
+    rounding (TRIANGLE_TOLERANCE of the largest). Zero moments pass: a point mass has three, a thin rod one.
+    A mass of 0 is a massless frame whatever its inertia entries say (they are zeroed before Drake
+    parses the file, `model_file.zero_massless_inertia`)."""
     mass, inertia = inertial.mass, inertial.inertia
     if mass is None:
         return
     if not math.isfinite(mass) or mass < 0:
-        raise InputError(f"{where} has mass {mass:g} kg; a mass is a finite number > 0 (leave <inertial> out of a "
-                         "massless frame)")
+        raise InputError(f"{where} has mass {mass:g} kg; a mass is a finite number >= 0")
     if not np.isfinite(inertia).all():
         raise InputError(f"{where} has a non-finite inertia entry; give finite ixx, ixy, ixz, iyy, iyz, izz (kg m²)")
-    if not moving:
+    if mass == 0:   # (a massless frame: its inertia entries mean nothing, `model_file.zero_massless_inertia`)
         return
-    if mass == 0:
-        raise InputError(f"{where} moves with the arm and has mass 0 kg; give its mass (> 0), or leave <inertial> out "
-                         "of a massless frame")
     moments = np.linalg.eigvalsh(inertia)
-    if moments[0] <= 0:
-        raise InputError(f"{where} has an inertia that is not positive definite (principal moments "
-                         f"{_moments_text(inertia)} kg m²); a body of mass {mass:g} kg has all three > 0")
-    if moments[0] + moments[1] < moments[2] * (1 - TRIANGLE_TOLERANCE):
+    rounding = TRIANGLE_TOLERANCE * max(abs(moments[-1]), 0.0)
+    if moments[0] < -rounding:
+        raise InputError(f"{where} has principal moments {_moments_text(inertia)} kg m², one of them negative; no "
+                         "body has them")
+    if moments[0] + moments[1] < moments[2] - rounding:
         raise InputError(f"{where} has principal moments {_moments_text(inertia)} kg m² that break the triangle "
                          "inequality (the two smaller ones must add up to the largest at least); no body has them")
 
@@ -232,15 +234,26 @@ def check_moved_mass(description: Description, arm_joints, where: str) -> None:
                              "mass; give them an <inertial>")
 
 
+# The robot config key that replaces each limit the file states.
+LIMIT_KEYS = {"lower": "position_limits", "upper": "position_limits", "velocity": "velocity_limits"}
+
+
 def check_limits(joint: Joint, where: str, arm: bool) -> None:
     """InputError for lower position limit > upper or a negative velocity limit; for an `arm` joint also
-    a non-finite limit or a zero velocity limit (it could not move)."""
+    a non-finite limit, a zero velocity limit or an empty position range (it could not move). Each
+    message names the robot config key that replaces the file's value."""
     given = {key: getattr(joint, key) for key in ("lower", "upper", "velocity") if getattr(joint, key) is not None}
+    override = lambda key: f"; give {LIMIT_KEYS[key]}[{joint.name!r}] in the robot config to replace it"  # noqa: E731
     if arm:
         for key, value in given.items():
             if not math.isfinite(value):
-                raise InputError(f"{where} has a non-finite {key} limit ({value}); give finite limits")
+                raise InputError(f"{where} has a non-finite {key} limit ({value}){override(key)}")
     if joint.lower is not None and joint.upper is not None and joint.lower > joint.upper:
-        raise InputError(f"{where} has its lower position limit {joint.lower:g} above its upper limit {joint.upper:g}")
+        raise InputError(f"{where} has its lower position limit {joint.lower:g} above its upper limit "
+                         f"{joint.upper:g}{override('lower')}")
+    if arm and joint.lower is not None and joint.lower == joint.upper:
+        raise InputError(f"{where} has the position range [{joint.lower:g}, {joint.upper:g}], so it cannot move"
+                         f"{override('lower')}")
     if joint.velocity is not None and (joint.velocity < 0 or (arm and joint.velocity == 0)):
-        raise InputError(f"{where} has velocity limit {joint.velocity:g}; a velocity limit is > 0 (rad/s or m/s)")
+        raise InputError(f"{where} has velocity limit {joint.velocity:g}; a velocity limit is > 0 (rad/s or m/s)"
+                         f"{override('velocity')}")

@@ -103,7 +103,8 @@ def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, s
 
 
 def weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:
-    """Replace a one-dof revolute or prismatic `joint` by a weld at `position` (rad or m)."""
+    """Replace a one-dof revolute or prismatic `joint` by a weld at `position` (rad or m); an actuator on
+    it is removed first."""
     from pydrake.math import RotationMatrix
     from pydrake.common.eigen_geometry import AngleAxis
     kind = joint.type_name()
@@ -113,8 +114,33 @@ def weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:
     X_FM = (RigidTransform(RotationMatrix(AngleAxis(position, axis / np.linalg.norm(axis))), np.zeros(3))
             if kind == "revolute" else RigidTransform(position * axis))
     parent, child = joint.frame_on_parent(), joint.frame_on_child()
+    for index in plant.GetJointActuatorIndices():   # (a URDF <transmission> gives a locked joint one)
+        if plant.get_joint_actuator(index).joint().index() == joint.index():
+            plant.RemoveJointActuator(plant.get_joint_actuator(index))
     plant.RemoveJoint(joint)
     plant.WeldFrames(parent, child, X_FM)
+
+
+# M(home)'s smallest eigenvalue over its largest at or below which the arm is taken to move no inertia
+SINGULAR_MASS_MATRIX = 1e-10
+
+
+def check_mass_matrix(plant: MultibodyPlant, instance, home: np.ndarray, where: str) -> None:
+    """InputError naming the arm joint unless the finalized plant's M(home) (home: (n,) rad or m) is positive
+    definite: every joint moves mass (and a revolute joint inertia about its axis), whatever the file's
+    links are (massless frames, point masses, thin rods); `where` names the robot."""
+    context = plant.CreateDefaultContext()
+    plant.SetPositions(context, instance, home)
+    eigenvalues, eigenvectors = np.linalg.eigh(plant.CalcMassMatrix(context))
+    if np.isfinite(eigenvalues).all() and eigenvalues[0] > SINGULAR_MASS_MATRIX * max(eigenvalues[-1], 0.0):
+        return
+    joints = [plant.get_joint(index) for index in plant.GetJointIndices(instance)
+              if plant.get_joint(index).num_velocities() > 0]
+    names = [joint.name() for joint in sorted(joints, key=lambda joint: joint.velocity_start())]
+    joint = names[int(np.argmax(np.abs(eigenvectors[:, 0])))] if np.isfinite(eigenvectors).all() else names[0]
+    raise InputError(f"{where}: arm joint {joint!r} moves no inertia about its axis at home (the mass matrix "
+                     f"M(home) is singular, smallest eigenvalue {eigenvalues[0]:.3g}); the links it moves need a "
+                     "mass, and for a revolute joint an inertia about the axis or a centre of mass off it")
 
 
 def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser:
@@ -136,13 +162,17 @@ def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser
     return parser
 
 
-def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict) -> pathlib.Path | None:
-    """The file a mesh reference names (package://, file:// or relative to the model), or None for a
-    package the robot config does not map (Drake reports those itself)."""
+def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict, known=lambda package: False
+               ) -> pathlib.Path | None:
+    """The file a mesh reference names (package://, file:// or relative to the model); None for a package
+    the robot config does not map but Drake knows (`known(package)`: Drake resolves it), and a path
+    that does not exist for a package nobody maps (the mesh is then missing)."""
     for scheme in ("package://", "model://"):   # (model://: SDF's name for the same thing)
         if uri.startswith(scheme):
             package, _, rest = uri[len(scheme):].partition("/")
-            return package_paths[package] / rest if package in package_paths else None
+            if package in package_paths:
+                return package_paths[package] / rest
+            return None if known(package) else pathlib.Path(f"/nonexistent-package-{package}") / rest
     path = pathlib.Path(uri[len("file://"):] if uri.startswith("file://") else uri)
     return path if path.is_absolute() else model_path.parent / path
 
@@ -215,39 +245,147 @@ class LoadableModel:
     """A description file made loadable by Drake. text: the model text to parse instead of the file (None:
     the file parses as it is); missing_visuals: visual mesh references left out because their file is
     missing; converted: mesh references replaced by an OBJ copy (collision meshes Drake cannot read,
-    visuals Meshcat cannot show)."""
+    visuals Meshcat cannot show); renamed_materials: URDF material names defined twice with different
+    colours or named without a definition (`repair_materials`); massless: links of mass 0
+    whose inertia entries were set to 0 (`zero_massless_inertia`); missing_collisions: collision mesh
+    references left out because their file is missing (the dynamics do not need them; the self-collision
+    check and contact then leave that geometry out)."""
     text: str | None
     missing_visuals: list
     converted: list
+    renamed_materials: list = dataclasses.field(default_factory=list)
+    massless: list = dataclasses.field(default_factory=list)
+    missing_collisions: list = dataclasses.field(default_factory=list)
+
+    def warnings(self, file: str) -> list[str]:
+        """One line per kind of change made to description `file` to load it (none for a converted mesh)."""
+        lines = []
+        if self.missing_visuals:
+            lines.append(f"visual meshes not found, loaded without them: {', '.join(self.missing_visuals)}")
+        if self.missing_collisions:
+            lines.append("collision meshes not found, loaded without them (the self-collision check and contact leave "
+                         f"them out): {', '.join(self.missing_collisions)}")
+        if self.massless:
+            lines.append(f"links {', '.join(self.massless)} have mass 0 and inertia entries; taken as massless frames "
+                         "(inertia 0)")
+        if self.renamed_materials:
+            lines.append(f"{file} defines materials {', '.join(self.renamed_materials)} twice with different colours, "
+                         "or names them without a definition; the later definitions are renamed and undefined ones "
+                         "left out (visual only)")
+        return lines
 
 
-def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict) -> LoadableModel:
-    """The model text Drake can load (see LoadableModel): visuals whose mesh file is missing are left
+def set_joint_limits(root, limits: dict) -> None:
+    """Write `limits` (joint name -> {"lower", "upper": rad or m, "velocity": rad/s or m/s, "effort": N m or N})
+    into the joints of a parsed URDF or SDF tree, replacing what the file states (URDF <limit>, SDF
+    <axis><limit>; made when absent)."""
+    import xml.etree.ElementTree as ElementTree
+    for joint in root.iter("joint"):
+        values = limits.get(joint.get("name"))
+        if not values:
+            continue
+        if root.tag == "sdf":
+            axis = joint.find("axis")
+            axis = axis if axis is not None else ElementTree.SubElement(joint, "axis")
+            limit = axis.find("limit")
+            limit = limit if limit is not None else ElementTree.SubElement(axis, "limit")
+            for key, value in values.items():
+                element = limit.find(key)
+                (element if element is not None else ElementTree.SubElement(limit, key)).text = repr(float(value))
+        else:
+            limit = joint.find("limit")
+            limit = limit if limit is not None else ElementTree.SubElement(joint, "limit")
+            for key, value in values.items():
+                limit.set(key, repr(float(value)))
+
+
+def repair_materials(root) -> tuple[list[str], list[str]]:
+    """URDF materials (visual only) as Drake's parser takes them: a name defined twice with different colours
+    or textures has each later definition renamed NAME~2, NAME~3, ... (a visual that names a material
+    without defining it keeps the first definition); a visual naming a material that is defined nowhere
+    loses its <material> (the default colour). Returns (the names renamed, the names undefined)."""
+    import xml.etree.ElementTree as ElementTree
+    if root.tag == "sdf":
+        return [], []
+    definitions, renamed = {}, []
+    for material in root.iter("material"):
+        name = material.get("name")
+        if not name or len(material) == 0:
+            continue
+        content = "".join(ElementTree.tostring(child, encoding="unicode").strip() for child in material)
+        versions = definitions.setdefault(name, [])
+        if content not in versions:
+            versions.append(content)
+        if versions.index(content) > 0:
+            material.set("name", f"{name}~{versions.index(content) + 1}")
+            renamed += [name] if name not in renamed else []
+    undefined = []
+    for visual in root.iter("visual"):
+        for material in visual.findall("material"):
+            if len(material) == 0 and material.get("name") not in definitions:
+                visual.remove(material)
+                undefined += [material.get("name")] if material.get("name") not in undefined else []
+    return renamed, undefined
+
+
+def zero_massless_inertia(root) -> list[str]:
+    """Set to 0 the inertia entries of every <inertial> whose mass is 0 (a massless frame: inertia is mass
+    times a unit inertia, so the entries mean nothing; Drake's parser would put a 1 kg body in its place).
+    Returns the links changed."""
+    changed = []
+    for link in root.iter("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        mass = inertial.find("mass")
+        text = mass.get("value") if root.tag != "sdf" and mass is not None else (mass.text if mass is not None else None)
+        inertia = inertial.find("inertia")
+        try:
+            massless = text is not None and float(text) == 0.0
+        except ValueError:
+            continue
+        if not massless or inertia is None:
+            continue
+        if root.tag == "sdf":
+            entries = [element for element in inertia if element.text and float(element.text or 0) != 0.0]
+            for element in entries:
+                element.text = "0"
+        else:
+            entries = [key for key, value in inertia.attrib.items() if float(value) != 0.0]
+            for key in entries:
+                inertia.set(key, "0")
+        changed += [link.get("name")] if entries else []
+    return changed
+
+
+def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, limits: dict | None = None) -> LoadableModel:
+    """The model text Drake can load (see LoadableModel), with the robot config's `limits` in place of the
+    file's (`set_joint_limits`; Drake's parser asserts on some that the config replaces): visuals whose mesh file is missing are left
     out, collision meshes in a format Drake does not read (STL, COLLADA, ...) and visuals Meshcat does
     not show (STL, ...) point to OBJ copies (`mesh_as_obj`), every other mesh path becomes a file:// URI
-    (Drake resolves only URIs in a model parsed from text). A missing collision mesh, or one in a format
-    neither Drake nor trimesh reads, is an InputError naming robot `name`: the dynamics and the
-    self-collision check need it."""
+    (Drake resolves only URIs in a model parsed from text). A mesh file that is missing is left out
+    (visual or collision: the dynamics need neither); a collision mesh in a format neither Drake nor
+    trimesh reads is an InputError naming robot `name`."""
     import xml.etree.ElementTree as ElementTree
     try:
         tree = ElementTree.parse(model_path)
     except ElementTree.ParseError:
         return LoadableModel(None, [], [])  # Drake's parser gives the precise error
     root = tree.getroot()
+    drake_packages = offline_parser(MultibodyPlant(0.0)).package_map()
     parents = {child: parent for parent in root.iter() for child in parent}
-    missing, converted, references, dropped = [], [], [], []
+    missing, missing_collisions, converted, references, dropped = [], [], [], [], []
     for element in [element for element in root.iter() if element.tag in ("visual", "collision")]:
         for mesh in element.iter("mesh"):
             uri_element = mesh.find("uri")
             uri = mesh.get("filename") if uri_element is None else (uri_element.text or "").strip()
-            path = _mesh_path(uri, model_path, package_paths) if uri else None
+            path = _mesh_path(uri, model_path, package_paths, drake_packages.Contains) if uri else None
             if path is None:
                 continue
             suffix = path.suffix.lower()
             if not path.is_file():
-                if element.tag == "collision":
-                    raise InputError(f"robot {name}: collision mesh {uri!r} not found ({path})")
-                missing += [uri] if uri not in missing else []
+                found = missing if element.tag == "visual" else missing_collisions
+                found += [uri] if uri not in found else []
                 dropped += [element] if element not in dropped else []
                 continue
             readable = DRAKE_COLLISION_MESHES if element.tag == "collision" else MESHCAT_VISUAL_MESHES
@@ -258,8 +396,10 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict) -> 
                 path = mesh_as_obj(path, f"robot {name}")
                 converted += [uri] if uri not in converted else []
             references.append((mesh, uri_element, path))
-    if not missing and not converted:
+    (renamed, undefined), massless = repair_materials(root), zero_massless_inertia(root)
+    if not (missing or missing_collisions or converted or limits or renamed or undefined or massless):
         return LoadableModel(None, [], [])
+    set_joint_limits(root, limits or {})
     for element in dropped:
         parents[element].remove(element)
     for mesh, uri_element, path in references:   # file:// + the plain path: Drake does not percent-decode
@@ -268,4 +408,5 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict) -> 
             mesh.set("filename", uri)
         else:
             uri_element.text = uri
-    return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted)
+    return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted, renamed + undefined, massless,
+                         missing_collisions)

@@ -261,6 +261,12 @@ class Dynamics:
             self._damping[start:start + joint.num_velocities()] = joint.default_damping_vector()
         self._coulomb = effects.coulomb(robot.num_joints) if effects is not None else None   # (F_c, v_s)
 
+    @property
+    def damping(self) -> np.ndarray:
+        """The joint damping D (n,) N m s/rad (N s/m on a prismatic joint): the description's <dynamics
+        damping>, plus the effects' viscous friction on an affected plant."""
+        return self._damping
+
     def gravity_torque(self, q: np.ndarray) -> np.ndarray:
         """Torque (n,) N m on every joint that holds the arm still at q."""
         self.plant.SetPositions(self.context, q)
@@ -311,15 +317,15 @@ class Dynamics:
 class SelfCollisionChecker:
     """Answers whether a configuration q (n,) of `robot` puts two of its links in contact: links that are
     not adjacent and whose pair the robot's SRDF or config does not disable. InputError when the robot's
-    home is in self-collision."""
+    home is in self-collision (unless check_home is False)."""
 
-    def __init__(self, robot: Robot):
+    def __init__(self, robot: Robot, check_home: bool = True):
         builder = DiagramBuilder()
         self.plant, self.scene_graph = make_plant(PlantConfig.continuous(), builder=builder, robot=robot)
         self.diagram = builder.Build()
         self.context = self.diagram.CreateDefaultContext()
         self.plant_context = self.plant.GetMyContextFromRoot(self.context)
-        touching = sorted({tuple(sorted(pair)) for pair in self.colliding_links(robot.home)})
+        touching = sorted({tuple(sorted(pair)) for pair in self.colliding_links(robot.home)}) if check_home else []
         if touching:
             listed = ", ".join(f"{a}/{b}" for a, b in touching[:4]) + (" ..." if len(touching) > 4 else "")
             raise InputError(f"robot {robot.name}: home is in self-collision ({listed}); choose another home, or "

@@ -25,7 +25,7 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.robots.description import check_description  # noqa: E402
-from stdm_drake.robots.model_file import (joint_facts, loadable_model, mesh_cache_dir, offline_parser,  # noqa: E402
+from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, mesh_cache_dir, offline_parser,  # noqa: E402
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
 from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file  # noqa: E402
 
@@ -65,8 +65,8 @@ class RobotConfig:
     no actuator (an underactuated robot such as the Acrobot; an actuator the file gives them is
     removed): the action then has one torque per actuated arm joint, and tracking and MPC refuse the
     robot. home: one position per arm joint (rad or m), a configuration well inside the limits.
-    tool_frame: the frame task-space plans move. Position limits come from the file; only a URDF
-    "continuous" joint may have none. srdf: a MoveIt SRDF (path or package:// URI) whose
+    tool_frame: the frame task-space plans move. Position limits come from the file or position_limits;
+    only a URDF "continuous" joint may have none. srdf: a MoveIt SRDF (path or package:// URI) whose
     <disable_collisions link1= link2=> pairs never count as self-collision (nor touch in simulation);
     disabled_collisions: more such link pairs, [[link_a, link_b], ...]. defaults: the protocol,
     controller and MPC files written for this robot (`RobotDefaults`; absent ones are derived).
@@ -79,6 +79,7 @@ class RobotConfig:
     locked_joints: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
     effort_limits: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
     velocity_limits: typing.Dict[str, float] = dataclasses.field(default_factory=dict)
+    position_limits: dict[str, list[float]] = dataclasses.field(default_factory=dict)
     unactuated_joints: typing.List[str] = dataclasses.field(default_factory=list)
     home: typing.List[float] = dataclasses.field(default_factory=list)
     tool_frame: str = ""
@@ -112,6 +113,21 @@ class RobotConfig:
                     raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
                 if not (math.isfinite(value) and value > 0):
                     raise InputError(f"robot config {field}[{joint!r}] must be > 0, got {value}")
+        for joint, values in self.position_limits.items():
+            if joint not in self.arm_joints:
+                raise InputError(f"robot config position_limits: {joint!r} is not an arm joint")
+            if len(values) != 2 or not all(math.isfinite(value) for value in values) or not values[0] < values[1]:
+                raise InputError(f"robot config position_limits[{joint!r}] must be [lower, upper] with finite "
+                                 f"lower < upper (rad or m), got {values}")
+
+    def limit_overrides(self) -> dict:
+        """Per joint, the limits this config gives in place of the description file's: {"lower", "upper",
+        "velocity", "effort"} (rad or m, rad/s or m/s, N m or N), the keys it gives."""
+        overrides = {joint: dict(lower=float(low), upper=float(high)) for joint, (low, high) in self.position_limits.items()}
+        for key, limits in (("velocity", self.velocity_limits), ("effort", self.effort_limits)):
+            for joint, value in limits.items():
+                overrides.setdefault(joint, {})[key] = float(value)
+        return overrides
 
 
 class Robot:
@@ -135,7 +151,10 @@ class Robot:
         self.model_path = check_input_file(self._model_file(config.model), f"robot {config.name}: model file")
         if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
-        check_description(self.model_path, self.name, config.arm_joints)
+        overrides = config.limit_overrides()
+        check_description(self.model_path, self.name, config.arm_joints,
+                          {joint: {key: value for key, value in values.items() if key != "effort"}
+                           for joint, values in overrides.items()})
         self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
         for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
             logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
@@ -143,11 +162,10 @@ class Robot:
         self._srdf_pairs = srdf_disabled_collisions(self.srdf_path, self.name) if self.srdf_path else []
         self._reported_srdf_links = False
         # the model text to parse when meshes are missing or converted (None: the file itself), read once
-        loadable = loadable_model(self.name, self.model_path, self.package_paths)
+        loadable = loadable_model(self.name, self.model_path, self.package_paths, overrides)
         self._model_text = loadable.text
-        if loadable.missing_visuals:
-            logger.warning("robot %s: visual meshes not found, loaded without them: %s", self.name,
-                           ", ".join(loadable.missing_visuals))
+        for warning in loadable.warnings(self.model_path.name):
+            logger.warning("robot %s: %s", self.name, warning)
         if loadable.converted:
             logger.info("robot %s: %d meshes read through OBJ copies in %s", self.name, len(loadable.converted),
                         mesh_cache_dir())
@@ -388,6 +406,7 @@ class Robot:
                                  f"[{lower:g}, {upper:g}]")
             if name in config.velocity_limits:
                 joint.set_velocity_limits([-velocity], [velocity])
+        check_mass_matrix(plant, instance, self.home, f"robot {self.name}")
 
 
 def load_robot(path) -> Robot:

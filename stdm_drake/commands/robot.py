@@ -1,0 +1,52 @@
+"""`stdm-drake robot init MODEL`: a starting robot config YAML from a URDF or SDF, checked; `stdm-drake robot
+check ROBOT.yaml`: the checks of a robot config before any work (`robots.starting_config`)."""
+from __future__ import annotations
+
+import argparse
+import pathlib
+import sys
+
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    actions = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
+    init = actions.add_parser("init", help="write a starting robot config YAML from a URDF or SDF and check it")
+    init.add_argument("model", type=pathlib.Path, help="the robot's description file (.urdf or .sdf), as shipped")
+    init.add_argument("--output", "-o", type=pathlib.Path,
+                      help="robot config YAML to write (default: NAME.yaml in the working folder)")
+    init.add_argument("--name", help="the robot's name (default: the model file's stem)")
+    init.add_argument("--srdf", type=pathlib.Path,
+                      help="a MoveIt SRDF: its disabled collision pairs, and home from a group state named home, "
+                           "ready, zero or default")
+    init.add_argument("--force", action="store_true", help="replace an existing output file")
+    check = actions.add_parser("check", help="load a robot config and check it: limits, M(home), self-collision, "
+                                             "gravity at home within the effort limits")
+    check.add_argument("robot", type=pathlib.Path, help="robot config YAML")
+
+
+def run(args: argparse.Namespace) -> int:
+    from stdm_drake.robots.robot import load_robot
+    from stdm_drake.robots.starting_config import check_robot
+    if args.action == "check":
+        robot = load_robot(args.robot)
+        for line in check_robot(robot):
+            print(line)
+        print(f"robot {robot.name}: loads, {robot.num_joints} arm joints, home free of self-collision and held "
+              "within the effort limits")
+        return 0
+    return init(args)
+
+
+def init(args: argparse.Namespace) -> int:
+    from stdm_drake.robots.starting_config import write_starting_config
+    output = args.output or pathlib.Path(f"{args.name or args.model.stem}.yaml")
+    config, notes, problem = write_starting_config(args.model, output, args.name, args.srdf, args.force)
+    print(f"wrote {output}: {len(config.arm_joints)} arm joints ({', '.join(config.arm_joints)}), "
+          f"{len(config.locked_joints)} locked, tool frame {config.tool_frame}")
+    for note in notes:
+        print(f"note: {note}")
+    if problem:
+        print(f"stdm-drake robot init: {output} does not pass its check yet: {problem}", file=sys.stderr)
+        return 1
+    print(f"{output} passes its check (stdm-drake robot check {output})")
+    return 0

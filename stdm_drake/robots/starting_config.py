@@ -1,0 +1,284 @@
+"""A starting robot config for a description file nobody has written one for (`stdm-drake robot init`), and
+the checks of a robot config before any work (`stdm-drake robot check`).
+
+The rules, applied to the file's kinematic tree (`robots.description`):
+
+- base: the tree's root link, welded to the world (none when the file fixes it itself: a URDF link
+  "world", an SDF joint to "world");
+- arm joints: the movable joints on the one chain from the root, up to the first link below which
+  two or more branches move (a gripper's fingers) or the first joint of a <mimic> pair; every other
+  movable joint is locked at the point of its range nearest 0;
+- tool frame: the last arm link, followed down its fixed joints while there is one way on (of several,
+  the one that carries the moving joints of a gripper, when one does);
+- packages: each package:// name found as a folder (or a folder whose package.xml names it) at or
+  beside the model's folder or one of the folders above it;
+- home: an SRDF group state named in HOME_STATE_NAMES when an SRDF is given; else, around the middle of
+  each joint's position range (0 for a continuous joint), a configuration free of self-collision and,
+  for an arm that tracks task-space plans, far from singularities (`starting_home`); link pairs in
+  contact in every configuration tried touch by design and go to disabled_collisions.
+
+Limits the file lacks are never invented: `check_robot` then names the joint and the config key to give.
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import pathlib
+import re
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+from stdm_drake.robots.description import MOVABLE, Description, check_tree, read_description
+from stdm_drake.robots.model_file import joint_facts
+from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
+
+HOME_STATE_NAMES = ("home", "ready", "zero", "default")
+WORLD = "world"
+logger = logging.getLogger(__name__)
+
+
+@dataclasses.dataclass
+class ArmChain:
+    """What a description's kinematic tree gives a robot config: the base link (None: the file welds
+    itself to the world), the arm joints from the base out, the other movable joints (locked) and the
+    tool frame."""
+    base: str | None
+    arm_joints: list
+    locked_joints: list
+    tool_frame: str
+
+
+def arm_chain(description: Description, mimics: list) -> ArmChain:
+    """The arm of a description's tree (the rules in the module's docstring); InputError when it has no
+    movable joint on a chain from its root."""
+    children = description.children()
+    child_links = {joint.child for joint in description.joints}
+    roots = [link for link in description.links if link not in child_links]
+    if WORLD in {joint.parent for joint in description.joints}:
+        roots = [WORLD]
+    movable_below = {}
+
+    def count(link: str) -> int:   # movable joints in the subtree of `link`
+        if link not in movable_below:
+            movable_below[link] = sum((joint.kind in MOVABLE) + count(joint.child) for joint in children.get(link, []))
+        return movable_below[link]
+
+    if not roots:
+        raise InputError("the file has no root link (every link is some joint's child)")
+    root = max(roots, key=count)
+    in_mimic = {name for pair in mimics for name in pair}
+    arm, link = [], root
+    while True:
+        ways = [joint for joint in children.get(link, []) if (joint.kind in MOVABLE) + count(joint.child) > 0]
+        if len(ways) != 1 or ways[0].name in in_mimic:
+            break
+        if ways[0].kind in MOVABLE:
+            arm.append(ways[0])
+        link = ways[0].child
+    if not arm:
+        raise InputError(f"no movable joint on a chain from the root link {root!r} (its branches: "
+                         f"{', '.join(joint.name for joint in children.get(root, [])) or 'none'})")
+    tool = arm[-1].child
+    while True:
+        fixed = [joint for joint in children.get(tool, []) if joint.kind not in MOVABLE]
+        if len(fixed) > 1:   # (several frames: the one that carries the gripper, when one does)
+            fixed = [joint for joint in fixed if count(joint.child) > 0]
+        if len(fixed) != 1:
+            break
+        tool = fixed[0].child
+    arm_names = [joint.name for joint in arm]
+    locked = [joint.name for joint in description.joints if joint.kind in MOVABLE and joint.name not in arm_names]
+    return ArmChain(None if root == WORLD else root, arm_names, locked, tool)
+
+
+def find_packages(model_path: pathlib.Path, levels: int = 6) -> tuple[dict, list]:
+    """({package: folder} for the package:// names the file uses that are found by the rule in the module's
+    docstring, [names not found])."""
+    names = sorted(set(re.findall(r"package://([^/\"'<>\s]+)/", model_path.read_text(errors="replace"))))
+    found = {}
+    folders = [model_path.parent.resolve(), *list(model_path.parent.resolve().parents)[:levels]]
+    for name in names:
+        for folder in folders:
+            candidates = [folder] if folder.name == name else []
+            candidates += [folder / name] if (folder / name).is_dir() else []
+            candidates += [manifest.parent for manifest in sorted(folder.glob("*/package.xml"))
+                           if f"<name>{name}</name>" in manifest.read_text(errors="replace")]
+            if candidates:
+                found[name] = candidates[0]
+                break
+    return found, [name for name in names if name not in found]
+
+
+def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
+    """The first SRDF <group_state> named in HOME_STATE_NAMES that gives every arm joint, as positions, or None."""
+    import xml.etree.ElementTree as ElementTree
+    states = {state.get("name"): {joint.get("name"): joint.get("value") for joint in state.iter("joint")}
+              for state in ElementTree.parse(srdf).getroot().iter("group_state")}
+    for name in HOME_STATE_NAMES:
+        values = states.get(name, {})
+        if all(joint in values for joint in arm_joints):
+            return [float(values[joint]) for joint in arm_joints]
+    return None
+
+
+def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
+    """`path` relative to `folder` when inside it, else absolute."""
+    path, folder = path.resolve(), folder.resolve()
+    return os.path.relpath(path, folder) if path.is_relative_to(folder) else str(path)
+
+
+def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | None = None,
+                    srdf: pathlib.Path | None = None) -> tuple[RobotConfig, list]:
+    """(the starting RobotConfig of description file `model_path`, with paths relative to `folder` where its
+    YAML will be written; notes for the user, one line each). InputError for a file that is no arm."""
+    description = read_description(model_path)
+    if description is None:
+        raise InputError(f"{model_path} is not a URDF or SDF file (not XML)")
+    check_tree(description, f"{model_path.name}")   # (a loop: no chain to follow)
+    limits, continuous, mimics = joint_facts(model_path)
+    chain = arm_chain(description, mimics)
+    joints = {joint.name: joint for joint in description.joints}
+    packages, missing = find_packages(model_path)
+    notes = [f"package {package!r} not found near {model_path.name}: map it under package_paths" for package in missing]
+
+    def middle(joint) -> float:
+        if joint.name in continuous or joint.lower is None or joint.upper is None:
+            return 0.0
+        return 0.5 * (joint.lower + joint.upper)
+
+    def nearest_zero(joint) -> float:
+        lower = -np.inf if joint.lower is None else joint.lower
+        upper = np.inf if joint.upper is None else joint.upper
+        return float(np.clip(0.0, lower, upper)) if lower <= upper else 0.0
+
+    home = srdf_home(srdf, chain.arm_joints) if srdf is not None else None
+    config = RobotConfig(
+        name=name or re.sub(r"[^A-Za-z0-9_.-]+", "_", model_path.stem), model=_relative(model_path, folder),
+        package_paths={package: _relative(path, folder) for package, path in packages.items()},
+        weld_frame=chain.base, arm_joints=chain.arm_joints,
+        locked_joints={joint: nearest_zero(joints[joint]) for joint in chain.locked_joints},
+        home=home or [round(middle(joints[joint]), 6) for joint in chain.arm_joints], tool_frame=chain.tool_frame,
+        srdf=_relative(srdf, folder) if srdf is not None else "")
+    missing_limits = [joint for joint in chain.arm_joints if "effort" not in limits.get(joint, {})
+                      or "velocity" not in limits.get(joint, {})]
+    if missing_limits:
+        notes.append(f"the file gives no effort or velocity limit for {', '.join(missing_limits)}: give effort_limits "
+                     "and velocity_limits")
+    if len(chain.arm_joints) < POSE_DIM:
+        notes.append(f"{len(chain.arm_joints)} arm joints: the excitation protocol only (task-space tracking needs "
+                     f"{POSE_DIM})")
+    return config, notes
+
+
+def starting_home(robot: Robot, attempts: int = 200) -> tuple[list | None, list]:
+    """(a home for `robot`, the link pairs in contact in every configuration tried). The configurations: its
+    config's home and `attempts` drawn around it (uniform within +-0.25 of each joint's range, 1 rad for a
+    continuous joint; numpy.random.default_rng(0)), rounded to 1e-3. Pairs that touch in all of them touch
+    by design (overlapping geometry of neighbouring links, as MoveIt's setup assistant finds them) and are
+    returned to be disabled; of the configurations free of every other contact, for an arm of POSE_DIM or
+    more joints the one whose task Jacobian is best conditioned (task-space plans start there: the middle
+    of the ranges is often a stretched, singular arm), else the config's home when free, else the first
+    free one. Home None when none is free."""
+    from stdm_drake.robots.kinematics import RobotKinematics
+    from stdm_drake.robots.plant import SelfCollisionChecker, joint_limits
+    checker = SelfCollisionChecker(robot, check_home=False)
+    limits = joint_limits(checker.plant)
+    lower, upper = limits.position_lower, limits.position_upper
+    spread = np.where(np.isfinite(upper - lower), 0.25 * (upper - lower), 1.0)
+    rng = np.random.default_rng(0)
+    tried = [robot.home] + [np.round(np.clip(robot.home + rng.uniform(-spread, spread), lower, upper), 3)
+                            for _ in range(attempts)]
+    contacts = [{tuple(sorted(pair)) for pair in checker.colliding_links(q)} for q in tried]
+    always = sorted(set.intersection(*contacts))
+    free = [q for q, pairs in zip(tried, contacts) if pairs <= set(always)]
+    if not free:
+        return None, [list(pair) for pair in always]
+    if robot.num_joints < POSE_DIM:
+        return list(map(float, free[0])), [list(pair) for pair in always]
+    kinematics = RobotKinematics(checker.plant, robot=robot)
+    best = min(free, key=lambda q: np.linalg.cond(kinematics.task_jacobian(q)))
+    return list(map(float, best)), [list(pair) for pair in always]
+
+
+def check_robot(robot: Robot) -> list[str]:
+    """What stands between `robot` and data, beyond what loading it checks (the description's checks,
+    limits, M(home) positive definite): home free of self-collision, gravity at home within each actuated
+    joint's effort limit. Raises InputError for the first problem; returns one line of facts per joint."""
+    from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker, joint_limits
+    checker = SelfCollisionChecker(robot)
+    limits = joint_limits(checker.plant)
+    dynamics = Dynamics(robot)
+    check_holds_home(robot, dynamics, limits)
+    gravity = np.abs(dynamics.gravity_torque(robot.home))
+    inertia = dynamics.effective_inertia(robot.home)
+    lines = []
+    for j, joint in enumerate(robot.joint_names):
+        lines.append(f"{joint}: range [{limits.position_lower[j]:.4g}, {limits.position_upper[j]:.4g}], velocity "
+                     f"{limits.velocity[j]:.4g}, home {robot.home[j]:.4g}, gravity at home {gravity[j]:.3g}, "
+                     f"effective inertia {inertia[j]:.3g}")
+    return lines
+
+
+def check_holds_home(robot: Robot, dynamics, limits) -> None:
+    """InputError naming the joint when holding `robot`'s home against gravity takes at least an actuated
+    joint's whole effort limit (its config key: effort_limits)."""
+    gravity = np.abs(dynamics.actuated_gravity_torque(robot.home))
+    for name, needed, effort in zip(robot.actuated_joint_names, gravity, limits.effort):
+        if needed >= effort:
+            raise InputError(f"robot {robot.name}: holding home against gravity takes {needed:.4g} N m on {name!r}, "
+                             f"at or above its effort limit {effort:.4g}; give a larger effort_limits[{name!r}] in the "
+                             "robot config, or a home where gravity pulls less")
+
+
+def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
+    """The robot config YAML text of `config`, with a header naming the description `source` and the `notes`."""
+    import yaml
+    lines = [f"# Robot config written by `stdm-drake robot init` from {source} (fields: RobotConfig in",
+             "# stdm_drake/robots/robot.py; how each was chosen: docs/guides/robots.md, 'A robot from a description').",
+             *[f"# NOTE: {note}" for note in notes]]
+    for field in ("name", "model", "package_paths", "weld_frame", "arm_joints", "locked_joints", "home",
+                  "tool_frame", "srdf", "disabled_collisions"):
+        value = getattr(config, field)
+        if value in ("", {}, [], None) and field != "weld_frame":
+            continue
+        text = yaml.safe_dump(value, default_flow_style=True, width=10_000, sort_keys=False).strip()
+        lines.append(f"{field}: {text.removesuffix('...').strip()}")
+    return "\n".join(lines) + "\n"
+
+
+def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str | None = None,
+                          srdf: pathlib.Path | None = None, force: bool = False) -> tuple[RobotConfig, list, str]:
+    """`robot init`: write the starting config of description `model` to `output` (never over an input, nor
+    over an existing file unless `force`), with a home from `starting_home` unless the SRDF names one;
+    returns (the config, notes, "" when it passes `check_robot`, else the one-line reason)."""
+    from stdm_drake.files import write_text_atomic
+    from stdm_drake.paths import check_input_file
+    from stdm_drake.robots.robot import load_robot
+    model = check_input_file(model, "model file")
+    srdf = check_input_file(srdf, "srdf file") if srdf is not None else None
+    if output.resolve() in {model.resolve(), *([srdf.resolve()] if srdf else [])}:
+        raise InputError(f"--output {output} is an input file; choose another path")
+    if output.exists() and not force:
+        raise InputError(f"--output {output} exists; choose another path or pass --force to replace it")
+    folder = output.absolute().parent
+    config, notes = starting_config(model, folder, name, srdf)
+    if srdf is None or srdf_home(srdf, config.arm_joints) is None:   # (a named pose is kept as it is)
+        try:
+            home, touching = starting_home(Robot(config, folder))
+            config.disabled_collisions = touching
+            if home is None:
+                notes.append("no configuration near the middle of the ranges is free of self-collision: choose home")
+            else:
+                config.home = home
+            if touching:
+                notes.append(f"{len(touching)} link pairs touch in every configuration tried (by design): disabled")
+        except InputError:
+            pass   # (the check below says why the config does not load)
+    write_text_atomic(output, config_yaml(config, model.name, notes))
+    try:
+        check_robot(load_robot(output))
+    except InputError as error:
+        return config, notes, str(error)
+    return config, notes, ""
