@@ -73,7 +73,7 @@ def test_stl_and_collada_meshes_load_through_cached_obj_copies(tmp_path, caplog)
     import trimesh
     from pydrake.systems.framework import DiagramBuilder
     from stdm_drake.robots.recorder import TrajectoryRecorder
-    from stdm_drake.robots.model_file import mesh_cache_dir
+    from stdm_drake.robots.meshes import mesh_cache_dir
     box_stl(tmp_path / "meshes" / "upper.stl", [0.08, 0.08, 0.3])
     box_dae_millimetres(tmp_path / "meshes" / "fore.dae", [60.0, 60.0, 100.0])
     urdf = two_link_urdf().replace(CYLINDER, '<visual><geometry><mesh filename="meshes/upper.stl"/></geometry></visual>', 2)
@@ -112,7 +112,7 @@ def test_meshes_load_from_folders_with_spaces_and_accents_and_through_model_uris
     URIs), so a description folder and a cache folder named "a b/é" work; an SDF-style model:// URI
     resolves through package_paths like package://."""
     from pydrake.systems.framework import DiagramBuilder
-    from stdm_drake.robots.model_file import mesh_cache_dir
+    from stdm_drake.robots.meshes import mesh_cache_dir
     folder = tmp_path / "a b" / "é"
     folder.mkdir(parents=True)
     monkeypatch.setenv("STDM_DRAKE_CACHE", str(tmp_path / "cache dir é"))

@@ -10,7 +10,7 @@ import pytest
 from tools_import import study
 
 STUDIES = ("alpha-calibration", "closed-loop", "decisive", "default-train", "generalization-gap", "identification",
-           "import-round-trip", "jacobian-accuracy", "model-structure", "published-arms", "realtime-loop",
+           "import-round-trip", "jacobian-accuracy", "model-structure", "published-arms", "realtime-loop", "robot-corpus",
            "reality-gap", "reality-gap-plans", "settling")
 
 

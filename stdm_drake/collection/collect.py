@@ -73,31 +73,26 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
 
 
 # A tracked joint is far from its plan when its angle's mean squared error over the dataset exceeds this (rad²:
-# 0.57 degrees RMS; the shipped arms track at 1e-7 to 1e-6), or when its true acceleration spikes above this
-# many times the plan's largest (plus 1 rad/s²).
+# 0.57 degrees RMS; the shipped arms track at 1e-7 to 1e-6, the chattering damped joints of issue 42 at 5e-4 to
+# 2e-3). Acceleration spikes alone are no sign: under a held torque a light joint with strong damping (the UR-10's
+# wrist_3 with 10 N m s/rad) jumps to 400 rad/s² at each torque step and settles within 0.2 ms, tracking its plan
+# at 1e-7 rad². Dithered data leave the plan by design and are not checked.
 TRACKING_MSE_WARNING = 1e-4
-ACCELERATION_SPIKE_FACTOR = 10.0
 
 
 def tracking_warning(trajectories: list, joint_names) -> str | None:
-    """One warning line naming the joints whose tracked data are far from the plan (TRACKING_MSE_WARNING,
-    ACCELERATION_SPIKE_FACTOR) over tracked `trajectories` (q_true, q_planned, qdd, qdd_planned: (T, n)),
-    or None. Exit 0 does not mean usable data: this says when it is not."""
+    """One warning line naming the joints whose tracked angle's mean squared error from the plan exceeds
+    TRACKING_MSE_WARNING over tracked `trajectories` (q_true, q_planned: (T, n) rad), or None. Exit 0 does not
+    mean usable data: this says when it is not."""
     error = np.concatenate([traj.q_true - traj.q_planned for traj in trajectories])
     mse = np.mean(error**2, axis=0)
-    acceleration = np.max([np.abs(traj.qdd).max(axis=0) for traj in trajectories], axis=0)
-    planned = np.max([np.abs(traj.qdd_planned).max(axis=0) for traj in trajectories], axis=0)
-    far = []
-    for j, name in enumerate(joint_names):
-        problems = ([f"angle MSE {mse[j]:.2g} rad²"] if mse[j] > TRACKING_MSE_WARNING else []) + (
-            [f"|q̈| up to {acceleration[j]:.3g} rad/s² against the plan's {planned[j]:.3g}"]
-            if acceleration[j] > ACCELERATION_SPIKE_FACTOR * planned[j] + 1.0 else [])
-        far += [f"{name} ({', '.join(problems)})"] if problems else []
+    far = [f"{name} ({value:.2g} rad²)" for name, value in zip(joint_names, mse) if value > TRACKING_MSE_WARNING]
     if not far:
         return None
-    return (f"stdm-drake: warning: the tracked data are far from the plans on {len(far)} joint(s): {'; '.join(far)}; "
-            "the controller does not follow this plant (gains, effort limits, or damping and friction it does not "
-            "know): see docs/guides/robots.md, 'Tracking quality'")
+    return (f"stdm-drake: warning: the tracked data are far from the plans on {len(far)} joint(s), angle MSE "
+            f"{'; '.join(far)} against {TRACKING_MSE_WARNING:g} rad²; the controller does not follow this plant "
+            "(gains, effort limits, or damping and friction it does not know): see docs/guides/robots.md, "
+            "'Tracking quality'")
 
 
 # ---- worker processes -------------------------------------------------------------------------

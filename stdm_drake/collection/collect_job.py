@@ -111,8 +111,8 @@ def collect_job(job: CollectJob) -> dict:
         check_size=lambda size: check_free_space(job.output, size + HDF5_RESERVE_BYTES))
     elapsed = time.perf_counter() - started
     path = write_dataset(job.output, trajectories, groups, metadata)
-    if request.protocol == "tracking":
-        line = tracking_warning(trajectories, robot.joint_names)
+    if request.protocol == "tracking" and not any(request.settings.controller.dither_std):   # (dithered data
+        line = tracking_warning(trajectories, robot.joint_names)                            # leave it by design)
         if line:
             warn(line)
     simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period

@@ -114,12 +114,14 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
     Raises PlanningError when fewer than `num_initial_poses` usable configurations are found.
     """
     from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker, joint_limits
+    from stdm_drake.robots.starting_config import check_holds_home
 
     robot.check_can_track()
     dynamics = Dynamics(robot)
     kinematics = RobotKinematics(dynamics.plant, robot=robot)
     checker = SelfCollisionChecker(robot)
     limits = joint_limits(dynamics.plant)
+    check_holds_home(robot, dynamics, limits)   # (else a joint has no acceleration to plan with)
     inertia = np.diag(dynamics.mass_matrix(robot.home))
     capability = (limits.effort - np.abs(dynamics.gravity_torque(robot.home))) / inertia
     acceleration = np.minimum(5.0, 0.1 * np.maximum(capability, 0.0))

@@ -122,10 +122,22 @@ class Pid(JointGains):
 class InverseDynamics(JointGains):
     """Drake's `InverseDynamicsController` (YAML tag `!InverseDynamics`): computed torque with PID on
     the error and the planned acceleration as reference; kp 1/s^2, ki 1/s^3, kd 1/s (they scale the
-    mass matrix, so one value suits every joint of any robot)."""
+    mass matrix, so one value suits every joint of any robot).
+
+    damping_compensation: "planned" (default) compensates the description's joint damping D along the
+    plan, D v_planned; "measured" keeps Drake's own, D v on the measured velocity, which makes a joint
+    whose damping stops it within a sample period chatter (`SampledJointController`)."""
     kind: typing.ClassVar[str] = "inverse_dynamics"
+    damping_compensation: str = "planned"
+
+    def validate(self) -> None:
+        super().validate()
+        if self.damping_compensation not in DAMPING_COMPENSATIONS:
+            raise InputError(f"controller damping_compensation must be one of {', '.join(DAMPING_COMPENSATIONS)}, "
+                             f"got {self.damping_compensation!r}")
 
 
+DAMPING_COMPENSATIONS = ("planned", "measured")
 ControllerConfig = typing.Union[Pid, InverseDynamics]   # a tracking controller's settings, tagged in YAML
 CONTROLLER_TYPES = {cls.kind: cls for cls in typing.get_args(ControllerConfig)}
 
@@ -269,8 +281,8 @@ class SampledJointController:
         if isinstance(self.config, InverseDynamics):
             system.get_input_port_desired_acceleration().FixValue(context, qdd_d)
         tau = np.array(system.get_output_port_control().Eval(context))
-        if isinstance(self.config, InverseDynamics):   # the description's damping along the plan (see the class)
-            tau += self.dynamics.damping * (np.asarray(v_d) - v)
+        if isinstance(self.config, InverseDynamics) and self.config.damping_compensation == "planned":
+            tau += self.dynamics.damping * (np.asarray(v_d) - v)   # the description's damping along the plan
         if isinstance(self.config, Pid) and self.config.gravity_feedforward:
             tau += self.dynamics.gravity_torque(q)
         self._integral += (q_d - q) * self.sample_period

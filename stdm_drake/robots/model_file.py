@@ -5,6 +5,7 @@ joint at a position. Used by `stdm_drake.robots.robot`."""
 import dataclasses
 import os
 import pathlib
+import re
 
 import numpy as np
 
@@ -16,6 +17,8 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.paths import check_input_file  # noqa: E402
+from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, MESHCAT_VISUAL_MESHES,  # noqa: E402
+                                      collada_in_metres, mesh_as_obj)
 
 
 def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
@@ -176,70 +179,6 @@ def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict, known=la
     path = pathlib.Path(uri[len("file://"):] if uri.startswith("file://") else uri)
     return path if path.is_absolute() else model_path.parent / path
 
-# Mesh formats Drake reads as collision geometry (it takes their convex hull), and as visuals Meshcat shows.
-DRAKE_COLLISION_MESHES = (".obj", ".vtk", ".gltf")
-MESHCAT_VISUAL_MESHES = (".obj", ".gltf", ".dae")
-CONVERTED_MESHES = (".stl", ".dae", ".ply", ".off")   # read by trimesh (COLLADA through pycollada)
-MESH_CACHE_VERSION = "1"   # part of every cached file's name: bump when the conversion changes
-
-
-def mesh_cache_dir() -> pathlib.Path:
-    """Where converted meshes are kept: $STDM_DRAKE_CACHE/meshes, else $XDG_CACHE_HOME/stdm-drake/meshes,
-    else ~/.cache/stdm-drake/meshes."""
-    root = os.environ.get("STDM_DRAKE_CACHE")
-    if not root:
-        root = pathlib.Path(os.environ.get("XDG_CACHE_HOME") or pathlib.Path.home() / ".cache") / "stdm-drake"
-    return pathlib.Path(root) / "meshes"
-
-
-def mesh_as_obj(path: pathlib.Path, what: str) -> pathlib.Path:
-    """The Wavefront OBJ copy of mesh file `path` (STL, COLLADA, PLY or OFF) in the mesh cache, converted
-    once with trimesh and named by the SHA-256 of the file's bytes. Coordinates keep the file's own
-    length unit, except that a COLLADA <unit meter=...> is applied (as ROS tools do), so a URDF
-    `scale` means what it meant; the COLLADA up_axis is not applied. Every part of the file's scene is
-    placed by its node transforms and merged into one mesh (Drake takes a collision mesh's convex hull
-    anyway). InputError, naming `what`, for a file trimesh cannot read or one without triangles."""
-    import hashlib
-    digest = hashlib.sha256(path.read_bytes()).hexdigest()[:32]
-    target = mesh_cache_dir() / f"{digest}-v{MESH_CACHE_VERSION}.obj"
-    if target.is_file():
-        return target
-    import trimesh
-    from stdm_drake.files import write_text_atomic
-    try:
-        scene = trimesh.load(str(path), force="scene")
-        if scene.units not in (None, "m", "meter", "meters"):
-            scene = scene.convert_units("m")
-        mesh = scene.to_mesh()
-    except Exception as error:  # trimesh and pycollada raise many kinds on a malformed file
-        raise InputError(f"{what}: mesh {path} cannot be read ({type(error).__name__}: "
-                         f"{str(error).splitlines()[0] if str(error) else 'no detail'})") from None
-    vertices, faces = np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces)
-    if len(faces) == 0 or not np.isfinite(vertices).all():
-        raise InputError(f"{what}: mesh {path} has no triangles with finite vertices")
-    lines = [f"# {path.name} converted by stdm-drake (trimesh {trimesh.__version__})"]
-    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices]
-    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
-    try:
-        return write_text_atomic(target, "\n".join(lines) + "\n")
-    except OSError as error:
-        raise InputError(f"{what}: cannot write the converted mesh cache {target.parent} ({error.strerror}); "
-                         "set STDM_DRAKE_CACHE to a writable folder") from None
-
-
-def collada_in_metres(path: pathlib.Path) -> bool:
-    """Whether a COLLADA file states its lengths in metres (or states no unit): what Meshcat shows as
-    written. Meshcat's loader ignores <unit>, so other COLLADA visuals go through an OBJ copy with the
-    unit applied (their own colors lost; a URDF <material> still applies)."""
-    import xml.etree.ElementTree as ElementTree
-    try:
-        root = ElementTree.parse(path).getroot()
-        unit = next((element for element in root.iter() if element.tag.rsplit("}", 1)[-1] == "unit"), None)
-        return unit is None or float(unit.get("meter") or 1.0) == 1.0
-    except (ElementTree.ParseError, OSError, ValueError):
-        return False   # the conversion reports what is wrong with it
-
-
 @dataclasses.dataclass
 class LoadableModel:
     """A description file made loadable by Drake. text: the model text to parse instead of the file (None:
@@ -249,13 +188,15 @@ class LoadableModel:
     colours or named without a definition (`repair_materials`); massless: links of mass 0
     whose inertia entries were set to 0 (`zero_massless_inertia`); missing_collisions: collision mesh
     references left out because their file is missing (the dynamics do not need them; the self-collision
-    check and contact then leave that geometry out)."""
+    check and contact then leave that geometry out); undefined_sdf_elements: SDF elements Drake's parser
+    refuses as undefined, left out (`remove_undefined_sdf_elements`)."""
     text: str | None
     missing_visuals: list
     converted: list
     renamed_materials: list = dataclasses.field(default_factory=list)
     massless: list = dataclasses.field(default_factory=list)
     missing_collisions: list = dataclasses.field(default_factory=list)
+    undefined_sdf_elements: list = dataclasses.field(default_factory=list)
 
     def warnings(self, file: str) -> list[str]:
         """One line per kind of change made to description `file` to load it (none for a converted mesh)."""
@@ -272,6 +213,9 @@ class LoadableModel:
             lines.append(f"{file} defines materials {', '.join(self.renamed_materials)} twice with different colours, "
                          "or names them without a definition; the later definitions are renamed and undefined ones "
                          "left out (visual only)")
+        if self.undefined_sdf_elements:
+            lines.append(f"{file}: elements SDFormat does not define there left out (Drake's parser refuses them; "
+                         f"another simulator's extensions): {', '.join(self.undefined_sdf_elements)}")
         return lines
 
 
@@ -372,7 +316,8 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
     except ElementTree.ParseError:
         return LoadableModel(None, [], [])  # Drake's parser gives the precise error
     root = tree.getroot()
-    drake_packages = offline_parser(MultibodyPlant(0.0)).package_map()
+    scratch = MultibodyPlant(0.0)   # (kept alive while its parser's package map is asked)
+    drake_packages = offline_parser(scratch).package_map()
     parents = {child: parent for parent in root.iter() for child in parent}
     missing, missing_collisions, converted, references, dropped = [], [], [], [], []
     for element in [element for element in root.iter() if element.tag in ("visual", "collision")]:
@@ -397,8 +342,6 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
                 converted += [uri] if uri not in converted else []
             references.append((mesh, uri_element, path))
     (renamed, undefined), massless = repair_materials(root), zero_massless_inertia(root)
-    if not (missing or missing_collisions or converted or limits or renamed or undefined or massless):
-        return LoadableModel(None, [], [])
     set_joint_limits(root, limits or {})
     for element in dropped:
         parents[element].remove(element)
@@ -408,5 +351,39 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
             mesh.set("filename", uri)
         else:
             uri_element.text = uri
+    unknown = remove_undefined_sdf_elements(root, package_paths) if root.tag == "sdf" else []
+    if not (missing or missing_collisions or converted or limits or renamed or undefined or massless or unknown):
+        return LoadableModel(None, [], [])
     return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted, renamed + undefined, massless,
-                         missing_collisions)
+                         missing_collisions, unknown)
+
+
+# Drake's SDFormat parser refuses an element the SDFormat specification does not define where it stands (a
+# simulator's own extension, such as pybullet's <contact> in a <link>); its message names it and its parent.
+UNDEFINED_SDF_ELEMENT = re.compile(r"XML Element\[(\w+)\], child of element\[(\w+)\], not defined in SDF")
+
+
+def remove_undefined_sdf_elements(root, package_paths: dict, attempts: int = 20) -> list[str]:
+    """Remove from a parsed SDF tree (its mesh references already file:// URIs) the elements Drake's parser
+    refuses as undefined by SDFormat (UNDEFINED_SDF_ELEMENT), kind by kind as a trial parse names them;
+    they mean nothing to Drake. Returns "<child> in <parent>" per kind removed."""
+    import xml.etree.ElementTree as ElementTree
+    removed = []
+    for _ in range(attempts):
+        plant = MultibodyPlant(0.0)   # (kept alive while the parser uses it)
+        parser = offline_parser(plant)
+        for name, path in package_paths.items():
+            parser.package_map().Add(name, str(path))
+        try:
+            parser.AddModelsFromString(ElementTree.tostring(root, encoding="unicode"), "sdf")
+            return removed
+        except (RuntimeError, ValueError) as error:
+            match = UNDEFINED_SDF_ELEMENT.search(str(error))
+        if match is None:
+            return removed   # (another problem: Drake's message when the robot is loaded)
+        child, parent = match.groups()
+        for element in list(root.iter(parent)):
+            for found in element.findall(child):
+                element.remove(found)
+        removed.append(f"<{child}> in <{parent}>")
+    return removed

@@ -25,7 +25,8 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.robots.description import check_description  # noqa: E402
-from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, mesh_cache_dir, offline_parser,  # noqa: E402
+from stdm_drake.robots.meshes import mesh_cache_dir  # noqa: E402
+from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,  # noqa: E402
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
 from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file  # noqa: E402
 
@@ -114,8 +115,8 @@ class RobotConfig:
                 if not (math.isfinite(value) and value > 0):
                     raise InputError(f"robot config {field}[{joint!r}] must be > 0, got {value}")
         for joint, values in self.position_limits.items():
-            if joint not in self.arm_joints:
-                raise InputError(f"robot config position_limits: {joint!r} is not an arm joint")
+            if joint not in self.arm_joints and joint not in self.locked_joints:
+                raise InputError(f"robot config position_limits: {joint!r} is not an arm or locked joint")
             if len(values) != 2 or not all(math.isfinite(value) for value in values) or not values[0] < values[1]:
                 raise InputError(f"robot config position_limits[{joint!r}] must be [lower, upper] with finite "
                                  f"lower < upper (rad or m), got {values}")

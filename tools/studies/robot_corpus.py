@@ -12,6 +12,8 @@ reason. Each arm goes through the commands a user would run, each its own proces
 2. `collect --protocol excitation` (12 trajectories);
 3. arms of 6 or more joints: `collect --protocol tracking` (12 tracked plans), and the tracking quality
    per joint: MSE of the true joint angle against the plan (rad²) and the largest |q̈| against the plan's;
+   for an arm with joint damping, the same plans again under Drake's own damping compensation on the
+   measured velocity (`damping_compensation: measured`, the controller's former behaviour);
 4. `train` on the excitation data (one seed, 20 epochs: a smoke run of the chain, not a model to use);
 5. `mpc` on one held-out plan, the plant as model beside the learned model (arms under 6 joints: an
    excitation reference).
@@ -136,6 +138,8 @@ def run_arm(label: str, path: pathlib.Path, joints: list, work: pathlib.Path) ->
             reason = reason or ("" if status == 0 else "the plant-as-model MPC left the limits")
         if stage == "tracking" and status == 0:
             row.update(tracking_quality(folder / "tracking.h5"))
+            if _damping(path, joints) > 0:
+                row.update(measured_damping_tracking(folder, robot))
         if status != 0:
             row.update(failed_stage=stage, reason=reason or f"exit status {status}")
             break
@@ -146,6 +150,22 @@ def run_arm(label: str, path: pathlib.Path, joints: list, work: pathlib.Path) ->
     damping = _damping(path, joints)
     row["max_damping"] = damping
     return row
+
+
+def measured_damping_tracking(folder: pathlib.Path, robot: pathlib.Path) -> dict:
+    """The same tracked plans (seed, count) under the default controller with Drake's own damping compensation
+    on the measured velocity (`damping_compensation: measured`, the former behaviour): its tracking quality,
+    keys prefixed measured_damping_."""
+    from stdm_drake.paths import shipped_file
+    controller = folder / "controller_measured_damping.yaml"
+    text = shipped_file("stdm-drake:controllers/inverse_dynamics.yaml").read_text()
+    write_text_atomic(controller, text.rstrip() + "\n  damping_compensation: measured\n")
+    status, _ = stdm_drake(folder, "tracking_measured_damping", "collect", "--robot", robot, "--protocol", "tracking",
+                           "--controller", controller, "--count", "12", "--quiet", "-o", "tracking_measured_damping.h5")
+    if status != 0:
+        return dict(measured_damping_status=status)
+    return {f"measured_damping_{key}": value
+            for key, value in tracking_quality(folder / "tracking_measured_damping.h5").items()}
 
 
 def _damping(path: pathlib.Path, joints: list) -> float:
@@ -166,7 +186,10 @@ def summary(rows: list) -> dict:
     tracked = [row for row in big if row.get("tracking_mse_rad2") is not None]
     damped = [row["tracking_mse_rad2"] for row in tracked if row["max_damping"] > 0]
     undamped = [row["tracking_mse_rad2"] for row in tracked if row["max_damping"] == 0]
-    return dict(files=len(rows), arms=len(arms), arms_passing=sum(row["passed_all"] for row in arms),
+    measured = [row["measured_damping_tracking_mse_rad2"] for row in tracked
+                if row.get("measured_damping_tracking_mse_rad2") is not None]
+    return dict(files=len(rows), arms=len(arms),
+                tracking_mse_damped_measured_compensation_median=float(np.median(measured)) if measured else None, arms_passing=sum(row["passed_all"] for row in arms),
                 arms_6_plus=len(big), arms_6_plus_passing=sum(row["passed_all"] for row in big),
                 share_6_plus_passing=(sum(row["passed_all"] for row in big) / len(big)) if big else None,
                 tracking_mse_damped_median=float(np.median(damped)) if damped else None,
