@@ -88,6 +88,13 @@ def test_the_configs_limits_replace_the_files_before_it_is_checked(tmp_path, cap
     assert check(fixed) == 0
     limits = robot_joint_limits(load_robot(fixed))
     assert (limits.position_lower[0], limits.position_upper[0], limits.velocity[0], limits.effort[0]) == (-3, 3, 2, 300)
+    reversed_ = [('lower="-3.141592653589793" upper="3.141592653589793" velocity="3.1416"',
+                  'lower="3.141592653589793" upper="-3.141592653589793" velocity="3.1416"')]   # (the elbow's: Drake
+    assert check(ur10_copy(tmp_path, reversed_, name="reversed")) == 2                   # asserts on it)
+    assert "give position_limits['elbow_joint']" in capsys.readouterr().err
+    given = ur10_copy(tmp_path, reversed_, name="given", config_extra="position_limits: {elbow_joint: [-3.0, 3.0]}\n")
+    assert check(given) == 0
+    assert robot_joint_limits(load_robot(given)).position_lower[2] == -3.0
 
 
 def test_locked_joints_with_transmissions_and_material_faults_load(tmp_path, caplog):

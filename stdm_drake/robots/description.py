@@ -138,7 +138,8 @@ def read_description(path: pathlib.Path) -> Description | None:
     return _sdf(root) if root.tag == "sdf" else _urdf(root)
 
 
-def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None) -> None:
+def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,
+                      locked_joints=()) -> None:
     """InputError naming robot `robot` and the link or joint, before Drake parses the file, for: a kinematic
     loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass or
     inertia on any link, or an inertia no body has (a negative principal moment, moments that break the
@@ -163,10 +164,34 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
             check_inertial(inertial, f"{where}: link {link!r}")
     check_moved_mass(description, arm_joints, where)
     for joint in description.joints:
+        if joint.kind == "continuous" and {"lower", "upper"} & set((overrides or {}).get(joint.name, {})):
+            raise InputError(f"{where}: joint {joint.name!r} is continuous (no position limits in URDF); leave it out "
+                             "of position_limits")
         if joint.kind in MOVABLE:
             joint = dataclasses.replace(joint, **(overrides or {}).get(joint.name, {}))
             check_limits(joint, f"{where}: {'arm ' if joint.name in arm_joints else ''}joint {joint.name!r}",
-                         arm=joint.name in arm_joints)
+                         arm=joint.name in arm_joints, locked=joint.name in locked_joints)
+
+
+def limit_overrides(position: dict, velocity: dict, effort: dict) -> dict:
+    """Per joint, the limits a robot config gives in place of the file's (its position_limits [lower, upper],
+    velocity_limits, effort_limits): {"lower", "upper", "velocity", "effort"}, the keys it gives."""
+    overrides = {joint: dict(lower=float(low), upper=float(high)) for joint, (low, high) in position.items()}
+    for key, limits in (("velocity", velocity), ("effort", effort)):
+        for joint, value in limits.items():
+            overrides.setdefault(joint, {})[key] = float(value)
+    return overrides
+
+
+def limits_drake_refuses(path: pathlib.Path) -> set[str]:
+    """The joints whose file limits Drake's parser cannot take (lower position limit above upper, a negative
+    velocity limit: assertions that end the process); empty for a file that is not XML."""
+    description = read_description(path)
+    if description is None:
+        return set()
+    return {joint.name for joint in description.joints
+            if (joint.lower is not None and joint.upper is not None and joint.lower > joint.upper)
+            or (joint.velocity is not None and joint.velocity < 0)}
 
 
 def check_tree(description: Description, where: str) -> None:
@@ -209,7 +234,7 @@ def check_inertial(inertial: Inertial, where: str) -> None:
         return
     moments = np.linalg.eigvalsh(inertia)
     rounding = TRIANGLE_TOLERANCE * max(abs(moments[-1]), 0.0)
-    if moments[0] < -rounding:
+    if moments[0] < -1e-9 * max(abs(moments[-1]), 0.0):   # (round-off of the eigenvalues only)
         raise InputError(f"{where} has principal moments {_moments_text(inertia)} kg m², one of them negative; no "
                          "body has them")
     if moments[0] + moments[1] < moments[2] - rounding:
@@ -238,12 +263,18 @@ def check_moved_mass(description: Description, arm_joints, where: str) -> None:
 LIMIT_KEYS = {"lower": "position_limits", "upper": "position_limits", "velocity": "velocity_limits"}
 
 
-def check_limits(joint: Joint, where: str, arm: bool) -> None:
+def check_limits(joint: Joint, where: str, arm: bool, locked: bool = False) -> None:
     """InputError for lower position limit > upper or a negative velocity limit; for an `arm` joint also
     a non-finite limit, a zero velocity limit or an empty position range (it could not move). Each
-    message names the robot config key that replaces the file's value."""
+    message names the robot config key that replaces the file's value where there is one (arm joints; a
+    locked joint's position_limits), else says to edit the file."""
     given = {key: getattr(joint, key) for key in ("lower", "upper", "velocity") if getattr(joint, key) is not None}
-    override = lambda key: f"; give {LIMIT_KEYS[key]}[{joint.name!r}] in the robot config to replace it"  # noqa: E731
+
+    def override(key: str) -> str:
+        if arm or (locked and LIMIT_KEYS[key] == "position_limits"):
+            return f"; give {LIMIT_KEYS[key]}[{joint.name!r}] in the robot config to replace it"
+        return "; correct it in the file (the robot config replaces limits of arm joints only)"
+
     if arm:
         for key, value in given.items():
             if not math.isfinite(value):

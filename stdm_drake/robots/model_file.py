@@ -21,6 +21,14 @@ from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, 
                                       collada_in_metres, mesh_as_obj)
 
 
+def _float(text) -> float | None:
+    """The number a file's text states, or None for none (Drake's parser names a malformed one)."""
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return None
+
+
 def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
     """(per joint name, the limits the description file states: {"effort": N m, "velocity": ...}
     (URDF <limit effort= velocity=>, SDF <axis><limit><effort>/<velocity>); the names of URDF
@@ -39,10 +47,10 @@ def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
         name, values = joint.get("name"), {}
         urdf = joint.find("limit")
         if urdf is not None:
-            values = {key: float(urdf.get(key)) for key in ("effort", "velocity") if urdf.get(key) is not None}
+            values = {key: _float(urdf.get(key)) for key in ("effort", "velocity") if _float(urdf.get(key)) is not None}
         sdf = joint.find("axis/limit")
         if sdf is not None:
-            values = {key: float(sdf.findtext(key)) for key in ("effort", "velocity") if sdf.findtext(key)}
+            values = {key: _float(sdf.findtext(key)) for key in ("effort", "velocity") if _float(sdf.findtext(key)) is not None}
         if name and values:  # (a URDF <transmission> names its joint too, without limits)
             limits[name] = values
     return limits, continuous, mimics
@@ -189,7 +197,8 @@ class LoadableModel:
     whose inertia entries were set to 0 (`zero_massless_inertia`); missing_collisions: collision mesh
     references left out because their file is missing (the dynamics do not need them; the self-collision
     check and contact then leave that geometry out); undefined_sdf_elements: SDF elements Drake's parser
-    refuses as undefined, left out (`remove_undefined_sdf_elements`)."""
+    refuses as undefined, left out (`remove_undefined_sdf_elements`); unmapped_packages: package names of
+    mesh references that neither package_paths nor Drake maps (their meshes are among the missing)."""
     text: str | None
     missing_visuals: list
     converted: list
@@ -197,10 +206,14 @@ class LoadableModel:
     massless: list = dataclasses.field(default_factory=list)
     missing_collisions: list = dataclasses.field(default_factory=list)
     undefined_sdf_elements: list = dataclasses.field(default_factory=list)
+    unmapped_packages: list = dataclasses.field(default_factory=list)
 
     def warnings(self, file: str) -> list[str]:
         """One line per kind of change made to description `file` to load it (none for a converted mesh)."""
         lines = []
+        if self.unmapped_packages:
+            lines.append(f"packages {', '.join(self.unmapped_packages)} not found: their meshes are left out (map them "
+                         "under package_paths; without collision meshes the self-collision check does not see them)")
         if self.missing_visuals:
             lines.append(f"visual meshes not found, loaded without them: {', '.join(self.missing_visuals)}")
         if self.missing_collisions:
@@ -224,7 +237,7 @@ def set_joint_limits(root, limits: dict) -> None:
     into the joints of a parsed URDF or SDF tree, replacing what the file states (URDF <limit>, SDF
     <axis><limit>; made when absent)."""
     import xml.etree.ElementTree as ElementTree
-    for joint in root.iter("joint"):
+    for joint in (root.iter("joint") if root.tag == "sdf" else root.findall("joint")):   # (not a <transmission>'s)
         values = limits.get(joint.get("name"))
         if not values:
             continue
@@ -276,6 +289,7 @@ def zero_massless_inertia(root) -> list[str]:
     """Set to 0 the inertia entries of every <inertial> whose mass is 0 (a massless frame: inertia is mass
     times a unit inertia, so the entries mean nothing; Drake's parser would put a 1 kg body in its place).
     Returns the links changed."""
+    import xml.etree.ElementTree as ElementTree
     changed = []
     for link in root.iter("link"):
         inertial = link.find("inertial")
@@ -283,19 +297,21 @@ def zero_massless_inertia(root) -> list[str]:
             continue
         mass = inertial.find("mass")
         text = mass.get("value") if root.tag != "sdf" and mass is not None else (mass.text if mass is not None else None)
+        if _float(text) != 0.0:
+            continue
         inertia = inertial.find("inertia")
-        try:
-            massless = text is not None and float(text) == 0.0
-        except ValueError:
-            continue
-        if not massless or inertia is None:
-            continue
-        if root.tag == "sdf":
-            entries = [element for element in inertia if element.text and float(element.text or 0) != 0.0]
+        if inertia is None:   # (SDFormat's default is unit moments: a massless frame has none)
+            inertia = ElementTree.SubElement(inertial, "inertia")
+            if root.tag != "sdf":
+                inertia.attrib.update(dict.fromkeys(("ixx", "ixy", "ixz", "iyy", "iyz", "izz"), "0"))
+                continue
+        if root.tag == "sdf":   # (an absent moment defaults to 1 in SDFormat)
+            entries = [ElementTree.SubElement(inertia, key) for key in ("ixx", "iyy", "izz") if inertia.find(key) is None]
+            entries += [element for element in inertia if _float(element.text) != 0.0]
             for element in entries:
                 element.text = "0"
         else:
-            entries = [key for key, value in inertia.attrib.items() if float(value) != 0.0]
+            entries = [key for key, value in inertia.attrib.items() if _float(value) != 0.0]
             for key in entries:
                 inertia.set(key, "0")
         changed += [link.get("name")] if entries else []
@@ -352,10 +368,12 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
         else:
             uri_element.text = uri
     unknown = remove_undefined_sdf_elements(root, package_paths) if root.tag == "sdf" else []
+    unmapped = sorted({uri.split("/")[2] for uri in missing + missing_collisions if uri.startswith(("package://", "model://"))
+                       and uri.split("/")[2] not in package_paths and not drake_packages.Contains(uri.split("/")[2])})
     if not (missing or missing_collisions or converted or limits or renamed or undefined or massless or unknown):
         return LoadableModel(None, [], [])
     return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted, renamed + undefined, massless,
-                         missing_collisions, unknown)
+                         missing_collisions, unknown, unmapped)
 
 
 # Drake's SDFormat parser refuses an element the SDFormat specification does not define where it stands (a

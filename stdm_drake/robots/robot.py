@@ -24,7 +24,7 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.robots.description import check_description  # noqa: E402
+from stdm_drake.robots.description import check_description, limit_overrides, limits_drake_refuses  # noqa: E402
 from stdm_drake.robots.meshes import mesh_cache_dir  # noqa: E402
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,  # noqa: E402
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
@@ -121,15 +121,6 @@ class RobotConfig:
                 raise InputError(f"robot config position_limits[{joint!r}] must be [lower, upper] with finite "
                                  f"lower < upper (rad or m), got {values}")
 
-    def limit_overrides(self) -> dict:
-        """Per joint, the limits this config gives in place of the description file's: {"lower", "upper",
-        "velocity", "effort"} (rad or m, rad/s or m/s, N m or N), the keys it gives."""
-        overrides = {joint: dict(lower=float(low), upper=float(high)) for joint, (low, high) in self.position_limits.items()}
-        for key, limits in (("velocity", self.velocity_limits), ("effort", self.effort_limits)):
-            for joint, value in limits.items():
-                overrides.setdefault(joint, {})[key] = float(value)
-        return overrides
-
 
 class Robot:
     """A robot built from a RobotConfig: adds itself to a MultibodyPlant and says what it is.
@@ -152,10 +143,10 @@ class Robot:
         self.model_path = check_input_file(self._model_file(config.model), f"robot {config.name}: model file")
         if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
-        overrides = config.limit_overrides()
+        overrides = limit_overrides(config.position_limits, config.velocity_limits, config.effort_limits)
         check_description(self.model_path, self.name, config.arm_joints,
                           {joint: {key: value for key, value in values.items() if key != "effort"}
-                           for joint, values in overrides.items()})
+                           for joint, values in overrides.items()}, config.locked_joints)
         self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
         for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
             logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
@@ -163,7 +154,9 @@ class Robot:
         self._srdf_pairs = srdf_disabled_collisions(self.srdf_path, self.name) if self.srdf_path else []
         self._reported_srdf_links = False
         # the model text to parse when meshes are missing or converted (None: the file itself), read once
-        loadable = loadable_model(self.name, self.model_path, self.package_paths, overrides)
+        refused = limits_drake_refuses(self.model_path)   # (the others go on the plant, `add_to` and `check_plant`)
+        loadable = loadable_model(self.name, self.model_path, self.package_paths,
+                                  {joint: values for joint, values in overrides.items() if joint in refused})
         self._model_text = loadable.text
         for warning in loadable.warnings(self.model_path.name):
             logger.warning("robot %s: %s", self.name, warning)
@@ -325,6 +318,9 @@ class Robot:
             if not plant.HasJointNamed(name, instance):
                 raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")
         self._remove_mimic_constraints(plant)
+        for name, (lower, upper) in config.position_limits.items():
+            if name in config.arm_joints:
+                plant.GetJointByName(name, instance).set_position_limits([lower], [upper])
         for name, position in config.locked_joints.items():
             weld_joint_at(plant, plant.GetJointByName(name, instance), position)
         actuators = {plant.get_joint_actuator(index).joint().name(): plant.get_joint_actuator(index)
@@ -398,7 +394,8 @@ class Robot:
             lower, upper = joint.position_lower_limits()[0], joint.position_upper_limits()[0]
             velocity = config.velocity_limits.get(name, joint.velocity_upper_limits()[0])
             if not (np.isfinite(lower) and np.isfinite(upper)) and name not in self.continuous_joints:
-                raise InputError(f"robot {self.name}: arm joint {name!r} has no position limits in the model")
+                raise InputError(f"robot {self.name}: arm joint {name!r} has no position limits in the model; give "
+                                 f"position_limits[{name!r}] in the robot config")
             if not np.isfinite(velocity):
                 raise InputError(f"robot {self.name}: arm joint {name!r} has no velocity limit; give velocity_limits")
             home = self.home[config.arm_joints.index(name)]

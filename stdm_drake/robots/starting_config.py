@@ -53,6 +53,8 @@ class ArmChain:
 def arm_chain(description: Description, mimics: list) -> ArmChain:
     """The arm of a description's tree (the rules in the module's docstring); InputError when it has no
     movable joint on a chain from its root."""
+    description = Description(description.links, [joint for joint in description.joints
+                                                  if joint.parent and joint.child and joint.parent != joint.child])
     children = description.children()
     child_links = {joint.child for joint in description.joints}
     roots = [link for link in description.links if link not in child_links]
@@ -114,12 +116,18 @@ def find_packages(model_path: pathlib.Path, levels: int = 6) -> tuple[dict, list
 def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
     """The first SRDF <group_state> named in HOME_STATE_NAMES that gives every arm joint, as positions, or None."""
     import xml.etree.ElementTree as ElementTree
+    try:
+        root = ElementTree.parse(srdf).getroot()
+    except ElementTree.ParseError as error:
+        raise InputError(f"srdf {srdf.name} is not valid XML ({error})") from None
     states = {state.get("name"): {joint.get("name"): joint.get("value") for joint in state.iter("joint")}
-              for state in ElementTree.parse(srdf).getroot().iter("group_state")}
+              for state in root.iter("group_state")}
     for name in HOME_STATE_NAMES:
         values = states.get(name, {})
-        if all(joint in values for joint in arm_joints):
+        try:
             return [float(values[joint]) for joint in arm_joints]
+        except (KeyError, TypeError, ValueError):   # (a state of other joints, or a value that is no number)
+            continue
     return None
 
 

@@ -60,13 +60,14 @@ def corpus_files() -> list[tuple[str, pathlib.Path]]:
 def classify(path: pathlib.Path) -> tuple[list | None, str]:
     """(the arm joints `robot init` would choose, "") for an arm; (None, why not) for another file."""
     from stdm_drake.errors import InputError
-    from stdm_drake.robots.description import read_description
+    from stdm_drake.robots.description import check_tree, read_description
     from stdm_drake.robots.model_file import joint_facts
     from stdm_drake.robots.starting_config import arm_chain
     description = read_description(path)
     if description is None:
         return None, "not XML"
     try:
+        check_tree(description, path.name)
         chain = arm_chain(description, joint_facts(path)[2])
     except InputError as error:
         return None, str(error)
@@ -199,13 +200,19 @@ def summary(rows: list) -> dict:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("-o", "--output", type=pathlib.Path, default=pathlib.Path("docs/results/robot_corpus"))
+    parser.add_argument("-o", "--output", type=pathlib.Path,
+                        help="results folder (default: docs/results/robot_corpus; required with --only, so that a "
+                             "subset never replaces the committed results)")
     parser.add_argument("--work", type=pathlib.Path, default=pathlib.Path("out/robot_corpus"),
                         help="per-arm folders: robot.yaml, datasets, models, logs")
     parser.add_argument("--only", nargs="+", default=[], help="files whose label contains one of these words")
 
 
 def run(args: argparse.Namespace) -> int:
+    from stdm_drake.errors import InputError
+    if args.only and args.output is None:
+        raise InputError("--only needs -o: a subset's results never replace docs/results/robot_corpus")
+    args.output = args.output or pathlib.Path("docs/results/robot_corpus")
     rows = []
     for label, path in corpus_files():
         if args.only and not any(word in label for word in args.only):
