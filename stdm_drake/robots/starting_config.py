@@ -282,8 +282,8 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
                 config.home = home
             if touching:
                 notes.append(f"{len(touching)} link pairs touch in every configuration tried (by design): disabled")
-        except InputError:
-            pass   # (the check below says why the config does not load)
+        except InputError as error:   # (the check below gives the same reason as the command's error)
+            notes.append(f"home not chosen: the config does not load yet ({error})")
     write_text_atomic(output, config_yaml(config, model.name, notes))
     try:
         check_robot(load_robot(output))

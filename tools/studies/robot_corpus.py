@@ -31,6 +31,7 @@ import importlib.util
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 import time
@@ -84,7 +85,9 @@ def stdm_drake(folder: pathlib.Path, label: str, *arguments) -> tuple[int, str]:
     write_text_atomic(folder / f"{label}.log", result.stdout + result.stderr)
     lines = [line for line in result.stderr.splitlines() if "error" in line or "does not pass" in line
              or line.startswith("Traceback") or "Error:" in line]
-    return result.returncode, (lines[-1] if lines else "")
+    # (the reason itself: without `robot init`'s prefix, which names this machine's work folder)
+    return result.returncode, re.sub(r"^stdm-drake robot init: .* does not pass its check yet: ", "",
+                                     lines[-1] if lines else "")
 
 
 def tracking_quality(dataset_path: pathlib.Path) -> dict:
