@@ -80,12 +80,17 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
 TRACKING_MSE_WARNING = 1e-4
 
 
-def tracking_warning(trajectories: list, joint_names) -> str | None:
-    """One warning line naming the joints whose tracked angle's mean squared error from the plan exceeds
-    TRACKING_MSE_WARNING over tracked `trajectories` (q_true, q_planned: (T, n) rad), or None. Exit 0 does not
-    mean usable data: this says when it is not."""
+def tracking_mse(trajectories: list) -> np.ndarray:
+    """Per joint (n,), rad²: the mean squared error of the true angle q_true from the plan q_planned ((T, n)
+    each) over every step of tracked `trajectories`."""
     error = np.concatenate([traj.q_true - traj.q_planned for traj in trajectories])
-    mse = np.mean(error**2, axis=0)
+    return np.mean(error**2, axis=0)
+
+
+def tracking_warning(trajectories: list, joint_names) -> str | None:
+    """One warning line naming the joints whose `tracking_mse` exceeds TRACKING_MSE_WARNING over tracked
+    `trajectories`, or None. Exit 0 does not mean usable data: this says when it is not."""
+    mse = tracking_mse(trajectories)
     far = [f"{name} ({value:.2g} rad²)" for name, value in zip(joint_names, mse) if value > TRACKING_MSE_WARNING]
     if not far:
         return None

@@ -63,7 +63,7 @@ class Description:
         return order
 
 
-def _number(text) -> float | None:
+def file_number(text) -> float | None:
     """A number of the file (None for text that is none: Drake's parser names that itself)."""
     try:
         return float(text)
@@ -78,7 +78,7 @@ def _inertial(mass: str | None, values: dict, defaults: dict) -> Inertial:
     """The Inertial of the file's texts of a mass and of the inertia entries (`values`: INERTIA_KEYS -> text);
     an absent text (None) takes its value from `defaults` ("mass" and INERTIA_KEYS), a text that is not a
     number makes the mass None (nothing checked)."""
-    numbers = {key: defaults[key] if text is None else _number(text) for key, text in dict(values, mass=mass).items()}
+    numbers = {key: defaults[key] if text is None else file_number(text) for key, text in dict(values, mass=mass).items()}
     if any(value is None for value in numbers.values()):
         return Inertial(None, np.zeros((3, 3)))
     get = numbers.get
@@ -101,7 +101,7 @@ def _urdf(root) -> Description:
     joints = []
     for joint in root.findall("joint"):
         parent, child, limit = joint.find("parent"), joint.find("child"), joint.find("limit")
-        values = {key: _number(limit.get(key)) for key in ("lower", "upper", "velocity")} if limit is not None else {}
+        values = {key: file_number(limit.get(key)) for key in ("lower", "upper", "velocity")} if limit is not None else {}
         if joint.get("type") == "continuous":   # (URDF: its lower and upper are ignored)
             values.pop("lower", None), values.pop("upper", None)
         joints.append(Joint(joint.get("name"), joint.get("type"), parent.get("link") if parent is not None else None,
@@ -120,7 +120,7 @@ def _sdf(root) -> Description:
         links[link.get("name")] = _inertial(read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS},
                                             defaults)
     for joint in root.iter("joint"):
-        values = {key: _number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
+        values = {key: file_number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
         if values["velocity"] is not None and values["velocity"] < 0:
             values["velocity"] = None
         joints.append(Joint(joint.get("name"), joint.get("type"), (joint.findtext("parent") or "").strip(),
@@ -139,7 +139,7 @@ def read_description(path: pathlib.Path) -> Description | None:
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,
-                      locked_joints=()) -> None:
+                      locked_joints=()) -> Description | None:
     """InputError naming robot `robot` and the link or joint, before Drake parses the file, for: a kinematic
     loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass or
     inertia on any link, or an inertia no body has (a negative principal moment, moments that break the
@@ -149,10 +149,11 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
     a flange or tool frame), point masses and thin rods are valid bodies and pass; whether each arm joint
     moves inertia about its own axis is checked on the plant (M(home) positive definite,
     `Robot.check_plant`). overrides: per joint name, the limits the robot config gives instead of the
-    file's ({"lower", "upper", "velocity"}: rad or m, rad/s or m/s), applied before the checks."""
+    file's ({"lower", "upper", "velocity"}: rad or m, rad/s or m/s), applied before the checks. Returns the
+    description read (None for a file that is not XML: Drake's parser says why)."""
     description = read_description(path)
     if description is None:
-        return
+        return None
     where = f"robot {robot}: {path.name}"
     check_tree(description, where)
     for joint in description.joints:
@@ -171,6 +172,7 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
             joint = dataclasses.replace(joint, **(overrides or {}).get(joint.name, {}))
             check_limits(joint, f"{where}: {'arm ' if joint.name in arm_joints else ''}joint {joint.name!r}",
                          arm=joint.name in arm_joints, locked=joint.name in locked_joints)
+    return description
 
 
 def limit_overrides(position: dict, velocity: dict, effort: dict) -> dict:
@@ -183,10 +185,9 @@ def limit_overrides(position: dict, velocity: dict, effort: dict) -> dict:
     return overrides
 
 
-def limits_drake_refuses(path: pathlib.Path) -> set[str]:
+def limits_drake_refuses(description: Description | None) -> set[str]:
     """The joints whose file limits Drake's parser cannot take (lower position limit above upper, a negative
-    velocity limit: assertions that end the process); empty for a file that is not XML."""
-    description = read_description(path)
+    velocity limit: assertions that end the process); empty for no description (a file that is not XML)."""
     if description is None:
         return set()
     return {joint.name for joint in description.joints

@@ -17,16 +17,9 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.paths import check_input_file  # noqa: E402
+from stdm_drake.robots.description import file_number  # noqa: E402
 from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, MESHCAT_VISUAL_MESHES,  # noqa: E402
                                       collada_in_metres, mesh_as_obj)
-
-
-def _float(text) -> float | None:
-    """The number a file's text states, or None for none (Drake's parser names a malformed one)."""
-    try:
-        return float(text)
-    except (TypeError, ValueError):
-        return None
 
 
 def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
@@ -47,10 +40,11 @@ def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
         name, values = joint.get("name"), {}
         urdf = joint.find("limit")
         if urdf is not None:
-            values = {key: _float(urdf.get(key)) for key in ("effort", "velocity") if _float(urdf.get(key)) is not None}
+            values = {key: file_number(urdf.get(key)) for key in ("effort", "velocity")}
         sdf = joint.find("axis/limit")
         if sdf is not None:
-            values = {key: _float(sdf.findtext(key)) for key in ("effort", "velocity") if _float(sdf.findtext(key)) is not None}
+            values = {key: file_number(sdf.findtext(key)) for key in ("effort", "velocity")}
+        values = {key: value for key, value in values.items() if value is not None}
         if name and values:  # (a URDF <transmission> names its joint too, without limits)
             limits[name] = values
     return limits, continuous, mimics
@@ -65,23 +59,17 @@ def unmodelled_joint_effects(path: pathlib.Path, joints) -> list[str]:
         root = ElementTree.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
         return []
-    def number(text) -> float | None:   # (Drake's parser reports what is not a number)
-        try:
-            return float(text)
-        except (TypeError, ValueError):
-            return None
-
     joints = set(joints)
     friction = {}
     for joint in root.iter("joint"):
         dynamics = joint.find("dynamics")
-        value = number(dynamics.get("friction")) if dynamics is not None else None
+        value = file_number(dynamics.get("friction")) if dynamics is not None else None
         if joint.get("name") in joints and value:
             friction[joint.get("name")] = value
     reductions = {}
     for transmission in root.iter("transmission"):
         names = [joint.get("name") for joint in transmission.iter("joint")]
-        values = [value for value in (number(element.text) for element in transmission.iter("mechanicalReduction"))
+        values = [value for value in (file_number(element.text) for element in transmission.iter("mechanicalReduction"))
                   if value is not None]
         for name in names:
             if name in joints and values and values[0] != 1.0:
@@ -173,17 +161,22 @@ def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser
     return parser
 
 
-def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict, known=lambda package: False
-               ) -> pathlib.Path | None:
-    """The file a mesh reference names (package://, file:// or relative to the model); None for a package
-    the robot config does not map but Drake knows (`known(package)`: Drake resolves it), and a path
-    that does not exist for a package nobody maps (the mesh is then missing)."""
-    for scheme in ("package://", "model://"):   # (model://: SDF's name for the same thing)
+def _package(uri: str) -> tuple[str | None, str]:
+    """(package, path inside it) of a package:// or model:// reference (model://: SDF's name for the same
+    thing); (None, uri) for another."""
+    for scheme in ("package://", "model://"):
         if uri.startswith(scheme):
             package, _, rest = uri[len(scheme):].partition("/")
-            if package in package_paths:
-                return package_paths[package] / rest
-            return None if known(package) else pathlib.Path(f"/nonexistent-package-{package}") / rest
+            return package, rest
+    return None, uri
+
+
+def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict) -> pathlib.Path | None:
+    """The file a mesh reference names (package://, file:// or relative to the model), or None for a
+    package the robot config does not map (Drake resolves one it knows; `loadable_model`)."""
+    package, rest = _package(uri)
+    if package is not None:
+        return package_paths[package] / rest if package in package_paths else None
     path = pathlib.Path(uri[len("file://"):] if uri.startswith("file://") else uri)
     return path if path.is_absolute() else model_path.parent / path
 
@@ -297,7 +290,7 @@ def zero_massless_inertia(root) -> list[str]:
             continue
         mass = inertial.find("mass")
         text = mass.get("value") if root.tag != "sdf" and mass is not None else (mass.text if mass is not None else None)
-        if _float(text) != 0.0:
+        if file_number(text) != 0.0:
             continue
         inertia = inertial.find("inertia")
         if inertia is None:   # (SDFormat's default is unit moments: a massless frame has none)
@@ -307,11 +300,11 @@ def zero_massless_inertia(root) -> list[str]:
                 continue
         if root.tag == "sdf":   # (an absent moment defaults to 1 in SDFormat)
             entries = [ElementTree.SubElement(inertia, key) for key in ("ixx", "iyy", "izz") if inertia.find(key) is None]
-            entries += [element for element in inertia if _float(element.text) != 0.0]
+            entries += [element for element in inertia if file_number(element.text) != 0.0]
             for element in entries:
                 element.text = "0"
         else:
-            entries = [key for key, value in inertia.attrib.items() if _float(value) != 0.0]
+            entries = [key for key, value in inertia.attrib.items() if file_number(value) != 0.0]
             for key in entries:
                 inertia.set(key, "0")
         changed += [link.get("name")] if entries else []
@@ -335,20 +328,23 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
     scratch = MultibodyPlant(0.0)   # (kept alive while its parser's package map is asked)
     drake_packages = offline_parser(scratch).package_map()
     parents = {child: parent for parent in root.iter() for child in parent}
-    missing, missing_collisions, converted, references, dropped = [], [], [], [], []
+    missing, missing_collisions, converted, references, dropped, unmapped = [], [], [], [], [], []
     for element in [element for element in root.iter() if element.tag in ("visual", "collision")]:
         for mesh in element.iter("mesh"):
             uri_element = mesh.find("uri")
             uri = mesh.get("filename") if uri_element is None else (uri_element.text or "").strip()
-            path = _mesh_path(uri, model_path, package_paths, drake_packages.Contains) if uri else None
-            if path is None:
+            package = _package(uri)[0] if uri else None
+            unknown_package = package is not None and package not in package_paths and not drake_packages.Contains(package)
+            unmapped += [package] if unknown_package and package not in unmapped else []
+            path = _mesh_path(uri, model_path, package_paths) if uri else None
+            if path is None and not unknown_package:   # (no mesh, or Drake resolves the package)
                 continue
-            suffix = path.suffix.lower()
-            if not path.is_file():
+            if unknown_package or not path.is_file():
                 found = missing if element.tag == "visual" else missing_collisions
                 found += [uri] if uri not in found else []
                 dropped += [element] if element not in dropped else []
                 continue
+            suffix = path.suffix.lower()
             readable = DRAKE_COLLISION_MESHES if element.tag == "collision" else MESHCAT_VISUAL_MESHES
             if suffix not in readable or (suffix == ".dae" and not collada_in_metres(path)):
                 if suffix not in CONVERTED_MESHES:
@@ -368,12 +364,10 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
         else:
             uri_element.text = uri
     unknown = remove_undefined_sdf_elements(root, package_paths) if root.tag == "sdf" else []
-    unmapped = sorted({uri.split("/")[2] for uri in missing + missing_collisions if uri.startswith(("package://", "model://"))
-                       and uri.split("/")[2] not in package_paths and not drake_packages.Contains(uri.split("/")[2])})
     if not (missing or missing_collisions or converted or limits or renamed or undefined or massless or unknown):
         return LoadableModel(None, [], [])
     return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted, renamed + undefined, massless,
-                         missing_collisions, unknown, unmapped)
+                         missing_collisions, unknown, sorted(unmapped))
 
 
 # Drake's SDFormat parser refuses an element the SDFormat specification does not define where it stands (a

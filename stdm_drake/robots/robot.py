@@ -144,9 +144,9 @@ class Robot:
         if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
         overrides = limit_overrides(config.position_limits, config.velocity_limits, config.effort_limits)
-        check_description(self.model_path, self.name, config.arm_joints,
-                          {joint: {key: value for key, value in values.items() if key != "effort"}
-                           for joint, values in overrides.items()}, config.locked_joints)
+        description = check_description(self.model_path, self.name, config.arm_joints,
+                                        {joint: {key: value for key, value in values.items() if key != "effort"}
+                                         for joint, values in overrides.items()}, config.locked_joints)
         self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
         for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
             logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
@@ -154,7 +154,7 @@ class Robot:
         self._srdf_pairs = srdf_disabled_collisions(self.srdf_path, self.name) if self.srdf_path else []
         self._reported_srdf_links = False
         # the model text to parse when meshes are missing or converted (None: the file itself), read once
-        refused = limits_drake_refuses(self.model_path)   # (the others go on the plant, `add_to` and `check_plant`)
+        refused = limits_drake_refuses(description)   # (the others go on the plant, `add_to` and `check_plant`)
         loadable = loadable_model(self.name, self.model_path, self.package_paths,
                                   {joint: values for joint, values in overrides.items() if joint in refused})
         self._model_text = loadable.text

@@ -140,7 +140,8 @@ def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
 def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | None = None,
                     srdf: pathlib.Path | None = None) -> tuple[RobotConfig, list]:
     """(the starting RobotConfig of description file `model_path`, with paths relative to `folder` where its
-    YAML will be written; notes for the user, one line each). InputError for a file that is no arm."""
+    YAML will be written, home the middle of the ranges; notes for the user, one line each). InputError for a
+    file that is no arm."""
     description = read_description(model_path)
     if description is None:
         raise InputError(f"{model_path} is not a URDF or SDF file (not XML)")
@@ -161,13 +162,12 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         upper = np.inf if joint.upper is None else joint.upper
         return float(np.clip(0.0, lower, upper)) if lower <= upper else 0.0
 
-    home = srdf_home(srdf, chain.arm_joints) if srdf is not None else None
     config = RobotConfig(
         name=name or re.sub(r"[^A-Za-z0-9_.-]+", "_", model_path.stem), model=_relative(model_path, folder),
         package_paths={package: _relative(path, folder) for package, path in packages.items()},
         weld_frame=chain.base, arm_joints=chain.arm_joints,
         locked_joints={joint: nearest_zero(joints[joint]) for joint in chain.locked_joints},
-        home=home or [round(middle(joints[joint]), 6) for joint in chain.arm_joints], tool_frame=chain.tool_frame,
+        home=[round(middle(joints[joint]), 6) for joint in chain.arm_joints], tool_frame=chain.tool_frame,
         srdf=_relative(srdf, folder) if srdf is not None else "")
     missing_limits = [joint for joint in chain.arm_joints if "effort" not in limits.get(joint, {})
                       or "velocity" not in limits.get(joint, {})]
@@ -199,15 +199,15 @@ def starting_home(robot: Robot, attempts: int = 200) -> tuple[list | None, list]
     tried = [robot.home] + [np.round(np.clip(robot.home + rng.uniform(-spread, spread), lower, upper), 3)
                             for _ in range(attempts)]
     contacts = [{tuple(sorted(pair)) for pair in checker.colliding_links(q)} for q in tried]
-    always = sorted(set.intersection(*contacts))
-    free = [q for q, pairs in zip(tried, contacts) if pairs <= set(always)]
+    always = set.intersection(*contacts)
+    touching = [list(pair) for pair in sorted(always)]
+    free = [q for q, pairs in zip(tried, contacts) if pairs <= always]
     if not free:
-        return None, [list(pair) for pair in always]
+        return None, touching
     if robot.num_joints < POSE_DIM:
-        return list(map(float, free[0])), [list(pair) for pair in always]
+        return list(map(float, free[0])), touching
     kinematics = RobotKinematics(checker.plant, robot=robot)
-    best = min(free, key=lambda q: np.linalg.cond(kinematics.task_jacobian(q)))
-    return list(map(float, best)), [list(pair) for pair in always]
+    return list(map(float, min(free, key=lambda q: np.linalg.cond(kinematics.task_jacobian(q))))), touching
 
 
 def check_robot(robot: Robot) -> list[str]:
@@ -272,7 +272,10 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
         raise InputError(f"--output {output} exists; choose another path or pass --force to replace it")
     folder = output.absolute().parent
     config, notes = starting_config(model, folder, name, srdf)
-    if srdf is None or srdf_home(srdf, config.arm_joints) is None:   # (a named pose is kept as it is)
+    named = srdf_home(srdf, config.arm_joints) if srdf is not None else None
+    if named is not None:   # (a named pose is kept as it is)
+        config.home = named
+    else:
         try:
             home, touching = starting_home(Robot(config, folder))
             config.disabled_collisions = touching

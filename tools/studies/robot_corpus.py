@@ -93,12 +93,12 @@ def stdm_drake(folder: pathlib.Path, label: str, *arguments) -> tuple[int, str]:
 def tracking_quality(dataset_path: pathlib.Path) -> dict:
     """Per joint over every tracked plan of a tracking dataset: MSE of q_true against q_planned (rad²), the
     largest |qdd| (true) and |qdd_planned| (rad/s²)."""
+    from stdm_drake.collection.collect import tracking_mse
     from stdm_drake.data.dataset import load_dataset
     dataset = load_dataset(dataset_path)
     trajectories = [dataset.trajectory(index) for index in range(dataset.num_trajectories)]
-    error = np.concatenate([traj.q_true - traj.q_planned for traj in trajectories])
-    return dict(tracking_mse_rad2=float(np.mean(error**2)),
-                tracking_mse_worst_joint_rad2=float(np.max(np.mean(error**2, axis=0))),
+    mse = tracking_mse(trajectories)   # (every joint has as many steps: their mean is the overall MSE)
+    return dict(tracking_mse_rad2=float(np.mean(mse)), tracking_mse_worst_joint_rad2=float(np.max(mse)),
                 qdd_max=float(max(np.abs(traj.qdd).max() for traj in trajectories)),
                 qdd_planned_max=float(max(np.abs(traj.qdd_planned).max() for traj in trajectories)))
 
