@@ -49,7 +49,7 @@ def test_each_tag_loads_and_runs_one_plan(tmp_path, plant_model, text, kind, sol
 
 
 @pytest.mark.parametrize("text, message", [
-    ("optimizer: !Mppi {samples: 100}\n", "unknown optimizer !Mppi; the MPC's optimizers are !Rti, !Ilqr"),
+    ("optimizer: !Pets {samples: 100}\n", "unknown optimizer !Pets; the MPC's optimizers are !Rti, !Ilqr"),
     ("optimizer: !Ilqr\n", "optimizer !Ilqr takes its settings as a mapping: write `optimizer: !Ilqr {}`"),
     ("optimizer: !Rti {max_iterations: 2}\n", "write `iterations:` for its `max_iterations:`"),
     ("optimizer: !Ilqr {line_search: [0]}\n", "mpc optimizer !Ilqr line_search steps must be in (0, 1]"),

@@ -45,6 +45,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 from stdm_drake.closed_loop.ilqr import Ilqr
 from stdm_drake.closed_loop.optimizer import OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.closed_loop.rti import Rti
+from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi
 from stdm_drake.config import check_joint_vector, load_yaml_config, read_yaml_document
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
@@ -57,7 +58,7 @@ MAX_HORIZON = 1000     # sample periods predicted per control step (10 s at 0.01
 
 # The optimizers a settings file may name, each by its class's tag (`optimizer: !Rti {...}`), the first the
 # default: a new optimizer is one `OptimizerSettings` class added here.
-OptimizerConfig = typing.Union[Rti, Ilqr]
+OptimizerConfig = typing.Union[Rti, Ilqr, Icem, Mppi, Cem]
 OPTIMIZER_TAGS = tuple(f"!{cls.__name__}" for cls in typing.get_args(OptimizerConfig))
 
 

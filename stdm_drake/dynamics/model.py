@@ -16,6 +16,8 @@ of them. As in mbrl-lib's `mbrl.models.Model`, the contract is small:
     linearize(x, a) a whole horizon at once: next states (H, S), A and B at H rows from one batched call
                     (the MPC's way to evaluate a horizon; models that share work between the value and
                     its Jacobians override it)
+    member_step(x, a, rng)  particles laid out member by member, x (E, M, S), a (E, M, A) -> (E, M, S): row
+                    block e follows ensemble member e, sampling its Gaussian with `rng` (sampling MPC)
 """
 from __future__ import annotations
 
@@ -96,6 +98,14 @@ class DynamicsModel(abc.ABC):
     def step_single(self, x: np.ndarray, a: np.ndarray) -> np.ndarray:
         """`step` of one row: x (S,), a (A,) float64 -> (S,), unchecked."""
         return self.step(x[None], a[None])[0]
+
+    def member_step(self, x: np.ndarray, a: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Next states (E, M, S) of particles laid out member by member: rows x[e] (M, S), a[e] (M, A) follow
+        member e of an ensemble of E = `ensemble_size` members; a probabilistic model samples its predicted
+        Gaussian with `rng` (None: its mean). What sampling MPC rolls out (`closed_loop.sampling`); a model
+        of one deterministic member gives `step` of every row."""
+        count, rows, size = x.shape
+        return self.step(x.reshape(-1, size), a.reshape(count * rows, -1)).reshape(x.shape)
 
     def linearize(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Every row of a horizon at once: (next states (H, S), d step / d x (H, S, S), d step / d a (H, S, A))

@@ -144,6 +144,41 @@ class LearnedModel(DynamicsModel):
             mean += x[n:]
         return np.concatenate([x[:n] + 0.5 * self.sample_period * (x[n:] + mean), mean])
 
+    def member_step(self, x: np.ndarray, a: np.ndarray, rng: np.random.Generator | None = None) -> np.ndarray:
+        """Particles member by member (`DynamicsModel.member_step`): x (E, M, 2n), a (E, M, m), block e
+        through member e only; a probabilistic member's output is sampled from its Gaussian with `rng`."""
+        members, rows, size = x.shape
+        if members != self.ensemble_size:
+            raise InputError(f"{self.name}: particles laid out for {members} members, the model has {self.ensemble_size}")
+        flat_x, flat_a = x.reshape(-1, size), a.reshape(members * rows, -1)
+        if members == 1 and (rng is None or not self.probabilistic):
+            return self.step(flat_x, flat_a).reshape(x.shape)
+        state, rest = self._network_rows(flat_x, flat_a)
+        engine = self.engine
+        inputs = engine.input_rows(state.astype(np.float32), rest.astype(np.float32)[None])[0]
+        if hasattr(engine, "member_block_outputs"):
+            mean, variance = engine.member_block_outputs(inputs.reshape(members, rows, -1))
+        else:   # (an engine without the fast path: every member on every row, then each block's own member)
+            mean, variance = engine.member_outputs(engine.hidden_features(inputs, engine.workspace(len(inputs))))
+            block = np.arange(members)
+            mean = mean.reshape(members, members, rows, -1)[block, block]
+            variance = None if variance is None else variance.reshape(members, members, rows, -1)[block, block]
+        if rng is not None and variance is not None:
+            mean = mean + np.sqrt(variance) * rng.standard_normal(mean.shape, dtype=np.float32)
+        mean = mean.reshape(members * rows, -1).astype(np.float64)
+        if engine.residual:
+            mean += state
+        return self._assemble(flat_x, mean).reshape(x.shape)
+
+    def torch_particles(self, device: str):
+        """This model's particle step in PyTorch on `device` (`learning.particles.TorchParticles`), for sampling
+        MPC on a GPU; InputError for a model whose inputs need the robot's nominal model (Drake, on the CPU)."""
+        from stdm_drake.learning.particles import TorchParticles
+        if self.structure != PAPER or not hasattr(self.engine, "member_block_outputs"):
+            raise InputError(f"{self.name}: only the paper's black box (an ensemble MLP of raw inputs predicting the "
+                             f"state) runs on a PyTorch device; this one is {self.structure.label}: use device cpu")
+        return TorchParticles(self.engine, device)
+
     def predict(self, x, a) -> Prediction:
         """Checked one-step prediction: mean and variance (B, 2n) (ensemble spread + aleatoric), member means."""
         states, actions, added = self._checked_pair(x, a)

@@ -157,6 +157,18 @@ class InferenceModel:
             jacobian = jacobian + np.eye(out, width, dtype=np.float32)
         return mean, jacobian
 
+    def member_block_outputs(self, inputs: np.ndarray):
+        """Each member on its own rows: inputs (E, M, S+A+1), block e for member e -> (mean (E, M, S) raw units,
+        residual not added; variance (E, M, S) or None). One batched product per layer, not E times the rows
+        (the particles of PETS trajectory sampling, each following one member)."""
+        pre = np.matmul(inputs, self.input_member_weight)
+        hidden = self._activation(pre, np.empty_like(pre))
+        for weight, bias in self.hidden:
+            pre = np.matmul(hidden, weight)
+            pre += bias
+            hidden = self._activation(pre, hidden)
+        return self.member_outputs(hidden)
+
     def member_outputs(self, hidden: np.ndarray):
         """Per-member outputs from hidden (E, M, H): (mean (E, M, S) raw units, residual not added;
         variance (E, M, S) or None)."""

@@ -1,0 +1,431 @@
+"""Sampling MPC: the cross-entropy method (`Cem`), its improved version (`Icem`) and model-predictive path
+integral control (`Mppi`), each a tagged optimizer of the MPC settings (`optimizer: !Icem {...}`).
+
+Every iteration evaluates all its torque sequences at once: one batched rollout of samples x particles per
+horizon step (`SampledCosts`), no Python loop per sample. How the particles carry a model's uncertainty
+(`propagation`, PETS trajectory sampling, Chua et al. 2018):
+  "mean"   one particle per sample, the ensemble's mean prediction (a D or DD model's only prediction);
+  "tsinf"  `particles` per sample, spread evenly over the ensemble's members, each following its member for
+           the whole horizon (TS-infinity); a probabilistic member samples its Gaussian at every step;
+  "ts1"    as tsinf, but the particles are shuffled among the members at every step (TS1).
+A sample's cost is the tracking cost (`optimizer.TrackingCost`) averaged over its particles, plus
+`variance_weight` times the Q-weighted spread of its particles, sum_k w_k tr(Q Var_k): 1 is as much again as
+the spread already costs inside the average (the average is the cost of the particles' mean plus that
+spread), more makes the controller avoid states the model is unsure of.
+
+Torque noise is per joint in units of 1/sqrt(R_jj), the torque whose effort cost over one step is 1
+(`noise_std` 1: sigma_j = 1/sqrt(R_jj) N m), MPPI's coupling of noise and control cost (Sigma = lambda R^-1)
+with lambda folded in; the MPC's effort weights already scale with each joint's inertia, so one number
+fits every joint of any robot. Every sample is clipped to the effort limits; the warm start (the previous
+solution shifted by one period) is always one of the samples, so a solve never returns worse than it
+under the same draws.
+
+Where it runs: NumPy on the CPU (`framework: numpy`, the default), or PyTorch (`framework: torch`) on
+`device` cpu or cuda; both draw the torque samples and particle shuffles from one NumPy generator seeded
+by `seed`, so for the same settings they return the same torques to float tolerance (a probabilistic
+model's Gaussian draws come from the device's own generator: the same in distribution). PyTorch runs the
+paper's black box (`LearnedModel.torch_particles`); structured models and the plant run on NumPy.
+
+Shapes for n joints, m actuated, horizon H, K samples, P particles, state S = 2n: torques (K, H, m) N m.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
+from stdm_drake.dynamics.model import PROPAGATIONS
+from stdm_drake.errors import InputError
+
+MAX_SAMPLES = 100_000       # torque sequences per iteration
+MAX_ROWS = 2_000_000        # samples x particles held at once (S float64 each)
+MAX_ITERATIONS = 100        # iterations per control step: more is a run that does not end
+FRAMEWORKS = ("numpy", "torch")
+
+
+@dataclasses.dataclass
+class SamplingSettings(OptimizerSettings):
+    """What every sampling optimizer shares (module docstring): samples per iteration, iterations per control
+    step, noise_std (units of 1/sqrt(R_jj)), propagation ("mean", "ts1", "tsinf") with `particles` per sample
+    (a multiple of the ensemble's members), variance_weight >= 0, seed of the draws, framework ("numpy",
+    "torch") and device ("cpu", "cuda", "cuda:N"; cuda needs framework torch)."""
+    samples: int = 100
+    iterations: int = 3
+    noise_std: float = 0.1
+    propagation: str = "mean"
+    particles: int = 1
+    variance_weight: float = 0.0
+    seed: int = 0
+    framework: str = "numpy"
+    device: str = "cpu"
+    feedback_kp: float = 225.0
+    feedback_kd: float = 30.0
+
+    def tag(self) -> str:
+        return f"mpc optimizer !{type(self).__name__}"
+
+    def validate(self) -> None:
+        """InputError (one line) for settings no sampling optimizer can run, before any work: samples, iterations or
+        particles out of range, noise not positive, an unknown propagation or framework, a negative variance
+        weight, a device that does not exist here."""
+        tag = self.tag()
+        for name, top in (("samples", MAX_SAMPLES), ("iterations", MAX_ITERATIONS), ("particles", MAX_ROWS)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= top:
+                raise InputError(f"{tag} {name} must be an integer in 1..{top}, got {value!r}")
+        if self.samples * self.particles > MAX_ROWS:
+            raise InputError(f"{tag} samples x particles must be at most {MAX_ROWS}, got {self.samples * self.particles}")
+        if not (np.isfinite(self.noise_std) and self.noise_std > 0):
+            raise InputError(f"{tag} noise_std must be > 0 (units of 1/sqrt(effort_weight)), got {self.noise_std}")
+        if self.propagation not in PROPAGATIONS:
+            raise InputError(f"{tag} propagation must be one of {', '.join(PROPAGATIONS)}, got {self.propagation!r}")
+        for name in ("feedback_kp", "feedback_kd"):
+            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise InputError(f"{tag} {name} must be >= 0, got {getattr(self, name)}")
+        if not (np.isfinite(self.variance_weight) and self.variance_weight >= 0):
+            raise InputError(f"{tag} variance_weight must be >= 0, got {self.variance_weight}")
+        if self.framework not in FRAMEWORKS:
+            raise InputError(f"{tag} framework must be one of {', '.join(FRAMEWORKS)}, got {self.framework!r}")
+        if self.framework == "numpy" and self.device != "cpu":
+            raise InputError(f"{tag} device {self.device!r} needs `framework: torch` (NumPy runs on the cpu)")
+        if self.framework == "torch":
+            from stdm_drake.learning.particles import torch_device
+            try:
+                torch_device(self.device)
+            except InputError as error:
+                raise InputError(f"{tag} {error}") from None
+
+
+class SampledCosts:
+    """The costs of K feedforward torque sequences from x0: one batched rollout of K x P particles per horizon
+    step, on NumPy or on a PyTorch device (module docstring). Each particle applies, at each step, its
+    sample's feedforward plus the ancillary feedback `gain` (m, 2n) on its own error from the reference,
+    clipped to the effort limits: u = clip(u_bar_k + gain (r_k - x)), and pays the effort of that torque."""
+
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, settings: SamplingSettings,
+                 rng: np.random.Generator):
+        self.model, self.settings, self.rng = model, settings, rng
+        probabilistic = bool(getattr(model, "probabilistic", False))
+        members = int(getattr(model, "ensemble_size", 1))
+        sampled = settings.propagation != "mean" and (members > 1 or probabilistic)
+        self.propagation = settings.propagation if sampled else "mean"
+        self.members = members if sampled else 1
+        self.particles = settings.particles if sampled else 1
+        if self.particles % self.members:
+            raise InputError(f"{settings.tag()} particles ({settings.particles}) must be a multiple of the model's "
+                             f"{members} ensemble members (each member carries as many)")
+        self.q, self.r = np.diag(cost.Q).copy(), np.diag(cost.R).copy()
+        self.effort_limit = np.asarray(effort_limit, dtype=float)
+        self.step_weights = cost.step_weights
+        self.torch = None
+        self.put = lambda values: values
+        if settings.framework == "torch":
+            import torch
+            if not hasattr(model, "torch_particles"):
+                raise InputError(f"{settings.tag()} framework torch: model {model.name} has no PyTorch particle step "
+                                 "(the paper's black box has); use framework numpy")
+            self.torch = model.torch_particles(settings.device)
+            device = self.torch.device
+            self.generator = torch.Generator(device=device).manual_seed(int(settings.seed))
+            self.put = lambda values: torch.as_tensor(np.asarray(values, dtype=np.float32), device=device)
+            self.to_index = lambda values: torch.as_tensor(values, dtype=torch.long, device=device)
+
+    def __call__(self, x0: np.ndarray, u: np.ndarray, gain: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
+                 offset: np.ndarray, keep_states: bool = False):
+        """costs (K,) of feedforward torques u (K, H, m) (inf where a rollout left the finite numbers) and, with
+        keep_states, the particles' states (H, P, K, S) (the member of particle p is p // (P / E) under tsinf)."""
+        samples, horizon, joints = u.shape
+        xp = np if self.torch is None else __import__("torch")
+        put = self.put
+        particles, members, size = self.particles, self.members, len(x0)
+        rows = particles * samples // members
+        weights = self.step_weights(horizon)
+        q, r, limit, gain_t = put(self.q), put(self.r), put(self.effort_limit), put(gain.T)
+        x = xp.broadcast_to(put(x0), (members, rows, size))
+        offset_d, torques, references, feedforward = put(offset), put(u), put(reference), put(u_ff)
+        total, kept = 0.0, []
+        with np.errstate(all="ignore"):
+            for k in range(horizon):
+                a = xp.broadcast_to(torques[:, k], (particles, samples, joints)).reshape(members, rows, joints)
+                a = xp.clip(a + (references[k] - x) @ gain_t, -limit, limit)
+                effort = ((a - feedforward[k]) ** 2 @ r).reshape(particles, samples).mean(0)
+                x = self._step(x, a, xp) + offset_d
+                states = x.reshape(particles, samples, size)
+                total = total + effort + float(weights[k]) * ((states - references[k + 1]) ** 2 @ q).mean(0)
+                if self.settings.variance_weight > 0 and particles > 1:
+                    spread = ((states - states.mean(0)) ** 2).mean(0)
+                    total = total + self.settings.variance_weight * float(weights[k]) * (spread @ q)
+                if keep_states:
+                    kept.append(states)
+        costs = total if self.torch is None else total.cpu().double().numpy()
+        costs = np.where(np.isfinite(costs), costs, np.inf)
+        if not keep_states:
+            return costs, None
+        states = xp.stack(kept)
+        return costs, states if self.torch is None else states.cpu().double().numpy()
+
+    def _step(self, x, a, xp):
+        size, joints = x.shape[-1], a.shape[-1]
+        if self.propagation == "mean":
+            if self.torch is not None:
+                return self.torch.mean_step(x.reshape(-1, size), a.reshape(-1, joints)).reshape(x.shape)
+            return self.model.step(x.reshape(-1, size), a.reshape(-1, joints)).reshape(x.shape)
+        if self.propagation == "tsinf":
+            return self._member_step(x, a)
+        order = self.rng.permutation(x.shape[0] * x.shape[1])    # TS1: the particles change members every step
+        index = order if self.torch is None else self.to_index(order)
+        moved = self._member_step(x.reshape(-1, size)[index].reshape(x.shape),
+                                  a.reshape(-1, joints)[index].reshape(a.shape))
+        back = xp.empty_like(moved.reshape(-1, size))
+        back[index] = moved.reshape(-1, size)
+        return back.reshape(x.shape)
+
+    def _member_step(self, x, a):
+        if self.torch is not None:
+            return self.torch.step(x, a, self.generator)
+        return self.model.member_step(x, a, self.rng)
+
+
+class SamplingSolver(TrajectoryOptimizer):
+    """What CEM, iCEM and MPPI share: the torque noise, the ancillary feedback, the batched costs, the plan kept
+    between control steps and the result.
+
+    The samplers search over feedforward torques u_bar (H, m); every rollout, the sampled ones and the applied
+    one, adds the feedback gain (r_k - x_k) with gain = B_v^+ dt [kp I, kd I] from the model's own torque
+    Jacobian at the measured state (B_v: its velocity rows, d v_k+1 / d u; kp, kd: `feedback_kp` 1/s^2,
+    `feedback_kd` 1/s), the computed-torque law in the model's own inertia: each sample's rollout follows the
+    reference, so the samples differ in how well, not in whether, it is tracked (without it a 0.1 rad move of
+    the UR-10 costs 100x the optimum after 10,000 samples: the position cost's curvature spans the light
+    wrists and the heavy shoulder). kp = kd = 0: pure open-loop torque sampling."""
+
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, settings: SamplingSettings):
+        super().__init__(model, cost, effort_limit)
+        settings.validate()
+        self.settings = settings
+        self.rng = np.random.default_rng(int(settings.seed))
+        self.costs = SampledCosts(model, cost, effort_limit, settings, self.rng)
+        self.torque_std = settings.noise_std / np.sqrt(np.diag(cost.R))     # (m,) N m
+        self.plan = None        # the last solve's feedforward torques, shifted by one period
+
+    def clip(self, u: np.ndarray) -> np.ndarray:
+        return np.clip(u, -self.effort_limit, self.effort_limit)
+
+    def noise(self, count: int, horizon: int) -> np.ndarray:
+        """(count, H, m) white standard normal draws (iCEM overrides: colored)."""
+        return self.rng.standard_normal((count, horizon, self.joints))
+
+    def feedback_gain(self, x0: np.ndarray, u0: np.ndarray) -> np.ndarray:
+        """gain (m, 2n) N m per (rad, rad/s) at the measured state (class docstring); zero where the model's torque
+        Jacobian is not finite."""
+        settings, n = self.settings, self.state_dim // 2
+        if settings.feedback_kp == 0 and settings.feedback_kd == 0:
+            return np.zeros((self.joints, self.state_dim))
+        with np.errstate(all="ignore"):
+            _, _, B = self.linearize(x0[None], u0[None])
+        velocity = B[0, n:]                                                   # (n, m)
+        if not np.all(np.isfinite(velocity)):
+            return np.zeros((self.joints, self.state_dim))
+        period = getattr(self.model, "sample_period", None) or 1.0
+        law = period * np.hstack([settings.feedback_kp * np.eye(n), settings.feedback_kd * np.eye(n)])
+        return np.linalg.pinv(velocity) @ law
+
+    def start(self, x0, u_init, x_init):
+        """The feedforward plan to search from (the kept one, or u_init on a first step or after a fallback:
+        x_init None) and the feedback gain."""
+        if x_init is None or self.plan is None:
+            self.plan = self.clip(np.asarray(u_init, dtype=float))
+        return self.plan, self.feedback_gain(x0, self.plan[0])
+
+    def result(self, x0, feedforward, gain, reference, u_ff, offset, iterations: int) -> OptimizerResult:
+        """The torques the chosen feedforward and the feedback apply along the model's mean prediction (the first
+        is applied; the prediction is what the disturbance observer compares with the next measurement); the
+        feedforward is kept, shifted by one period, for the next control step."""
+        x = np.empty((len(feedforward) + 1, self.state_dim))
+        u = np.empty_like(feedforward)
+        x[0] = x0
+        with np.errstate(all="ignore"):
+            for k in range(len(feedforward)):
+                u[k] = self.clip(feedforward[k] + gain @ (reference[k] - x[k]))
+                x[k + 1] = self.predict(x[k], u[k], offset)
+        finite = bool(np.all(np.isfinite(x)) and np.all(np.isfinite(u)))
+        self.plan = np.concatenate([feedforward[1:], feedforward[-1:]])
+        return OptimizerResult(u=u, x=x, cost=self.cost(x, u, reference, u_ff) if finite else float("inf"),
+                               iterations=iterations, finite=finite)
+
+
+# -- CEM ---------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass
+class Cem(SamplingSettings):
+    """The cross-entropy method (PETS' optimizer, mbrl-lib's `CEMOptimizer`): each iteration samples `samples`
+    Gaussian torque sequences around the mean, keeps the `elites` cheapest and moves the mean and spread
+    towards theirs, `smoothing` of the old kept (0: none). The best sequence evaluated is applied."""
+    samples: int = 400
+    iterations: int = 5
+    noise_std: float = 0.1
+    elites: int = 40
+    smoothing: float = 0.1
+
+    def validate(self) -> None:
+        super().validate()
+        check_elites(self, self.samples)
+        if not 0 <= self.smoothing < 1:
+            raise InputError(f"{self.tag()} smoothing must be in [0, 1), got {self.smoothing}")
+
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "CemSolver":
+        return CemSolver(model, cost, effort_limit, self)
+
+
+def check_elites(settings, population: int) -> None:
+    if isinstance(settings.elites, bool) or not isinstance(settings.elites, (int, np.integer)) \
+            or not 1 <= settings.elites <= population:
+        raise InputError(f"{settings.tag()} elites must be an integer in 1..{population} (the population), got "
+                         f"{settings.elites!r}")
+
+
+class CemSolver(SamplingSolver):
+    def solve(self, x0, u_init, reference, u_ff, offset=None, x_init=None) -> OptimizerResult:
+        offset = np.zeros(self.state_dim) if offset is None else offset
+        settings = self.settings
+        mean, gain = self.start(x0, u_init, x_init)
+        std = np.broadcast_to(self.torque_std, mean.shape).copy()
+        best, best_cost = mean, np.inf
+        for _ in range(settings.iterations):
+            samples = self.clip(mean + std * self.noise(settings.samples, len(mean)))
+            samples[0] = mean
+            costs, _ = self.costs(x0, samples, gain, reference, u_ff, offset)
+            order = np.argsort(costs, kind="stable")[:settings.elites]
+            if costs[order[0]] < best_cost:
+                best, best_cost = samples[order[0]], costs[order[0]]
+            elites = samples[order]
+            mean = settings.smoothing * mean + (1 - settings.smoothing) * elites.mean(axis=0)
+            std = settings.smoothing * std + (1 - settings.smoothing) * elites.std(axis=0)
+        return self.result(x0, best, gain, reference, u_ff, offset, settings.iterations)
+
+
+# -- iCEM --------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass
+class Icem(SamplingSettings):
+    """The improved CEM (Pinneri et al. 2020) at its low budget: CEM with colored noise (power spectrum
+    1/f^colored_noise_exponent along the horizon: smooth torques), a population that shrinks by
+    `population_decay` each iteration (never below 2 elites), a fraction `keep_elites` of the last elites
+    carried into the next iteration and, shifted by one period, into the next control step, and the mean
+    among the last iteration's samples. The best sequence evaluated is applied."""
+    samples: int = 100
+    iterations: int = 3
+    noise_std: float = 0.1
+    elites: int = 10
+    smoothing: float = 0.1
+    population_decay: float = 1.25
+    colored_noise_exponent: float = 2.0
+    keep_elites: float = 0.3
+
+    def validate(self) -> None:
+        super().validate()
+        check_elites(self, self.samples)
+        if not 0 <= self.smoothing < 1:
+            raise InputError(f"{self.tag()} smoothing must be in [0, 1), got {self.smoothing}")
+        if not (np.isfinite(self.population_decay) and self.population_decay >= 1):
+            raise InputError(f"{self.tag()} population_decay must be >= 1, got {self.population_decay}")
+        if not (np.isfinite(self.colored_noise_exponent) and 0 <= self.colored_noise_exponent <= 10):
+            raise InputError(f"{self.tag()} colored_noise_exponent must be in [0, 10], got {self.colored_noise_exponent}")
+        if not 0 <= self.keep_elites <= 1:
+            raise InputError(f"{self.tag()} keep_elites must be in [0, 1], got {self.keep_elites}")
+
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "IcemSolver":
+        return IcemSolver(model, cost, effort_limit, self)
+
+
+def colored_noise(rng: np.random.Generator, count: int, horizon: int, joints: int, exponent: float) -> np.ndarray:
+    """(count, horizon, joints) Gaussian sequences of unit variance whose power spectrum along the horizon falls
+    as 1/f^exponent (0: white), drawn in the frequency domain (frequencies below 1/horizon as 1/horizon)."""
+    frequencies = np.fft.rfftfreq(horizon)
+    frequencies[0] = frequencies[1] if horizon > 1 else 1.0
+    amplitude = frequencies ** (-exponent / 2.0)
+    real = rng.standard_normal((count, joints, len(amplitude)))
+    imaginary = rng.standard_normal((count, joints, len(amplitude)))
+    imaginary[..., 0] = 0.0                  # (the mean and, for an even horizon, the Nyquist term are real)
+    if horizon % 2 == 0:
+        imaginary[..., -1] = 0.0
+    signal = np.fft.irfft(amplitude * (real + 1j * imaginary), n=horizon, axis=-1)
+    # variance of each sample: (a_0^2 + 4 sum of the middle a_f^2 + a_Nyquist^2) / horizon^2
+    power = amplitude ** 2
+    middle = power[1:-1] if horizon % 2 == 0 else power[1:]
+    variance = (power[0] + 4.0 * middle.sum() + (power[-1] if horizon % 2 == 0 and horizon > 1 else 0.0)) / horizon ** 2
+    return (signal / np.sqrt(variance)).transpose(0, 2, 1)
+
+
+class IcemSolver(SamplingSolver):
+    def __init__(self, model, cost, effort_limit, settings: Icem):
+        super().__init__(model, cost, effort_limit, settings)
+        self.kept = None           # the last control step's elites shifted by one period (E', H, m)
+
+    def noise(self, count: int, horizon: int) -> np.ndarray:
+        return colored_noise(self.rng, count, horizon, self.joints, self.settings.colored_noise_exponent)
+
+    def solve(self, x0, u_init, reference, u_ff, offset=None, x_init=None) -> OptimizerResult:
+        offset = np.zeros(self.state_dim) if offset is None else offset
+        settings = self.settings
+        if x_init is None:
+            self.kept = None       # (the first control step, or one after a fallback: nothing to carry)
+        mean, gain = self.start(x0, u_init, x_init)
+        std = np.broadcast_to(self.torque_std, mean.shape).copy()
+        best, best_cost, carried = mean, np.inf, self.kept
+        elites = None
+        for iteration in range(settings.iterations):
+            population = max(int(settings.samples * settings.population_decay ** -iteration), 2 * settings.elites)
+            samples = self.clip(mean + std * self.noise(population, len(mean)))
+            extra = [mean[None]] if iteration == settings.iterations - 1 or iteration == 0 else []
+            if carried is not None and len(carried):
+                extra.append(carried[:max(1, int(round(settings.keep_elites * len(carried))))])
+            samples = np.concatenate([samples] + extra)
+            costs, _ = self.costs(x0, samples, gain, reference, u_ff, offset)
+            order = np.argsort(costs, kind="stable")[:settings.elites]
+            if costs[order[0]] < best_cost:
+                best, best_cost = samples[order[0]], costs[order[0]]
+            elites = samples[order]
+            carried = elites if settings.keep_elites > 0 else None
+            mean = settings.smoothing * mean + (1 - settings.smoothing) * elites.mean(axis=0)
+            std = settings.smoothing * std + (1 - settings.smoothing) * elites.std(axis=0)
+        if settings.keep_elites > 0 and elites is not None:
+            self.kept = np.concatenate([elites[:, 1:], elites[:, -1:]], axis=1)
+        return self.result(x0, best, gain, reference, u_ff, offset, settings.iterations)
+
+
+# -- MPPI --------------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass
+class Mppi(SamplingSettings):
+    """Model-predictive path integral control (Williams et al. 2017; pytorch_mppi's `MPPI`): each iteration
+    perturbs the current torques with `samples` Gaussian sequences and replaces them by the samples' average
+    weighted by exp(-(cost - lowest cost) / temperature); temperature in the cost's units (the tracking cost
+    of the MPC settings), lower trusts the best samples more."""
+    samples: int = 100
+    iterations: int = 1
+    noise_std: float = 0.1
+    temperature: float = 1.0
+
+    def validate(self) -> None:
+        super().validate()
+        if not (np.isfinite(self.temperature) and self.temperature > 0):
+            raise InputError(f"{self.tag()} temperature must be > 0 (cost units), got {self.temperature}")
+
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "MppiSolver":
+        return MppiSolver(model, cost, effort_limit, self)
+
+
+class MppiSolver(SamplingSolver):
+    def solve(self, x0, u_init, reference, u_ff, offset=None, x_init=None) -> OptimizerResult:
+        offset = np.zeros(self.state_dim) if offset is None else offset
+        settings = self.settings
+        u, gain = self.start(x0, u_init, x_init)
+        for _ in range(settings.iterations):
+            samples = self.clip(u + self.torque_std * self.noise(settings.samples, len(u)))
+            samples[0] = u
+            costs, _ = self.costs(x0, samples, gain, reference, u_ff, offset)
+            if not np.isfinite(costs).any():
+                break
+            weights = np.exp(-(costs - costs.min()) / settings.temperature)
+            u = np.einsum("k,khj->hj", weights / weights.sum(), samples)
+        return self.result(x0, u, gain, reference, u_ff, offset, settings.iterations)
