@@ -39,6 +39,8 @@ COMMANDS = {
     "sine-sum": ("stdm_drake.commands.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
     "mpc": ("stdm_drake.commands.mpc",
             "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
+    "mbrl": ("stdm_drake.commands.mbrl",
+             "the model-based RL loop: act with the model's MPC, collect the closed loop's data, refit, N rounds"),
     "view": ("stdm_drake.commands.view",
              "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
     "reproduce": ("stdm_drake.commands.reproduce",

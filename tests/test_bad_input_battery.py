@@ -332,6 +332,12 @@ CASES = [
     ([*T, "-o", "CACHELINK"], "holds the outputs of `stdm-drake reproduce`"),
     (["evaluate", "CK", "DATA", "--json", "MPCOUT/mpc.json"], "was written by `stdm-drake mpc`"),
     (["sine-sum", "--quick", "--seeds", "1000000000", "-o", "NEW"], "--seeds must be in 1..1000"),
+    (["mbrl", "--rounds", "0", "-o", "NEW"], "--rounds must be in 1..100, got 0"),
+    (["mbrl", "--plans-per-round", "0", "-o", "NEW"], "--plans-per-round must be >= 1"),
+    (["mbrl", "--model", "GD", "-o", "NEW"], "a grey box needs an identified robot"),
+    (["mbrl", "--epochs", "0", "-o", "NEW"], "epochs (--epochs) must be >= 1"),
+    (["mbrl", "--plant-effects", "missing.yaml", "-o", "NEW"], "plant effects not found: missing.yaml"),
+    (["mbrl", "-o", "REPRO"], "holds the outputs of `stdm-drake reproduce`"),
     (["sine-sum", "--quick", "--epochs", "1000000000", "-o", "NEW"], "--epochs must be in 1..1000000"),
     # --- logs to import (issue 24): malformed recordings, wrong units, bad mappings, outputs
     ([*I, "LOGNOTS", "-o", "NEW.h5"], "not a log this import reads"), ([*I, "LOGMISSING", "-o", "NEW.h5"], "actual_qd_3"),

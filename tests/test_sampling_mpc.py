@@ -11,7 +11,8 @@ from presets import UR10
 from test_mpc import LinearModel, exact_lqr_controls, quintic_reference
 from stdm_drake.cli import main
 from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, run_closed_loop
-from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi, SampledCosts, colored_noise
+from stdm_drake.closed_loop.sampled_costs import SampledCosts
+from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi, colored_noise
 from stdm_drake.errors import InputError
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.models import EnsembleMLP, ModelConfig

@@ -44,6 +44,7 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from stdm_drake.closed_loop.ilqr import Ilqr
 from stdm_drake.closed_loop.optimizer import OptimizerSettings, TrackingCost, TrajectoryOptimizer
+from stdm_drake.closed_loop.policy import MpcStep, StepMemory
 from stdm_drake.closed_loop.rti import Rti
 from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi
 from stdm_drake.config import check_joint_vector, load_yaml_config, read_yaml_document
@@ -273,7 +274,8 @@ class MpcController(LeafSystem):
         self.DeclareStateOutputPort("torque", self._torque_index)
         self.DeclareInitializationUnrestrictedUpdateEvent(self._update)
         self.DeclarePeriodicUnrestrictedUpdateEvent(period, period - 0.5 * plant_time_step, self._update)
-        self._feedforward = np.array([self.dynamics.gravity_torque(q) for q in reference.q])
+        self._step = MpcStep(self.solver, reference, self.dynamics.gravity_torque, config.horizon,
+                             config.disturbance_gain, self.effort_limit, self._warm_states)
 
     def get_state_input_port(self):
         """Input "state": the measured plant state [q (n) rad, v (n) rad/s]."""
@@ -283,59 +285,22 @@ class MpcController(LeafSystem):
         """Output "torque": the joint torques (n) N m applied until the next control step."""
         return self.GetOutputPort("torque")
 
-    def _estimate_disturbance(self, context, x: np.ndarray) -> np.ndarray:
-        """d_k = d_k-1 + gain (x_k - (f(x_k-1, u_k-1) + d_k-1)): the model's recent one-step error,
-        added to every step of the next solve (offset-free MPC). The bracket is the prediction
-        stored at the last update. Non-finite -> zero."""
-        predicted = context.get_discrete_state(int(self._predicted_index)).get_value()
-        last = context.get_discrete_state(int(self._disturbance_index)).get_value()
-        disturbance = last + self.config.disturbance_gain * (x - predicted)
-        return disturbance if np.all(np.isfinite(disturbance)) else np.zeros(self.state_dim)
-
     def _update(self, context, state):
-        x = self._state_input.Eval(context)
+        x = np.asarray(self._state_input.Eval(context))
         # updates fall at k period - h/2 (h <= period): the nearest sample at or after, also when h = period
         k = int(np.floor(context.get_time() / self._period + 0.5 + 1e-9))
-        horizon = self.config.horizon
-        reference = self.reference.window(k, horizon + 1)
-        u_ff = self._feedforward[np.minimum(np.arange(k, k + horizon), len(self._feedforward) - 1)]
-        warm = state.get_mutable_abstract_state(int(self._plan_index)).get_value()
-        nodes = state.get_mutable_abstract_state(int(self._nodes_index)).get_value()
-        if k == 0:
-            warm, nodes = u_ff, None  # first solve: start from the reference's gravity torques
+        memory = StepMemory(predicted=context.get_discrete_state(int(self._predicted_index)).get_value().copy(),
+                            disturbance=context.get_discrete_state(int(self._disturbance_index)).get_value().copy(),
+                            plan=state.get_mutable_abstract_state(int(self._plan_index)).get_value(),
+                            nodes=state.get_mutable_abstract_state(int(self._nodes_index)).get_value())
         started = time.perf_counter()
-        x = np.asarray(x)
-        fallback = not np.all(np.isfinite(x))
-        disturbance = np.zeros(self.state_dim)
-        if not fallback:
-            with np.errstate(all="ignore"):
-                if k > 0 and self.config.disturbance_gain > 0:
-                    disturbance = self._estimate_disturbance(context, x)
-                if self._warm_states:
-                    result = self.solver.solve(x, warm, reference, u_ff, disturbance,
-                                               x_init=None if nodes is None or not np.all(np.isfinite(nodes)) else nodes)
-                else:
-                    result = self.solver.solve(x, warm, reference, u_ff, disturbance)
-            fallback = not (result.finite and np.all(np.isfinite(result.u)))
-        if fallback:
-            q = np.nan_to_num(x[:self.joints])
-            torque = np.clip(self.dynamics.gravity_torque(q), -self.effort_limit, self.effort_limit)
-            next_plan, next_nodes = u_ff, np.full((horizon + 1, self.state_dim), np.nan)
-            predicted = np.full(self.state_dim, np.nan)
-            if self.config.disturbance_gain > 0:
-                with np.errstate(all="ignore"):
-                    predicted = self.solver.rollout(x, torque[None], disturbance)[1]
-        else:
-            torque = result.u[0]
-            next_plan = np.vstack([result.u[1:], result.u[-1:]])
-            next_nodes = np.vstack([result.x[1:], result.x[-1:]])
-            predicted = result.x[1]  # the solve's own prediction under the torque it applies
+        torque, memory, fallback = self._step(k, x, memory)
         elapsed = time.perf_counter() - started
         state.get_mutable_discrete_state(int(self._torque_index)).set_value(torque)
-        state.get_mutable_discrete_state(int(self._predicted_index)).set_value(predicted)
-        state.get_mutable_discrete_state(int(self._disturbance_index)).set_value(disturbance)
-        state.get_mutable_abstract_state(int(self._plan_index)).set_value(next_plan)
-        state.get_mutable_abstract_state(int(self._nodes_index)).set_value(next_nodes)
+        state.get_mutable_discrete_state(int(self._predicted_index)).set_value(memory.predicted)
+        state.get_mutable_discrete_state(int(self._disturbance_index)).set_value(memory.disturbance)
+        state.get_mutable_abstract_state(int(self._plan_index)).set_value(memory.plan)
+        state.get_mutable_abstract_state(int(self._nodes_index)).set_value(memory.nodes)
         self.log.time.append(context.get_time())
         self.log.state.append(np.array(x))
         self.log.torque.append(torque.copy())

@@ -79,13 +79,14 @@ def dataset(folder: pathlib.Path, name: str, effects, plans: int, seed: int, rob
 
 
 def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: int, folder: str,
-          robot_config: str | None = None, physics: str | None = None, predicts: str | None = None) -> str:
+          robot_config: str | None = None, physics: str | None = None, predicts: str | None = None,
+          inputs: str | None = None) -> str:
     """`train` (the library's `learning.train_job`) of one model type, every seed (in a pool worker); the run
     folder: `folder` with the split, the epochs and the first 12 hex digits of the dataset's SHA-256 appended
     (other data or settings get new models). A folder where `train` finished every seed is reused; an
     interrupted one is resumed (the same weights as an uninterrupted run). robot_config: the robot's YAML
-    (None: the dataset's shipped preset); physics: a grey box's identified robot, predicts: its structure's
-    (the folder name must tell such settings apart)."""
+    (None: the dataset's shipped preset); physics: a grey box's identified robot, predicts and inputs: the
+    structure's (None: `train`'s defaults; the folder name must tell such settings apart)."""
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.settings import TrainSettings
     from stdm_drake.learning.train_job import TrainJob, train_job
@@ -98,6 +99,8 @@ def train(dataset_path: str, model_type: str, split: tuple, seeds: int, epochs: 
                  seeds=list(range(seeds)))
     if predicts is not None:
         given["predicts"] = predicts
+    if inputs is not None:
+        given["inputs"] = inputs
     if TrainSettings(model=model_type).uses_derivative():   # the derivative loss's targets; alpha: the paper's
         given.update(derivative_source="true", action_rate="zero_order_hold", alpha=1e-3)   # (docs/reality_gap.md)
     train_job(TrainJob(dataset=pathlib.Path(dataset_path), output=folder, settings=TrainSettings(**given),

@@ -1,0 +1,70 @@
+"""The model-based RL loop: the MPC's one control step in Drake and on the collection station, a closed loop
+cut where it leaves the limits, and `stdm-drake mbrl` end to end (rounds, data, resume, bad input)."""
+import json
+
+import numpy as np
+import pytest
+
+from presets import UR10
+from test_mpc import quintic_reference
+from stdm_drake.cli import main
+from stdm_drake.closed_loop.mpc import load_mpc_config, run_closed_loop
+from stdm_drake.closed_loop.policy import MpcPolicy
+from stdm_drake.dynamics.physics import PlantModel
+from stdm_drake.experiments.mbrl_loop import cut
+from stdm_drake.robots.control import JointSensor, SensorConfig
+from stdm_drake.robots.plant import PlantConfig
+from stdm_drake.robots.station import Station, StationConfig
+
+
+def test_the_station_policy_runs_the_same_control_steps_as_the_drake_controller():
+    """MpcPolicy on the collection station and MpcController in its Drake diagram: one step function, the same
+    plant, so the same torques and states (ideal sensor)."""
+    model = PlantModel(0.01, robot=UR10, integrator="rk4")
+    reference = quintic_reference(8)
+    config = load_mpc_config()
+    log = run_closed_loop(model, reference, config, robot=UR10)
+    station = Station(StationConfig(robot=UR10, plant=PlantConfig.discrete(0.001), sensor=SensorConfig()))
+    policy = MpcPolicy(model, reference, config, UR10)
+    rng = np.random.default_rng(0)
+    traj = station.run(reference.q[0], 8, policy.control, JointSensor(SensorConfig(), rng), rng)
+    np.testing.assert_allclose(traj["tau"], np.array(log.torque), rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(np.hstack([traj["q_true"], traj["v_true"]])[:8], np.array(log.state), rtol=1e-9,
+                               atol=1e-12)
+    assert policy.fallbacks == 0
+
+
+def test_a_closed_loop_leaving_the_limits_is_cut_at_its_last_sample_inside():
+    steps, n = 10, 6
+    traj = {key: np.arange((steps + 1) * n, dtype=float).reshape(steps + 1, n)
+            for key in ("q", "v", "q_true", "v_true", "qdd", "q_planned", "v_planned", "qdd_planned")}
+    traj.update(tau=np.arange(steps * n, dtype=float).reshape(steps, n), qdd_end=np.zeros((steps, n)),
+                tau_next=np.zeros(n))
+    kept = cut(traj, 4)
+    assert kept["q"].shape == (5, n) and kept["tau"].shape == (4, n) and kept["qdd_end"].shape == (4, n)
+    np.testing.assert_array_equal(kept["tau_next"], traj["tau"][4])
+    assert cut(traj, 1) is None
+
+
+@pytest.mark.slow
+def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_path, capsys):
+    folder = tmp_path / "loop"
+    arguments = ["mbrl", "-o", str(folder), "--rounds", "1", "--initial-plans", "8", "--plans-per-round", "4",
+                 "--evaluation-plans", "2", "--epochs", "2", "--open-loop", "--quiet"]
+    status = main(arguments)
+    summary = json.loads((folder / "summary.json").read_text())
+    assert status in (0, 1) and [row["round"] for row in summary["rounds"]] == [0, 1]
+    first, second = summary["rounds"]
+    assert first["trajectories"] == 8 and 8 <= second["trajectories"] <= 12   # (closed loops that left the limits early: dropped)
+    assert first["collection"]["plans"] == 4 and first["collection"]["kept"] == second["trajectories"] - 8
+    assert second["open_loop"]["trajectories"] == 12 and len(second["q_mse_per_plan"]) == 2
+    assert (folder / "round1" / "data.h5").exists() and (folder / "open_loop1" / "model" / "summary.json").exists()
+    written = (folder / "round1" / "evaluation.json").stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(arguments) == status                       # a rerun resumes: nothing is redone
+    assert (folder / "round1" / "evaluation.json").stat().st_mtime_ns == written
+    assert json.loads((folder / "summary.json").read_text())["rounds"] == summary["rounds"]
+    capsys.readouterr()
+    assert main(["mbrl", "-o", str(tmp_path / "other"), "--rounds", "0"]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "--rounds must be in 1..100" in error and not (tmp_path / "other").exists()
