@@ -335,6 +335,7 @@ CASES = [
     (["mbrl", "--rounds", "0", "-o", "NEW"], "--rounds must be in 1..100, got 0"),
     (["mbrl", "--plans-per-round", "0", "-o", "NEW"], "--plans-per-round must be >= 1"),
     (["mbrl", "--model", "GD", "-o", "NEW"], "a grey box needs an identified robot"),
+    (["mbrl", "--initial-plans", "6", "-o", "NEW"], "--initial-plans 6: the robot's plans start from 4 poses"),
     (["mbrl", "--epochs", "0", "-o", "NEW"], "epochs (--epochs) must be >= 1"),
     (["mbrl", "--plant-effects", "missing.yaml", "-o", "NEW"], "plant effects not found: missing.yaml"),
     (["mbrl", "-o", "REPRO"], "holds the outputs of `stdm-drake reproduce`"),

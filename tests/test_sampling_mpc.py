@@ -216,3 +216,13 @@ def test_sampling_mpc_with_the_plant_tracks_a_move_of_the_ur10(settings):
     states = np.array(log.state)
     assert not any(log.fallback) and len(states) == 30
     assert np.sqrt(np.mean((states[:, :6] - reference.q[:30]) ** 2)) < 0.01
+
+
+def test_the_command_refuses_a_pytorch_optimizer_for_the_plant_model_before_any_work(tracking_dataset, tmp_path, capsys):
+    path = tmp_path / "mpc.yaml"
+    path.write_text("optimizer: !Icem {framework: torch}\n")
+    capsys.readouterr()
+    assert main(["mpc", str(tracking_dataset), "--plans", "1", "--config", str(path), "-o", str(tmp_path / "m")]) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and "framework torch: model plant has no PyTorch particle step" in error
+    assert not any((tmp_path / "m").glob("mpc.*"))

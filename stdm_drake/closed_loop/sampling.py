@@ -28,7 +28,8 @@ Where it runs: NumPy on the CPU (`framework: numpy`, the default), or PyTorch (`
 `device` cpu or cuda; both draw the torque samples and particle shuffles from one NumPy generator seeded
 by `seed`, so for the same settings they return the same torques to float tolerance (a probabilistic
 model's Gaussian draws come from the device's own generator: the same in distribution). PyTorch runs the
-paper's black box (`LearnedModel.torch_particles`); structured models and the plant run on NumPy.
+paper's black box (`LearnedModel.torch_particles`); a model without a PyTorch particle step (a structured
+network, whose inputs need Drake's nominal model, or the plant) is refused with `framework: torch`.
 
 Shapes for n joints, m actuated, horizon H, K samples, P particles, state S = 2n: torques (K, H, m) N m.
 """
@@ -79,6 +80,8 @@ class SamplingSettings(OptimizerSettings):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= top:
                 raise InputError(f"{tag} {name} must be an integer in 1..{top}, got {value!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or not 0 <= self.seed < 2 ** 63:
+            raise InputError(f"{tag} seed must be an integer in 0..2^63-1, got {self.seed!r}")
         if self.samples * self.particles > MAX_ROWS:
             raise InputError(f"{tag} samples x particles must be at most {MAX_ROWS}, got {self.samples * self.particles}")
         if not (np.isfinite(self.noise_std) and self.noise_std > 0):
@@ -350,12 +353,14 @@ class MppiSolver(SamplingSolver):
         offset = np.zeros(self.state_dim) if offset is None else offset
         settings = self.settings
         u, law = self.start(x0, reference, u_ff, offset, x_init)
+        iterations = 0
         for _ in range(settings.iterations):
             samples = u + settings.noise_std * self.noise(settings.samples, len(u))
             samples[0] = u
             costs = self.evaluate(x0, samples, law, reference, u_ff, offset)
+            iterations += 1
             if not np.isfinite(costs).any():
                 break
             weights = np.exp(-(costs - costs.min()) / settings.temperature)
             u = np.einsum("k,khj->hj", weights / weights.sum(), samples)
-        return self.result(x0, u, law, reference, u_ff, offset, settings.iterations)
+        return self.result(x0, u, law, reference, u_ff, offset, iterations)

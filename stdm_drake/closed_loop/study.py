@@ -134,6 +134,10 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     plant_config, effects_record = study_plant(study, dataset, robot)
     plants, learned, model_records = study_models(study, dataset, robot, plant_config)
     models = plants + learned
+    from stdm_drake.robots.plant import Dynamics, joint_limits
+    effort_limit = joint_limits(Dynamics(robot).plant).effort
+    for model in models:   # (settings a model cannot be solved with, e.g. a PyTorch device for the plant: refused now)
+        config.solver(model, robot.action_dim, effort_limit)
     references = held_out_references(dataset, [model.checkpoint for model in learned], study.plans)
     if len(references) < study.plans:
         raise InputError(f"--plans {study.plans}: {study.dataset} has only {len(references)} held-out plans")

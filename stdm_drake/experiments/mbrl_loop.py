@@ -69,8 +69,21 @@ class LoopConfig:
         if str(self.model).upper() in GREY_BOX_TYPES:
             raise InputError(f"--model {self.model}: a grey box needs an identified robot (train --physics), which the "
                              "loop does not refit; use D, P, DE, PE or their derivative-trained twins")
-        TrainSettings(model=self.model, seeds=[self.seed], **self.train).validate(given=frozenset(("model", *self.train)))
+        settings = TrainSettings(model=self.model, seeds=[self.seed], **self.train)
+        settings.validate(given=frozenset(("model", *self.train)))
         self.mpc.validate()
+        optimizer = self.mpc.optimizer
+        if getattr(optimizer, "framework", "numpy") == "torch" and (settings.predicts, settings.inputs) != ("state", "raw"):
+            raise InputError(f"mpc optimizer framework torch runs the paper's black box only (train predicts: state, "
+                             f"inputs: raw); --model {self.model} here is structured: use framework numpy")
+        poses = len(collection(self, self.initial_plans, self.data_seed).tracking_spec.sampling.initial_poses)
+        if self.initial_plans < 2 * poses:
+            raise InputError(f"--initial-plans {self.initial_plans}: the robot's plans start from {poses} poses, and "
+                             f"training validates on {poses} of the plans: give at least {2 * poses}")
+        members = settings.ensemble_size if "E" in settings.model else 1
+        if getattr(optimizer, "propagation", "mean") != "mean" and optimizer.particles % members:
+            raise InputError(f"mpc optimizer particles ({optimizer.particles}) must be a multiple of the model's {members} "
+                             "ensemble members")
 
 
 def collection(config: LoopConfig, count: int, seed: int):
@@ -179,10 +192,10 @@ def evaluate(config: LoopConfig, checkpoint: pathlib.Path, references: list, pla
     from stdm_drake.dynamics.model_files import load_model
     model = load_model(checkpoint, config.robot, name=config.model, for_control=True)
     results = compare_controllers([model], references, config.mpc, plant_config, progress=False, robot=config.robot)
+    from stdm_drake.closed_loop.tuning import finite_mse
     mse = [result.q_mse_rad2 for result in results]
-    return dict(q_mse_per_plan=mse,
-                q_mse_geometric_mean=float(np.exp(np.mean(np.log(np.maximum(mse, 1e-300))))) if np.all(np.isfinite(mse))
-                else float("inf"),
+    return dict(q_mse_per_plan=mse,   # (a diverged plan counts as tuning.DIVERGED_Q_MSE in the geometric mean)
+                q_mse_geometric_mean=float(np.exp(np.mean(np.log([max(finite_mse(value), 1e-300) for value in mse])))),
                 steps_outside_limits=int(sum(result.limit_violations for result in results)),
                 fallbacks=int(sum(result.fallbacks for result in results)),
                 solve_ms_mean=float(np.mean([result.solve_ms_mean for result in results])))
@@ -199,16 +212,16 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print) -> d
     config.validate()
     started = time.perf_counter()
     output = pathlib.Path(config.output)
-    output.mkdir(parents=True, exist_ok=True)
     initial_request = collection(config, config.initial_plans, config.data_seed)
+    if references is None:
+        plans, _ = planned(collection(config, config.evaluation_plans, config.evaluation_seed))
+        references = [(index, Reference(q=plan.q, v=plan.qd)) for index, plan in enumerate(plans)]
+    check_same_loop(output, config, references)
     metadata = collection_metadata(initial_request)
     initial_path = output / "round0" / "data.h5"
     if not initial_path.exists():
         trajectories, groups, metadata = collect(initial_request, progress=False)
         write_trajectories(initial_path, trajectories, groups, dict(metadata, mbrl_loop=dict(round=0, mpc_trajectories=0)))
-    if references is None:
-        plans, _ = planned(collection(config, config.evaluation_plans, config.evaluation_seed))
-        references = [(index, Reference(q=plan.q, v=plan.qd)) for index, plan in enumerate(plans)]
     station = Station(initial_request.settings)
     plant_config = initial_request.settings.plant
     rows = []
@@ -243,13 +256,37 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print) -> d
                                dict(metadata, mbrl_loop=dict(round=round_index + 1, mpc=config.mpc.record(),
                                                              mpc_trajectories=len(old) + len(tracked) - config.initial_plans)))
         row["collection"] = json.loads((folder / "collection.json").read_text())
-    summary = dict(config=dict(model=config.model, rounds=config.rounds, initial_plans=config.initial_plans,
-                               plans_per_round=config.plans_per_round, seed=config.seed, data_seed=config.data_seed,
-                               plan_seed=config.plan_seed, mpc=config.mpc.record(), open_loop=config.open_loop),
+    summary = dict(config=loop_record(config),
                    evaluation_plans=[index for index, _ in references], rounds=rows,
                    seconds=round(time.perf_counter() - started, 1))
     write_text_atomic(output / "summary.json", json.dumps(summary, indent=1))
     return summary
+
+
+def loop_record(config: LoopConfig) -> dict:
+    """What fixes a loop's rounds (a rerun into the same folder must have the same; the round count may grow)."""
+    effects = config.plant_effects.record() if config.plant_effects is not None else None
+    return dict(robot=config.robot.model_sha256(), plant_effects=effects, model=config.model, train=config.train,
+                initial_plans=config.initial_plans, plans_per_round=config.plans_per_round, seed=config.seed,
+                data_seed=config.data_seed, plan_seed=config.plan_seed, mpc=config.mpc.record(),
+                controller=str(config.controller), sensor=str(config.sensor))
+
+
+def check_same_loop(output: pathlib.Path, config: LoopConfig, references: list) -> None:
+    """Record the loop's settings and evaluation plans in output/loop.json on its first run; InputError when a rerun
+    into the folder differs (its rounds would mix two loops)."""
+    record = json.loads(json.dumps(dict(loop_record(config), evaluation=[np.round(reference.q, 9).tolist()
+                                                                          for _, reference in references])))
+    path = output / "loop.json"
+    if path.exists():
+        previous = json.loads(path.read_text())
+        changed = sorted(key for key in set(record) | set(previous) if record.get(key) != previous.get(key))
+        if changed:
+            raise InputError(f"{output} holds a loop of other settings ({', '.join(changed)} differ); give another "
+                             "-o/--output, or the same settings to resume it")
+        return
+    output.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, json.dumps(record))
 
 
 def open_loop_round(config: LoopConfig, round_index: int, references: list, plant_config, station, metadata) -> dict:
@@ -257,10 +294,10 @@ def open_loop_round(config: LoopConfig, round_index: int, references: list, plan
     collection controller, trained and evaluated as the loop's rounds."""
     from stdm_drake.collection.collect import tracking_trajectory
     from stdm_drake.data.dataset import Trajectory, load_dataset
-    folder = config.output / f"open_loop{round_index}"
+    folder = pathlib.Path(config.output) / f"open_loop{round_index}"
     data_path = folder / "data.h5"
     if not data_path.exists():
-        initial = load_dataset(config.output / "round0" / "data.h5")
+        initial = load_dataset(pathlib.Path(config.output) / "round0" / "data.h5")
         trajectories = [initial.trajectory(index) for index in range(initial.num_trajectories)]
         groups = list(initial.groups)
         for previous in range(round_index):

@@ -27,3 +27,12 @@ def robot_and_effects(args: argparse.Namespace):
     from stdm_drake.robots.robot import load_robot
     robot = load_robot(args.robot)
     return robot, plant_effects_for(args.plant_effects, robot, 0.001)
+
+
+def quick_folders(args: argparse.Namespace, name: str) -> None:
+    """With --quick, the default output and data folders become out/NAME_quick and out/NAME_quick_data (a pipeline
+    check never writes over the committed results or reuses the full run's models)."""
+    if args.quick and args.output == ROOT / "docs" / "results" / name:
+        args.output = ROOT / "out" / f"{name}_quick"
+    if args.quick and args.data == ROOT / "out" / f"{name}_data":
+        args.data = ROOT / "out" / f"{name}_quick_data"

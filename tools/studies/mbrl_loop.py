@@ -128,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
     import json
     from stdm_drake.cluster import RunnerConfig, job_pool
     from stdm_drake.files import write_text_atomic
-    from studies.affected_plant import robot_and_effects
+    from studies.affected_plant import quick_folders, robot_and_effects
+    quick_folders(args, "mbrl_loop")
     robot, effects = robot_and_effects(args)
     design = QUICK if args.quick else FULL
     started = time.perf_counter()

@@ -155,7 +155,7 @@ def summary(runs: list, seeds: int, gates: dict) -> list:
                              runs_leaving_limits=int(sum(r["limit_violations"] > 0 for r in mine)),
                              fallbacks=int(sum(r["fallbacks"] for r in mine)),
                              solve_ms_mean=float(np.mean([r["solve_ms_mean"] for r in mine])),
-                             solve_ms_p95=float(np.max([r["solve_ms_p95"] for r in mine])),
+                             solve_ms_p95_max=float(np.max([r["solve_ms_p95"] for r in mine])),
                              learned=[gates[f"{model_type} seed {s}"]["verdict"] for s in range(seeds)]))
     for name in ("plant", "true-plant"):
         for variant in ("iLQR", "iCEM"):
@@ -168,7 +168,7 @@ def summary(runs: list, seeds: int, gates: dict) -> list:
                                  runs_leaving_limits=int(sum(r["limit_violations"] > 0 for r in mine)),
                                  fallbacks=int(sum(r["fallbacks"] for r in mine)),
                                  solve_ms_mean=float(np.mean([r["solve_ms_mean"] for r in mine])),
-                                 solve_ms_p95=float(np.max([r["solve_ms_p95"] for r in mine])), learned=None))
+                                 solve_ms_p95_max=float(np.max([r["solve_ms_p95"] for r in mine])), learned=None))
     return rows
 
 
@@ -271,7 +271,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from studies.affected_plant import robot_and_effects
+    from studies.affected_plant import quick_folders, robot_and_effects
+    quick_folders(args, "sampling_mpc")
     robot, effects = robot_and_effects(args)
     results = run_experiment(QUICK if args.quick else FULL, args.data, robot, effects, workers=args.workers,
                              say=lambda line: print(line, flush=True))
