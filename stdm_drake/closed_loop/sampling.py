@@ -201,19 +201,20 @@ class Cem(SamplingSettings):
 
     def validate(self) -> None:
         super().validate()
-        check_elites(self, self.samples)
-        if not 0 <= self.smoothing < 1:
-            raise InputError(f"{self.tag()} smoothing must be in [0, 1), got {self.smoothing}")
+        check_elites(self)
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "CemSolver":
         return CemSolver(model, cost, effort_limit, self)
 
 
-def check_elites(settings, population: int) -> None:
+def check_elites(settings) -> None:
+    """What CEM and iCEM share: elites within the population (`samples`), smoothing in [0, 1)."""
     if isinstance(settings.elites, bool) or not isinstance(settings.elites, (int, np.integer)) \
-            or not 1 <= settings.elites <= population:
-        raise InputError(f"{settings.tag()} elites must be an integer in 1..{population} (the population), got "
+            or not 1 <= settings.elites <= settings.samples:
+        raise InputError(f"{settings.tag()} elites must be an integer in 1..{settings.samples} (the population), got "
                          f"{settings.elites!r}")
+    if not 0 <= settings.smoothing < 1:
+        raise InputError(f"{settings.tag()} smoothing must be in [0, 1), got {settings.smoothing}")
 
 
 class CemSolver(SamplingSolver):
@@ -256,9 +257,7 @@ class Icem(SamplingSettings):
 
     def validate(self) -> None:
         super().validate()
-        check_elites(self, self.samples)
-        if not 0 <= self.smoothing < 1:
-            raise InputError(f"{self.tag()} smoothing must be in [0, 1), got {self.smoothing}")
+        check_elites(self)
         if not (np.isfinite(self.population_decay) and self.population_decay >= 1):
             raise InputError(f"{self.tag()} population_decay must be >= 1, got {self.population_decay}")
         if not (np.isfinite(self.colored_noise_exponent) and 0 <= self.colored_noise_exponent <= 10):
