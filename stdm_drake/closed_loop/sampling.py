@@ -217,6 +217,18 @@ def check_elites(settings) -> None:
         raise InputError(f"{settings.tag()} smoothing must be in [0, 1), got {settings.smoothing}")
 
 
+def elite_update(samples: np.ndarray, costs: np.ndarray, settings, mean: np.ndarray, std: np.ndarray, best: tuple):
+    """One CEM step, CEM's and iCEM's: the `settings.elites` cheapest samples (K', H, n), the mean and spread (H, n)
+    moved towards theirs (`settings.smoothing` of the old kept), and the best (sequence, cost) seen so far."""
+    order = np.argsort(costs, kind="stable")[:settings.elites]
+    if costs[order[0]] < best[1]:
+        best = (samples[order[0]], costs[order[0]])
+    elites = samples[order]
+    mean = settings.smoothing * mean + (1 - settings.smoothing) * elites.mean(axis=0)
+    std = settings.smoothing * std + (1 - settings.smoothing) * elites.std(axis=0)
+    return elites, mean, std, best
+
+
 class CemSolver(SamplingSolver):
     def solve(self, x0, u_init, reference, u_ff, offset=None, x_init=None) -> OptimizerResult:
         offset = np.zeros(self.state_dim) if offset is None else offset
@@ -228,12 +240,7 @@ class CemSolver(SamplingSolver):
             samples = mean + std * self.noise(settings.samples, len(mean))
             samples[0] = mean
             costs = self.evaluate(x0, samples, law, reference, u_ff, offset)
-            order = np.argsort(costs, kind="stable")[:settings.elites]
-            if costs[order[0]] < best_cost:
-                best, best_cost = samples[order[0]], costs[order[0]]
-            elites = samples[order]
-            mean = settings.smoothing * mean + (1 - settings.smoothing) * elites.mean(axis=0)
-            std = settings.smoothing * std + (1 - settings.smoothing) * elites.std(axis=0)
+            elites, mean, std, (best, best_cost) = elite_update(samples, costs, settings, mean, std, (best, best_cost))
         return self.result(x0, best, law, reference, u_ff, offset, settings.iterations)
 
 
@@ -313,13 +320,8 @@ class IcemSolver(SamplingSolver):
                 extra.append(carried[:max(1, int(round(settings.keep_elites * len(carried))))])
             samples = np.concatenate([samples] + extra)
             costs = self.evaluate(x0, samples, law, reference, u_ff, offset)
-            order = np.argsort(costs, kind="stable")[:settings.elites]
-            if costs[order[0]] < best_cost:
-                best, best_cost = samples[order[0]], costs[order[0]]
-            elites = samples[order]
+            elites, mean, std, (best, best_cost) = elite_update(samples, costs, settings, mean, std, (best, best_cost))
             carried = elites if settings.keep_elites > 0 else None
-            mean = settings.smoothing * mean + (1 - settings.smoothing) * elites.mean(axis=0)
-            std = settings.smoothing * std + (1 - settings.smoothing) * elites.std(axis=0)
         if settings.keep_elites > 0 and elites is not None:
             self.kept = np.concatenate([elites[:, 1:], elites[:, -1:]], axis=1)
         return self.result(x0, best, law, reference, u_ff, offset, settings.iterations)
