@@ -41,6 +41,8 @@ COMMANDS = {
             "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
     "mbrl": ("stdm_drake.commands.mbrl",
              "the model-based RL loop: act with the model's MPC, collect the closed loop's data, refit, N rounds"),
+    "export": ("stdm_drake.commands.export",
+               "a trained model outside Python: ONNX graphs (model and Jacobians) or Drake MultilayerPerceptron systems"),
     "view": ("stdm_drake.commands.view",
              "Meshcat: recorded robot beside a learned model's open-loop prediction (ghost)"),
     "reproduce": ("stdm_drake.commands.reproduce",

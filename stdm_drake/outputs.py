@@ -31,6 +31,8 @@ FOLDER_MARKER = ".stdm-drake-output"
 HTML_MARKER = "<!-- written by stdm-drake -->"
 HTML_PREFIX = "<!-- written by stdm-drake"
 IDENTIFIED_MARKER = "# An identified robot, written by `stdm-drake identify`"   # first line of identified.yaml
+NATIVE_MARKER = "# stdm-drake export --target drake:"   # first line of a Drake-native model file
+OUTPUT_KINDS = ("dataset", "json", "identified", "html", "onnx", "native")
 DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every dataset (stdm_drake.data.dataset)
 WRITTEN_BY = "written_by"   # the HDF5 attribute (and JSON key) naming the command: "stdm-drake COMMAND"
 COMMAND_LINE = "command: "  # the folder marker's line naming the command
@@ -202,13 +204,21 @@ def _writer_of(path: pathlib.Path, kind: str) -> str | None:
         if kind == "identified":
             with open(path, encoding="utf-8", errors="replace") as f:
                 return "stdm-drake identify" if f.readline().startswith(IDENTIFIED_MARKER) else None
+        if kind == "native":
+            with open(path, encoding="utf-8", errors="replace") as f:
+                return "stdm-drake export" if f.readline().startswith(NATIVE_MARKER) else None
+        if kind == "onnx":
+            import onnx
+            props = {prop.key: prop.value for prop in onnx.load(str(path), load_external_data=False).metadata_props}
+            writer = props.get(WRITTEN_BY, "")
+            return writer if writer.startswith("stdm-drake") else None
         if kind == "html":
             with open(path, encoding="utf-8", errors="replace") as f:
                 line = f.readline().strip()
             if not (line.startswith(HTML_PREFIX) and line.endswith("-->")):
                 return None
             return line[len("<!-- written by "):-len("-->")].strip()
-    except (OSError, ValueError):
+    except Exception:   # (unreadable, or not of this kind: a protobuf DecodeError for a file that is not ONNX)
         return None
     raise ValueError(f"unknown output kind {kind!r}")
 
@@ -223,7 +233,7 @@ def _other_command(writer: str) -> str | None:
 
 def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = False) -> pathlib.Path | None:
     """Check a file the command will write (option: its flag, for messages; kind: "dataset", "json",
-    "identified" or "html"; inputs: the files the command reads) and lock it while the command runs.
+    "identified", "html", "onnx" or "native"; inputs: the files the command reads) and lock it while the command runs.
     Returns the path (None stays None)."""
     if path is None:
         return None
@@ -240,7 +250,7 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
                              "give a file path")
         writer = _writer_of(path, kind)
         if not force and writer is None:
-            other = next((found for other_kind in ("dataset", "json", "identified", "html") if other_kind != kind
+            other = next((found for other_kind in OUTPUT_KINDS if other_kind != kind
                           for found in [_writer_of(path, other_kind)] if found), None)
             ancestor = _marked_ancestor(path, running_command())   # (results from before they named their command)
             if not other and ancestor is not None:

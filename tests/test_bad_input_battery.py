@@ -34,6 +34,7 @@ def sandbox(tmp_path_factory, excitation_dataset, tracking_dataset):
     (box / "foreign").mkdir()
     (box / "foreign" / "thesis.tex").write_text("\\documentclass{article}\n")
     (box / "empty").mkdir()
+    (box / "foreign.onnx").write_bytes(b"a model of someone else's")
     for name, source in (("spec.yaml", "trajectories/excitation.yaml"), ("tspec.yaml", "trajectories/tracking.yaml"),
                          ("ctrl.yaml", "controllers/inverse_dynamics.yaml"), ("mpc.yaml", "controllers/mpc.yaml"),
                          ("ur10.yaml", "models/ur10.yaml"), ("ur10.urdf", "models/ur10.urdf")):
@@ -295,7 +296,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "BAGCUT": "bag_cut", "BAGFOUR": "bag_four", "REPRO": "repro", "TRAINRUN": "run",
                 "IDREPORT": "id_report.json", "IMPORTED": "imported.h5", "COLLECTHTML": "collect.html",
                 "OLDREPRO": "oldrepro", "MPCOUT": "mpcout", "TRAINOUT": "trainout", "OUTLOOP": "out_loop_a",
-                "OLDMARKED": "oldmarked", "CACHELINK": "cache_link",
+                "OLDMARKED": "oldmarked", "CACHELINK": "cache_link", "FOREIGNONNX": "foreign.onnx",
                 **{name.upper().replace("_", ""): f"{name}.h5" for name in (
                     "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
                     "attr_count", "sub_group", "flat_trajectory", "attr_period", "empty_trajectory")}}
@@ -639,6 +640,17 @@ CASES = [
     (["inspect", "loop_a.h5"], "is a symlink loop"), (["evaluate", "loop_a.pt", "DATA"], "is a symlink loop"),
     ([*E, "--config", "loop_a.yaml", "-o", "NEW.h5"], "is a symlink loop"),
     (["inspect", "q_narrow.h5"], "trajectory 000000: q has shape (51, 5), expected (51, 6)"),
+    # --- export (issue 44): a file that is not a checkpoint, an output that exists, a model the target cannot hold
+    (["export", "DATA", "-o", "NEW.onnx"], "not a PyTorch checkpoint file (it is an HDF5 file: a dataset?)"),
+    (["export", "TRUNCPT", "-o", "NEW.onnx"], "not a readable stdm-drake checkpoint (truncated or corrupt?)"),
+    (["export", "missing.pt", "-o", "NEW.onnx"], "checkpoint not found"),
+    (["export", "ZEROSTD", "-o", "NEW.onnx"], "has a zero or negative spread"),
+    (["export", "CK", "-o", "FOREIGNONNX"], "exists and stdm-drake did not write it"),
+    (["export", "CK", "-o", "NOTES"], "the onnx target writes a .onnx file"),
+    (["export", "CK", "-o", "IDREPORT"], "the onnx target writes a .onnx file"),
+    (["export", "CK", "--target", "drake", "-o", "NEW.yaml"], "activation 'swish' has no Drake MultilayerPerceptron form"),
+    (["export", "CK", "--target", "drake", "-o", "ROBOT"], "exists and stdm-drake did not write it"),
+    (["export", "CK", "--target", "tflite", "-o", "NEW.onnx"], "argument --target: invalid choice"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -10,16 +10,17 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "stdm_drake"
 # stage -> the stages it must not import (the flow: robots -> collection -> data -> dynamics (the model
-# contract, the physics models) -> learning -> identification -> closed_loop; experiments use them all)
+# contract, the physics models) -> learning -> identification -> closed_loop -> deploy; experiments use them all)
 FORBIDDEN = {
     "commands": (),
-    "robots": ("collection", "data", "dynamics", "learning", "identification", "closed_loop", "experiments"),
-    "collection": ("dynamics", "learning", "identification", "closed_loop", "experiments"),
-    "data": ("collection", "dynamics", "learning", "identification", "closed_loop", "experiments"),
-    "dynamics": ("collection", "data", "learning", "identification", "closed_loop", "experiments"),
-    "learning": ("collection", "identification", "closed_loop", "experiments"),
-    "identification": ("collection", "closed_loop", "experiments"),
-    "closed_loop": ("experiments",),
+    "robots": ("collection", "data", "dynamics", "learning", "identification", "closed_loop", "deploy", "experiments"),
+    "collection": ("dynamics", "learning", "identification", "closed_loop", "deploy", "experiments"),
+    "data": ("collection", "dynamics", "learning", "identification", "closed_loop", "deploy", "experiments"),
+    "dynamics": ("collection", "data", "learning", "identification", "closed_loop", "deploy", "experiments"),
+    "learning": ("collection", "identification", "closed_loop", "deploy", "experiments"),
+    "identification": ("collection", "closed_loop", "deploy", "experiments"),
+    "closed_loop": ("deploy", "experiments"),
+    "deploy": ("collection", "identification", "closed_loop", "experiments"),
 }
 
 
@@ -163,7 +164,7 @@ def test_top_level_modules_import_no_stage():
     """The modules at the package's top (files, config, paths, errors, ...) sit below every stage; only
     the command line (cli, which loads commands by name) stands above them."""
     stages = tuple(f"stdm_drake.{stage}" for stage in ("commands", "robots", "collection", "data", "dynamics", "learning", "identification",
-                                                           "closed_loop", "experiments"))
+                                                           "closed_loop", "deploy", "experiments"))
     edges = [(name, module) for name, modules in module_graph().items() if name.count(".") == 1 and name != "stdm_drake.cli"
              for module in modules if module.startswith(stages)]
     assert not edges, f"top-level modules import a stage: {edges}"

@@ -262,10 +262,10 @@ def predict(model, states, actions=None) -> Prediction:
     hidden = engine.hidden_features(inputs, engine.workspace(len(x)))
     mean = engine.ensemble_mean(hidden)
     member_means, member_variances = engine.member_outputs(hidden)
+    variance = _predictive_variance(member_means, member_variances)   # (before the shared residual: no cancellation)
     if engine.residual:
         mean += x
         member_means += x
-    variance = _predictive_variance(member_means, member_variances)
     if added:
         return Prediction(mean=mean[0], variance=variance[0], member_means=member_means[:, 0],
                           member_variances=None if member_variances is None else member_variances[:, 0])

@@ -1,0 +1,25 @@
+"""`stdm-drake export`: a trained model for use outside Python: ONNX graphs (the model and its Jacobians) for ONNX
+Runtime, TensorRT or any ONNX backend, or a Drake-native model file (Drake's MultilayerPerceptron systems) for a
+Drake diagram in C++ or Python (`stdm_drake.deploy`)."""
+import argparse
+import pathlib
+
+from stdm_drake.outputs import add_force_argument
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("checkpoint", type=pathlib.Path, metavar="CHECKPOINT",
+                        help="model checkpoint written by `stdm-drake train` (.pt)")
+    parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
+                        help="file to write: model.onnx (and model.jacobian.onnx beside it) for --target onnx, "
+                             "model.yaml for --target drake")
+    parser.add_argument("--target", choices=("onnx", "drake"), default="onnx",
+                        help="onnx (default): every model stdm-drake trains; drake: Drake's MultilayerPerceptron, for "
+                             "models trained with --activation tanh or relu")
+    add_force_argument(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    from stdm_drake.deploy.export_job import ExportJob, export_job
+    export_job(ExportJob(checkpoint=args.checkpoint, output=args.output, target=args.target, force=args.force))
+    return 0

@@ -1,0 +1,61 @@
+"""`stdm-drake export`'s job: a checkpoint as ONNX graphs (the model and its Jacobians) or as a Drake-native
+model file, every check before any work, files written atomically."""
+import dataclasses
+import pathlib
+
+from stdm_drake.errors import InputError
+
+TARGETS = ("onnx", "drake")
+
+
+@dataclasses.dataclass(frozen=True)
+class ExportJob:
+    """checkpoint: a `train` checkpoint (.pt); output: the file to write (.onnx for "onnx", .yaml for "drake");
+    the ONNX target also writes the Jacobian graph beside it (`jacobian_path`)."""
+    checkpoint: pathlib.Path
+    output: pathlib.Path
+    target: str = "onnx"
+    force: bool = False
+
+
+def jacobian_path(output: pathlib.Path) -> pathlib.Path:
+    """model.onnx -> model.jacobian.onnx (the Jacobian graph beside the model graph)."""
+    output = pathlib.Path(output)
+    return output.with_name(output.stem + ".jacobian" + (output.suffix or ".onnx"))
+
+
+def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
+    """Run the export; returns the files written. InputError (nothing written) for a checkpoint that is not one,
+    an output that exists and stdm-drake's export did not write (without force), or a model the target cannot
+    represent."""
+    from stdm_drake.files import atomic_path
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    from stdm_drake.outputs import check_output_file
+    if job.target not in TARGETS:
+        raise InputError(f"--target must be one of {', '.join(TARGETS)}, got {job.target!r}")
+    suffix = ".onnx" if job.target == "onnx" else ".yaml"
+    if pathlib.Path(job.output).suffix.lower() != suffix:
+        raise InputError(f"-o/--output {job.output}: the {job.target} target writes a {suffix} file")
+    outputs = [job.output] + ([jacobian_path(job.output)] if job.target == "onnx" else [])
+    kind = "onnx" if job.target == "onnx" else "native"
+    for option, path in zip(("-o/--output", "the Jacobian graph"), outputs):
+        check_output_file(option, path, kind=kind, inputs=[job.checkpoint], force=job.force)
+    checkpoint = load_checkpoint(job.checkpoint)
+    if job.target == "onnx":
+        from stdm_drake.deploy.onnx_export import checkpoint_graphs
+        model, jacobian, features = checkpoint_graphs(checkpoint)
+        contents = [model.SerializeToString(), jacobian.SerializeToString()]
+    else:
+        from stdm_drake.deploy.drake_native import native_model, native_text
+        native = native_model(checkpoint)
+        features = native.feature_input and f"input {native.feature_input!r} ({native.feature_width})"
+        contents = [native_text(native).encode("utf-8")]
+    for path, content in zip(outputs, contents):
+        with atomic_path(path) as temp:
+            temp.write_bytes(content)
+    say(f"{checkpoint.path.name} ({checkpoint.structure.label}, every {checkpoint.sample_period} s) -> "
+        + " and ".join(str(path) for path in outputs))
+    if features:
+        say(f"note: the network sees physics features, so the exported model takes them as an input: {features}; "
+            "the caller computes them at every step (see the file's metadata and docs/guides/deploy.md)")
+    return outputs

@@ -1,0 +1,297 @@
+"""`stdm-drake export` (issue 44): ONNX graphs and Drake-native systems equal the toolbox's own numpy path for every
+model type, structure and activation, on random and recorded inputs and over 100-step rollouts; a C++ program
+steps the exported file outside Python."""
+import json
+import os
+import pathlib
+import subprocess
+import sys
+
+import numpy as np
+import onnx
+import onnxruntime
+import pytest
+import torch
+from pydrake.systems.analysis import Simulator
+
+from presets import UR10
+from stdm_drake.cli import main
+from stdm_drake.data.dataset import load_dataset
+from stdm_drake.deploy.drake_native import (build_dynamics_diagram, build_step_diagram, load_native_model,
+                                            set_initial_state)
+from stdm_drake.deploy.export_job import jacobian_path
+from stdm_drake.learning.activations import ACTIVATION_NAMES
+from stdm_drake.learning.checkpoint import load_checkpoint, save_checkpoint
+from stdm_drake.learning.learned_model import LearnedModel
+from stdm_drake.learning.models import EnsembleMLP, ModelConfig
+from stdm_drake.learning.structure import ModelStructure
+
+ROOT = pathlib.Path(__file__).resolve().parents[1]
+RTOL = 1e-5      # float32: the issue's tolerance, relative to each output column's scale
+STRUCTURES = {
+    "state-raw": ModelStructure("state", "raw"), "velocity-raw": ModelStructure("velocity", "raw"),
+    "state-nominal": ModelStructure("state", "nominal_acceleration"),
+    "velocity-nominal": ModelStructure("velocity", "nominal_acceleration"),
+    "state-period": ModelStructure("state", "period_acceleration"),
+    "velocity-period": ModelStructure("velocity", "period_acceleration"),
+    "grey-state": ModelStructure("state", "plant_step", plant_integrator="rk4"),
+    "grey-velocity": ModelStructure("velocity", "plant_step", plant_integrator="rk4"),
+}
+# model types as network settings: D, DE (3 members), P, PE (3 members); the derivative twins differ only in training
+TYPES = {"D": (1, False), "DE": (3, False), "P": (1, True), "PE": (3, True)}
+
+
+def synthetic_checkpoint(path, structure, *, model_type="D", activation="swish", residual=True, seed=0):
+    """A checkpoint of random weights and non-trivial normalizers (what is compared does not depend on training)."""
+    members, probabilistic = TYPES[model_type]
+    inputs, outputs = structure.network_sizes(2 * UR10.num_joints, UR10.action_dim)
+    config = ModelConfig(input_dim=inputs, output_dim=outputs, residual=residual, hidden_width=16, hidden_layers=3,
+                         activation=activation, ensemble_size=members, probabilistic=probabilistic)
+    network = EnsembleMLP(config, generator=torch.Generator().manual_seed(seed)).double()
+    rng = np.random.default_rng(seed)
+    with torch.no_grad():
+        for bias in network.biases:
+            bias.copy_(torch.from_numpy(rng.normal(0.0, 0.1, bias.shape)))
+        x, a = random_rows(256, seed + 7)       # the inputs' own spread, as training sets it, then perturbed
+        n = UR10.num_joints
+        features = structure.nominal_features(UR10, 0.01)
+        phi = None if features is None else features.values(x[:, :n], x[:, n:], a)
+        rows = np.hstack(structure.split(x, a, phi))
+        network.input_normalizer.mean.copy_(torch.from_numpy(rows.mean(axis=0) + rng.normal(0.0, 0.1, inputs) * rows.std(axis=0)))
+        network.input_normalizer.std.copy_(torch.from_numpy(rows.std(axis=0) * rng.uniform(0.5, 2.0, inputs)))
+        network.output_normalizer.mean.copy_(torch.from_numpy(rng.normal(0.0, 0.01, outputs)))
+        network.output_normalizer.std.copy_(torch.from_numpy(rng.uniform(0.01, 0.1, outputs)))
+        if probabilistic:
+            network.min_logvar.copy_(torch.from_numpy(rng.uniform(-8.0, -6.0, network.min_logvar.shape)))
+            network.max_logvar.copy_(torch.from_numpy(rng.uniform(-1.0, 0.5, network.max_logvar.shape)))
+    return save_checkpoint(path, network.float(), metadata=dict(model_type=model_type, sample_period=0.01,
+                                                                structure=structure.as_dict(),
+                                                                joint_names=list(UR10.joint_names)))
+
+
+def random_rows(count=64, seed=1):
+    """States inside the UR-10's limits and torques of its effort scale: x (N, 12), τ (N, 6)."""
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-2.0, 2.0, (count, 6))
+    v = rng.uniform(-1.0, 1.0, (count, 6))
+    return np.hstack([q, v]), rng.uniform(-50.0, 50.0, (count, 6))
+
+
+def session(path_or_model):
+    source = path_or_model.SerializeToString() if isinstance(path_or_model, onnx.ModelProto) else str(path_or_model)
+    return onnxruntime.InferenceSession(source, providers=["CPUExecutionProvider"])
+
+
+def feeds(model: LearnedModel, x, a, inference):
+    """The graph's inputs: state, action and, for a model of physics features, those computed by the toolbox."""
+    values = {"state": x.astype(np.float32), "action": a.astype(np.float32)}
+    if model.features is not None:
+        n = model.num_joints
+        values[inference.get_inputs()[2].name] = model.features.values(x[:, :n], x[:, n:], a).astype(np.float32)
+    return values
+
+
+def run(inference, values) -> dict:
+    return dict(zip([output.name for output in inference.get_outputs()], inference.run(None, values)))
+
+
+def assert_close(actual, expected, rtol=RTOL, what="", terms=()):
+    """|actual - expected| <= rtol x (each column's largest |expected| (or |term| of a sum's `terms`), at least 1e-3
+    of the whole's)."""
+    expected = np.asarray(expected, dtype=np.float64)
+    scale = np.max([np.abs(value).reshape(-1, expected.shape[-1]).max(axis=0) for value in (expected, *terms)], axis=0)
+    scale = np.maximum(scale, 1e-3 * scale.max())
+    error = np.abs(np.asarray(actual, dtype=np.float64) - expected) / scale
+    assert error.max() <= rtol, f"{what}: relative error {error.max():.3g} > {rtol}"
+
+
+def exported(tmp_path, checkpoint) -> tuple:
+    output = tmp_path / (pathlib.Path(checkpoint).stem + ".onnx")
+    assert main(["export", str(checkpoint), "-o", str(output)]) == 0
+    return session(output), session(jacobian_path(output)), output
+
+
+CASES = ([(structure, "D", "swish", True) for structure in STRUCTURES]
+         + [("state-raw", kind, activation, True) for kind in ("DE", "PE") for activation in ACTIVATION_NAMES]
+         + [("velocity-nominal", "PE", "tanh", True), ("velocity-raw", "P", "relu", False),
+            ("state-raw", "DE", "gelu", False), ("grey-velocity", "DE", "elu", True)])
+
+
+@pytest.mark.parametrize("structure, kind, activation, residual", CASES,
+                         ids=[f"{s}-{k}-{a}-{'delta' if r else 'direct'}" for s, k, a, r in CASES])
+def test_exported_model_equals_the_toolbox(tmp_path, structure, kind, activation, residual):
+    path = synthetic_checkpoint(tmp_path / "model.pt", STRUCTURES[structure], model_type=kind, activation=activation,
+                                residual=residual)
+    model = LearnedModel(path, robot=UR10)
+    inference, jacobians, _ = exported(tmp_path, path)
+    x, a = random_rows()
+    values = feeds(model, x, a, inference)
+    outputs, expected = run(inference, values), model.predict(x, a)
+    assert_close(outputs["next_state"], expected.mean, what="next state")
+    if kind != "D":
+        assert_close(outputs["next_state_variance"], expected.variance, what="variance")
+        assert_close(outputs["member_next_state"], expected.member_means, what="member means")
+    else:
+        assert set(outputs) == {"next_state"}
+    linear = run(jacobians, values)
+    assert_close(linear["next_state"], expected.mean, what="Jacobian graph's next state")
+    following, A, B = model.linearize(x, a)
+    if model.features is None:
+        assert_close(linear["jacobian_state"], A, what="d/dx")
+        assert_close(linear["jacobian_action"], B, what="d/dτ")
+    else:   # the documented chain rule through the features' own Jacobian
+        n = model.num_joints
+        _, feature_jacobian = model.features.values_and_jacobians(x[:, :n], x[:, n:], a)
+        chained = linear["jacobian_features"].astype(np.float64) @ feature_jacobian
+        for name, part, expected_part in (("jacobian_state", chained[:, :, :2 * n], A),
+                                          ("jacobian_action", chained[:, :, 2 * n:], B)):   # (sums of float32 terms)
+            assert_close(linear[name] + part, expected_part, what=f"{name} chained", terms=(linear[name], part))
+
+
+def test_graph_metadata_says_units_period_and_features(tmp_path, capsys):
+    path = synthetic_checkpoint(tmp_path / "nominal.pt", STRUCTURES["velocity-nominal"])
+    capsys.readouterr()
+    inference, jacobians, output = exported(tmp_path, path)
+    printed = capsys.readouterr().out
+    assert "note: the network sees physics features" in printed and "'nominal_acceleration' (6)" in printed
+    graph = onnx.load(str(output))
+    props = {prop.key: prop.value for prop in graph.metadata_props}
+    assert props["sample_period_s"] == "0.01" and props["written_by"] == "stdm-drake export"
+    assert props["state"] == "[q (6) rad, v (6) rad/s]" and "N m" in props["action"]
+    assert "M(q)⁻¹" in props["features"] and json.loads(props["structure"])["predicts"] == "velocity"
+    assert json.loads(props["joint_names"]) == list(UR10.joint_names)
+    assert [i.name for i in inference.get_inputs()] == ["state", "action", "nominal_acceleration"]
+    assert [o.name for o in jacobians.get_outputs()] == ["next_state", "jacobian_state", "jacobian_action",
+                                                         "jacobian_features"]
+    docs = {i.name: i.doc_string for i in graph.graph.input}
+    assert "rad/s" in docs["state"] and "rad/s²" in docs["nominal_acceleration"]
+    # a second export replaces the files it wrote before (its own outputs); someone else's needs --force
+    assert main(["export", str(path), "-o", str(output)]) == 0
+
+
+@pytest.fixture(scope="module")
+def trained(tracking_dataset, tmp_path_factory):
+    """A D of the default structure (velocity, nominal-acceleration inputs) and a PE (2 members) of the paper's,
+    trained briefly on the tracking fixture (5 train, 2 val, 1 test trajectory)."""
+    folder = tmp_path_factory.mktemp("trained")
+    paths = {}
+    for kind, extra in (("D", ["--activation", "tanh"]),
+                        ("PE", ["--predicts", "state", "--inputs", "raw", "--ensemble-size", "2"])):
+        assert main(["train", str(tracking_dataset), "-o", str(folder / kind), "--model", kind, *extra,
+                     "--hidden-width", "32", "--hidden-layers", "2", "--epochs", "3", "--seeds", "0", "--train", "5",
+                     "--val", "2", "--test", "1", "--per-group", "off", "--derivative", "off", "--quiet"]) == 0
+        paths[kind] = folder / kind / "seed0" / "checkpoint.pt"
+    return paths
+
+
+def test_trained_models_on_recorded_test_split_and_100_step_rollouts(trained, tracking_dataset, tmp_path):
+    dataset = load_dataset(tracking_dataset)
+    for kind, path in trained.items():
+        model = LearnedModel(path, robot=UR10)
+        inference, _, _ = exported(tmp_path, path)
+        (index,) = load_checkpoint(path).split_indices(dataset, "test")
+        trajectory = dataset.trajectory(index)
+        x, a = np.hstack([trajectory.q, trajectory.v])[:-1], trajectory.tau[:-1] if len(trajectory.tau) == len(trajectory.q) else trajectory.tau
+        assert_close(run(inference, feeds(model, x, a, inference))["next_state"], model.predict(x, a).mean,
+                     what=f"{kind} recorded")
+        steps = 100
+        expected = model.rollout(x[:1], a[None, :steps]).mean[0]
+        state, states = x[:1], []
+        for k in range(steps):
+            state = run(inference, feeds(model, state.astype(np.float64), a[k:k + 1], inference))["next_state"]
+            states.append(state[0])
+        assert_close(np.array(states), expected, rtol=1e-4, what=f"{kind} 100-step rollout")
+
+
+# ---- outside Python: tools/cpp/step_onnx, ONNX Runtime's C API from the wheel's library ----
+
+HEADERS = ROOT / ".venv" / "include" / "onnxruntime"
+
+
+@pytest.fixture(scope="module")
+def step_onnx(tmp_path_factory):
+    """tools/cpp/step_onnx built with the system's compiler (headers: tools/cpp/onnxruntime_headers.sh, run by the
+    test command). Without them the test is skipped here, and fails in CI."""
+    headers = pathlib.Path(os.environ.get("STDM_ONNXRUNTIME_HEADERS", HEADERS))
+    if not (headers / "onnxruntime_c_api.h").exists():
+        message = f"no ONNX Runtime headers in {headers}: run bash tools/cpp/onnxruntime_headers.sh {headers}"
+        if os.environ.get("CI"):
+            pytest.fail(message)
+        pytest.skip(message)
+    build = tmp_path_factory.mktemp("cpp")
+    subprocess.run(["bash", str(ROOT / "tools" / "cpp" / "build.sh"), str(build), str(headers),
+                    sys.executable], check=True, cwd=ROOT)
+    return build / "step_onnx"
+
+
+def test_cpp_program_steps_the_exported_model(step_onnx, trained, tracking_dataset, tmp_path):
+    dataset = load_dataset(tracking_dataset)
+    for kind, path in trained.items():
+        model = LearnedModel(path, robot=UR10)
+        inference, _, output = exported(tmp_path, path)
+        (index,) = load_checkpoint(path).split_indices(dataset, "test")
+        trajectory = dataset.trajectory(index)
+        x, a = np.hstack([trajectory.q, trajectory.v])[:-1], trajectory.tau[:-1] if len(trajectory.tau) == len(trajectory.q) else trajectory.tau
+        rows = np.hstack(list(feeds(model, x, a, inference).values()))
+        rows.astype(np.float32).tofile(tmp_path / "rows.f32")
+        subprocess.run([str(step_onnx), str(output), "rows", str(tmp_path / "rows.f32"), str(tmp_path / "out.f32")],
+                       check=True)
+        stepped = np.fromfile(tmp_path / "out.f32", dtype=np.float32).reshape(len(x), -1)
+        assert_close(stepped, model.predict(x, a).mean, what=f"{kind} from C++")
+        if model.features is None:
+            steps = 100
+            np.concatenate([x[0], a[:steps].ravel()]).astype(np.float32).tofile(tmp_path / "rollout.f32")
+            subprocess.run([str(step_onnx), str(output), "rollout", str(tmp_path / "rollout.f32"),
+                            str(tmp_path / "out.f32"), str(steps)], check=True)
+            rolled = np.fromfile(tmp_path / "out.f32", dtype=np.float32).reshape(steps, -1)
+            assert_close(rolled, model.rollout(x[:1], a[None, :steps]).mean[0], rtol=1e-4, what="C++ rollout")
+    bad = subprocess.run([str(step_onnx), str(tmp_path / "rows.f32"), "rows", str(tmp_path / "rows.f32"), "x"],
+                         capture_output=True, text=True)
+    assert bad.returncode == 2 and bad.stderr.startswith("step_onnx: error:") and len(bad.stderr.splitlines()) == 1
+
+
+# ---- the Drake-native system ----
+
+@pytest.mark.parametrize("structure, kind, activation", [("velocity-raw", "D", "tanh"), ("state-raw", "DE", "relu"),
+                                                         ("velocity-nominal", "PE", "relu"), ("grey-state", "D", "tanh")])
+def test_drake_native_system_equals_the_toolbox(tmp_path, structure, kind, activation):
+    path = synthetic_checkpoint(tmp_path / "model.pt", STRUCTURES[structure], model_type=kind, activation=activation)
+    output = tmp_path / "model.yaml"
+    assert main(["export", str(path), "--target", "drake", "-o", str(output)]) == 0
+    native_file = load_native_model(output)
+    model = LearnedModel(path, robot=UR10)
+    diagram, native = build_step_diagram(native_file)
+    context = diagram.CreateDefaultContext()
+    native.set_parameters(diagram, context)
+    x, a = random_rows(count=8)
+    n = model.num_joints
+    for row in range(len(x)):
+        diagram.GetInputPort("state").FixValue(context, x[row])
+        diagram.GetInputPort("action").FixValue(context, a[row])
+        if model.features is not None:
+            diagram.GetInputPort(native_file.feature_input).FixValue(
+                context, model.features.values(x[row:row + 1, :n], x[row:row + 1, n:], a[row:row + 1])[0])
+        assert_close(diagram.GetOutputPort("next_state").Eval(context)[None], model.predict(x[row], a[row]).mean[None],
+                     what="Drake step")
+    if model.features is None:      # the discrete-time system over 100 periods against the rollout
+        dynamics, native = build_dynamics_diagram(native_file)
+        simulator = Simulator(dynamics)
+        context = simulator.get_mutable_context()
+        native.set_parameters(dynamics, context)
+        set_initial_state(native, context, x[0])
+        actions = np.random.default_rng(4).uniform(-5.0, 5.0, (100, 6))
+        states = []
+        for k, action in enumerate(actions):
+            dynamics.GetInputPort("action").FixValue(context, action)
+            simulator.AdvanceTo((k + 1) * native_file.sample_period)
+            states.append(dynamics.GetOutputPort("state").Eval(context).copy())
+        assert_close(np.array(states), model.rollout(x[:1], actions[None]).mean[0], rtol=1e-4, what="Drake dynamics")
+
+
+def test_swish_has_no_drake_form_and_nothing_is_written(tmp_path, capsys):
+    path = synthetic_checkpoint(tmp_path / "swish.pt", STRUCTURES["state-raw"])
+    capsys.readouterr()
+    assert main(["export", str(path), "--target", "drake", "-o", str(tmp_path / "model.yaml")]) == 2
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "retrain with --activation tanh or relu" in error[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["swish.pt"]
