@@ -651,6 +651,7 @@ CASES = [
     (["export", "CK", "--target", "drake", "-o", "NEW.yaml"], "activation 'swish' has no Drake MultilayerPerceptron form"),
     (["export", "CK", "--target", "drake", "-o", "ROBOT"], "exists and stdm-drake did not write it"),
     (["export", "CK", "--target", "tflite", "-o", "NEW.onnx"], "argument --target: invalid choice"),
+    (["export", "CK", "--target", "drake", "--mean-only", "-o", "NEW.yaml"], "--mean-only belongs to the onnx target"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -53,7 +53,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--network", choices=tuple(NETWORK_KINDS), default="ensemble_mlp",
                         help="network kind (default ensemble_mlp: the paper's MLPs; a registered kind, "
                              "stdm_drake.learning.trainable)")
-    parser.add_argument("--activation", choices=ACTIVATION_NAMES, default="swish", help="hidden activation")
+    parser.add_argument("--activation", choices=ACTIVATION_NAMES, default="swish",
+                        help="hidden activation (default swish); tanh or relu for a model Drake's MultilayerPerceptron "
+                             "can hold (`export --target drake`); `export` to ONNX takes every one")
     parser.add_argument("--hidden-width", type=int, default=100, help="units per hidden layer (default 100)")
     parser.add_argument("--hidden-layers", type=int, default=3, help="hidden layers (default 3)")
     parser.add_argument("--ensemble-size", type=int, default=DEFAULT_ENSEMBLE_SIZE,

@@ -11,10 +11,12 @@ TARGETS = ("onnx", "drake")
 @dataclasses.dataclass(frozen=True)
 class ExportJob:
     """checkpoint: a `train` checkpoint (.pt); output: the file to write (.onnx for "onnx", .yaml for "drake");
-    the ONNX target also writes the Jacobian graph beside it (`jacobian_path`)."""
+    the ONNX target also writes the Jacobian graph beside it (`jacobian_path`); mean_only: its model graph without the
+    variance and member outputs (`onnx_export.model_graph`)."""
     checkpoint: pathlib.Path
     output: pathlib.Path
     target: str = "onnx"
+    mean_only: bool = False
     force: bool = False
 
 
@@ -33,6 +35,8 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     from stdm_drake.outputs import check_output_file
     if job.target not in TARGETS:
         raise InputError(f"--target must be one of {', '.join(TARGETS)}, got {job.target!r}")
+    if job.mean_only and job.target != "onnx":
+        raise InputError("--mean-only belongs to the onnx target (the Drake system gives the mean only)")
     suffix = ".onnx" if job.target == "onnx" else ".yaml"
     if pathlib.Path(job.output).suffix.lower() != suffix:
         raise InputError(f"-o/--output {job.output}: the {job.target} target writes a {suffix} file")
@@ -43,7 +47,7 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     checkpoint = load_checkpoint(job.checkpoint)
     if job.target == "onnx":
         from stdm_drake.deploy.onnx_export import checkpoint_graphs
-        model, jacobian, features = checkpoint_graphs(checkpoint)
+        model, jacobian, features = checkpoint_graphs(checkpoint, mean_only=job.mean_only)
         contents = [model.SerializeToString(), jacobian.SerializeToString()]
     else:
         from stdm_drake.deploy.drake_native import native_model, native_text

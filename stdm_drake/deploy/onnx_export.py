@@ -101,23 +101,28 @@ def _inputs(layout: ExportLayout, structure) -> tuple[list, list]:
     return infos, names
 
 
-def model_graph(net: NetworkArrays, layout: ExportLayout, structure, metadata: dict):
-    """The model graph (module docstring) of network `net` laid out by `layout`."""
+def model_graph(net: NetworkArrays, layout: ExportLayout, structure, metadata: dict, *, mean_only: bool = False):
+    """The model graph (module docstring) of network `net` laid out by `layout`; mean_only: "next_state" alone, no
+    variance or member outputs (ONNX Runtime runs every node of a graph whatever outputs a call asks for)."""
     b = GraphBuilder()
     inputs, names = _inputs(layout, structure)
     outputs_, residual, variances = network_outputs(b, _network_inputs(b, layout, names), net)
-    size = 2 * layout.joints
-    mean = b.op("ReduceMean", [outputs_], "ensemble_output", axes=[0], keepdims=0)
-    members = outputs_ if residual is None else b.op("Add", [outputs_, residual], "member_output")
+    size, single = 2 * layout.joints, net.members == 1
+    mean = outputs_ if single else b.op("ReduceMean", [outputs_], "ensemble_output", axes=[0], keepdims=0)
     if residual is not None:
         mean = b.op("Add", [mean, residual], "ensemble_output_delta")
     b.op("Identity", [_assembled(b, layout, mean, axis=1)], output="next_state")
     outputs = [tensor_info("next_state", [BATCH, size], "x_{k+1}: the ensemble mean, [q rad, v rad/s]")]
-    if net.members > 1 or variances is not None:
-        deviation = b.op("Sub", [outputs_, b.op("ReduceMean", [outputs_], axes=[0], keepdims=1)])
-        total = b.op("ReduceMean", [b.op("Mul", [deviation, deviation])], "spread", axes=[0], keepdims=0)
-        if variances is not None:
-            total = b.op("Add", [total, b.op("ReduceMean", [variances], axes=[0], keepdims=0)], "total_variance")
+    if (not single or variances is not None) and not mean_only:
+        if single:          # one network: no spread, its own variance
+            total = variances
+            members = b.op("Unsqueeze", [mean, b.constant([0], "axis", np.int64)], "member_output")
+        else:
+            deviation = b.op("Sub", [outputs_, b.op("ReduceMean", [outputs_], axes=[0], keepdims=1)])
+            total = b.op("ReduceMean", [b.op("Mul", [deviation, deviation])], "spread", axes=[0], keepdims=0)
+            if variances is not None:
+                total = b.op("Add", [total, b.op("ReduceMean", [variances], axes=[0], keepdims=0)], "total_variance")
+            members = outputs_ if residual is None else b.op("Add", [outputs_, residual], "member_output")
         if layout.predicts == "velocity":      # the angle's variance: (T/2)² the velocity's
             total = b.op("Concat", [b.op("Mul", [total, b.constant((0.5 * layout.sample_period) ** 2, "factor")]),
                                     total], "assembled_variance", axis=1)
@@ -192,9 +197,10 @@ def export_metadata(checkpoint, layout: ExportLayout, source_sha256: str) -> dic
     return values
 
 
-def checkpoint_graphs(checkpoint):
-    """(model graph, Jacobian graph, feature note or None) of a loaded checkpoint; InputError for a network the
-    ONNX export does not represent (another registered network kind than the ensemble MLP)."""
+def checkpoint_graphs(checkpoint, *, mean_only: bool = False):
+    """(model graph, Jacobian graph, feature note or None) of a loaded checkpoint (mean_only: `model_graph`'s);
+    InputError for a network the ONNX export does not represent (another registered network kind than the ensemble
+    MLP)."""
     from stdm_drake.learning.models import EnsembleMLP
     if not isinstance(checkpoint.model, EnsembleMLP):
         raise InputError(f"{checkpoint.path}: a {checkpoint.model.kind!r} network cannot be exported to ONNX "
@@ -204,5 +210,5 @@ def checkpoint_graphs(checkpoint):
     metadata = export_metadata(checkpoint, layout, hashlib.sha256(checkpoint.path.read_bytes()).hexdigest())
     net = NetworkArrays.from_network(checkpoint.model)
     note = metadata.get("features")
-    return model_graph(net, layout, checkpoint.structure, metadata), jacobian_graph(net, layout, checkpoint.structure,
-                                                                                    metadata), note
+    return (model_graph(net, layout, checkpoint.structure, metadata, mean_only=mean_only),
+            jacobian_graph(net, layout, checkpoint.structure, metadata), note)

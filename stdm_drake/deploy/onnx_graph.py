@@ -7,6 +7,8 @@
     probabilistic network the PETS-bounded log-variance as member variances (E, N, out) in raw units;
     the Jacobian d(ensemble mean)/dz (N, out, K) carries all K unit tangents through the layers at once,
     (E, N, K, H) per layer, as `predict.InferenceModel.mean_and_jacobian` does.
+The standardizations are folded into the first and last layers' weights in float64 (`_folded_layers`), as the
+toolbox's own inference does: fewer operators per call (what a batch-1 step costs) and the same rounding.
 Every activation stdm-drake trains is here (`ACTIVATION_OPS`): the operator ONNX has for it, or its formula
 in ONNX operators (swish, GELU), with its slope for the Jacobian.
 """
@@ -171,18 +173,37 @@ ACTIVATION_OPS = {
 
 # ---- the network ----
 
-def _standardized(b: GraphBuilder, z: str, net: NetworkArrays) -> str:
-    centered = b.op("Sub", [z, b.constant(net.input_mean, "input_mean")], "centered_inputs")
-    return b.op("Div", [centered, b.constant(net.input_std, "input_std")], "standardized_inputs")
+def _folded_layers(net: NetworkArrays) -> list:
+    """(weight, bias) of every layer with the input standardization folded into the first and the output scale
+    (σ_y, μ_y) into the mean head of the last, in float64 (as `predict.InferenceModel` does): z_n W + b =
+    z (W / σ_z) + (b - (μ_z / σ_z) W). A single network's are 2-D ((in, out), (1, out)): plain Gemm, no batch axis."""
+    weights, biases = [w.copy() for w in net.weights], [b.copy() for b in net.biases]
+    biases[0] = biases[0] - np.einsum("i,eio->eo", net.input_mean / net.input_std, weights[0])[:, None, :]
+    weights[0] = weights[0] / net.input_std[None, :, None]
+    out = net.output_dim
+    weights[-1][..., :out] *= net.output_std
+    biases[-1][..., :out] = biases[-1][..., :out] * net.output_std + net.output_mean
+    if net.members == 1:
+        return [(w[0], b[0]) for w, b in zip(weights, biases)]
+    return list(zip(weights, biases))
 
 
-def _layers(b: GraphBuilder, z_n: str, net: NetworkArrays, with_slopes: bool):
-    """The hidden layers on z_n (N, K): the last hidden output (E, N, H) and each layer's pre-activation slope."""
-    function, slope = ACTIVATION_OPS[net.activation]
-    hidden, slopes = z_n, []
-    for index, (weight, bias) in enumerate(zip(net.weights[:-1], net.biases[:-1])):
-        pre = b.op("Add", [b.op("MatMul", [hidden, b.constant(weight, f"weight{index}")]),
-                           b.constant(bias, f"bias{index}")], f"pre_activation{index}")
+def _layers(b: GraphBuilder, z: str, layers: list, activation: str, with_slopes: bool):
+    """The hidden layers on raw inputs z (N, K): the last hidden output ((E,) N, H) and each layer's slope f'(pre)."""
+    function, slope = ACTIVATION_OPS[activation]
+    hidden, slopes = z, []
+    for index, (weight, bias) in enumerate(layers[:-1]):
+        if index == 0 and weight.ndim == 3:   # every member's first layer in one (K, E H) product, then (E, N, H)
+            members, width = weight.shape[0], weight.shape[2]
+            flat = b.op("Add", [b.op("MatMul", [z, b.constant(weight.transpose(1, 0, 2).reshape(len(weight[0]), -1),
+                                                             "weight0")]),
+                                b.constant(bias.reshape(-1), "bias0")], "first_layer_standardized_inputs")
+            pre = b.op("Transpose", [b.op("Reshape", [flat, b.constant([0, members, width], "shape", np.int64)])],
+                       "pre_activation0", perm=[1, 0, 2])
+        else:
+            stem = "first_layer_standardized_inputs" if index == 0 else f"pre_activation{index}"
+            pre = b.op("Add", [b.op("MatMul", [hidden, b.constant(weight, f"weight{index}")]),
+                               b.constant(bias, f"bias{index}")], stem)
         if with_slopes:
             slopes.append(slope(b, pre))
         hidden = function(b, pre)
@@ -190,21 +211,22 @@ def _layers(b: GraphBuilder, z_n: str, net: NetworkArrays, with_slopes: bool):
 
 
 def network_outputs(b: GraphBuilder, z: str, net: NetworkArrays) -> tuple[str, str | None, str | None]:
-    """From raw network inputs z (N, K): member outputs (E, N, out) in raw units without the delta's residual, the
-    residual z[:, :out] (N, out) (None for a direct network) and, for a probabilistic network, member variances
-    (E, N, out) (else None). (The residual, shared by all members, is added after their spread is taken.)"""
-    hidden, _ = _layers(b, _standardized(b, z, net), net, with_slopes=False)
-    out = net.output_dim
-    head = b.op("Add", [b.op("MatMul", [hidden, b.constant(net.weights[-1], "weight_out")]),
-                        b.constant(net.biases[-1], "bias_out")], "head")
-    mean = b.columns(head, 0, out, 2, "standardized_mean") if net.probabilistic else head
-    mean = b.op("Add", [b.op("Mul", [mean, b.constant(net.output_std, "output_std")]),
-                        b.constant(net.output_mean, "output_mean")], "network_output")
+    """From raw network inputs z (N, K): member outputs (E, N, out) in raw units without the delta's residual (a
+    single network's: (N, out)), the residual z[:, :out] (N, out) (None for a direct network) and, for a
+    probabilistic network, member variances of the same shape as the outputs (else None). (The residual, shared by
+    all members, is added after their spread is taken.)"""
+    layers = _folded_layers(net)
+    hidden, _ = _layers(b, z, layers, net.activation, with_slopes=False)
+    out, axis = net.output_dim, 1 if net.members == 1 else 2
+    head = b.op("Add", [b.op("MatMul", [hidden, b.constant(layers[-1][0], "weight_out")]),
+                        b.constant(layers[-1][1], "bias_out")], "head")
+    mean = b.columns(head, 0, out, axis, "network_output") if net.probabilistic else head
     residual = b.columns(z, 0, out, 1, "residual") if net.residual else None
     if not net.probabilistic:
         return mean, residual, None
-    raw = b.columns(head, out, 2 * out, 2, "raw_logvar")
-    top, bottom = b.constant(net.max_logvar, "max_logvar"), b.constant(net.min_logvar, "min_logvar")
+    raw = b.columns(head, out, 2 * out, axis, "raw_logvar")
+    bounds = [net.max_logvar, net.min_logvar] if net.members > 1 else [net.max_logvar[0], net.min_logvar[0]]
+    top, bottom = b.constant(bounds[0], "max_logvar"), b.constant(bounds[1], "min_logvar")
     upper = b.op("Sub", [top, b.op("Softplus", [b.op("Sub", [top, raw])])])
     logvar = b.op("Add", [bottom, b.op("Softplus", [b.op("Sub", [upper, bottom])])], "logvar")
     variance = b.op("Mul", [b.op("Exp", [logvar]), b.constant(net.output_std ** 2, "output_variance")], "member_variance")
@@ -213,24 +235,28 @@ def network_outputs(b: GraphBuilder, z: str, net: NetworkArrays) -> tuple[str, s
 
 def network_jacobian(b: GraphBuilder, z: str, net: NetworkArrays) -> tuple[str, str]:
     """Ensemble-mean output (N, out) (residual added) and its Jacobian d/dz (N, out, K) (residual included),
-    forward mode with the K unit tangents of every row: per layer (E, N, K, H) = ((E, N, K, H) @ W) ⊙ f'(pre)."""
+    forward mode with the K unit tangents of every row: per layer ((E,) N, K, H) = (((E,) N, K, H) @ W) ⊙ f'(pre)."""
     members, width = net.members, net.input_dim
     out = net.output_dim
-    hidden, slopes = _layers(b, _standardized(b, z, net), net, with_slopes=True)
-    first = (net.weights[0] / net.input_std[None, :, None])[:, None]                 # (E, 1, K, H): d pre / dz
-    tangent = b.op("Mul", [b.op("Unsqueeze", [slopes[0], b.constant([2], "axis", np.int64)]),
-                           b.constant(first, "input_tangent")], "tangent0")
-    for index, weight in enumerate(net.weights[1:-1], start=1):
-        product = b.op("MatMul", [tangent, b.constant(weight[:, None], f"tangent_weight{index}")])
-        tangent = b.op("Mul", [product, b.op("Unsqueeze", [slopes[index], b.constant([2], "axis", np.int64)])],
-                       f"tangent{index}")
-    out_weight = net.weights[-1][..., :out] * net.output_std / members                  # (E, H, out), mean folded in
-    mean = b.op("Add", [b.op("ReduceSum", [b.op("MatMul", [hidden, b.constant(out_weight, "mean_weight")]),
-                                           b.constant([0], "axis", np.int64)], keepdims=0),
-                        b.constant(net.biases[-1][..., :out].mean(axis=0)[0] * net.output_std + net.output_mean,
-                                   "mean_bias")], "ensemble_output")
-    jacobian = b.op("ReduceSum", [b.op("MatMul", [tangent, b.constant(out_weight[:, None], "jacobian_weight")]),
-                                  b.constant([0], "axis", np.int64)], "network_jacobian_t", keepdims=0)  # (N, K, out)
+    layers = _folded_layers(net)
+    hidden, slopes = _layers(b, z, layers, net.activation, with_slopes=True)
+    single = members == 1
+    spread = (lambda w: w) if single else (lambda w: w[:, None])      # a weight over the tangents' K axis
+    unsqueeze = b.constant([1 if single else 2], "tangent_axis", np.int64)
+    tangent = b.op("Mul", [b.op("Unsqueeze", [slopes[0], unsqueeze]), b.constant(spread(layers[0][0]), "input_tangent")],
+                   "tangent0")                                                           # d pre / dz
+    for index, (weight, _) in enumerate(layers[1:-1], start=1):
+        product = b.op("MatMul", [tangent, b.constant(spread(weight), f"tangent_weight{index}")])
+        tangent = b.op("Mul", [product, b.op("Unsqueeze", [slopes[index], unsqueeze])], f"tangent{index}")
+    out_weight, out_bias = layers[-1][0][..., :out] / members, layers[-1][1][..., :out]   # the mean over members folded in
+    mean = b.op("MatMul", [hidden, b.constant(out_weight, "mean_weight")])
+    jacobian = b.op("MatMul", [tangent, b.constant(spread(out_weight), "jacobian_weight")])   # ((E,) N, K, out)
+    if single:
+        mean = b.op("Add", [mean, b.constant(out_bias, "mean_bias")], "ensemble_output")
+    else:
+        mean = b.op("Add", [b.op("ReduceSum", [mean, b.constant([0], "axis", np.int64)], keepdims=0),
+                            b.constant(out_bias.mean(axis=0)[0], "mean_bias")], "ensemble_output")
+        jacobian = b.op("ReduceSum", [jacobian, b.constant([0], "axis", np.int64)], keepdims=0)
     jacobian = b.op("Transpose", [jacobian], "network_jacobian", perm=[0, 2, 1])
     if net.residual:
         mean = b.op("Add", [mean, b.columns(z, 0, out, 1, "residual")], "ensemble_output_delta")
