@@ -184,14 +184,20 @@ def trained(tracking_dataset, tmp_path_factory):
     return paths
 
 
+def recorded_test_transitions(path, dataset):
+    """The checkpoint's model and the transitions of its test trajectory: x_k (T-1, 12), τ_k (T-1, 6)."""
+    (index,) = load_checkpoint(path).split_indices(dataset, "test")
+    trajectory = dataset.trajectory(index)
+    x, a = np.hstack([trajectory.q, trajectory.v])[:-1], trajectory.tau[:-1]
+    assert len(a) >= 100      # (the 100-step rollouts)
+    return LearnedModel(path, robot=UR10), x, a
+
+
 def test_trained_models_on_recorded_test_split_and_100_step_rollouts(trained, tracking_dataset, tmp_path):
     dataset = load_dataset(tracking_dataset)
     for kind, path in trained.items():
-        model = LearnedModel(path, robot=UR10)
+        model, x, a = recorded_test_transitions(path, dataset)
         inference, _, _ = exported(tmp_path, path)
-        (index,) = load_checkpoint(path).split_indices(dataset, "test")
-        trajectory = dataset.trajectory(index)
-        x, a = np.hstack([trajectory.q, trajectory.v])[:-1], trajectory.tau[:-1] if len(trajectory.tau) == len(trajectory.q) else trajectory.tau
         assert_close(run(inference, feeds(model, x, a, inference))["next_state"], model.predict(x, a).mean,
                      what=f"{kind} recorded")
         steps = 100
@@ -225,11 +231,8 @@ def step_onnx(tmp_path_factory):
 def test_cpp_program_steps_the_exported_model(step_onnx, trained, tracking_dataset, tmp_path):
     dataset = load_dataset(tracking_dataset)
     for kind, path in trained.items():
-        model = LearnedModel(path, robot=UR10)
+        model, x, a = recorded_test_transitions(path, dataset)
         inference, _, output = exported(tmp_path, path)
-        (index,) = load_checkpoint(path).split_indices(dataset, "test")
-        trajectory = dataset.trajectory(index)
-        x, a = np.hstack([trajectory.q, trajectory.v])[:-1], trajectory.tau[:-1] if len(trajectory.tau) == len(trajectory.q) else trajectory.tau
         rows = np.hstack(list(feeds(model, x, a, inference).values()))
         rows.astype(np.float32).tofile(tmp_path / "rows.f32")
         subprocess.run([str(step_onnx), str(output), "rows", str(tmp_path / "rows.f32"), str(tmp_path / "out.f32")],
