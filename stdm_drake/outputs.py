@@ -201,26 +201,30 @@ def _writer_of(path: pathlib.Path, kind: str) -> str | None:
                 data = json.load(f)
             writer = str(data.get(WRITTEN_BY, "")) if isinstance(data, dict) else ""
             return writer if writer.startswith("stdm-drake") else None
-        if kind == "identified":
+        if kind in ("identified", "native"):
+            marker, command = (IDENTIFIED_MARKER, "identify") if kind == "identified" else (NATIVE_MARKER, "export")
             with open(path, encoding="utf-8", errors="replace") as f:
-                return "stdm-drake identify" if f.readline().startswith(IDENTIFIED_MARKER) else None
-        if kind == "native":
-            with open(path, encoding="utf-8", errors="replace") as f:
-                return "stdm-drake export" if f.readline().startswith(NATIVE_MARKER) else None
-        if kind == "onnx":
-            import onnx
-            props = {prop.key: prop.value for prop in onnx.load(str(path), load_external_data=False).metadata_props}
-            writer = props.get(WRITTEN_BY, "")
-            return writer if writer.startswith("stdm-drake") else None
+                return f"stdm-drake {command}" if f.readline().startswith(marker) else None
+        if kind == "onnx":   # (only a .onnx file is read: onnx.load parses the whole file)
+            return _onnx_writer(path) if path.suffix.lower() == ".onnx" else None
         if kind == "html":
             with open(path, encoding="utf-8", errors="replace") as f:
                 line = f.readline().strip()
             if not (line.startswith(HTML_PREFIX) and line.endswith("-->")):
                 return None
             return line[len("<!-- written by "):-len("-->")].strip()
-    except Exception:   # (unreadable, or not of this kind: a protobuf DecodeError for a file that is not ONNX)
+    except (OSError, ValueError):
         return None
     raise ValueError(f"unknown output kind {kind!r}")
+
+
+def _onnx_writer(path: pathlib.Path) -> str | None:
+    import onnx
+    try:
+        writer = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}[WRITTEN_BY]
+    except Exception:   # (protobuf's DecodeError and onnx's own errors: not an ONNX file; no writer recorded)
+        return None
+    return writer if writer.startswith("stdm-drake") else None
 
 
 def _other_command(writer: str) -> str | None:
@@ -255,6 +259,9 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
             ancestor = _marked_ancestor(path, running_command())   # (results from before they named their command)
             if not other and ancestor is not None:
                 other = f"stdm-drake {ancestor[1]}"
+            if other and other.removeprefix("stdm-drake").strip() == running_command():
+                raise InputError(f"{option} {path} is another kind of output of `{other}`; choose another path or "
+                                 "pass --force to replace it")
             if other:   # (another kind of output, or a file of another command's folder)
                 raise InputError(f"{option} {path} was written by `{other}`; choose another path or pass --force to "
                                  "replace it")

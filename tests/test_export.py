@@ -114,7 +114,8 @@ def exported(tmp_path, checkpoint) -> tuple:
 CASES = ([(structure, "D", "swish", True) for structure in STRUCTURES]
          + [("state-raw", kind, activation, True) for kind in ("DE", "PE") for activation in ACTIVATION_NAMES]
          + [("velocity-nominal", "PE", "tanh", True), ("velocity-raw", "P", "relu", False),
-            ("state-raw", "DE", "gelu", False), ("grey-velocity", "DE", "elu", True)])
+            ("state-raw", "DE", "gelu", False), ("grey-velocity", "DE", "elu", True), ("state-nominal", "P", "swish", True),
+            ("grey-state", "P", "tanh", False), ("velocity-period", "P", "selu", False), ("state-period", "PE", "softplus", False)])
 
 
 @pytest.mark.parametrize("structure, kind, activation, residual", CASES,
@@ -185,10 +186,11 @@ def trained(tracking_dataset, tmp_path_factory):
 
 
 def recorded_test_transitions(path, dataset):
-    """The checkpoint's model and the transitions of its test trajectory: x_k (T-1, 12), τ_k (T-1, 6)."""
+    """The checkpoint's model and the transitions of its test trajectory: x_k (T, 12) of its T + 1 states, τ_k (T, 6)."""
     (index,) = load_checkpoint(path).split_indices(dataset, "test")
     trajectory = dataset.trajectory(index)
-    x, a = np.hstack([trajectory.q, trajectory.v])[:-1], trajectory.tau[:-1]
+    x, a = np.hstack([trajectory.q, trajectory.v])[:-1], trajectory.tau
+    assert len(x) == len(a)
     assert len(a) >= 100      # (the 100-step rollouts)
     return LearnedModel(path, robot=UR10), x, a
 
@@ -246,9 +248,11 @@ def test_cpp_program_steps_the_exported_model(step_onnx, trained, tracking_datas
                             str(tmp_path / "out.f32"), str(steps)], check=True)
             rolled = np.fromfile(tmp_path / "out.f32", dtype=np.float32).reshape(steps, -1)
             assert_close(rolled, model.rollout(x[:1], a[None, :steps]).mean[0], rtol=1e-4, what="C++ rollout")
-    bad = subprocess.run([str(step_onnx), str(tmp_path / "rows.f32"), "rows", str(tmp_path / "rows.f32"), "x"],
-                         capture_output=True, text=True)
-    assert bad.returncode == 2 and bad.stderr.startswith("step_onnx: error:") and len(bad.stderr.splitlines()) == 1
+    for arguments in ([str(tmp_path / "rows.f32"), "rows", str(tmp_path / "rows.f32"), "x"],      # not a model
+                      [str(output), "rollout", str(tmp_path / "rollout.f32"), "out.f32", "-1"],   # a count of -1
+                      [str(output), "rows", str(tmp_path / "rows.f32"), "/dev/full"]):          # a write that fails
+        bad = subprocess.run([str(step_onnx), *arguments], capture_output=True, text=True)
+        assert bad.returncode == 2 and bad.stderr.startswith("step_onnx: error:") and len(bad.stderr.splitlines()) == 1
 
 
 # ---- the Drake-native system ----

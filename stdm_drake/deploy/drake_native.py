@@ -73,7 +73,7 @@ def native_model(checkpoint) -> NativeModelFile:
     from stdm_drake.deploy.onnx_graph import NetworkArrays
     from stdm_drake.learning.models import EnsembleMLP
     config = checkpoint.model_config
-    if not isinstance(checkpoint.model, EnsembleMLP):
+    if type(checkpoint.model) is not EnsembleMLP:   # (a subclass kind may compute otherwise)
         raise InputError(f"{checkpoint.path}: a {checkpoint.model.kind!r} network has no Drake-native form")
     if config.activation not in DRAKE_ACTIVATIONS:
         raise InputError(f"{checkpoint.path}: activation {config.activation!r} has no Drake MultilayerPerceptron form "

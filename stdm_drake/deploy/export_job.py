@@ -1,5 +1,6 @@
 """`stdm-drake export`'s job: a checkpoint as ONNX graphs (the model and its Jacobians) or as a Drake-native
 model file, every check before any work, files written atomically."""
+import contextlib
 import dataclasses
 import pathlib
 
@@ -54,9 +55,9 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
         native = native_model(checkpoint)
         features = native.feature_input and f"input {native.feature_input!r} ({native.feature_width})"
         contents = [native_text(native).encode("utf-8")]
-    for path, content in zip(outputs, contents):
-        with atomic_path(path) as temp:
-            temp.write_bytes(content)
+    with contextlib.ExitStack() as files:      # every file written in full before any replaces what was there
+        for path, content in zip(outputs, contents):
+            files.enter_context(atomic_path(path)).write_bytes(content)
     say(f"{checkpoint.path.name} ({checkpoint.structure.label}, every {checkpoint.sample_period} s) -> "
         + " and ".join(str(path) for path in outputs))
     if features:

@@ -202,7 +202,7 @@ def checkpoint_graphs(checkpoint, *, mean_only: bool = False):
     InputError for a network the ONNX export does not represent (another registered network kind than the ensemble
     MLP)."""
     from stdm_drake.learning.models import EnsembleMLP
-    if not isinstance(checkpoint.model, EnsembleMLP):
+    if type(checkpoint.model) is not EnsembleMLP:   # (a subclass kind may compute otherwise)
         raise InputError(f"{checkpoint.path}: a {checkpoint.model.kind!r} network cannot be exported to ONNX "
                          "(the export represents stdm-drake's ensemble MLP)")
     state_dim, action_dim = checkpoint.model_sizes

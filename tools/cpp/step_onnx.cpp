@@ -8,7 +8,8 @@
 //   step_onnx MODEL.onnx bench IN.f32 CALLS       CALLS calls at batch 1 on IN's first row (after 200 warm-up
 //                                                 calls); prints "median_us min_us p99_us" per call
 //
-// Files are raw little-endian float32. Exit status 2 with one line on stderr for any error.
+// Files are raw little-endian float32. Exit status 2 with one line on stderr for any error. A controller keeps the
+// Stepper class: it owns its ONNX Runtime objects (not copyable), and Step() throws std::runtime_error on an error.
 // Build (tools/cpp/build.sh): g++ -O2 -std=c++17 step_onnx.cpp -I ONNXRUNTIME_INCLUDE -L DIR -lonnxruntime
 #include <onnxruntime_c_api.h>
 
@@ -18,6 +19,9 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <limits>
+#include <memory>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -25,34 +29,54 @@ namespace {
 
 const OrtApi* api = nullptr;
 
-[[noreturn]] void Fail(const std::string& message) {
-  std::fprintf(stderr, "step_onnx: error: %s\n", message.c_str());
-  std::exit(2);
-}
-
+// An ONNX Runtime status as an exception (the status released first).
 void Check(OrtStatus* status) {
   if (status != nullptr) {
     std::string message = api->GetErrorMessage(status);
     api->ReleaseStatus(status);
-    Fail(message);
+    throw std::runtime_error(message);
   }
 }
 
+// Owners of ONNX Runtime objects: each released by its own Release function, on every path.
+struct Release {
+  void operator()(OrtEnv* p) const { api->ReleaseEnv(p); }
+  void operator()(OrtSession* p) const { api->ReleaseSession(p); }
+  void operator()(OrtSessionOptions* p) const { api->ReleaseSessionOptions(p); }
+  void operator()(OrtMemoryInfo* p) const { api->ReleaseMemoryInfo(p); }
+  void operator()(OrtTypeInfo* p) const { api->ReleaseTypeInfo(p); }
+  void operator()(OrtValue* p) const { api->ReleaseValue(p); }
+};
+template <typename T>
+using Owned = std::unique_ptr<T, Release>;
+
 std::vector<float> ReadFloats(const std::string& path) {
   std::ifstream file(path, std::ios::binary | std::ios::ate);
-  if (!file) Fail("cannot read " + path);
+  if (!file) throw std::runtime_error("cannot read " + path);
   const std::streamsize bytes = file.tellg();
-  if (bytes % sizeof(float) != 0) Fail(path + " is not a float32 file");
+  if (bytes < 0 || bytes % sizeof(float) != 0) throw std::runtime_error(path + " is not a float32 file");
   std::vector<float> values(bytes / sizeof(float));
   file.seekg(0);
-  file.read(reinterpret_cast<char*>(values.data()), bytes);
+  if (!file.read(reinterpret_cast<char*>(values.data()), bytes)) throw std::runtime_error("cannot read " + path);
   return values;
 }
 
 void WriteFloats(const std::string& path, const std::vector<float>& values) {
   std::ofstream file(path, std::ios::binary);
   file.write(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(float));
-  if (!file) Fail("cannot write " + path);
+  file.close();   // (the flush: a full disk shows here)
+  if (!file) throw std::runtime_error("cannot write " + path);
+}
+
+// A whole decimal count in [1, limit] (no sign, no trailing characters), or an error naming `what`.
+size_t Count(const char* text, const char* what, size_t limit) {
+  char* end = nullptr;
+  const unsigned long long value = std::strtoull(text, &end, 10);
+  if (text[0] < '0' || text[0] > '9' || *end != '\0' || value < 1 || value > limit) {
+    throw std::runtime_error(std::string(what) + " must be a whole number in 1.." + std::to_string(limit) +
+                             ", got " + text);
+  }
+  return static_cast<size_t>(value);
 }
 
 // One session at batch 1: input tensors over fixed buffers, the next_state output over its own buffer, so a
@@ -60,110 +84,119 @@ void WriteFloats(const std::string& path, const std::vector<float>& values) {
 class Stepper {
  public:
   explicit Stepper(const char* model_path) {
-    Check(api->CreateEnv(ORT_LOGGING_LEVEL_WARNING, "step_onnx", &env_));
-    OrtSessionOptions* options = nullptr;
-    Check(api->CreateSessionOptions(&options));
-    Check(api->SetIntraOpNumThreads(options, 1));
-    Check(api->SetInterOpNumThreads(options, 1));
-    Check(api->SetSessionExecutionMode(options, ORT_SEQUENTIAL));
-    Check(api->SetSessionGraphOptimizationLevel(options, ORT_ENABLE_ALL));
-    Check(api->CreateSession(env_, model_path, options, &session_));
-    api->ReleaseSessionOptions(options);
-    Check(api->CreateCpuMemoryInfo(OrtArenaAllocator, OrtMemTypeDefault, &memory_));
+    OrtEnv* env = nullptr;
+    Check(api->CreateEnv(ORT_LOGGING_LEVEL_WARNING, "step_onnx", &env));
+    env_.reset(env);
+    OrtSessionOptions* raw_options = nullptr;
+    Check(api->CreateSessionOptions(&raw_options));
+    Owned<OrtSessionOptions> options(raw_options);
+    Check(api->SetIntraOpNumThreads(raw_options, 1));
+    Check(api->SetInterOpNumThreads(raw_options, 1));
+    Check(api->SetSessionExecutionMode(raw_options, ORT_SEQUENTIAL));
+    Check(api->SetSessionGraphOptimizationLevel(raw_options, ORT_ENABLE_ALL));
+    OrtSession* session = nullptr;
+    Check(api->CreateSession(env, model_path, raw_options, &session));
+    session_.reset(session);
+    OrtMemoryInfo* memory = nullptr;
+    Check(api->CreateCpuMemoryInfo(OrtArenaAllocator, OrtMemTypeDefault, &memory));
+    memory_.reset(memory);
     OrtAllocator* allocator = nullptr;
     Check(api->GetAllocatorWithDefaultOptions(&allocator));
     size_t count = 0;
-    Check(api->SessionGetInputCount(session_, &count));
+    Check(api->SessionGetInputCount(session, &count));
     for (size_t i = 0; i < count; ++i) {
       char* name = nullptr;
-      Check(api->SessionGetInputName(session_, i, allocator, &name));
+      Check(api->SessionGetInputName(session, i, allocator, &name));
       input_names_.emplace_back(name);
       Check(api->AllocatorFree(allocator, name));
       widths_.push_back(InputWidth(i));
-    }
-    for (size_t i = 0; i < count; ++i) {
       offsets_.push_back(row_width_);
-      row_width_ += widths_[i];
+      row_width_ += widths_.back();
     }
-    if (input_names_.size() < 2 || input_names_[0] != "state") Fail("not a model of `stdm-drake export`");
+    if (input_names_.size() < 2 || input_names_[0] != "state") {
+      throw std::runtime_error(std::string(model_path) + " is not a model of `stdm-drake export`");
+    }
     state_width_ = widths_[0];
     row_.assign(row_width_, 0.0f);
     next_.assign(state_width_, 0.0f);
     for (size_t i = 0; i < count; ++i) {
-      int64_t shape[2] = {1, widths_[i]};
-      OrtValue* value = nullptr;
-      Check(api->CreateTensorWithDataAsOrtValue(memory_, row_.data() + offsets_[i], widths_[i] * sizeof(float), shape,
-                                                2, ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &value));
-      inputs_.push_back(value);
+      inputs_.push_back(Tensor(row_.data() + offsets_[i], widths_[i]));
+      input_values_.push_back(inputs_.back().get());
       input_pointers_.push_back(input_names_[i].c_str());
     }
-    int64_t shape[2] = {1, state_width_};
-    Check(api->CreateTensorWithDataAsOrtValue(memory_, next_.data(), next_.size() * sizeof(float), shape, 2,
-                                              ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &output_));
+    output_ = Tensor(next_.data(), state_width_);
   }
 
-  ~Stepper() {
-    for (OrtValue* value : inputs_) api->ReleaseValue(value);
-    api->ReleaseValue(output_);
-    api->ReleaseMemoryInfo(memory_);
-    api->ReleaseSession(session_);
-    api->ReleaseEnv(env_);
-  }
+  Stepper(const Stepper&) = delete;             // (it owns the session and the tensors over its buffers)
+  Stepper& operator=(const Stepper&) = delete;
 
-  size_t row_width() const { return row_width_; }
+  size_t row_width() const { return static_cast<size_t>(row_width_); }
   size_t state_width() const { return static_cast<size_t>(state_width_); }
   size_t action_width() const { return static_cast<size_t>(widths_[1]); }
   size_t input_count() const { return input_names_.size(); }
   float* row() { return row_.data(); }
   const std::vector<float>& next() const { return next_; }
 
-  // next_state for the inputs in row(); batch 1.
+  // next_state (in next()) for the inputs in row(), batch 1; std::runtime_error on an ONNX Runtime error.
   void Step() {
     const char* output_name = "next_state";
-    Check(api->Run(session_, nullptr, input_pointers_.data(), inputs_.data(), inputs_.size(), &output_name, 1,
-                   &output_));
+    OrtValue* output = output_.get();
+    Check(api->Run(session_.get(), nullptr, input_pointers_.data(), input_values_.data(), input_values_.size(),
+                   &output_name, 1, &output));
   }
 
  private:
+  // A (1, width) float32 tensor over `data` (the caller's buffer: no copy per call).
+  Owned<OrtValue> Tensor(float* data, int64_t width) {
+    int64_t shape[2] = {1, width};
+    OrtValue* value = nullptr;
+    Check(api->CreateTensorWithDataAsOrtValue(memory_.get(), data, width * sizeof(float), shape, 2,
+                                              ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &value));
+    return Owned<OrtValue>(value);
+  }
+
   int64_t InputWidth(size_t index) {
-    OrtTypeInfo* type = nullptr;
-    Check(api->SessionGetInputTypeInfo(session_, index, &type));
+    OrtTypeInfo* raw_type = nullptr;
+    Check(api->SessionGetInputTypeInfo(session_.get(), index, &raw_type));
+    Owned<OrtTypeInfo> type(raw_type);
     const OrtTensorTypeAndShapeInfo* tensor = nullptr;
-    Check(api->CastTypeInfoToTensorInfo(type, &tensor));
+    Check(api->CastTypeInfoToTensorInfo(raw_type, &tensor));
     size_t rank = 0;
     Check(api->GetDimensionsCount(tensor, &rank));
     std::vector<int64_t> dims(rank);
     Check(api->GetDimensions(tensor, dims.data(), rank));
-    api->ReleaseTypeInfo(type);
-    if (rank != 2 || dims[1] < 0) Fail("an input is not (batch, width)");
+    if (rank != 2 || dims[1] < 1) throw std::runtime_error("an input is not (batch, width)");
     return dims[1];
   }
 
-  OrtEnv* env_ = nullptr;
-  OrtSession* session_ = nullptr;
-  OrtMemoryInfo* memory_ = nullptr;
+  // (declared in release order reversed: tensors before memory info, session before environment)
+  Owned<OrtEnv> env_;
+  Owned<OrtSession> session_;
+  Owned<OrtMemoryInfo> memory_;
   std::vector<std::string> input_names_;
   std::vector<const char*> input_pointers_;
   std::vector<int64_t> widths_, offsets_;
   int64_t row_width_ = 0, state_width_ = 0;
   std::vector<float> row_, next_;
-  std::vector<OrtValue*> inputs_;
-  OrtValue* output_ = nullptr;
+  std::vector<Owned<OrtValue>> inputs_;
+  std::vector<const OrtValue*> input_values_;
+  Owned<OrtValue> output_;
 };
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  api = OrtGetApiBase()->GetApi(ORT_API_VERSION);
-  if (api == nullptr) Fail("this ONNX Runtime library is older than the headers (API " + std::to_string(ORT_API_VERSION) + ")");
-  if (argc < 5) Fail("usage: step_onnx MODEL.onnx rows|rollout|bench IN.f32 OUT.f32|CALLS [T]");
+int Run(int argc, char** argv) {
+  if (argc < 5) throw std::runtime_error("usage: step_onnx MODEL.onnx rows|rollout|bench IN.f32 OUT.f32|CALLS [T]");
   const std::string mode = argv[2];
+  if (mode != "rows" && mode != "rollout" && mode != "bench") {
+    throw std::runtime_error("unknown mode " + mode + " (rows, rollout, bench)");
+  }
   Stepper stepper(argv[1]);
   const std::vector<float> in = ReadFloats(argv[3]);
   const size_t width = stepper.row_width(), state = stepper.state_width();
+  std::vector<float> out;
   if (mode == "rows") {
-    if (in.empty() || in.size() % width != 0) Fail("rows: the input is not whole rows of " + std::to_string(width));
-    std::vector<float> out;
+    if (in.empty() || in.size() % width != 0) {
+      throw std::runtime_error("rows: the input is not whole rows of " + std::to_string(width));
+    }
     for (size_t start = 0; start < in.size(); start += width) {
       std::copy(in.begin() + start, in.begin() + start + width, stepper.row());
       stepper.Step();
@@ -171,12 +204,12 @@ int main(int argc, char** argv) {
     }
     WriteFloats(argv[4], out);
   } else if (mode == "rollout") {
-    if (argc < 6) Fail("rollout needs T");
-    const size_t steps = std::strtoul(argv[5], nullptr, 10), action = stepper.action_width();
-    if (stepper.input_count() != 2) Fail("rollout: the model takes feature inputs; compute them and use rows");
-    if (in.size() != state + steps * action) Fail("rollout: the input is not x_0 and T actions");
+    if (argc < 6) throw std::runtime_error("rollout needs T");
+    if (stepper.input_count() != 2) throw std::runtime_error("rollout: the model takes feature inputs; use rows");
+    const size_t action = stepper.action_width();
+    const size_t steps = Count(argv[5], "T", (in.size() - std::min(in.size(), state)) / action);
+    if (in.size() != state + steps * action) throw std::runtime_error("rollout: the input is not x_0 and T actions");
     std::copy(in.begin(), in.begin() + state, stepper.row());
-    std::vector<float> out;
     for (size_t k = 0; k < steps; ++k) {
       std::copy(in.begin() + state + k * action, in.begin() + state + (k + 1) * action, stepper.row() + state);
       stepper.Step();
@@ -184,21 +217,36 @@ int main(int argc, char** argv) {
       std::copy(stepper.next().begin(), stepper.next().end(), stepper.row());
     }
     WriteFloats(argv[4], out);
-  } else if (mode == "bench") {
-    const long calls = std::strtol(argv[4], nullptr, 10);
-    if (in.size() < width || calls < 1) Fail("bench: needs one input row and CALLS >= 1");
+  } else {
+    const size_t calls = Count(argv[4], "CALLS", 100000000);
+    if (in.size() < width) throw std::runtime_error("bench: needs one input row");
     std::copy(in.begin(), in.begin() + width, stepper.row());
     for (int i = 0; i < 200; ++i) stepper.Step();
     std::vector<double> micros(calls);
-    for (long i = 0; i < calls; ++i) {
+    for (size_t i = 0; i < calls; ++i) {
       const auto start = std::chrono::steady_clock::now();
       stepper.Step();
       micros[i] = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - start).count();
     }
     std::sort(micros.begin(), micros.end());
     std::printf("%.3f %.3f %.3f\n", micros[calls / 2], micros[0], micros[std::min(calls - 1, calls * 99 / 100)]);
-  } else {
-    Fail("unknown mode " + mode + " (rows, rollout, bench)");
   }
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  api = OrtGetApiBase()->GetApi(ORT_API_VERSION);
+  if (api == nullptr) {
+    std::fprintf(stderr, "step_onnx: error: this ONNX Runtime library is older than the headers (API %d)\n",
+                 ORT_API_VERSION);
+    return 2;
+  }
+  try {
+    return Run(argc, argv);
+  } catch (const std::exception& error) {     // (ONNX Runtime's errors, bad files and counts, memory)
+    std::fprintf(stderr, "step_onnx: error: %s\n", error.what());
+    return 2;
+  }
 }
