@@ -8,8 +8,8 @@ Drake's perceptron has tanh, ReLU and the identity (`DRAKE_ACTIVATIONS`), so che
 `--activation tanh` or `--activation relu` are the ones it represents; others are refused in one line.
 
 `NativeModelFile` is the file `stdm-drake export --target drake` writes: a YAML document of Drake's own
-serialization (`pydrake.common.yaml`; C++ reads the same fields with `drake::yaml::LoadYamlFile` into a struct
-of Eigen matrices), holding, for n joints, m actions, k feature values and W = 2n + m + k:
+serialization (`pydrake.common.yaml`: nested lists of numbers, for a C++ reader of its own), holding, for n joints,
+m actions, k feature values and W = 2n + m + k:
     input_map (K, W), input_offset (K,):    z_n = input_map [x; τ; φ] + input_offset, the network's input
     members[e].layers[l].weight (out_l, in_l), .bias (out_l,): the perceptron of member e
     output_map (2n, W + E p), output_offset (2n,): next state = output_map [x; τ; φ; y_1; ...; y_E] + output_offset
