@@ -241,7 +241,13 @@ def test_cpp_program_steps_the_exported_model(step_onnx, trained, tracking_datas
                        check=True)
         stepped = np.fromfile(tmp_path / "out.f32", dtype=np.float32).reshape(len(x), -1)
         assert_close(stepped, model.predict(x, a).mean, what=f"{kind} from C++")
-        if model.features is None:
+        if model.features is None:   # the Jacobian graph from C++ (a C++ MPC's A and B), and a 100-step rollout
+            subprocess.run([str(step_onnx), str(jacobian_path(output)), "rows", str(tmp_path / "rows.f32"),
+                            str(tmp_path / "jacobians.f32"), "jacobian_state,jacobian_action"], check=True)
+            both = np.fromfile(tmp_path / "jacobians.f32", dtype=np.float32).reshape(len(x), -1)
+            _, A, B = model.linearize(x, a)
+            assert_close(both[:, :144].reshape(-1, 12, 12), A, what="A from C++")
+            assert_close(both[:, 144:].reshape(-1, 12, 6), B, what="B from C++")
             steps = 100
             np.concatenate([x[0], a[:steps].ravel()]).astype(np.float32).tofile(tmp_path / "rollout.f32")
             subprocess.run([str(step_onnx), str(output), "rollout", str(tmp_path / "rollout.f32"),

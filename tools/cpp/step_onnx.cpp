@@ -1,15 +1,19 @@
 // step_onnx: steps a model exported by `stdm-drake export` with ONNX Runtime's C API, in a process without
 // Python: what a C++ controller (ros2_control, a UR RTDE client, a Drake C++ diagram) does every control cycle.
 //
-//   step_onnx MODEL.onnx rows IN.f32 OUT.f32      every row of IN (the graph's inputs in order: state (2n),
-//                                                 action (m)[, features (k)]) one call at batch 1; OUT: next_state
+//   step_onnx MODEL.onnx rows IN.f32 OUT.f32 [NAMES]  every row of IN (the graph's inputs in order: state (2n),
+//                                                 action (m)[, features (k)]) one call at batch 1; OUT: the outputs
+//                                                 NAMES (comma-separated, default next_state) of each row, in turn
 //   step_onnx MODEL.onnx rollout IN.f32 OUT.f32 T IN: x_0 (2n) then T actions (m each); each next_state is fed
 //                                                 back as the next call's state; OUT: x_1 .. x_T
 //   step_onnx MODEL.onnx bench IN.f32 CALLS       CALLS calls at batch 1 on IN's first row (after 200 warm-up
 //                                                 calls); prints "median_us min_us p99_us" per call
+//   (rows of MODEL.jacobian.onnx with NAMES next_state,jacobian_state,jacobian_action: a C++ MPC's A and B)
 //
-// Files are raw little-endian float32. Exit status 2 with one line on stderr for any error. A controller keeps the
-// Stepper class: it owns its ONNX Runtime objects (not copyable), and Step() throws std::runtime_error on an error.
+// Files and streams are raw little-endian float32. Exit status 2 with one line on stderr for any error. A
+// controller keeps the Stepper class: it owns its ONNX Runtime objects (not copyable), and Step() throws
+// std::runtime_error on an error.
+//
 // Build (tools/cpp/build.sh): g++ -O2 -std=c++17 step_onnx.cpp -I ONNXRUNTIME_INCLUDE -L DIR -lonnxruntime
 #include <onnxruntime_c_api.h>
 
@@ -79,11 +83,12 @@ size_t Count(const char* text, const char* what, size_t limit) {
   return static_cast<size_t>(value);
 }
 
-// One session at batch 1: input tensors over fixed buffers, the next_state output over its own buffer, so a
-// call is one Run and no allocation, as in a real-time loop.
+// One session at batch 1: input tensors over fixed buffers, each asked-for output over its own buffer, so a call
+// is one Run and no allocation of the program's own, as in a real-time loop.
 class Stepper {
  public:
-  explicit Stepper(const char* model_path) {
+  explicit Stepper(const char* model_path, std::vector<std::string> output_names = {"next_state"})
+      : output_names_(std::move(output_names)) {
     OrtEnv* env = nullptr;
     Check(api->CreateEnv(ORT_LOGGING_LEVEL_WARNING, "step_onnx", &env));
     env_.reset(env);
@@ -118,13 +123,21 @@ class Stepper {
     }
     state_width_ = widths_[0];
     row_.assign(row_width_, 0.0f);
-    next_.assign(state_width_, 0.0f);
     for (size_t i = 0; i < count; ++i) {
-      inputs_.push_back(Tensor(row_.data() + offsets_[i], widths_[i]));
+      inputs_.push_back(Tensor(row_.data() + offsets_[i], {1, widths_[i]}));
       input_values_.push_back(inputs_.back().get());
       input_pointers_.push_back(input_names_[i].c_str());
     }
-    output_ = Tensor(next_.data(), state_width_);
+    outputs_.resize(output_names_.size());                     // (sized first: the tensors point into them)
+    for (size_t i = 0; i < output_names_.size(); ++i) {
+      std::vector<int64_t> shape = OutputShape(output_names_[i]);
+      size_t size = 1;
+      for (int64_t dim : shape) size *= static_cast<size_t>(dim);
+      outputs_[i].assign(size, 0.0f);
+      output_tensors_.push_back(Tensor(outputs_[i].data(), shape));
+      output_values_.push_back(output_tensors_.back().get());
+      output_pointers_.push_back(output_names_[i].c_str());
+    }
   }
 
   Stepper(const Stepper&) = delete;             // (it owns the session and the tensors over its buffers)
@@ -135,24 +148,53 @@ class Stepper {
   size_t action_width() const { return static_cast<size_t>(widths_[1]); }
   size_t input_count() const { return input_names_.size(); }
   float* row() { return row_.data(); }
-  const std::vector<float>& next() const { return next_; }
 
-  // next_state (in next()) for the inputs in row(), batch 1; std::runtime_error on an ONNX Runtime error.
+  // The i-th asked-for output (the first: next_state unless asked otherwise), row-major, batch 1.
+  const std::vector<float>& output(size_t i = 0) const { return outputs_.at(i); }
+  const std::vector<float>& next() const { return outputs_[0]; }
+
+  // The outputs for the inputs in row(), batch 1; std::runtime_error on an ONNX Runtime error.
   void Step() {
-    const char* output_name = "next_state";
-    OrtValue* output = output_.get();
     Check(api->Run(session_.get(), nullptr, input_pointers_.data(), input_values_.data(), input_values_.size(),
-                   &output_name, 1, &output));
+                   output_pointers_.data(), output_values_.size(), output_values_.data()));
   }
 
  private:
-  // A (1, width) float32 tensor over `data` (the caller's buffer: no copy per call).
-  Owned<OrtValue> Tensor(float* data, int64_t width) {
-    int64_t shape[2] = {1, width};
+  // A float32 tensor of `shape` over `data` (the caller's buffer: no copy per call).
+  Owned<OrtValue> Tensor(float* data, const std::vector<int64_t>& shape) {
+    size_t size = 1;
+    for (int64_t dim : shape) size *= static_cast<size_t>(dim);
     OrtValue* value = nullptr;
-    Check(api->CreateTensorWithDataAsOrtValue(memory_.get(), data, width * sizeof(float), shape, 2,
+    Check(api->CreateTensorWithDataAsOrtValue(memory_.get(), data, size * sizeof(float), shape.data(), shape.size(),
                                               ONNX_TENSOR_ELEMENT_DATA_TYPE_FLOAT, &value));
     return Owned<OrtValue>(value);
+  }
+
+  // The shape of output `name` at batch 1 (its symbolic batch axis, and a member axis E, as declared).
+  std::vector<int64_t> OutputShape(const std::string& name) {
+    size_t count = 0;
+    Check(api->SessionGetOutputCount(session_.get(), &count));
+    OrtAllocator* allocator = nullptr;
+    Check(api->GetAllocatorWithDefaultOptions(&allocator));
+    for (size_t i = 0; i < count; ++i) {
+      char* found = nullptr;
+      Check(api->SessionGetOutputName(session_.get(), i, allocator, &found));
+      const bool same = name == found;
+      Check(api->AllocatorFree(allocator, found));
+      if (!same) continue;
+      OrtTypeInfo* raw_type = nullptr;
+      Check(api->SessionGetOutputTypeInfo(session_.get(), i, &raw_type));
+      Owned<OrtTypeInfo> type(raw_type);
+      const OrtTensorTypeAndShapeInfo* tensor = nullptr;
+      Check(api->CastTypeInfoToTensorInfo(raw_type, &tensor));
+      size_t rank = 0;
+      Check(api->GetDimensionsCount(tensor, &rank));
+      std::vector<int64_t> dims(rank);
+      Check(api->GetDimensions(tensor, dims.data(), rank));
+      for (int64_t& dim : dims) dim = dim < 0 ? 1 : dim;     // (the batch axis: one row)
+      return dims;
+    }
+    throw std::runtime_error("the model has no output " + name);
   }
 
   int64_t InputWidth(size_t index) {
@@ -177,19 +219,34 @@ class Stepper {
   std::vector<const char*> input_pointers_;
   std::vector<int64_t> widths_, offsets_;
   int64_t row_width_ = 0, state_width_ = 0;
-  std::vector<float> row_, next_;
+  std::vector<float> row_;
   std::vector<Owned<OrtValue>> inputs_;
   std::vector<const OrtValue*> input_values_;
-  Owned<OrtValue> output_;
+  std::vector<std::string> output_names_;
+  std::vector<const char*> output_pointers_;
+  std::vector<std::vector<float>> outputs_;
+  std::vector<Owned<OrtValue>> output_tensors_;
+  std::vector<OrtValue*> output_values_;
 };
 
+
+std::vector<std::string> Names(const std::string& text) {
+  std::vector<std::string> names;
+  size_t start = 0;
+  for (size_t comma; (comma = text.find(',', start)) != std::string::npos; start = comma + 1) {
+    names.push_back(text.substr(start, comma - start));
+  }
+  names.push_back(text.substr(start));
+  return names;
+}
+
 int Run(int argc, char** argv) {
-  if (argc < 5) throw std::runtime_error("usage: step_onnx MODEL.onnx rows|rollout|bench IN.f32 OUT.f32|CALLS [T]");
+  if (argc < 5) throw std::runtime_error("usage: step_onnx MODEL.onnx rows|rollout|bench IN.f32 OUT.f32|CALLS [T|NAMES]");
   const std::string mode = argv[2];
   if (mode != "rows" && mode != "rollout" && mode != "bench") {
     throw std::runtime_error("unknown mode " + mode + " (rows, rollout, bench)");
   }
-  Stepper stepper(argv[1]);
+  Stepper stepper(argv[1], mode == "rows" && argc > 5 ? Names(argv[5]) : std::vector<std::string>{"next_state"});
   const std::vector<float> in = ReadFloats(argv[3]);
   const size_t width = stepper.row_width(), state = stepper.state_width();
   std::vector<float> out;
@@ -197,10 +254,13 @@ int Run(int argc, char** argv) {
     if (in.empty() || in.size() % width != 0) {
       throw std::runtime_error("rows: the input is not whole rows of " + std::to_string(width));
     }
+    const size_t outputs = argc > 5 ? Names(argv[5]).size() : 1;
     for (size_t start = 0; start < in.size(); start += width) {
       std::copy(in.begin() + start, in.begin() + start + width, stepper.row());
       stepper.Step();
-      out.insert(out.end(), stepper.next().begin(), stepper.next().end());
+      for (size_t i = 0; i < outputs; ++i) {
+        out.insert(out.end(), stepper.output(i).begin(), stepper.output(i).end());
+      }
     }
     WriteFloats(argv[4], out);
   } else if (mode == "rollout") {
