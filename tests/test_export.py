@@ -195,6 +195,7 @@ def recorded_test_transitions(path, dataset):
     return LearnedModel(path, robot=UR10), x, a
 
 
+@pytest.mark.slow
 def test_trained_models_on_recorded_test_split_and_100_step_rollouts(trained, tracking_dataset, tmp_path):
     dataset = load_dataset(tracking_dataset)
     for kind, path in trained.items():
@@ -230,6 +231,7 @@ def step_onnx(tmp_path_factory):
     return build / "step_onnx"
 
 
+@pytest.mark.slow
 def test_cpp_program_steps_the_exported_model(step_onnx, trained, tracking_dataset, tmp_path):
     dataset = load_dataset(tracking_dataset)
     for kind, path in trained.items():
