@@ -106,9 +106,10 @@ def model_graph(net: NetworkArrays, layout: ExportLayout, structure, metadata: d
     variance or member outputs (ONNX Runtime runs every node of a graph whatever outputs a call asks for)."""
     b = GraphBuilder()
     inputs, names = _inputs(layout, structure)
-    outputs_, residual, variances = network_outputs(b, _network_inputs(b, layout, names), net)
+    member_outputs, residual, variances = network_outputs(b, _network_inputs(b, layout, names), net)
     size, single = 2 * layout.joints, net.members == 1
-    mean = outputs_ if single else b.op("ReduceMean", [outputs_], "ensemble_output", axes=[0], keepdims=0)
+    member_mean = None if single else b.op("ReduceMean", [member_outputs], "ensemble_output", axes=[0], keepdims=1)
+    mean = member_outputs if single else b.op("Squeeze", [member_mean, b.constant([0], "axis", np.int64)])
     if residual is not None:
         mean = b.op("Add", [mean, residual], "ensemble_output_delta")
     b.op("Identity", [_assembled(b, layout, mean, axis=1)], output="next_state")
@@ -118,11 +119,11 @@ def model_graph(net: NetworkArrays, layout: ExportLayout, structure, metadata: d
             total = variances
             members = b.op("Unsqueeze", [mean, b.constant([0], "axis", np.int64)], "member_output")
         else:
-            deviation = b.op("Sub", [outputs_, b.op("ReduceMean", [outputs_], axes=[0], keepdims=1)])
+            deviation = b.op("Sub", [member_outputs, member_mean])
             total = b.op("ReduceMean", [b.op("Mul", [deviation, deviation])], "spread", axes=[0], keepdims=0)
             if variances is not None:
                 total = b.op("Add", [total, b.op("ReduceMean", [variances], axes=[0], keepdims=0)], "total_variance")
-            members = outputs_ if residual is None else b.op("Add", [outputs_, residual], "member_output")
+            members = member_outputs if residual is None else b.op("Add", [member_outputs, residual], "member_output")
         if layout.predicts == "velocity":      # the angle's variance: (T/2)² the velocity's
             total = b.op("Concat", [b.op("Mul", [total, b.constant((0.5 * layout.sample_period) ** 2, "factor")]),
                                     total], "assembled_variance", axis=1)

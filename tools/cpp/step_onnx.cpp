@@ -182,15 +182,9 @@ class Stepper {
       const bool same = name == found;
       Check(api->AllocatorFree(allocator, found));
       if (!same) continue;
-      OrtTypeInfo* raw_type = nullptr;
-      Check(api->SessionGetOutputTypeInfo(session_.get(), i, &raw_type));
-      Owned<OrtTypeInfo> type(raw_type);
-      const OrtTensorTypeAndShapeInfo* tensor = nullptr;
-      Check(api->CastTypeInfoToTensorInfo(raw_type, &tensor));
-      size_t rank = 0;
-      Check(api->GetDimensionsCount(tensor, &rank));
-      std::vector<int64_t> dims(rank);
-      Check(api->GetDimensions(tensor, dims.data(), rank));
+      OrtTypeInfo* type = nullptr;
+      Check(api->SessionGetOutputTypeInfo(session_.get(), i, &type));
+      std::vector<int64_t> dims = Dimensions(type);
       for (int64_t& dim : dims) dim = dim < 0 ? 1 : dim;     // (the batch axis: one row)
       return dims;
     }
@@ -198,8 +192,15 @@ class Stepper {
   }
 
   int64_t InputWidth(size_t index) {
-    OrtTypeInfo* raw_type = nullptr;
-    Check(api->SessionGetInputTypeInfo(session_.get(), index, &raw_type));
+    OrtTypeInfo* type = nullptr;
+    Check(api->SessionGetInputTypeInfo(session_.get(), index, &type));
+    const std::vector<int64_t> dims = Dimensions(type);
+    if (dims.size() != 2 || dims[1] < 1) throw std::runtime_error("an input is not (batch, width)");
+    return dims[1];
+  }
+
+  // The declared dimensions of a tensor's type (-1 for a symbolic one, the batch); the type is released.
+  static std::vector<int64_t> Dimensions(OrtTypeInfo* raw_type) {
     Owned<OrtTypeInfo> type(raw_type);
     const OrtTensorTypeAndShapeInfo* tensor = nullptr;
     Check(api->CastTypeInfoToTensorInfo(raw_type, &tensor));
@@ -207,8 +208,7 @@ class Stepper {
     Check(api->GetDimensionsCount(tensor, &rank));
     std::vector<int64_t> dims(rank);
     Check(api->GetDimensions(tensor, dims.data(), rank));
-    if (rank != 2 || dims[1] < 1) throw std::runtime_error("an input is not (batch, width)");
-    return dims[1];
+    return dims;
   }
 
   // (declared in release order reversed: tensors before memory info, session before environment)
