@@ -10,7 +10,10 @@ dest="${1:-.venv/include/onnxruntime}"
 work="$(mktemp -d)"
 trap 'rm -rf "$work"' EXIT
 mkdir -p "$work/lists/partial" "$work/archives/partial" "$work/deb"
-echo "deb http://deb.debian.org/debian trixie main" > "$work/sources.list"
+# the machine's own Debian archive (the one its bookworm lists come from), with the trixie suite
+archive="$(apt-get indextargets --format '$(REPO_URI) $(RELEASE)' 'Created-By: Packages' | awk '$2 !~ /-/ {print $1; exit}')"
+[ -n "$archive" ] || { echo "onnxruntime_headers.sh: no Debian archive in this machine's apt sources" >&2; exit 2; }
+echo "deb $archive trixie main" > "$work/sources.list"
 apt_options=(-o "Dir::Etc::sourcelist=$work/sources.list" -o "Dir::Etc::sourceparts=-" -o "Dir::State::Lists=$work/lists"
              -o "Dir::Cache::archives=$work/archives" -o "APT::Sandbox::User=root" -qq)
 apt-get "${apt_options[@]}" update
