@@ -32,22 +32,12 @@ from benchmark_report import machine_description, write_benchmark_section  # noq
 
 
 def black_box_checkpoint(path: pathlib.Path, members: int, probabilistic: bool, activation: str, robot) -> pathlib.Path:
-    """A fresh paper's black box of the UR-10 saved as a checkpoint (timing only)."""
-    import numpy as np
-    import torch
+    """The sampling benchmark's fresh paper's black box of the UR-10 (`bench_sampling.black_box`) saved as a
+    checkpoint (timing only)."""
+    from bench_sampling import black_box
     from stdm_drake.learning.checkpoint import save_checkpoint
-    from stdm_drake.learning.models import EnsembleMLP, ModelConfig
     from stdm_drake.learning.structure import PAPER
-    from stdm_drake.robots.plant import Dynamics, joint_limits
-    torch.manual_seed(0)
-    network = EnsembleMLP(ModelConfig(input_dim=18, output_dim=12, residual=True, ensemble_size=members,
-                                      probabilistic=probabilistic, activation=activation)).double()
-    limits = joint_limits(Dynamics(robot).plant)
-    with torch.no_grad():
-        network.input_normalizer.mean.copy_(torch.as_tensor(np.concatenate([robot.home, np.zeros(12)])))
-        network.input_normalizer.std.copy_(torch.as_tensor(np.concatenate([np.full(6, 1.0), limits.velocity,
-                                                                           limits.effort / 3])))
-        network.output_normalizer.std.copy_(torch.as_tensor(np.concatenate([np.full(6, 1e-3), np.full(6, 1e-2)])))
+    network = black_box(members, probabilistic, robot, activation).network
     return save_checkpoint(path, network.float(), metadata=dict(sample_period=0.01, structure=PAPER.as_dict(),
                                                                 model_type="PE" if members > 1 else "D"))
 

@@ -27,7 +27,7 @@ sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
 from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
 
 
-def black_box(members: int, probabilistic: bool, robot):
+def black_box(members: int, probabilistic: bool, robot, activation: str = "swish"):
     """A fresh paper's black box (D or PE) of the UR-10 whose normalizers span the robot's joint ranges, speeds
     and torques (timing only)."""
     import numpy as np
@@ -37,7 +37,7 @@ def black_box(members: int, probabilistic: bool, robot):
     from stdm_drake.robots.plant import Dynamics, joint_limits
     torch.manual_seed(0)
     network = EnsembleMLP(ModelConfig(input_dim=18, output_dim=12, residual=True, ensemble_size=members,
-                                      probabilistic=probabilistic)).double()
+                                      probabilistic=probabilistic, activation=activation)).double()
     limits = joint_limits(Dynamics(robot).plant)
     spread = np.concatenate([np.full(6, 1.0), limits.velocity, limits.effort / 3])
     with torch.no_grad():

@@ -84,8 +84,7 @@ def native_model(checkpoint) -> NativeModelFile:
     layout = ExportLayout.of(structure, state_dim, action_dim, checkpoint.sample_period)
     net = NetworkArrays.from_network(checkpoint.model)
     width, out, members = layout.width, net.output_dim, net.members
-    order = np.zeros((len(layout.order), width))
-    order[np.arange(len(layout.order)), layout.order] = 1.0
+    order = layout.permutation
     head = net.weights[-1].shape[2]
     network_output = np.zeros((out, width + members * head))     # the delta-added ensemble mean
     if net.residual:

@@ -59,19 +59,21 @@ class ExportLayout:
     def of(cls, structure, state_dim: int, action_dim: int, sample_period: float) -> "ExportLayout":
         n = state_dim // 2
         k = 0 if structure.inputs == "raw" else FEATURE_INPUTS[structure.inputs][1] * n
-        state, action, features = np.arange(2 * n), 2 * n + np.arange(action_dim), 2 * n + action_dim + np.arange(k)
-        if structure.grey_box:      # [x̂ or v̂, x, τ]
-            own = features if structure.predicts == "state" else features[n:]
-            order = np.concatenate([own, state, action])
-        elif structure.predicts == "state":
-            order = np.concatenate([state, action, features])
-        else:                       # [v, q, τ, φ]
-            order = np.concatenate([state[n:], state[:n], action, features])
+        columns = np.arange(2 * n + action_dim + k)[None]        # the network's order of them: the structure's own split
+        state, action, features = columns[:, :2 * n], columns[:, 2 * n:2 * n + action_dim], columns[:, 2 * n + action_dim:]
+        order = np.hstack(structure.split(state, action, features if k else None))[0]
         return cls(n, action_dim, k, order, structure.predicts, sample_period)
 
     @property
     def width(self) -> int:
         return 2 * self.joints + self.action_dim + self.feature_width
+
+    @property
+    def permutation(self) -> np.ndarray:
+        """(K, W): network input row = permutation @ [state; action; features]."""
+        matrix = np.zeros((len(self.order), self.width))
+        matrix[np.arange(len(self.order)), self.order] = 1.0
+        return matrix
 
 
 def _network_inputs(b: GraphBuilder, layout: ExportLayout, names: list) -> str:
@@ -140,9 +142,7 @@ def jacobian_graph(net: NetworkArrays, layout: ExportLayout, structure, metadata
     b = GraphBuilder()
     inputs, names = _inputs(layout, structure)
     mean, network = network_jacobian(b, _network_inputs(b, layout, names), net)   # (N, out), (N, out, K)
-    permutation = np.zeros((len(layout.order), layout.width))
-    permutation[np.arange(len(layout.order)), layout.order] = 1.0
-    jacobian = b.op("MatMul", [network, b.constant(permutation, "input_order")], "output_jacobian")   # (N, out, W)
+    jacobian = b.op("MatMul", [network, b.constant(layout.permutation, "input_order")], "output_jacobian")   # (N, out, W)
     n, size = layout.joints, 2 * layout.joints
     if layout.predicts == "velocity":
         half = 0.5 * layout.sample_period

@@ -22,6 +22,7 @@ import onnx
 from onnx import TensorProto, helper, numpy_helper
 
 from stdm_drake.learning.activations import LEAKY_RELU_SLOPE, SELU_ALPHA, SELU_SCALE
+from stdm_drake.learning.predict import fold_input_standardization
 
 OPSET = 17     # ONNX Runtime 1.14 and later, TensorRT 8.6, OpenVINO 2023: the deployment stacks of 2023 on
 F32 = np.float32
@@ -178,8 +179,7 @@ def _folded_layers(net: NetworkArrays) -> list:
     (σ_y, μ_y) into the mean head of the last, in float64 (as `predict.InferenceModel` does): z_n W + b =
     z (W / σ_z) + (b - (μ_z / σ_z) W). A single network's are 2-D ((in, out), (1, out)): plain Gemm, no batch axis."""
     weights, biases = [w.copy() for w in net.weights], [b.copy() for b in net.biases]
-    biases[0] = biases[0] - np.einsum("i,eio->eo", net.input_mean / net.input_std, weights[0])[:, None, :]
-    weights[0] = weights[0] / net.input_std[None, :, None]
+    weights[0], biases[0] = fold_input_standardization(weights[0], biases[0], net.input_mean, net.input_std)
     out = net.output_dim
     weights[-1][..., :out] *= net.output_std
     biases[-1][..., :out] = biases[-1][..., :out] * net.output_std + net.output_mean

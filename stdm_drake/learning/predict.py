@@ -37,6 +37,12 @@ def _softplus(values):
     return np.logaddexp(values, 0.0)
 
 
+def fold_input_standardization(weight: np.ndarray, bias: np.ndarray, mean: np.ndarray, std: np.ndarray):
+    """A first layer (E, K, H), (E, 1, H) on standardized inputs as one on raw inputs, in float64:
+    ((z - μ) / σ) W + b = z (W / σ) + (b - (μ / σ) W)."""
+    return weight / std[None, :, None], bias - np.einsum("i,eio->eo", mean / std, weight)[:, None, :]
+
+
 class InferenceModel:
     """Float32 numpy inference copy of an `models.EnsembleMLP` used as an STDM (see module docstring).
 
@@ -64,8 +70,7 @@ class InferenceModel:
         z_mean, z_std = array(network.input_normalizer.mean), array(network.input_normalizer.std)
         y_mean, y_std = array(network.output_normalizer.mean), array(network.output_normalizer.std)
         members, width = self.ensemble_size, weights[0].shape[2]
-        first = weights[0] / z_std[None, :, None]
-        first_bias = biases[0] - np.einsum("i,eio->eo", z_mean / z_std, weights[0])[:, None, :]
+        first, first_bias = fold_input_standardization(weights[0], biases[0], z_mean, z_std)
         stacked = np.concatenate([first, first_bias], axis=1) * scale            # (E, S+A+1, H)
         f32 = np.float32
         self.input_weight = np.ascontiguousarray(stacked.transpose(1, 0, 2).reshape(-1, members * width), dtype=f32)
