@@ -4,7 +4,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from presets import UR10
+from presets import UR10, free_limits
 from stdm_drake.errors import InputError
 from stdm_drake.closed_loop.ilqr import Ilqr, IlqrSolver
 from stdm_drake.closed_loop.optimizer import OptimizerResult, TrajectoryOptimizer
@@ -59,7 +59,7 @@ def test_ilqr_equals_exact_lqr_on_a_linear_model():
     rng = np.random.default_rng(1)
     x0, reference = rng.normal(size=12), rng.normal(size=(9, 12))
     u_ff = rng.normal(size=(8, 6))
-    solver = config.solver(model, 6, np.full(6, 1e9))
+    solver = config.solver(model, free_limits(1e9))
     assert isinstance(solver, IlqrSolver)
     result = solver.solve(x0, np.zeros((8, 6)), reference, u_ff)
     expected = exact_lqr_controls(model, config, x0, reference, u_ff)

@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from presets import UR10
+from presets import UR10, free_limits
 from test_mpc import HoldFeedforward, quintic_reference
 from stdm_drake.cli import main
 from stdm_drake.closed_loop.comparison import compare_controllers
@@ -45,7 +45,7 @@ def test_each_tag_loads_and_runs_one_plan(tmp_path, plant_model, text, kind, sol
     assert config.optimizer == kind and config.horizon == 5
     log = run_closed_loop(plant_model, quintic_reference(5), config, robot=UR10)
     assert len(log.torque) == 5 and not any(log.fallback) and np.all(np.isfinite(log.torque))
-    assert isinstance(config.solver(plant_model, 6, np.full(6, 100.0)), solver)
+    assert isinstance(config.solver(plant_model, free_limits(100.0)), solver)
 
 
 @pytest.mark.parametrize("text, message", [
@@ -98,8 +98,8 @@ class Feedforward(OptimizerSettings):
     def validate(self) -> None:
         """It has no settings, so nothing to check."""
 
-    def solver(self, model, cost, effort_limit, horizon):
-        return HoldFeedforward(model, cost, effort_limit)
+    def solver(self, model, cost, effort_limit, horizon, bounds=None):
+        return HoldFeedforward(model, cost, effort_limit, bounds)
 
 
 def test_the_comparison_runs_the_optimizer_it_is_given(plant_model):

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from presets import UR10
+from presets import UR10, free_limits
 from stdm_drake.dynamics.model import DynamicsModel, HeldInputSubsteps
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.models import EnsembleMLP, ModelConfig
@@ -265,8 +265,8 @@ def test_an_rti_horizon_beyond_its_dense_system_is_refused_in_one_line():
     from stdm_drake.errors import InputError
     config = dataclasses.replace(MpcConfig(), horizon=200)
     with pytest.raises(InputError, match="optimizer: !Ilqr"):
-        config.solver(PlantModel(0.01, robot=UR10, integrator="rk4"), 6, np.full(6, 100.0))
-    dataclasses.replace(config, optimizer=Ilqr()).solver(ConstantVelocity(12, 6, 0.01), 6, np.full(6, 100.0))
+        config.solver(PlantModel(0.01, robot=UR10, integrator="rk4"), free_limits(100.0))
+    dataclasses.replace(config, optimizer=Ilqr()).solver(ConstantVelocity(12, 6, 0.01), free_limits(100.0))
     with pytest.raises(InputError, match="optimizer must be one of"):
         dataclasses.replace(MpcConfig(), optimizer="mppi").validate()
 

@@ -4,6 +4,7 @@ import dataclasses
 
 import numpy as np
 
+from stdm_drake.closed_loop.constraints import SLACK_TOLERANCE
 from stdm_drake.closed_loop.mpc import MpcConfig, MpcLog, Reference, run_closed_loop
 from stdm_drake.closed_loop.optimizer import OptimizerSettings
 from stdm_drake.dynamics.physics import PlantModel
@@ -24,6 +25,8 @@ class ClosedLoopResult:
     effort_beyond_gravity_rms_nm: float
     limit_violations: int
     fallbacks: int
+    constraint_active_steps: int   # control steps with a torque bound or a state limit active in the MPC's solution
+    slack_steps: int               # control steps whose solution accepted a crossing of a state limit (its slack)
     solve_ms_mean: float
     solve_ms_p95: float
     steps: int
@@ -47,6 +50,8 @@ def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference
         effort_beyond_gravity_rms_nm=float(np.sqrt(np.mean((torques - gravity[:steps]) ** 2))),
         limit_violations=int(np.count_nonzero(outside.any(axis=1) | ~finite)),
         fallbacks=int(np.count_nonzero(log.fallback)),
+        constraint_active_steps=int(np.count_nonzero(log.constraint_active)),
+        slack_steps=int(np.count_nonzero(np.asarray(log.slack) > SLACK_TOLERANCE)),
         solve_ms_mean=float(solve_ms.mean()), solve_ms_p95=float(np.percentile(solve_ms, 95)), steps=steps,
         q_error=np.sqrt(np.mean(q_error ** 2, axis=1)).tolist())
 
@@ -112,6 +117,8 @@ def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dic
             effort_beyond_gravity_rms_nm=float(np.mean([r.effort_beyond_gravity_rms_nm for r in mine])),
             limit_violations=int(sum(r.limit_violations for r in mine)),
             fallbacks=int(sum(r.fallbacks for r in mine)),
+            constraint_active_steps=int(sum(r.constraint_active_steps for r in mine)),
+            slack_steps=int(sum(r.slack_steps for r in mine)), steps=int(sum(r.steps for r in mine)),
             solve_ms_mean=float(np.mean([r.solve_ms_mean for r in mine])), solve_ms_p95=float(p95),
             faster_than_real_time=bool(p95 < 1e3 * sample_period)))
     plant = next((row for row in rows if row["model"] == PlantModel.name), None)
@@ -131,15 +138,29 @@ def real_time_lines(rows: list[dict], sample_period: float) -> list[str]:
                f"not real time (p95 {row['solve_ms_p95'] / period:.1f}x the period)") for row in rows]
 
 
+def constraint_lines(rows: list[dict], constraints) -> list[str]:
+    """One line per model: how its MPC met the robot's limits (`constraints.Constraints`): the control steps with a
+    limit active in the solution and with slack used, beside the steps that crossed the plant's limits."""
+    if constraints.mode == "off":
+        how = "constraints off (torques clipped after the solve, state limits not in the optimizer)"
+    else:
+        how = (f"constraints {constraints.mode} (torque box in the optimizer; position and velocity limits "
+               f"{constraints.position_margin:g} rad and {constraints.velocity_margin:g} rad/s inside)")
+    return [f"{row['model']}: {how}: a limit active on {row['constraint_active_steps']} of {row['steps']} control "
+            f"steps, slack used on {row['slack_steps']}; the plant's limits crossed on {row['limit_violations']}"
+            for row in rows]
+
+
 def summary_table(rows: list[dict]) -> str:
     """The `summarize` rows as a Markdown table."""
     header = ["model", "runs", "q MSE (rad²)", "q MSE / plant MPC", "q̇ MSE ((rad/s)²)",
-              "effort beyond g, RMS (N m)", "limit violations", "fallbacks", "solve mean (ms)", "solve p95 (ms)",
-              "faster than real time"]
+              "effort beyond g, RMS (N m)", "limit violations", "constraint active (steps)", "slack used (steps)",
+              "fallbacks", "solve mean (ms)", "solve p95 (ms)", "faster than real time"]
     return markdown_table(header, [
         [row["model"], row["runs"], f"{row['q_mse_rad2']:.3g}",
          "" if row.get("q_mse_vs_plant") is None else f"{row['q_mse_vs_plant']:.3g}", f"{row['v_mse']:.3g}",
-         f"{row['effort_beyond_gravity_rms_nm']:.3g}", row["limit_violations"], row["fallbacks"],
+         f"{row['effort_beyond_gravity_rms_nm']:.3g}", row["limit_violations"], row["constraint_active_steps"],
+         row["slack_steps"], row["fallbacks"],
          f"{row['solve_ms_mean']:.2f}", f"{row['solve_ms_p95']:.2f}", "yes" if row["faster_than_real_time"] else "no"]
         for row in rows])
 

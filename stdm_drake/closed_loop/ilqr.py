@@ -1,7 +1,15 @@
-"""Clamped iLQR (iterative LQR) over a horizon for one prediction model and one tracking cost: a
+"""Box-constrained iLQR (iterative LQR) over a horizon for one prediction model and one tracking cost: a
 single-shooting `TrajectoryOptimizer` (`stdm_drake.closed_loop.optimizer`). Each iteration rolls the model out
 node by node, linearizes every node in one batched call (`DynamicsModel.linearize`), runs the Riccati recursion
-(linear in the horizon) and line-searches the step with its feedback gains. The default optimizer is the
+(linear in the horizon) and line-searches the step with its feedback gains.
+
+With the robot's limits on (`constraints.py`) the backward pass is box-DDP's (Tassa, Mansard & Todorov 2014):
+at every node the torque step is the solution of the box QP min 1/2 d^T Q_uu d + Q_u^T d over the torques'
+room to their effort limits (`constraints.box_qp`, only where the unconstrained step leaves it), the feedback
+acts on the free torques only (the clamped ones' rows are zero), and the forward pass keeps the policy's torques
+in the box; the state limits' exact penalty enters the cost, its gradient and its Gauss-Newton curvature at every
+node. With no bound active the iteration is the unconstrained one, bit for bit. With constraints off the
+torques are clipped in the backward pass's stead (the clamped iLQR before constraints). The default optimizer is the
 real-time iteration (`rti`), which needs no sequential rollout; the iLQR serves long horizons and line-searched
 iterations. Its settings: `Ilqr`, in the MPC settings
 `optimizer: !Ilqr {max_iterations: 1, line_search: [1.0, 0.5, 0.25, 0.1], regularization: 1.0e-6}`.
@@ -11,6 +19,7 @@ import dataclasses
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
+from stdm_drake.closed_loop.constraints import ACTIVE_TOLERANCE, StateBounds, box_qp
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
 
@@ -40,16 +49,18 @@ class Ilqr(OptimizerSettings):
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
             raise InputError(f"mpc optimizer !Ilqr regularization must be in [0, 1e6], got {self.regularization}")
 
-    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "IlqrSolver":
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
+               bounds: StateBounds | None = None) -> "IlqrSolver":
         """An IlqrSolver (any horizon: its Riccati recursion is linear in it)."""
-        return IlqrSolver(model, cost, effort_limit, self)
+        return IlqrSolver(model, cost, effort_limit, self, bounds)
 
 
 class IlqrSolver(TrajectoryOptimizer):
-    """Clamped iLQR over a horizon for one prediction model and one cost."""
+    """Box-constrained iLQR over a horizon for one prediction model and one cost (module docstring)."""
 
-    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: Ilqr | None = None):
-        super().__init__(model, cost, effort_limit)
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: Ilqr | None = None,
+                 bounds: StateBounds | None = None):
+        super().__init__(model, cost, effort_limit, bounds)
         self.config = config or Ilqr()
         self.config.validate()
         self.Q, self.R = cost.Q, cost.R
@@ -94,7 +105,12 @@ class IlqrSolver(TrajectoryOptimizer):
             if not improved:
                 break
             mu = max(mu / 10.0, 1e-12)
-        return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x))))
+        active, slack = False, 0.0
+        if self.bounds is not None:
+            slack = float(self.bounds.violation(x[1:]).max(initial=0.0))
+            near = (x[1:] >= self.bounds.upper - ACTIVE_TOLERANCE) | (x[1:] <= self.bounds.lower + ACTIVE_TOLERANCE)
+            active = bool(np.any(np.abs(u) >= self.effort_limit - ACTIVE_TOLERANCE) or np.any(near))
+        return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x))), active, slack)
 
     def _backward(self, x, u, reference, u_ff, A, B, terminal, mu):
         """Riccati recursion; returns (feedforward (H, m), feedback (H, m, 2n)) or None if Q_uu is not PD.
@@ -104,9 +120,15 @@ class IlqrSolver(TrajectoryOptimizer):
         horizon, S, m = len(u), self.state_dim, self.joints
         feedforward = np.empty((horizon, m))
         feedback = np.empty((horizon, m, S))
-        # gradients of the running costs, all steps at once
+        # gradients of the running costs, all steps at once (the state limits' penalty: halved, as the
+        # tracking terms' are: the recursion's gradients and curvatures are those of half the cost)
         state_gradient = terminal[:, None] * ((x[1:] - reference[1:]) @ self.Q)
         effort_gradient = (u - u_ff) @ self.R
+        penalty_curvature = None
+        if self.bounds is not None:
+            penalty_gradient, penalty_curvature = self.bounds.penalty_derivatives(x[1:])
+            state_gradient = state_gradient + 0.5 * penalty_gradient
+            penalty_curvature = 0.5 * penalty_curvature
         stacked = np.concatenate([A, B], axis=2)                      # F_k = [A_k B_k] (H, 2n, 2n + m)
         R_regularized = self.R + mu * np.eye(m)
         V_x = np.zeros(S)
@@ -115,6 +137,8 @@ class IlqrSolver(TrajectoryOptimizer):
             # step k's cost: state x_k+1 (weighted by terminal[k]) and torque u_k
             V_x = V_x + state_gradient[k]
             V_xx = V_xx + terminal[k] * self.Q
+            if penalty_curvature is not None and penalty_curvature[k].any():
+                V_xx = V_xx + np.diag(penalty_curvature[k])
             F = stacked[k]
             Q = F.T @ (V_xx @ F)                                        # [[Q_xx, Q_xu], [Q_ux, Q_uu]] less R
             gradient = F.T @ V_x                                        # [Q_x, Q_u] less the effort gradient
@@ -128,6 +152,17 @@ class IlqrSolver(TrajectoryOptimizer):
                 return None
             gains, _ = cholesky_solve(factor, np.column_stack([Q_u, Q_ux]), lower=1)
             d, K = -gains[:, 0], -gains[:, 1:]
+            if self.bounds is not None:
+                lower, upper = -self.effort_limit - u[k], self.effort_limit - u[k]
+                if np.any(d < lower) or np.any(d > upper):     # box-DDP: the step within the box, feedback on free torques
+                    try:
+                        d, clamped = box_qp(Q_uu, Q_u, lower, upper)
+                    except ArithmeticError:
+                        return None
+                    K = np.zeros_like(K)
+                    free = ~clamped
+                    if free.any():
+                        K[free] = -np.linalg.solve(Q_uu[np.ix_(free, free)], Q_ux[free])
             feedforward[k], feedback[k] = d, K
             # with regularization the cross terms do not cancel; keep the full expressions
             K_T = K.T

@@ -42,6 +42,7 @@ import yaml
 from pydrake.common.value import AbstractValue
 from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
+from stdm_drake.closed_loop.constraints import Constraints
 from stdm_drake.closed_loop.ilqr import Ilqr
 from stdm_drake.closed_loop.optimizer import OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.closed_loop.policy import MpcStep, StepMemory
@@ -50,7 +51,7 @@ from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi
 from stdm_drake.config import check_joint_vector, load_yaml_config, read_yaml_document
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
+from stdm_drake.robots.plant import Dynamics, JointLimits, PlantConfig, joint_limits
 from stdm_drake.robots.robot import Robot
 
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
@@ -72,7 +73,9 @@ class MpcConfig:
     line-searched: for horizons beyond the RTI's dense system; in code any `OptimizerSettings`);
     position_weight (n) 1/rad^2, velocity_weight (n) s^2/rad^2, effort_weight (n) 1/(N m)^2 on the torque
     beyond the reference's gravity torque (one per joint, or one for all); horizon in sample periods;
-    disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off).
+    disturbance_gain in [0, 1]: observer gain of the offset-free disturbance estimate (0 = off);
+    constraints: how the optimizer keeps the robot's limits (`constraints.Constraints`: torque box hard, position
+    and velocity limits soft inside margins, by default; `mode: off` clips torques after an unconstrained step).
     """
     optimizer: OptimizerConfig = dataclasses.field(default_factory=Rti)
     horizon: int = 20
@@ -82,13 +85,14 @@ class MpcConfig:
         default_factory=lambda: [1e-4, 1e-4, 1e-3, 0.1, 1.0, 100.0])
     terminal_factor: float = 10.0
     disturbance_gain: float = 1.0
+    constraints: Constraints = dataclasses.field(default_factory=Constraints)
 
     def validate(self) -> None:
         """InputError for settings no controller can use: weights negative, not finite or beyond MAX_WEIGHT
         (the squared errors they weigh overflow, and the other terms vanish beside them), position weights all
         zero, effort weights not positive, a terminal factor outside [0, MAX_WEIGHT], an observer gain outside
         [0, 1], a horizon outside 1..MAX_HORIZON sample periods, an optimizer that is none, and the optimizer's
-        own settings (its `validate`)."""
+        own settings (its `validate`) and the constraints' (`Constraints.validate`)."""
         for name in ("position_weight", "velocity_weight", "effort_weight"):
             weights = check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
             if np.any(weights > MAX_WEIGHT):
@@ -108,6 +112,10 @@ class MpcConfig:
             raise InputError(f"mpc optimizer must be one of {', '.join(OPTIMIZER_TAGS)} (an OptimizerSettings), got "
                              f"{self.optimizer!r}")
         self.optimizer.validate()
+        if not isinstance(self.constraints, Constraints):
+            raise InputError(f"mpc constraints must be a mapping of mode, position_margin, velocity_margin and "
+                             f"penalty_weight, got {self.constraints!r}")
+        self.constraints.validate()
 
     def cost(self, joints: int) -> TrackingCost:
         """The tracking cost of these weights for `joints` joints (one weight each, or one for all)."""
@@ -116,9 +124,12 @@ class MpcConfig:
         return TrackingCost.from_weights(weight["position_weight"], weight["velocity_weight"],
                                          weight["effort_weight"], self.terminal_factor)
 
-    def solver(self, model, joints: int, effort_limit: np.ndarray) -> TrajectoryOptimizer:
-        """The optimizer these settings name, for `model` and a robot of `joints` actuated joints."""
-        return self.optimizer.solver(model, self.cost(joints), effort_limit, self.horizon)
+    def solver(self, model, limits: JointLimits, names=None) -> TrajectoryOptimizer:
+        """The optimizer these settings name, for `model` and a robot of these `limits` (`plant.joint_limits`:
+        its effort limits the torque box, its position and velocity limits the state bounds of `constraints`;
+        names: the joints', for messages)."""
+        bounds = self.constraints.bounds(limits.position_lower, limits.position_upper, limits.velocity, names)
+        return self.optimizer.solver(model, self.cost(len(limits.effort)), limits.effort, self.horizon, bounds)
 
     def record(self) -> dict:
         """What an output records of these settings: their fields, the optimizer's with its tag as "type"."""
@@ -219,6 +230,8 @@ class MpcLog:
     torque: list = dataclasses.field(default_factory=list)
     solve_seconds: list = dataclasses.field(default_factory=list)
     fallback: list = dataclasses.field(default_factory=list)
+    constraint_active: list = dataclasses.field(default_factory=list)   # a limit active in the step's solution
+    slack: list = dataclasses.field(default_factory=list)               # its largest accepted crossing (rad, rad/s)
 
 
 class MpcController(LeafSystem):
@@ -255,8 +268,9 @@ class MpcController(LeafSystem):
         self.config = config
         self.joints = joints = self.dynamics.robot.num_joints
         self.state_dim = state_dim = 2 * joints
-        self.effort_limit = joint_limits(self.dynamics.plant).effort
-        self.solver = optimizer or config.solver(model, joints, self.effort_limit)
+        limits = joint_limits(self.dynamics.plant)
+        self.effort_limit = limits.effort
+        self.solver = optimizer or config.solver(model, limits, self.dynamics.robot.joint_names)
         # (an optimizer written before warm-start states existed takes no x_init: it gets none)
         self._warm_states = "x_init" in inspect.signature(self.solver.solve).parameters
         self.log = MpcLog()
@@ -294,7 +308,7 @@ class MpcController(LeafSystem):
                             plan=state.get_mutable_abstract_state(int(self._plan_index)).get_value(),
                             nodes=state.get_mutable_abstract_state(int(self._nodes_index)).get_value())
         started = time.perf_counter()
-        torque, memory, fallback = self._step(k, x, memory)
+        torque, memory, status = self._step(k, x, memory)
         elapsed = time.perf_counter() - started
         state.get_mutable_discrete_state(int(self._torque_index)).set_value(torque)
         state.get_mutable_discrete_state(int(self._predicted_index)).set_value(memory.predicted)
@@ -305,7 +319,9 @@ class MpcController(LeafSystem):
         self.log.state.append(np.array(x))
         self.log.torque.append(torque.copy())
         self.log.solve_seconds.append(elapsed)
-        self.log.fallback.append(fallback)
+        self.log.fallback.append(status.fallback)
+        self.log.constraint_active.append(status.constraint_active)
+        self.log.slack.append(status.slack)
 
 
 def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_config: PlantConfig | None = None,

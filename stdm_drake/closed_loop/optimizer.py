@@ -18,6 +18,8 @@ import dataclasses
 
 import numpy as np
 
+from stdm_drake.closed_loop.constraints import StateBounds
+
 
 @dataclasses.dataclass(frozen=True)
 class TrackingCost:
@@ -50,13 +52,16 @@ class TrackingCost:
 
 @dataclasses.dataclass
 class OptimizerResult:
-    """u: (H, m) optimized torques; x: (H+1, 2n) predicted states; cost; iterations; finite (every
-    predicted state finite)."""
+    """u: (H, m) optimized torques; x: (H+1, 2n) predicted states; cost (the state limits' penalty included);
+    iterations; finite (every predicted state finite); constraint_active: a torque bound or a state limit active
+    in the solution; slack: the largest crossing of a state limit the solution accepts (rad or rad/s, 0: none)."""
     u: np.ndarray
     x: np.ndarray
     cost: float
     iterations: int
     finite: bool
+    constraint_active: bool = False
+    slack: float = 0.0
 
 
 class OptimizerSettings(abc.ABC):
@@ -68,9 +73,12 @@ class OptimizerSettings(abc.ABC):
         """InputError (one line, starting "mpc optimizer !Name") for settings the optimizer cannot run."""
 
     @abc.abstractmethod
-    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "TrajectoryOptimizer":
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
+               bounds: StateBounds | None = None) -> "TrajectoryOptimizer":
         """The optimizer of these settings for `model`, `cost` and torques within +-effort_limit (m,) N m over
-        `horizon` sample periods (InputError where it cannot solve that problem)."""
+        `horizon` sample periods, the predicted states within `bounds` (`constraints.StateBounds`; None: the
+        controller before constraints, torques clipped after the step and no state limit) (InputError where it
+        cannot solve that problem)."""
 
     def record(self) -> dict:
         """What an output records of these settings: its tag ("type", the class name) and its fields."""
@@ -80,9 +88,10 @@ class OptimizerSettings(abc.ABC):
 class TrajectoryOptimizer(abc.ABC):
     """Minimizes `cost` over torque sequences within +-effort_limit (m,) N m, predicting with `model` (a
     `DynamicsModel`: `step_single` and `linearize` are what optimizers call, through `predict` and
-    `linearize` here; a model with only `step(x (N, 2n), u (N, m)) -> (N, 2n)` and `jacobians` works too)."""
+    `linearize` here; a model with only `step(x (N, 2n), u (N, m)) -> (N, 2n)` and `jacobians` works too), the
+    predicted states within `bounds` (`constraints.StateBounds`, softened; None: constraints off)."""
 
-    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray):
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, bounds: StateBounds | None = None):
         self.model = model
         # a `DynamicsModel`'s one-row step and batched linearization; a model with only step and jacobians
         # (the interface before them) gets both from those
@@ -92,9 +101,12 @@ class TrajectoryOptimizer(abc.ABC):
         self.effort_limit = np.asarray(effort_limit, dtype=float)
         self.joints = len(self.effort_limit)
         self.state_dim = len(cost.Q)
+        self.bounds = bounds
 
     def cost(self, x: np.ndarray, u: np.ndarray, reference: np.ndarray, u_ff: np.ndarray) -> float:
-        return self.cost_function.value(x, u, reference, u_ff)
+        """The tracking cost of states x (H+1, 2n) and torques u (H, m), plus the state limits' penalty."""
+        value = self.cost_function.value(x, u, reference, u_ff)
+        return value if self.bounds is None else value + self.bounds.penalty(x[1:])
 
     def rollout(self, x0: np.ndarray, u: np.ndarray, offset: np.ndarray | None = None) -> np.ndarray:
         """Predicted states (H+1, 2n) from x0 (2n,) under u (H, m), each step shifted by `offset` (2n,)."""

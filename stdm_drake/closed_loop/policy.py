@@ -8,6 +8,8 @@ import dataclasses
 
 import numpy as np
 
+from stdm_drake.closed_loop.constraints import SLACK_TOLERANCE
+
 
 @dataclasses.dataclass
 class StepMemory:
@@ -18,6 +20,16 @@ class StepMemory:
     disturbance: np.ndarray
     plan: np.ndarray
     nodes: np.ndarray
+
+
+@dataclasses.dataclass(frozen=True)
+class StepStatus:
+    """How a control step went: fallback (the gravity fallback acted), constraint_active (a torque bound or a state
+    limit active in the solution), slack (the largest crossing of a state limit the solution accepted, rad or
+    rad/s; 0: none)."""
+    fallback: bool
+    constraint_active: bool = False
+    slack: float = 0.0
 
 
 class MpcStep:
@@ -43,8 +55,8 @@ class MpcStep:
                           plan=self.feedforward[np.minimum(np.arange(self.horizon), len(self.feedforward) - 1)],
                           nodes=np.full((self.horizon + 1, self.state_dim), np.nan))
 
-    def __call__(self, k: int, x: np.ndarray, memory: StepMemory) -> tuple[np.ndarray, StepMemory, bool]:
-        """(torque (m,), the next step's memory, whether the gravity fallback acted) at sample k."""
+    def __call__(self, k: int, x: np.ndarray, memory: StepMemory) -> tuple[np.ndarray, StepMemory, StepStatus]:
+        """(torque (m,), the next step's memory, how the step went) at sample k."""
         horizon = self.horizon
         reference = self.reference.window(k, horizon + 1)
         u_ff = self.feedforward[np.minimum(np.arange(k, k + horizon), len(self.feedforward) - 1)]
@@ -70,11 +82,12 @@ class MpcStep:
                 with np.errstate(all="ignore"):
                     predicted = self.solver.rollout(x, torque[None], disturbance)[1]
             return torque, StepMemory(predicted, disturbance, u_ff,
-                                      np.full((horizon + 1, self.state_dim), np.nan)), True
+                                      np.full((horizon + 1, self.state_dim), np.nan)), StepStatus(True)
         torque = result.u[0]
         return torque, StepMemory(predicted=result.x[1], disturbance=disturbance,
                                   plan=np.vstack([result.u[1:], result.u[-1:]]),
-                                  nodes=np.vstack([result.x[1:], result.x[-1:]])), False
+                                  nodes=np.vstack([result.x[1:], result.x[-1:]])), \
+            StepStatus(False, result.constraint_active, result.slack)
 
     def estimate_disturbance(self, x: np.ndarray, memory: StepMemory) -> np.ndarray:
         """d_k = d_k-1 + gain (x_k - (f(x_k-1, u_k-1) + d_k-1)): the model's recent one-step error, added to every
@@ -86,20 +99,24 @@ class MpcStep:
 class MpcPolicy:
     """The MPC of `model` as a tracking controller of the collection station: `control(k, t, q, v)` (the
     measurement at sample k) -> torque (m,) N m held over the period, the same step as the Drake controller's.
-    One reference per policy: make a new one for every trajectory. `fallbacks` counts gravity fallbacks."""
+    One reference per policy: make a new one for every trajectory. `fallbacks` counts gravity fallbacks,
+    `constraint_active` the steps with a limit active in the solution, `slack_used` those whose solution accepted
+    a crossing of a state limit."""
 
     def __init__(self, model, reference, config, robot, optimizer=None):
         import inspect
         from stdm_drake.robots.plant import Dynamics, joint_limits
         dynamics = Dynamics(robot)
-        effort_limit = joint_limits(dynamics.plant).effort
-        solver = optimizer or config.solver(model, robot.num_joints, effort_limit)
+        limits = joint_limits(dynamics.plant)
+        solver = optimizer or config.solver(model, limits, robot.joint_names)
         self.step = MpcStep(solver, reference, dynamics.gravity_torque, config.horizon, config.disturbance_gain,
-                            effort_limit, "x_init" in inspect.signature(solver.solve).parameters)
+                            limits.effort, "x_init" in inspect.signature(solver.solve).parameters)
         self.memory = self.step.first_memory()
-        self.fallbacks = 0
+        self.fallbacks = self.constraint_active = self.slack_used = 0
 
     def control(self, k: int, t: float, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-        torque, self.memory, fallback = self.step(k, np.concatenate([q, v]), self.memory)
-        self.fallbacks += int(fallback)
+        torque, self.memory, status = self.step(k, np.concatenate([q, v]), self.memory)
+        self.fallbacks += int(status.fallback)
+        self.constraint_active += int(status.constraint_active)
+        self.slack_used += int(status.slack > SLACK_TOLERANCE)
         return torque

@@ -9,8 +9,12 @@ the gaps c_k = F_k - X_k+1, the state deviations of a torque step δu follow
     δx_k+1 = A_k δx_k + B_k δu_k + c_k,    δx_0 = 0,
 
 for every δu at once (one small product per node). Stacked, δx = Γ δu + s with Γ (H 2n, H m) block lower triangular; the tracking cost then gives one dense
-(H m) x (H m) positive-definite system, solved by one Cholesky factorization. The torques are clipped to
-the effort limits, the nodes move to their linear prediction (the first one to the model's own step
+(H m) x (H m) positive-definite system, solved by one Cholesky factorization. With the robot's limits on (the
+MPC settings' `constraints:`, `constraints.py`) that solution is the step when it keeps every torque inside its
+effort limit and every predicted state inside its bounds (then it is the constrained QP's solution too, bit for
+bit the unconstrained step); otherwise the step is the box- and state-constrained QP's solution (`CondensedQp`:
+DAQP, the state limits soft). With constraints off the torques are clipped to the effort limits instead (the
+controller before constraints). The nodes move to their linear prediction (the first one to the model's own step
 from the measurement, which the disturbance observer compares with the next measurement) and warm-start
 the next control step. More iterations per step (`iterations`) repeat linearize + solve on the updated
 nodes (a full SQP).
@@ -24,6 +28,7 @@ import dataclasses
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
+from stdm_drake.closed_loop.constraints import CondensedQp, StateBounds
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
 
@@ -47,13 +52,14 @@ class Rti(OptimizerSettings):
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
             raise InputError(f"mpc optimizer !Rti regularization must be in [0, 1e6], got {self.regularization}")
 
-    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "RtiSolver":
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
+               bounds: StateBounds | None = None) -> "RtiSolver":
         """An RtiSolver; InputError for a horizon whose dense system is beyond MAX_CONDENSED unknowns."""
         joints = len(effort_limit)
         if horizon * joints > MAX_CONDENSED:
             raise InputError(f"mpc horizon {horizon} x {joints} joints = {horizon * joints} torques is beyond the "
                              f"real-time iteration's {MAX_CONDENSED}; use `optimizer: !Ilqr {{}}` for long horizons")
-        return RtiSolver(model, cost, effort_limit, self)
+        return RtiSolver(model, cost, effort_limit, self, bounds)
 
 
 def affine_recursion(A: np.ndarray, E: np.ndarray) -> np.ndarray:
@@ -70,15 +76,17 @@ def affine_recursion(A: np.ndarray, E: np.ndarray) -> np.ndarray:
 class RtiSolver(TrajectoryOptimizer):
     """The real-time iteration over a horizon for one prediction model and one cost (module docstring)."""
 
-    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: Rti | None = None):
-        super().__init__(model, cost, effort_limit)
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: Rti | None = None,
+                 bounds: StateBounds | None = None):
+        super().__init__(model, cost, effort_limit, bounds)
         self.config = config or Rti()
         self.config.validate()
         self._weights = {}     # horizon -> (state weights (H 2n,), effort weights (H m,))
+        self.qp = None if bounds is None else CondensedQp(bounds, self.joints)
 
     def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
               offset: np.ndarray | None = None, x_init: np.ndarray | None = None) -> OptimizerResult:
-        """x0 (2n,); u_init (H, m) and x_init (H+1, 2n) the warm start (x_init None: a rollout of u_init from
+        """x0 (2n,); u_init (H, m) and x_init (H+1, 2n) the warm start (its torques moved into the box first) (x_init None: a rollout of u_init from
         x0 gives the first nodes); reference (H+1, 2n); u_ff (H, m); offset (2n,) added to every prediction."""
         horizon = len(u_init)
         offset = np.zeros(self.state_dim) if offset is None else np.asarray(offset, dtype=float)
@@ -92,6 +100,7 @@ class RtiSolver(TrajectoryOptimizer):
             return OptimizerResult(u, x, np.inf, 0, False)
         mu = self.config.regularization
         iterations = 0
+        active, slack = False, 0.0
         for iterations in range(1, self.config.iterations + 1):
             step = None
             following, A, B = self.linearize(x[:-1], u)
@@ -103,14 +112,15 @@ class RtiSolver(TrajectoryOptimizer):
                     mu = max(10.0 * mu, 1e-9)
             if step is None:
                 return OptimizerResult(u, x, np.inf, iterations, False)
-            u, x = step
+            u, x, active, slack = step
             x[1] = self.predict(x0, u[0], offset)     # the first node: the model's own step from the measurement
         cost = self.cost(x, u, reference, u_ff)
-        return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x)) and np.isfinite(cost)))
+        return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x)) and np.isfinite(cost)),
+                               active, slack)
 
     def _step(self, x, u, reference, u_ff, predicted, A, B, mu):
-        """(u_new (H, m), x_new (H+1, 2n)) of one Gauss-Newton step, or None if the system is not positive
-        definite. predicted: F_k = f(x_k, u_k) + d (H, 2n)."""
+        """(u_new (H, m), x_new (H+1, 2n), a constraint active, slack used) of one Gauss-Newton step, or None if
+        the system is not positive definite. predicted: F_k = f(x_k, u_k) + d (H, 2n)."""
         horizon, S, m = len(u), self.state_dim, self.joints
         width = horizon * m + 1                       # columns: every δu_j, then the gaps' response
         inputs = np.zeros((horizon, S, width))
@@ -128,11 +138,35 @@ class RtiSolver(TrajectoryOptimizer):
         if info != 0 or not np.all(np.isfinite(factor)):
             return None
         solution, _ = cholesky_solve(factor, gradient, lower=1)
-        u_new = np.clip(u - solution.reshape(horizon, m), -self.effort_limit, self.effort_limit)
+        active, slack = False, 0.0
+        if self.qp is None:
+            u_new = np.clip(u - solution.reshape(horizon, m), -self.effort_limit, self.effort_limit)
+        else:
+            u_new = u - solution.reshape(horizon, m)
+            states = x[1:].ravel() + drift + gamma @ (u_new - u).ravel()
+            if not self._inside(u_new, states):
+                lower = (-self.effort_limit - u).ravel()
+                upper = (self.effort_limit - u).ravel()
+                try:
+                    qp = self.qp.solve(hessian, gradient, lower, upper, gamma, x[1:].ravel() + drift)
+                except ArithmeticError:
+                    return None
+                # the box holds to DAQP's round-off; the projection only removes that
+                u_new = np.clip(u + qp.delta.reshape(horizon, m), -self.effort_limit, self.effort_limit)
+                active, slack = qp.active, qp.slack
+            else:
+                self.qp.forget()
         x_new = np.empty_like(x)
         x_new[0] = x[0]
         x_new[1:] = (x[1:].ravel() + drift + gamma @ (u_new - u).ravel()).reshape(horizon, S)
-        return u_new, x_new
+        return u_new, x_new, active, slack
+
+    def _inside(self, u: np.ndarray, states: np.ndarray) -> bool:
+        """Whether torques u (H, m) keep their effort limits and stacked states (H S,) their bounds (strictly)."""
+        bounds = self.bounds
+        stacked = states.reshape(-1, self.state_dim)
+        return bool(np.all(np.abs(u) < self.effort_limit) and np.all(stacked < bounds.upper)
+                    and np.all(stacked > bounds.lower))
 
     def _cost_weights(self, horizon: int) -> tuple[np.ndarray, np.ndarray]:
         weights = self._weights.get(horizon)

@@ -14,11 +14,12 @@ class SampledCosts:
     """The costs of K feedforward torque sequences from x0: one batched rollout of K x P particles per horizon
     step, on NumPy or on a PyTorch device (module docstring). Each particle applies, at each step, its
     sample's feedforward plus the ancillary feedback `gain` (m, 2n) on its own error from the reference,
-    clipped to the effort limits: u = clip(u_bar_k + gain (r_k - x)), and pays the effort of that torque."""
+    clipped to the effort limits: u = clip(u_bar_k + gain (r_k - x)), and pays the effort of that torque and, with
+    state `bounds` (`constraints.StateBounds`), the exact penalty of its crossings of the state limits."""
 
     def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, settings,
-                 rng: np.random.Generator):
-        self.model, self.settings, self.rng = model, settings, rng
+                 rng: np.random.Generator, bounds=None):
+        self.model, self.settings, self.rng, self.bounds = model, settings, rng, bounds
         probabilistic = bool(getattr(model, "probabilistic", False))
         members = int(getattr(model, "ensemble_size", 1))
         sampled = settings.propagation != "mean" and (members > 1 or probabilistic)
@@ -55,6 +56,9 @@ class SampledCosts:
         rows = particles * samples // members
         weights = self.step_weights(horizon)
         q, r, limit, gain_t = put(self.q), put(self.r), put(self.effort_limit), put(gain.T)
+        if self.bounds is not None:
+            lower, upper = put(np.maximum(self.bounds.lower, -1e30)), put(np.minimum(self.bounds.upper, 1e30))
+            penalty_weight = self.bounds.penalty_weight
         x = xp.broadcast_to(put(x0), (members, rows, size))
         offset_d, torques, references, feedforward = put(offset), put(u), put(reference), put(u_ff)
         total, kept = 0.0, []
@@ -66,6 +70,9 @@ class SampledCosts:
                 x = self._step(x, a, xp) + offset_d
                 states = x.reshape(particles, samples, size)
                 total = total + effort + float(weights[k]) * ((states - references[k + 1]) ** 2 @ q).mean(0)
+                if self.bounds is not None:     # the exact penalty of the state limits, each particle's
+                    slack = (xp.clip(states - upper, 0, None) + xp.clip(lower - states, 0, None))
+                    total = total + penalty_weight * (slack + 0.5 * slack ** 2).sum(-1).mean(0)
                 if self.settings.variance_weight > 0 and particles > 1:
                     spread = ((states - states.mean(0)) ** 2).mean(0)
                     total = total + self.settings.variance_weight * float(weights[k]) * (spread @ q)

@@ -21,7 +21,9 @@ dt B_v^+ a, B_v the model's torque Jacobian of the next velocity, so one noise l
 robot, friction and rotor inertia included. Why: sampled raw torques meet a tracking cost whose curvature
 spans the UR-10's heavy shoulder and light wrists; 10,000 samples of a 0.1 rad move then stayed at 100x the
 optimum's cost, and on the affected UR-10 the wrists' friction (2.3 N m) lies far beyond any torque noise
-that leaves the shoulder usable. Torques are clipped to the effort limits; the warm start (the previous
+that leaves the shoulder usable. Every rollout's torques are kept in the box of the effort limits (each sample's
+torques projected onto it, so the costs are those of torques the robot can apply), and with the robot's limits
+on (`constraints.py`) every rollout pays the state limits' exact penalty for its crossings; the warm start (the previous
 residuals shifted by one period) is always one of the samples.
 
 Where it runs: NumPy on the CPU (`framework: numpy`, the default), or PyTorch (`framework: torch`) on
@@ -38,6 +40,7 @@ import dataclasses
 
 import numpy as np
 
+from stdm_drake.closed_loop.constraints import ACTIVE_TOLERANCE, StateBounds
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.closed_loop.sampled_costs import SampledCosts
 from stdm_drake.dynamics.model import PROPAGATIONS
@@ -116,12 +119,13 @@ class SamplingSolver(TrajectoryOptimizer):
     the samples differ in how well. With the exact model of the affected UR-10 the law alone tracks a
     0.1 rad move to 1.7e-7 rad^2; raw torque samples without it stayed near 1e-4."""
 
-    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, settings: SamplingSettings):
-        super().__init__(model, cost, effort_limit)
+    def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, settings: SamplingSettings,
+                 bounds: StateBounds | None = None):
+        super().__init__(model, cost, effort_limit, bounds)
         settings.validate()
         self.settings = settings
         self.rng = np.random.default_rng(int(settings.seed))
-        self.costs = SampledCosts(model, cost, effort_limit, settings, self.rng)
+        self.costs = SampledCosts(model, cost, effort_limit, settings, self.rng, bounds)
         self.plan = None        # the last solve's feedforward torques, shifted by one period
 
     def clip(self, u: np.ndarray) -> np.ndarray:
@@ -182,8 +186,12 @@ class SamplingSolver(TrajectoryOptimizer):
                 x[k + 1] = self.predict(x[k], u[k], offset)
         finite = bool(np.all(np.isfinite(x)) and np.all(np.isfinite(u)))
         self.plan = np.concatenate([residual[1:], residual[-1:]])
+        active, slack = False, 0.0
+        if finite and self.bounds is not None:
+            slack = float(self.bounds.violation(x[1:]).max(initial=0.0))
+            active = bool(np.any(np.abs(u) >= self.effort_limit - ACTIVE_TOLERANCE) or slack > 0)
         return OptimizerResult(u=u, x=x, cost=self.cost(x, u, reference, u_ff) if finite else float("inf"),
-                               iterations=iterations, finite=finite)
+                               iterations=iterations, finite=finite, constraint_active=active, slack=slack)
 
 
 # -- CEM ---------------------------------------------------------------------------------------------------
@@ -203,8 +211,9 @@ class Cem(SamplingSettings):
         super().validate()
         check_elites(self)
 
-    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "CemSolver":
-        return CemSolver(model, cost, effort_limit, self)
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
+               bounds: StateBounds | None = None) -> "CemSolver":
+        return CemSolver(model, cost, effort_limit, self, bounds)
 
 
 def check_elites(settings) -> None:
@@ -272,8 +281,9 @@ class Icem(SamplingSettings):
         if not 0 <= self.keep_elites <= 1:
             raise InputError(f"{self.tag()} keep_elites must be in [0, 1], got {self.keep_elites}")
 
-    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "IcemSolver":
-        return IcemSolver(model, cost, effort_limit, self)
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
+               bounds: StateBounds | None = None) -> "IcemSolver":
+        return IcemSolver(model, cost, effort_limit, self, bounds)
 
 
 def colored_noise(rng: np.random.Generator, count: int, horizon: int, joints: int, exponent: float) -> np.ndarray:
@@ -296,8 +306,8 @@ def colored_noise(rng: np.random.Generator, count: int, horizon: int, joints: in
 
 
 class IcemSolver(SamplingSolver):
-    def __init__(self, model, cost, effort_limit, settings: Icem):
-        super().__init__(model, cost, effort_limit, settings)
+    def __init__(self, model, cost, effort_limit, settings: Icem, bounds: StateBounds | None = None):
+        super().__init__(model, cost, effort_limit, settings, bounds)
         self.kept = None           # the last control step's elites shifted by one period (E', H, m)
 
     def noise(self, count: int, horizon: int) -> np.ndarray:
@@ -345,8 +355,9 @@ class Mppi(SamplingSettings):
         if not (np.isfinite(self.temperature) and self.temperature > 0):
             raise InputError(f"{self.tag()} temperature must be > 0 (cost units), got {self.temperature}")
 
-    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int) -> "MppiSolver":
-        return MppiSolver(model, cost, effort_limit, self)
+    def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
+               bounds: StateBounds | None = None) -> "MppiSolver":
+        return MppiSolver(model, cost, effort_limit, self, bounds)
 
 
 class MppiSolver(SamplingSolver):

@@ -13,6 +13,7 @@ import re
 import sys
 
 from stdm_drake.closed_loop.comparison import (ClosedLoopResult, closed_loop_failures, compare_controllers,
+                                               constraint_lines,
                                                held_out_references, plot_results, real_time_lines, summarize,
                                                summary_table)
 from stdm_drake.closed_loop.optimizer import OptimizerSettings
@@ -135,9 +136,9 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     plants, learned, model_records = study_models(study, dataset, robot, plant_config)
     models = plants + learned
     from stdm_drake.robots.plant import Dynamics, joint_limits
-    effort_limit = joint_limits(Dynamics(robot).plant).effort
+    limits = joint_limits(Dynamics(robot).plant)
     for model in models:   # (settings a model cannot be solved with, e.g. a PyTorch device for the plant: refused now)
-        config.solver(model, robot.action_dim, effort_limit)
+        config.solver(model, limits, robot.joint_names)
     references = held_out_references(dataset, [model.checkpoint for model in learned], study.plans)
     if len(references) < study.plans:
         raise InputError(f"--plans {study.plans}: {study.dataset} has only {len(references)} held-out plans")
@@ -160,7 +161,7 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
                   plant_effects=effects_record, models=model_records,
                   mpc_settings=dict(file=_text(mpc_settings_file(robot, study.settings)),
                                     optimizer_given=study.optimizer is not None, settings=config.record()))
-    return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder)
+    return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config.constraints)
 
 
 def say(line: str) -> None:
@@ -249,8 +250,8 @@ def tuned_settings(study: MpcStudy, dataset, models, learned, references, config
 
 
 def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: float, inputs: dict,
-           tuning: dict | None, recorder) -> MpcStudyResult:
-    """The table printed, mpc.md, mpc.json, mpc.csv and mpc.png written to `output`, the recording to the HTML
+           tuning: dict | None, recorder, constraints) -> MpcStudyResult:
+    """The table printed (with the constraint summary of `constraints`, the MPC settings'), mpc.md, mpc.json, mpc.csv and mpc.png written to `output`, the recording to the HTML
     file; the result."""
     import json
 
@@ -263,6 +264,7 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
                   + "; ".join(f"{name} effort x {setting[0]:g}, observer gain {setting[1]:g}"
                               for name, setting in tuning["chosen"].items()))
     table += "\n\n" + "\n".join(f"- {line}" for line in real_time_lines(rows, sample_period))
+    table += "\n\n" + "\n".join(f"- {line}" for line in constraint_lines(rows, constraints))
     print(table)
     record = dict(written_by=written_by(), inputs=inputs, summary=rows,
                   runs=[dataclasses.asdict(result) for result in results], tuning=tuning)

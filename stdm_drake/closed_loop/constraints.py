@@ -1,0 +1,242 @@
+"""The robot's limits inside the MPC's optimizers (the MPC settings' `constraints:` block).
+
+Torques: hard box constraints of every optimizer's problem, -effort_limit <= u_k <= effort_limit (m,) N m: the
+real-time iteration's Gauss-Newton step is a box-constrained QP (`CondensedQp`), the iLQR's backward pass solves a
+box QP at every node and keeps its feedback on the free torques only (box-DDP, Tassa, Mansard & Todorov 2014,
+`box_qp`), the samplers keep every rollout's torques in the box.
+
+Joint positions and velocities of the predicted states x_1..x_H: soft constraints, lower <= x_k <= upper with
+lower/upper the plant's limits moved inside by `position_margin` rad and `velocity_margin` rad/s. Each crossing
+is a slack s >= 0 priced by an exact penalty, `penalty_weight` (s + s^2 / 2) per node and state component (s in
+rad or rad/s): the linear term makes the penalty exact (no slack is used while the limits can be met and the
+weight exceeds the constraint's multiplier), the quadratic one keeps the QP strictly convex. The problem is
+therefore always feasible: a limit that cannot be met costs slack, never a failed solve. `mode: hard` drops the
+slack where the limits can be met (a QP with the state rows as hard constraints) and uses it only in a step whose
+hard QP is infeasible; `mode: off` is the controller before constraints: an unconstrained step, torques clipped
+to the box afterwards, the state limits ignored (the reference the study compares against).
+
+The QPs are solved by DAQP (Arnström, Bemporad & Axehill 2022), a dual active-set solver: exact solutions (to
+round-off) on the small dense problems of one control step, warm-started from the previous step's active set
+shifted by one period. Shapes for n joints, m actuated, horizon H, state S = 2n.
+"""
+
+import dataclasses
+
+import numpy as np
+
+from stdm_drake.errors import InputError
+
+MODES = ("soft", "hard", "off")
+MAX_PENALTY = 1e12          # a penalty weight beyond this swamps every other term of the cost
+ACTIVE_TOLERANCE = 1e-9     # a torque within this of its bound (N m), a state row within it (rad, rad/s): active
+SLACK_TOLERANCE = 1e-7      # slack beyond this (rad, rad/s) counts as used
+MAX_ROUNDS = 20             # constraint-generation rounds of one QP (rows are only added: it ends far sooner)
+SENSE_ACTIVE, SENSE_LOWER = 1, 2   # DAQP's constraint flags: active in the warm start, at its lower bound
+INFINITE = 1e30             # DAQP's bound beyond which a side is none
+
+
+@dataclasses.dataclass
+class Constraints:
+    """How the MPC keeps the robot's limits (YAML `constraints: {mode, position_margin, velocity_margin,
+    penalty_weight}`; module docstring): mode "soft" (the default: torque box hard, state limits soft), "hard"
+    (state limits hard, slack only where they cannot be met) or "off" (torques clipped after an unconstrained
+    step, state limits ignored); the margins (rad, rad/s) inside the plant's position and velocity limits;
+    penalty_weight: the exact penalty's weight per rad (rad/s) of slack and node (and of half its square)."""
+    mode: str = "soft"
+    position_margin: float = 0.02
+    velocity_margin: float = 0.05
+    penalty_weight: float = 1e5
+
+    def validate(self) -> None:
+        """InputError (one line) for settings no optimizer can use: an unknown mode, margins negative or not
+        finite, a penalty weight not in (0, MAX_PENALTY]."""
+        if self.mode not in MODES:
+            raise InputError(f"mpc constraints mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+        for name in ("position_margin", "velocity_margin"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not (np.isfinite(value) and value >= 0):
+                raise InputError(f"mpc constraints {name} must be a number >= 0, got {value!r}")
+        weight = self.penalty_weight
+        if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not (
+                np.isfinite(weight) and 0 < weight <= MAX_PENALTY):
+            raise InputError(f"mpc constraints penalty_weight must be in (0, {MAX_PENALTY:g}], got {weight!r}")
+
+    def bounds(self, position_lower, position_upper, velocity, names=None) -> "StateBounds | None":
+        """The state bounds of these settings for a robot's limits: position_lower/upper (n,) rad, velocity (n,)
+        rad/s (inf or -inf: none); None with mode off. InputError where a margin leaves a joint no room (its
+        bounds would cross), naming the joint (`names`, else its index)."""
+        self.validate()
+        if self.mode == "off":
+            return None
+        lower = np.concatenate([np.asarray(position_lower, dtype=float) + self.position_margin,
+                                -np.asarray(velocity, dtype=float) + self.velocity_margin])
+        upper = np.concatenate([np.asarray(position_upper, dtype=float) - self.position_margin,
+                                np.asarray(velocity, dtype=float) - self.velocity_margin])
+        joints = len(lower) // 2
+        for index in np.flatnonzero(~(lower < upper)):
+            joint = index % joints
+            name = repr(names[joint]) if names is not None else str(joint)
+            what, margin = (("position", "position_margin") if index < joints else ("velocity", "velocity_margin"))
+            raise InputError(f"mpc constraints {margin} leaves joint {name} no room inside its {what} limits "
+                             f"[{lower[index] - getattr(self, margin):.4g}, {upper[index] + getattr(self, margin):.4g}]; "
+                             f"use a smaller margin")
+        return StateBounds(lower=lower, upper=upper, hard=self.mode == "hard", penalty_weight=float(self.penalty_weight))
+
+
+@dataclasses.dataclass(frozen=True)
+class StateBounds:
+    """Bounds on every predicted state x_1..x_H: lower, upper (S,) = [q rad, v rad/s] (-inf, inf: none), hard
+    (module docstring: slack only where the hard QP is infeasible), penalty_weight of the slack."""
+    lower: np.ndarray
+    upper: np.ndarray
+    hard: bool
+    penalty_weight: float
+
+    def violation(self, x: np.ndarray) -> np.ndarray:
+        """How far states x (..., S) lie outside the bounds (..., S), >= 0 (rad, rad/s)."""
+        return np.maximum(x - self.upper, 0.0) + np.maximum(self.lower - x, 0.0)
+
+    def penalty(self, x: np.ndarray) -> float:
+        """The exact penalty of states x (H, S): penalty_weight sum (s + s^2 / 2) over the slack s they need."""
+        slack = self.violation(x)
+        return float(self.penalty_weight * (slack.sum() + 0.5 * (slack ** 2).sum()))
+
+    def penalty_derivatives(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Gradient (H, S) and the diagonal of the Gauss-Newton Hessian (H, S) of `penalty` at states x (H, S):
+        penalty_weight (1 + s) times the side's sign, and penalty_weight where a bound is crossed."""
+        above, below = x > self.upper, x < self.lower
+        slack = self.violation(x)
+        gradient = self.penalty_weight * (1.0 + slack) * (above.astype(float) - below.astype(float))
+        return gradient, self.penalty_weight * (above | below).astype(float)
+
+
+@dataclasses.dataclass
+class QpSolution:
+    """delta (N,): the step; active: any bound of the box or any state row active at it; slack: the largest
+    slack used (rad or rad/s; 0: every state row met)."""
+    delta: np.ndarray
+    active: bool
+    slack: float
+
+
+def _daqp(hessian, gradient, rows, upper, lower, sense):
+    import daqp
+    x, _, exitflag, info = daqp.solve(hessian, gradient, rows, upper, lower, sense)
+    return np.asarray(x, dtype=float), int(exitflag), np.asarray(info["lam"], dtype=float)
+
+
+def box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """min 1/2 d^T hessian d + gradient^T d over lower <= d <= upper (N,), hessian (N, N) positive definite:
+    (d (N,), clamped (N,) bool: the bounds active at d). ArithmeticError if DAQP finds no solution."""
+    count = len(gradient)
+    d, exitflag, _ = _daqp(np.ascontiguousarray(hessian), np.asarray(gradient, dtype=float), np.zeros((0, count)),
+                           np.asarray(upper, dtype=float), np.asarray(lower, dtype=float), np.zeros(count, dtype=np.intc))
+    if exitflag < 1:
+        raise ArithmeticError(f"box QP not solved (DAQP exit flag {exitflag})")
+    clamped = (d <= lower + ACTIVE_TOLERANCE) | (d >= upper - ACTIVE_TOLERANCE)
+    return d, clamped
+
+
+class CondensedQp:
+    """The real-time iteration's constrained Gauss-Newton step over torque steps δ (N = H m,):
+
+        min 1/2 δ^T P δ + g^T δ + 1/2 penalty_weight sum_i (s_i + s_i^2 / 2)
+        s.t. lower_u <= δ <= upper_u,   lower_i - s_i <= c_i + G_i δ <= upper_i + s_i,   s_i >= 0,
+
+    G (H S, N) the states' response to δ and c (H S,) the states at δ = 0 (the linear prediction); P and g are
+    those of half the MPC's cost (its Gauss-Newton form), so the penalty enters at half its weight. Only the state
+    rows in a working set enter (with their slacks): the rows that cross their bounds at the solution are added and
+    the QP solved again, until none does (each round only adds rows, so the last solution is the whole problem's).
+    The working set and the active torque bounds of a solve warm-start the next control step's, shifted by one
+    node. With `bounds.hard` the rows first enter without slack; a step whose hard QP is infeasible is solved soft."""
+
+    def __init__(self, bounds: "StateBounds", joints: int):
+        self.bounds, self.joints = bounds, joints
+        self.state_dim = len(bounds.lower)
+        self._rows = np.zeros(0, dtype=int)      # working set of state rows (index into the H S stacked states)
+        self._active = None                      # DAQP flags of the torque bounds at the last solution (N,)
+
+    def solve(self, hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              response: np.ndarray, prediction: np.ndarray) -> QpSolution:
+        """hessian (N, N) positive definite, gradient (N,); lower, upper (N,) the torque steps' bounds; response
+        G (H S, N); prediction c (H S,). ArithmeticError where DAQP finds no solution."""
+        lower_rows = np.tile(self.bounds.lower, len(prediction) // self.state_dim)
+        upper_rows = np.tile(self.bounds.upper, len(prediction) // self.state_dim)
+        rows = self._warm_rows(len(prediction))
+        hard = self.bounds.hard
+        for _ in range(MAX_ROUNDS):
+            delta, slack, active = self._solve_rows(hessian, gradient, lower, upper, response, prediction,
+                                                    lower_rows, upper_rows, rows, hard)
+            if delta is None:                    # the hard rows cannot be met: the soft problem
+                hard = False
+                continue
+            states = prediction + response @ delta
+            crossed = np.flatnonzero((states > upper_rows + ACTIVE_TOLERANCE) | (states < lower_rows - ACTIVE_TOLERANCE))
+            crossed = np.setdiff1d(crossed, rows)
+            if not len(crossed):
+                break
+            rows = np.union1d(rows, crossed)
+        else:
+            raise ArithmeticError(f"constrained QP: state rows still crossed after {MAX_ROUNDS} rounds")
+        near = (states > upper_rows - ACTIVE_TOLERANCE) | (states < lower_rows + ACTIVE_TOLERANCE)
+        self._rows = np.flatnonzero(near)
+        self._active = active
+        return QpSolution(delta, bool(np.any(active) or np.any(near)), slack)
+
+    def forget(self) -> None:
+        """No warm start for the next solve (a step whose unconstrained solution kept every limit)."""
+        self._rows, self._active = np.zeros(0, dtype=int), None
+
+    def _warm_rows(self, total: int) -> np.ndarray:
+        """The last working set shifted by one node (its first node's rows dropped, the last node's kept)."""
+        shifted = self._rows - self.state_dim
+        last = self._rows[self._rows >= total - self.state_dim]
+        return np.union1d(shifted[shifted >= 0], last).astype(int)
+
+    def _solve_rows(self, hessian, gradient, lower, upper, response, prediction, lower_rows, upper_rows, rows, hard):
+        """(δ, slack used, DAQP flags of the torque bounds) of the QP with the state rows `rows`; δ None where the
+        hard QP is infeasible."""
+        count, chosen = len(gradient), len(rows)
+        G, c = response[rows], prediction[rows]
+        row_lower, row_upper = lower_rows[rows] - c, upper_rows[rows] - c
+        sense_box = np.zeros(count, dtype=np.intc)
+        if self._active is not None and len(self._active) == count:
+            sense_box[:-self.joints] = self._active[self.joints:]     # the previous solution, one node on
+        if hard or chosen == 0:
+            sense = np.concatenate([sense_box, np.zeros(chosen, dtype=np.intc)])
+            delta, exitflag, _ = _daqp(hessian, gradient, np.ascontiguousarray(G),
+                                       np.concatenate([upper, np.minimum(row_upper, INFINITE)]),
+                                       np.concatenate([lower, np.maximum(row_lower, -INFINITE)]), sense)
+            if exitflag < 1:
+                if hard and chosen and exitflag in (-1, -3):   # primal infeasible (-1) or nonconvex (-3): no δ
+                    return None, 0.0, None
+                raise ArithmeticError(f"constrained QP not solved (DAQP exit flag {exitflag})")
+            return delta, 0.0, self._flags(delta, lower, upper)
+        # the soft rows: variables [δ, s]; rows G δ - s <= upper - c and G δ + s >= lower - c
+        weight = 0.5 * self.bounds.penalty_weight      # (the QP is half the MPC's cost)
+        full = np.zeros((count + chosen, count + chosen))
+        full[:count, :count] = hessian
+        full[count:, count:] = weight * np.eye(chosen)
+        linear = np.concatenate([gradient, np.full(chosen, weight)])
+        matrix = np.zeros((2 * chosen, count + chosen))
+        matrix[:chosen, :count], matrix[chosen:, :count] = G, G
+        matrix[:chosen, count:], matrix[chosen:, count:] = -np.eye(chosen), np.eye(chosen)
+        none = np.full(chosen, INFINITE)
+        row_upper_all = np.concatenate([np.minimum(row_upper, INFINITE), none])      # G δ - s <= upper - c
+        row_lower_all = np.concatenate([-none, np.maximum(row_lower, -INFINITE)])    # G δ + s >= lower - c
+        sense = np.concatenate([sense_box, np.zeros(3 * chosen, dtype=np.intc)])
+        solution, exitflag, _ = _daqp(full, linear, matrix,
+                                      np.concatenate([upper, none, row_upper_all]),
+                                      np.concatenate([lower, np.zeros(chosen), row_lower_all]), sense)
+        if exitflag < 1:
+            raise ArithmeticError(f"constrained QP not solved (DAQP exit flag {exitflag})")
+        delta, slack = solution[:count], solution[count:]
+        return delta, float(max(slack.max(initial=0.0), 0.0)), self._flags(delta, lower, upper)
+
+    @staticmethod
+    def _flags(delta, lower, upper) -> np.ndarray:
+        """DAQP's warm-start flags of the torque bounds active at δ: active (upper), active and lower."""
+        flags = np.zeros(len(delta), dtype=np.intc)
+        flags[delta >= upper - ACTIVE_TOLERANCE] = SENSE_ACTIVE
+        flags[delta <= lower + ACTIVE_TOLERANCE] = SENSE_ACTIVE | SENSE_LOWER
+        return flags
