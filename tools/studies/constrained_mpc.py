@@ -7,9 +7,12 @@ held-out plans, 8 plans that end a few degrees inside a position limit, the same
 limits and with a push toward the limit; per cell the paired ratios over plans with their 95 % intervals, the
 crossings of the plant's limits and the verdicts the design fixes.
 
-    python tools/study.py constrained-mpc [--quick] [-o docs/results/constrained_mpc] [--data out/constrained_mpc_data]
+    python tools/study.py constrained-mpc [--run 2] [--quick] [-o docs/results/constrained_mpc/run2] [--data out/constrained_mpc_data]
 
-Data and trained models are kept in --data, so a second run only repeats the closed loops.
+Run 1 is the first design (default tracking data, the payload 1.25x the static limit, a push toward the limit);
+run 2 (the default) the second (identification data, a holdable payload beyond the limits while accelerating, a
+push away from a goal near a limit); both in docs/constrained_mpc.md. Data and trained models are kept in
+--data, so a second run only repeats the closed loops.
 """
 import argparse
 import dataclasses
@@ -35,26 +38,30 @@ ARMS = ("clip", "constrained")
 FULL = dict(count=30, plans=8, epochs=150, split=(4, 1, 2))
 QUICK = dict(count=12, plans=2, epochs=3, split=(1, 1, 1))
 HOLD_S = 0.5                 # the near-limit plans hold their goal this long after the move
-PUSH_S = 0.1                 # the push's duration
+PUSH_S = 0.1                 # the push's duration (run 1)
+PUSH_AWAY_S = 0.01           # run 2's push: one control period
 TRACKING_MARGIN = 1.05       # "no worse": the tracking ratio's upper end at most this
 SOLVE_GOAL = 1.5             # "within 1.5x": the solve-time ratio's upper end at most this
 
 
 # -- data, model, plans ------------------------------------------------------------------------------------------
 
-def prepare(robot_name: str, folder: pathlib.Path, profile: dict, say) -> dict:
-    """The robot's tracking data and default model (kept in `folder`): paths and the model's training verdict."""
+def prepare(robot_name: str, folder: pathlib.Path, profile: dict, say, design: int) -> dict:
+    """The robot's tracking data (run 2: identification data, dithered PID and an ideal sensor) and default model
+    (kept in `folder`): paths and the model's training verdict."""
     from stdm_drake.collection.collect_job import CollectJob, collect_job
     from stdm_drake.learning.settings import TrainSettings
     from stdm_drake.learning.train_job import TrainJob, train_job
-    from stdm_drake.paths import MODELS_DIR
+    from stdm_drake.paths import CONTROLLERS_DIR, MODELS_DIR
     folder.mkdir(parents=True, exist_ok=True)
     robot_path = MODELS_DIR / f"{robot_name}.yaml"
     data = folder / "tracking.h5"
     if not data.exists():
         say(f"{robot_name}: collect {profile['count']} tracking plans")
+        recipe = (dict(controller=CONTROLLERS_DIR / "pid_dither_sized.yaml", sensor=CONTROLLERS_DIR / "sensor_ideal.yaml")
+                  if design == 2 else {})
         collect_job(CollectJob(output=data, protocol="tracking", count=profile["count"], seed=0, robot=robot_path,
-                               workers=1, progress=False))
+                               workers=1, progress=False, **recipe))
     checkpoint = folder / "default" / "seed0" / "checkpoint.pt"
     if not checkpoint.exists():
         say(f"{robot_name}: train the default model")
@@ -70,7 +77,8 @@ def training_verdict(summary: dict) -> dict:
     """The default model's validation verdict against the physics baselines, as `train` printed it."""
     entry = next(iter(summary["seeds"].values())) if isinstance(summary["seeds"], dict) else summary["seeds"][0]
     row = entry["validation"]["models"][0]
-    return {key: row[key] for key in ("name", "verdict", "ratio_q", "ratio_v") if key in row}
+    return dict(name=row["name"], verdict=row["verdict"], ratio_q=row["ratio_to_euler_q"],
+                ratio_v=row["ratio_to_velocity_unchanged_v"])
 
 
 def quintic(start: np.ndarray, goal: np.ndarray, steps: int, period: float, hold: int):
@@ -140,6 +148,50 @@ def payload_mass(robot, q: np.ndarray) -> float:
     return float(1.25 * smallest)
 
 
+def holdable_payload(robot, q: np.ndarray, v: np.ndarray, period: float) -> dict:
+    """Run 2's payload on a plan q, v (T, n): halfway between m_dyn (the smallest point mass at the tool whose
+    inverse-dynamics torque along the plan exceeds some joint's effort limit) and m_static (whose static gravity
+    torque at some pose does); 0.9 m_static, marked "no dynamic excess", where m_dyn >= m_static."""
+    from stdm_drake.robots.effects import Payload, PlantEffects
+    from stdm_drake.robots.plant import Dynamics, robot_joint_limits
+    effort = robot_joint_limits(robot).effort
+    bare, loaded = Dynamics(robot), Dynamics(robot, PlantEffects(payload=Payload(mass=1.0)))
+    acceleration = np.gradient(v, period, axis=0)
+
+    def demand(dynamics, pose, velocity, qdd):       # M(q) (q̈ - a(q, v, 0)): the torque that gives q̈
+        return dynamics.mass_matrix(pose) @ (qdd - dynamics.acceleration(pose, velocity, np.zeros(len(pose))))
+
+    def smallest(torques) -> float:       # the least mass m > 0 with |tau0 + m per_kg| beyond the effort somewhere
+        low = np.inf
+        for tau0, per_kg in torques:
+            for j in range(len(tau0)):
+                if abs(per_kg[j]) < 1e-9:
+                    continue
+                bound = (effort[j] - tau0[j]) / per_kg[j] if per_kg[j] > 0 else (-effort[j] - tau0[j]) / per_kg[j]
+                if bound > 0:
+                    low = min(low, bound)
+        return float(low)
+    static = smallest([(bare.gravity_torque(pose), loaded.gravity_torque(pose) - bare.gravity_torque(pose))
+                       for pose in q])
+    dynamic = smallest([(demand(bare, pose, velocity, qdd), demand(loaded, pose, velocity, qdd) - demand(bare, pose, velocity, qdd))
+                        for pose, velocity, qdd in zip(q, v, acceleration)])
+    excess = dynamic < static
+    return dict(payload_kg=0.5 * (dynamic + static) if excess else 0.9 * static, m_dynamic_kg=dynamic,
+                m_static_kg=static, dynamic_excess=bool(excess))
+
+
+def push_away(robot, plan: dict, period: float) -> dict:
+    """Run 2's push on a near-limit plan: joint j away from its limit, from the move's end for PUSH_AWAY_S, of
+    M_eff,j(goal) x 0.8 v_max,j / PUSH_AWAY_S (staying inside is possible on every plan: the return may be slow)."""
+    from stdm_drake.robots.plant import Dynamics, robot_joint_limits
+    limits, dynamics = robot_joint_limits(robot), Dynamics(robot)
+    goal, j = np.asarray(plan["goal"]), plan["joint"]
+    inertia = float(dynamics.effective_inertia(goal)[j])
+    force = inertia * 0.8 * limits.velocity[j] / PUSH_AWAY_S
+    return dict(torque_nm=float(-plan["side"] * force), start_s=plan["move_steps"] * period, duration_s=PUSH_AWAY_S,
+                effective_inertia=inertia, possible=True)
+
+
 def push_of(robot, plan: dict, period: float) -> dict:
     """The design's push on a near-limit plan (joint j toward its limit, from the move's end for PUSH_S) and its
     feasibility estimate (the joint's travel under full braking against the distance to its limit)."""
@@ -174,8 +226,8 @@ def crossing_depth(states: np.ndarray, limits) -> float:
     return float(max(depth.max(), 0.0))
 
 
-def run_cell_loops(robot, prepared: dict, profile: dict, say) -> dict:
-    """Every closed loop of one robot: (runs, the plans' records)."""
+def run_cell_loops(robot, prepared: dict, profile: dict, say, design: int) -> dict:
+    """Every closed loop of one robot under design `design` (1 or 2): (runs, the plans' records)."""
     import torch
 
     from stdm_drake.closed_loop.comparison import closed_loop_metrics, held_out_references
@@ -204,15 +256,18 @@ def run_cell_loops(robot, prepared: dict, profile: dict, say) -> dict:
     nominal = PlantConfig.discrete(time_step)
     plants, pushes = {}, {}
     for index, reference, plan in references["near-limit"]:
-        mass = payload_mass(robot, reference.q)
-        plan["payload_kg"] = mass
+        if design == 2:
+            plan["payload"] = holdable_payload(robot, reference.q, reference.v, period)
+            mass = plan["payload_kg"] = plan["payload"]["payload_kg"]
+        else:
+            mass = plan["payload_kg"] = payload_mass(robot, reference.q)
         plants[index] = PlantConfig.discrete(time_step, effects=plant_effects_for(
             PlantEffects(source="constrained-mpc study: a payload the models do not know",
                          payload=Payload(mass=mass)), robot, time_step))
-        plan["push"] = push_of(robot, plan, period)
+        plan["push"] = push_away(robot, plan, period) if design == 2 else push_of(robot, plan, period)
         torque = np.zeros(n)
         torque[plan["joint"]] = plan["push"]["torque_nm"]
-        pushes[index] = JointPush(torque, plan["push"]["start_s"], PUSH_S)
+        pushes[index] = JointPush(torque, plan["push"]["start_s"], plan["push"]["duration_s"])
     references["payload"] = references["push"] = references["near-limit"]
     models = [PlantModel(period, robot=robot, integrator="rk4"),
               load_model(prepared["checkpoint"], robot, name="default", for_control=True)]
@@ -377,6 +432,8 @@ def write_results(results: dict, folder: pathlib.Path) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--run", type=int, choices=(1, 2), default=2,
+                        help="the design: 1 (the first) or 2 (after run 1's results; the default), docs/constrained_mpc.md")
     parser.add_argument("--quick", action="store_true",
                         help="2 plans per scenario, 12 plans of data, 3 epochs (a smoke run; out/constrained_mpc_quick)")
     parser.add_argument("--output", "-o", type=pathlib.Path,
@@ -390,9 +447,10 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.robots.robot import load_robot
     profile = QUICK if args.quick else FULL
     suffix = "_quick" if args.quick else ""
+    results_folder = ROOT / "docs" / "results" / "constrained_mpc"
     output = args.output or (ROOT / "out" / "constrained_mpc_quick" if args.quick
-                             else ROOT / "docs" / "results" / "constrained_mpc")
-    data_folder = args.data or ROOT / "out" / f"constrained_mpc_data{suffix}"
+                             else results_folder / "run2" if args.run == 2 else results_folder)
+    data_folder = (args.data or ROOT / "out" / f"constrained_mpc_data{suffix}") / ("run2" if args.run == 2 else "")
     record = provenance(sys.argv[2:])
 
     def say(line: str) -> None:
@@ -400,10 +458,10 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     runs, plans, training, settings = [], {}, {}, {}
     for name in args.robots:
-        prepared = prepare(name, data_folder / name, profile, say)
+        prepared = prepare(name, data_folder / name, profile, say, args.run)
         robot = load_robot(prepared["robot"])
         training[robot.name] = prepared["training"]
-        result = run_cell_loops(robot, prepared, profile, say)
+        result = run_cell_loops(robot, prepared, profile, say, args.run)
         runs += result["runs"]
         plans[robot.name] = result["plans"]
         settings[robot.name] = result["mpc_settings"]
@@ -411,7 +469,8 @@ def run(args: argparse.Namespace) -> int:
     goal = goals(table)
     text = lines_of(table, goal, training)
     print("\n".join(text))
-    results = dict(written_by="tools/study.py constrained-mpc", design="docs/constrained_mpc.md", quick=args.quick,
+    results = dict(written_by="tools/study.py constrained-mpc", design="docs/constrained_mpc.md", run=args.run,
+                   quick=args.quick,
                    provenance=record, seconds=round(time.perf_counter() - started, 1), profile=profile,
                    training=training, mpc_settings=settings, plans=plans, cells=table, goals=goal, summary=text,
                    runs=runs)
