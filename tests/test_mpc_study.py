@@ -161,7 +161,16 @@ def test_the_study_records_its_inputs_and_the_optimizer_it_ran(tracking_dataset,
     assert inputs["mpc_settings"]["settings"]["horizon"] == 5
     assert inputs["mpc_settings"]["settings"]["optimizer"] == dict(type="Ilqr", max_iterations=2,
                                                                    line_search=[1.0, 0.5, 0.25, 0.1], regularization=1e-6)
-    assert "| plant | 1 |" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "| plant | 1 |" in printed
+    # the constraint summary: the settings' mode, the steps with a constraint active and with slack, the crossings
+    steps = result.results[0].steps
+    assert (f"- plant: constraints soft (torque box in the optimizer; position and velocity limits 0.02 rad and "
+            f"0.05 rad/s inside): a limit active on 0 of {steps} control steps, slack used on 0; the plant's limits "
+            f"crossed on 0") in printed
+    assert inputs["mpc_settings"]["settings"]["constraints"] == dict(mode="soft", position_margin=0.02,
+                                                                     velocity_margin=0.05, penalty_weight=1e5)
+    assert {"constraint_active_steps", "slack_steps"} <= set(record["runs"][0])
 
 
 def test_a_bad_study_is_refused_before_any_work(tracking_dataset, tmp_path):

@@ -13,8 +13,10 @@ continuous dynamics in RK4 steps with exact Jacobians, `PlantModel(integrator="r
 Cost over the horizon H (k = 0..H-1, reference r from a planner, u_ff = g(q_ref) the static
 gravity torque at the reference):
     sum_k (x_k+1 - r_k+1)^T Q (x_k+1 - r_k+1) + (u_k - u_ff,k)^T R (u_k - u_ff,k),
-with the last state term weighted by `terminal_factor`. Torques are clipped to the effort limits
-in the forward passes (clamped iLQR). The first torque is applied, the rest warm-starts the next
+with the last state term weighted by `terminal_factor`, plus the exact penalty of the predicted states'
+crossings of the robot's position and velocity limits; the torques stay within their effort limits as hard
+constraints of every optimizer's problem (`constraints`: the settings' `constraints:` block, soft by default;
+`mode: off` clips the torques of an unconstrained step instead). The first torque is applied, the rest warm-starts the next
 solve; by default one iteration per control step (the real-time iteration: with the warm start, more
 iterations changed the closed-loop tracking by less than 0.5 %).
 
@@ -26,7 +28,8 @@ Every prediction model is a `DynamicsModel` (`dynamics.model`) with its `sample_
 optimizers call its one-row `step_single` and its batched `linearize(x (H, 2n), u (H, m)) -> (x_next (H, 2n),
 A (H, 2n, 2n), B (H, 2n, m))`; a model with only `step` and `jacobians` gets both from those.
 
-Modules: the tracking cost and the optimizer interfaces (`optimizer`), the optimizers and their settings
+Modules: the tracking cost and the optimizer interfaces (`optimizer`), the robot's limits as constraints and
+their QPs (`constraints`), the optimizers and their settings
 (`rti`, `ilqr`), these settings, this controller and its closed loop (here), the comparison of prediction
 models (`comparison`), the setting each model is tuned to (`tuning`) and the study `stdm-drake mpc` runs
 (`study`); the plant as a prediction model is `dynamics.physics.PlantModel`.
@@ -250,11 +253,16 @@ class MpcController(LeafSystem):
     measured state made with both (discrete), the warm-start plan: torques and predicted states, shifted
     by one period (abstract).
 
-    If the model's predictions are not finite, the controller applies gravity compensation at the
-    measured q, clipped to the effort limits, and records the step in `log.fallback`.
+    Limits: the optimizer keeps the torques within the robot's effort limits and the predicted states within
+    its position and velocity limits (the plant's, the robot config's overrides included) as `config.constraints`
+    says (soft by default); `log.constraint_active` and `log.slack` record, per step, whether a limit was active
+    in the solution and the largest crossing it accepted. If the model's predictions are not finite, the
+    controller applies gravity compensation at the measured q, clipped to the effort limits, and records the
+    step in `log.fallback`.
 
     optimizer: the `TrajectoryOptimizer` that solves each step (default: `config.solver`, the config's
-    optimizer of `model` with its cost and settings); it brings its own model, cost and effort limits.
+    optimizer of `model` with its cost, settings and the robot's limits); it brings its own model, cost and
+    limits.
     """
 
     def __init__(self, model, reference: Reference, config: MpcConfig, plant_time_step: float,

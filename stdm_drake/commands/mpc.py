@@ -28,9 +28,11 @@ def add_arguments(parser) -> None:
                              "tracked nor trained on (9 closed loops per plan and model; docs/guides/robots.md, 'Plant effects'); the gain replaces "
                              "the settings' disturbance_gain, so a --config file that sets it is refused")
     parser.add_argument("--config", type=pathlib.Path,
-                        help="MPC settings YAML, the optimizer among them as `optimizer: !Rti {...}` or "
-                             "`optimizer: !Ilqr {...}` (default: controllers/mpc.yaml; for another robot, its effort "
-                             "weights derived from the robot's inertia, see docs/guides/robots.md)")
+                        help="MPC settings YAML: the optimizer as a tagged value (`optimizer: !Rti {...}`, !Ilqr, "
+                             "!Icem, !Mppi, !Cem), and how it keeps the robot's limits (`constraints: {mode: soft}`: "
+                             "torque box hard, position and velocity limits soft, the default; hard; off: clip) "
+                             "(default: controllers/mpc.yaml; for another robot, its effort weights derived from the "
+                             "robot's inertia, see docs/guides/robots.md)")
     add_robot_argument(parser, "must be the dataset's robot")
     add_plant_effects_argument(parser, "the closed loops run on the affected plant (default: the effects the dataset "
                                        "records, if any)")
