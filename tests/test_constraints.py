@@ -285,3 +285,39 @@ def test_the_controllers_limits_are_the_robots_with_its_configs_overrides(tmp_pa
     assert bounds.upper[2] == pytest.approx(2.5 - margins.position_margin)
     assert bounds.upper[6 + 5] == pytest.approx(1.5 - margins.velocity_margin)
     assert bounds.upper[0] == pytest.approx(2 * np.pi - margins.position_margin)
+
+
+def test_a_qp_whose_rows_do_not_settle_keeps_the_torque_box_and_reports_the_crossings(monkeypatch):
+    """Bounded work: when DAQP cannot settle the state rows within its iterations (an untrained model's predictions
+    far outside every limit), the step is the torque box's QP alone and its crossings are reported as slack."""
+    import stdm_drake.closed_loop.constraints as constraints
+    hessian, gradient, G, c = condensed_problem(2)
+    states = c + G @ np.linalg.solve(hessian, -gradient)
+    spread = np.abs(states.reshape(-1, 12)).max(axis=0)
+    bounds = StateBounds(-0.3 * spread, 0.3 * spread, False, 10.0)
+    torque = np.full(len(gradient), 1e6)
+    settled = CondensedQp(bounds, 6).solve(hessian, gradient, -torque, torque, G, c)
+    monkeypatch.setattr(constraints, "MAX_QP_ITERATIONS", 1)
+    bounded = CondensedQp(bounds, 6).solve(hessian, gradient, -torque, torque, G, c)
+    box_only = box_qp(hessian, gradient, -torque, torque)[0]
+    np.testing.assert_allclose(bounded.delta, box_only, atol=1e-9 * np.abs(box_only).max())
+    crossing = bounds.violation((c + G @ bounded.delta).reshape(-1, 12)).max()
+    assert bounded.active and bounded.slack == pytest.approx(crossing) and crossing > settled.slack
+
+
+def test_a_push_acts_beside_the_actuators_and_keeps_the_plant_effects_friction(plant_model):
+    """JointPush: a zero push leaves the closed loop bit for bit as it was (the friction the effects feed into the
+    same input still acts, through the adder); a push on the wrist moves it, beyond what its effort limit allows."""
+    from stdm_drake.closed_loop.mpc import JointPush
+    from stdm_drake.paths import MODELS_DIR
+    from stdm_drake.robots.plant import PlantConfig, plant_effects_for
+    reference, config = quintic_reference(10), load_mpc_config()
+    affected = PlantConfig.discrete(0.001, effects=plant_effects_for(MODELS_DIR / "ur10_effects.yaml", UR10, 0.001))
+    plain = run_closed_loop(plant_model, reference, config, affected, robot=UR10)
+    zero = run_closed_loop(plant_model, reference, config, affected, robot=UR10,
+                           push=JointPush(np.zeros(6), 0.03, 0.02))
+    np.testing.assert_array_equal(np.array(plain.state), np.array(zero.state))
+    pushed = run_closed_loop(plant_model, reference, config, affected, robot=UR10,
+                             push=JointPush(np.r_[0, 0, 0, 0, 0, 200.0], 0.03, 0.02))    # 200 N m: 3.6x the limit
+    difference = np.abs(np.array(pushed.state) - np.array(plain.state)).max(axis=0)
+    assert difference[11] > 1.0 and difference[:5].max() < difference[5]
