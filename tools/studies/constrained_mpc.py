@@ -7,12 +7,13 @@ held-out plans, 8 plans that end a few degrees inside a position limit, the same
 limits and with a push toward the limit; per cell the paired ratios over plans with their 95 % intervals, the
 crossings of the plant's limits and the verdicts the design fixes.
 
-    python tools/study.py constrained-mpc [--run 2] [--quick] [-o docs/results/constrained_mpc/run2] [--data out/constrained_mpc_data]
+    python tools/study.py constrained-mpc [--run 3] [--quick] [-o docs/results/constrained_mpc/run3] [--data out/constrained_mpc_data]
 
 Run 1 is the first design (default tracking data, the payload 1.25x the static limit, a push toward the limit);
-run 2 (the default) the second (identification data, a holdable payload beyond the limits while accelerating, a
-push away from a goal near a limit); both in docs/constrained_mpc.md. Data and trained models are kept in
---data, so a second run only repeats the closed loops.
+run 2 the second (identification data, a holdable payload beyond the limits while accelerating, a push away from
+a goal near a limit); run 3 (the default) the third (run 2's data and models; plans that leave a position limit
+or exceed a velocity limit); all in docs/constrained_mpc.md. Data and trained models are kept in --data, so a
+second run only repeats the closed loops.
 """
 import argparse
 import dataclasses
@@ -32,8 +33,10 @@ import numpy as np  # noqa: E402
 
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 ROBOTS = ("ur10", "panda")
-SCENARIOS = ("held-out", "near-limit", "payload", "push")
-BINDING = ("near-limit", "payload", "push")
+SCENARIOS = {1: ("held-out", "near-limit", "payload", "push"), 2: ("held-out", "near-limit", "payload", "push"),
+             3: ("past-limit", "over-speed")}
+BINDING = ("near-limit", "payload", "push", "past-limit", "over-speed")   # the scenarios with a limits verdict
+OVER_SPEED = 1.5             # run 3: the over-speed move's duration is the near-limit one's over this
 ARMS = ("clip", "constrained")
 FULL = dict(count=30, plans=8, epochs=150, split=(4, 1, 2))
 QUICK = dict(count=12, plans=2, epochs=3, split=(1, 1, 1))
@@ -255,7 +258,7 @@ def run_cell_loops(robot, prepared: dict, profile: dict, say, design: int) -> di
                                  plan) for plan in near]
     nominal = PlantConfig.discrete(time_step)
     plants, pushes = {}, {}
-    for index, reference, plan in references["near-limit"]:
+    for index, reference, plan in (references["near-limit"] if "payload" in SCENARIOS[design] else []):
         if design == 2:
             plan["payload"] = holdable_payload(robot, reference.q, reference.v, period)
             mass = plan["payload_kg"] = plan["payload"]["payload_kg"]
@@ -269,14 +272,26 @@ def run_cell_loops(robot, prepared: dict, profile: dict, say, design: int) -> di
         torque[plan["joint"]] = plan["push"]["torque_nm"]
         pushes[index] = JointPush(torque, plan["push"]["start_s"], plan["push"]["duration_s"])
     references["payload"] = references["push"] = references["near-limit"]
+    references["past-limit"], references["over-speed"] = [], []
+    for plan in near:      # run 3: the goal mirrored across the limit; the move 1/OVER_SPEED as long
+        start, goal = np.asarray(plan["start"]), np.asarray(plan["goal"])
+        beyond = goal.copy()
+        beyond[plan["joint"]] += 2 * plan["side"] * plan["inside_rad"]
+        references["past-limit"].append((plan["plan"], Reference(*quintic(start, beyond, plan["move_steps"], period,
+                                                                          plan["hold_steps"])), plan))
+        fast = max(1, int(round(plan["move_steps"] / OVER_SPEED)))
+        plan["over_speed_peak_ratio"] = float(1.875 * abs(goal - start)[plan["joint"]] / (fast * period)
+                                              / limits.velocity[plan["joint"]])
+        references["over-speed"].append((plan["plan"], Reference(*quintic(start, goal, fast, period, plan["hold_steps"])),
+                                         plan))
     models = [PlantModel(period, robot=robot, integrator="rk4"),
               load_model(prepared["checkpoint"], robot, name="default", for_control=True)]
     config = mpc_config_for(robot)
     configs = {"clip": dataclasses.replace(config, constraints=Constraints(mode="off")), "constrained": config}
     runs = []
-    total = len(SCENARIOS) * profile["plans"] * len(models) * len(ARMS)
+    total = len(SCENARIOS[design]) * profile["plans"] * len(models) * len(ARMS)
     started = time.perf_counter()
-    for scenario in SCENARIOS:
+    for scenario in SCENARIOS[design]:
         for index, reference, plan in references[scenario]:
             gravity = np.array([dynamics.gravity_torque(q) for q in reference.window(0, len(reference.q) + 1)[:, :n]])
             for model in models:
@@ -376,14 +391,28 @@ def cells(runs: list, plans: dict) -> list:
 
 
 def goals(table: list) -> dict:
-    """The issue's goals as the design states them."""
+    """The issue's goals as the design states them (run 3: its own answer, `run3_answer`)."""
     binding = [cell for cell in table if cell["scenario"] in BINDING]
     held = [cell for cell in table if cell["scenario"] == "held-out"]
     failing_a = [f"{c['robot']} {c['model']} {c['scenario']}" for c in binding if c["limits_verdict"] == "not met"]
     failing_b = [f"{c['robot']} {c['model']}: tracking {c['tracking_verdict']}, solve {c['solve_verdict']}" for c in held
                  if c["tracking_verdict"] not in ("no worse", "constrained better") or c["solve_verdict"] != "within 1.5x"]
+    if not held:     # run 3: no held-out plans; its answer instead of goal (b)
+        return dict(limits=dict(verdict="met" if not failing_a else "not met", failing=failing_a),
+                    run3_answer=run3_answer(binding))
     return dict(limits=dict(verdict="met" if not failing_a else "not met", failing=failing_a),
                 nothing_binds=dict(verdict="met" if not failing_b else "not met", failing=failing_b))
+
+
+def run3_answer(cells_: list) -> str:
+    """Run 3's answer (docs/constrained_mpc.md): "yes" when every plant cell is met and no cell is not met."""
+    plant = [cell for cell in cells_ if cell["model"] == "plant"]
+    failing = [cell for cell in cells_ if cell["limits_verdict"] == "not met"]
+    if all(cell["limits_verdict"] == "met" for cell in plant) and not failing:
+        return "yes"
+    if all(cell["limits_verdict"] == "met" for cell in plant) and all(cell["model"] != "plant" for cell in failing):
+        return "yes with the plant, not with the default model"
+    return "no"
 
 
 # -- provenance and output ---------------------------------------------------------------------------------------
@@ -417,6 +446,9 @@ def lines_of(table: list, goal: dict, training: dict) -> list[str]:
                     f"{cell['slack_steps']}{limits}")
     text.append(f"goal (a), no limit crossed where clipping crosses: {goal['limits']['verdict']}"
                 + (f" ({'; '.join(goal['limits']['failing'])})" if goal["limits"]["failing"] else ""))
+    if "run3_answer" in goal:
+        text.append(f"run 3's answer, the constrained controller keeps the limits a plan leaves: {goal['run3_answer']}")
+        return text
     text.append(f"goal (b), where nothing binds tracking no worse and solve within 1.5x: {goal['nothing_binds']['verdict']}"
                 + (f" ({'; '.join(goal['nothing_binds']['failing'])})" if goal["nothing_binds"]["failing"] else ""))
     return text
@@ -432,8 +464,9 @@ def write_results(results: dict, folder: pathlib.Path) -> None:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--run", type=int, choices=(1, 2), default=2,
-                        help="the design: 1 (the first) or 2 (after run 1's results; the default), docs/constrained_mpc.md")
+    parser.add_argument("--run", type=int, choices=(1, 2, 3), default=3,
+                        help="the design (docs/constrained_mpc.md): 1 (the first), 2 (after run 1's results), 3 (plans "
+                             "that leave a limit, after run 2's; the default)")
     parser.add_argument("--quick", action="store_true",
                         help="2 plans per scenario, 12 plans of data, 3 epochs (a smoke run; out/constrained_mpc_quick)")
     parser.add_argument("--output", "-o", type=pathlib.Path,
@@ -449,8 +482,9 @@ def run(args: argparse.Namespace) -> int:
     suffix = "_quick" if args.quick else ""
     results_folder = ROOT / "docs" / "results" / "constrained_mpc"
     output = args.output or (ROOT / "out" / "constrained_mpc_quick" if args.quick
-                             else results_folder / "run2" if args.run == 2 else results_folder)
-    data_folder = (args.data or ROOT / "out" / f"constrained_mpc_data{suffix}") / ("run2" if args.run == 2 else "")
+                             else results_folder / f"run{args.run}" if args.run > 1 else results_folder)
+    # (run 3 uses run 2's data and models)
+    data_folder = (args.data or ROOT / "out" / f"constrained_mpc_data{suffix}") / ("run2" if args.run > 1 else "")
     record = provenance(sys.argv[2:])
 
     def say(line: str) -> None:
@@ -458,7 +492,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     runs, plans, training, settings = [], {}, {}, {}
     for name in args.robots:
-        prepared = prepare(name, data_folder / name, profile, say, args.run)
+        prepared = prepare(name, data_folder / name, profile, say, min(args.run, 2))
         robot = load_robot(prepared["robot"])
         training[robot.name] = prepared["training"]
         result = run_cell_loops(robot, prepared, profile, say, args.run)
