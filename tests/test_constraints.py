@@ -308,7 +308,7 @@ def test_a_qp_whose_rows_do_not_settle_keeps_the_torque_box_and_reports_the_cros
 def test_a_push_acts_beside_the_actuators_and_keeps_the_plant_effects_friction(plant_model):
     """JointPush: a zero push leaves the closed loop bit for bit as it was (the friction the effects feed into the
     same input still acts, through the adder); a push on the wrist moves it, beyond what its effort limit allows."""
-    from stdm_drake.closed_loop.mpc import JointPush
+    from stdm_drake.closed_loop.push import JointPush
     from stdm_drake.paths import MODELS_DIR
     from stdm_drake.robots.plant import PlantConfig, plant_effects_for
     reference, config = quintic_reference(10), load_mpc_config()

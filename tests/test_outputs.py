@@ -130,7 +130,7 @@ def test_closed_loops_that_fall_back_or_leave_the_limits_are_failures():
     per model (`mpc` prints them and exits 2)."""
     from stdm_drake.closed_loop.comparison import ClosedLoopResult, closed_loop_failures
     row = dict(trajectory=0, q_mse_rad2=1.0, v_mse=1.0, torque_rms_nm=1.0, effort_beyond_gravity_rms_nm=1.0,
-               solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[])
+               solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[], constraint_active_steps=0, slack_steps=0)
     results = [ClosedLoopResult(model="plant", fallbacks=0, limit_violations=0, **row),
                ClosedLoopResult(model="NaN", fallbacks=100, limit_violations=0, **row),
                ClosedLoopResult(model="wild", fallbacks=10, limit_violations=0, **row),

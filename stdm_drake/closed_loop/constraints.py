@@ -11,8 +11,8 @@ is a slack s >= 0 priced by an exact penalty, `penalty_weight` (s + s^2 / 2) per
 rad or rad/s): the linear term makes the penalty exact (no slack is used while the limits can be met and the
 weight exceeds the constraint's multiplier), the quadratic one keeps the QP strictly convex. The problem is
 therefore always feasible: a limit that cannot be met costs slack, never a failed solve. `mode: hard` drops the
-slack where the limits can be met (a QP with the state rows as hard constraints) and uses it only in a step whose
-hard QP is infeasible; `mode: off` is the controller before constraints: an unconstrained step, torques clipped
+slack where the limits can be met (the real-time iteration's QP with the state rows as hard constraints) and uses
+it only in a step whose hard QP is infeasible (the iLQR and the samplers price crossings alike in both modes); `mode: off` is the controller before constraints: an unconstrained step, torques clipped
 to the box afterwards, the state limits ignored (the reference the study compares against).
 
 The QPs are solved by DAQP (Arnström, Bemporad & Axehill 2022), a dual active-set solver: exact solutions (to
@@ -40,7 +40,8 @@ MAX_QP_ITERATIONS = 500     # DAQP's active-set changes per QP: beyond, the step
 class Constraints:
     """How the MPC keeps the robot's limits (YAML `constraints: {mode, position_margin, velocity_margin,
     penalty_weight}`; module docstring): mode "soft" (the default: torque box hard, state limits soft), "hard"
-    (state limits hard, slack only where they cannot be met) or "off" (torques clipped after an unconstrained
+    (state limits hard in the real-time iteration's QP, slack only where they cannot be met; the iLQR and the
+    samplers price crossings the same way in both modes) or "off" (torques clipped after an unconstrained
     step, state limits ignored); the margins (rad, rad/s) inside the plant's position and velocity limits;
     penalty_weight: the exact penalty's weight per rad (rad/s) of slack and node (and of half its square)."""
     mode: str = "soft"
@@ -103,8 +104,12 @@ class StateBounds:
         return float(self.penalty_weight * (slack.sum() + 0.5 * (slack ** 2).sum()))
 
     def penalty_derivatives(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Gradient (H, S) and the diagonal of the Gauss-Newton Hessian (H, S) of `penalty` at states x (H, S):
-        penalty_weight (1 + s) times the side's sign, and penalty_weight where a bound is crossed."""
+        """Gradient (H, S) and the diagonal of the Hessian (H, S) of `penalty` at states x (H, S): penalty_weight
+        (1 + s) times the side's sign, and penalty_weight, where a bound is crossed by s (0 elsewhere). The penalty
+        has a kink at the bound, which a Newton model does not see: the iLQR's line search keeps its steps where the
+        cost falls (on a linear arm it reaches the constrained optimum to 3e-4 of the effort limit with a moderate
+        penalty weight, tests/test_constraints.py; with a large one it may stop short of it at the kink; the
+        real-time iteration's QP treats the slack exactly)."""
         above, below = x > self.upper, x < self.lower
         slack = self.violation(x)
         gradient = self.penalty_weight * (1.0 + slack) * (above.astype(float) - below.astype(float))
@@ -145,7 +150,8 @@ def box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: 
                            np.asarray(upper, dtype=float), np.asarray(lower, dtype=float), np.zeros(count, dtype=np.intc))
     if exitflag < 1:
         raise ArithmeticError(f"box QP not solved (DAQP exit flag {exitflag})")
-    clamped = (d <= lower + ACTIVE_TOLERANCE) | (d >= upper - ACTIVE_TOLERANCE)
+    tolerance = ACTIVE_TOLERANCE * np.maximum(1.0, np.maximum(np.abs(lower), np.abs(upper)))   # (round-off of the scaling)
+    clamped = (d <= lower + tolerance) | (d >= upper - tolerance)
     return d, clamped
 
 
@@ -193,16 +199,17 @@ class CondensedQp:
             if not len(crossed):
                 break
             rows = np.union1d(rows, crossed)
-        else:
-            raise ArithmeticError(f"constrained QP: state rows still crossed after {MAX_ROUNDS} rounds")
+        else:   # (rows only ever added: not reached in practice; bounded work all the same)
+            return self._box_only(hessian, gradient, lower, upper, response, prediction, lower_rows, upper_rows)
         near = (states > upper_rows - ACTIVE_TOLERANCE) | (states < lower_rows + ACTIVE_TOLERANCE)
         self._rows = np.flatnonzero(near)
         self._active = active
         return QpSolution(delta, bool(np.any(active) or np.any(near)), slack)
 
     def _box_only(self, hessian, gradient, lower, upper, response, prediction, lower_rows, upper_rows) -> QpSolution:
-        """The step of a QP whose state rows DAQP cannot settle within MAX_QP_ITERATIONS (a prediction far outside
-        every limit, e.g. an untrained model's): the torque box alone, the crossings it leaves reported as slack."""
+        """The step of a QP whose state rows DAQP cannot settle within MAX_QP_ITERATIONS or MAX_ROUNDS (a prediction
+        far outside every limit, e.g. an untrained model's): the torque box alone, the crossings it leaves reported
+        as slack."""
         delta, _, active = self._solve_rows(hessian, gradient, lower, upper, response, prediction, lower_rows,
                                             upper_rows, np.zeros(0, dtype=int), False)
         states = prediction + response @ delta
@@ -216,8 +223,9 @@ class CondensedQp:
 
     def _warm_rows(self, total: int) -> np.ndarray:
         """The last working set shifted by one node (its first node's rows dropped, the last node's kept)."""
-        shifted = self._rows - self.state_dim
-        last = self._rows[self._rows >= total - self.state_dim]
+        rows = self._rows[self._rows < total]          # (a solve over a shorter horizon keeps what it has)
+        shifted = rows - self.state_dim
+        last = rows[rows >= total - self.state_dim]
         return np.union1d(shifted[shifted >= 0], last).astype(int)
 
     def _solve_rows(self, hessian, gradient, lower, upper, response, prediction, lower_rows, upper_rows, rows, hard):

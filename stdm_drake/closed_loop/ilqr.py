@@ -7,8 +7,8 @@ With the robot's limits on (`constraints.py`) the backward pass is box-DDP's (Ta
 at every node the torque step is the solution of the box QP min 1/2 d^T Q_uu d + Q_u^T d over the torques'
 room to their effort limits (`constraints.box_qp`, only where the unconstrained step leaves it), the feedback
 acts on the free torques only (the clamped ones' rows are zero), and the forward pass keeps the policy's torques
-in the box; the state limits' exact penalty enters the cost, its gradient and its Gauss-Newton curvature at every
-node. With no bound active the iteration is the unconstrained one, bit for bit. With constraints off the
+in the box; the state limits' exact penalty enters the cost, its gradient and its curvature at every node where a
+predicted state crosses its bound (`StateBounds.penalty_derivatives`: its kink is left to the line search). With no bound active the iteration is the unconstrained one, bit for bit. With constraints off the
 torques are clipped in the backward pass's stead (the clamped iLQR before constraints). The default optimizer is the
 real-time iteration (`rti`), which needs no sequential rollout; the iLQR serves long horizons and line-searched
 iterations. Its settings: `Ilqr`, in the MPC settings

@@ -235,7 +235,8 @@ def run_cell_loops(robot, prepared: dict, profile: dict, say, design: int) -> di
 
     from stdm_drake.closed_loop.comparison import closed_loop_metrics, held_out_references
     from stdm_drake.closed_loop.constraints import Constraints
-    from stdm_drake.closed_loop.mpc import JointPush, Reference, mpc_config_for, run_closed_loop
+    from stdm_drake.closed_loop.mpc import Reference, mpc_config_for, run_closed_loop
+    from stdm_drake.closed_loop.push import JointPush
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.dynamics.model_files import load_model
     from stdm_drake.dynamics.physics import PlantModel
