@@ -265,6 +265,14 @@ def test_the_settings_file_sets_the_constraints(tmp_path):
     config = load_mpc_config(path)
     assert config.constraints == Constraints(mode="hard", position_margin=0.05)
     assert load_mpc_config().constraints == Constraints()       # the shipped file: the defaults, soft
+    path.write_text("constraints: {mode: off}\n")          # (a bare `off`, which YAML reads as false)
+    config = load_mpc_config(path)
+    config.validate()
+    assert config.constraints.mode == "off" and config.record()["constraints"]["mode"] == "off"
+    assert config.solver(LinearModel(), free_limits(10.0)).bounds is None
+    path.write_text("constraints: {mode: on}\n")
+    with pytest.raises(InputError, match="constraints mode must be one of"):
+        load_mpc_config(path).validate()
     path.write_text("constraints: {mode: sometimes}\n")
     with pytest.raises(InputError, match="constraints mode must be one of"):
         load_mpc_config(path).validate()

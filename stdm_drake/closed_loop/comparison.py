@@ -141,6 +141,7 @@ def real_time_lines(rows: list[dict], sample_period: float) -> list[str]:
 def constraint_lines(rows: list[dict], constraints) -> list[str]:
     """One line per model: how its MPC met the robot's limits (`constraints.Constraints`): the control steps with a
     limit active in the solution and with slack used, beside the steps that crossed the plant's limits."""
+    constraints.validate()
     if constraints.mode == "off":
         how = "constraints off (torques clipped after the solve, state limits not in the optimizer)"
     else:

@@ -21,6 +21,7 @@ shifted by one period. Shapes for n joints, m actuated, horizon H, state S = 2n.
 """
 
 import dataclasses
+import typing
 
 import numpy as np
 
@@ -33,7 +34,8 @@ SLACK_TOLERANCE = 1e-7      # slack beyond this (rad, rad/s) counts as used
 MAX_ROUNDS = 20             # constraint-generation rounds of one QP (rows are only added: it ends far sooner)
 SENSE_ACTIVE, SENSE_LOWER = 1, 2   # DAQP's constraint flags: active in the warm start, at its lower bound
 INFINITE = 1e30             # DAQP's bound beyond which a side is none
-MAX_QP_ITERATIONS = 500     # DAQP's active-set changes per QP: beyond, the step keeps the torque box alone
+MAX_QP_ITERATIONS = 300     # DAQP's active-set changes per control step over all its rounds: beyond, the step
+                            # keeps the torque box alone (bounded work where a model's predictions leave every limit)
 
 
 @dataclasses.dataclass
@@ -44,15 +46,18 @@ class Constraints:
     samplers price crossings the same way in both modes) or "off" (torques clipped after an unconstrained
     step, state limits ignored); the margins (rad, rad/s) inside the plant's position and velocity limits;
     penalty_weight: the exact penalty's weight per rad (rad/s) of slack and node (and of half its square)."""
-    mode: str = "soft"
+    mode: typing.Union[str, bool] = "soft"    # (YAML reads a bare `off` as false: `validate` makes it "off")
     position_margin: float = 0.02
     velocity_margin: float = 0.05
     penalty_weight: float = 1e5
 
     def validate(self) -> None:
         """InputError (one line) for settings no optimizer can use: an unknown mode, margins negative or not
-        finite, a penalty weight not in (0, MAX_PENALTY]."""
-        if self.mode not in MODES:
+        finite, a penalty weight not in (0, MAX_PENALTY]. A mode of false (YAML's reading of a bare `off`) becomes
+        "off"."""
+        if self.mode is False:
+            self.mode = "off"
+        if self.mode is True or self.mode not in MODES:
             raise InputError(f"mpc constraints mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         for name in ("position_margin", "velocity_margin"):
             value = getattr(self, name)
@@ -125,28 +130,28 @@ class QpSolution:
     slack: float
 
 
-def _daqp(hessian, gradient, rows, upper, lower, sense):
+def _daqp(hessian, gradient, rows, upper, lower, sense, iterations: int = MAX_QP_ITERATIONS):
     """DAQP on min 1/2 x^T hessian x + gradient^T x, lower <= [x; rows x] <= upper (the first len(x) bounds simple),
     solved in Jacobi-scaled variables y = x sqrt(hessian_ii) (the torque steps and the slacks differ in curvature by
-    up to 1e10; scaled, DAQP takes 5-10x fewer iterations on such steps); at most MAX_QP_ITERATIONS iterations.
-    (x, DAQP's exit flag: 1 optimal, -1 infeasible, -4 iteration limit, ...)."""
+    up to 1e10; scaled, DAQP takes 5-10x fewer iterations on such steps); at most `iterations` iterations.
+    (x, DAQP's exit flag: 1 optimal, -1 infeasible, -4 iteration limit, ...; the iterations it took)."""
     import daqp
     scale = 1.0 / np.sqrt(np.diag(hessian))
     count = len(gradient)
     scaled_upper, scaled_lower = np.array(upper, dtype=float), np.array(lower, dtype=float)
     scaled_upper[:count] = np.where(np.abs(upper[:count]) >= INFINITE, upper[:count], upper[:count] / scale)
     scaled_lower[:count] = np.where(np.abs(lower[:count]) >= INFINITE, lower[:count], lower[:count] / scale)
-    y, _, exitflag, _ = daqp.solve(hessian * scale[:, None] * scale[None], gradient * scale,
+    y, _, exitflag, info = daqp.solve(hessian * scale[:, None] * scale[None], gradient * scale,
                                    np.ascontiguousarray(rows * scale[None]), scaled_upper, scaled_lower, sense,
-                                   iter_limit=MAX_QP_ITERATIONS)
-    return np.asarray(y, dtype=float) * scale, int(exitflag)
+                                   iter_limit=max(int(iterations), 1))
+    return np.asarray(y, dtype=float) * scale, int(exitflag), int(info["iterations"])
 
 
 def box_qp(hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """min 1/2 d^T hessian d + gradient^T d over lower <= d <= upper (N,), hessian (N, N) positive definite:
     (d (N,), clamped (N,) bool: the bounds active at d). ArithmeticError if DAQP finds no solution."""
     count = len(gradient)
-    d, exitflag = _daqp(np.ascontiguousarray(hessian), np.asarray(gradient, dtype=float), np.zeros((0, count)),
+    d, exitflag, _ = _daqp(np.ascontiguousarray(hessian), np.asarray(gradient, dtype=float), np.zeros((0, count)),
                            np.asarray(upper, dtype=float), np.asarray(lower, dtype=float), np.zeros(count, dtype=np.intc))
     if exitflag < 1:
         raise ArithmeticError(f"box QP not solved (DAQP exit flag {exitflag})")
@@ -172,6 +177,7 @@ class CondensedQp:
         self.bounds, self.joints = bounds, joints
         self.state_dim = len(bounds.lower)
         self._rows = np.zeros(0, dtype=int)      # working set of state rows (index into the H S stacked states)
+        self._budget = MAX_QP_ITERATIONS         # DAQP's iterations left to the current control step
         self._active = None                      # DAQP flags of the torque bounds at the last solution (N,)
 
     def solve(self, hessian: np.ndarray, gradient: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -182,6 +188,7 @@ class CondensedQp:
         upper_rows = np.tile(self.bounds.upper, len(prediction) // self.state_dim)
         rows = self._warm_rows(len(prediction))
         hard = self.bounds.hard
+        self._budget = MAX_QP_ITERATIONS          # DAQP's iterations left to this control step's rounds
         for _ in range(MAX_ROUNDS):
             try:
                 delta, slack, active = self._solve_rows(hessian, gradient, lower, upper, response, prediction,
@@ -207,9 +214,10 @@ class CondensedQp:
         return QpSolution(delta, bool(np.any(active) or np.any(near)), slack)
 
     def _box_only(self, hessian, gradient, lower, upper, response, prediction, lower_rows, upper_rows) -> QpSolution:
-        """The step of a QP whose state rows DAQP cannot settle within MAX_QP_ITERATIONS or MAX_ROUNDS (a prediction
-        far outside every limit, e.g. an untrained model's): the torque box alone, the crossings it leaves reported
-        as slack."""
+        """The step of a QP whose state rows DAQP cannot settle within MAX_QP_ITERATIONS (over the step's rounds) or
+        MAX_ROUNDS (a prediction far outside every limit, e.g. an untrained model's): the torque box alone, the
+        crossings it leaves reported as slack."""
+        self._budget = MAX_QP_ITERATIONS          # (the box's own QP: a budget of its own)
         delta, _, active = self._solve_rows(hessian, gradient, lower, upper, response, prediction, lower_rows,
                                             upper_rows, np.zeros(0, dtype=int), False)
         states = prediction + response @ delta
@@ -239,9 +247,10 @@ class CondensedQp:
             sense_box[:-self.joints] = self._active[self.joints:]     # the previous solution, one node on
         if hard or chosen == 0:
             sense = np.concatenate([sense_box, np.zeros(chosen, dtype=np.intc)])
-            delta, exitflag = _daqp(hessian, gradient, np.ascontiguousarray(G),
-                                       np.concatenate([upper, np.minimum(row_upper, INFINITE)]),
-                                       np.concatenate([lower, np.maximum(row_lower, -INFINITE)]), sense)
+            delta, exitflag, used = _daqp(hessian, gradient, np.ascontiguousarray(G),
+                                          np.concatenate([upper, np.minimum(row_upper, INFINITE)]),
+                                          np.concatenate([lower, np.maximum(row_lower, -INFINITE)]), sense, self._budget)
+            self._budget -= used
             if exitflag < 1:
                 if hard and chosen:     # infeasible (-1), or no answer within the iterations: the soft problem
                     return None, 0.0, None
@@ -260,9 +269,9 @@ class CondensedQp:
         row_upper_all = np.concatenate([np.minimum(row_upper, INFINITE), none])      # G δ - s <= upper - c
         row_lower_all = np.concatenate([-none, np.maximum(row_lower, -INFINITE)])    # G δ + s >= lower - c
         sense = np.concatenate([sense_box, np.zeros(3 * chosen, dtype=np.intc)])
-        solution, exitflag = _daqp(full, linear, matrix,
-                                      np.concatenate([upper, none, row_upper_all]),
-                                      np.concatenate([lower, np.zeros(chosen), row_lower_all]), sense)
+        solution, exitflag, used = _daqp(full, linear, matrix, np.concatenate([upper, none, row_upper_all]),
+                                         np.concatenate([lower, np.zeros(chosen), row_lower_all]), sense, self._budget)
+        self._budget -= used
         if exitflag < 1:
             raise ArithmeticError(f"constrained QP not solved (DAQP exit flag {exitflag})")
         delta, slack = solution[:count], solution[count:]
