@@ -131,24 +131,33 @@ def near_limit_plans(robot, count: int, period: float) -> list[dict]:
     return plans
 
 
-def payload_mass(robot, q: np.ndarray) -> float:
-    """1.25 x the smallest point mass at the tool whose static gravity torque at some pose of q (T, n) exceeds some
-    joint's effort limit (the design's payload)."""
-    from stdm_drake.robots.effects import Payload, PlantEffects
-    from stdm_drake.robots.plant import Dynamics, robot_joint_limits
-    effort = robot_joint_limits(robot).effort
-    bare, loaded = Dynamics(robot), Dynamics(robot, PlantEffects(payload=Payload(mass=1.0)))
-    smallest = np.inf
-    for pose in q:
-        g = bare.gravity_torque(pose)
-        per_kg = loaded.gravity_torque(pose) - g
-        for j in range(len(g)):
+def smallest_exceeding_mass(effort: np.ndarray, torques) -> float:
+    """The least point mass m > 0 at the tool for which some |tau0_j + m per_kg_j| exceeds effort_j (N m), over
+    the (tau0 (n,), per_kg (n,)) pairs of `torques` (a torque linear in the payload's mass); inf if none."""
+    low = np.inf
+    for tau0, per_kg in torques:
+        for j in range(len(tau0)):
             if abs(per_kg[j]) < 1e-9:
                 continue
-            bound = (effort[j] - g[j]) / per_kg[j] if per_kg[j] > 0 else (-effort[j] - g[j]) / per_kg[j]
+            bound = (effort[j] - tau0[j]) / per_kg[j] if per_kg[j] > 0 else (-effort[j] - tau0[j]) / per_kg[j]
             if bound > 0:
-                smallest = min(smallest, bound)
-    return float(1.25 * smallest)
+                low = min(low, bound)
+    return float(low)
+
+
+def static_torques(robot, q: np.ndarray) -> list:
+    """(gravity torque, its change per kg at the tool) at every pose of q (T, n)."""
+    from stdm_drake.robots.effects import Payload, PlantEffects
+    from stdm_drake.robots.plant import Dynamics
+    bare, loaded = Dynamics(robot), Dynamics(robot, PlantEffects(payload=Payload(mass=1.0)))
+    return [(bare.gravity_torque(pose), loaded.gravity_torque(pose) - bare.gravity_torque(pose)) for pose in q]
+
+
+def payload_mass(robot, q: np.ndarray) -> float:
+    """1.25 x the smallest point mass at the tool whose static gravity torque at some pose of q (T, n) exceeds some
+    joint's effort limit (run 1's payload)."""
+    from stdm_drake.robots.plant import robot_joint_limits
+    return 1.25 * smallest_exceeding_mass(robot_joint_limits(robot).effort, static_torques(robot, q))
 
 
 def holdable_payload(robot, q: np.ndarray, v: np.ndarray, period: float) -> dict:
@@ -163,21 +172,10 @@ def holdable_payload(robot, q: np.ndarray, v: np.ndarray, period: float) -> dict
 
     def demand(dynamics, pose, velocity, qdd):       # M(q) (q̈ - a(q, v, 0)): the torque that gives q̈
         return dynamics.mass_matrix(pose) @ (qdd - dynamics.acceleration(pose, velocity, np.zeros(len(pose))))
-
-    def smallest(torques) -> float:       # the least mass m > 0 with |tau0 + m per_kg| beyond the effort somewhere
-        low = np.inf
-        for tau0, per_kg in torques:
-            for j in range(len(tau0)):
-                if abs(per_kg[j]) < 1e-9:
-                    continue
-                bound = (effort[j] - tau0[j]) / per_kg[j] if per_kg[j] > 0 else (-effort[j] - tau0[j]) / per_kg[j]
-                if bound > 0:
-                    low = min(low, bound)
-        return float(low)
-    static = smallest([(bare.gravity_torque(pose), loaded.gravity_torque(pose) - bare.gravity_torque(pose))
-                       for pose in q])
-    dynamic = smallest([(demand(bare, pose, velocity, qdd), demand(loaded, pose, velocity, qdd) - demand(bare, pose, velocity, qdd))
-                        for pose, velocity, qdd in zip(q, v, acceleration)])
+    static = smallest_exceeding_mass(effort, static_torques(robot, q))
+    dynamic = smallest_exceeding_mass(effort, [
+        (demand(bare, pose, velocity, qdd), demand(loaded, pose, velocity, qdd) - demand(bare, pose, velocity, qdd))
+        for pose, velocity, qdd in zip(q, v, acceleration)])
     excess = dynamic < static
     return dict(payload_kg=0.5 * (dynamic + static) if excess else 0.9 * static, m_dynamic_kg=dynamic,
                 m_static_kg=static, dynamic_excess=bool(excess))
