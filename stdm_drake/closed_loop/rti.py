@@ -138,13 +138,15 @@ class RtiSolver(TrajectoryOptimizer):
         if info != 0 or not np.all(np.isfinite(factor)):
             return None
         solution, _ = cholesky_solve(factor, gradient, lower=1)
-        active, slack = False, 0.0
+        active, slack, states = False, 0.0, None
         if self.qp is None:
             u_new = np.clip(u - solution.reshape(horizon, m), -self.effort_limit, self.effort_limit)
         else:
             u_new = u - solution.reshape(horizon, m)
             states = x[1:].ravel() + drift + gamma @ (u_new - u).ravel()
-            if not self._inside(u_new, states):
+            if self._inside(u_new, states):
+                self.qp.forget()
+            else:
                 lower = (-self.effort_limit - u).ravel()
                 upper = (self.effort_limit - u).ravel()
                 try:
@@ -153,12 +155,12 @@ class RtiSolver(TrajectoryOptimizer):
                     return None
                 # the box holds to DAQP's round-off; the projection only removes that
                 u_new = np.clip(u + qp.delta.reshape(horizon, m), -self.effort_limit, self.effort_limit)
-                active, slack = qp.active, qp.slack
-            else:
-                self.qp.forget()
+                active, slack, states = qp.active, qp.slack, None
+        if states is None:      # (the unconstrained step's prediction, where it is the step, is already made)
+            states = x[1:].ravel() + drift + gamma @ (u_new - u).ravel()
         x_new = np.empty_like(x)
         x_new[0] = x[0]
-        x_new[1:] = (x[1:].ravel() + drift + gamma @ (u_new - u).ravel()).reshape(horizon, S)
+        x_new[1:] = states.reshape(horizon, S)
         return u_new, x_new, active, slack
 
     def _inside(self, u: np.ndarray, states: np.ndarray) -> bool:
