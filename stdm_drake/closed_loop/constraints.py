@@ -121,6 +121,14 @@ class StateBounds:
         return gradient, self.penalty_weight * (above | below).astype(float)
 
 
+def limits_status(bounds: "StateBounds", x: np.ndarray, u: np.ndarray, effort_limit: np.ndarray) -> tuple[bool, float]:
+    """How a solution meets the limits: (a torque at its effort limit or a state at or beyond its bound, the largest
+    crossing it accepts, rad or rad/s) for predicted states x (H, S) and torques u (H, m)."""
+    slack = float(bounds.violation(x).max(initial=0.0))
+    near = (x >= bounds.upper - ACTIVE_TOLERANCE) | (x <= bounds.lower + ACTIVE_TOLERANCE)
+    return bool(np.any(np.abs(u) >= effort_limit - ACTIVE_TOLERANCE) or np.any(near)), slack
+
+
 @dataclasses.dataclass
 class QpSolution:
     """delta (N,): the step; active: any bound of the box or any state row active at it; slack: the largest

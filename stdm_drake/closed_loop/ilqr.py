@@ -8,8 +8,9 @@ at every node the torque step is the solution of the box QP min 1/2 d^T Q_uu d +
 room to their effort limits (`constraints.box_qp`, only where the unconstrained step leaves it), the feedback
 acts on the free torques only (the clamped ones' rows are zero), and the forward pass keeps the policy's torques
 in the box; the state limits' exact penalty enters the cost, its gradient and its curvature at every node where a
-predicted state crosses its bound (`StateBounds.penalty_derivatives`: its kink is left to the line search). With no bound active the iteration is the unconstrained one, bit for bit. With constraints off the
-torques are clipped in the backward pass's stead (the clamped iLQR before constraints). The default optimizer is the
+predicted state crosses its bound (`StateBounds.penalty_derivatives`: its kink is left to the line search). With
+no bound active the iteration is the unconstrained one, bit for bit. With constraints off the backward pass is
+unconstrained and the forward pass's clipping alone keeps the box (the clamped iLQR before constraints). The default optimizer is the
 real-time iteration (`rti`), which needs no sequential rollout; the iLQR serves long horizons and line-searched
 iterations. Its settings: `Ilqr`, in the MPC settings
 `optimizer: !Ilqr {max_iterations: 1, line_search: [1.0, 0.5, 0.25, 0.1], regularization: 1.0e-6}`.
@@ -19,7 +20,7 @@ import dataclasses
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
-from stdm_drake.closed_loop.constraints import ACTIVE_TOLERANCE, StateBounds, box_qp
+from stdm_drake.closed_loop.constraints import StateBounds, box_qp, limits_status
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
 
@@ -105,11 +106,7 @@ class IlqrSolver(TrajectoryOptimizer):
             if not improved:
                 break
             mu = max(mu / 10.0, 1e-12)
-        active, slack = False, 0.0
-        if self.bounds is not None:
-            slack = float(self.bounds.violation(x[1:]).max(initial=0.0))
-            near = (x[1:] >= self.bounds.upper - ACTIVE_TOLERANCE) | (x[1:] <= self.bounds.lower + ACTIVE_TOLERANCE)
-            active = bool(np.any(np.abs(u) >= self.effort_limit - ACTIVE_TOLERANCE) or np.any(near))
+        active, slack = (False, 0.0) if self.bounds is None else limits_status(self.bounds, x[1:], u, self.effort_limit)
         return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x))), active, slack)
 
     def _backward(self, x, u, reference, u_ff, A, B, terminal, mu):

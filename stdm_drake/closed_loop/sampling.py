@@ -40,7 +40,7 @@ import dataclasses
 
 import numpy as np
 
-from stdm_drake.closed_loop.constraints import ACTIVE_TOLERANCE, StateBounds
+from stdm_drake.closed_loop.constraints import StateBounds, limits_status
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.closed_loop.sampled_costs import SampledCosts
 from stdm_drake.dynamics.model import PROPAGATIONS
@@ -186,10 +186,8 @@ class SamplingSolver(TrajectoryOptimizer):
                 x[k + 1] = self.predict(x[k], u[k], offset)
         finite = bool(np.all(np.isfinite(x)) and np.all(np.isfinite(u)))
         self.plan = np.concatenate([residual[1:], residual[-1:]])
-        active, slack = False, 0.0
-        if finite and self.bounds is not None:
-            slack = float(self.bounds.violation(x[1:]).max(initial=0.0))
-            active = bool(np.any(np.abs(u) >= self.effort_limit - ACTIVE_TOLERANCE) or slack > 0)
+        active, slack = (limits_status(self.bounds, x[1:], u, self.effort_limit) if finite and self.bounds is not None
+                         else (False, 0.0))
         return OptimizerResult(u=u, x=x, cost=self.cost(x, u, reference, u_ff) if finite else float("inf"),
                                iterations=iterations, finite=finite, constraint_active=active, slack=slack)
 
