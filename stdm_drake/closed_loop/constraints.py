@@ -229,7 +229,7 @@ class CondensedQp:
         delta, _, active = self._solve_rows(hessian, gradient, lower, upper, response, prediction, lower_rows,
                                             upper_rows, np.zeros(0, dtype=int), False)
         states = prediction + response @ delta
-        slack = float(np.max(np.maximum(states - upper_rows, 0) + np.maximum(lower_rows - states, 0), initial=0.0))
+        slack = float(self.bounds.violation(states.reshape(-1, self.state_dim)).max(initial=0.0))
         self._rows, self._active = np.zeros(0, dtype=int), active
         return QpSolution(delta, True, slack)
 
