@@ -134,8 +134,12 @@ def test_view_and_mpc_commands(checkpoints, tracking_dataset, tmp_path, capsys):
     summary = {row["model"]: row for row in json.loads((out / "mpc.json").read_text())["summary"]}
     for name, row in summary.items():      # the solve time against the 10 ms period, in mpc.md and printed
         verdict = "real time" if row["solve_ms_p95"] <= 10.0 else "not real time"
-        line = f"- {name}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 per control step"
+        assert row["control_step"] == "compiled"    # (the plant and the default D: both covered by the compiled step)
+        line = (f"- {name} (compiled control step): solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms "
+                f"p95 per control step")
+        rate = int(1e3 / row["solve_ms_p95"] // 10 * 10)
         assert line in table and f"against the 10 ms control period: {verdict}" in table
+        assert f"real time at {rate} Hz by its p95" in table
     assert (out / "mpc.png").stat().st_size > 10_000 and (out / "mpc.csv").exists()
     models = json.loads((out / "mpc.json").read_text())["inputs"]["models"]   # each model with its file and kind
     assert [(model["name"], model["kind"]) for model in models] == [("plant", "plant"), ("D", "checkpoint")]

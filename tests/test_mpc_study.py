@@ -15,6 +15,7 @@ from stdm_drake.closed_loop.ilqr import Ilqr, IlqrSolver
 from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, run_closed_loop
 from stdm_drake.closed_loop.optimizer import OptimizerSettings
 from stdm_drake.closed_loop.rti import Rti, RtiSolver
+from stdm_drake.closed_loop.compiled import CompiledRtiSolver
 from stdm_drake.closed_loop.study import MpcStudy, run_mpc_study
 from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.errors import InputError
@@ -26,17 +27,19 @@ def plant_model():
 
 
 def test_the_shipped_settings_are_the_default_real_time_iteration():
-    """controllers/mpc.yaml names the RTI with the numbers it always had: one iteration, regularization 1e-6."""
+    """controllers/mpc.yaml names the RTI with the numbers it always had: one iteration, regularization 1e-6, and the
+    compiled control step (the default)."""
     config = load_mpc_config()
-    assert config.optimizer == Rti(iterations=1, regularization=1e-6) == MpcConfig().optimizer
-    assert config.record()["optimizer"] == dict(type="Rti", iterations=1, regularization=1e-6)
+    assert config.optimizer == Rti(iterations=1, regularization=1e-6, implementation="compiled") == MpcConfig().optimizer
+    assert config.record()["optimizer"] == dict(type="Rti", iterations=1, regularization=1e-6, implementation="compiled")
 
 
 @pytest.mark.parametrize("text, kind, solver", [
-    ("optimizer: !Rti {iterations: 2, regularization: 1.0e-5}\n", Rti(iterations=2, regularization=1e-5), RtiSolver),
+    ("optimizer: !Rti {iterations: 2, regularization: 1.0e-5}\n", Rti(iterations=2, regularization=1e-5), CompiledRtiSolver),
+    ("optimizer: !Rti {implementation: numpy}\n", Rti(implementation="numpy"), RtiSolver),
     ("optimizer: !Ilqr\n  max_iterations: 2\n  line_search: [1.0, 0.5]\n",
      Ilqr(max_iterations=2, line_search=[1.0, 0.5]), IlqrSolver),
-    ("optimizer: {iterations: 3}\n", Rti(iterations=3), RtiSolver),     # untagged: the first, the default
+    ("optimizer: {iterations: 3}\n", Rti(iterations=3), CompiledRtiSolver),     # untagged: the first, the default
 ])
 def test_each_tag_loads_and_runs_one_plan(tmp_path, plant_model, text, kind, solver):
     path = tmp_path / "mpc.yaml"
@@ -45,7 +48,7 @@ def test_each_tag_loads_and_runs_one_plan(tmp_path, plant_model, text, kind, sol
     assert config.optimizer == kind and config.horizon == 5
     log = run_closed_loop(plant_model, quintic_reference(5), config, robot=UR10)
     assert len(log.torque) == 5 and not any(log.fallback) and np.all(np.isfinite(log.torque))
-    assert isinstance(config.solver(plant_model, free_limits(100.0)), solver)
+    assert type(config.solver(plant_model, free_limits(100.0))) is solver
 
 
 @pytest.mark.parametrize("text, message", [

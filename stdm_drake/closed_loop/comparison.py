@@ -31,6 +31,7 @@ class ClosedLoopResult:
     solve_ms_p95: float
     steps: int
     q_error: list  # per-step RMS joint-angle error (rad), for plots
+    implementation: str = ""   # the control step's (`mpc.control_step_implementation`)
 
 
 def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference, limits, gravity) -> ClosedLoopResult:
@@ -53,7 +54,7 @@ def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference
         constraint_active_steps=int(np.count_nonzero(log.constraint_active)),
         slack_steps=int(np.count_nonzero(np.asarray(log.slack) > SLACK_TOLERANCE)),
         solve_ms_mean=float(solve_ms.mean()), solve_ms_p95=float(np.percentile(solve_ms, 95)), steps=steps,
-        q_error=np.sqrt(np.mean(q_error ** 2, axis=1)).tolist())
+        q_error=np.sqrt(np.mean(q_error ** 2, axis=1)).tolist(), implementation=log.implementation)
 
 
 def compare_controllers(models: list, references: list[tuple[int, Reference]], config: MpcConfig,
@@ -120,7 +121,7 @@ def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dic
             constraint_active_steps=int(sum(r.constraint_active_steps for r in mine)),
             slack_steps=int(sum(r.slack_steps for r in mine)), steps=int(sum(r.steps for r in mine)),
             solve_ms_mean=float(np.mean([r.solve_ms_mean for r in mine])), solve_ms_p95=float(p95),
-            faster_than_real_time=bool(p95 < 1e3 * sample_period)))
+            faster_than_real_time=bool(p95 < 1e3 * sample_period), control_step=mine[0].implementation))
     plant = next((row for row in rows if row["model"] == PlantModel.name), None)
     for row in rows:  # tracking error relative to the plant-as-model MPC on the same plans
         known = plant is not None and plant["q_mse_rad2"] > 0
@@ -129,13 +130,20 @@ def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dic
 
 
 def real_time_lines(rows: list[dict], sample_period: float) -> list[str]:
-    """One line per model: its solve time per control step against the control period, "real time" when
-    every plan's p95 is within the period, else "not real time"."""
+    """One line per model: its control step's implementation, its solve time per control step against the control
+    period, "real time" when every plan's p95 is within the period, else "not real time", and the fastest rate
+    its measured p95 allows ("real time at N Hz": 1 / p95, rounded down to 10 Hz)."""
     period = 1e3 * sample_period
-    return [f"{row['model']}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 per control "
-            f"step against the {period:g} ms control period: "
-            + ("real time" if row["solve_ms_p95"] <= period else
-               f"not real time (p95 {row['solve_ms_p95'] / period:.1f}x the period)") for row in rows]
+    lines = []
+    for row in rows:
+        rate = int(1e3 / row["solve_ms_p95"] // 10 * 10) if row["solve_ms_p95"] > 0 else 0
+        step = f" ({row['control_step']} control step)" if row.get("control_step") else ""
+        lines.append(f"{row['model']}{step}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 "
+                     f"per control step against the {period:g} ms control period: "
+                     + ("real time" if row["solve_ms_p95"] <= period else
+                        f"not real time (p95 {row['solve_ms_p95'] / period:.1f}x the period)")
+                     + f"; real time at {rate} Hz by its p95")
+    return lines
 
 
 def constraint_lines(rows: list[dict], constraints) -> list[str]:

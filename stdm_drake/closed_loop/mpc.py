@@ -236,6 +236,13 @@ class MpcLog:
     fallback: list = dataclasses.field(default_factory=list)
     constraint_active: list = dataclasses.field(default_factory=list)   # a limit active in the step's solution
     slack: list = dataclasses.field(default_factory=list)               # its largest accepted crossing (rad, rad/s)
+    implementation: str = ""    # the control step's implementation (`rti.Rti.implementation`: compiled or numpy, why)
+
+
+def control_step_implementation(solver) -> str:
+    """What runs an optimizer's control step: "compiled" (C++), "numpy (why)" for the real-time iteration, else the
+    optimizer's class (the iLQR and the samplers run in numpy)."""
+    return getattr(solver, "implementation", None) or f"numpy ({type(solver).__name__})"
 
 
 class MpcController(LeafSystem):
@@ -282,7 +289,7 @@ class MpcController(LeafSystem):
         self.solver = optimizer or config.solver(model, limits, self.dynamics.robot.joint_names)
         # (an optimizer written before warm-start states existed takes no x_init: it gets none)
         self._warm_states = "x_init" in inspect.signature(self.solver.solve).parameters
-        self.log = MpcLog()
+        self.log = MpcLog(implementation=control_step_implementation(self.solver))
         period = model.sample_period
         if not 0 < plant_time_step <= period:
             raise InputError(f"plant time step {plant_time_step} s must be in (0, {period}] s")

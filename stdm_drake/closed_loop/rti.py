@@ -19,7 +19,9 @@ from the measurement, which the disturbance observer compares with the next meas
 the next control step. More iterations per step (`iterations`) repeat linearize + solve on the updated
 nodes (a full SQP).
 
-Its settings: `Rti` (`optimizer: !Rti {iterations: 1, regularization: 1.0e-6}` in the MPC settings).
+Its settings: `Rti` (`optimizer: !Rti {iterations: 1, regularization: 1.0e-6, implementation: compiled}` in the
+MPC settings). `implementation: compiled` (the default) runs the whole control step in C++ (`compiled.py`) for
+the models it covers; `numpy` runs this module, the reference the compiled step is tested equal to.
 Shapes for n joints, m actuated, horizon H as in `optimizer`. Horizons with H m > `MAX_CONDENSED` use
 the iLQR (`optimizer: !Ilqr {...}`), whose Riccati recursion is linear in H.
 """
@@ -28,6 +30,7 @@ import dataclasses
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
+from stdm_drake.closed_loop.compiled import IMPLEMENTATIONS, CompiledRtiSolver, compiled_model
 from stdm_drake.closed_loop.constraints import CondensedQp, StateBounds
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
@@ -39,10 +42,13 @@ MAX_ITERATIONS = 100   # Gauss-Newton iterations per control step: more is a run
 @dataclasses.dataclass
 class Rti(OptimizerSettings):
     """The real-time iteration's settings, the MPC's default optimizer (YAML `optimizer: !Rti {...}`):
-    Gauss-Newton iterations per control step (1: the real-time iteration) and the initial Levenberg-Marquardt
-    regularization added to the Hessian's diagonal (multiplied by 10 until it is positive definite)."""
+    Gauss-Newton iterations per control step (1: the real-time iteration), the initial Levenberg-Marquardt
+    regularization added to the Hessian's diagonal (multiplied by 10 until it is positive definite), and the
+    implementation: "compiled" (C++, `compiled.CompiledRtiSolver`, for the models it covers; the others run the
+    numpy step and the solver's `implementation` says why) or "numpy" (`RtiSolver`, the reference)."""
     iterations: int = 1
     regularization: float = 1e-6
+    implementation: str = "compiled"
 
     def validate(self) -> None:
         """InputError for settings the solver cannot run: iterations outside 1..MAX_ITERATIONS, a regularization
@@ -51,14 +57,26 @@ class Rti(OptimizerSettings):
             raise InputError(f"mpc optimizer !Rti iterations must be in 1..{MAX_ITERATIONS}, got {self.iterations}")
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
             raise InputError(f"mpc optimizer !Rti regularization must be in [0, 1e6], got {self.regularization}")
+        if self.implementation not in IMPLEMENTATIONS:
+            raise InputError(f"mpc optimizer !Rti implementation must be one of {', '.join(IMPLEMENTATIONS)}, got "
+                             f"{self.implementation!r}")
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
-               bounds: StateBounds | None = None) -> "RtiSolver":
-        """An RtiSolver; InputError for a horizon whose dense system is beyond MAX_CONDENSED unknowns."""
+               bounds: StateBounds | None = None) -> TrajectoryOptimizer:
+        """The compiled solver (`compiled.CompiledRtiSolver`) where the implementation is "compiled" and it covers
+        `model`, else an RtiSolver (its `implementation` says why); InputError for a horizon whose dense system is
+        beyond MAX_CONDENSED unknowns, or a compiled step that is not built."""
         joints = len(effort_limit)
         if horizon * joints > MAX_CONDENSED:
             raise InputError(f"mpc horizon {horizon} x {joints} joints = {horizon * joints} torques is beyond the "
                              f"real-time iteration's {MAX_CONDENSED}; use `optimizer: !Ilqr {{}}` for long horizons")
+        if self.implementation == "compiled":
+            core_model, why_not = compiled_model(model)
+            if core_model is not None:
+                return CompiledRtiSolver(model, cost, effort_limit, self, bounds, core_model)
+            solver = RtiSolver(model, cost, effort_limit, self, bounds)
+            solver.implementation = f"numpy (the compiled step does not cover {why_not})"
+            return solver
         return RtiSolver(model, cost, effort_limit, self, bounds)
 
 
@@ -75,6 +93,7 @@ def affine_recursion(A: np.ndarray, E: np.ndarray) -> np.ndarray:
 
 class RtiSolver(TrajectoryOptimizer):
     """The real-time iteration over a horizon for one prediction model and one cost (module docstring)."""
+    implementation = "numpy"
 
     def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config: Rti | None = None,
                  bounds: StateBounds | None = None):

@@ -1,0 +1,64 @@
+"""Builds the compiled control step, the extension module stdm_drake.closed_loop._core (its C++ sources in
+stdm_drake/closed_loop/core/), at install: nanobind binds it, Eigen and Pinocchio's headers come from the build
+requirements in pyproject.toml (cmeel-eigen, libpinocchio) and Pinocchio's precompiled algorithms from the
+libpinocchio it installs at run time (`pin`). Everything else about the package is in pyproject.toml.
+
+A machine without a C++17 compiler, or a build that fails, stops the install with one line saying so
+(docs/guides/install.md); there is no silent fall-back to the numpy control step."""
+import pathlib
+import sys
+import sysconfig
+
+from setuptools import Extension, setup
+from setuptools.command.build_ext import build_ext
+
+CORE = "stdm_drake/closed_loop/core"
+
+
+class BuildCore(build_ext):
+    """build_ext with the include paths found in the build environment and a one-line failure."""
+
+    def build_extensions(self):
+        import shutil
+        compiler = self.compiler.compiler_cxx[0] if getattr(self.compiler, "compiler_cxx", None) else "c++"
+        if shutil.which(compiler) is None:
+            sys.exit(f"stdm-drake: no C++ compiler ({compiler!r} not found): the compiled MPC control step needs one "
+                     "(Debian/Ubuntu: apt-get install g++); see docs/guides/install.md")
+        import nanobind
+        import cmeel
+        prefix = pathlib.Path(cmeel.__file__).resolve().parent.parent / "cmeel.prefix"
+        if not (prefix / "include" / "pinocchio").is_dir() or not (prefix / "include" / "eigen3").is_dir():
+            sys.exit(f"stdm-drake: Pinocchio's or Eigen's headers are missing under {prefix} (build requirements "
+                     "libpinocchio and cmeel-eigen of pyproject.toml)")
+        nanobind_root = pathlib.Path(nanobind.__file__).resolve().parent
+        for extension in self.extensions:
+            extension.sources.append(str(nanobind_root / "src" / "nb_combined.cpp"))
+            extension.include_dirs += [nanobind.include_dir(), str(nanobind_root / "ext" / "robin_map" / "include"),
+                                       str(prefix / "include"), str(prefix / "include" / "eigen3"),
+                                       sysconfig.get_paths()["include"]]
+            extension.library_dirs.append(str(prefix / "lib"))
+        try:
+            super().build_extensions()
+        except Exception as error:   # (the compiler's own output is above this line)
+            sys.exit(f"stdm-drake: the compiled MPC control step did not build ({type(error).__name__}: "
+                     f"{str(error).splitlines()[0] if str(error) else ''}); see docs/guides/install.md")
+
+
+core = Extension(
+    "stdm_drake.closed_loop._core",
+    sources=[f"{CORE}/bindings.cpp", f"{CORE}/rigid_body.cpp"],
+    depends=[f"{CORE}/control_step.hpp"],
+    language="c++",
+    define_macros=[("PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION", None), ("BOOST_MPL_LIMIT_LIST_SIZE", "30"),
+                   ("BOOST_MPL_LIMIT_VECTOR_SIZE", "30"), ("BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", None),
+                   ("BOOST_FUSION_INVOKE_MAX_ARITY", "12"), ("NDEBUG", None)],
+    # no -march=native: Pinocchio's precompiled algorithms are built for the generic x86-64 (SSE2), and Eigen's
+    # types change layout with the instruction set (a Pinocchio Data made by the library, destroyed here, crashes)
+    extra_compile_args=["-std=c++17", "-O3", "-fvisibility=hidden", "-w"],
+    libraries=["pinocchio_default"],
+    # a regular install finds libpinocchio beside it in site-packages; an editable one through `pinocchio`, which
+    # stdm_drake.closed_loop.compiled imports first (the loader then reuses the library already loaded)
+    extra_link_args=["-Wl,-rpath,$ORIGIN/../../cmeel.prefix/lib"],
+)
+
+setup(ext_modules=[core], cmdclass={"build_ext": BuildCore})

@@ -1,0 +1,849 @@
+// The MPC's control step in compiled code: the prediction models' batched linearization and the real-time
+// iteration with the robot's limits (Python: stdm_drake/closed_loop/compiled.py binds it through bindings.cpp;
+// the numpy implementation, stdm_drake/closed_loop/rti.py and constraints.py, is the reference it is tested
+// equal to).
+//
+// Shapes for n joints, m actuated, state S = 2n ([q rad, v rad/s]), horizon H: states (H+1, S), torques (H, m)
+// N m, all matrices row-major as numpy lays them out.
+//
+// Models (the `Model` interface: `step` of one row, `linearize` of a horizon's rows):
+//   NetworkModel  an ensemble MLP (float32, the normalizers folded into its first and last layers, as
+//                 stdm_drake.learning.predict.InferenceModel holds it) as a state-transition model: the next
+//                 state or the next velocity (the angle by the trapezoid rule), raw inputs or with the nominal
+//                 acceleration phi = M(q)^-1 (B tau + tau_g - C v - D v) of the robot's rigid-body model; its
+//                 Jacobian by reverse mode over the members (one matrix product per layer for the whole horizon)
+//                 and, for phi, Pinocchio's analytic ABA derivatives by the chain rule.
+//   PlantModel    the robot's rigid-body dynamics (Pinocchio's ABA, damping and smoothed Coulomb friction
+//                 added) stepped by classical RK4 over the period, the stages' analytic Jacobians chained.
+// The optimizer (`RealTimeIteration`): the multiple-shooting Gauss-Newton step condensed to the torques, a dense
+// Cholesky solve, and with the limits on a strictly convex QP (torque box hard, state rows soft with an exact
+// penalty, or hard) solved by a dual active-set method (Goldfarb & Idnani 1983) with constraint generation of
+// the state rows.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+
+
+namespace stdm {
+
+using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using RowMatrixXf = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using Eigen::VectorXd;
+
+// ------------------------------------------------------------------------------------------------------------
+// Activations, as stdm_drake.learning.activations applies them to the (scale-folded) pre-activation.
+
+enum class Activation { tanh, sigmoid, relu, leaky_relu, softplus, selu, elu, gelu, swish };
+
+inline Activation activation_from_name(const std::string& name) {
+  static const char* names[] = {"tanh", "sigmoid", "relu", "leaky_relu", "softplus", "selu", "elu", "gelu", "swish"};
+  for (int i = 0; i < 9; ++i)
+    if (name == names[i]) return static_cast<Activation>(i);
+  throw std::invalid_argument("unknown activation " + name);
+}
+
+constexpr float kLeakyReluSlope = 0.01f;
+constexpr double kSeluScale = 1.0507009873554804934193349852946;
+constexpr double kSeluAlpha = 1.6732632423543772848170429916717;
+
+inline float sigmoid(float x) { return 1.0f / (1.0f + std::exp(-x)); }
+
+// value and slope of the activation at pre-activation p (float32, as the numpy engine computes them)
+inline void activate(Activation kind, float p, float& value, float& slope) {
+  switch (kind) {
+    case Activation::tanh: { float t = std::tanh(p); value = t; slope = 1.0f - t * t; return; }
+    case Activation::sigmoid: { float s = sigmoid(p); value = s; slope = s * sigmoid(-p); return; }
+    case Activation::relu: value = p > 0 ? p : 0.0f; slope = p > 0 ? 1.0f : 0.0f; return;
+    case Activation::leaky_relu: value = p > 0 ? p : kLeakyReluSlope * p; slope = p > 0 ? 1.0f : kLeakyReluSlope; return;
+    case Activation::softplus: value = std::max(p, 0.0f) + std::log1p(std::exp(-std::abs(p))); slope = sigmoid(p); return;
+    case Activation::selu:
+    case Activation::elu: {
+      const float scale = kind == Activation::selu ? float(kSeluScale) : 1.0f;
+      const float alpha = kind == Activation::selu ? float(kSeluAlpha) : 1.0f;
+      if (p > 0) { value = scale * p; slope = scale; }
+      else { value = scale * alpha * std::expm1(p); slope = value + scale * alpha; }
+      return;
+    }
+    case Activation::gelu: {
+      const float cdf = 0.5f * std::erfc(-p * float(M_SQRT1_2));
+      value = p * cdf;
+      slope = cdf + p * std::exp(-0.5f * p * p) * float(0.5 * M_2_SQRTPI * M_SQRT1_2);
+      return;
+    }
+    case Activation::swish: {   // on the scaled pre-activation s = p / 2: s (1 + tanh s) = p sigmoid(p)
+      const float t = std::tanh(p);
+      value = p * t + p;
+      slope = 1.0f + t + p * (1.0f - t * t);
+      return;
+    }
+  }
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// An ensemble MLP in float32: E members of L hidden layers of width W over K inputs and a constant 1.
+
+struct Network {
+  int members = 1, inputs = 0, width = 0, outputs = 0;
+  bool residual = true;
+  Activation activation = Activation::swish;
+  std::vector<RowMatrixXf> first;                          // per member (K + 1, W): inputs then the bias row
+  std::vector<std::vector<RowMatrixXf>> hidden_weight;     // per layer, per member (W, W)
+  std::vector<std::vector<Eigen::RowVectorXf>> hidden_bias;  // per layer, per member (W,)
+  std::vector<RowMatrixXf> mean_weight;                    // per member (W, outputs)
+  std::vector<Eigen::RowVectorXf> mean_bias;               // per member (outputs,)
+
+  // The members' mean output (N, outputs), residual not added, for input rows z (N, K) float32; with
+  // `jacobian`, d mean / d z (N outputs, K) stacked row after row (the residual's identity included).
+  void evaluate(const RowMatrixXf& z, RowMatrixXf& mean, RowMatrixXf* jacobian) const {
+    const int count = int(z.rows()), layers = int(hidden_weight.size());
+    mean.setZero(count, outputs);
+    if (jacobian) jacobian->setZero(Eigen::Index(count) * outputs, inputs);
+    std::vector<RowMatrixXf> slopes(layers + 1);
+    RowMatrixXf pre, value, adjoint, next;
+    const float share = 1.0f / float(members);
+    for (int e = 0; e < members; ++e) {
+      pre.noalias() = z * first[e].topRows(inputs);
+      pre.rowwise() += first[e].row(inputs);
+      for (int layer = 0; layer <= layers; ++layer) {
+        if (layer > 0) {
+          pre.noalias() = value * hidden_weight[layer - 1][e];
+          pre.rowwise() += hidden_bias[layer - 1][e];
+        }
+        value.resize(pre.rows(), pre.cols());
+        if (jacobian) slopes[layer].resize(pre.rows(), pre.cols());
+        for (Eigen::Index i = 0; i < pre.size(); ++i) {
+          float slope;
+          activate(activation, pre.data()[i], value.data()[i], slope);
+          if (jacobian) slopes[layer].data()[i] = slope;
+        }
+      }
+      RowMatrixXf member = value * mean_weight[e];
+      member.rowwise() += mean_bias[e];
+      mean += member;
+      if (!jacobian) continue;
+      // reverse mode: the adjoint rows (N outputs, W), each row one output of one input row
+      adjoint.resize(Eigen::Index(count) * outputs, width);
+      for (int row = 0; row < count; ++row)
+        for (int out = 0; out < outputs; ++out)
+          adjoint.row(row * outputs + out) = mean_weight[e].col(out).transpose().cwiseProduct(slopes[layers].row(row));
+      for (int layer = layers; layer >= 1; --layer) {
+        next.noalias() = adjoint * hidden_weight[layer - 1][e].transpose();
+        for (int row = 0; row < count; ++row)
+          next.middleRows(row * outputs, outputs).array().rowwise() *= slopes[layer - 1].row(row).array();
+        adjoint.swap(next);
+      }
+      jacobian->noalias() += adjoint * first[e].topRows(inputs).transpose();
+    }
+    mean *= share;
+    if (jacobian) {
+      *jacobian *= share;
+      if (residual)
+        for (int row = 0; row < count; ++row)
+          for (int out = 0; out < outputs && out < inputs; ++out) (*jacobian)(row * outputs + out, out) += 1.0f;
+    }
+  }
+};
+
+// ------------------------------------------------------------------------------------------------------------
+// The robot's continuous rigid-body dynamics: q'' = M(q)^-1 (B tau + tau_g(q) - C(q, v) v - D v + tau_c(v)),
+// tau_c = -F_c tanh(v / v_s), in Drake's joint order (Pinocchio's may differ: `to_pin`).
+
+struct RigidBody {
+  int joints = 0, actuators = 0;
+  std::vector<int> to_pin;        // q_pin[i] = q_drake[to_pin[i]]
+  VectorXd damping;               // D (n,) N m s/rad, Drake order
+  VectorXd friction, friction_scale;   // F_c (n,) N m, v_s (n,) rad/s; empty: none
+  RowMatrixXd actuation;          // B (n, m)
+
+  // joints: per Pinocchio joint 1..n, its parent (0: the world), kind (0 revolute about z, 1 prismatic along z),
+  // placement (rotation (3, 3) row-major, translation (3,)), and the inertia of its bodies (mass kg, centre of
+  // mass (3,) m, rotational inertia about the centre of mass (3, 3) kg m^2), in its own frame; armature (n,)
+  // kg m^2 in Pinocchio's order; gravity (3,) m/s^2. (rigid_body.cpp: the only code that sees Pinocchio.)
+  void build(const std::vector<int>& parents, const std::vector<int>& kinds, const RowMatrixXd& rotations,
+             const RowMatrixXd& translations, const VectorXd& masses, const RowMatrixXd& centers,
+             const RowMatrixXd& inertias, const VectorXd& armature, const VectorXd& gravity);
+
+  // the generalized force B tau - D v + tau_c(v) (n,), Drake order
+  VectorXd force(const VectorXd& v, const VectorXd& tau) const {
+    VectorXd f = actuation * tau - damping.cwiseProduct(v);
+    if (friction.size()) f -= friction.cwiseProduct((v.array() / friction_scale.array()).tanh().matrix());
+    return f;
+  }
+
+  // q'' (n,) rad/s^2
+  VectorXd acceleration(const VectorXd& q, const VectorXd& v, const VectorXd& tau) const;
+  // q'' (n,) and d q'' / d(q, v, tau) (n, 2n + m)
+  void acceleration_and_jacobian(const VectorXd& q, const VectorXd& v, const VectorXd& tau, VectorXd& out,
+                                 RowMatrixXd& jacobian) const;
+
+ private:
+  struct Pinocchio;                          // the Pinocchio model and its workspace (rigid_body.cpp)
+  std::shared_ptr<Pinocchio> pinocchio_;
+};
+
+// ------------------------------------------------------------------------------------------------------------
+// Prediction models.
+
+struct Model {
+  int state_dim = 0, action_dim = 0;
+  virtual ~Model() = default;
+  // the next state (S,) of x (S,) under u (m,)
+  virtual VectorXd step(const VectorXd& x, const VectorXd& u) const = 0;
+  // every row of a horizon: next states (H, S), A (H S, S) and B (H S, m) stacked node after node
+  virtual void linearize(const RowMatrixXd& x, const RowMatrixXd& u, RowMatrixXd& next, RowMatrixXd& A,
+                         RowMatrixXd& B) const = 0;
+};
+
+struct NetworkModel : Model {
+  Network network;
+  bool predicts_velocity = true;          // else the state
+  std::shared_ptr<RigidBody> nominal;     // null: raw inputs; else phi is an input
+  double sample_period = 0.0;
+
+  int joints() const { return state_dim / 2; }
+
+  // the network's input row (float64) of x, u and phi: [x, u, (phi)] for the state, [v, q, u, (phi)] for the velocity
+  void input_row(const VectorXd& x, const VectorXd& u, const VectorXd* phi, double* row) const {
+    const int n = joints(), m = action_dim;
+    int k = 0;
+    if (predicts_velocity) {
+      for (int i = 0; i < n; ++i) row[k++] = x[n + i];
+      for (int i = 0; i < n; ++i) row[k++] = x[i];
+    } else {
+      for (int i = 0; i < 2 * n; ++i) row[k++] = x[i];
+    }
+    for (int i = 0; i < m; ++i) row[k++] = u[i];
+    if (phi)
+      for (int i = 0; i < n; ++i) row[k++] = (*phi)[i];
+  }
+
+  // the model's next state from the network's mean output (outputs,) in float64
+  void assemble(const VectorXd& x, const double* mean, double* next) const {
+    const int n = joints();
+    if (!predicts_velocity) {
+      for (int i = 0; i < 2 * n; ++i) next[i] = mean[i] + (network.residual ? x[i] : 0.0);
+      return;
+    }
+    for (int i = 0; i < n; ++i) {
+      const double velocity = double(float(mean[i])) + (network.residual ? x[n + i] : 0.0);
+      next[n + i] = velocity;
+      next[i] = x[i] + 0.5 * sample_period * (x[n + i] + velocity);
+    }
+  }
+
+  VectorXd step(const VectorXd& x, const VectorXd& u) const override {
+    const int width = network.inputs;
+    VectorXd row(width), phi;
+    if (nominal) phi = nominal->acceleration(x.head(joints()), x.tail(joints()), u);
+    input_row(x, u, nominal ? &phi : nullptr, row.data());
+    RowMatrixXf z = row.transpose().cast<float>(), mean;
+    network.evaluate(z, mean, nullptr);
+    VectorXd out(state_dim), mean64 = mean.row(0).transpose().cast<double>();
+    assemble(x, mean64.data(), out.data());
+    return out;
+  }
+
+  void linearize(const RowMatrixXd& x, const RowMatrixXd& u, RowMatrixXd& next, RowMatrixXd& A,
+                 RowMatrixXd& B) const override {
+    const int H = int(x.rows()), n = joints(), S = state_dim, m = action_dim, width = network.inputs;
+    const int outputs = network.outputs, total = S + m;
+    RowMatrixXd rows(H, width);
+    std::vector<RowMatrixXd> phi_jacobian(nominal ? H : 0);
+    for (int k = 0; k < H; ++k) {
+      VectorXd xk = x.row(k).transpose(), uk = u.row(k).transpose(), phi;
+      if (nominal) nominal->acceleration_and_jacobian(xk.head(n), xk.tail(n), uk, phi, phi_jacobian[k]);
+      input_row(xk, uk, nominal ? &phi : nullptr, rows.row(k).data());
+    }
+    RowMatrixXf z = rows.cast<float>(), mean, jacobian;
+    network.evaluate(z, mean, &jacobian);
+    next.resize(H, S);
+    A.resize(Eigen::Index(H) * S, S);
+    B.resize(Eigen::Index(H) * S, m);
+    RowMatrixXd inputs = RowMatrixXd::Zero(width, total);   // d(network inputs) / d(x, u)
+    if (predicts_velocity) {
+      for (int i = 0; i < n; ++i) { inputs(i, n + i) = 1.0; inputs(n + i, i) = 1.0; }
+    } else {
+      for (int i = 0; i < S; ++i) inputs(i, i) = 1.0;
+    }
+    for (int i = 0; i < m; ++i) inputs(S + i, S + i) = 1.0;
+    RowMatrixXd chained(outputs, total), full(S, total);
+    for (int k = 0; k < H; ++k) {
+      VectorXd xk = x.row(k).transpose();
+      VectorXd mean64 = mean.row(k).transpose().cast<double>();
+      assemble(xk, mean64.data(), next.row(k).data());
+      if (nominal) inputs.bottomRows(n) = phi_jacobian[k];
+      chained.noalias() = jacobian.middleRows(Eigen::Index(k) * outputs, outputs).cast<double>() * inputs;
+      if (predicts_velocity) {
+        full.bottomRows(n) = chained;
+        full.topRows(n) = 0.5 * sample_period * chained;
+        for (int i = 0; i < n; ++i) {
+          full(i, i) += 1.0;
+          full(i, n + i) += 0.5 * sample_period;
+        }
+      } else {
+        full = chained;
+      }
+      A.middleRows(Eigen::Index(k) * S, S) = full.leftCols(S);
+      B.middleRows(Eigen::Index(k) * S, S) = full.rightCols(m);
+    }
+  }
+};
+
+struct PlantModel : Model {
+  std::shared_ptr<RigidBody> dynamics;
+  double sample_period = 0.0;
+  int substeps = 1;
+
+  VectorXd step(const VectorXd& x, const VectorXd& u) const override {
+    const int n = state_dim / 2;
+    const double h = sample_period / substeps;
+    VectorXd q = x.head(n), v = x.tail(n);
+    for (int s = 0; s < substeps; ++s) {
+      VectorXd a1 = dynamics->acceleration(q, v, u);
+      VectorXd v2 = v + 0.5 * h * a1;
+      VectorXd a2 = dynamics->acceleration(q + 0.5 * h * v, v2, u);
+      VectorXd v3 = v + 0.5 * h * a2;
+      VectorXd a3 = dynamics->acceleration(q + 0.5 * h * v2, v3, u);
+      VectorXd v4 = v + h * a3;
+      VectorXd a4 = dynamics->acceleration(q + h * v3, v4, u);
+      q = q + h / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4);
+      v = v + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4);
+    }
+    VectorXd out(state_dim);
+    out << q, v;
+    return out;
+  }
+
+  // x' = f(x) and d x' / d(x0, u) through the chain d x / d(x0, u) (S, S + m)
+  void slope(const VectorXd& state, const VectorXd& u, const RowMatrixXd& chain, VectorXd& rate,
+             RowMatrixXd& d_rate) const {
+    const int n = state_dim / 2, S = state_dim, m = action_dim;
+    VectorXd acceleration;
+    RowMatrixXd jacobian;
+    dynamics->acceleration_and_jacobian(state.head(n), state.tail(n), u, acceleration, jacobian);
+    rate.resize(S);
+    rate << state.tail(n), acceleration;
+    d_rate.resize(S, S + m);
+    d_rate.topRows(n) = chain.bottomRows(n);
+    d_rate.bottomRows(n).noalias() = jacobian.leftCols(S) * chain;
+    d_rate.bottomRows(n).rightCols(m) += jacobian.rightCols(m);
+  }
+
+  void linearize(const RowMatrixXd& x, const RowMatrixXd& u, RowMatrixXd& next, RowMatrixXd& A,
+                 RowMatrixXd& B) const override {
+    const int H = int(x.rows()), S = state_dim, m = action_dim;
+    const double h = sample_period / substeps;
+    next.resize(H, S);
+    A.resize(Eigen::Index(H) * S, S);
+    B.resize(Eigen::Index(H) * S, m);
+    VectorXd k1, k2, k3, k4;
+    RowMatrixXd d1, d2, d3, d4;
+    for (int k = 0; k < H; ++k) {
+      VectorXd state = x.row(k).transpose(), uk = u.row(k).transpose();
+      RowMatrixXd total = RowMatrixXd::Zero(S, S + m);
+      total.leftCols(S).setIdentity();
+      for (int s = 0; s < substeps; ++s) {
+        slope(state, uk, total, k1, d1);
+        slope(state + 0.5 * h * k1, uk, total + 0.5 * h * d1, k2, d2);
+        slope(state + 0.5 * h * k2, uk, total + 0.5 * h * d2, k3, d3);
+        slope(state + h * k3, uk, total + h * d3, k4, d4);
+        state = state + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4);
+        total = total + h / 6.0 * (d1 + 2.0 * d2 + 2.0 * d3 + d4);
+      }
+      next.row(k) = state.transpose();
+      A.middleRows(Eigen::Index(k) * S, S) = total.leftCols(S);
+      B.middleRows(Eigen::Index(k) * S, S) = total.rightCols(m);
+    }
+  }
+};
+
+// ------------------------------------------------------------------------------------------------------------
+// A strictly convex QP by the dual active-set method of Goldfarb & Idnani (1983):
+//   min 1/2 y^T G y + a^T y   s.t.  C^T y >= b   (G (N, N) positive definite, C (N, P))
+// From the unconstrained minimum, the most violated constraint enters; partial steps drop the constraints whose
+// multiplier would turn negative. J = L^-T (L L^T = G) and the upper-triangular R (with J's first columns
+// spanning the active constraints' normals) are updated by Givens rotations. Exact to round-off; finite.
+
+struct DualActiveSet {
+  enum Status { optimal = 1, infeasible = -1, iteration_limit = -4, not_positive_definite = -6 };
+
+  // y (N,) and the status; `iterations` counts the constraints added and dropped; at most `limit` of them
+  static Status solve(const Eigen::MatrixXd& G, const VectorXd& a, const Eigen::MatrixXd& C, const VectorXd& b,
+                      VectorXd& y, int limit, int& iterations) {
+    const int N = int(G.rows()), P = int(C.cols());
+    iterations = 0;
+    Eigen::LLT<Eigen::MatrixXd> llt(G);
+    if (llt.info() != Eigen::Success) return not_positive_definite;
+    Eigen::MatrixXd J = llt.matrixL().solve(Eigen::MatrixXd::Identity(N, N)).transpose();   // L^-T
+    y = -llt.solve(a);
+    Eigen::MatrixXd R = Eigen::MatrixXd::Zero(N, N);
+    std::vector<int> active;
+    std::vector<char> is_active(P, 0);
+    VectorXd u(0), d(N), z(N), r;
+    const double tolerance = 1e-12;
+    auto norm_of = [&](int p) { return std::max(C.col(p).norm(), 1e-300); };
+
+    auto givens = [](double& x, double& w, double& c, double& s) {
+      const double h = std::hypot(x, w);
+      if (h == 0.0) { c = 1.0; s = 0.0; return; }
+      c = x / h; s = w / h; x = h; w = 0.0;
+    };
+    auto drop = [&](int l) {    // remove active[l]: R's column l out, upper-triangular again, J rotated alike
+      const int q = int(active.size());
+      is_active[active[l]] = 0;
+      active.erase(active.begin() + l);
+      for (int j = l; j < q - 1; ++j) R.col(j) = R.col(j + 1);
+      R.col(q - 1).setZero();
+      for (int j = l; j < q - 1; ++j) {
+        double c, s;
+        double x = R(j, j), w = R(j + 1, j);
+        givens(x, w, c, s);
+        for (int k = j; k < q - 1; ++k) {
+          const double top = R(j, k), bottom = R(j + 1, k);
+          R(j, k) = c * top + s * bottom;
+          R(j + 1, k) = -s * top + c * bottom;
+        }
+        R(j + 1, j) = 0.0;
+        for (int row = 0; row < N; ++row) {
+          const double left = J(row, j), right = J(row, j + 1);
+          J(row, j) = c * left + s * right;
+          J(row, j + 1) = -s * left + c * right;
+        }
+      }
+      VectorXd shorter(q - 1);
+      for (int j = 0, k = 0; j < q; ++j)
+        if (j != l) shorter[k++] = u[j];
+      u = shorter;
+    };
+
+    while (true) {
+      // 1. the most violated constraint (violation measured along its normal)
+      int p = -1;
+      double worst = -tolerance;
+      for (int i = 0; i < P; ++i) {
+        if (is_active[i]) continue;
+        const double s = (C.col(i).dot(y) - b[i]) / norm_of(i);
+        if (s < worst) { worst = s; p = i; }
+      }
+      if (p < 0) return optimal;
+      VectorXd u_plus(active.size() + 1);
+      u_plus.head(active.size()) = u;
+      u_plus[active.size()] = 0.0;
+      while (true) {
+        if (iterations >= limit) return iteration_limit;
+        const int q = int(active.size());
+        // 2(a) directions: primal z in the null space of the active normals, dual r
+        d.noalias() = J.transpose() * C.col(p);
+        z.noalias() = J.rightCols(N - q) * d.tail(N - q);
+        r = R.topLeftCorner(q, q).triangularView<Eigen::Upper>().solve(d.head(q));
+        // 2(b) the partial step (a multiplier reaching zero) and the full step (constraint p met)
+        double t1 = std::numeric_limits<double>::infinity();
+        int l = -1;
+        for (int j = 0; j < q; ++j)
+          if (r[j] > tolerance && u_plus[j] / r[j] < t1) { t1 = u_plus[j] / r[j]; l = j; }
+        const double curvature = z.dot(C.col(p));
+        const double slack = C.col(p).dot(y) - b[p];
+        const bool moves = z.norm() > 1e-14 * std::max(1.0, C.col(p).norm()) && curvature > 0.0;
+        const double t2 = moves ? -slack / curvature : std::numeric_limits<double>::infinity();
+        const double t = std::min(t1, t2);
+        if (!std::isfinite(t)) return infeasible;
+        ++iterations;
+        if (!moves) {        // a dual step only: drop the constraint whose multiplier reaches zero
+          u_plus.head(q) -= t * r;
+          u_plus[q] += t;
+          VectorXd kept = u_plus;
+          u = u_plus.head(q);
+          drop(l);
+          u_plus.resize(active.size() + 1);
+          u_plus.head(active.size()) = u;
+          u_plus[active.size()] = kept[q];
+          continue;
+        }
+        y += t * z;
+        u_plus.head(q) -= t * r;
+        u_plus[q] += t;
+        if (t2 <= t1) {      // the full step: p enters the active set
+          // zero d below position q by rotations of J's columns (from the bottom up)
+          for (int j = N - 1; j > q; --j) {
+            double c, s;
+            double x = d[j - 1], w = d[j];
+            givens(x, w, c, s);
+            d[j - 1] = x; d[j] = 0.0;
+            for (int row = 0; row < N; ++row) {
+              const double left = J(row, j - 1), right = J(row, j);
+              J(row, j - 1) = c * left + s * right;
+              J(row, j) = -s * left + c * right;
+            }
+          }
+          R.col(q).head(q + 1) = d.head(q + 1);
+          active.push_back(p);
+          is_active[p] = 1;
+          u = u_plus;
+          break;
+        }
+        // the partial step: drop constraint l and try p again from here
+        const double entering = u_plus[q];
+        u = u_plus.head(q);
+        drop(l);
+        u_plus.resize(active.size() + 1);
+        u_plus.head(active.size()) = u;
+        u_plus[active.size()] = entering;
+      }
+    }
+  }
+};
+
+// ------------------------------------------------------------------------------------------------------------
+// The real-time iteration (stdm_drake/closed_loop/rti.py, the reference).
+
+constexpr double kActiveTolerance = 1e-9;   // constraints.ACTIVE_TOLERANCE
+constexpr int kMaxRounds = 20;              // constraints.MAX_ROUNDS
+constexpr int kMaxQpIterations = 300;       // constraints.MAX_QP_ITERATIONS (here: the dual method's changes)
+
+struct StepResult {
+  RowMatrixXd u, x;
+  double cost = std::numeric_limits<double>::infinity();
+  int iterations = 0;
+  bool finite = false, active = false;
+  double slack = 0.0;
+};
+
+struct RealTimeIteration {
+  std::shared_ptr<Model> model;
+  int iterations = 1;
+  double regularization = 1e-6;
+  VectorXd Q, R;                   // the cost's diagonals (S,), (m,)
+  double terminal_factor = 1.0;
+  VectorXd effort_limit;           // (m,)
+  bool constrained = false;        // false: mode off (torques clipped after the step, no state limit)
+  bool hard = false;
+  VectorXd lower, upper;           // state bounds (S,)
+  double penalty_weight = 1e5;
+  std::vector<int> working_rows;   // the last solve's state rows near or beyond their bounds (warm start)
+  long unsettled = 0;              // QPs whose state rows did not settle within the budget (the box alone kept)
+
+  int S() const { return model->state_dim; }
+  int m() const { return model->action_dim; }
+
+  RowMatrixXd clip(const RowMatrixXd& u) const {
+    RowMatrixXd out = u;
+    for (int k = 0; k < out.rows(); ++k)
+      for (int j = 0; j < out.cols(); ++j) out(k, j) = std::clamp(out(k, j), -effort_limit[j], effort_limit[j]);
+    return out;
+  }
+
+  double violation(double value, int component) const {
+    return std::max(value - upper[component], 0.0) + std::max(lower[component] - value, 0.0);
+  }
+
+  double cost(const RowMatrixXd& x, const RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff) const {
+    const int H = int(u.rows());
+    double state = 0.0, effort = 0.0, slack = 0.0, squares = 0.0;
+    for (int k = 0; k < H; ++k) {
+      const double weight = k == H - 1 ? terminal_factor : 1.0;
+      double node = 0.0;
+      for (int i = 0; i < S(); ++i) {
+        const double e = x(k + 1, i) - reference(k + 1, i);
+        node += Q[i] * e * e;
+        if (constrained) {
+          const double s = violation(x(k + 1, i), i);
+          slack += s;
+          squares += s * s;
+        }
+      }
+      state += weight * node;
+      for (int j = 0; j < m(); ++j) {
+        const double e = u(k, j) - u_ff(k, j);
+        effort += R[j] * e * e;
+      }
+    }
+    double value = state + effort;
+    if (constrained) value += penalty_weight * (slack + 0.5 * squares);
+    return value;
+  }
+
+  RowMatrixXd rollout(const VectorXd& x0, const RowMatrixXd& u, const VectorXd& offset) const {
+    RowMatrixXd x(u.rows() + 1, S());
+    x.row(0) = x0.transpose();
+    for (int k = 0; k < u.rows(); ++k)
+      x.row(k + 1) = (model->step(x.row(k).transpose(), u.row(k).transpose()) + offset).transpose();
+    return x;
+  }
+
+  StepResult solve(const VectorXd& x0, const RowMatrixXd& u_init, const RowMatrixXd& reference,
+                   const RowMatrixXd& u_ff, const VectorXd& offset, const RowMatrixXd* x_init) {
+    StepResult result;
+    RowMatrixXd u = clip(u_init), x;
+    if (x_init == nullptr || !x_init->allFinite()) {
+      x = rollout(x0, u, offset);
+    } else {
+      x = *x_init;
+      x.row(0) = x0.transpose();
+    }
+    if (!x.allFinite()) {
+      result.u = u; result.x = x; result.iterations = 0;
+      return result;
+    }
+    double mu = regularization;
+    int iteration = 0;
+    bool active = false;
+    double slack = 0.0;
+    RowMatrixXd following, A, B;
+    for (iteration = 1; iteration <= iterations; ++iteration) {
+      bool stepped = false;
+      model->linearize(x.topRows(x.rows() - 1), u, following, A, B);
+      if (following.allFinite() && A.allFinite() && B.allFinite()) {
+        following.rowwise() += offset.transpose();
+        for (int attempt = 0; attempt < 12; ++attempt) {
+          if (step(x, u, reference, u_ff, following, A, B, mu, active, slack)) { stepped = true; break; }
+          mu = std::max(10.0 * mu, 1e-9);
+        }
+      }
+      if (!stepped) {
+        result.u = u; result.x = x; result.iterations = iteration;
+        return result;
+      }
+      x.row(1) = (model->step(x0, u.row(0).transpose()) + offset).transpose();
+    }
+    result.u = u;
+    result.x = x;
+    result.iterations = iterations;
+    result.cost = cost(x, u, reference, u_ff);
+    result.finite = x.allFinite() && std::isfinite(result.cost);
+    result.active = active;
+    result.slack = slack;
+    return result;
+  }
+
+  // one Gauss-Newton step in place; false where the Hessian is not positive definite (u, x untouched)
+  bool step(RowMatrixXd& x, RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
+            const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B, double mu, bool& active,
+            double& slack) {
+    const int H = int(u.rows()), s = S(), mm = m(), N = H * mm;
+    // the states' response to the torque steps: Gamma (H S, N) block lower triangular, and the gaps' drift (H S,)
+    Eigen::MatrixXd gamma = Eigen::MatrixXd::Zero(Eigen::Index(H) * s, N);
+    VectorXd drift(Eigen::Index(H) * s);
+    for (int k = 0; k < H; ++k) {
+      const auto Ak = A.middleRows(Eigen::Index(k) * s, s);
+      if (k > 0) {
+        gamma.block(Eigen::Index(k) * s, 0, s, Eigen::Index(k) * mm).noalias() =
+            Ak * gamma.block(Eigen::Index(k - 1) * s, 0, s, Eigen::Index(k) * mm);
+        drift.segment(Eigen::Index(k) * s, s).noalias() = Ak * drift.segment(Eigen::Index(k - 1) * s, s);
+      } else {
+        drift.segment(0, s).setZero();
+      }
+      gamma.block(Eigen::Index(k) * s, Eigen::Index(k) * mm, s, mm) = B.middleRows(Eigen::Index(k) * s, s);
+      drift.segment(Eigen::Index(k) * s, s) += (predicted.row(k) - x.row(k + 1)).transpose();
+    }
+    VectorXd state_weight(Eigen::Index(H) * s), effort_weight(N), error(Eigen::Index(H) * s), change(N);
+    for (int k = 0; k < H; ++k) {
+      const double w = k == H - 1 ? terminal_factor : 1.0;
+      state_weight.segment(Eigen::Index(k) * s, s) = w * Q;
+      effort_weight.segment(Eigen::Index(k) * mm, mm) = R;
+      error.segment(Eigen::Index(k) * s, s) = (x.row(k + 1) - reference.row(k + 1)).transpose();
+      change.segment(Eigen::Index(k) * mm, mm) = (u.row(k) - u_ff.row(k)).transpose();
+    }
+    error += drift;
+    // Hessian Gamma^T W Gamma + diag(R) + mu, node by node over Gamma's nonzero columns (lower triangle)
+    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(N, N);
+    Eigen::MatrixXd weighted;
+    for (int k = 0; k < H; ++k) {
+      const int width = (k + 1) * mm;
+      const auto block = gamma.block(Eigen::Index(k) * s, 0, s, width);
+      weighted = state_weight.segment(Eigen::Index(k) * s, s).asDiagonal() * block;
+      hessian.topLeftCorner(width, width).triangularView<Eigen::Lower>() += block.transpose() * weighted;
+    }
+    hessian.diagonal() += effort_weight + VectorXd::Constant(N, mu);
+    hessian.triangularView<Eigen::StrictlyUpper>() = hessian.transpose();
+    VectorXd gradient = gamma.transpose() * state_weight.cwiseProduct(error) + effort_weight.cwiseProduct(change);
+    Eigen::LLT<Eigen::MatrixXd> llt(hessian);
+    if (llt.info() != Eigen::Success) return false;
+    VectorXd solution = llt.solve(gradient);
+    if (!solution.allFinite()) return false;
+    Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 1>> flat_u(u.data(), N);
+    VectorXd u_new = flat_u - solution;
+    VectorXd base = Eigen::Map<const VectorXd>(x.data() + s, Eigen::Index(H) * s) + drift;   // states at delta = 0
+    bool now_active = false;
+    double now_slack = 0.0;
+    if (!constrained) {
+      for (int i = 0; i < N; ++i) u_new[i] = std::clamp(u_new[i], -effort_limit[i % mm], effort_limit[i % mm]);
+    } else {
+      VectorXd states = base + gamma * (u_new - flat_u);
+      if (inside(u_new, states)) {
+        working_rows.clear();
+      } else {
+        VectorXd lower_step(N), upper_step(N);
+        for (int i = 0; i < N; ++i) {
+          lower_step[i] = -effort_limit[i % mm] - flat_u[i];
+          upper_step[i] = effort_limit[i % mm] - flat_u[i];
+        }
+        VectorXd delta;
+        if (!constrained_step(hessian, gradient, lower_step, upper_step, gamma, base, delta, now_active, now_slack))
+          return false;
+        u_new = flat_u + delta;
+        for (int i = 0; i < N; ++i) u_new[i] = std::clamp(u_new[i], -effort_limit[i % mm], effort_limit[i % mm]);
+      }
+    }
+    VectorXd states = base + gamma * (u_new - flat_u);
+    RowMatrixXd x_new(x.rows(), s);
+    x_new.row(0) = x.row(0);
+    for (int k = 0; k < H; ++k) x_new.row(k + 1) = states.segment(Eigen::Index(k) * s, s).transpose();
+    for (int i = 0; i < N; ++i) u(i / mm, i % mm) = u_new[i];
+    x = x_new;
+    active = now_active;
+    slack = now_slack;
+    return true;
+  }
+
+  bool inside(const VectorXd& u_flat, const VectorXd& states) const {
+    const int mm = m(), s = S();
+    for (int i = 0; i < u_flat.size(); ++i)
+      if (!(std::abs(u_flat[i]) < effort_limit[i % mm])) return false;
+    for (int i = 0; i < states.size(); ++i)
+      if (!(states[i] < upper[i % s] && states[i] > lower[i % s])) return false;
+    return true;
+  }
+
+  // the box- and state-constrained step (constraints.CondensedQp.solve); false where no QP can be solved
+  bool constrained_step(const Eigen::MatrixXd& hessian, const VectorXd& gradient, const VectorXd& lower_step,
+                        const VectorXd& upper_step, const Eigen::MatrixXd& gamma, const VectorXd& base,
+                        VectorXd& delta, bool& now_active, double& now_slack) {
+    const int s = S(), total = int(base.size());
+    std::vector<int> rows;
+    for (int row : working_rows) {     // the last working set shifted by one node, the last node's rows kept
+      if (row >= total) continue;
+      if (row - s >= 0) rows.push_back(row - s);
+      if (row >= total - s) rows.push_back(row);
+    }
+    std::sort(rows.begin(), rows.end());
+    rows.erase(std::unique(rows.begin(), rows.end()), rows.end());
+    bool soft = !hard;
+    int budget = kMaxQpIterations;
+    VectorXd states;
+    bool settled = false;
+    for (int round = 0; round < kMaxRounds; ++round) {
+      int status = solve_rows(hessian, gradient, lower_step, upper_step, gamma, base, rows, soft, budget, delta,
+                              now_slack);
+      if (status == 0) {               // the hard rows cannot be met: the soft problem
+        soft = true;
+        continue;
+      }
+      if (status < 0) {
+        if (rows.empty()) return false;
+        break;                         // not settled: the box alone
+      }
+      states = base + gamma * delta;
+      std::vector<int> crossed;
+      for (int i = 0; i < total; ++i)
+        if ((states[i] > upper[i % s] + kActiveTolerance || states[i] < lower[i % s] - kActiveTolerance) &&
+            !std::binary_search(rows.begin(), rows.end(), i))
+          crossed.push_back(i);
+      if (crossed.empty()) { settled = true; break; }
+      std::vector<int> merged;
+      std::merge(rows.begin(), rows.end(), crossed.begin(), crossed.end(), std::back_inserter(merged));
+      rows = merged;
+    }
+    if (!settled) {                    // the torque box alone, its crossings reported as slack
+      ++unsettled;
+      budget = kMaxQpIterations;
+      if (solve_rows(hessian, gradient, lower_step, upper_step, gamma, base, {}, false, budget, delta, now_slack) < 0)
+        return false;
+      states = base + gamma * delta;
+      now_slack = 0.0;
+      for (int i = 0; i < total; ++i) now_slack = std::max(now_slack, violation(states[i], i % s));
+      working_rows.clear();
+      now_active = true;
+      return true;
+    }
+    working_rows.clear();
+    bool near = false;
+    for (int i = 0; i < total; ++i)
+      if (states[i] > upper[i % s] - kActiveTolerance || states[i] < lower[i % s] + kActiveTolerance) {
+        working_rows.push_back(i);
+        near = true;
+      }
+    bool box = false;
+    for (int i = 0; i < delta.size(); ++i)
+      if (delta[i] >= upper_step[i] - kActiveTolerance || delta[i] <= lower_step[i] + kActiveTolerance) box = true;
+    now_active = near || box;
+    return true;
+  }
+
+  // the QP over [delta, slack of each row] (soft) or delta alone (hard), Jacobi-scaled: 1 solved, 0 the hard rows
+  // infeasible, -1 not solved (within the budget)
+  int solve_rows(const Eigen::MatrixXd& hessian, const VectorXd& gradient, const VectorXd& lower_step,
+                 const VectorXd& upper_step, const Eigen::MatrixXd& gamma, const VectorXd& base,
+                 const std::vector<int>& rows, bool soft, int& budget, VectorXd& delta, double& used_slack) const {
+    const int N = int(gradient.size()), chosen = int(rows.size()), s = S();
+    const int slacks = soft ? chosen : 0, variables = N + slacks;
+    const double weight = 0.5 * penalty_weight;
+    Eigen::MatrixXd G = Eigen::MatrixXd::Zero(variables, variables);
+    G.topLeftCorner(N, N) = hessian;
+    VectorXd a(variables);
+    a.head(N) = gradient;
+    for (int j = 0; j < slacks; ++j) { G(N + j, N + j) = weight; a[N + j] = weight; }
+    VectorXd scale = G.diagonal().cwiseSqrt().cwiseInverse();     // y = scaled variables / scale
+    // constraints C^T y >= b in the unscaled variables first: box (2 N), slacks >= 0, rows' two sides
+    std::vector<VectorXd> normals;
+    std::vector<double> bounds;
+    auto add = [&](const VectorXd& c, double value) { normals.push_back(c); bounds.push_back(value); };
+    for (int i = 0; i < N; ++i) {
+      VectorXd c = VectorXd::Zero(variables);
+      c[i] = 1.0;
+      add(c, lower_step[i]);
+      c[i] = -1.0;
+      add(c, -upper_step[i]);
+    }
+    for (int j = 0; j < slacks; ++j) {
+      VectorXd c = VectorXd::Zero(variables);
+      c[N + j] = 1.0;
+      add(c, 0.0);
+    }
+    for (int j = 0; j < chosen; ++j) {
+      const int row = rows[j];
+      const double lo = lower[row % s] - base[row], hi = upper[row % s] - base[row];
+      if (std::isfinite(lo)) {
+        VectorXd c = VectorXd::Zero(variables);
+        c.head(N) = gamma.row(row).transpose();
+        if (soft) c[N + j] = 1.0;
+        add(c, lo);
+      }
+      if (std::isfinite(hi)) {
+        VectorXd c = VectorXd::Zero(variables);
+        c.head(N) = -gamma.row(row).transpose();
+        if (soft) c[N + j] = 1.0;
+        add(c, -hi);
+      }
+    }
+    Eigen::MatrixXd C(variables, normals.size());
+    VectorXd b(normals.size());
+    for (size_t i = 0; i < normals.size(); ++i) {
+      C.col(i) = normals[i].cwiseProduct(scale);    // c^T x = (c .* scale)^T y with x = scale .* y
+      b[i] = bounds[i];
+    }
+    Eigen::MatrixXd G_scaled = scale.asDiagonal() * G * scale.asDiagonal();
+    VectorXd a_scaled = a.cwiseProduct(scale), y;
+    int used = 0;
+    const auto status = DualActiveSet::solve(G_scaled, a_scaled, C, b, y, std::max(budget, 1), used);
+    budget -= used;
+    if (status == DualActiveSet::infeasible && !soft && chosen) return 0;
+    if (status == DualActiveSet::iteration_limit && !soft && chosen) return 0;
+    if (status != DualActiveSet::optimal) return -1;
+    VectorXd solution = y.cwiseProduct(scale);
+    delta = solution.head(N);
+    used_slack = 0.0;
+    for (int j = 0; j < slacks; ++j) used_slack = std::max(used_slack, solution[N + j]);
+    return 1;
+  }
+};
+
+}  // namespace stdm
