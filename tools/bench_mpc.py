@@ -180,6 +180,7 @@ def main():
         rows = closed_loops(code, args.dataset, args.checkpoint, args.identified, args.plans)
         output.write_text(json.dumps(rows))
         return
+    origin = provenance()      # (at the start: the code this run imports)
     given = args.dataset is not None
     if given:
         dataset, checkpoints, identified = args.dataset, args.checkpoint, args.identified
@@ -207,7 +208,7 @@ def main():
         folder = ROOT / "docs" / "results" / ("compiled_step" if compiled else "realtime")
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder / "bench_mpc.json", json.dumps(dict(baseline=args.baseline, plans=args.plans,
-                                                                     provenance=provenance(), command=command,
+                                                                     provenance=origin, command=command,
                                                                      baseline_rows=old, now_rows=now), indent=1))
 
 
