@@ -31,6 +31,8 @@ class BuildCore(build_ext):
             sys.exit(f"stdm-drake: Pinocchio's or Eigen's headers are missing under {prefix} (build requirements "
                      "libpinocchio and cmeel-eigen of pyproject.toml)")
         nanobind_root = pathlib.Path(nanobind.__file__).resolve().parent
+        if self._reuse_inplace_build():
+            return
         for extension in self.extensions:
             extension.sources.append(str(nanobind_root / "src" / "nb_combined.cpp"))
             extension.include_dirs += [nanobind.include_dir(), str(nanobind_root / "ext" / "robin_map" / "include"),
@@ -42,6 +44,27 @@ class BuildCore(build_ext):
         except Exception as error:   # (the compiler's own output is above this line)
             sys.exit(f"stdm-drake: the compiled MPC control step did not build ({type(error).__name__}: "
                      f"{str(error).splitlines()[0] if str(error) else ''}); see docs/guides/install.md")
+
+
+    def _reuse_inplace_build(self) -> bool:
+        """Copy the extension built in place in this source tree (by `pip install -e .`) where it is newer than all
+        its sources, instead of compiling it again (a wheel built from the checkout, as the tests build one)."""
+        import shutil
+        if self.inplace:
+            return False
+        for extension in self.extensions:
+            built = pathlib.Path(*extension.name.split(".")).with_name(
+                extension.name.rsplit(".", 1)[-1] + sysconfig.get_config_var("EXT_SUFFIX"))
+            sources = [pathlib.Path(name) for name in (*extension.sources, *extension.depends) if "nanobind" not in name]
+            if not built.is_file() or any(source.stat().st_mtime >= built.stat().st_mtime for source in sources):
+                return False
+        for extension in self.extensions:
+            built = pathlib.Path(*extension.name.split(".")).with_name(
+                extension.name.rsplit(".", 1)[-1] + sysconfig.get_config_var("EXT_SUFFIX"))
+            target = pathlib.Path(self.get_ext_fullpath(extension.name))
+            target.parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(built, target)
+        return True
 
 
 core = Extension(

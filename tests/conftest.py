@@ -145,8 +145,10 @@ def regular_install(tmp_path_factory):
     # setuptools builds in the checkout (build/, *.egg-info): one build at a time, should xdist workers outside
     # the shared group (another --dist) or another pytest run on this checkout build too
     with FileLock(str(ROOT / "build" / ".test-wheel.lock"), timeout=600):
+        # (the compiled control step: setup.py copies the extension the editable install built in place where it is
+        # up to date, else compiles it, a few minutes on 2 cores)
         subprocess.run(pip + ["wheel", "--no-deps", "--no-build-isolation", "-w", str(wheels), str(ROOT)], check=True,
-                       cwd=work, timeout=300)
+                       cwd=work, timeout=900)
     (wheel,) = wheels.glob("stdm_drake-*.whl")
     subprocess.run(pip + ["install", "--no-deps", "--target", str(target), str(wheel)], check=True, timeout=300)
     dependencies = pathlib.Path(pytest.importorskip("numpy").__file__).parents[1]   # the venv's site-packages
