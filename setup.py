@@ -1,7 +1,10 @@
 """Builds the compiled control step, the extension module stdm_drake.closed_loop._core (its C++ sources in
-stdm_drake/closed_loop/core/), at install: nanobind binds it, Eigen and Pinocchio's headers come from the build
-requirements in pyproject.toml (cmeel-eigen, libpinocchio) and Pinocchio's precompiled algorithms from the
-libpinocchio it installs at run time (`pin`). Everything else about the package is in pyproject.toml.
+stdm_drake/closed_loop/core/), at install: nanobind binds it, Eigen's and Pinocchio's headers come from the build
+requirements in pyproject.toml (cmeel-eigen, libpinocchio; Pinocchio used header-only, so the extension needs no
+library at run time). It is compiled for the installing machine's CPU (-march=native: the float32 networks' matrix
+products in its widest vector instructions); a copy moved to an older CPU stops with an illegal instruction:
+install it there. Its two translation units compile in parallel. Everything else about the package is in
+pyproject.toml.
 
 A machine without a C++17 compiler, or a build that fails, stops the install with one line saying so
 (docs/guides/install.md); there is no silent fall-back to the numpy control step."""
@@ -38,13 +41,27 @@ class BuildCore(build_ext):
             extension.include_dirs += [nanobind.include_dir(), str(nanobind_root / "ext" / "robin_map" / "include"),
                                        str(prefix / "include"), str(prefix / "include" / "eigen3"),
                                        sysconfig.get_paths()["include"]]
-            extension.library_dirs.append(str(prefix / "lib"))
+        self._compile_in_parallel()
         try:
             super().build_extensions()
         except Exception as error:   # (the compiler's own output is above this line)
             sys.exit(f"stdm-drake: the compiled MPC control step did not build ({type(error).__name__}: "
                      f"{str(error).splitlines()[0] if str(error) else ''}); see docs/guides/install.md")
 
+
+    def _compile_in_parallel(self) -> None:
+        """The compiler's `compile` with one process per source (the extension's sources take minutes each)."""
+        import concurrent.futures
+        import os
+        compile_one = self.compiler.compile
+
+        def compile_all(sources, *arguments, **options):
+            workers = max(1, min(len(sources), os.cpu_count() or 1))
+            with concurrent.futures.ThreadPoolExecutor(workers) as pool:
+                parts = list(pool.map(lambda source: compile_one([source], *arguments, **options), sources))
+            return [path for part in parts for path in part]
+
+        self.compiler.compile = compile_all
 
     def _reuse_inplace_build(self) -> bool:
         """Copy the extension built in place in this source tree (by `pip install -e .`) where it is newer than all
@@ -72,16 +89,12 @@ core = Extension(
     sources=[f"{CORE}/bindings.cpp", f"{CORE}/rigid_body.cpp"],
     depends=[f"{CORE}/control_step.hpp"],
     language="c++",
-    define_macros=[("PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION", None), ("BOOST_MPL_LIMIT_LIST_SIZE", "30"),
+    define_macros=[("BOOST_MPL_LIMIT_LIST_SIZE", "30"),
                    ("BOOST_MPL_LIMIT_VECTOR_SIZE", "30"), ("BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", None),
                    ("BOOST_FUSION_INVOKE_MAX_ARITY", "12"), ("NDEBUG", None)],
-    # no -march=native: Pinocchio's precompiled algorithms are built for the generic x86-64 (SSE2), and Eigen's
-    # types change layout with the instruction set (a Pinocchio Data made by the library, destroyed here, crashes)
-    extra_compile_args=["-std=c++17", "-O3", "-fvisibility=hidden", "-w"],
-    libraries=["pinocchio_default"],
-    # a regular install finds libpinocchio beside it in site-packages; an editable one through `pinocchio`, which
-    # stdm_drake.closed_loop.compiled imports first (the loader then reuses the library already loaded)
-    extra_link_args=["-Wl,-rpath,$ORIGIN/../../cmeel.prefix/lib"],
+    # Pinocchio header-only and every unit for the same instruction set: Eigen's types change layout with it, so
+    # code built for another (libpinocchio_default's precompiled algorithms are generic x86-64) must not share them
+    extra_compile_args=["-std=c++17", "-O3", "-march=native", "-fvisibility=hidden", "-w"],
 )
 
 setup(ext_modules=[core], cmdclass={"build_ext": BuildCore})

@@ -32,7 +32,8 @@ HTML_MARKER = "<!-- written by stdm-drake -->"
 HTML_PREFIX = "<!-- written by stdm-drake"
 IDENTIFIED_MARKER = "# An identified robot, written by `stdm-drake identify`"   # first line of identified.yaml
 NATIVE_MARKER = "# stdm-drake export --target drake:"   # first line of a Drake-native model file
-OUTPUT_KINDS = ("dataset", "json", "identified", "html", "onnx", "native")
+CONTROLLER_MARKER = "# stdm-drake controller 1"   # first line of a controller file (deploy/controller_file.py)
+OUTPUT_KINDS = ("dataset", "json", "identified", "html", "onnx", "native", "controller")
 DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every dataset (stdm_drake.data.dataset)
 WRITTEN_BY = "written_by"   # the HDF5 attribute (and JSON key) naming the command: "stdm-drake COMMAND"
 COMMAND_LINE = "command: "  # the folder marker's line naming the command
@@ -201,8 +202,9 @@ def _writer_of(path: pathlib.Path, kind: str) -> str | None:
                 data = json.load(f)
             writer = str(data.get(WRITTEN_BY, "")) if isinstance(data, dict) else ""
             return writer if writer.startswith("stdm-drake") else None
-        if kind in ("identified", "native"):
-            marker, command = (IDENTIFIED_MARKER, "identify") if kind == "identified" else (NATIVE_MARKER, "export")
+        if kind in ("identified", "native", "controller"):
+            marker, command = {"identified": (IDENTIFIED_MARKER, "identify"), "native": (NATIVE_MARKER, "export"),
+                               "controller": (CONTROLLER_MARKER, "export")}[kind]
             with open(path, encoding="utf-8", errors="replace") as f:
                 return f"stdm-drake {command}" if f.readline().startswith(marker) else None
         if kind == "onnx":   # (only a .onnx file is read: onnx.load parses the whole file)

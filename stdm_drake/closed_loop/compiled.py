@@ -33,7 +33,6 @@ IMPLEMENTATIONS = ("compiled", "numpy")
 def core_module():
     """The extension module `stdm_drake.closed_loop._core`; InputError (one line) where it was not built."""
     try:
-        import pinocchio  # noqa: F401  (loads libpinocchio_default, which the extension links, into the process)
         from stdm_drake.closed_loop import _core
     except ImportError as error:
         raise InputError(f"the compiled MPC control step is not built ({error}): reinstall the package on a machine "
@@ -134,3 +133,30 @@ class CompiledRtiSolver(TrajectoryOptimizer):
             as_float(x0, dtype=float), as_float(u_init, dtype=float), as_float(reference, dtype=float),
             as_float(u_ff, dtype=float), offset, None if x_init is None else as_float(x_init, dtype=float))
         return OptimizerResult(u, x, float(cost), int(iterations), bool(finite), bool(active), float(slack))
+
+
+def build_controller_program(output, compiler: str = "c++") -> None:
+    """Compile the controller program (core/mpc_controller.cpp: reads a controller file and a plan, then a state per
+    line on standard input, writes a torque per line) to the executable `output`, with this environment's Eigen
+    (cmeel-eigen), Pinocchio (its headers and libpinocchio_default) and `compiler`; InputError (one line) where the
+    compiler or the headers are missing or the build fails (about a minute on 2 cores)."""
+    import pathlib
+    import shutil
+    import subprocess
+    import cmeel
+    if shutil.which(compiler) is None:
+        raise InputError(f"no C++ compiler ({compiler!r} not found): the controller program needs one")
+    prefix = pathlib.Path(cmeel.__file__).resolve().parent.parent / "cmeel.prefix"
+    if not (prefix / "include" / "eigen3").is_dir() or not (prefix / "include" / "pinocchio").is_dir():
+        raise InputError(f"Eigen's or Pinocchio's headers are missing under {prefix} (pip install cmeel-eigen pin)")
+    core = pathlib.Path(__file__).resolve().parent / "core"
+    command = [compiler, "-std=c++17", "-O3", "-DNDEBUG", "-w", "-DPINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION",
+               "-DBOOST_MPL_LIMIT_LIST_SIZE=30", "-DBOOST_MPL_LIMIT_VECTOR_SIZE=30",
+               "-DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", "-DBOOST_FUSION_INVOKE_MAX_ARITY=12",
+               f"-I{prefix / 'include'}", f"-I{prefix / 'include' / 'eigen3'}", str(core / "mpc_controller.cpp"),
+               str(core / "rigid_body.cpp"), "-o", str(output), f"-L{prefix / 'lib'}", "-lpinocchio_default",
+               f"-Wl,-rpath,{prefix / 'lib'}"]
+    result = subprocess.run(command, capture_output=True, text=True)
+    if result.returncode != 0:
+        first = next((line for line in result.stderr.splitlines() if "error" in line), result.stderr.strip()[:200])
+        raise InputError(f"the controller program did not build: {first}")

@@ -1,6 +1,7 @@
 """`stdm-drake export`: a trained model for use outside Python: ONNX graphs (the model and its Jacobians) for ONNX
-Runtime, TensorRT or any ONNX backend, or a Drake-native model file (Drake's MultilayerPerceptron systems) for a
-Drake diagram in C++ or Python (`stdm_drake.deploy`)."""
+Runtime, TensorRT or any ONNX backend, a Drake-native model file (Drake's MultilayerPerceptron systems) for a
+Drake diagram in C++ or Python, or the MPC controller's file for the compiled controller program
+(`stdm_drake.deploy`)."""
 import argparse
 import pathlib
 
@@ -12,10 +13,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="model checkpoint written by `stdm-drake train` (.pt)")
     parser.add_argument("--output", "-o", type=pathlib.Path, required=True,
                         help="file to write: model.onnx (and model.jacobian.onnx beside it) for --target onnx, "
-                             "model.yaml for --target drake")
-    parser.add_argument("--target", choices=("onnx", "drake"), default="onnx",
+                             "model.yaml for --target drake, mpc.controller for --target controller")
+    parser.add_argument("--target", choices=("onnx", "drake", "controller"), default="onnx",
                         help="onnx (default): every model stdm-drake trains; drake: Drake's MultilayerPerceptron, for "
-                             "models trained with --activation tanh or relu")
+                             "models trained with --activation tanh or relu; controller: the MPC (model, settings, "
+                             "limits) for the compiled controller program (docs/guides/deploy.md)")
+    parser.add_argument("--robot", type=pathlib.Path,
+                        help="controller: the robot config YAML the model was trained for (default: the UR-10's)")
+    parser.add_argument("--config", type=pathlib.Path,
+                        help="controller: the MPC settings YAML (default: controllers/mpc.yaml)")
     parser.add_argument("--mean-only", action="store_true",
                         help="onnx: the model graph gives next_state alone, without an ensemble's or P model's variance "
                              "and member outputs (ONNX Runtime runs the whole graph each call: a PE's step is a quarter "
@@ -26,5 +32,5 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.deploy.export_job import ExportJob, export_job
     export_job(ExportJob(checkpoint=args.checkpoint, output=args.output, target=args.target,
-                          mean_only=args.mean_only, force=args.force))
+                          mean_only=args.mean_only, force=args.force, robot=args.robot, mpc_config=args.config))
     return 0

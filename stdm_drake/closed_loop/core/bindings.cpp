@@ -82,6 +82,8 @@ std::tuple<RowMatrixXd, RowMatrixXd, RowMatrixXd> linearize(const stdm::Model& m
 
 NB_MODULE(_core, module) {
   module.doc() = "The MPC's control step in compiled code (stdm_drake/closed_loop/core/control_step.hpp).";
+  // (solvers held by Python objects alive at interpreter exit are not leaks worth a warning on every command)
+  nb::set_leak_warnings(false);
 
   nb::class_<stdm::RigidBody>(module, "RigidBody")
       .def("acceleration", &stdm::RigidBody::acceleration, "q"_a, "v"_a, "tau"_a)

@@ -181,6 +181,8 @@ struct RigidBody {
 
   // q'' (n,) rad/s^2
   VectorXd acceleration(const VectorXd& q, const VectorXd& v, const VectorXd& tau) const;
+  // the torque (n,) N m on every joint that holds the arm still at q (n,) rad: -tau_g(q)
+  VectorXd gravity_torque(const VectorXd& q) const;
   // q'' (n,) and d q'' / d(q, v, tau) (n, 2n + m)
   void acceleration_and_jacobian(const VectorXd& q, const VectorXd& v, const VectorXd& tau, VectorXd& out,
                                  RowMatrixXd& jacobian) const;

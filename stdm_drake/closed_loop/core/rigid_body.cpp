@@ -2,6 +2,7 @@
 // the one translation unit that includes Pinocchio, compiled for the instruction set that library was built for.
 #include <pinocchio/algorithm/aba-derivatives.hpp>
 #include <pinocchio/algorithm/aba.hpp>
+#include <pinocchio/algorithm/rnea.hpp>
 #include <pinocchio/multibody.hpp>
 
 #include "control_step.hpp"
@@ -49,6 +50,15 @@ VectorXd RigidBody::acceleration(const VectorXd& q, const VectorXd& v, const Vec
   pinocchio::aba(p.model, *p.data, p.q, p.v, p.f);
   VectorXd out(joints);
   for (int i = 0; i < joints; ++i) out[to_pin[i]] = p.data->ddq[i];
+  return out;
+}
+
+VectorXd RigidBody::gravity_torque(const VectorXd& q) const {
+  Pinocchio& p = *pinocchio_;
+  for (int i = 0; i < joints; ++i) p.q[i] = q[to_pin[i]];
+  pinocchio::computeGeneralizedGravity(p.model, *p.data, p.q);
+  VectorXd out(joints);
+  for (int i = 0; i < joints; ++i) out[to_pin[i]] = p.data->g[i];
   return out;
 }
 
