@@ -32,7 +32,8 @@ HTML_MARKER = "<!-- written by stdm-drake -->"
 HTML_PREFIX = "<!-- written by stdm-drake"
 IDENTIFIED_MARKER = "# An identified robot, written by `stdm-drake identify`"   # first line of identified.yaml
 NATIVE_MARKER = "# stdm-drake export --target drake:"   # first line of a Drake-native model file
-CONTROLLER_MARKER = "# stdm-drake controller 1"   # first line of a controller file (deploy/controller_file.py)
+CONTROLLER_MARKER = "# stdm-drake controller 1"   # first line of a controller file (closed_loop/controller_file.py)
+MARKERS = {"identified": IDENTIFIED_MARKER, "native": NATIVE_MARKER, "controller": CONTROLLER_MARKER}   # first lines
 OUTPUT_KINDS = ("dataset", "json", "identified", "html", "onnx", "native", "controller")
 DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every dataset (stdm_drake.data.dataset)
 WRITTEN_BY = "written_by"   # the HDF5 attribute (and JSON key) naming the command: "stdm-drake COMMAND"
@@ -96,8 +97,7 @@ MIN_FREE_BYTES = 1 << 20
 
 
 def _check_room(option: str, path: pathlib.Path, folder: pathlib.Path) -> None:
-    """InputError unless MIN_FREE_BYTES are free in `folder` (or the nearest folder above it), where output
-    `path` goes."""
+    """InputError unless MIN_FREE_BYTES are free in `folder` (or the nearest folder above it), where `path` goes."""
     free = free_bytes(folder)
     if free < MIN_FREE_BYTES:
         raise InputError(f"{option} {path}: only {size_text(free)} free there; stdm-drake needs at least "
@@ -163,8 +163,7 @@ def _same_file(a: pathlib.Path, b: pathlib.Path) -> bool:
 
 
 def _check_parent(option: str, path: pathlib.Path, folder: pathlib.Path | None = None) -> None:
-    """The folder `path` goes in (or the new `folder` that is itself) is a folder (or can be made one) that can be
-    written."""
+    """The folder `path` goes in (or the new `folder` that is itself) is a folder (or can be made one), writable."""
     existing = nearest_existing(folder if folder is not None else path.absolute().parent, broken_links=True)
     if not existing.is_dir():
         raise InputError(f"{option} {path}: {existing} is not a folder")
@@ -202,11 +201,10 @@ def _writer_of(path: pathlib.Path, kind: str) -> str | None:
                 data = json.load(f)
             writer = str(data.get(WRITTEN_BY, "")) if isinstance(data, dict) else ""
             return writer if writer.startswith("stdm-drake") else None
-        if kind in ("identified", "native", "controller"):
-            marker, command = {"identified": (IDENTIFIED_MARKER, "identify"), "native": (NATIVE_MARKER, "export"),
-                               "controller": (CONTROLLER_MARKER, "export")}[kind]
+        if kind in MARKERS:   # (`identify` writes identified robots, `export` the others)
             with open(path, encoding="utf-8", errors="replace") as f:
-                return f"stdm-drake {command}" if f.readline().startswith(marker) else None
+                command = "identify" if kind == "identified" else "export"
+                return f"stdm-drake {command}" if f.readline().startswith(MARKERS[kind]) else None
         if kind == "onnx":   # (only a .onnx file is read: onnx.load parses the whole file)
             return _onnx_writer(path) if path.suffix.lower() == ".onnx" else None
         if kind == "html":

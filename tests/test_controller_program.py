@@ -13,7 +13,7 @@ from test_mpc import quintic_reference
 from stdm_drake.cli import main
 from stdm_drake.closed_loop.compiled import build_controller_program
 from stdm_drake.closed_loop.mpc import load_mpc_config, run_closed_loop
-from stdm_drake.deploy.controller_file import controller_text
+from stdm_drake.closed_loop.controller_file import controller_text
 from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.structure import DEFAULT

@@ -30,7 +30,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from stdm_drake.errors import InputError
+    if args.target == "controller":      # (the MPC's file: closed_loop, the stage that holds the controller)
+        if args.mean_only:
+            raise InputError("--mean-only belongs to the onnx target (the controller uses the model's mean)")
+        from stdm_drake.closed_loop.controller_file import export_controller
+        export_controller(args.checkpoint, args.output, args.robot, args.config, force=args.force)
+        return 0
+    if args.robot is not None or args.config is not None:
+        raise InputError("--robot and --config belong to the controller target (the model's own file needs neither)")
     from stdm_drake.deploy.export_job import ExportJob, export_job
     export_job(ExportJob(checkpoint=args.checkpoint, output=args.output, target=args.target,
-                          mean_only=args.mean_only, force=args.force, robot=args.robot, mpc_config=args.config))
+                          mean_only=args.mean_only, force=args.force))
     return 0

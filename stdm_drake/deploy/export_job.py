@@ -1,14 +1,12 @@
-"""`stdm-drake export`'s job: a checkpoint as ONNX graphs (the model and its Jacobians), as a Drake-native
-model file, or as the compiled MPC controller's file (the model, the MPC settings and the robot's limits: the
-C++ program of closed_loop/core/ runs it), every check before any work, files written atomically."""
+"""`stdm-drake export`'s job: a checkpoint as ONNX graphs (the model and its Jacobians) or as a Drake-native
+model file, every check before any work, files written atomically."""
 import contextlib
 import dataclasses
 import pathlib
 
 from stdm_drake.errors import InputError
 
-TARGETS = ("onnx", "drake", "controller")
-SUFFIXES = {"onnx": ".onnx", "drake": ".yaml", "controller": ".controller"}
+TARGETS = ("onnx", "drake")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -21,8 +19,6 @@ class ExportJob:
     target: str = "onnx"
     mean_only: bool = False
     force: bool = False
-    robot: pathlib.Path | None = None     # controller: the robot config (None: the UR-10's)
-    mpc_config: pathlib.Path | None = None   # controller: the MPC settings (None: controllers/mpc.yaml)
 
 
 def jacobian_path(output: pathlib.Path) -> pathlib.Path:
@@ -42,28 +38,15 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
         raise InputError(f"--target must be one of {', '.join(TARGETS)}, got {job.target!r}")
     if job.mean_only and job.target != "onnx":
         raise InputError("--mean-only belongs to the onnx target (the Drake system gives the mean only)")
-    if job.target != "controller" and (job.robot is not None or job.mpc_config is not None):
-        raise InputError("--robot and --config belong to the controller target (the model's own file needs neither)")
-    suffix = SUFFIXES[job.target]
+    suffix = ".onnx" if job.target == "onnx" else ".yaml"
     if pathlib.Path(job.output).suffix.lower() != suffix:
         raise InputError(f"-o/--output {job.output}: the {job.target} target writes a {suffix} file")
     outputs = [job.output] + ([jacobian_path(job.output)] if job.target == "onnx" else [])
-    kind = {"onnx": "onnx", "drake": "native", "controller": "controller"}[job.target]
+    kind = "onnx" if job.target == "onnx" else "native"
     for option, path in zip(("-o/--output", "the Jacobian graph"), outputs):
-        check_output_file(option, path, kind=kind, force=job.force,
-                          inputs=[path for path in (job.checkpoint, job.robot, job.mpc_config) if path is not None])
+        check_output_file(option, path, kind=kind, inputs=[job.checkpoint], force=job.force)
     checkpoint = load_checkpoint(job.checkpoint)
-    if job.target == "controller":
-        from stdm_drake.closed_loop.mpc import DEFAULT_MPC_CONFIG, load_mpc_config
-        from stdm_drake.data.compatibility import resolve_robot
-        from stdm_drake.deploy.controller_file import controller_text
-        from stdm_drake.learning.learned_model import LearnedModel
-        robot = resolve_robot(job.robot, None)
-        config = load_mpc_config(job.mpc_config or DEFAULT_MPC_CONFIG)
-        model = LearnedModel(checkpoint, robot=robot)
-        contents = [controller_text(model, config, robot).encode("utf-8")]
-        features = None
-    elif job.target == "onnx":
+    if job.target == "onnx":
         from stdm_drake.deploy.onnx_export import checkpoint_graphs
         model, jacobian, features = checkpoint_graphs(checkpoint, mean_only=job.mean_only)
         contents = [model.SerializeToString(), jacobian.SerializeToString()]

@@ -6,7 +6,7 @@
 // The file is text, one entry per line after its first line ("# stdm-drake controller 1 ..."):
 //   array NAME ROWS COLS v_1 ... v_(ROWS COLS)     (row-major; a scalar is 1 x 1)
 //   text NAME VALUE
-// stdm_drake/deploy/controller_file.py writes it and documents every name.
+// stdm_drake/closed_loop/controller_file.py writes it and documents every name.
 #pragma once
 
 #include <cstdio>

@@ -1,5 +1,5 @@
-"""The MPC controller as a file for the compiled controller outside Python (`stdm-drake export --target controller`;
-the C++ reader and program: stdm_drake/closed_loop/core/controller.hpp, mpc_controller.cpp).
+"""The MPC controller as a file for the compiled controller outside Python (`stdm-drake export --target controller`,
+`export_controller`; the C++ reader and program: closed_loop/core/controller.hpp, mpc_controller.cpp).
 
 What the file holds (text; its first line `# stdm-drake controller 1 ...`, then one entry per line,
 `array NAME ROWS COLS values...` row-major or `text NAME VALUE`), for n joints, m actuated, S = 2n:
@@ -24,6 +24,8 @@ What the file holds (text; its first line `# stdm-drake controller 1 ...`, then 
     description.*           the robot's description (the feedforward's gravity torque at the plan's states)
 """
 from __future__ import annotations
+
+import pathlib
 
 import numpy as np
 
@@ -64,7 +66,7 @@ def controller_text(model, config, robot, written_by: str = "stdm-drake export")
     bounds = config.constraints.bounds(limits.position_lower, limits.position_upper, limits.velocity, robot.joint_names)
     cost = config.cost(len(limits.effort))
     S = model.state_dim
-    lines = [f"{MARKER} (written by {written_by}; stdm_drake/deploy/controller_file.py documents the entries)",
+    lines = [f"{MARKER} (written by {written_by}; stdm_drake/closed_loop/controller_file.py documents the entries)",
              "text model " + ("plant" if isinstance(model, PlantModel) else "network")]
     scalars = dict(state_dim=S, action_dim=model.action_dim, sample_period=model.sample_period,
                    horizon=config.horizon, iterations=config.optimizer.iterations,
@@ -96,3 +98,28 @@ def controller_text(model, config, robot, written_by: str = "stdm-drake export")
             lines += _rigid_body("dynamics.", rigid_body_arrays(model.features.dynamics))
     lines += _rigid_body("description.", rigid_body_arrays(robot_dynamics(robot)))
     return "\n".join(lines) + "\n"
+
+
+def export_controller(checkpoint: pathlib.Path, output: pathlib.Path, robot_config: pathlib.Path | None = None,
+                      mpc_config: pathlib.Path | None = None, force: bool = False, say=print) -> pathlib.Path:
+    """`export --target controller`: the controller file of a `train` checkpoint (.pt) for the robot config
+    `robot_config` (None: the UR-10's) under the MPC settings `mpc_config` (None: controllers/mpc.yaml), written
+    atomically to `output` (.controller); every check before any work (InputError, nothing written)."""
+    from stdm_drake.closed_loop.mpc import DEFAULT_MPC_CONFIG, load_mpc_config
+    from stdm_drake.data.compatibility import resolve_robot
+    from stdm_drake.files import atomic_path
+    from stdm_drake.learning.checkpoint import load_checkpoint
+    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.outputs import check_output_file
+    if pathlib.Path(output).suffix.lower() != ".controller":
+        raise InputError(f"-o/--output {output}: the controller target writes a .controller file")
+    inputs = [path for path in (checkpoint, robot_config, mpc_config) if path is not None]
+    check_output_file("-o/--output", output, kind="controller", inputs=inputs, force=force)
+    loaded = load_checkpoint(checkpoint)
+    robot = resolve_robot(robot_config, None)
+    text = controller_text(LearnedModel(loaded, robot=robot), load_mpc_config(mpc_config or DEFAULT_MPC_CONFIG), robot)
+    with atomic_path(output) as path:
+        path.write_text(text)
+    say(f"{loaded.path.name} ({loaded.structure.label}, every {loaded.sample_period} s) under the MPC settings of "
+        f"{mpc_config or 'controllers/mpc.yaml'} for robot {robot.name} -> {output}")
+    return pathlib.Path(output)
