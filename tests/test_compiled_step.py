@@ -227,3 +227,24 @@ def test_trained_networks_compiled_torques_are_the_references_on_recorded_states
         assert compared >= 8
         if mode == "soft":
             assert active >= 1
+
+
+def test_a_machine_without_a_compiler_stops_the_install_in_one_line(tmp_path):
+    """setup.py: no C++ compiler is one line saying so (and what to install), before any work; no package is built
+    without the compiled step."""
+    import os
+    import pathlib
+    import subprocess
+    import sys
+    from filelock import FileLock
+    root = pathlib.Path(__file__).resolve().parents[1]
+    (root / "build").mkdir(exist_ok=True)
+    env = dict(os.environ, CC="no-such-compiler", CXX="no-such-compiler")
+    with FileLock(str(root / "build" / ".test-wheel.lock"), timeout=900):   # (conftest.regular_install's lock)
+        result = subprocess.run([sys.executable, "-m", "pip", "--disable-pip-version-check", "wheel", "--no-deps",
+                                 "--no-build-isolation", "-w", str(tmp_path), str(root)], env=env, cwd=tmp_path,
+                                capture_output=True, text=True, timeout=600)
+    assert result.returncode != 0 and not list(tmp_path.glob("*.whl"))
+    lines = [line.strip() for line in (result.stdout + result.stderr).splitlines() if "stdm-drake:" in line]
+    assert lines == ["stdm-drake: no C++ compiler ('no-such-compiler' not found): the compiled MPC control step needs "
+                     "one (Debian/Ubuntu: apt-get install g++); see docs/guides/install.md"], result.stderr[-2000:]
