@@ -152,6 +152,48 @@ def test_a_closed_loop_with_the_compiled_step_is_the_numpy_loop(plant_model):
     assert compiled_log.implementation == "compiled" and numpy_log.implementation == "numpy"
 
 
+def test_the_one_call_control_step_is_the_numpy_step_with_its_memory_and_fallback(plant_model):
+    """policy.MpcStep over the compiled solver runs each step in one C++ call (`_core.ControlStep`); on recorded
+    states (a non-finite measurement among them: the gravity fallback) its torques, statuses and every part of
+    the memory it carries are the numpy step's."""
+    from test_mpc import quintic_reference
+    from stdm_drake.closed_loop.policy import MpcStep
+    from stdm_drake.robots.plant import Dynamics, joint_limits
+    reference = quintic_reference(30)
+    config = load_mpc_config()
+    dynamics = Dynamics(UR10)
+    limits = joint_limits(dynamics.plant)
+    steps = {}
+    for implementation in ("compiled", "numpy"):
+        chosen = dataclasses.replace(config, optimizer=dataclasses.replace(config.optimizer,
+                                                                           implementation=implementation))
+        solver = chosen.solver(plant_model, limits, UR10.joint_names)
+        steps[implementation] = MpcStep(solver, reference, dynamics.gravity_torque, config.horizon,
+                                        config.disturbance_gain, limits.effort, True)
+    assert steps["compiled"].compiled is not None and steps["numpy"].compiled is None
+    memories = {name: step.first_memory() for name, step in steps.items()}
+    x = np.concatenate([reference.q[0] + 0.01, reference.v[0]])
+    fallbacks = 0
+    for k in range(12):
+        measured = x.copy()
+        if k == 6:
+            measured[2] = np.nan          # a lost measurement
+        outcome = {}
+        for name, step in steps.items():
+            torque, memories[name], status = step(k, measured, memories[name])
+            outcome[name] = (torque, status)
+        (torque, status), (expected, expected_status) = outcome["compiled"], outcome["numpy"]
+        np.testing.assert_allclose(torque, expected, rtol=0, atol=1e-9 * EFFORT.max())
+        assert status.fallback == expected_status.fallback
+        assert status.constraint_active == expected_status.constraint_active
+        fallbacks += status.fallback
+        for part in ("predicted", "disturbance", "plan", "nodes"):
+            np.testing.assert_allclose(getattr(memories["compiled"], part), getattr(memories["numpy"], part),
+                                       rtol=0, atol=1e-7, err_msg=f"{part} at step {k}")
+        x = plant_model.step_single(x, expected)
+    assert fallbacks == 1
+
+
 def test_a_model_the_compiled_step_does_not_cover_runs_numpy_and_says_why(tmp_path):
     structure = ModelStructure("velocity", "plant_step", plant_integrator="rk4")
     grey_box = LearnedModel(synthetic_checkpoint(tmp_path / "grey.pt", structure), robot=UR10)

@@ -134,6 +134,13 @@ class CompiledRtiSolver(TrajectoryOptimizer):
             as_float(u_ff, dtype=float), offset, None if x_init is None else as_float(x_init, dtype=float))
         return OptimizerResult(u, x, float(cost), int(iterations), bool(finite), bool(active), float(slack))
 
+    def control_step(self, reference: np.ndarray, feedforward: np.ndarray, horizon: int, disturbance_gain: float):
+        """policy.MpcStep's step in C++ over this solver (`_core.ControlStep`): reference (T, 2n) states and
+        feedforward (T, m) N m at the sample period, held past the end."""
+        return core_module().ControlStep(self._core, np.ascontiguousarray(reference, dtype=float),
+                                         np.ascontiguousarray(feedforward, dtype=float), int(horizon),
+                                         float(disturbance_gain))
+
 
 def build_controller_program(output, compiler: str = "c++") -> None:
     """Compile the controller program (core/mpc_controller.cpp: reads a controller file and a plan, then a state per

@@ -48,6 +48,9 @@ class MpcStep:
         self.feedforward = np.array([gravity_torque(q) for q in reference.q])
         self.joints = len(reference.q[0])
         self.state_dim = 2 * self.joints
+        # the whole step in one compiled call where the solver has one (compiled.CompiledRtiSolver)
+        self.compiled = solver.control_step(np.hstack([reference.q, reference.v]), self.feedforward, horizon,
+                                            disturbance_gain) if hasattr(solver, "control_step") else None
 
     def first_memory(self) -> StepMemory:
         """The memory before the first step: no prediction, no disturbance, the reference's gravity torques."""
@@ -57,6 +60,12 @@ class MpcStep:
 
     def __call__(self, k: int, x: np.ndarray, memory: StepMemory) -> tuple[np.ndarray, StepMemory, StepStatus]:
         """(torque (m,), the next step's memory, how the step went) at sample k."""
+        if self.compiled is not None:
+            solved, torque, predicted, disturbance, plan, nodes, active, slack = self.compiled.step(
+                k, np.asarray(x, dtype=float), memory.predicted, memory.disturbance, memory.plan, memory.nodes)
+            if solved:
+                return torque, StepMemory(predicted, disturbance, plan, nodes), StepStatus(False, active, slack)
+            return self.fallback(k, np.asarray(x, dtype=float), disturbance)
         horizon = self.horizon
         reference = self.reference.window(k, horizon + 1)
         u_ff = self.feedforward[np.minimum(np.arange(k, k + horizon), len(self.feedforward) - 1)]
@@ -75,19 +84,26 @@ class MpcStep:
                     result = self.solver.solve(x, warm, reference, u_ff, disturbance)
             fallback = not (result.finite and np.all(np.isfinite(result.u)))
         if fallback:
-            q = np.nan_to_num(x[:self.joints])
-            torque = np.clip(self.gravity_torque(q), -self.effort_limit, self.effort_limit)
-            predicted = np.full(self.state_dim, np.nan)
-            if self.disturbance_gain > 0:
-                with np.errstate(all="ignore"):
-                    predicted = self.solver.rollout(x, torque[None], disturbance)[1]
-            return torque, StepMemory(predicted, disturbance, u_ff,
-                                      np.full((horizon + 1, self.state_dim), np.nan)), StepStatus(True)
+            return self.fallback(k, x, disturbance)
         torque = result.u[0]
         return torque, StepMemory(predicted=result.x[1], disturbance=disturbance,
                                   plan=np.vstack([result.u[1:], result.u[-1:]]),
                                   nodes=np.vstack([result.x[1:], result.x[-1:]])), \
             StepStatus(False, result.constraint_active, result.slack)
+
+    def fallback(self, k: int, x: np.ndarray, disturbance: np.ndarray) -> tuple[np.ndarray, StepMemory, StepStatus]:
+        """The gravity fallback at sample k: the reference-free hold of x's joint angles (non-finite ones as 0),
+        within the torque limits; the memory: the model's prediction under it and the reference's gravity
+        torques as the next warm start."""
+        q = np.nan_to_num(x[:self.joints])
+        torque = np.clip(self.gravity_torque(q), -self.effort_limit, self.effort_limit)
+        predicted = np.full(self.state_dim, np.nan)
+        if self.disturbance_gain > 0:
+            with np.errstate(all="ignore"):
+                predicted = self.solver.rollout(x, torque[None], disturbance)[1]
+        u_ff = self.feedforward[np.minimum(np.arange(k, k + self.horizon), len(self.feedforward) - 1)]
+        return torque, StepMemory(predicted, disturbance, u_ff,
+                                  np.full((self.horizon + 1, self.state_dim), np.nan)), StepStatus(True)
 
     def estimate_disturbance(self, x: np.ndarray, memory: StepMemory) -> np.ndarray:
         """d_k = d_k-1 + gain (x_k - (f(x_k-1, u_k-1) + d_k-1)): the model's recent one-step error, added to every

@@ -170,4 +170,35 @@ NB_MODULE(_core, module) {
       }, "x0"_a, "u_init"_a, "reference"_a, "u_ff"_a, "offset"_a, "x_init"_a.none())
       .def("forget", [](stdm::RealTimeIteration& self) { self.working_rows.clear(); })
       .def_ro("unsettled", &stdm::RealTimeIteration::unsettled);
+
+  // policy.MpcStep's control step in one call (the solver and the reference held; the memory passed in and out)
+  struct BoundControlStep {
+    std::shared_ptr<stdm::RealTimeIteration> rti;
+    stdm::ControlStep control;
+  };
+  nb::class_<BoundControlStep>(module, "ControlStep")
+      .def("__init__", [](BoundControlStep* self, std::shared_ptr<stdm::RealTimeIteration> rti,
+                          const RowMatrixXd& reference, const RowMatrixXd& feedforward, int horizon,
+                          double disturbance_gain) {
+        new (self) BoundControlStep();
+        self->rti = rti;
+        self->control.reference = reference;
+        self->control.feedforward = feedforward;
+        self->control.horizon = horizon;
+        self->control.disturbance_gain = disturbance_gain;
+      }, "rti"_a, "reference"_a, "feedforward"_a, "horizon"_a, "disturbance_gain"_a)
+      .def("step", [](BoundControlStep& self, long k, const VectorXd& x, const VectorXd& predicted,
+                      const VectorXd& disturbance, const RowMatrixXd& plan, const RowMatrixXd& nodes) {
+        stdm::StepMemory memory{predicted, disturbance, plan, nodes};
+        stdm::StepResult result;
+        VectorXd estimate;
+        bool solved;
+        {
+          nb::gil_scoped_release release;
+          solved = self.control.step(*self.rti, k, x, memory, result, estimate);
+        }
+        VectorXd torque = solved ? VectorXd(result.u.row(0).transpose()) : VectorXd();
+        return std::make_tuple(solved, torque, memory.predicted, solved ? memory.disturbance : estimate, memory.plan,
+                               memory.nodes, result.active, result.slack);
+      }, "k"_a, "x"_a, "predicted"_a, "disturbance"_a, "plan"_a, "nodes"_a);
 }

@@ -15,10 +15,13 @@
 //                 and, for phi, Pinocchio's analytic ABA derivatives by the chain rule.
 //   PlantModel    the robot's rigid-body dynamics (Pinocchio's ABA, damping and smoothed Coulomb friction
 //                 added) stepped by classical RK4 over the period, the stages' analytic Jacobians chained.
-// The optimizer (`RealTimeIteration`): the multiple-shooting Gauss-Newton step condensed to the torques, a dense
-// Cholesky solve, and with the limits on a strictly convex QP (torque box hard, state rows soft with an exact
-// penalty, or hard) solved by a dual active-set method (Goldfarb & Idnani 1983) with constraint generation of
-// the state rows.
+// The optimizer (`RealTimeIteration`): the multiple-shooting Gauss-Newton step by a Riccati recursion over the
+// nodes (the numpy reference condenses it to the torques and solves it densely: the same minimizer); where a
+// limit binds, the step condensed to the torques as a strictly convex QP (torque box hard, state rows soft with
+// an exact penalty, or hard) solved by a dual active-set method (Goldfarb & Idnani 1983) with constraint
+// generation of the state rows.
+// `ControlStep`: policy.MpcStep's control step (disturbance estimate, warm start, memory) around it, so that a
+// control step from Python is one call.
 #pragma once
 
 #include <algorithm>
@@ -101,6 +104,28 @@ struct Network {
   std::vector<RowMatrixXf> mean_weight;                    // per member (W, outputs)
   std::vector<Eigen::RowVectorXf> mean_bias;               // per member (outputs,)
 
+  // value (and slope) of the activation at every pre-activation: tanh and swish (the default) vectorized
+  // (Eigen's float tanh), the others one by one (`activate`)
+  void activate_all(const RowMatrixXf& pre, RowMatrixXf& value, RowMatrixXf* slope) const {
+    value.resize(pre.rows(), pre.cols());
+    if (slope) slope->resize(pre.rows(), pre.cols());
+    if (activation == Activation::tanh || activation == Activation::swish) {
+      value.array() = pre.array().tanh();
+      if (activation == Activation::tanh) {
+        if (slope) slope->array() = 1.0f - value.array().square();
+      } else {
+        if (slope) slope->array() = 1.0f + value.array() + pre.array() * (1.0f - value.array().square());
+        value.array() = pre.array() * value.array() + pre.array();
+      }
+      return;
+    }
+    for (Eigen::Index i = 0; i < pre.size(); ++i) {
+      float d;
+      activate(activation, pre.data()[i], value.data()[i], d);
+      if (slope) slope->data()[i] = d;
+    }
+  }
+
   // The members' mean output (N, outputs), residual not added, for input rows z (N, K) float32; with
   // `jacobian`, d mean / d z (N outputs, K) stacked row after row (the residual's identity included).
   void evaluate(const RowMatrixXf& z, RowMatrixXf& mean, RowMatrixXf* jacobian) const {
@@ -118,13 +143,7 @@ struct Network {
           pre.noalias() = value * hidden_weight[layer - 1][e];
           pre.rowwise() += hidden_bias[layer - 1][e];
         }
-        value.resize(pre.rows(), pre.cols());
-        if (jacobian) slopes[layer].resize(pre.rows(), pre.cols());
-        for (Eigen::Index i = 0; i < pre.size(); ++i) {
-          float slope;
-          activate(activation, pre.data()[i], value.data()[i], slope);
-          if (jacobian) slopes[layer].data()[i] = slope;
-        }
+        activate_all(pre, value, jacobian ? &slopes[layer] : nullptr);
       }
       RowMatrixXf member = value * mean_weight[e];
       member.rowwise() += mean_bias[e];
@@ -626,13 +645,95 @@ struct RealTimeIteration {
     return result;
   }
 
-  // one Gauss-Newton step in place; false where the Hessian is not positive definite (u, x untouched)
-  bool step(RowMatrixXd& x, RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
-            const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B, double mu, bool& active,
-            double& slack) {
+  // Workspace of the Riccati recursion (kept between steps: no allocation once sized).
+  std::vector<Eigen::MatrixXd> gains_;       // K_k (m, S)
+  std::vector<VectorXd> feedforward_;        // k_k (m,)
+  Eigen::MatrixXd P_, PA_, PB_, Quu_, Qux_;
+  VectorXd p_, Pcp_, qu_, e_, du_, next_e_;
+  Eigen::LLT<Eigen::MatrixXd> quu_llt_;
+
+  // The unconstrained Gauss-Newton step by the Riccati recursion over the nodes (O(H (S^3 + m^3)); the same
+  // minimizer as the condensed Cholesky solve of `rti.RtiSolver._step`, to round-off): with the state deviations
+  // e_k+1 = A_k e_k + B_k du_k + c_k (e_0 = 0, c_k the gap F_k - X_k+1) it minimizes
+  //   sum_k |X_k+1 + e_k+1 - ref_k+1|^2_W_k + |u_k + du_k - u_ff,k|^2_R + mu |du_k|^2.
+  // du (H m,) and the predicted states (H S,); false where a node's Q_uu is not positive definite.
+  bool riccati(const RowMatrixXd& x, const RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
+               const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B, double mu, VectorXd& du,
+               VectorXd& states) {
+    const int H = int(u.rows()), s = S(), mm = m();
+    gains_.resize(H);
+    feedforward_.resize(H);
+    auto weight = [&](int k) { return k == H - 1 ? terminal_factor : 1.0; };   // of the state at node k + 1
+    P_ = (weight(H - 1) * Q).asDiagonal();
+    p_ = weight(H - 1) * Q.cwiseProduct((x.row(H) - reference.row(H)).transpose());
+    for (int k = H - 1; k >= 0; --k) {
+      const auto Ak = A.middleRows(Eigen::Index(k) * s, s);
+      const auto Bk = B.middleRows(Eigen::Index(k) * s, s);
+      Pcp_.noalias() = P_ * (predicted.row(k) - x.row(k + 1)).transpose();
+      Pcp_ += p_;
+      PA_.noalias() = P_ * Ak;
+      PB_.noalias() = P_ * Bk;
+      Quu_.noalias() = Bk.transpose() * PB_;
+      Quu_.diagonal() += R + VectorXd::Constant(mm, mu);
+      Qux_.noalias() = Bk.transpose() * PA_;
+      qu_ = R.cwiseProduct((u.row(k) - u_ff.row(k)).transpose());
+      qu_.noalias() += Bk.transpose() * Pcp_;
+      quu_llt_.compute(Quu_);
+      if (quu_llt_.info() != Eigen::Success) return false;
+      gains_[k] = -Qux_;
+      quu_llt_.solveInPlace(gains_[k]);
+      feedforward_[k] = -qu_;
+      quu_llt_.solveInPlace(feedforward_[k]);
+      if (k == 0) break;
+      P_.noalias() = Ak.transpose() * PA_;
+      P_.noalias() += Qux_.transpose() * gains_[k];
+      P_ = 0.5 * (P_ + P_.transpose()).eval();
+      p_.noalias() = Ak.transpose() * Pcp_;
+      p_.noalias() += Qux_.transpose() * feedforward_[k];
+      P_.diagonal() += weight(k - 1) * Q;
+      p_ += weight(k - 1) * Q.cwiseProduct((x.row(k) - reference.row(k)).transpose());
+    }
+    du.resize(Eigen::Index(H) * mm);
+    states.resize(Eigen::Index(H) * s);
+    e_ = VectorXd::Zero(s);
+    for (int k = 0; k < H; ++k) {
+      du_ = feedforward_[k];
+      du_.noalias() += gains_[k] * e_;
+      du.segment(Eigen::Index(k) * mm, mm) = du_;
+      next_e_.noalias() = A.middleRows(Eigen::Index(k) * s, s) * e_;
+      next_e_.noalias() += B.middleRows(Eigen::Index(k) * s, s) * du_;
+      next_e_ += (predicted.row(k) - x.row(k + 1)).transpose();
+      e_.swap(next_e_);
+      states.segment(Eigen::Index(k) * s, s) = x.row(k + 1).transpose() + e_;
+    }
+    return du.allFinite();
+  }
+
+  // the states (H S,) the linearization predicts for the torque steps du (H m,) (e_0 = 0, as `riccati`)
+  VectorXd linear_states(const RowMatrixXd& x, const RowMatrixXd& predicted, const RowMatrixXd& A,
+                         const RowMatrixXd& B, const VectorXd& du) {
+    const int H = int(x.rows()) - 1, s = S(), mm = m();
+    VectorXd states(Eigen::Index(H) * s);
+    e_ = VectorXd::Zero(s);
+    for (int k = 0; k < H; ++k) {
+      next_e_.noalias() = A.middleRows(Eigen::Index(k) * s, s) * e_;
+      next_e_.noalias() += B.middleRows(Eigen::Index(k) * s, s) * du.segment(Eigen::Index(k) * mm, mm);
+      next_e_ += (predicted.row(k) - x.row(k + 1)).transpose();
+      e_.swap(next_e_);
+      states.segment(Eigen::Index(k) * s, s) = x.row(k + 1).transpose() + e_;
+    }
+    return states;
+  }
+
+  // The condensed problem of the torque steps, for the constrained QP: Gamma (H S, N) block lower triangular,
+  // the states at du = 0 (H S,), the Hessian Gamma^T W Gamma + diag(R) + mu (N, N) and the gradient (N,) at
+  // du = 0 (the QP's variable is du; `rti.RtiSolver._step`'s condensing). False where the Hessian is not
+  // positive definite.
+  bool condense(const RowMatrixXd& x, const RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
+                const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B, double mu,
+                Eigen::MatrixXd& gamma, VectorXd& base, Eigen::MatrixXd& hessian, VectorXd& gradient) const {
     const int H = int(u.rows()), s = S(), mm = m(), N = H * mm;
-    // the states' response to the torque steps: Gamma (H S, N) block lower triangular, and the gaps' drift (H S,)
-    Eigen::MatrixXd gamma = Eigen::MatrixXd::Zero(Eigen::Index(H) * s, N);
+    gamma = Eigen::MatrixXd::Zero(Eigen::Index(H) * s, N);
     VectorXd drift(Eigen::Index(H) * s);
     for (int k = 0; k < H; ++k) {
       const auto Ak = A.middleRows(Eigen::Index(k) * s, s);
@@ -655,10 +756,9 @@ struct RealTimeIteration {
       change.segment(Eigen::Index(k) * mm, mm) = (u.row(k) - u_ff.row(k)).transpose();
     }
     error += drift;
-    // Hessian Gamma^T W Gamma + diag(R) + mu, node by node over Gamma's nonzero columns (lower triangle)
-    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(N, N);
+    hessian = Eigen::MatrixXd::Zero(N, N);
     Eigen::MatrixXd weighted;
-    for (int k = 0; k < H; ++k) {
+    for (int k = 0; k < H; ++k) {     // node by node over Gamma's nonzero columns (lower triangle)
       const int width = (k + 1) * mm;
       const auto block = gamma.block(Eigen::Index(k) * s, 0, s, width);
       weighted = state_weight.segment(Eigen::Index(k) * s, s).asDiagonal() * block;
@@ -666,36 +766,49 @@ struct RealTimeIteration {
     }
     hessian.diagonal() += effort_weight + VectorXd::Constant(N, mu);
     hessian.triangularView<Eigen::StrictlyUpper>() = hessian.transpose();
-    VectorXd gradient = gamma.transpose() * state_weight.cwiseProduct(error) + effort_weight.cwiseProduct(change);
+    gradient = gamma.transpose() * state_weight.cwiseProduct(error) + effort_weight.cwiseProduct(change);
+    base = Eigen::Map<const VectorXd>(x.data() + s, Eigen::Index(H) * s) + drift;
     Eigen::LLT<Eigen::MatrixXd> llt(hessian);
-    if (llt.info() != Eigen::Success) return false;
-    VectorXd solution = llt.solve(gradient);
-    if (!solution.allFinite()) return false;
+    return llt.info() == Eigen::Success;
+  }
+
+  // one Gauss-Newton step in place; false where the Hessian is not positive definite (u, x untouched)
+  bool step(RowMatrixXd& x, RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
+            const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B, double mu, bool& active,
+            double& slack) {
+    const int H = int(u.rows()), s = S(), mm = m(), N = H * mm;
+    VectorXd du, states;
+    if (!riccati(x, u, reference, u_ff, predicted, A, B, mu, du, states)) return false;
     Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, 1>> flat_u(u.data(), N);
-    VectorXd u_new = flat_u - solution;
-    VectorXd base = Eigen::Map<const VectorXd>(x.data() + s, Eigen::Index(H) * s) + drift;   // states at delta = 0
+    VectorXd u_new = flat_u + du;
     bool now_active = false;
     double now_slack = 0.0;
-    if (!constrained) {
-      for (int i = 0; i < N; ++i) u_new[i] = std::clamp(u_new[i], -effort_limit[i % mm], effort_limit[i % mm]);
-    } else {
-      VectorXd states = base + gamma * (u_new - flat_u);
-      if (inside(u_new, states)) {
-        working_rows.clear();
-      } else {
-        VectorXd lower_step(N), upper_step(N);
-        for (int i = 0; i < N; ++i) {
-          lower_step[i] = -effort_limit[i % mm] - flat_u[i];
-          upper_step[i] = effort_limit[i % mm] - flat_u[i];
-        }
-        VectorXd delta;
-        if (!constrained_step(hessian, gradient, lower_step, upper_step, gamma, base, delta, now_active, now_slack))
-          return false;
-        u_new = flat_u + delta;
-        for (int i = 0; i < N; ++i) u_new[i] = std::clamp(u_new[i], -effort_limit[i % mm], effort_limit[i % mm]);
+    if (!constrained) {                // mode off: the torques clipped, the states predicted for clipped ones
+      bool clipped = false;
+      for (int i = 0; i < N; ++i) {
+        const double inside_box = std::clamp(u_new[i], -effort_limit[i % mm], effort_limit[i % mm]);
+        clipped = clipped || inside_box != u_new[i];
+        u_new[i] = inside_box;
       }
+      if (clipped) states = linear_states(x, predicted, A, B, u_new - flat_u);
+    } else if (inside(u_new, states)) {
+      working_rows.clear();
+    } else {                           // a limit binds: the condensed QP
+      Eigen::MatrixXd gamma, hessian;
+      VectorXd base, gradient;
+      if (!condense(x, u, reference, u_ff, predicted, A, B, mu, gamma, base, hessian, gradient)) return false;
+      VectorXd lower_step(N), upper_step(N);
+      for (int i = 0; i < N; ++i) {
+        lower_step[i] = -effort_limit[i % mm] - flat_u[i];
+        upper_step[i] = effort_limit[i % mm] - flat_u[i];
+      }
+      VectorXd delta;
+      if (!constrained_step(hessian, gradient, lower_step, upper_step, gamma, base, delta, now_active, now_slack))
+        return false;
+      u_new = flat_u + delta;
+      for (int i = 0; i < N; ++i) u_new[i] = std::clamp(u_new[i], -effort_limit[i % mm], effort_limit[i % mm]);
+      states = base + gamma * (u_new - flat_u);
     }
-    VectorXd states = base + gamma * (u_new - flat_u);
     RowMatrixXd x_new(x.rows(), s);
     x_new.row(0) = x.row(0);
     for (int k = 0; k < H; ++k) x_new.row(k + 1) = states.segment(Eigen::Index(k) * s, s).transpose();
@@ -845,6 +958,75 @@ struct RealTimeIteration {
     used_slack = 0.0;
     for (int j = 0; j < slacks; ++j) used_slack = std::max(used_slack, solution[N + j]);
     return 1;
+  }
+};
+
+// ------------------------------------------------------------------------------------------------------------
+// The control step at sample k from the measured state (stdm_drake/closed_loop/policy.py, `MpcStep`, the
+// reference): the offset-free disturbance estimate, the real-time iteration warm-started from the last solution
+// shifted by one period, and what the step leaves the next one. The gravity fallback (a solution that is not
+// finite) is the caller's: its gravity torque comes from the robot's description.
+
+// What a control step leaves the next one (policy.StepMemory): the prediction of the next measured state and the
+// disturbance estimate (S,), the warm-start torques (H, m) and nodes (H+1, S; NaN: none).
+struct StepMemory {
+  VectorXd predicted, disturbance;
+  RowMatrixXd plan, nodes;
+};
+
+struct ControlStep {
+  int horizon = 20;
+  double disturbance_gain = 1.0;
+  RowMatrixXd reference;      // the reference states (T, S) at the sample period, held past the end
+  RowMatrixXd feedforward;    // their gravity torques (T, m)
+
+  // rows first .. first+length-1 of `values`, holding the last past the end
+  static RowMatrixXd rows(const RowMatrixXd& values, long first, int length) {
+    RowMatrixXd out(length, values.cols());
+    for (int i = 0; i < length; ++i) out.row(i) = values.row(std::min<long>(first + i, values.rows() - 1));
+    return out;
+  }
+
+  // the memory before the first step: no prediction, no disturbance, the reference's gravity torques
+  StepMemory first_memory(int state_dim) const {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    return {VectorXd::Constant(state_dim, nan), VectorXd::Zero(state_dim), rows(feedforward, 0, horizon),
+            RowMatrixXd::Constant(horizon + 1, state_dim, nan)};
+  }
+
+  // One step at sample k from x (S,): true with the solution in `result` and `memory` advanced; false where x or
+  // the solution is not finite (the caller's gravity fallback, `fallback_memory`), `estimate` then the
+  // disturbance estimate the fallback keeps.
+  bool step(RealTimeIteration& rti, long k, const VectorXd& x, StepMemory& memory, StepResult& result,
+            VectorXd& estimate) const {
+    const int S = rti.S();
+    estimate = VectorXd::Zero(S);
+    if (!x.allFinite()) return false;
+    const RowMatrixXd window = rows(reference, k, horizon + 1);
+    const RowMatrixXd u_ff = rows(feedforward, k, horizon);
+    if (k > 0 && disturbance_gain > 0) {
+      estimate = memory.disturbance + disturbance_gain * (x - memory.predicted);
+      if (!estimate.allFinite()) estimate.setZero();
+    }
+    const RowMatrixXd& warm = k == 0 ? u_ff : memory.plan;
+    const bool warm_nodes = k > 0 && memory.nodes.allFinite();
+    result = rti.solve(x, warm, window, u_ff, estimate, warm_nodes ? &memory.nodes : nullptr);
+    if (!(result.finite && result.u.allFinite())) return false;
+    memory.predicted = result.x.row(1).transpose();
+    memory.disturbance = estimate;
+    memory.plan = rows(result.u, 1, horizon);
+    memory.nodes = rows(result.x, 1, horizon + 1);
+    return true;
+  }
+
+  // the memory after the gravity fallback's torque (m,) at sample k: the model's prediction under it
+  StepMemory fallback_memory(const RealTimeIteration& rti, long k, const VectorXd& x, const VectorXd& torque,
+                             const VectorXd& estimate) const {
+    const int S = rti.S();
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    VectorXd predicted = VectorXd::Constant(S, nan);
+    if (disturbance_gain > 0) predicted = rti.model->step(x, torque) + estimate;
+    return {predicted, estimate, rows(feedforward, k, horizon), RowMatrixXd::Constant(horizon + 1, S, nan)};
   }
 };
 

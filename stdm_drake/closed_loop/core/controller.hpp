@@ -139,18 +139,14 @@ inline std::shared_ptr<Model> load_model(const ControllerFile& file) {
   return model;
 }
 
-// The control step at sample k from the measured state (policy.MpcStep), over a plan of reference states.
+// The controller of a file over a plan of reference states: `ControlStep` (policy.MpcStep) with its memory, and
+// the gravity fallback from the robot's description.
 struct Controller {
   RealTimeIteration rti;
   std::shared_ptr<RigidBody> description;   // the robot's description: the gravity torque
-  int horizon = 20;
-  double disturbance_gain = 1.0;
-  RowMatrixXd plan;                         // reference states (T, S), held past the end
-  RowMatrixXd feedforward;                  // their gravity torques (T, m)
-  // what a step leaves the next one
+  ControlStep control;
   long k = 0;
-  VectorXd predicted, disturbance;
-  RowMatrixXd warm_u, nodes;
+  StepMemory memory;
   StepResult last;
   bool last_fallback = false;
 
@@ -171,53 +167,32 @@ struct Controller {
     rti.upper = file.vector("upper");
     rti.penalty_weight = file.scalar("penalty_weight");
     controller.description = load_rigid_body(file, "description.");
-    controller.horizon = int(file.scalar("horizon"));
-    controller.disturbance_gain = file.scalar("disturbance_gain");
+    controller.control.horizon = int(file.scalar("horizon"));
+    controller.control.disturbance_gain = file.scalar("disturbance_gain");
     return controller;
   }
 
   // the reference (T, S) states at the sample period; restarts the controller
   void start(const RowMatrixXd& reference) {
-    plan = reference;
+    control.reference = reference;
     const int n = rti.S() / 2, m = rti.m();
-    feedforward.resize(plan.rows(), m);
-    for (int t = 0; t < plan.rows(); ++t)
-      feedforward.row(t) = description->gravity_torque(plan.row(t).head(n).transpose()).head(m).transpose();
+    control.feedforward.resize(reference.rows(), m);
+    for (int t = 0; t < reference.rows(); ++t)
+      control.feedforward.row(t) =
+          description->gravity_torque(reference.row(t).head(n).transpose()).head(m).transpose();
     k = 0;
-    predicted = VectorXd::Constant(rti.S(), std::numeric_limits<double>::quiet_NaN());
-    disturbance = VectorXd::Zero(rti.S());
-    warm_u = rows(feedforward, 0, horizon);
-    nodes = RowMatrixXd::Constant(horizon + 1, rti.S(), std::numeric_limits<double>::quiet_NaN());
+    memory = control.first_memory(rti.S());
     rti.working_rows.clear();
-  }
-
-  // rows k .. k+length-1 of `values`, holding the last past the end
-  static RowMatrixXd rows(const RowMatrixXd& values, long first, int length) {
-    RowMatrixXd out(length, values.cols());
-    for (int i = 0; i < length; ++i) out.row(i) = values.row(std::min<long>(first + i, values.rows() - 1));
-    return out;
   }
 
   // the torque (m,) N m for the measured state x (S,) at the next sample
   VectorXd step(const VectorXd& x) {
-    const int S = rti.S(), n = S / 2;
-    const RowMatrixXd reference = rows(plan, k, horizon + 1);
-    const RowMatrixXd u_ff = rows(feedforward, k, horizon);
-    bool fallback = !x.allFinite();
-    VectorXd estimate = VectorXd::Zero(S);
-    if (!fallback) {
-      if (k > 0 && disturbance_gain > 0) {
-        estimate = disturbance + disturbance_gain * (x - predicted);
-        if (!estimate.allFinite()) estimate.setZero();
-      }
-      const RowMatrixXd& warm = k == 0 ? u_ff : warm_u;
-      const bool warm_nodes = k > 0 && nodes.allFinite();
-      last = rti.solve(x, warm, reference, u_ff, estimate, warm_nodes ? &nodes : nullptr);
-      fallback = !(last.finite && last.u.allFinite());
-    }
-    last_fallback = fallback;
-    VectorXd torque;
-    if (fallback) {
+    const int n = rti.S() / 2;
+    VectorXd estimate, torque;
+    last_fallback = !control.step(rti, k, x, memory, last, estimate);
+    if (!last_fallback) {
+      torque = last.u.row(0).transpose();
+    } else {
       VectorXd q = x.head(n);
       for (int i = 0; i < n; ++i)
         if (std::isnan(q[i])) q[i] = 0.0;
@@ -225,17 +200,8 @@ struct Controller {
       torque = description->gravity_torque(q).head(rti.m());
       for (int j = 0; j < torque.size(); ++j)
         torque[j] = std::clamp(torque[j], -rti.effort_limit[j], rti.effort_limit[j]);
-      predicted = VectorXd::Constant(S, std::numeric_limits<double>::quiet_NaN());
-      if (disturbance_gain > 0) predicted = rti.model->step(x, torque) + estimate;
-      warm_u = u_ff;
-      nodes.setConstant(std::numeric_limits<double>::quiet_NaN());
-    } else {
-      torque = last.u.row(0).transpose();
-      predicted = last.x.row(1).transpose();
-      warm_u = rows(last.u, 1, horizon);
-      nodes = rows(last.x, 1, horizon + 1);
+      memory = control.fallback_memory(rti, k, x, torque, estimate);
     }
-    disturbance = estimate;
     ++k;
     return torque;
   }
