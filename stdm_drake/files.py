@@ -90,33 +90,54 @@ def no_room_error(path, error: OSError) -> InputError:
 
 @contextlib.contextmanager
 def atomic_path(path):
-    """Yield a temporary path beside `path`; on success rename it to `path`, on error delete it.
+    """Yield a temporary path beside `path`; on success rename it to `path`, on error delete it (`atomic_paths`
+    of one file).
 
     Readers never see a half-written file, and a failed write leaves no file behind; a write that runs out
     of room (`NO_ROOM`) is an InputError naming `path`.
     """
-    from stdm_drake.interrupts import protected
-    path = pathlib.Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_paths([path]) as (temp,):
+        yield temp
+
+
+@contextlib.contextmanager
+def atomic_paths(paths):
+    """Yield a temporary path beside each of `paths` (a list); when the block succeeds, rename them all in one step
+    that no signal cuts (one arriving then is raised once every file is in place: files written as a set, such as
+    export's model and Jacobian graphs, are never torn apart); on error delete them, replacing nothing.
+
+    A command that a signal interrupted replaces nothing, even where a library swallowed the signal
+    (`interrupts.raise_if_received`); a write that runs out of room (`NO_ROOM`) is an InputError naming the file.
+    """
+    from stdm_drake.interrupts import protected, raise_if_received
+    paths = [pathlib.Path(path) for path in paths]
     umask = os.umask(0)
     os.umask(umask)
-    temp_name = None
+    temps: list[str] = []
+    current = paths[0]
     try:
-        with protected():   # (a signal as the file appears is raised once its name is known: the finally removes it)
-            handle, temp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=TEMP_SUFFIX, dir=path.parent)
-            os.close(handle)
-        yield pathlib.Path(temp_name)
+        for current in paths:
+            current.parent.mkdir(parents=True, exist_ok=True)
+            with protected():   # (a signal as the file appears is raised once its name is known: the finally removes it)
+                handle, name = tempfile.mkstemp(prefix=f".{current.name}.", suffix=TEMP_SUFFIX, dir=current.parent)
+                os.close(handle)
+                temps.append(name)
+        current = paths[0]
+        yield [pathlib.Path(name) for name in temps]
+        raise_if_received()
         with protected():
-            os.chmod(temp_name, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
-            os.replace(temp_name, path)
+            for name, current in zip(temps, paths):
+                os.chmod(name, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
+                os.replace(name, current)
     except OSError as error:   # (mkstemp without an inode left: a full disk too)
         if error.errno in NO_ROOM:
-            raise no_room_error(path, error) from None
+            raise no_room_error(current, error) from None
         raise
     finally:
         with protected():
-            if temp_name is not None and os.path.exists(temp_name):
-                os.unlink(temp_name)
+            for name in temps:
+                if os.path.exists(name):
+                    os.unlink(name)
 
 
 def remove_stale_temporaries(folder, name: str | None = None, recursive: bool = False) -> list[pathlib.Path]:

@@ -30,6 +30,7 @@ _held: list[int] = []          # signals that arrived inside `protected`, to rai
 _deferred: list[int] = []      # signals that arrived inside an import or a finalizer, sent again until raised
 _depth = 0                     # how many `protected` blocks are open
 _in_worker = False             # this process is a pool's worker: its parent handles signals and stops it
+_active = False                # a command runs under `signals_as_exceptions`
 
 
 def _exception(signum: int) -> KeyboardInterrupt:
@@ -100,14 +101,17 @@ def signals_as_exceptions(until_exit: bool = False):
             or signal.getsignal(signal.SIGINT) is _handler):
         yield   # (a pool's worker, another thread, or a command run inside another: signals are handled there)
         return
+    global _active
     _received.clear()
     _held.clear()
     _deferred.clear()
     previous = {signum: signal.signal(signum, _handler) for signum in EXIT_STATUS   # (one ignored, as under
                 if signal.getsignal(signum) is not signal.SIG_IGN}                    # nohup, stays ignored)
+    _active = True
     try:
         yield
     finally:
+        _active = False
         for signum, handler in previous.items():
             signal.signal(signum, signal.SIG_IGN if until_exit else handler)
 
@@ -115,6 +119,14 @@ def signals_as_exceptions(until_exit: bool = False):
 def received() -> int | None:
     """The first signal that arrived during the command (even one a library swallowed), or None."""
     return _received[0] if _received else None
+
+
+def raise_if_received() -> None:
+    """Inside a command (`signals_as_exceptions`): raise a signal that arrived during it and did not end it (a
+    library caught the exception), so that a run that will end as interrupted replaces no output (`files`
+    calls it before every rename)."""
+    if _active and _received:
+        raise _exception(_received[0])
 
 
 def forget(signum: int) -> None:

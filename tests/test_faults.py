@@ -578,3 +578,67 @@ def test_no_inode_left_for_a_lock_file_is_one_line_naming_the_output(tmp_path, e
         "identify", excitation_dataset, "--train", "2", "--val", "1", "--quiet", "-o", "sub/i.yaml"))
     assert status == 2 and err.count("\n") == 1 and "sub/i.yaml: No space left on device (no inode left" in err, err
     assert left == []
+
+
+def exported_pair(tmp_path, seed: int):
+    """The ONNX pair of a synthetic checkpoint (seed) exported to tmp_path / model.onnx: {path: bytes}."""
+    from test_export import synthetic_checkpoint
+    from stdm_drake.deploy.export_job import jacobian_path
+    from stdm_drake.learning.structure import DEFAULT
+    checkpoint = synthetic_checkpoint(tmp_path / f"seed{seed}.pt", DEFAULT, seed=seed)
+    output = tmp_path / "model.onnx"
+    assert main(["export", str(checkpoint), "-o", str(output)]) == 0
+    return checkpoint, {path: path.read_bytes() for path in (output, jacobian_path(output))}
+
+
+def test_a_signal_between_the_export_pairs_renames_waits_until_both_are_in_place(tmp_path, monkeypatch):
+    """Ctrl-C lands after the first of the two graphs replaced the old one: the second follows before the command
+    stops (exit 130), so the pair on disk is always one export's (issue 56: a model graph from one checkpoint
+    beside a Jacobian graph from another)."""
+    from stdm_drake import files
+    _, old = exported_pair(tmp_path, 0)
+    second = tmp_path / "second"
+    second.mkdir()
+    checkpoint, new = exported_pair(second, 1)
+    renames = []
+    original = os.replace
+
+    def replace(source, target):
+        original(source, target)
+        renames.append(target)
+        if len(renames) == 1:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+
+    monkeypatch.setattr(files.os, "replace", replace)
+    assert main(["export", str(checkpoint), "-o", str(tmp_path / "model.onnx")]) == 130
+    assert len(renames) == 2
+    assert {path.name: path.read_bytes() for path in old} == {path.name: content for path, content in new.items()}
+    assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_a_signal_a_library_swallowed_during_the_export_replaces_nothing(tmp_path, monkeypatch, capsys):
+    """The signal arrives while the graphs are built and the library catches it: the command ends as interrupted
+    (130) and the old pair stays as it was, with no temporary file left."""
+    from stdm_drake.deploy import onnx_export
+    _, old = exported_pair(tmp_path, 0)
+    second = tmp_path / "second"
+    second.mkdir()
+    checkpoint, new = exported_pair(second, 1)
+    assert {path.name: content for path, content in new.items()} != {path.name: content for path, content in old.items()}
+    original = onnx_export.checkpoint_graphs
+
+    def checkpoint_graphs(*args, **kwargs):
+        try:
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.5)
+        except KeyboardInterrupt:
+            pass
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(onnx_export, "checkpoint_graphs", checkpoint_graphs)
+    capsys.readouterr()
+    assert main(["export", str(checkpoint), "-o", str(tmp_path / "model.onnx")]) == 130
+    assert capsys.readouterr().err.strip() == "stdm-drake export: interrupted"
+    assert {path: path.read_bytes() for path in old} == old
+    assert not list(tmp_path.glob(".*.tmp"))

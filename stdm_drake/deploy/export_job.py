@@ -1,6 +1,5 @@
 """`stdm-drake export`'s job: a checkpoint as ONNX graphs (the model and its Jacobians) or as a Drake-native
 model file, every check before any work, files written atomically."""
-import contextlib
 import dataclasses
 import pathlib
 
@@ -31,7 +30,7 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     """Run the export; returns the files written. InputError (nothing written) for a checkpoint that is not one,
     an output that exists and stdm-drake's export did not write (without force), or a model the target cannot
     represent."""
-    from stdm_drake.files import atomic_path
+    from stdm_drake.files import atomic_paths
     from stdm_drake.learning.checkpoint import load_checkpoint
     from stdm_drake.outputs import check_output_file
     if job.target not in TARGETS:
@@ -55,9 +54,9 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
         native = native_model(checkpoint)
         features = native.feature_input and f"input {native.feature_input!r} ({native.feature_width})"
         contents = [native_text(native).encode("utf-8")]
-    with contextlib.ExitStack() as files:      # every file written in full before any replaces what was there
-        for path, content in zip(outputs, contents):
-            files.enter_context(atomic_path(path)).write_bytes(content)
+    with atomic_paths(outputs) as temporaries:      # the pair replaces what was there in one step, or not at all
+        for temporary, content in zip(temporaries, contents):
+            temporary.write_bytes(content)
     say(f"{checkpoint.path.name} ({checkpoint.structure.label}, every {checkpoint.sample_period} s) -> "
         + " and ".join(str(path) for path in outputs))
     if features:
