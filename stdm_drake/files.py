@@ -88,6 +88,12 @@ def no_room_error(path, error: OSError) -> InputError:
                       "replaced")
 
 
+def path_text(path) -> str:
+    """`path` (or a name) as text every UTF-8 writer takes (ONNX, YAML, HDF5): the bytes of a name that is not
+    UTF-8 (Python holds them as surrogates) as \\xNN escapes, as `ls -b` shows them; other names unchanged."""
+    return os.fsencode(str(path)).decode("utf-8", errors="backslashreplace")
+
+
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path beside `path`; on success rename it to `path`, on error delete it (`atomic_paths`

@@ -319,3 +319,23 @@ def test_mean_only_graph_has_the_mean_alone(tmp_path):
     x, a = random_rows()
     model = LearnedModel(path, robot=UR10)
     assert_close(run(inference, feeds(model, x, a, inference))["next_state"], model.predict(x, a).mean, what="mean only")
+
+
+def test_a_checkpoint_whose_name_is_not_utf8_exports_to_both_targets(tmp_path):
+    """A file name the file system holds as bytes that are not UTF-8 (issue 56: refused with an encoding error):
+    both targets write their files, each naming the checkpoint with the bytes escaped, and the ONNX graphs run."""
+    import onnx
+    checkpoint = synthetic_checkpoint(tmp_path / os.fsdecode(b"model\xff.pt"), STRUCTURES["state-raw"],
+                                      activation="tanh")
+    output = tmp_path / os.fsdecode(b"graph\xfe.onnx")
+    assert main(["export", str(checkpoint), "-o", str(output)]) == 0
+    metadata = {entry.key: entry.value for entry in onnx.load(str(output)).metadata_props}
+    assert metadata["checkpoint"] == "model\\xff.pt"
+    x, a = random_rows()
+    inference = onnxruntime.InferenceSession(output.read_bytes(), providers=["CPUExecutionProvider"])  # (ONNX
+    model = LearnedModel(checkpoint, robot=UR10)                                   # Runtime takes no such name)
+    assert_close(run(inference, feeds(model, x, a, inference))["next_state"], model.predict(x, a).mean,
+                 what="non-UTF-8 name")
+    native = tmp_path / "model.yaml"
+    assert main(["export", str(checkpoint), "--target", "drake", "-o", str(native)]) == 0
+    assert "model\\xff.pt" in native.read_text(encoding="utf-8")

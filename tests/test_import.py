@@ -282,6 +282,25 @@ def test_a_bag_of_urs_driver_currents_and_a_reference_without_accelerations(simu
                                      "--torque-source", "current", "--torque-constants", *constants)).has_plan
 
 
+def test_a_csv_log_saved_with_a_byte_order_mark_imports_as_without_it(logs, tmp_path):
+    """Spreadsheet programs save CSV as UTF-8 with a byte-order mark before the header (issue 56: such a log was
+    refused as having no timestamp field): the same data (the source's name and hash aside)."""
+    import h5py
+    log = logs["rtde_comma"][0]
+    marked = tmp_path / "spreadsheet.csv"
+    marked.write_bytes(b"\xef\xbb\xbf" + log.read_bytes())
+    arrays = []
+    for path in (imported(marked, tmp_path / "marked.h5"), imported(log, tmp_path / "plain.h5")):
+        with h5py.File(path, "r") as file:
+            found = {}
+            file.visititems(lambda name, item: found.__setitem__(name, item[()]) if isinstance(item, h5py.Dataset)
+                            else None)
+            arrays.append(found)
+    assert arrays[0].keys() == arrays[1].keys() and len(arrays[0]) > 10
+    for name in arrays[0]:
+        np.testing.assert_array_equal(arrays[0][name], arrays[1][name], err_msg=name)
+
+
 def test_blank_lines_are_skipped_and_errors_name_the_right_line(logs, tmp_path, capsys):
     lines = logs["rtde_space"][0].read_text().splitlines(keepends=True)
     spaced = lines[:10] + ["\n", "   \n"] + lines[10:] + ["\n"]

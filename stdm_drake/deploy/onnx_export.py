@@ -26,6 +26,7 @@ import json
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.files import path_text
 from stdm_drake.deploy.onnx_graph import GraphBuilder, NetworkArrays, network_jacobian, network_outputs, tensor_info
 
 BATCH = "batch"
@@ -187,7 +188,7 @@ def export_metadata(checkpoint, layout: ExportLayout, source_sha256: str) -> dic
                    f"{'delta' if config.residual else 'direct'}",
         "robot_name": recorded.robot_name or "",
         "robot_model_sha256": recorded.robot_model_sha256 or "",
-        "checkpoint": checkpoint.path.name,
+        "checkpoint": path_text(checkpoint.path.name),
         "checkpoint_sha256": source_sha256,
     }
     if layout.feature_width:

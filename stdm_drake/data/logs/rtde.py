@@ -25,7 +25,7 @@ def read_header(path) -> tuple[list, str | None]:
     path = pathlib.Path(path)
     if path.is_dir():
         raise InputError(f"RTDE log {path} is a folder, not a CSV file")
-    with open(path, encoding="utf-8", errors="replace") as file:
+    with open(path, encoding="utf-8-sig", errors="replace") as file:
         line = file.readline(1 << 20)
     if not line.strip():
         raise InputError(f"RTDE log {path}: empty, or no header row of field names")
@@ -40,7 +40,7 @@ def read_header(path) -> tuple[list, str | None]:
 def looks_like_rtde(path) -> bool:
     """Whether `path` is a text file whose first line names RTDE fields."""
     try:
-        with open(path, encoding="utf-8", errors="replace") as file:
+        with open(path, encoding="utf-8-sig", errors="replace") as file:
             line = file.readline(1 << 16)
     except (OSError, UnicodeError):
         return False
@@ -96,7 +96,7 @@ def rows(path, joints: int, mapping, block_rows: int = BLOCK_ROWS):
     for key in found:
         spans[key] = slice(start, start + len(found[key]))
         start += len(found[key])
-    with open(path, encoding="utf-8", errors="replace") as file:
+    with open(path, encoding="utf-8-sig", errors="replace") as file:
         file.readline()
         line = 2
         while True:
