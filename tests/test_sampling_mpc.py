@@ -177,7 +177,11 @@ def test_colored_noise_has_unit_variance_and_more_low_frequency_power():
     ("optimizer: !Icem {framework: torch, device: gpu}\n", "device 'gpu' is not a PyTorch device"),
     ("optimizer: !Icem {device: cuda}\n", "device 'cuda' needs `framework: torch`"),
     ("optimizer: !Mppi {propagation: ts2}\n", "propagation must be one of mean, ts1, tsinf"),
-    ("optimizer: !Icem {noise_std: 0.0}\n", "noise_std must be > 0 rad/s^2"),
+    ("optimizer: !Icem {noise_std: 0.0}\n", "noise_std must be in (0, 10000] rad/s^2"),
+    # settings that mean nothing (issue 56): a spread that only clips, what `propagation: mean` would ignore
+    ("optimizer: !Icem {noise_std: 1.0e+300}\n", "noise_std must be in (0, 10000] rad/s^2"),
+    ("optimizer: !Icem {particles: 5}\n", "particles 5 need `propagation: ts1` or `tsinf`"),
+    ("optimizer: !Mppi {propagation: mean, variance_weight: 1.0}\n", "variance_weight 1 needs `propagation: ts1`"),
     ("optimizer: !Icem {population_decay: 0.5}\n", "population_decay must be >= 1"),
     ("optimizer: !Pets {}\n", "unknown optimizer !Pets; the MPC's optimizers are !Rti, !Ilqr, !Icem, !Mppi, !Cem"),
 ])

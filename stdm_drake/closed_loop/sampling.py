@@ -49,6 +49,7 @@ from stdm_drake.errors import InputError
 MAX_SAMPLES = 100_000       # torque sequences per iteration
 MAX_ROWS = 2_000_000        # samples x particles held at once (S float64 each)
 MAX_ITERATIONS = 100        # iterations per control step: more is a run that does not end
+MAX_NOISE_STD = 1e4         # rad/s^2: residual accelerations spread wider (1000 g at 1 m) only clip at the limits
 FRAMEWORKS = ("numpy", "torch")
 
 
@@ -76,8 +77,9 @@ class SamplingSettings(OptimizerSettings):
 
     def validate(self) -> None:
         """InputError (one line) for settings no sampling optimizer can run, before any work: samples, iterations or
-        particles out of range, noise not positive, an unknown propagation or framework, a negative variance
-        weight, a device that does not exist here."""
+        particles out of range, noise not positive or beyond MAX_NOISE_STD, an unknown propagation or framework,
+        particles or a variance weight that `propagation: mean` would ignore, a negative variance weight, a device
+        that does not exist here."""
         tag = self.tag()
         for name, top in (("samples", MAX_SAMPLES), ("iterations", MAX_ITERATIONS), ("particles", MAX_ROWS)):
             value = getattr(self, name)
@@ -87,10 +89,17 @@ class SamplingSettings(OptimizerSettings):
             raise InputError(f"{tag} seed must be an integer in 0..2^63-1, got {self.seed!r}")
         if self.samples * self.particles > MAX_ROWS:
             raise InputError(f"{tag} samples x particles must be at most {MAX_ROWS}, got {self.samples * self.particles}")
-        if not (np.isfinite(self.noise_std) and self.noise_std > 0):
-            raise InputError(f"{tag} noise_std must be > 0 rad/s^2, got {self.noise_std}")
+        if not (np.isfinite(self.noise_std) and 0 < self.noise_std <= MAX_NOISE_STD):
+            raise InputError(f"{tag} noise_std must be in (0, {MAX_NOISE_STD:g}] rad/s^2 (a wider spread of residual "
+                             f"accelerations only drives every sample into the torque limits), got {self.noise_std}")
         if self.propagation not in PROPAGATIONS:
             raise InputError(f"{tag} propagation must be one of {', '.join(PROPAGATIONS)}, got {self.propagation!r}")
+        if self.propagation == "mean" and self.particles > 1:
+            raise InputError(f"{tag} particles {self.particles} need `propagation: ts1` or `tsinf` (with `propagation: "
+                             "mean` each sample rolls out one particle, the ensemble's mean)")
+        if self.propagation == "mean" and self.variance_weight > 0:
+            raise InputError(f"{tag} variance_weight {self.variance_weight:g} needs `propagation: ts1` or `tsinf` (one "
+                             "particle per sample has no spread to weigh)")
         for name in ("feedback_kp", "feedback_kd"):
             if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
                 raise InputError(f"{tag} {name} must be >= 0, got {getattr(self, name)}")
