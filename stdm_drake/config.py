@@ -30,6 +30,7 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     holding `kind:` and the fields, or, for the field "", the whole file): read by `from_kind_layout`.
     """
     path = check_input_file(path, what)
+    check_quoted_numbers(path, schema)
     config = _load_old_layout(path, schema, what, old_layouts) if old_layouts else None
     if config is None:
         try:
@@ -45,6 +46,62 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
         except InputError as error:
             raise InputError(f"{path}: {error}") from None
     return config
+
+
+def check_quoted_numbers(path, schema) -> None:
+    """InputError (one line naming the setting) where `path` quotes the value of a numeric field of `schema` (a
+    dataclass; nested dataclasses and tagged variants followed): `samples: "100"` is a string in YAML, which
+    Drake's typed load would read as the number; an unreadable file is left to the typed load."""
+    try:
+        node = yaml.compose(pathlib.Path(path).read_text(encoding="utf-8-sig"), Loader=yaml.SafeLoader)
+    except (yaml.YAMLError, OSError, UnicodeDecodeError):
+        return
+    found = _quoted_number(node, schema, "")
+    if found is not None:
+        where, text = found
+        raise InputError(f"{path}: {where} is {text!r} in quotes, a string; write the number without quotes")
+
+
+def _field_types(annotation, node) -> tuple:
+    """(the dataclass or None, numeric, a list) a value node of a field of type `annotation` is read as; a Union
+    of dataclasses by the node's tag (`!Name`), else its first member (the default)."""
+    import types
+    import typing
+    origin, arguments = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin in (typing.Union, types.UnionType):
+        members = [member for member in arguments if member is not type(None)]
+        tagged = [member for member in members if getattr(node, "tag", "") == f"!{getattr(member, '__name__', '')}"]
+        return _field_types((tagged or members or [None])[0], node)
+    if origin in (list, tuple):
+        inner = _field_types(arguments[0], None) if arguments else (None, False, False)
+        return inner[0], inner[1], True
+    numeric = isinstance(annotation, type) and issubclass(annotation, (int, float)) and annotation is not bool
+    return (annotation if dataclasses.is_dataclass(annotation) else None), numeric, False
+
+
+def _quoted_number(node, schema, prefix: str):
+    """(the setting's dotted name, its text) of the first quoted scalar where `schema` holds a number, or None."""
+    import typing
+    if not (dataclasses.is_dataclass(schema) and isinstance(node, yaml.MappingNode)):
+        return None
+    try:
+        hints = typing.get_type_hints(schema)
+    except Exception:   # (a schema whose annotations do not resolve: nothing to check against)
+        return None
+    for key, value in node.value:
+        name = getattr(key, "value", None)
+        if name not in hints:
+            continue
+        target, numeric, listed = _field_types(hints[name], value)
+        items = value.value if listed and isinstance(value, yaml.SequenceNode) else [value]
+        for item in items:
+            if numeric and isinstance(item, yaml.ScalarNode) and item.style in ("'", '"'):
+                return f"{prefix}{name}", item.value
+            if target is not None:
+                found = _quoted_number(item, target, f"{prefix}{name}.")
+                if found is not None:
+                    return found
+    return None
 
 
 class TaggedMapping(dict):
