@@ -656,6 +656,7 @@ CASES = [
     (["export", "CK", "--target", "drake", "-o", "ROBOT"], "exists and stdm-drake did not write it"),
     (["export", "CK", "--target", "tflite", "-o", "NEW.onnx"], "argument --target: invalid choice"),
     (["export", "CK", "--target", "drake", "--mean-only", "-o", "NEW.yaml"], "--mean-only belongs to the onnx target"),
+    (["export", "CK", "--mean-only", "-o", "NEW.onnx"], "is one deterministic network, whose graph gives the mean alone"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

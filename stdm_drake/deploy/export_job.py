@@ -45,6 +45,10 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     for option, path in zip(("-o/--output", "the Jacobian graph"), outputs):
         check_output_file(option, path, kind=kind, inputs=[job.checkpoint], force=job.force)
     checkpoint = load_checkpoint(job.checkpoint)
+    network = checkpoint.model_config
+    if job.mean_only and getattr(network, "ensemble_size", 0) == 1 and not getattr(network, "probabilistic", True):
+        raise InputError(f"--mean-only: {job.checkpoint} is one deterministic network, whose graph gives the mean "
+                         "alone already (no variance or member outputs to leave out); export it without the flag")
     if job.target == "onnx":
         from stdm_drake.deploy.onnx_export import checkpoint_graphs
         model, jacobian, features = checkpoint_graphs(checkpoint, mean_only=job.mean_only)
