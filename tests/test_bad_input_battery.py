@@ -610,6 +610,7 @@ CASES = [
     # Issue 25, classes 9, 10, 14
     (["robot", "init", "missing.urdf", "-o", "NEW.yaml"], "model file not found"),
     (["robot", "init", "ur10.urdf", "-o", "ur10.urdf"], "--output ur10.urdf is an input file"),
+    (["robot", "init", "ur10.urdf", "--name", "../escape"], "--name '../escape': the robot's name, not a path"),
     (["robot", "init", "bad_cycle.urdf", "-o", "NEW.yaml"], "form a cycle through link"),
     (["robot", "check", "bad_loop.yaml"], "link 'forearm_link' is the child of joints 'elbow_joint' and 'closing'"),
     ([*E, "--robot", "bad_loop.yaml", "-o", "NEW.h5"], "link 'forearm_link' is the child of joints 'elbow_joint' and 'closing'"),

@@ -6,6 +6,7 @@ import argparse
 import pathlib
 import sys
 
+from stdm_drake.errors import InputError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -39,6 +40,10 @@ def run(args: argparse.Namespace) -> int:
 
 def init(args: argparse.Namespace) -> int:
     from stdm_drake.robots.starting_config import write_starting_config
+    if args.name is not None and (not args.name.strip() or args.name in (".", "..")
+                                  or pathlib.Path(args.name).name != args.name or "\\" in args.name):
+        raise InputError(f"--name {args.name!r}: the robot's name, not a path (-o/--output says where the YAML "
+                         "goes)")
     output = args.output or pathlib.Path(f"{args.name or args.model.stem}.yaml")
     config, notes, problem = write_starting_config(args.model, output, args.name, args.srdf, args.force)
     print(f"wrote {output}: {len(config.arm_joints)} arm joints ({', '.join(config.arm_joints)}), "
