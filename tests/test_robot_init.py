@@ -139,6 +139,24 @@ def test_robot_init_writes_a_config_that_loads(tmp_path, capsys):
     assert main(["robot", "init", str(model), "-o", str(model)]) == 2
 
 
+def test_a_xacro_template_is_refused_first_with_the_command_that_expands_it(tmp_path, capsys, monkeypatch):
+    """A `.xacro` (issue 56: a YAML full of `$(arg ...)` frames was written, then exit 1): one line naming the
+    xacro command and the file to init after it, exit 2, nothing written; a file of neither format likewise."""
+    monkeypatch.chdir(tmp_path)
+    template = tmp_path / "arm.urdf.xacro"
+    template.write_text(ur10_copy(tmp_path, name="source").with_suffix(".urdf").read_text())
+    before = sorted(path.name for path in tmp_path.iterdir())
+    capsys.readouterr()
+    assert main(["robot", "init", str(template)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error and f"`xacro {template} > {tmp_path / 'arm.urdf'}`" in error
+    assert f"then `stdm-drake robot init {tmp_path / 'arm.urdf'}`" in error
+    (tmp_path / "arm.txt").write_text("<robot name='arm'/>\n")
+    assert main(["robot", "init", str(tmp_path / "arm.txt")]) == 2
+    assert "a robot description is a .urdf or .sdf file" in capsys.readouterr().err
+    assert sorted(path.name for path in tmp_path.iterdir()) == sorted(before + ["arm.txt"])
+
+
 def test_robot_init_says_which_key_a_file_without_limits_needs(tmp_path, capsys):
     """An arm whose file gives no effort limit: init writes the YAML, notes the missing limits, and exits 1 with
     the one-line reason naming effort_limits; adding the key makes it pass."""

@@ -266,6 +266,12 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
     from stdm_drake.robots.robot import load_robot
     model = check_input_file(model, "model file")
     srdf = check_input_file(srdf, "srdf file") if srdf is not None else None
+    if model.suffix.lower() == ".xacro":
+        expanded = model.with_suffix("") if model.with_suffix("").suffix else model.with_suffix(".urdf")
+        raise InputError(f"{model} is a xacro template: expand it first (`xacro {model} > {expanded}`; xacro: pip "
+                         f"install xacro, or your ROS distribution's), then `stdm-drake robot init {expanded}`")
+    if model.suffix.lower() not in (".urdf", ".sdf"):
+        raise InputError(f"model file {model}: a robot description is a .urdf or .sdf file (Drake's parsers)")
     if output.resolve() in {model.resolve(), *([srdf.resolve()] if srdf else [])}:
         raise InputError(f"--output {output} is an input file; choose another path")
     if output.exists() and not force:
