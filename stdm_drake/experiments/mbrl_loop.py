@@ -58,12 +58,18 @@ class LoopConfig:
         """InputError (one line) for counts the loop cannot run, before any work."""
         if not 1 <= self.rounds <= MAX_ROUNDS:
             raise InputError(f"--rounds must be in 1..{MAX_ROUNDS}, got {self.rounds}")
+        from stdm_drake.collection.collect import MAX_COUNT
         for name in ("initial_plans", "plans_per_round", "evaluation_plans"):
-            if getattr(self, name) < 1:
-                raise InputError(f"--{name.replace('_', '-')} must be >= 1, got {getattr(self, name)}")
+            if not 1 <= getattr(self, name) <= MAX_COUNT:
+                raise InputError(f"--{name.replace('_', '-')} must be in 1..{MAX_COUNT} (collect's limit), got "
+                                 f"{getattr(self, name)}")
+        if self.initial_plans + self.rounds * self.plans_per_round > MAX_COUNT:
+            raise InputError(f"the loop's dataset would hold {self.initial_plans + self.rounds * self.plans_per_round} "
+                             f"plans (--initial-plans + --rounds x --plans-per-round), beyond collect's {MAX_COUNT}")
         for name in ("data_seed", "plan_seed", "evaluation_seed", "seed"):
-            if getattr(self, name) < 0:
-                raise InputError(f"--{name.replace('_', '-')} must be >= 0, got {getattr(self, name)}")
+            top = 2 ** 63 - 1 - (self.rounds if name == "plan_seed" else 0)   # (round r plans with plan_seed + r)
+            if not 0 <= getattr(self, name) <= top:
+                raise InputError(f"--{name.replace('_', '-')} must be in 0..{top}, got {getattr(self, name)}")
         from stdm_drake.learning.models import GREY_BOX_TYPES
         from stdm_drake.learning.settings import TrainSettings
         if str(self.model).upper() in GREY_BOX_TYPES:
