@@ -187,6 +187,7 @@ def test_colored_noise_has_unit_variance_and_more_low_frequency_power():
     ("optimizer: !Mppi {propagation: mean, variance_weight: 1.0}\n", "variance_weight 1 needs `propagation: ts1`"),
     ("optimizer: !Icem {population_decay: 0.5}\n", "population_decay must be >= 1"),
     ("optimizer: !Pets {}\n", "unknown optimizer !Pets; the MPC's optimizers are !Rti, !Ilqr, !Icem, !Mppi, !Cem"),
+    ("optimizer: !Ilqr {line_search: [" + ", ".join(["0.5"] * 31) + "]}\n", "line_search lists 31 steps, at most 30"),
 ])
 def test_bad_sampling_settings_are_one_line(tmp_path, text, message):
     path = tmp_path / "mpc.yaml"
@@ -194,6 +195,15 @@ def test_bad_sampling_settings_are_one_line(tmp_path, text, message):
     with pytest.raises(InputError) as error:
         load_mpc_config(path).validate()
     assert message in str(error.value) and "\n" not in str(error.value)
+
+
+def test_work_beyond_the_sampling_budget_is_refused_before_it_starts():
+    """Horizon 1000 with 100,000 samples (issue 56: a memory traceback after minutes): one line with the estimate
+    when the solver is made, before any rollout; the largest budgeted size is accepted."""
+    with pytest.raises(InputError, match=r"samples 100000 x horizon 1000 x 6 joints = 600,000,000 values per array "
+                                         r"\(about 4.8 GB each"):
+        Icem(samples=100_000).solver(network_model(), MpcConfig().cost(6), LIMIT, 1000)
+    Icem(samples=100_000).solver(network_model(), MpcConfig().cost(6), LIMIT, 83)
 
 
 def test_particles_must_split_evenly_over_the_members():

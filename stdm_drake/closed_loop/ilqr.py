@@ -26,6 +26,7 @@ from stdm_drake.errors import InputError
 
 
 MAX_ITERATIONS = 100   # iLQR iterations per control step: more is a run that does not end
+MAX_LINE_SEARCH = 30   # line-search steps (each a rollout of the horizon): more is a control step that does not end
 
 
 @dataclasses.dataclass
@@ -38,12 +39,15 @@ class Ilqr(OptimizerSettings):
     regularization: float = 1e-6
 
     def validate(self) -> None:
-        """InputError for settings that would switch the optimizer off or make it diverge: iterations in
-        1..MAX_ITERATIONS, line-search steps in (0, 1] (a step of 0 never moves, a negative one climbs the cost),
-        a finite non-negative regularization."""
+        """InputError for settings that would switch the optimizer off, make it diverge or never end: iterations in
+        1..MAX_ITERATIONS, at most MAX_LINE_SEARCH line-search steps, each in (0, 1] (a step of 0 never moves, a
+        negative one climbs the cost), a finite non-negative regularization."""
         if not 1 <= self.max_iterations <= MAX_ITERATIONS or not self.line_search:
             raise InputError(f"mpc optimizer !Ilqr max_iterations must be in 1..{MAX_ITERATIONS} and line_search "
                              f"non-empty, got {self.max_iterations} and {self.line_search}")
+        if len(self.line_search) > MAX_LINE_SEARCH:
+            raise InputError(f"mpc optimizer !Ilqr line_search lists {len(self.line_search)} steps, at most "
+                             f"{MAX_LINE_SEARCH} (each is a rollout of the horizon in every iteration)")
         steps = np.asarray(self.line_search, dtype=float)
         if not np.all(np.isfinite(steps) & (steps > 0) & (steps <= 1)):
             raise InputError(f"mpc optimizer !Ilqr line_search steps must be in (0, 1], got {self.line_search}")

@@ -49,6 +49,7 @@ from stdm_drake.errors import InputError
 MAX_SAMPLES = 100_000       # torque sequences per iteration
 MAX_ROWS = 2_000_000        # samples x particles held at once (S float64 each)
 MAX_ITERATIONS = 100        # iterations per control step: more is a run that does not end
+MAX_SAMPLED_VALUES = 50_000_000   # samples x horizon x joints: each array of them 400 MB (noise, torques, ...)
 MAX_NOISE_STD = 1e4         # rad/s^2: residual accelerations spread wider (1000 g at 1 m) only clip at the limits
 FRAMEWORKS = ("numpy", "torch")
 
@@ -220,7 +221,18 @@ class Cem(SamplingSettings):
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
                bounds: StateBounds | None = None) -> "CemSolver":
+        check_sampled_size(self, horizon, model.state_dim // 2)
         return CemSolver(model, cost, effort_limit, self, bounds)
+
+
+def check_sampled_size(settings, horizon: int, joints: int) -> None:
+    """InputError (one line, with the estimate) before any work where an iteration's arrays of samples x horizon x
+    joints (the noise, the torques: float64) exceed MAX_SAMPLED_VALUES: fewer samples or a shorter horizon."""
+    values = int(settings.samples) * int(horizon) * int(joints)
+    if values > MAX_SAMPLED_VALUES:
+        raise InputError(f"{settings.tag()} samples {settings.samples} x horizon {horizon} x {joints} joints = "
+                         f"{values:,} values per array (about {values * 8 / 1e9:.1f} GB each, several held per "
+                         f"iteration), beyond the budget of {MAX_SAMPLED_VALUES:,}: fewer samples or a shorter horizon")
 
 
 def check_elites(settings) -> None:
@@ -290,6 +302,7 @@ class Icem(SamplingSettings):
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
                bounds: StateBounds | None = None) -> "IcemSolver":
+        check_sampled_size(self, horizon, model.state_dim // 2)
         return IcemSolver(model, cost, effort_limit, self, bounds)
 
 
@@ -364,6 +377,7 @@ class Mppi(SamplingSettings):
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
                bounds: StateBounds | None = None) -> "MppiSolver":
+        check_sampled_size(self, horizon, model.state_dim // 2)
         return MppiSolver(model, cost, effort_limit, self, bounds)
 
 
