@@ -157,6 +157,18 @@ def test_a_xacro_template_is_refused_first_with_the_command_that_expands_it(tmp_
     assert sorted(path.name for path in tmp_path.iterdir()) == sorted(before + ["arm.txt"])
 
 
+def test_a_chain_of_600_fixed_frames_is_walked_without_recursion(tmp_path, capsys):
+    """600 fixed frames hung below the tool (issue 56: Python's recursion limit in `robot init`'s tree walk): the
+    arm is found as without them, the tool frame the last of the chain."""
+    frames = "".join(f'<link name="frame{i}"/><joint name="fixed{i}" type="fixed"><parent link="'
+                     f'{"tool0" if i == 0 else f"frame{i - 1}"}"/><child link="frame{i}"/></joint>' for i in range(600))
+    model = ur10_copy(tmp_path, extra=frames).with_suffix(".urdf")
+    output = tmp_path / "deep.yaml"
+    assert main(["robot", "init", str(model), "-o", str(output)]) == 0
+    robot = load_robot(output)
+    assert list(robot.joint_names) == UR10_JOINTS and robot.tool_frame == "frame599"
+
+
 def test_robot_init_says_which_key_a_file_without_limits_needs(tmp_path, capsys):
     """An arm whose file gives no effort limit: init writes the YAML, notes the missing limits, and exits 1 with
     the one-line reason naming effort_limits; adding the key makes it pass."""

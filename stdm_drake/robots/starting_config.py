@@ -60,12 +60,14 @@ def arm_chain(description: Description, mimics: list) -> ArmChain:
     roots = [link for link in description.links if link not in child_links]
     if WORLD in {joint.parent for joint in description.joints}:
         roots = [WORLD]
-    movable_below = {}
+    movable_below = {}      # movable joints in the subtree of each link: children before parents, no recursion
+    for start in roots:     # (a chain of hundreds of fixed frames is as deep as a description gets)
+        for link in reversed(description.subtree(start)):
+            movable_below[link] = sum((joint.kind in MOVABLE) + movable_below.get(joint.child, 0)
+                                      for joint in children.get(link, []))
 
-    def count(link: str) -> int:   # movable joints in the subtree of `link`
-        if link not in movable_below:
-            movable_below[link] = sum((joint.kind in MOVABLE) + count(joint.child) for joint in children.get(link, []))
-        return movable_below[link]
+    def count(link: str) -> int:
+        return movable_below.get(link, 0)
 
     if not roots:
         raise InputError("the file has no root link (every link is some joint's child)")
