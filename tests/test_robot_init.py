@@ -169,6 +169,24 @@ def test_a_chain_of_600_fixed_frames_is_walked_without_recursion(tmp_path, capsy
     assert list(robot.joint_names) == UR10_JOINTS and robot.tool_frame == "frame599"
 
 
+@pytest.mark.parametrize("edit, message", [
+    ((r'<robot name="[^"]*"', '<robot name="arm&undefined;"'), "arm.urdf is not well-formed XML (undefined entity"),
+    ((r'^(<\?xml[^>]*>)?', '<!DOCTYPE robot [<!ENTITY a "aaaa"><!ENTITY b "&a;&a;&a;&a;">]>'),
+     "arm.urdf declares the XML entity 'a'; Drake's parser does not expand entities")])
+def test_a_file_these_checks_cannot_read_as_drake_does_is_refused_before_drake_parses_it(tmp_path, capsys, edit,
+                                                                                        message):
+    """An undefined entity (Python's parser refused it, Drake's reads it: the toolbox's checks were skipped) and
+    entity declarations (a "billion laughs" file: Python's parser expands them, Drake's does not): one line, exit
+    2, from `robot check`, `robot init` and any command that loads the robot (issue 56)."""
+    config = ur10_copy(tmp_path, edits=[edit])
+    capsys.readouterr()
+    assert main(["robot", "check", str(config)]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "\n" not in error and message in error
+    assert main(["robot", "init", str(config.with_suffix(".urdf")), "-o", str(tmp_path / "init.yaml")]) == 2
+    assert message in capsys.readouterr().err and not (tmp_path / "init.yaml").exists()
+
+
 def test_robot_init_says_which_key_a_file_without_limits_needs(tmp_path, capsys):
     """An arm whose file gives no effort limit: init writes the YAML, notes the missing limits, and exits 1 with
     the one-line reason naming effort_limits; adding the key makes it pass."""

@@ -128,14 +128,26 @@ def _sdf(root) -> Description:
     return Description(links, joints)
 
 
-def read_description(path: pathlib.Path) -> Description | None:
-    """The links and joints of a URDF or SDF file; None when it is not XML (Drake's parser says why)."""
+def read_description(path: pathlib.Path) -> Description:
+    """The links and joints of a URDF or SDF file. InputError (one line) for a file these checks cannot read as
+    Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
+    (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
+    a "billion laughs" file among them). So no check is skipped for a file Drake then parses."""
     import xml.etree.ElementTree as ElementTree
+    from xml.parsers import expat
+    def declared(name, *_):   # (raised at the declaration: nothing is expanded)
+        raise InputError(f"{path.name} declares the XML entity {name!r}; Drake's parser does not expand entities, "
+                         "so write their text out in the file")
+
+    checker = expat.ParserCreate()
+    checker.EntityDeclHandler = declared
     try:
-        root = ElementTree.parse(path).getroot()
-    except (ElementTree.ParseError, OSError):
-        return None
-    return _sdf(root) if root.tag == "sdf" else _urdf(root)
+        with open(path, "rb") as file:
+            checker.ParseFile(file)
+    except expat.ExpatError as error:
+        raise InputError(f"{path.name} is not well-formed XML ({expat.ErrorString(error.code)}: line "
+                         f"{error.lineno}, column {error.offset}); a URDF or SDF file is") from None
+    return _sdf(root) if (root := ElementTree.parse(path).getroot()).tag == "sdf" else _urdf(root)
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,
@@ -150,11 +162,12 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
     moves inertia about its own axis is checked on the plant (M(home) positive definite,
     `Robot.check_plant`). overrides: per joint name, the limits the robot config gives instead of the
     file's ({"lower", "upper", "velocity"}: rad or m, rad/s or m/s), applied before the checks. Returns the
-    description read (None for a file that is not XML: Drake's parser says why)."""
-    description = read_description(path)
-    if description is None:
-        return None
+    description read; a file that is not well-formed XML or declares entities is refused (`read_description`)."""
     where = f"robot {robot}: {path.name}"
+    try:
+        description = read_description(path)
+    except InputError as error:
+        raise InputError(f"robot {robot}: {error}") from None
     check_tree(description, where)
     for joint in description.joints:
         if joint.name in arm_joints and joint.kind not in MOVABLE:

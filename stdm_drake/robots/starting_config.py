@@ -145,8 +145,6 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
     YAML will be written, home the middle of the ranges; notes for the user, one line each). InputError for a
     file that is no arm."""
     description = read_description(model_path)
-    if description is None:
-        raise InputError(f"{model_path} is not a URDF or SDF file (not XML)")
     check_tree(description, f"{model_path.name}")   # (a loop: no chain to follow)
     limits, continuous, mimics = joint_facts(model_path)
     chain = arm_chain(description, mimics)
