@@ -206,6 +206,21 @@ def test_work_beyond_the_sampling_budget_is_refused_before_it_starts():
     Icem(samples=100_000).solver(network_model(), MpcConfig().cost(6), LIMIT, 83)
 
 
+def test_trajectory_sampling_asked_of_one_deterministic_network_runs_as_mean_and_says_so():
+    """One MPC settings file serves every model `mpc` compares: with tsinf particles, a PE samples its members
+    while a single network (or the plant) can only roll out its mean; its solver says so where `mpc` prints which
+    step ran (issue 56: it was silent), and an ensemble's says nothing."""
+    from stdm_drake.closed_loop.mpc import control_step_implementation
+    settings = Icem(propagation="tsinf", particles=5, variance_weight=1.0)
+    single = settings.solver(network_model(), MpcConfig().cost(6), LIMIT, 5)
+    assert single.costs.propagation == "mean" and single.costs.particles == 1
+    assert control_step_implementation(single) == (
+        "numpy (IcemSolver; propagation tsinf with 5 particles runs as mean: "
+        f"{network_model().name} has one deterministic member)")
+    ensemble = settings.solver(network_model(members=5), MpcConfig().cost(6), LIMIT, 5)
+    assert ensemble.costs.particles == 5 and control_step_implementation(ensemble) == "numpy (IcemSolver)"
+
+
 def test_particles_must_split_evenly_over_the_members():
     with pytest.raises(InputError, match=r"particles \(4\) must be a multiple of the model's 3 ensemble members"):
         Icem(propagation="tsinf", particles=4).solver(network_model(members=3), MpcConfig().cost(6), LIMIT, 5)

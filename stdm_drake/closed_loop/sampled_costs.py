@@ -26,6 +26,10 @@ class SampledCosts:
         self.propagation = settings.propagation if sampled else "mean"
         self.members = members if sampled else 1
         self.particles = settings.particles if sampled else 1
+        # what the settings ask that this model cannot give (said on `mpc`'s real-time line, not silent)
+        self.note = "" if sampled or settings.propagation == "mean" else (
+            f"propagation {settings.propagation} with {settings.particles} particles runs as mean: "
+            f"{getattr(model, 'name', 'the model')} has one deterministic member")
         if self.particles % self.members:
             raise InputError(f"{settings.tag()} particles ({settings.particles}) must be a multiple of the model's "
                              f"{members} ensemble members (each member carries as many)")

@@ -137,6 +137,8 @@ class SamplingSolver(TrajectoryOptimizer):
         self.rng = np.random.default_rng(int(settings.seed))
         self.costs = SampledCosts(model, cost, effort_limit, settings, self.rng, bounds)
         self.plan = None        # the last solve's feedforward torques, shifted by one period
+        if self.costs.note:     # (`mpc.control_step_implementation`: the real-time line names it)
+            self.implementation = f"numpy ({type(self).__name__}; {self.costs.note})"
 
     def clip(self, u: np.ndarray) -> np.ndarray:
         return np.clip(u, -self.effort_limit, self.effort_limit)
