@@ -55,21 +55,21 @@ class MpcStep:
     def first_memory(self) -> StepMemory:
         """The memory before the first step: no prediction, no disturbance, the reference's gravity torques."""
         return StepMemory(predicted=np.full(self.state_dim, np.nan), disturbance=np.zeros(self.state_dim),
-                          plan=self.feedforward[np.minimum(np.arange(self.horizon), len(self.feedforward) - 1)],
+                          plan=self.feedforward_window(0),
                           nodes=np.full((self.horizon + 1, self.state_dim), np.nan))
 
     def __call__(self, k: int, x: np.ndarray, memory: StepMemory) -> tuple[np.ndarray, StepMemory, StepStatus]:
         """(torque (m,), the next step's memory, how the step went) at sample k."""
+        x = np.asarray(x, dtype=float)
         if self.compiled is not None:
             solved, torque, predicted, disturbance, plan, nodes, active, slack = self.compiled.step(
-                k, np.asarray(x, dtype=float), memory.predicted, memory.disturbance, memory.plan, memory.nodes)
+                k, x, memory.predicted, memory.disturbance, memory.plan, memory.nodes)
             if solved:
                 return torque, StepMemory(predicted, disturbance, plan, nodes), StepStatus(False, active, slack)
-            return self.fallback(k, np.asarray(x, dtype=float), disturbance)
+            return self.fallback(k, x, disturbance)
         horizon = self.horizon
         reference = self.reference.window(k, horizon + 1)
-        u_ff = self.feedforward[np.minimum(np.arange(k, k + horizon), len(self.feedforward) - 1)]
-        x = np.asarray(x, dtype=float)
+        u_ff = self.feedforward_window(k)
         fallback = not np.all(np.isfinite(x))
         disturbance = np.zeros(self.state_dim)
         if not fallback:
@@ -91,6 +91,10 @@ class MpcStep:
                                   nodes=np.vstack([result.x[1:], result.x[-1:]])), \
             StepStatus(False, result.constraint_active, result.slack)
 
+    def feedforward_window(self, k: int) -> np.ndarray:
+        """The reference's gravity torques (H, m) N m from sample k, holding the last one past the end."""
+        return self.feedforward[np.minimum(np.arange(k, k + self.horizon), len(self.feedforward) - 1)]
+
     def fallback(self, k: int, x: np.ndarray, disturbance: np.ndarray) -> tuple[np.ndarray, StepMemory, StepStatus]:
         """The gravity fallback at sample k: the reference-free hold of x's joint angles (non-finite ones as 0),
         within the torque limits; the memory: the model's prediction under it and the reference's gravity
@@ -101,8 +105,7 @@ class MpcStep:
         if self.disturbance_gain > 0:
             with np.errstate(all="ignore"):
                 predicted = self.solver.rollout(x, torque[None], disturbance)[1]
-        u_ff = self.feedforward[np.minimum(np.arange(k, k + self.horizon), len(self.feedforward) - 1)]
-        return torque, StepMemory(predicted, disturbance, u_ff,
+        return torque, StepMemory(predicted, disturbance, self.feedforward_window(k),
                                   np.full((self.horizon + 1, self.state_dim), np.nan)), StepStatus(True)
 
     def estimate_disturbance(self, x: np.ndarray, memory: StepMemory) -> np.ndarray:

@@ -13,6 +13,7 @@ import numpy as np
 from stdm_drake.errors import InputError
 
 MOVABLE = ("revolute", "continuous", "prismatic")
+SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
 # Principal moments of published descriptions are rounded or estimated (CAD, primitive shapes): a triangle
 # inequality violated by less than this fraction of the largest moment is taken as rounding (pybullet_data's
 # TwoJointRobot: 0.77 %); the dynamics need only positive moments, checked as M(home) positive definite.
@@ -135,6 +136,7 @@ def read_description(path: pathlib.Path) -> Description:
     a "billion laughs" file among them). So no check is skipped for a file Drake then parses."""
     import xml.etree.ElementTree as ElementTree
     from xml.parsers import expat
+
     def declared(name, *_):   # (raised at the declaration: nothing is expanded)
         raise InputError(f"{path.name} declares the XML entity {name!r}; Drake's parser does not expand entities, "
                          "so write their text out in the file")
@@ -151,7 +153,7 @@ def read_description(path: pathlib.Path) -> Description:
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,
-                      locked_joints=()) -> Description | None:
+                      locked_joints=()) -> Description:
     """InputError naming robot `robot` and the link or joint, before Drake parses the file, for: a kinematic
     loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass or
     inertia on any link, or an inertia no body has (a negative principal moment, moments that break the
@@ -198,11 +200,9 @@ def limit_overrides(position: dict, velocity: dict, effort: dict) -> dict:
     return overrides
 
 
-def limits_drake_refuses(description: Description | None) -> set[str]:
+def limits_drake_refuses(description: Description) -> set[str]:
     """The joints whose file limits Drake's parser cannot take (lower position limit above upper, a negative
-    velocity limit: assertions that end the process); empty for no description (a file that is not XML)."""
-    if description is None:
-        return set()
+    velocity limit: assertions that end the process)."""
     return {joint.name for joint in description.joints
             if (joint.lower is not None and joint.upper is not None and joint.lower > joint.upper)
             or (joint.velocity is not None and joint.velocity < 0)}

@@ -24,7 +24,8 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.robots.description import check_description, limit_overrides, limits_drake_refuses  # noqa: E402
+from stdm_drake.robots.description import (SUFFIXES, check_description, limit_overrides,  # noqa: E402
+                                           limits_drake_refuses)
 from stdm_drake.robots.meshes import mesh_cache_dir  # noqa: E402
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,  # noqa: E402
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
@@ -141,7 +142,7 @@ class Robot:
             if not path.is_dir():
                 raise InputError(f"robot {config.name}: package {name!r} folder not found: {path}")
         self.model_path = check_input_file(self._model_file(config.model), f"robot {config.name}: model file")
-        if self.model_path.suffix.lower() not in (".urdf", ".sdf"):
+        if self.model_path.suffix.lower() not in SUFFIXES:
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
         overrides = limit_overrides(config.position_limits, config.velocity_limits, config.effort_limits)
         description = check_description(self.model_path, self.name, config.arm_joints,

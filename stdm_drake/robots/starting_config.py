@@ -30,7 +30,7 @@ import re
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.robots.description import MOVABLE, Description, check_tree, read_description
+from stdm_drake.robots.description import MOVABLE, SUFFIXES, Description, check_tree, read_description
 from stdm_drake.robots.model_file import joint_facts
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
 
@@ -270,7 +270,7 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
         expanded = model.with_suffix("") if model.with_suffix("").suffix else model.with_suffix(".urdf")
         raise InputError(f"{model} is a xacro template: expand it first (`xacro {model} > {expanded}`; xacro: pip "
                          f"install xacro, or your ROS distribution's), then `stdm-drake robot init {expanded}`")
-    if model.suffix.lower() not in (".urdf", ".sdf"):
+    if model.suffix.lower() not in SUFFIXES:
         raise InputError(f"model file {model}: a robot description is a .urdf or .sdf file (Drake's parsers)")
     if output.resolve() in {model.resolve(), *([srdf.resolve()] if srdf else [])}:
         raise InputError(f"--output {output} is an input file; choose another path")
