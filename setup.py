@@ -1,13 +1,13 @@
-"""Builds the compiled control step, the extension module stdm_drake.closed_loop._core (its C++ sources in
-stdm_drake/closed_loop/core/), at install: nanobind binds it, Eigen's and Pinocchio's headers come from the build
-requirements in pyproject.toml (cmeel-eigen, libpinocchio; Pinocchio used header-only, so the extension needs no
-library at run time). It is compiled for the installing machine's CPU (-march=native: the float32 networks' matrix
+"""Builds the compiled core (the models' rollouts and linearizations, the MPC's control step), the extension
+module stdm_drake._core (its C++ sources in stdm_drake/core/), at install: nanobind binds it, Eigen's and
+Pinocchio's headers come from the build requirements in pyproject.toml (cmeel-eigen, libpinocchio; Pinocchio
+used header-only, so the extension needs no library at run time). It is compiled for the installing machine's CPU (-march=native: the float32 networks' matrix
 products in its widest vector instructions); a copy moved to an older CPU stops with an illegal instruction:
 install it there. Its two translation units compile in parallel. Everything else about the package is in
 pyproject.toml.
 
 A machine without a C++17 compiler, or a build that fails, stops the install with one line saying so
-(docs/guides/install.md); there is no silent fall-back to the numpy control step."""
+(docs/guides/install.md); there is no silent fall-back to the numpy code."""
 import pathlib
 import sys
 import sysconfig
@@ -15,7 +15,7 @@ import sysconfig
 from setuptools import Extension, setup
 from setuptools.command.build_ext import build_ext
 
-CORE = "stdm_drake/closed_loop/core"
+CORE = "stdm_drake/core"
 
 
 class BuildCore(build_ext):
@@ -85,9 +85,9 @@ class BuildCore(build_ext):
 
 
 core = Extension(
-    "stdm_drake.closed_loop._core",
+    "stdm_drake._core",
     sources=[f"{CORE}/bindings.cpp", f"{CORE}/rigid_body.cpp"],
-    depends=[f"{CORE}/control_step.hpp"],
+    depends=[f"{CORE}/control_step.hpp", f"{CORE}/rigid_body.hpp"],
     language="c++",
     define_macros=[("BOOST_MPL_LIMIT_LIST_SIZE", "30"),
                    ("BOOST_MPL_LIMIT_VECTOR_SIZE", "30"), ("BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", None),

@@ -1,4 +1,4 @@
-"""The compiled control step (closed_loop/compiled.py, closed_loop/core/) against the numpy reference it replaces:
+"""The compiled control step (closed_loop/compiled.py, core/) against the numpy reference it replaces:
 every model kind's step and linearization, the real-time iteration's torques on recorded states in every
 constraint mode, the settings that choose it, and what it says about the models it does not cover."""
 import dataclasses
@@ -9,6 +9,7 @@ import pytest
 from presets import UR10
 from test_export import random_rows, synthetic_checkpoint
 from stdm_drake.closed_loop import compiled
+from stdm_drake.learning import compiled_core
 from stdm_drake.closed_loop.constraints import Constraints, CondensedQp
 from stdm_drake.closed_loop.mpc import load_mpc_config, run_closed_loop
 from stdm_drake.closed_loop.rti import Rti, RtiSolver
@@ -50,7 +51,7 @@ def test_the_compiled_networks_step_and_linearization_are_the_numpy_models(tmp_p
     sums in another order: reverse mode here, forward mode in numpy)."""
     model = LearnedModel(synthetic_checkpoint(tmp_path / "model.pt", structure, model_type=kind, activation=activation),
                          robot=UR10)
-    core, why_not = compiled.compiled_model(model)
+    core, why_not = compiled_core.compiled_model(model)
     assert core is not None, why_not
     x, a = random_rows(20, 3)
     expected, A, B = model.linearize(x, a)
@@ -68,7 +69,7 @@ def test_the_compiled_plant_model_is_the_numpy_plant_model(request, which):
     """The plant as model (RK4 over Pinocchio's ABA and its analytic derivatives; damping and Coulomb friction in
     the affected plant): equal to rounding."""
     model = request.getfixturevalue(which)
-    core, _ = compiled.compiled_model(model)
+    core, _ = compiled_core.compiled_model(model)
     x, a = random_rows(20, 4)
     expected, A, B = model.linearize(x, a)
     following, core_A, core_B = core.linearize(x, a)
@@ -223,7 +224,7 @@ def test_a_missing_compiled_step_is_one_line_naming_the_fix(monkeypatch):
 
     monkeypatch.setattr(builtins, "__import__", without_core)
     with pytest.raises(InputError) as error:
-        compiled.core_module()
+        compiled_core.core_module()
     message = str(error.value)
     assert "\n" not in message and "pip install" in message and "implementation: numpy" in message
 

@@ -1,5 +1,5 @@
 """The compiled MPC controller outside Python: `export --target controller` writes the controller file, the C++
-program of closed_loop/core/ (mpc_controller.cpp over controller.hpp) reads it with a plan, and on the states a
+program of core/ (mpc_controller.cpp over controller.hpp) reads it with a plan, and on the states a
 Drake closed loop recorded it writes the torques the Python controller applied (the same control step: observer,
 warm start, limits)."""
 import subprocess

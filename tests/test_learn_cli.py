@@ -105,6 +105,14 @@ def test_evaluate_prints_and_writes_errors(tiny, tmp_path, capsys):
     assert multi.angle_mse[0] == pytest.approx(first.angle_mse, rel=1e-6)
     assert multi.velocity_mse[0] == pytest.approx(first.velocity_mse, rel=1e-6)
     assert content["multi_step"]["angle_mse"] == pytest.approx(multi.angle_mse.tolist(), rel=1e-9)
+    # the rollouts ran in the compiled core and said so; the numpy reference, one flag away, gives the same errors
+    assert content["rollout_implementation"] == "compiled" and "rollouts: compiled" in printed
+    reference = tmp_path / "numpy.json"
+    assert main(["evaluate", str(output / "seed0" / "checkpoint.pt"), str(dataset), "--horizon", "10",
+                 "--implementation", "numpy", "--json", str(reference)]) == 0
+    numpy_content = json.loads(reference.read_text())
+    assert numpy_content["rollout_implementation"] == "numpy (--implementation numpy)"
+    assert numpy_content["multi_step"]["angle_mse"] == pytest.approx(content["multi_step"]["angle_mse"], rel=1e-4)
 
 
 def test_evaluate_errors_are_one_line(tiny, tmp_path, capsys):

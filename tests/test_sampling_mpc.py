@@ -112,6 +112,45 @@ def test_pytorch_on_the_cpu_returns_the_numpy_torques(kind, members, propagation
     np.testing.assert_allclose(results[1].u, results[0].u, rtol=1e-4, atol=1e-4 * LIMIT.max())
 
 
+@pytest.mark.parametrize("kind", [Icem, Mppi, Cem])
+def test_the_compiled_model_steps_return_the_numpy_torques(kind, tmp_path):
+    """`implementation: compiled` (the default) steps every rollout through the compiled core's batched model:
+    the paper's black box, a network of the default structure (the nominal acceleration from Pinocchio in C++)
+    and the plant as a model in RK4 steps; `implementation: numpy` is the reference, the same draws from the same
+    seed, so the same torques to float precision. The solver says which steps ran."""
+    from test_export import synthetic_checkpoint
+    from stdm_drake.closed_loop.mpc import control_step_implementation
+    from stdm_drake.dynamics.physics import PlantModel
+    from stdm_drake.learning.structure import DEFAULT
+    models = [network_model(), LearnedModel(synthetic_checkpoint(tmp_path / "default.pt", DEFAULT), robot=UR10),
+              PlantModel(0.01, robot=UR10, integrator="rk4")]
+    x0, _, reference, u_ff = problem(horizon=6)
+    x0[:6] += UR10.home
+    reference[:, :6] += UR10.home
+    for model in models:
+        results, said = [], []
+        for implementation in ("compiled", "numpy"):
+            settings = kind(samples=24, iterations=2, implementation=implementation,
+                            **({"elites": 4} if kind is not Mppi else {}))
+            solver = settings.solver(model, MpcConfig().cost(6), LIMIT, 6)
+            said.append(control_step_implementation(solver))
+            results.append(solver.solve(x0, np.zeros((6, 6)), reference, u_ff))
+        name = type(solver).__name__
+        assert said == [f"numpy ({name}; the model's steps compiled)", f"numpy ({name}; the model's steps numpy)"]
+        assert results[0].finite
+        np.testing.assert_allclose(results[0].u, results[1].u, rtol=1e-6, atol=1e-6 * LIMIT.max())
+        np.testing.assert_allclose(results[0].cost, results[1].cost, rtol=1e-6)
+
+
+def test_what_the_compiled_core_does_not_cover_steps_on_numpy_and_says_so():
+    from stdm_drake.closed_loop.mpc import control_step_implementation
+    solver = Icem().solver(LinearArm(), MpcConfig().cost(6), LIMIT, 5)
+    assert control_step_implementation(solver) == (
+        "numpy (IcemSolver; the model's steps numpy: the compiled core does not cover a LinearArm)")
+    with pytest.raises(InputError, match="implementation must be one of compiled, numpy, got 'C'"):
+        Icem(implementation="C").validate()
+
+
 class LinearArm(LinearModel):
     """Six coupled joints, a double integrator each at 10 ms holds: x_next = A x + B u with B = [dt^2/2 M^-1;
     dt M^-1] for an inertia M whose joints span 0.01 to 4 kg m^2 (a mechanism: the law inverts its B_v)."""
@@ -215,10 +254,11 @@ def test_trajectory_sampling_asked_of_one_deterministic_network_runs_as_mean_and
     single = settings.solver(network_model(), MpcConfig().cost(6), LIMIT, 5)
     assert single.costs.propagation == "mean" and single.costs.particles == 1
     assert control_step_implementation(single) == (
-        "numpy (IcemSolver; propagation tsinf with 5 particles runs as mean: "
+        "numpy (IcemSolver; the model's steps compiled; propagation tsinf with 5 particles runs as mean: "
         f"{network_model().name} has one deterministic member)")
     ensemble = settings.solver(network_model(members=5), MpcConfig().cost(6), LIMIT, 5)
-    assert ensemble.costs.particles == 5 and control_step_implementation(ensemble) == "numpy (IcemSolver)"
+    assert ensemble.costs.particles == 5
+    assert control_step_implementation(ensemble) == "numpy (IcemSolver; tsinf member steps numpy)"
 
 
 def test_particles_must_split_evenly_over_the_members():

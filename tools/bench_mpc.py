@@ -7,7 +7,7 @@ identified robot, the paper's black boxes DD and PE, and the default physics-str
 from the nominal acceleration). Each runs twice:
 
 - "now": this checkout's default, the compiled control step (`Rti(implementation="compiled")`: the real-time
-  iteration, the models' linearization and the constrained QP in C++, closed_loop/core/);
+  iteration, the models' linearization and the constrained QP in C++, stdm_drake/core/);
 - "baseline": by default (`--baseline numpy`) the numpy reference of the same checkout in the same process
   (`Rti(implementation="numpy")`); or a git revision, checked out into a temporary git worktree and run in a
   child process on the same data, checkpoints and plans (e.g. a3cd989: the project before issue 39).
@@ -156,13 +156,6 @@ def report(now: list[dict], baseline: list[dict], plans: int, revision: str) -> 
                       "", *lines, *notes])
 
 
-def provenance() -> dict:
-    """The commit this run's code is, and whether the tree was clean (untracked files aside)."""
-    def git(*arguments):
-        return subprocess.run(["git", "-C", str(ROOT), *arguments], capture_output=True, text=True).stdout.strip()
-    return dict(commit=git("rev-parse", "HEAD"), clean=git("status", "--porcelain", "--untracked-files=no") == "")
-
-
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", type=pathlib.Path)
@@ -180,6 +173,8 @@ def main():
         rows = closed_loops(code, args.dataset, args.checkpoint, args.identified, args.plans)
         output.write_text(json.dumps(rows))
         return
+    sys.path.insert(0, str(ROOT / "tools"))
+    from benchmark_report import machine_description, provenance, write_benchmark_section
     origin = provenance()      # (at the start: the code this run imports)
     given = args.dataset is not None
     if given:
@@ -193,8 +188,6 @@ def main():
     else:
         old = baseline_rows(args.baseline, dataset, checkpoints, identified, args.plans)
     now = closed_loops(ROOT, dataset, checkpoints, identified, args.plans)
-    sys.path.insert(0, str(ROOT / "tools"))
-    from benchmark_report import machine_description, write_benchmark_section
     command = " ".join(["python tools/bench_mpc.py", *sys.argv[1:]])
     text = report(now, old, args.plans, args.baseline)
     text += (f"\n\nMachine: {machine_description(threads=1)}.\nCommand: `{command}`"

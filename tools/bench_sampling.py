@@ -10,7 +10,13 @@ members). Their weights are a fresh initialization with the input and output sca
 Goals (issue 43): iCEM's low budget (about 100 samples x 3 iterations, H = 20) on D at most 10 ms per
 control step on one CPU core; PE with one particle per member (TS-infinity) and the PETS budget (400 x 5
 iterations x 20 particles) stated on the CPU and, where a GPU exists (`--device cuda`), on the GPU.
-Baselines in the same run: the real-time iteration (the MPC's default) and the iLQR on the same models.
+Baselines in the same run: the real-time iteration (the MPC's default) and the iLQR on the same models, and the
+samplers with the model's steps in numpy (`implementation: numpy`) beside the compiled core's steps (the
+default, issue 54), also on a network of the default structure (its nominal acceleration from the robot's
+rigid-body model: `bench_rollout.default_structure_model`).
+
+With --write: BENCHMARKS.md's section and docs/results/compiled_step/bench_sampling.json (every row and the
+commit the run's code is).
 
 Usage: python tools/bench_sampling.py [--repeats 30] [--device cuda] [--d D.pt --pe PE.pt] [--write]
 """
@@ -24,7 +30,7 @@ os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):   # one thread (before numpy loads)
     os.environ.setdefault(_variable, "1")
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, provenance, write_benchmark_section  # noqa: E402
 
 
 def black_box(members: int, probabilistic: bool, robot, activation: str = "swish"):
@@ -72,9 +78,15 @@ def cases(device: str | None):
     rows = [("RTI, 1 iteration (baseline)", "D", Rti(), ""),
             ("iLQR, 1 iteration (baseline)", "D", Ilqr(max_iterations=1), ""),
             ("iCEM 100 x 3", "D", Icem(), "<= 10 ms"),
+            ("iCEM 100 x 3, numpy steps (baseline)", "D", Icem(implementation="numpy"), ""),
             ("iCEM 100 x 3, PyTorch cpu", "D", Icem(framework="torch"), ""),
             ("MPPI 100 x 1", "D", Mppi(), ""),
+            ("MPPI 100 x 1, numpy steps (baseline)", "D", Mppi(implementation="numpy"), ""),
             ("CEM 400 x 5", "D", Cem(), ""),
+            ("CEM 400 x 5, numpy steps (baseline)", "D", Cem(implementation="numpy"), ""),
+            ("RTI, 1 iteration (baseline)", "D (default structure)", Rti(), ""),
+            ("iCEM 100 x 3", "D (default structure)", Icem(), ""),
+            ("iCEM 100 x 3, numpy steps (baseline)", "D (default structure)", Icem(implementation="numpy"), ""),
             ("RTI, 1 iteration (baseline)", "PE", Rti(), ""),
             ("iCEM 100 x 3, TS-inf 5 particles", "PE", Icem(particles=5, **tsinf), "stated"),
             ("iCEM 100 x 3, TS-inf 5 particles, PyTorch cpu", "PE", Icem(particles=5, framework="torch", **tsinf), ""),
@@ -104,8 +116,11 @@ def main() -> int:
     from stdm_drake.robots.plant import Dynamics, joint_limits
     from stdm_drake.robots.robot import UR10_CONFIG, load_robot
     robot = load_robot(UR10_CONFIG)
+    from bench_rollout import default_structure_model
     models = {"D": LearnedModel(args.d, robot=robot) if args.d else black_box(1, False, robot),
-              "PE": LearnedModel(args.pe, robot=robot) if args.pe else black_box(5, True, robot)}
+              "PE": LearnedModel(args.pe, robot=robot) if args.pe else black_box(5, True, robot),
+              "D (default structure)": default_structure_model()[1]}
+    origin = provenance()
     config = load_mpc_config()
     dynamics = Dynamics(robot)
     limit = joint_limits(dynamics.plant).effort
@@ -116,7 +131,7 @@ def main() -> int:
         solver = settings.solver(models[key], config.cost(6), limit, config.horizon)
         measured = time_solves(solver, problem, args.repeats)
         rows.append(dict(case=label, model=key, goal=goal, **measured))
-        print(f"{label:50s} {key:3s} {measured['median_ms']:8.2f} ms (p95 {measured['p95_ms']:.2f})", flush=True)
+        print(f"{label:50s} {key:22s} {measured['median_ms']:8.2f} ms (p95 {measured['p95_ms']:.2f})", flush=True)
     weights = "trained checkpoints" if args.d or args.pe else "fresh initializations"
     text = [f"Machine: {machine_description(threads=1)}." + (f" GPU: {torch.cuda.get_device_name()}." if args.device else
                                                             " No GPU on this machine: the GPU rows were not measured."),
@@ -125,12 +140,20 @@ def main() -> int:
             "", "| optimizer | model | ms / step | p95 ms | goal |", "|---|---|---|---|---|"]
     text += [f"| {row['case']} | {row['model']} | {row['median_ms']:.2f} | {row['p95_ms']:.2f} | {row['goal']} |"
              for row in rows]
-    text += ["", f"Command: `python tools/bench_sampling.py --repeats {args.repeats}"
-             + (f" --device {args.device}" if args.device else "") + " --write`."]
+    command = " ".join(["python tools/bench_sampling.py", *sys.argv[1:]])
+    text += ["", f"Command: `{command}` (commit {origin['commit'][:7]}"
+             + ("" if origin["clean"] else ", uncommitted changes") + ")."]
     print("\n".join(text))
     if args.write:
+        import json
+        from stdm_drake.files import write_text_atomic
         write_benchmark_section("Deployment", "Sampling MPC, time per control step (tools/bench_sampling.py)",
                                 "\n".join(text))
+        folder = pathlib.Path(__file__).resolve().parents[1] / "docs" / "results" / "compiled_step"
+        folder.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(folder / "bench_sampling.json", json.dumps(dict(
+            provenance=origin, command=command, machine=machine_description(threads=1), weights=weights,
+            rows=rows), indent=1) + "\n")
     return 0
 
 

@@ -2,6 +2,7 @@
 import os
 import pathlib
 import platform
+import subprocess
 import sys
 from importlib.metadata import PackageNotFoundError, version
 
@@ -27,6 +28,14 @@ def machine_description(threads: int | None = None) -> str:
             continue
     text = f"{model}, {os.cpu_count()} cores; Python {platform.python_version()}, {', '.join(packages)}"
     return text + (f"; torch threads {threads}" if threads is not None else "")
+
+
+def provenance() -> dict:
+    """The commit the benchmark's code is, and whether the tree was clean (untracked files aside): what a result
+    file names so that its numbers can be traced."""
+    def git(*arguments):
+        return subprocess.run(["git", "-C", str(ROOT), *arguments], capture_output=True, text=True).stdout.strip()
+    return dict(commit=git("rev-parse", "HEAD"), clean=git("status", "--porcelain", "--untracked-files=no") == "")
 
 
 def write_benchmark_section(section: str, title: str, body: str, path: pathlib.Path = BENCHMARKS_FILE) -> None:

@@ -20,7 +20,7 @@ What the file holds (text; its first line `# stdm-drake controller 1 ...`, then 
                             inference copy (`predict.InferenceModel`: normalizers folded in)
     substeps                the plant model's RK4 steps per period
     dynamics.*              the prediction model's rigid body (the nominal acceleration's, or the plant's):
-                            `compiled.rigid_body_arrays`
+                            `compiled_core.rigid_body_arrays`
     description.*           the robot's description (the feedforward's gravity torque at the plan's states)
 """
 from __future__ import annotations
@@ -50,8 +50,8 @@ def _rigid_body(prefix: str, arrays: dict) -> list[str]:
 def controller_text(model, config, robot, written_by: str = "stdm-drake export") -> str:
     """The controller file of `model` (a checkpoint's `LearnedModel` or a `PlantModel`) under the MPC settings
     `config` (`MpcConfig`) for `robot` (its plant's limits, its description's gravity); InputError for a model the
-    compiled controller does not cover (`compiled.compiled_model`)."""
-    from stdm_drake.closed_loop.compiled import compiled_model, rigid_body_arrays
+    compiled controller does not cover (`compiled_core.compiled_model`)."""
+    from stdm_drake.learning.compiled_core import compiled_model, rigid_body_arrays
     from stdm_drake.dynamics.physics import PlantModel
     from stdm_drake.robots.plant import Dynamics, joint_limits
     from stdm_drake.robots.rigid_body import robot_dynamics

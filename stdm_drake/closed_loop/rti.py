@@ -30,7 +30,8 @@ import dataclasses
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
-from stdm_drake.closed_loop.compiled import IMPLEMENTATIONS, CompiledRtiSolver, compiled_model
+from stdm_drake.closed_loop.compiled import CompiledRtiSolver
+from stdm_drake.learning.compiled_core import IMPLEMENTATIONS, compiled_model
 from stdm_drake.closed_loop.constraints import CondensedQp, StateBounds
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError

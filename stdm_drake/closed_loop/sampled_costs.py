@@ -38,6 +38,18 @@ class SampledCosts:
         self.step_weights = cost.step_weights
         self.torch = None
         self.put = lambda values: values
+        # the mean step of framework numpy: the compiled core's batched step where it covers the model
+        self.compiled, self.steps = None, ""
+        if settings.framework == "numpy":
+            if self.propagation != "mean":
+                self.steps = f"{self.propagation} member steps numpy"
+            elif settings.implementation == "numpy":
+                self.steps = "the model's steps numpy"
+            else:
+                from stdm_drake.learning.compiled_core import compiled_model
+                self.compiled, why_not = compiled_model(model)
+                self.steps = ("the model's steps compiled" if self.compiled is not None else
+                              f"the model's steps numpy: the compiled core does not cover {why_not}")
         if settings.framework == "torch":
             import torch
             if not hasattr(model, "torch_particles"):
@@ -94,6 +106,9 @@ class SampledCosts:
         if self.propagation == "mean":
             if self.torch is not None:
                 return self.torch.mean_step(x.reshape(-1, size), a.reshape(-1, joints)).reshape(x.shape)
+            if self.compiled is not None:
+                return self.compiled.step_rows(np.ascontiguousarray(x.reshape(-1, size)),
+                                               np.ascontiguousarray(a.reshape(-1, joints))).reshape(x.shape)
             return self.model.step(x.reshape(-1, size), a.reshape(-1, joints)).reshape(x.shape)
         if self.propagation == "tsinf":
             return self._member_step(x, a)

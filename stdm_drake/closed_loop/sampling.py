@@ -45,6 +45,7 @@ from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings,
 from stdm_drake.closed_loop.sampled_costs import SampledCosts
 from stdm_drake.dynamics.model import PROPAGATIONS
 from stdm_drake.errors import InputError
+from stdm_drake.learning.compiled_core import IMPLEMENTATIONS
 
 MAX_SAMPLES = 100_000       # torque sequences per iteration
 MAX_ROWS = 2_000_000        # samples x particles held at once (S float64 each)
@@ -59,8 +60,10 @@ class SamplingSettings(OptimizerSettings):
     """What every sampling optimizer shares (module docstring): samples per iteration, iterations per control
     step, noise_std (rad/s^2: the residual accelerations' spread), propagation ("mean", "ts1", "tsinf") with `particles` per sample
     (a multiple of the ensemble's members), variance_weight >= 0, seed of the draws, framework ("numpy",
-    "torch"), device ("cpu", "cuda", "cuda:N"; cuda needs framework torch) and the ancillary law's gains
-    feedback_kp (1/s^2) and feedback_kd (1/s) (0 and 0: the law's feedforward alone)."""
+    "torch"), device ("cpu", "cuda", "cuda:N"; cuda needs framework torch), implementation (the model's steps
+    under framework numpy: "compiled", the compiled core's batched step where it covers the model and the
+    propagation is "mean", else "numpy", the reference) and the ancillary law's gains feedback_kp (1/s^2) and
+    feedback_kd (1/s) (0 and 0: the law's feedforward alone)."""
     samples: int = 100
     iterations: int = 3
     noise_std: float = 1.0
@@ -70,6 +73,7 @@ class SamplingSettings(OptimizerSettings):
     seed: int = 0
     framework: str = "numpy"
     device: str = "cpu"
+    implementation: str = "compiled"
     feedback_kp: float = 225.0
     feedback_kd: float = 30.0
 
@@ -106,6 +110,9 @@ class SamplingSettings(OptimizerSettings):
                 raise InputError(f"{tag} {name} must be >= 0, got {getattr(self, name)}")
         if not (np.isfinite(self.variance_weight) and self.variance_weight >= 0):
             raise InputError(f"{tag} variance_weight must be >= 0, got {self.variance_weight}")
+        if self.implementation not in IMPLEMENTATIONS:
+            raise InputError(f"{tag} implementation must be one of {', '.join(IMPLEMENTATIONS)}, got "
+                             f"{self.implementation!r}")
         if self.framework not in FRAMEWORKS:
             raise InputError(f"{tag} framework must be one of {', '.join(FRAMEWORKS)}, got {self.framework!r}")
         if self.framework == "numpy" and self.device != "cpu":
@@ -137,8 +144,9 @@ class SamplingSolver(TrajectoryOptimizer):
         self.rng = np.random.default_rng(int(settings.seed))
         self.costs = SampledCosts(model, cost, effort_limit, settings, self.rng, bounds)
         self.plan = None        # the last solve's feedforward torques, shifted by one period
-        if self.costs.note:     # (`mpc.control_step_implementation`: the real-time line names it)
-            self.implementation = f"numpy ({type(self).__name__}; {self.costs.note})"
+        # what runs the control step (`mpc.control_step_implementation`: the real-time line names it)
+        notes = [note for note in (self.costs.steps, self.costs.note) if note]
+        self.implementation = f"numpy ({'; '.join([type(self).__name__] + notes)})"
 
     def clip(self, u: np.ndarray) -> np.ndarray:
         return np.clip(u, -self.effort_limit, self.effort_limit)

@@ -27,6 +27,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="multi-step propagation: mean, ts1 or tsinf (PETS; default mean)")
     parser.add_argument("--particles", type=int, help="particles per trajectory for ts1/tsinf (default 20)")
     parser.add_argument("--seed", type=int, help="seed of the ts1/tsinf particles (default 0)")
+    parser.add_argument("--implementation", choices=("compiled", "numpy"), default="compiled",
+                        help="the learned model's rollout code: compiled (C++, where the compiled core covers the "
+                             "model: the MLPs, mean propagation) or numpy (the reference; default compiled)")
     parser.add_argument("--no-plant", action="store_true",
                         help="leave out the plant baseline (the robot's rigid-body plant stepping the recorded torque: "
                              "about a millisecond per step)")
@@ -38,5 +41,6 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.learning.evaluation_job import EvaluationJob, evaluate_job
     evaluate_job(EvaluationJob(model=args.checkpoint, dataset=args.dataset, robot=args.robot, split=args.split,
                                horizon=args.horizon, propagation=args.propagation, particles=args.particles,
-                               seed=args.seed, no_plant=args.no_plant, json=args.json, force=args.force))
+                               seed=args.seed, implementation=args.implementation, no_plant=args.no_plant,
+                               json=args.json, force=args.force))
     return 0

@@ -98,13 +98,17 @@ def one_step_errors(model, states, actions, next_states) -> OneStepErrors:
 
 
 def multi_step_errors(model, initial_states, actions, true_states, *, propagation: str = "mean",
-                      particles: int = 20, seed: int = 0) -> MultiStepErrors:
+                      particles: int = 20, seed: int = 0, implementation: str = "compiled") -> MultiStepErrors:
     """initial_states (B, S), actions (B, H, A), true_states (B, H, S) of steps 1..H -> MultiStepErrors
-    of the rollout mean of `model` (any DynamicsModel, or a bare network)."""
+    of the rollout mean of `model` (any DynamicsModel, or a bare network); implementation: a network's rollout
+    code ("compiled" or "numpy", `LearnedModel.rollout`; other models have one)."""
     model = as_dynamics_model(model)
     joints = _halves(model.state_dim)
     truth = np.asarray(true_states, dtype=np.float64)
-    result = model.rollout(initial_states, actions, propagation=propagation, particles=particles, seed=seed)
+    from stdm_drake.learning.learned_model import LearnedModel
+    options = dict(implementation=implementation) if isinstance(model, LearnedModel) else {}
+    result = model.rollout(initial_states, actions, propagation=propagation, particles=particles, seed=seed,
+                           **options)
     predicted = np.asarray(result.mean, dtype=np.float64)
     if predicted.shape != truth.shape:
         raise InputError(f"rollout has shape {predicted.shape}, true_states {truth.shape}")
@@ -166,9 +170,10 @@ def physics_baselines(sample_period: float, state_dim: int, action_dim: int, rob
 
 
 def compare_with_baselines(models, transitions, rollout_data, *, propagation: str = "mean", particles: int = 20,
-                           seed: int = 0, noise_floor: dict | None = None) -> list[ModelErrors]:
+                           seed: int = 0, noise_floor: dict | None = None,
+                           implementation: str = "compiled") -> list[ModelErrors]:
     """Errors of every model (DynamicsModel) on the same transitions and rollouts (x0, actions, truth; None:
-    one-step errors only); learned models are rated against the first ConstantVelocity among them and, given the
+    one-step errors only; implementation: the learned models' rollout code); learned models are rated against the first ConstantVelocity among them and, given the
     sensor's noise_floor ({"q", "v"} one-step MSE, `data.inspect.noise_floor`), against it."""
     from stdm_drake.dynamics.physics import ConstantVelocity, learning_verdict
     rows = []
@@ -176,7 +181,7 @@ def compare_with_baselines(models, transitions, rollout_data, *, propagation: st
         one = one_step_errors(model, transitions.state, transitions.action, transitions.next_state)
         multi = None if rollout_data is None else multi_step_errors(
             model, *rollout_data, propagation=propagation if model.learned else "mean", particles=particles,
-            seed=seed)
+            seed=seed, implementation=implementation)
         rows.append(ModelErrors(name=model.name, learned=model.learned, one_step=one, multi_step=multi))
     euler = next((row for row, model in zip(rows, models) if isinstance(model, ConstantVelocity)), None)
     if euler is not None:

@@ -10,6 +10,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import finite_json, write_text_atomic
+from stdm_drake.learning.compiled_core import IMPLEMENTATIONS
 from stdm_drake.learning.evaluate import REPORT_STEPS, compare_with_baselines, physics_baselines, trajectory_rollout_data
 from stdm_drake.outputs import check_output_file
 
@@ -23,8 +24,9 @@ class EvaluationJob:
     else the UR-10's where the dataset is its; another robot's data then get no plant baseline); split:
     "test", "val", "train" (the model's split of this dataset) or "all"; horizon: multi-step steps (None:
     the shortest trajectory's length, capped at 100); propagation "mean", "ts1" or "tsinf" with `particles`
-    and `seed` (None: 20 and 0; refused with "mean"); no_plant: leave out the plant baselines; json: also
-    write the report there; force: replace a JSON file stdm-drake did not write."""
+    and `seed` (None: 20 and 0; refused with "mean"); implementation: the learned model's rollout code,
+    "compiled" (the compiled core where it covers the model) or "numpy" (the reference); no_plant: leave out the
+    plant baselines; json: also write the report there; force: replace a JSON file stdm-drake did not write."""
     model: pathlib.Path
     dataset: pathlib.Path
     robot: pathlib.Path | None = None
@@ -33,6 +35,7 @@ class EvaluationJob:
     propagation: str = "mean"
     particles: int | None = None
     seed: int | None = None
+    implementation: str = "compiled"
     no_plant: bool = False
     json: pathlib.Path | None = None
     force: bool = False
@@ -51,6 +54,19 @@ def control_plant_difference(simulator, rk4, transitions, count: int = 2000) -> 
             f"v MSE {np.mean(difference[:, n:] ** 2):.3e} (rad/s)^2)")
 
 
+def rollout_code(model, propagation: str, implementation: str) -> str:
+    """Which code ran a model's open-loop rollouts: "compiled", or "numpy" with why where the compiled core was
+    not asked for or does not cover the model or the propagation (`LearnedModel.rollout_implementation`)."""
+    from stdm_drake.learning.learned_model import LearnedModel
+    if not isinstance(model, LearnedModel):
+        return f"numpy ({type(model).__name__})"
+    if implementation == "numpy":
+        return "numpy (--implementation numpy)"
+    if propagation != "mean":
+        return f"numpy ({propagation} propagation)"
+    return model.rollout_implementation
+
+
 def evaluate_job(job: EvaluationJob) -> dict:
     """Run `job` (checks first), print its tables and verdict, and return the report (what --json writes)."""
     from stdm_drake.data.compatibility import resolve_robot, robot_for
@@ -62,6 +78,8 @@ def evaluate_job(job: EvaluationJob) -> dict:
         raise InputError("--particles and --seed are for --propagation ts1 or tsinf (trajectory sampling); mean "
                          "propagation uses neither")
     particles, seed = (20 if job.particles is None else job.particles), (0 if job.seed is None else job.seed)
+    if job.implementation not in IMPLEMENTATIONS:
+        raise InputError(f"--implementation must be one of {', '.join(IMPLEMENTATIONS)}, got {job.implementation!r}")
     check_output_file("--json", job.json, kind="json", inputs=[job.model, job.dataset, job.robot],
                       force=job.force)
     dataset = load_dataset(job.dataset)
@@ -100,14 +118,17 @@ def evaluate_job(job: EvaluationJob) -> dict:
     from stdm_drake.data.inspect import noise_floor
     floor = noise_floor(dataset, indices)
     rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=job.propagation,
-                                  particles=particles, seed=seed, noise_floor=floor)
+                                  particles=particles, seed=seed, noise_floor=floor,
+                                  implementation=job.implementation)
+    rollouts = rollout_code(model, job.propagation, job.implementation)
     print(model.describe())
     print(f"dataset {job.dataset} ({'the training dataset' if trained_on_this else 'another dataset'}); "
           f"split {job.split}: {len(indices)} trajectories, {rows[0].one_step.transitions} transitions")
     multi = rows[0].multi_step
     shown = sorted({s for s in REPORT_STEPS if s <= multi.horizon} | {multi.horizon})
     print(f"one-step MSE and open-loop ({multi.propagation} propagation, {multi.horizon} steps, mean over "
-          f"{multi.trajectories} trajectories) q MSE at step k, beside the physics baselines:")
+          f"{multi.trajectories} trajectories; {model.name}'s rollouts: {rollouts}) q MSE at step k, beside the "
+          "physics baselines:")
     header = f"  {'model':<12} {'q [rad^2]':>10} {'v [(rad/s)^2]':>13}  " + " ".join(f"{'q@' + str(k):>9}" for k in shown)
     print(header)
     for row in rows:
@@ -148,7 +169,7 @@ def evaluate_job(job: EvaluationJob) -> dict:
                   dataset_sha256=dataset.sha256, robot=None if robot is None else robot.record(),
                   trained_on_this_dataset=trained_on_this, split=job.split,
                   structure=model.structure.as_dict() if hasattr(model, "structure") else None,
-                  model=model.describe(), trajectories=[int(i) for i in indices],
+                  model=model.describe(), rollout_implementation=rollouts, trajectories=[int(i) for i in indices],
                   one_step=learned.one_step.as_dict(), multi_step=multi.as_dict(),
                   ratio_to_euler_q=learned.ratio_q, ratio_to_velocity_unchanged_v=learned.ratio_v,
                   over_noise_floor_q=learned.floor_ratio_q, over_noise_floor_v=learned.floor_ratio_v,

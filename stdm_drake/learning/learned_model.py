@@ -15,6 +15,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.dynamics.model import DynamicsModel, Prediction, Rollout, check_batch
+from stdm_drake.learning.compiled_core import IMPLEMENTATIONS, compiled_model, compiled_rollout
 from stdm_drake.learning.predict import as_inference_model, predict, rollout
 from stdm_drake.learning.structure import PAPER, ModelStructure
 
@@ -203,10 +204,28 @@ class LearnedModel(DynamicsModel):
         result = self.predict(x, a)
         return result.mean, result.variance
 
-    def rollout(self, x0, actions, *, propagation: str = "mean", particles: int = 20, seed: int | None = 0) -> Rollout:
-        """Open-loop prediction of steps 1..T (mean, variance (B, T, 2n)). The paper's structure runs the
-        fast whole-horizon path with PETS propagation ("mean", "ts1", "tsinf"); other structures step
-        with "mean" propagation."""
+    def rollout(self, x0, actions, *, propagation: str = "mean", particles: int = 20, seed: int | None = 0,
+                implementation: str = "compiled") -> Rollout:
+        """Open-loop prediction of steps 1..T (mean, variance (B, T, 2n)) from x0 (B, 2n) under actions (B, T, m)
+        (one sequence (1, T, m) serves every initial state).
+
+        "mean" propagation runs in the compiled core (`compiled_core`, implementation "compiled", the default)
+        where it covers the model (`rollout_implementation` says which code runs), else on numpy, as
+        implementation "numpy" always does: the paper's structure on the fast whole-horizon path, which also
+        offers PETS propagation ("ts1", "tsinf": numpy only), other structures step by step."""
+        if implementation not in IMPLEMENTATIONS:
+            raise InputError(f"rollout implementation must be one of {', '.join(IMPLEMENTATIONS)}, got "
+                             f"{implementation!r}")
+        if propagation == "mean" and implementation == "compiled" and self._compiled() is not None:
+            states = check_batch(x0, self.state_dim, "initial_states")
+            sequence = check_batch(actions, self.action_dim, "actions", sequence=True)
+            if len(sequence) != len(states):
+                if len(sequence) != 1:
+                    raise InputError(f"initial_states and actions have different batch sizes: {len(states)} and "
+                                     f"{len(sequence)}")
+                sequence = np.repeat(sequence, len(states), axis=0)
+            mean, variance = compiled_rollout(self._compiled(), states, sequence)
+            return Rollout(mean=mean, variance=variance)
         if self.structure == PAPER:
             check_batch(x0, self.state_dim, "initial_states")
             check_batch(actions, self.action_dim, "actions", sequence=True)
@@ -215,6 +234,21 @@ class LearnedModel(DynamicsModel):
             return Rollout(mean=result.mean.astype(np.float64), variance=result.variance.astype(np.float64),
                            particles=result.particles)
         return super().rollout(x0, actions, propagation=propagation, particles=particles, seed=seed)
+
+    @property
+    def rollout_implementation(self) -> str:
+        """The code a "mean" rollout runs by default: "compiled", or "numpy (why: what the core does not cover)";
+        InputError (one line) where the compiled core is not built."""
+        self._compiled()
+        return "compiled" if self._compiled_why == "" else f"numpy ({self._compiled_why})"
+
+    def _compiled(self):
+        """The compiled core's copy of this model (`compiled_core.compiled_model`), made once per engine; None
+        where the core does not cover it (`_compiled_why`)."""
+        if getattr(self, "_compiled_engine", None) is not self.engine:
+            self._compiled_model, self._compiled_why = compiled_model(self)
+            self._compiled_engine = self.engine
+        return self._compiled_model
 
     def jacobians(self, x: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """d mean / d(x, a) at each row: A (H, 2n, 2n), B (H, 2n, m) (`linearize`)."""

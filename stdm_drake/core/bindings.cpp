@@ -1,6 +1,6 @@
-// Python bindings of the compiled control step (control_step.hpp): the module stdm_drake.closed_loop._core.
-// stdm_drake/closed_loop/compiled.py builds these objects from the toolbox's models and settings; nothing here
-// is called per node from Python.
+// Python bindings of the compiled core (control_step.hpp): the module stdm_drake._core.
+// stdm_drake/learning/compiled_core.py builds its models from the toolbox's, stdm_drake/closed_loop/compiled.py its
+// solver from the MPC settings; nothing here is called per node or per step from Python.
 #include <nanobind/eigen/dense.h>
 #include <nanobind/nanobind.h>
 #include <nanobind/stl/optional.h>
@@ -71,6 +71,26 @@ stdm::Network make_network(const std::vector<RowMatrixXf>& first, const std::vec
   return network;
 }
 
+// a probabilistic ensemble's variance head (no members: a deterministic network)
+void add_variance_head(stdm::Network& network, const std::vector<RowMatrixXf>& weight,
+                       const std::vector<RowMatrixXf>& bias, const RowMatrixXf& min_logvar,
+                       const RowMatrixXf& max_logvar, const Eigen::VectorXf& log_output_variance) {
+  if (weight.empty() && bias.empty()) return;
+  const int outputs = network.outputs;
+  bool fits = int(weight.size()) == network.members && int(bias.size()) == network.members &&
+              min_logvar.rows() == network.members && min_logvar.cols() == outputs &&
+              max_logvar.rows() == network.members && max_logvar.cols() == outputs &&
+              log_output_variance.size() == outputs;
+  for (size_t e = 0; fits && e < weight.size(); ++e)
+    fits = weight[e].rows() == network.width && weight[e].cols() == outputs && bias[e].size() == outputs;
+  if (!fits) throw std::invalid_argument("network: the variance head does not fit the members");
+  network.variance_weight = weight;
+  for (const auto& row : bias) network.variance_bias.push_back(Eigen::Map<const Eigen::RowVectorXf>(row.data(), outputs));
+  network.min_logvar = min_logvar;
+  network.max_logvar = max_logvar;
+  network.log_output_variance = log_output_variance.transpose();
+}
+
 std::tuple<RowMatrixXd, RowMatrixXd, RowMatrixXd> linearize(const stdm::Model& model, const RowMatrixXd& x,
                                                             const RowMatrixXd& u) {
   RowMatrixXd next, A, B;
@@ -101,6 +121,12 @@ NB_MODULE(_core, module) {
   nb::class_<stdm::Model>(module, "Model")
       .def("step", &stdm::Model::step, "x"_a, "u"_a)
       .def("linearize", &linearize, "x"_a, "u"_a)
+      .def("step_rows", [](const stdm::Model& self, const RowMatrixXd& x, const RowMatrixXd& u) {
+        if (x.cols() != self.state_dim || u.cols() != self.action_dim || u.rows() != x.rows())
+          throw std::invalid_argument("step_rows: x (N, S) and u (N, m) do not fit the model");
+        nb::gil_scoped_release release;
+        return self.step_rows(x, u);
+      }, "x"_a, "u"_a)
       .def_ro("state_dim", &stdm::Model::state_dim)
       .def_ro("action_dim", &stdm::Model::action_dim);
 
@@ -110,9 +136,13 @@ NB_MODULE(_core, module) {
                           const std::vector<std::vector<RowMatrixXf>>& hidden_bias,
                           const std::vector<RowMatrixXf>& mean_weight, const std::vector<RowMatrixXf>& mean_bias,
                           bool residual, const std::string& activation, int state_dim, int action_dim,
-                          bool predicts_velocity, std::shared_ptr<stdm::RigidBody> nominal, double sample_period) {
+                          bool predicts_velocity, std::shared_ptr<stdm::RigidBody> nominal, double sample_period,
+                          const std::vector<RowMatrixXf>& variance_weight, const std::vector<RowMatrixXf>& variance_bias,
+                          const RowMatrixXf& min_logvar, const RowMatrixXf& max_logvar,
+                          const Eigen::VectorXf& log_output_variance) {
         new (self) stdm::NetworkModel();
         self->network = make_network(first, hidden_weight, hidden_bias, mean_weight, mean_bias, residual, activation);
+        add_variance_head(self->network, variance_weight, variance_bias, min_logvar, max_logvar, log_output_variance);
         self->state_dim = state_dim;
         self->action_dim = action_dim;
         self->predicts_velocity = predicts_velocity;
@@ -124,7 +154,21 @@ NB_MODULE(_core, module) {
         if (self->network.inputs != expected || self->network.outputs != outputs)
           throw std::invalid_argument("network model: the network's sizes do not fit the structure");
       }, "first"_a, "hidden_weight"_a, "hidden_bias"_a, "mean_weight"_a, "mean_bias"_a, "residual"_a, "activation"_a,
-         "state_dim"_a, "action_dim"_a, "predicts_velocity"_a, "nominal"_a.none(), "sample_period"_a);
+         "state_dim"_a, "action_dim"_a, "predicts_velocity"_a, "nominal"_a.none(), "sample_period"_a,
+         "variance_weight"_a = std::vector<RowMatrixXf>(), "variance_bias"_a = std::vector<RowMatrixXf>(),
+         "min_logvar"_a = RowMatrixXf(), "max_logvar"_a = RowMatrixXf(),
+         "log_output_variance"_a = Eigen::VectorXf())
+      .def("rollout", [](const stdm::NetworkModel& self, const RowMatrixXd& x0, const RowMatrixXd& actions, int T) {
+        if (x0.cols() != self.state_dim || actions.cols() != self.action_dim || T < 0 ||
+            actions.rows() != x0.rows() * T)
+          throw std::invalid_argument("rollout: x0 (B, S) and actions (B T, m) do not fit the model");
+        RowMatrixXd mean, variance;
+        {
+          nb::gil_scoped_release release;
+          self.rollout(x0, actions, T, mean, variance);
+        }
+        return std::make_tuple(mean, variance);
+      }, "x0"_a, "actions"_a, "steps"_a);
 
   nb::class_<stdm::PlantModel, stdm::Model>(module, "PlantModel")
       .def("__init__", [](stdm::PlantModel* self, std::shared_ptr<stdm::RigidBody> dynamics, double sample_period,

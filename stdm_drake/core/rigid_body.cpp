@@ -5,7 +5,7 @@
 #include <pinocchio/algorithm/rnea.hpp>
 #include <pinocchio/multibody.hpp>
 
-#include "control_step.hpp"
+#include "rigid_body.hpp"
 
 namespace stdm {
 

@@ -35,12 +35,9 @@
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
 
+#include "rigid_body.hpp"
 
 namespace stdm {
-
-using RowMatrixXd = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-using RowMatrixXf = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-using Eigen::VectorXd;
 
 // ------------------------------------------------------------------------------------------------------------
 // Activations, as stdm_drake.learning.activations applies them to the (scale-folded) pre-activation.
@@ -103,6 +100,67 @@ struct Network {
   std::vector<std::vector<Eigen::RowVectorXf>> hidden_bias;  // per layer, per member (W,)
   std::vector<RowMatrixXf> mean_weight;                    // per member (W, outputs)
   std::vector<Eigen::RowVectorXf> mean_bias;               // per member (outputs,)
+  // probabilistic members' variance head (empty: deterministic): per member (W, outputs) and (outputs,), the
+  // soft bounds of each member's log-variance (E, outputs) and 2 log of the output scale (outputs,)
+  std::vector<RowMatrixXf> variance_weight;
+  std::vector<Eigen::RowVectorXf> variance_bias;
+  RowMatrixXf min_logvar, max_logvar;
+  Eigen::RowVectorXf log_output_variance;
+
+  bool probabilistic() const { return !variance_weight.empty(); }
+
+  // the last hidden layer (N, W) of member e at input rows z (N, K); `pre` scratch
+  void last_hidden(const RowMatrixXf& z, int e, RowMatrixXf& pre, RowMatrixXf& value) const {
+    pre.noalias() = z * first[e].topRows(inputs);
+    pre.rowwise() += first[e].row(inputs);
+    activate_all(pre, value, nullptr);
+    for (size_t layer = 0; layer < hidden_weight.size(); ++layer) {
+      pre.noalias() = value * hidden_weight[layer][e];
+      pre.rowwise() += hidden_bias[layer][e];
+      activate_all(pre, value, nullptr);
+    }
+  }
+
+  // Scratch of `mean_and_variance` (kept by the caller across the steps of a rollout: no allocation per step).
+  struct Scratch {
+    RowMatrixXf pre, value, raw;
+    std::vector<RowMatrixXf> member;   // each member's output (N, outputs)
+  };
+
+  // The members' mean output (N, outputs) and, with `variance`, the predictive variance (N, outputs): the spread
+  // of the members' outputs about their mean plus their mean predicted variance (as predict._predictive_variance),
+  // residual not added, at input rows z (N, K) float32.
+  void mean_and_variance(const RowMatrixXf& z, RowMatrixXf& mean, RowMatrixXf* variance, Scratch& s) const {
+    const Eigen::Index count = z.rows();
+    mean.setZero(count, outputs);
+    const bool spread = variance && (members > 1 || probabilistic());
+    if (variance) variance->setZero(count, outputs);
+    s.member.resize(members);
+    for (int e = 0; e < members; ++e) {
+      last_hidden(z, e, s.pre, s.value);
+      s.member[e].noalias() = s.value * mean_weight[e];
+      s.member[e].rowwise() += mean_bias[e];
+      mean += s.member[e];
+      if (!spread || !probabilistic()) continue;
+      // logvar = min + softplus(max - softplus(max - raw) - min), in float32
+      s.raw.noalias() = s.value * variance_weight[e];
+      s.raw.rowwise() += variance_bias[e];
+      for (Eigen::Index row = 0; row < count; ++row)
+        for (int out = 0; out < outputs; ++out) {
+          const float upper = max_logvar(e, out) - softplus(max_logvar(e, out) - s.raw(row, out));
+          const float logvar = min_logvar(e, out) + softplus(upper - min_logvar(e, out));
+          (*variance)(row, out) += std::exp(logvar + log_output_variance[out]);
+        }
+    }
+    const float share = 1.0f / float(members);
+    mean *= share;
+    if (!spread) return;
+    // the spread about the mean (two passes: no cancellation), plus the mean aleatoric variance
+    for (int e = 0; e < members; ++e) variance->array() += (s.member[e] - mean).array().square();
+    *variance *= share;
+  }
+
+  static float softplus(float x) { return std::max(x, 0.0f) + std::log1p(std::exp(-std::abs(x))); }
 
   // value (and slope) of the activation at every pre-activation: tanh and swish (the default) vectorized
   // (Eigen's float tanh), the others one by one (`activate`)
@@ -173,45 +231,6 @@ struct Network {
 };
 
 // ------------------------------------------------------------------------------------------------------------
-// The robot's continuous rigid-body dynamics: q'' = M(q)^-1 (B tau + tau_g(q) - C(q, v) v - D v + tau_c(v)),
-// tau_c = -F_c tanh(v / v_s), in Drake's joint order (Pinocchio's may differ: `to_pin`).
-
-struct RigidBody {
-  int joints = 0, actuators = 0;
-  std::vector<int> to_pin;        // q_pin[i] = q_drake[to_pin[i]]
-  VectorXd damping;               // D (n,) N m s/rad, Drake order
-  VectorXd friction, friction_scale;   // F_c (n,) N m, v_s (n,) rad/s; empty: none
-  RowMatrixXd actuation;          // B (n, m)
-
-  // joints: per Pinocchio joint 1..n, its parent (0: the world), kind (0 revolute about z, 1 prismatic along z),
-  // placement (rotation (3, 3) row-major, translation (3,)), and the inertia of its bodies (mass kg, centre of
-  // mass (3,) m, rotational inertia about the centre of mass (3, 3) kg m^2), in its own frame; armature (n,)
-  // kg m^2 in Pinocchio's order; gravity (3,) m/s^2. (rigid_body.cpp: the only code that sees Pinocchio.)
-  void build(const std::vector<int>& parents, const std::vector<int>& kinds, const RowMatrixXd& rotations,
-             const RowMatrixXd& translations, const VectorXd& masses, const RowMatrixXd& centers,
-             const RowMatrixXd& inertias, const VectorXd& armature, const VectorXd& gravity);
-
-  // the generalized force B tau - D v + tau_c(v) (n,), Drake order
-  VectorXd force(const VectorXd& v, const VectorXd& tau) const {
-    VectorXd f = actuation * tau - damping.cwiseProduct(v);
-    if (friction.size()) f -= friction.cwiseProduct((v.array() / friction_scale.array()).tanh().matrix());
-    return f;
-  }
-
-  // q'' (n,) rad/s^2
-  VectorXd acceleration(const VectorXd& q, const VectorXd& v, const VectorXd& tau) const;
-  // the torque (n,) N m on every joint that holds the arm still at q (n,) rad: -tau_g(q)
-  VectorXd gravity_torque(const VectorXd& q) const;
-  // q'' (n,) and d q'' / d(q, v, tau) (n, 2n + m)
-  void acceleration_and_jacobian(const VectorXd& q, const VectorXd& v, const VectorXd& tau, VectorXd& out,
-                                 RowMatrixXd& jacobian) const;
-
- private:
-  struct Pinocchio;                          // the Pinocchio model and its workspace (rigid_body.cpp)
-  std::shared_ptr<Pinocchio> pinocchio_;
-};
-
-// ------------------------------------------------------------------------------------------------------------
 // Prediction models.
 
 struct Model {
@@ -222,6 +241,19 @@ struct Model {
   // every row of a horizon: next states (H, S), A (H S, S) and B (H S, m) stacked node after node
   virtual void linearize(const RowMatrixXd& x, const RowMatrixXd& u, RowMatrixXd& next, RowMatrixXd& A,
                          RowMatrixXd& B) const = 0;
+  // the next states (N, S) of N independent rows x (N, S) under u (N, m) (sampling MPC's particles); a row that
+  // is not finite gives NaN
+  virtual RowMatrixXd step_rows(const RowMatrixXd& x, const RowMatrixXd& u) const {
+    RowMatrixXd next(x.rows(), state_dim);
+    for (Eigen::Index row = 0; row < x.rows(); ++row) {
+      if (!x.row(row).allFinite() || !u.row(row).allFinite()) {
+        next.row(row).setConstant(std::numeric_limits<double>::quiet_NaN());
+        continue;
+      }
+      next.row(row) = step(x.row(row).transpose(), u.row(row).transpose()).transpose();
+    }
+    return next;
+  }
 };
 
 struct NetworkModel : Model {
@@ -315,6 +347,86 @@ struct NetworkModel : Model {
       }
       A.middleRows(Eigen::Index(k) * S, S) = full.leftCols(S);
       B.middleRows(Eigen::Index(k) * S, S) = full.rightCols(m);
+    }
+  }
+
+  // the batched step (one matrix product per layer for all rows)
+  RowMatrixXd step_rows(const RowMatrixXd& x, const RowMatrixXd& u) const override {
+    RowMatrixXd next(x.rows(), state_dim), rows(x.rows(), network.inputs);
+    std::vector<int> finite;
+    for (Eigen::Index row = 0; row < x.rows(); ++row) {
+      if (x.row(row).allFinite() && u.row(row).allFinite()) finite.push_back(int(row));
+      else next.row(row).setConstant(std::numeric_limits<double>::quiet_NaN());
+    }
+    rows.resize(Eigen::Index(finite.size()), network.inputs);
+    const int n = joints();
+    VectorXd xk, uk, phi;
+    for (size_t i = 0; i < finite.size(); ++i) {
+      xk = x.row(finite[i]).transpose();
+      uk = u.row(finite[i]).transpose();
+      if (nominal) phi = nominal->acceleration(xk.head(n), xk.tail(n), uk);
+      input_row(xk, uk, nominal ? &phi : nullptr, rows.row(Eigen::Index(i)).data());
+    }
+    RowMatrixXf z = rows.cast<float>(), mean;
+    Network::Scratch scratch;
+    network.mean_and_variance(z, mean, nullptr, scratch);
+    VectorXd mean64, out(state_dim);
+    for (size_t i = 0; i < finite.size(); ++i) {
+      xk = x.row(finite[i]).transpose();
+      mean64 = mean.row(Eigen::Index(i)).transpose().cast<double>();
+      assemble(xk, mean64.data(), out.data());
+      next.row(finite[i]) = out.transpose();
+    }
+    return next;
+  }
+
+  // Open-loop prediction of steps 1..T of B rows under the ensemble's mean ("mean" propagation, as
+  // dynamics.model.DynamicsModel.rollout): x0 (B, S), actions (B T, m) row b T + k; mean and variance (B T, S)
+  // row b T + k (the one-step predictive variance at each step's mean state; zero for one deterministic
+  // member). A row whose state leaves the finite numbers holds NaN from the step after on. The B rows step
+  // together: one matrix product per layer and step.
+  void rollout(const RowMatrixXd& x0, const RowMatrixXd& actions, int T, RowMatrixXd& mean,
+               RowMatrixXd& variance) const {
+    const int B = int(x0.rows()), n = joints(), S = state_dim, K = network.inputs;
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    mean.setConstant(Eigen::Index(B) * T, S, nan);
+    variance.setConstant(Eigen::Index(B) * T, S, nan);
+    std::vector<int> going(B);
+    for (int b = 0; b < B; ++b) going[b] = b;
+    RowMatrixXd current = x0, rows;
+    RowMatrixXf z, out_mean, out_variance;
+    Network::Scratch scratch;
+    VectorXd xk(S), uk(action_dim), phi, next(S), mean64(network.outputs), variance64(network.outputs);
+    for (int k = 0; k < T && !going.empty(); ++k) {
+      const int count = int(going.size());
+      rows.resize(count, K);
+      for (int i = 0; i < count; ++i) {
+        xk = current.row(going[i]).transpose();
+        uk = actions.row(Eigen::Index(going[i]) * T + k).transpose();
+        if (nominal) phi = nominal->acceleration(xk.head(n), xk.tail(n), uk);
+        input_row(xk, uk, nominal ? &phi : nullptr, rows.row(i).data());
+      }
+      z = rows.cast<float>();
+      network.mean_and_variance(z, out_mean, &out_variance, scratch);
+      std::vector<int> still;
+      still.reserve(count);
+      for (int i = 0; i < count; ++i) {
+        const Eigen::Index out = Eigen::Index(going[i]) * T + k;
+        xk = current.row(going[i]).transpose();
+        mean64 = out_mean.row(i).transpose().cast<double>();
+        assemble(xk, mean64.data(), next.data());
+        mean.row(out) = next.transpose();
+        variance64 = out_variance.row(i).transpose().cast<double>();
+        if (predicts_velocity) {
+          variance.row(out).head(n) = (0.25 * sample_period * sample_period) * variance64.transpose();
+          variance.row(out).tail(n) = variance64.transpose();
+        } else {
+          variance.row(out) = variance64.transpose();
+        }
+        current.row(going[i]) = next.transpose();
+        if (next.allFinite()) still.push_back(going[i]);
+      }
+      going.swap(still);
     }
   }
 };
