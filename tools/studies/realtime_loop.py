@@ -95,9 +95,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="run 2: collect as the README's control recipe (dithered PID, ideal sensor)")
     parser.add_argument("--write", action="store_true",
                         help="write docs/results/realtime/loop.json (with --control-data: loop_control_data.json)")
+    parser.add_argument("--result", help="write docs/results/realtime/RESULT (a later run's own file: run 3, "
+                                         "loop_compiled_step.json; implies --write)")
 
 
 def run(args: argparse.Namespace) -> int:
+    from benchmark_report import provenance
+    origin = provenance()      # (at the start: the code this run imports)
     folder = args.folder or pathlib.Path(tempfile.mkdtemp(prefix="realtime_loop_"))
     results = {label: run_period(folder / label.replace(" ", ""), period, args.control_data)
                for label, period in PERIODS.items()}
@@ -109,15 +113,18 @@ def run(args: argparse.Namespace) -> int:
                   f"fallbacks {row['fallbacks']}")
     print("verdict:", outcome)
     print("\n".join(lines))
-    if args.write:
-        from benchmark_report import machine_description   # (tools/benchmark_report.py: tools/ is on the path)
+    implementations = sorted({run.get("implementation", "") for result in results.values() for run in result["runs"]})
+    print("control step:", ", ".join(implementations))
+    if args.write or args.result:
+        from benchmark_report import machine_description, provenance   # (tools/ is on the path)
         from stdm_drake.files import write_text_atomic
         target = ROOT / "docs" / "results" / "realtime"
         target.mkdir(parents=True, exist_ok=True)
-        name = "loop_control_data.json" if args.control_data else "loop.json"
+        name = args.result or ("loop_control_data.json" if args.control_data else "loop.json")
         write_text_atomic(target / name, json.dumps(dict(
-            verdict=outcome, tracking=lines, machine=machine_description(threads=1),
-            command="python tools/study.py realtime-loop --write" + (" --control-data" if args.control_data else ""),
+            verdict=outcome, tracking=lines, machine=machine_description(threads=1), provenance=origin,
+            control_step=implementations,
+            command=" ".join(["python tools/study.py realtime-loop", *sys.argv[2:]]),
             periods={label: dict(sample_period=PERIODS[label], exit_status=result["exit_status"],
                                  summary=result["summary"],
                                  runs=[{key: value for key, value in run.items() if key != "q_error"}
