@@ -1,12 +1,14 @@
-// The MPC's control step in compiled code: the prediction models' batched linearization and the real-time
-// iteration with the robot's limits (Python: stdm_drake/closed_loop/compiled.py binds it through bindings.cpp;
-// the numpy implementation, stdm_drake/closed_loop/rti.py and constraints.py, is the reference it is tested
-// equal to).
+// The compiled core: the prediction models' rollouts, batched steps and linearizations, and the MPC's control
+// step, the real-time iteration with the robot's limits (Python: bindings.cpp binds it as stdm_drake._core;
+// stdm_drake/learning/compiled_core.py builds its models, stdm_drake/closed_loop/compiled.py its solver; the numpy
+// implementation, LearnedModel's rollouts and steps, closed_loop/rti.py and constraints.py, is the reference it
+// is tested equal to).
 //
 // Shapes for n joints, m actuated, state S = 2n ([q rad, v rad/s]), horizon H: states (H+1, S), torques (H, m)
 // N m, all matrices row-major as numpy lays them out.
 //
-// Models (the `Model` interface: `step` of one row, `linearize` of a horizon's rows):
+// Models (the `Model` interface: `step` of one row, `step_rows` of independent rows, `linearize` of a horizon's
+// rows; a NetworkModel's `rollout` of whole open-loop predictions):
 //   NetworkModel  an ensemble MLP (float32, the normalizers folded into its first and last layers, as
 //                 stdm_drake.learning.predict.InferenceModel holds it) as a state-transition model: the next
 //                 state or the next velocity (the angle by the trapezoid rule), raw inputs or with the nominal
@@ -187,6 +189,11 @@ struct Network {
   // The members' mean output (N, outputs), residual not added, for input rows z (N, K) float32; with
   // `jacobian`, d mean / d z (N outputs, K) stacked row after row (the residual's identity included).
   void evaluate(const RowMatrixXf& z, RowMatrixXf& mean, RowMatrixXf* jacobian) const {
+    if (!jacobian) {
+      Scratch scratch;
+      mean_and_variance(z, mean, nullptr, scratch);
+      return;
+    }
     const int count = int(z.rows()), layers = int(hidden_weight.size());
     mean.setZero(count, outputs);
     if (jacobian) jacobian->setZero(Eigen::Index(count) * outputs, inputs);

@@ -8,8 +8,9 @@ RK4 integrator (the MPC's plant, `PlantModel.for_control`). Other models (the gr
 period-acceleration inputs, network kinds other than the MLP, models of a longer period made of substeps) run
 numpy, and say so (the MPC solver's `implementation`, `LearnedModel.rollout_implementation`).
 
-Who uses it: `LearnedModel.rollout` ("mean" propagation: open-loop evaluation, `view`, the MPC's predictions
-between control steps) and the MPC's compiled control step (`closed_loop.compiled`). The numpy code is the
+Who uses it: `LearnedModel.rollout` ("mean" propagation: open-loop evaluation, `view`), the sampling MPC's
+batched model steps (`closed_loop.sampled_costs`, `step_rows`) and the MPC's compiled control step
+(`closed_loop.compiled`). The numpy code is the
 reference, one setting away (`implementation="numpy"`), and the tests hold the two equal.
 
 Rigid bodies cross as arrays (`rigid_body_arrays`): the Pinocchio model `robots.rigid_body.RigidBodyDynamics`
@@ -32,7 +33,8 @@ def core_module():
     except ImportError as error:
         raise InputError(f"the compiled core is not built ({error}): reinstall the package on a machine with a C++ "
                          "compiler (pip install -e .), or choose implementation numpy (the MPC settings' `optimizer: "
-                         "!Rti {implementation: numpy}`; evaluate and view: --implementation numpy)") from None
+                         "!Rti {implementation: numpy}` or a sampler's `implementation: numpy`; evaluate "
+                         "--implementation numpy)") from None
     return _core
 
 
@@ -46,7 +48,7 @@ def rigid_body_arrays(dynamics) -> dict:
     for index in joints:
         name = model.joints[index].shortname()
         if name not in ("JointModelRZ", "JointModelPZ"):
-            raise InputError(f"compiled control step: Pinocchio joint {name} is not revolute or prismatic about z")
+            raise InputError(f"compiled core: Pinocchio joint {name} is not revolute or prismatic about z")
         kinds.append(0 if name == "JointModelRZ" else 1)
     inertias = [model.inertias[index] for index in joints]
     friction, scale = (np.zeros(0), np.zeros(0)) if dynamics.coulomb is None else dynamics.coulomb
@@ -95,7 +97,7 @@ def compiled_model(model):
     if engine is None or structure is None:
         return None, f"a {type(model).__name__}"
     if not hasattr(engine, "input_member_weight"):
-        return None, f"a network of kind {type(engine).__name__} (the compiled step runs the ensemble MLP)"
+        return None, f"a network of kind {type(engine).__name__} (the compiled core runs the ensemble MLP)"
     if structure.inputs not in ("raw", "nominal_acceleration"):
         return None, f"{structure.inputs.replace('_', '-')} inputs"
     nominal = None
