@@ -247,3 +247,54 @@ def test_two_half_period_plant_steps_are_one_full_period_step(excitation):
     halves = HeldInputSubsteps(PlantModel(excitation.sample_period / 2, robot=UR10), 2)
     np.testing.assert_allclose(halves.step(x, u), PlantModel(excitation.sample_period, robot=UR10).step(x, u), rtol=0, atol=1e-9)
     np.testing.assert_allclose(halves.step(x, u), transitions.next_state[::7], atol=1e-9)
+
+
+def colliding_state():
+    """A state of the UR-10 whose links interpenetrate (the self-collision check's first hit from home), at rest,
+    and the torque that holds it against gravity."""
+    from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker
+    checker, rng = SelfCollisionChecker(UR10), np.random.default_rng(0)
+    for _ in range(2000):
+        q = UR10.home + rng.uniform(-2.5, 2.5, 6)
+        if not checker.is_collision_free(q):
+            return np.concatenate([q, np.zeros(6)])[None], Dynamics(UR10).gravity_torque(q)[None]
+    raise AssertionError("no colliding configuration found")
+
+
+@pytest.mark.parametrize("case", ["without self-contact", "plant step 0.5 ms"])
+def test_the_plant_baseline_simulates_the_plant_the_dataset_records(case):
+    """Issue 55: the plant baseline stepped the default plant (self-contact on, 1 ms steps) whatever the data's, so
+    the very plant that simulated a dataset was not exact on it. From the record a dataset writes it is: the same
+    next state to the bit, where the default plant differs (links passing through each other; another step)."""
+    from stdm_drake.data.dataset import DatasetMetadata
+    from stdm_drake.robots.plant import PlantConfig
+    if case == "without self-contact":
+        simulated, (x, u) = PlantConfig(self_collision=False), colliding_state()
+    else:
+        simulated = PlantConfig.discrete(0.0005)
+        x = np.concatenate([UR10.home + 0.2, 0.5 * np.ones(6)])[None]
+        u = np.full((1, 6), 3.0)
+    truth = PlantModel(0.01, simulated, robot=UR10).step(x, u)
+    metadata = DatasetMetadata.from_record(dict(protocol="excitation", sample_period=0.01, plant=simulated.record()))
+    baseline = physics_baselines(0.01, 12, 6, robot=UR10, plant_config=metadata.plant_config(effects=False))[-1]
+    np.testing.assert_array_equal(baseline.step(x, u), truth)
+    default = PlantModel(0.01, robot=UR10).step(x, u)           # what the baseline stepped before
+    assert np.abs(default - truth).max() > 1e-9
+
+
+def test_the_plant_baseline_is_exact_on_a_file_collected_at_another_plant_step(tmp_path):
+    """`collect --plant-time-step 0.0005` with the ideal sensor: the plant baseline `evaluate` builds from the file
+    predicts its transitions exactly (one-step MSE 0); the default plant's 1 ms steps do not."""
+    from stdm_drake.learning.evaluate import one_step_errors
+    path = tmp_path / "half.h5"
+    assert main(["collect", "--protocol", "excitation", "--count", "1", "--seed", "2", "--plant-time-step", "0.0005",
+                 "--sensor", "stdm-drake:controllers/sensor_ideal.yaml", "-o", str(path), "--quiet"]) == 0
+    dataset = load_dataset(path)
+    transitions = dataset.transitions([0])
+    plant = physics_baselines(dataset.sample_period, 12, 6, robot=UR10,
+                              plant_config=dataset.metadata.plant_config(effects=False))[-1]
+    exact = one_step_errors(plant, transitions.state, transitions.action, transitions.next_state)
+    assert exact.angle_mse == 0.0 and exact.velocity_mse == 0.0
+    default = one_step_errors(PlantModel(dataset.sample_period, robot=UR10), transitions.state, transitions.action,
+                              transitions.next_state)
+    assert default.angle_mse > 1e-14

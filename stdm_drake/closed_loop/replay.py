@@ -91,7 +91,7 @@ def replay_job(job: ReplayJob) -> dict:
     nominal = None
     if dataset.metadata.plant_effects is not None:   # data of an affected plant: the user's model beside the learned
         from stdm_drake.dynamics.physics import PlantModel
-        nominal = PlantModel(dataset.sample_period, robot=robot)
+        nominal = PlantModel(dataset.sample_period, dataset.metadata.plant_config(effects=False), robot=robot)
         print(f"plant effects of the data: {dataset.metadata.plant_effects.summary()}; 'nominal plant': the robot's "
               "description stepping the same torques")
     recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)

@@ -186,18 +186,21 @@ def check_references(dataset, excitation_references: bool) -> None:
 
 
 def study_plant(study: MpcStudy, dataset, robot):
-    """(The PlantConfig the loops run on: the dataset's plant step with the study's plant effects, else those the
-    dataset records; what mpc.json records of the effects, None without)."""
-    from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, plant_effects_for
-    time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP   # the data's plant step
+    """(The PlantConfig the loops run on: the plant the dataset records (its plant step, self-contact and contact
+    settings) with the study's plant effects, else those the dataset records; what mpc.json records of the
+    effects, None without)."""
+    from stdm_drake.robots.plant import plant_effects_for
+    config = dataset.metadata.plant_config(effects=False)   # the data's plant, simulated as they were
+    time_step = config.time_step
     given = study.plant_effects is not None
     effects = plant_effects_for(study.plant_effects if given else dataset.metadata.plant_effects, robot, time_step)
     if effects is None:
-        return PlantConfig.discrete(time_step), None
+        return config, None
     say(f"plant effects: {study.plant_effects if given else 'as recorded in ' + str(study.dataset)}: {effects.summary()}"
         + ("; torque noise seeded by plan index: every model meets the same draws on a plan"
            if effects.has_torque_noise() else ""))
-    return (PlantConfig.discrete(time_step, effects=effects),
+    config.effects = effects
+    return (config,
             dict(file=str(study.plant_effects) if given else None, recorded_in_dataset=not given,
                  summary=effects.summary()))
 

@@ -166,6 +166,14 @@ class DatasetMetadata:
                    plant_effects=PlantEffects.from_record(plant["effects"]) if plant.get("effects") else None,
                    record=record)
 
+    def plant_config(self, *, effects: bool = True):
+        """The plant these data were simulated on (`robots.plant.PlantConfig.from_record` of the record's plant
+        section: the plant step, self-contact, Drake's contact settings, the effects); effects=False: the robot's
+        description as it is, simulated as the data were (the nominal plant the physics baseline steps). A file
+        that records no plant (an imported log): the default plant."""
+        from stdm_drake.robots.plant import PlantConfig
+        return PlantConfig.from_record(self.record.get("plant"), effects=effects)
+
     def section(self, name: str) -> dict:
         """One section of the record ({} when absent), e.g. "controller", "planner", "robot"."""
         value = self.record.get(name)

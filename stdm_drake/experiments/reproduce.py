@@ -28,7 +28,7 @@ from stdm_drake.experiments.reproduce_report import mpc_statistics
 from stdm_drake.files import json_default
 from stdm_drake.outputs import mark_output_folder
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig
+from stdm_drake.robots.plant import PlantConfig
 from stdm_drake.robots.robot import Robot
 
 def dataset_settings(robot: Robot, plant_effects=None) -> dict:
@@ -139,8 +139,8 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     # the plant-as-model MPC costs about as much as all learned models together: it gets a worker of its own
     plants = [spec for spec in specs if spec not in learned]
     groups = [plants, learned] if workers > 1 else [specs]
-    plant_config = PlantConfig.discrete(identification.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP,
-                                        effects=plant_effects)
+    plant_config = identification.metadata.plant_config(effects=False)   # the data's plant, as they were simulated
+    plant_config.effects = plant_effects
     jobs = [MpcGroup(group, references, identification.sample_period, progress and index == len(groups) - 1, robot,
                      plant_config) for index, group in enumerate(groups)]
     with job_pool(RunnerConfig(workers=len(jobs))) as pool:

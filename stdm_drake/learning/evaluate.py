@@ -157,15 +157,18 @@ class ModelErrors:
                     over_noise_floor_v=self.floor_ratio_v, verdict=self.verdict)
 
 
-def physics_baselines(sample_period: float, state_dim: int, action_dim: int, robot=None, plant: bool = True) -> list:
+def physics_baselines(sample_period: float, state_dim: int, action_dim: int, robot=None, plant: bool = True,
+                      plant_config=None) -> list:
     """The baselines every learned number stands beside: the Euler step (q) / "v unchanged" (v), "stays
-    put" (open loop), and, with plant, `robot`'s own rigid-body plant stepping the recorded torque."""
+    put" (open loop), and, with plant, `robot`'s own rigid-body plant stepping the recorded torque, simulated as
+    `plant_config` says (a `robots.plant.PlantConfig`: for a dataset, the plant it records without its effects,
+    `DatasetMetadata.plant_config(effects=False)`; None: the default plant)."""
     if plant and robot is None:
         raise ValueError("the plant baseline needs the robot (or plant=False)")
     from stdm_drake.dynamics.physics import ConstantVelocity, PlantModel, StaysPut
     models = [ConstantVelocity(state_dim, action_dim, sample_period), StaysPut(state_dim, action_dim, sample_period)]
     if plant:
-        models.append(PlantModel(sample_period, robot=robot))
+        models.append(PlantModel(sample_period, plant_config, robot=robot))
     return models
 
 
@@ -173,8 +176,9 @@ def compare_with_baselines(models, transitions, rollout_data, *, propagation: st
                            seed: int = 0, noise_floor: dict | None = None,
                            implementation: str = "compiled") -> list[ModelErrors]:
     """Errors of every model (DynamicsModel) on the same transitions and rollouts (x0, actions, truth; None:
-    one-step errors only; implementation: the learned models' rollout code); learned models are rated against the first ConstantVelocity among them and, given the
-    sensor's noise_floor ({"q", "v"} one-step MSE, `data.inspect.noise_floor`), against it."""
+    one-step errors only; implementation: the networks' rollout code); learned models are rated against the first
+    ConstantVelocity among them and, given the sensor's noise_floor ({"q", "v"} one-step MSE,
+    `data.inspect.noise_floor`), against it."""
     from stdm_drake.dynamics.physics import ConstantVelocity, learning_verdict
     rows = []
     for model in models:

@@ -111,7 +111,8 @@ def evaluate_job(job: EvaluationJob) -> dict:
     transitions = dataset.transitions(indices)
     rollout_data = trajectory_rollout_data(dataset, indices, job.horizon or min(shortest, 100))
     plant = robot is not None and not job.no_plant
-    baselines = physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, robot=robot, plant=plant)
+    baselines = physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, robot=robot, plant=plant,
+                                  plant_config=dataset.metadata.plant_config(effects=False))
     if plant:   # the plant model the MPC predicts with, beside the simulator's
         from stdm_drake.dynamics.physics import PlantModel
         baselines.append(PlantModel(dataset.sample_period, robot=robot, integrator="rk4", name="plant (RK4)"))

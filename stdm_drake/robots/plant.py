@@ -66,6 +66,25 @@ class PlantConfig:
         self.self_collision = state["self_collision"]
         self.effects = state.get("effects")
 
+    @classmethod
+    def from_record(cls, record: dict | None, *, effects: bool = True) -> "PlantConfig":
+        """The plant a dataset records (`record`'s inverse): the MultibodyPlantConfig fields it holds (the others
+        at this toolbox's defaults; a field this Drake does not know is left out), self_collision and, with
+        `effects`, the effects (effects=False: the robot's description as it is, simulated as the data were, the
+        nominal plant). A file that records no plant (None or {}: an imported log) gets the default plant."""
+        import yaml
+        from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
+        record = dict(record or {})
+        config = cls(self_collision=bool(record.pop("self_collision", True)))
+        recorded_effects = record.pop("effects", None)
+        known = yaml.safe_load(yaml_dump_typed(config.multibody)) or {}
+        fields = {name: value for name, value in record.items() if name in known}
+        if fields:
+            config.multibody = yaml_load_typed(data=yaml.safe_dump(fields), defaults=config.multibody)
+        if effects and recorded_effects:
+            config.effects = PlantEffects.from_record(recorded_effects)
+        return config
+
     def record(self) -> dict:
         """What a dataset records of the plant: self_collision, every MultibodyPlantConfig field and, for an
         affected plant, its effects (`PlantEffects.record`)."""

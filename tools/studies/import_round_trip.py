@@ -78,7 +78,8 @@ def evaluate(original_path, folders: dict, seeds: int) -> dict:
     test = models["original"][0].checkpoint.split_indices(data, "test")
     imported_test = models["import"][0].checkpoint.metadata.split["test"]
     assert list(test) == list(imported_test), (test, imported_test)   # the same plans held out
-    baselines = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot)
+    baselines = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot,
+                                  plant_config=data.metadata.plant_config(effects=False))
     every = baselines + [model for group in models.values() for model in group]
     rows = compare_with_baselines(every, data.transitions(list(test)), trajectory_rollout_data(data, test, ROLLOUT_STEPS))
     return {row.name: dict(one_step_q=row.one_step.angle_mse, one_step_v=row.one_step.velocity_mse,

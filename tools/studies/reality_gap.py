@@ -146,9 +146,8 @@ def closed_loop_group(specs: list, dataset_path: str, split_checkpoint: str, spl
     from stdm_drake.closed_loop.comparison import compare_controllers, spec_models
     from stdm_drake.closed_loop.mpc import mpc_config_for
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.robots.plant import PlantConfig
     data = load_dataset(dataset_path)
-    plant = PlantConfig.discrete(data.metadata.plant_time_step, effects=data.metadata.plant_effects)
+    plant = data.metadata.plant_config()     # the plant the data were simulated on
     references = plan_references(data, split_checkpoint, split, steps)
     scale, gain = setting
     config = with_setting(mpc_config_for(robot), setting)
@@ -216,7 +215,6 @@ def torque_jacobian_errors(dataset_path: str, folders: dict, seeds: int, robot: 
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.dynamics.model_files import load_model
     from stdm_drake.dynamics.physics import PlantModel
-    from stdm_drake.robots.plant import PlantConfig
     data = load_dataset(dataset_path)
     first = load_model(pathlib.Path(folders[TYPES[0]]) / "seed0" / "checkpoint.pt", robot)
     test = first.checkpoint.split_indices(data, "test")
@@ -224,8 +222,7 @@ def torque_jacobian_errors(dataset_path: str, folders: dict, seeds: int, robot: 
     rows = np.random.default_rng(0).choice(len(transitions.state), size=min(count, len(transitions.state)),
                                            replace=False)
     x, u = transitions.state[rows], transitions.action[rows]
-    truth = PlantModel(data.sample_period, PlantConfig.discrete(data.metadata.plant_time_step,
-                                                                effects=data.metadata.plant_effects), robot=robot)
+    truth = PlantModel(data.sample_period, data.metadata.plant_config(), robot=robot)
     _, b_true = truth.jacobians(x, u)
     norms = np.linalg.norm(b_true, axis=(1, 2))
 
@@ -233,7 +230,9 @@ def torque_jacobian_errors(dataset_path: str, folders: dict, seeds: int, robot: 
         _, b = model.jacobians(x, u)
         return float(np.median(np.linalg.norm(b - b_true, axis=(1, 2)) / norms))
 
-    result = [dict(model="plant", relative_error=error(PlantModel(data.sample_period, robot=robot)))]
+    result = [dict(model="plant", relative_error=error(PlantModel(data.sample_period,
+                                                                  data.metadata.plant_config(effects=False),
+                                                                  robot=robot)))]
     for model_type, folder in folders.items():
         values = [error(load_model(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot))
                   for seed in range(seeds)]
@@ -252,7 +251,8 @@ def open_loop_rows(name: str, dataset_path: str, folders: dict, seeds: int, robo
     learned = {model_type: [load_model(pathlib.Path(folder) / f"seed{seed}" / "checkpoint.pt", robot)
                             for seed in range(seeds)] for model_type, folder in folders.items()}
     test = learned[TYPES[0]][0].checkpoint.split_indices(data, "test")
-    baselines = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot)
+    baselines = physics_baselines(data.sample_period, robot.state_dim, robot.action_dim, robot=robot,
+                                  plant_config=data.metadata.plant_config(effects=False))
     models = baselines + [model for models in learned.values() for model in models]
     errors = compare_with_baselines(models, data.transitions(list(test)), trajectory_rollout_data(data, test, 100))
     horizon = errors[0].multi_step.horizon

@@ -133,7 +133,8 @@ def chain_rule_check(path: str, transitions: int = 400) -> dict:
     from stdm_drake.robots.robot import load_robot
     dataset = load_dataset(path)
     robot = load_robot(ROOT / "models" / "ur10_limit_free.yaml")
-    plant = PlantModel(dataset.sample_period, robot=robot, integrator="simulator")
+    plant = PlantModel(dataset.sample_period, dataset.metadata.plant_config(effects=False), robot=robot,
+                       integrator="simulator")
     schemes = {scheme: dataset.transitions(list(range(min(40, dataset.num_trajectories))), derivative_source="true",
                                            action_rate=scheme) for scheme in ("forward_difference", "zero_order_hold")}
     n = schemes["zero_order_hold"].state.shape[1] // 2
@@ -268,7 +269,9 @@ def nominal_plant_row(cell: Cell, data_seed: int, profile: Profile, path: str, c
     robot = load_robot(cell.robot_file)
     test = split_of(cell, profile, dataset)["test"]
     rows = compare_with_baselines(physics_baselines(dataset.sample_period, robot.state_dim, robot.action_dim,
-                                                    robot=robot), dataset.transitions(test),
+                                                    robot=robot,
+                                                    plant_config=dataset.metadata.plant_config(effects=False)),
+                                  dataset.transitions(test),
                                   trajectory_rollout_data(dataset, test, HORIZON))
     return dict(data=cell.data, split_of=cell.name, data_seed=data_seed, **{row.name: dict(
         one_step_q=row.one_step.angle_mse, one_step_v=row.one_step.velocity_mse,
