@@ -392,34 +392,41 @@ def needs_extension(rows: list[Member], cell: Cell, scale: str, profile: Profile
     return sum(1 for r in picked.values() if r.alpha == largest) * 3 > len(picked)
 
 
+def collect_datasets(kinds, profile: Profile, data: pathlib.Path, pool) -> tuple[dict, dict]:
+    """Every data kind's dataset per data seed in `data` (collected on `pool` where missing): ({(kind, seed): path},
+    {(kind, seed): what a task gets of it}: on Ray each file's bytes once into the object store, a scratch copy
+    per node; locally the path itself)."""
+    from stdm_drake.cluster import shared_file, task_error
+    from stdm_drake.files import atomic_path
+    data.mkdir(parents=True, exist_ok=True)
+    paths = {(kind, seed): data / dataset_name(kind, seed, profile.counts[kind])
+             for kind in kinds for seed in profile.data_seeds}
+    futures = {key: pool.submit(collect, key[0], key[1], profile.counts[key[0]])
+               for key, path in paths.items() if not path.exists()}
+    for key, future in futures.items():
+        try:
+            content = future.result()
+        except Exception as error:
+            raise task_error(error, f"collecting {key[0]} data seed {key[1]}") from None
+        with atomic_path(paths[key]) as temp:
+            temp.write_bytes(content)
+    return paths, {key: (str(path), *shared_file(pool, path)) for key, path in paths.items()}
+
+
 def run_study(cells, profile: Profile, data: pathlib.Path, runner, progress=print) -> dict:
     """Collect, run the chain-rule check, train every pair's grids and the extensions the rule asks for, test the
     nominal plant; returns {"chain_rule", "runs", "plant", "summary", "extended", "seconds"}."""
-    from stdm_drake.cluster import job_pool, shared_file, task_error
-    from stdm_drake.files import atomic_path
+    from stdm_drake.cluster import job_pool, task_error
     if runner.backend == "ray":   # this module's functions travel with the tasks, by value
         from stdm_drake.cluster import import_ray
         import_ray()
         import ray.cloudpickle
         ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    data.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     kinds = sorted({cell.data for cell in cells})
     with job_pool(runner) as pool:
-        paths = {(kind, seed): data / dataset_name(kind, seed, profile.counts[kind])
-                 for kind in kinds for seed in profile.data_seeds}
-        futures = {key: pool.submit(collect, key[0], key[1], profile.counts[key[0]])
-                   for key, path in paths.items() if not path.exists()}
-        for key, future in futures.items():
-            try:
-                content = future.result()
-            except Exception as error:
-                raise task_error(error, f"collecting {key[0]} data seed {key[1]}") from None
-            with atomic_path(paths[key]) as temp:
-                temp.write_bytes(content)
+        paths, sources = collect_datasets(kinds, profile, data, pool)
         progress(f"{len(paths)} datasets in {time.perf_counter() - started:.0f} s")
-        # Ray: each file's bytes once into the object store, a scratch copy per node; locally the path itself
-        sources = {key: (str(path), *shared_file(pool, path)) for key, path in paths.items()}
         check = None
         if "literal" in kinds:
             check = chain_rule_check(str(paths[("literal", profile.data_seeds[0])]),
@@ -499,6 +506,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--quick", action="store_true",
                         help="2 cells, 2 data seeds x 2 initializations, small splits, 5 epochs (a pipeline check)")
+    parser.add_argument("--plant-rows", action="store_true",
+                        help="only the nominal plant's rows (the datasets collected into --data as the study does): "
+                             "OUTPUT/plant_rows.json with the commit it ran on, results.json left as it is")
     add_runner_arguments(parser)
 
 
@@ -543,11 +553,41 @@ def markdown(summary: list[dict], chain_rule: dict | None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def plant_rows(cells, profile: Profile, data: pathlib.Path, runner, progress=print) -> list[dict]:
+    """The nominal plant's rows of `run_study` alone (issue 55: recomputed after the plant baseline came to step
+    the plant each dataset records): the datasets collected into `data` as the study collects them, the nominal
+    plant and the physics-free baselines on one cell's test trajectories per data kind and data seed."""
+    from stdm_drake.cluster import job_pool
+    first = {}
+    for cell in cells:
+        first.setdefault(cell.data, cell)
+    with job_pool(runner) as pool:
+        paths, sources = collect_datasets(sorted(first), profile, data, pool)
+        progress(f"{len(paths)} datasets ready")
+        futures = [pool.submit(nominal_plant_row, cell, seed, profile, *sources[(cell.data, seed)])
+                   for cell in first.values() for seed in profile.data_seeds]
+        return [future.result() for future in futures]
+
+
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.cluster import runner_config_from_args
     from stdm_drake.files import json_default, rows_csv, write_text_atomic
     runner = runner_config_from_args(args)
     profile, cells = (QUICK, (CELLS[0], CELLS[3])) if args.quick else (FULL, CELLS)
+    if args.plant_rows:
+        from benchmark_report import machine_description, provenance   # (tools/ is on the path)
+        origin = provenance()
+        rows = plant_rows(cells, profile, args.data, runner, progress=lambda text: print(text, flush=True))
+        args.output.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(args.output / "plant_rows.json", json.dumps(dict(
+            written_by="tools/study.py settling --plant-rows", provenance=origin, machine=machine_description(),
+            command=" ".join(["python tools/study.py settling", *sys.argv[2:]]), quick=args.quick,
+            profile=dataclasses.asdict(profile), plant=rows), indent=2, default=json_default) + "\n")
+        for row in rows:
+            print(f"{row['data']} seed {row['data_seed']}: " + "; ".join(
+                f"{name} one-step q {values['one_step_q']:.3g} v {values['one_step_v']:.3g}, step {HORIZON} q "
+                f"{values['open_loop_q']:.3g}" for name, values in row.items() if isinstance(values, dict)))
+        return 0
     study = run_study(cells, profile, args.data, runner, progress=lambda text: print(text, flush=True))
     args.output.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.output / "runs.csv", rows_csv([dataclasses.asdict(row) for row in study["runs"]]))
