@@ -158,7 +158,9 @@ def run(args: argparse.Namespace) -> int:
         write_text_atomic(target / name, json.dumps(dict(
             verdict=outcome, tracking=lines, machine=machine_description(threads=1), provenance=origin,
             control_step=implementations,
-            command=" ".join(["python tools/study.py realtime-loop", *sys.argv[2:]]),
+            command=" ".join(["python tools/study.py realtime-loop",
+                              *("DIR" if previous == "--folder" else value      # (no path of this machine)
+                                for previous, value in zip([""] + sys.argv[2:], sys.argv[2:]))]),
             robot=args.robot,
             periods={label: dict(sample_period=periods[label], exit_status=result["exit_status"],
                                  summary=result["summary"],
