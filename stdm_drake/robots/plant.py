@@ -55,34 +55,27 @@ class PlantConfig:
     def time_step(self) -> float:
         return self.multibody.time_step
 
-    def __getstate__(self) -> dict:   # to worker processes: Drake's config as its YAML (it does not pickle)
-        from pydrake.common.yaml import yaml_dump_typed
-        return dict(multibody=yaml_dump_typed(self.multibody), self_collision=self.self_collision,
-                    effects=self.effects)
+    def __getstate__(self) -> dict:   # to worker processes as a dataset records it (Drake's config does not pickle)
+        return self.record()
 
     def __setstate__(self, state: dict) -> None:
-        from pydrake.common.yaml import yaml_load_typed
-        self.multibody = yaml_load_typed(schema=MultibodyPlantConfig, data=state["multibody"])
-        self.self_collision = state["self_collision"]
-        self.effects = state.get("effects")
+        self.__dict__.update(PlantConfig.from_record(state).__dict__)
 
     @classmethod
     def from_record(cls, record: dict | None, *, effects: bool = True) -> "PlantConfig":
-        """The plant a dataset records (`record`'s inverse): the MultibodyPlantConfig fields it holds (the others
-        at this toolbox's defaults; a field this Drake does not know is left out), self_collision and, with
-        `effects`, the effects (effects=False: the robot's description as it is, simulated as the data were, the
-        nominal plant). A file that records no plant (None or {}: an imported log) gets the default plant."""
+        """`record`'s inverse, the plant a dataset records: its MultibodyPlantConfig fields (the others at this
+        toolbox's defaults, one this Drake does not know left out), self_collision and, with `effects`, the
+        effects (False: the description as it is, simulated as the data were). None or {}: the default plant."""
         import yaml
         from pydrake.common.yaml import yaml_dump_typed, yaml_load_typed
         record = dict(record or {})
         config = cls(self_collision=bool(record.pop("self_collision", True)))
-        recorded_effects = record.pop("effects", None)
+        stored = record.pop("effects", None)
         known = yaml.safe_load(yaml_dump_typed(config.multibody)) or {}
         fields = {name: value for name, value in record.items() if name in known}
         if fields:
             config.multibody = yaml_load_typed(data=yaml.safe_dump(fields), defaults=config.multibody)
-        if effects and recorded_effects:
-            config.effects = PlantEffects.from_record(recorded_effects)
+        config.effects = PlantEffects.from_record(stored) if effects and stored else None
         return config
 
     def record(self) -> dict:
@@ -418,13 +411,10 @@ def plant_effects_for(effects, robot: Robot, time_step: float) -> PlantEffects |
     against `robot` and the plant step `time_step` s (`check_plant_effects`)."""
     if effects is None:
         return None
-    if not isinstance(effects, PlantEffects):
-        path = effects
-        effects = load_plant_effects(path)
-        try:
-            check_plant_effects(effects, robot, time_step)
-        except InputError as error:
-            raise InputError(f"{path}: {error}") from None
-        return effects
-    check_plant_effects(effects, robot, time_step)
+    path = None if isinstance(effects, PlantEffects) else effects     # (a file's errors name it)
+    effects = effects if path is None else load_plant_effects(path)
+    try:
+        check_plant_effects(effects, robot, time_step)
+    except InputError as error:
+        raise InputError(str(error) if path is None else f"{path}: {error}") from None
     return effects
