@@ -357,33 +357,48 @@ struct NetworkModel : Model {
     }
   }
 
-  // the batched step (one matrix product per layer for all rows)
-  RowMatrixXd step_rows(const RowMatrixXd& x, const RowMatrixXd& u) const override {
-    RowMatrixXd next(x.rows(), state_dim), rows(x.rows(), network.inputs);
-    std::vector<int> finite;
-    for (Eigen::Index row = 0; row < x.rows(); ++row) {
-      if (x.row(row).allFinite() && u.row(row).allFinite()) finite.push_back(int(row));
-      else next.row(row).setConstant(std::numeric_limits<double>::quiet_NaN());
-    }
-    rows.resize(Eigen::Index(finite.size()), network.inputs);
-    const int n = joints();
+  // The next states (N, S) of finite rows x (N, S) under u (N, m), one matrix product per layer for all rows,
+  // and with `variance` their one-step predictive variance (N, S) (zero for one deterministic member).
+  void step_batch(const RowMatrixXd& x, const RowMatrixXd& u, RowMatrixXd& next, RowMatrixXd* variance,
+                  Network::Scratch& scratch) const {
+    const int N = int(x.rows()), n = joints();
+    RowMatrixXd rows(N, network.inputs);
     VectorXd xk, uk, phi;
-    for (size_t i = 0; i < finite.size(); ++i) {
-      xk = x.row(finite[i]).transpose();
-      uk = u.row(finite[i]).transpose();
+    for (int i = 0; i < N; ++i) {
+      xk = x.row(i).transpose();
+      uk = u.row(i).transpose();
       if (nominal) phi = nominal->acceleration(xk.head(n), xk.tail(n), uk);
-      input_row(xk, uk, nominal ? &phi : nullptr, rows.row(Eigen::Index(i)).data());
+      input_row(xk, uk, nominal ? &phi : nullptr, rows.row(i).data());
     }
-    RowMatrixXf z = rows.cast<float>(), mean;
+    RowMatrixXf z = rows.cast<float>(), mean, spread;
+    network.mean_and_variance(z, mean, variance ? &spread : nullptr, scratch);
+    next.resize(N, state_dim);
+    VectorXd mean64;
+    for (int i = 0; i < N; ++i) {
+      xk = x.row(i).transpose();
+      mean64 = mean.row(i).transpose().cast<double>();
+      assemble(xk, mean64.data(), next.row(i).data());
+    }
+    if (!variance) return;
+    const RowMatrixXd outputs = spread.cast<double>();   // the velocity's, or the state's
+    variance->resize(N, state_dim);
+    if (predicts_velocity) {
+      variance->leftCols(n) = (0.25 * sample_period * sample_period) * outputs;
+      variance->rightCols(n) = outputs;
+    } else {
+      *variance = outputs;
+    }
+  }
+
+  // the batched step of independent rows; a row that is not finite gives NaN
+  RowMatrixXd step_rows(const RowMatrixXd& x, const RowMatrixXd& u) const override {
+    std::vector<int> finite;
+    for (Eigen::Index row = 0; row < x.rows(); ++row)
+      if (x.row(row).allFinite() && u.row(row).allFinite()) finite.push_back(int(row));
+    RowMatrixXd next = RowMatrixXd::Constant(x.rows(), state_dim, std::numeric_limits<double>::quiet_NaN()), stepped;
     Network::Scratch scratch;
-    network.mean_and_variance(z, mean, nullptr, scratch);
-    VectorXd mean64, out(state_dim);
-    for (size_t i = 0; i < finite.size(); ++i) {
-      xk = x.row(finite[i]).transpose();
-      mean64 = mean.row(Eigen::Index(i)).transpose().cast<double>();
-      assemble(xk, mean64.data(), out.data());
-      next.row(finite[i]) = out.transpose();
-    }
+    step_batch(x(finite, Eigen::all), u(finite, Eigen::all), stepped, nullptr, scratch);
+    next(finite, Eigen::all) = stepped;
     return next;
   }
 
@@ -391,48 +406,27 @@ struct NetworkModel : Model {
   // dynamics.model.DynamicsModel.rollout): x0 (B, S), actions (B T, m) row b T + k; mean and variance (B T, S)
   // row b T + k (the one-step predictive variance at each step's mean state; zero for one deterministic
   // member). A row whose state leaves the finite numbers holds NaN from the step after on. The B rows step
-  // together: one matrix product per layer and step.
+  // together (`step_batch`).
   void rollout(const RowMatrixXd& x0, const RowMatrixXd& actions, int T, RowMatrixXd& mean,
                RowMatrixXd& variance) const {
-    const int B = int(x0.rows()), n = joints(), S = state_dim, K = network.inputs;
+    const int B = int(x0.rows());
     const double nan = std::numeric_limits<double>::quiet_NaN();
-    mean.setConstant(Eigen::Index(B) * T, S, nan);
-    variance.setConstant(Eigen::Index(B) * T, S, nan);
-    std::vector<int> going(B);
+    mean.setConstant(Eigen::Index(B) * T, state_dim, nan);
+    variance.setConstant(Eigen::Index(B) * T, state_dim, nan);
+    std::vector<int> going(B), rows;
     for (int b = 0; b < B; ++b) going[b] = b;
-    RowMatrixXd current = x0, rows;
-    RowMatrixXf z, out_mean, out_variance;
+    RowMatrixXd current = x0, next, spread;
     Network::Scratch scratch;
-    VectorXd xk(S), uk(action_dim), phi, next(S), mean64(network.outputs), variance64(network.outputs);
     for (int k = 0; k < T && !going.empty(); ++k) {
-      const int count = int(going.size());
-      rows.resize(count, K);
-      for (int i = 0; i < count; ++i) {
-        xk = current.row(going[i]).transpose();
-        uk = actions.row(Eigen::Index(going[i]) * T + k).transpose();
-        if (nominal) phi = nominal->acceleration(xk.head(n), xk.tail(n), uk);
-        input_row(xk, uk, nominal ? &phi : nullptr, rows.row(i).data());
-      }
-      z = rows.cast<float>();
-      network.mean_and_variance(z, out_mean, &out_variance, scratch);
+      rows.resize(going.size());
+      for (size_t i = 0; i < going.size(); ++i) rows[i] = going[i] * T + k;
+      step_batch(current(going, Eigen::all), actions(rows, Eigen::all), next, &spread, scratch);
+      mean(rows, Eigen::all) = next;
+      variance(rows, Eigen::all) = spread;
+      current(going, Eigen::all) = next;
       std::vector<int> still;
-      still.reserve(count);
-      for (int i = 0; i < count; ++i) {
-        const Eigen::Index out = Eigen::Index(going[i]) * T + k;
-        xk = current.row(going[i]).transpose();
-        mean64 = out_mean.row(i).transpose().cast<double>();
-        assemble(xk, mean64.data(), next.data());
-        mean.row(out) = next.transpose();
-        variance64 = out_variance.row(i).transpose().cast<double>();
-        if (predicts_velocity) {
-          variance.row(out).head(n) = (0.25 * sample_period * sample_period) * variance64.transpose();
-          variance.row(out).tail(n) = variance64.transpose();
-        } else {
-          variance.row(out) = variance64.transpose();
-        }
-        current.row(going[i]) = next.transpose();
-        if (next.allFinite()) still.push_back(going[i]);
-      }
+      for (size_t i = 0; i < going.size(); ++i)
+        if (next.row(Eigen::Index(i)).allFinite()) still.push_back(going[i]);
       going.swap(still);
     }
   }
