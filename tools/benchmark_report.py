@@ -38,6 +38,13 @@ def provenance() -> dict:
     return dict(commit=git("rev-parse", "HEAD"), clean=git("status", "--porcelain", "--untracked-files=no") == "")
 
 
+def recorded_command(program: str, arguments: list[str], folders=("--folder", "--data", "-o", "--output")) -> str:
+    """The command line a result file records: `program` and its `arguments`, the value of each option in
+    `folders` written DIR (no path of this machine in a committed file)."""
+    return " ".join([program, *("DIR" if previous in folders else value
+                                for previous, value in zip([""] + arguments, arguments))])
+
+
 def write_benchmark_section(section: str, title: str, body: str, path: pathlib.Path = BENCHMARKS_FILE) -> None:
     """Replace (or add) the subsection '### title' under '## section' of BENCHMARKS.md, leaving every
     other part of the file as it is."""

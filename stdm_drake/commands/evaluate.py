@@ -6,6 +6,7 @@ import argparse
 import pathlib
 
 from stdm_drake.dynamics.model import PROPAGATIONS
+from stdm_drake.learning.compiled_core import IMPLEMENTATIONS
 from stdm_drake.outputs import add_force_argument
 
 
@@ -27,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="multi-step propagation: mean, ts1 or tsinf (PETS; default mean)")
     parser.add_argument("--particles", type=int, help="particles per trajectory for ts1/tsinf (default 20)")
     parser.add_argument("--seed", type=int, help="seed of the ts1/tsinf particles (default 0)")
-    parser.add_argument("--implementation", choices=("compiled", "numpy"), default="compiled",
+    parser.add_argument("--implementation", choices=IMPLEMENTATIONS, default="compiled",
                         help="the learned model's rollout code: compiled (C++, where the compiled core covers the "
                              "model: the MLPs, mean propagation) or numpy (the reference; default compiled)")
     parser.add_argument("--no-plant", action="store_true",

@@ -150,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     implementations = sorted({run.get("implementation", "") for result in results.values() for run in result["runs"]})
     print("control step:", ", ".join(implementations))
     if args.write or args.result:
-        from benchmark_report import machine_description, provenance   # (tools/ is on the path)
+        from benchmark_report import machine_description, recorded_command   # (tools/ is on the path)
         from stdm_drake.files import write_text_atomic
         target = ROOT / "docs" / "results" / "realtime"
         target.mkdir(parents=True, exist_ok=True)
@@ -158,9 +158,7 @@ def run(args: argparse.Namespace) -> int:
         write_text_atomic(target / name, json.dumps(dict(
             verdict=outcome, tracking=lines, machine=machine_description(threads=1), provenance=origin,
             control_step=implementations,
-            command=" ".join(["python tools/study.py realtime-loop",
-                              *("DIR" if previous == "--folder" else value      # (no path of this machine)
-                                for previous, value in zip([""] + sys.argv[2:], sys.argv[2:]))]),
+            command=recorded_command("python tools/study.py realtime-loop", sys.argv[2:]),
             robot=args.robot,
             periods={label: dict(sample_period=periods[label], exit_status=result["exit_status"],
                                  summary=result["summary"],

@@ -575,15 +575,13 @@ def run(args: argparse.Namespace) -> int:
     runner = runner_config_from_args(args)
     profile, cells = (QUICK, (CELLS[0], CELLS[3])) if args.quick else (FULL, CELLS)
     if args.plant_rows:
-        from benchmark_report import machine_description, provenance   # (tools/ is on the path)
+        from benchmark_report import machine_description, provenance, recorded_command   # (tools/ on the path)
         origin = provenance()
         rows = plant_rows(cells, profile, args.data, runner, progress=lambda text: print(text, flush=True))
         args.output.mkdir(parents=True, exist_ok=True)
         write_text_atomic(args.output / "plant_rows.json", json.dumps(dict(
             written_by="tools/study.py settling --plant-rows", provenance=origin, machine=machine_description(),
-            command=" ".join(["python tools/study.py settling",       # (DIR: no path of this machine)
-                              *("DIR" if previous in ("--data", "-o", "--output") else value
-                                for previous, value in zip([""] + sys.argv[2:], sys.argv[2:]))]), quick=args.quick,
+            command=recorded_command("python tools/study.py settling", sys.argv[2:]), quick=args.quick,
             profile=dataclasses.asdict(profile), plant=rows), indent=2, default=json_default) + "\n")
         for row in rows:
             print(f"{row['data']} seed {row['data_seed']}: " + "; ".join(
