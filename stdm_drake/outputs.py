@@ -1,4 +1,5 @@
-"""The one rule for everything a command writes, checked before any work starts:
+"""The one rule for everything a command writes, checked before any work starts (a violation is an InputError
+of one line, so the command exits with status 2 having done nothing):
 
 - an output is never one of the command's inputs (the same file, whatever the path or link says);
 - a file output is a regular file or nothing yet, a folder output a folder or nothing yet, and the
@@ -9,8 +10,6 @@
 - one run at a time per output: while a command runs (`command_outputs`) each output it checks is locked
   (a lock file beside it, `fcntl.flock`, released by the kernel if the run dies); a second run's error
   names the first's process. Holding the lock, the temporary files a killed run left there are removed.
-
-Every violation is an InputError of one line, so the command exits with status 2 having done nothing.
 """
 import contextlib
 import errno
@@ -39,18 +38,18 @@ DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every da
 WRITTEN_BY = "written_by"   # the HDF5 attribute (and JSON key) naming the command: "stdm-drake COMMAND"
 COMMAND_LINE = "command: "  # the folder marker's line naming the command
 
-# while a command runs: {"command": name, "locks": {path: (fd, lock file, the folders made for it)},
-# "made": output folders (and their parents) that `mark_output_folder` created, deepest first}
+# while a command runs: {"command": name, "arguments": the rest of its line, "locks": {path: (fd, lock file, the
+# folders made for it)}, "made": output folders (and parents) that `mark_output_folder` created, deepest first}
 _running: dict | None = None
 
 
 @contextlib.contextmanager
-def command_outputs(command: str):
-    """While `command` (a CLI command's name) runs: outputs are checked against the command that wrote them,
-    marked with it, and locked until the block ends. A command that fails (an exception: an error, a signal)
-    leaves no output folder it made that holds nothing but the marker and empty folders."""
+def command_outputs(command: str, arguments: list[str] = ()):
+    """While `command` (a CLI command's name; `arguments`: the rest of its line) runs: outputs are checked against
+    the command that wrote them, marked with it, locked until the block ends. A command that fails (an exception:
+    an error, a signal) leaves no output folder it made that holds nothing but the marker and empty folders."""
     global _running
-    outer, _running = _running, dict(command=command, locks={}, made=[])
+    outer, _running = _running, dict(command=command, arguments=list(arguments), locks={}, made=[])
     try:
         yield
     except BaseException:
@@ -75,9 +74,10 @@ def _remove_empty(folders) -> None:
             folder.rmdir()
 
 
-def running_command() -> str | None:
-    """The CLI command now running (None: stdm-drake used as a library)."""
-    return None if _running is None else _running["command"]
+def running_command(with_arguments: bool = False):
+    """The CLI command now running (None: used as a library); `with_arguments`: its line after `stdm-drake`, a list."""
+    line = None if _running is None else [_running["command"], *_running["arguments"]]
+    return line if with_arguments or line is None else line[0]
 
 
 def written_by() -> str:

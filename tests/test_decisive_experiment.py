@@ -51,7 +51,7 @@ def test_the_limit_free_ur10_has_no_position_limits_and_the_ur10s_inertia():
 
 @pytest.mark.slow
 def test_quick_profile_runs_end_to_end(tmp_path):
-    assert study.main(["decisive", "--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    assert study.main(["decisive", "--allow-dirty", "--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
     import json
     results = json.loads((tmp_path / "out" / "results.json").read_text())
     assert [cell["cell"] for cell in results["summary"]] == ["literal-10ms", "learned-structure"]
@@ -63,10 +63,10 @@ def test_quick_profile_runs_end_to_end(tmp_path):
     assert sorted(path.name for path in (tmp_path / "data").iterdir()) == sorted(
         f"literal-10ms{half}_seed{seed}_n50.h5" for half in ("", "_half") for seed in (0, 1))
     # --resume keeps every row of the same design and trains nothing
-    assert study.main(["decisive", "--quick", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
+    assert study.main(["decisive", "--allow-dirty", "--quick", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 0
     again = json.loads((tmp_path / "out" / "results.json").read_text())
     assert again["reused_rows"] == len(results["runs"]) and again["runs"] == results["runs"]
-    assert study.main(["decisive", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 2
+    assert study.main(["decisive", "--allow-dirty", "--resume", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")]) == 2
 
 
 @pytest.mark.slow
@@ -77,7 +77,7 @@ def test_closed_loop_study_quick_profile(tmp_path):
     pipeline size, 20 epochs, one of the naive models does)."""
     import json
 
-    code = study.main(["closed-loop", "--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")])
+    code = study.main(["closed-loop", "--allow-dirty", "--quick", "-o", str(tmp_path / "out"), "--data", str(tmp_path / "data")])
     results = json.loads((tmp_path / "out" / "results.json").read_text())
     assert code == (2 if any(run["limit_violations"] for run in results["runs"]) else 0)
     summary = results["summary"]

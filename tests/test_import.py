@@ -255,7 +255,7 @@ def test_a_model_trained_on_the_import_is_as_accurate_as_one_trained_on_the_orig
     (the same split), both evaluated on the original's test plans; the ratio import / original paired by seed
     (the full experiment's numbers: docs/real_logs.md)."""
     from tools_import import study
-    assert study.main(["import-round-trip", "--quick", "--data", str(tmp_path / "data"), "-o", str(tmp_path / "out")]) == 0
+    assert study.main(["import-round-trip", "--allow-dirty", "--quick", "--data", str(tmp_path / "data"), "-o", str(tmp_path / "out")]) == 0
     result = json.loads((tmp_path / "out" / "round_trip.json").read_text())
     one_step = result["import_over_original"]["one_step_q"]
     assert one_step["pairs"] == 2 and 0.8 <= one_step["ratio"] <= 1.25 and "every_model_learned" in result

@@ -149,17 +149,18 @@ def test_train_input_errors(tiny, tmp_path, capsys):
 def test_benchmark_report_writer_keeps_other_sections(tmp_path):
     from tools_import import benchmark_report
     path = tmp_path / "BENCHMARKS.md"
+    origin = dict(commit="0" * 40, clean=True, command="python tools/bench_x.py --write")
     path.write_text("# Benchmarks\n\n## Data collection\n\n### Simulation\n\nfast enough\n")
-    benchmark_report.write_benchmark_section("Learning library", "Training step", "| a | b |\n", path)
-    benchmark_report.write_benchmark_section("Learning library", "Rollout", "one\n", path)
-    benchmark_report.write_benchmark_section("Learning library", "Training step", "| c | d |\n", path)
+    benchmark_report.write_benchmark_section("Learning library", "Training step", "| a | b |\n", origin, path)
+    benchmark_report.write_benchmark_section("Learning library", "Rollout", "one\n", origin, path)
+    benchmark_report.write_benchmark_section("Learning library", "Training step", "| c | d |\n", origin, path)
     text = path.read_text()
     assert text.startswith("# Benchmarks\n\n## Data collection\n\n### Simulation\n\nfast enough\n")
     assert text.count("## Learning library") == 1 and text.count("### Training step") == 1
     assert "| c | d |" in text and "| a | b |" not in text
     assert text.index("### Training step") < text.index("### Rollout")
     path.write_text("# Benchmarks\n\n## Learning library\n\n### Rollout\n\nold\n\n## Data collection\n\nkeep\n")
-    benchmark_report.write_benchmark_section("Learning library", "Rollout", "new\n", path)
+    benchmark_report.write_benchmark_section("Learning library", "Rollout", "new\n", origin, path)
     text = path.read_text()
     assert "new" in text and "old" not in text and text.rstrip().endswith("## Data collection\n\nkeep")
 

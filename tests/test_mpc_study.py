@@ -142,6 +142,9 @@ def test_a_second_default_run_writes_a_fresh_folder(tracking_dataset, tmp_path, 
     assert "wrote out/mpc-2: " in capsys.readouterr().out
     assert {path.name: path.read_bytes() for path in (tmp_path / "out" / "mpc").iterdir()} == first
     assert (tmp_path / "out" / "mpc-2" / "mpc.json").is_file()
+    record = json.loads(first["mpc.json"])   # (the command and code that made it, no folder of this machine)
+    assert record["provenance"]["command"] == "stdm-drake mpc DIR/tracking.h5 --plans 1 --quiet --config DIR/short.yaml"
+    assert record["provenance"]["commit"] and str(tmp_path) not in json.dumps(record["provenance"])
 
 
 def test_the_study_records_its_inputs_and_the_optimizer_it_ran(tracking_dataset, tmp_path, capsys):

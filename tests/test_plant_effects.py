@@ -259,7 +259,7 @@ def test_the_affected_plant_tools_refuse_a_bad_effects_file_in_one_line(tmp_path
     bad = tmp_path / "bad.yaml"
     bad.write_text("viscous_friction: [1.0, 2.0]\n")
     for name in ("reality-gap", "identification"):
-        assert study.main([name, "--quick", "--plant-effects", str(bad), "-o", str(tmp_path / "out"),
+        assert study.main([name, "--allow-dirty", "--quick", "--plant-effects", str(bad), "-o", str(tmp_path / "out"),
                            "--data", str(tmp_path / "data")]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and "bad.yaml" in err and not (tmp_path / "out").exists()

@@ -42,7 +42,11 @@ def test_quick_profile_writes_a_complete_report(quick_report):
                  "figures/fig16_activations_real.png", "figures/fig17_sizes_real.png", "figures/fig18_multistep.png",
                  "figures/fig19_multistep_20.png", "mpc/mpc.png", "sine_sum/summary.md"):
         assert (quick_report / name).stat().st_size > 200, name
-    tables = json.loads((quick_report / "results.json").read_text())["tables"]
+    results = json.loads((quick_report / "results.json").read_text())
+    tables = results["tables"]
+    origin = results["provenance"]   # (a regular install: no checkout to name, so the version and "not clean")
+    assert origin["command"] == "stdm-drake reproduce --quick -o DIR --quiet" and origin["stdm_drake"]
+    assert origin["commit"] is None and origin["clean"] is False and "cores" in origin["machine"]
     assert [row["activation"] for row in tables["sim_activations"]] == list(QUICK.activations)
     assert [row["activation"] for row in tables["real_activations"]] == list(QUICK.activations)
     assert [row["train_trajectories"] for row in tables["sim_sizes"]] == list(QUICK.sim_train_sizes)

@@ -66,10 +66,10 @@ def test_quick_profile_runs_end_to_end(tmp_path, monkeypatch):
     here for one cell), the summary and its files; a rerun reads every pair back from its cache."""
     output = tmp_path / "out"
     monkeypatch.setattr(settling, "needs_extension", lambda rows, cell, scale, profile: cell.name == "literal-current")
-    assert study.main(["settling", "--quick", "-o", str(output), "--data", str(tmp_path / "data")]) == 0
+    assert study.main(["settling", "--allow-dirty", "--quick", "-o", str(output), "--data", str(tmp_path / "data")]) == 0
     assert any(run["extension"] for run in json.loads((output / "results.json").read_text())["runs"])
     first = (output / "results.json").read_text()
-    assert study.main(["settling", "--quick", "-o", str(output), "--data", str(tmp_path / "data")]) == 0
+    assert study.main(["settling", "--allow-dirty", "--quick", "-o", str(output), "--data", str(tmp_path / "data")]) == 0
     again = json.loads((output / "results.json").read_text())
     assert again["runs"] == json.loads(first)["runs"] and again["summary"] == json.loads(first)["summary"]
     results = json.loads((output / "results.json").read_text())

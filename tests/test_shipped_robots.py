@@ -307,7 +307,7 @@ def test_the_reality_gap_and_identification_studies_on_the_affected_panda(tmp_pa
     from tools_import import study
     out, data = tmp_path / "out", tmp_path / "data"
     affected = ["--quick", "--robot", str(PANDA_CONFIG), "--plant-effects", str(MODELS_DIR / "panda_effects.yaml")]
-    assert study.main(["reality-gap", *affected, "-o", str(out / "reality_gap"), "--data", str(data / "reality_gap")]) == 0
+    assert study.main(["reality-gap", "--allow-dirty", *affected, "-o", str(out / "reality_gap"), "--data", str(data / "reality_gap")]) == 0
     for name in ("results.json", "closed_loop.csv", "open_loop.csv", "closed_loop.png", "open_loop.png"):
         assert (out / "reality_gap" / name).stat().st_size > 0
     results = json.loads((out / "reality_gap" / "results.json").read_text())
@@ -327,7 +327,7 @@ def test_the_reality_gap_and_identification_studies_on_the_affected_panda(tmp_pa
     assert len(checkpoints) == 2 * 2 + 2 * 3   # D, DD: 2 seeds closed loop, 1 seed on each of 3 plants
     # the identification study: the white box on the 7-joint arm (torques to 0.1 % with true derivatives; its
     # preset's Coulomb velocity scale differs per joint, the model's is one for all), the grey and black boxes
-    assert study.main(["identification", *affected, "-o", str(out / "sysid"), "--data", str(data / "sysid")]) == 0
+    assert study.main(["identification", "--allow-dirty", *affected, "-o", str(out / "sysid"), "--data", str(data / "sysid")]) == 0
     white = json.loads((out / "sysid" / "results.json").read_text())
     assert [row["run"] for row in white["rows"]] == ["A", "C"]      # (the quick profile's runs)
     assert white["rows"][0]["torque_error"] < 0.01 < white["rows"][0]["description_torque_error"]

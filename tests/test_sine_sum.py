@@ -79,6 +79,9 @@ def test_quick_study_end_to_end(tmp_path, capsys):
         assert content.startswith(b"\x89PNG") and len(content) > 10_000, png.name
     results = json.loads((output / "results.json").read_text())
     assert len(results["runs"]) == len(run_specs(QUICK))
+    from stdm_drake.provenance import source_state   # (the code it ran: this checkout, named)
+    assert results["provenance"]["command"] == "stdm-drake sine-sum --quick --epochs 300 -o DIR --workers 1 --quiet"
+    assert results["provenance"]["commit"] == source_state()["commit"] and str(tmp_path) not in json.dumps(results)
     for run in results["runs"]:
         assert len(run["member_test_mse"]) == run["spec"]["members"]
         assert np.isfinite(run["member_test_mse"]).all() and run["seconds"] > 0

@@ -57,7 +57,7 @@ def test_an_unknown_study_or_option_is_one_line_and_status_2(capsys):
 
 def test_bad_input_inside_a_study_is_one_line_and_status_2(tmp_path, capsys):
     """An InputError a study raises (here: a checkpoint that does not exist) ends the launcher with one line."""
-    assert study.main(["jacobian-accuracy", str(tmp_path / "none.h5"), str(tmp_path / "none.pt")]) == 2
+    assert study.main(["jacobian-accuracy", "--allow-dirty", str(tmp_path / "none.h5"), str(tmp_path / "none.pt")]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith("tools/study.py jacobian-accuracy: error: ") and "none.h5" in err
 

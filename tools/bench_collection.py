@@ -35,7 +35,7 @@ from pydrake.systems.framework import DiagramBuilder  # noqa: E402
 from pydrake.systems.primitives import Adder, TrajectorySource  # noqa: E402
 from pydrake.trajectories import PiecewisePolynomial  # noqa: E402
 
-from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 from stdm_drake.cluster import RunnerConfig, job_pool  # noqa: E402
 from stdm_drake.collection.collect import (CollectionRequest, init_station_worker, collect, plan_tracking,  # noqa: E402
                                            tracking_trajectory)
@@ -88,7 +88,7 @@ def main():
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3, help="best of this many runs of each")
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
-    args = parser.parse_args()
+    args, origin = start_benchmark(parser)
 
     settings = StationConfig(robot=UR10, sensor=load_yaml_config(CONTROLLERS_DIR / "sensor.yaml", SensorConfig),
                                   controller=load_controller_config(CONTROLLERS_DIR / "pid.yaml"),
@@ -139,11 +139,10 @@ def main():
         f"step ({1e6 * bare / (simulated / 0.001):.0f} µs per 1 ms step here) bounds the rate; two workers add process "
         f"start-up and planning. The plant effects cost {100 * (affected / ours - 1):+.0f}% against the same loop on "
         "the nominal plant.", "",
-        f"Machine: {machine_description()}.",
-        f"Command: `python tools/bench_collection.py --count {args.count} --workers {args.workers} --write`."])
+        f"Machine: {machine_description()}."])
     print(report)
     if args.write:
-        write_benchmark_section("Data collection", "Collection speed (tools/bench_collection.py)", report)
+        write_benchmark_section("Data collection", "Collection speed (tools/bench_collection.py)", report, origin)
 
 
 if __name__ == "__main__":

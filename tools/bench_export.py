@@ -28,7 +28,7 @@ for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 TOOLS = pathlib.Path(__file__).resolve().parent
 sys.path.insert(0, str(TOOLS))
-from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 
 
 def black_box_checkpoint(path: pathlib.Path, members: int, probabilistic: bool, activation: str, robot) -> pathlib.Path:
@@ -77,7 +77,7 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=5,
                         help="rounds the cases take turns in (default 5); a case's figures: the median over rounds")
     parser.add_argument("--write", action="store_true", help="replace this benchmark's section of BENCHMARKS.md")
-    args = parser.parse_args()
+    args, origin = start_benchmark(parser)
     import numpy as np
     import onnxruntime
     from stdm_drake.cli import main as cli
@@ -132,10 +132,10 @@ def main() -> int:
             "| model | case | µs / step | p99 µs | speed-up | goal |", "|---|---|---|---|---|---|"]
     text += [f"| {row['model']} | {row['case']} | {row['median']:.1f} | {row['p99']:.1f} | {row['ratio']:.2f}x | "
              f"{row['goal']} |" for row in rows]
-    text += ["", f"Command: `python tools/bench_export.py --calls {args.calls} --rounds {args.rounds} --write`."]
+    text += [""]
     print("\n".join(text))
     if args.write:
-        write_benchmark_section("Deployment", "Exported model, latency per step (tools/bench_export.py)", "\n".join(text))
+        write_benchmark_section("Deployment", "Exported model, latency per step (tools/bench_export.py)", "\n".join(text), origin)
     return 0
 
 

@@ -27,7 +27,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
-from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 
 GOAL_SECONDS = 60.0
 
@@ -101,7 +101,7 @@ def main(argv=None) -> int:
     parser.add_argument("--rows", type=int, default=1_800_000, help="rows of the log (default: an hour at 500 Hz)")
     parser.add_argument("--folder", type=pathlib.Path, default=pathlib.Path("/tmp/bench_import"))
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
-    args = parser.parse_args(argv)
+    args, origin = start_benchmark(parser, argv)
     args.folder.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
     log = tiled_log(short_log(args.folder), args.rows, args.folder / "hour.csv")
@@ -116,7 +116,7 @@ def main(argv=None) -> int:
     record = data.metadata.record["import"]["trajectories"]
     report = "\n".join([
         f"Machine: {machine_description()}; each case in its own process pinned to one core.",
-        "Command: `python tools/bench_import.py --write`.", "",
+        "",
         f"An RTDE recording of {args.rows:,} rows (one hour at 500 Hz; 46 fields, space delimited, {size:.0f} MiB) of "
         f"the simulated UR-10; the import wrote {data.num_trajectories} trajectories ({record['gaps']} gaps). "
         f"Goal: import <= {GOAL_SECONDS:g} s on one core, memory bounded (not growing with the log).", "",
@@ -127,7 +127,7 @@ def main(argv=None) -> int:
         f"{baseline['peak_mib']:.0f} |", ""])
     print(report)
     if args.write:
-        write_benchmark_section("Real logs", "Import of an hour of RTDE log (tools/bench_import.py)", report)
+        write_benchmark_section("Real logs", "Import of an hour of RTDE log (tools/bench_import.py)", report, origin)
     return 0 if imported["seconds"] <= GOAL_SECONDS else 1
 
 

@@ -167,15 +167,14 @@ def main():
     parser.add_argument("--keep", type=pathlib.Path, help="make the data and checkpoints in this folder (kept)")
     parser.add_argument("--child", nargs=2, metavar=("CODE", "OUTPUT"), help=argparse.SUPPRESS)
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md and docs/results/realtime/")
-    args = parser.parse_args()
+    sys.path.insert(0, str(ROOT / "tools"))
+    from benchmark_report import machine_description, start_benchmark, write_benchmark_section
+    args, origin = start_benchmark(parser, threads=1)      # (at the start: the code this run imports)
     if args.child:
         code, output = map(pathlib.Path, args.child)
         rows = closed_loops(code, args.dataset, args.checkpoint, args.identified, args.plans)
         output.write_text(json.dumps(rows))
         return
-    sys.path.insert(0, str(ROOT / "tools"))
-    from benchmark_report import machine_description, provenance, write_benchmark_section
-    origin = provenance()      # (at the start: the code this run imports)
     given = args.dataset is not None
     if given:
         dataset, checkpoints, identified = args.dataset, args.checkpoint, args.identified
@@ -188,20 +187,19 @@ def main():
     else:
         old = baseline_rows(args.baseline, dataset, checkpoints, identified, args.plans)
     now = closed_loops(ROOT, dataset, checkpoints, identified, args.plans)
-    command = " ".join(["python tools/bench_mpc.py", *sys.argv[1:]])
     text = report(now, old, args.plans, args.baseline)
-    text += (f"\n\nMachine: {machine_description(threads=1)}.\nCommand: `{command}`"
-             + (" (data and checkpoints from an earlier default run, passed in)." if given else "."))
+    text += (f"\n\nMachine: {machine_description(threads=1)}."
+             + (" Data and checkpoints from an earlier default run, passed in." if given else "") + "\n")
     print(text)
     if args.write:
         from stdm_drake.files import write_text_atomic
         compiled = args.baseline == "numpy"
         write_benchmark_section("Deployment", "The compiled MPC control step against the numpy reference (tools/bench_mpc.py)"
-                                if compiled else "MPC control step (tools/bench_mpc.py)", text)
+                                if compiled else "MPC control step (tools/bench_mpc.py)", text, origin)
         folder = ROOT / "docs" / "results" / ("compiled_step" if compiled else "realtime")
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder / "bench_mpc.json", json.dumps(dict(baseline=args.baseline, plans=args.plans,
-                                                                     provenance=origin, command=command,
+                                                                     provenance=origin,
                                                                      baseline_rows=old, now_rows=now), indent=1))
 
 

@@ -29,7 +29,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
-from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator  # noqa: E402
 from stdm_drake.robots.robot import MODELS_DIR, UR10_CONFIG, load_robot  # noqa: E402
 
@@ -81,7 +81,7 @@ def main() -> int:
     parser.add_argument("--rounds", type=int, default=7)
     parser.add_argument("--steps", type=int, default=20, help="plant steps per round")
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
-    args = parser.parse_args()
+    args, origin = start_benchmark(parser)
     logging.getLogger("stdm_drake").setLevel(logging.WARNING)
     rows = []
     with tempfile.TemporaryDirectory() as folder:
@@ -113,10 +113,9 @@ def main() -> int:
         f"One held-torque plant step (1 ms plant steps over a 10 ms period, SAP), {args.steps} random (x, tau) near "
         f"home per round, median of {args.rounds} rounds; both resets give bitwise the same next states.", "",
         *table, "",
-        f"Machine: {machine_description()}.",
-        f"Command: `python tools/bench_plant_step.py{' --write' if args.write else ''}`.", ""])
+        f"Machine: {machine_description()}.", ""])
     if args.write:
-        write_benchmark_section("Deployment", "Plant step of the plant as model (tools/bench_plant_step.py)", report)
+        write_benchmark_section("Deployment", "Plant step of the plant as model (tools/bench_plant_step.py)", report, origin)
     print(report)
     return 0
 

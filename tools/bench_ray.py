@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 AUTH = {"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}
 os.environ.update(AUTH)  # before Ray is imported (it reads the mode then)
 
-from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 
 SECTION = "Experiments"
 RAY = os.path.join(os.path.dirname(sys.executable), "ray")
@@ -69,8 +69,8 @@ def ray_head(cpus: int) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=12)
-    parser.add_argument("--write", action="store_true")
-    args = parser.parse_args()
+    parser.add_argument("--write", action="store_true", help="replace this benchmark's section of BENCHMARKS.md")
+    args, origin = start_benchmark(parser)
     import ray
 
     from stdm_drake.cluster import RunnerConfig
@@ -112,11 +112,11 @@ def main() -> None:
                      f"{(seconds * workers - base) / args.jobs:+.2f} | {one / seconds:.2f}x | |")
     lines += ["", "Overhead per job = (wall x workers - local 1-worker wall) / jobs: the CPU time a job costs beyond "
               "training it in one local process (process start-up, dataset transfer, result shipping).", "",
-              f"Machine: {machine_description()}.", f"Command: `python tools/bench_ray.py --jobs {args.jobs} --write`."]
+              f"Machine: {machine_description()}.",]
     body = "\n".join(lines)
     print(body)
     if args.write:
-        write_benchmark_section(SECTION, "Training sweep: local pool vs Ray (tools/bench_ray.py)", body)
+        write_benchmark_section(SECTION, "Training sweep: local pool vs Ray (tools/bench_ray.py)", body, origin)
 
 
 if __name__ == "__main__":

@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 
-from benchmark_report import machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 from stdm_drake.identification.regressor import InverseDynamicsRegressor  # noqa: E402
 from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
 
@@ -84,7 +84,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--samples", type=int, default=200)
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
-    args = parser.parse_args(argv)
+    args, origin = start_benchmark(parser, argv)
     robot = load_robot(UR10_CONFIG)
     regressor = InverseDynamicsRegressor(robot)
     rng = np.random.default_rng(0)
@@ -143,10 +143,10 @@ def main(argv=None) -> int:
         f"inertial parameters), {count} random samples ({symbolic_count} for the symbolic path); the symbolic "
         f"path's W alpha(pi) + w0 ({lumped_count} lumped parameters) equals the AutoDiff path's Y pi + tau_0 for "
         f"random pi (checked); Pinocchio: {note}.", "", *table, "",
-        f"Machine: {machine_description()}.", "Command: `python tools/bench_regressor.py --write`."])
+        f"Machine: {machine_description()}."])
     print(report)
     if args.write:
-        write_benchmark_section("Identification", "Inverse-dynamics regressor (tools/bench_regressor.py)", report)
+        write_benchmark_section("Identification", "Inverse-dynamics regressor (tools/bench_regressor.py)", report, origin)
     return 0
 
 

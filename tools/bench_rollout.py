@@ -32,7 +32,7 @@ ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tools"))
 
-from benchmark_report import machine_description, provenance, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 from stdm_drake.files import write_text_atomic  # noqa: E402
 from stdm_drake.learning.regression import RegressionData  # noqa: E402
 from stdm_drake.learning.trainer import build_model  # noqa: E402
@@ -186,20 +186,17 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=20, help="rollouts per case per round")
     parser.add_argument("--write", action="store_true",
                         help="update BENCHMARKS.md and docs/results/compiled_step/bench_rollout.json")
-    args = parser.parse_args(argv)
+    args, origin = start_benchmark(parser, argv)   # (at the start: the code this run imports)
     torch.set_num_threads(args.threads)
-    origin = provenance()      # (at the start: the code this run imports)
     medians, agreement = measure(args.rounds, args.repeats)
     text = report(medians, agreement, args.threads)
-    command = " ".join(["python tools/bench_rollout.py", *(argv if argv is not None else sys.argv[1:])])
-    text += f"\nCommand: `{command}` (commit {origin['commit'][:7]}{'' if origin['clean'] else ', uncommitted changes'}).\n"
     print(text)
     if args.write:
-        write_benchmark_section("Learning library", "Open-loop rollout (tools/bench_rollout.py)", text)
+        write_benchmark_section("Learning library", "Open-loop rollout (tools/bench_rollout.py)", text, origin)
         folder = ROOT / "docs" / "results" / "compiled_step"
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder / "bench_rollout.json", json.dumps(dict(
-            provenance=origin, command=command, machine=machine_description(args.threads), horizon=HORIZON,
+            provenance=origin, threads=args.threads, horizon=HORIZON,
             rounds=args.rounds, repeats=args.repeats, median_ms=medians, goals_ms=GOALS,
             met={name: medians[name] <= goal for name, goal in GOALS.items()}, largest_difference=agreement),
             indent=1) + "\n")

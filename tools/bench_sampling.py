@@ -30,7 +30,7 @@ os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):   # one thread (before numpy loads)
     os.environ.setdefault(_variable, "1")
 sys.path.insert(0, str(pathlib.Path(__file__).resolve().parent))
-from benchmark_report import machine_description, provenance, write_benchmark_section  # noqa: E402
+from benchmark_report import machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 
 
 def black_box(members: int, probabilistic: bool, robot, activation: str = "swish"):
@@ -107,7 +107,7 @@ def main() -> int:
     parser.add_argument("--d", type=pathlib.Path, help="a trained D checkpoint of the paper's black box")
     parser.add_argument("--pe", type=pathlib.Path, help="a trained PE checkpoint of the paper's black box")
     parser.add_argument("--write", action="store_true", help="replace this benchmark's section of BENCHMARKS.md")
-    args = parser.parse_args()
+    args, origin = start_benchmark(parser, threads=1)   # (at the start: the code this run imports)
     import numpy as np
     import torch
     torch.set_num_threads(1)
@@ -120,7 +120,6 @@ def main() -> int:
     models = {"D": LearnedModel(args.d, robot=robot) if args.d else black_box(1, False, robot),
               "PE": LearnedModel(args.pe, robot=robot) if args.pe else black_box(5, True, robot),
               "D (default structure)": default_structure_model()[1]}
-    origin = provenance()
     config = load_mpc_config()
     dynamics = Dynamics(robot)
     limit = joint_limits(dynamics.plant).effort
@@ -140,19 +139,17 @@ def main() -> int:
             "", "| optimizer | model | ms / step | p95 ms | goal |", "|---|---|---|---|---|"]
     text += [f"| {row['case']} | {row['model']} | {row['median_ms']:.2f} | {row['p95_ms']:.2f} | {row['goal']} |"
              for row in rows]
-    command = " ".join(["python tools/bench_sampling.py", *sys.argv[1:]])
-    text += ["", f"Command: `{command}` (commit {origin['commit'][:7]}"
-             + ("" if origin["clean"] else ", uncommitted changes") + ")."]
+    text += [""]
     print("\n".join(text))
     if args.write:
         import json
         from stdm_drake.files import write_text_atomic
         write_benchmark_section("Deployment", "Sampling MPC, time per control step (tools/bench_sampling.py)",
-                                "\n".join(text))
+                                "\n".join(text), origin)
         folder = pathlib.Path(__file__).resolve().parents[1] / "docs" / "results" / "compiled_step"
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder / "bench_sampling.json", json.dumps(dict(
-            provenance=origin, command=command, machine=machine_description(threads=1), weights=weights,
+            provenance=origin, weights=weights,
             rows=rows), indent=1) + "\n")
     return 0
 

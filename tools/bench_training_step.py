@@ -26,7 +26,7 @@ import torch
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmark_report import BENCHMARKS_FILE, machine_description, write_benchmark_section  # noqa: E402
+from benchmark_report import BENCHMARKS_FILE, machine_description, start_benchmark, write_benchmark_section  # noqa: E402
 from stdm_drake.learning.regression import RegressionData  # noqa: E402
 from stdm_drake.learning.settings import TrainingConfig  # noqa: E402
 from stdm_drake.learning.trainer import build_model, training_step  # noqa: E402
@@ -129,14 +129,14 @@ def main(argv=None) -> int:
     parser.add_argument("--rounds", type=int, default=15)
     parser.add_argument("--steps", type=int, default=20, help="steps per variant per round")
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md")
-    args = parser.parse_args(argv)
+    args, origin = start_benchmark(parser, argv)
     torch.set_num_threads(args.threads)
     text = report(measure(args.rounds, args.steps), args.threads)
     print(text)
     if args.write:
         threads = f"{args.threads} thread" + ("s" if args.threads > 1 else "")
         title = f"Training step with the derivative loss (tools/bench_training_step.py, {threads})"
-        write_benchmark_section(SECTION, title, text)
+        write_benchmark_section(SECTION, title, text, origin)
         print(f"updated {BENCHMARKS_FILE}")
     return 0
 

@@ -1,57 +1,71 @@
-"""Shared by the benchmarks in tools/: the machine they ran on, and writing their BENCHMARKS.md part."""
-import os
+"""Shared by the benchmarks in tools/ and the studies: the provenance a run records (stdm_drake/provenance.py),
+refusing a checkout with uncommitted changes before a run whose results are committed, and writing a
+benchmark's part of BENCHMARKS.md."""
 import pathlib
-import platform
-import subprocess
 import sys
-from importlib.metadata import PackageNotFoundError, version
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 BENCHMARKS_FILE = ROOT / "BENCHMARKS.md"
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.files import write_text_atomic  # noqa: E402
+from stdm_drake.provenance import (dirty_refusal, machine_description, provenance,  # noqa: E402,F401
+                                   recorded_command)
 
 
-def machine_description(threads: int | None = None) -> str:
-    """CPU model, cores, Python and package versions (and torch threads if given), one Markdown line."""
-    cpuinfo = pathlib.Path("/proc/cpuinfo")
-    names = [line.split(":", 1)[1].strip() for line in (cpuinfo.read_text().splitlines() if cpuinfo.exists() else [])
-             if line.startswith("model name")]
-    model = names[0] if names else (platform.processor() or "unknown CPU")
-    packages = []
-    for name in ("torch", "numpy", "drake"):
-        try:
-            packages.append(f"{name} {version(name)}")
-        except PackageNotFoundError:
-            continue
-    text = f"{model}, {os.cpu_count()} cores; Python {platform.python_version()}, {', '.join(packages)}"
-    return text + (f"; torch threads {threads}" if threads is not None else "")
+def add_record_arguments(parser) -> None:
+    """--allow-dirty, for a benchmark or study whose results are committed (see `start_record`)."""
+    parser.add_argument("--allow-dirty", action="store_true",
+                        help="run on a checkout with uncommitted changes to tracked files (recorded in the results)")
 
 
-def provenance() -> dict:
-    """The commit the benchmark's code is, and whether the tree was clean (untracked files aside): what a result
-    file names so that its numbers can be traced."""
-    def git(*arguments):
-        return subprocess.run(["git", "-C", str(ROOT), *arguments], capture_output=True, text=True).stdout.strip()
-    return dict(commit=git("rev-parse", "HEAD"), clean=git("status", "--porcelain", "--untracked-files=no") == "")
+def start_record(program: str, arguments: list[str], allow_dirty: bool, writes: bool = True,
+                 threads: int | None = None) -> dict:
+    """At a run's start (the code it imports is the checkout's now): its provenance (stdm_drake/provenance.py),
+    the command written by `recorded_command`. A run that `writes` results to be committed refuses a checkout
+    with uncommitted changes unless `allow_dirty`: InputError, one line, before any work."""
+    origin = provenance(recorded_command(program, arguments, root=ROOT), allow_dirty=allow_dirty, threads=threads,
+                        root=ROOT)
+    reason = dirty_refusal(origin)
+    if writes and reason and not allow_dirty:
+        raise InputError(reason)
+    return origin
 
 
-def recorded_command(program: str, arguments: list[str], folders=("--folder", "--data", "-o", "--output")) -> str:
-    """The command line a result file records: `program` and its `arguments`, the value of each option in
-    `folders` written DIR (no path of this machine in a committed file)."""
-    return " ".join([program, *("DIR" if previous in folders else value
-                                for previous, value in zip([""] + arguments, arguments))])
+def start_benchmark(parser, argv: list[str] | None = None, threads: int | None = None):
+    """Parse a benchmark's command line (with --allow-dirty added) and take its provenance at the start:
+    (args, origin). A run that will --write its results refuses a checkout with uncommitted changes (one line
+    on stderr, exit status 2) unless --allow-dirty."""
+    add_record_arguments(parser)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    args = parser.parse_args(argv)
+    try:
+        origin = start_record(f"python tools/{pathlib.Path(parser.prog).name}", argv, args.allow_dirty,
+                              writes=bool(getattr(args, "write", False)), threads=threads)
+    except InputError as error:
+        print(f"{parser.prog}: error: {error}", file=sys.stderr)
+        raise SystemExit(2)
+    return args, origin
 
 
-def write_benchmark_section(section: str, title: str, body: str, path: pathlib.Path = BENCHMARKS_FILE) -> None:
-    """Replace (or add) the subsection '### title' under '## section' of BENCHMARKS.md, leaving every
-    other part of the file as it is."""
+def command_line(origin: dict) -> str:
+    """The Markdown line naming a run's command and code: "Command: `python tools/...` (commit 1234567,
+    clean tree)."."""
+    commit = (origin.get("commit") or "unknown")[:7]
+    state = "clean tree" if origin.get("clean") else "uncommitted changes, --allow-dirty"
+    return f"Command: `{origin['command']}` (commit {commit}, {state})."
+
+
+def write_benchmark_section(section: str, title: str, body: str, origin: dict,
+                            path: pathlib.Path = BENCHMARKS_FILE) -> None:
+    """Replace (or add) the subsection '### title' under '## section' of BENCHMARKS.md with `body` and the line
+    naming the run's command and commit (`origin`: start_benchmark's), leaving every other part as it is."""
     heading = f"## {section}"
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     lines = text.splitlines()
-    block = [f"### {title}", "", *body.strip("\n").splitlines(), ""]
+    block = [f"### {title}", "", *body.strip("\n").splitlines(), command_line(origin), ""]
     try:
         start_section = lines.index(heading)
     except ValueError:

@@ -10,6 +10,11 @@ docstring, `add_arguments(parser)` and `run(args) -> int`: the shape of the pack
 docs/*.md, written before its runs. This file is the only one that puts the checkout on `sys.path`, so a
 checkout without an install runs them; as `stdm-drake` does, it keeps Drake offline (Meshcat aside) and
 prints bad input (an InputError, or an OSError naming a file) as one line with exit status 2.
+
+Every study's results name the code that made them: the launcher takes the run's provenance at the start
+(`args.provenance`: commit, clean tree, command with no folder of this machine, machine; see
+stdm_drake/provenance.py) and each study writes it into its results JSON. A checkout with uncommitted changes
+to tracked files is refused unless the command says `--allow-dirty` (recorded there too).
 """
 from __future__ import annotations
 
@@ -73,15 +78,18 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr)
         return 2
     module = load(name)
+    from benchmark_report import add_record_arguments, start_record   # (tools/ is on the path: `load`)
     from stdm_drake.cli import CommandParser, error_line
     from stdm_drake.errors import InputError
     parser = CommandParser(prog=f"{PROGRAM} {name}", description=known[name])
     module.add_arguments(parser)
+    add_record_arguments(parser)
     try:
         args = parser.parse_args(argv[1:])
     except SystemExit as exit_:   # --help (0) or a malformed command line (2, one line printed)
         return int(exit_.code or 0)
     try:
+        args.provenance = start_record(f"python {PROGRAM} {name}", argv[1:], args.allow_dirty)
         return int(module.run(args) or 0)
     except (InputError, OSError) as error:   # bad input; OSError: a file or folder (missing, unwritable, full disk)
         print(f"{PROGRAM} {name}: error: {error_line(error)}", file=sys.stderr)

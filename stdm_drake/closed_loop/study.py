@@ -259,7 +259,8 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     import json
 
     from stdm_drake.files import write_text_atomic
-    from stdm_drake.outputs import mark_output_folder, written_by
+    from stdm_drake.outputs import mark_output_folder
+    from stdm_drake.provenance import results_header
     rows = summarize(results, sample_period)
     table = summary_table(rows)
     if tuning is not None:
@@ -269,7 +270,7 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     table += "\n\n" + "\n".join(f"- {line}" for line in real_time_lines(rows, sample_period))
     table += "\n\n" + "\n".join(f"- {line}" for line in constraint_lines(rows, constraints))
     print(table)
-    record = dict(written_by=written_by(), inputs=inputs, summary=rows,
+    record = dict(**results_header(), inputs=inputs, summary=rows,
                   runs=[dataclasses.asdict(result) for result in results], tuning=tuning)
     mark_output_folder(output)
     write_text_atomic(output / "mpc.md", table + "\n")

@@ -10,7 +10,7 @@ from stdm_drake.experiments.reproduce_report import (PAPER, _flat, add_coverage_
                                                      add_mpc_section, add_multistep_section, add_simulated_sections,
                                                      add_sine_sum_section, add_tracked_sections)
 from stdm_drake.files import json_default, write_text_atomic
-from stdm_drake.outputs import written_by
+from stdm_drake.provenance import results_header
 from stdm_drake.report import Report
 
 
@@ -19,7 +19,7 @@ def write_result_files(folder: pathlib.Path, report, tables: dict, results) -> N
     markdown, page = report.markdown(), report.html()
     write_text_atomic(folder / "report.md", markdown + "\n")
     write_text_atomic(folder / "report.html", page + "\n")
-    write_text_atomic(folder / "results.json", json.dumps(dict(written_by=written_by(), tables=tables, runs=results),
+    write_text_atomic(folder / "results.json", json.dumps(dict(**results_header(), tables=tables, runs=results),
                                                            default=json_default))
     for name in ("default_model", "sim_activations", "sim_sizes", "real_activations", "real_sizes", "coverage", "mpc",
                  "mpc_runs"):

@@ -45,7 +45,7 @@ from stdm_drake.learning.alpha_selection import train_alpha_grid
 from stdm_drake.learning.trainer import train_model
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import ModelConfig
-from stdm_drake.outputs import written_by
+from stdm_drake.provenance import results_header
 from stdm_drake.report import markdown_table
 from stdm_drake.stats import paired_ratio
 
@@ -495,7 +495,7 @@ def write_reports(study: dict, output: pathlib.Path, quick: bool, partial: bool 
         plt.close(fig)
         written.append(output / name)
 
-    text("results.json", json.dumps({"written_by": written_by(), **study}, indent=1) + "\n")
+    text("results.json", json.dumps({**results_header(), **study}, indent=1) + "\n")
     fig6 = fig6_rows(study)
     text("fig6_mse_vs_activation.csv", rows_csv(fig6))
     figure("fig6_mse_vs_activation.png", plot_fig6(fig6, config))

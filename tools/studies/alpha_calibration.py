@@ -72,7 +72,7 @@ def run(args: argparse.Namespace) -> int:
     naive = [sweep["test_mse"][0] for sweep in sweeps]
     args.output.mkdir(parents=True, exist_ok=True)
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/study.py alpha-calibration", quick=args.quick, seeds=args.seeds, input_sd=spread,
+        written_by="tools/study.py alpha-calibration", provenance=args.provenance, quick=args.quick, seeds=args.seeds, input_sd=spread,
         paper=dict(grid=PAPER_GRID, choice=PAPER_CHOICE, test_mse_5_layer_swish=PAPER_TEST_MSE),
         naive_test_mse=naive, readings=results, sweeps=sweeps, seconds=round(time.perf_counter() - started, 1)),
         indent=2) + "\n")

@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(args.output / "models.csv", rows_csv(trained))
     write_text_atomic(args.output / "runs.csv", rows_csv(runs))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/study.py closed-loop", quick=args.quick, alpha=ALPHA, epochs=epochs, split=split,
+        written_by="tools/study.py closed-loop", provenance=args.provenance, quick=args.quick, alpha=ALPHA, epochs=epochs, split=split,
         references=[index for index, _ in references], seconds=round(elapsed, 1), summary=summary,
         models=trained, runs=runs), indent=2) + "\n")
     print(f"plant MPC q MSE {plant:.3g}; D/DD over {seeds} seeds: {ratio.text()} {ratio.verdict}")

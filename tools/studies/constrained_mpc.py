@@ -21,8 +21,6 @@ import json
 import math
 import os
 import pathlib
-import platform
-import subprocess
 import sys
 import time
 
@@ -414,17 +412,7 @@ def run3_answer(cells_: list) -> str:
     return "no"
 
 
-# -- provenance and output ---------------------------------------------------------------------------------------
-
-def provenance(argv: list) -> dict:
-    """The commit the run used, whether the tree was clean, the command and the machine."""
-    def git(*arguments):
-        return subprocess.run(["git", *arguments], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    from benchmark_report import machine_description   # (tools/benchmark_report.py: tools/ is on the path)
-    return dict(commit=git("rev-parse", "HEAD"), clean_tree=git("status", "--porcelain") == "",
-                command="python tools/study.py constrained-mpc " + " ".join(argv), machine=machine_description(threads=1),
-                python=platform.python_version())
-
+# -- output ------------------------------------------------------------------------------------------------------
 
 def lines_of(table: list, goal: dict, training: dict) -> list[str]:
     text = []
@@ -484,7 +472,6 @@ def run(args: argparse.Namespace) -> int:
                              else results_folder / f"run{args.run}" if args.run > 1 else results_folder)
     # (run 3 uses run 2's data and models)
     data_folder = (args.data or ROOT / "out" / f"constrained_mpc_data{suffix}") / ("run2" if args.run > 1 else "")
-    record = provenance(sys.argv[2:])
 
     def say(line: str) -> None:
         print(line, file=sys.stderr, flush=True)
@@ -504,7 +491,7 @@ def run(args: argparse.Namespace) -> int:
     print("\n".join(text))
     results = dict(written_by="tools/study.py constrained-mpc", design="docs/constrained_mpc.md", run=args.run,
                    quick=args.quick,
-                   provenance=record, seconds=round(time.perf_counter() - started, 1), profile=profile,
+                   provenance=args.provenance, seconds=round(time.perf_counter() - started, 1), profile=profile,
                    training=training, mpc_settings=settings, plans=plans, cells=table, goals=goal, summary=text,
                    runs=runs)
     write_results(results, output)

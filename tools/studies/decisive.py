@@ -346,7 +346,7 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(args.output / "runs.csv", rows_csv([dataclasses.asdict(row) for row in rows]))
     write_text_atomic(args.output / "cells.csv", rows_csv(flat))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/study.py decisive", **design, seconds=study["seconds"],
+        written_by="tools/study.py decisive", provenance=args.provenance, **design, seconds=study["seconds"],
         train_seconds_total=round(sum(row.train_seconds for row in rows), 1),
         reused_rows=study["reused"], cells=[dataclasses.asdict(c) for c in cells], summary=summary, runs=rows),
         indent=2, default=json_default) + "\n")

@@ -215,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
     seconds = train_all(paths, runs, design, args.workers, args.protocols)
     results = evaluate(paths, runs, design, args.protocols)
     from stdm_drake.files import json_default, write_text_atomic
-    record = dict(written_by="tools/study.py default-train", quick=args.quick,
+    record = dict(written_by="tools/study.py default-train", provenance=args.provenance, quick=args.quick,
                   design=dict(design, data_seed=args.data_seed, margin=MARGIN), train_seconds=seconds,
                   met=all(result["met"] for result in results.values()), protocols=results,
                   seconds=round(time.perf_counter() - started, 1))

@@ -164,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
                   flush=True)
     wall = time.perf_counter() - started
     table = summarize(rows, seeds)
-    write_text_atomic(args.output / "results.json", json.dumps(dict(rows=rows, wall_seconds=wall, alphas=ALPHAS)))
+    write_text_atomic(args.output / "results.json", json.dumps(dict(provenance=args.provenance, rows=rows, wall_seconds=wall, alphas=ALPHAS)))
     write_text_atomic(args.output / "summary.md", table + f"\n\n{len(jobs)} jobs in {wall:.0f} s wall.\n")
     print(table)
     print(f"{len(jobs)} jobs in {wall:.0f} s wall")

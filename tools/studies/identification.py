@@ -307,7 +307,7 @@ def interval_text(ratio) -> str:
     return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}]"
 
 
-def write_white_box(results: dict, out: pathlib.Path, quick: bool) -> dict:
+def write_white_box(results: dict, out: pathlib.Path, quick: bool, origin: dict) -> dict:
     """The white box's files in `out`: reports/*.json (one identify report per run), results.json (the rows,
     model errors, datasets and identified files), summary.csv and summary.md; returns what results.json holds."""
     import json
@@ -316,7 +316,7 @@ def write_white_box(results: dict, out: pathlib.Path, quick: bool) -> dict:
     (out / "reports").mkdir(parents=True, exist_ok=True)
     for name, report in results.pop("reports").items():
         write_text_atomic(out / "reports" / f"{name}.json", json.dumps(report, indent=1, default=json_default) + "\n")
-    results = dict(written_by="stdm-drake identification study", quick=quick, **results)
+    results = dict(written_by="tools/study.py identification", provenance=origin, quick=quick, **results)
     write_text_atomic(out / "results.json", json.dumps(results, indent=1, default=json_default) + "\n")
     write_text_atomic(out / "summary.csv", rows_csv(results["rows"]))
     lines = [summary_table(results), ""]
@@ -329,11 +329,11 @@ def write_white_box(results: dict, out: pathlib.Path, quick: bool) -> dict:
     return results
 
 
-def write_grey_box(grey: dict, out: pathlib.Path, quick: bool, stem: str = "grey_box") -> dict:
+def write_grey_box(grey: dict, out: pathlib.Path, quick: bool, origin: dict, stem: str = "grey_box") -> dict:
     """The grey box's files in `out`: {stem}.json and {stem}.md; returns what the JSON holds."""
     import json
     from stdm_drake.files import json_default, write_text_atomic
-    grey = dict(written_by="stdm-drake identification study", quick=quick, **grey)
+    grey = dict(written_by="tools/study.py identification", provenance=origin, quick=quick, **grey)
     write_text_atomic(out / f"{stem}.json", json.dumps(grey, indent=1, default=json_default) + "\n")
     write_text_atomic(out / f"{stem}.md", grey_box_table(grey) + "\n")
     return grey
@@ -367,17 +367,19 @@ def run(args: argparse.Namespace) -> int:
     say = lambda line: print(line, flush=True)  # noqa: E731
     out = args.output
     if args.part in ("white", "all"):
-        write_white_box(run_study(profile, args.data, robot, effects, workers=args.workers, say=say), out, args.quick)
+        write_white_box(run_study(profile, args.data, robot, effects, workers=args.workers, say=say), out, args.quick,
+                        args.provenance)
         print((out / "summary.md").read_text())
     if args.part in ("grey", "all"):
         white = json.loads((out / "results.json").read_text())
         grey = write_grey_box(run_grey_box(profile, args.data, robot, white, workers=args.workers, say=say),
-                              out, args.quick, args.grey_output)
+                              out, args.quick, args.provenance, args.grey_output)
         print(grey_box_table(grey))
     if args.part in ("closed", "all"):
         white = json.loads((out / "results.json").read_text())
         closed = closed_loop.write_closed_loop(closed_loop.run_closed_loop(profile, args.data, robot, white,
-                                                                           workers=args.workers, say=say), out, args.quick)
+                                                                           workers=args.workers, say=say), out, args.quick,
+                                               args.provenance)
         print(closed_loop.closed_loop_table(closed))
     print(f"wrote {out}")
     return 0

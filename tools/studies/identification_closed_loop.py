@@ -150,12 +150,12 @@ def closed_loop_table(closed: dict) -> str:
     return "\n".join(lines)
 
 
-def write_closed_loop(closed: dict, out: pathlib.Path, quick: bool, stem: str = "closed_loop") -> dict:
+def write_closed_loop(closed: dict, out: pathlib.Path, quick: bool, origin: dict, stem: str = "closed_loop") -> dict:
     """The closed loop's files in `out`: {stem}.json (every run, the choices, the summary and verdict per sensor)
     and {stem}.md; returns what the JSON holds."""
     import json
     from stdm_drake.files import json_default, write_text_atomic
-    closed = dict(written_by="stdm-drake identification study", quick=quick, **closed)
+    closed = dict(written_by="tools/study.py identification", provenance=origin, quick=quick, **closed)
     write_text_atomic(out / f"{stem}.json", json.dumps(closed, indent=1, default=json_default) + "\n")
     write_text_atomic(out / f"{stem}.md", closed_loop_table(closed) + "\n")
     return closed

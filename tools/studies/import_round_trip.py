@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
                   for name in ("original", "import") for s in range(design["seeds"]))
     met = learned and one_step["low"] >= SUCCESS[0] and one_step["high"] <= SUCCESS[1]
     record = load_dataset(imported).metadata.record["import"]
-    result = dict(written_by="tools/study.py import-round-trip", quick=args.quick, design=design,
+    result = dict(written_by="tools/study.py import-round-trip", provenance=args.provenance, quick=args.quick, design=design,
                   sensor=str(args.sensor) if args.sensor else "collect's default (the paper's)",
                   success_interval=list(SUCCESS), every_model_learned=learned, met=met, import_over_original=ratios, errors=errors,
                   resampling=record["resampling"], trajectories=record["trajectories"],

@@ -138,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
         futures = [pool.submit(one_loop, design, seed, str(args.data / f"seed{seed}"), str(robot.config_path), effects,
                                references) for seed in range(design["loops"])]
         summaries = [future.result() for future in futures]
-    results = dict(written_by="tools/study.py mbrl-loop", quick=args.quick, design=design,
+    results = dict(written_by="tools/study.py mbrl-loop", provenance=args.provenance, quick=args.quick, design=design,
                    evaluation_plans=[index for index, _ in references], verdicts=verdicts(summaries),
                    rounds=per_round(summaries), loops=summaries, seconds=round(time.perf_counter() - started, 1))
     args.output.mkdir(parents=True, exist_ok=True)

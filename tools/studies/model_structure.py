@@ -188,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(args.output / "summary.csv", rows_csv(summary))
     write_text_atomic(args.output / "comparisons.csv", rows_csv(comparisons))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/study.py model-structure", quick=args.quick, seeds=seeds, epochs=epochs,
+        written_by="tools/study.py model-structure", provenance=args.provenance, quick=args.quick, seeds=seeds, epochs=epochs,
         held_out_seed=HELD_OUT_SEED, test_trajectories=keep, left_out_for_self_contact=contact, horizon=HORIZON, seconds=round(elapsed, 1), configs=CONFIGS,
         summary=summary, comparisons=comparisons, runs=rows), indent=2) + "\n")
     print(f"\n{'config':>13} {'learned':>8} {'q vs Euler':>11} {'v vs unchanged':>15} {'q@20 vs stays put':>18}")

@@ -183,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
     for arm in arms:
         print(f"{arm}:", flush=True)
         rows.append(run_arm(arm, args.descriptions.resolve(), args.output.resolve(), args.quick))
-    write_text_atomic(args.output / "summary.json", json.dumps(dict(quick=args.quick, arms=rows), indent=1) + "\n")
+    write_text_atomic(args.output / "summary.json", json.dumps(dict(written_by="tools/study.py published-arms", provenance=args.provenance, quick=args.quick, arms=rows), indent=1) + "\n")
     columns = list(dict.fromkeys(key for row in rows for key in row if key not in ("steps", "view", "failed_steps")))
     flat = [{key: row.get(key, "") for key in columns} | dict(failed_steps=" ".join(row["failed_steps"])) for row in rows]
     write_text_atomic(args.output / "summary.csv", rows_csv(flat, columns + ["failed_steps"]))

@@ -394,7 +394,7 @@ def run(args: argparse.Namespace) -> int:
     robot, effects = robot_and_effects(args)
     results = run_experiment(QUICK if args.quick else FULL, args.data, robot, effects, workers=args.workers,
                              say=lambda line: print(line, flush=True))
-    results = dict(written_by="tools/study.py reality-gap", quick=args.quick, **results)
+    results = dict(written_by="tools/study.py reality-gap", provenance=args.provenance, quick=args.quick, **results)
     write_results(results, args.output)
     for row in results["closed_loop"]:
         ratio = row["nominal_over_model"]

@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
         found[model_type] = intervals(values)
     nominal = [run["q_mse_rad2"] for run in runs if run["split"] == "test" and run.get("setting") == "tuned"
                and run["model"] == "plant"]
-    result = dict(written_by="tools/study.py reality-gap-plans", source=str(args.results.relative_to(ROOT)
+    result = dict(written_by="tools/study.py reality-gap-plans", provenance=args.provenance, source=str(args.results.relative_to(ROOT)
                                                                            if args.results.is_relative_to(ROOT)
                                                                            else args.results),
                   test_plans=plans, nominal_q_rms_rad=math.exp(np.mean(np.log(nominal)) / 2), models=found)

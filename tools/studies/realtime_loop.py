@@ -132,8 +132,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from benchmark_report import provenance
-    origin = provenance()      # (at the start: the code this run imports)
     folder = args.folder or pathlib.Path(tempfile.mkdtemp(prefix="realtime_loop_"))
     _, label, period, _ = ROBOTS[args.robot]
     periods = {label: period, SLOW[0]: SLOW[1]}
@@ -150,15 +148,13 @@ def run(args: argparse.Namespace) -> int:
     implementations = sorted({run.get("implementation", "") for result in results.values() for run in result["runs"]})
     print("control step:", ", ".join(implementations))
     if args.write or args.result:
-        from benchmark_report import machine_description, recorded_command   # (tools/ is on the path)
         from stdm_drake.files import write_text_atomic
         target = ROOT / "docs" / "results" / "realtime"
         target.mkdir(parents=True, exist_ok=True)
         name = args.result or ("loop_control_data.json" if args.control_data else "loop.json")
         write_text_atomic(target / name, json.dumps(dict(
-            verdict=outcome, tracking=lines, machine=machine_description(threads=1), provenance=origin,
+            written_by="tools/study.py realtime-loop", provenance=args.provenance, verdict=outcome, tracking=lines,
             control_step=implementations,
-            command=recorded_command("python tools/study.py realtime-loop", sys.argv[2:]),
             robot=args.robot,
             periods={label: dict(sample_period=periods[label], exit_status=result["exit_status"],
                                  summary=result["summary"],

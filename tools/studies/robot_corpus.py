@@ -229,7 +229,7 @@ def run(args: argparse.Namespace) -> int:
               f"fails at {row['failed_stage']}: {row['reason']}") + f" ({row['seconds']:.0f} s)", flush=True)
         rows.append(row)
     args.output.mkdir(parents=True, exist_ok=True)
-    result = dict(summary=summary(rows), rows=rows)
+    result = dict(written_by="tools/study.py robot-corpus", provenance=args.provenance, summary=summary(rows), rows=rows)
     write_text_atomic(args.output / "corpus.json", json.dumps(result, indent=1) + "\n")
     columns = list(dict.fromkeys(key for row in rows for key in row))
     write_text_atomic(args.output / "corpus.csv", rows_csv([{key: row.get(key, "") for key in columns} for row in rows],

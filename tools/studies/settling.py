@@ -575,13 +575,10 @@ def run(args: argparse.Namespace) -> int:
     runner = runner_config_from_args(args)
     profile, cells = (QUICK, (CELLS[0], CELLS[3])) if args.quick else (FULL, CELLS)
     if args.plant_rows:
-        from benchmark_report import machine_description, provenance, recorded_command   # (tools/ on the path)
-        origin = provenance()
         rows = plant_rows(cells, profile, args.data, runner, progress=lambda text: print(text, flush=True))
         args.output.mkdir(parents=True, exist_ok=True)
         write_text_atomic(args.output / "plant_rows.json", json.dumps(dict(
-            written_by="tools/study.py settling --plant-rows", provenance=origin, machine=machine_description(),
-            command=recorded_command("python tools/study.py settling", sys.argv[2:]), quick=args.quick,
+            written_by="tools/study.py settling --plant-rows", provenance=args.provenance, quick=args.quick,
             profile=dataclasses.asdict(profile), plant=rows), indent=2, default=json_default) + "\n")
         for row in rows:
             print(f"{row['data']} seed {row['data_seed']}: " + "; ".join(
@@ -594,7 +591,7 @@ def run(args: argparse.Namespace) -> int:
     write_text_atomic(args.output / "cells.csv", rows_csv(flat_rows(study["summary"])))
     write_text_atomic(args.output / "results.md", markdown(study["summary"], study["chain_rule"]))
     write_text_atomic(args.output / "results.json", json.dumps(dict(
-        written_by="tools/study.py settling", quick=args.quick, design="docs/settling.md",
+        written_by="tools/study.py settling", provenance=args.provenance, quick=args.quick, design="docs/settling.md",
         profile=dataclasses.asdict(profile), raw_grid=RAW_GRID, relative_grid=RELATIVE_GRID, extension=EXTENSION,
         horizon=HORIZON, cells=[dataclasses.asdict(c) for c in cells], seconds=study["seconds"],
         chain_rule=study["chain_rule"], extended=[f"{cell} {scale}" for (cell, scale), on in study["extended"].items()
