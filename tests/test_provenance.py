@@ -137,3 +137,15 @@ def test_a_command_records_its_own_line_with_no_folder_of_this_machine(tmp_path)
         record = command_provenance()
     assert record["command"] == "stdm-drake mpc DIR/model.pt --plans 3 -o DIR"
     assert record["commit"] == source_state()["commit"] and command_provenance()["command"] == "stdm-drake"
+
+
+def test_no_committed_page_or_result_holds_a_folder_of_the_machine_it_was_made_on():
+    """The docs, their results files, README.md and BENCHMARKS.md: no absolute path of a machine (a run's
+    folders are DIR, the Python install PYTHON), so a committed result says nothing that is true only there."""
+    files = subprocess.run(["git", "-C", str(ROOT), "ls-files", "docs", "README.md", "BENCHMARKS.md"],
+                           capture_output=True, text=True, check=True).stdout.split()
+    machine_path = re.compile(r"(?<![\w.])/(work|tmp|home|root|Users|private/var)/")
+    found = [f"{name}:{number}" for name in files if not name.endswith((".png", ".h5", ".pt", ".onnx"))
+             for number, line in enumerate((ROOT / name).read_text(errors="replace").splitlines(), 1)
+             if machine_path.search(line)]
+    assert not found, found[:10]
