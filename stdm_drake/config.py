@@ -11,12 +11,18 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from stdm_drake.errors import InputError, warn
+from stdm_drake.files import size_text
 from stdm_drake.paths import check_input_file
 
 
 def one_line(error: BaseException) -> str:
     """An exception's message squeezed onto one line (its type name if it has none)."""
     return " ".join(str(error).split()) or type(error).__name__
+
+
+# A settings file (MPC, controller, sensor, plan, plant effects, training) states a few dozen values: a few kB.
+# One past this is refused before it is read, since the YAML parser would spend minutes on it (a 50 MB list).
+MAX_SETTINGS_BYTES = 1 << 20
 
 
 def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | None = None, defaults=None,
@@ -30,6 +36,9 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     holding `kind:` and the fields, or, for the field "", the whole file): read by `from_kind_layout`.
     """
     path = check_input_file(path, what)
+    if path.is_file() and (size := path.stat().st_size) > MAX_SETTINGS_BYTES:
+        raise InputError(f"{path}: {size_text(size)}, more than any {what} holds (a few kB; at most "
+                         f"{size_text(MAX_SETTINGS_BYTES)} is read)")
     check_quoted_numbers(path, schema)
     config = _load_old_layout(path, schema, what, old_layouts) if old_layouts else None
     if config is None:
@@ -129,9 +138,9 @@ _TagsAsPlainValues.add_multi_constructor("!", _plain)
 
 def read_yaml_document(path):
     """A YAML file's document as plain Python values, tags ignored (to see its layout before the typed
-    load); None when it cannot be read or parsed, or is no regular file (a FIFO: reading would block; the
-    typed load then says why)."""
-    if not pathlib.Path(path).is_file():
+    load); None when it cannot be read or parsed, is no regular file (a FIFO: reading would block) or is
+    larger than any settings file (MAX_SETTINGS_BYTES); the typed load then says why."""
+    if not pathlib.Path(path).is_file() or pathlib.Path(path).stat().st_size > MAX_SETTINGS_BYTES:
         return None
     try:
         return yaml.load(pathlib.Path(path).read_text(), Loader=_TagsAsPlainValues)

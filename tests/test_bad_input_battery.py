@@ -262,6 +262,16 @@ def write_other_commands_outputs(box) -> None:
     (box / "mpcout" / "mpc.json").write_text(json_module.dumps(dict(summary=[])))   # (from before written_by)
     (box / "repro" / "cache").mkdir()
     shutil.copy(box / "data.h5", box / "trainout" / "data.h5")
+    for folder in ("mbrlloop", "mbrlcfg"):   # an mbrl loop's folder (rounds 0..5 done), and one holding a setting
+        (box / folder).mkdir()
+        (box / folder / ".stdm-drake-output").write_text("stdm-drake outputs\ncommand: mbrl\n")
+    (box / "mbrlloop" / "loop.json").write_text("{}")
+    for index in range(6):
+        (box / "mbrlloop" / f"round{index}").mkdir()
+        (box / "mbrlloop" / f"round{index}" / "evaluation.json").write_text("{}")
+    shutil.copy(box / "mpc.yaml", box / "mbrlcfg" / "mpc.yaml")
+    # a settings file of 1.2 MB (a weight list no robot has): refused by its size before the YAML parser sees it
+    (box / "big_settings.yaml").write_text("horizon: 20\ncost:\n  state_weights: [" + ", ".join(["1.0"] * 300_000) + "]\n")
     (box / "oldmarked" / "cache").mkdir(parents=True)   # an older marker (no command line) of a reproduce run
     (box / "oldmarked" / ".stdm-drake-output").write_text("This folder holds stdm-drake outputs\n")
     (box / "oldmarked" / "report.md").write_text("# report\n")
@@ -297,6 +307,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "IDREPORT": "id_report.json", "IMPORTED": "imported.h5", "COLLECTHTML": "collect.html",
                 "OLDREPRO": "oldrepro", "MPCOUT": "mpcout", "TRAINOUT": "trainout", "OUTLOOP": "out_loop_a",
                 "OLDMARKED": "oldmarked", "CACHELINK": "cache_link", "FOREIGNONNX": "foreign.onnx",
+                "MBRLLOOP": "mbrlloop", "MBRLCFG": "mbrlcfg", "BIGSETTINGS": "big_settings.yaml",
                 **{name.upper().replace("_", ""): f"{name}.h5" for name in (
                     "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
                     "attr_count", "sub_group", "flat_trajectory", "attr_period", "empty_trajectory")}}
@@ -343,6 +354,14 @@ CASES = [
     (["mbrl", "--epochs", "0", "-o", "NEW"], "epochs (--epochs) must be >= 1"),
     (["mbrl", "--plant-effects", "missing.yaml", "-o", "NEW"], "plant effects not found: missing.yaml"),
     (["mbrl", "-o", "REPRO"], "holds the outputs of `stdm-drake reproduce`"),
+    # --- mbrl's outputs (issue 56): never another loop's rounds, never a folder holding the run's own inputs
+    (["mbrl", "-o", "MBRLLOOP/round1"], "is inside the loop in"),
+    (["mbrl", "--force", "-o", "MBRLLOOP/round9"], "is inside the loop in"),
+    (["mbrl", "--rounds", "2", "-o", "MBRLLOOP"], "holds rounds 0..5 of its loop; resume it with --rounds 5 or more"),
+    (["mbrl", "--config", "MBRLCFG/mpc.yaml", "--force", "-o", "MBRLCFG"], "holds the input"),
+    # --- work bounded before it starts (issue 56): a settings file larger than any is refused unread
+    ([*M, "--config", "BIGSETTINGS", "-o", "NEW"], "more than any MPC config holds"),
+    (["mbrl", "--config", "BIGSETTINGS", "-o", "NEW"], "more than any"),
     (["sine-sum", "--quick", "--epochs", "1000000000", "-o", "NEW"], "--epochs must be in 1..1000000"),
     # --- logs to import (issue 24): malformed recordings, wrong units, bad mappings, outputs
     ([*I, "LOGNOTS", "-o", "NEW.h5"], "not a log this import reads"), ([*I, "LOGMISSING", "-o", "NEW.h5"], "actual_qd_3"),

@@ -31,7 +31,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from stdm_drake.closed_loop.mpc import mpc_config_for
     from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.experiments.mbrl_loop import LoopConfig, run_loop
+    from stdm_drake.experiments.mbrl_loop import LoopConfig, check_loop_folder, run_loop
     from stdm_drake.outputs import check_output_folder, mark_output_folder
     from stdm_drake.robots.plant import plant_effects_for
     robot = resolve_robot(args.robot)
@@ -41,7 +41,9 @@ def run(args: argparse.Namespace) -> int:
                         plans_per_round=args.plans_per_round, evaluation_plans=args.evaluation_plans, seed=args.seed,
                         open_loop=args.open_loop)
     config.validate()
-    check_output_folder("-o/--output", args.output, force=args.force)
+    check_loop_folder(args.output, args.rounds)   # (with --force too: another loop's rounds are never changed)
+    check_output_folder("-o/--output", args.output, inputs=(args.robot, args.config, args.plant_effects),
+                        force=args.force)
     mark_output_folder(args.output)
     summary = run_loop(config, say=(lambda line: None) if args.quiet else print)
     last = summary["rounds"][-1]

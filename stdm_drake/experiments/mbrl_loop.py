@@ -218,6 +218,7 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print) -> d
     config.validate()
     started = time.perf_counter()
     output = pathlib.Path(config.output)
+    check_loop_folder(output, config.rounds)
     initial_request = collection(config, config.initial_plans, config.data_seed)
     if references is None:
         plans, _ = planned(collection(config, config.evaluation_plans, config.evaluation_seed))
@@ -276,6 +277,21 @@ def loop_record(config: LoopConfig) -> dict:
                 initial_plans=config.initial_plans, plans_per_round=config.plans_per_round, seed=config.seed,
                 data_seed=config.data_seed, plan_seed=config.plan_seed, mpc=config.mpc.record(),
                 controller=str(config.controller), sensor=str(config.sensor))
+
+
+def check_loop_folder(output: pathlib.Path, rounds: int) -> None:
+    """InputError (one line, before any work) for an output that would change a loop's files: a folder inside a
+    loop's folder (one holding loop.json: its round folders), or a rerun with fewer rounds than the folder holds
+    (summary.json would then name fewer rounds than the round folders beside it)."""
+    output = pathlib.Path(output)
+    for parent in output.absolute().parents:
+        if (parent / "loop.json").is_file():
+            raise InputError(f"-o/--output {output} is inside the loop in {parent}, whose rounds it would change; "
+                             "give a folder outside it")
+    held = [int(folder.name[5:]) for folder in output.glob("round*") if folder.name[5:].isdigit()]
+    if held and max(held) > rounds:
+        raise InputError(f"{output} holds rounds 0..{max(held)} of its loop; resume it with --rounds {max(held)} or "
+                         "more, or give another -o/--output")
 
 
 def check_same_loop(output: pathlib.Path, config: LoopConfig, references: list) -> None:

@@ -112,20 +112,38 @@ def _urdf(root) -> Description:
 
 def _sdf(root) -> Description:
     """SDFormat's defaults: a link without <inertial> has mass 1 kg and unit inertia; a velocity limit
-    below 0 means none."""
+    below 0 means none. Names are scoped as SDFormat scopes them: a nested model's links are "inner::link",
+    and where the file holds several models (a world of two arms) every name is "model::name", so two models
+    that both have a link "base" are two links, not one link with two parents."""
     links, joints = {}, []
     defaults = dict(mass=1.0, ixx=1.0, iyy=1.0, izz=1.0, ixy=0.0, ixz=0.0, iyz=0.0)
-    for link in root.iter("link"):
-        inertial = link.find("inertial")
-        read = inertial.findtext if inertial is not None else (lambda key: None)  # noqa: E731
-        links[link.get("name")] = _inertial(read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS},
-                                            defaults)
-    for joint in root.iter("joint"):
-        values = {key: file_number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
-        if values["velocity"] is not None and values["velocity"] < 0:
-            values["velocity"] = None
-        joints.append(Joint(joint.get("name"), joint.get("type"), (joint.findtext("parent") or "").strip(),
-                            (joint.findtext("child") or "").strip(), **values))
+
+    def models(element):   # (the models at the top, inside <sdf> or its <world>)
+        for child in element:
+            if child.tag == "model":
+                yield child
+            elif child.tag == "world":
+                yield from models(child)
+
+    def read_model(model, prefix: str) -> None:
+        for link in model.findall("link"):
+            inertial = link.find("inertial")
+            read = inertial.findtext if inertial is not None else (lambda key: None)  # noqa: E731
+            links[prefix + link.get("name", "")] = _inertial(
+                read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS}, defaults)
+        for joint in model.findall("joint"):
+            values = {key: file_number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
+            if values["velocity"] is not None and values["velocity"] < 0:
+                values["velocity"] = None
+            parent, child = ((joint.findtext(end) or "").strip() for end in ("parent", "child"))
+            joints.append(Joint(joint.get("name"), joint.get("type"), parent if parent in ("world", "") else
+                                prefix + parent, child and prefix + child, **values))
+        for nested in model.findall("model"):
+            read_model(nested, f"{prefix}{nested.get('name', '')}::")
+
+    top = list(models(root))
+    for model in top:
+        read_model(model, f"{model.get('name', '')}::" if len(top) > 1 else "")
     return Description(links, joints)
 
 
@@ -219,16 +237,19 @@ def check_tree(description: Description, where: str) -> None:
                              f"{joint.name!r}, a kinematic loop; Drake's plant needs a tree (close loops with a "
                              "constraint, not a joint)")
         parents[joint.child] = joint
+    done = set()   # links whose way up to a root is known to end (each link walked once: linear in the links)
     for start in parents:
-        link, seen = start, []
-        while link in parents:
-            seen.append(parents[link].name)
-            link = parents[link].parent
-            if link == start:
-                raise InputError(f"{where}: joints {', '.join(seen)} form a cycle through link {start!r}, a kinematic "
+        path, index = [], {}
+        link = start
+        while link in parents and link not in done:
+            if link in index:
+                cycle = [parents[name].name for name in path[index[link]:]]
+                raise InputError(f"{where}: joints {', '.join(cycle)} form a cycle through link {link!r}, a kinematic "
                                  "loop; Drake's plant needs a tree")
-            if len(seen) > len(parents):
-                break
+            index[link] = len(path)
+            path.append(link)
+            link = parents[link].parent
+        done.update(path)
 
 
 def check_inertial(inertial: Inertial, where: str) -> None:
