@@ -272,6 +272,7 @@ def test_trained_networks_compiled_torques_are_the_references_on_recorded_states
             assert active >= 1
 
 
+@pytest.mark.slow
 def test_a_machine_without_a_compiler_stops_the_install_in_one_line(tmp_path):
     """setup.py: no C++ compiler is one line saying so (and what to install), before any work; no package is built
     without the compiled step."""

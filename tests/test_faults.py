@@ -404,6 +404,7 @@ def test_an_unwritable_matplotlib_config_folder_is_one_line(tmp_path):
     assert "MPLBACKEND='nonsense' is no Matplotlib backend" in backend.stderr
 
 
+@pytest.mark.slow
 def test_python_flags_that_strip_docstrings_or_narrow_the_output_encoding(tmp_path, excitation_dataset):
     """Held-out run 8: under PYTHONOPTIMIZE=2 (docstrings gone) every command was a traceback; with
     PYTHONIOENCODING=ascii a command did its work and then failed printing a unit's ² or an ellipsis."""
@@ -446,6 +447,7 @@ def test_meshcat_turned_off_by_drake_allow_network_is_one_line(tmp_path, capsys,
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_training_run_that_would_not_fit_in_memory_is_refused_before_it_starts(tmp_path, capsys, monkeypatch,
                                                                                    excitation_dataset):
     """The estimate (weights with Adam's state, and a batch's activations and tangents) against the memory

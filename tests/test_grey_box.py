@@ -120,6 +120,7 @@ def affected(tmp_path_factory):
     return data, folder / "identified.yaml"
 
 
+@pytest.mark.slow
 def test_train_g_and_gd_record_the_grey_box_and_its_plant(affected, tmp_path, capsys):
     data, identified = affected
     common = ["--train", "1", "--val", "1", "--test", "0", "--epochs", "2", "--hidden-width", "16", "--quiet"]

@@ -133,6 +133,7 @@ def test_smoothed_samples_are_exact_for_cubic_motion_and_average_the_held_torque
     np.testing.assert_allclose(torque, savgol_filter(0.5 * (held[:-1] + held[1:]), 9, 3, axis=0)[4:-4], atol=1e-12)
 
 
+@pytest.mark.slow
 def test_identify_meets_the_goals_on_noise_free_affected_data(identified, affected_data):
     """Torque RMS error <= 1 % on the test plans, every friction coefficient within 5 % of the truth; the
     file loads, the report holds the candidates and the excitation."""
@@ -174,6 +175,7 @@ def test_the_identified_robot_is_a_model_that_steps_like_the_true_plant(identifi
     np.testing.assert_allclose(system.get_state_output_port().Eval(context), x[1], atol=1e-6)
 
 
+@pytest.mark.slow
 def test_evaluate_and_view_take_the_identified_robot(identified, affected_data, tmp_path, capsys):
     assert main(["evaluate", str(identified), str(affected_data), "--horizon", "20", "--json",
                  str(tmp_path / "e.json")]) == 0

@@ -56,6 +56,7 @@ def imported(log: pathlib.Path, out: pathlib.Path, *extra) -> pathlib.Path:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["rtde_space", "rtde_comma", "bag_sqlite3", "bag_mcap"])
 def test_the_import_gives_back_the_simulated_data_within_its_stated_error(simulated_500hz, logs, tmp_path, name):
     """Angles within the stated resampling error of the true motion at the import's grid times, torques exact but

@@ -131,6 +131,7 @@ def linear_system_data(rng, rows: int, period: float = 0.01):
                           target_rates=x_rate @ A.T + a_rate @ B.T), A, B
 
 
+@pytest.mark.slow
 def test_a_second_network_kind_trains_saves_loads_and_predicts(affine_registered, tmp_path):
     from stdm_drake.learning.checkpoint import load_checkpoint
     from stdm_drake.learning.learned_model import LearnedModel

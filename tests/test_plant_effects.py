@@ -153,6 +153,7 @@ def test_torque_noise_is_seeded_process_noise(tmp_path):
     assert np.abs(np.array(recorded_torque) - first.qdd[:5]).max() > 1e-3   # qdd: the noisy torque's
 
 
+@pytest.mark.slow
 def test_closed_loops_meet_the_torque_noise_seeded_by_plan(affected_dataset):
     """With torque_noise_std the MPC's plant gets the controller's torque plus the held draws of
     default_rng(seed) (the same every run of that seed, so every model meets the same noise on a plan):

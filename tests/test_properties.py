@@ -143,6 +143,7 @@ def test_a_yaml_config_loads_or_is_refused(tmp_path, schema_index, document, use
         assert one_line(error), str(error)
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(count=st.integers(-5, 10**6), workers=st.integers(-3, 64), seed=st.integers(-2**40, 2**40),
        period=st.one_of(st.sampled_from([0.01, 0.004, 0.0105]), st.floats(allow_nan=True, allow_infinity=True),

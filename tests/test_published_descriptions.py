@@ -228,6 +228,7 @@ def test_friction_and_gear_ratios_the_plant_leaves_out_are_reported(tmp_path, ca
     assert "gear ratios (elbow 100): the action is the joint torque itself" in caplog.text
 
 
+@pytest.mark.slow
 def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
     """An arm with 0.628 rad/s joints (the UR-10's kinematics and inertia, a fifth of its speed): the
     derived final-pose box and angle shrink so that the 1 s plans stay within the planner's half of the

@@ -235,6 +235,7 @@ def test_reproduce_exits_2_when_an_mpc_run_left_the_limits(tmp_path, monkeypatch
         capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_training_results_are_typed_cached_and_retrained_when_stale(excitation_dataset, tmp_path):
     """A grid job yields one TrainingResult per variant with the physics baselines beside the model; the
     cache returns the same results marked reused; a cached row of another schema is trained again."""
