@@ -33,6 +33,12 @@ BUDGETS = {"iLQR": ("Ilqr", dict(max_iterations=1)),
 GRIDS = {"iCEM": [dict(noise_std=s) for s in (0.3, 1.0, 3.0)],
          "MPPI": [dict(noise_std=s, temperature=t) for s in (0.3, 1.0, 3.0) for t in (0.03, 0.3)],
          "CEM": [dict(noise_std=s) for s in (0.3, 1.0, 3.0)]}
+# run 2 (docs/sampling_mpc.md, "Part A, run 2"): run 1's grids extended past every choice that fell at an edge
+# (MPPI's temperature at the top, PE's MPPI noise at the bottom, CEM's noise at the top), iCEM's unchanged
+GRIDS_BY_RUN = {1: GRIDS,
+                2: {"iCEM": GRIDS["iCEM"],
+                    "MPPI": [dict(noise_std=s, temperature=t) for s in (0.1, 0.3, 1.0, 3.0) for t in (0.03, 0.3, 3.0, 30.0)],
+                    "CEM": [dict(noise_std=s) for s in (0.3, 1.0, 3.0, 10.0)]}}
 PARTICLES = dict(propagation="tsinf", particles=5)     # PE and PED: one particle per member
 
 
@@ -184,7 +190,8 @@ def goal(rows: list) -> dict:
     return dict(met=bool(met), text=f"PE within 1.5x of iLQR with no limit left: {text}")
 
 
-def run_experiment(design: dict, data_folder: pathlib.Path, robot, effects, workers: int = 2, say=print) -> dict:
+def run_experiment(design: dict, data_folder: pathlib.Path, robot, effects, workers: int = 2, say=print,
+                   grids: dict = GRIDS) -> dict:
     from stdm_drake.cluster import RunnerConfig, job_pool
     from stdm_drake.closed_loop.tuning import best_setting
     from studies.reality_gap import dataset, start_poses, train
@@ -216,14 +223,14 @@ def run_experiment(design: dict, data_folder: pathlib.Path, robot, effects, work
                     checkpoint=checkpoint.get(name) if path is None else path, type=model_type, seed=seed,
                     optimizer=optimizer, extra=extra or {}, variant=variant or optimizer)
 
-    tuning_jobs = [job(kind, 0, name, "val", extra) for kind in ("D", "PE") for name, grid in GRIDS.items()
+    tuning_jobs = [job(kind, 0, name, "val", extra) for kind in ("D", "PE") for name, grid in grids.items()
                    for extra in grid]
     with job_pool(RunnerConfig(workers=workers)) as pool:
         tuning = [row for rows in [future.result() for future in
                                    [pool.submit(closed_loop_group, spec, cache) for spec in tuning_jobs]] for row in rows]
     chosen = {}
     for kind in ("D", "PE"):
-        for name, grid in GRIDS.items():
+        for name, grid in grids.items():
             runs_by = {tuple(sorted(extra.items())): [run for run in tuning if run["type"] == kind and
                                                       run["optimizer"] == name and run["extra"] == extra]
                        for extra in grid}
@@ -241,7 +248,7 @@ def run_experiment(design: dict, data_folder: pathlib.Path, robot, effects, work
         runs = [row for future in futures for row in future.result()]
     say(f"sampling-mpc: closed loops in {time.perf_counter() - started:.0f} s")
     rows = summary(runs, seeds, gates)
-    return dict(robot=robot.name, design=design, setting=SETTING, budgets=BUDGETS, grids=GRIDS, effects=effects.record(),
+    return dict(robot=robot.name, design=design, setting=SETTING, budgets=BUDGETS, grids=grids, effects=effects.record(),
                 seconds=round(time.perf_counter() - started, 1), gates=gates, chosen=chosen, summary=rows,
                 goal=goal(rows), tuning_runs=tuning, runs=runs)
 
@@ -268,15 +275,21 @@ def write_results(results: dict, folder: pathlib.Path) -> None:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     from studies.affected_plant import add_affected_plant_arguments
     add_affected_plant_arguments(parser, "sampling_mpc", quick_minutes=3)
+    parser.add_argument("--run", type=int, choices=sorted(GRIDS_BY_RUN), default=1,
+                        help="the design's run: 1 (Part A as designed) or 2 (the sampling grids extended past run 1's "
+                             "edge choices; default output docs/results/sampling_mpc/run2)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from studies.affected_plant import quick_folders, robot_and_effects
+    from studies.affected_plant import ROOT, quick_folders, robot_and_effects
     quick_folders(args, "sampling_mpc")
+    if args.run > 1 and not args.quick and args.output == ROOT / "docs" / "results" / "sampling_mpc":
+        args.output = args.output / f"run{args.run}"
     robot, effects = robot_and_effects(args)
     results = run_experiment(QUICK if args.quick else FULL, args.data, robot, effects, workers=args.workers,
-                             say=lambda line: print(line, flush=True))
-    results = dict(written_by="tools/study.py sampling-mpc", provenance=args.provenance, quick=args.quick, **results)
+                             say=lambda line: print(line, flush=True), grids=GRIDS_BY_RUN[args.run])
+    results = dict(written_by="tools/study.py sampling-mpc", provenance=args.provenance, quick=args.quick,
+                   run=args.run, **results)
     write_results(results, args.output)
     for row in results["summary"]:
         ratio = row["ratio"]
