@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 import pathlib
 import platform
+import re
 import subprocess
 from importlib.metadata import PackageNotFoundError, version
 
@@ -19,10 +20,16 @@ DIRTY_HINT = ("commit them (the results then name the code that made them) or pa
               "(recorded in the results)")
 
 
+# What a results file records is the code; the results themselves (docs/, the Markdown pages, BENCHMARKS.md)
+# change with every run that writes them, so a change there does not make the code unclean.
+NOT_CODE = (":(exclude)docs", ":(exclude)*.md")
+
+
 def source_state(root: pathlib.Path | None = None) -> dict:
-    """{"commit": the checkout's HEAD (None outside a git checkout), "clean": True when no tracked file differs
-    from it (untracked files aside; False outside a checkout, where the code cannot be traced)}. `root`: the
-    checkout (default: the one this package is in)."""
+    """{"commit": the checkout's HEAD (None when `root` is not the top of a git checkout: a regular install,
+    even one inside another checkout), "clean": True when no tracked file of code differs from it (untracked
+    files, docs/ and Markdown pages aside; False without a checkout, where the code cannot be traced)}.
+    `root`: the checkout (default: the one this package is in)."""
     root = PACKAGE_FOLDER.parent if root is None else pathlib.Path(root)
 
     def git(*arguments):
@@ -31,11 +38,12 @@ def source_state(root: pathlib.Path | None = None) -> dict:
         except (OSError, subprocess.TimeoutExpired):   # no git on this machine
             return None
         return result.stdout.strip() if result.returncode == 0 else None
-    commit = git("rev-parse", "--verify", "HEAD")
-    if not commit:
+    top = git("rev-parse", "--show-toplevel")
+    if not top or pathlib.Path(top).resolve() != root.resolve():
         return dict(commit=None, clean=False)
-    changes = git("status", "--porcelain", "--untracked-files=no")
-    return dict(commit=commit, clean=changes == "")
+    commit = git("rev-parse", "--verify", "HEAD")
+    changes = git("--no-optional-locks", "status", "--porcelain", "--untracked-files=no", "--", ".", *NOT_CODE)
+    return dict(commit=commit, clean=bool(commit) and changes == "")
 
 
 def machine_description(threads: int | None = None) -> str:
@@ -62,6 +70,7 @@ def package_version() -> str | None:
 
 
 FOLDER_OPTIONS = ("--folder", "--data", "-o", "--output")
+ABSOLUTE_PATH = re.compile(r"(?<![\w.~])/[^\s=,:;]+")
 
 
 def recorded_command(program: str, arguments: list[str], folders=FOLDER_OPTIONS,
@@ -71,16 +80,17 @@ def recorded_command(program: str, arguments: list[str], folders=FOLDER_OPTIONS,
     the checkout `root`, default this package's, when inside it)."""
     root = PACKAGE_FOLDER.parent if root is None else pathlib.Path(root)
 
+    def path_shown(match) -> str:
+        path = pathlib.Path(match.group(0))
+        return str(path.relative_to(root)) if path.is_relative_to(root) else f"DIR/{path.name}"
+
     def shown(previous: str, value: str) -> str:
         option, equals, attached = value.partition("=")
         if equals and option.startswith("--"):
             return f"{option}={shown(option, attached)}"
         if previous in folders:
             return "DIR"
-        if value.startswith("/"):
-            path = pathlib.Path(value)
-            return str(path.relative_to(root)) if path.is_relative_to(root) else f"DIR/{path.name}"
-        return value
+        return ABSOLUTE_PATH.sub(path_shown, value)   # (a path alone, or inside a value: --model D=/x/model.pt)
     return " ".join([program, *(shown(previous, value) for previous, value in zip([""] + list(arguments), arguments))])
 
 

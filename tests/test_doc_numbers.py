@@ -46,3 +46,11 @@ def test_a_missing_file_or_key_is_a_failure_not_a_pass(tmp_path):
     assert "not a committed results file" in quoted(tmp_path, '3<!-- = nothing.json: r["x"] -->', {})[1][0]
     assert "KeyError" in quoted(tmp_path, '3<!-- = results.json: r["x"] -->', {})[1][0]
     assert "expected" in quoted(tmp_path, 'none<!-- = results.json: r["x"] -->', {"x": 3})[1][0]
+
+
+def test_the_number_stands_right_before_its_source_and_a_value_is_given(tmp_path):
+    """A number further back than a short unit is not the one the comment names; an empty value checks nothing."""
+    assert quoted(tmp_path, 'took 590 s in all, two runs at once<!-- = results.json: r["seconds"] -->',
+                  {"seconds": 590.3})[1]
+    assert "gives no value" in quoted(tmp_path, '3<!-- = results.json: r["x"] -->', {"x": []})[1][0]
+    assert quoted(tmp_path, 'p95 2.30 ms<!-- = results.json: r["x"] -->', {"x": 2.3}) == (1, [])

@@ -42,6 +42,23 @@ def test_the_state_of_a_checkout_is_its_commit_and_whether_tracked_files_changed
     outside = tmp_path / "not_a_checkout"
     outside.mkdir()
     assert source_state(outside) == dict(commit=None, clean=False)
+    installed = checkout / ".venv" / "site-packages"   # (a regular install inside a checkout names no commit)
+    installed.mkdir(parents=True)
+    assert source_state(installed) == dict(commit=None, clean=False)
+
+
+def test_the_results_a_run_writes_do_not_make_the_code_unclean(checkout):
+    """A change to docs/ or a Markdown page (results files, BENCHMARKS.md) leaves the checkout's code clean."""
+    (checkout / "docs").mkdir()
+    for name in ("docs/results.json", "BENCHMARKS.md"):
+        (checkout / name).write_text("{}\n")
+    git(checkout, "add", "docs/results.json", "BENCHMARKS.md")
+    git(checkout, "-c", "user.name=t", "-c", "user.email=t@example.org", "commit", "-q", "-m", "results")
+    for name in ("docs/results.json", "BENCHMARKS.md"):
+        (checkout / name).write_text('{"new": 1}\n')
+    assert source_state(checkout)["clean"] is True
+    (checkout / "code.py").write_text("x = 3\n")
+    assert source_state(checkout)["clean"] is False
 
 
 def test_a_record_names_the_code_the_command_and_the_machine(checkout):
@@ -54,26 +71,29 @@ def test_a_record_names_the_code_the_command_and_the_machine(checkout):
 def test_the_recorded_command_holds_no_folder_of_this_machine(tmp_path):
     command = benchmark_report.recorded_command("python tools/study.py decisive", [
         "--quick", "-o", str(tmp_path / "out"), f"--data={tmp_path / 'data'}", "--checkpoint",
-        str(tmp_path / "DD" / "checkpoint.pt"), "--plant-effects", str(ROOT / "models" / "effects.yaml")])
+        str(tmp_path / "DD" / "checkpoint.pt"), "--plant-effects", str(ROOT / "models" / "effects.yaml"), "--model",
+        f"DD={tmp_path / 'DD' / 'model.pt'}"])
     assert command == ("python tools/study.py decisive --quick -o DIR --data=DIR --checkpoint DIR/checkpoint.pt "
-                       "--plant-effects models/effects.yaml")
+                       "--plant-effects models/effects.yaml --model DD=DIR/model.pt")
     assert str(tmp_path) not in command
 
 
 def test_a_study_refuses_a_checkout_with_uncommitted_changes_unless_told(checkout, tmp_path, monkeypatch, capsys):
-    """One line, exit status 2, before the study starts (here it would have said the checkpoint is missing);
-    with --allow-dirty the study runs (and reaches that error)."""
+    """One line, exit status 2, before the study starts (here it would have said its input is missing); with
+    --allow-dirty the study runs (and reaches that error). A study that writes no results is not refused."""
     monkeypatch.setattr(benchmark_report, "ROOT", checkout)
     (checkout / "code.py").write_text("x = 2\n")
-    arguments = [str(tmp_path / "none.h5"), str(tmp_path / "none.pt")]
-    assert study.main(["jacobian-accuracy", *arguments]) == 2
+    arguments = ["--results", str(tmp_path / "none.json"), "-o", str(tmp_path / "plan_level.json")]
+    assert study.main(["reality-gap-plans", *arguments]) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "uncommitted changes" in err and "--allow-dirty" in err and "none.h5" not in err
-    assert study.main(["jacobian-accuracy", "--allow-dirty", *arguments]) == 2
+    assert err.count("\n") == 1 and "uncommitted changes" in err and "--allow-dirty" in err and "none.json" not in err
+    assert study.main(["reality-gap-plans", "--allow-dirty", *arguments]) == 2
     err = capsys.readouterr().err
-    assert "uncommitted" not in err and "none" in err
+    assert "uncommitted" not in err and "none.json" in err
+    assert study.main(["jacobian-accuracy", str(tmp_path / "none.h5"), str(tmp_path / "none.pt")]) == 2
+    assert "uncommitted" not in capsys.readouterr().err   # (it prints its figures, writes nothing)
     git(checkout, "stash", "-q")   # clean again: no flag needed
-    assert study.main(["jacobian-accuracy", *arguments]) == 2 and "uncommitted" not in capsys.readouterr().err
+    assert study.main(["reality-gap-plans", *arguments]) == 2 and "uncommitted" not in capsys.readouterr().err
 
 
 def test_a_benchmark_refuses_to_write_from_a_dirty_checkout_unless_told(checkout, monkeypatch, capsys):

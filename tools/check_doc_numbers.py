@@ -21,13 +21,18 @@ import json
 import math
 import pathlib
 import re
+import subprocess
 import sys
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 SOURCE = re.compile(r"<!--\s*=\s*(?P<file>[^:\s,]+(?:\s*,\s*[^:\s,]+)*)\s*:\s*(?P<expression>.*?)\s*-->", re.S)
 # a written number: digits with thousands commas, decimals, an exponent ("1.7e-8", "1.7 x 10^-8" is not used);
 # a minus sign only where it cannot be a range's dash ("0.75-1.22")
-NUMBER = re.compile(r"(?:(?<![\w.\]])-)?\d{1,3}(?:,\d{3})+(?:\.\d+)?|(?:(?<![\w.\]])-)?\d+(?:\.\d+)?(?:e[-+]?\d+)?")
+# (not a digit inside a word: "p95", "run2"; the exponent either case)
+NUMBER = re.compile(r"(?:(?<![\w.\]%)])-)?(?<![\w.])\d{1,3}(?:,\d{3})+(?:\.\d+)?(?![\d,])"
+                    r"|(?:(?<![\w.\]%)])-)?(?<![\w.,])\d+(?:\.\d+)?(?:[eE][-+]?\d+)?")
+# between the last number and its source comment: at most a short unit ("590 s", "1.15x", "9.4 minutes")
+ADJACENT = re.compile(r"[^\d]{0,16}$")
 
 
 def geomean(values) -> float:
@@ -65,11 +70,21 @@ def matches(written: str, value) -> bool:
 
 
 def quoted_numbers(text: str, end: int, count: int) -> list[str]:
-    """The last `count` numbers written in `text` before `end` (and after the previous source comment)."""
+    """The last `count` numbers written in `text` before `end` (and after the previous source comment); none
+    unless the last of them stands right before the comment (at most a short unit between)."""
     start = text.rfind("-->", 0, end)
     before = text[start + 3 if start >= 0 else 0:end]
     before = re.sub(r"`[^`]*`", " ", before)   # (a command or file name in code quotes holds no quoted number)
-    return NUMBER.findall(before)[-count:] if count else []
+    found = list(NUMBER.finditer(before))
+    if not count or not found or not ADJACENT.fullmatch(before[found[-1].end():]):
+        return []
+    return [match.group(0) for match in found[-count:]]
+
+
+def committed_files(root: pathlib.Path) -> set[str] | None:
+    """The files git tracks in `root` (None when it is not a git checkout: a test's folder)."""
+    result = subprocess.run(["git", "-C", str(root), "ls-files"], capture_output=True, text=True)
+    return set(result.stdout.splitlines()) if result.returncode == 0 else None
 
 
 def check_page(page: pathlib.Path, root: pathlib.Path = ROOT) -> tuple[int, list[str]]:
@@ -77,11 +92,14 @@ def check_page(page: pathlib.Path, root: pathlib.Path = ROOT) -> tuple[int, list
     text = page.read_text()
     name = page.relative_to(root) if page.is_relative_to(root) else page
     checked, failures = 0, []
+    tracked = committed_files(root) if "<!-- =" in text else None
     for found in SOURCE.finditer(text):
         line = text.count("\n", 0, found.start()) + 1
         where = f"{name}:{line}"
-        sources = [root / name.strip() for name in found["file"].split(",")]
-        missing = [str(source.relative_to(root)) for source in sources if not source.is_file()]
+        names = [name.strip() for name in found["file"].split(",")]
+        sources = [root / name for name in names]
+        missing = [name for name, source in zip(names, sources)
+                   if not source.is_file() or (tracked is not None and name not in tracked)]
         if missing:
             failures.append(f"{where}: {', '.join(missing)}: not a committed results file")
             continue
@@ -95,7 +113,9 @@ def check_page(page: pathlib.Path, root: pathlib.Path = ROOT) -> tuple[int, list
         values = list(value) if isinstance(value, (tuple, list)) else [value]
         written = quoted_numbers(text, found.start(), len(values))
         checked += 1
-        if len(written) < len(values):
+        if not values:
+            failures.append(f"{where}: {found['file']}: {found['expression']!r} gives no value")
+        elif len(written) < len(values):
             failures.append(f"{where}: {len(values)} number(s) expected before the comment, found {written}")
         elif not all(matches(number, value) for number, value in zip(written, values)):
             shown = ", ".join(f"{float(v):.6g}" if isinstance(v, (int, float)) else repr(v) for v in values)
@@ -111,6 +131,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     total, failures = 0, []
     for page in [pathlib.Path(name).resolve() for name in argv] or pages():
+        if not page.is_file():
+            print(f"check_doc_numbers.py: error: {page} is not a page", file=sys.stderr)
+            return 2
         checked, failed = check_page(page)
         total += checked
         failures += failed

@@ -14,7 +14,8 @@ prints bad input (an InputError, or an OSError naming a file) as one line with e
 Every study's results name the code that made them: the launcher takes the run's provenance at the start
 (`args.provenance`: commit, clean tree, command with no folder of this machine, machine; see
 stdm_drake/provenance.py) and each study writes it into its results JSON. A checkout with uncommitted changes
-to tracked files is refused unless the command says `--allow-dirty` (recorded there too).
+to tracked code is refused unless the command says `--allow-dirty` (recorded there too); a `--quick` run (its
+results go to out/) and a study that writes no results (`WRITES_RESULTS = False`) are not.
 """
 from __future__ import annotations
 
@@ -89,7 +90,8 @@ def main(argv: list[str] | None = None) -> int:
     except SystemExit as exit_:   # --help (0) or a malformed command line (2, one line printed)
         return int(exit_.code or 0)
     try:
-        args.provenance = start_record(f"python {PROGRAM} {name}", argv[1:], args.allow_dirty)
+        writes = getattr(module, "WRITES_RESULTS", True) and not getattr(args, "quick", False)   # (--quick: out/)
+        args.provenance = start_record(f"python {PROGRAM} {name}", argv[1:], args.allow_dirty, writes=writes)
         return int(module.run(args) or 0)
     except (InputError, OSError) as error:   # bad input; OSError: a file or folder (missing, unwritable, full disk)
         print(f"{PROGRAM} {name}: error: {error_line(error)}", file=sys.stderr)

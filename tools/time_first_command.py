@@ -45,7 +45,7 @@ def main(argv=None) -> int:
     args, origin = start_benchmark(parser, argv)
     with tempfile.TemporaryDirectory(prefix="first_command_") as folder:
         clone = pathlib.Path(folder) / "stdm-drake"
-        subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+        timed(f"git clone -q {ROOT} {clone}", pathlib.Path(folder))
         setup = timed(SETUP, clone)
         print(f"set-up: {setup:.0f} s", flush=True)
         run = timed(RUN, clone)

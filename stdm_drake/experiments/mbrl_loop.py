@@ -284,7 +284,7 @@ def check_loop_folder(output: pathlib.Path, rounds: int) -> None:
     loop's folder (one holding loop.json: its round folders), or a rerun with fewer rounds than the folder holds
     (summary.json would then name fewer rounds than the round folders beside it)."""
     output = pathlib.Path(output)
-    for parent in output.absolute().parents:
+    for parent in output.resolve().parents:   # (resolved: a link into a loop's folder is inside it)
         if (parent / "loop.json").is_file():
             raise InputError(f"-o/--output {output} is inside the loop in {parent}, whose rounds it would change; "
                              "give a folder outside it")

@@ -112,9 +112,10 @@ def _urdf(root) -> Description:
 
 def _sdf(root) -> Description:
     """SDFormat's defaults: a link without <inertial> has mass 1 kg and unit inertia; a velocity limit
-    below 0 means none. Names are scoped as SDFormat scopes them: a nested model's links are "inner::link",
-    and where the file holds several models (a world of two arms) every name is "model::name", so two models
-    that both have a link "base" are two links, not one link with two parents."""
+    below 0 means none. Names are scoped as SDFormat scopes them: a nested model's links and joints are
+    "inner::name", and where the file holds several models (a world of two arms) every name is "model::name",
+    so two models that both have a link "base" are two links, not one link with two parents; a joint placed in
+    the world itself names its links scoped ("arm::tool")."""
     links, joints = {}, []
     defaults = dict(mass=1.0, ixx=1.0, iyy=1.0, izz=1.0, ixy=0.0, ixz=0.0, iyz=0.0)
 
@@ -125,25 +126,31 @@ def _sdf(root) -> Description:
             elif child.tag == "world":
                 yield from models(child)
 
+    def read_joints(element, prefix: str) -> None:
+        for joint in element.findall("joint"):
+            values = {key: file_number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
+            if values["velocity"] is not None and values["velocity"] < 0:
+                values["velocity"] = None
+            parent, child = ((joint.findtext(end) or "").strip() for end in ("parent", "child"))
+            joints.append(Joint(prefix + (joint.get("name") or ""), joint.get("type"),
+                                parent if parent in ("world", "") else prefix + parent, child and prefix + child,
+                                **values))
+
     def read_model(model, prefix: str) -> None:
         for link in model.findall("link"):
             inertial = link.find("inertial")
             read = inertial.findtext if inertial is not None else (lambda key: None)  # noqa: E731
             links[prefix + link.get("name", "")] = _inertial(
                 read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS}, defaults)
-        for joint in model.findall("joint"):
-            values = {key: file_number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
-            if values["velocity"] is not None and values["velocity"] < 0:
-                values["velocity"] = None
-            parent, child = ((joint.findtext(end) or "").strip() for end in ("parent", "child"))
-            joints.append(Joint(joint.get("name"), joint.get("type"), parent if parent in ("world", "") else
-                                prefix + parent, child and prefix + child, **values))
+        read_joints(model, prefix)
         for nested in model.findall("model"):
             read_model(nested, f"{prefix}{nested.get('name', '')}::")
 
     top = list(models(root))
     for model in top:
         read_model(model, f"{model.get('name', '')}::" if len(top) > 1 else "")
+    for world in root.iter("world"):
+        read_joints(world, "")
     return Description(links, joints)
 
 

@@ -135,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
                              for name in ["plant", *TYPES]})
     elapsed = time.perf_counter() - started
     args.output.mkdir(parents=True, exist_ok=True)
+    trained = [dict(row, checkpoint=pathlib.Path(row["checkpoint"]).name) for row in trained]   # (in --data)
     write_text_atomic(args.output / "models.csv", rows_csv(trained))
     write_text_atomic(args.output / "runs.csv", rows_csv(runs))
     write_text_atomic(args.output / "results.json", json.dumps(dict(

@@ -127,14 +127,20 @@ def run_study(profile: dict, folder: pathlib.Path, robot: Robot, effects, worker
                 f"{row['torque_error']:.3g} (description {row['description_torque_error']:.3g}), friction within "
                 f"{row['worst_viscous_error']:.3g} (viscous) / {row['worst_coulomb_error']:.3g} (Coulomb)")
             if run in ("A", "C"):   # the grey boxes' physics at each size (run A's robot for the ideal sensor)
-                identified_files.setdefault(sensor, {})[str(size)] = str(_write_identified(
-                    folder / f"identified_{sensor}_train{size}.yaml", identified))
+                identified_files.setdefault(sensor, {})[str(size)] = _write_identified(
+                    folder / f"identified_{sensor}_train{size}.yaml", identified).name
                 if size == largest:
                     errors[run] = model_errors(identified, data, robot, split)
     return dict(rows=rows, reports=reports, model_errors=errors, profile={k: v for k, v in profile.items()},
-                data_seed=DATA_SEED, datasets={sensor: dict(path=str(d.path), sha256=d.sha256)
+                data_seed=DATA_SEED, datasets={sensor: dict(path=pathlib.Path(d.path).name, sha256=d.sha256)
                                                for sensor, d in datasets.items()},
                 identified_files=identified_files)
+
+
+def in_data(folder: pathlib.Path, recorded: str) -> str:
+    """A file the white box's results name (a dataset, an identified robot) in the data folder `folder`: the
+    results hold its name (no folder of the machine that ran them; older results: a path, of which the name)."""
+    return str(pathlib.Path(folder) / pathlib.PurePath(recorded).name)
 
 
 def _write_identified(path: pathlib.Path, identified) -> pathlib.Path:
@@ -161,12 +167,13 @@ def grey_box_folders(profile: dict, folder: pathlib.Path, robot: Robot, white_bo
     for sensor, data in white_box["datasets"].items():
         for size in sizes:
             identified = white_box["identified_files"][sensor].get(str(size))
+            identified = identified and in_data(folder, identified)
             if identified is None:
                 raise InputError(f"identification study: no robot identified from {size} plans per pose on the "
                                  f"{sensor} sensor's data (the white box ran at {profile['train_sizes']})")
             for name in names:
                 model_type, physics, predicts = GREY_BOX_MODELS[name]
-                jobs[(sensor, name, size)] = (data["path"], model_type, (size, profile["val"], profile["test"]),
+                jobs[(sensor, name, size)] = (in_data(folder, data["path"]), model_type, (size, profile["val"], profile["test"]),
                                               profile["seeds"], profile["epochs"], str(folder / "runs" / f"{sensor}_{name}"),
                                               config, identified if physics else None,
                                               predicts if model_type.startswith("G") else None)   # (D, DD: train's)
@@ -189,8 +196,8 @@ def run_grey_box(profile: dict, folder: pathlib.Path, robot: Robot, white_box: d
     results = {}
     for sensor, data in white_box["datasets"].items():
         for size in profile["grey_sizes"]:
-            found = grey_box_errors(data["path"], {name: folders[(sensor, name, size)] for name in names},
-                                    profile["seeds"], robot, white_box["identified_files"][sensor][str(size)])
+            found = grey_box_errors(in_data(folder, data["path"]), {name: folders[(sensor, name, size)] for name in names},
+                                    profile["seeds"], robot, in_data(folder, white_box["identified_files"][sensor][str(size)]))
             results.setdefault(sensor, {})[str(size)] = found
             say(f"grey box, {sensor} sensor, {size} plans per pose: " + "; ".join(
                 f"{row['model']} one step {row['one_step_q']:.3g}, q@20 {row['q_at_20']:.3g}" for row in found["rows"]))

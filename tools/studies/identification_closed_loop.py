@@ -29,7 +29,9 @@ def run_closed_loop(profile: dict, folder: pathlib.Path, robot: Robot, white_box
     size, seeds, grid = max(profile["grey_sizes"]), profile["seeds"], tuple(map(tuple, profile["closed_loop_grid"]))
     names = tuple(dict.fromkeys(["D", *profile["closed_loop_models"]]))
     folders = grey_box_folders(profile, folder, robot, white_box, names, (size,), workers)
-    specs = {sensor: [("plant", None), ("true-plant", "true"), ("identified", white_box["identified_files"][sensor][str(size)])]
+    from studies.identification import in_data
+    specs = {sensor: [("plant", None), ("true-plant", "true"),
+                      ("identified", in_data(folder, white_box["identified_files"][sensor][str(size)]))]
              + [(f"{name} seed {seed}", str(pathlib.Path(folders[(sensor, name, size)]) / f"seed{seed}" / "checkpoint.pt"))
                 for name in names for seed in range(seeds)] for sensor in white_box["datasets"]}
     splits = {sensor: str(pathlib.Path(folders[(sensor, "D", size)]) / "seed0" / "checkpoint.pt")
@@ -37,7 +39,7 @@ def run_closed_loop(profile: dict, folder: pathlib.Path, robot: Robot, white_box
     steps = profile["closed_loop_steps"]
 
     def group(pool, sensor, spec, split, setting):
-        return pool.submit(closed_loop_group, [spec], white_box["datasets"][sensor]["path"], splits[sensor], split,
+        return pool.submit(closed_loop_group, [spec], in_data(folder, white_box["datasets"][sensor]["path"]), splits[sensor], split,
                            steps, setting, robot)
 
     runner = RunnerConfig(workers=workers)

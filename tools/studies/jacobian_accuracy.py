@@ -11,6 +11,8 @@ closed-loop data without excitation get 30-100 %.
 import argparse
 import pathlib
 
+WRITES_RESULTS = False   # (it prints: the launcher does not ask for a clean checkout)
+
 import numpy as np
 
 
