@@ -8,6 +8,10 @@ from the code, so that they cannot drift from it.
   directive; `reference/api/index.md` lists every module with its docstring's first line. The nav entry
   `reference/api/index.md` in mkdocs.yml is expanded into these pages.
 - `benchmarks.md`: the repository's BENCHMARKS.md, which stays at the root.
+
+Every page also loses its number-source comments (`<!-- = FILE: EXPR -->`, checked by
+tools/check_doc_numbers.py) before it is rendered: they are for the check, and their expressions' brackets
+would read as cross-references.
 """
 from __future__ import annotations
 
@@ -174,6 +178,14 @@ def cli_page() -> str:
 
 
 # -------------------------------------------------------------------------------------------------------- hooks
+
+SOURCE_COMMENT = re.compile(r"<!--\s*=.*?-->", re.S)   # (the form tools/check_doc_numbers.py reads)
+
+
+def on_page_markdown(markdown, **kwargs):
+    """A page without its number-source comments (module docstring)."""
+    return SOURCE_COMMENT.sub("", markdown)
+
 
 def on_config(config, **kwargs):
     """Expand the nav entry of the API index into one page per module."""
