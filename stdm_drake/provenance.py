@@ -1,10 +1,10 @@
 """What a results file records of the run that made it, so that each of its numbers can be traced: the code
 (stdm-drake's version, and the git commit of the checkout it runs from, with whether that checkout had
-uncommitted changes to tracked files), the command line and the machine.
+uncommitted changes to tracked code), the command line and the machine.
 
 The studies (tools/study.py) and benchmarks (tools/bench_*.py) take it at their start, since that is the code
 they import, and refuse a checkout with uncommitted changes unless told (`--allow-dirty`, recorded here);
-`reproduce` and the main job record it in their results.json.
+`reproduce`, `sine-sum` and `mpc` record it in their results files (`results_header`).
 """
 from __future__ import annotations
 
@@ -114,7 +114,7 @@ def provenance(command: str, allow_dirty: bool = False, threads: int | None = No
                root: pathlib.Path | None = None) -> dict:
     """The record of a run: {"commit", "clean", "allow_dirty" (only when set), "command", "machine",
     "stdm_drake" (the installed version, None without an install)}. `command`: the command line as the
-    results should show it (no folder of this machine in it: see tools/benchmark_report.recorded_command)."""
+    results should show it (no folder of this machine in it: see `recorded_command`)."""
     record = dict(source_state(root), command=command, machine=machine_description(threads),
                   stdm_drake=package_version())
     if allow_dirty:
@@ -128,4 +128,4 @@ def dirty_refusal(state: dict) -> str | None:
         return None
     if state["commit"] is None:
         return "this is not a git checkout, so the results could not name their code; pass --allow-dirty to run anyway"
-    return f"the checkout has uncommitted changes to tracked files (git status); {DIRTY_HINT}"
+    return f"the checkout has uncommitted changes to tracked code (git status); {DIRTY_HINT}"

@@ -18,7 +18,7 @@ from stdm_drake.provenance import (dirty_refusal, machine_description, provenanc
 def add_record_arguments(parser) -> None:
     """--allow-dirty, for a benchmark or study whose results are committed (see `start_record`)."""
     parser.add_argument("--allow-dirty", action="store_true",
-                        help="run on a checkout with uncommitted changes to tracked files (recorded in the results)")
+                        help="run on a checkout with uncommitted changes to tracked code (recorded in the results)")
 
 
 def start_record(program: str, arguments: list[str], allow_dirty: bool, writes: bool = True,
