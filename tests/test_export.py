@@ -4,6 +4,7 @@ steps the exported file outside Python."""
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 
@@ -226,9 +227,29 @@ def step_onnx(tmp_path_factory):
         pytest.fail(f"no ONNX Runtime headers in {headers}: bash tools/cpp/onnxruntime_headers.sh {headers} (the test "
                     "command does)")
     build = tmp_path_factory.mktemp("cpp")
-    subprocess.run(["bash", str(ROOT / "tools" / "cpp" / "build.sh"), str(build), str(headers),
-                    sys.executable], check=True, cwd=ROOT)
-    return build / "step_onnx"
+    # as a user runs it in a fresh clone with the environment active: no interpreter named, no .venv beside it
+    environment = {key: value for key, value in os.environ.items() if key != "VIRTUAL_ENV"}
+    environment["PATH"] = f"{pathlib.Path(sys.executable).parent}{os.pathsep}{environment.get('PATH', '')}"
+    subprocess.run(["bash", str(ROOT / "tools" / "cpp" / "build.sh"), str(build / "out"), str(headers)], check=True,
+                   cwd=build, env=environment)
+    return build / "out" / "step_onnx"
+
+
+@pytest.mark.parametrize("arguments, message", [
+    ([], "usage: build.sh OUT_DIR"),
+    (["{out}", "{headers}", "/nonexistent/python"], "no Python interpreter at /nonexistent/python"),
+    (["{out}", "{out}", sys.executable], "no ONNX Runtime headers in"),
+])
+def test_cpp_build_failures_are_one_line(tmp_path, arguments, message):
+    """build.sh: a missing interpreter or header folder is one line naming the fix, exit 2, before any compiling."""
+    headers = tmp_path / "headers"
+    headers.mkdir()
+    (headers / "onnxruntime_c_api.h").write_text("")
+    arguments = [argument.format(out=tmp_path / "out", headers=headers) for argument in arguments]
+    result = subprocess.run(["bash", str(ROOT / "tools" / "cpp" / "build.sh"), *arguments], capture_output=True,
+                            text=True, cwd=tmp_path)
+    assert result.returncode == 2 and result.stderr.startswith("build.sh: error: " + message), result.stderr
+    assert len(result.stderr.splitlines()) == 1 and not (tmp_path / "out").exists()
 
 
 @pytest.mark.slow
@@ -256,6 +277,9 @@ def test_cpp_program_steps_the_exported_model(step_onnx, trained, tracking_datas
                             str(tmp_path / "out.f32"), str(steps)], check=True)
             rolled = np.fromfile(tmp_path / "out.f32", dtype=np.float32).reshape(steps, -1)
             assert_close(rolled, model.rollout(x[:1], a[None, :steps]).mean[0], rtol=1e-4, what="C++ rollout")
+    bench = subprocess.run([str(step_onnx), str(output), "bench", str(tmp_path / "rows.f32"), "300"], check=True,
+                           capture_output=True, text=True).stdout     # one labelled line
+    assert re.fullmatch(r"median [0-9.]+ us, min [0-9.]+ us, p99 [0-9.]+ us per call \(300 calls at batch 1\)\n", bench)
     for arguments in ([str(tmp_path / "rows.f32"), "rows", str(tmp_path / "rows.f32"), "x"],      # not a model
                       [str(output), "rollout", str(tmp_path / "rollout.f32"), "out.f32", "-1"],   # a count of -1
                       [str(output), "rows", str(tmp_path / "rows.f32"), "/dev/full"]):          # a write that fails

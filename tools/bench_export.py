@@ -18,6 +18,7 @@ needs g++ and the ONNX Runtime headers of tools/cpp/onnxruntime_headers.sh)
 import argparse
 import os
 import pathlib
+import re
 import subprocess
 import sys
 import tempfile
@@ -105,8 +106,9 @@ def main() -> int:
         np.concatenate([x, a]).astype(np.float32).tofile(folder / "row.f32")
         def cpp(calls, onnx_path=onnx_path):
             measured = subprocess.run([str(folder / "cpp" / "step_onnx"), str(onnx_path), "bench", str(folder / "row.f32"),
-                                       str(calls)], check=True, capture_output=True, text=True).stdout.split()
-            return float(measured[0]), float(measured[2])
+                                       str(calls)], check=True, capture_output=True, text=True).stdout
+            values = dict(re.findall(r"(median|min|p99) ([0-9.]+) us", measured))   # "median 5.7 us, min ..., p99 ..."
+            return float(values["median"]), float(values["p99"])
         timers = [("numpy path (baseline)", lambda calls: micros(lambda: model.step_single(x, a), calls)),
                   ("ONNX Runtime, C API (C++ step_onnx)", cpp),
                   ("ONNX Runtime, Python API", lambda calls: micros(lambda: session.run(["next_state"], feeds), calls))]

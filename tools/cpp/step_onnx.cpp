@@ -7,7 +7,7 @@
 //   step_onnx MODEL.onnx rollout IN.f32 OUT.f32 T IN: x_0 (2n) then T actions (m each); each next_state is fed
 //                                                 back as the next call's state; OUT: x_1 .. x_T
 //   step_onnx MODEL.onnx bench IN.f32 CALLS       CALLS calls at batch 1 on IN's first row (after 200 warm-up
-//                                                 calls); prints "median_us min_us p99_us" per call
+//                                                 calls); prints "median M us, min M us, p99 M us per call (CALLS calls at batch 1)"
 //   (rows of MODEL.jacobian.onnx with NAMES next_state,jacobian_state,jacobian_action: a C++ MPC's A and B)
 //
 // Files and streams are raw little-endian float32. Exit status 2 with one line on stderr for any error. A
@@ -289,7 +289,8 @@ int Run(int argc, char** argv) {
       micros[i] = std::chrono::duration<double, std::micro>(std::chrono::steady_clock::now() - start).count();
     }
     std::sort(micros.begin(), micros.end());
-    std::printf("%.3f %.3f %.3f\n", micros[calls / 2], micros[0], micros[std::min(calls - 1, calls * 99 / 100)]);
+    std::printf("median %.3f us, min %.3f us, p99 %.3f us per call (%zu calls at batch 1)\n", micros[calls / 2], micros[0],
+                micros[std::min(calls - 1, calls * 99 / 100)], calls);
   }
   return 0;
 }
