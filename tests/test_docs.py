@@ -59,6 +59,28 @@ def test_site_builds_strict(tmp_path):
     assert "LearnedDynamicsSystem" in (api / "stdm_drake.closed_loop.learned_system" / "index.html").read_text()
     assert not list(api.glob("stdm_drake.experiments*")) and not list(api.glob("stdm_drake.commands*"))
     assert (site / "benchmarks" / "index.html").is_file()
-    assert not (site / "results").exists(), "docs/results is left out of the site"
+    shown = sorted(path.relative_to(site).as_posix() for path in (site / "results").rglob("*") if path.is_file())
+    figures = sorted(path.relative_to(ROOT / "docs").as_posix() for path in (ROOT / "docs" / "results").rglob("*")
+                     if path.suffix.lower() in hooks().FIGURE_SUFFIXES)
+    assert figures and shown == figures, "the figures of docs/results are on the site, the rest of it is not"
+    assert '<img alt="Run 2\'s closed loop' in (site / "reality_gap" / "index.html").read_text(encoding="utf-8")
+    assert "pre-wrap" in (site / "stylesheets" / "extra.css").read_text() and "extra.css" in cli   # long commands wrap
+    robot = re.search(r'id="robot".*?(?=<h2)', cli, re.S).group(0)     # nested subcommands listed
+    assert 'id="robot-init"' in robot and 'id="robot-check"' in robot and "--srdf" in robot
     for guide in (ROOT / "docs" / "guides").glob("*.md"):
         assert (site / "guides" / guide.stem / "index.html").is_file(), guide.name
+
+
+def test_every_figure_a_page_shows_is_committed():
+    """An image a page or guide shows (`![...](path)`) names a committed file beside the page (the strict build
+    also fails on it; this is the fast check)."""
+    shown = 0
+    for page in [*(ROOT / "docs").rglob("*.md"), ROOT / "README.md"]:
+        if "results" in page.relative_to(ROOT).parts[1:]:
+            continue
+        for target in re.findall(r"!\[[^\]]*\]\(([^)\s]+)", page.read_text(encoding="utf-8")):
+            if re.match(r"[a-z]+://", target):
+                continue
+            assert (page.parent / target).is_file(), f"{page.name} shows {target}, which is not there"
+            shown += 1
+    assert shown >= 2

@@ -8,6 +8,7 @@ from the code, so that they cannot drift from it.
   directive; `reference/api/index.md` lists every module with its docstring's first line. The nav entry
   `reference/api/index.md` in mkdocs.yml is expanded into these pages.
 - `benchmarks.md`: the repository's BENCHMARKS.md, which stays at the root.
+- the figures under `docs/results/` (the rest of that folder stays out of the site).
 
 Every page also loses its number-source comments (`<!-- = FILE: EXPR -->`, checked by
 tools/check_doc_numbers.py) before it is rendered: they are for the check, and their expressions' brackets
@@ -140,22 +141,40 @@ def _argument_row(action: argparse.Action) -> str:
     return f"| {names} | {escape(details)} |"
 
 
-def command_section(name: str, module_name: str, help_text: str) -> str:
-    """One subcommand's section: its description, usage and every argument, from the parser it really builds."""
-    from stdm_drake.cli import CommandParser
-    module = importlib.import_module(module_name)
-    parser = CommandParser(prog=f"stdm-drake {name}", description=help_text, formatter_class=_formatter)
-    module.add_arguments(parser)
-    positional = [action for action in parser._actions if not action.option_strings]
+def _parser_section(parser: argparse.ArgumentParser, name: str, help_text: str, level: int) -> list[str]:
+    """The lines of one parser's section: heading, description, usage and every argument; a parser with
+    subcommands (`robot init`, `robot check`) gets a row per subcommand and a section of its own for each."""
+    subcommands = [action for action in parser._actions if isinstance(action, argparse._SubParsersAction)]
+    positional = [action for action in parser._actions if not action.option_strings and action not in subcommands]
     optional = [action for action in parser._actions
                 if action.option_strings and not isinstance(action, argparse._HelpAction)]
-    lines = [f"## `stdm-drake {name}` {{#{name}}}", "", escape(help_text[:1].upper() + help_text[1:]) + ".", "",
-             "```text", parser.format_usage().strip(), "```", ""]
+    anchor = name.replace(" ", "-")
+    parser.formatter_class = _formatter           # (a subcommand's parser is built with argparse's default)
+    lines = [f"{'#' * level} `stdm-drake {name}` {{#{anchor}}}", "", escape(help_text[:1].upper() + help_text[1:]) + ".",
+             "", "```text", parser.format_usage().strip(), "```", ""]
     for title, actions in (("Arguments", positional), ("Options", optional)):
         if actions:
             lines += [f"**{title}**", "", "| argument | what it does |", "|---|---|"]
             lines += [_argument_row(action) for action in actions]
             lines.append("")
+    for action in subcommands:
+        helps = {choice.dest: choice.help or "" for choice in action._choices_actions}
+        lines += ["**Subcommands**", "", "| subcommand | what it does |", "|---|---|"]
+        lines += [f"| [`{sub}`](#{anchor}-{sub}) | {escape(helps.get(sub, ''))} |" for sub in action.choices]
+        lines.append("")
+        for sub, subparser in action.choices.items():
+            lines += _parser_section(subparser, f"{name} {sub}", helps.get(sub, "") or sub, level + 1)
+    return lines
+
+
+def command_section(name: str, module_name: str, help_text: str) -> str:
+    """One subcommand's section: its description, usage and every argument, from the parser it really builds,
+    with a section for each of its own subcommands."""
+    from stdm_drake.cli import CommandParser
+    module = importlib.import_module(module_name)
+    parser = CommandParser(prog=f"stdm-drake {name}", description=help_text, formatter_class=_formatter)
+    module.add_arguments(parser)
+    lines = _parser_section(parser, name, help_text, 2)
     lines.append(f"`-h`, `--help` prints this; the command is module `{module_name}`.")
     return "\n".join(lines) + "\n"
 
@@ -211,9 +230,18 @@ def on_config(config, **kwargs):
     return config
 
 
+FIGURE_SUFFIXES = (".png", ".svg", ".jpg", ".jpeg", ".gif")
+
+
 def on_files(files, config, **kwargs):
-    """Add the generated pages."""
-    from mkdocs.structure.files import File
+    """Add the generated pages, and put the figures of docs/results/ back into the site: mkdocs.yml leaves the
+    results folder out (its tables and JSON are read in the repository), but a page that shows a figure
+    (`![...](results/reality_gap/closed_loop.png)`) needs the image beside it on the site. A figure a page shows
+    that is not there is a warning, so the strict build fails on it."""
+    from mkdocs.structure.files import File, InclusionLevel
+    for file in files:
+        if file.src_uri.startswith("results/") and file.src_uri.lower().endswith(FIGURE_SUFFIXES):
+            file.inclusion = InclusionLevel.INCLUDED
     modules = package_modules()
     generated = {API_INDEX: api_index(modules), CLI_PAGE: cli_page(),
                  "benchmarks.md": (ROOT / "BENCHMARKS.md").read_text(encoding="utf-8")}
