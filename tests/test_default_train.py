@@ -88,18 +88,29 @@ def test_select_alpha_over_sources_trains_naive_once_and_keeps_the_validation_be
 
 @pytest.mark.slow
 def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_dataset, tmp_path, capsys):
-    assert main(["train", str(dithered_dataset), "--model", "DD", "--epochs", "3", "--train", "1", "--val", "1",
-                 "--quiet", "-o", str(tmp_path / "default")]) == 0
+    assert main(["train", str(dithered_dataset), "--model", "DD", "--epochs", "3", "--per-group", "off", "--train", "4",
+                 "--val", "2", "--quiet", "-o", str(tmp_path / "default")]) == 0
     out = capsys.readouterr().out
     assert "the plan is left out: the plan's accelerations are" in out
     assert "alpha chosen by validation from 0, 1e-06, 0.0001, 0.001, 0.01, 0.1" in out
-    assert "seed 0 on the validation split (4 trajectories" in out and "Euler step" in out
+    assert "seed 0 on the test split (" in out and "`evaluate` reads it too" in out and "Euler step" in out
+    assert "on the validation split" not in out
     summary = json.loads((tmp_path / "default" / "summary.json").read_text())
+    # train's verdict is evaluate's: the same split, the same numbers, the same words
+    test = summary["seeds"]["0"]["test"]
+    assert main(["evaluate", str(tmp_path / "default" / "seed0" / "checkpoint.pt"), str(dithered_dataset),
+                 "--no-plant", "--json", str(tmp_path / "evaluate.json")]) == 0
+    evaluated = json.loads((tmp_path / "evaluate.json").read_text())
+    assert evaluated["one_step"]["angle_mse"] == pytest.approx(test["models"][0]["one_step"]["angle_mse"], rel=1e-9)
+    assert evaluated["one_step"]["velocity_mse"] == pytest.approx(test["models"][0]["one_step"]["velocity_mse"],
+                                                                  rel=1e-9)
+    assert evaluated["verdict"] == test["models"][0]["verdict"]
+    assert f"-> {evaluated['verdict']}" in capsys.readouterr().out
     assert summary["derivative_sources"]["tried"] == ["true"]
     assert summary["derivative_sources"]["plan_mismatch"]["acceleration"] > 0.5
     validation = summary["seeds"]["0"]["validation"]
     names = [row["name"] for row in validation["models"]]
-    assert names[-1] == "Euler step" and validation["trajectories"] == 4
+    assert names[-1] == "Euler step" and validation["trajectories"] == 2 and test["trajectories"] == 2
     assert validation["models"][0]["verdict"] in ("learned", "learned (at the noise floor)",
                                                   "has not learned the dynamics")
     # a plan the user asks for: one warning line with the measured mismatch; a model that has not learned: one
@@ -108,6 +119,8 @@ def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_
                  "--epochs", "2",
                  "--train", "1", "--val", "1", "--quiet", "-o", str(tmp_path / "planned")]) == 0
     captured = capsys.readouterr()
+    assert "seed 0 on the validation split (4 trajectories" in captured.out    # the split left no test trajectory
+    assert "no trajectory left for a test split" in captured.out
     warnings = [line for line in captured.err.splitlines() if line.startswith("stdm-drake train: warning:")]
     assert any("--derivative-source planned: the plan's accelerations are" in line and "per joint" in line
                for line in warnings)

@@ -134,6 +134,29 @@ def test_the_gate_counts_a_model_at_the_noise_floor_as_learned():
     assert learning_verdict(1.1, 1.9, floor_ratio_q=1.6, floor_ratio_v=1.0) == "has not learned the dynamics"
 
 
+def test_ratios_read_as_better_or_worse_by_their_value():
+    """A ratio baseline/model below 1 is the model doing worse: 0.181 reads "5.52x worse", never "0.181x better"."""
+    from stdm_drake.dynamics.physics import times_better
+    assert times_better(2.5) == "2.5x better" and times_better(1.0) == "1x better"
+    assert times_better(0.181) == "5.52x worse" and times_better(0.5) == "2x worse"
+    assert times_better(float("inf")) == "infinitely better" and times_better(0.0) == "infinitely worse"
+    assert times_better(float("nan")) == "not comparable (NaN)"
+
+
+def test_a_derivative_checkpoint_that_kept_naive_training_is_named_for_it():
+    """A DD whose alpha grid kept alpha 0 trained like a D: tables call it "DD-naive"; a DD at alpha > 0 and a
+    D stay as they are."""
+    import types
+    from stdm_drake.learning.learned_model import trained_name
+
+    def checkpoint(model_type, alpha):
+        return types.SimpleNamespace(metadata=types.SimpleNamespace(model_type=model_type),
+                                     training_config=types.SimpleNamespace(alpha=alpha))
+    assert trained_name(checkpoint("DD", 0.0)) == "DD-naive" and trained_name(checkpoint("PED", 0.0)) == "PED-naive"
+    assert trained_name(checkpoint("DD", 1e-3)) == "DD" and trained_name(checkpoint("D", 0.0)) == "D"
+    assert trained_name(checkpoint("GD", 0.0)) == "GD-naive" and trained_name(checkpoint(None, 0.0)) == "model"
+
+
 @pytest.mark.slow
 def test_noise_floor_is_that_of_the_sensor_model(tmp_path):
     """White velocity noise σ through a w-sample moving average: the floor is 2σ²/w² (a model that knows the
@@ -298,3 +321,32 @@ def test_the_plant_baseline_is_exact_on_a_file_collected_at_another_plant_step(t
     default = one_step_errors(PlantModel(dataset.sample_period, robot=UR10), transitions.state, transitions.action,
                               transitions.next_state)
     assert default.angle_mse > 1e-14
+
+
+def test_the_alpha_plot_stars_naive_on_its_line_and_shows_the_rule(tmp_path, monkeypatch):
+    """alpha_selection.png: a kept naive choice is starred on naive's dashed line (not at the smallest alpha's
+    point of the curve), and a second panel draws each alpha's 95 % lower bound of its gain over naive with the
+    rule in its title."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from stdm_drake.learning.alpha_selection import AlphaSelection
+    from stdm_drake.learning.train_outputs import plot_alpha_selection
+    figures = []
+    monkeypatch.setattr(plt, "close", lambda figure: figures.append(figure))
+    naive = AlphaSelection(alphas=(0.0, 1e-6, 1e-2), val_mse=[0.10, 0.30, 0.05], best_epochs=[5, 5, 5], index=0,
+                           gain_low=[0.0, -0.5, -0.01])
+    plot_alpha_selection(naive, tmp_path / "naive.png")
+    assert (tmp_path / "naive.png").read_bytes().startswith(b"\x89PNG")
+    top, rule = figures[-1].axes
+    (star,) = [line for line in top.get_lines() if line.get_marker() == "*"]
+    assert star.get_ydata()[0] == 0.10 and star.get_label() == "chosen: naive (alpha 0)"
+    assert "above 0" in rule.get_title() and list(rule.get_lines()[0].get_ydata()) == [-50.0, -1.0]
+    chosen = AlphaSelection(alphas=(0.0, 1e-6, 1e-2), val_mse=[0.10, 0.30, 0.05], best_epochs=[5, 5, 5], index=2,
+                            gain_low=[0.0, -0.5, 0.2])
+    plot_alpha_selection(chosen, tmp_path / "chosen.png")
+    (star,) = [line for line in figures[-1].axes[0].get_lines() if line.get_marker() == "*"]
+    assert (star.get_xdata()[0], star.get_ydata()[0]) == (1e-2, 0.05)
+    plot_alpha_selection(AlphaSelection(alphas=(1e-3, 1e-2), val_mse=[0.2, 0.1], best_epochs=[1, 1], index=1),
+                         tmp_path / "fixed.png")
+    assert len(figures[-1].axes) == 1      # no naive in the grid: no rule panel

@@ -125,6 +125,10 @@ def test_train_g_and_gd_record_the_grey_box_and_its_plant(affected, tmp_path, ca
     data, identified = affected
     common = ["--train", "1", "--val", "1", "--test", "0", "--epochs", "2", "--hidden-width", "16", "--quiet"]
     assert main(["train", str(data), "--model", "G", "-o", str(tmp_path / "g"), *common]) == 0
+    warning = capsys.readouterr().err
+    # 2 epochs on the description of a plant with rotor inertia: the cause named is the description, with its error
+    assert "has not learned the dynamics" in warning and "likely cause: the robot's description: the plant it " \
+        "describes predicts q" in warning and "(`stdm-drake identify`)" in warning, warning
     checkpoint = load_checkpoint(tmp_path / "g" / "seed0" / "checkpoint.pt")
     assert checkpoint.metadata.model_type == "G" and checkpoint.structure.inputs == "plant_step"
     assert checkpoint.structure.physics is None and checkpoint.structure.predicts == "state"   # the plant's whole x̂

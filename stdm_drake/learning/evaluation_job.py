@@ -72,7 +72,7 @@ def evaluate_job(job: EvaluationJob) -> dict:
     from stdm_drake.data.compatibility import resolve_robot, robot_for
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.dynamics.model_files import load_model, load_model_file
-    from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR
+    from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, times_better
 
     if job.propagation == "mean" and (job.particles is not None or job.seed is not None):
         raise InputError("--particles and --seed are for --propagation ts1 or tsinf (trajectory sampling); mean "
@@ -148,8 +148,8 @@ def evaluate_job(job: EvaluationJob) -> dict:
         print(f"  {'noise floor':<12} {floor['q']:>10.3e} {floor['v']:>13.3e}  (a model that knows the true change "
               f"of state, from the recorded state; {model.name} is at {learned.floor_ratio_q or 0:.3g}x / "
               f"{learned.floor_ratio_v or 0:.3g}x of it)")
-    print(f"{model.name} against the physics-free baselines: one-step q {learned.ratio_q:.3g}x better than the Euler "
-          f"step, v {learned.ratio_v:.3g}x better than 'v unchanged' -> {learned.verdict}"
+    print(f"{model.name} against the physics-free baselines: one-step q {times_better(learned.ratio_q)} than the Euler "
+          f"step, v {times_better(learned.ratio_v)} than 'v unchanged' -> {learned.verdict}"
           + ("" if learned.verdict.startswith("learned") else
              f" (needs {LEARNED_FACTOR:g}x in both, or within {FLOOR_FACTOR:g}x of the noise floor; comparisons "
              "with other such models are uninformative)"))

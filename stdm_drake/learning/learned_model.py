@@ -310,9 +310,23 @@ class LearnedModel(DynamicsModel):
 
 def checkpoint_model(checkpoint, robot, *, name: str | None = None, for_control: bool = False, **options) -> LearnedModel:
     """A checkpoint's model (the "checkpoint" kind of `dynamics.model_files`): a `LearnedModel` of `robot`
-    named `name` or, without one, after the checkpoint's model type ("model" where it has none); the
-    same model for control and evaluation; options: `LearnedModel`'s."""
+    named `name` or, without one, `trained_name(checkpoint)`; the same model for control and evaluation;
+    options: `LearnedModel`'s."""
     model = LearnedModel(checkpoint, name=name, robot=robot, **options)
     if name is None:
-        model.name = checkpoint.metadata.model_type or "model"
+        model.name = trained_name(checkpoint)
     return model
+
+
+def trained_name(checkpoint) -> str:
+    """What a checkpoint is, as tables name it: its model type ("model" where it has none), and for a derivative
+    type whose alpha grid kept naive training (alpha 0) that type with "-naive" ("DD-naive": trained like a D), so
+    that no table calls a network "DD" that never saw the derivative loss."""
+    from stdm_drake.learning.models import parse_model_type
+    model_type = checkpoint.metadata.model_type or "model"
+    alpha = checkpoint.training_config.alpha if checkpoint.training_config else None
+    try:
+        derivative = parse_model_type(model_type).derivative
+    except InputError:                   # (a type this version does not know)
+        derivative = False
+    return f"{model_type}-naive" if derivative and alpha == 0 else model_type

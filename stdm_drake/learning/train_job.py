@@ -101,11 +101,14 @@ def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
     return choice.sources[0], choice.describe(), choice.mismatch
 
 
-class ValidationVerdict:
-    """What `train` ends with, per seed: the model's one-step MSE on the validation split beside the Euler step
-    (q) and "v unchanged" (v), the alpha grid's naive member where it trained one and the sensor's noise floor,
-    the verdict of `physics.learning_verdict`, and one warning line naming the likely cause when the model has
-    not learned. Validation only: the test split stays for `evaluate`."""
+class LearningVerdict:
+    """What `train` ends with, per seed: the verdict of `physics.learning_verdict` on the **test split**, the one
+    `evaluate` reads by default, so that both commands say the same of one checkpoint: the model's one-step MSE
+    beside the Euler step (q) and "v unchanged" (v), the alpha grid's naive member where it trained one and the
+    sensor's noise floor, and one warning line naming the likely cause when the model has not learned. Nothing
+    of the run reads the test split before this (early stopping and alpha are chosen on validation). The same
+    comparison on the validation split is kept in summary.json (`validation`), unprinted, for what chooses by it
+    (the studies). Where the split leaves no test trajectory the verdict is the validation split's, and says so."""
 
     def __init__(self, dataset, split, robot, structure, name: str, settings: TrainSettings, transitions: int,
                  sources, mismatch: dict | None):
@@ -114,7 +117,12 @@ class ValidationVerdict:
         self.training_transitions, self.sources, self.mismatch = transitions, sources, mismatch
         self.val = dataset.transitions(split.val)
         self.val_trajectories = len(split.val)
-        self.floor = noise_floor(dataset, split.val)
+        self.val_floor = noise_floor(dataset, split.val)
+        self.split_name = "test" if len(split.test) else "validation"
+        judged = split.test if len(split.test) else split.val
+        self.judged = dataset.transitions(judged) if len(split.test) else self.val
+        self.judged_trajectories = len(judged)
+        self.floor = noise_floor(dataset, judged) if len(split.test) else self.val_floor
 
     def source_record(self) -> dict:
         """The derivative sources tried and the plan's measured mismatch, for summary.json."""
@@ -123,11 +131,12 @@ class ValidationVerdict:
 
     def report(self, seed: int, checkpoint: pathlib.Path, naive, selection) -> dict:
         """Print seed `seed`'s verdict (its checkpoint; naive: the grid's alpha = 0 network or None) and return
-        its summary entry."""
+        its summary entries: {"validation": ..., "test": ...} (no "test" without a test split)."""
         from stdm_drake.learning.evaluate import compare_with_baselines
         from stdm_drake.learning.learned_model import LearnedModel
-        from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
-        label = self.name + ("" if selection is None else " (alpha 0: naive training)" if selection.alpha == 0
+        from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity, times_better
+        kept_naive = selection is not None and selection.alpha == 0
+        label = self.name + ("" if selection is None else " (alpha 0: naive training)" if kept_naive
                              else f" ({selection.label(selection.index)})")
         models = [LearnedModel(checkpoint, name=label, robot=self.robot, check_robot=self.robot is not None)]
         if naive is not None and selection is not None and selection.alpha > 0:
@@ -135,27 +144,59 @@ class ValidationVerdict:
             models.append(LearnedModel(naive, name=f"{self.name[0]} (alpha 0{single})", robot=self.robot,
                                        structure=self.structure, sample_period=self.dataset.sample_period))
         euler = ConstantVelocity(models[0].state_dim, models[0].action_dim, self.dataset.sample_period)
-        rows = compare_with_baselines(models + [euler], self.val, None, noise_floor=self.floor)
+        validation = compare_with_baselines(models + [euler], self.val, None, noise_floor=self.val_floor)
+        rows = validation if self.split_name == "validation" else \
+            compare_with_baselines(models + [euler], self.judged, None, noise_floor=self.floor)
         width = max([len(row.name) for row in rows] + [len("noise floor")]) + 2
-        print(f"seed {seed} on the validation split ({self.val_trajectories} trajectories, "
-              f"{rows[0].one_step.transitions} transitions), one-step MSE:")
+        held_out = ("held out from training, early stopping and the choice of alpha; `evaluate` reads it too"
+                    if self.split_name == "test" else "no trajectory left for a test split: the split early stopping read")
+        print(f"seed {seed} on the {self.split_name} split ({self.judged_trajectories} trajectories, "
+              f"{rows[0].one_step.transitions} transitions; {held_out}), one-step MSE:")
         print(f"  {'':<{width}}{'q [rad^2]':>11} {'v [(rad/s)^2]':>14}  against the Euler step (q) / 'v unchanged' (v)")
         for row in rows[:-1]:
             print(f"  {row.name:<{width}}{row.one_step.angle_mse:>11.3e} {row.one_step.velocity_mse:>14.3e}  "
-                  f"{row.ratio_q:.3g}x / {row.ratio_v:.3g}x better -> {row.verdict}")
+                  f"{times_better(row.ratio_q)} / {times_better(row.ratio_v)} -> {row.verdict}")
         print(f"  {'Euler step':<{width}}{rows[-1].one_step.angle_mse:>11.3e} {rows[-1].one_step.velocity_mse:>14.3e}"
               "  (q + dt v; 'v unchanged')")
         if self.floor and (self.floor["q"] > 0 or self.floor["v"] > 0):
             print(f"  {'noise floor':<{width}}{self.floor['q']:>11.3e} {self.floor['v']:>14.3e}  (the sensor's)")
+        if kept_naive and self.settings.uses_derivative():
+            print(f"  (the alpha grid kept naive training: this {self.name} checkpoint is a naive "
+                  f"{self.name[:-1]}, trained without the derivative loss)")
         model = rows[0]
         if not model.verdict.startswith("learned"):
-            print(f"stdm-drake train: warning: seed {seed}'s {self.name} has not learned the dynamics (validation "
-                  f"one-step q {model.ratio_q:.3g}x better than the Euler step, v {model.ratio_v:.3g}x than 'v "
-                  f"unchanged'; it needs {LEARNED_FACTOR:g}x in both"
+            print(f"stdm-drake train: warning: seed {seed}'s {self.name} has not learned the dynamics ({self.split_name} "
+                  f"split: one-step q {times_better(model.ratio_q)} than the Euler step, v "
+                  f"{times_better(model.ratio_v)} than 'v unchanged'; it needs {LEARNED_FACTOR:g}x better in both"
                   + (f", or within {FLOOR_FACTOR:g}x of the noise floor" if self.floor and self.floor["v"] > 0 else "")
                   + f"); likely cause: {self.likely_cause(selection, rows)}", file=sys.stderr)
-        return dict(transitions=model.one_step.transitions, trajectories=self.val_trajectories, noise_floor=self.floor,
-                    models=[row.as_dict() for row in rows])
+
+        def entry(found, trajectories, floor):
+            return dict(transitions=found[0].one_step.transitions, trajectories=trajectories, noise_floor=floor,
+                        models=[row.as_dict() for row in found])
+        entries = dict(validation=entry(validation, self.val_trajectories, self.val_floor))
+        if self.split_name == "test":
+            entries["test"] = entry(rows, self.judged_trajectories, self.floor)
+        return entries
+
+    def description_error(self, rows) -> str | None:
+        """For a grey box on the robot's description (no identified robot as --physics): the cause line when the
+        plant the description makes predicts these data worse than the Euler step one step ahead (q), as a
+        description missing the motors' rotor inertia does; None otherwise (or without a robot)."""
+        if not self.structure.grey_box or self.structure.physics or self.robot is None:
+            return None
+        from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines
+        baselines = physics_baselines(self.dataset.sample_period, 2 * self.robot.num_joints, self.robot.num_joints,
+                                      robot=self.robot, plant=True,
+                                      plant_config=self.dataset.metadata.plant_config(effects=False))
+        euler, _, plant = compare_with_baselines(baselines, self.judged, None)
+        ratio = plant.one_step.angle_mse / max(euler.one_step.angle_mse, 1e-300)
+        if ratio <= 1.0:
+            return None
+        return (f"the robot's description: the plant it describes predicts q {ratio:.3g}x worse than the Euler step "
+                f"one step ahead on these data ({plant.one_step.angle_mse:.3g} against "
+                f"{euler.one_step.angle_mse:.3g} rad^2), so the grey box starts from physics that mislead it; "
+                "identify the robot from the data (`stdm-drake identify`) and train on it (--physics)")
 
     def likely_cause(self, selection, rows) -> str:
         """The first of the usual reasons that fits this run."""
@@ -170,9 +211,14 @@ class ValidationVerdict:
             return (f"alpha {settings.alpha:g}, fixed: --alpha auto chooses it by validation, 0 (naive) included")
         if len(rows) > 2 and rows[1].verdict.startswith("learned"):
             return "the derivative loss: the naive member learned; train --model " + self.name[:-1]
+        description = self.description_error(rows)
+        if description is not None:
+            return description
         if self.training_transitions < 2000:
-            return (f"the data size: {self.training_transitions} training transitions; collect more trajectories "
-                    "(collect --count) or train on more of them (--train)")
+            more = ("collect more trajectories (collect --count)" if self.dataset.is_simulated else
+                    "record and import a longer log of the robot")
+            return (f"the data size: {self.training_transitions} training transitions; {more} or train on more of "
+                    "them (--train)")
         if not self.structure.grey_box and (self.structure.inputs == "raw" or self.structure.predicts == "state"):
             return ("the model structure: the paper's black box (--inputs raw, --predicts state) did not learn on "
                     "the shipped protocols (docs/learning.md); leave --inputs and --predicts at their defaults")
@@ -249,7 +295,7 @@ def train_job(job: TrainJob) -> dict:
     weights = network.weight_count(model_config)
     check_free_space(output / f"seed{settings.seeds[0]}" / "checkpoint.pt",   # weights, Adam's state (float32)
                      len(settings.seeds) * (16 * weights + CHECKPOINT_RESERVE_BYTES))
-    verdict = ValidationVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
+    verdict = LearningVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
                                 mismatch)
     job.runner.validate()
     if job.runner.backend == "ray":
@@ -271,8 +317,7 @@ def train_job(job: TrainJob) -> dict:
     entries = {}
     for seed, result, selection in fit_seeds(problem, settings, fit_options, job.runner, output, not job.progress):
         entries[seed] = write_seed_files(output / f"seed{seed}", name, seed, result, selection)
-        entries[seed]["validation"] = verdict.report(seed, output / f"seed{seed}" / "checkpoint.pt", result.naive,
-                                                     selection)
+        entries[seed].update(verdict.report(seed, output / f"seed{seed}" / "checkpoint.pt", result.naive, selection))
     summary = dict(written_by=written_by(), model_type=name, structure=structure.as_dict(), dataset=str(job.dataset),
                    dataset_sha256=dataset.sha256, robot=None if robot is None else robot.record(),
                    physics=None if job.physics is None else str(job.physics), network=settings.network,

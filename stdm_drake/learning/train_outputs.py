@@ -36,28 +36,48 @@ def alpha_selection_csv(selection: AlphaSelection) -> str:
 
 
 def plot_alpha_selection(selection: AlphaSelection, path, title: str = "") -> pathlib.Path:
-    """Validation state MSE against alpha (log axes; alpha = 0 drawn as a dashed line), PNG, atomically."""
+    """Validation state MSE against alpha (log axes; alpha = 0 drawn as a dashed line) with the chosen entry
+    starred where it is (naive: on its dashed line), and, where the grid held naive training, a second panel
+    with the rule that chose: each alpha's 95 % lower bound of its gain over naive, which must be above 0 for
+    that alpha to replace naive training. PNG, atomically."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     alphas, scores = np.asarray(selection.alphas), np.asarray(selection.val_mse)
     sources = np.asarray(selection.sources if selection.sources is not None else [""] * len(alphas))
-    figure, axis = plt.subplots(figsize=(5.5, 3.8))
+    rule = selection.gain_low is not None
+    figure, axes = plt.subplots(2 if rule else 1, 1, figsize=(5.5, 6.4 if rule else 3.8), sharex=True, squeeze=False)
+    axis = axes[0, 0]
     positive = alphas > 0
-    for source, color in zip(dict.fromkeys(sources[positive]), ("tab:orange", "tab:green", "tab:purple", "tab:red")):
+    colors = dict(zip(dict.fromkeys(sources[positive]), ("tab:orange", "tab:green", "tab:purple", "tab:red")))
+    for source, color in colors.items():
         rows = positive & (sources == source)
         axis.loglog(alphas[rows], scores[rows], "o-", color=color,
                     label="derivative learning" + (f" ({source} targets)" if source else ""))
     for score in scores[~positive]:
         axis.axhline(score, color="tab:blue", linestyle="--", label="naive (alpha = 0)")
-    axis.plot([selection.alpha if selection.alpha > 0 else alphas[positive].min()], [scores[selection.index]], "k*",
-              markersize=14, label=f"chosen: {selection.label(selection.index)}")
-    axis.set_xlabel("alpha (relative: each output's derivative residual over its target's spread)"
-                    if selection.scale == "relative" else "alpha (paper eq. 9)")
+    chosen = selection.label(selection.index)
+    if selection.alpha > 0:
+        axis.plot([selection.alpha], [scores[selection.index]], "k*", markersize=14, label=f"chosen: {chosen}")
+    else:   # naive: on its line, at the left edge (alpha 0 has no place on a log axis)
+        axis.plot([alphas[positive].min() if positive.any() else 1.0], [scores[selection.index]], "k*", markersize=14,
+                  label="chosen: naive (alpha 0)")
     axis.set_ylabel("validation state MSE (standardized)")
     axis.set_title(title or "alpha chosen by validation")
     axis.legend(fontsize=8)
+    if rule:
+        bounds = 100.0 * np.asarray(selection.gain_low, dtype=float)
+        rule_axis = axes[1, 0]
+        for source, color in colors.items():
+            rows = positive & (sources == source)
+            rule_axis.semilogx(alphas[rows], bounds[rows], "o-", color=color)
+        rule_axis.axhline(0.0, color="k", linewidth=0.8)
+        rule_axis.set_ylabel("gain over naive, 95 % lower bound (%)")
+        rule_axis.set_title("rule: an alpha replaces naive only where this bound is above 0\n(paired over the "
+                            "validation trajectories); among those, the lowest MSE", fontsize=8)
+    (axes[-1, 0]).set_xlabel("alpha (relative: each output's derivative residual over its target's spread)"
+                             if selection.scale == "relative" else "alpha (paper eq. 9)")
     path = pathlib.Path(path)
     with atomic_path(path) as temp:
         figure.savefig(temp, format="png", dpi=110, bbox_inches="tight")
