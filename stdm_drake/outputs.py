@@ -4,9 +4,9 @@ of one line, so the command exits with status 2 having done nothing):
 - an output is never one of the command's inputs (the same file, whatever the path or link says);
 - a file output is a regular file or nothing yet, a folder output a folder or nothing yet, and the
   folder it goes in can be written;
-- what exists there already is replaced only if the same stdm-drake command wrote it (a dataset file, a
-  JSON or HTML file it marked, a folder it marked or that holds the command's own results), or with --force;
-  every output records the command that wrote it;
+- what exists there already is replaced only with --force, or if the same command wrote it (a JSON or HTML file
+  it marked, a folder it marked or holding its results) and it is no dataset or identified robot (PRODUCT_KINDS:
+  others are made from them and record them); every output records the command that wrote it;
 - one run at a time per output: while a command runs (`command_outputs`) each output it checks is locked
   (a lock file beside it, `fcntl.flock`, released by the kernel if the run dies); a second run's error
   names the first's process. Holding the lock, the temporary files a killed run left there are removed.
@@ -34,6 +34,7 @@ NATIVE_MARKER = "# stdm-drake export --target drake:"   # first line of a Drake-
 CONTROLLER_MARKER = "# stdm-drake controller 1"   # first line of a controller file (closed_loop/controller_file.py)
 MARKERS = {"identified": IDENTIFIED_MARKER, "native": NATIVE_MARKER, "controller": CONTROLLER_MARKER}   # first lines
 OUTPUT_KINDS = ("dataset", "json", "identified", "html", "onnx", "native", "controller")
+PRODUCT_KINDS = {"dataset": "models trained on it record its SHA-256", "identified": "grey boxes trained on it name it"}
 DATASET_FORMAT = "stdm-drake-dataset"  # the HDF5 "format" attribute of every dataset (stdm_drake.data.dataset)
 WRITTEN_BY = "written_by"   # the HDF5 attribute (and JSON key) naming the command: "stdm-drake COMMAND"
 COMMAND_LINE = "command: "  # the folder marker's line naming the command
@@ -173,10 +174,7 @@ def _check_parent(option: str, path: pathlib.Path, folder: pathlib.Path | None =
 
 def _check_not_input(option: str, path: pathlib.Path, inputs, folder: bool = False) -> None:
     """An output is none of the inputs; a `folder` output holds none of them (the command replaces files in it)."""
-    for source in inputs:
-        if source is None:
-            continue
-        source = pathlib.Path(source)
+    for source in (pathlib.Path(source) for source in inputs if source is not None):
         if _same_file(path, source) or path.absolute() == source.absolute():
             raise InputError(f"{option} {path} is one of the command's inputs ({source}); choose another path")
         if folder and (pathlib.Path(os.path.realpath(source)).is_relative_to(os.path.realpath(path))
@@ -266,9 +264,9 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
                 raise InputError(f"{option} {path} was written by `{other}`; choose another path or pass --force to "
                                  "replace it")
             raise InputError(f"{option} {path} exists and stdm-drake did not write it; pass --force to replace it")
-        if not force and _other_command(writer):
-            raise InputError(f"{option} {path} was written by `{writer}`; choose another path or pass --force to "
-                             "replace it")
+        if not force and (_other_command(writer) or kind in PRODUCT_KINDS):
+            what = f"was written by `{writer}`" if _other_command(writer) else f"exists and {PRODUCT_KINDS[kind]}"
+            raise InputError(f"{option} {path} {what}; choose another path or pass --force to replace it")
         if not os.access(path, os.W_OK) and not os.access(path.parent, os.W_OK):
             raise InputError(f"{option} {path}: cannot replace it (permission denied)")
     _check_parent(option, path)
@@ -404,8 +402,7 @@ def fresh_default_folder(default, command: str) -> pathlib.Path:
     """The folder `command` writes to when the user names none: `default` (e.g. out/mpc) unless it holds one of
     the command's result files (FINISHED_RESULTS: a finished run's), else the first of default-2, default-3, ...
     that holds none, so a second run never replaces the first run's results, while a run stopped before its
-    results (its cached work kept) continues in its folder. A folder the user names is checked by
-    `check_output_folder`, which refuses another run's results without --force."""
+    results (its cached work kept) continues in its folder (a folder the user names: `check_output_folder`)."""
     default = pathlib.Path(default)
     candidate, number = default, 1
     while candidate.exists() and (not candidate.is_dir()
@@ -417,4 +414,5 @@ def fresh_default_folder(default, command: str) -> pathlib.Path:
 
 def add_force_argument(parser) -> None:
     parser.add_argument("--force", action="store_true",
-                        help="replace an existing output that stdm-drake did not write")
+                        help="replace an existing dataset or identified robot (what was made from it would no longer "
+                             "match it), or a file another command or a user wrote; a rerun replaces its own others")

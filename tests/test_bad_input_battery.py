@@ -332,6 +332,9 @@ CASES = [
     (["evaluate", "CK", "DATA", "--json", "IDREPORT"], "was written by `stdm-drake identify`"),
     ([*E, "-o", "IMPORTED"], "was written by `stdm-drake import`"),
     ([*I, "LOG", "-o", "DATA"], "was written by `stdm-drake collect`"),
+    # a dataset is never replaced without --force, by its own command either: CK was trained on it (issue 57)
+    ([*E, "-o", "DATA"], "exists and models trained on it record its SHA-256; choose another path or pass --force"),
+    ([*I, "LOG", "-o", "IMPORTED"], "exists and models trained on it record its SHA-256"),
     (["view", "CK", "DATA", "--html", "COLLECTHTML"], "was written by `stdm-drake collect`"),
     (["sine-sum", "--quick", "-o", "OLDREPRO"], "holds cache, the name of a `stdm-drake reproduce` result"),
     (["sine-sum", "--quick", "-o", "REPRO/sine_sum"], "holds the outputs of `stdm-drake reproduce`"),

@@ -136,7 +136,7 @@ def test_the_gate_counts_a_model_at_the_noise_floor_as_learned():
 
 def test_ratios_read_as_better_or_worse_by_their_value():
     """A ratio baseline/model below 1 is the model doing worse: 0.181 reads "5.52x worse", never "0.181x better"."""
-    from stdm_drake.dynamics.physics import times_better
+    from stdm_drake.learning.evaluate import times_better
     assert times_better(2.5) == "2.5x better" and times_better(1.0) == "1x better"
     assert times_better(0.181) == "5.52x worse" and times_better(0.5) == "2x worse"
     assert times_better(float("inf")) == "infinitely better" and times_better(0.0) == "infinitely worse"

@@ -82,14 +82,24 @@ def test_devices_folders_and_foreign_files_are_not_replaced(capsys, tmp_path, ex
 
 
 @pytest.mark.slow
-def test_its_own_outputs_are_replaced_without_force(capsys, tmp_path):
+def test_what_others_are_made_from_is_replaced_only_with_force(capsys, tmp_path):
+    """A dataset (even the same command's) needs --force, as a checkpoint trained on it records its SHA-256: a
+    silent replacement would leave `evaluate` failing on that checkpoint. A report of a rerun replaces its own."""
     data = tmp_path / "data.h5"
     argv = ["collect", "--protocol", "excitation", "--count", "2", "--workers", "1", "--quiet", "-o", str(data)]
-    assert main(argv) == 0 and main(argv) == 0                       # its own dataset: replaced
+    assert main(argv) == 0
     out = tmp_path / "train"
     train = ["train", str(data), "--epochs", "1", "--train", "1", "--val", "1", "--test", "0", "--quiet", "-o", str(out)]
     assert main(train) == 0 and (out / FOLDER_MARKER).exists()
     fails(capsys, train, "checkpoint.pt exists; pass --resume")      # before any work, as before
+    before = digest(data)
+    fails(capsys, argv, f"-o/--output {data} exists and models trained on it record its SHA-256; choose another "
+                        "path or pass --force")
+    assert digest(data) == before
+    report = ["evaluate", str(out / "seed0" / "checkpoint.pt"), str(data), "--split", "val", "--no-plant",
+              "--json", str(tmp_path / "eval.json")]
+    assert main(report) == 0 and main(report) == 0                    # its own report: replaced
+    assert main(argv + ["--seed", "1", "--force"]) == 0 and digest(data) != before   # replaced when asked
 
 
 @pytest.mark.parametrize("argv, message", [

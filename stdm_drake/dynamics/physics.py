@@ -43,18 +43,6 @@ def learning_verdict(ratio_q: float, ratio_v: float, floor_ratio_q: float | None
     return "has not learned the dynamics"
 
 
-def times_better(ratio: float, digits: int = 3) -> str:
-    """A ratio baseline error / model error in words: "2.5x better" at or above 1, "5.5x worse" below it (the
-    inverse, so that 0.181 reads as 5.52x worse, not "0.181x better"); "infinitely better" for an error of 0."""
-    if ratio != ratio:       # NaN: a model whose error is not a number
-        return "not comparable (NaN)"
-    if ratio == float("inf"):
-        return "infinitely better"
-    if ratio >= 1.0:
-        return f"{ratio:.{digits}g}x better"
-    return "infinitely worse" if ratio <= 0.0 else f"{1.0 / ratio:.{digits}g}x worse"
-
-
 class _Kinematic(DynamicsModel):
     """Baselines that only integrate the current state (no action)."""
 

@@ -70,6 +70,18 @@ class MultiStepErrors:
         return result
 
 
+def times_better(ratio: float, digits: int = 3) -> str:
+    """A ratio baseline error / model error in words: "2.5x better" at or above 1, "5.5x worse" below it (the
+    inverse, so that 0.181 reads as 5.52x worse, not "0.181x better"); "infinitely better" for an error of 0."""
+    if ratio != ratio:       # NaN: a model whose error is not a number
+        return "not comparable (NaN)"
+    if ratio == float("inf"):
+        return "infinitely better"
+    if ratio >= 1.0:
+        return f"{ratio:.{digits}g}x better"
+    return "infinitely worse" if ratio <= 0.0 else f"{1.0 / ratio:.{digits}g}x worse"
+
+
 def as_dynamics_model(model):
     """A DynamicsModel as it is; a bare network (a `TrainableModel` or its engine) as a LearnedModel of the
     paper's structure (next state from [x, a])."""

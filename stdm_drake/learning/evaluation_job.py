@@ -72,7 +72,8 @@ def evaluate_job(job: EvaluationJob) -> dict:
     from stdm_drake.data.compatibility import resolve_robot, robot_for
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.dynamics.model_files import load_model, load_model_file
-    from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, times_better
+    from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR
+    from stdm_drake.learning.evaluate import times_better
 
     if job.propagation == "mean" and (job.particles is not None or job.seed is not None):
         raise InputError("--particles and --seed are for --propagation ts1 or tsinf (trajectory sampling); mean "

@@ -134,7 +134,8 @@ class LearningVerdict:
         its summary entries: {"validation": ..., "test": ...} (no "test" without a test split)."""
         from stdm_drake.learning.evaluate import compare_with_baselines
         from stdm_drake.learning.learned_model import LearnedModel
-        from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity, times_better
+        from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
+        from stdm_drake.learning.evaluate import times_better
         kept_naive = selection is not None and selection.alpha == 0
         label = self.name + ("" if selection is None else " (alpha 0: naive training)" if kept_naive
                              else f" ({selection.label(selection.index)})")
