@@ -330,9 +330,13 @@ def _start_resource_tracker() -> None:
 
 def _start_worker(initializer, initargs) -> None:
     """A local worker process's start: signals left to the parent (`interrupts.ignore_interrupts_in_worker`),
-    then the pool's own initializer."""
+    Drake's warnings left to the parent too (it parses every description a worker builds a plant of, and shows
+    each warning once: `cli.drake_warnings_once`; a worker's errors still reach stderr), then the pool's own
+    initializer."""
+    import logging
     from stdm_drake.interrupts import ignore_interrupts_in_worker
     ignore_interrupts_in_worker()
+    logging.getLogger("drake").addFilter(lambda record: record.levelno >= logging.ERROR)
     if initializer is not None:
         initializer(*initargs)
 

@@ -1,5 +1,7 @@
 """Robots as typed configs: the UR-10 preset, and an arm brought as a URDF with bad configs refused."""
 import json
+import os
+import pathlib
 
 import numpy as np
 import pytest
@@ -345,6 +347,24 @@ def test_drakes_parser_warnings_are_shown_once_per_command(tmp_path, caplog, cap
         friction = [record for record in caplog.records if record.name == logger and "friction" in record.getMessage()]
         assert len(friction) == 1, [record.getMessage() for record in friction]
     assert "repeats of Drake's warnings above left out" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_drakes_warnings_come_once_from_every_process(tmp_path):
+    """With worker processes too, as a user runs it: each warning once on stderr (the workers leave them to the
+    main process, which parses the same description), in one format."""
+    import subprocess
+    import sys
+    urdf = two_link_urdf().replace('<axis xyz="0 1 0"/>', '<axis xyz="0 1 0"/><calibration rising="0.0"/>')
+    robot = write_robot(tmp_path, urdf, GOOD)
+    program = pathlib.Path(sys.executable).with_name("stdm-drake")
+    result = subprocess.run([str(program), "collect", "--protocol", "excitation", "--robot",
+                             str(robot), "--count", "4", "--workers", "2", "--quiet", "-o", str(tmp_path / "data.h5")],
+                            capture_output=True, text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"),
+                            timeout=300)
+    assert result.returncode == 0, result.stderr
+    warned = [line for line in result.stderr.splitlines() if "'calibration'" in line]
+    assert len(warned) == 1 and warned[0].startswith("WARNING:drake:"), result.stderr
 
 
 SDF = """<?xml version="1.0"?>
