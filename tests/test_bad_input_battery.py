@@ -175,6 +175,10 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "zero_velocity": ('velocity="3.1416" effort="150"', 'velocity="0" effort="150"'),
     "nan_limit": ('lower="-3.141592653589793" upper="3.141592653589793"', 'lower="nan" upper="3.141592653589793"'),
     "nan_origin": ('<origin xyz="-0.232 0.0 0.158"', '<origin xyz="nan 0.0 0.158"'),   # Drake's parser: a ValueError
+    # (issue 56: numbers Python cannot read and Drake reads otherwise: a hexadecimal float, a prefix before junk)
+    "hex_mass": ('<mass value="4.27"/>', '<mass value="-0x1.1p+2"/>'),
+    "junk_mass": ('<mass value="4.27"/>', '<mass value="-4.27junk"/>'),
+    "hex_limit": ('velocity="3.1416" effort="150"', 'velocity="0x1p1" effort="150"'),
 }
 
 
@@ -642,6 +646,9 @@ CASES = [
     ([*E, "--robot", "bad_cycle.yaml", "-o", "NEW.h5"], "form a cycle through link"),
     ([*E, "--robot", "bad_negative_moment.yaml", "-o", "NEW.h5"], "link 'wrist_3_link' has principal moments [-0.0004"),
     ([*E, "--robot", "bad_negative_mass.yaml", "-o", "NEW.h5"], "link 'forearm_link' has mass -4.27 kg"),
+    ([*E, "--robot", "bad_hex_mass.yaml", "-o", "NEW.h5"], "link 'forearm_link': its mass is '-0x1.1p+2', not a number"),
+    (["robot", "check", "bad_junk_mass.yaml"], "link 'forearm_link': its mass is '-4.27junk', not a number"),
+    (["robot", "init", "bad_hex_limit.urdf", "-o", "NEW.yaml"], "joint 'elbow_joint': its velocity limit is '0x1p1'"),
     ([*E, "--robot", "bad_zero_inertia.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves no inertia about its axis"),
     ([*E, "--robot", "bad_triangle.yaml", "-o", "NEW.h5"], "break the triangle inequality"),
     ([*E, "--robot", "bad_massless.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves links wrist_3_link, flange, tool0"),

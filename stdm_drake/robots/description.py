@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import pathlib
+import re
 
 import numpy as np
 
@@ -73,15 +74,31 @@ def file_number(text) -> float | None:
 
 
 INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+# A number as URDF and SDF files write one: decimal digits, an optional exponent (inf and nan too). Anything else
+# (a hexadecimal float, "7.1junk", "1_000") these checks cannot read as Drake's parser does, which reads some of
+# it otherwise (a prefix, a hexadecimal value), so `read_description` refuses the file.
+PLAIN_NUMBER = re.compile(r"\s*[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)\s*", re.IGNORECASE)
 
 
-def _inertial(mass: str | None, values: dict, defaults: dict) -> Inertial:
+class UnreadNumber(ValueError):
+    """A value the checks read that is not written as a number (PLAIN_NUMBER)."""
+
+
+def checked_number(text: str | None, what: str) -> float | None:
+    """The number `text` writes (None for an absent text); UnreadNumber naming `what` for one PLAIN_NUMBER is not."""
+    if text is None:
+        return None
+    if not PLAIN_NUMBER.fullmatch(text):
+        raise UnreadNumber(f"{what} is {text.strip()!r}")
+    return float(text)
+
+
+def _inertial(mass: str | None, values: dict, defaults: dict, link: str) -> Inertial:
     """The Inertial of the file's texts of a mass and of the inertia entries (`values`: INERTIA_KEYS -> text);
-    an absent text (None) takes its value from `defaults` ("mass" and INERTIA_KEYS), a text that is not a
-    number makes the mass None (nothing checked)."""
-    numbers = {key: defaults[key] if text is None else file_number(text) for key, text in dict(values, mass=mass).items()}
-    if any(value is None for value in numbers.values()):
-        return Inertial(None, np.zeros((3, 3)))
+    an absent text (None) takes its value from `defaults` ("mass" and INERTIA_KEYS); a text that is not a
+    number: UnreadNumber."""
+    numbers = {key: defaults[key] if text is None else checked_number(text, f"link {link!r}: its {key}")
+               for key, text in dict(values, mass=mass).items()}
     get = numbers.get
     return Inertial(get("mass"), np.array([[get("ixx"), get("ixy"), get("ixz")], [get("ixy"), get("iyy"), get("iyz")],
                                            [get("ixz"), get("iyz"), get("izz")]], dtype=float))
@@ -98,11 +115,12 @@ def _urdf(root) -> Description:
         mass, inertia = inertial.find("mass"), inertial.find("inertia")
         values = {key: inertia.get(key) if inertia is not None else None for key in INERTIA_KEYS}
         links[link.get("name")] = _inertial(mass.get("value") if mass is not None else None, values,
-                                            dict.fromkeys(("mass",) + INERTIA_KEYS, 0.0))
+                                            dict.fromkeys(("mass",) + INERTIA_KEYS, 0.0), link.get("name"))
     joints = []
     for joint in root.findall("joint"):
         parent, child, limit = joint.find("parent"), joint.find("child"), joint.find("limit")
-        values = {key: file_number(limit.get(key)) for key in ("lower", "upper", "velocity")} if limit is not None else {}
+        values = {key: checked_number(limit.get(key), f"joint {joint.get('name')!r}: its {key} limit")
+                  for key in ("lower", "upper", "velocity")} if limit is not None else {}
         if joint.get("type") == "continuous":   # (URDF: its lower and upper are ignored)
             values.pop("lower", None), values.pop("upper", None)
         joints.append(Joint(joint.get("name"), joint.get("type"), parent.get("link") if parent is not None else None,
@@ -128,7 +146,8 @@ def _sdf(root) -> Description:
 
     def read_joints(element, prefix: str) -> None:
         for joint in element.findall("joint"):
-            values = {key: file_number(joint.findtext(f"axis/limit/{key}")) for key in ("lower", "upper", "velocity")}
+            values = {key: checked_number(joint.findtext(f"axis/limit/{key}"), f"joint {joint.get('name')!r}: its {key} limit")
+                      for key in ("lower", "upper", "velocity")}
             if values["velocity"] is not None and values["velocity"] < 0:
                 values["velocity"] = None
             parent, child = ((joint.findtext(end) or "").strip() for end in ("parent", "child"))
@@ -141,7 +160,7 @@ def _sdf(root) -> Description:
             inertial = link.find("inertial")
             read = inertial.findtext if inertial is not None else (lambda key: None)  # noqa: E731
             links[prefix + link.get("name", "")] = _inertial(
-                read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS}, defaults)
+                read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS}, defaults, prefix + link.get("name", ""))
         read_joints(model, prefix)
         for nested in model.findall("model"):
             read_model(nested, f"{prefix}{nested.get('name', '')}::")
@@ -154,12 +173,10 @@ def _sdf(root) -> Description:
     return Description(links, joints)
 
 
-def read_description(path: pathlib.Path) -> Description:
-    """The links and joints of a URDF or SDF file. InputError (one line) for a file these checks cannot read as
-    Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
-    (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
-    a "billion laughs" file among them). So no check is skipped for a file Drake then parses."""
-    import xml.etree.ElementTree as ElementTree
+def check_xml(path: pathlib.Path, kind: str) -> None:
+    """InputError (one line) for an XML file the toolbox cannot read as Drake (or MoveIt) would: not well-formed
+    (an undefined entity included), or declaring entities (Python's parser expands them, Drake's does not; a
+    "billion laughs" file among them). kind: what the file should be, for the message ("a URDF or SDF file is")."""
     from xml.parsers import expat
 
     def declared(name, *_):   # (raised at the declaration: nothing is expanded)
@@ -173,8 +190,21 @@ def read_description(path: pathlib.Path) -> Description:
             checker.ParseFile(file)
     except expat.ExpatError as error:
         raise InputError(f"{path.name} is not well-formed XML ({expat.ErrorString(error.code)}: line "
-                         f"{error.lineno}, column {error.offset}); a URDF or SDF file is") from None
-    return _sdf(root) if (root := ElementTree.parse(path).getroot()).tag == "sdf" else _urdf(root)
+                         f"{error.lineno}, column {error.offset}); {kind}") from None
+
+
+def read_description(path: pathlib.Path) -> Description:
+    """The links and joints of a URDF or SDF file. InputError (one line) for a file these checks cannot read as
+    Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
+    (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
+    a "billion laughs" file among them). So no check is skipped for a file Drake then parses."""
+    import xml.etree.ElementTree as ElementTree
+    check_xml(path, "a URDF or SDF file is")
+    try:
+        return _sdf(root) if (root := ElementTree.parse(path).getroot()).tag == "sdf" else _urdf(root)
+    except UnreadNumber as error:
+        raise InputError(f"{path.name}: {error}, not a number as URDF and SDF write one (decimal digits, an optional "
+                         "exponent); these checks cannot read it, and Drake's parser would read it otherwise") from None
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,

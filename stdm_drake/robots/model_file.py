@@ -89,11 +89,10 @@ def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, s
     """The (link1, link2) pairs of a MoveIt SRDF's <disable_collisions> elements; InputError naming robot
     `name` for a missing or unparsable file."""
     import xml.etree.ElementTree as ElementTree
+    from stdm_drake.robots.description import check_xml
     check_input_file(path, f"robot {name}: srdf file")
-    try:
-        root = ElementTree.parse(path).getroot()
-    except ElementTree.ParseError as error:
-        raise InputError(f"robot {name}: srdf {path.name} is not valid XML ({error})") from None
+    check_xml(path, "an SRDF file is")     # (entities refused: a "billion laughs" file among them)
+    root = ElementTree.parse(path).getroot()
     pairs = [(element.get("link1"), element.get("link2")) for element in root.iter("disable_collisions")]
     bad = [pair for pair in pairs if not all(pair)]
     if bad:

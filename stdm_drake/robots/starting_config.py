@@ -116,20 +116,24 @@ def find_packages(model_path: pathlib.Path, levels: int = 6) -> tuple[dict, list
 
 
 def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
-    """The first SRDF <group_state> named in HOME_STATE_NAMES that gives every arm joint, as positions, or None."""
+    """The first SRDF <group_state> named in HOME_STATE_NAMES that gives every arm joint, as positions, or None.
+    InputError for a file that is no XML as MoveIt reads it (entities: `description.check_xml`) and for a home
+    value that is no number (it would be skipped silently)."""
     import xml.etree.ElementTree as ElementTree
-    try:
-        root = ElementTree.parse(srdf).getroot()
-    except ElementTree.ParseError as error:
-        raise InputError(f"srdf {srdf.name} is not valid XML ({error})") from None
+    from stdm_drake.robots.description import PLAIN_NUMBER, check_xml
+    check_xml(srdf, "an SRDF file is")
+    root = ElementTree.parse(srdf).getroot()
     states = {state.get("name"): {joint.get("name"): joint.get("value") for joint in state.iter("joint")}
               for state in root.iter("group_state")}
     for name in HOME_STATE_NAMES:
         values = states.get(name, {})
-        try:
-            return [float(values[joint]) for joint in arm_joints]
-        except (KeyError, TypeError, ValueError):   # (a state of other joints, or a value that is no number)
-            continue
+        if not all(joint in values for joint in arm_joints):
+            continue   # (a state of other joints)
+        for joint in arm_joints:
+            if values[joint] is None or not PLAIN_NUMBER.fullmatch(values[joint]):
+                raise InputError(f"srdf {srdf.name}: group state {name!r} gives joint {joint!r} the value "
+                                 f"{values[joint]!r}, which is no number (decimal digits, an optional exponent)")
+        return [float(values[joint]) for joint in arm_joints]
     return None
 
 
