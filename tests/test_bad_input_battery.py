@@ -365,6 +365,9 @@ CASES = [
     (["mbrl", "-o", "MBRLLOOP/round1"], "is inside the loop in"),
     (["mbrl", "--force", "-o", "MBRLLOOP/round9"], "is inside the loop in"),
     (["mbrl", "--rounds", "2", "-o", "MBRLLOOP"], "holds rounds 0..5 of its loop; resume it with --rounds 5 or more"),
+    # (issue 56: refused by collect only after round 0 had been collected, trained and evaluated)
+    (["mbrl", "--rounds", "1", "--plans-per-round", "150", "-o", "NEW"], "--plans-per-round 150: the plans' "
+                                                                          "specification yields 4 start poses x 25"),
     (["mbrl", "--config", "MBRLCFG/mpc.yaml", "--force", "-o", "MBRLCFG"], "holds the input"),
     # --- work bounded before it starts (issue 56): a settings file larger than any is refused unread
     ([*M, "--config", "BIGSETTINGS", "-o", "NEW"], "more than any MPC config holds"),
@@ -683,6 +686,8 @@ CASES = [
     (["export", "missing.pt", "-o", "NEW.onnx"], "checkpoint not found"),
     (["export", "ZEROSTD", "-o", "NEW.onnx"], "has a zero or negative spread"),
     (["export", "CK", "-o", "FOREIGNONNX"], "exists and stdm-drake did not write it"),
+    # (issue 56: -o naming an existing pair's Jacobian graph replaced it with a model graph of another checkpoint)
+    (["export", "CK", "-o", "NEW.jacobian.onnx"], "is the name of a Jacobian graph: export writes the model graph to -o"),
     (["export", "CK", "-o", "NOTES"], "the onnx target writes a .onnx file"),
     (["export", "CK", "-o", "IDREPORT"], "the onnx target writes a .onnx file"),
     (["export", "CK", "--target", "drake", "-o", "NEW.yaml"], "activation 'swish' has no Drake MultilayerPerceptron form"),

@@ -105,7 +105,9 @@ def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_
     assert evaluated["one_step"]["velocity_mse"] == pytest.approx(test["models"][0]["one_step"]["velocity_mse"],
                                                                   rel=1e-9)
     assert evaluated["verdict"] == test["models"][0]["verdict"]
-    assert f"-> {evaluated['verdict']}" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert f"-> {evaluated['verdict']}" in printed
+    assert "the Euler step and 'stays put' coincide open loop: the trajectories start at rest" in printed
     assert summary["derivative_sources"]["tried"] == ["true"]
     assert summary["derivative_sources"]["plan_mismatch"]["acceleration"] > 0.5
     validation = summary["seeds"]["0"]["validation"]

@@ -47,7 +47,7 @@ def test_a_closed_loop_leaving_the_limits_is_cut_at_its_last_sample_inside():
 
 
 @pytest.mark.slow
-def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_path, capsys):
+def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_path, capsys, monkeypatch):
     folder = tmp_path / "loop"
     arguments = ["mbrl", "-o", str(folder), "--rounds", "1", "--initial-plans", "8", "--plans-per-round", "4",
                  "--evaluation-plans", "2", "--epochs", "2", "--open-loop", "--quiet"]
@@ -64,6 +64,20 @@ def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_pat
     assert main(arguments) == status                       # a rerun resumes: nothing is redone
     assert (folder / "round1" / "evaluation.json").stat().st_mtime_ns == written
     assert json.loads((folder / "summary.json").read_text())["rounds"] == summary["rounds"]
+    assert "pending_round" not in summary
+    # stopped in round 1 (its data collected, not yet trained on): summary.json names round 0 and round 1 as pending
+    import stdm_drake.experiments.mbrl_loop as loop
+    trained = loop.train_round
+
+    def stop_in_round_1(config, data_path, model_folder):
+        if data_path.parent.name == "round1":
+            raise KeyboardInterrupt
+        return trained(config, data_path, model_folder)
+    (folder / "summary.json").unlink()
+    monkeypatch.setattr(loop, "train_round", stop_in_round_1)
+    assert main(arguments) == 130                              # (as Ctrl-C there)
+    stopped = json.loads((folder / "summary.json").read_text())
+    assert [row["round"] for row in stopped["rounds"]] == [0] and stopped["pending_round"]["round"] == 1
     capsys.readouterr()
     assert main(["mbrl", "-o", str(tmp_path / "other"), "--rounds", "0"]) == 2
     error = capsys.readouterr().err

@@ -7,6 +7,9 @@ A fenced code block is marked by an HTML comment on the line right before its op
                                   Python; a failing command fails the test
     <!-- recipe-file: PATH -->    the block is written to PATH in the page's folder, for the recipes after it
     <!-- not-a-recipe: REASON --> nothing runs; the reason says why it cannot (a second machine, a download, ...)
+    <!-- recipe: NAME; verdicts: learned, not learned -->
+                                  as `recipe`, and the verdicts the block prints (`train`'s per seed, `evaluate`'s),
+                                  in order, must be these: what the page says of them is what a user will see
 
 Each page's recipes run in their order on the page, in one empty folder of their own outside the checkout
 (never the checkout as the working folder), with this Python's `bin/` first on PATH; files shipped with the
@@ -49,6 +52,40 @@ class Block:
 
     def where(self) -> str:
         return f"{self.page.relative_to(ROOT)}:{self.line}"
+
+    @property
+    def name(self) -> str:
+        """The recipe's name (its argument up to the first ';')."""
+        return self.argument.split(";")[0].strip()
+
+    @property
+    def verdicts(self) -> list[str] | None:
+        """The verdicts the mark states ("learned" / "not learned", in order), or None where it states none."""
+        for part in self.argument.split(";")[1:]:
+            key, _, value = part.partition(":")
+            if key.strip() == "verdicts":
+                return [verdict.strip() for verdict in value.split(",")]
+        return None
+
+
+VERDICT = re.compile(r"-> (learned \(at the noise floor\)|learned|has not learned the dynamics)\s*$")
+
+
+def printed_verdicts(output: str) -> list[str]:
+    """The learning verdicts a block printed, in order, as "learned" / "not learned": each `train` seed's (the
+    first model row under its "seed N on the ... split" line) and each `evaluate`'s ("... against the
+    physics-free baselines: ... -> VERDICT")."""
+    found, lines = [], output.splitlines()
+    for index, line in enumerate(lines):
+        if re.match(r"^seed \d+ on the \w+ split \(", line) and index + 2 < len(lines):
+            match = VERDICT.search(lines[index + 2])
+        elif "against the physics-free baselines:" in line:
+            match = VERDICT.search(line)
+        else:
+            continue
+        if match:
+            found.append("not learned" if match.group(1).startswith("has not") else "learned")
+    return found
 
 
 def pages() -> list[pathlib.Path]:
@@ -116,9 +153,13 @@ def test_marks_are_well_formed():
             if block.mark == "recipe":
                 if block.language not in ("bash", "python"):
                     problems.append(f"{block.where()}: a recipe is a ```bash or ```python block, not {block.language!r}")
-                if block.argument in names:
-                    problems.append(f"{block.where()}: recipe name {block.argument!r} twice on the page")
-                names.add(block.argument)
+                if block.name in names:
+                    problems.append(f"{block.where()}: recipe name {block.name!r} twice on the page")
+                names.add(block.name)
+                extra = [part.strip() for part in block.argument.split(";")[1:]]
+                if any(not part.startswith("verdicts:") for part in extra) or \
+                        (block.verdicts is not None and not set(block.verdicts) <= {"learned", "not learned"}):
+                    problems.append(f"{block.where()}: after the name only '; verdicts: learned, not learned, ...'")
             if block.mark == "recipe-file" and (pathlib.PurePath(block.argument).is_absolute()
                                                 or ".." in pathlib.PurePath(block.argument).parts):
                 problems.append(f"{block.where()}: recipe-file {block.argument!r} must be a path inside the folder")
@@ -164,7 +205,7 @@ def test_recipes_run(page, tmp_path):
     folder = tmp_path / "work"
     folder.mkdir()
     assert ROOT not in folder.resolve().parents and folder.resolve() != ROOT
-    env, times = environment(), []
+    env, times, wrong = environment(), [], []
     for block in blocks(page):
         if block.mark == "recipe-file":
             target = folder / block.argument
@@ -181,8 +222,29 @@ def test_recipes_run(page, tmp_path):
         result = subprocess.run(command, cwd=folder, env=env, capture_output=True, text=True,
                                 timeout=BLOCK_TIMEOUT)
         script.unlink()
-        times.append(f"{block.argument} {time.perf_counter() - started:.1f} s")
+        verdicts = printed_verdicts(result.stdout)
+        times.append(f"{block.name} {time.perf_counter() - started:.1f} s" + (f" {verdicts}" if verdicts else ""))
         assert result.returncode == 0, (
-            f"recipe {block.argument!r} ({block.where()}) exited {result.returncode}:\n"
+            f"recipe {block.name!r} ({block.where()}) exited {result.returncode}:\n"
             f"{result.stdout[-3000:]}\n{result.stderr[-3000:]}")
+        if (block.verdicts is not None or verdicts) and verdicts != block.verdicts:
+            wrong.append(f"recipe {block.name!r} ({block.where()}) printed the verdicts {verdicts}; its page states "
+                         f"{block.verdicts} (mark it '<!-- recipe: {block.name}; verdicts: ... -->' and say so on "
+                         "the page)")
     print(f"{page.relative_to(ROOT)}: " + ", ".join(times))
+    assert not wrong, wrong
+
+
+def test_verdicts_are_read_as_train_and_evaluate_print_them():
+    train = ("seed 0 on the test split (2 trajectories, 198 transitions; held out ...), one-step MSE:\n"
+             "                 q [rad^2] v [(rad/s)^2]  against the Euler step (q) / 'v unchanged' (v)\n"
+             "  D              1.0e-05   2.0e-03  1.2x better / 5.52x worse -> has not learned the dynamics\n"
+             "  Euler step     1.2e-05   1.0e-02  (q + dt v; 'v unchanged')\n"
+             "seed 1 on the test split (2 trajectories, 198 transitions; held out ...), one-step MSE:\n"
+             "                 q [rad^2] v [(rad/s)^2]  against the Euler step (q) / 'v unchanged' (v)\n"
+             "  D              1.0e-07   2.0e-05  120x better / 500x better -> learned\n")
+    evaluate = "D against the physics-free baselines: one-step q 1.03x better ..., v 1.2x better -> learned (at the noise floor)\n"
+    assert printed_verdicts(train + evaluate) == ["not learned", "learned", "learned"]
+    block = Block(ROOT / "README.md", 1, "bash", "", "recipe", "train; verdicts: learned, not learned")
+    assert block.name == "train" and block.verdicts == ["learned", "not learned"]
+    assert Block(ROOT / "README.md", 1, "bash", "", "recipe", "train").verdicts is None

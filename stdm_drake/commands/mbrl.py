@@ -13,18 +13,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", type=pathlib.Path, help="robot config YAML (default: the UR-10's, models/ur10.yaml)")
     add_plant_effects_argument(parser, "the plant the loop acts on and collects from")
     parser.add_argument("--config", type=pathlib.Path,
-                        help="MPC settings YAML, any optimizer (`optimizer: !Icem {...}`; default: the robot's)")
+                        help="MPC settings YAML, any optimizer (default: the robot's; shipped: "
+                             "stdm-drake:controllers/mpc_ilqr_tuned.yaml, mpc_icem.yaml, mpc_mppi.yaml, mpc_cem.yaml)")
     parser.add_argument("--model", default="D", type=str.upper, help="`train`'s model type (default D)")
     parser.add_argument("--epochs", type=int, default=300, help="training epochs per round at most (default 300)")
     parser.add_argument("--rounds", type=int, default=5, help="refits after the first model (default 5)")
-    parser.add_argument("--initial-plans", type=int, default=8, help="plans of the initial dataset (default 8)")
+    parser.add_argument("--initial-plans", type=int, default=8,
+                        help="plans of the initial dataset, at least 2 per start pose: training validates on one "
+                             "per pose (default 8, for the shipped plans' 4 start poses)")
     parser.add_argument("--plans-per-round", type=int, default=8, help="plans the MPC tracks each round (default 8)")
     parser.add_argument("--evaluation-plans", type=int, default=8, help="plans every round is evaluated on (default 8)")
     parser.add_argument("--seed", type=int, default=0, help="the models' training seed (default 0)")
     parser.add_argument("--open-loop", action="store_true",
                         help="also train on the same plans tracked by the collection controller (the same data "
                              "budget collected open loop) and evaluate it beside every round")
-    parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar and no line per round")
     add_force_argument(parser)
 
 
@@ -45,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     check_output_folder("-o/--output", args.output, inputs=(args.robot, args.config, args.plant_effects),
                         force=args.force)
     mark_output_folder(args.output)
-    summary = run_loop(config, say=(lambda line: None) if args.quiet else print)
+    summary = run_loop(config, say=(lambda line: None) if args.quiet else print, progress=not args.quiet)
     last = summary["rounds"][-1]
     first = summary["rounds"][0]
     print(f"round 0 -> {last['round']}: closed-loop q MSE {first['q_mse_geometric_mean']:.3g} -> "

@@ -40,6 +40,10 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     suffix = ".onnx" if job.target == "onnx" else ".yaml"
     if pathlib.Path(job.output).suffix.lower() != suffix:
         raise InputError(f"-o/--output {job.output}: the {job.target} target writes a {suffix} file")
+    if job.target == "onnx" and pathlib.Path(job.output).name.lower().endswith(".jacobian.onnx"):
+        model_name = pathlib.Path(job.output).name[:-len(".jacobian.onnx")] + ".onnx"
+        raise InputError(f"-o/--output {job.output} is the name of a Jacobian graph: export writes the model graph to "
+                         f"-o and its Jacobian graph beside it; give the model graph's name ({model_name})")
     outputs = [job.output] + ([jacobian_path(job.output)] if job.target == "onnx" else [])
     kind = "onnx" if job.target == "onnx" else "native"
     for option, path in zip(("-o/--output", "the Jacobian graph"), outputs):

@@ -17,6 +17,7 @@ not redone, so a stopped loop resumes where it stopped (the same numbers: every 
 import dataclasses
 import json
 import pathlib
+import sys
 import time
 
 import numpy as np
@@ -82,7 +83,12 @@ class LoopConfig:
         if getattr(optimizer, "framework", "numpy") == "torch" and (settings.predicts, settings.inputs) != ("state", "raw"):
             raise InputError(f"mpc optimizer framework torch runs the paper's black box only (train predicts: state, "
                              f"inputs: raw); --model {self.model} here is structured: use framework numpy")
-        poses = len(collection(self, self.initial_plans, self.data_seed).tracking_spec.sampling.initial_poses)
+        sampling = collection(self, self.initial_plans, self.data_seed).tracking_spec.sampling
+        poses, capacity = len(sampling.initial_poses), len(sampling.initial_poses) * sampling.num_final_per_initial
+        for name in ("initial_plans", "plans_per_round", "evaluation_plans"):   # (collect's own check, before round 0)
+            if getattr(self, name) > capacity:
+                raise InputError(f"--{name.replace('_', '-')} {getattr(self, name)}: the plans' specification yields "
+                                 f"{poses} start poses x {sampling.num_final_per_initial} final poses = {capacity} plans")
         if self.initial_plans < 2 * poses:
             raise InputError(f"--initial-plans {self.initial_plans}: the robot's plans start from {poses} poses, and "
                              f"training validates on {poses} of the plans: give at least {2 * poses}")
@@ -207,9 +213,11 @@ def evaluate(config: LoopConfig, checkpoint: pathlib.Path, references: list, pla
                 solve_ms_mean=float(np.mean([result.solve_ms_mean for result in results])))
 
 
-def run_loop(config: LoopConfig, references: list | None = None, say=print) -> dict:
+def run_loop(config: LoopConfig, references: list | None = None, say=print, progress: bool = False) -> dict:
     """The loop of `config` (module docstring); references: the evaluation's (index, mpc.Reference) pairs (None:
-    `evaluation_plans` plans of `evaluation_seed`). Returns the summary (also in output/summary.json)."""
+    `evaluation_plans` plans of `evaluation_seed`); progress: a bar of the rounds on stderr. Returns the summary
+    (also in output/summary.json)."""
+    from tqdm import tqdm
     from stdm_drake.closed_loop.mpc import Reference
     from stdm_drake.collection.collect import collect, collection_metadata, tracking_trajectory
     from stdm_drake.data.dataset import Trajectory, load_dataset
@@ -232,7 +240,10 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print) -> d
     station = Station(initial_request.settings)
     plant_config = initial_request.settings.plant
     rows = []
+    bar = tqdm(total=config.rounds + 1, desc="mbrl rounds", unit="round", disable=not progress, file=sys.stderr)
     for round_index in range(config.rounds + 1):
+        if round_index:
+            bar.update()
         folder = output / f"round{round_index}"
         data_path = folder / "data.h5"
         checkpoint, learned = train_round(config, data_path, folder / "model")
@@ -263,9 +274,21 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print) -> d
                                dict(metadata, mbrl_loop=dict(round=round_index + 1, mpc=config.mpc.record(),
                                                              mpc_trajectories=len(old) + len(tracked) - config.initial_plans)))
         row["collection"] = json.loads((folder / "collection.json").read_text())
-    summary = dict(config=loop_record(config),
-                   evaluation_plans=[index for index, _ in references], rounds=rows,
+        # (after each round: a run stopped later still names every round folder, the next one's data as pending)
+        write_summary(output, config, references, rows, started, pending=round_index + 1)
+    bar.update()
+    bar.close()
+    return write_summary(output, config, references, rows, started)
+
+
+def write_summary(output: pathlib.Path, config: LoopConfig, references: list, rows: list, started: float,
+                  pending: int | None = None) -> dict:
+    """Write the loop's summary.json of the rounds so far (`rows`) and return it; pending: the round whose data
+    are collected (its folder holds data.h5) but not yet trained on, recorded as `pending_round`."""
+    summary = dict(config=loop_record(config), evaluation_plans=[index for index, _ in references], rounds=rows,
                    seconds=round(time.perf_counter() - started, 1))
+    if pending is not None:
+        summary["pending_round"] = dict(round=pending, data=f"round{pending}/data.h5")
     write_text_atomic(output / "summary.json", json.dumps(summary, indent=1))
     return summary
 

@@ -136,6 +136,11 @@ def evaluate_job(job: EvaluationJob) -> dict:
     for row in rows:
         print(f"  {row.name[:12]:<12} {row.one_step.angle_mse:>10.3e} {row.one_step.velocity_mse:>13.3e}  "
               + " ".join(f"{row.multi_step.angle_mse[k - 1]:>9.2e}" for k in shown))
+    by_name = {row.name: row for row in rows}
+    if {"Euler step", "stays put"} <= set(by_name) and np.array_equal(by_name["Euler step"].multi_step.angle_mse,
+                                                                         by_name["stays put"].multi_step.angle_mse):
+        print("  (the Euler step and 'stays put' coincide open loop: the trajectories start at rest, so 'v "
+              "unchanged' keeps v = 0 and q where it started; one step ahead they differ)")
     if not plant:
         print("  (no plant baseline: " + ("--no-plant" if job.no_plant else "pass the dataset's robot with --robot")
               + ")")
