@@ -202,6 +202,11 @@ def write_issue_25_inputs(box) -> None:
         (box / f"bad_{name}.urdf").write_text(broken)
         (box / f"bad_{name}.yaml").write_text(ur10_config(f"bad_{name}.urdf"))
     (box / "bad_tool.yaml").write_text(ur10_config("ur10.urdf", tool_frame="gripper_tip"))
+    links = "".join(f'<link name="l{i}"><inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" '
+                    'ixz="0" iyz="0"/></inertial></link>' for i in range(102))
+    joints = "".join(f'<joint name="j{i}" type="revolute"><parent link="l{i}"/><child link="l{i + 1}"/><axis xyz="0 0 1"/>'
+                     '<limit lower="-1" upper="1" effort="10" velocity="1"/></joint>' for i in range(101))
+    (box / "chain101.urdf").write_text(f'<robot name="chain">{links}{joints}</robot>')
     (box / "bad_symlink.yaml").write_text(ur10_config("loop_a.urdf"))
     for suffix in ("urdf", "h5", "pt", "yaml"):
         os.symlink(f"loop_b.{suffix}", box / f"loop_a.{suffix}")
@@ -631,6 +636,15 @@ CASES = [
     (yaml_case("mpc", "velocity_weight: [1e300]\n"), "velocity_weight must be at most"),
     (yaml_case("mpc", "horizon: 100000\n"), "horizon must be in 1..1000"),
     (yaml_case("mpc", "optimizer: !Ilqr {max_iterations: 100000}\n"), "max_iterations must be in 1..100"),
+    # (issue 56: settings each within its own range whose product would run for hours; absurd magnitudes)
+    (yaml_case("mpc", "horizon: 1000\noptimizer: !Icem {samples: 8000, iterations: 100}\n"),
+     "would evaluate about 8e+08 model steps per control step, beyond the budget of 1e+07"),
+    (yaml_case("mpc", "horizon: 1000\noptimizer: !Ilqr {max_iterations: 100}\n"),
+     "would evaluate about 1.04e+07 model steps per control step (a node's linearization counted as 100)"),
+    (yaml_case("mpc", "optimizer: !Mppi {temperature: 1.0e300}\n"), "temperature must be in (0, 1e+12]"),
+    (yaml_case("mpc", "optimizer: !Mppi {feedback_kd: 1.0e300}\n"), "feedback_kd must be in [0, 1e+06]"),
+    (yaml_case("mpc", "optimizer: !Icem {propagation: tsinf, particles: 5, variance_weight: 1.0e300}\n"),
+     "variance_weight must be in [0, 1e+12]"),
     (yaml_case("mpc", "effort_weight: [1, 2]\n"), "effort_weight"), (yaml_case("mpc", "disturbance_gain: 2\n"), "disturbance_gain"),
     (yaml_case("robot", "name: x\nmodel: missing.urdf\narm_joints: [a]\nhome: [0]\ntool_frame: t\n"), "model file not found"),
     (yaml_case("robot", "name: x\nmodel: ur10.urdf\nweld_frame: base_link\narm_joints: [a]\nhome: [0]\ntool_frame: tool0\n"),
@@ -644,6 +658,7 @@ CASES = [
     (["robot", "init", "ur10.urdf", "-o", "ur10.urdf"], "--output ur10.urdf is an input file"),
     (["robot", "init", "ur10.urdf", "--name", "../escape"], "--name '../escape': the robot's name, not a path"),
     (["robot", "init", "bad_cycle.urdf", "-o", "NEW.yaml"], "form a cycle through link"),
+    (["robot", "init", "chain101.urdf", "-o", "NEW.yaml"], "its chain from the root has 101 movable joints; an arm here"),
     (["robot", "check", "bad_loop.yaml"], "link 'forearm_link' is the child of joints 'elbow_joint' and 'closing'"),
     ([*E, "--robot", "bad_loop.yaml", "-o", "NEW.h5"], "link 'forearm_link' is the child of joints 'elbow_joint' and 'closing'"),
     ([*E, "--robot", "bad_cycle.yaml", "-o", "NEW.h5"], "form a cycle through link"),

@@ -21,7 +21,8 @@ import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
 from stdm_drake.closed_loop.constraints import StateBounds, box_qp, limits_status
-from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
+from stdm_drake.closed_loop.optimizer import (LINEARIZATION_STEPS, OptimizerResult, OptimizerSettings, TrackingCost,
+                                              TrajectoryOptimizer)
 from stdm_drake.errors import InputError
 
 
@@ -53,6 +54,10 @@ class Ilqr(OptimizerSettings):
             raise InputError(f"mpc optimizer !Ilqr line_search steps must be in (0, 1], got {self.line_search}")
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
             raise InputError(f"mpc optimizer !Ilqr regularization must be in [0, 1e6], got {self.regularization}")
+
+    def work_per_step(self, horizon: int) -> int:
+        """Each iteration linearizes every node and rolls the horizon out once per line-search step."""
+        return int(self.max_iterations) * int(horizon) * (LINEARIZATION_STEPS + len(self.line_search))
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
                bounds: StateBounds | None = None) -> "IlqrSolver":

@@ -47,7 +47,8 @@ from pydrake.systems.framework import DiagramBuilder, LeafSystem
 
 from stdm_drake.closed_loop.constraints import Constraints
 from stdm_drake.closed_loop.ilqr import Ilqr
-from stdm_drake.closed_loop.optimizer import OptimizerSettings, TrackingCost, TrajectoryOptimizer
+from stdm_drake.closed_loop.optimizer import (LINEARIZATION_STEPS, MAX_WORK_PER_STEP, OptimizerSettings, TrackingCost,
+                                              TrajectoryOptimizer)
 from stdm_drake.closed_loop.policy import MpcStep, StepMemory
 from stdm_drake.closed_loop.push import JointPush, add_push
 from stdm_drake.closed_loop.rti import Rti
@@ -116,6 +117,13 @@ class MpcConfig:
             raise InputError(f"mpc optimizer must be one of {', '.join(OPTIMIZER_TAGS)} (an OptimizerSettings), got "
                              f"{self.optimizer!r}")
         self.optimizer.validate()
+        work = self.optimizer.work_per_step(self.horizon)
+        if work > MAX_WORK_PER_STEP:
+            raise InputError(f"mpc optimizer !{type(self.optimizer).__name__} over horizon {self.horizon} would evaluate "
+                             f"about {work:.3g} model steps per control step"
+                             + ("" if hasattr(self.optimizer, "samples") else
+                                f" (a node's linearization counted as {LINEARIZATION_STEPS})") + f", beyond the budget of {MAX_WORK_PER_STEP:.0e}: fewer samples, iterations or "
+                             "particles, or a shorter horizon")
         if not isinstance(self.constraints, Constraints):
             raise InputError(f"mpc constraints must be a mapping of mode, position_margin, velocity_margin and "
                              f"penalty_weight, got {self.constraints!r}")

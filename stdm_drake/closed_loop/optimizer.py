@@ -84,6 +84,20 @@ class OptimizerSettings(abc.ABC):
         """What an output records of these settings: its tag ("type", the class name) and its fields."""
         return dict(type=type(self).__name__, **dataclasses.asdict(self))
 
+    def work_per_step(self, horizon: int) -> int:
+        """The work of one control step over `horizon` sample periods, in model steps of one state (a node's
+        linearization counts LINEARIZATION_STEPS): what `MpcConfig.validate` holds to MAX_WORK_PER_STEP."""
+        return int(horizon) * LINEARIZATION_STEPS
+
+
+# A linearization of the model at one node, in model steps: its Jacobians through 2n + m tangents and the node's
+# share of the quadratic program, rounded up (a conservative weight for the budget below).
+LINEARIZATION_STEPS = 100
+# The most work one control step may ask for (OptimizerSettings.work_per_step): 12x the PETS budget (CEM 400 samples
+# x 5 iterations x 20 particles x horizon 20 = 8e5, about 3 s per step measured: BENCHMARKS.md); beyond it a closed
+# loop of 100 steps would run for hours, so the settings are refused before any work, with the estimate.
+MAX_WORK_PER_STEP = 10_000_000
+
 
 class TrajectoryOptimizer(abc.ABC):
     """Minimizes `cost` over torque sequences within +-effort_limit (m,) N m, predicting with `model` (a

@@ -33,7 +33,8 @@ from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 from stdm_drake.closed_loop.compiled import CompiledRtiSolver
 from stdm_drake.learning.compiled_core import IMPLEMENTATIONS, compiled_model
 from stdm_drake.closed_loop.constraints import CondensedQp, StateBounds
-from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
+from stdm_drake.closed_loop.optimizer import (LINEARIZATION_STEPS, OptimizerResult, OptimizerSettings, TrackingCost,
+                                              TrajectoryOptimizer)
 from stdm_drake.errors import InputError
 
 MAX_CONDENSED = 600    # H m up to which the dense system is solved (its cost grows as (H m)^3: 0.1 ms at 120)
@@ -50,6 +51,10 @@ class Rti(OptimizerSettings):
     iterations: int = 1
     regularization: float = 1e-6
     implementation: str = "compiled"
+
+    def work_per_step(self, horizon: int) -> int:
+        """Each iteration linearizes every node."""
+        return int(self.iterations) * int(horizon) * LINEARIZATION_STEPS
 
     def validate(self) -> None:
         """InputError for settings the solver cannot run: iterations outside 1..MAX_ITERATIONS, a regularization

@@ -52,6 +52,8 @@ MAX_ROWS = 2_000_000        # samples x particles held at once (S float64 each)
 MAX_ITERATIONS = 100        # iterations per control step: more is a run that does not end
 MAX_SAMPLED_VALUES = 50_000_000   # samples x horizon x joints: each array of them 400 MB (noise, torques, ...)
 MAX_NOISE_STD = 1e4         # rad/s^2: residual accelerations spread wider (1000 g at 1 m) only clip at the limits
+MAX_GAIN = 1e6              # the ancillary law's feedback_kp (1/s^2) and feedback_kd (1/s): beyond, no sample period keeps it stable
+MAX_SCALE = 1e12            # variance_weight and MPPI's temperature (cost units), as the MPC's weights (mpc.MAX_WEIGHT)
 FRAMEWORKS = ("numpy", "torch")
 
 
@@ -80,6 +82,10 @@ class SamplingSettings(OptimizerSettings):
     def tag(self) -> str:
         return f"mpc optimizer !{type(self).__name__}"
 
+    def work_per_step(self, horizon: int) -> int:
+        """Every iteration rolls out samples x particles over the horizon."""
+        return int(self.samples) * int(self.particles) * int(self.iterations) * int(horizon)
+
     def validate(self) -> None:
         """InputError (one line) for settings no sampling optimizer can run, before any work: samples, iterations or
         particles out of range, noise not positive or beyond MAX_NOISE_STD, an unknown propagation or framework,
@@ -106,8 +112,10 @@ class SamplingSettings(OptimizerSettings):
             raise InputError(f"{tag} variance_weight {self.variance_weight:g} needs `propagation: ts1` or `tsinf` (one "
                              "particle per sample has no spread to weigh)")
         for name in ("feedback_kp", "feedback_kd"):
-            if not (np.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
-                raise InputError(f"{tag} {name} must be >= 0, got {getattr(self, name)}")
+            if not (np.isfinite(getattr(self, name)) and 0 <= getattr(self, name) <= MAX_GAIN):
+                raise InputError(f"{tag} {name} must be in [0, {MAX_GAIN:g}], got {getattr(self, name)}")
+        if not (np.isfinite(self.variance_weight) and 0 <= self.variance_weight <= MAX_SCALE):
+            raise InputError(f"{tag} variance_weight must be in [0, {MAX_SCALE:g}], got {self.variance_weight}")
         if not (np.isfinite(self.variance_weight) and self.variance_weight >= 0):
             raise InputError(f"{tag} variance_weight must be >= 0, got {self.variance_weight}")
         if self.implementation not in IMPLEMENTATIONS:
@@ -382,8 +390,8 @@ class Mppi(SamplingSettings):
 
     def validate(self) -> None:
         super().validate()
-        if not (np.isfinite(self.temperature) and self.temperature > 0):
-            raise InputError(f"{self.tag()} temperature must be > 0 (cost units), got {self.temperature}")
+        if not (np.isfinite(self.temperature) and 0 < self.temperature <= MAX_SCALE):
+            raise InputError(f"{self.tag()} temperature must be in (0, {MAX_SCALE:g}] (cost units), got {self.temperature}")
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
                bounds: StateBounds | None = None) -> "MppiSolver":

@@ -143,6 +143,9 @@ def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
     return os.path.relpath(path, folder) if path.is_relative_to(folder) else str(path)
 
 
+MAX_ARM_JOINTS = 100   # movable joints of one arm's chain: `robot init`'s home search took 47 s for 3000
+
+
 def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | None = None,
                     srdf: pathlib.Path | None = None) -> tuple[RobotConfig, list]:
     """(the starting RobotConfig of description file `model_path`, with paths relative to `folder` where its
@@ -152,6 +155,9 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
     check_tree(description, f"{model_path.name}")   # (a loop: no chain to follow)
     limits, continuous, mimics = joint_facts(model_path)
     chain = arm_chain(description, mimics)
+    if len(chain.arm_joints) > MAX_ARM_JOINTS:   # (before the home search, whose work grows with the joints)
+        raise InputError(f"{model_path.name}: its chain from the root has {len(chain.arm_joints)} movable joints; an "
+                         f"arm here has at most {MAX_ARM_JOINTS} (a humanoid's limbs are several arms: describe one)")
     joints = {joint.name: joint for joint in description.joints}
     packages, missing = find_packages(model_path)
     notes = [f"package {package!r} not found near {model_path.name}: map it under package_paths" for package in missing]
