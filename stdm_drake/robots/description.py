@@ -44,9 +44,11 @@ class Joint:
 
 @dataclasses.dataclass
 class Description:
-    """links: link name -> its Inertial (None: the file gives none, a massless frame); joints in file order."""
+    """links: link name -> its Inertial (None: the file gives none, a massless frame); joints in file order;
+    models: the file's top-level models (an SDF world may hold several; a URDF is one)."""
     links: dict
     joints: list
+    models: int = 1
 
     def children(self) -> dict:
         """Link name -> the joints whose parent it is."""
@@ -170,7 +172,7 @@ def _sdf(root) -> Description:
         read_model(model, f"{model.get('name', '')}::" if len(top) > 1 else "")
     for world in root.iter("world"):
         read_joints(world, "")
-    return Description(links, joints)
+    return Description(links, joints, max(1, len(top)))
 
 
 def check_xml(path: pathlib.Path, kind: str) -> None:

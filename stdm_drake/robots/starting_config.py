@@ -143,6 +143,8 @@ def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
     return os.path.relpath(path, folder) if path.is_relative_to(folder) else str(path)
 
 
+# notes whose fix goes into the YAML: `robot init` writes it and exits 1 even though it does not pass yet
+YAML_FIXES = ("the file gives no effort or velocity limit", "no configuration near the middle of the ranges")
 MAX_ARM_JOINTS = 100   # movable joints of one arm's chain: `robot init`'s home search took 47 s for 3000
 
 
@@ -158,6 +160,9 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
     if len(chain.arm_joints) > MAX_ARM_JOINTS:   # (before the home search, whose work grows with the joints)
         raise InputError(f"{model_path.name}: its chain from the root has {len(chain.arm_joints)} movable joints; an "
                          f"arm here has at most {MAX_ARM_JOINTS} (a humanoid's limbs are several arms: describe one)")
+    if description.models > 1:   # (a world of several arms: each is a robot of its own)
+        raise InputError(f"{model_path.name} holds {description.models} models; a robot config describes one arm: "
+                         "give a file of that arm's model")
     joints = {joint.name: joint for joint in description.joints}
     packages, missing = find_packages(model_path)
     notes = [f"package {package!r} not found near {model_path.name}: map it under package_paths" for package in missing]
@@ -253,9 +258,11 @@ def check_holds_home(robot: Robot, dynamics, limits) -> None:
 def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
     """The robot config YAML text of `config`, with a header naming the description `source` and the `notes`."""
     import yaml
-    lines = [f"# Robot config written by `stdm-drake robot init` from {source} (fields: RobotConfig in",
+    def comment(text: str) -> str:   # (a file name may hold a line break: it must not end the comment)
+        return "".join(character if character.isprintable() else repr(character)[1:-1] for character in text)
+    lines = [f"# Robot config written by `stdm-drake robot init` from {comment(source)} (fields: RobotConfig in",
              "# stdm_drake/robots/robot.py; how each was chosen: docs/guides/robots.md, 'A robot from a description').",
-             *[f"# NOTE: {note}" for note in notes]]
+             *[f"# NOTE: {comment(note)}" for note in notes]]
     for field in ("name", "model", "package_paths", "weld_frame", "arm_joints", "locked_joints", "home",
                   "tool_frame", "srdf", "disabled_collisions"):
         value = getattr(config, field)
@@ -303,9 +310,16 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
                 notes.append(f"{len(touching)} link pairs touch in every configuration tried (by design): disabled")
         except InputError as error:   # (the check below gives the same reason as the command's error)
             notes.append(f"home not chosen: the config does not load yet ({error})")
-    write_text_atomic(output, config_yaml(config, model.name, notes))
-    try:
-        check_robot(load_robot(output))
+    try:   # (checked before anything is written)
+        check_robot(Robot(config, folder))
+        problem = ""
     except InputError as error:
-        return config, notes, str(error)
-    return config, notes, ""
+        problem = str(error)
+    # a YAML that does not pass is written only where the fix goes into it (limits the file lacks, a home);
+    # a description the checks refuse is one line, nothing written
+    if problem and not any(note.startswith(YAML_FIXES) for note in notes):
+        raise InputError(problem)
+    write_text_atomic(output, config_yaml(config, model.name, notes))
+    if not problem:
+        check_robot(load_robot(output))   # (the file as written loads as the config did)
+    return config, notes, problem
