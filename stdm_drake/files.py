@@ -185,7 +185,8 @@ def json_default(value):
 
 def finite_json(value):
     """`value` (dicts, lists, numbers, numpy) with every non-finite float as None, for strict JSON (json.dumps
-    would write Infinity / NaN, which JSON does not have): an infinite error (a diverged rollout) is null."""
+    would write Infinity / NaN, which JSON does not have): an infinite error (a diverged rollout) is null; file
+    names as `escaped_names` writes them."""
     import math
     import numpy as np
     if isinstance(value, dict):
@@ -198,6 +199,20 @@ def finite_json(value):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
         return None
+    return escaped_names(value)
+
+
+def escaped_names(value):
+    """`value` (dicts, lists, anything) with every string that holds a file name's non-UTF-8 bytes (surrogates,
+    which json.dumps writes as "\\udcff" and strict JSON parsers reject) as `path_text` shows them ("\\xff")."""
+    if isinstance(value, dict):
+        return {escaped_names(key): escaped_names(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [escaped_names(item) for item in value]
+    if isinstance(value, pathlib.PurePath):
+        value = str(value)
+    if isinstance(value, str) and any("\udc80" <= character <= "\udcff" for character in value):
+        return path_text(value)
     return value
 
 

@@ -59,13 +59,15 @@ def command_outputs(command: str, arguments: list[str] = ()):
                 shutil.rmtree(folder, ignore_errors=True)
         raise
     finally:
+        from stdm_drake.interrupts import protected
         running, _running = _running, outer
-        for fd, lock_file, _ in running["locks"].values():
-            with contextlib.suppress(OSError):
-                os.unlink(lock_file)
-            os.close(fd)
-        for _, _, made in running["locks"].values():   # (after every lock file: two outputs may share a folder)
-            _remove_empty(made)
+        with protected():   # (a signal here is raised once every lock file is gone, not between two of them)
+            for fd, lock_file, _ in running["locks"].values():
+                with contextlib.suppress(OSError):
+                    os.unlink(lock_file)
+                os.close(fd)
+            for _, _, made in running["locks"].values():   # (after every lock file: two outputs may share a folder)
+                _remove_empty(made)
 
 
 def _remove_empty(folders) -> None:

@@ -236,3 +236,15 @@ def test_a_default_output_folder_never_replaces_an_earlier_run(tmp_path):
     assert fresh_default_folder(reproduce, "reproduce") == reproduce   # unfinished: its cache is reused
     (reproduce / "report.md").write_text("# report")
     assert fresh_default_folder(reproduce, "reproduce") == tmp_path / "out" / "reproduce-2"
+
+
+def test_json_outputs_write_non_utf8_file_names_as_ls_b_shows_them():
+    """A checkpoint whose name holds a byte that is not UTF-8 (Python holds it as a surrogate) goes into mpc.json
+    as "c\\xff.pt", which strict JSON parsers take, not as a lone surrogate (issue 56, held-out run 12)."""
+    import json
+    from stdm_drake.files import escaped_names
+    name = os.fsdecode(b"c\xff.pt")
+    record = escaped_names({"inputs": [name, pathlib.Path(name)], name: 1.0, "q": float("inf")})
+    text = json.dumps(record)
+    assert "\\udcff" not in text and json.loads(text)["inputs"] == ["c\\xff.pt", "c\\xff.pt"]
+    assert json.loads(text)["c\\xff.pt"] == 1.0 and json.loads(text)["q"] == float("inf")   # (numbers as they were)

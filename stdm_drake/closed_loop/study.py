@@ -258,7 +258,7 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     file; the result."""
     import json
 
-    from stdm_drake.files import write_text_atomic
+    from stdm_drake.files import escaped_names, write_text_atomic
     from stdm_drake.outputs import mark_output_folder
     from stdm_drake.provenance import results_header
     rows = summarize(results, sample_period)
@@ -274,7 +274,7 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
                   runs=[dataclasses.asdict(result) for result in results], tuning=tuning)
     mark_output_folder(output)
     write_text_atomic(output / "mpc.md", table + "\n")
-    write_text_atomic(output / "mpc.json", json.dumps(record, indent=1))
+    write_text_atomic(output / "mpc.json", json.dumps(escaped_names(record), indent=1))   # (file names as `ls -b`)
     columns = [field.name for field in dataclasses.fields(ClosedLoopResult) if field.name != "q_error"]
     write_text_atomic(output / "mpc.csv", "\n".join([",".join(columns)] + [
         ",".join(str(getattr(result, column)) for column in columns) for result in results]) + "\n")
