@@ -256,3 +256,19 @@ def test_the_closed_loop_ratio_pairs_plans_within_each_grey_box_seed_and_the_ver
     left = [dict(run, limit_violations=2) if run["model"] == "G-id-state seed 1" else run for run in better]
     verdict = closed_loop_verdict(closed_loop_summary(left, ("D", "G-id-state"), seeds))
     assert not verdict["met"] and "left the limits" in verdict["text"]
+
+
+def test_the_summary_says_what_its_torque_errors_mean_and_when_the_description_is_better():
+    """identify's lines: least squares beside the identified robot is explained, and an identified robot no better
+    than the description gets a warning with both errors (issue 57: both were uncommented)."""
+    from stdm_drake.identification.identify_job import report_summary
+    report = dict(least_squares=dict(base_parameters=53, condition_number=47.0), parameters=[0.0] * 78,
+                  samples_train=800, chosen=dict(velocity_scale=0.05, regularization=1e-6, val_torque_error=1e-5),
+                  test=dict(torque_error=2e-5, least_squares_torque_error=1e-15, description_torque_error=0.45,
+                            torque_error_per_joint=[1e-5] * 6))
+    lines = report_summary(report)
+    assert "least squares fits the torques best but may give a body no physics has" in lines
+    assert "predicts the test torques 2.25e+04x better than the description" in lines and "warning" not in lines
+    report["test"].update(torque_error=0.5)
+    assert "warning: the identified robot predicts the test torques no better than the description (0.5 against " \
+        "0.45)" in report_summary(report)

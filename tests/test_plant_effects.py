@@ -419,3 +419,15 @@ def test_a_dataset_of_another_plant_is_not_reused():
                           "effects": PlantEffects(viscous_friction=[1.0]).record()}}
     assert _agrees(nominal, dict(nominal)) and _agrees(affected, json.loads(json.dumps(affected)))
     assert not _agrees(nominal, affected) and not _agrees(affected, nominal)
+
+
+def test_each_tuning_bar_names_its_setting(monkeypatch):
+    """mpc --tune runs one bar per setting of the grid: each titled with the setting, not nine bars all "mpc"."""
+    import stdm_drake.closed_loop.comparison as comparison
+    from stdm_drake.closed_loop.mpc import load_mpc_config
+    from stdm_drake.closed_loop.tuning import MPC_GRID, tune
+    titles = []
+    monkeypatch.setattr(comparison, "compare_controllers", lambda *arguments, title, **options: titles.append(title) or [])
+    tune([], [], load_mpc_config(), None, robot=None)
+    assert len(titles) == len(MPC_GRID) == len(set(titles))
+    assert titles[0] == f"mpc --tune 1/{len(MPC_GRID)}: effort x {MPC_GRID[0][0]:g}, gain {MPC_GRID[0][1]:g}"

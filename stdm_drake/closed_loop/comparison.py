@@ -60,7 +60,7 @@ def closed_loop_metrics(name: str, index: int, log: MpcLog, reference: Reference
 def compare_controllers(models: list, references: list[tuple[int, Reference]], config: MpcConfig,
                         plant_config: PlantConfig | None = None, progress: bool = True, recorder=None, *,
                         robot: Robot, optimizer: OptimizerSettings | None = None, announce=None,
-                        announce_after: float = 20.0):
+                        announce_after: float = 20.0, title: str = "mpc"):
     """Run plant + MPC(model) on every reference for every model (the plant of `robot`); returns
     [ClosedLoopResult]. With the plant effects' torque noise, a reference's index seeds its draws, so
     every model meets the same noise on the same plan (paired comparisons).
@@ -83,7 +83,7 @@ def compare_controllers(models: list, references: list[tuple[int, Reference]], c
     n = dynamics.robot.num_joints
     limits = joint_limits(dynamics.plant)
     results = []
-    bar = tqdm(total=len(models) * len(references), desc="mpc", unit="run", disable=not progress)
+    bar = tqdm(total=len(models) * len(references), desc=title, unit="run", disable=not progress)
     # gravity at each reference sample, held past its end like the reference (a run may outlast it)
     horizon = max(len(reference.q) for _, reference in references) + 1
     gravity = {index: np.array([dynamics.gravity_torque(q) for q in reference.window(0, horizon)[:, :n]])

@@ -62,9 +62,10 @@ def tune(models: list, references: list, config, plant_config, *, robot, grid=MP
     (setting, ClosedLoopResult))."""
     from stdm_drake.closed_loop.comparison import compare_controllers
     tried = []
-    for setting in grid:
+    for number, setting in enumerate(grid, 1):   # (one bar per setting, titled with it)
         results = compare_controllers(models, references, with_setting(config, setting), plant_config,
-                                      progress=progress, robot=robot, announce=announce)
+                                      progress=progress, robot=robot, announce=announce,
+                                      title=f"mpc --tune {number}/{len(grid)}: effort x {setting[0]:g}, gain {setting[1]:g}")
         tried += [(tuple(setting), result) for result in results]
     chosen = {model.name: best_setting({setting: [result for s, result in tried if s == setting and
                                                   result.model == model.name] for setting in grid})

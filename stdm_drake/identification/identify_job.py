@@ -110,6 +110,16 @@ def report_summary(report: dict) -> str:
                      + ", ".join(f"{value:.3g}" for value in test["torque_error_per_joint"]))
         if "torque_error_on_true_states" in test:
             lines.append(f"  on the true states and accelerations: {test['torque_error_on_true_states']:.3g}")
+        lines.append("  (least squares fits the torques best but may give a body no physics has, e.g. a negative "
+                     "mass; the identified robot is the best fit among physically consistent ones, the one written)")
+        if test["torque_error"] >= test["description_torque_error"]:
+            lines.append(f"warning: the identified robot predicts the test torques no better than the description "
+                         f"({test['torque_error']:.3g} against {test['description_torque_error']:.3g}): more or richer "
+                         "data (excitation), or keep the description")
+        else:
+            lines.append(f"  the identified robot predicts the test torques "
+                         f"{test['description_torque_error'] / max(test['torque_error'], 1e-300):.3g}x better than "
+                         "the description")
     truth = report.get("truth")
     if truth:
         for kind, values in truth["joints"].items():
