@@ -431,3 +431,12 @@ def test_each_tuning_bar_names_its_setting(monkeypatch):
     tune([], [], load_mpc_config(), None, robot=None)
     assert len(titles) == len(MPC_GRID) == len(set(titles))
     assert titles[0] == f"mpc --tune 1/{len(MPC_GRID)}: effort x {MPC_GRID[0][0]:g}, gain {MPC_GRID[0][1]:g}"
+
+
+def test_a_slow_control_step_gets_its_rate_not_zero_hz():
+    """A p95 of 195.5 ms allows 5.1 Hz, not "real time at 0 Hz" (issue 57: the sampling recipe printed that)."""
+    from stdm_drake.closed_loop.comparison import real_time_lines
+    rows = [dict(model="D", solve_ms_mean=154.8, solve_ms_p95=195.5), dict(model="P", solve_ms_mean=1.0, solve_ms_p95=1.2)]
+    slow, fast = real_time_lines(rows, 0.01)
+    assert slow.endswith("real time at 5.1 Hz by its p95") and "not real time (p95 19.6x the period)" in slow
+    assert fast.endswith("real time at 830 Hz by its p95")

@@ -1,6 +1,7 @@
 """Closed-loop comparison of prediction models under the same MPC on held-out plans (metrics, summary,
 plots), what `stdm-drake mpc` runs (`study.run_mpc_study`)."""
 import dataclasses
+import math
 
 import numpy as np
 
@@ -132,11 +133,12 @@ def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dic
 def real_time_lines(rows: list[dict], sample_period: float) -> list[str]:
     """One line per model: its control step's implementation, its solve time per control step against the control
     period, "real time" when every plan's p95 is within the period, else "not real time", and the fastest rate
-    its measured p95 allows ("real time at N Hz": 1 / p95, rounded down to 10 Hz)."""
+    its measured p95 allows ("real time at N Hz": 1 / p95, rounded down to 10 Hz; below 10 Hz to 0.1 Hz)."""
     period = 1e3 * sample_period
     lines = []
     for row in rows:
-        rate = int(1e3 / row["solve_ms_p95"] // 10 * 10) if row["solve_ms_p95"] > 0 else 0
+        hertz = 1e3 / row["solve_ms_p95"] if row["solve_ms_p95"] > 0 else 0.0
+        rate = f"{int(hertz // 10 * 10)}" if hertz >= 10 else f"{math.floor(hertz * 10) / 10:g}"   # (never "0 Hz")
         step = f" ({row['control_step']} control step)" if row.get("control_step") else ""
         lines.append(f"{row['model']}{step}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 "
                      f"per control step against the {period:g} ms control period: "
