@@ -208,7 +208,7 @@ def test_srdf_and_config_pairs_disable_contact_between_links(tmp_path, caplog, e
     ("disabled_collisions: [[base, elbow_link]]\n", "disabled_collisions names 'elbow_link', not a link"),
     ("disabled_collisions: [[base]]\n", "each entry is two different link names"),
     ("srdf: missing.srdf\n", "srdf file not found"),
-    ("srdf: two_link.urdf.broken\n", "is not valid XML"),
+    ("srdf: two_link.urdf.broken\n", "is not well-formed XML"),
 ])
 def test_bad_collision_rules_are_one_line_errors(tmp_path, extra, message):
     (tmp_path / "two_link.urdf.broken").write_text("<robot><disable_collisions link1=")

@@ -211,7 +211,7 @@ def test_colored_noise_has_unit_variance_and_more_low_frequency_power():
 @pytest.mark.parametrize("text, message", [
     ("optimizer: !Icem {samples: 0}\n", "mpc optimizer !Icem samples must be an integer in 1..100000, got 0"),
     ("optimizer: !Cem {samples: 50, elites: 60}\n", "mpc optimizer !Cem elites must be an integer in 1..50"),
-    ("optimizer: !Mppi {temperature: -1.0}\n", "mpc optimizer !Mppi temperature must be > 0"),
+    ("optimizer: !Mppi {temperature: -1.0}\n", "mpc optimizer !Mppi temperature must be in (0, 1e+12]"),
     ("optimizer: !Icem {framework: torch, device: cuda:7}\n", "mpc optimizer !Icem device 'cuda:7'"),
     ("optimizer: !Icem {framework: torch, device: gpu}\n", "device 'gpu' is not a PyTorch device"),
     ("optimizer: !Icem {device: cuda}\n", "device 'cuda' needs `framework: torch`"),
