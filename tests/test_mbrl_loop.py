@@ -66,6 +66,7 @@ def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_pat
     assert json.loads((folder / "summary.json").read_text())["rounds"] == summary["rounds"]
     assert "pending_round" not in summary
     # stopped in round 1 (its data collected, not yet trained on): summary.json names round 0 and round 1 as pending
+    import shutil
     import stdm_drake.experiments.mbrl_loop as loop
     trained = loop.train_round
 
@@ -73,11 +74,18 @@ def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_pat
         if data_path.parent.name == "round1":
             raise KeyboardInterrupt
         return trained(config, data_path, model_folder)
-    (folder / "summary.json").unlink()
+    shutil.rmtree(folder / "round1")                           # (round 1 to be collected again)
     monkeypatch.setattr(loop, "train_round", stop_in_round_1)
     assert main(arguments) == 130                              # (as Ctrl-C there)
     stopped = json.loads((folder / "summary.json").read_text())
     assert [row["round"] for row in stopped["rounds"]] == [0] and stopped["pending_round"]["round"] == 1
+    # a resumed run that collects nothing new does not rewrite the summary before it ends (run 12: a signal there
+    # left a summary that named a trained round as pending)
+    before = (folder / "summary.json").read_bytes()
+    assert main(arguments) == 130 and (folder / "summary.json").read_bytes() == before
+    monkeypatch.setattr(loop, "train_round", trained)
+    assert main(arguments) == status
+    assert [row["round"] for row in json.loads((folder / "summary.json").read_text())["rounds"]] == [0, 1]
     capsys.readouterr()
     assert main(["mbrl", "-o", str(tmp_path / "other"), "--rounds", "0"]) == 2
     error = capsys.readouterr().err

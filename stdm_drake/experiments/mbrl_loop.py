@@ -273,9 +273,11 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print, prog
                                list(data.groups) + [groups[index] for index in kept],
                                dict(metadata, mbrl_loop=dict(round=round_index + 1, mpc=config.mpc.record(),
                                                              mpc_trajectories=len(old) + len(tracked) - config.initial_plans)))
+            row["collection"] = json.loads((folder / "collection.json").read_text())
+            # (once this run has collected a round's data: a run stopped later still names every round folder, the
+            # new one as pending; a resumed run that collects nothing leaves the summary as it was until the end)
+            write_summary(output, config, references, rows, started, pending=round_index + 1)
         row["collection"] = json.loads((folder / "collection.json").read_text())
-        # (after each round: a run stopped later still names every round folder, the next one's data as pending)
-        write_summary(output, config, references, rows, started, pending=round_index + 1)
     bar.update()
     bar.close()
     return write_summary(output, config, references, rows, started)
