@@ -118,11 +118,11 @@ class LearningVerdict:
         self.val = dataset.transitions(split.val)
         self.val_trajectories = len(split.val)
         self.val_floor = noise_floor(dataset, split.val)
-        self.split_name = "test" if len(split.test) else "validation"
-        judged = split.test if len(split.test) else split.val
-        self.judged = dataset.transitions(judged) if len(split.test) else self.val
-        self.judged_trajectories = len(judged)
-        self.floor = noise_floor(dataset, judged) if len(split.test) else self.val_floor
+        tested = len(split.test) > 0
+        self.split_name = "test" if tested else "validation"
+        self.judged = dataset.transitions(split.test) if tested else self.val
+        self.judged_trajectories = len(split.test) if tested else len(split.val)
+        self.floor = noise_floor(dataset, split.test) if tested else self.val_floor
 
     def source_record(self) -> dict:
         """The derivative sources tried and the plan's measured mismatch, for summary.json."""
@@ -132,10 +132,9 @@ class LearningVerdict:
     def report(self, seed: int, checkpoint: pathlib.Path, naive, selection) -> dict:
         """Print seed `seed`'s verdict (its checkpoint; naive: the grid's alpha = 0 network or None) and return
         its summary entries: {"validation": ..., "test": ...} (no "test" without a test split)."""
-        from stdm_drake.learning.evaluate import compare_with_baselines
+        from stdm_drake.learning.evaluate import compare_with_baselines, times_better
         from stdm_drake.learning.learned_model import LearnedModel
         from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
-        from stdm_drake.learning.evaluate import times_better
         kept_naive = selection is not None and selection.alpha == 0
         label = self.name + ("" if selection is None else " (alpha 0: naive training)" if kept_naive
                              else f" ({selection.label(selection.index)})")
@@ -297,7 +296,7 @@ def train_job(job: TrainJob) -> dict:
     check_free_space(output / f"seed{settings.seeds[0]}" / "checkpoint.pt",   # weights, Adam's state (float32)
                      len(settings.seeds) * (16 * weights + CHECKPOINT_RESERVE_BYTES))
     verdict = LearningVerdict(dataset, split, robot, structure, name, settings, problem.transitions, sources,
-                                mismatch)
+                              mismatch)
     job.runner.validate()
     if job.runner.backend == "ray":
         connect(job.runner)   # joins the cluster now: an unreachable one stops before any work
