@@ -365,19 +365,26 @@ def test_a_checkpoint_whose_name_is_not_utf8_exports_to_both_targets(tmp_path):
     assert "model\\xff.pt" in native.read_text(encoding="utf-8")
 
 
-def test_a_signal_while_the_locks_are_released_leaves_no_lock_file(tmp_path, monkeypatch):
+def test_a_signal_while_the_locks_are_released_leaves_no_lock_file(tmp_path):
     """Ctrl-C between the removal of the model graph's lock file and the Jacobian graph's: both go, and the run
-    ends as interrupted (130) with its pair complete (issue 56: the second lock file stayed)."""
-    import signal
+    ends as interrupted (130) with its pair complete (issue 56: the second lock file stayed). A real process (the
+    program's own signal handling), whose first removal of a lock file sends it the signal."""
     path = synthetic_checkpoint(tmp_path / "model.pt", STRUCTURES["velocity-raw"], model_type="D", activation="tanh")
-    unlink, sent = os.unlink, []
-
-    def unlink_then_signal(target, *arguments, **options):
-        unlink(target, *arguments, **options)
-        if str(target).endswith(".lock") and not sent:
-            sent.append(target)
-            os.kill(os.getpid(), signal.SIGINT)    # as a Ctrl-C landing right after the first lock file went
-    monkeypatch.setattr(os, "unlink", unlink_then_signal)
-    assert main(["export", str(path), "-o", str(tmp_path / "model.onnx")]) == 130
-    assert sent and not list(tmp_path.glob(".*.lock")), sorted(p.name for p in tmp_path.iterdir())
+    script = tmp_path / "interrupted_export.py"
+    script.write_text(
+        "import os, signal, sys\n"
+        "unlink, sent = os.unlink, []\n"
+        "def unlink_then_signal(target, *arguments, **options):\n"
+        "    unlink(target, *arguments, **options)\n"
+        "    if str(target).endswith('.lock') and not sent:\n"
+        "        sent.append(target)\n"
+        "        os.kill(os.getpid(), signal.SIGINT)   # as a Ctrl-C landing right after the first lock file went\n"
+        "os.unlink = unlink_then_signal\n"
+        "from stdm_drake.cli import main\n"
+        "sys.argv = ['stdm-drake', 'export', sys.argv[1], '-o', sys.argv[2]]\n"
+        "sys.exit(main())\n")
+    result = subprocess.run([sys.executable, str(script), str(path), str(tmp_path / "model.onnx")], capture_output=True,
+                            text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"), timeout=300)
+    assert result.returncode == 130 and result.stderr.strip() == "stdm-drake export: interrupted", result.stderr
+    assert not list(tmp_path.glob(".*.lock")), sorted(p.name for p in tmp_path.iterdir())
     assert (tmp_path / "model.onnx").exists() and (tmp_path / "model.jacobian.onnx").exists()
