@@ -383,8 +383,12 @@ def test_a_signal_while_the_locks_are_released_leaves_no_lock_file(tmp_path):
         "from stdm_drake.cli import main\n"
         "sys.argv = ['stdm-drake', 'export', sys.argv[1], '-o', sys.argv[2]]\n"
         "sys.exit(main())\n")
+    import signal
     result = subprocess.run([sys.executable, str(script), str(path), str(tmp_path / "model.onnx")], capture_output=True,
-                            text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"), timeout=300)
+                            text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"), timeout=300,
+                            # (Ctrl-C live, as in a terminal: a test run started in the background ignores it, and
+                            # the program keeps an ignored signal ignored, as under nohup)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     assert result.returncode == 130 and result.stderr.strip() == "stdm-drake export: interrupted", result.stderr
     assert not list(tmp_path.glob(".*.lock")), sorted(p.name for p in tmp_path.iterdir())
     assert (tmp_path / "model.onnx").exists() and (tmp_path / "model.jacobian.onnx").exists()
