@@ -64,6 +64,46 @@ def test_massless_welded_frames_point_masses_and_thin_rods_load(tmp_path, caplog
     assert check(robot.config_path) == 0
 
 
+@pytest.mark.parametrize("moments, why", [
+    (('ixx="0.0004" ixy="0" ixz="0" iyy="0.00041" iyz="0" izz="0.00034"',
+      'ixx="0.002023" ixy="0" ixz="0" iyy="0.0043" iyz="0" izz="0.007306"'),   # (pybullet's xArm 6 link3: 13.5 %)
+     "breaking the triangle inequality by 13.5% of the largest"),
+    (('ixx="0.0004" ixy="0" ixz="0" iyy="0.00041"', 'ixx="-0.0004" ixy="0" ixz="0" iyy="0.00041"'),
+     "one of them negative")])
+def test_an_inertia_no_body_has_is_simulated_as_drake_replaces_it_said_in_one_line(tmp_path, caplog, capsys,
+                                                                                moments, why):
+    """Issue 58: principal moments no rigid body has are Drake's to replace (a solid sphere of the link's mass
+    at the density of water), not refused: one line names the link, the file's moments and the sphere, Drake's
+    own several-line warning is left out, the plant holds exactly that sphere, `robot check` passes and a
+    dataset records it."""
+    from stdm_drake.robots.plant import Dynamics
+    config = ur10_copy(tmp_path, [(r'(<link name="wrist_3_link">\s*<inertial>.*?)' + moments[0], r"\g<1>" + moments[1])])
+    with caplog.at_level("WARNING"):
+        robot = load_robot(config)
+        plant = Dynamics(robot).plant
+    said = [record.getMessage() for record in caplog.records if "wrist_3_link" in record.getMessage()]
+    assert len(said) == 1 and why in said[0] and "\n" not in said[0], said
+    assert "While parsing inertia matrix" not in caplog.text and "has invalid inertia" not in caplog.text
+    mass = 0.365   # (wrist_3_link's in the preset)
+    sphere = 0.4 * mass * (3 * mass / (4 * np.pi * 1000.0)) ** (2 / 3)
+    assert f"solid sphere of its {mass:g} kg at 1000 kg/m³ instead ({sphere:.4g} kg m²" in said[0]
+    body = plant.GetBodyByName("wrist_3_link")
+    central = body.default_spatial_inertia().Shift(body.default_spatial_inertia().get_com())
+    np.testing.assert_allclose(central.CalcRotationalInertia().CopyToFullMatrix3(), sphere * np.eye(3), rtol=1e-9)
+    assert robot.inertia_substitutions.keys() == {"wrist_3_link"}
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        assert check(config) == 0
+    assert caplog.text.count("link 'wrist_3_link' has principal moments") == 1
+    assert "repeats of Drake's warnings" not in capsys.readouterr().err
+    if why.startswith("breaking"):   # (one collection: what the dataset records)
+        from stdm_drake.data.dataset import load_dataset
+        assert main(["collect", "--protocol", "excitation", "--count", "1", "--workers", "1", "--quiet", "--robot",
+                     str(config), "-o", str(tmp_path / "data.h5")]) == 0
+        recorded = load_dataset(tmp_path / "data.h5").metadata.record["robot_inertia_substitutions"]
+        assert recorded == {"wrist_3_link": robot.inertia_substitutions["wrist_3_link"]}
+
+
 def test_a_joint_that_moves_no_inertia_is_refused_by_name(tmp_path, capsys):
     """The dynamics' own check: wrist_3 turning only a point mass on its axis (and massless frames) moves no
     inertia, so M(home) is singular; the refusal names the joint."""

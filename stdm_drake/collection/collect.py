@@ -271,6 +271,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
         protocol=request.protocol, sample_period=settings.sample_period, seed=request.seed,
         num_trajectories=request.count, robot_model_sha256=settings.robot.model_sha256(),
         joint_names=list(settings.robot.joint_names), robot=dataclasses.asdict(settings.robot.config),
+        robot_inertia_substitutions=dict(settings.robot.inertia_substitutions),   # (link: what Drake simulates)
         plant=settings.plant.record(), sensor=dataclasses.asdict(settings.sensor),
         package_versions=package_versions(),
         torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")

@@ -4,7 +4,9 @@ or makes late (a kinematic loop: when the plant is finalized; reversed limits: a
 the process). Each is an InputError naming the link or joint. Used by `stdm_drake.robots.robot`."""
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import logging
 import math
 import pathlib
 import re
@@ -15,10 +17,11 @@ from stdm_drake.errors import InputError
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
-# Principal moments of published descriptions are rounded or estimated (CAD, primitive shapes): a triangle
-# inequality violated by less than this fraction of the largest moment is taken as rounding (pybullet_data's
-# TwoJointRobot: 0.77 %); the dynamics need only positive moments, checked as M(home) positive definite.
-TRIANGLE_TOLERANCE = 1e-2
+# What Drake's parsers put in place of a rotational inertia no body has (a negative principal moment, moments
+# that break the triangle inequality; `RotationalInertia.CouldBePhysicallyValid`): a solid sphere of the link's
+# mass at the density of water about the link's centre of mass (drake/multibody/parsing/detail_common.cc,
+# ParseSpatialInertia). The toolbox simulates what Drake simulates, and says so in one line per link.
+SUBSTITUTE_DENSITY = 1000.0   # kg/m³
 
 
 @dataclasses.dataclass
@@ -213,10 +216,10 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
                       locked_joints=()) -> Description:
     """InputError naming robot `robot` and the link or joint, before Drake parses the file, for: a kinematic
     loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass or
-    inertia on any link, or an inertia no body has (a negative principal moment, moments that break the
-    triangle inequality); an arm joint that moves no mass at all; a movable joint whose lower position
+    inertia on any link; an arm joint that moves no mass at all; a movable joint whose lower position
     limit is above its upper one or whose velocity limit is negative (Drake's assertions end the process);
-    an arm joint with a non-finite or zero limit. Massless frames (no <inertial>, or mass 0 and no inertia:
+    an arm joint with a non-finite or zero limit. Principal moments no body has are Drake's to replace
+(`inertia_substitutions` says with what). Massless frames (no <inertial>, or mass 0 and no inertia:
     a flange or tool frame), point masses and thin rods are valid bodies and pass; whether each arm joint
     moves inertia about its own axis is checked on the plant (M(home) positive definite,
     `Robot.check_plant`). overrides: per joint name, the limits the robot config gives instead of the
@@ -292,11 +295,11 @@ def check_tree(description: Description, where: str) -> None:
 
 
 def check_inertial(inertial: Inertial, where: str) -> None:
-    """InputError for a negative or non-finite mass (kg) or inertia (kg m²), and for principal moments no
-    body has: one below 0, or two that add up to less than the third (the triangle inequality), beyond
-    rounding (TRIANGLE_TOLERANCE of the largest). Zero moments pass: a point mass has three, a thin rod one.
-    A mass of 0 is a massless frame whatever its inertia entries say (they are zeroed before Drake
-    parses the file, `model_file.zero_massless_inertia`)."""
+    """InputError for a negative or non-finite mass (kg) or a non-finite inertia entry (kg m²): numbers no body
+    has and Drake's parser would not use as written (it replaces a negative mass by 1 kg). Principal moments no
+    body has (one negative, or breaking the triangle inequality) are Drake's to replace, not refused here:
+    `inertia_substitution` says what Drake uses instead. A mass of 0 is a massless frame whatever its inertia
+    entries say (they are zeroed before Drake parses the file, `model_file.zero_massless_inertia`)."""
     mass, inertia = inertial.mass, inertial.inertia
     if mass is None:
         return
@@ -304,16 +307,57 @@ def check_inertial(inertial: Inertial, where: str) -> None:
         raise InputError(f"{where} has mass {mass:g} kg; a mass is a finite number >= 0")
     if not np.isfinite(inertia).all():
         raise InputError(f"{where} has a non-finite inertia entry; give finite ixx, ixy, ixz, iyy, iyz, izz (kg m²)")
-    if mass == 0:   # (a massless frame: its inertia entries mean nothing, `model_file.zero_massless_inertia`)
-        return
+
+
+def inertia_substitution(inertial: Inertial) -> str | None:
+    """What Drake's parser simulates in place of a link's rotational inertia that fails Drake's own test
+    (`RotationalInertia.CouldBePhysicallyValid`: a negative principal moment, or moments that break the
+    triangle inequality beyond Drake's round-off): the file's moments, why no body has them, and the solid
+    sphere Drake uses (the link's mass m kg at SUBSTITUTE_DENSITY: I = 2/5 m r² about each axis through the
+    centre of mass, r = (3 m / (4 pi density))^(1/3) m). None for an inertia Drake takes as written, a massless
+    frame, or a mass these checks cannot read."""
+    from pydrake.multibody.tree import RotationalInertia
+    mass, inertia = inertial.mass, inertial.inertia
+    if mass is None or not mass > 0 or not np.isfinite(inertia).all():
+        return None
+    if RotationalInertia(inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2],
+                         inertia[1, 2]).CouldBePhysicallyValid():
+        return None
     moments = np.linalg.eigvalsh(inertia)
-    rounding = TRIANGLE_TOLERANCE * max(abs(moments[-1]), 0.0)
-    if moments[0] < -1e-9 * max(abs(moments[-1]), 0.0):   # (round-off of the eigenvalues only)
-        raise InputError(f"{where} has principal moments {_moments_text(inertia)} kg m², one of them negative; no "
-                         "body has them")
-    if moments[0] + moments[1] < moments[2] - rounding:
-        raise InputError(f"{where} has principal moments {_moments_text(inertia)} kg m² that break the triangle "
-                         "inequality (the two smaller ones must add up to the largest at least); no body has them")
+    why = ("one of them negative" if moments[0] < 0 else
+           f"breaking the triangle inequality by {(moments[2] - moments[0] - moments[1]) / moments[2]:.1%} of the largest")
+    radius = (3.0 * mass / (4.0 * math.pi * SUBSTITUTE_DENSITY)) ** (1.0 / 3.0)
+    sphere = 0.4 * mass * radius ** 2
+    return (f"principal moments {_moments_text(inertia)} kg m², {why}: no rigid body has them, and Drake simulates "
+            f"the link as a solid sphere of its {mass:g} kg at {SUBSTITUTE_DENSITY:g} kg/m³ instead ({sphere:.4g} kg m² "
+            "about each axis through the centre of mass)")
+
+
+# Drake's parser warnings for an inertia it replaces (several lines each; the robot's own line says it once)
+DRAKE_INERTIA_WARNINGS = ("While parsing inertia matrix", "has invalid inertia")
+
+
+@contextlib.contextmanager
+def drake_inertia_warnings_left_out(leave_out: bool):
+    """While Drake parses a description whose replaced inertias were reported (`leave_out`), its own warnings for
+    them are left out; every other warning passes."""
+    drake = logging.getLogger("drake")
+
+    def keep(record) -> bool:
+        return not any(text in record.getMessage() for text in DRAKE_INERTIA_WARNINGS)
+
+    if leave_out:   # (first, so that no other filter counts them: `cli.drake_warnings_once`)
+        drake.filters.insert(0, keep)
+    try:
+        yield
+    finally:
+        drake.removeFilter(keep)
+
+
+def inertia_substitutions(description: Description) -> dict[str, str]:
+    """Per link whose inertia Drake replaces, what it uses instead (`inertia_substitution`)."""
+    found = {link: inertia_substitution(inertial) for link, inertial in description.links.items() if inertial}
+    return {link: text for link, text in found.items() if text is not None}
 
 
 def _moments_text(inertia: np.ndarray) -> str:

@@ -24,8 +24,8 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.config import one_line  # noqa: E402
 from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.robots.description import (SUFFIXES, check_description, limit_overrides,  # noqa: E402
-                                           limits_drake_refuses)
+from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,  # noqa: E402
+                                           inertia_substitutions, limit_overrides, limits_drake_refuses)
 from stdm_drake.robots.meshes import mesh_cache_dir  # noqa: E402
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,  # noqa: E402
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
@@ -125,12 +125,11 @@ class RobotConfig:
 
 class Robot:
     """A robot built from a RobotConfig: adds itself to a MultibodyPlant and says what it is.
-
     joint_names: the arm joints in order; num_joints; home (n,) rad; tool_frame; model_path and
     model_sha256 (of the description file, recorded in datasets); config_path: the YAML it was loaded
-    from (`load_robot`; None for a Robot built from a RobotConfig in code).
+    from (`load_robot`; None in code); inertia_substitutions: per link, what Drake simulates in place of its
+    inertia (`description.inertia_substitution`, also recorded in datasets).
     """
-
     config_path: pathlib.Path | None = None
 
     def __init__(self, config: RobotConfig, folder: pathlib.Path):
@@ -148,6 +147,9 @@ class Robot:
         description = check_description(self.model_path, self.name, config.arm_joints,
                                         {joint: {key: value for key, value in values.items() if key != "effort"}
                                          for joint, values in overrides.items()}, config.locked_joints)
+        self.inertia_substitutions = inertia_substitutions(description)
+        for link, substitute in self.inertia_substitutions.items():
+            logger.warning("robot %s: %s: link %r has %s", self.name, self.model_path.name, link, substitute)
         self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
         for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
             logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
@@ -294,8 +296,9 @@ class Robot:
             parser.package_map().Add(name, str(path))
         text = self._model_text
         try:
-            instances = (parser.AddModels(str(self.model_path)) if text is None
-                         else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))
+            with drake_inertia_warnings_left_out(bool(self.inertia_substitutions)):
+                instances = (parser.AddModels(str(self.model_path)) if text is None
+                             else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))
         except (RuntimeError, ValueError) as error:   # (ValueError: a number Drake's parser cannot read, "nan")
             raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}") from None
         if len(instances) != 1:
