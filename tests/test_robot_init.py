@@ -227,18 +227,33 @@ def test_a_file_these_checks_cannot_read_as_drake_does_is_refused_before_drake_p
     assert message in capsys.readouterr().err and not (tmp_path / "init.yaml").exists()
 
 
-def test_robot_init_says_which_key_a_file_without_limits_needs(tmp_path, capsys):
-    """An arm whose file gives no effort limit: init writes the YAML, notes the missing limits, and exits 1 with
-    the one-line reason naming effort_limits; adding the key makes it pass."""
-    config = ur10_copy(tmp_path, [(r' effort="330"', "")])
-    output = tmp_path / "arm_init.yaml"
-    assert main(["robot", "init", str(config.with_suffix(".urdf")), "-o", str(output)]) == 1
-    captured = capsys.readouterr()
-    assert "note: the file gives no effort or velocity limit for shoulder_pan_joint" in captured.out
-    assert "does not pass its check yet: robot arm: arm joint 'shoulder_pan_joint' has no effort limit; give " \
-           "effort_limits" in captured.err
-    with output.open("a") as file:
-        file.write("effort_limits: {shoulder_pan_joint: 330.0}\n")
+@pytest.mark.parametrize("arm, rated", [
+    ("ur10", {"shoulder_pan_joint": 330, "shoulder_lift_joint": 330, "elbow_joint": 150, "wrist_1_joint": 56,
+              "wrist_2_joint": 56, "wrist_3_joint": 56}),
+    ("panda", {**{f"panda_joint{j}": 87 for j in range(1, 5)}, **{f"panda_joint{j}": 12 for j in range(5, 8)}})])
+def test_robot_init_derives_the_limits_a_file_lacks_and_marks_them(tmp_path, capsys, arm, rated):
+    """Issue 58: an arm whose file gives effort="0" and velocity="0" everywhere (rtb-data's KUKA KR 16 does)
+    and one revolute range [0, 0]: `robot init` writes every derived limit at once, marked in the YAML, and the
+    config passes its check. The effort rule lands within 3x of the maker's rating on every joint of the UR-10
+    and the Panda (it is a starting point, not a rating)."""
+    import yaml
+    text = (MODELS_DIR / f"{arm}.urdf").read_text()
+    text = re.sub(r'effort="[^"]*"', 'effort="0"', re.sub(r'velocity="[^"]*"', 'velocity="0"', text))
+    elbow = "elbow_joint" if arm == "ur10" else "panda_joint4"
+    text, found = re.subn(rf'(<joint name="{elbow}".*?<limit) lower="[^"]*" upper="[^"]*"', r'\1 lower="0" upper="0"',
+                          text, count=1, flags=re.S)
+    assert found
+    model, output = tmp_path / f"{arm}_unrated.urdf", tmp_path / "init.yaml"
+    model.write_text(text)
+    assert main(["robot", "init", str(model), "-o", str(output)]) == 0
+    out = capsys.readouterr().out
+    for key in ("effort_limits", "velocity_limits", "position_limits"):
+        assert f"note: {key} of " in out and f"# NOTE: {key} of " in output.read_text()
+    config = yaml.safe_load(output.read_text())
+    assert config["position_limits"] == {elbow: [-np.pi, np.pi]}
+    assert set(config["velocity_limits"].values()) == {np.pi / 2}
+    ratio = np.array([config["effort_limits"][joint] / rating for joint, rating in rated.items()])
+    assert np.all((ratio > 1 / 3) & (ratio < 3)), dict(zip(rated, ratio.round(2)))
     assert check(output) == 0
 
 

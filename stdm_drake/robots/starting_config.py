@@ -17,7 +17,12 @@ The rules, applied to the file's kinematic tree (`robots.description`):
   for an arm that tracks task-space plans, far from singularities (`starting_home`); link pairs in
   contact in every configuration tried touch by design and go to disabled_collisions.
 
-Limits the file lacks are never invented: `check_robot` then names the joint and the config key to give.
+- limits the file lacks for an arm joint (no effort or velocity limit, or zero; a revolute joint's position range
+  [0, 0], URDF's default where <limit> gives none) are derived and written to the YAML marked as derived, to be
+  replaced by the maker's ratings (`DERIVED_LIMITS`): velocity pi/2 rad/s (0.5 m/s prismatic); position range
+  [-pi, pi]; effort twice the largest of |gravity torque| + 5 rad/s² x the joint's diagonal inertia M_jj over
+  the home and 200 configurations drawn in the ranges, and at least a tenth of the largest joint's (a wrist
+  carries a payload the description does not hold).
 """
 from __future__ import annotations
 
@@ -144,7 +149,13 @@ def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
 
 
 # notes whose fix goes into the YAML: `robot init` writes it and exits 1 even though it does not pass yet
-YAML_FIXES = ("the file gives no effort or velocity limit", "no configuration near the middle of the ranges")
+YAML_FIXES = ("no configuration near the middle of the ranges",)
+# the rule for limits an arm joint's file lacks (module docstring): velocity rad/s (revolute) or m/s
+# (prismatic), the revolute range (rad), the reference acceleration (rad/s² or m/s²), the margin, the floor as
+# a share of the largest joint's effort, and the configurations drawn
+DERIVED_LIMITS = dict(velocity=(np.pi / 2, 0.5), position=(-np.pi, np.pi), acceleration=5.0, margin=2.0,
+                      floor=0.1, configurations=200)
+PROVISIONAL_EFFORT = 1e9   # N m: a joint without a usable effort limit while its derived one is computed
 MAX_ARM_JOINTS = 100   # movable joints of one arm's chain: `robot init`'s home search took 47 s for 3000
 
 
@@ -184,15 +195,66 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         locked_joints={joint: nearest_zero(joints[joint]) for joint in chain.locked_joints},
         home=[round(middle(joints[joint]), 6) for joint in chain.arm_joints], tool_frame=chain.tool_frame,
         srdf=_relative(srdf, folder) if srdf is not None else "")
-    missing_limits = [joint for joint in chain.arm_joints if "effort" not in limits.get(joint, {})
-                      or "velocity" not in limits.get(joint, {})]
-    if missing_limits:
-        notes.append(f"the file gives no effort or velocity limit for {', '.join(missing_limits)}: give effort_limits "
-                     "and velocity_limits")
+    notes += derive_kinematic_limits(config, joints, limits)
     if len(chain.arm_joints) < POSE_DIM:
         notes.append(f"{len(chain.arm_joints)} arm joints: the excitation protocol only (task-space tracking needs "
                      f"{POSE_DIM})")
     return config, notes
+
+
+def usable(value) -> bool:
+    """Whether a limit the file states can be one (finite, > 0)."""
+    return value is not None and np.isfinite(value) and value > 0
+
+
+def derive_kinematic_limits(config: RobotConfig, joints: dict, limits: dict) -> list[str]:
+    """Into `config`, per arm joint, the velocity limit and revolute position range its file lacks
+    (`DERIVED_LIMITS`), and PROVISIONAL_EFFORT where it lacks an effort limit (`derive_effort_limits` replaces
+    it once the robot loads); the notes saying so."""
+    notes, velocity, ranges = [], [], []
+    for name in config.arm_joints:
+        joint, stated = joints[name], limits.get(name, {})
+        if not usable(stated.get("velocity")):
+            config.velocity_limits[name] = DERIVED_LIMITS["velocity"][joint.kind == "prismatic"]
+            velocity.append(name)
+        if joint.kind == "revolute" and joint.lower == joint.upper == 0:
+            config.position_limits[name] = list(DERIVED_LIMITS["position"])
+            ranges.append(name)
+        if not usable(stated.get("effort")):
+            config.effort_limits[name] = PROVISIONAL_EFFORT
+    if velocity:
+        notes.append(f"velocity_limits of {', '.join(velocity)} derived (the file gives none or 0): pi/2 rad/s, 0.5 m/s "
+                     "prismatic; replace them with the maker's ratings")
+    if ranges:
+        notes.append(f"position_limits of {', '.join(ranges)} derived (the file's range is [0, 0]): [-pi, pi]; replace "
+                     "them with the maker's ranges")
+    return notes
+
+
+def derive_effort_limits(robot: Robot, config: RobotConfig) -> list[str]:
+    """Into `config`, in place of each PROVISIONAL_EFFORT, the derived effort limit (N m or N; `DERIVED_LIMITS`,
+    3 significant digits) of `robot` (built from `config`); the note saying so."""
+    from stdm_drake.robots.plant import Dynamics, joint_limits
+    derived = [name for name, value in config.effort_limits.items() if value == PROVISIONAL_EFFORT]
+    if not derived:
+        return []
+    dynamics = Dynamics(robot)
+    limits = joint_limits(dynamics.plant)
+    lower = np.where(np.isfinite(limits.position_lower), limits.position_lower, -np.pi)
+    upper = np.where(np.isfinite(limits.position_upper), limits.position_upper, np.pi)
+    rng = np.random.default_rng(0)
+    rule = DERIVED_LIMITS
+    needed = np.zeros(robot.num_joints)
+    for q in [robot.home] + [rng.uniform(lower, upper) for _ in range(rule["configurations"])]:
+        torque = np.abs(dynamics.gravity_torque(q)) + rule["acceleration"] * np.diag(dynamics.mass_matrix(q))
+        needed = np.maximum(needed, rule["margin"] * torque)
+    needed = np.maximum(needed, rule["floor"] * needed.max())
+    for j, name in enumerate(robot.joint_names):
+        if name in derived:
+            config.effort_limits[name] = float(f"{needed[j]:.3g}")
+    return [f"effort_limits of {', '.join(derived)} derived (the file gives none or 0): twice the largest |gravity "
+            "torque| + 5 rad/s² x M_jj over 200 configurations, at least a tenth of the largest; replace them with "
+            "the maker's ratings"]
 
 
 def starting_home(robot: Robot, attempts: int = 200) -> tuple[list | None, list]:
@@ -264,7 +326,7 @@ def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
              "# stdm_drake/robots/robot.py; how each was chosen: docs/guides/robots.md, 'A robot from a description').",
              *[f"# NOTE: {comment(note)}" for note in notes]]
     for field in ("name", "model", "package_paths", "weld_frame", "arm_joints", "locked_joints", "home",
-                  "tool_frame", "srdf", "disabled_collisions"):
+                  "tool_frame", "srdf", "disabled_collisions", "position_limits", "velocity_limits", "effort_limits"):
         value = getattr(config, field)
         if value in ("", {}, [], None) and field != "weld_frame":
             continue
@@ -295,6 +357,11 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
         raise InputError(f"--output {output} exists; choose another path or pass --force to replace it")
     folder = output.absolute().parent
     config, notes = starting_config(model, folder, name, srdf)
+    try:   # (before the home search: holding a home against gravity is checked against these)
+        notes += derive_effort_limits(Robot(config, folder), config)
+    except InputError:   # (a config that does not load yet: the check below gives the reason; no stand-in kept)
+        config.effort_limits = {joint: value for joint, value in config.effort_limits.items()
+                                if value != PROVISIONAL_EFFORT}
     named = srdf_home(srdf, config.arm_joints) if srdf is not None else None
     if named is not None:   # (a named pose is kept as it is)
         config.home = named
