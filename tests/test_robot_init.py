@@ -257,6 +257,22 @@ def test_robot_init_derives_the_limits_a_file_lacks_and_marks_them(tmp_path, cap
     assert check(output) == 0
 
 
+def test_robot_init_locks_a_gripper_mount_after_a_rated_arm(tmp_path, capsys):
+    """Issue 58: a revolute gripper mount after the UR-10's six rated joints, the file giving it no effort limit
+    (as pybullet's KUKA iiwa world has one), is locked and noted, not a 7th arm joint with a derived limit."""
+    import yaml
+    mount = ('<link name="gripper"><inertial><mass value="0.5"/><inertia ixx="1e-3" ixy="0" ixz="0" iyy="1e-3" '
+             'iyz="0" izz="1e-3"/></inertial></link><joint name="gripper_mount" type="revolute"><parent link="tool0"/>'
+             '<child link="gripper"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" velocity="1"/></joint>')
+    config = ur10_copy(tmp_path, extra=mount)
+    output = tmp_path / "init.yaml"
+    assert main(["robot", "init", str(config.with_suffix(".urdf")), "-o", str(output)]) == 0
+    assert "note: gripper_mount locked: a tool or gripper mount" in capsys.readouterr().out
+    written = yaml.safe_load(output.read_text())
+    assert written["arm_joints"] == UR10_JOINTS and "gripper_mount" in written["locked_joints"]
+    assert "effort_limits" not in written
+
+
 def test_tracking_warning_names_the_joints_far_from_the_plan():
     """`collect`'s one-line warning: a joint whose angle MSE from the plan exceeds 1e-4 rad² is named with its
     number; data that follow the plan give none."""

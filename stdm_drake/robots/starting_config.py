@@ -17,6 +17,8 @@ The rules, applied to the file's kinematic tree (`robots.description`):
   for an arm that tracks task-space plans, far from singularities (`starting_home`); link pairs in
   contact in every configuration tried touch by design and go to disabled_collisions.
 
+- a tool or gripper mount: movable joints at the end of the chain after POSE_DIM or more joints that state effort
+  limits, the file stating none for them, are locked, not arm joints (`mount_joints`);
 - limits the file lacks for an arm joint (no effort or velocity limit, or zero; a revolute joint's position range
   [0, 0], URDF's default where <limit> gives none) are derived and written to the YAML marked as derived, to be
   replaced by the maker's ratings (`DERIVED_LIMITS`): velocity pi/2 rad/s (0.5 m/s prismatic); position range
@@ -177,6 +179,12 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
     joints = {joint.name: joint for joint in description.joints}
     packages, missing = find_packages(model_path)
     notes = [f"package {package!r} not found near {model_path.name}: map it under package_paths" for package in missing]
+    mounts = mount_joints(chain.arm_joints, limits)
+    if mounts:
+        chain = dataclasses.replace(chain, arm_joints=chain.arm_joints[:-len(mounts)],
+                                    locked_joints=chain.locked_joints + mounts)
+        notes.append(f"{', '.join(mounts)} locked: a tool or gripper mount (movable joints after {POSE_DIM} or more "
+                     "arm joints with effort limits, the file giving them none), not arm joints")
 
     def middle(joint) -> float:
         if joint.name in continuous or joint.lower is None or joint.upper is None:
@@ -200,6 +208,17 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         notes.append(f"{len(chain.arm_joints)} arm joints: the excitation protocol only (task-space tracking needs "
                      f"{POSE_DIM})")
     return config, notes
+
+
+def mount_joints(arm_joints: list, limits: dict) -> list:
+    """The chain's last movable joints that mount a tool or gripper, not arm joints: those after POSE_DIM or more
+    joints whose file states an effort limit, the file stating none for them (a gripper's turning mount on a
+    7-joint arm, pybullet's KUKA iiwa world). None where the arm itself lacks effort limits (they are derived)."""
+    rated = [usable(limits.get(name, {}).get("effort")) for name in arm_joints]
+    last = max((index for index, value in enumerate(rated) if value), default=-1)
+    if last + 1 < POSE_DIM or not all(rated[:last + 1]):
+        return []
+    return list(arm_joints[last + 1:])
 
 
 def usable(value) -> bool:
