@@ -48,10 +48,12 @@ class Joint:
 @dataclasses.dataclass
 class Description:
     """links: link name -> its Inertial (None: the file gives none, a massless frame); joints in file order;
-    models: the file's top-level models (an SDF world may hold several; a URDF is one)."""
+    models: the file's top-level models (an SDF world may hold several; a URDF is one); name: the robot's or
+    model's name the file gives ("" where it gives none, or holds several)."""
     links: dict
     joints: list
     models: int = 1
+    name: str = ""
 
     def children(self) -> dict:
         """Link name -> the joints whose parent it is."""
@@ -130,7 +132,7 @@ def _urdf(root) -> Description:
             values.pop("lower", None), values.pop("upper", None)
         joints.append(Joint(joint.get("name"), joint.get("type"), parent.get("link") if parent is not None else None,
                             child.get("link") if child is not None else None, **values))
-    return Description(links, joints)
+    return Description(links, joints, name=root.get("name") or "")
 
 
 def _sdf(root) -> Description:
@@ -175,7 +177,7 @@ def _sdf(root) -> Description:
         read_model(model, f"{model.get('name', '')}::" if len(top) > 1 else "")
     for world in root.iter("world"):
         read_joints(world, "")
-    return Description(links, joints, max(1, len(top)))
+    return Description(links, joints, max(1, len(top)), top[0].get("name") or "" if len(top) == 1 else "")
 
 
 def check_xml(path: pathlib.Path, kind: str) -> None:

@@ -145,9 +145,13 @@ def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
 
 
 def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
-    """`path` relative to `folder` when inside it, else absolute."""
+    """`path` relative to `folder` (with `..` where it lies outside: a YAML and its description move together;
+    absolute only where no relative path exists, another drive)."""
     path, folder = path.resolve(), folder.resolve()
-    return os.path.relpath(path, folder) if path.is_relative_to(folder) else str(path)
+    try:
+        return os.path.relpath(path, folder)
+    except ValueError:
+        return str(path)
 
 
 # notes whose fix goes into the YAML: `robot init` writes it and exits 1 even though it does not pass yet
@@ -197,7 +201,8 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         return float(np.clip(0.0, lower, upper)) if lower <= upper else 0.0
 
     config = RobotConfig(
-        name=name or re.sub(r"[^A-Za-z0-9_.-]+", "_", model_path.stem), model=_relative(model_path, folder),
+        name=name or re.sub(r"[^A-Za-z0-9_.-]+", "_", description.name or model_path.stem),
+        model=_relative(model_path, folder),
         package_paths={package: _relative(path, folder) for package, path in packages.items()},
         weld_frame=chain.base, arm_joints=chain.arm_joints,
         locked_joints={joint: nearest_zero(joints[joint]) for joint in chain.locked_joints},
