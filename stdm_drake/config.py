@@ -23,6 +23,9 @@ def one_line(error: BaseException) -> str:
 # A settings file (MPC, controller, sensor, plan, plant effects, training) states a few dozen values: a few kB.
 # One past this is refused before it is read, since the YAML parser would spend minutes on it (a 50 MB list).
 MAX_SETTINGS_BYTES = 1 << 20
+# Nesting levels of mappings and lists a settings file may hold (the deepest schema nests 4: an optimizer's
+# settings in the MPC's); past it the YAML parsers recurse once per level (a 2,000-deep list: a RecursionError).
+MAX_SETTINGS_DEPTH = 64
 
 
 def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | None = None, defaults=None,
@@ -39,6 +42,7 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     if path.is_file() and (size := path.stat().st_size) > MAX_SETTINGS_BYTES:
         raise InputError(f"{path}: {size_text(size)}, more than any {what} holds (a few kB; at most "
                          f"{size_text(MAX_SETTINGS_BYTES)} is read)")
+    check_nesting(path, what)
     check_quoted_numbers(path, schema)
     config = _load_old_layout(path, schema, what, old_layouts) if old_layouts else None
     if config is None:
@@ -57,18 +61,49 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     return config
 
 
+def nesting_depth(text: str) -> int:
+    """The deepest nesting of mappings and lists in YAML `text`, counted on the scanner's tokens (no recursion:
+    a file nested thousands deep is measured, not parsed); 0 where it does not scan (the parser says why)."""
+    opening = (yaml.BlockMappingStartToken, yaml.BlockSequenceStartToken, yaml.FlowMappingStartToken,
+               yaml.FlowSequenceStartToken)
+    closing = (yaml.BlockEndToken, yaml.FlowMappingEndToken, yaml.FlowSequenceEndToken)
+    depth = deepest = 0
+    try:
+        for token in yaml.scan(text, Loader=yaml.SafeLoader):
+            depth += isinstance(token, opening) - isinstance(token, closing)
+            deepest = max(deepest, depth)
+            if deepest > MAX_SETTINGS_DEPTH:
+                break
+    except yaml.YAMLError:
+        return 0
+    return deepest
+
+
+def check_nesting(path, what: str) -> None:
+    """InputError (one line) where the file at `path` nests mappings and lists deeper than MAX_SETTINGS_DEPTH."""
+    try:
+        text = pathlib.Path(path).read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError):
+        return   # (the typed load says why)
+    if nesting_depth(text) > MAX_SETTINGS_DEPTH:
+        raise InputError(f"{path}: nests lists or mappings more than {MAX_SETTINGS_DEPTH} levels deep, deeper than any "
+                         f"{what} (a few levels)")
+
+
 def check_quoted_numbers(path, schema) -> None:
     """InputError (one line naming the setting) where `path` quotes the value of a numeric field of `schema` (a
     dataclass; nested dataclasses and tagged variants followed): `samples: "100"` is a string in YAML, which
     Drake's typed load would read as the number; an unreadable file is left to the typed load."""
     try:
-        node = yaml.compose(pathlib.Path(path).read_text(encoding="utf-8-sig"), Loader=yaml.SafeLoader)
-    except (yaml.YAMLError, OSError, UnicodeDecodeError):
+        text = pathlib.Path(path).read_text(encoding="utf-8-sig")
+        node = yaml.compose(text, Loader=yaml.SafeLoader)
+    except (yaml.YAMLError, OSError, UnicodeDecodeError, RecursionError):
         return
-    found = _quoted_number(node, schema, "")
+    found = _quoted_number(node, schema, "", text)
     if found is not None:
-        where, text = found
-        raise InputError(f"{path}: {where} is {text!r} in quotes, a string; write the number without quotes")
+        where, value, how = found
+        raise InputError(f"{path}: {where} is {value!r} {how}, a string; write the number without "
+                         f"{'quotes' if how == 'in quotes' else 'the tag'}")
 
 
 def _field_types(annotation, node) -> tuple:
@@ -88,8 +123,12 @@ def _field_types(annotation, node) -> tuple:
     return (annotation if dataclasses.is_dataclass(annotation) else None), numeric, False
 
 
-def _quoted_number(node, schema, prefix: str):
-    """(the setting's dotted name, its text) of the first quoted scalar where `schema` holds a number, or None."""
+NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float")
+
+
+def _quoted_number(node, schema, prefix: str, text: str):
+    """(the setting's dotted name, its text, how it is a string) of the first scalar where `schema` holds a number
+    that the file writes as a string: quoted, or tagged (`!!str 3`; a tag other than !!int or !!float), or None."""
     import typing
     if not (dataclasses.is_dataclass(schema) and isinstance(node, yaml.MappingNode)):
         return None
@@ -105,9 +144,12 @@ def _quoted_number(node, schema, prefix: str):
         items = value.value if listed and isinstance(value, yaml.SequenceNode) else [value]
         for item in items:
             if numeric and isinstance(item, yaml.ScalarNode) and item.style in ("'", '"'):
-                return f"{prefix}{name}", item.value
+                return f"{prefix}{name}", item.value, "in quotes"
+            tagged = text[item.start_mark.index:item.start_mark.index + 1] == "!"   # (an explicit tag starts the node)
+            if numeric and isinstance(item, yaml.ScalarNode) and tagged and item.tag not in NUMBER_TAGS:
+                return f"{prefix}{name}", item.value, f"tagged {text[item.start_mark.index:].split()[0]}"
             if target is not None:
-                found = _quoted_number(item, target, f"{prefix}{name}.")
+                found = _quoted_number(item, target, f"{prefix}{name}.", text)
                 if found is not None:
                     return found
     return None
@@ -139,11 +181,12 @@ _TagsAsPlainValues.add_multi_constructor("!", _plain)
 def read_yaml_document(path):
     """A YAML file's document as plain Python values, tags ignored (to see its layout before the typed
     load); None when it cannot be read or parsed, is no regular file (a FIFO: reading would block) or is
-    larger than any settings file (MAX_SETTINGS_BYTES); the typed load then says why."""
+    larger or deeper than any settings file (MAX_SETTINGS_BYTES, MAX_SETTINGS_DEPTH); the typed load then says why."""
     if not pathlib.Path(path).is_file() or pathlib.Path(path).stat().st_size > MAX_SETTINGS_BYTES:
         return None
     try:
-        return yaml.load(pathlib.Path(path).read_text(), Loader=_TagsAsPlainValues)
+        text = pathlib.Path(path).read_text()
+        return yaml.load(text, Loader=_TagsAsPlainValues) if nesting_depth(text) <= MAX_SETTINGS_DEPTH else None
     except (OSError, UnicodeDecodeError, yaml.YAMLError):
         return None
 

@@ -94,6 +94,13 @@ def path_text(path) -> str:
     return os.fsencode(str(path)).decode("utf-8", errors="backslashreplace")
 
 
+def line_text(text) -> str:
+    """`text` (a name, a path) on one line as every reader takes it: `path_text`, and every character that is not
+    printable (a line break, U+2028, other controls) as its Python escape ("\\n"), so that it cannot end a
+    comment, a header or a printed line."""
+    return "".join(character if character.isprintable() else repr(character)[1:-1] for character in path_text(text))
+
+
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path beside `path`; on success rename it to `path`, on error delete it (`atomic_paths`

@@ -124,8 +124,9 @@ def received() -> int | None:
 def raise_if_received() -> None:
     """Inside a command (`signals_as_exceptions`): raise a signal that arrived during it and did not end it (a
     library caught the exception), so that a run that will end as interrupted replaces no output (`files`
-    calls it before every rename)."""
-    if _active and _received:
+    calls it before every rename). A signal held by an open `protected` block is that block's to raise when it ends:
+    what the block writes as one step is written whole first (a round's data and the summary naming it)."""
+    if _active and any(signum not in _held for signum in _received):
         raise _exception(_received[0])
 
 

@@ -22,6 +22,7 @@ import stat
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import NO_ROOM, free_bytes, nearest_existing, no_room_error, remove_stale_temporaries, size_text
+from stdm_drake.interrupts import protected
 
 # Written into every output folder a command fills, and looked for before replacing one.
 FOLDER_MARKER = ".stdm-drake-output"
@@ -59,7 +60,6 @@ def command_outputs(command: str, arguments: list[str] = ()):
                 shutil.rmtree(folder, ignore_errors=True)
         raise
     finally:
-        from stdm_drake.interrupts import protected
         running, _running = _running, outer
         with protected():   # (a signal here is raised once every lock file is gone, not between two of them)
             for fd, lock_file, _ in running["locks"].values():
@@ -130,29 +130,28 @@ def lock_output(option: str, path) -> None:
             failure = no_room_error(path, error) if error.errno in NO_ROOM else error   # (before its folders go)
             _remove_empty(made)
             raise failure from None
-    fd = open_lock_file()
-    while True:
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError as error:
-            holder = os.pread(fd, 64, 0).decode(errors="replace").strip()
-            os.close(fd)
-            if error.errno not in (errno.EWOULDBLOCK, errno.EACCES):
-                raise
-            who = (f"another stdm-drake run (process {holder})" if holder.isdigit() else
-                   f"another process (it locks {lock_file} and does not say which)")
-            raise InputError(f"{option} {path} is being written by {who}; wait for it to end or choose another "
-                             "path") from None
-        try:   # the file may have been removed by the run that held it just before: lock the one at the path
-            if os.fstat(fd).st_ino == os.stat(lock_file).st_ino:
-                break
-        except FileNotFoundError:
-            pass
-        os.close(fd)
+    with protected():   # (a signal once the lock file is made is raised when it is recorded: the end removes it)
         fd = open_lock_file()
-    os.ftruncate(fd, 0)
-    os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-    _running["locks"][key] = (fd, lock_file, made)
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError as error:
+                holder = os.pread(fd, 64, 0).decode(errors="replace").strip()
+                os.close(fd)
+                if error.errno not in (errno.EWOULDBLOCK, errno.EACCES):
+                    raise
+                who = (f"another stdm-drake run (process {holder})" if holder.isdigit() else
+                       f"another process (it locks {lock_file} and does not say which)")
+                raise InputError(f"{option} {path} is being written by {who}; wait for it to end or choose another "
+                                 "path") from None
+            with contextlib.suppress(FileNotFoundError):   # (removed by the run that held it just before: lock anew)
+                if os.fstat(fd).st_ino == os.stat(lock_file).st_ino:
+                    break
+            os.close(fd)
+            fd = open_lock_file()
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        _running["locks"][key] = (fd, lock_file, made)
     if (path / FOLDER_MARKER).is_file():   # (only in a folder stdm-drake wrote: never a user's files)
         remove_stale_temporaries(path, recursive=True)
     remove_stale_temporaries(path.parent, path.name)

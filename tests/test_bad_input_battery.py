@@ -179,6 +179,7 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "hex_mass": ('<mass value="4.27"/>', '<mass value="-0x1.1p+2"/>'),
     "junk_mass": ('<mass value="4.27"/>', '<mass value="-4.27junk"/>'),
     "hex_limit": ('velocity="3.1416" effort="150"', 'velocity="0x1p1" effort="150"'),
+    "junk_effort": ('velocity="3.1416" effort="150"', 'velocity="3.1416" effort="150abc"'),   # (held-out run 13)
 }
 
 
@@ -646,6 +647,16 @@ CASES = [
     (yaml_case("mpc", "optimizer: !Icem {propagation: tsinf, particles: 5, variance_weight: 1.0e300}\n"),
      "variance_weight must be in [0, 1e+12]"),
     (yaml_case("mpc", "effort_weight: [1, 2]\n"), "effort_weight"), (yaml_case("mpc", "disturbance_gain: 2\n"), "disturbance_gain"),
+    # (issue 56, held-out run 13: nesting the YAML parsers would recurse through; numbers tagged as strings)
+    (yaml_case("mpc", "effort_weight: " + "[" * 2000 + "1.0" + "]" * 2000 + "\n"), "more than 64 levels deep"),
+    (yaml_case("ctrl", "".join(f"{'  ' * level}k{level}:\n" for level in range(300)) + "  " * 300 + "x: 1\n"),
+     "more than 64 levels deep"),
+    (yaml_case("robot", "name: x\nmodel: ur10.urdf\nhome: " + "[" * 3000 + "]" * 3000 + "\n"), "more than 64 levels deep"),
+    (yaml_case("mpc", "horizon: !!str 20\n"), "horizon is '20' tagged !!str, a string"),
+    (yaml_case("mpc", "optimizer: !Rti {iterations: !!str 3}\n"), "optimizer.iterations is '3' tagged !!str"),
+    (yaml_case("mpc", "position_weight: [!!str 1.0e4]\n"), "position_weight is '1.0e4' tagged !!str"),
+    (yaml_case("ctrl", "controller: !InverseDynamics {dither_std: [!!str 6.0, 6.0, 6.0, 6.0, 6.0, 6.0]}\n"),
+     "controller.dither_std is '6.0' tagged !!str"),
     (yaml_case("robot", "name: x\nmodel: missing.urdf\narm_joints: [a]\nhome: [0]\ntool_frame: t\n"), "model file not found"),
     (yaml_case("robot", "name: x\nmodel: ur10.urdf\nweld_frame: base_link\narm_joints: [a]\nhome: [0]\ntool_frame: tool0\n"),
      "joint 'a' is not in"),
@@ -668,6 +679,8 @@ CASES = [
     ([*E, "--robot", "bad_hex_mass.yaml", "-o", "NEW.h5"], "link 'forearm_link': its mass is '-0x1.1p+2', not a number"),
     (["robot", "check", "bad_junk_mass.yaml"], "link 'forearm_link': its mass is '-4.27junk', not a number"),
     (["robot", "init", "bad_hex_limit.urdf", "-o", "NEW.yaml"], "joint 'elbow_joint': its velocity limit is '0x1p1'"),
+    (["robot", "init", "bad_junk_effort.urdf", "-o", "NEW.yaml"], "joint 'elbow_joint': its effort limit is '150abc'"),
+    (["robot", "check", "bad_junk_effort.yaml"], "joint 'elbow_joint': its effort limit is '150abc', not a number"),
     ([*E, "--robot", "bad_zero_inertia.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves no inertia about its axis"),
     ([*E, "--robot", "bad_massless.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves links wrist_3_link, flange, tool0"),
     ([*E, "--robot", "bad_reversed.yaml", "-o", "NEW.h5"], "'elbow_joint' has its lower position limit 3.14159 above"),

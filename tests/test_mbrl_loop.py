@@ -90,3 +90,29 @@ def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_pat
     assert main(["mbrl", "-o", str(tmp_path / "other"), "--rounds", "0"]) == 2
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "--rounds must be in 1..100" in error and not (tmp_path / "other").exists()
+
+
+def test_a_signal_in_a_rounds_data_write_leaves_the_summary_naming_that_round(tmp_path, monkeypatch):
+    """Held-out run 13: a signal landing while a round's data were written left that round's folder with data.h5
+    and a summary.json that did not name it (a fresh loop: no summary at all). The signal is raised once the
+    summary names the round as pending: the round-0 write of a fresh loop, then round 1's of the resumed one."""
+    import os
+    import signal
+    import stdm_drake.experiments.mbrl_loop as loop
+    folder = tmp_path / "loop"
+    arguments = ["mbrl", "-o", str(folder), "--rounds", "1", "--initial-plans", "8", "--plans-per-round", "2",
+                 "--evaluation-plans", "1", "--epochs", "2", "--quiet"]
+    written, calls = loop.write_trajectories, []
+
+    def write_then_signal(path, *rest):
+        written(path, *rest)
+        calls.append(path)
+        os.kill(os.getpid(), signal.SIGTERM)   # (as `kill` landing inside the write: held until the block ends)
+    monkeypatch.setattr(loop, "write_trajectories", write_then_signal)
+    assert main(arguments) == 143 and [path.parent.name for path in calls] == ["round0"]
+    summary = json.loads((folder / "summary.json").read_text())
+    assert summary["rounds"] == [] and summary["pending_round"] == {"round": 0, "data": "round0/data.h5"}
+    assert main(arguments) == 143 and [path.parent.name for path in calls] == ["round0", "round1"]
+    summary = json.loads((folder / "summary.json").read_text())
+    assert [row["round"] for row in summary["rounds"]] == [0] and summary["pending_round"]["round"] == 1
+    assert "collection" in summary["rounds"][0]

@@ -26,7 +26,7 @@ import typing
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import path_text
+from stdm_drake.files import line_text
 
 DRAKE_ACTIVATIONS = ("tanh", "relu")
 from stdm_drake.outputs import NATIVE_MARKER  # (the first line, how `export` knows its own file)
@@ -108,7 +108,7 @@ def native_model(checkpoint) -> NativeModelFile:
         members=[NativeMember([NativeLayer(w[member].T.copy(), b[member, 0].copy()) for w, b in zip(net.weights, net.biases)])
                  for member in range(members)],
         output_map=network_output, output_offset=offset,
-        description=f"{checkpoint.metadata.model_type or 'model'} from {path_text(checkpoint.path.name)}: {structure.label}; "
+        description=f"{checkpoint.metadata.model_type or 'model'} from {line_text(checkpoint.path.name)}: {structure.label}; "
                     f"{config.ensemble_size} member(s) x {config.hidden_layers}x{config.hidden_width} {config.activation}"
                     + (" (the mean: Drake's system has no variance output)" if config.probabilistic else ""))
 

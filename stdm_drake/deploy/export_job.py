@@ -30,7 +30,7 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     """Run the export; returns the files written. InputError (nothing written) for a checkpoint that is not one,
     an output that exists and stdm-drake's export did not write (without force), or a model the target cannot
     represent."""
-    from stdm_drake.files import atomic_paths
+    from stdm_drake.files import atomic_paths, line_text
     from stdm_drake.learning.checkpoint import load_checkpoint
     from stdm_drake.outputs import check_output_file
     if job.target not in TARGETS:
@@ -65,8 +65,8 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     with atomic_paths(outputs) as temporaries:      # the pair replaces what was there in one step, or not at all
         for temporary, content in zip(temporaries, contents):
             temporary.write_bytes(content)
-    say(f"{checkpoint.path.name} ({checkpoint.structure.label}, every {checkpoint.sample_period} s) -> "
-        + " and ".join(str(path) for path in outputs))
+    say(f"{line_text(checkpoint.path.name)} ({checkpoint.structure.label}, every {checkpoint.sample_period} s) -> "
+        + " and ".join(line_text(path) for path in outputs))
     if features:
         say(f"note: the network sees physics features, so the exported model takes them as an input: {features}; "
             "the caller computes them at every step (see the file's metadata and docs/guides/deploy.md)")

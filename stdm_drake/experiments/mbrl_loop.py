@@ -24,6 +24,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import write_text_atomic
+from stdm_drake.interrupts import protected
 
 MAX_ROUNDS = 100
 
@@ -236,7 +237,10 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print, prog
     initial_path = output / "round0" / "data.h5"
     if not initial_path.exists():
         trajectories, groups, metadata = collect(initial_request, progress=False)
-        write_trajectories(initial_path, trajectories, groups, dict(metadata, mbrl_loop=dict(round=0, mpc_trajectories=0)))
+        with protected():   # (a signal in the write is raised once the summary names the round: held-out run 13)
+            write_trajectories(initial_path, trajectories, groups,
+                               dict(metadata, mbrl_loop=dict(round=0, mpc_trajectories=0)))
+            write_summary(output, config, references, [], started, pending=0)
     station = Station(initial_request.settings)
     plant_config = initial_request.settings.plant
     rows = []
@@ -267,16 +271,19 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print, prog
         if not following.exists():
             model = load_model(checkpoint, config.robot, name=config.model, for_control=True)
             tracked, kept, counts = track_with_mpc(station, model, plans, config, config.plan_seed + round_index)
-            write_text_atomic(folder / "collection.json", json.dumps(counts))
             old = [data.trajectory(index) for index in range(data.num_trajectories)]
-            write_trajectories(following, old + [Trajectory(**traj) for traj in tracked],
-                               list(data.groups) + [groups[index] for index in kept],
-                               dict(metadata, mbrl_loop=dict(round=round_index + 1, mpc=config.mpc.record(),
-                                                             mpc_trajectories=len(old) + len(tracked) - config.initial_plans)))
-            row["collection"] = json.loads((folder / "collection.json").read_text())
             # (once this run has collected a round's data: a run stopped later still names every round folder, the
-            # new one as pending; a resumed run that collects nothing leaves the summary as it was until the end)
-            write_summary(output, config, references, rows, started, pending=round_index + 1)
+            # new one as pending, also when the signal lands in the write; a resumed run that collects nothing
+            # leaves the summary as it was until the end)
+            with protected():
+                write_text_atomic(folder / "collection.json", json.dumps(counts))
+                write_trajectories(following, old + [Trajectory(**traj) for traj in tracked],
+                                   list(data.groups) + [groups[index] for index in kept],
+                                   dict(metadata, mbrl_loop=dict(round=round_index + 1, mpc=config.mpc.record(),
+                                                                 mpc_trajectories=len(old) + len(tracked)
+                                                                 - config.initial_plans)))
+                row["collection"] = json.loads(json.dumps(counts))
+                write_summary(output, config, references, rows, started, pending=round_index + 1)
         row["collection"] = json.loads((folder / "collection.json").read_text())
     bar.update()
     bar.close()

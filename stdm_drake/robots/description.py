@@ -35,7 +35,8 @@ class Inertial:
 @dataclasses.dataclass
 class Joint:
     """A joint: its type (URDF's words; SDF's "revolute" and "prismatic" are the same), parent and child
-    link, and the limits the file states (lower, upper: rad or m; velocity: rad/s or m/s; absent: None)."""
+    link, and the limits the file states (lower, upper: rad or m; velocity: rad/s or m/s; effort: N m or N;
+    absent: None)."""
     name: str
     kind: str
     parent: str
@@ -43,6 +44,7 @@ class Joint:
     lower: float | None = None
     upper: float | None = None
     velocity: float | None = None
+    effort: float | None = None
 
 
 @dataclasses.dataclass
@@ -127,7 +129,7 @@ def _urdf(root) -> Description:
     for joint in root.findall("joint"):
         parent, child, limit = joint.find("parent"), joint.find("child"), joint.find("limit")
         values = {key: checked_number(limit.get(key), f"joint {joint.get('name')!r}: its {key} limit")
-                  for key in ("lower", "upper", "velocity")} if limit is not None else {}
+                  for key in ("lower", "upper", "velocity", "effort")} if limit is not None else {}
         if joint.get("type") == "continuous":   # (URDF: its lower and upper are ignored)
             values.pop("lower", None), values.pop("upper", None)
         joints.append(Joint(joint.get("name"), joint.get("type"), parent.get("link") if parent is not None else None,
@@ -154,7 +156,7 @@ def _sdf(root) -> Description:
     def read_joints(element, prefix: str) -> None:
         for joint in element.findall("joint"):
             values = {key: checked_number(joint.findtext(f"axis/limit/{key}"), f"joint {joint.get('name')!r}: its {key} limit")
-                      for key in ("lower", "upper", "velocity")}
+                      for key in ("lower", "upper", "velocity", "effort")}
             if values["velocity"] is not None and values["velocity"] < 0:
                 values["velocity"] = None
             parent, child = ((joint.findtext(end) or "").strip() for end in ("parent", "child"))

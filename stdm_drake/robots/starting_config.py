@@ -344,11 +344,10 @@ def check_holds_home(robot: Robot, dynamics, limits) -> None:
 def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
     """The robot config YAML text of `config`, with a header naming the description `source` and the `notes`."""
     import yaml
-    def comment(text: str) -> str:   # (a file name may hold a line break: it must not end the comment)
-        return "".join(character if character.isprintable() else repr(character)[1:-1] for character in text)
-    lines = [f"# Robot config written by `stdm-drake robot init` from {comment(source)} (fields: RobotConfig in",
+    from stdm_drake.files import line_text   # (a file name may hold a line break: it must not end the comment)
+    lines = [f"# Robot config written by `stdm-drake robot init` from {line_text(source)} (fields: RobotConfig in",
              "# stdm_drake/robots/robot.py; how each was chosen: docs/guides/robots.md, 'A robot from a description').",
-             *[f"# NOTE: {comment(note)}" for note in notes]]
+             *[f"# NOTE: {line_text(note)}" for note in notes]]
     for field in ("name", "model", "package_paths", "weld_frame", "arm_joints", "locked_joints", "home",
                   "tool_frame", "srdf", "disabled_collisions", "position_limits", "velocity_limits", "effort_limits"):
         value = getattr(config, field)
