@@ -381,59 +381,47 @@ def test_a_checkpoint_name_with_a_line_break_keeps_the_drake_file_one_document(t
     assert len(capsys.readouterr().out.strip().splitlines()) == 1
 
 
-@pytest.mark.parametrize("which", [1, 2])
-def test_a_signal_as_a_lock_file_is_made_leaves_no_lock_file(tmp_path, which):
-    """Held-out run 13: Ctrl-C landing just after a lock file was created, before the run had recorded it, left the
-    file behind (4 of 10 tries). A real process whose creation of its first (second) lock file sends it SIGINT:
-    it ends as interrupted (130), no lock file left, nothing written."""
+def export_interrupted_at(tmp_path, call: str, nth: int):
+    """`export` of a fresh checkpoint to model.onnx as a real process (the program's own signal handling) whose
+    `nth` os.`call` ("open", "unlink") of a lock file sends it SIGINT, as a Ctrl-C landing right there; the
+    CompletedProcess. Ctrl-C is live in it, as in a terminal: a test run started in the background ignores it,
+    and the program keeps an ignored signal ignored, as under nohup."""
+    import signal
     path = synthetic_checkpoint(tmp_path / "model.pt", STRUCTURES["velocity-raw"], model_type="D", activation="tanh")
     script = tmp_path / "interrupted_export.py"
     script.write_text(
         "import os, signal, sys\n"
-        "open_file, made = os.open, []\n"
-        "def open_then_signal(target, *arguments, **options):\n"
-        "    fd = open_file(target, *arguments, **options)\n"
+        f"original, seen = os.{call}, []\n"
+        "def then_signal(target, *arguments, **options):\n"
+        "    result = original(target, *arguments, **options)\n"
         "    if str(target).endswith('.lock'):\n"
-        "        made.append(target)\n"
-        f"        if len(made) == {which}:\n"
-        "            os.kill(os.getpid(), signal.SIGINT)   # as a Ctrl-C landing right after the lock file was made\n"
-        "    return fd\n"
-        "os.open = open_then_signal\n"
+        "        seen.append(target)\n"
+        f"        if len(seen) == {nth}:\n"
+        "            os.kill(os.getpid(), signal.SIGINT)\n"
+        "    return result\n"
+        f"os.{call} = then_signal\n"
         "from stdm_drake.cli import main\n"
         "sys.argv = ['stdm-drake', 'export', sys.argv[1], '-o', sys.argv[2]]\n"
         "sys.exit(main())\n")
-    import signal
-    result = subprocess.run([sys.executable, str(script), str(path), str(tmp_path / "model.onnx")], capture_output=True,
-                            text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"), timeout=300,
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # (Ctrl-C live)
+    return subprocess.run([sys.executable, str(script), str(path), str(tmp_path / "model.onnx")], capture_output=True,
+                          text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"), timeout=300,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+
+
+@pytest.mark.parametrize("nth", [1, 2])
+def test_a_signal_as_a_lock_file_is_made_leaves_no_lock_file(tmp_path, nth):
+    """Held-out run 13: Ctrl-C landing just after a lock file was created, before the run had recorded it, left the
+    file behind (4 of 10 tries). Signalled as its first (second) lock file is made, export ends as interrupted
+    (130) with no lock file left and nothing written."""
+    result = export_interrupted_at(tmp_path, "open", nth)
     assert result.returncode == 130 and result.stderr.strip() == "stdm-drake export: interrupted", result.stderr
     assert sorted(item.name for item in tmp_path.iterdir()) == ["interrupted_export.py", "model.pt"]
 
 
 def test_a_signal_while_the_locks_are_released_leaves_no_lock_file(tmp_path):
     """Ctrl-C between the removal of the model graph's lock file and the Jacobian graph's: both go, and the run
-    ends as interrupted (130) with its pair complete (issue 56: the second lock file stayed). A real process (the
-    program's own signal handling), whose first removal of a lock file sends it the signal."""
-    path = synthetic_checkpoint(tmp_path / "model.pt", STRUCTURES["velocity-raw"], model_type="D", activation="tanh")
-    script = tmp_path / "interrupted_export.py"
-    script.write_text(
-        "import os, signal, sys\n"
-        "unlink, sent = os.unlink, []\n"
-        "def unlink_then_signal(target, *arguments, **options):\n"
-        "    unlink(target, *arguments, **options)\n"
-        "    if str(target).endswith('.lock') and not sent:\n"
-        "        sent.append(target)\n"
-        "        os.kill(os.getpid(), signal.SIGINT)   # as a Ctrl-C landing right after the first lock file went\n"
-        "os.unlink = unlink_then_signal\n"
-        "from stdm_drake.cli import main\n"
-        "sys.argv = ['stdm-drake', 'export', sys.argv[1], '-o', sys.argv[2]]\n"
-        "sys.exit(main())\n")
-    import signal
-    result = subprocess.run([sys.executable, str(script), str(path), str(tmp_path / "model.onnx")], capture_output=True,
-                            text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"), timeout=300,
-                            # (Ctrl-C live, as in a terminal: a test run started in the background ignores it, and
-                            # the program keeps an ignored signal ignored, as under nohup)
-                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    ends as interrupted (130) with its pair complete (issue 56: the second lock file stayed)."""
+    result = export_interrupted_at(tmp_path, "unlink", 1)
     assert result.returncode == 130 and result.stderr.strip() == "stdm-drake export: interrupted", result.stderr
     assert not list(tmp_path.glob(".*.lock")), sorted(p.name for p in tmp_path.iterdir())
     assert (tmp_path / "model.onnx").exists() and (tmp_path / "model.jacobian.onnx").exists()
