@@ -15,7 +15,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     init.add_argument("model", type=pathlib.Path, help="the robot's description file (.urdf or .sdf), as shipped")
     init.add_argument("--output", "-o", type=pathlib.Path,
                       help="robot config YAML to write (default: NAME.yaml in the working folder)")
-    init.add_argument("--name", help="the robot's name (default: the model file's stem)")
+    init.add_argument("--name", help="the robot's name (default: the name the description gives, else the model "
+                                     "file's stem)")
     init.add_argument("--srdf", type=pathlib.Path,
                       help="a MoveIt SRDF: its disabled collision pairs, and home from a group state named home, "
                            "ready, zero or default")

@@ -21,8 +21,8 @@ The rules, applied to the file's kinematic tree (`robots.description`):
   limits, the file stating none for them, are locked, not arm joints (`mount_joints`);
 - limits the file lacks for an arm joint (no effort or velocity limit, or zero; a revolute joint's position range
   [0, 0], URDF's default where <limit> gives none) are derived and written to the YAML marked as derived, to be
-  replaced by the maker's ratings (`DERIVED_LIMITS`): velocity pi/2 rad/s (0.5 m/s prismatic); position range
-  [-pi, pi]; effort twice the largest of |gravity torque| + 5 rad/s² x the joint's diagonal inertia M_jj over
+  replaced by the maker's ratings (`derived_limits.DERIVED_LIMITS`): velocity pi/2 rad/s (0.5 m/s prismatic);
+  position range [-pi, pi]; effort twice the largest of |gravity torque| + 5 rad/s² x the joint's diagonal inertia M_jj over
   the home and 200 configurations drawn in the ranges, and at least a tenth of the largest joint's (a wrist
   carries a payload the description does not hold).
 """
@@ -37,7 +37,10 @@ import re
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.files import line_text
 from stdm_drake.robots.description import MOVABLE, SUFFIXES, Description, check_tree, read_description
+from stdm_drake.robots.derived_limits import (PROVISIONAL_EFFORT, derive_effort_limits, derive_kinematic_limits,
+                                              mount_joints)
 from stdm_drake.robots.model_file import joint_facts
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
 
@@ -156,12 +159,6 @@ def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
 
 # notes whose fix goes into the YAML: `robot init` writes it and exits 1 even though it does not pass yet
 YAML_FIXES = ("no configuration near the middle of the ranges",)
-# the rule for limits an arm joint's file lacks (module docstring): velocity rad/s (revolute) or m/s
-# (prismatic), the revolute range (rad), the reference acceleration (rad/s² or m/s²), the margin, the floor as
-# a share of the largest joint's effort, and the configurations drawn
-DERIVED_LIMITS = dict(velocity=(np.pi / 2, 0.5), position=(-np.pi, np.pi), acceleration=5.0, margin=2.0,
-                      floor=0.1, configurations=200)
-PROVISIONAL_EFFORT = 1e9   # N m: a joint without a usable effort limit while its derived one is computed
 MAX_ARM_JOINTS = 100   # movable joints of one arm's chain: `robot init`'s home search took 47 s for 3000
 
 
@@ -213,72 +210,6 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         notes.append(f"{len(chain.arm_joints)} arm joints: the excitation protocol only (task-space tracking needs "
                      f"{POSE_DIM})")
     return config, notes
-
-
-def mount_joints(arm_joints: list, limits: dict) -> list:
-    """The chain's last movable joints that mount a tool or gripper, not arm joints: those after POSE_DIM or more
-    joints whose file states an effort limit, the file stating none for them (a gripper's turning mount on a
-    7-joint arm, pybullet's KUKA iiwa world). None where the arm itself lacks effort limits (they are derived)."""
-    rated = [usable(limits.get(name, {}).get("effort")) for name in arm_joints]
-    last = max((index for index, value in enumerate(rated) if value), default=-1)
-    if last + 1 < POSE_DIM or not all(rated[:last + 1]):
-        return []
-    return list(arm_joints[last + 1:])
-
-
-def usable(value) -> bool:
-    """Whether a limit the file states can be one (finite, > 0)."""
-    return value is not None and np.isfinite(value) and value > 0
-
-
-def derive_kinematic_limits(config: RobotConfig, joints: dict, limits: dict) -> list[str]:
-    """Into `config`, per arm joint, the velocity limit and revolute position range its file lacks
-    (`DERIVED_LIMITS`), and PROVISIONAL_EFFORT where it lacks an effort limit (`derive_effort_limits` replaces
-    it once the robot loads); the notes saying so."""
-    notes, velocity, ranges = [], [], []
-    for name in config.arm_joints:
-        joint, stated = joints[name], limits.get(name, {})
-        if not usable(stated.get("velocity")):
-            config.velocity_limits[name] = DERIVED_LIMITS["velocity"][joint.kind == "prismatic"]
-            velocity.append(name)
-        if joint.kind == "revolute" and joint.lower == joint.upper == 0:
-            config.position_limits[name] = list(DERIVED_LIMITS["position"])
-            ranges.append(name)
-        if not usable(stated.get("effort")):
-            config.effort_limits[name] = PROVISIONAL_EFFORT
-    if velocity:
-        notes.append(f"velocity_limits of {', '.join(velocity)} derived (the file gives none or 0): pi/2 rad/s, 0.5 m/s "
-                     "prismatic; replace them with the maker's ratings")
-    if ranges:
-        notes.append(f"position_limits of {', '.join(ranges)} derived (the file's range is [0, 0]): [-pi, pi]; replace "
-                     "them with the maker's ranges")
-    return notes
-
-
-def derive_effort_limits(robot: Robot, config: RobotConfig) -> list[str]:
-    """Into `config`, in place of each PROVISIONAL_EFFORT, the derived effort limit (N m or N; `DERIVED_LIMITS`,
-    3 significant digits) of `robot` (built from `config`); the note saying so."""
-    from stdm_drake.robots.plant import Dynamics, joint_limits
-    derived = [name for name, value in config.effort_limits.items() if value == PROVISIONAL_EFFORT]
-    if not derived:
-        return []
-    dynamics = Dynamics(robot)
-    limits = joint_limits(dynamics.plant)
-    lower = np.where(np.isfinite(limits.position_lower), limits.position_lower, -np.pi)
-    upper = np.where(np.isfinite(limits.position_upper), limits.position_upper, np.pi)
-    rng = np.random.default_rng(0)
-    rule = DERIVED_LIMITS
-    needed = np.zeros(robot.num_joints)
-    for q in [robot.home] + [rng.uniform(lower, upper) for _ in range(rule["configurations"])]:
-        torque = np.abs(dynamics.gravity_torque(q)) + rule["acceleration"] * np.diag(dynamics.mass_matrix(q))
-        needed = np.maximum(needed, rule["margin"] * torque)
-    needed = np.maximum(needed, rule["floor"] * needed.max())
-    for j, name in enumerate(robot.joint_names):
-        if name in derived:
-            config.effort_limits[name] = float(f"{needed[j]:.3g}")
-    return [f"effort_limits of {', '.join(derived)} derived (the file gives none or 0): twice the largest |gravity "
-            "torque| + 5 rad/s² x M_jj over 200 configurations, at least a tenth of the largest; replace them with "
-            "the maker's ratings"]
 
 
 def starting_home(robot: Robot, attempts: int = 200) -> tuple[list | None, list]:
@@ -344,7 +275,6 @@ def check_holds_home(robot: Robot, dynamics, limits) -> None:
 def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
     """The robot config YAML text of `config`, with a header naming the description `source` and the `notes`."""
     import yaml
-    from stdm_drake.files import line_text   # (a file name may hold a line break: it must not end the comment)
     lines = [f"# Robot config written by `stdm-drake robot init` from {line_text(source)} (fields: RobotConfig in",
              "# stdm_drake/robots/robot.py; how each was chosen: docs/guides/robots.md, 'A robot from a description').",
              *[f"# NOTE: {line_text(note)}" for note in notes]]
