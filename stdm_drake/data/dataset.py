@@ -315,6 +315,27 @@ def split_trajectories(groups, n_train: int, n_val: int, n_test: int | None, see
     return Split(*(np.sort(np.concatenate(part)).astype(int) for part in (train, val, test)))
 
 
+def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
+    """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation,
+    20 % test, the rest training; n_test None means "all the rest" for split_trajectories."""
+    n_val = n_val if n_val is not None else max(1, round(0.2 * pool))
+    if n_train is None:
+        n_train = pool - n_val - (n_test if n_test is not None else max(1, round(0.2 * pool)))
+    if n_train < 1:
+        raise InputError(f"the split leaves {n_train} training trajectories (of {pool} per split unit)")
+    return n_train, n_val, n_test
+
+
+def dataset_split(dataset, settings) -> tuple[Split, bool]:
+    """(Split, per_group) of `dataset` by `settings` (its train, val, test, split_seed and per_group "on", "off"
+    or None: a training's or an identification's): per initial-pose group by default on tracking data, the
+    sizes `default_split_sizes` fills in, the split seed's shuffle."""
+    per_group = (dataset.protocol == "tracking") if settings.per_group is None else settings.per_group == "on"
+    pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
+    n_train, n_val, n_test = default_split_sizes(pool, settings.train, settings.val, settings.test)
+    return split_trajectories(dataset.groups, n_train, n_val, n_test, settings.split_seed, per_group), per_group
+
+
 def file_sha256(path) -> str:
     digest = hashlib.sha256()
     with open(path, "rb") as f:

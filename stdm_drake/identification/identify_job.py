@@ -58,7 +58,7 @@ def identify_job(job: IdentifyJob) -> dict:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.identification.identified import identified_text
     from stdm_drake.identification.identify import IdentifySettings, identify
-    from stdm_drake.learning.seeds import dataset_split
+    from stdm_drake.data.dataset import dataset_split
     output = pathlib.Path(job.output)
     if output.suffix.lower() not in (".yaml", ".yml"):
         raise InputError(f"-o/--output {job.output}: an identified robot is a .yaml file")

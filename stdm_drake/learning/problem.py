@@ -140,14 +140,3 @@ def dataset_metadata(dataset, split, *, model_type: str, derivative_source: str,
                               joint_names=dataset.metadata.joint_names,
                               plant_effects=(dataset.metadata.plant_effects.record()
                                              if dataset.metadata.plant_effects is not None else None), **fields)
-
-
-def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
-    """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation,
-    20 % test, the rest training; n_test None means "all the rest" for split_trajectories."""
-    n_val = n_val if n_val is not None else max(1, round(0.2 * pool))
-    if n_train is None:
-        n_train = pool - n_val - (n_test if n_test is not None else max(1, round(0.2 * pool)))
-    if n_train < 1:
-        raise InputError(f"the split leaves {n_train} training trajectories (of {pool} per split unit)")
-    return n_train, n_val, n_test

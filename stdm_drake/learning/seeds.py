@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import pathlib
 
-import numpy as np
 import torch
 
 from stdm_drake.files import atomic_path
-from stdm_drake.learning.problem import default_split_sizes
 from stdm_drake.learning.settings import TrainSettings
 from stdm_drake.learning.alpha_selection import fit_model
 
@@ -80,13 +78,3 @@ def fit_seeds(problem, settings: TrainSettings, fit_options: dict, runner, outpu
             bar.update()
             yield seed, result, selection
     bar.close()
-
-
-def dataset_split(dataset, settings: TrainSettings):
-    """(Split, per_group) of `dataset` by `settings`: per initial-pose group by default on tracking data,
-    the sizes `default_split_sizes` fills in, the split seed's shuffle."""
-    from stdm_drake.data.dataset import split_trajectories
-    per_group = (dataset.protocol == "tracking") if settings.per_group is None else settings.per_group == "on"
-    pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
-    n_train, n_val, n_test = default_split_sizes(pool, settings.train, settings.val, settings.test)
-    return split_trajectories(dataset.groups, n_train, n_val, n_test, settings.split_seed, per_group), per_group

@@ -19,7 +19,8 @@ from stdm_drake.cluster import RunnerConfig, connect
 from stdm_drake.errors import InputError
 from stdm_drake.files import check_free_space, write_text_atomic
 from stdm_drake.learning.problem import training_problem
-from stdm_drake.learning.seeds import dataset_split, fit_seeds
+from stdm_drake.data.dataset import dataset_split
+from stdm_drake.learning.seeds import fit_seeds
 from stdm_drake.learning.settings import TrainSettings
 from stdm_drake.learning.trainable import network_class
 from stdm_drake.learning.train_outputs import write_seed_files
