@@ -90,13 +90,18 @@ class RepeatedWarnings(logging.Filter):
 @contextlib.contextmanager
 def drake_warnings_once(command: str):
     """While a command runs, Drake's parser warnings (it builds several plants from one description) are
-    shown once each; afterwards one line says how many repeats were left out."""
+    shown once each; afterwards one line says how many repeats were left out. The robot's own load-time lines
+    (`robots.robot`: a replaced inertia, unmodelled joint effects, missing meshes), said each time the robot is
+    built, are shown once each too."""
     logger, repeated = logging.getLogger("drake"), RepeatedWarnings()
+    robot_logger, robot_lines = logging.getLogger("stdm_drake.robots.robot"), RepeatedWarnings()
     logger.addFilter(repeated)
+    robot_logger.addFilter(robot_lines)
     try:
         yield repeated
     finally:
         logger.removeFilter(repeated)
+        robot_logger.removeFilter(robot_lines)
         if repeated.left_out:
             print(f"stdm-drake {command}: {repeated.left_out} repeats of Drake's warnings above left out",
                   file=sys.stderr)

@@ -180,6 +180,7 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "junk_mass": ('<mass value="4.27"/>', '<mass value="-4.27junk"/>'),
     "hex_limit": ('velocity="3.1416" effort="150"', 'velocity="0x1p1" effort="150"'),
     "junk_effort": ('velocity="3.1416" effort="150"', 'velocity="3.1416" effort="150abc"'),   # (held-out run 13)
+    "wide_mass": ('<mass value="4.27"/>', '<mass value="４.27"/>'),   # (held-out run 14: digits Python reads, Drake not)
 }
 
 
@@ -681,6 +682,7 @@ CASES = [
     (["robot", "init", "bad_hex_limit.urdf", "-o", "NEW.yaml"], "joint 'elbow_joint': its velocity limit is '0x1p1'"),
     (["robot", "init", "bad_junk_effort.urdf", "-o", "NEW.yaml"], "joint 'elbow_joint': its effort limit is '150abc'"),
     (["robot", "check", "bad_junk_effort.yaml"], "joint 'elbow_joint': its effort limit is '150abc', not a number"),
+    (["robot", "init", "bad_wide_mass.urdf", "-o", "NEW.yaml"], "link 'forearm_link': its mass is '４.27', not a number"),
     ([*E, "--robot", "bad_zero_inertia.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves no inertia about its axis"),
     ([*E, "--robot", "bad_massless.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves links wrist_3_link, flange, tool0"),
     ([*E, "--robot", "bad_reversed.yaml", "-o", "NEW.h5"], "'elbow_joint' has its lower position limit 3.14159 above"),

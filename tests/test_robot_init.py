@@ -94,7 +94,9 @@ def test_an_inertia_no_body_has_is_simulated_as_drake_replaces_it_said_in_one_li
     caplog.clear()
     with caplog.at_level("WARNING"):
         assert check(config) == 0
-    assert caplog.text.count("link 'wrist_3_link' has principal moments") == 1
+        assert main(["robot", "init", str(config.with_suffix(".urdf")), "-o", str(tmp_path / "init.yaml")]) == 0
+    assert caplog.text.count("link 'wrist_3_link' has principal moments") == 2   # (once per command: held-out
+                                                                                  # run 14 saw init say it 3 times)
     assert "repeats of Drake's warnings" not in capsys.readouterr().err
     if why.startswith("breaking"):   # (one collection: what the dataset records)
         from stdm_drake.data.dataset import load_dataset

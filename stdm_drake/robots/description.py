@@ -86,7 +86,8 @@ INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
 # A number as URDF and SDF files write one: decimal digits, an optional exponent (inf and nan too). Anything else
 # (a hexadecimal float, "7.1junk", "1_000") these checks cannot read as Drake's parser does, which reads some of
 # it otherwise (a prefix, a hexadecimal value), so `read_description` refuses the file.
-PLAIN_NUMBER = re.compile(r"\s*[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)\s*", re.IGNORECASE)
+PLAIN_NUMBER = re.compile(r"\s*[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|infinity|nan)\s*",
+                          re.IGNORECASE | re.ASCII)   # (ASCII digits: Python reads "３" and "٢" as numbers, Drake does not)
 
 
 class UnreadNumber(ValueError):
