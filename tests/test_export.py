@@ -408,6 +408,7 @@ def export_interrupted_at(tmp_path, call: str, nth: int):
                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
+@pytest.mark.slow   # (a real process each: about 5 s)
 @pytest.mark.parametrize("nth", [1, 2])
 def test_a_signal_as_a_lock_file_is_made_leaves_no_lock_file(tmp_path, nth):
     """Held-out run 13: Ctrl-C landing just after a lock file was created, before the run had recorded it, left the

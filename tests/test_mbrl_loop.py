@@ -92,6 +92,7 @@ def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_pat
     assert error.count("\n") == 1 and "--rounds must be in 1..100" in error and not (tmp_path / "other").exists()
 
 
+@pytest.mark.slow   # (a loop's round: about 15 s)
 def test_a_signal_in_a_rounds_data_write_leaves_the_summary_naming_that_round(tmp_path, monkeypatch):
     """Held-out run 13: a signal landing while a round's data were written left that round's folder with data.h5
     and a summary.json that did not name it (a fresh loop: no summary at all). The signal is raised once the
