@@ -20,11 +20,12 @@ DERIVED_LIMITS = dict(velocity=(np.pi / 2, 0.5), position=(-np.pi, np.pi), accel
 PROVISIONAL_EFFORT = 1e9   # N m: a joint without a usable effort limit while its derived one is computed
 
 
-def mount_joints(arm_joints: list, limits: dict) -> list:
+def mount_joints(arm_joints: list, joints: dict) -> list:
     """The chain's last movable joints that mount a tool or gripper, not arm joints: those after POSE_DIM or more
     joints whose file states an effort limit, the file stating none for them (a gripper's turning mount on a
-    7-joint arm, pybullet's KUKA iiwa world). None where the arm itself lacks effort limits (they are derived)."""
-    rated = [usable(limits.get(name, {}).get("effort")) for name in arm_joints]
+    7-joint arm, pybullet's KUKA iiwa world). None where the arm itself lacks effort limits (they are derived).
+    joints: the description's, by name."""
+    rated = [usable(joints[name].effort) for name in arm_joints]
     last = max((index for index, value in enumerate(rated) if value), default=-1)
     if last + 1 < POSE_DIM or not all(rated[:last + 1]):
         return []
@@ -36,21 +37,20 @@ def usable(value) -> bool:
     return value is not None and np.isfinite(value) and value > 0
 
 
-def derive_kinematic_limits(config: RobotConfig, joints: dict, limits: dict) -> list[str]:
-    """Into `config`, per arm joint, the velocity limit and revolute position range its file lacks and `config`
-    does not give
-    (`DERIVED_LIMITS`), and PROVISIONAL_EFFORT where it lacks an effort limit (`derive_effort_limits` replaces
-    it once the robot loads); the notes saying so."""
+def derive_kinematic_limits(config: RobotConfig, joints: dict) -> list[str]:
+    """Into `config`, per arm joint (`joints`: the description's, by name), the velocity limit and revolute
+    position range its file lacks and `config` does not give (`DERIVED_LIMITS`), and PROVISIONAL_EFFORT where it
+    lacks an effort limit (`derive_effort_limits` replaces it once the robot loads); the notes saying so."""
     notes, velocity, ranges = [], [], []
     for name in config.arm_joints:
-        joint, stated = joints[name], limits.get(name, {})
-        if not usable(stated.get("velocity")) and name not in config.velocity_limits:
+        joint = joints[name]
+        if not usable(joint.velocity) and name not in config.velocity_limits:
             config.velocity_limits[name] = DERIVED_LIMITS["velocity"][joint.kind == "prismatic"]
             velocity.append(name)
         if joint.kind == "revolute" and joint.lower == joint.upper == 0 and name not in config.position_limits:
             config.position_limits[name] = list(DERIVED_LIMITS["position"])
             ranges.append(name)
-        if not usable(stated.get("effort")) and name not in config.effort_limits:
+        if not usable(joint.effort) and name not in config.effort_limits:
             config.effort_limits[name] = PROVISIONAL_EFFORT
     if velocity:
         notes.append(f"velocity_limits of {', '.join(velocity)} derived (the file gives none or 0): pi/2 rad/s, 0.5 m/s "

@@ -169,7 +169,7 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
     file that is no arm."""
     description = read_description(model_path)
     check_tree(description, f"{model_path.name}")   # (a loop: no chain to follow)
-    limits, continuous, mimics = joint_facts(model_path)
+    _, continuous, mimics = joint_facts(model_path)
     chain = arm_chain(description, mimics)
     if len(chain.arm_joints) > MAX_ARM_JOINTS:   # (before the home search, whose work grows with the joints)
         raise InputError(f"{model_path.name}: its chain from the root has {len(chain.arm_joints)} movable joints; an "
@@ -180,7 +180,7 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
     joints = {joint.name: joint for joint in description.joints}
     packages, missing = find_packages(model_path)
     notes = [f"package {package!r} not found near {model_path.name}: map it under package_paths" for package in missing]
-    mounts = mount_joints(chain.arm_joints, limits)
+    mounts = mount_joints(chain.arm_joints, joints)
     if mounts:
         chain = dataclasses.replace(chain, arm_joints=chain.arm_joints[:-len(mounts)],
                                     locked_joints=chain.locked_joints + mounts)
@@ -205,7 +205,7 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         locked_joints={joint: nearest_zero(joints[joint]) for joint in chain.locked_joints},
         home=[round(middle(joints[joint]), 6) for joint in chain.arm_joints], tool_frame=chain.tool_frame,
         srdf=_relative(srdf, folder) if srdf is not None else "")
-    notes += derive_kinematic_limits(config, joints, limits)
+    notes += derive_kinematic_limits(config, joints)
     if len(chain.arm_joints) < POSE_DIM:
         notes.append(f"{len(chain.arm_joints)} arm joints: the excitation protocol only (task-space tracking needs "
                      f"{POSE_DIM})")
