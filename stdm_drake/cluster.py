@@ -164,6 +164,7 @@ class ProcessPool:
     def stop(self) -> None:
         """End at once (Ctrl-C, SIGTERM): pending tasks cancelled, the workers terminated and reaped."""
         processes = list((self.executor._processes or {}).values())
+        manager = self.executor._executor_manager_thread   # (shutdown forgets it)
         _quiet_about_cancelled_futures()
         self.executor.shutdown(wait=False, cancel_futures=True)
         for process in processes:
@@ -173,6 +174,11 @@ class ProcessPool:
             if process.is_alive():
                 process.kill()
                 process.join()
+        # The executor's thread closes its wake-up pipe as it ends; Python's exit hook for executors writes to
+        # that pipe after checking it is open, unlocked (3.11), so a thread still ending then printed "Exception
+        # ignored in threading._shutdown ... Bad file descriptor" after the command's one line. Ended here first.
+        if manager is not None:
+            manager.join(timeout=10)
 
     def submit(self, function, *arguments):
         from stdm_drake.interrupts import group_signals_blocked, protected

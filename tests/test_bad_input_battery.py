@@ -209,6 +209,11 @@ def write_issue_25_inputs(box) -> None:
     joints = "".join(f'<joint name="j{i}" type="revolute"><parent link="l{i}"/><child link="l{i + 1}"/><axis xyz="0 0 1"/>'
                      '<limit lower="-1" upper="1" effort="10" velocity="1"/></joint>' for i in range(101))
     (box / "chain101.urdf").write_text(f'<robot name="chain">{links}{joints}</robot>')
+    # (issue 56, run 14: 200,000 fixed frames kept `robot init` busy past 120 s) the UR-10 and 5,001 frames
+    frames = "".join(f'<link name="f{i}"/><joint name="fj{i}" type="fixed"><parent link="{"tool0" if i == 0 else f"f{i - 1}"}"/>'
+                     f'<child link="f{i}"/></joint>' for i in range(5001))
+    (box / "bad_frames.urdf").write_text(urdf.replace("</robot>", f"{frames}</robot>"))
+    (box / "bad_frames.yaml").write_text(ur10_config("bad_frames.urdf"))
     (box / "bad_symlink.yaml").write_text(ur10_config("loop_a.urdf"))
     for suffix in ("urdf", "h5", "pt", "yaml"):
         os.symlink(f"loop_b.{suffix}", box / f"loop_a.{suffix}")
@@ -671,6 +676,8 @@ CASES = [
     (["robot", "init", "ur10.urdf", "--name", "../escape"], "--name '../escape': the robot's name, not a path"),
     (["robot", "init", "bad_cycle.urdf", "-o", "NEW.yaml"], "form a cycle through link"),
     (["robot", "init", "chain101.urdf", "-o", "NEW.yaml"], "its chain from the root has 101 movable joints; an arm here"),
+    (["robot", "init", "bad_frames.urdf", "-o", "NEW.yaml"], "states more than 10,000 links, joints and frames"),
+    ([*E, "--robot", "bad_frames.yaml", "-o", "NEW.h5"], "states more than 10,000 links, joints and frames"),
     # (issue 56: a description the checks refuse wrote the YAML and exited 1; the YAML is no place for its fix)
     (["robot", "init", "bad_negative_mass.urdf", "-o", "NEW.yaml"], "link 'forearm_link' has mass -4.27 kg"),
     (["robot", "check", "bad_loop.yaml"], "link 'forearm_link' is the child of joints 'elbow_joint' and 'closing'"),

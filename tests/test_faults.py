@@ -525,6 +525,29 @@ def test_a_stopped_pools_thread_is_quiet_about_cancelled_futures(capsys, monkeyp
     assert "InvalidStateError" in capsys.readouterr().err
 
 
+@pytest.mark.slow
+def test_a_stopped_pool_leaves_no_executor_thread_for_pythons_exit_hook():
+    """(Issue 56, run 14) A pool stopped by SIGTERM: the executor's thread, still ending, closed its wake-up pipe
+    while Python's exit hook wrote to it ("Exception ignored in threading._shutdown ... Bad file descriptor" after
+    the one line). `stop` returns once that thread has ended, its pipe closed, so the hook writes nothing."""
+    import time
+    from stdm_drake import cluster
+    pool = cluster.ProcessPool(2)
+    futures = [pool.submit(time.sleep, 30) for _ in range(3)]
+    while not pool.executor._processes or not any(future.running() for future in futures):
+        time.sleep(0.05)
+    manager = pool.executor._executor_manager_thread
+    ending = manager.join_executor_internals
+
+    def slow_ending():   # (the race's window, widened: the thread takes a moment to end)
+        time.sleep(0.5)
+        ending()
+
+    manager.join_executor_internals = slow_ending
+    pool.stop()
+    assert not manager.is_alive() and manager.thread_wakeup._closed
+
+
 def test_a_signal_held_during_the_imports_ends_the_command_before_an_argument_error(monkeypatch, capsys):
     """A signal inside the command's imports is sent again a moment later; the command raises it as soon as its
     imports end, before its argument parser can print an error line of its own."""
