@@ -214,6 +214,16 @@ def write_issue_25_inputs(box) -> None:
                      f'<child link="f{i}"/></joint>' for i in range(5001))
     (box / "bad_frames.urdf").write_text(urdf.replace("</robot>", f"{frames}</robot>"))
     (box / "bad_frames.yaml").write_text(ur10_config("bad_frames.urdf"))
+    # (issue 58: masses from geometry) a kinematic UR-10, one with a COLLADA mesh, one with a reversed limit (refused
+    # after its copy with masses is made: the copy goes too), one whose box size is no number
+    bare = re.sub(r"<inertial>.*?</inertial>", "", urdf, flags=re.S)
+    (box / "kinematic.urdf").write_text(bare)
+    (box / "kinematic_dae.urdf").write_text(bare.replace('<cylinder radius="0.075" length="0.038"/>',
+                                                         '<mesh filename="base.dae"/>'))
+    (box / "base.dae").write_text("<COLLADA/>")
+    (box / "kinematic_reversed.urdf").write_text(re.sub(*BROKEN_UR10["reversed"], bare, count=1))
+    (box / "kinematic_box.urdf").write_text(bare.replace('<cylinder radius="0.075" length="0.038"/>',
+                                                         '<box size="0.1 0x1p-3 0.1"/>'))
     (box / "bad_symlink.yaml").write_text(ur10_config("loop_a.urdf"))
     for suffix in ("urdf", "h5", "pt", "yaml"):
         os.symlink(f"loop_b.{suffix}", box / f"loop_a.{suffix}")
@@ -677,6 +687,27 @@ CASES = [
     (["robot", "init", "bad_cycle.urdf", "-o", "NEW.yaml"], "form a cycle through link"),
     (["robot", "init", "chain101.urdf", "-o", "NEW.yaml"], "its chain from the root has 101 movable joints; an arm here"),
     (["robot", "init", "bad_frames.urdf", "-o", "NEW.yaml"], "states more than 10,000 links, joints and frames"),
+    # (issue 58: masses from geometry)
+    (["robot", "init", "ur10.urdf", "-o", "NEW.yaml", "--density", "1000"], "--density sets the masses from geometry: "
+                                                                            "it needs --masses-from-geometry"),
+    (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--density", "-5"],
+     "--density must be in (0, 100000], got -5.0"),
+    (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--total-mass", "nan"],
+     "--total-mass must be in (0, 100000], got nan"),
+    (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--density", "1000",
+      "--total-mass", "30"], "--density and --total-mass both set the masses from geometry: give one"),
+    (["robot", "init", "ur10.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
+     "no link without <inertial> has geometry to take a mass from"),
+    (["robot", "init", "kinematic_dae.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
+     "link 'base_link': its <collision>: mesh base.dae is a .dae; masses from geometry read STL and OBJ"),
+    (["robot", "init", "kinematic_reversed.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
+     "has its lower position limit 3.14159 above its upper limit"),
+    (["robot", "init", "kinematic_box.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
+     "link 'base_link': its <collision>: its box size is '0.1 0x1p-3 0.1', not 3 numbers as URDF writes them"),
+    (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--package", "nofolder"],
+     "--package 'nofolder': give NAME=FOLDER"),
+    (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--package", "ur=missing_folder"],
+     "--package 'ur=missing_folder': missing_folder is not a folder"),
     ([*E, "--robot", "bad_frames.yaml", "-o", "NEW.h5"], "states more than 10,000 links, joints and frames"),
     # (issue 56: a description the checks refuse wrote the YAML and exited 1; the YAML is no place for its fix)
     (["robot", "init", "bad_negative_mass.urdf", "-o", "NEW.yaml"], "link 'forearm_link' has mass -4.27 kg"),

@@ -21,6 +21,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="a MoveIt SRDF: its disabled collision pairs, and home from a group state named home, "
                            "ready, zero or default")
     init.add_argument("--force", action="store_true", help="replace an existing output file")
+    init.add_argument("--package", action="append", default=[], metavar="NAME=FOLDER",
+                      help="the folder of package NAME, for package:// URIs that robot init does not find beside the "
+                           "file (written to package_paths; repeat for several)")
+    init.add_argument("--masses-from-geometry", action="store_true",
+                      help="give each link without <inertial> the mass properties of a solid filling its collision "
+                           "(else visual) geometry: boxes, cylinders, spheres, STL and OBJ meshes (URDF only); "
+                           "written into a copy, NAME_masses.urdf beside the YAML, which the YAML names; the "
+                           "dynamics are approximate")
+    init.add_argument("--density", type=float, metavar="KG_PER_M3",
+                      help="with --masses-from-geometry: the solids' density (default 1300 kg/m^3, between the "
+                           "shipped UR-10's and Panda's own)")
+    init.add_argument("--total-mass", type=float, metavar="KG",
+                      help="with --masses-from-geometry: the masses scaled to sum to this, instead of a density")
     check = actions.add_parser("check", help="load a robot config and check it: limits, M(home), self-collision, "
                                              "gravity at home within the effort limits")
     check.add_argument("robot", type=pathlib.Path, help="robot config YAML")
@@ -40,13 +53,17 @@ def run(args: argparse.Namespace) -> int:
 
 
 def init(args: argparse.Namespace) -> int:
-    from stdm_drake.robots.starting_config import write_starting_config
+    from stdm_drake.robots.geometry_masses import MassesFromGeometry
+    from stdm_drake.robots.starting_config import given_packages, write_starting_config
     if args.name is not None and (not args.name.strip() or args.name in (".", "..")
                                   or pathlib.Path(args.name).name != args.name or "\\" in args.name):
         raise InputError(f"--name {args.name!r}: the robot's name, not a path (-o/--output says where the YAML "
                          "goes)")
     output = args.output or pathlib.Path(f"{args.name or args.model.stem}.yaml")
-    config, notes, problem = write_starting_config(args.model, output, args.name, args.srdf, args.force)
+    masses = MassesFromGeometry.from_options(args.masses_from_geometry, args.density, args.total_mass)
+    packages = given_packages(args.package)
+    config, notes, problem = write_starting_config(args.model, output, args.name, args.srdf, args.force, masses,
+                                                   packages)
     print(f"wrote {output}: {len(config.arm_joints)} arm joints ({', '.join(config.arm_joints)}), "
           f"{len(config.locked_joints)} locked, tool frame {config.tool_frame}")
     for note in notes:

@@ -14,6 +14,7 @@ import re
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots.xml_file import check_xml
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
@@ -22,11 +23,6 @@ SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and the
 # mass at the density of water about the link's centre of mass (drake/multibody/parsing/detail_common.cc,
 # ParseSpatialInertia). The toolbox simulates what Drake simulates, and says so in one line per link.
 SUBSTITUTE_DENSITY = 1000.0   # kg/m³
-# Links, joints and frames one description may state. A robot has tens to a few hundred (a humanoid about 100, a
-# mobile manipulator with its hand about 200); every command reads, checks and builds each of them several times
-# (about 1.2 ms apiece here: `robot init` took 24 s for 20,000 frames), so beyond this a file is work, not a robot.
-MAX_FRAMES = 10_000
-FRAME_TAGS = ("link", "joint", "frame")
 
 
 @dataclasses.dataclass
@@ -186,42 +182,6 @@ def _sdf(root) -> Description:
     for world in root.iter("world"):
         read_joints(world, "")
     return Description(links, joints, max(1, len(top)), top[0].get("name") or "" if len(top) == 1 else "")
-
-
-def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None:
-    """InputError (one line) for an XML file the toolbox cannot read as Drake (or MoveIt) would: not well-formed
-    (an undefined entity included), or declaring entities (Python's parser expands them, Drake's does not; a
-    "billion laughs" file among them). kind: what the file should be, for the message ("a URDF or SDF file is").
-    count_frames: also refuse a description of more than MAX_FRAMES links, joints and frames, in this one pass
-    (stopped at the first past the budget), before anything else reads it."""
-    from xml.parsers import expat
-
-    def declared(name, *_):   # (raised at the declaration: nothing is expanded)
-        raise InputError(f"{path.name} declares the XML entity {name!r}; Drake's parser does not expand entities, "
-                         "so write their text out in the file")
-
-    frames = 0
-
-    def started(tag, _attributes):
-        nonlocal frames
-        if tag in FRAME_TAGS:
-            frames += 1
-            if frames > MAX_FRAMES:
-                raise InputError(f"{path.name} states more than {MAX_FRAMES:,} links, joints and frames (line "
-                                 f"{checker.CurrentLineNumber}); a robot has tens to hundreds, and every command reads "
-                                 "and builds each of them several times (about 1.2 ms each); keep in the file what "
-                                 "the robot is made of")
-
-    checker = expat.ParserCreate()
-    checker.EntityDeclHandler = declared
-    if count_frames:
-        checker.StartElementHandler = started
-    try:
-        with open(path, "rb") as file:
-            checker.ParseFile(file)
-    except expat.ExpatError as error:
-        raise InputError(f"{path.name} is not well-formed XML ({expat.ErrorString(error.code)}: line "
-                         f"{error.lineno}, column {error.offset}); {kind}") from None
 
 
 def read_description(path: pathlib.Path) -> Description:

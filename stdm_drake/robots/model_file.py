@@ -89,7 +89,7 @@ def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, s
     """The (link1, link2) pairs of a MoveIt SRDF's <disable_collisions> elements; InputError naming robot
     `name` for a missing or unparsable file."""
     import xml.etree.ElementTree as ElementTree
-    from stdm_drake.robots.description import check_xml
+    from stdm_drake.robots.xml_file import check_xml
     check_input_file(path, f"robot {name}: srdf file")
     check_xml(path, "an SRDF file is")     # (entities refused: a "billion laughs" file among them)
     root = ElementTree.parse(path).getroot()

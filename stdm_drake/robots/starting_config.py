@@ -107,13 +107,13 @@ def arm_chain(description: Description, mimics: list) -> ArmChain:
     return ArmChain(None if root == WORLD else root, arm_names, locked, tool)
 
 
-def find_packages(model_path: pathlib.Path, levels: int = 6) -> tuple[dict, list]:
+def find_packages(model_path: pathlib.Path, levels: int = 6, given: dict | None = None) -> tuple[dict, list]:
     """({package: folder} for the package:// names the file uses that are found by the rule in the module's
-    docstring, [names not found])."""
+    docstring, or `given` (name -> folder: `robot init --package`, taken as given), [names not found])."""
     names = sorted(set(re.findall(r"package://([^/\"'<>\s]+)/", model_path.read_text(errors="replace"))))
-    found = {}
+    found = dict(given or {})
     folders = [model_path.parent.resolve(), *list(model_path.parent.resolve().parents)[:levels]]
-    for name in names:
+    for name in (name for name in names if name not in found):
         for folder in folders:
             candidates = [folder] if folder.name == name else []
             candidates += [folder / name] if (folder / name).is_dir() else []
@@ -125,12 +125,27 @@ def find_packages(model_path: pathlib.Path, levels: int = 6) -> tuple[dict, list
     return found, [name for name in names if name not in found]
 
 
+def given_packages(items: list) -> dict:
+    """{package: folder} of `robot init --package NAME=FOLDER` items; InputError for one of another form or whose
+    folder is none."""
+    packages = {}
+    for item in items:
+        package, _, folder = item.partition("=")
+        if not package or not folder or "/" in package:
+            raise InputError(f"--package {item!r}: give NAME=FOLDER (the package's name, then its folder)")
+        if not pathlib.Path(folder).is_dir():
+            raise InputError(f"--package {item!r}: {folder} is not a folder")
+        packages[package] = pathlib.Path(folder).resolve()
+    return packages
+
+
 def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
     """The first SRDF <group_state> named in HOME_STATE_NAMES that gives every arm joint, as positions, or None.
-    InputError for a file that is no XML as MoveIt reads it (entities: `description.check_xml`) and for a home
+    InputError for a file that is no XML as MoveIt reads it (entities: `xml_file.check_xml`) and for a home
     value that is no number (it would be skipped silently)."""
     import xml.etree.ElementTree as ElementTree
-    from stdm_drake.robots.description import PLAIN_NUMBER, check_xml
+    from stdm_drake.robots.description import PLAIN_NUMBER
+    from stdm_drake.robots.xml_file import check_xml
     check_xml(srdf, "an SRDF file is")
     root = ElementTree.parse(srdf).getroot()
     states = {state.get("name"): {joint.get("name"): joint.get("value") for joint in state.iter("joint")}
@@ -163,10 +178,12 @@ MAX_ARM_JOINTS = 100   # movable joints of one arm's chain: `robot init`'s home 
 
 
 def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | None = None,
-                    srdf: pathlib.Path | None = None) -> tuple[RobotConfig, list]:
+                    srdf: pathlib.Path | None = None, packages_near: pathlib.Path | None = None,
+                    packages: dict | None = None) -> tuple[RobotConfig, list]:
     """(the starting RobotConfig of description file `model_path`, with paths relative to `folder` where its
     YAML will be written, home the middle of the ranges; notes for the user, one line each). InputError for a
-    file that is no arm."""
+    file that is no arm. packages_near: the file beside which its packages are looked for (default: model_path;
+    a copy written elsewhere names its original); packages: package name -> folder, given by the user."""
     description = read_description(model_path)
     check_tree(description, f"{model_path.name}")   # (a loop: no chain to follow)
     _, continuous, mimics = joint_facts(model_path)
@@ -178,8 +195,9 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         raise InputError(f"{model_path.name} holds {description.models} models; a robot config describes one arm: "
                          "give a file of that arm's model")
     joints = {joint.name: joint for joint in description.joints}
-    packages, missing = find_packages(model_path)
-    notes = [f"package {package!r} not found near {model_path.name}: map it under package_paths" for package in missing]
+    packages, missing = find_packages(packages_near or model_path, given=packages)
+    notes = [f"package {package!r} not found near {(packages_near or model_path).name}: map it under package_paths"
+             for package in missing]
     mounts = mount_joints(chain.arm_joints, joints)
     if mounts:
         chain = dataclasses.replace(chain, arm_joints=chain.arm_joints[:-len(mounts)],
@@ -289,13 +307,16 @@ def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
 
 
 def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str | None = None,
-                          srdf: pathlib.Path | None = None, force: bool = False) -> tuple[RobotConfig, list, str]:
+                          srdf: pathlib.Path | None = None, force: bool = False,
+                          masses: "MassesFromGeometry | None" = None,
+                          packages: dict | None = None) -> tuple[RobotConfig, list, str]:
     """`robot init`: write the starting config of description `model` to `output` (never over an input, nor
     over an existing file unless `force`), with a home from `starting_home` unless the SRDF names one;
-    returns (the config, notes, "" when it passes `check_robot`, else the one-line reason)."""
-    from stdm_drake.files import write_text_atomic
+    returns (the config, notes, "" when it passes `check_robot`, else the one-line reason). masses: the links
+    without <inertial> get masses from their geometry (`geometry_masses`), in a copy of the description
+    beside `output` that the config names. packages: package name -> folder for package:// URIs the rule
+    of the module's docstring does not find."""
     from stdm_drake.paths import check_input_file
-    from stdm_drake.robots.robot import load_robot
     model = check_input_file(model, "model file")
     srdf = check_input_file(srdf, "srdf file") if srdf is not None else None
     if model.suffix.lower() == ".xacro":
@@ -309,7 +330,33 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
     if output.exists() and not force:
         raise InputError(f"--output {output} exists; choose another path or pass --force to replace it")
     folder = output.absolute().parent
-    config, notes = starting_config(model, folder, name, srdf)
+    if masses is None:
+        return _write_starting_config(model, output, folder, name, srdf, model, [], packages)
+    from stdm_drake.robots.geometry_masses import geometry_masses, write_with_masses
+    masses.validate()
+    final = masses.copy_path(model, folder)
+    if final.resolve() in {model.resolve(), output.resolve(), *([srdf.resolve()] if srdf else [])}:
+        raise InputError(f"the description with masses would be written over an input or the output ({final}); "
+                         "write the YAML into another folder")
+    if final.exists() and not force:
+        raise InputError(f"{final} exists (the description with masses); choose another folder or pass --force")
+    found = geometry_masses(model, find_packages(model, given=packages)[0], masses.density, masses.total_mass)
+    copy = final.with_name(f"{final.name}.{os.getpid()}.urdf")   # (beside it: the relative mesh paths hold)
+    try:
+        write_with_masses(model, copy, found)
+        return _write_starting_config(copy, output, folder, name, srdf, model, [masses.note(found, final)], packages,
+                                      final)
+    finally:
+        copy.unlink(missing_ok=True)
+
+
+def _write_starting_config(model, output, folder, name, srdf, original, notes, packages, final=None):
+    """write_starting_config's work on description `model` (a copy with masses, to be renamed `final`, or the
+    `original` itself)."""
+    from stdm_drake.files import write_text_atomic
+    from stdm_drake.robots.robot import load_robot
+    config, more = starting_config(model, folder, name, srdf, packages_near=original, packages=packages)
+    notes = notes + more
     try:   # (before the home search: holding a home against gravity is checked against these)
         notes += derive_effort_limits(Robot(config, folder), config)
     except InputError:   # (a config that does not load yet: the check below gives the reason; no stand-in kept)
@@ -339,7 +386,10 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str |
     # a description the checks refuse is one line, nothing written
     if problem and not any(note.startswith(YAML_FIXES) for note in notes):
         raise InputError(problem)
-    write_text_atomic(output, config_yaml(config, model.name, notes))
+    if final is not None:
+        os.replace(model, final)
+        config.model = _relative(final, folder)
+    write_text_atomic(output, config_yaml(config, original.name, notes))
     if not problem:
         check_robot(load_robot(output))   # (the file as written loads as the config did)
     return config, notes, problem
