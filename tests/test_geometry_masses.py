@@ -215,3 +215,23 @@ def test_robot_init_writes_the_description_with_masses_and_a_config_that_names_i
     check = subprocess.run([sys.executable, "-m", "stdm_drake.cli", "robot", "check", str(out / "arm.yaml")],
                            capture_output=True, text=True, env=ENV)
     assert check.returncode == 0, check.stderr
+
+
+def test_a_package_shipped_under_another_folder_name_is_found_by_its_files(tmp_path):
+    """rtb-data's layout: package://abb_irb140_support/meshes/... in a folder named abb_irb140_description. The
+    folder at or above the model's that holds every file the URIs name is the package; with one file missing it is
+    not found (named among the missing)."""
+    from stdm_drake.robots.starting_config import find_packages
+    root = tmp_path / "arm_description"
+    (root / "urdf").mkdir(parents=True)
+    (root / "meshes" / "collision").mkdir(parents=True)
+    write_stl(root / "meshes" / "collision" / "a.stl", box_triangles(np.full(3, 0.1), np.zeros(3)))
+    write_stl(root / "meshes" / "collision" / "b.stl", box_triangles(np.full(3, 0.1), np.zeros(3)))
+    urdf = root / "urdf" / "arm.urdf"
+    urdf.write_text(link_urdf("package://arm_support/meshes/collision/a.stl").replace(
+        "</robot>", '<link name="x"><visual><geometry><mesh filename="package://arm_support/meshes/collision/b.stl"/>'
+                    "</geometry></visual></link></robot>"))
+    assert find_packages(urdf) == ({"arm_support": root}, [], ["arm_support"])
+    (root / "meshes" / "collision" / "b.stl").unlink()
+    assert find_packages(urdf) == ({}, ["arm_support"], [])
+    assert find_packages(urdf, given={"arm_support": tmp_path}) == ({"arm_support": tmp_path}, [], [])

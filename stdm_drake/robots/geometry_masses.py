@@ -265,8 +265,8 @@ def mesh_resolver(model: pathlib.Path, packages: dict):
         if filename.startswith("package://"):
             name, _, rest = filename[len("package://"):].partition("/")
             if name not in packages:
-                raise InputError(f"{what}: mesh {filename!r} is in package {name!r}, which was not found beside "
-                                 f"{model.name} (give robot init a description whose packages are beside it)")
+                raise InputError(f"{what}: mesh {filename!r} is in package {name!r}, which was not found near "
+                                 f"{model.name} (map it: --package {name}=FOLDER)")
             path = pathlib.Path(packages[name]) / rest
         else:
             path = model.parent / filename.removeprefix("file://")

@@ -11,7 +11,8 @@ The rules, applied to the file's kinematic tree (`robots.description`):
 - tool frame: the last arm link, followed down its fixed joints while there is one way on (of several,
   the one that carries the moving joints of a gripper, when one does);
 - packages: each package:// name found as a folder (or a folder whose package.xml names it) at or
-  beside the model's folder or one of the folders above it;
+  beside the model's folder or one of the folders above it, else as the folder at or above the model's that
+  holds every file its URIs name (a package shipped under another folder name); `--package` maps the rest;
 - home: an SRDF group state named in HOME_STATE_NAMES when an SRDF is given; else, around the middle of
   each joint's position range (0 for a continuous joint), a configuration free of self-collision and,
   for an arm that tracks task-space plans, far from singularities (`starting_home`); link pairs in
@@ -107,10 +108,12 @@ def arm_chain(description: Description, mimics: list) -> ArmChain:
     return ArmChain(None if root == WORLD else root, arm_names, locked, tool)
 
 
-def find_packages(model_path: pathlib.Path, levels: int = 6, given: dict | None = None) -> tuple[dict, list]:
+def find_packages(model_path: pathlib.Path, levels: int = 6, given: dict | None = None) -> tuple[dict, list, list]:
     """({package: folder} for the package:// names the file uses that are found by the rule in the module's
-    docstring, or `given` (name -> folder: `robot init --package`, taken as given), [names not found])."""
-    names = sorted(set(re.findall(r"package://([^/\"'<>\s]+)/", model_path.read_text(errors="replace"))))
+    docstring, or `given` (name -> folder: `robot init --package`, taken as given), [names not found], [names
+    found by where their files are: a folder at or above the model's that holds every file the URIs name])."""
+    uris = re.findall(r"package://([^/\"'<>\s]+)/([^\"'<>\s]+)", model_path.read_text(errors="replace"))
+    names = sorted({name for name, _ in uris})
     found = dict(given or {})
     folders = [model_path.parent.resolve(), *list(model_path.parent.resolve().parents)[:levels]]
     for name in (name for name in names if name not in found):
@@ -122,7 +125,14 @@ def find_packages(model_path: pathlib.Path, levels: int = 6, given: dict | None 
             if candidates:
                 found[name] = candidates[0]
                 break
-    return found, [name for name in names if name not in found]
+    located = []
+    for name in (name for name in names if name not in found):   # (a package shipped under another folder name)
+        files = {path for package, path in uris if package == name}
+        folder = next((folder for folder in folders if all((folder / path).is_file() for path in files)), None)
+        if folder is not None:
+            found[name] = folder
+            located.append(name)
+    return found, [name for name in names if name not in found], located
 
 
 def given_packages(items: list) -> dict:
@@ -195,9 +205,11 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         raise InputError(f"{model_path.name} holds {description.models} models; a robot config describes one arm: "
                          "give a file of that arm's model")
     joints = {joint.name: joint for joint in description.joints}
-    packages, missing = find_packages(packages_near or model_path, given=packages)
+    packages, missing, located = find_packages(packages_near or model_path, given=packages)
     notes = [f"package {package!r} not found near {(packages_near or model_path).name}: map it under package_paths"
              for package in missing]
+    notes += [f"package {package!r}: no folder of that name; mapped to {packages[package].name}/, which holds every "
+              "file its URIs name" for package in located]
     mounts = mount_joints(chain.arm_joints, joints)
     if mounts:
         chain = dataclasses.replace(chain, arm_joints=chain.arm_joints[:-len(mounts)],

@@ -8,7 +8,8 @@ chain of at least two movable joints from its root (`robots.starting_config.arm_
 (objects, wheeled and legged robots, single links, xacro sources) are listed as not arms, with the
 reason. Each arm goes through the commands a user would run, each its own process, on defaults:
 
-1. `robot init FILE` (the starting YAML, checked: `robot check`);
+1. `robot init FILE` (the starting YAML, checked: `robot check`), with `--masses-from-geometry` for a URDF
+   that states no <inertial> at all (a kinematic description: issue 58), the YAML untouched either way;
 2. `collect --protocol excitation` (12 trajectories);
 3. arms of 6 or more joints: `collect --protocol tracking` (12 tracked plans), and the tracking quality
    per joint: MSE of the true joint angle against the plan (rad²) and the largest |q̈| against the plan's;
@@ -117,7 +118,9 @@ def run_arm(label: str, path: pathlib.Path, joints: list, work: pathlib.Path) ->
     robot = folder / "robot.yaml"
     tracks = len(joints) >= TRACKING_MIN_JOINTS
     started = time.perf_counter()
-    steps = [("init", ("robot", "init", path, "-o", robot)),
+    kinematic = is_kinematic(path)
+    row["masses_from_geometry"] = kinematic
+    steps = [("init", ("robot", "init", path, "-o", robot, *(("--masses-from-geometry",) if kinematic else ()))),
              ("excitation", ("collect", "--robot", robot, "--protocol", "excitation", "--count", "12", "--quiet",
                              "-o", "excitation.h5"))]
     if tracks:
@@ -156,6 +159,18 @@ def run_arm(label: str, path: pathlib.Path, joints: list, work: pathlib.Path) ->
     return row
 
 
+def is_kinematic(path: pathlib.Path) -> bool:
+    """A URDF that states no <inertial> on any link: no dynamics of its own (`robot init --masses-from-geometry`)."""
+    import xml.etree.ElementTree as ElementTree
+    if path.suffix.lower() != ".urdf":
+        return False
+    try:
+        root = ElementTree.parse(path).getroot()
+    except ElementTree.ParseError:   # (robot init says why, in its one line)
+        return False
+    return root.find("link") is not None and root.find("link/inertial") is None
+
+
 def measured_damping_tracking(folder: pathlib.Path, robot: pathlib.Path) -> dict:
     """The same tracked plans (seed, count) under the default controller with Drake's own damping compensation
     on the measured velocity (`damping_compensation: measured`, the former behaviour): its tracking quality,
@@ -192,7 +207,11 @@ def summary(rows: list) -> dict:
     undamped = [row["tracking_mse_rad2"] for row in tracked if row["max_damping"] == 0]
     measured = [row["measured_damping_tracking_mse_rad2"] for row in tracked
                 if row.get("measured_damping_tracking_mse_rad2") is not None]
+    kinematic = [row for row in big if row.get("masses_from_geometry")]
+    massive = [row for row in big if not row.get("masses_from_geometry")]
     return dict(files=len(rows), arms=len(arms),
+                arms_6_plus_with_masses=len(massive), arms_6_plus_with_masses_passing=sum(row["passed_all"] for row in massive),
+                arms_6_plus_kinematic=len(kinematic), arms_6_plus_kinematic_passing=sum(row["passed_all"] for row in kinematic),
                 tracking_mse_damped_measured_compensation_median=float(np.median(measured)) if measured else None, arms_passing=sum(row["passed_all"] for row in arms),
                 arms_6_plus=len(big), arms_6_plus_passing=sum(row["passed_all"] for row in big),
                 share_6_plus_passing=(sum(row["passed_all"] for row in big) / len(big)) if big else None,
