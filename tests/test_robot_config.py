@@ -451,3 +451,19 @@ def test_a_recipe_path_outside_the_checkout_names_the_shipped_file(tmp_path, mon
         capsys.readouterr().err
     assert shipped_hint("controllers/pid_dither.yaml") == " (the shipped one is stdm-drake:controllers/pid_dither.yaml)"
     assert shipped_hint("controllers/mine.yaml") == "" and shipped_hint("elsewhere/pid_dither.yaml") == ""
+
+
+def test_blank_lines_before_the_xml_declaration_are_read_as_drake_reads_them(tmp_path):
+    """pybullet's biped2d_pybullet.urdf starts with blank lines before `<?xml ...?>`: Drake's parser (TinyXML2)
+    reads past them, Python's (expat) refused the file as not well-formed. Now read as Drake reads it; a fault
+    further down is still named at its line in the file."""
+    from stdm_drake.robots.description import read_description
+    text = (pathlib.Path(__file__).resolve().parent.parent / "models/ur10.urdf").read_text()
+    path = tmp_path / "blank.urdf"
+    path.write_text("\n \n\t\n" + text)
+    assert "shoulder_pan_joint" in {joint.name for joint in read_description(path).joints}
+    broken = text.replace("</robot>", "<link></robot>")
+    path.write_text("\n\n\n" + broken)
+    line = broken[:broken.index("</robot>")].count("\n") + 1 + 3   # (the line of the unclosed tag's end)
+    with pytest.raises(InputError, match=rf"not well-formed XML \(mismatched tag: line {line}, "):
+        read_description(path)

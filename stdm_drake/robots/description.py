@@ -14,6 +14,7 @@ import re
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots import xml_file
 from stdm_drake.robots.xml_file import check_xml
 
 MOVABLE = ("revolute", "continuous", "prismatic")
@@ -192,7 +193,7 @@ def read_description(path: pathlib.Path) -> Description:
     import xml.etree.ElementTree as ElementTree
     check_xml(path, "a URDF or SDF file is", count_frames=True)
     try:
-        return _sdf(root) if (root := ElementTree.parse(path).getroot()).tag == "sdf" else _urdf(root)
+        return _sdf(root) if (root := xml_file.parse(path).getroot()).tag == "sdf" else _urdf(root)
     except UnreadNumber as error:
         raise InputError(f"{path.name}: {error}, not a number as URDF and SDF write one (decimal digits, an optional "
                          "exponent); these checks cannot read it, and Drake's parser would read it otherwise") from None

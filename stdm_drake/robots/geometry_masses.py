@@ -25,6 +25,7 @@ import struct
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots import xml_file
 
 DEFAULT_DENSITY = 1300.0    # kg/m³: between the UR-10's 1,570 and the Panda's 1,120 (tests/test_geometry_masses.py)
 MAX_DENSITY = 1e5           # kg/m³ (osmium: 22,590)
@@ -294,7 +295,7 @@ def geometry_masses(model: pathlib.Path, packages: dict, density: float | None =
     resolve = mesh_resolver(model, packages)
     unit = 1.0 if total_mass is not None else (density if density is not None else DEFAULT_DENSITY)
     results = []
-    for link in ElementTree.parse(model).getroot().findall("link"):
+    for link in xml_file.parse(model).getroot().findall("link"):
         name = link.get("name")
         if description.links.get(name) is not None:
             continue
@@ -329,7 +330,7 @@ def write_with_masses(model: pathlib.Path, output: pathlib.Path, masses: list[Li
     import os
     import xml.etree.ElementTree as ElementTree
     from stdm_drake.files import write_text_atomic
-    tree = ElementTree.parse(model)
+    tree = xml_file.parse(model)
     by_link = {mass.link: mass for mass in masses}
     for link in tree.getroot().findall("link"):
         mass = by_link.get(link.get("name"))

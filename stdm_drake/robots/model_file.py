@@ -17,6 +17,7 @@ from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
 
 from stdm_drake.errors import InputError  # noqa: E402
 from stdm_drake.paths import check_input_file  # noqa: E402
+from stdm_drake.robots import xml_file  # noqa: E402
 from stdm_drake.robots.description import file_number  # noqa: E402
 from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, MESHCAT_VISUAL_MESHES,  # noqa: E402
                                       collada_in_metres, mesh_as_obj)
@@ -29,7 +30,7 @@ def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
     An unparsable file gives ({}, set(), [])."""
     import xml.etree.ElementTree as ElementTree
     try:
-        root = ElementTree.parse(path).getroot()
+        root = xml_file.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
         return {}, set(), []
     limits = {}
@@ -56,7 +57,7 @@ def unmodelled_joint_effects(path: pathlib.Path, joints) -> list[str]:
     Empty for an SDF or an unparsable file."""
     import xml.etree.ElementTree as ElementTree
     try:
-        root = ElementTree.parse(path).getroot()
+        root = xml_file.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
         return []
     joints = set(joints)
@@ -92,7 +93,7 @@ def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, s
     from stdm_drake.robots.xml_file import check_xml
     check_input_file(path, f"robot {name}: srdf file")
     check_xml(path, "an SRDF file is")     # (entities refused: a "billion laughs" file among them)
-    root = ElementTree.parse(path).getroot()
+    root = xml_file.parse(path).getroot()
     pairs = [(element.get("link1"), element.get("link2")) for element in root.iter("disable_collisions")]
     bad = [pair for pair in pairs if not all(pair)]
     if bad:
@@ -320,7 +321,7 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
     trimesh reads is an InputError naming robot `name`."""
     import xml.etree.ElementTree as ElementTree
     try:
-        tree = ElementTree.parse(model_path)
+        tree = xml_file.parse(model_path)
     except ElementTree.ParseError:
         return LoadableModel(None, [], [])  # Drake's parser gives the precise error
     root = tree.getroot()

@@ -157,7 +157,7 @@ def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
     from stdm_drake.robots.description import PLAIN_NUMBER
     from stdm_drake.robots.xml_file import check_xml
     check_xml(srdf, "an SRDF file is")
-    root = ElementTree.parse(srdf).getroot()
+    root = xml_file.parse(srdf).getroot()
     states = {state.get("name"): {joint.get("name"): joint.get("value") for joint in state.iter("joint")}
               for state in root.iter("group_state")}
     for name in HOME_STATE_NAMES:

@@ -65,10 +65,8 @@ def classify(path: pathlib.Path) -> tuple[list | None, str]:
     from stdm_drake.robots.description import check_tree, read_description
     from stdm_drake.robots.model_file import joint_facts
     from stdm_drake.robots.starting_config import arm_chain
-    description = read_description(path)
-    if description is None:
-        return None, "not XML"
     try:
+        description = read_description(path)
         check_tree(description, path.name)
         chain = arm_chain(description, joint_facts(path)[2])
     except InputError as error:
