@@ -1,6 +1,6 @@
 """Masses from geometry (`robot init --masses-from-geometry`, issue 58 item 3): mass properties of solids filling a
 link's collision shapes and meshes, checked against the closed-form formulas of a cylinder and a box, STL (binary,
-ASCII) and OBJ meshes, a mesh that is not closed (its convex hull), the default density against the shipped arms'
+ASCII), OBJ and COLLADA meshes, a mesh that is not closed (its convex hull), the default density against the shipped arms'
 own, and the command end to end on a kinematic description."""
 import os
 import pathlib
@@ -124,13 +124,18 @@ def link_urdf(mesh: str, origin='xyz="0.1 0 0" rpy="0 0 0.5"', scale=""):
             'velocity="1"/></joint></robot>')
 
 
-@pytest.mark.parametrize("kind", ["binary stl", "ascii stl", "obj"])
+@pytest.mark.parametrize("kind", ["binary stl", "ascii stl", "obj", "dae", "ply"])
 def test_a_closed_box_mesh_has_the_boxs_mass_properties(tmp_path, kind):
     """A 0.2 x 0.1 x 0.05 m box mesh whose corner is at (0.01, 0.02, 0.03) in its file, placed by its origin and
     scaled by 2 along x: mass density x volume, centre the box's centre placed, inertia the box's turned."""
     size, offset = np.array([0.2, 0.1, 0.05]), np.array([0.01, 0.02, 0.03])
     triangles = box_triangles(size, offset)
-    if kind == "obj":
+    if kind in ("dae", "ply"):   # (written by trimesh: a COLLADA scene and a PLY, as CAD exports give them)
+        import trimesh
+        corners = triangles.reshape(-1, 3)
+        trimesh.Trimesh(corners, np.arange(len(corners)).reshape(-1, 3), process=False).export(tmp_path / f"box.{kind}")
+        name = f"box.{kind}"
+    elif kind == "obj":
         lines = [f"v {x:.9g} {y:.9g} {z:.9g}" for triangle in triangles for x, y, z in triangle]
         lines += [f"f {3 * i + 1} {3 * i + 2} {3 * i + 3}" for i in range(len(triangles))]
         (tmp_path / "box.obj").write_text("\n".join(lines))
@@ -174,12 +179,14 @@ def test_total_mass_scales_every_link(tmp_path):
 
 
 @pytest.mark.parametrize("mesh, message", [
-    ("part.dae", "mesh part.dae is a .dae; masses from geometry read STL and OBJ"),
+    ("part.vtk", "mesh part.vtk is a .vtk; masses from geometry read STL, OBJ, COLLADA, PLY and OFF"),
+    ("part.dae", "part.dae cannot be read"),
     ("missing.stl", "mesh 'missing.stl' not found"),
     ("package://nowhere/part.stl", "is in package 'nowhere', which was not found"),
 ])
 def test_meshes_these_rules_cannot_read_are_one_line(tmp_path, mesh, message):
     (tmp_path / "part.dae").write_text("<COLLADA/>")
+    (tmp_path / "part.vtk").write_text("# vtk DataFile Version 2.0")
     (tmp_path / "one.urdf").write_text(link_urdf(mesh))
     with pytest.raises(InputError, match=re.escape(message)):
         gm.geometry_masses(tmp_path / "one.urdf", {})

@@ -4,9 +4,9 @@ simulate, but its meshes give every link's volume.
 
 The rule: each link without <inertial> that has geometry gets the mass properties of a solid of uniform
 density filling its <collision> elements (its <visual> ones where it has no collision geometry): each
-element's shape (box, cylinder, sphere, or a mesh in STL or OBJ, scaled) placed by its <origin>, the
-elements' spatial inertias summed about the link's origin (Drake's `CalcSpatialInertia` for each, shifted
-and re-expressed by Drake's `SpatialInertia`). A mesh is used as it is where it is closed (every edge
+element's shape (box, cylinder, sphere, or a mesh in STL, OBJ, COLLADA, PLY or OFF as trimesh reads it,
+`meshes.read_mesh`, scaled) placed by its <origin>, the elements' spatial inertias summed about the link's
+origin (Drake's `CalcSpatialInertia` for each, shifted and re-expressed by Drake's `SpatialInertia`). A mesh is used as it is where it is closed (every edge
 shared by exactly two triangles) and wound outward; otherwise its convex hull (scipy's Qhull) stands in,
 and the note says so. Links without geometry (tool frames, a world link) stay massless frames.
 
@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
-import struct
 
 import numpy as np
 
@@ -30,8 +29,7 @@ from stdm_drake.robots import xml_file
 DEFAULT_DENSITY = 1300.0    # kg/m³: between the UR-10's 1,570 and the Panda's 1,120 (tests/test_geometry_masses.py)
 MAX_DENSITY = 1e5           # kg/m³ (osmium: 22,590)
 MAX_TOTAL_MASS = 1e5        # kg
-MESH_SUFFIXES = (".stl", ".obj")
-MAX_TRIANGLES = 2_000_000   # per mesh file (a 100 MB STL): beyond, a scanned part, not a link's collision mesh
+MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".off")   # (trimesh's readers: `meshes.read_mesh`)
 
 
 @dataclasses.dataclass
@@ -110,71 +108,13 @@ def _pose(element, what: str):
     return RigidTransform(RollPitchYaw(rpy), xyz)
 
 
-def read_triangles(path: pathlib.Path) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices (V, 3), triangles (T, 3) indices) of an STL (binary or ASCII) or OBJ (faces fanned into
-    triangles) file, coincident vertices merged. InputError for a file that is not one."""
-    suffix = path.suffix.lower()
-    data = path.read_bytes()
-    if suffix == ".stl":
-        corners = _stl_corners(data, path)
-    else:
-        corners = _obj_corners(data, path)
-    if len(corners) == 0:
-        raise InputError(f"mesh {path.name} holds no triangles")
-    if not np.all(np.isfinite(corners)):
-        raise InputError(f"mesh {path.name} has vertices that are not finite")
-    vertices, indices = np.unique(corners.reshape(-1, 3), axis=0, return_inverse=True)
-    return vertices, indices.reshape(-1, 3)
-
-
-def _stl_corners(data: bytes, path: pathlib.Path) -> np.ndarray:
-    """(T, 3, 3) corners of an STL's triangles: binary where its size is 84 + 50 T bytes, else ASCII."""
-    if len(data) >= 84:
-        count = struct.unpack_from("<I", data, 80)[0]
-        if len(data) == 84 + 50 * count:
-            if count > MAX_TRIANGLES:
-                raise InputError(f"mesh {path.name} has {count:,} triangles; a link's mesh here has at most "
-                                 f"{MAX_TRIANGLES:,} (simplify it)")
-            records = np.frombuffer(data, dtype=np.dtype([("normal", "<f4", 3), ("corners", "<f4", (3, 3)),
-                                                          ("attribute", "<u2")]), count=count, offset=84)
-            return records["corners"].astype(float)
-    text = data.decode("ascii", errors="replace")
-    if not text.lstrip().lower().startswith("solid"):
-        raise InputError(f"mesh {path.name} is neither a binary STL (its size does not match its triangle count) "
-                         "nor an ASCII one")
-    rows = [line.split()[1:4] for line in text.splitlines() if line.strip().lower().startswith("vertex")]
-    if len(rows) % 3 or len(rows) > 3 * MAX_TRIANGLES:
-        raise InputError(f"mesh {path.name}: an ASCII STL whose vertices do not form triangles (or more than "
-                         f"{MAX_TRIANGLES:,})")
-    try:
-        return np.array(rows, dtype=float).reshape(-1, 3, 3)
-    except ValueError:
-        raise InputError(f"mesh {path.name}: an ASCII STL vertex is not three numbers") from None
-
-
-def _obj_corners(data: bytes, path: pathlib.Path) -> np.ndarray:
-    """(T, 3, 3) corners of an OBJ's faces (`v x y z`, `f a b c ...` with a/b/c or negative indices)."""
-    vertices, triangles = [], []
-    for number, line in enumerate(data.decode("utf-8", errors="replace").splitlines(), start=1):
-        parts = line.split()
-        if not parts:
-            continue
-        try:
-            if parts[0] == "v":
-                vertices.append([float(value) for value in parts[1:4]])
-            elif parts[0] == "f":
-                corners = [int(part.split("/")[0]) for part in parts[1:]]
-                corners = [index - 1 if index > 0 else len(vertices) + index for index in corners]
-                triangles += [(corners[0], corners[i], corners[i + 1]) for i in range(1, len(corners) - 1)]
-        except ValueError:
-            raise InputError(f"mesh {path.name}: line {number} is not an OBJ vertex or face") from None
-        if len(triangles) > MAX_TRIANGLES:
-            raise InputError(f"mesh {path.name} has more than {MAX_TRIANGLES:,} triangles (simplify it)")
-    vertices = np.array(vertices, dtype=float).reshape(-1, 3)
-    triangles = np.array(triangles, dtype=int).reshape(-1, 3)
-    if len(triangles) and (triangles.min() < 0 or triangles.max() >= len(vertices)):
-        raise InputError(f"mesh {path.name}: a face names a vertex the file does not have")
-    return vertices[triangles]
+def read_triangles(path: pathlib.Path, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3), triangles (T, 3) indices) of a mesh file as `meshes.read_mesh` reads it (trimesh), its
+    coincident vertices merged (a closed surface shares them)."""
+    from stdm_drake.robots.meshes import read_mesh
+    vertices, triangles = read_mesh(path, what)
+    merged, index = np.unique(vertices, axis=0, return_inverse=True)
+    return merged, index.reshape(-1)[triangles]
 
 
 def _closed(triangles: np.ndarray) -> bool:
@@ -231,7 +171,7 @@ def _element_inertia(element, what: str, resolve, density: float, hulls: list):
     elif shape.tag == "mesh":
         path = resolve(shape.get("filename") or "", what)
         scale = _numbers(shape.get("scale"), 3, f"{what}: its mesh scale", [1, 1, 1])
-        vertices, triangles = read_triangles(path)
+        vertices, triangles = read_triangles(path, what)
         vertices = vertices * scale
         if np.prod(scale) < 0:   # (a mirroring scale turns the winding inside out)
             triangles = triangles[:, [0, 2, 1]]
@@ -261,7 +201,8 @@ def _positive(values, what: str):
 
 def mesh_resolver(model: pathlib.Path, packages: dict):
     """resolve(filename, what) -> the mesh file's path: package://NAME/PATH in `packages` (name -> folder),
-    file:// or a path relative to the description's folder; InputError for one that is missing or not STL/OBJ."""
+    file:// or a path relative to the description's folder; InputError for one that is missing or of a format
+    not in MESH_SUFFIXES."""
     def resolve(filename: str, what: str) -> pathlib.Path:
         if filename.startswith("package://"):
             name, _, rest = filename[len("package://"):].partition("/")
@@ -273,7 +214,8 @@ def mesh_resolver(model: pathlib.Path, packages: dict):
             path = model.parent / filename.removeprefix("file://")
         if path.suffix.lower() not in MESH_SUFFIXES:
             raise InputError(f"{what}: mesh {path.name} is a {path.suffix or 'file without suffix'}; masses from "
-                             "geometry read STL and OBJ meshes (convert it, or give the link an <inertial>)")
+                             "geometry read STL, OBJ, COLLADA, PLY and OFF meshes (convert it, or give the link an "
+                             "<inertial>)")
         if not path.is_file():
             raise InputError(f"{what}: mesh {filename!r} not found ({path})")
         return path
@@ -285,7 +227,6 @@ def geometry_masses(model: pathlib.Path, packages: dict, density: float | None =
     """The LinkMass of every link of URDF `model` without <inertial> that has geometry, at `density` kg/m³ (default
     DEFAULT_DENSITY) or scaled so that their masses sum to `total_mass` kg. InputError for an SDF file, a shape
     these rules cannot read, or no link to give a mass."""
-    import xml.etree.ElementTree as ElementTree
     from pydrake.multibody.tree import SpatialInertia
     from stdm_drake.robots.description import read_description
     if model.suffix.lower() != ".urdf":

@@ -39,6 +39,23 @@ def mesh_as_obj(path: pathlib.Path, what: str) -> pathlib.Path:
         return target
     import trimesh
     from stdm_drake.files import write_text_atomic
+    vertices, faces = read_mesh(path, what)
+    lines = [f"# {path.name} converted by stdm-drake (trimesh {trimesh.__version__})"]
+    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices]
+    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
+    try:
+        return write_text_atomic(target, "\n".join(lines) + "\n")
+    except OSError as error:
+        raise InputError(f"{what}: cannot write the converted mesh cache {target.parent} ({error.strerror}); "
+                         "set STDM_DRAKE_CACHE to a writable folder") from None
+
+
+def read_mesh(path: pathlib.Path, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3), triangles (T, 3) vertex indices) of mesh file `path` (STL, COLLADA, PLY, OFF or OBJ) as
+    trimesh reads it: a COLLADA <unit meter=...> applied, every part of the scene placed by its node transforms
+    and merged into one mesh. InputError, naming `what`, for a file trimesh cannot
+    read or one without triangles with finite vertices."""
+    import trimesh
     try:
         scene = trimesh.load(str(path), force="scene")
         if scene.units not in (None, "m", "meter", "meters"):
@@ -50,14 +67,7 @@ def mesh_as_obj(path: pathlib.Path, what: str) -> pathlib.Path:
     vertices, faces = np.asarray(mesh.vertices, dtype=float), np.asarray(mesh.faces)
     if len(faces) == 0 or not np.isfinite(vertices).all():
         raise InputError(f"{what}: mesh {path} has no triangles with finite vertices")
-    lines = [f"# {path.name} converted by stdm-drake (trimesh {trimesh.__version__})"]
-    lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices]
-    lines += [f"f {a + 1} {b + 1} {c + 1}" for a, b, c in faces]
-    try:
-        return write_text_atomic(target, "\n".join(lines) + "\n")
-    except OSError as error:
-        raise InputError(f"{what}: cannot write the converted mesh cache {target.parent} ({error.strerror}); "
-                         "set STDM_DRAKE_CACHE to a writable folder") from None
+    return vertices, faces
 
 
 def collada_in_metres(path: pathlib.Path) -> bool:
