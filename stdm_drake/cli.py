@@ -129,7 +129,6 @@ def _can_be_made_writable(folder: str) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     for stream in (sys.stdout, sys.stderr):   # a stream that cannot encode a unit's ² (PYTHONIOENCODING=ascii):
         if stream is not None and hasattr(stream, "reconfigure") and \
                 codecs.lookup(stream.encoding or "utf-8").name != "utf-8":   # escaped, never an error after the work

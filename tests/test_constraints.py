@@ -9,9 +9,9 @@ import pytest
 from presets import UR10, free_limits
 from test_mpc import LinearModel, quintic_reference
 from stdm_drake.closed_loop.constraints import Constraints, CondensedQp, StateBounds, box_qp
-from stdm_drake.closed_loop.ilqr import Ilqr, IlqrSolver
+from stdm_drake.closed_loop.ilqr import Ilqr
 from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, run_closed_loop
-from stdm_drake.closed_loop.rti import Rti, RtiSolver
+from stdm_drake.closed_loop.rti import Rti
 from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import JointLimits
 

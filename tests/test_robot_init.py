@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 from stdm_drake.cli import main
-from stdm_drake.errors import InputError
 from stdm_drake.paths import MODELS_DIR
 from stdm_drake.robots.robot import load_robot
 

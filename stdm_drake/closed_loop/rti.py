@@ -113,7 +113,6 @@ class RtiSolver(TrajectoryOptimizer):
               offset: np.ndarray | None = None, x_init: np.ndarray | None = None) -> OptimizerResult:
         """x0 (2n,); u_init (H, m) and x_init (H+1, 2n) the warm start (its torques moved into the box first) (x_init None: a rollout of u_init from
         x0 gives the first nodes); reference (H+1, 2n); u_ff (H, m); offset (2n,) added to every prediction."""
-        horizon = len(u_init)
         offset = np.zeros(self.state_dim) if offset is None else np.asarray(offset, dtype=float)
         u = np.clip(u_init, -self.effort_limit, self.effort_limit)
         if x_init is None or not np.all(np.isfinite(x_init)):

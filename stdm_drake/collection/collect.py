@@ -108,7 +108,6 @@ _WORKER_RIG: Station | None = None
 def init_station_worker(settings: StationConfig) -> None:
     """Set up a collection worker process: its own Station of `settings`, used by the jobs it runs."""
     global _WORKER_RIG
-    os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
     _WORKER_RIG = Station(settings)
 
 

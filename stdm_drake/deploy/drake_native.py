@@ -27,9 +27,9 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
+from stdm_drake.outputs import NATIVE_MARKER  # (the first line, how `export` knows its own file)
 
 DRAKE_ACTIVATIONS = ("tanh", "relu")
-from stdm_drake.outputs import NATIVE_MARKER  # (the first line, how `export` knows its own file)
 
 
 def _empty_matrix():

@@ -220,7 +220,7 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print, prog
     (also in output/summary.json)."""
     from tqdm import tqdm
     from stdm_drake.closed_loop.mpc import Reference
-    from stdm_drake.collection.collect import collect, collection_metadata, tracking_trajectory
+    from stdm_drake.collection.collect import collect, collection_metadata
     from stdm_drake.data.dataset import Trajectory, load_dataset
     from stdm_drake.dynamics.model_files import load_model
     from stdm_drake.robots.station import Station

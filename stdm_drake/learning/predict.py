@@ -21,7 +21,6 @@ The NumPy activations and their slopes (for the Jacobians the MPC uses) are in
 """
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 

@@ -190,7 +190,6 @@ def read_description(path: pathlib.Path) -> Description:
     Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
     (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
     a "billion laughs" file among them). So no check is skipped for a file Drake then parses."""
-    import xml.etree.ElementTree as ElementTree
     check_xml(path, "a URDF or SDF file is", count_frames=True)
     try:
         return _sdf(root) if (root := xml_file.parse(path).getroot()).tag == "sdf" else _urdf(root)

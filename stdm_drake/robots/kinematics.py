@@ -16,21 +16,18 @@ joints). Which joints: those whose columns, removed from J at the home pose, lea
 """
 import itertools
 import math
-import os
 
 import numpy as np
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
+from pydrake.multibody.inverse_kinematics import InverseKinematics
+from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import JacobianWrtVariable
+from pydrake.solvers import Solve
 
-from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix  # noqa: E402
-from pydrake.multibody.inverse_kinematics import InverseKinematics  # noqa: E402
-from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
-from pydrake.multibody.tree import JacobianWrtVariable  # noqa: E402
-from pydrake.solvers import Solve  # noqa: E402
-
-from stdm_drake.errors import InputError, PlanningError  # noqa: E402
-from stdm_drake.robots.plant import PlantConfig, joint_limits, make_plant  # noqa: E402
-from stdm_drake.robots.robot import POSE_DIM, Robot  # noqa: E402
+from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.robots.plant import PlantConfig, joint_limits, make_plant
+from stdm_drake.robots.robot import POSE_DIM, Robot
 
 
 def _skew(w: np.ndarray) -> np.ndarray:

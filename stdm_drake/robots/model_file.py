@@ -9,17 +9,15 @@ import re
 
 import numpy as np
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+from pydrake.math import RigidTransform
+from pydrake.multibody.parsing import Parser
+from pydrake.multibody.plant import MultibodyPlant
 
-from pydrake.math import RigidTransform  # noqa: E402
-from pydrake.multibody.parsing import Parser  # noqa: E402
-from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
-
-from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.paths import check_input_file  # noqa: E402
-from stdm_drake.robots import xml_file  # noqa: E402
-from stdm_drake.robots.description import file_number  # noqa: E402
-from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, MESHCAT_VISUAL_MESHES,  # noqa: E402
+from stdm_drake.errors import InputError
+from stdm_drake.paths import check_input_file
+from stdm_drake.robots import xml_file
+from stdm_drake.robots.description import file_number
+from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, MESHCAT_VISUAL_MESHES,
                                       collada_in_metres, mesh_as_obj)
 
 
@@ -89,7 +87,6 @@ def unmodelled_joint_effects(path: pathlib.Path, joints) -> list[str]:
 def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, str]]:
     """The (link1, link2) pairs of a MoveIt SRDF's <disable_collisions> elements; InputError naming robot
     `name` for a missing or unparsable file."""
-    import xml.etree.ElementTree as ElementTree
     from stdm_drake.robots.xml_file import check_xml
     check_input_file(path, f"robot {name}: srdf file")
     check_xml(path, "an SRDF file is")     # (entities refused: a "billion laughs" file among them)

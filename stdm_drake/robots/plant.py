@@ -1,20 +1,17 @@
 """Drake plants and simulators of a Robot: the plant + scene-graph builder,
 the held-torque simulator, joint limits, rigid-body dynamics and the self-collision check."""
 import dataclasses
-import os
 
 import numpy as np
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
+from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
+from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 
-from pydrake.geometry import CollisionFilterDeclaration, GeometrySet  # noqa: E402
-from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig  # noqa: E402
-from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem  # noqa: E402
-
-from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,  # noqa: E402
+from stdm_drake.errors import InputError
+from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,
                                        set_effect_parameters)
-from stdm_drake.robots.robot import Robot  # noqa: E402
+from stdm_drake.robots.robot import Robot
 
 
 DEFAULT_PLANT_TIME_STEP = 0.001   # s

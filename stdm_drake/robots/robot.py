@@ -11,25 +11,22 @@ import dataclasses
 import hashlib
 import logging
 import math
-import os
 import pathlib
 import typing
 
 import numpy as np
 
-os.environ.setdefault("DRAKE_ALLOW_NETWORK", "meshcat")
+from pydrake.math import RigidTransform
+from pydrake.multibody.plant import MultibodyPlant
 
-from pydrake.math import RigidTransform  # noqa: E402
-from pydrake.multibody.plant import MultibodyPlant  # noqa: E402
-
-from stdm_drake.config import one_line  # noqa: E402
-from stdm_drake.errors import InputError  # noqa: E402
-from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,  # noqa: E402
+from stdm_drake.config import one_line
+from stdm_drake.errors import InputError
+from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,
                                            inertia_substitutions, limit_overrides, limits_drake_refuses)
-from stdm_drake.robots.meshes import mesh_cache_dir  # noqa: E402
-from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,  # noqa: E402
+from stdm_drake.robots.meshes import mesh_cache_dir
+from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
-from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file  # noqa: E402
+from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
 POSE_DIM = 6  # coordinates a tool pose fixes: rotation (3) and position (3)

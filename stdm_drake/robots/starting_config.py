@@ -34,16 +34,21 @@ import logging
 import os
 import pathlib
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
+from stdm_drake.robots import xml_file
 from stdm_drake.robots.description import MOVABLE, SUFFIXES, Description, check_tree, read_description
 from stdm_drake.robots.derived_limits import (PROVISIONAL_EFFORT, derive_effort_limits, derive_kinematic_limits,
                                               mount_joints)
 from stdm_drake.robots.model_file import joint_facts
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
+
+if TYPE_CHECKING:
+    from stdm_drake.robots.geometry_masses import MassesFromGeometry
 
 HOME_STATE_NAMES = ("home", "ready", "zero", "default")
 WORLD = "world"
@@ -153,7 +158,6 @@ def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
     """The first SRDF <group_state> named in HOME_STATE_NAMES that gives every arm joint, as positions, or None.
     InputError for a file that is no XML as MoveIt reads it (entities: `xml_file.check_xml`) and for a home
     value that is no number (it would be skipped silently)."""
-    import xml.etree.ElementTree as ElementTree
     from stdm_drake.robots.description import PLAIN_NUMBER
     from stdm_drake.robots.xml_file import check_xml
     check_xml(srdf, "an SRDF file is")
@@ -320,7 +324,7 @@ def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
 
 def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str | None = None,
                           srdf: pathlib.Path | None = None, force: bool = False,
-                          masses: "MassesFromGeometry | None" = None,
+                          masses: MassesFromGeometry | None = None,
                           packages: dict | None = None) -> tuple[RobotConfig, list, str]:
     """`robot init`: write the starting config of description `model` to `output` (never over an input, nor
     over an existing file unless `force`), with a home from `starting_home` unless the SRDF names one;

@@ -11,9 +11,9 @@ closed-loop data without excitation get 30-100 %.
 import argparse
 import pathlib
 
-WRITES_RESULTS = False   # (it prints: the launcher does not ask for a clean checkout)
-
 import numpy as np
+
+WRITES_RESULTS = False   # (it prints: the launcher does not ask for a clean checkout)
 
 
 def torque_jacobian_errors(model, plant, dataset, indices, stride: int = 10) -> np.ndarray:
