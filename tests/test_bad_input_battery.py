@@ -224,6 +224,9 @@ def write_issue_25_inputs(box) -> None:
     (box / "kinematic_reversed.urdf").write_text(re.sub(*BROKEN_UR10["reversed"], bare, count=1))
     (box / "kinematic_box.urdf").write_text(bare.replace('<cylinder radius="0.075" length="0.038"/>',
                                                          '<box size="0.1 0x1p-3 0.1"/>'))
+    # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
+    (box / "update_list.yaml").write_text("- name\n- model\n")
+    (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
     (box / "bad_symlink.yaml").write_text(ur10_config("loop_a.urdf"))
     for suffix in ("urdf", "h5", "pt", "yaml"):
         os.symlink(f"loop_b.{suffix}", box / f"loop_a.{suffix}")
@@ -704,6 +707,13 @@ CASES = [
      "has its lower position limit 3.14159 above its upper limit"),
     (["robot", "init", "kinematic_box.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
      "link 'base_link': its <collision>: its box size is '0.1 0x1p-3 0.1', not 3 numbers as URDF writes them"),
+    (["robot", "init", "ur10.urdf", "-o", "NEW.yaml", "--update"], "is not a robot config to update (run robot init "
+                                                                   "without --update)"),
+    (["robot", "init", "ur10.urdf", "-o", "update_unknown.yaml", "--update", "--force"],
+     "--update keeps the edits in the existing output, --force would write over them: give one"),
+    (["robot", "init", "ur10.urdf", "-o", "update_list.yaml", "--update"], "update_list.yaml"),
+    (["robot", "init", "ur10.urdf", "-o", "update_unknown.yaml", "--update"],
+     "the robot config names arm joints the description does not have: wrist_9_joint"),
     (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--package", "nofolder"],
      "--package 'nofolder': give NAME=FOLDER"),
     (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--package", "ur=missing_folder"],

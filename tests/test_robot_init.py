@@ -176,7 +176,7 @@ def test_robot_init_writes_a_config_that_loads(tmp_path, capsys):
     assert main(["collect", "--robot", str(output), "--protocol", "excitation", "--count", "2", "--workers", "1",
                  "--quiet", "-o", str(tmp_path / "data.h5")]) == 0
     assert main(["robot", "init", str(model), "-o", str(output)]) == 2
-    assert "exists; choose another path or pass --force" in capsys.readouterr().err
+    assert "exists; choose another path, pass --force" in capsys.readouterr().err
     assert main(["robot", "init", str(model), "-o", str(model)]) == 2
 
 
@@ -256,6 +256,40 @@ def test_robot_init_derives_the_limits_a_file_lacks_and_marks_them(tmp_path, cap
     ratio = np.array([config["effort_limits"][joint] / rating for joint, rating in rated.items()])
     assert np.all((ratio > 1 / 3) & (ratio < 3)), dict(zip(rated, ratio.round(2)))
     assert check(output) == 0
+
+
+def test_robot_init_update_keeps_the_users_edits_and_derives_the_rest_again(tmp_path, capsys):
+    """Issue 58 item 4: the UR-10 without effort limits; `robot init` marks its derived limits and its chosen home
+    on their lines. The user replaces one derived limit by a rating, sets home and adds a disabled pair, then edits
+    the description (heavier links): `--update` keeps the three edits, derives the other limits again from the
+    new masses, and the config passes its check. Without an existing output, or with --force, it refuses."""
+    import yaml
+    text = re.sub(r'effort="[^"]*"', 'effort="0"', (MODELS_DIR / "ur10.urdf").read_text())
+    model, output = tmp_path / "ur10_unrated.urdf", tmp_path / "arm.yaml"
+    model.write_text(text)
+    assert main(["robot", "init", str(model), "-o", str(output)]) == 0
+    first = yaml.safe_load(output.read_text())
+    written = output.read_text()
+    assert f"  elbow_joint: {first['effort_limits']['elbow_joint']}  # derived: " in written
+    assert "home: [" in written and "  # chosen: [" in written
+    edited = re.sub(r"  shoulder_lift_joint: [^\n]*", "  shoulder_lift_joint: 330.0  # derived: 1.0", written)
+    edited = re.sub(r"home: [^\n]*", "home: [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]", edited)
+    output.write_text(edited + "disabled_collisions: [[base_link, upper_arm_link]]\n")
+    model.write_text(re.sub(r'<mass value="([0-9.]+)"/>', lambda m: f'<mass value="{2 * float(m[1])}"/>', text))
+    capsys.readouterr()
+    assert main(["robot", "init", str(model), "-o", str(output), "--update"]) == 0, capsys.readouterr().err
+    second = yaml.safe_load(output.read_text())
+    assert second["effort_limits"]["shoulder_lift_joint"] == 330.0
+    assert second["home"] == [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]
+    assert ["base_link", "upper_arm_link"] in second["disabled_collisions"]
+    for joint in ("elbow_joint", "wrist_1_joint"):   # (derived again: heavier links need more)
+        assert second["effort_limits"][joint] > 1.5 * first["effort_limits"][joint]
+    assert "  shoulder_lift_joint: 330.0\n" in output.read_text() and check(output) == 0
+    capsys.readouterr()
+    assert main(["robot", "init", str(model), "-o", str(tmp_path / "none.yaml"), "--update"]) == 2
+    assert "is not a robot config to update" in capsys.readouterr().err
+    assert main(["robot", "init", str(model), "-o", str(output), "--update", "--force"]) == 2
+    assert "--update keeps the edits in the existing output, --force would write over them" in capsys.readouterr().err
 
 
 def test_robot_init_locks_a_gripper_mount_after_a_rated_arm(tmp_path, capsys):

@@ -21,6 +21,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                       help="a MoveIt SRDF: its disabled collision pairs, and home from a group state named home, "
                            "ready, zero or default")
     init.add_argument("--force", action="store_true", help="replace an existing output file")
+    init.add_argument("--update", action="store_true",
+                      help="bring an existing output that robot init wrote up to date with the description: every "
+                           "value you edited or added is kept; the values robot init derived or chose and you left "
+                           "as they were are set again")
     init.add_argument("--package", action="append", default=[], metavar="NAME=FOLDER",
                       help="the folder of package NAME, for package:// URIs that robot init does not find beside the "
                            "file (written to package_paths; repeat for several)")
@@ -54,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
 
 def init(args: argparse.Namespace) -> int:
     from stdm_drake.robots.geometry_masses import MassesFromGeometry
-    from stdm_drake.robots.starting_config import given_packages, write_starting_config
+    from stdm_drake.robots.robot_init import InitOptions, write_starting_config
+    from stdm_drake.robots.starting_config import given_packages
     if args.name is not None and (not args.name.strip() or args.name in (".", "..")
                                   or pathlib.Path(args.name).name != args.name or "\\" in args.name):
         raise InputError(f"--name {args.name!r}: the robot's name, not a path (-o/--output says where the YAML "
@@ -62,8 +67,8 @@ def init(args: argparse.Namespace) -> int:
     output = args.output or pathlib.Path(f"{args.name or args.model.stem}.yaml")
     masses = MassesFromGeometry.from_options(args.masses_from_geometry, args.density, args.total_mass)
     packages = given_packages(args.package)
-    config, notes, problem = write_starting_config(args.model, output, args.name, args.srdf, args.force, masses,
-                                                   packages)
+    config, notes, problem = write_starting_config(
+        args.model, output, InitOptions(args.name, args.srdf, args.force, masses, packages, args.update))
     print(f"wrote {output}: {len(config.arm_joints)} arm joints ({', '.join(config.arm_joints)}), "
           f"{len(config.locked_joints)} locked, tool frame {config.tool_frame}")
     for note in notes:

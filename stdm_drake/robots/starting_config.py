@@ -29,26 +29,22 @@ The rules, applied to the file's kinematic tree (`robots.description`):
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import logging
 import os
 import pathlib
 import re
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import line_text
 from stdm_drake.robots import xml_file
-from stdm_drake.robots.description import MOVABLE, SUFFIXES, Description, check_tree, read_description
-from stdm_drake.robots.derived_limits import (PROVISIONAL_EFFORT, derive_effort_limits, derive_kinematic_limits,
+from stdm_drake.robots.description import MOVABLE, Description, check_tree, read_description
+from stdm_drake.robots.derived_limits import (derive_kinematic_limits,
                                               mount_joints)
 from stdm_drake.robots.model_file import joint_facts
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
-
-if TYPE_CHECKING:
-    from stdm_drake.robots.geometry_masses import MassesFromGeometry
 
 HOME_STATE_NAMES = ("home", "ready", "zero", "default")
 WORLD = "world"
@@ -176,7 +172,7 @@ def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
     return None
 
 
-def _relative(path: pathlib.Path, folder: pathlib.Path) -> str:
+def relative_to(path: pathlib.Path, folder: pathlib.Path) -> str:
     """`path` relative to `folder` (with `..` where it lies outside: a YAML and its description move together;
     absolute only where no relative path exists, another drive)."""
     path, folder = path.resolve(), folder.resolve()
@@ -193,11 +189,12 @@ MAX_ARM_JOINTS = 100   # movable joints of one arm's chain: `robot init`'s home 
 
 def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | None = None,
                     srdf: pathlib.Path | None = None, packages_near: pathlib.Path | None = None,
-                    packages: dict | None = None) -> tuple[RobotConfig, list]:
+                    packages: dict | None = None, keep: dict | None = None) -> tuple[RobotConfig, list]:
     """(the starting RobotConfig of description file `model_path`, with paths relative to `folder` where its
     YAML will be written, home the middle of the ranges; notes for the user, one line each). InputError for a
     file that is no arm. packages_near: the file beside which its packages are looked for (default: model_path;
-    a copy written elsewhere names its original); packages: package name -> folder, given by the user."""
+    a copy written elsewhere names its original); packages: package name -> folder, given by the user; keep: the
+    fields an existing YAML sets that `--update` keeps (`config_update.kept_fields`), in place of the rules'."""
     description = read_description(model_path)
     check_tree(description, f"{model_path.name}")   # (a loop: no chain to follow)
     _, continuous, mimics = joint_facts(model_path)
@@ -233,12 +230,17 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
 
     config = RobotConfig(
         name=name or re.sub(r"[^A-Za-z0-9_.-]+", "_", description.name or model_path.stem),
-        model=_relative(model_path, folder),
-        package_paths={package: _relative(path, folder) for package, path in packages.items()},
+        model=relative_to(model_path, folder),
+        package_paths={package: relative_to(path, folder) for package, path in packages.items()},
         weld_frame=chain.base, arm_joints=chain.arm_joints,
         locked_joints={joint: nearest_zero(joints[joint]) for joint in chain.locked_joints},
         home=[round(middle(joints[joint]), 6) for joint in chain.arm_joints], tool_frame=chain.tool_frame,
-        srdf=_relative(srdf, folder) if srdf is not None else "")
+        srdf=relative_to(srdf, folder) if srdf is not None else "")
+    for field, value in (keep or {}).items():
+        setattr(config, field, copy.deepcopy(value))
+    unknown = sorted(set(config.arm_joints) - set(joints))
+    if unknown:
+        raise InputError(f"the robot config names arm joints the description does not have: {', '.join(unknown)}")
     notes += derive_kinematic_limits(config, joints)
     if len(chain.arm_joints) < POSE_DIM:
         notes.append(f"{len(chain.arm_joints)} arm joints: the excitation protocol only (task-space tracking needs "
@@ -304,108 +306,3 @@ def check_holds_home(robot: Robot, dynamics, limits) -> None:
             raise InputError(f"robot {robot.name}: holding home against gravity takes {needed:.4g} N m on {name!r}, "
                              f"at or above its effort limit {effort:.4g}; give a larger effort_limits[{name!r}] in the "
                              "robot config, or a home where gravity pulls less")
-
-
-def config_yaml(config: RobotConfig, source: str, notes: list) -> str:
-    """The robot config YAML text of `config`, with a header naming the description `source` and the `notes`."""
-    import yaml
-    lines = [f"# Robot config written by `stdm-drake robot init` from {line_text(source)} (fields: RobotConfig in",
-             "# stdm_drake/robots/robot.py; how each was chosen: docs/guides/robots.md, 'A robot from a description').",
-             *[f"# NOTE: {line_text(note)}" for note in notes]]
-    for field in ("name", "model", "package_paths", "weld_frame", "arm_joints", "locked_joints", "home",
-                  "tool_frame", "srdf", "disabled_collisions", "position_limits", "velocity_limits", "effort_limits"):
-        value = getattr(config, field)
-        if value in ("", {}, [], None) and field != "weld_frame":
-            continue
-        text = yaml.safe_dump(value, default_flow_style=True, width=10_000, sort_keys=False).strip()
-        lines.append(f"{field}: {text.removesuffix('...').strip()}")
-    return "\n".join(lines) + "\n"
-
-
-def write_starting_config(model: pathlib.Path, output: pathlib.Path, name: str | None = None,
-                          srdf: pathlib.Path | None = None, force: bool = False,
-                          masses: MassesFromGeometry | None = None,
-                          packages: dict | None = None) -> tuple[RobotConfig, list, str]:
-    """`robot init`: write the starting config of description `model` to `output` (never over an input, nor
-    over an existing file unless `force`), with a home from `starting_home` unless the SRDF names one;
-    returns (the config, notes, "" when it passes `check_robot`, else the one-line reason). masses: the links
-    without <inertial> get masses from their geometry (`geometry_masses`), in a copy of the description
-    beside `output` that the config names. packages: package name -> folder for package:// URIs the rule
-    of the module's docstring does not find."""
-    from stdm_drake.paths import check_input_file
-    model = check_input_file(model, "model file")
-    srdf = check_input_file(srdf, "srdf file") if srdf is not None else None
-    if model.suffix.lower() == ".xacro":
-        expanded = model.with_suffix("") if model.with_suffix("").suffix else model.with_suffix(".urdf")
-        raise InputError(f"{model} is a xacro template: expand it first (`xacro {model} > {expanded}`; xacro: pip "
-                         f"install xacro, or your ROS distribution's), then `stdm-drake robot init {expanded}`")
-    if model.suffix.lower() not in SUFFIXES:
-        raise InputError(f"model file {model}: a robot description is a .urdf or .sdf file (Drake's parsers)")
-    if output.resolve() in {model.resolve(), *([srdf.resolve()] if srdf else [])}:
-        raise InputError(f"--output {output} is an input file; choose another path")
-    if output.exists() and not force:
-        raise InputError(f"--output {output} exists; choose another path or pass --force to replace it")
-    folder = output.absolute().parent
-    if masses is None:
-        return _write_starting_config(model, output, folder, name, srdf, model, [], packages)
-    from stdm_drake.robots.geometry_masses import geometry_masses, write_with_masses
-    masses.validate()
-    final = masses.copy_path(model, folder)
-    if final.resolve() in {model.resolve(), output.resolve(), *([srdf.resolve()] if srdf else [])}:
-        raise InputError(f"the description with masses would be written over an input or the output ({final}); "
-                         "write the YAML into another folder")
-    if final.exists() and not force:
-        raise InputError(f"{final} exists (the description with masses); choose another folder or pass --force")
-    found = geometry_masses(model, find_packages(model, given=packages)[0], masses.density, masses.total_mass)
-    copy = final.with_name(f"{final.name}.{os.getpid()}.urdf")   # (beside it: the relative mesh paths hold)
-    try:
-        write_with_masses(model, copy, found)
-        return _write_starting_config(copy, output, folder, name, srdf, model, [masses.note(found, final)], packages,
-                                      final)
-    finally:
-        copy.unlink(missing_ok=True)
-
-
-def _write_starting_config(model, output, folder, name, srdf, original, notes, packages, final=None):
-    """write_starting_config's work on description `model` (a copy with masses, to be renamed `final`, or the
-    `original` itself)."""
-    from stdm_drake.files import write_text_atomic
-    from stdm_drake.robots.robot import load_robot
-    config, more = starting_config(model, folder, name, srdf, packages_near=original, packages=packages)
-    notes = notes + more
-    try:   # (before the home search: holding a home against gravity is checked against these)
-        notes += derive_effort_limits(Robot(config, folder), config)
-    except InputError:   # (a config that does not load yet: the check below gives the reason; no stand-in kept)
-        config.effort_limits = {joint: value for joint, value in config.effort_limits.items()
-                                if value != PROVISIONAL_EFFORT}
-    named = srdf_home(srdf, config.arm_joints) if srdf is not None else None
-    if named is not None:   # (a named pose is kept as it is)
-        config.home = named
-    else:
-        try:
-            home, touching = starting_home(Robot(config, folder))
-            config.disabled_collisions = touching
-            if home is None:
-                notes.append("no configuration near the middle of the ranges is free of self-collision: choose home")
-            else:
-                config.home = home
-            if touching:
-                notes.append(f"{len(touching)} link pairs touch in every configuration tried (by design): disabled")
-        except InputError as error:   # (the check below gives the same reason as the command's error)
-            notes.append(f"home not chosen: the config does not load yet ({error})")
-    try:   # (checked before anything is written)
-        check_robot(Robot(config, folder))
-        problem = ""
-    except InputError as error:
-        problem = str(error)
-    # a YAML that does not pass is written only where the fix goes into it (limits the file lacks, a home);
-    # a description the checks refuse is one line, nothing written
-    if problem and not any(note.startswith(YAML_FIXES) for note in notes):
-        raise InputError(problem)
-    if final is not None:
-        os.replace(model, final)
-        config.model = _relative(final, folder)
-    write_text_atomic(output, config_yaml(config, original.name, notes))
-    if not problem:
-        check_robot(load_robot(output))   # (the file as written loads as the config did)
-    return config, notes, problem
