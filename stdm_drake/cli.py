@@ -20,7 +20,7 @@ import signal
 import sys
 
 from stdm_drake import interrupts
-from stdm_drake.errors import deferred_warnings
+from stdm_drake.errors import InputError, deferred_warnings
 from stdm_drake.outputs import command_outputs
 from stdm_drake.paths import expand_shipped
 
@@ -65,6 +65,9 @@ def error_line(error: BaseException) -> str:
         # (every file stdm-drake writes is named in its errors: one that names none is the standard output)
         return f"cannot write the standard output: {error.strerror}" if error.errno == errno.ENOSPC else error.strerror
     text = str(error).strip()
+    if isinstance(error, InputError):   # (the toolbox's own one line: a name in it may hold a line break, escaped)
+        from stdm_drake.files import line_text
+        return line_text(text) if text else type(error).__name__
     return text.splitlines()[0] if text else type(error).__name__
 
 

@@ -5,6 +5,7 @@ Bad files (missing, malformed YAML, unknown keys, wrong types, not a mapping, va
 """
 import dataclasses
 import pathlib
+import re
 
 import numpy as np
 import yaml
@@ -102,56 +103,65 @@ def check_quoted_numbers(path, schema) -> None:
     found = _quoted_number(node, schema, "", text)
     if found is not None:
         where, value, how = found
-        raise InputError(f"{path}: {where} is {value!r} {how}, a string; write the number without "
-                         f"{'quotes' if how == 'in quotes' else 'the tag'}")
+        fix = {"in quotes": "without quotes", "read by YAML as text": "in ASCII digits"}.get(
+            how, "without the tag" if how.startswith("tagged") else "in digits")
+        raise InputError(f"{path}: {where} is {value!r} {how}, not a number; write the number {fix}")
 
 
-def _field_types(annotation, node) -> tuple:
-    """(the dataclass or None, numeric, a list) a value node of a field of type `annotation` is read as; a Union
-    of dataclasses by the node's tag (`!Name`), else its first member (the default)."""
+NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float", "tag:yaml.org,2002:null")
+ASCII_NUMBER = re.compile(r"[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|\.?inf|\.?nan)", re.IGNORECASE | re.ASCII)
+
+
+def _numeric_scalars(annotation, node, where: str):
+    """(the setting's dotted name, scalar node) of every scalar of `node` that a value of type `annotation` holds
+    as a number: a numeric field, the items of a list of them, the values of a mapping of them (a robot config's
+    limits), and the numeric fields of a dataclass (a Union of dataclasses by the node's tag, `!Name`, else its
+    first member)."""
     import types
     import typing
     origin, arguments = typing.get_origin(annotation), typing.get_args(annotation)
     if origin in (typing.Union, types.UnionType):
         members = [member for member in arguments if member is not type(None)]
         tagged = [member for member in members if getattr(node, "tag", "") == f"!{getattr(member, '__name__', '')}"]
-        return _field_types((tagged or members or [None])[0], node)
-    if origin in (list, tuple):
-        inner = _field_types(arguments[0], None) if arguments else (None, False, False)
-        return inner[0], inner[1], True
-    numeric = isinstance(annotation, type) and issubclass(annotation, (int, float)) and annotation is not bool
-    return (annotation if dataclasses.is_dataclass(annotation) else None), numeric, False
-
-
-NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float")
+        if tagged or members:
+            yield from _numeric_scalars((tagged or members)[0], node, where)
+    elif origin in (list, tuple) and isinstance(node, yaml.SequenceNode):
+        for item in node.value:
+            yield from _numeric_scalars(arguments[0] if arguments else None, item, where)
+    elif origin is dict and isinstance(node, yaml.MappingNode) and len(arguments) == 2:
+        for key, value in node.value:
+            yield from _numeric_scalars(arguments[1], value, f"{where}.{getattr(key, 'value', '?')}")
+    elif dataclasses.is_dataclass(annotation) and isinstance(node, yaml.MappingNode):
+        try:
+            hints = typing.get_type_hints(annotation)
+        except Exception:   # (a schema whose annotations do not resolve: nothing to check against)
+            return
+        for key, value in node.value:
+            name = getattr(key, "value", None)
+            if name in hints:
+                yield from _numeric_scalars(hints[name], value, f"{where}.{name}" if where else name)
+    elif (isinstance(annotation, type) and issubclass(annotation, (int, float)) and annotation is not bool
+          and isinstance(node, yaml.ScalarNode)):
+        yield where, node
 
 
 def _quoted_number(node, schema, prefix: str, text: str):
-    """(the setting's dotted name, its text, how it is a string) of the first scalar where `schema` holds a number
-    that the file writes as a string: quoted, or tagged (`!!str 3`; a tag other than !!int or !!float), or None."""
-    import typing
-    if not (dataclasses.is_dataclass(schema) and isinstance(node, yaml.MappingNode)):
-        return None
-    try:
-        hints = typing.get_type_hints(schema)
-    except Exception:   # (a schema whose annotations do not resolve: nothing to check against)
-        return None
-    for key, value in node.value:
-        name = getattr(key, "value", None)
-        if name not in hints:
-            continue
-        target, numeric, listed = _field_types(hints[name], value)
-        items = value.value if listed and isinstance(value, yaml.SequenceNode) else [value]
-        for item in items:
-            if numeric and isinstance(item, yaml.ScalarNode) and item.style in ("'", '"'):
-                return f"{prefix}{name}", item.value, "in quotes"
-            tagged = text[item.start_mark.index:item.start_mark.index + 1] == "!"   # (an explicit tag starts the node)
-            if numeric and isinstance(item, yaml.ScalarNode) and tagged and item.tag not in NUMBER_TAGS:
-                return f"{prefix}{name}", item.value, f"tagged {text[item.start_mark.index:].split()[0]}"
-            if target is not None:
-                found = _quoted_number(item, target, f"{prefix}{name}.", text)
-                if found is not None:
-                    return found
+    """(the setting's dotted name, its text, how it is not a number) of the first scalar where `schema` holds a
+    number that the file writes as something else YAML reads as text or a boolean: quoted, tagged (`!!str 3`,
+    also behind an anchor), or digits of another script (`５`), or None."""
+    for where, item in _numeric_scalars(schema, node, prefix.rstrip(".")):
+        written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
+        tag = next((word for word in written.split() if word.startswith("!")), None)
+        if tag is None and (item.tag in NUMBER_TAGS or (item.style is None and item.tag.endswith(":str") and (
+                ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):
+            continue   # (`1e-4`: text to PyYAML, a number to the typed load; `many`: the typed load's own error)
+        if item.style in ("'", '"'):
+            return where, item.value, "in quotes"
+        if tag is not None and item.tag not in NUMBER_TAGS[:2]:
+            return where, item.value, f"tagged {tag}"
+        if tag is not None:
+            continue   # (`!!float 3`)
+        return where, item.value, f"read by YAML as {'a boolean' if item.tag.endswith(':bool') else 'text'}"
     return None
 
 

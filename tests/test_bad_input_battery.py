@@ -181,6 +181,10 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "hex_limit": ('velocity="3.1416" effort="150"', 'velocity="0x1p1" effort="150"'),
     "junk_effort": ('velocity="3.1416" effort="150"', 'velocity="3.1416" effort="150abc"'),   # (held-out run 13)
     "wide_mass": ('<mass value="4.27"/>', '<mass value="４.27"/>'),   # (held-out run 14: digits Python reads, Drake not)
+    # (held-out run 15: joint damping and friction, and every other number Drake reads, under the same rule)
+    "junk_damping": ('<joint name="elbow_joint" type="revolute">', '<joint name="elbow_joint" type="revolute">'
+                                                                 '<dynamics damping="8junk"/>'),
+    "wide_origin": ('<origin xyz="-0.232 0.0 0.158"', '<origin xyz="-0.232 ٠ 0.158"'),
 }
 
 
@@ -224,6 +228,9 @@ def write_issue_25_inputs(box) -> None:
     (box / "kinematic_reversed.urdf").write_text(re.sub(*BROKEN_UR10["reversed"], bare, count=1))
     (box / "kinematic_box.urdf").write_text(bare.replace('<cylinder radius="0.075" length="0.038"/>',
                                                          '<box size="0.1 0x1p-3 0.1"/>'))
+    # (held-out run 15) the UR-10 with a 5 MB comment; SDF models nested 100 deep
+    (box / "bad_bytes.urdf").write_text(urdf.replace("</robot>", "<!-- " + "x" * (5 << 20) + " --></robot>"))
+    (box / "nested.sdf").write_text('<sdf version="1.9">' + '<model name="m">' * 100 + "</model>" * 100 + "</sdf>")
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -317,6 +324,11 @@ def edited_copy(box, name: str, key: str, edit) -> None:
         value = edit(group[key][()])
         del group[key]
         group[key] = value
+
+
+ROBOT_TEXT = ("name: ur10\nmodel: ur10.urdf\nweld_frame: base_link\narm_joints: [shoulder_pan_joint, shoulder_lift_joint, "
+              "elbow_joint, wrist_1_joint, wrist_2_joint, wrist_3_joint]\nhome: [0.0, -1.2, 1.5, -1.9, -1.57, 0.0]\n"
+              "tool_frame: tool0\n")
 
 
 def yaml_case(name: str, text: str) -> str:
@@ -707,6 +719,17 @@ CASES = [
      "has its lower position limit 3.14159 above its upper limit"),
     (["robot", "init", "kinematic_box.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
      "link 'base_link': its <collision>: its box size is '0.1 0x1p-3 0.1', not 3 numbers as URDF writes them"),
+    # (held-out run 15)
+    ([*E, "--robot", "bad_junk_damping.yaml", "-o", "NEW.h5"], "joint 'elbow_joint': its <dynamics> damping is '8junk'"),
+    ([*E, "--robot", "bad_wide_origin.yaml", "-o", "NEW.h5"], "its <origin> xyz is '-0.232 ٠ 0.158', not a number"),
+    (["robot", "init", "bad_bytes.urdf", "-o", "NEW.yaml"], "is 5.0 MB, more than the 4 MB a robot description"),
+    (["robot", "init", "nested.sdf", "-o", "NEW.yaml"], "nests elements more than 64 deep"),
+    (yaml_case("mpc", "horizon: ٢٠\n"), "horizon is '٢٠' read by YAML as text, not a number; write the number in ASCII"),
+    (yaml_case("mpc", "horizon: &a !!str 20\n"), "horizon is '20' tagged !!str, not a number"),
+    (yaml_case("effects", "viscous_friction: [１]\n"), "viscous_friction is '１' read by YAML as text"),
+    (yaml_case("train", "epochs: ५\n"), "epochs is '५' read by YAML as text"),
+    (yaml_case("robot", ROBOT_TEXT + "effort_limits: {elbow_joint: '150'}\n"),
+     "effort_limits.elbow_joint is '150' in quotes, not a number"),
     (["robot", "init", "ur10.urdf", "-o", "NEW.yaml", "--update"], "is not a robot config to update (run robot init "
                                                                    "without --update)"),
     (["robot", "init", "ur10.urdf", "-o", "update_unknown.yaml", "--update", "--force"],

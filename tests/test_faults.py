@@ -667,3 +667,14 @@ def test_a_signal_a_library_swallowed_during_the_export_replaces_nothing(tmp_pat
     assert capsys.readouterr().err.strip() == "stdm-drake export: interrupted"
     assert {path: path.read_bytes() for path in old} == old
     assert not list(tmp_path.glob(".*.tmp"))
+
+
+def test_an_error_naming_a_file_with_a_line_break_stays_one_whole_line():
+    """(Issue 56, held-out run 15) `export --target drake` of a checkpoint named `ck<LF>new.pt`: the error line was cut
+    at the name's line break, and its reason lost. The toolbox's own errors are printed whole, the break escaped;
+    another library's error keeps its first line."""
+    from stdm_drake.cli import error_line
+    from stdm_drake.errors import InputError
+    assert error_line(InputError("r/ck\nnew.pt: a swish model has no Drake form")) == \
+        "r/ck\\nnew.pt: a swish model has no Drake form"
+    assert error_line(ValueError("first line\nsecond line")) == "first line"

@@ -30,6 +30,7 @@ import pathlib
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.files import line_text
 
 from stdm_drake.outputs import CONTROLLER_MARKER as MARKER   # (the first line `outputs` recognizes)
 
@@ -120,6 +121,7 @@ def export_controller(checkpoint: pathlib.Path, output: pathlib.Path, robot_conf
     text = controller_text(LearnedModel(loaded, robot=robot), load_mpc_config(mpc_config or DEFAULT_MPC_CONFIG), robot)
     with atomic_path(output) as path:
         path.write_text(text)
-    say(f"{loaded.path.name} ({loaded.structure.label}, every {loaded.sample_period} s) under the MPC settings of "
-        f"{mpc_config or 'controllers/mpc.yaml'} for robot {robot.name} -> {output}")
+    say(f"{line_text(loaded.path.name)} ({loaded.structure.label}, every {loaded.sample_period} s) under the MPC "
+        f"settings of {line_text(mpc_config or 'controllers/mpc.yaml')} for robot {line_text(robot.name)} -> "
+        f"{line_text(output)}")
     return pathlib.Path(output)

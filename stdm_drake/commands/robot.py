@@ -44,13 +44,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from stdm_drake.files import line_text
     from stdm_drake.robots.robot import load_robot
     from stdm_drake.robots.starting_config import check_robot
     if args.action == "check":
         robot = load_robot(args.robot)
         for line in check_robot(robot):
             print(line)
-        print(f"robot {robot.name}: loads, {robot.num_joints} arm joints, home free of self-collision and held "
+        print(f"robot {line_text(robot.name)}: loads, {robot.num_joints} arm joints, home free of self-collision and held "
               "within the effort limits")
         return 0
     return init(args)

@@ -15,7 +15,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
-from stdm_drake.robots.xml_file import check_xml
+from stdm_drake.robots.xml_file import UnreadNumber, check_xml
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
@@ -92,10 +92,6 @@ PLAIN_NUMBER = re.compile(r"\s*[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|inf|
                           re.IGNORECASE | re.ASCII)   # (ASCII digits: Python reads "３" and "٢" as numbers, Drake does not)
 
 
-class UnreadNumber(ValueError):
-    """A value the checks read that is not written as a number (PLAIN_NUMBER)."""
-
-
 def checked_number(text: str | None, what: str) -> float | None:
     """The number `text` writes (None for an absent text); UnreadNumber naming `what` for one PLAIN_NUMBER is not."""
     if text is None:
@@ -149,12 +145,12 @@ def _sdf(root) -> Description:
     links, joints = {}, []
     defaults = dict(mass=1.0, ixx=1.0, iyy=1.0, izz=1.0, ixy=0.0, ixz=0.0, iyz=0.0)
 
-    def models(element):   # (the models at the top, inside <sdf> or its <world>)
+    def models(element):   # (the models at the top, inside <sdf> or its <world>s)
         for child in element:
             if child.tag == "model":
                 yield child
             elif child.tag == "world":
-                yield from models(child)
+                yield from (model for model in child if model.tag == "model")
 
     def read_joints(element, prefix: str) -> None:
         for joint in element.findall("joint"):
@@ -174,12 +170,13 @@ def _sdf(root) -> Description:
             links[prefix + link.get("name", "")] = _inertial(
                 read("mass"), {key: read(f"inertia/{key}") for key in INERTIA_KEYS}, defaults, prefix + link.get("name", ""))
         read_joints(model, prefix)
-        for nested in model.findall("model"):
-            read_model(nested, f"{prefix}{nested.get('name', '')}::")
 
     top = list(models(root))
-    for model in top:
-        read_model(model, f"{model.get('name', '')}::" if len(top) > 1 else "")
+    pending = [(model, f"{model.get('name', '')}::" if len(top) > 1 else "") for model in reversed(top)]
+    while pending:   # (depth first, without recursion: a file may nest thousands of models)
+        model, prefix = pending.pop()
+        read_model(model, prefix)
+        pending += [(nested, f"{prefix}{nested.get('name', '')}::") for nested in reversed(model.findall("model"))]
     for world in root.iter("world"):
         read_joints(world, "")
     return Description(links, joints, max(1, len(top)), top[0].get("name") or "" if len(top) == 1 else "")
@@ -192,7 +189,9 @@ def read_description(path: pathlib.Path) -> Description:
     a "billion laughs" file among them). So no check is skipped for a file Drake then parses."""
     check_xml(path, "a URDF or SDF file is", count_frames=True)
     try:
-        return _sdf(root) if (root := xml_file.parse(path).getroot()).tag == "sdf" else _urdf(root)
+        description = _sdf(root) if (root := xml_file.parse(path).getroot()).tag == "sdf" else _urdf(root)
+        xml_file.check_numbers(root, PLAIN_NUMBER)
+        return description
     except UnreadNumber as error:
         raise InputError(f"{path.name}: {error}, not a number as URDF and SDF write one (decimal digits, an optional "
                          "exponent); these checks cannot read it, and Drake's parser would read it otherwise") from None

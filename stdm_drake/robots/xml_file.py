@@ -7,41 +7,79 @@ import pathlib
 
 from stdm_drake.errors import InputError
 
+
+class UnreadNumber(ValueError):
+    """A value the checks read that is not written as a number (`description.PLAIN_NUMBER`)."""
+
 # Links, joints and frames one description may state. A robot has tens to a few hundred (a humanoid about 100, a
 # mobile manipulator with its hand about 200); every command reads, checks and builds each of them several times
 # (about 1.2 ms apiece here: `robot init` took 24 s for 20,000 frames), so beyond this a file is work, not a robot.
 MAX_FRAMES = 10_000
 FRAME_TAGS = ("link", "joint", "frame")
+# SDF <frame>s cost more, and more than in proportion (`robot init` of an arm with a chain of 1,000 frames, each
+# attached to the one before: 13 s; 2,000: 50 s); an arm's SDF states tens
+MAX_SDF_FRAMES = 1_000
+# A description's size in bytes: the shipped ones are 10-20 kB and the 1,119 files of the robot corpus at most 34 kB
+# (meshes are files of their own); every command reads a description several times (8 MB: 42 s in `robot check`)
+MAX_DESCRIPTION_BYTES = 4 << 20
+MAX_DEPTH = 64   # elements nested in each other (a URDF nests 5 deep, an SDF of nested models about 10)
+# The numbers a description states that Drake reads, and so the toolbox's number rule checks (`check_numbers`): URDF
+# attributes, SDF elements whose text is numbers (an SDF <friction> with child elements is a surface's, not these)
+NUMBER_ATTRIBUTES = {"xyz", "rpy", "lower", "upper", "effort", "velocity", "damping", "friction", "ixx", "ixy", "ixz",
+                     "iyy", "iyz", "izz", "multiplier", "offset", "size", "radius", "length", "scale",
+                     "soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity", "rising", "falling"}
+NUMBER_ELEMENTS = {"pose", "xyz", "lower", "upper", "effort", "velocity", "damping", "friction", "spring_reference",
+                   "spring_stiffness", "mass", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "radius", "length", "size",
+                   "scale", "stiffness", "dissipation"}
 
 
 def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None:
     """InputError (one line) for an XML file the toolbox cannot read as Drake (or MoveIt) would: not well-formed
     (an undefined entity included), or declaring entities (Python's parser expands them, Drake's does not; a
     "billion laughs" file among them). kind: what the file should be, for the message ("a URDF or SDF file is").
-    count_frames: also refuse a description of more than MAX_FRAMES links, joints and frames, in this one pass
-    (stopped at the first past the budget), before anything else reads it."""
+    count_frames: also refuse a description of more than MAX_DESCRIPTION_BYTES, nested more than MAX_DEPTH deep,
+    or of more than MAX_FRAMES links, joints and frames or MAX_SDF_FRAMES <frame>s, in this one pass (stopped at the first past the budget), before
+    anything else reads it."""
     from xml.parsers import expat
 
     def declared(name, *_):   # (raised at the declaration: nothing is expanded)
         raise InputError(f"{path.name} declares the XML entity {name!r}; Drake's parser does not expand entities, "
                          "so write their text out in the file")
 
-    frames = 0
+    frames = sdf_frames = depth = 0
+
+    def ended(_tag):
+        nonlocal depth
+        depth -= 1
 
     def started(tag, _attributes):
-        nonlocal frames
+        nonlocal frames, sdf_frames, depth
+        depth += 1
+        if depth > MAX_DEPTH:
+            raise InputError(f"{path.name} nests elements more than {MAX_DEPTH} deep (line {checker.CurrentLineNumber}); "
+                             "a robot description nests 5 to 10 (SDF models inside models: a few)")
         if tag in FRAME_TAGS:
             frames += 1
+            sdf_frames += tag == "frame"
+            if sdf_frames > MAX_SDF_FRAMES:
+                raise InputError(f"{path.name} states more than {MAX_SDF_FRAMES:,} <frame>s (line "
+                                 f"{checker.CurrentLineNumber}); an arm states tens, and the work grows "
+                                 "faster than their count (2,000 in a chain: 50 s); keep in the file what the robot "
+                                 "is made of")
             if frames > MAX_FRAMES:
                 raise InputError(f"{path.name} states more than {MAX_FRAMES:,} links, joints and frames (line "
                                  f"{checker.CurrentLineNumber}); a robot has tens to hundreds, and every command reads "
                                  "and builds each of them several times (about 1.2 ms each); keep in the file what "
                                  "the robot is made of")
 
+    if count_frames and pathlib.Path(path).stat().st_size > MAX_DESCRIPTION_BYTES:
+        raise InputError(f"{path.name} is {pathlib.Path(path).stat().st_size / 2**20:.1f} MB, more than the "
+                         f"{MAX_DESCRIPTION_BYTES >> 20} MB a robot description here may be (they are kilobytes, with "
+                         "meshes in files of their own); every command reads it several times")
     checker = expat.ParserCreate()
     checker.EntityDeclHandler = declared
     if count_frames:
-        checker.StartElementHandler = started
+        checker.StartElementHandler, checker.EndElementHandler = started, ended
     data, skipped = _text(path)
     try:
         checker.Parse(data, True)
@@ -63,3 +101,30 @@ def parse(path: pathlib.Path):
     """The file's ElementTree, read as Drake's parser reads it (`_text`). ElementTree.ParseError as Python's own."""
     import xml.etree.ElementTree as ElementTree
     return ElementTree.ElementTree(ElementTree.fromstring(_text(path)[0]))
+
+
+def check_numbers(root, rule) -> None:
+    """UnreadNumber naming the element and its link, joint or model, for a number the description states
+    (NUMBER_ATTRIBUTES of URDF elements, <mass value>, the text of SDF's NUMBER_ELEMENTS) that is not written as
+    `rule` (a compiled pattern: plain ASCII decimals) reads numbers: Drake reads `8junk` as 8 and `-0x1p3` as -0,
+    where the toolbox would read otherwise or not at all. Walked without recursion (a file may nest deeply)."""
+    sdf = root.tag == "sdf"
+    pending = [(root, "the file")]
+    while pending:
+        element, owner = pending.pop()
+        name = element.get("name")
+        if element.tag in ("link", "joint", "model", "frame") and name is not None:
+            owner = f"{element.tag} {name!r}"
+        if sdf:
+            if element.tag in NUMBER_ELEMENTS and len(element) == 0 and element.text is not None:
+                _numbers(element.text, rule, f"{owner}: its <{element.tag}>", UnreadNumber)
+        else:
+            for attribute, text in element.attrib.items():
+                if attribute in NUMBER_ATTRIBUTES or (element.tag == "mass" and attribute == "value"):
+                    _numbers(text, rule, f"{owner}: its <{element.tag}> {attribute}", UnreadNumber)
+        pending += [(child, owner) for child in element]
+
+
+def _numbers(text: str, rule, what: str, error) -> None:
+    if not all(rule.fullmatch(part) for part in text.split()):
+        raise error(f"{what} is {text.strip()!r}")
