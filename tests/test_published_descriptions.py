@@ -261,6 +261,36 @@ def test_derived_tracking_plans_fit_a_slow_arm(tmp_path, caplog, monkeypatch):
     assert "exceeds its limit 0.314 rad/s" in caplog.text
 
 
+@pytest.mark.slow
+def test_derived_tracking_plans_fit_a_large_arms_task_space_limits(tmp_path, caplog, monkeypatch):
+    """The UR-10 with its joints three times farther apart (4.2 m of reach, as rtb-data's IRB 140 file is four times
+    ABB's arm): the derived box of 0.1 x reach (0.43 m) asks for moves the quintic's task-space limits (the UR-10
+    file's) cannot make in the plan's 1 s. The box shrinks until they can (the robot corpus's run 2 stopped there);
+    with the box as it was, no final pose is found."""
+    import re
+    from stdm_drake.cli import main
+    from stdm_drake.collection import plan
+    from stdm_drake.collection.plan import derived_tracking_spec
+    from stdm_drake.robots.robot import MODELS_DIR, load_robot
+    text = (MODELS_DIR / "ur10.urdf").read_text()
+
+    def tripled(joint):
+        return re.sub(r'<origin xyz="([^"]*)"', lambda m: '<origin xyz="' + " ".join(
+            f"{3 * float(value):.6g}" for value in m[1].split()) + '"', joint[0])
+
+    (tmp_path / "ur10_large.urdf").write_text(re.sub(r"<joint .*?</joint>", tripled, text, flags=re.S))
+    config = (MODELS_DIR / "ur10.yaml").read_text().partition("defaults:")[0]
+    (tmp_path / "large.yaml").write_text(config.replace("name: ur10", "name: ur10_large").replace(
+        "model: ur10.urdf", "model: ur10_large.urdf"))
+    spec = derived_tracking_spec(load_robot(tmp_path / "large.yaml"))
+    assert spec.sampling.position_offset[0] < 0.5 * 0.1 * 4.2
+    assert main(["collect", "--robot", str(tmp_path / "large.yaml"), "--count", "4", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "large.h5")]) == 0
+    monkeypatch.setattr(plan, "speed_fitted_scale", lambda *args, **kwargs: 1.0)   # the box as it was
+    assert main(["collect", "--robot", str(tmp_path / "large.yaml"), "--count", "4", "--workers", "1", "--quiet",
+                 "-o", str(tmp_path / "unscaled.h5")]) == 2
+
+
 def test_shipped_files_are_named_from_any_folder_with_the_stdm_drake_prefix(tmp_path, monkeypatch, capsys):
     """`stdm-drake:controllers/NAME` (and `--option=stdm-drake:...`) name the files shipped with the
     package, wherever the command runs; an unknown one is a one-line error listing the folder."""

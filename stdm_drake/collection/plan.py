@@ -12,7 +12,7 @@ from pydrake.math import RigidTransform, RollPitchYaw, RotationMatrix
 
 from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_exp
 from stdm_drake.collection.planner_configs import PlannerConfig, Quintic
-from stdm_drake.collection.planners import PlannedTrajectory, plan_trajectory
+from stdm_drake.collection.planners import PlannedTrajectory, plan_trajectory, quintic_shortest_times
 from stdm_drake.config import require
 from stdm_drake.errors import PlanningError
 from stdm_drake.robots.robot import Robot
@@ -106,7 +106,8 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
     - final poses: a box of +-0.1 x the arm's reach bound around each (the UR-10's 0.15 m is 0.106 of
       its 1.415 m), rotations up to 0.3 rad, 25 per initial pose, 100 steps (the paper's protocol);
       box and angle shrink together for a slow arm by `speed_fitted_scale` (plans of 100 steps at
-      `sample_period` s must stay within the planner's share of the joint velocity limits).
+      `sample_period` s must stay within the planner's share of the joint velocity limits, and within
+      its task-space limits).
     - planner: quintic with the UR-10 file's task-space limits; joint acceleration limits of
       5 rad/s^2, or a tenth of what a joint's actuator gives beyond gravity at home (effort - |g_i|)
       / M_ii when that is less (the UR-10's 4-5 rad/s^2 are 0.06-0.15 of it on the arm joints).
@@ -163,10 +164,13 @@ def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampli
     joint motions dq = J_task(q)^-1 dx (redundant joints held); a quintic over `horizon` s peaks at
     1.875 |dq| / horizon. The factor brings the 90th percentile of the largest ratio of that peak to
     velocity_scale x the joint's limit down to `target` (the UR-10 and the Panda need 0.50 and 0.71 with
-    their boxes: factor 1), so that most plans pass the planner's velocity check at the first draw."""
+    their boxes: factor 1), so that most plans pass the planner's velocity check at the first draw. A quintic
+    planner's task-space limits count too: its shortest time for the move (velocity terms shrink with the
+    factor, acceleration terms with its square root) must be within `target` x horizon (rtb-data's IRB 140 file,
+    4.3 m of reach and a box of 0.43 m under the UR-10 file's task-space limits: factor 0.39)."""
     rng = np.random.default_rng(seed + 1)
     allowed = planner.velocity_scale * np.asarray(velocity_limits, dtype=float)
-    ratios = []
+    factors = []   # per draw: the largest factor that keeps its plan within the limits at `target`
     for q in configurations:
         jacobian = kinematics.task_jacobian(q)
         for _ in range(draws):
@@ -175,8 +179,14 @@ def speed_fitted_scale(kinematics: RobotKinematics, configurations: list, sampli
             displacement[:3] = rng.uniform(0.0, sampling.orientation_max_angle) * axis / np.linalg.norm(axis)
             displacement[3:6] = rng.uniform(-1.0, 1.0, 3) * np.asarray(sampling.position_offset)
             motion = np.linalg.lstsq(jacobian, displacement, rcond=None)[0]
-            ratios.append(np.max(1.875 * np.abs(motion) / horizon / allowed))
-    scale = float(min(1.0, target / np.quantile(ratios, 0.9)))
+            factor = target / np.max(1.875 * np.abs(motion) / horizon / allowed)
+            if isinstance(planner, Quintic):
+                speed, acceleration = quintic_shortest_times(np.linalg.norm(displacement[3:6]),
+                                                             np.linalg.norm(displacement[:3]), planner)
+                factor = min(factor, target * horizon / max(speed, 1e-12),
+                             (target * horizon / max(acceleration, 1e-12)) ** 2)
+            factors.append(factor)
+    scale = float(min(1.0, np.quantile(factors, 0.1)))
     if not (np.isfinite(scale) and scale >= 0.05):
         raise PlanningError(f"robot {kinematics.robot.name}: derived plans of {horizon:g} s would need a final-pose box "
                             f"{scale:.3g} of the usual to stay within the velocity limits; give a tracking spec with "

@@ -247,15 +247,19 @@ def check_position_extrema(extrema, lower: np.ndarray, upper: np.ndarray, label:
                                     f"limit {bound:.4f} rad by {excess:.4f} rad")
 
 
+def quintic_shortest_times(distance: float, angle: float, config) -> tuple[float, float]:
+    """(the shortest time s a quintic moves `distance` m and turns `angle` rad within a Quintic config's task-space
+    speed limits, and within its acceleration limits)."""
+    return (max(_QUINTIC_PEAK_VELOCITY * distance / config.max_linear_speed,
+                _QUINTIC_PEAK_VELOCITY * angle / config.max_angular_speed),
+            max(math.sqrt(_QUINTIC_PEAK_ACCELERATION * distance / config.max_linear_acceleration),
+                math.sqrt(_QUINTIC_PEAK_ACCELERATION * angle / config.max_angular_acceleration)))
+
+
 def _quintic_duration(line: _TaskLine, config: PlannerConfig, horizon: float, label: str) -> float:
     distance = float(np.linalg.norm(line.dp))
     angle = float(np.linalg.norm(line.w))
-    shortest = max(
-        _QUINTIC_PEAK_VELOCITY * distance / config.max_linear_speed,
-        math.sqrt(_QUINTIC_PEAK_ACCELERATION * distance / config.max_linear_acceleration),
-        _QUINTIC_PEAK_VELOCITY * angle / config.max_angular_speed,
-        math.sqrt(_QUINTIC_PEAK_ACCELERATION * angle / config.max_angular_acceleration),
-    )
+    shortest = max(quintic_shortest_times(distance, angle, config))
     if shortest > horizon * (1.0 + 1e-12):
         raise PlanningError(f"{label}: the move ({distance:.3f} m, {angle:.3f} rad) needs at least {shortest:.3f} s "
                             f"under the task-space limits, longer than the {horizon:.3f} s horizon")
