@@ -1,13 +1,15 @@
-"""Model predictive control of the UR-10 with a pluggable prediction model.
+"""Model predictive control of a robot arm (any robot config: the UR-10 by default) with a pluggable prediction
+model.
 
 The optimizer is a tagged value of the settings (`optimizer: !Rti {...}` in controllers/mpc.yaml; the Union
 `OptimizerConfig` lists those a file may name, each settings class builds its solver): the default is the
 real-time iteration (`rti.Rti`: one multiple-shooting Gauss-Newton step per control step on the model's
-Jacobians, every node linearized in one batched call); the iLQR (`ilqr.Ilqr`: single shooting with a line
-search) is the other; any `optimizer.TrajectoryOptimizer` can replace them.
-Why gradient-based rather than sampling (MPPI/CEM): the learned models are smooth, their Jacobians cost
-one forward-mode pass, and derivative training is exactly what makes those Jacobians right, so the
-controller uses what the method improves; and the plant itself serves as the reference model (its
+Jacobians, every node linearized in one batched call, in C++ by default: `compiled`); the iLQR (`ilqr.Ilqr`:
+single shooting with a line search) and the sampling optimizers iCEM, MPPI and CEM (`sampling`) are the others;
+any `optimizer.TrajectoryOptimizer` can replace them. The gradient-based default: the learned models are smooth,
+their Jacobians cost one pass, and derivative training is what makes those Jacobians right, so the controller
+uses what the method improves; the sampling optimizers need no Jacobian and serve models without one (how they
+compare on learned models: docs/sampling_mpc.md); and the plant itself serves as the reference model (its
 continuous dynamics in RK4 steps with exact Jacobians, `PlantModel(integrator="rk4")`).
 
 Cost over the horizon H (k = 0..H-1, reference r from a planner, u_ff = g(q_ref) the static
@@ -30,7 +32,7 @@ A (H, 2n, 2n), B (H, 2n, m))`; a model with only `step` and `jacobians` gets bot
 
 Modules: the tracking cost and the optimizer interfaces (`optimizer`), the robot's limits as constraints and
 their QPs (`constraints`), the optimizers and their settings
-(`rti`, `ilqr`), these settings, this controller and its closed loop (here), the comparison of prediction
+(`rti`, `compiled`, `ilqr`, `sampling`), these settings, this controller and its closed loop (here), the comparison of prediction
 models (`comparison`), the setting each model is tuned to (`tuning`) and the study `stdm-drake mpc` runs
 (`study`); the plant as a prediction model is `dynamics.physics.PlantModel`.
 """
