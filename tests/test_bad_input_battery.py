@@ -720,6 +720,7 @@ CASES = [
     (["robot", "init", "kinematic_box.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
      "link 'base_link': its <collision>: its box size is '0.1 0x1p-3 0.1', not 3 numbers as URDF writes them"),
     # (held-out run 15)
+    (["sine-sum", "--epochs", "1000000", "--seeds", "1000", "-o", "NEW"], "the study would take 5.4e+10 network steps"),
     ([*E, "--robot", "bad_junk_damping.yaml", "-o", "NEW.h5"], "joint 'elbow_joint': its <dynamics> damping is '8junk'"),
     ([*E, "--robot", "bad_wide_origin.yaml", "-o", "NEW.h5"], "its <origin> xyz is '-0.232 ٠ 0.158', not a number"),
     (["robot", "init", "bad_bytes.urdf", "-o", "NEW.yaml"], "is 5.0 MB, more than the 4 MB a robot description"),

@@ -8,7 +8,7 @@ import pathlib
 
 from stdm_drake.commands.arguments import parse_alpha
 from stdm_drake.errors import InputError
-from stdm_drake.experiments.sine_sum import FULL, QUICK, headline, run_study, table1_rows, write_reports
+from stdm_drake.experiments.sine_sum import FULL, QUICK, headline, run_specs, run_study, table1_rows, write_reports
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.settings import UPPER_BOUNDS as TRAIN_BOUNDS
 from stdm_drake.outputs import fresh_default_folder, add_force_argument, check_output_folder, mark_output_folder
@@ -40,6 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 # Beyond these the study would not fit in memory or never end (train's own bounds: learning.settings, whose
 # hidden-layer bound --layers shares).
 UPPER_BOUNDS = {"--epochs": 1_000_000, "--seeds": 1000}
+# and their product with the grid: full-batch network steps of the whole study, at most 10x the full profile's
+# (184 networks x 10,000 epochs: the full `reproduce` run took 46.5 minutes, docs/guides/reproduce.md)
+MAX_NETWORK_STEPS = 10 * FULL.epochs * sum(spec.members for spec in run_specs(FULL))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--alpha 0 is naive learning, which the study runs anyway; give a positive alpha or auto")
     if overrides:
         config = dataclasses.replace(config, **overrides)
+    if (steps := config.epochs * sum(spec.members for spec in run_specs(config))) > MAX_NETWORK_STEPS:
+        raise InputError(f"--epochs and --seeds: the study would take {steps:.3g} network steps (epochs x networks), "
+                         f"more than {MAX_NETWORK_STEPS:.3g}, 10x the full profile's; lower one of them")
     from stdm_drake.cluster import check_workers, runner_config_from_args
     check_workers(args.workers)
     args.output = args.output or fresh_default_folder("runs/sine-sum", "sine-sum")
