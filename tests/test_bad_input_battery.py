@@ -185,6 +185,7 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "junk_damping": ('<joint name="elbow_joint" type="revolute">', '<joint name="elbow_joint" type="revolute">'
                                                                  '<dynamics damping="8junk"/>'),
     "wide_origin": ('<origin xyz="-0.232 0.0 0.158"', '<origin xyz="-0.232 ٠ 0.158"'),
+    "nbsp_mass": ('<mass value="4.27"/>', '<mass value="4.27\u00a0"/>'),   # (shown as \xa0, not invisible)
 }
 
 
@@ -723,6 +724,7 @@ CASES = [
     (["sine-sum", "--epochs", "1000000", "--seeds", "1000", "-o", "NEW"], "the study would take 5.4e+10 network steps"),
     ([*E, "--robot", "bad_junk_damping.yaml", "-o", "NEW.h5"], "joint 'elbow_joint': its <dynamics> damping is '8junk'"),
     ([*E, "--robot", "bad_wide_origin.yaml", "-o", "NEW.h5"], "its <origin> xyz is '-0.232 ٠ 0.158', not a number"),
+    ([*E, "--robot", "bad_nbsp_mass.yaml", "-o", "NEW.h5"], "its mass is '4.27\\xa0', not a number"),
     (["robot", "init", "bad_bytes.urdf", "-o", "NEW.yaml"], "is 5.0 MB, more than the 4 MB a robot description"),
     (["robot", "init", "nested.sdf", "-o", "NEW.yaml"], "nests elements more than 64 deep"),
     (yaml_case("mpc", "horizon: ٢٠\n"), "horizon is '٢٠' read by YAML as text, not a number; write the number in ASCII"),

@@ -15,7 +15,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
-from stdm_drake.robots.xml_file import UnreadNumber, check_xml
+from stdm_drake.robots.xml_file import ASCII_SPACE, UnreadNumber, check_xml
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
@@ -97,7 +97,7 @@ def checked_number(text: str | None, what: str) -> float | None:
     if text is None:
         return None
     if not PLAIN_NUMBER.fullmatch(text):
-        raise UnreadNumber(f"{what} is {text.strip()!r}")
+        raise UnreadNumber(f"{what} is {text.strip(ASCII_SPACE)!r}")
     return float(text)
 
 

@@ -25,6 +25,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
+from stdm_drake.robots.xml_file import ASCII_SPACE
 
 DEFAULT_DENSITY = 1300.0    # kg/m³: between the UR-10's 1,570 and the Panda's 1,120 (tests/test_geometry_masses.py)
 MAX_DENSITY = 1e5           # kg/m³ (osmium: 22,590)
@@ -92,10 +93,10 @@ def _numbers(text: str | None, count: int, what: str, default: list) -> np.ndarr
         return np.array(default, dtype=float)
     parts = text.split()
     if len(parts) != count or not all(PLAIN_NUMBER.fullmatch(part) for part in parts):
-        raise InputError(f"{what} is {text.strip()!r}, not {count} number{'s' if count > 1 else ''} as URDF writes them")
+        raise InputError(f"{what} is {text.strip(ASCII_SPACE)!r}, not {count} number{'s' if count > 1 else ''} as URDF writes them")
     values = np.array([float(part) for part in parts])
     if not np.all(np.isfinite(values)):
-        raise InputError(f"{what} is {text.strip()!r}, not finite")
+        raise InputError(f"{what} is {text.strip(ASCII_SPACE)!r}, not finite")
     return values
 
 

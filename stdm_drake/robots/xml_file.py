@@ -22,6 +22,9 @@ MAX_SDF_FRAMES = 1_000
 # A description's size in bytes: the shipped ones are 10-20 kB and the 1,119 files of the robot corpus at most 34 kB
 # (meshes are files of their own); every command reads a description several times (8 MB: 42 s in `robot check`)
 MAX_DESCRIPTION_BYTES = 4 << 20
+# What a number's text may be padded with: XML's white space. Not Unicode's (str.strip()): a no-break space after a
+# number stays in the message, where it shows as \xa0 instead of an invisible fault
+ASCII_SPACE = " \t\r\n"
 MAX_DEPTH = 64   # elements nested in each other (a URDF nests 5 deep, an SDF of nested models about 10)
 # The numbers a description states that Drake reads, and so the toolbox's number rule checks (`check_numbers`): URDF
 # attributes, SDF elements whose text is numbers (an SDF <friction> with child elements is a surface's, not these)
@@ -127,4 +130,4 @@ def check_numbers(root, rule) -> None:
 
 def _numbers(text: str, rule, what: str, error) -> None:
     if not all(rule.fullmatch(part) for part in text.split()):
-        raise error(f"{what} is {text.strip()!r}")
+        raise error(f"{what} is {text.strip(ASCII_SPACE)!r}")
