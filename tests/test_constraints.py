@@ -255,8 +255,13 @@ def test_constraint_settings_no_optimizer_can_use_are_refused_in_one_line(fields
 def test_a_margin_that_leaves_a_joint_no_room_names_the_joint():
     config = MpcConfig(constraints=Constraints(position_margin=0.2))
     limits = JointLimits(np.r_[-1.0, -0.1, -1, -1, -1, -1], np.r_[1.0, 0.1, 1, 1, 1, 1], np.full(6, 2.0), np.full(6, 10.0))
-    with pytest.raises(InputError, match="position_margin leaves joint 'shoulder_lift_joint' no room"):
+    with pytest.raises(InputError, match=r"position_margin leaves joint 'shoulder_lift_joint' no room inside its "
+                                         r"position limits \[-0.1, 0.1\] \(0.2 on each side\)"):
         config.solver(LinearModel(), limits, UR10.joint_names)
+    huge = MpcConfig(constraints=Constraints(position_margin=1e300))   # (held-out run 15: it printed "[0, 0]")
+    with pytest.raises(InputError, match=r"'shoulder_pan_joint' no room inside its position limits \[-1, 1\] "
+                                         r"\(1e\+300 on each side\)"):
+        huge.solver(LinearModel(), limits, UR10.joint_names)
 
 
 def test_the_settings_file_sets_the_constraints(tmp_path):

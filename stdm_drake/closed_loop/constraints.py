@@ -75,18 +75,18 @@ class Constraints:
         self.validate()
         if self.mode == "off":
             return None
-        lower = np.concatenate([np.asarray(position_lower, dtype=float) + self.position_margin,
-                                -np.asarray(velocity, dtype=float) + self.velocity_margin])
-        upper = np.concatenate([np.asarray(position_upper, dtype=float) - self.position_margin,
-                                np.asarray(velocity, dtype=float) - self.velocity_margin])
-        joints = len(lower) // 2
+        limits_lower = np.concatenate([np.asarray(position_lower, dtype=float), -np.asarray(velocity, dtype=float)])
+        limits_upper = np.concatenate([np.asarray(position_upper, dtype=float), np.asarray(velocity, dtype=float)])
+        joints = len(limits_lower) // 2
+        margins = np.repeat([self.position_margin, self.velocity_margin], joints)
+        lower, upper = limits_lower + margins, limits_upper - margins
         for index in np.flatnonzero(~(lower < upper)):
             joint = index % joints
             name = repr(names[joint]) if names is not None else str(joint)
             what, margin = (("position", "position_margin") if index < joints else ("velocity", "velocity_margin"))
             raise InputError(f"mpc constraints {margin} leaves joint {name} no room inside its {what} limits "
-                             f"[{lower[index] - getattr(self, margin):.4g}, {upper[index] + getattr(self, margin):.4g}]; "
-                             f"use a smaller margin")
+                             f"[{limits_lower[index]:.4g}, {limits_upper[index]:.4g}] ({getattr(self, margin):g} on "
+                             "each side); use a smaller margin")
         return StateBounds(lower=lower, upper=upper, hard=self.mode == "hard", penalty_weight=float(self.penalty_weight))
 
 
