@@ -88,12 +88,14 @@ class LinkMass:
 
 
 def _numbers(text: str | None, count: int, what: str, default: list) -> np.ndarray:
-    from stdm_drake.robots.description import PLAIN_NUMBER
+    """The `count` numbers of an attribute (`default` where it is absent); each is already held to the number rule
+    by `read_description` (`xml_file.check_numbers`), so what is left is their count and that they are finite."""
     if text is None:
         return np.array(default, dtype=float)
     parts = text.split()
-    if len(parts) != count or not all(PLAIN_NUMBER.fullmatch(part) for part in parts):
-        raise InputError(f"{what} is {text.strip(ASCII_SPACE)!r}, not {count} number{'s' if count > 1 else ''} as URDF writes them")
+    if len(parts) != count:
+        raise InputError(f"{what} is {text.strip(ASCII_SPACE)!r}, not {count} number{'s' if count > 1 else ''} as URDF "
+                         "writes them")
     values = np.array([float(part) for part in parts])
     if not np.all(np.isfinite(values)):
         raise InputError(f"{what} is {text.strip(ASCII_SPACE)!r}, not finite")
@@ -201,18 +203,18 @@ def _positive(values, what: str):
 
 
 def mesh_resolver(model: pathlib.Path, packages: dict):
-    """resolve(filename, what) -> the mesh file's path: package://NAME/PATH in `packages` (name -> folder),
-    file:// or a path relative to the description's folder; InputError for one that is missing or of a format
-    not in MESH_SUFFIXES."""
+    """resolve(filename, what) -> the mesh file's path, as the robot's loading resolves it (`model_file.mesh_path`:
+    package:// or model:// in `packages`, name -> folder; file:// or a path relative to the description);
+    InputError for one that is missing or of a format not in MESH_SUFFIXES."""
+    from stdm_drake.robots.model_file import mesh_path
+    folders = {name: pathlib.Path(folder) for name, folder in packages.items()}
+
     def resolve(filename: str, what: str) -> pathlib.Path:
-        if filename.startswith("package://"):
-            name, _, rest = filename[len("package://"):].partition("/")
-            if name not in packages:
-                raise InputError(f"{what}: mesh {filename!r} is in package {name!r}, which was not found near "
-                                 f"{model.name} (map it: --package {name}=FOLDER)")
-            path = pathlib.Path(packages[name]) / rest
-        else:
-            path = model.parent / filename.removeprefix("file://")
+        path = mesh_path(filename, model, folders)
+        if path is None:
+            name = filename.split("://", 1)[1].partition("/")[0]
+            raise InputError(f"{what}: mesh {filename!r} is in package {name!r}, which was not found near "
+                             f"{model.name} (map it: --package {name}=FOLDER)")
         if path.suffix.lower() not in MESH_SUFFIXES:
             raise InputError(f"{what}: mesh {path.name} is a {path.suffix or 'file without suffix'}; masses from "
                              "geometry read STL, OBJ, COLLADA, PLY and OFF meshes (convert it, or give the link an "

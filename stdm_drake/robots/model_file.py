@@ -168,7 +168,7 @@ def _package(uri: str) -> tuple[str | None, str]:
     return None, uri
 
 
-def _mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict) -> pathlib.Path | None:
+def mesh_path(uri: str, model_path: pathlib.Path, package_paths: dict) -> pathlib.Path | None:
     """The file a mesh reference names (package://, file:// or relative to the model), or None for a
     package the robot config does not map (Drake resolves one it knows; `loadable_model`)."""
     package, rest = _package(uri)
@@ -333,7 +333,7 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
             package = _package(uri)[0] if uri else None
             unknown_package = package is not None and package not in package_paths and not drake_packages.Contains(package)
             unmapped += [package] if unknown_package and package not in unmapped else []
-            path = _mesh_path(uri, model_path, package_paths) if uri else None
+            path = mesh_path(uri, model_path, package_paths) if uri else None
             if path is None and not unknown_package:   # (no mesh, or Drake resolves the package)
                 continue
             if unknown_package or not path.is_file():
