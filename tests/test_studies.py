@@ -11,7 +11,8 @@ from tools_import import study
 
 STUDIES = ("alpha-calibration", "closed-loop", "decisive", "default-train", "generalization-gap", "identification",
            "import-round-trip", "jacobian-accuracy", "model-structure", "published-arms", "realtime-loop", "robot-corpus",
-           "reality-gap", "reality-gap-plans", "settling", "sampling-mpc", "mbrl-loop", "constrained-mpc")
+           "reality-gap", "reality-gap-plans", "settling", "sampling-mpc", "mbrl-loop", "constrained-mpc",
+           "quick-sine-sum")
 
 
 def test_list_names_every_study_with_its_one_line_description():
@@ -67,3 +68,13 @@ def test_the_studies_live_outside_the_installed_package():
     names = {path.stem for path in package.rglob("*.py")}
     assert not names & {"decisive", "reality_gap", "reality_gap_report", "identification_study",
                         "identification_closed_loop"}
+
+
+def test_quick_sine_sum_refuses_a_single_network_and_an_earlier_result(tmp_path, capsys):
+    """A paired interval needs two networks; results already written are never overwritten (both before any work)."""
+    assert study.main(["quick-sine-sum", "--allow-dirty", "--networks", "1", "--seeds", "0", "-o", str(tmp_path)]) == 2
+    assert "--networks must each be in 2..50" in capsys.readouterr().err
+    (tmp_path / "results.json").write_text("{}")
+    assert study.main(["quick-sine-sum", "--allow-dirty", "--networks", "2", "--seeds", "0", "-o", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "exists" in err and (tmp_path / "results.json").read_text() == "{}"
