@@ -145,7 +145,7 @@ def report(now: list[dict], baseline: list[dict], plans: int, revision: str) -> 
     if exact is not None and "plant" in before:
         notes = ["", f"Tracking reference: the simulator's own plant with its exact Jacobians tracks at "
                      f"{exact['q_mse_rad2']:.4g} rad² ({exact['q_mse_rad2'] / before['plant']['q_mse_rad2']:.3f}x the "
-                     f"baseline's plant model, the same steps with Jacobians from the linearized continuous dynamics); "
+                     f"baseline's plant model, the RK4 plant model of the baseline's code); "
                      f"the RK4 plant model at {now[0]['q_mse_rad2'] / exact['q_mse_rad2']:.3f}x of it."]
     baseline = ("the numpy reference of this checkout (`implementation: numpy`), in the same process"
                 if revision == "numpy" else f"commit {revision}, in a child process")
