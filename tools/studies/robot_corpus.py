@@ -141,6 +141,8 @@ def run_arm(label: str, path: pathlib.Path, joints: list, work: pathlib.Path) ->
             status = 0 if plant and plant.get("limit_violations") == 0 else 1
             reason = reason if status else ""
             reason = reason or ("" if status == 0 else "the plant-as-model MPC left the limits")
+        if stage == "init" and status == 0 and kinematic:
+            row["geometry_mass_kg"] = geometry_mass(folder)
         if stage == "tracking" and status == 0:
             row.update(tracking_quality(folder / "tracking.h5"))
             if _damping(path, joints) > 0:
@@ -155,6 +157,14 @@ def run_arm(label: str, path: pathlib.Path, joints: list, work: pathlib.Path) ->
     damping = _damping(path, joints)
     row["max_damping"] = damping
     return row
+
+
+def geometry_mass(folder: pathlib.Path) -> float:
+    """The total mass (kg) `robot init --masses-from-geometry` gave a kinematic arm: the sum of the <mass> values
+    of the description's copy it wrote beside the YAML (NAME_masses.urdf)."""
+    from stdm_drake.robots.xml_file import parse
+    (copy,) = folder.glob("*_masses.urdf")
+    return round(sum(float(mass.get("value")) for mass in parse(copy).iter("mass")), 3)
 
 
 def is_kinematic(path: pathlib.Path) -> bool:
