@@ -74,6 +74,27 @@ def test_quick_profile_writes_a_complete_report(quick_report):
     (default,) = tables["default_model"]
     assert default["seeds"] == QUICK.default_model_seeds and default["learned"], default["D_vs_baseline"]
     assert all(alpha > 0 for alpha in default["alphas"]) and "[" in summary.split("Derivative learning on it")[1]
+    # every verdict points to the settled answer: the default model's to the settling experiment, the sine-sum's to
+    # the full profile's committed headline
+    assert "docs/settling.md" in summary.split("Derivative learning on it")[1].split("Sine-sum")[0]
+    assert "The settled answer: derivative learning helps on the sine-sum, 39.2x [26.4, 58.2]" in summary
+
+
+def test_the_summarys_settled_sine_sum_answer_is_the_committed_full_profile_headline():
+    """The numbers the summary quotes as the settled sine-sum answer are those of the committed full-profile file,
+    to the digits printed."""
+    import csv
+    from stdm_drake.experiments.reproduce_summary import SETTLED_SINE_SUM, sine_sum_text
+    with open(ROOT / SETTLED_SINE_SUM["source"], newline="") as handle:
+        (row,) = [row for row in csv.DictReader(handle) if (row["layers"], row["activation"]) == ("5", "swish")]
+    assert row["verdict"] == SETTLED_SINE_SUM["verdict"] and int(row["networks"]) == SETTLED_SINE_SUM["networks"]
+    for key, column in (("ratio", "ratio"), ("low", "ratio_low"), ("high", "ratio_high")):
+        assert f"{float(row[column]):.3g}" == f"{SETTLED_SINE_SUM[key]:g}", key
+    top = dict(networks=3, ratio=7.99, ratio_low=0.89, ratio_high=71.7, verdict="no clear difference",
+               paper_derivative=6e-4)
+    text = sine_sum_text(top, quick=True)
+    assert text.startswith("Sine-sum (section III.B, 5 layers, swish, 3 networks): naive / derivative test MSE 7.99x "
+                           "[0.89, 71.7] (no clear difference;") and "39.2x [26.4, 58.2] over 5 networks" in text
 
 
 @pytest.mark.slow
