@@ -169,3 +169,22 @@ def test_no_committed_page_or_result_holds_a_folder_of_the_machine_it_was_made_o
              for number, line in enumerate((ROOT / name).read_text(errors="replace").splitlines(), 1)
              if machine_path.search(line)]
     assert not found, found[:10]
+
+
+def test_every_results_file_committed_since_provenance_names_a_clean_commit():
+    """Each JSON results file added to docs/results/ after the commit that brought provenance records (163cfe9)
+    names the full commit it ran on, from a clean tree or with --allow-dirty recorded (older files predate the
+    record; their pages name their commits in prose)."""
+    import re
+    if not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    listed = subprocess.run(["git", "-C", str(ROOT), "log", "--diff-filter=A", "--name-only", "--format=",
+                             "163cfe9..HEAD", "--", "docs/results"], capture_output=True, text=True)
+    if listed.returncode != 0:
+        pytest.skip("history before 163cfe9 not in this clone")
+    added = sorted({name for name in listed.stdout.split() if name.endswith(".json") and (ROOT / name).is_file()})
+    assert added, "no results file added since 163cfe9"
+    for name in added:
+        record = json.loads((ROOT / name).read_text()).get("provenance") or {}
+        assert re.fullmatch(r"[0-9a-f]{40}", record.get("commit") or ""), name
+        assert record.get("clean") is True or record.get("allow_dirty") is True, name
