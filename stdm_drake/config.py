@@ -103,6 +103,8 @@ def check_quoted_numbers(path, schema) -> None:
     found = _quoted_number(node, schema, "", text)
     if found is not None:
         where, value, how = found
+        if how.startswith("which YAML reads as"):
+            raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
         fix = {"in quotes": "without quotes", "read by YAML as text": "in ASCII digits"}.get(
             how, "without the tag" if how.startswith("tagged") else "in digits")
         raise InputError(f"{path}: {where} is {value!r} {how}, not a number; write the number {fix}")
@@ -110,6 +112,28 @@ def check_quoted_numbers(path, schema) -> None:
 
 NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float", "tag:yaml.org,2002:null")
 ASCII_NUMBER = re.compile(r"[-+]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|\.?inf|\.?nan)", re.IGNORECASE | re.ASCII)
+
+
+MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
+def _pairs(node):
+    """(key, value) nodes of mapping `node`, with those its merge keys bring in (`<<: *defaults`, `<<: [*a, *b]`)
+    in their place: the values a typed load sees. A merge that is no mapping is left to the YAML loader."""
+    pending = [iter(node.value)]
+    while pending:
+        pair = next(pending[-1], None)
+        if pair is None:
+            pending.pop()
+            continue
+        key, value = pair
+        if key.tag != MERGE_TAG:
+            yield key, value
+            continue
+        sources = value.value if isinstance(value, yaml.SequenceNode) else [value]
+        for source in reversed([source for source in sources if isinstance(source, yaml.MappingNode)]):
+            if len(pending) <= MAX_SETTINGS_DEPTH:
+                pending.append(iter(source.value))
 
 
 def _numeric_scalars(annotation, node, where: str):
@@ -129,20 +153,32 @@ def _numeric_scalars(annotation, node, where: str):
         for item in node.value:
             yield from _numeric_scalars(arguments[0] if arguments else None, item, where)
     elif origin is dict and isinstance(node, yaml.MappingNode) and len(arguments) == 2:
-        for key, value in node.value:
+        for key, value in _pairs(node):
             yield from _numeric_scalars(arguments[1], value, f"{where}.{getattr(key, 'value', '?')}")
     elif dataclasses.is_dataclass(annotation) and isinstance(node, yaml.MappingNode):
         try:
             hints = typing.get_type_hints(annotation)
         except Exception:   # (a schema whose annotations do not resolve: nothing to check against)
             return
-        for key, value in node.value:
+        for key, value in _pairs(node):
             name = getattr(key, "value", None)
             if name in hints:
                 yield from _numeric_scalars(hints[name], value, f"{where}.{name}" if where else name)
     elif (isinstance(annotation, type) and issubclass(annotation, (int, float)) and annotation is not bool
           and isinstance(node, yaml.ScalarNode)):
         yield where, node
+
+
+# numbers YAML 1.1 reads other than as their decimal digits say: octal (`024` is 20), binary, hexadecimal,
+# digits grouped by `_` (`1_00`), base 60 (`1:30` is 90)
+YAML11_FORM = re.compile(r"[-+]?(?:0[0-7_]+$|0b|0x)|.*[_:]", re.ASCII)
+
+
+def _form(value: str) -> str:
+    digits = value.lstrip("+-")
+    return ("base-60 number" if ":" in value else "number with digits grouped by '_'" if "_" in value
+            else "binary number" if digits.startswith("0b") else "hexadecimal number" if digits.startswith("0x")
+            else "octal number")
 
 
 def _quoted_number(node, schema, prefix: str, text: str):
@@ -152,6 +188,8 @@ def _quoted_number(node, schema, prefix: str, text: str):
     for where, item in _numeric_scalars(schema, node, prefix.rstrip(".")):
         written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
         tag = next((word for word in written.split() if word.startswith("!")), None)
+        if tag is None and item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):
+            return where, item.value, f"which YAML reads as {yaml.safe_load(item.value)!r} (a YAML 1.1 {_form(item.value)})"
         if tag is None and (item.tag in NUMBER_TAGS or (item.style is None and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):
             continue   # (`1e-4`: text to PyYAML, a number to the typed load; `many`: the typed load's own error)
