@@ -15,7 +15,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
-from stdm_drake.robots.xml_file import ASCII_SPACE, UnreadNumber, check_xml
+from stdm_drake.robots.xml_file import ASCII_SPACE, UnreadNumber, WrongCount, check_xml
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
@@ -195,6 +195,8 @@ def read_description(path: pathlib.Path) -> Description:
     except UnreadNumber as error:
         raise InputError(f"{path.name}: {error}, not a number as URDF and SDF write one (decimal digits, an optional "
                          "exponent); these checks cannot read it, and Drake's parser would read it otherwise") from None
+    except WrongCount as error:
+        raise InputError(f"{path.name}: {error}") from None
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,

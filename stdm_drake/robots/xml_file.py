@@ -8,6 +8,10 @@ import pathlib
 from stdm_drake.errors import InputError
 
 
+class WrongCount(ValueError):
+    """An element the description states more often than its format allows, or with the wrong count of values."""
+
+
 class UnreadNumber(ValueError):
     """A value the checks read that is not written as a number (`description.PLAIN_NUMBER`)."""
 
@@ -36,6 +40,19 @@ NUMBER_ELEMENTS = {"pose", "xyz", "lower", "upper", "effort", "velocity", "dampi
                    "scale", "stiffness", "dissipation"}
 
 
+# Attributes one element may carry: a URDF or SDF element has at most a handful (an <inertia> six); 200,000 on one
+# element made a 3 MB file that `robot init` worked on for minutes
+MAX_ATTRIBUTES = 100
+# The values an SDF element's text holds (SDFormat reads others with several lines of its own): a pose is x y z roll
+# pitch yaw, or x y z and a quaternion with rotation_format="quat_xyzw"; a joint axis x y z (a <size> is a box's 3
+# or a plane's 2: not counted)
+SDF_VALUE_COUNTS = {"pose": (6, 7), "xyz": (3,)}
+# The mass properties a URDF link states once: Drake's parser reads the first and ignores the rest without a word,
+# so a second <mass> (a negative one, say) would be a physics nobody checked. (Other elements stated twice are left
+# as Drake reads them: a published quadruped states a joint's <axis> twice.)
+URDF_SINGLE_CHILDREN = {"inertial": ("mass", "origin", "inertia"), "link": ("inertial",)}
+
+
 def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None:
     """InputError (one line) for an XML file the toolbox cannot read as Drake (or MoveIt) would: not well-formed
     (an undefined entity included), or declaring entities (Python's parser expands them, Drake's does not; a
@@ -55,9 +72,13 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
         nonlocal depth
         depth -= 1
 
-    def started(tag, _attributes):
+    def started(tag, attributes):
         nonlocal frames, sdf_frames, depth
         depth += 1
+        if len(attributes) > MAX_ATTRIBUTES:
+            raise InputError(f"{path.name}: an element <{tag}> carries {len(attributes):,} attributes (line "
+                             f"{checker.CurrentLineNumber}); a description's elements carry a handful, at most "
+                             f"{MAX_ATTRIBUTES} are read")
         if depth > MAX_DEPTH:
             raise InputError(f"{path.name} nests elements more than {MAX_DEPTH} deep (line {checker.CurrentLineNumber}); "
                              "a robot description nests 5 to 10 (SDF models inside models: a few)")
@@ -121,7 +142,16 @@ def check_numbers(root, rule) -> None:
         if sdf:
             if element.tag in NUMBER_ELEMENTS and len(element) == 0 and element.text is not None:
                 _numbers(element.text, rule, f"{owner}: its <{element.tag}>", UnreadNumber)
+                counts = SDF_VALUE_COUNTS.get(element.tag, ())
+                if counts and (found := len(element.text.split())) not in counts:
+                    raise WrongCount(f"{owner}: its <{element.tag}> holds {found} values, SDFormat reads "
+                                     f"{' or '.join(map(str, counts))}")
         else:
+            for tag in URDF_SINGLE_CHILDREN.get(element.tag, ()):
+                if (found := len(element.findall(tag))) > 1:
+                    itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
+                    raise WrongCount(f"{owner}: {itself} states {found} <{tag}> elements; URDF gives one "
+                                     "(Drake's parser reads the first and ignores the others)")
             for attribute, text in element.attrib.items():
                 if attribute in NUMBER_ATTRIBUTES or (element.tag == "mass" and attribute == "value"):
                     _numbers(text, rule, f"{owner}: its <{element.tag}> {attribute}", UnreadNumber)
