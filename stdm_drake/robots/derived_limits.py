@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from stdm_drake.errors import InputError
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
 
 # the rule for limits an arm joint's file lacks (module docstring): velocity rad/s (revolute) or m/s
@@ -40,10 +41,16 @@ def usable(value) -> bool:
 def derive_kinematic_limits(config: RobotConfig, joints: dict) -> list[str]:
     """Into `config`, per arm joint (`joints`: the description's, by name), the velocity limit and revolute
     position range its file lacks and `config` does not give (`DERIVED_LIMITS`), and PROVISIONAL_EFFORT where it
-    lacks an effort limit (`derive_effort_limits` replaces it once the robot loads); the notes saying so."""
+    lacks an effort limit (`derive_effort_limits` replaces it once the robot loads); the notes saying so. A negative
+    or non-finite velocity or effort limit is no missing one: InputError (one line) unless `config` replaces it."""
     notes, velocity, ranges = [], [], []
     for name in config.arm_joints:
         joint = joints[name]
+        for key, value in (("velocity", joint.velocity), ("effort", joint.effort)):
+            replaced = name in (config.velocity_limits if key == "velocity" else config.effort_limits)
+            if value is not None and (value < 0 or not np.isfinite(value)) and not replaced:
+                raise InputError(f"joint {name!r} states {key} limit {value:g}; a limit is > 0 ({key} limits the file "
+                                 "lacks, or gives as 0, are derived): correct it in the file")
         if not usable(joint.velocity) and name not in config.velocity_limits:
             config.velocity_limits[name] = DERIVED_LIMITS["velocity"][joint.kind == "prismatic"]
             velocity.append(name)
