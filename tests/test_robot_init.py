@@ -400,3 +400,30 @@ def test_gravity_at_home_beyond_an_effort_limit_names_the_key(tmp_path, capsys):
     error = capsys.readouterr().err
     assert "on 'shoulder_lift_joint', at or above its effort limit 10; give a larger " \
            "effort_limits['shoulder_lift_joint']" in error and not (tmp_path / "x.h5").exists()
+
+
+def test_the_redundant_joints_of_a_long_chain_are_found_in_polynomial_work(monkeypatch):
+    """(Issue 56, held-out run 16) `robot init` of a 61-joint chain, within the 100-joint budget, ran for hours: the
+    redundant joints were chosen among all C(n, 6) sets (a 31-joint chain: 736,281 condition numbers, a minute).
+    Above 12 joints they are dropped one at a time, each time the one whose removal leaves the best-conditioned
+    rest: at most n² condition numbers. Up to 12 every set is tried, as before."""
+    import numpy as np
+    from stdm_drake.robots import kinematics
+    calls = []
+    condition = np.linalg.cond
+
+    def counted(matrix):
+        calls.append(1)
+        assert len(calls) <= 61 ** 2, "more than n² condition numbers"
+        return condition(matrix)
+    monkeypatch.setattr(kinematics.np.linalg, "cond", counted)
+    J = np.random.default_rng(0).standard_normal((6, 61))
+    removed = kinematics.redundant_joints(J)
+    assert len(removed) == 55 and list(removed) == sorted(set(removed)) and len(calls) <= 61 ** 2
+    kept = [joint for joint in range(61) if joint not in removed]
+    assert np.isfinite(condition(J[:, kept]))
+    calls.clear()
+    J7 = J[:, :7]
+    assert kinematics.redundant_joints(J7) == min(((joint,) for joint in range(7)),
+                                                  key=lambda r: condition(np.delete(J7, r, axis=1)))
+    assert len(calls) == 7

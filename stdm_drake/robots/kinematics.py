@@ -229,9 +229,22 @@ class RobotKinematics:
                                     f"limit {bound:.4f} rad by {excess:.4f} rad")
 
 
+# Joints up to which every set of redundant joints is tried: C(12, 6) = 924 sets; C(31, 6) = 736,281 took a minute
+# in `robot init`, and a 99-joint chain would take days. Beyond, the sets are built greedily.
+EXHAUSTIVE_REDUNDANCY = 12
+
+
 def redundant_joints(J: np.ndarray) -> tuple[int, ...]:
     """The n - 6 joints (indices, ascending) whose columns, removed from the tool Jacobian J (6, n),
-    leave the 6x6 Jacobian with the smallest condition number; the first such set on ties."""
+    leave the 6x6 Jacobian with the smallest condition number; the first such set on ties. Above
+    EXHAUSTIVE_REDUNDANCY joints, one joint at a time: the one whose removal leaves the best-conditioned rest,
+    until 6 remain (the same rule, not guaranteed the best set)."""
     n = J.shape[1]
-    return min(itertools.combinations(range(n), n - POSE_DIM),
-               key=lambda removed: float(np.linalg.cond(np.delete(J, removed, axis=1))))
+    if n <= EXHAUSTIVE_REDUNDANCY:
+        return min(itertools.combinations(range(n), n - POSE_DIM),
+                   key=lambda removed: float(np.linalg.cond(np.delete(J, removed, axis=1))))
+    kept = list(range(n))
+    while len(kept) > POSE_DIM:
+        drop = min(kept, key=lambda joint: float(np.linalg.cond(J[:, [k for k in kept if k != joint]])))
+        kept.remove(drop)
+    return tuple(joint for joint in range(n) if joint not in kept)
