@@ -43,6 +43,9 @@ DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
 PAPER_COUNTS = {"excitation": 200, "tracking": 100}
 MAX_COUNT = 100_000   # trajectories per collection: more is a run of days (and its arrays do not fit in memory)
+# plant steps per collection: MAX_COUNT trajectories of the default 1 s at the default 1 ms plant step, a few hours
+# on 2 cores (about 15x real time per core); a finer plant step or longer trajectories must come with fewer of them
+MAX_PLANT_STEPS = 100_000_000
 
 
 @dataclasses.dataclass
@@ -205,6 +208,17 @@ def estimated_dataset_bytes(payloads, num_joints: int) -> int:
     return samples * num_joints * 8 * ARRAYS_PER_SAMPLE
 
 
+def check_plant_steps(payloads, settings) -> None:
+    """InputError (one line, with the estimate) where simulating `payloads` takes more than MAX_PLANT_STEPS plant
+    steps (samples x the plant steps per sample period)."""
+    samples = sum(payload.num_steps if isinstance(payload, Excitation) else len(payload.q) - 1 for payload in payloads)
+    steps = samples * settings.substeps()
+    if steps > MAX_PLANT_STEPS:
+        raise InputError(f"{len(payloads)} trajectories of {samples / len(payloads):.0f} samples, {settings.substeps()} "
+                         f"plant steps each, would take {steps:.3g} plant steps, more than {MAX_PLANT_STEPS:.0e} (hours "
+                         "of simulation); collect fewer (--count) or shorter ones, or at a coarser --plant-time-step")
+
+
 def collect(request: CollectionRequest, progress: bool = True, on_trajectory=None,
             check_size=None) -> tuple[list[Trajectory], list[int], dict]:
     """Simulate `request.count` trajectories; returns (trajectories, groups, metadata).
@@ -245,6 +259,7 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
             payloads, groups = [request.excitation] * request.count, [0] * request.count
         else:
             payloads, groups = plan_tracking(request, pool)
+        check_plant_steps(payloads, settings)
         size = estimated_dataset_bytes(payloads, settings.robot.num_joints)
         available = files.available_memory()
         if available is not None and size > available:

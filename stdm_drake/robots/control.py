@@ -201,11 +201,21 @@ class SensorConfig:
     velocity_noise_std: float = 0.0
     velocity_filter_window: int = 1
 
+    # Beyond these a reading says nothing about the joint (a position noise of more than half a turn, a velocity
+    # noise tens of times an arm's fastest joint) or smooths over more than a trajectory
+    MAX_POSITION_NOISE_STD, MAX_VELOCITY_NOISE_STD, MAX_FILTER_WINDOW = np.pi, 100.0, 1000
+
     def validate(self) -> None:
         if not (self.position_noise_std >= 0 and self.velocity_noise_std >= 0):
             raise InputError("sensor noise standard deviations must be >= 0")
-        if self.velocity_filter_window < 1:
-            raise InputError(f"velocity_filter_window must be >= 1, got {self.velocity_filter_window}")
+        if not (self.position_noise_std <= self.MAX_POSITION_NOISE_STD
+                and self.velocity_noise_std <= self.MAX_VELOCITY_NOISE_STD):
+            raise InputError(f"sensor noise standard deviations must be at most pi rad (position) and "
+                             f"{self.MAX_VELOCITY_NOISE_STD:g} rad/s (velocity), got {self.position_noise_std:g} and "
+                             f"{self.velocity_noise_std:g}: beyond, a reading says nothing about the joint")
+        if not 1 <= self.velocity_filter_window <= self.MAX_FILTER_WINDOW:
+            raise InputError(f"velocity_filter_window must be in 1..{self.MAX_FILTER_WINDOW} samples, got "
+                             f"{self.velocity_filter_window}")
 
 
 class JointSensor:

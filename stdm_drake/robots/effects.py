@@ -29,6 +29,7 @@ class RigidInertia:
 
     def validate(self, what: str = "payload") -> None:
         require(np.isfinite(self.mass) and self.mass >= 0, f"{what} mass must be a finite number >= 0 kg", self.mass)
+        check_effect_bound(f"{what} mass", np.array([self.mass]), "mass")
         require(self.mass > 0 or not any(self.inertia), f"{what} inertia needs a mass > 0", self.inertia)
         require(len(self.center_of_mass) == 3 and np.all(np.isfinite(self.center_of_mass)),
                 f"{what} center_of_mass must be 3 finite numbers (m)", self.center_of_mass)
@@ -52,6 +53,25 @@ class RigidInertia:
 @dataclasses.dataclass
 class Payload(RigidInertia):
     """A rigid payload welded to the robot's tool frame (its inertia in the tool frame)."""
+
+
+# The largest magnitude each effect may have (module docstring's units): beyond any robot joint's by orders of
+# magnitude (the largest industrial arms' joints hold about 1e4 N m, their gear ratios are at most a few hundred),
+# and small enough that the simulation's arithmetic stays finite; a value beyond is a mistake, refused in one line
+EFFECT_BOUNDS = dict(viscous_friction=1e6, coulomb_friction=1e6, torque_noise_std=1e6, joint_damping=1e6,
+                     rotor_inertia=1e3, gear_ratio=1e5, mass_scale=1e6, mass=1e6)
+EFFECT_UNITS = dict(viscous_friction="N m s/rad", coulomb_friction="N m", torque_noise_std="N m",
+                    joint_damping="N m s/rad", rotor_inertia="kg m²", gear_ratio="", mass_scale="", mass="kg")
+
+
+def check_effect_bound(label: str, values: np.ndarray, kind: str | None = None) -> None:
+    """InputError (one line) where a value of `label` (an effect of kind `kind`, default `label`) is beyond
+    EFFECT_BOUNDS."""
+    kind = kind or label
+    if np.any(np.abs(values) > EFFECT_BOUNDS[kind]):
+        unit = f" {EFFECT_UNITS[kind]}" if EFFECT_UNITS[kind] else ""
+        raise InputError(f"{label} {float(np.max(np.abs(values))):g}{unit} is beyond any robot's (at most "
+                         f"{EFFECT_BOUNDS[kind]:g}{unit} here)")
 
 
 @dataclasses.dataclass
@@ -88,15 +108,17 @@ class PlantEffects:
     def validate(self) -> None:
         for name in ("viscous_friction", "coulomb_friction", "rotor_inertia", "torque_noise_std", "joint_damping"):
             if getattr(self, name):
-                check_joint_vector(name, getattr(self, name), nonnegative=True)
+                check_effect_bound(name, check_joint_vector(name, getattr(self, name), nonnegative=True))
         if self.gear_ratio:
             ratio = check_joint_vector("gear_ratio", self.gear_ratio)
             require(bool(np.all(ratio > 0)), "gear_ratio must be > 0", self.gear_ratio)
+            check_effect_bound("gear_ratio", ratio)
         require(bool(self.rotor_inertia) or not self.gear_ratio, "gear_ratio needs rotor_inertia", self.gear_ratio)
         scale = check_joint_vector("coulomb_velocity_scale", self.coulomb_velocity_scale)
         require(bool(np.all(scale > 0)), "coulomb_velocity_scale must be > 0 rad/s", self.coulomb_velocity_scale)
         for link, factor in self.mass_scale.items():
             require(np.isfinite(factor) and factor > 0, f"mass_scale of {link} must be a finite number > 0", factor)
+            check_effect_bound(f"mass_scale of {link}", np.array([factor]), "mass_scale")
         self.payload.validate()
         for link, inertia in self.link_inertia.items():
             inertia.validate(f"link_inertia of {link}:")
