@@ -209,6 +209,35 @@ def main(argv: list[str] | None = None) -> int:
     return status
 
 
+class PrintableLines:
+    """A text stream that writes what it is given with every character that is not printable, other than the line
+    break and the tab, as its Python escape ("\\r", "\\x1b", "\\u2028"): a name a command prints (a file, a
+    joint, a robot) cannot end a line, overwrite it or drive the terminal. Everything else is the stream's own."""
+
+    def __init__(self, stream):
+        self._stream = stream
+
+    def write(self, text: str) -> int:
+        self._stream.write("".join(character if character.isprintable() or character in "\n\t"
+                                   else repr(character)[1:-1] for character in text))
+        return len(text)
+
+    def __getattr__(self, name):
+        return getattr(self._stream, name)
+
+
+@contextlib.contextmanager
+def printable_output():
+    """The command's standard output as PrintableLines while it runs (progress bars and warnings go to standard
+    error, whose one error line `error_line` escapes)."""
+    stream = sys.stdout
+    sys.stdout = PrintableLines(stream)
+    try:
+        yield
+    finally:
+        sys.stdout = stream
+
+
 def run_command(name: str, argv: list[str]) -> int:
     """Parse `argv` for command `name` and run it: its exit status; bad input is one line and status 2."""
     try:  # stdm-drake:controllers/pid.yaml names a shipped file, from any folder
@@ -225,8 +254,8 @@ def run_command(name: str, argv: list[str]) -> int:
     except SystemExit as exit_:  # --help (0) or a malformed command line (2, one line printed)
         return int(exit_.code or 0)
     try:
-        with command_outputs(name, argv), drake_warnings_once(name), deferred_warnings():   # a failing command prints
-            return int(module.run(args) or 0)                                          # its one error line only
+        with command_outputs(name, argv), drake_warnings_once(name), deferred_warnings(), printable_output():
+            return int(module.run(args) or 0)   # (a failing command prints its one error line only)
     except BrokenPipeError:   # the reader of the output went away (`stdm-drake inspect x.h5 | head -2`): quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # (no second error when Python flushes)
         return 128 + signal.SIGPIPE

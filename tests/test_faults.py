@@ -678,3 +678,16 @@ def test_an_error_naming_a_file_with_a_line_break_stays_one_whole_line():
     assert error_line(InputError("r/ck\nnew.pt: a swish model has no Drake form")) == \
         "r/ck\\nnew.pt: a swish model has no Drake form"
     assert error_line(ValueError("first line\nsecond line")) == "first line"
+
+
+def test_names_with_control_characters_are_printed_escaped(excitation_dataset, tmp_path, capsys):
+    """(Issue 56, held-out run 16) `inspect` printed a dataset's name holding a line break and a terminal escape raw
+    (the terminal turned red), `robot init` its joint names with U+2028 raw: every line a command prints on standard
+    output shows such characters as their escapes, the names still readable."""
+    import shutil
+    name = tmp_path / "da\nta\x1b[31m\u2028.h5"
+    shutil.copy(excitation_dataset, name)
+    assert main(["inspect", str(name)]) == 0
+    out = capsys.readouterr().out
+    assert "da\\nta\\x1b[31m\\u2028.h5" in out
+    assert all(character.isprintable() or character in "\n\t" for character in out)

@@ -18,6 +18,7 @@ from stdm_drake.closed_loop.comparison import (ClosedLoopResult, closed_loop_fai
                                                summary_table)
 from stdm_drake.closed_loop.optimizer import OptimizerSettings
 from stdm_drake.errors import InputError
+from stdm_drake.files import line_text
 
 DEFAULT_OUTPUT = pathlib.Path("out/mpc")   # without an output folder: this one, or out/mpc-2, -3, ... (a fresh one)
 MODEL_NAME = re.compile(r"[A-Za-z0-9_.+-]{1,40}")   # a model's name: a column of mpc.csv and mpc.md
@@ -279,7 +280,7 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     write_text_atomic(output / "mpc.csv", "\n".join([",".join(columns)] + [
         ",".join(str(getattr(result, column)) for column in columns) for result in results]) + "\n")
     plot_results(results, sample_period, output / "mpc.png")
-    print(f"wrote {output}: mpc.md, mpc.csv, mpc.json, mpc.png")
+    print(f"wrote {line_text(output)}: mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
         recorder.finish(study.html, what="robot: plant under MPC; translucent orange: the reference")
     return MpcStudyResult(results=results, summary=rows, table=table, failures=closed_loop_failures(results),

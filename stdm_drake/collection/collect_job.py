@@ -20,6 +20,7 @@ from stdm_drake.outputs import check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 from stdm_drake.robots.robot import UR10_CONFIG
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD
+from stdm_drake.files import line_text
 
 
 @dataclasses.dataclass
@@ -116,13 +117,13 @@ def collect_job(job: CollectJob) -> dict:
         if line:
             warn(line)
     simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period
-    print(f"wrote {path}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
+    print(f"wrote {line_text(path)}: {len(trajectories)} {request.protocol} trajectories, {simulated:.1f} s simulated "
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
     written = None
     if job.export_plans is not None:
         from stdm_drake.collection.export import export_plans
         written = export_plans(job.export_plans, trajectories, metadata, robot, job.force)
-        print(f"wrote {len(trajectories)} plans to {job.export_plans} ({len(written)} files: CSV, a ROS 2 bag, "
+        print(f"wrote {len(trajectories)} plans to {line_text(job.export_plans)} ({len(written)} files: CSV, a ROS 2 bag, "
               "plans.json); run them on the robot, then `stdm-drake import` its log")
     if recorder is not None:
         recorder.finish(job.html, keep_serving=job.meshcat)

@@ -12,6 +12,7 @@ from stdm_drake.experiments.jobs import FULL, QUICK
 from stdm_drake.experiments.reproduce import reproduce
 from stdm_drake.outputs import add_force_argument, check_output_folder, fresh_default_folder
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, plant_effects_for
+from stdm_drake.files import line_text
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -48,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
     runner = runner_config_from_args(args)
     path, failures = reproduce(profile, output, seed=args.seed, workers=args.workers, progress=not args.quiet,
                                robot=robot, runner=runner, plant_effects=effects)
-    print(f"wrote {path} and {path.with_suffix('.md')} in {time.perf_counter() - started:.0f} s")
+    print(f"wrote {line_text(path)} and {line_text(path.with_suffix('.md'))} in {time.perf_counter() - started:.0f} s")
     for failure in failures:
         print(f"stdm-drake reproduce: error: MPC stage: {failure}", file=sys.stderr)
     return 2 if failures else 0

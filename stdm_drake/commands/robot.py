@@ -50,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
     if args.action == "check":
         robot = load_robot(args.robot)
         for line in check_robot(robot):
-            print(line)
+            print(line_text(line))
         print(f"robot {line_text(robot.name)}: loads, {robot.num_joints} arm joints, home free of self-collision and held "
               "within the effort limits")
         return 0
@@ -58,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def init(args: argparse.Namespace) -> int:
+    from stdm_drake.files import line_text
     from stdm_drake.robots.geometry_masses import MassesFromGeometry
     from stdm_drake.robots.robot_init import InitOptions, write_starting_config
     from stdm_drake.robots.starting_config import given_packages
@@ -70,12 +71,13 @@ def init(args: argparse.Namespace) -> int:
     packages = given_packages(args.package)
     config, notes, problem = write_starting_config(
         args.model, output, InitOptions(args.name, args.srdf, args.force, masses, packages, args.update))
-    print(f"wrote {output}: {len(config.arm_joints)} arm joints ({', '.join(config.arm_joints)}), "
-          f"{len(config.locked_joints)} locked, tool frame {config.tool_frame}")
+    print(f"wrote {line_text(output)}: {len(config.arm_joints)} arm joints ({line_text(', '.join(config.arm_joints))}), "
+          f"{len(config.locked_joints)} locked, tool frame {line_text(config.tool_frame)}")
     for note in notes:
-        print(f"note: {note}")
+        print(f"note: {line_text(note)}")
     if problem:
-        print(f"stdm-drake robot init: {output} does not pass its check yet: {problem}", file=sys.stderr)
+        print(f"stdm-drake robot init: {line_text(output)} does not pass its check yet: {line_text(problem)}",
+              file=sys.stderr)
         return 1
-    print(f"{output} passes its check (stdm-drake robot check {output})")
+    print(f"{line_text(output)} passes its check (stdm-drake robot check {line_text(output)})")
     return 0

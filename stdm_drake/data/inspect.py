@@ -4,6 +4,7 @@ from __future__ import annotations
 import numpy as np
 
 from stdm_drake.data.dataset import Dataset
+from stdm_drake.files import line_text
 
 
 def tracking_errors(dataset: Dataset) -> dict:
@@ -96,7 +97,7 @@ def summary(dataset: Dataset) -> str:
     steps = [len(dataset.trajectory(i).tau) for i in range(dataset.num_trajectories)]
     groups, counts = np.unique(dataset.groups, return_counts=True)
     lines = [
-        f"file            {dataset.path}  (sha256 {dataset.sha256[:16]}…)",
+        f"file            {line_text(dataset.path)}  (sha256 {dataset.sha256[:16]}…)",
         f"protocol        {dataset.protocol}",
         f"trajectories    {dataset.num_trajectories}  steps each {min(steps)}..{max(steps)}  "
         f"transitions {sum(steps)}",

@@ -15,6 +15,7 @@ from stdm_drake.errors import InputError
 from stdm_drake.files import json_default, write_text_atomic
 from stdm_drake.identification.identify import REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES
 from stdm_drake.outputs import check_output_file
+from stdm_drake.files import line_text
 
 
 @dataclasses.dataclass
@@ -88,7 +89,8 @@ def identify_job(job: IdentifyJob) -> dict:
     print(report_summary(report))
     write_text_atomic(report_path, report_text)
     write_text_atomic(output, text)
-    print(f"wrote {job.output} (use it as a model: evaluate/view {job.output}, mpc --model NAME={job.output}) "
+    print(f"wrote {line_text(job.output)} (use it as a model: evaluate/view {line_text(job.output)}, mpc --model "
+          f"NAME={line_text(job.output)}) "
           f"and {report_path}")
     return report
 

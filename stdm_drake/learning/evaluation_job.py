@@ -13,6 +13,7 @@ from stdm_drake.files import finite_json, write_text_atomic
 from stdm_drake.learning.compiled_core import IMPLEMENTATIONS
 from stdm_drake.learning.evaluate import REPORT_STEPS, compare_with_baselines, physics_baselines, trajectory_rollout_data
 from stdm_drake.outputs import check_output_file
+from stdm_drake.files import line_text
 
 
 @dataclasses.dataclass
@@ -183,5 +184,5 @@ def evaluate_job(job: EvaluationJob) -> dict:
                   noise_floor=floor, verdict=learned.verdict, baselines=[row.as_dict() for row in rows[1:]])
     if job.json:
         write_text_atomic(job.json, json.dumps(finite_json(report), indent=2, allow_nan=False) + "\n")
-        print(f"wrote {job.json}")
+        print(f"wrote {line_text(job.json)}")
     return report

@@ -19,6 +19,7 @@ from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
 from stdm_drake.files import write_text_atomic
 from stdm_drake.robots.robot import Robot
+from stdm_drake.files import line_text
 
 GHOST_COLOR = Rgba(1.0, 0.55, 0.1, 0.35)  # translucent orange
 # what a recording shows unless told otherwise: the illustration geometry only (no collision shapes,
@@ -135,7 +136,7 @@ class TrajectoryRecorder:
         self.publish()
         if html:
             self.write_html(html)
-            print(f"wrote {html}{f' ({what})' if what else ''}")
+            print(f"wrote {line_text(html)}{f' ({what})' if what else ''}")
         if keep_serving:
             wait_for_interrupt(self.meshcat.web_url())
 

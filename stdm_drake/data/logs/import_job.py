@@ -12,6 +12,7 @@ import sys
 
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import check_output_file
+from stdm_drake.files import line_text
 
 
 @dataclasses.dataclass
@@ -83,7 +84,7 @@ def import_job(job: ImportJob) -> dict:
         print(f"import {log} ({mapping.format}) as a {robot.name} log", file=sys.stderr)
     record = import_log(log, robot, mapping, output)
     pieces, resampling = record["trajectories"], record["resampling"]
-    print(f"wrote {output}: {pieces['kept']} trajectories from {pieces['rows']} rows at a sample period of "
+    print(f"wrote {line_text(output)}: {pieces['kept']} trajectories from {pieces['rows']} rows at a sample period of "
           f"{record['mapping']['sample_period'] or resampling['log_period_s']:g} s (split at {pieces['gaps']} gaps, "
           f"{pieces['pauses']} pauses, {pieces['mode_changes']} mode changes, {pieces['cuts']} cuts; "
           f"{pieces['dropped_short']} short pieces dropped, {pieces['rows_not_running']} rows not running left out)")
