@@ -186,6 +186,8 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
                                                                  '<dynamics damping="8junk"/>'),
     "wide_origin": ('<origin xyz="-0.232 0.0 0.158"', '<origin xyz="-0.232 ٠ 0.158"'),
     "nbsp_mass": ('<mass value="4.27"/>', '<mass value="4.27\u00a0"/>'),   # (shown as \xa0, not invisible)
+    # (held-out run 16: a second <mass>, negative, which Drake ignores without a word)
+    "two_masses": ('<mass value="4.27"/>', '<mass value="4.27"/><mass value="-4.27"/>'),
 }
 
 
@@ -232,6 +234,11 @@ def write_issue_25_inputs(box) -> None:
     # (held-out run 15) the UR-10 with a 5 MB comment; SDF models nested 100 deep
     (box / "bad_bytes.urdf").write_text(urdf.replace("</robot>", "<!-- " + "x" * (5 << 20) + " --></robot>"))
     (box / "nested.sdf").write_text('<sdf version="1.9">' + '<model name="m">' * 100 + "</model>" * 100 + "</sdf>")
+    # (held-out run 16: a pose of 5 values (SDFormat's refusal took several lines), an element of 200,000 attributes)
+    (box / "bad_pose.sdf").write_text('<sdf version="1.9"><model name="arm"><link name="l1"><pose>0 0 0.1 0 0</pose>'
+                                      '</link></model></sdf>')
+    (box / "many_attributes.urdf").write_text(urdf.replace('<link name="flange"/>', '<link name="flange" '
+                                              + " ".join(f'a{i}="0"' for i in range(200_000)) + "/>"))
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -727,12 +734,31 @@ CASES = [
     ([*E, "--robot", "bad_nbsp_mass.yaml", "-o", "NEW.h5"], "its mass is '4.27\\xa0', not a number"),
     (["robot", "init", "bad_bytes.urdf", "-o", "NEW.yaml"], "is 5.0 MB, more than the 4 MB a robot description"),
     (["robot", "init", "nested.sdf", "-o", "NEW.yaml"], "nests elements more than 64 deep"),
+    # (held-out run 16)
+    (["robot", "init", "bad_pose.sdf", "-o", "NEW.yaml"], "link 'l1': its <pose> holds 5 values, SDFormat reads 6 or 7"),
+    (["robot", "init", "many_attributes.urdf", "-o", "NEW.yaml"], "an element <link> carries 200,001 attributes"),
+    (["robot", "init", "bad_two_masses.urdf", "-o", "NEW.yaml"], "link 'forearm_link': its <inertial> states 2 <mass>"),
+    (["robot", "init", "bad_negative_velocity.urdf", "-o", "NEW.yaml"], "joint 'elbow_joint' states velocity limit -3.1416"),
     (yaml_case("mpc", "horizon: ٢٠\n"), "horizon is '٢٠' read by YAML as text, not a number; write the number in ASCII"),
     (yaml_case("mpc", "horizon: &a !!str 20\n"), "horizon is '20' tagged !!str, not a number"),
     (yaml_case("effects", "viscous_friction: [１]\n"), "viscous_friction is '１' read by YAML as text"),
     (yaml_case("train", "epochs: ५\n"), "epochs is '५' read by YAML as text"),
     (yaml_case("robot", ROBOT_TEXT + "effort_limits: {elbow_joint: '150'}\n"),
      "effort_limits.elbow_joint is '150' in quotes, not a number"),
+    # (held-out run 16: merge keys carried quoted numbers past the rule; YAML 1.1 read other forms as numbers)
+    (yaml_case("mpc", "optimizer: !Icem {<<: {samples: !!str 100}}\n"), "optimizer.samples is '100' tagged !!str"),
+    (yaml_case("train", "x: &base {epochs: '5'}\n<<: *base\n"), "epochs is '5' in quotes, not a number"),
+    (yaml_case("robot", ROBOT_TEXT + "velocity_limits: {<<: [{elbow_joint: !!str 3.0}]}\n"),
+     "velocity_limits.elbow_joint is '3.0' tagged !!str"),
+    (["collect", "--protocol", "excitation", "--count", "100000", "--plant-time-step", "1e-6", "--workers", "1", "--quiet",
+      "-o", "NEW.h5"], "would take 5e+10 plant steps, more than 1e+08"),
+    (yaml_case("sensor", "velocity_noise_std: 1.0e300\n"), "sensor noise standard deviations must be at most pi rad"),
+    (yaml_case("effects", "viscous_friction: [1.0e300]\n"), "viscous_friction 1e+300 N m s/rad is beyond any robot's"),
+    (yaml_case("effects", "payload: {mass: 1.0e9}\n"), "payload mass 1e+09 kg is beyond any robot's"),
+    (yaml_case("mpc", "horizon: 024\n"), "horizon is written 024, which YAML reads as 20 (a YAML 1.1 octal number)"),
+    (yaml_case("mpc", "horizon: 0b10100\n"), "which YAML reads as 20 (a YAML 1.1 binary number)"),
+    (yaml_case("mpc", "optimizer: !Icem {samples: 1_00}\n"), "optimizer.samples is written 1_00, which YAML reads"),
+    (yaml_case("mpc", "terminal_factor: 1:30\n"), "terminal_factor is written 1:30, which YAML reads as 90"),
     (["robot", "init", "ur10.urdf", "-o", "NEW.yaml", "--update"], "is not a robot config to update (run robot init "
                                                                    "without --update)"),
     (["robot", "init", "ur10.urdf", "-o", "update_unknown.yaml", "--update", "--force"],
@@ -805,7 +831,7 @@ YAML_COMMANDS = {  # where a written YAML case goes in
     "spec": [*E, "--config", "CASE", "-o", "NEW.h5"], "ctrl": [*C, "--controller", "CASE", "-o", "NEW.h5"],
     "tspec": [*C, "--config", "CASE", "-o", "NEW.h5"], "mpc": [*M, "--config", "CASE", "-o", "NEW"],
     "robot": [*E, "--robot", "CASE", "-o", "NEW.h5"], "effects": [*E, "--plant-effects", "CASE", "-o", "NEW.h5"],
-    "train": [*T, "--config", "CASE", "-o", "NEW"],
+    "train": [*T, "--config", "CASE", "-o", "NEW"], "sensor": [*C, "--sensor", "CASE", "-o", "NEW.h5"],
 }
 
 
