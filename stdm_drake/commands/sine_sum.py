@@ -19,8 +19,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output folder (default runs/sine-sum, or runs/sine-sum-2, -3, ... where an earlier run's "
                              "results are)")
     parser.add_argument("--quick", action="store_true",
-                        help="quick profile: the headline configuration only (5 layers, swish, MSE), 3 paired networks, "
-                             "6000 steps at alpha 1 (the full profile's choice), about 40 s on 2 cores")
+                        help="quick profile: the headline configuration only (5 layers, swish, MSE), 10 paired networks, "
+                             "6000 steps at alpha 1 (the full profile's choice), about 110 s on 2 cores")
     parser.add_argument("--alpha", type=parse_alpha,
                         help="derivative-loss weight as in eq. 9, or 'auto' (default: chosen by validation)")
     parser.add_argument("--epochs", type=int, help="override the profile's epochs (full-batch steps)")
