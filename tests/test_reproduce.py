@@ -93,6 +93,13 @@ def test_the_summarys_settled_sine_sum_answer_is_the_committed_full_profile_head
     top = dict(networks=3, ratio=7.99, ratio_low=0.89, ratio_high=71.7, verdict="no clear difference",
                paper_derivative=6e-4)
     text = sine_sum_text(top, quick=True)
+    from stdm_drake.experiments.reproduce_summary import QUICK_SINE_SUM
+    from stdm_drake.experiments.sine_sum import QUICK
+    measured = json.loads((ROOT / QUICK_SINE_SUM["source"]).read_text())["summary"][str(QUICK.headline_seeds)]
+    assert (QUICK_SINE_SUM["networks"], QUICK_SINE_SUM["helps"], QUICK_SINE_SUM["seeds"]) == \
+        (QUICK.headline_seeds, measured["helps"], measured["seeds"])
+    assert "the quick stage's interval lay above 1 on 10 of 10 seeds" in text
+    assert "quick stage" not in sine_sum_text(top, quick=False)
     assert text.startswith("Sine-sum (section III.B, 5 layers, swish, 3 networks): naive / derivative test MSE 7.99x "
                            "[0.89, 71.7] (no clear difference;") and "39.2x [26.4, 58.2] over 5 networks" in text
 
