@@ -228,6 +228,9 @@ def test_a_missing_compiled_step_is_one_line_naming_the_fix(monkeypatch):
     assert "\n" not in message and "pip install" in message and "implementation: numpy" in message
 
 
+SLACK_ROUNDING = 1e-12   # rad or rad/s: a state row's slack below this is the QP's rounding, not a crossing
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("kind", ["D", "PE"])
 def test_trained_networks_compiled_torques_are_the_references_on_recorded_states(tmp_path, tracking_dataset, kind):
@@ -260,7 +263,10 @@ def test_trained_networks_compiled_torques_are_the_references_on_recorded_states
             expected = reference_solver.solve(states[step], warm, reference, np.zeros((horizon, 6)), x_init=nodes)
             result = compiled_solver.solve(states[step], warm, reference, np.zeros((horizon, 6)), x_init=nodes)
             warm, nodes = np.vstack([expected.u[1:], expected.u[-1:]]), np.vstack([expected.x[1:], expected.x[-1:]])
-            if compiled_solver._core.unsettled > before or (expected.slack > 0) != (result.slack > 0):
+            # (a step where either QP fell back to the torque box: the compiled one counts it; the reference's shows
+            # as slack the other lacks. A slack of 1e-16 is rounding, not a crossing: on one CPU the compiled QP
+            # settled with 1.2e-16 where the reference fell back with 0.029, and the two were compared)
+            if compiled_solver._core.unsettled > before or (expected.slack > SLACK_ROUNDING) != (result.slack > SLACK_ROUNDING):
                 continue
             np.testing.assert_allclose(result.u, expected.u, rtol=0, atol=1e-5 * EFFORT.max())
             assert result.cost == pytest.approx(expected.cost, rel=1e-4)
