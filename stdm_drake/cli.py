@@ -21,6 +21,7 @@ import sys
 
 from stdm_drake import interrupts
 from stdm_drake.errors import InputError, deferred_warnings
+from stdm_drake.files import line_text, printable_text
 from stdm_drake.outputs import command_outputs
 from stdm_drake.paths import expand_shipped
 
@@ -66,7 +67,6 @@ def error_line(error: BaseException) -> str:
         return f"cannot write the standard output: {error.strerror}" if error.errno == errno.ENOSPC else error.strerror
     text = str(error).strip()
     if isinstance(error, InputError):   # (the toolbox's own one line: a name in it may hold a line break, escaped)
-        from stdm_drake.files import line_text
         return line_text(text) if text else type(error).__name__
     return text.splitlines()[0] if text else type(error).__name__
 
@@ -218,8 +218,7 @@ class PrintableLines:
         self._stream = stream
 
     def write(self, text: str) -> int:
-        self._stream.write("".join(character if character.isprintable() or character in "\n\t"
-                                   else repr(character)[1:-1] for character in text))
+        self._stream.write(printable_text(text, keep="\n\t"))
         return len(text)
 
     def __getattr__(self, name):

@@ -94,11 +94,18 @@ def path_text(path) -> str:
     return os.fsencode(str(path)).decode("utf-8", errors="backslashreplace")
 
 
+def printable_text(text: str, keep: str = "") -> str:
+    """`text` with every character that is not printable (a line break, a carriage return, a terminal escape,
+    U+2028), other than those in `keep`, as its Python escape ("\\n", "\\x1b")."""
+    return "".join(character if character.isprintable() or character in keep else repr(character)[1:-1]
+                   for character in text)
+
+
 def line_text(text) -> str:
     """`text` (a name, a path) on one line as every reader takes it: `path_text`, and every character that is not
     printable (a line break, U+2028, other controls) as its Python escape ("\\n"), so that it cannot end a
     comment, a header or a printed line."""
-    return "".join(character if character.isprintable() else repr(character)[1:-1] for character in path_text(text))
+    return printable_text(path_text(text))
 
 
 @contextlib.contextmanager

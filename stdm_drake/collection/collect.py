@@ -201,20 +201,25 @@ def plans_per_pose(count: int, num_poses: int) -> list[int]:
 ARRAYS_PER_SAMPLE = 12
 
 
+def payload_samples(payload) -> int:
+    """The samples of the trajectory a payload plans: an Excitation's num_steps + 1, a PlanSamples' T + 1."""
+    return payload.num_steps + 1 if isinstance(payload, Excitation) else len(payload.q)
+
+
 def estimated_dataset_bytes(payloads, num_joints: int) -> int:
-    """Bytes that trajectories of `payloads` (an Excitation each: num_steps + 1 samples; or a PlanSamples:
-    its (T+1, n) samples) take in memory and in the dataset file, at most."""
-    samples = sum(payload.num_steps + 1 if isinstance(payload, Excitation) else len(payload.q) for payload in payloads)
-    return samples * num_joints * 8 * ARRAYS_PER_SAMPLE
+    """Bytes that trajectories of `payloads` (an Excitation or a PlanSamples each: `payload_samples`) take in memory
+    and in the dataset file, at most."""
+    return sum(map(payload_samples, payloads)) * num_joints * 8 * ARRAYS_PER_SAMPLE
 
 
 def check_plant_steps(payloads, settings) -> None:
     """InputError (one line, with the estimate) where simulating `payloads` takes more than MAX_PLANT_STEPS plant
-    steps (samples x the plant steps per sample period)."""
-    samples = sum(payload.num_steps if isinstance(payload, Excitation) else len(payload.q) - 1 for payload in payloads)
-    steps = samples * settings.substeps()
+    steps (sample periods x the plant steps per sample period)."""
+    periods = sum(payload_samples(payload) - 1 for payload in payloads)
+    substeps = settings.substeps()
+    steps = periods * substeps
     if steps > MAX_PLANT_STEPS:
-        raise InputError(f"{len(payloads)} trajectories of {samples / len(payloads):.0f} samples, {settings.substeps()} "
+        raise InputError(f"{len(payloads)} trajectories of {periods / len(payloads):.0f} samples, {substeps} "
                          f"plant steps each, would take {steps:.3g} plant steps, more than {MAX_PLANT_STEPS:.0e} (hours "
                          "of simulation); collect fewer (--count) or shorter ones, or at a coarser --plant-time-step")
 

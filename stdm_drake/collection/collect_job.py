@@ -15,12 +15,11 @@ import time
 from stdm_drake.collection.collect import CollectionRequest, collect, collection_request, tracking_warning
 from stdm_drake.data.writer import HDF5_RESERVE_BYTES, write_dataset
 from stdm_drake.errors import InputError, warn
-from stdm_drake.files import check_free_space
+from stdm_drake.files import check_free_space, line_text
 from stdm_drake.outputs import check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 from stdm_drake.robots.robot import UR10_CONFIG
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD
-from stdm_drake.files import line_text
 
 
 @dataclasses.dataclass

@@ -10,9 +10,9 @@ from stdm_drake.commands.arguments import add_plant_effects_argument, add_robot_
 from stdm_drake.errors import InputError
 from stdm_drake.experiments.jobs import FULL, QUICK
 from stdm_drake.experiments.reproduce import reproduce
+from stdm_drake.files import line_text
 from stdm_drake.outputs import add_force_argument, check_output_folder, fresh_default_folder
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, plant_effects_for
-from stdm_drake.files import line_text
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

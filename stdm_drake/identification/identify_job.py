@@ -12,10 +12,9 @@ import pathlib
 import sys
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import json_default, write_text_atomic
+from stdm_drake.files import json_default, line_text, write_text_atomic
 from stdm_drake.identification.identify import REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES
 from stdm_drake.outputs import check_output_file
-from stdm_drake.files import line_text
 
 
 @dataclasses.dataclass

@@ -11,8 +11,8 @@ import pathlib
 import sys
 
 from stdm_drake.errors import InputError
-from stdm_drake.outputs import check_output_file
 from stdm_drake.files import line_text
+from stdm_drake.outputs import check_output_file
 
 
 @dataclasses.dataclass
