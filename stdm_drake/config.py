@@ -15,6 +15,12 @@ from stdm_drake.errors import InputError, warn
 from stdm_drake.files import size_text
 from stdm_drake.paths import check_input_file
 
+# libyaml's parser where PyYAML was built with it (the wheels are) for composing and loading: a settings file of
+# 300 kB took 44 s to refuse through the pure-Python parser, 5 s now (most of it Drake's typed load). libyaml gives
+# a plain scalar the style "" (not None). The nesting scan stays pure Python: it stops at the first level too deep,
+# where libyaml's scanner reads ahead and fails at its own limit of 1,000 levels first.
+YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
 
 def one_line(error: BaseException) -> str:
     """An exception's message squeezed onto one line (its type name if it has none)."""
@@ -62,22 +68,24 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     return config
 
 
-def nesting_depth(text: str) -> int:
-    """The deepest nesting of mappings and lists in YAML `text`, counted on the scanner's tokens (no recursion:
-    a file nested thousands deep is measured, not parsed); 0 where it does not scan (the parser says why)."""
+def nested_too_deep(text: str) -> bool:
+    """Whether YAML `text` nests mappings and lists more than MAX_SETTINGS_DEPTH levels deep, counted on the
+    scanner's tokens up to the first level too deep (no recursion: a file nested thousands deep is measured, not
+    parsed); False where it does not scan (the parser says why)."""
+    if sum(text.count(mark) for mark in "[{:-?") <= MAX_SETTINGS_DEPTH:
+        return False   # (each level opens at one of these marks: too few of them, no scan needed)
     opening = (yaml.BlockMappingStartToken, yaml.BlockSequenceStartToken, yaml.FlowMappingStartToken,
                yaml.FlowSequenceStartToken)
     closing = (yaml.BlockEndToken, yaml.FlowMappingEndToken, yaml.FlowSequenceEndToken)
-    depth = deepest = 0
+    depth = 0
     try:
         for token in yaml.scan(text, Loader=yaml.SafeLoader):
             depth += isinstance(token, opening) - isinstance(token, closing)
-            deepest = max(deepest, depth)
-            if deepest > MAX_SETTINGS_DEPTH:
-                break
+            if depth > MAX_SETTINGS_DEPTH:
+                return True
     except yaml.YAMLError:
-        return 0
-    return deepest
+        return False
+    return False
 
 
 def check_nesting(path, what: str) -> None:
@@ -86,7 +94,7 @@ def check_nesting(path, what: str) -> None:
         text = pathlib.Path(path).read_text(encoding="utf-8-sig")
     except (OSError, UnicodeDecodeError):
         return   # (the typed load says why)
-    if nesting_depth(text) > MAX_SETTINGS_DEPTH:
+    if nested_too_deep(text):
         raise InputError(f"{path}: nests lists or mappings more than {MAX_SETTINGS_DEPTH} levels deep, deeper than any "
                          f"{what} (a few levels)")
 
@@ -97,7 +105,7 @@ def check_quoted_numbers(path, schema) -> None:
     Drake's typed load would read as the number; an unreadable file is left to the typed load."""
     try:
         text = pathlib.Path(path).read_text(encoding="utf-8-sig")
-        node = yaml.compose(text, Loader=yaml.SafeLoader)
+        node = yaml.compose(text, Loader=YAML_LOADER)
     except (yaml.YAMLError, OSError, UnicodeDecodeError, RecursionError):
         return
     found = _quoted_number(node, schema, "", text)
@@ -190,7 +198,7 @@ def _quoted_number(node, schema, prefix: str, text: str):
         tag = next((word for word in written.split() if word.startswith("!")), None)
         if tag is None and item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):
             return where, item.value, f"which YAML reads as {yaml.safe_load(item.value)!r} (a YAML 1.1 {_form(item.value)})"
-        if tag is None and (item.tag in NUMBER_TAGS or (item.style is None and item.tag.endswith(":str") and (
+        if tag is None and (item.tag in NUMBER_TAGS or (not item.style and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):
             continue   # (`1e-4`: text to PyYAML, a number to the typed load; `many`: the typed load's own error)
         if item.style in ("'", '"'):
@@ -208,7 +216,7 @@ class TaggedMapping(dict):
     tag = ""
 
 
-class _TagsAsPlainValues(yaml.SafeLoader):
+class _TagsAsPlainValues(YAML_LOADER):
     """A YAML loader that reads a tagged node (`!Pid {...}`) as its plain mapping (a TaggedMapping),
     list or scalar."""
 
@@ -234,7 +242,7 @@ def read_yaml_document(path):
         return None
     try:
         text = pathlib.Path(path).read_text()
-        return yaml.load(text, Loader=_TagsAsPlainValues) if nesting_depth(text) <= MAX_SETTINGS_DEPTH else None
+        return yaml.load(text, Loader=_TagsAsPlainValues) if not nested_too_deep(text) else None
     except (OSError, UnicodeDecodeError, yaml.YAMLError):
         return None
 

@@ -55,7 +55,7 @@ from stdm_drake.closed_loop.policy import MpcStep, StepMemory
 from stdm_drake.closed_loop.push import JointPush, add_push
 from stdm_drake.closed_loop.rti import Rti
 from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi
-from stdm_drake.config import check_joint_vector, load_yaml_config, read_yaml_document
+from stdm_drake.config import YAML_LOADER, check_joint_vector, load_yaml_config, read_yaml_document
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.plant import Dynamics, JointLimits, PlantConfig, joint_limits
@@ -178,7 +178,7 @@ def _check_optimizer_layout(path) -> None:
     document = read_yaml_document(path)
     if not isinstance(document, dict):
         return   # (missing, unreadable, not a mapping: the typed load says why)
-    node = next((value for key, value in yaml.compose(pathlib.Path(path).read_text(), Loader=yaml.SafeLoader).value
+    node = next((value for key, value in yaml.compose(pathlib.Path(path).read_text(), Loader=YAML_LOADER).value
                  if key.value == "optimizer"), None)
     tag = node.tag[1:] if node is not None and node.tag.startswith("!") else None
     if tag is not None and f"!{tag}" not in OPTIMIZER_TAGS:
