@@ -12,7 +12,7 @@ from tools_import import study
 STUDIES = ("alpha-calibration", "closed-loop", "decisive", "default-train", "generalization-gap", "identification",
            "import-round-trip", "jacobian-accuracy", "model-structure", "published-arms", "realtime-loop", "robot-corpus",
            "reality-gap", "reality-gap-plans", "settling", "sampling-mpc", "mbrl-loop", "constrained-mpc",
-           "quick-sine-sum")
+           "quick-sine-sum", "sample-efficiency")
 
 
 def test_list_names_every_study_with_its_one_line_description():

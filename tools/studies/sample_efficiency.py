@@ -183,7 +183,8 @@ def summarize(all_cells: list[Cell], members: list[dict], rules: dict, profile: 
         rule_rows = {pair: naive[pair] if alpha == 0 else next(
             r for r in rows if (r.data_seed, r.init) == pair and r.alpha == alpha) for pair, alpha in rule.items()}
         per_alpha = {f"{alpha:g}": {label: two_level(naive, {(r.data_seed, r.init): r for r in rows if r.alpha == alpha},
-                                                     key) for key, label in ENDPOINTS} for alpha in positive}
+                                                     key) for key, label in ENDPOINTS} for alpha in positive
+                     if any(r.alpha == alpha for r in rows)}
         summary.append(dict(cell=cell.name, kind=cell.kind, size=cell.size, activation=cell.activation,
                             naive_vs_euler_q=gate_q, naive_vs_unchanged_v=gate_v, gated=gated, DD=ratios,
                             verdict=verdict(gated, ratios["one-step q"], ratios["one-step v"]),
