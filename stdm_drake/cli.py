@@ -55,20 +55,24 @@ class CommandParser(argparse.ArgumentParser):
     """argparse with its errors as one line (`stdm-drake CMD: error: ...; see --help`), exit status 2."""
 
     def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+        self.exit(2, f"{self.prog}: error: {line_text(message)} (see {self.prog} --help)\n")   # (a name's line break)
 
 
 def error_line(error: BaseException) -> str:
-    """One line for the user: the message's first line, with the file an OSError names."""
+    """One line for the user: the message's first line, with the file an OSError names; the toolbox's own messages
+    (an InputError, a FileNotFoundError it raised with its message) whole, a name's line break in them escaped;
+    every character that is not printable escaped (a terminal escape, U+202E)."""
     if isinstance(error, OSError) and error.strerror:
         if error.filename:
-            return f"{error.strerror}: {error.filename}"
+            return f"{error.strerror}: {line_text(error.filename)}"
         # (every file stdm-drake writes is named in its errors: one that names none is the standard output)
         return f"cannot write the standard output: {error.strerror}" if error.errno == errno.ENOSPC else error.strerror
     text = str(error).strip()
-    if isinstance(error, InputError):   # (the toolbox's own one line: a name in it may hold a line break, escaped)
-        return line_text(text) if text else type(error).__name__
-    return text.splitlines()[0] if text else type(error).__name__
+    if not text:
+        return type(error).__name__
+    if isinstance(error, (InputError, OSError)):   # (one line already: a line break in it is a name's)
+        return line_text(text)
+    return printable_text(text.splitlines()[0])
 
 
 class RepeatedWarnings(logging.Filter):
@@ -242,7 +246,7 @@ def run_command(name: str, argv: list[str]) -> int:
     try:  # stdm-drake:controllers/pid.yaml names a shipped file, from any folder
         argv = [expand_shipped(argument) for argument in argv]
     except ValueError as error:
-        print(f"stdm-drake {name}: error: {error}", file=sys.stderr)
+        print(f"stdm-drake {name}: error: {error_line(error)}", file=sys.stderr)
         return 2
     module = importlib.import_module(COMMANDS[name][0])   # (a signal inside an import waits for its end)
     command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])

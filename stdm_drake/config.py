@@ -196,7 +196,7 @@ def _quoted_number(node, schema, prefix: str, text: str):
     for where, item in _numeric_scalars(schema, node, prefix.rstrip(".")):
         written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
         tag = next((word for word in written.split() if word.startswith("!")), None)
-        if tag is None and item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):
+        if item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):   # (tagged `!!int 024` too)
             return where, item.value, f"which YAML reads as {yaml.safe_load(item.value)!r} (a YAML 1.1 {_form(item.value)})"
         if tag is None and (item.tag in NUMBER_TAGS or (not item.style and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):

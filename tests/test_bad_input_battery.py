@@ -239,6 +239,15 @@ def write_issue_25_inputs(box) -> None:
                                       '</link></model></sdf>')
     (box / "many_attributes.urdf").write_text(urdf.replace('<link name="flange"/>', '<link name="flange" '
                                               + " ".join(f'a{i}="0"' for i in range(200_000)) + "/>"))
+    # (held-out run 17: poses of the other rotation format's count, an infinite pose, an SRDF element of 101
+    # attributes, a plan of 1e9 steps)
+    link = '<sdf version="1.9"><model name="arm"><link name="l1"><pose{}>{}</pose></link></model></sdf>'
+    (box / "bad_pose_seven.sdf").write_text(link.format("", "0 0 0.1 0 0 0 1"))
+    (box / "bad_pose_quaternion.sdf").write_text(link.format(' rotation_format="quat_xyzw"', "0 0 0.1 0 0 1"))
+    (box / "bad_pose_inf.sdf").write_text(link.format("", "0 0 inf 0 0 0"))
+    (box / "many_attributes.srdf").write_text('<robot name="ur10" ' + " ".join(f'a{i}="0"' for i in range(100)) + "/>")
+    (box / "huge_plan.yaml").write_text((ROOT / "trajectories" / "tracking.yaml").read_text().replace(
+        "num_steps: 100", "num_steps: 1000000000"))
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -735,10 +744,25 @@ CASES = [
     (["robot", "init", "bad_bytes.urdf", "-o", "NEW.yaml"], "is 5.0 MB, more than the 4 MB a robot description"),
     (["robot", "init", "nested.sdf", "-o", "NEW.yaml"], "nests elements more than 64 deep"),
     # (held-out run 16)
-    (["robot", "init", "bad_pose.sdf", "-o", "NEW.yaml"], "link 'l1': its <pose> holds 5 values, SDFormat reads 6 or 7"),
+    (["robot", "init", "bad_pose.sdf", "-o", "NEW.yaml"],
+     "link 'l1': its <pose> holds 5 values, SDFormat reads 6 for rotation_format euler_rpy"),
     (["robot", "init", "many_attributes.urdf", "-o", "NEW.yaml"], "an element <link> carries 200,001 attributes"),
     (["robot", "init", "bad_two_masses.urdf", "-o", "NEW.yaml"], "link 'forearm_link': its <inertial> states 2 <mass>"),
     (["robot", "init", "bad_negative_velocity.urdf", "-o", "NEW.yaml"], "joint 'elbow_joint' states velocity limit -3.1416"),
+    # (held-out run 17)
+    (["robot", "init", "bad_pose_seven.sdf", "-o", "NEW.yaml"], "its <pose> holds 7 values, SDFormat reads 6 for "
+     "rotation_format euler_rpy"),
+    (["robot", "init", "bad_pose_quaternion.sdf", "-o", "NEW.yaml"], "its <pose> holds 6 values, SDFormat reads 7 for "
+     "rotation_format quat_xyzw"),
+    (["robot", "init", "bad_pose_inf.sdf", "-o", "NEW.yaml"], "its <pose> is '0 0 inf 0 0 0'; a pose is finite numbers"),
+    (["robot", "init", "ur10.urdf", "--srdf", "many_attributes.srdf", "-o", "NEW.yaml"],
+     "an element <robot> carries 101 attributes"),
+    ([*C, "--config", "huge_plan.yaml", "-o", "NEW.h5"], "1 trajectories of 1000000000 samples"),
+    (yaml_case("mpc", "horizon: !!int 024\n"), "horizon is written 024, which YAML reads as 20 (a YAML 1.1 octal"),
+    (yaml_case("ctrl", "controller: !Pid\n  kp: [!!int 02342, 2500.0, 690.0, 24.5, 5.3, 0.42]\n"),
+     "controller.kp is written 02342, which YAML reads as 1250"),
+    (yaml_case("robot", "name: x\nmodel: ur10.urdf\nvelocity_limits: {<<: {<<: {shoulder_pan_joint: !!int 010}}}\n"),
+     "velocity_limits.shoulder_pan_joint is written 010, which YAML reads as 8"),
     (yaml_case("mpc", "horizon: ٢٠\n"), "horizon is '٢٠' read by YAML as text, not a number; write the number in ASCII"),
     (yaml_case("mpc", "horizon: &a !!str 20\n"), "horizon is '20' tagged !!str, not a number"),
     (yaml_case("effects", "viscous_friction: [１]\n"), "viscous_friction is '１' read by YAML as text"),

@@ -691,3 +691,18 @@ def test_names_with_control_characters_are_printed_escaped(excitation_dataset, t
     out = capsys.readouterr().out
     assert "da\\nta\\x1b[31m\\u2028.h5" in out
     assert all(character.isprintable() or character in "\n\t" for character in out)
+
+
+def test_error_lines_keep_a_whole_name_with_its_control_characters_escaped(tmp_path, capsys, monkeypatch):
+    """(Issue 56, held-out run 17) An error naming a missing file cut the line at the name's line break ("dataset
+    not found: no") and printed U+202E raw: the whole name now, every character that is not printable escaped, in
+    the toolbox's errors and argparse's."""
+    monkeypatch.chdir(tmp_path)
+    for argv, shown in ((["train", "no\nsuch.h5", "-o", "x"], "dataset not found: no\\nsuch.h5"),
+                        (["inspect", "missing\u202e.h5"], "dataset not found: missing\\u202e.h5"),
+                        (["export", "ck\rpt", "-o", "m.onnx"], "checkpoint not found: ck\\rpt"),
+                        (["train", "x.h5", "--model", "D\x1b[31m", "-o", "x"], "invalid choice: 'D\\x1b[31M'")):   # (--model upper-cases)
+        assert main(argv) == 2
+        error = capsys.readouterr().err
+        assert error.count("\n") == 1 and shown in error, error
+        assert all(character.isprintable() for character in error.rstrip("\n")), error

@@ -427,3 +427,24 @@ def test_the_redundant_joints_of_a_long_chain_are_found_in_polynomial_work(monke
     assert kinematics.redundant_joints(J7) == min(((joint,) for joint in range(7)),
                                                   key=lambda r: condition(np.delete(J7, r, axis=1)))
     assert len(calls) == 7
+
+
+def test_an_sdf_limit_below_zero_is_none_as_sdformat_reads_it(tmp_path, capsys):
+    """(Issue 56, held-out run 17) SDFormat's default velocity and effort limit is -1, "not enforced": a joint whose
+    <velocity> or <effort> is below 0 gets derived limits, noted as SDFormat's "none", where a negative effort was
+    refused as a URDF's would be (which states no such rule)."""
+    link = ('<link name="{name}"><pose>0 0 {z} 0 0 0</pose><inertial><mass>1</mass><inertia><ixx>0.01</ixx><iyy>0.01'
+            '</iyy><izz>0.01</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial></link>')
+    joint = ('<joint name="j{i}" type="revolute"><parent>l{i}</parent><child>l{child}</child><axis><xyz>0 1 0</xyz>'
+             '<limit><lower>-2</lower><upper>2</upper><effort>{effort}</effort><velocity>{velocity}</velocity></limit>'
+             '</axis></joint>')
+    (tmp_path / "arm.sdf").write_text(
+        '<sdf version="1.9"><model name="arm">' + "".join(link.format(name=f"l{i}", z=0.2 * i) for i in range(3))
+        + joint.format(i=0, child=1, effort=-1, velocity=-2.0) + joint.format(i=1, child=2, effort=50, velocity=2)
+        + "</model></sdf>")
+    assert main(["robot", "init", str(tmp_path / "arm.sdf"), "-o", str(tmp_path / "arm.yaml")]) == 0
+    out = capsys.readouterr().out
+    assert "velocity_limits of j0 derived (the file gives none or 0; in SDFormat, below 0 is none)" in out
+    assert "effort_limits of j0 derived" in out
+    config = (tmp_path / "arm.yaml").read_text()
+    assert "j0: 1.5707963267948966  # derived" in config

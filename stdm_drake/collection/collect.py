@@ -212,14 +212,14 @@ def estimated_dataset_bytes(payloads, num_joints: int) -> int:
     return sum(map(payload_samples, payloads)) * num_joints * 8 * ARRAYS_PER_SAMPLE
 
 
-def check_plant_steps(payloads, settings) -> None:
-    """InputError (one line, with the estimate) where simulating `payloads` takes more than MAX_PLANT_STEPS plant
-    steps (sample periods x the plant steps per sample period)."""
-    periods = sum(payload_samples(payload) - 1 for payload in payloads)
+def check_plant_steps(count: int, periods: int, settings) -> None:
+    """InputError (one line, with the estimate) where simulating `count` trajectories of `periods` sample periods in
+    all takes more than MAX_PLANT_STEPS plant steps (sample periods x the plant steps per sample period): checked
+    from the protocol's settings before anything is planned, and again from the plans."""
     substeps = settings.substeps()
     steps = periods * substeps
     if steps > MAX_PLANT_STEPS:
-        raise InputError(f"{len(payloads)} trajectories of {periods / len(payloads):.0f} samples, {substeps} "
+        raise InputError(f"{count} trajectories of {periods / count:.0f} samples, {substeps} "
                          f"plant steps each, would take {steps:.3g} plant steps, more than {MAX_PLANT_STEPS:.0e} (hours "
                          "of simulation); collect fewer (--count) or shorter ones, or at a coarser --plant-time-step")
 
@@ -243,6 +243,7 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
     settings.sensor.validate()
     if request.protocol == "tracking":   # (excitation has no tracking controller)
         settings.controller.validate()
+        check_plant_steps(request.count, request.count * request.tracking_spec.sampling.num_steps, settings)
     bar = tqdm(total=request.count, desc=f"collect {request.protocol}", unit="traj", disable=not progress,
                file=sys.stderr)
     trajectories, excitation_parameters = [], []
@@ -264,7 +265,7 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
             payloads, groups = [request.excitation] * request.count, [0] * request.count
         else:
             payloads, groups = plan_tracking(request, pool)
-        check_plant_steps(payloads, settings)
+        check_plant_steps(len(payloads), sum(payload_samples(payload) - 1 for payload in payloads), settings)
         size = estimated_dataset_bytes(payloads, settings.robot.num_joints)
         available = files.available_memory()
         if available is not None and size > available:

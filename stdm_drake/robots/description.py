@@ -137,8 +137,8 @@ def _urdf(root) -> Description:
 
 
 def _sdf(root) -> Description:
-    """SDFormat's defaults: a link without <inertial> has mass 1 kg and unit inertia; a velocity limit
-    below 0 means none. Names are scoped as SDFormat scopes them: a nested model's links and joints are
+    """SDFormat's defaults: a link without <inertial> has mass 1 kg and unit inertia; a velocity or effort
+    limit below 0 means none. Names are scoped as SDFormat scopes them: a nested model's links and joints are
     "inner::name", and where the file holds several models (a world of two arms) every name is "model::name",
     so two models that both have a link "base" are two links, not one link with two parents; a joint placed in
     the world itself names its links scoped ("arm::tool")."""
@@ -156,8 +156,9 @@ def _sdf(root) -> Description:
         for joint in element.findall("joint"):
             values = {key: checked_number(joint.findtext(f"axis/limit/{key}"), f"joint {joint.get('name')!r}: its {key} limit")
                       for key in ("lower", "upper", "velocity", "effort")}
-            if values["velocity"] is not None and values["velocity"] < 0:
-                values["velocity"] = None
+            for key in ("velocity", "effort"):   # (SDFormat: a limit below 0 is not enforced, -1 its default)
+                if values[key] is not None and values[key] < 0:
+                    values[key] = None
             parent, child = ((joint.findtext(end) or "").strip() for end in ("parent", "child"))
             joints.append(Joint(prefix + (joint.get("name") or ""), joint.get("type"),
                                 parent if parent in ("world", "") else prefix + parent, child and prefix + child,

@@ -3,6 +3,7 @@ checks that make the toolbox's reading and Drake's (or MoveIt's) the same file, 
 have. Used by `robots.description` (and the SRDF readers)."""
 from __future__ import annotations
 
+import math
 import pathlib
 
 from stdm_drake.errors import InputError
@@ -43,10 +44,11 @@ NUMBER_ELEMENTS = {"pose", "xyz", "lower", "upper", "effort", "velocity", "dampi
 # Attributes one element may carry: a URDF or SDF element has at most a handful (an <inertia> six); 200,000 on one
 # element made a 3 MB file that `robot init` worked on for minutes
 MAX_ATTRIBUTES = 100
-# The values an SDF element's text holds (SDFormat reads others with several lines of its own): a pose is x y z roll
-# pitch yaw, or x y z and a quaternion with rotation_format="quat_xyzw"; a joint axis x y z (a <size> is a box's 3
-# or a plane's 2: not counted)
-SDF_VALUE_COUNTS = {"pose": (6, 7), "xyz": (3,)}
+# The values an SDF element's text holds (SDFormat reads others with several lines of its own): a joint axis x y z
+# (a <size> is a box's 3 or a plane's 2: not counted); a pose x y z roll pitch yaw, or x y z and a quaternion with
+# rotation_format="quat_xyzw"; both finite
+SDF_VALUE_COUNTS = {"xyz": (3,)}
+POSE_VALUE_COUNTS = {"euler_rpy": (6,), "quat_xyzw": (7,)}   # by the <pose>'s rotation_format
 # The mass properties a URDF link states once: Drake's parser reads the first and ignores the rest without a word,
 # so a second <mass> (a negative one, say) would be a physics nobody checked. (Other elements stated twice are left
 # as Drake reads them: a published quadruped states a joint's <axis> twice.)
@@ -55,11 +57,11 @@ URDF_SINGLE_CHILDREN = {"inertial": ("mass", "origin", "inertia"), "link": ("ine
 
 def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None:
     """InputError (one line) for an XML file the toolbox cannot read as Drake (or MoveIt) would: not well-formed
-    (an undefined entity included), or declaring entities (Python's parser expands them, Drake's does not; a
-    "billion laughs" file among them). kind: what the file should be, for the message ("a URDF or SDF file is").
-    count_frames: also refuse a description of more than MAX_DESCRIPTION_BYTES, nested more than MAX_DEPTH deep,
-    or of more than MAX_FRAMES links, joints and frames or MAX_SDF_FRAMES <frame>s, in this one pass (stopped at the first past the budget), before
-    anything else reads it."""
+    (an undefined entity included), declaring entities (Python's parser expands them, Drake's does not; a "billion
+    laughs" file among them), nested more than MAX_DEPTH deep or with an element of more than MAX_ATTRIBUTES
+    attributes. kind: what the file should be, for the message ("a URDF or SDF file is"). count_frames (a
+    description): also refuse one of more than MAX_DESCRIPTION_BYTES, or of more than MAX_FRAMES links, joints and
+    frames or MAX_SDF_FRAMES <frame>s. One pass, stopped at the first past a budget, before anything else reads it."""
     from xml.parsers import expat
 
     def declared(name, *_):   # (raised at the declaration: nothing is expanded)
@@ -82,7 +84,7 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
         if depth > MAX_DEPTH:
             raise InputError(f"{path.name} nests elements more than {MAX_DEPTH} deep (line {checker.CurrentLineNumber}); "
                              "a robot description nests 5 to 10 (SDF models inside models: a few)")
-        if tag in FRAME_TAGS:
+        if count_frames and tag in FRAME_TAGS:
             frames += 1
             sdf_frames += tag == "frame"
             if sdf_frames > MAX_SDF_FRAMES:
@@ -102,8 +104,7 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
                          "meshes in files of their own); every command reads it several times")
     checker = expat.ParserCreate()
     checker.EntityDeclHandler = declared
-    if count_frames:
-        checker.StartElementHandler, checker.EndElementHandler = started, ended
+    checker.StartElementHandler, checker.EndElementHandler = started, ended
     data, skipped = _text(path)
     try:
         checker.Parse(data, True)
@@ -142,10 +143,17 @@ def check_numbers(root, rule) -> None:
         if sdf:
             if element.tag in NUMBER_ELEMENTS and len(element) == 0 and element.text is not None:
                 _numbers(element.text, rule, f"{owner}: its <{element.tag}>", UnreadNumber)
-                counts = SDF_VALUE_COUNTS.get(element.tag, ())
-                if counts and (found := len(element.text.split())) not in counts:
-                    raise WrongCount(f"{owner}: its <{element.tag}> holds {found} values, SDFormat reads "
-                                     f"{' or '.join(map(str, counts))}")
+                counts, form = SDF_VALUE_COUNTS.get(element.tag, ()), ""
+                if element.tag == "pose":   # (other rotation formats: SDFormat's own error)
+                    rotation = element.get("rotation_format", "euler_rpy")
+                    counts, form = POSE_VALUE_COUNTS.get(rotation, ()), f" for rotation_format {rotation}"
+                values = element.text.split()
+                if counts and len(values) not in counts:
+                    raise WrongCount(f"{owner}: its <{element.tag}> holds {len(values)} values, SDFormat reads "
+                                     f"{' or '.join(map(str, counts))}{form}")
+                if element.tag in ("pose", "xyz") and not all(math.isfinite(float(value)) for value in values):
+                    raise WrongCount(f"{owner}: its <{element.tag}> is {element.text.strip(ASCII_SPACE)!r}; a "
+                                     f"{'pose' if element.tag == 'pose' else 'direction'} is finite numbers")
         else:
             for tag in URDF_SINGLE_CHILDREN.get(element.tag, ()):
                 if (found := len(element.findall(tag))) > 1:
