@@ -148,7 +148,7 @@ def _numeric_scalars(annotation, node, where: str):
     """(the setting's dotted name, scalar node) of every scalar of `node` that a value of type `annotation` holds
     as a number: a numeric field, the items of a list of them, the values of a mapping of them (a robot config's
     limits), and the numeric fields of a dataclass (a Union of dataclasses by the node's tag, `!Name`, else its
-    first member)."""
+    first member); a Drake config type's fields as a dataclass's."""
     import types
     import typing
     origin, arguments = typing.get_origin(annotation), typing.get_args(annotation)
@@ -163,9 +163,10 @@ def _numeric_scalars(annotation, node, where: str):
     elif origin is dict and isinstance(node, yaml.MappingNode) and len(arguments) == 2:
         for key, value in _pairs(node):
             yield from _numeric_scalars(arguments[1], value, f"{where}.{getattr(key, 'value', '?')}")
-    elif dataclasses.is_dataclass(annotation) and isinstance(node, yaml.MappingNode):
-        try:
-            hints = typing.get_type_hints(annotation)
+    elif (dataclasses.is_dataclass(annotation) or hasattr(annotation, "__fields__")) and isinstance(node, yaml.MappingNode):
+        try:   # (a Drake config type, such as VisualizationConfig, lists its fields in __fields__)
+            hints = (typing.get_type_hints(annotation) if dataclasses.is_dataclass(annotation)
+                     else {field.name: field.type for field in annotation.__fields__})
         except Exception:   # (a schema whose annotations do not resolve: nothing to check against)
             return
         for key, value in _pairs(node):

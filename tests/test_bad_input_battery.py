@@ -248,6 +248,14 @@ def write_issue_25_inputs(box) -> None:
     (box / "many_attributes.srdf").write_text('<robot name="ur10" ' + " ".join(f'a{i}="0"' for i in range(100)) + "/>")
     (box / "huge_plan.yaml").write_text((ROOT / "trajectories" / "tracking.yaml").read_text().replace(
         "num_steps: 100", "num_steps: 1000000000"))
+    (box / "bad_pose_nbsp.sdf").write_text(link.format("", "0 0\xa00.1 0 0 0"))   # (SDFormat: 5 values)
+    spring = ('<sdf version="1.9"><model name="arm"><link name="a"/><link name="b"/><joint name="j" type="revolute">'
+              '<parent>a</parent><child>b</child><axis><xyz>0 0 1</xyz><dynamics>{}</dynamics></axis></joint></model></sdf>')
+    (box / "bad_spring.sdf").write_text(spring.format("<spring_stiffness>-5</spring_stiffness>"))
+    (box / "bad_spring_reference.sdf").write_text(spring.format("<spring_reference>inf</spring_reference>"))
+    (box / "bad_damping.urdf").write_text(urdf.replace("    <limit lower=", '    <dynamics damping="1e300"/><limit lower=', 1))
+    (box / "bad_visualization.yaml").write_text("publish_period: !!str 0.5\n")
+    (box / "jacobian_link.onnx").symlink_to("foreign.jacobian.onnx")
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -759,6 +767,13 @@ CASES = [
      "an element <robot> carries 101 attributes"),
     ([*C, "--config", "huge_plan.yaml", "-o", "NEW.h5"], "1 trajectories of 1000000000 samples"),
     (yaml_case("mpc", "horizon: !!int 024\n"), "horizon is written 024, which YAML reads as 20 (a YAML 1.1 octal"),
+    (["robot", "init", "bad_pose_nbsp.sdf", "-o", "NEW.yaml"], "its <pose> is '0 0\\xa00.1 0 0 0', not a number"),
+    (["robot", "init", "bad_spring.sdf", "-o", "NEW.yaml"], "its <dynamics> spring_stiffness is -5; a joint's is in [0,"),
+    (["robot", "init", "bad_spring_reference.sdf", "-o", "NEW.yaml"], "its <dynamics> spring_reference is inf; a joint's is finite"),
+    (["robot", "init", "bad_damping.urdf", "-o", "NEW.yaml"], "its <dynamics> damping is 1e+300; a joint's is in [0, 1e+06]"),
+    ([*E, "--visualization", "bad_visualization.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "publish_period is '0.5' tagged !!str, not a number"),
+    (["export", "CK", "-o", "jacobian_link.onnx"], "links to foreign.jacobian.onnx, a Jacobian graph"),
     (yaml_case("ctrl", "controller: !Pid\n  kp: [!!int 02342, 2500.0, 690.0, 24.5, 5.3, 0.42]\n"),
      "controller.kp is written 02342, which YAML reads as 1250"),
     (yaml_case("robot", "name: x\nmodel: ur10.urdf\nvelocity_limits: {<<: {<<: {shoulder_pan_joint: !!int 010}}}\n"),

@@ -40,10 +40,13 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     suffix = ".onnx" if job.target == "onnx" else ".yaml"
     if pathlib.Path(job.output).suffix.lower() != suffix:
         raise InputError(f"-o/--output {job.output}: the {job.target} target writes a {suffix} file")
-    if job.target == "onnx" and pathlib.Path(job.output).name.lower().endswith(".jacobian.onnx"):
-        model_name = pathlib.Path(job.output).name[:-len(".jacobian.onnx")] + ".onnx"
-        raise InputError(f"-o/--output {job.output} is the name of a Jacobian graph: export writes the model graph to "
-                         f"-o and its Jacobian graph beside it; give the model graph's name ({model_name})")
+    given = pathlib.Path(job.output)
+    for named in (given, given.resolve() if given.is_symlink() else given):   # (a link to a Jacobian graph too)
+        if job.target == "onnx" and named.name.lower().endswith(".jacobian.onnx"):
+            model_name = named.name[:-len(".jacobian.onnx")] + ".onnx"
+            what = "is the name of" if named is given else f"links to {line_text(named.name)},"
+            raise InputError(f"-o/--output {job.output} {what} a Jacobian graph: export writes the model graph to -o "
+                             f"and its Jacobian graph beside it; give the model graph's name ({model_name})")
     outputs = [job.output] + ([jacobian_path(job.output)] if job.target == "onnx" else [])
     kind = "onnx" if job.target == "onnx" else "native"
     for option, path in zip(("-o/--output", "the Jacobian graph"), outputs):

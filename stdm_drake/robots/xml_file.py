@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import pathlib
+import re
 
 from stdm_drake.errors import InputError
 
@@ -141,13 +142,15 @@ def check_numbers(root, rule) -> None:
         if element.tag in ("link", "joint", "model", "frame") and name is not None:
             owner = f"{element.tag} {name!r}"
         if sdf:
+            if element.tag == "dynamics":
+                _check_joint_dynamics({child.tag: child.text for child in element}, owner)
             if element.tag in NUMBER_ELEMENTS and len(element) == 0 and element.text is not None:
                 _numbers(element.text, rule, f"{owner}: its <{element.tag}>", UnreadNumber)
                 counts, form = SDF_VALUE_COUNTS.get(element.tag, ()), ""
                 if element.tag == "pose":   # (other rotation formats: SDFormat's own error)
                     rotation = element.get("rotation_format", "euler_rpy")
                     counts, form = POSE_VALUE_COUNTS.get(rotation, ()), f" for rotation_format {rotation}"
-                values = element.text.split()
+                values = ascii_words(element.text)
                 if counts and len(values) not in counts:
                     raise WrongCount(f"{owner}: its <{element.tag}> holds {len(values)} values, SDFormat reads "
                                      f"{' or '.join(map(str, counts))}{form}")
@@ -155,6 +158,8 @@ def check_numbers(root, rule) -> None:
                     raise WrongCount(f"{owner}: its <{element.tag}> is {element.text.strip(ASCII_SPACE)!r}; a "
                                      f"{'pose' if element.tag == 'pose' else 'direction'} is finite numbers")
         else:
+            if element.tag == "dynamics":
+                _check_joint_dynamics(dict(element.attrib), owner)
             for tag in URDF_SINGLE_CHILDREN.get(element.tag, ()):
                 if (found := len(element.findall(tag))) > 1:
                     itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
@@ -166,6 +171,36 @@ def check_numbers(root, rule) -> None:
         pending += [(child, owner) for child in element]
 
 
+# A joint's <dynamics> (URDF's attributes, SDF's elements): what Drake's joints and springs assert on (a negative
+# spring stiffness ended `robot init` with Drake's assertion text, exit 1; an infinite spring reference in the
+# simulator's traceback), and magnitudes beyond any robot's joint (a damping of 1e300 froze the joint without a word;
+# the plant effects' own bound, effects.EFFECT_BOUNDS: 1e6): (the lowest value, the highest, its unit)
+JOINT_DYNAMICS = {"damping": (0.0, 1e6, "N m s/rad or N s/m"), "friction": (0.0, 1e6, "N m or N"),
+                  "spring_stiffness": (0.0, 1e8, "N m/rad or N/m"), "spring_reference": (-math.inf, math.inf, "rad or m")}
+
+
+def _check_joint_dynamics(texts: dict, owner: str) -> None:
+    """WrongCount for a <dynamics> value (texts: its name -> text, as the file writes it) outside JOINT_DYNAMICS."""
+    for key, text in texts.items():
+        words = ascii_words(text or "")
+        try:
+            value = float(words[0]) if key in JOINT_DYNAMICS and len(words) == 1 else None
+        except ValueError:
+            continue   # (the number check says why)
+        if value is None:
+            continue
+        low, high, unit = JOINT_DYNAMICS[key]
+        if not (math.isfinite(value) and low <= value <= high):
+            bounds = "finite" if math.isinf(low) else f"in [{low:g}, {high:g}] {unit}"
+            raise WrongCount(f"{owner}: its <dynamics> {key} is {value:g}; a joint's is {bounds}")
+
+
+def ascii_words(text: str) -> list[str]:
+    """`text` split at ASCII white space, as TinyXML2 and SDFormat split a list of numbers (a no-break space is
+    none: `0\xa00` is one word, which no number rule reads)."""
+    return [word for word in re.split(f"[{ASCII_SPACE}]+", text) if word]
+
+
 def _numbers(text: str, rule, what: str, error) -> None:
-    if not all(rule.fullmatch(part) for part in text.split()):
+    if not all(rule.fullmatch(part) for part in ascii_words(text)):
         raise error(f"{what} is {text.strip(ASCII_SPACE)!r}")
