@@ -108,6 +108,14 @@ def line_text(text) -> str:
     return printable_text(path_text(text))
 
 
+def names_text(names, shown: int = 8) -> str:
+    """Names for one line: the first `shown`, each `line_text`, then how many more ("a, b, c and 49,997 more"): a
+    message listing 50,000 names was one line of 389,147 characters."""
+    names = [line_text(name) for name in names]
+    more = len(names) - shown
+    return ", ".join(names[:shown]) + (f" and {more:,} more" if more > 0 else "")
+
+
 @contextlib.contextmanager
 def atomic_path(path):
     """Yield a temporary path beside `path`; on success rename it to `path`, on error delete it (`atomic_paths`

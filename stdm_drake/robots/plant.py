@@ -9,6 +9,7 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, Multibody
 from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
 
 from stdm_drake.errors import InputError
+from stdm_drake.files import names_text
 from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,
                                        set_effect_parameters)
 from stdm_drake.robots.robot import Robot
@@ -376,8 +377,8 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     links = {bare.get_body(index).name() for index in bare.GetBodyIndices(instance)}
     unknown = sorted((set(effects.mass_scale) | set(effects.link_inertia)) - links)
     if unknown:
-        raise InputError(f"plant effects mass_scale or link_inertia names links robot {robot.name} does not have: {', '.join(unknown)} "
-                         f"(its links: {', '.join(sorted(links))})")
+        raise InputError(f"plant effects mass_scale or link_inertia names links robot {robot.name} does not have: "
+                         f"{names_text(unknown)} (its links: {names_text(sorted(links), 50)})")
     gain = coulomb_stability_gains(effects, robot, time_step)
     if gain is not None:
         friction, scale = effects.coulomb(n)
