@@ -774,6 +774,8 @@ CASES = [
     ([*E, "--visualization", "bad_visualization.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
      "publish_period is '0.5' tagged !!str, not a number"),
     (["export", "CK", "-o", "jacobian_link.onnx"], "links to foreign.jacobian.onnx, a Jacobian graph"),
+    (["robot", "check", "ur10.urdf"], "ur10.urdf is a robot description, not a robot config"),
+    ([*E, "--robot", "ur10.urdf", "-o", "NEW.h5"], "write one with `stdm-drake robot init ur10.urdf`"),
     (yaml_case("ctrl", "controller: !Pid\n  kp: [!!int 02342, 2500.0, 690.0, 24.5, 5.3, 0.42]\n"),
      "controller.kp is written 02342, which YAML reads as 1250"),
     (yaml_case("robot", "name: x\nmodel: ur10.urdf\nvelocity_limits: {<<: {<<: {shoulder_pan_joint: !!int 010}}}\n"),

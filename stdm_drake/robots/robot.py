@@ -409,9 +409,14 @@ class Robot:
 
 
 def load_robot(path) -> Robot:
-    """The Robot of a robot config YAML (the UR-10 preset: `UR10_CONFIG`, models/ur10.yaml)."""
+    """The Robot of a robot config YAML (the UR-10 preset: `UR10_CONFIG`, models/ur10.yaml); a URDF or SDF given in
+    its place is an InputError naming `robot init`, which writes the config of one."""
     from stdm_drake.config import load_yaml_config
+    from stdm_drake.files import line_text
     path = pathlib.Path(path)
+    if path.suffix.lower() in (".urdf", ".sdf", ".xml", ".srdf"):
+        raise InputError(f"{line_text(path)} is a robot description, not a robot config (a YAML naming it, its arm "
+                         f"joints and home): write one with `stdm-drake robot init {line_text(path.name)}`")
     robot = Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)
     robot.config_path = path.resolve()
     return robot
