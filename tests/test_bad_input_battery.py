@@ -255,6 +255,10 @@ def write_issue_25_inputs(box) -> None:
     (box / "bad_spring_reference.sdf").write_text(spring.format("<spring_reference>inf</spring_reference>"))
     (box / "bad_damping.urdf").write_text(urdf.replace("    <limit lower=", '    <dynamics damping="1e300"/><limit lower=', 1))
     (box / "bad_visualization.yaml").write_text("publish_period: !!str 0.5\n")
+    (box / "far_origin.urdf").write_text(urdf.replace('<origin xyz="0 0 0.019"/>',
+                                                      '<origin xyz="1e300 0 0.019"/>', 1))
+    (box / "bad_locked.yaml").write_text(ur10_config("ur10.urdf").replace(", wrist_3_joint]", "]").replace(
+        ", 0.0]\n", "]\n") + "locked_joints: {<<: {wrist_3_joint: .nan}}\n")
     (box / "jacobian_link.onnx").symlink_to("foreign.jacobian.onnx")
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
@@ -775,6 +779,8 @@ CASES = [
      "publish_period is '0.5' tagged !!str, not a number"),
     (["export", "CK", "-o", "jacobian_link.onnx"], "links to foreign.jacobian.onnx, a Jacobian graph"),
     (["robot", "check", "ur10.urdf"], "ur10.urdf is a robot description, not a robot config"),
+    (["robot", "init", "far_origin.urdf", "-o", "NEW.yaml"], "places a frame 1e+300 m from its parent"),
+    (["robot", "check", "bad_locked.yaml"], "'wrist_3_joint' is locked at nan"),
     ([*E, "--robot", "ur10.urdf", "-o", "NEW.h5"], "write one with `stdm-drake robot init ur10.urdf`"),
     (yaml_case("ctrl", "controller: !Pid\n  kp: [!!int 02342, 2500.0, 690.0, 24.5, 5.3, 0.42]\n"),
      "controller.kp is written 02342, which YAML reads as 1250"),

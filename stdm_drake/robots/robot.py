@@ -106,6 +106,10 @@ class RobotConfig:
         overlap = set(self.locked_joints) & set(self.arm_joints)
         if overlap:
             raise InputError(f"robot config: joints {sorted(overlap)} are both arm joints and locked")
+        for joint, position in self.locked_joints.items():   # (NaN: an eigenvalue solver's error, far later)
+            if not math.isfinite(position):
+                raise InputError(f"robot config locked_joints: {joint!r} is locked at {position}; give a finite position "
+                                 "(rad or m)")
         for field in ("effort_limits", "velocity_limits"):
             for joint, value in getattr(self, field).items():
                 if joint not in self.arm_joints:

@@ -157,6 +157,8 @@ def check_numbers(root, rule) -> None:
                 if element.tag in ("pose", "xyz") and not all(math.isfinite(float(value)) for value in values):
                     raise WrongCount(f"{owner}: its <{element.tag}> is {element.text.strip(ASCII_SPACE)!r}; a "
                                      f"{'pose' if element.tag == 'pose' else 'direction'} is finite numbers")
+                if element.tag == "pose":
+                    _check_offset(values[:3], f"{owner}: its <pose>")
         else:
             if element.tag == "dynamics":
                 _check_joint_dynamics(dict(element.attrib), owner)
@@ -168,6 +170,8 @@ def check_numbers(root, rule) -> None:
             for attribute, text in element.attrib.items():
                 if attribute in NUMBER_ATTRIBUTES or (element.tag == "mass" and attribute == "value"):
                     _numbers(text, rule, f"{owner}: its <{element.tag}> {attribute}", UnreadNumber)
+            if element.tag == "origin" and element.get("xyz") is not None:
+                _check_offset(ascii_words(element.get("xyz")), f"{owner}: its <origin> xyz")
         pending += [(child, owner) for child in element]
 
 
@@ -193,6 +197,21 @@ def _check_joint_dynamics(texts: dict, owner: str) -> None:
         if not (math.isfinite(value) and low <= value <= high):
             bounds = "finite" if math.isinf(low) else f"in [{low:g}, {high:g}] {unit}"
             raise WrongCount(f"{owner}: its <dynamics> {key} is {value:g}; a joint's is {bounds}")
+
+
+# A frame's offset from its parent, m: a robot's are centimetres to metres; one of 1e300 m made the plant's mass
+# matrix overflow ("Eigenvalues did not converge" as the only line)
+MAX_OFFSET = 1e6
+
+
+def _check_offset(words: list, what: str) -> None:
+    try:
+        values = [float(word) for word in words]
+    except ValueError:
+        return   # (the number check says why)
+    if any(not abs(value) <= MAX_OFFSET for value in values):   # (NaN and inf too)
+        raise WrongCount(f"{what} places a frame {max(map(abs, values)):g} m from its parent; a robot's frames lie "
+                         f"within {MAX_OFFSET:g} m of each other")
 
 
 def ascii_words(text: str) -> list[str]:
