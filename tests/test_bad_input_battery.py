@@ -174,7 +174,7 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "negative_velocity": ('velocity="3.1416" effort="150"', 'velocity="-3.1416" effort="150"'),
     "zero_velocity": ('velocity="3.1416" effort="150"', 'velocity="0" effort="150"'),
     "nan_limit": ('lower="-3.141592653589793" upper="3.141592653589793"', 'lower="nan" upper="3.141592653589793"'),
-    "nan_origin": ('<origin xyz="-0.232 0.0 0.158"', '<origin xyz="nan 0.0 0.158"'),   # Drake's parser: a ValueError
+    "nan_origin": ('<origin xyz="-0.232 0.0 0.158"', '<origin xyz="nan 0.0 0.158"'),   # (refused before Drake reads it)
     # (issue 56: numbers Python cannot read and Drake reads otherwise: a hexadecimal float, a prefix before junk)
     "hex_mass": ('<mass value="4.27"/>', '<mass value="-0x1.1p+2"/>'),
     "junk_mass": ('<mass value="4.27"/>', '<mass value="-4.27junk"/>'),
@@ -780,7 +780,7 @@ CASES = [
     (["export", "CK", "-o", "jacobian_link.onnx"], "links to foreign.jacobian.onnx, a Jacobian graph"),
     (["robot", "check", "ur10.urdf"], "ur10.urdf is a robot description, not a robot config"),
     (["robot", "init", "far_origin.urdf", "-o", "NEW.yaml"], "places a frame 1e+300 m from its parent"),
-    (["robot", "check", "bad_locked.yaml"], "'wrist_3_joint' is locked at nan"),
+    (["robot", "check", "bad_locked.yaml"], "locked_joints must lock each joint at a finite position"),
     ([*E, "--robot", "ur10.urdf", "-o", "NEW.h5"], "write one with `stdm-drake robot init ur10.urdf`"),
     (yaml_case("ctrl", "controller: !Pid\n  kp: [!!int 02342, 2500.0, 690.0, 24.5, 5.3, 0.42]\n"),
      "controller.kp is written 02342, which YAML reads as 1250"),
@@ -833,7 +833,7 @@ CASES = [
     ([*E, "--robot", "bad_zero_inertia.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves no inertia about its axis"),
     ([*E, "--robot", "bad_massless.yaml", "-o", "NEW.h5"], "arm joint 'wrist_3_joint' moves links wrist_3_link, flange, tool0"),
     ([*E, "--robot", "bad_reversed.yaml", "-o", "NEW.h5"], "'elbow_joint' has its lower position limit 3.14159 above"),
-    ([*E, "--robot", "bad_nan_origin.yaml", "-o", "NEW.h5"], "bad_nan_origin.urdf does not load: Expected 3 values for attribute xyz"),
+    ([*E, "--robot", "bad_nan_origin.yaml", "-o", "NEW.h5"], "its <origin> xyz is 'nan 0.0 0.158'; a frame's offset is finite"),
     ([*E, "--robot", "bad_negative_velocity.yaml", "-o", "NEW.h5"], "'elbow_joint' has velocity limit -3.1416"),
     ([*E, "--robot", "bad_zero_velocity.yaml", "-o", "NEW.h5"], "'elbow_joint' has velocity limit 0"),
     ([*E, "--robot", "bad_nan_limit.yaml", "-o", "NEW.h5"], "'elbow_joint' has a non-finite lower limit"),

@@ -19,8 +19,9 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 
-from stdm_drake.config import one_line
+from stdm_drake.config import one_line, require
 from stdm_drake.errors import InputError
+from stdm_drake.files import line_text
 from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,
                                            inertia_substitutions, limit_overrides, limits_drake_refuses)
 from stdm_drake.robots.meshes import mesh_cache_dir
@@ -90,38 +91,32 @@ class RobotConfig:
         """Checks that need no model file (the rest happen when the plant is built)."""
         if not self.name or not self.model or not self.tool_frame:
             raise InputError("robot config needs name, model and tool_frame")
-        if not self.arm_joints or len(set(self.arm_joints)) != len(self.arm_joints):
-            raise InputError(f"robot config arm_joints must list distinct joints, got {self.arm_joints}")
+        require(self.arm_joints and len(set(self.arm_joints)) == len(self.arm_joints),
+                "robot config arm_joints must list distinct joints", self.arm_joints)
         if len(self.home) != len(self.arm_joints) or not all(math.isfinite(value) for value in self.home):
             raise InputError(f"robot config home must give {len(self.arm_joints)} finite positions (one per arm "
                              f"joint), got {self.home}")
-        unknown = [joint for joint in self.unactuated_joints if joint not in self.arm_joints]
-        if unknown or len(set(self.unactuated_joints)) != len(self.unactuated_joints):
-            raise InputError(f"robot config unactuated_joints must list distinct arm joints, got {self.unactuated_joints}")
+        require(set(self.unactuated_joints) <= set(self.arm_joints) and len(set(self.unactuated_joints)) == len(
+            self.unactuated_joints), "robot config unactuated_joints must list distinct arm joints", self.unactuated_joints)
         for pair in self.disabled_collisions:
             if len(pair) != 2 or not all(isinstance(link, str) and link for link in pair) or pair[0] == pair[1]:
                 raise InputError(f"robot config disabled_collisions: each entry is two different link names, got {pair}")
         if len(self.unactuated_joints) == len(self.arm_joints):
             raise InputError("robot config: every arm joint is unactuated; the robot needs at least one actuator")
-        overlap = set(self.locked_joints) & set(self.arm_joints)
-        if overlap:
+        if overlap := set(self.locked_joints) & set(self.arm_joints):
             raise InputError(f"robot config: joints {sorted(overlap)} are both arm joints and locked")
-        for joint, position in self.locked_joints.items():   # (NaN: an eigenvalue solver's error, far later)
-            if not math.isfinite(position):
-                raise InputError(f"robot config locked_joints: {joint!r} is locked at {position}; give a finite position "
-                                 "(rad or m)")
+        require(all(map(math.isfinite, self.locked_joints.values())),   # (NaN: an eigenvalue solver's error, later)
+                "robot config locked_joints must lock each joint at a finite position (rad or m)", self.locked_joints)
         for field in ("effort_limits", "velocity_limits"):
             for joint, value in getattr(self, field).items():
                 if joint not in self.arm_joints:
                     raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
-                if not (math.isfinite(value) and value > 0):
-                    raise InputError(f"robot config {field}[{joint!r}] must be > 0, got {value}")
+                require(math.isfinite(value) and value > 0, f"robot config {field}[{joint!r}] must be > 0", value)
         for joint, values in self.position_limits.items():
             if joint not in self.arm_joints and joint not in self.locked_joints:
                 raise InputError(f"robot config position_limits: {joint!r} is not an arm or locked joint")
-            if len(values) != 2 or not all(math.isfinite(value) for value in values) or not values[0] < values[1]:
-                raise InputError(f"robot config position_limits[{joint!r}] must be [lower, upper] with finite "
-                                 f"lower < upper (rad or m), got {values}")
+            require(len(values) == 2 and all(map(math.isfinite, values)) and values[0] < values[1],
+                    f"robot config position_limits[{joint!r}] must be [lower, upper], finite, lower < upper (rad or m)", values)
 
 
 class Robot:
@@ -416,9 +411,8 @@ def load_robot(path) -> Robot:
     """The Robot of a robot config YAML (the UR-10 preset: `UR10_CONFIG`, models/ur10.yaml); a URDF or SDF given in
     its place is an InputError naming `robot init`, which writes the config of one."""
     from stdm_drake.config import load_yaml_config
-    from stdm_drake.files import line_text
     path = pathlib.Path(path)
-    if path.suffix.lower() in (".urdf", ".sdf", ".xml", ".srdf"):
+    if path.suffix.lower() in (*SUFFIXES, ".xml", ".srdf"):
         raise InputError(f"{line_text(path)} is a robot description, not a robot config (a YAML naming it, its arm "
                          f"joints and home): write one with `stdm-drake robot init {line_text(path.name)}`")
     robot = Robot(load_yaml_config(path, RobotConfig, what="robot config"), path.parent)

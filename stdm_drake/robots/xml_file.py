@@ -209,7 +209,9 @@ def _check_offset(words: list, what: str) -> None:
         values = [float(word) for word in words]
     except ValueError:
         return   # (the number check says why)
-    if any(not abs(value) <= MAX_OFFSET for value in values):   # (NaN and inf too)
+    if not all(math.isfinite(value) for value in values):
+        raise WrongCount(f"{what} is {' '.join(words)!r}; a frame's offset is finite (m)")
+    if any(abs(value) > MAX_OFFSET for value in values):
         raise WrongCount(f"{what} places a frame {max(map(abs, values)):g} m from its parent; a robot's frames lie "
                          f"within {MAX_OFFSET:g} m of each other")
 
