@@ -1,5 +1,7 @@
-"""Reports: Markdown tables (the one table writer of every output) and the `Report` of headings,
-paragraphs, tables and images rendered to Markdown and standalone HTML."""
+"""Reports: Markdown tables (the one table writer of every output), the `Report` of headings, paragraphs, tables
+and images rendered to Markdown and standalone HTML, and the open-loop error line beside the physics-free
+rollouts (`open_loop_error_line`, what `view` prints per trajectory)."""
+import numpy as np
 
 
 def markdown_table(header, rows) -> str:
@@ -61,3 +63,27 @@ class Report:
                 out.append(f"<figure><img src='{html.escape(block[1])}'><figcaption>{html.escape(block[2])}"
                            "</figcaption></figure>")
         return "\n".join(out + ["</body></html>"])
+
+
+def open_loop_error_line(name: str, q: np.ndarray, v0: np.ndarray, predicted: np.ndarray, sample_period: float,
+                         steps=(1, 10, 50)) -> str:
+    """One line of open-loop joint-angle errors: the RMS over joints of predicted - q at a few steps
+    (those of `steps` within the trajectory, and its last), beside the physics-free rollouts from the
+    same start, "stays put" (q_0 held) and "v unchanged" (q_0 + k h v_0), and the first step from which
+    the model is further off than staying put (a rollout's error grows with the horizon, so a long
+    trajectory's whole-length figure alone says little).
+
+    q, predicted: (T + 1, n) rad, both starting at q_0; v0: (n,) rad/s; sample_period h: s."""
+    last = len(q) - 1
+    shown = [k for k in steps if k < last] + [last]
+    k = np.arange(len(q))[:, None]
+    rollouts = {name: predicted, "stays put": np.broadcast_to(q[0], q.shape),
+                "v unchanged": q[0] + k * sample_period * v0}
+    errors = {label: np.sqrt(np.mean((rollout - q) ** 2, axis=1)) for label, rollout in rollouts.items()}
+    table = "; ".join(f"{label} " + " / ".join(f"{error[step]:.3g}" for step in shown)
+                      for label, error in errors.items())
+    worse = np.flatnonzero(errors[name][1:] > errors["stays put"][1:])
+    verdict = (f"further off than staying put from step {worse[0] + 1}" if len(worse)
+               else "closer than staying put throughout")
+    return (f"open-loop RMS joint-angle error (rad) at steps {' / '.join(map(str, shown))}: {table}; "
+            f"{name} {verdict}")

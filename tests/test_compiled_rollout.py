@@ -1,4 +1,4 @@
-"""Open-loop rollouts in the compiled core (learning/compiled_core.py, core/control_step.hpp) against the numpy
+"""Open-loop rollouts in the compiled core (dynamics/compiled_core.py, core/control_step.hpp) against the numpy
 rollouts they replace: every structure and activation the core covers, the variance of ensembles and
 probabilistic members, rows that diverge, the setting that chooses the code (`evaluate`'s: tests/test_learn_cli.py)."""
 import numpy as np

@@ -8,7 +8,7 @@ import pytest
 
 from presets import UR10
 from test_export import random_rows, synthetic_checkpoint
-from stdm_drake.learning import compiled_core
+from stdm_drake.dynamics import compiled_core
 from stdm_drake.closed_loop.constraints import Constraints, CondensedQp
 from stdm_drake.closed_loop.mpc import load_mpc_config, run_closed_loop
 from stdm_drake.closed_loop.rti import Rti, RtiSolver

@@ -71,7 +71,7 @@ def test_a_visualization_config_chooses_what_the_recording_shows(tmp_path):
 def test_view_reports_open_loop_errors_at_steps_beside_the_physics_free_rollouts():
     """The view's line: errors at steps 1 / 10 / 50 and the last, beside "stays put" and "v unchanged",
     and the step from which the model is further off than staying put."""
-    from stdm_drake.learning.evaluate import open_loop_error_line
+    from stdm_drake.report import open_loop_error_line
     t = np.arange(201)[:, None] * 0.01
     q = np.hstack([0.5 * t, np.sin(t)])                      # (201, 2): v0 = (0.5, 1.0)
     predicted = q.copy()

@@ -4,7 +4,7 @@ Models: 3 hidden layers x 100, swish, state 12, action 6, delta parameterization
 fitted to synthetic robot-like data (so rollouts stay bounded); and the default structure's network of the UR-10
 (the next velocity from the state, the torque and the nominal acceleration of the robot's rigid-body model). Timed
 in the same run, interleaved (median over rounds):
-  compiled   `LearnedModel.rollout` in the compiled core (C++, `learning.compiled_core`; the whole call)
+  compiled   `LearnedModel.rollout` in the compiled core (C++, `dynamics.compiled_core`; the whole call)
   fast       stdm_drake.learning.predict.rollout on a prebuilt InferenceModel (numpy float32, the whole call)
   numpy      `LearnedModel.rollout(implementation="numpy")` (the default structure's step-by-step reference)
   baseline   a plain PyTorch loop calling the nn.Module under torch.no_grad() (ensemble: mean of members)

@@ -2,7 +2,7 @@
 (`core/control_step.hpp`, built at install as the extension module `stdm_drake._core`), with the prediction models
 it covers linearized there too, so that nothing returns to Python within a control step.
 
-What it covers: the models of `learning.compiled_core.compiled_model` (the toolbox's ensemble MLPs and the plant
+What it covers: the models of `dynamics.compiled_core.compiled_model` (the toolbox's ensemble MLPs and the plant
 as a model in RK4 steps). Other models run the numpy step, and the solver says so (`implementation`); the MPC's
 outputs record which step ran.
 
@@ -19,12 +19,12 @@ import numpy as np
 from stdm_drake.closed_loop.constraints import StateBounds
 from stdm_drake.closed_loop.optimizer import OptimizerResult, TrackingCost, TrajectoryOptimizer
 from stdm_drake.errors import InputError
-from stdm_drake.learning.compiled_core import core_module
+from stdm_drake.dynamics.compiled_core import core_module
 
 
 class CompiledRtiSolver(TrajectoryOptimizer):
     """The real-time iteration of `rti.RtiSolver` (same settings, same results) with the whole control step in
-    C++; `core_model` from `learning.compiled_core.compiled_model`."""
+    C++; `core_model` from `dynamics.compiled_core.compiled_model`."""
     implementation = "compiled"
 
     def __init__(self, model, cost: TrackingCost, effort_limit: np.ndarray, config, bounds: StateBounds | None,

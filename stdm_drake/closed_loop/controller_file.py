@@ -52,7 +52,7 @@ def controller_text(model, config, robot, written_by: str = "stdm-drake export")
     """The controller file of `model` (a checkpoint's `LearnedModel` or a `PlantModel`) under the MPC settings
     `config` (`MpcConfig`) for `robot` (its plant's limits, its description's gravity); InputError for a model the
     compiled controller does not cover (`compiled_core.compiled_model`)."""
-    from stdm_drake.learning.compiled_core import compiled_model, rigid_body_arrays
+    from stdm_drake.dynamics.compiled_core import compiled_model, rigid_body_arrays
     from stdm_drake.dynamics.physics import PlantModel
     from stdm_drake.robots.plant import Dynamics, joint_limits
     from stdm_drake.robots.rigid_body import robot_dynamics
@@ -109,16 +109,16 @@ def export_controller(checkpoint: pathlib.Path, output: pathlib.Path, robot_conf
     from stdm_drake.closed_loop.mpc import DEFAULT_MPC_CONFIG, load_mpc_config
     from stdm_drake.data.compatibility import resolve_robot
     from stdm_drake.files import atomic_path
-    from stdm_drake.learning.checkpoint import load_checkpoint
-    from stdm_drake.learning.learned_model import LearnedModel
+    from stdm_drake.dynamics.model_files import load_model, model_file_kinds
     from stdm_drake.outputs import check_output_file
     if pathlib.Path(output).suffix.lower() != ".controller":
         raise InputError(f"-o/--output {output}: the controller target writes a .controller file")
     inputs = [path for path in (checkpoint, robot_config, mpc_config) if path is not None]
     check_output_file("-o/--output", output, kind="controller", inputs=inputs, force=force)
-    loaded = load_checkpoint(checkpoint)
+    # a train checkpoint, read by the model-file registry's checkpoint kind (its one-line refusals for other files)
+    loaded = next(kind for kind in model_file_kinds() if kind.name == "checkpoint").function("load")(checkpoint)
     robot = resolve_robot(robot_config, None)
-    text = controller_text(LearnedModel(loaded, robot=robot), load_mpc_config(mpc_config or DEFAULT_MPC_CONFIG), robot)
+    text = controller_text(load_model(loaded, robot), load_mpc_config(mpc_config or DEFAULT_MPC_CONFIG), robot)
     with atomic_path(output) as path:
         path.write_text(text)
     say(f"{line_text(loaded.path.name)} ({loaded.structure.label}, every {loaded.sample_period} s) under the MPC "

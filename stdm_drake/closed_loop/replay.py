@@ -64,7 +64,7 @@ def replay_job(job: ReplayJob) -> dict:
     from stdm_drake.data.compatibility import resolve_robot
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.dynamics.model_files import load_model
-    from stdm_drake.learning.evaluate import open_loop_error_line
+    from stdm_drake.report import open_loop_error_line
     from stdm_drake.robots.recorder import TrajectoryRecorder, check_meshcat_allowed, recording_visualization
 
     if not (job.html or job.meshcat):

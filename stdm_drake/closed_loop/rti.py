@@ -31,7 +31,7 @@ import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
 
 from stdm_drake.closed_loop.compiled import CompiledRtiSolver
-from stdm_drake.learning.compiled_core import IMPLEMENTATIONS, compiled_model
+from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS, compiled_model
 from stdm_drake.closed_loop.constraints import CondensedQp, StateBounds
 from stdm_drake.closed_loop.optimizer import (LINEARIZATION_STEPS, OptimizerResult, OptimizerSettings, TrackingCost,
                                               TrajectoryOptimizer)

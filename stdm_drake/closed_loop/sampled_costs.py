@@ -46,7 +46,7 @@ class SampledCosts:
             elif settings.implementation == "numpy":
                 self.steps = "the model's steps numpy"
             else:
-                from stdm_drake.learning.compiled_core import compiled_model
+                from stdm_drake.dynamics.compiled_core import compiled_model
                 self.compiled, why_not = compiled_model(model)
                 self.steps = ("the model's steps compiled" if self.compiled is not None else
                               f"the model's steps numpy: the compiled core does not cover {why_not}")

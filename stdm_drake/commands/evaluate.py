@@ -6,7 +6,7 @@ import argparse
 import pathlib
 
 from stdm_drake.dynamics.model import PROPAGATIONS
-from stdm_drake.learning.compiled_core import IMPLEMENTATIONS
+from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS
 from stdm_drake.outputs import add_force_argument
 
 

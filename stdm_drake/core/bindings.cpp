@@ -1,5 +1,5 @@
 // Python bindings of the compiled core (control_step.hpp): the module stdm_drake._core.
-// stdm_drake/learning/compiled_core.py builds its models from the toolbox's, stdm_drake/closed_loop/compiled.py its
+// stdm_drake/dynamics/compiled_core.py builds its models from the toolbox's, stdm_drake/closed_loop/compiled.py its
 // solver from the MPC settings; nothing here is called per node or per step from Python.
 #include <nanobind/eigen/dense.h>
 #include <nanobind/nanobind.h>

@@ -1,6 +1,6 @@
 // The compiled core: the prediction models' rollouts, batched steps and linearizations, and the MPC's control
 // step, the real-time iteration with the robot's limits (Python: bindings.cpp binds it as stdm_drake._core;
-// stdm_drake/learning/compiled_core.py builds its models, stdm_drake/closed_loop/compiled.py its solver; the numpy
+// stdm_drake/dynamics/compiled_core.py builds its models, stdm_drake/closed_loop/compiled.py its solver; the numpy
 // implementation, LearnedModel's rollouts and steps, closed_loop/rti.py and constraints.py, is the reference it
 // is tested equal to).
 //

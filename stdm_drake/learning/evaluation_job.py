@@ -10,7 +10,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import finite_json, line_text, write_text_atomic
-from stdm_drake.learning.compiled_core import IMPLEMENTATIONS
+from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS
 from stdm_drake.learning.evaluate import REPORT_STEPS, compare_with_baselines, physics_baselines, trajectory_rollout_data
 from stdm_drake.outputs import check_output_file
 

@@ -15,7 +15,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.dynamics.model import DynamicsModel, Prediction, Rollout, check_batch
-from stdm_drake.learning.compiled_core import IMPLEMENTATIONS, compiled_model, compiled_rollout
+from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS, compiled_model, compiled_rollout
 from stdm_drake.learning.predict import as_inference_model, predict, rollout
 from stdm_drake.learning.structure import PAPER, ModelStructure
 

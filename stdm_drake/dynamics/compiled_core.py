@@ -10,7 +10,8 @@ numpy, and say so (the MPC solver's `implementation`, `LearnedModel.rollout_impl
 
 Who uses it: `LearnedModel.rollout` ("mean" propagation: open-loop evaluation, `view`), the sampling MPC's
 batched model steps (`closed_loop.sampled_costs`, `step_rows`) and the MPC's compiled control step
-(`closed_loop.compiled`). The numpy code is the
+(`closed_loop.compiled`). It sits with the models (it reads an MLP's inference engine by its attributes and
+imports nothing of learning), so learning and the closed loop both use it from below. The numpy code is the
 reference, one setting away (`implementation="numpy"`), and the tests hold the two equal.
 
 Rigid bodies cross as arrays (`rigid_body_arrays`): the Pinocchio model `robots.rigid_body.RigidBodyDynamics`
