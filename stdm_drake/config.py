@@ -12,7 +12,7 @@ import yaml
 from pydrake.common.yaml import yaml_load_typed
 
 from stdm_drake.errors import InputError, warn
-from stdm_drake.files import size_text
+from stdm_drake.files import line_text, size_text
 from stdm_drake.paths import check_input_file
 
 # libyaml's parser where PyYAML was built with it (the wheels are) for composing and loading: a settings file of
@@ -108,6 +108,11 @@ def check_quoted_numbers(path, schema) -> None:
         node = yaml.compose(text, Loader=YAML_LOADER)
     except (yaml.YAMLError, OSError, UnicodeDecodeError, RecursionError):
         return
+    repeated = _repeated_key(node)
+    if repeated is not None:
+        key, first, second = repeated
+        raise InputError(f"{path}: {line_text(key)} is given twice in one mapping (lines {first} and {second}); YAML "
+                         "keeps the last without a word, so give it once")
     found = _quoted_number(node, schema, "", text)
     if found is not None:
         where, value, how = found
@@ -116,6 +121,28 @@ def check_quoted_numbers(path, schema) -> None:
         fix = {"in quotes": "without quotes", "read by YAML as text": "in ASCII digits"}.get(
             how, "without the tag" if how.startswith("tagged") else "in digits")
         raise InputError(f"{path}: {where} is {value!r} {how}, not a number; write the number {fix}")
+
+
+def _repeated_key(node):
+    """(the key, its first line, its second line) of the first mapping of `node` that states a key twice (merge keys
+    `<<` aside: overriding what they bring in is their use), or None. Each node visited once (aliases share them)."""
+    pending, seen = [node], set()
+    while pending:
+        current = pending.pop()
+        if current is None or id(current) in seen:
+            continue
+        seen.add(id(current))
+        if isinstance(current, yaml.MappingNode):
+            lines = {}
+            for key, value in current.value:
+                if isinstance(key, yaml.ScalarNode) and key.tag != MERGE_TAG:
+                    if key.value in lines:
+                        return key.value, lines[key.value], key.start_mark.line + 1
+                    lines[key.value] = key.start_mark.line + 1
+                pending += [key, value]
+        elif isinstance(current, yaml.SequenceNode):
+            pending += current.value
+    return None
 
 
 NUMBER_TAGS = ("tag:yaml.org,2002:int", "tag:yaml.org,2002:float", "tag:yaml.org,2002:null")
@@ -160,6 +187,9 @@ def _numeric_scalars(annotation, node, where: str):
     elif origin in (list, tuple) and isinstance(node, yaml.SequenceNode):
         for item in node.value:
             yield from _numeric_scalars(arguments[0] if arguments else None, item, where)
+    elif getattr(annotation, "__name__", "") == "ndarray" and isinstance(node, yaml.SequenceNode):
+        for item in node.value:   # (a Drake config's array field, Rgba's `rgba`: numbers, nested or not)
+            yield from _numeric_scalars(annotation if isinstance(item, yaml.SequenceNode) else float, item, where)
     elif origin is dict and isinstance(node, yaml.MappingNode) and len(arguments) == 2:
         for key, value in _pairs(node):
             yield from _numeric_scalars(arguments[1], value, f"{where}.{getattr(key, 'value', '?')}")
@@ -179,15 +209,17 @@ def _numeric_scalars(annotation, node, where: str):
 
 
 # numbers YAML 1.1 reads other than as their decimal digits say: octal (`024` is 20), binary, hexadecimal,
-# digits grouped by `_` (`1_00`), base 60 (`1:30` is 90)
-YAML11_FORM = re.compile(r"[-+]?(?:0[0-7_]+$|0b|0x)|.*[_:]", re.ASCII)
+# digits grouped by `_` (`1_00`), base 60 (`1:30` is 90); YAML 1.2's own octal `0o24` (20) under a number tag
+YAML11_FORM = re.compile(r"[-+]?(?:0[0-7_]+$|0b|0x|0o)|.*[_:]", re.ASCII)
 
 
 def _form(value: str) -> str:
     digits = value.lstrip("+-")
-    return ("base-60 number" if ":" in value else "number with digits grouped by '_'" if "_" in value
-            else "binary number" if digits.startswith("0b") else "hexadecimal number" if digits.startswith("0x")
-            else "octal number")
+    if digits.startswith("0o"):
+        return "YAML 1.2 octal number"
+    return "YAML 1.1 " + ("base-60 number" if ":" in value else "number with digits grouped by '_'" if "_" in value
+                          else "binary number" if digits.startswith("0b") else "hexadecimal number"
+                          if digits.startswith("0x") else "octal number")
 
 
 def _quoted_number(node, schema, prefix: str, text: str):
@@ -198,7 +230,8 @@ def _quoted_number(node, schema, prefix: str, text: str):
         written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
         tag = next((word for word in written.split() if word.startswith("!")), None)
         if item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):   # (tagged `!!int 024` too)
-            return where, item.value, f"which YAML reads as {yaml.safe_load(item.value)!r} (a YAML 1.1 {_form(item.value)})"
+            read = yaml.safe_load(f"!!{item.tag.rsplit(':', 1)[-1]} {item.value}")   # (as its number tag reads it)
+            return where, item.value, f"which YAML reads as {read!r} (a {_form(item.value)})"
         if tag is None and (item.tag in NUMBER_TAGS or (not item.style and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):
             continue   # (`1e-4`: text to PyYAML, a number to the typed load; `many`: the typed load's own error)
@@ -298,10 +331,19 @@ def check_joint_vector(label: str, values, *, count: int | None = None, nonnegat
     return array
 
 
+# The characters of a refused value `require` shows: a list of 40,000 joint names was one line of 400 kB
+MAX_SHOWN_VALUE = 300
+
+
 def require(condition: bool, message: str, value) -> None:
-    """InputError "<message>, got <value>" unless `condition` holds (config validation)."""
+    """InputError "<message>, got <value>" unless `condition` holds (config validation); a long value shown by its
+    first MAX_SHOWN_VALUE characters and its length."""
     if not condition:
-        raise InputError(f"{message}, got {value!r}")
+        shown = repr(value)
+        if len(shown) > MAX_SHOWN_VALUE:
+            count = f"{len(value):,} entries" if isinstance(value, (list, tuple, dict, set)) else f"{len(shown):,} characters"
+            shown = f"{shown[:MAX_SHOWN_VALUE]}... ({count})"
+        raise InputError(f"{message}, got {shown}")
 
 
 def from_kind_layout(mapping: dict, types: dict, where, tagged: str):

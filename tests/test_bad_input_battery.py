@@ -260,6 +260,24 @@ def write_issue_25_inputs(box) -> None:
     (box / "bad_locked.yaml").write_text(ur10_config("ur10.urdf").replace(", wrist_3_joint]", "]").replace(
         ", 0.0]\n", "]\n") + "locked_joints: {<<: {wrist_3_joint: .nan}}\n")
     (box / "jacobian_link.onnx").symlink_to("foreign.jacobian.onnx")
+    # (held-out run 18: shapes Drake's constructors assert on, limits of 1e300 or a range of 1e-320, numbers SDFormat
+    # cannot read, an SRDF of megabytes, colours outside the number rule, plans of 1e7 steps or 1e9 redraws)
+    (box / "bad_cylinder.urdf").write_text(urdf.replace('<cylinder radius="0.075"', '<cylinder radius="-0.075"', 1))
+    (box / "zero_box.urdf").write_text(urdf.replace('<cylinder radius="0.075" length="0.038"/>', '<box size="0 0 0"/>', 1))
+    (box / "bad_sphere.sdf").write_text('<sdf version="1.9"><model name="arm"><link name="l1"><collision name="c">'
+                                        '<geometry><sphere><radius>-1</radius></sphere></geometry></collision></link>'
+                                        '</model></sdf>')
+    (box / "huge_effort.urdf").write_text(urdf.replace('effort="330"', 'effort="1e300"', 1))
+    (box / "tiny_range.urdf").write_text(urdf.replace('lower="-6.283185307179586" upper="6.283185307179586"',
+                                                      'lower="-1e-320" upper="1e-320"', 1))
+    (box / "tiny_range.sdf").write_text(spring.replace("<dynamics>{}</dynamics>", "<limit><lower>-1e-320</lower>"
+                                                       "<upper>1e-320</upper></limit>"))
+    (box / "big.srdf").write_text('<robot name="ur10"><!-- ' + "x" * (5 << 20) + " --></robot>")
+    (box / "bad_rgba.yaml").write_text("default_proximity_color: {rgba: [0x1, 0.0, 0.0, 1.0]}\n")
+    tracking = (ROOT / "trajectories" / "tracking.yaml").read_text()
+    (box / "max_plan.yaml").write_text(tracking.replace("num_steps: 100", "num_steps: 100000"))
+    (box / "long_plan.yaml").write_text(tracking.replace("num_steps: 100", "num_steps: 10000000"))
+    (box / "redraw_plan.yaml").write_text(tracking.replace("max_resample_attempts: 20", "max_resample_attempts: 1000000000"))
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -769,11 +787,13 @@ CASES = [
     (["robot", "init", "bad_pose_inf.sdf", "-o", "NEW.yaml"], "its <pose> is '0 0 inf 0 0 0'; a pose is finite numbers"),
     (["robot", "init", "ur10.urdf", "--srdf", "many_attributes.srdf", "-o", "NEW.yaml"],
      "an element <robot> carries 101 attributes"),
-    ([*C, "--config", "huge_plan.yaml", "-o", "NEW.h5"], "1 trajectories of 1000000000 samples"),
+    ([*C, "--config", "huge_plan.yaml", "-o", "NEW.h5"], "num_steps must be in [1, 100,000] (longer: more plans)"),
+    (["collect", "--count", "100", "--workers", "1", "--quiet", "--plant-time-step", "0.0005", "--config", "max_plan.yaml",
+      "-o", "NEW.h5"], "100 trajectories of 100000 samples"),
     (yaml_case("mpc", "horizon: !!int 024\n"), "horizon is written 024, which YAML reads as 20 (a YAML 1.1 octal"),
     (["robot", "init", "bad_pose_nbsp.sdf", "-o", "NEW.yaml"], "its <pose> is '0 0\\xa00.1 0 0 0', not a number"),
     (["robot", "init", "bad_spring.sdf", "-o", "NEW.yaml"], "its <dynamics> spring_stiffness is -5; a joint's is in [0,"),
-    (["robot", "init", "bad_spring_reference.sdf", "-o", "NEW.yaml"], "its <dynamics> spring_reference is inf; a joint's is finite"),
+    (["robot", "init", "bad_spring_reference.sdf", "-o", "NEW.yaml"], "its <dynamics> spring_reference is inf; a joint's is in [-1e+06, 1e+06] rad or m"),
     (["robot", "init", "bad_damping.urdf", "-o", "NEW.yaml"], "its <dynamics> damping is 1e+300; a joint's is in [0, 1e+06]"),
     ([*E, "--visualization", "bad_visualization.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
      "publish_period is '0.5' tagged !!str, not a number"),
@@ -872,6 +892,28 @@ CASES = [
     (["export", "CK", "--target", "tflite", "-o", "NEW.onnx"], "argument --target: invalid choice"),
     (["export", "CK", "--target", "drake", "--mean-only", "-o", "NEW.yaml"], "--mean-only belongs to the onnx target"),
     (["export", "CK", "--mean-only", "-o", "NEW.onnx"], "is one deterministic network, whose graph gives the mean alone"),
+    # (held-out run 18)
+    (yaml_case("mpc", "horizon: !!int 0o24\n"), "horizon is written 0o24, which YAML reads as 20 (a YAML 1.2 octal"),
+    ([*E, "--visualization", "bad_rgba.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "default_proximity_color.rgba is written 0x1, which YAML reads as 1"),
+    (["robot", "init", "bad_cylinder.urdf", "-o", "NEW.yaml"], "its <cylinder> radius is '-0.075'; a shape's dimensions"),
+    (["robot", "init", "zero_box.urdf", "-o", "NEW.yaml"], "its <box> size is '0 0 0'; a shape's dimensions are finite, > 0"),
+    (["robot", "init", "bad_sphere.sdf", "-o", "NEW.yaml"], "its <sphere> radius is '-1'; a shape's dimensions are finite, >= 0"),
+    (["robot", "init", "huge_effort.urdf", "-o", "NEW.yaml"], "has effort limit 1e+300; an arm joint's is at most 1e+06"),
+    (yaml_case("robot", ROBOT_TEXT + "velocity_limits: {elbow_joint: 1.0e+300}\n"),
+     "velocity_limits['elbow_joint'] must be > 0 and at most 10000"),
+    (["robot", "init", "tiny_range.urdf", "-o", "NEW.yaml"], "has the position range [-9.99989e-321, 9.99989e-321], so it "
+                                                           "cannot move"),
+    (["robot", "init", "tiny_range.sdf", "-o", "NEW.yaml"], "SDFormat reads numbers of magnitude 0 or at least 2.23e-308"),
+    (["robot", "init", "ur10.urdf", "--srdf", "big.srdf", "-o", "NEW.yaml"], "big.srdf is 5.0 MB, more than the 4 MB"),
+    ([*C, "--protocol", "tracking", "--config", "long_plan.yaml", "-o", "NEW.h5"], "num_steps must be in [1, 100,000]"),
+    ([*C, "--protocol", "tracking", "--config", "redraw_plan.yaml", "-o", "NEW.h5"],
+     "max_resample_attempts must be in [0, 1,000]"),
+    ([*M, *[f"--model=m{i}=x.pt" for i in range(1001)], "-o", "NEW"], "1,002 --model arguments; one study compares at most"),
+    ([*I, "BAG", "--joint-names", *(f"j{i}" for i in range(7)), "-o", "NEW.h5"], "joint_names names 7 joints, robot ur10 has 6"),
+    (yaml_case("robot", ROBOT_TEXT + "unactuated_joints: [" + ", ".join(["elbow_joint"] * 40_000) + "]\n"),
+     "(40,000 entries)"),
+    (yaml_case("mpc", "horizon: 20\nhorizon: 30\n"), "horizon is given twice in one mapping (lines 1 and 2)"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -7,6 +7,7 @@ what it ran on (mpc.md, mpc.csv, mpc.json, mpc.png).
                      optimizer=Ilqr(max_iterations=3), output=pathlib.Path("out/mpc-ilqr"))
     result = run_mpc_study(study)     # every closed loop, the summary rows, result.record: what mpc.json holds
 """
+import collections
 import dataclasses
 import pathlib
 import re
@@ -23,6 +24,9 @@ from stdm_drake.files import line_text
 DEFAULT_OUTPUT = pathlib.Path("out/mpc")   # without an output folder: this one, or out/mpc-2, -3, ... (a fresh one)
 MODEL_NAME = re.compile(r"[A-Za-z0-9_.+-]{1,40}")   # a model's name: a column of mpc.csv and mpc.md
 PLANT_NAMES = ("plant", "true-plant")   # the plant models' rows (in any case: no model may take them)
+# Models one study compares: each is a closed loop per plan (seconds each) and a column of the tables; 1,000 load in
+# about a minute before the first loop, 10,000 loaded for minutes without a line
+MAX_MODELS = 1_000
 
 
 @dataclasses.dataclass
@@ -66,13 +70,16 @@ class MpcStudy:
             raise InputError(f"--plans must be >= 1, got {self.plans}")
         if self.tune < 0:
             raise InputError(f"--tune must be >= 0 (0: off), got {self.tune}")
+        if len(self.models) > MAX_MODELS:
+            raise InputError(f"{len(self.models):,} --model arguments; one study compares at most {MAX_MODELS:,} (each "
+                             "is a closed loop per plan): split them over several runs")
         names = [name for name, _ in self.models]
         for name in names:
             if not MODEL_NAME.fullmatch(name):
                 shown = repr(name) if len(name) <= 48 else repr(name[:40]) + f"... ({len(name)} characters)"
                 raise InputError(f"--model name {shown}: letters, digits, '_', '-', '.' and '+' only (it heads a column "
                                  "of mpc.csv and mpc.md), at most 40 characters")
-        repeated = sorted({name for name in names if names.count(name) > 1})
+        repeated = sorted(name for name, times in collections.Counter(names).items() if times > 1)
         if repeated:
             raise InputError(f"--model names must differ; {', '.join(repeated)} given more than once")
         reserved = sorted(name for name in names if name.lower() in PLANT_NAMES)

@@ -19,6 +19,14 @@ from stdm_drake.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
 
+# One plan's steps: a plan is seconds of motion (100 steps in the paper); 100,000 steps are 1,000 s at the default
+# 10 ms, and a plan of 1e7 steps (28 hours) planned and simulated for minutes without a line. More data is more plans.
+MAX_PLAN_STEPS = 100_000
+# Redraws of a rejected goal pose: a goal box from which 1,000 draws are all unreachable or in collision is one to
+# move, not to draw from again (1e9 redraws of an unreachable box went on for minutes, a line per draw)
+MAX_RESAMPLE_ATTEMPTS = 1_000
+# Rejections `report` names one by one per plan; the rest are counted in the refusal if every attempt fails
+REPORTED_REJECTIONS = 3
 
 
 @dataclasses.dataclass
@@ -81,9 +89,10 @@ class TaskSpaceSamplingConfig:
                  "orientation_max_angle must be in [0, pi] rad", self.orientation_max_angle)
         require(self.num_final_per_initial >= 1, "num_final_per_initial must be >= 1",
                  self.num_final_per_initial)
-        require(self.num_steps >= 1, "num_steps must be >= 1", self.num_steps)
-        require(self.max_resample_attempts >= 0, "max_resample_attempts must be >= 0",
-                 self.max_resample_attempts)
+        require(1 <= self.num_steps <= MAX_PLAN_STEPS, f"num_steps must be in [1, {MAX_PLAN_STEPS:,}] (longer: more "
+                "plans)", self.num_steps)
+        require(0 <= self.max_resample_attempts <= MAX_RESAMPLE_ATTEMPTS,
+                f"max_resample_attempts must be in [0, {MAX_RESAMPLE_ATTEMPTS:,}]", self.max_resample_attempts)
 
 
 @dataclasses.dataclass
@@ -259,7 +268,9 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
                                                     f"self-collision at t={plan.t[k]:.3f} s")
                 except PlanningError as error:
                     reason = str(error)
-                    report(f"{what}, plan {plan_index}, attempt {attempt + 1}: rejected, resampling: {reason}")
+                    if attempt < REPORTED_REJECTIONS:
+                        more = " (later rejections of this plan not shown)" if attempt == REPORTED_REJECTIONS - 1 else ""
+                        report(f"{what}, plan {plan_index}, attempt {attempt + 1}: rejected, resampling{more}: {reason}")
                     continue
                 plans.append((index, plan))
                 break

@@ -63,9 +63,10 @@ def init(args: argparse.Namespace) -> int:
     from stdm_drake.robots.robot_init import InitOptions, write_starting_config
     from stdm_drake.robots.starting_config import given_packages
     if args.name is not None and (not args.name.strip() or args.name in (".", "..")
-                                  or pathlib.Path(args.name).name != args.name or "\\" in args.name):
-        raise InputError(f"--name {args.name!r}: the robot's name, not a path (-o/--output says where the YAML "
-                         "goes)")
+                                  or pathlib.Path(args.name).name != args.name or "\\" in args.name
+                                  or not args.name.isprintable()):   # (a line break would be in the YAML's file name)
+        raise InputError(f"--name {args.name!r}: the robot's name, not a path, printable characters only (-o/--output "
+                         "says where the YAML goes)")
     output = args.output or pathlib.Path(f"{args.name or args.model.stem}.yaml")
     masses = MassesFromGeometry.from_options(args.masses_from_geometry, args.density, args.total_mass)
     packages = given_packages(args.package)

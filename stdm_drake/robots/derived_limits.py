@@ -18,7 +18,9 @@ from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
 # a share of the largest joint's effort, and the configurations drawn
 DERIVED_LIMITS = dict(velocity=(np.pi / 2, 0.5), position=(-np.pi, np.pi), acceleration=5.0, margin=2.0,
                       floor=0.1, configurations=200)
-PROVISIONAL_EFFORT = 1e9   # N m: a joint without a usable effort limit while its derived one is computed
+# N m: a joint without a usable effort limit while its derived one is computed (the largest a robot config may give,
+# description.LIMIT_BOUNDS)
+PROVISIONAL_EFFORT = 1e6
 
 
 def mount_joints(arm_joints: list, joints: dict) -> list:

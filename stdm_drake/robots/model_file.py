@@ -3,6 +3,7 @@ SDF states (limits, continuous joints, <mimic> pairs), the model text Drake can 
 meshes left out, STL and COLLADA meshes converted to OBJ in a cache), an offline Parser, and welding a
 joint at a position. Used by `stdm_drake.robots.robot`."""
 import dataclasses
+import logging
 import os
 import pathlib
 import re
@@ -375,7 +376,9 @@ UNDEFINED_SDF_ELEMENT = re.compile(r"XML Element\[(\w+)\], child of element\[(\w
 def remove_undefined_sdf_elements(root, package_paths: dict, attempts: int = 20) -> list[str]:
     """Remove from a parsed SDF tree (its mesh references already file:// URIs) the elements Drake's parser
     refuses as undefined by SDFormat (UNDEFINED_SDF_ELEMENT), kind by kind as a trial parse names them;
-    they mean nothing to Drake. Returns "<child> in <parent>" per kind removed."""
+    they mean nothing to Drake. Returns "<child> in <parent>" per kind removed. The trial parses print nothing: the
+    parse that loads the robot prints Drake's warnings, with the toolbox's own filters (a trial's warnings were
+    Drake's several-line inertia warning the toolbox leaves out)."""
     import xml.etree.ElementTree as ElementTree
     removed = []
     for _ in range(attempts):
@@ -383,11 +386,15 @@ def remove_undefined_sdf_elements(root, package_paths: dict, attempts: int = 20)
         parser = offline_parser(plant)
         for name, path in package_paths.items():
             parser.package_map().Add(name, str(path))
+        drake = logging.getLogger("drake")
+        drake.filters.insert(0, silent := lambda record: False)
         try:
             parser.AddModelsFromString(ElementTree.tostring(root, encoding="unicode"), "sdf")
             return removed
         except (RuntimeError, ValueError) as error:
             match = UNDEFINED_SDF_ELEMENT.search(str(error))
+        finally:
+            drake.removeFilter(silent)
         if match is None:
             return removed   # (another problem: Drake's message when the robot is loaded)
         child, parent = match.groups()

@@ -23,7 +23,7 @@ from stdm_drake.config import one_line, require
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
 from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,
-                                           inertia_substitutions, limit_overrides, limits_drake_refuses)
+                                           inertia_substitutions, limit_overrides, limits_drake_refuses, LIMIT_BOUNDS)
 from stdm_drake.robots.meshes import mesh_cache_dir
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
@@ -111,7 +111,7 @@ class RobotConfig:
             for joint, value in getattr(self, field).items():
                 if joint not in self.arm_joints:
                     raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
-                require(math.isfinite(value) and value > 0, f"robot config {field}[{joint!r}] must be > 0", value)
+                require((bound := LIMIT_BOUNDS[field.split("_")[0]]) >= value > 0, f"robot config {field}[{joint!r}] must be > 0 and at most {bound:g}", value)
         for joint, values in self.position_limits.items():
             if joint not in self.arm_joints and joint not in self.locked_joints:
                 raise InputError(f"robot config position_limits: {joint!r} is not an arm or locked joint")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import pathlib
 import re
+import sys
 
 from stdm_drake.errors import InputError
 
@@ -60,9 +61,9 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
     """InputError (one line) for an XML file the toolbox cannot read as Drake (or MoveIt) would: not well-formed
     (an undefined entity included), declaring entities (Python's parser expands them, Drake's does not; a "billion
     laughs" file among them), nested more than MAX_DEPTH deep or with an element of more than MAX_ATTRIBUTES
-    attributes. kind: what the file should be, for the message ("a URDF or SDF file is"). count_frames (a
-    description): also refuse one of more than MAX_DESCRIPTION_BYTES, or of more than MAX_FRAMES links, joints and
-    frames or MAX_SDF_FRAMES <frame>s. One pass, stopped at the first past a budget, before anything else reads it."""
+    attributes, or larger than MAX_DESCRIPTION_BYTES. kind: what the file should be, for the message ("a URDF or SDF
+    file is"). count_frames (a description): also refuse one of more than MAX_FRAMES links, joints and frames or
+    MAX_SDF_FRAMES <frame>s. One pass, stopped at the first past a budget, before anything else reads it."""
     from xml.parsers import expat
 
     def declared(name, *_):   # (raised at the declaration: nothing is expanded)
@@ -99,10 +100,10 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
                                  "and builds each of them several times (about 1.2 ms each); keep in the file what "
                                  "the robot is made of")
 
-    if count_frames and pathlib.Path(path).stat().st_size > MAX_DESCRIPTION_BYTES:
+    if pathlib.Path(path).stat().st_size > MAX_DESCRIPTION_BYTES:   # (an SRDF too: 100,000 pairs, 8 MB, took 12 s)
         raise InputError(f"{path.name} is {pathlib.Path(path).stat().st_size / 2**20:.1f} MB, more than the "
-                         f"{MAX_DESCRIPTION_BYTES >> 20} MB a robot description here may be (they are kilobytes, with "
-                         "meshes in files of their own); every command reads it several times")
+                         f"{MAX_DESCRIPTION_BYTES >> 20} MB a robot description or SRDF here may be (they are kilobytes, "
+                         "with meshes in files of their own); every command reads it several times")
     checker = expat.ParserCreate()
     checker.EntityDeclHandler = declared
     checker.StartElementHandler, checker.EndElementHandler = started, ended
@@ -141,11 +142,14 @@ def check_numbers(root, rule) -> None:
         name = element.get("name")
         if element.tag in ("link", "joint", "model", "frame") and name is not None:
             owner = f"{element.tag} {name!r}"
+        if element.tag == "geometry":
+            _check_shapes(element, owner, sdf)
         if sdf:
             if element.tag == "dynamics":
                 _check_joint_dynamics({child.tag: child.text for child in element}, owner)
             if element.tag in NUMBER_ELEMENTS and len(element) == 0 and element.text is not None:
                 _numbers(element.text, rule, f"{owner}: its <{element.tag}>", UnreadNumber)
+                _check_subnormal(element.text, f"{owner}: its <{element.tag}>")
                 counts, form = SDF_VALUE_COUNTS.get(element.tag, ()), ""
                 if element.tag == "pose":   # (other rotation formats: SDFormat's own error)
                     rotation = element.get("rotation_format", "euler_rpy")
@@ -178,9 +182,10 @@ def check_numbers(root, rule) -> None:
 # A joint's <dynamics> (URDF's attributes, SDF's elements): what Drake's joints and springs assert on (a negative
 # spring stiffness ended `robot init` with Drake's assertion text, exit 1; an infinite spring reference in the
 # simulator's traceback), and magnitudes beyond any robot's joint (a damping of 1e300 froze the joint without a word;
-# the plant effects' own bound, effects.EFFECT_BOUNDS: 1e6): (the lowest value, the highest, its unit)
+# the plant effects' own bound, effects.EFFECT_BOUNDS: 1e6; a spring reference as far as a frame's offset, MAX_OFFSET):
+# (the lowest value, the highest, its unit)
 JOINT_DYNAMICS = {"damping": (0.0, 1e6, "N m s/rad or N s/m"), "friction": (0.0, 1e6, "N m or N"),
-                  "spring_stiffness": (0.0, 1e8, "N m/rad or N/m"), "spring_reference": (-math.inf, math.inf, "rad or m")}
+                  "spring_stiffness": (0.0, 1e8, "N m/rad or N/m"), "spring_reference": (-1e6, 1e6, "rad or m")}
 
 
 def _check_joint_dynamics(texts: dict, owner: str) -> None:
@@ -195,8 +200,7 @@ def _check_joint_dynamics(texts: dict, owner: str) -> None:
             continue
         low, high, unit = JOINT_DYNAMICS[key]
         if not (math.isfinite(value) and low <= value <= high):
-            bounds = "finite" if math.isinf(low) else f"in [{low:g}, {high:g}] {unit}"
-            raise WrongCount(f"{owner}: its <dynamics> {key} is {value:g}; a joint's is {bounds}")
+            raise WrongCount(f"{owner}: its <dynamics> {key} is {value:g}; a joint's is in [{low:g}, {high:g}] {unit}")
 
 
 # A frame's offset from its parent, m: a robot's are centimetres to metres; one of 1e300 m made the plant's mass
@@ -214,6 +218,48 @@ def _check_offset(words: list, what: str) -> None:
     if any(abs(value) > MAX_OFFSET for value in values):
         raise WrongCount(f"{what} places a frame {max(map(abs, values)):g} m from its parent; a robot's frames lie "
                          f"within {MAX_OFFSET:g} m of each other")
+
+
+# A visual's or collision's shape: its dimensions (m) as Drake's shape constructors assert on them (a negative
+# cylinder radius or a box of size 0 ended `robot init` and `collect` with Drake's assertion text, exit 1; SDFormat
+# replaces a negative sphere radius by 1 with a warning): finite, above 0 (a sphere's radius may be 0, a point), and
+# within MAX_OFFSET. URDF: attributes (Drake's <drake:capsule> and <drake:ellipsoid> too); SDF: child elements.
+SHAPE_DIMENSIONS = {"box": ("size",), "cylinder": ("radius", "length"), "capsule": ("radius", "length"),
+                    "sphere": ("radius",), "ellipsoid": ("a", "b", "c", "radii")}
+
+
+def _check_shapes(geometry, owner: str, sdf: bool) -> None:
+    """WrongCount for a shape of the <geometry> element whose dimensions SHAPE_DIMENSIONS refuses."""
+    for shape in geometry:
+        kind = shape.tag.rsplit("}", 1)[-1].rsplit(":", 1)[-1]
+        for name in SHAPE_DIMENSIONS.get(kind, ()):
+            if sdf:
+                found = next((child for child in shape if child.tag == name), None)
+                text = None if found is None else found.text
+            else:
+                text = shape.get(name)
+            try:
+                values = [float(word) for word in ascii_words(text or "")]
+            except ValueError:
+                continue   # (the number check says why)
+            lowest = 0.0 if kind == "sphere" else math.nextafter(0.0, 1.0)
+            if not all(math.isfinite(value) and lowest <= value <= MAX_OFFSET for value in values):
+                bound = ">= 0" if kind == "sphere" else "> 0"
+                raise WrongCount(f"{owner}: its <{kind}> {name} is {(text or '').strip(ASCII_SPACE)!r}; a shape's "
+                                 f"dimensions are finite, {bound} and at most {MAX_OFFSET:g} m")
+
+
+def _check_subnormal(text: str, what: str) -> None:
+    """WrongCount for a number SDFormat cannot read: a magnitude below the smallest normal double (2.2e-308, not 0),
+    which its parser calls "Out of range" in several lines (a URDF's is read, as 0 or nearly)."""
+    for word in ascii_words(text):
+        try:
+            value = abs(float(word))
+        except ValueError:
+            return   # (the number check says why)
+        if 0 < value < sys.float_info.min:
+            raise WrongCount(f"{what} holds {word}; SDFormat reads numbers of magnitude 0 or at least "
+                             f"{sys.float_info.min:.3g}")
 
 
 def ascii_words(text: str) -> list[str]:

@@ -80,6 +80,9 @@ def import_job(job: ImportJob) -> dict:
     check_output_file("-o/--output", output, kind="dataset", inputs=[log, job.mapping, job.robot], force=job.force)
     mapping = job_mapping(job, log)
     robot = resolve_robot(job.robot)
+    if mapping.joint_names and len(mapping.joint_names) != robot.num_joints:   # (before the line that starts the import)
+        raise InputError(f"joint_names names {len(mapping.joint_names):,} joints, robot {robot.name} has "
+                         f"{robot.num_joints}")
     if job.progress:
         print(f"import {log} ({mapping.format}) as a {robot.name} log", file=sys.stderr)
     record = import_log(log, robot, mapping, output)
