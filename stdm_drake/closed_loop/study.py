@@ -24,9 +24,9 @@ from stdm_drake.files import line_text
 DEFAULT_OUTPUT = pathlib.Path("out/mpc")   # without an output folder: this one, or out/mpc-2, -3, ... (a fresh one)
 MODEL_NAME = re.compile(r"[A-Za-z0-9_.+-]{1,40}")   # a model's name: a column of mpc.csv and mpc.md
 PLANT_NAMES = ("plant", "true-plant")   # the plant models' rows (in any case: no model may take them)
-# Models one study compares: each is a closed loop per plan (seconds each) and a column of the tables; 1,000 load in
-# about a minute before the first loop, 10,000 loaded for minutes without a line
-MAX_MODELS = 1_000
+# Models one study compares: each is a closed loop per plan (seconds each) and a column of the tables, which 100
+# already make hard to read; 1,000 ran for about 70 minutes, 10,000 loaded for minutes without a line
+MAX_MODELS = 100
 
 
 @dataclasses.dataclass
