@@ -230,7 +230,10 @@ def _quoted_number(node, schema, prefix: str, text: str):
         written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
         tag = next((word for word in written.split() if word.startswith("!")), None)
         if item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):   # (tagged `!!int 024` too)
-            read = yaml.safe_load(f"!!{item.tag.rsplit(':', 1)[-1]} {item.value}")   # (as its number tag reads it)
+            try:   # (as its number tag reads it)
+                read = yaml.safe_load(f"!!{item.tag.rsplit(':', 1)[-1]} {item.value}")
+            except (ValueError, yaml.YAMLError):
+                continue   # (`!!float 0x10`: no number to YAML at all; the typed load's own one-line error)
             return where, item.value, f"which YAML reads as {read!r} (a {_form(item.value)})"
         if tag is None and (item.tag in NUMBER_TAGS or (not item.style and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):
@@ -277,7 +280,7 @@ def read_yaml_document(path):
     try:
         text = pathlib.Path(path).read_text()
         return yaml.load(text, Loader=_TagsAsPlainValues) if not nested_too_deep(text) else None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):   # (ValueError: `!!float 0x10`, no float)
         return None
 
 

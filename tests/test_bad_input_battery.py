@@ -914,6 +914,7 @@ CASES = [
     (yaml_case("robot", ROBOT_TEXT + "unactuated_joints: [" + ", ".join(["elbow_joint"] * 40_000) + "]\n"),
      "(40,000 entries)"),
     (yaml_case("mpc", "horizon: 20\nhorizon: 30\n"), "horizon is given twice in one mapping (lines 1 and 2)"),
+    (yaml_case("mpc", "terminal_factor: !!float 0x10\n"), "malformed MPC config: could not convert string to float"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in
