@@ -467,3 +467,21 @@ def test_blank_lines_before_the_xml_declaration_are_read_as_drake_reads_them(tmp
     line = broken[:broken.index("</robot>")].count("\n") + 1 + 3   # (the line of the unclosed tag's end)
     with pytest.raises(InputError, match=rf"not well-formed XML \(mismatched tag: line {line}, "):
         read_description(path)
+
+
+def test_robot_init_of_a_world_of_two_welded_arms_says_it_takes_one(tmp_path, capsys):
+    """Two arms welded to the world's link: robot init names the two moving branches and says it takes one arm (it
+    said "no movable joint on a chain", as if nothing moved: held-out run 18's note)."""
+    from stdm_drake.cli import main
+    model = SDF.format(mass=2.0, lower=-1).split("<sdf version=\"1.7\">")[1].split("</sdf>")[0]
+    welded = model.replace('<link name="base"/>', '<link name="base"/><joint name="weld" type="fixed"><parent>world'
+                           '</parent><child>base</child></joint>', 1)
+    assert welded != model
+    path = tmp_path / "world.sdf"
+    path.write_text(f'<?xml version="1.0"?><sdf version="1.7"><world name="w">{welded}'
+                    f'{welded.replace("arm", "arm2", 1)}</world></sdf>')
+    capsys.readouterr()
+    assert main(["robot", "init", str(path), "-o", str(tmp_path / "r.yaml")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "branches into 2 moving chains (arm::weld, arm2::weld); robot init takes one arm" in lines[0]
+    assert not (tmp_path / "r.yaml").exists()

@@ -94,6 +94,11 @@ def arm_chain(description: Description, mimics: list) -> ArmChain:
             arm.append(ways[0])
         link = ways[0].child
     if not arm:
+        branches = [joint for joint in children.get(root, []) if (joint.kind in MOVABLE) + count(joint.child) > 0]
+        if len(branches) > 1:   # (a world of two arms: each branch moves, none is the chain)
+            raise InputError(f"the root link {root!r} branches into {len(branches)} moving chains ("
+                             f"{', '.join(joint.name for joint in branches)}); robot init takes one arm: give a "
+                             "description of one, or write its robot config (robots guide, \"The robot file\")")
         raise InputError(f"no movable joint on a chain from the root link {root!r} (its branches: "
                          f"{', '.join(joint.name for joint in children.get(root, [])) or 'none'})")
     tool = arm[-1].child
