@@ -111,8 +111,9 @@ def check_quoted_numbers(path, schema) -> None:
     repeated = _repeated_key(node)
     if repeated is not None:
         key, first, second = repeated
+        merge = " (merge several mappings with one: `<<: [*a, *b]`)" if key == "<<" else ""
         raise InputError(f"{path}: {line_text(key)} is given twice in one mapping (lines {first} and {second}); YAML "
-                         "keeps the last without a word, so give it once")
+                         f"keeps the last without a word, so give it once{merge}")
     found = _quoted_number(node, schema, "", text)
     if found is not None:
         where, value, how = found
@@ -124,8 +125,8 @@ def check_quoted_numbers(path, schema) -> None:
 
 
 def _repeated_key(node):
-    """(the key, its first line, its second line) of the first mapping of `node` that states a key twice (merge keys
-    `<<` aside: overriding what they bring in is their use), or None. Each node visited once (aliases share them)."""
+    """(the key, its first line, its second line) of the first mapping of `node` that states a key twice (a merge key
+    `<<` too: merge several mappings with one, `<<: [*a, *b]`), or None. Each node visited once (aliases share them)."""
     pending, seen = [node], set()
     while pending:
         current = pending.pop()
@@ -135,7 +136,7 @@ def _repeated_key(node):
         if isinstance(current, yaml.MappingNode):
             lines = {}
             for key, value in current.value:
-                if isinstance(key, yaml.ScalarNode) and key.tag != MERGE_TAG:
+                if isinstance(key, yaml.ScalarNode):   # (`<<` twice too: the second merge replaces the first)
                     if key.value in lines:
                         return key.value, lines[key.value], key.start_mark.line + 1
                     lines[key.value] = key.start_mark.line + 1
@@ -210,16 +211,16 @@ def _numeric_scalars(annotation, node, where: str):
 
 # numbers YAML 1.1 reads other than as their decimal digits say: octal (`024` is 20), binary, hexadecimal,
 # digits grouped by `_` (`1_00`), base 60 (`1:30` is 90); YAML 1.2's own octal `0o24` (20) under a number tag
-YAML11_FORM = re.compile(r"[-+]?(?:0[0-7_]+$|0b|0x|0o)|.*[_:]", re.ASCII)
+YAML11_FORM = re.compile(r"[-+]?(?:0[0-7_]+$|0b|0x|0o)|.*[_:]", re.ASCII | re.IGNORECASE)   # (`0O24` too)
 
 
 def _form(value: str) -> str:
     digits = value.lstrip("+-")
-    if digits.startswith("0o"):
+    if digits.lower().startswith("0o"):
         return "YAML 1.2 octal number"
     return "YAML 1.1 " + ("base-60 number" if ":" in value else "number with digits grouped by '_'" if "_" in value
-                          else "binary number" if digits.startswith("0b") else "hexadecimal number"
-                          if digits.startswith("0x") else "octal number")
+                          else "binary number" if digits.lower().startswith("0b") else "hexadecimal number"
+                          if digits.lower().startswith("0x") else "octal number")
 
 
 def _quoted_number(node, schema, prefix: str, text: str):

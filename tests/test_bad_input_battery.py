@@ -275,6 +275,18 @@ def write_issue_25_inputs(box) -> None:
     (box / "big.srdf").write_text('<robot name="ur10"><!-- ' + "x" * (5 << 20) + " --></robot>")
     (box / "bad_rgba.yaml").write_text("default_proximity_color: {rgba: [0x1, 0.0, 0.0, 1.0]}\n")
     tracking = (ROOT / "trajectories" / "tracking.yaml").read_text()
+    # (held-out run 19: Drake's extension values outside every check, an undeclared prefix, an SDF sphere of 0, limits
+    # of 1e-320, goals all out of reach)
+    (box / "drake_rotor.urdf").write_text(urdf.replace("</robot>", '<transmission name="t"><type>SimpleTransmission</type>'
+                                                       '<joint name="elbow_joint"/><actuator name="a"><drake:rotor_inertia '
+                                                       'value="-5"/><drake:gear_ratio value="8junk"/></actuator>'
+                                                       "</transmission></robot>"))
+    (box / "negative_rotor.urdf").write_text((box / "drake_rotor.urdf").read_text().replace('value="8junk"', 'value="100"'))
+    (box / "zero_sphere.sdf").write_text(link.format("", "0 0 0.1 0 0 0").replace(
+        "</link>", '<collision name="c"><geometry><sphere><radius>0</radius></sphere></geometry></collision></link>'))
+    (box / "tiny_effort.urdf").write_text(urdf.replace('effort="330"', 'effort="1e-320"', 1))
+    (box / "unreachable_plan.yaml").write_text(tracking.replace("position_offset: [0.15, 0.15, 0.15]", "position_offset: "
+                                               "[50.0, 50.0, 50.0]").replace("max_resample_attempts: 20", "max_resample_attempts: 3"))
     (box / "max_plan.yaml").write_text(tracking.replace("num_steps: 100", "num_steps: 100000"))
     (box / "long_plan.yaml").write_text(tracking.replace("num_steps: 100", "num_steps: 10000000"))
     (box / "redraw_plan.yaml").write_text(tracking.replace("max_resample_attempts: 20", "max_resample_attempts: 1000000000"))
@@ -608,7 +620,7 @@ CASES = [
     ([*W, "--index", "0", "--trajectories", "2", "--html", "NEW.html"], "give one"),
     (["mpc", "DATA", "--model", "PLANT=CK", "--quiet", "-o", "NEW"], "'PLANT' is the plant model's"),
     (["mpc", "DATA", "--model", "x" * 5000 + "=CK", "--quiet", "-o", "NEW"], "... (5000 characters): letters"),
-    (yaml_case("mpc", "position_weight: [0.0]\nvelocity_weight: [0.0]\n"), "position_weight must be > 0 for at least one"),
+    (yaml_case("mpc", "position_weight: [0.0]\nvelocity_weight: [0.0]\n"), "position_weight must be at least 1e-12 for at least one"),
     (yaml_case("mpc", "constraints: {mode: clip}\n"), "constraints mode must be one of soft, hard, off"),
     (yaml_case("mpc", "constraints: {position_margin: -0.1}\n"), "position_margin must be a number >= 0"),
     (yaml_case("mpc", "constraints: {penalty_weight: 0.0}\n"), "penalty_weight must be in"),
@@ -898,10 +910,10 @@ CASES = [
      "default_proximity_color.rgba is written 0x1, which YAML reads as 1"),
     (["robot", "init", "bad_cylinder.urdf", "-o", "NEW.yaml"], "its <cylinder> radius is '-0.075'; a shape's dimensions"),
     (["robot", "init", "zero_box.urdf", "-o", "NEW.yaml"], "its <box> size is '0 0 0'; a shape's dimensions are finite, > 0"),
-    (["robot", "init", "bad_sphere.sdf", "-o", "NEW.yaml"], "its <sphere> radius is '-1'; a shape's dimensions are finite, >= 0"),
-    (["robot", "init", "huge_effort.urdf", "-o", "NEW.yaml"], "has effort limit 1e+300; an arm joint's is at most 1e+06"),
+    (["robot", "init", "bad_sphere.sdf", "-o", "NEW.yaml"], "its <sphere> radius is '-1'; a shape's dimensions are finite, > 0"),
+    (["robot", "init", "huge_effort.urdf", "-o", "NEW.yaml"], "has effort limit 1e+300; an arm joint's is in [1e-06, 1e+06]"),
     (yaml_case("robot", ROBOT_TEXT + "velocity_limits: {elbow_joint: 1.0e+300}\n"),
-     "velocity_limits['elbow_joint'] must be > 0 and at most 10000"),
+     "velocity_limits['elbow_joint'] must be in [1e-06, 10000]"),
     (["robot", "init", "tiny_range.urdf", "-o", "NEW.yaml"], "has the position range [-9.99989e-321, 9.99989e-321], so it "
                                                            "cannot move"),
     (["robot", "init", "tiny_range.sdf", "-o", "NEW.yaml"], "SDFormat reads numbers of magnitude 0 or at least 2.23e-308"),
@@ -915,6 +927,21 @@ CASES = [
      "(40,000 entries)"),
     (yaml_case("mpc", "horizon: 20\nhorizon: 30\n"), "horizon is given twice in one mapping (lines 1 and 2)"),
     (yaml_case("mpc", "terminal_factor: !!float 0x10\n"), "malformed MPC config: could not convert string to float"),
+    # (held-out run 19)
+    (yaml_case("mpc", "horizon: !!int 0O24\n"), "horizon is written 0O24, which YAML reads as 20 (a YAML 1.2 octal"),
+    (yaml_case("mpc", "optimizer: !Rti\n  <<: {iterations: 1}\n  <<: {iterations: 2}\n"),
+     "<< is given twice in one mapping (lines 2 and 3)"),
+    (["robot", "init", "drake_rotor.urdf", "-o", "NEW.yaml"], "its <drake:gear_ratio> is '8junk', not a number"),
+    (["robot", "init", "negative_rotor.urdf", "-o", "NEW.yaml"], "its <drake:rotor_inertia> is -5; Drake's rotor_inertia is in [0"),
+    (["robot", "init", "zero_sphere.sdf", "-o", "NEW.yaml"], "its <sphere> radius is '0'; a shape's dimensions are finite, > 0"),
+    (["robot", "init", "tiny_effort.urdf", "-o", "NEW.yaml"], "has effort limit 9.99989e-321; an arm joint's is in [1e-06,"),
+    (["export", "CK", "--target", "controller", "--config", "stdm-drake:controllers/mpc_mppi.yaml", "-o", "NEW.controller"],
+     "the compiled controller runs the real-time iteration (`optimizer: !Rti {}`), not !Mppi"),
+    (["import", "LOGNAN", "-o", "NEW.h5"], "holds NaN or inf"),
+    (["train", "DATA", "--epochs", "1000000", "--seeds", *map(str, range(10)), "-o", "NEW"], "are 10,000,000 epochs, more "
+                                                                                             "than the 1,000,000"),
+    ([*C, "--config", "unreachable_plan.yaml", "-o", "NEW.h5"], "after 4 attempts"),
+    (yaml_case("mpc", "position_weight: [1.0e-320]\nvelocity_weight: [0.0]\n"), "position_weight must be at least 1e-12"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

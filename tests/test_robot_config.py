@@ -485,3 +485,15 @@ def test_robot_init_of_a_world_of_two_welded_arms_says_it_takes_one(tmp_path, ca
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "branches into 2 moving chains (arm::weld, arm2::weld); robot init takes one arm" in lines[0]
     assert not (tmp_path / "r.yaml").exists()
+
+
+def test_an_element_under_a_prefix_no_xmlns_declares_is_read_as_drake_reads_it(tmp_path):
+    """Drake's parser (TinyXML2) reads names as written, so `<gazebo:plugin/>` or an undeclared `drake:` tag is no
+    error to it; the toolbox's own reading refused such a file with a traceback ("unbound prefix": held-out run 19).
+    Now it loads, and a Drake tag's value is checked under its written name."""
+    from stdm_drake.cli import main
+    from stdm_drake.paths import MODELS_DIR
+    text = (MODELS_DIR / "ur10.urdf").read_text().replace("</robot>", "<gazebo:plugin name='x'/></robot>")
+    (tmp_path / "ur10.urdf").write_text(text)
+    assert main(["robot", "init", str(tmp_path / "ur10.urdf"), "-o", str(tmp_path / "ur10.yaml")]) == 0
+    assert (tmp_path / "ur10.yaml").is_file()

@@ -60,7 +60,8 @@ def controller_text(model, config, robot, written_by: str = "stdm-drake export")
     core, why_not = compiled_model(model)
     if core is None:
         raise InputError(f"the compiled controller does not cover {why_not}")
-    if getattr(config.optimizer, "implementation", None) is None:
+    from stdm_drake.closed_loop.rti import Rti
+    if not isinstance(config.optimizer, Rti):   # (the samplers have an `implementation` too: of their model steps)
         raise InputError(f"the compiled controller runs the real-time iteration (`optimizer: !Rti {{}}`), not "
                          f"!{type(config.optimizer).__name__}")
     limits = joint_limits(Dynamics(robot).plant)

@@ -63,6 +63,7 @@ from stdm_drake.robots.robot import Robot
 
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
 MAX_WEIGHT = 1e12      # a cost weight (and the terminal factor) beyond this swamps every other term
+MIN_WEIGHT = 1e-12     # the smallest position weight that makes the controller track (1e-320 is 0 in all but name)
 MAX_HORIZON = 1000     # sample periods predicted per control step (10 s at 0.01 s): more is a run that does not end
 
 # The optimizers a settings file may name, each by its class's tag (`optimizer: !Rti {...}`), the first the
@@ -104,8 +105,8 @@ class MpcConfig:
             weights = check_joint_vector(f"mpc {name}", getattr(self, name), nonnegative=True)
             if np.any(weights > MAX_WEIGHT):
                 raise InputError(f"mpc {name} must be at most {MAX_WEIGHT:g}, got {getattr(self, name)}")
-        if not np.any(np.asarray(self.position_weight, dtype=float) > 0):
-            raise InputError("mpc position_weight must be > 0 for at least one joint (all zero: the controller would not "
+        if not np.any(np.asarray(self.position_weight, dtype=float) >= MIN_WEIGHT):   # (1e-320: zero in all but name)
+            raise InputError(f"mpc position_weight must be at least {MIN_WEIGHT:g} for at least one joint (all zero: the controller would not "
                              "track the plan's positions)")
         if np.any(np.asarray(self.effort_weight) <= 0):
             raise InputError("mpc effort_weight must be > 0 for every joint (the torque problem must be convex)")

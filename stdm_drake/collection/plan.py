@@ -25,7 +25,8 @@ MAX_PLAN_STEPS = 100_000
 # Redraws of a rejected goal pose: a goal box from which 1,000 draws are all unreachable or in collision is one to
 # move, not to draw from again (1e9 redraws of an unreachable box went on for minutes, a line per draw)
 MAX_RESAMPLE_ATTEMPTS = 1_000
-# Rejections `report` names one by one per plan; the rest are counted in the refusal if every attempt fails
+# Rejections `report` names one by one per plan once the plan is found (the rest counted); where every attempt fails,
+# the refusal alone (one line) names the last
 REPORTED_REJECTIONS = 3
 
 
@@ -255,7 +256,7 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
         if is_collision_free is not None and not is_collision_free(q_initial):
             raise PlanningError(f"{what} is in self-collision at q={np.round(q_initial, 3).tolist()} rad")
         for plan_index in range(sampling_config.num_final_per_initial):
-            reason = ""
+            reason, rejected = "", []
             for attempt in range(sampling_config.max_resample_attempts + 1):
                 X_goal = sample_final_pose(X_initial, sampling_config, rng)
                 try:
@@ -268,10 +269,12 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
                                                     f"self-collision at t={plan.t[k]:.3f} s")
                 except PlanningError as error:
                     reason = str(error)
-                    if attempt < REPORTED_REJECTIONS:
-                        more = " (later rejections of this plan not shown)" if attempt == REPORTED_REJECTIONS - 1 else ""
-                        report(f"{what}, plan {plan_index}, attempt {attempt + 1}: rejected, resampling{more}: {reason}")
+                    rejected.append(reason)
                     continue
+                for number, why in enumerate(rejected[:REPORTED_REJECTIONS], 1):   # (after the plan is found: a
+                    more = (f" (and {len(rejected) - number} more)" if number == REPORTED_REJECTIONS   # refusal is one
+                            and len(rejected) > number else "")                                       # line)
+                    report(f"{what}, plan {plan_index}, attempt {number}: rejected, resampled{more}: {why}")
                 plans.append((index, plan))
                 break
             else:

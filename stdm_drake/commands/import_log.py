@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "of that type, if any)")
     parser.add_argument("--joint-names", nargs="+", metavar="NAME",
                         help="bags: the log's name of each of the robot's arm joints, in the robot's order")
-    parser.add_argument("--quiet", action="store_true")
+    parser.add_argument("--quiet", action="store_true", help="no lines on success (a refusal is still its one line)")
     add_force_argument(parser)
 
 

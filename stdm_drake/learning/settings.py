@@ -27,6 +27,9 @@ UPPER_BOUNDS = dict(hidden_width=8192, hidden_layers=64, ensemble_size=256, epoc
                     threads=256)   # (torch's thread pool crashed creating a million threads)
 MAX_WEIGHTS = 2e8
 MAX_SEEDS = 1000
+# epochs over all seeds of one run (epochs x seeds): each bound alone let 1,000 seeds of a million epochs start (a run
+# of years); a million epochs in all is days of the default model on this kind of machine
+MAX_TOTAL_EPOCHS = 1_000_000
 MAX_LR = 1.0        # Adam's step is about lr per weight
 MAX_ALPHA = 1e6     # beyond it the next-state term is below float32's resolution of the summed loss
 MAX_ALPHA_GRID = 100
@@ -254,6 +257,10 @@ class TrainSettings:
             raise InputError(f"{key('seeds')} must list at least one seed")
         if len(self.seeds) > MAX_SEEDS:
             raise InputError(f"{key('seeds')} lists {len(self.seeds)} seeds, at most {MAX_SEEDS}")
+        if self.epochs * len(self.seeds) > MAX_TOTAL_EPOCHS:
+            raise InputError(f"{key('epochs')} {self.epochs:,} for each of {len(self.seeds)} {key('seeds')} are "
+                             f"{self.epochs * len(self.seeds):,} epochs, more than the {MAX_TOTAL_EPOCHS:,} one run may "
+                             "train: fewer epochs (early stopping ends most runs far sooner) or fewer seeds per run")
         if any(seed < 0 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             raise InputError(f"{key('seeds')} must be distinct non-negative integers, got {list(self.seeds)}")
         if self.split_seed < 0:   # (numpy's generators take non-negative seeds only)

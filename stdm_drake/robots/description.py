@@ -374,6 +374,8 @@ LIMIT_KEYS = {"lower": "position_limits", "upper": "position_limits", "velocity"
 # MPC can work with (a limit of 1e300 is none, and overflows their arithmetic; a range of 1e-320 rad is none)
 LIMIT_BOUNDS = {"velocity": 1e4, "effort": 1e6}
 MIN_POSITION_RANGE = 1e-6
+# ... and the smallest velocity and effort limit (rad/s or m/s, N m or N): a limit of 1e-320 is 0 in all but name
+MIN_LIMIT = 1e-6
 
 
 def check_limits(joint: Joint, where: str, arm: bool, locked: bool = False) -> None:
@@ -402,6 +404,6 @@ def check_limits(joint: Joint, where: str, arm: bool, locked: bool = False) -> N
         raise InputError(f"{where} has velocity limit {joint.velocity:g}; a velocity limit is > 0 (rad/s or m/s)"
                          f"{override('velocity')}")
     for key, bound in LIMIT_BOUNDS.items():
-        if arm and (value := getattr(joint, key)) is not None and math.isfinite(value) and value > bound:
-            raise InputError(f"{where} has {key} limit {value:g}; an arm joint's is at most {bound:g} "
+        if arm and (value := getattr(joint, key)) is not None and math.isfinite(value) and (value > bound or 0 < value < MIN_LIMIT):
+            raise InputError(f"{where} has {key} limit {value:g}; an arm joint's is in [{MIN_LIMIT:g}, {bound:g}] "
                              f"({'rad/s or m/s' if key == 'velocity' else 'N m or N'}){override(key)}")

@@ -111,7 +111,7 @@ class RobotConfig:
             for joint, value in getattr(self, field).items():
                 if joint not in self.arm_joints:
                     raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
-                require((bound := LIMIT_BOUNDS[field.split("_")[0]]) >= value > 0, f"robot config {field}[{joint!r}] must be > 0 and at most {bound:g}", value)
+                require((bound := LIMIT_BOUNDS[field.split("_")[0]]) >= value >= 1e-6, f"robot config {field}[{joint!r}] must be in [1e-06, {bound:g}]", value)
         for joint, values in self.position_limits.items():
             if joint not in self.arm_joints and joint not in self.locked_joints:
                 raise InputError(f"robot config position_limits: {joint!r} is not an arm or locked joint")

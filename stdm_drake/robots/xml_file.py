@@ -125,9 +125,25 @@ def _text(path: pathlib.Path) -> tuple[bytes, int]:
 
 
 def parse(path: pathlib.Path):
-    """The file's ElementTree, read as Drake's parser reads it (`_text`). ElementTree.ParseError as Python's own."""
+    """The file's ElementTree, read as Drake's parser reads it (`_text`): without XML namespaces, as TinyXML2 reads a
+    file, so that a tag keeps its prefix as written (`drake:rotor_inertia`, which Drake's parser looks for by that
+    name) and a prefix no `xmlns:` declares is read too (Python's namespace-aware parser refused one with a
+    traceback). ElementTree.ParseError where the file is not well-formed."""
     import xml.etree.ElementTree as ElementTree
-    return ElementTree.ElementTree(ElementTree.fromstring(_text(path)[0]))
+    from xml.parsers import expat
+    builder = ElementTree.TreeBuilder()
+    parser = expat.ParserCreate()   # (no namespace_separator: names as written)
+    parser.buffer_text = True
+    parser.StartElementHandler = builder.start
+    parser.EndElementHandler = builder.end
+    parser.CharacterDataHandler = builder.data
+    try:
+        parser.Parse(_text(path)[0], True)
+    except expat.ExpatError as error:
+        raised = ElementTree.ParseError(f"{expat.ErrorString(error.code)}: line {error.lineno}, column {error.offset}")
+        raised.code, raised.position = error.code, (error.lineno, error.offset)
+        raise raised from None
+    return ElementTree.ElementTree(builder.close())
 
 
 def check_numbers(root, rule) -> None:
@@ -144,6 +160,8 @@ def check_numbers(root, rule) -> None:
             owner = f"{element.tag} {name!r}"
         if element.tag == "geometry":
             _check_shapes(element, owner, sdf)
+        if element.tag.startswith("drake:"):
+            _check_drake_value(element, owner, rule, sdf)
         if sdf:
             if element.tag == "dynamics":
                 _check_joint_dynamics({child.tag: child.text for child in element}, owner)
@@ -222,8 +240,8 @@ def _check_offset(words: list, what: str) -> None:
 
 # A visual's or collision's shape: its dimensions (m) as Drake's shape constructors assert on them (a negative
 # cylinder radius or a box of size 0 ended `robot init` and `collect` with Drake's assertion text, exit 1; SDFormat
-# replaces a negative sphere radius by 1 with a warning): finite, above 0 (a sphere's radius may be 0, a point), and
-# within MAX_OFFSET. URDF: attributes (Drake's <drake:capsule> and <drake:ellipsoid> too); SDF: child elements.
+# replaces a sphere radius of 0 or less by 1 m with a warning): finite, above 0 (a URDF sphere's radius may be 0, a
+# point), and within MAX_OFFSET. URDF: attributes (Drake's <drake:capsule> and <drake:ellipsoid> too); SDF: child elements.
 SHAPE_DIMENSIONS = {"box": ("size",), "cylinder": ("radius", "length"), "capsule": ("radius", "length"),
                     "sphere": ("radius",), "ellipsoid": ("a", "b", "c", "radii")}
 
@@ -242,9 +260,10 @@ def _check_shapes(geometry, owner: str, sdf: bool) -> None:
                 values = [float(word) for word in ascii_words(text or "")]
             except ValueError:
                 continue   # (the number check says why)
-            lowest = 0.0 if kind == "sphere" else math.nextafter(0.0, 1.0)
+            zero = kind == "sphere" and not sdf   # (a URDF sphere of radius 0 is a point to Drake; SDFormat makes it 1 m)
+            lowest = 0.0 if zero else math.nextafter(0.0, 1.0)
             if not all(math.isfinite(value) and lowest <= value <= MAX_OFFSET for value in values):
-                bound = ">= 0" if kind == "sphere" else "> 0"
+                bound = ">= 0" if zero else "> 0"
                 raise WrongCount(f"{owner}: its <{kind}> {name} is {(text or '').strip(ASCII_SPACE)!r}; a shape's "
                                  f"dimensions are finite, {bound} and at most {MAX_OFFSET:g} m")
 
@@ -260,6 +279,32 @@ def _check_subnormal(text: str, what: str) -> None:
         if 0 < value < sys.float_info.min:
             raise WrongCount(f"{what} holds {word}; SDFormat reads numbers of magnitude 0 or at least "
                              f"{sys.float_info.min:.3g}")
+
+
+# Drake's own elements (its URDF and SDF extensions, `drake:NAME`) whose one value Drake's parser reads as a number
+# and puts in the plant without a check of its own (a negative rotor inertia, a gear ratio of 1e300 or `0x1p3` were
+# accepted): (the lowest value, the highest, its unit); the bounds as the plant effects' (effects.EFFECT_BOUNDS)
+DRAKE_VALUES = {"rotor_inertia": (0.0, 1e3, "kg m²"), "gear_ratio": (math.ulp(0.0), 1e5, ""),
+                "mu_dynamic": (0.0, 1e3, ""), "mu_static": (0.0, 1e3, ""),
+                "hydroelastic_modulus": (math.ulp(0.0), 1e15, "Pa"), "hunt_crossley_dissipation": (0.0, 1e6, "s/m"),
+                "relaxation_time": (0.0, 1e6, "s"), "mesh_resolution_hint": (math.ulp(0.0), 1e6, "m"),
+                "point_contact_stiffness": (0.0, 1e15, "N/m")}
+
+
+def _check_drake_value(element, owner: str, rule, sdf: bool) -> None:
+    """UnreadNumber or WrongCount for a `drake:NAME` element of DRAKE_VALUES whose value (URDF: its `value`
+    attribute; SDF: its text) is not a plain number or lies outside its bounds."""
+    name = element.tag.split(":", 1)[1]
+    text = element.text if sdf else element.get("value")
+    if name not in DRAKE_VALUES or text is None or (sdf and len(element)):
+        return
+    what = f"{owner}: its <{element.tag}>"
+    _numbers(text, rule, what, UnreadNumber)
+    words = ascii_words(text)
+    low, high, unit = DRAKE_VALUES[name]
+    if len(words) == 1 and not (low <= float(words[0]) <= high):   # (NaN too)
+        bounds = f"(0, {high:g}]" if low > 0 else f"[{low:g}, {high:g}]"
+        raise WrongCount(f"{what} is {words[0]}; Drake's {name} is in {bounds}{' ' + unit if unit else ''}")
 
 
 def ascii_words(text: str) -> list[str]:

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import dataclasses
 import pathlib
-import sys
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
@@ -26,7 +25,7 @@ class ImportJob:
     the dataset's sample period, s (0: the log's median period); torque_source: "target_moment" or
     "current" (RTDE), "effort" (bags); torque_constants: per joint, N m / A, for the current; the bags'
     joint_states_topic and controller_state_topic; joint_names: the log's name of each of the robot's arm
-    joints, in the robot's order; progress: one line on stderr before the import; force: replace a file
+    joints, in the robot's order; progress: the two lines on what was imported (False: `--quiet`); force: replace a file
     stdm-drake did not write."""
     log: pathlib.Path
     output: pathlib.Path
@@ -80,22 +79,22 @@ def import_job(job: ImportJob) -> dict:
     check_output_file("-o/--output", output, kind="dataset", inputs=[log, job.mapping, job.robot], force=job.force)
     mapping = job_mapping(job, log)
     robot = resolve_robot(job.robot)
-    if mapping.joint_names and len(mapping.joint_names) != robot.num_joints:   # (before the line that starts the import)
+    if mapping.joint_names and len(mapping.joint_names) != robot.num_joints:
         raise InputError(f"joint_names names {len(mapping.joint_names):,} joints, robot {robot.name} has "
                          f"{robot.num_joints}")
+    record = import_log(log, robot, mapping, output)   # (no line before it: a refusal found reading the log is the
+    pieces, resampling = record["trajectories"], record["resampling"]   # only line then)
     if job.progress:
-        print(f"import {log} ({mapping.format}) as a {robot.name} log", file=sys.stderr)
-    record = import_log(log, robot, mapping, output)
-    pieces, resampling = record["trajectories"], record["resampling"]
-    print(f"wrote {line_text(output)}: {pieces['kept']} trajectories from {pieces['rows']} rows at a sample period of "
-          f"{record['mapping']['sample_period'] or resampling['log_period_s']:g} s (split at {pieces['gaps']} gaps, "
-          f"{pieces['pauses']} pauses, {pieces['mode_changes']} mode changes, {pieces['cuts']} cuts; "
-          f"{pieces['dropped_short']} short pieces dropped, {pieces['rows_not_running']} rows not running left out)")
-    print(f"resampling: log period {resampling['log_period_s']:g} s, stamp jitter RMS {resampling['jitter_rms_s']:.3g} s, "
-          f"estimated angle error {resampling['estimated_q_error_rad']:.3g} rad; torque from "
-          f"{record['torque_source']}; derivative targets: "
-          + ("the logged plan, " if record["derivatives"]["planned"] else "")
-          + "measured, smoothed (Savitzky-Golay)"
-          + ("; train chooses between the plan (when close to the logged motion) and the smoothed ones by validation"
-             if record["derivatives"]["planned"] else "; train uses the smoothed ones"))
+        print(f"wrote {line_text(output)} from the {mapping.format} log {line_text(log.name)} of a {line_text(robot.name)}: "
+              f"{pieces['kept']} trajectories from {pieces['rows']} rows at a sample period of "
+              f"{record['mapping']['sample_period'] or resampling['log_period_s']:g} s (split at {pieces['gaps']} gaps, "
+              f"{pieces['pauses']} pauses, {pieces['mode_changes']} mode changes, {pieces['cuts']} cuts; "
+              f"{pieces['dropped_short']} short pieces dropped, {pieces['rows_not_running']} rows not running left out)")
+        print(f"resampling: log period {resampling['log_period_s']:g} s, stamp jitter RMS {resampling['jitter_rms_s']:.3g} s, "
+              f"estimated angle error {resampling['estimated_q_error_rad']:.3g} rad; torque from "
+              f"{record['torque_source']}; derivative targets: "
+              + ("the logged plan, " if record["derivatives"]["planned"] else "")
+              + "measured, smoothed (Savitzky-Golay)"
+              + ("; train chooses between the plan (when close to the logged motion) and the smoothed ones by validation"
+                 if record["derivatives"]["planned"] else "; train uses the smoothed ones"))
     return record

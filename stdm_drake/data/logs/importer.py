@@ -208,8 +208,8 @@ def check_stamps(block: Rows, previous: float | None, source: str, place: str) -
     if len(bad):
         where = block.where[bad[0] + (1 if previous is None else 0)]   # (the row whose stamp does not increase)
         kind = "repeats" if steps[bad[0]] == 0 else "goes back in time"
-        raise InputError(f"{source}: the timestamp at {place} {where} {kind} ({t[bad[0] + 1]!r} after "
-                         f"{t[bad[0]]!r}); a log's stamps must increase")
+        raise InputError(f"{source}: the timestamp at {place} {where} {kind} ({float(t[bad[0] + 1])!r} s after "
+                         f"{float(t[bad[0]])!r} s); a log's stamps must increase")
 
 
 class LimitCheck:
