@@ -345,7 +345,8 @@ def require(condition: bool, message: str, value) -> None:
     if not condition:
         shown = repr(value)
         if len(shown) > MAX_SHOWN_VALUE:
-            count = f"{len(value):,} entries" if isinstance(value, (list, tuple, dict, set)) else f"{len(shown):,} characters"
+            sized = isinstance(value, (list, tuple, dict, set))
+            count = f"{len(value):,} entries" if sized else f"{len(shown):,} characters"
             shown = f"{shown[:MAX_SHOWN_VALUE]}... ({count})"
         raise InputError(f"{message}, got {shown}")
 

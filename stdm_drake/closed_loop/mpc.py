@@ -106,8 +106,8 @@ class MpcConfig:
             if np.any(weights > MAX_WEIGHT):
                 raise InputError(f"mpc {name} must be at most {MAX_WEIGHT:g}, got {getattr(self, name)}")
         if not np.any(np.asarray(self.position_weight, dtype=float) >= MIN_WEIGHT):   # (1e-320: zero in all but name)
-            raise InputError(f"mpc position_weight must be at least {MIN_WEIGHT:g} for at least one joint (all zero: the controller would not "
-                             "track the plan's positions)")
+            raise InputError(f"mpc position_weight must be at least {MIN_WEIGHT:g} for at least one joint (all zero: the "
+                             "controller would not track the plan's positions)")
         if np.any(np.asarray(self.effort_weight) <= 0):
             raise InputError("mpc effort_weight must be > 0 for every joint (the torque problem must be convex)")
         if not (np.isfinite(self.terminal_factor) and 0.0 <= self.terminal_factor <= MAX_WEIGHT):

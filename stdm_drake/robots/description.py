@@ -378,6 +378,17 @@ MIN_POSITION_RANGE = 1e-6
 MIN_LIMIT = 1e-6
 
 
+def check_config_limit(field: str, joint: str, value, arm_joints) -> None:
+    """InputError unless `joint` is one of `arm_joints` and a robot config's `velocity_limits` or `effort_limits`
+    (`field`) value for it lies in [MIN_LIMIT, LIMIT_BOUNDS] (rad/s or m/s, N m or N), as a file's limits of an arm
+    joint must."""
+    if joint not in arm_joints:
+        raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
+    bound = LIMIT_BOUNDS[field.split("_")[0]]
+    if not MIN_LIMIT <= value <= bound:   # (NaN too)
+        raise InputError(f"robot config {field}[{joint!r}] must be in [{MIN_LIMIT:g}, {bound:g}], got {value!r}")
+
+
 def check_limits(joint: Joint, where: str, arm: bool, locked: bool = False) -> None:
     """InputError for lower position limit > upper or a negative velocity limit; for an `arm` joint also
     a non-finite limit, a zero velocity limit or an empty position range (it could not move). Each
@@ -404,6 +415,7 @@ def check_limits(joint: Joint, where: str, arm: bool, locked: bool = False) -> N
         raise InputError(f"{where} has velocity limit {joint.velocity:g}; a velocity limit is > 0 (rad/s or m/s)"
                          f"{override('velocity')}")
     for key, bound in LIMIT_BOUNDS.items():
-        if arm and (value := getattr(joint, key)) is not None and math.isfinite(value) and (value > bound or 0 < value < MIN_LIMIT):
+        value = getattr(joint, key)
+        if arm and value is not None and math.isfinite(value) and (value > bound or 0 < value < MIN_LIMIT):
             raise InputError(f"{where} has {key} limit {value:g}; an arm joint's is in [{MIN_LIMIT:g}, {bound:g}] "
                              f"({'rad/s or m/s' if key == 'velocity' else 'N m or N'}){override(key)}")

@@ -23,7 +23,8 @@ from stdm_drake.config import one_line, require
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
 from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,
-                                           inertia_substitutions, limit_overrides, limits_drake_refuses, LIMIT_BOUNDS)
+                                           check_config_limit, inertia_substitutions, limit_overrides,
+                                           limits_drake_refuses)
 from stdm_drake.robots.meshes import mesh_cache_dir
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
@@ -109,9 +110,7 @@ class RobotConfig:
                 "robot config locked_joints must lock each joint at a finite position (rad or m)", self.locked_joints)
         for field in ("effort_limits", "velocity_limits"):
             for joint, value in getattr(self, field).items():
-                if joint not in self.arm_joints:
-                    raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
-                require((bound := LIMIT_BOUNDS[field.split("_")[0]]) >= value >= 1e-6, f"robot config {field}[{joint!r}] must be in [1e-06, {bound:g}]", value)
+                check_config_limit(field, joint, value, self.arm_joints)
         for joint, values in self.position_limits.items():
             if joint not in self.arm_joints and joint not in self.locked_joints:
                 raise InputError(f"robot config position_limits: {joint!r} is not an arm or locked joint")
