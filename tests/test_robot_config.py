@@ -497,3 +497,26 @@ def test_an_element_under_a_prefix_no_xmlns_declares_is_read_as_drake_reads_it(t
     (tmp_path / "ur10.urdf").write_text(text)
     assert main(["robot", "init", str(tmp_path / "ur10.urdf"), "-o", str(tmp_path / "ur10.yaml")]) == 0
     assert (tmp_path / "ur10.yaml").is_file()
+
+
+def test_an_sdf_include_is_read_with_the_same_checks(tmp_path, capsys):
+    """A link of -7.1 kg in a model an SDF includes (a model folder, or a file:// URI) is refused in one line naming
+    the included file, before Drake parses it (Drake's several-line warnings came first: held-out run 19's
+    S-include)."""
+    from stdm_drake.cli import main
+    from stdm_drake.robots.description import read_description
+    model = SDF.format(mass=2.0, lower=-1)
+    (tmp_path / "child").mkdir()
+    (tmp_path / "child" / "model.config").write_text('<?xml version="1.0"?><model><name>child</name>'
+                                                     '<sdf version="1.7">model.sdf</sdf></model>')
+    (tmp_path / "child" / "model.sdf").write_text(model.replace("<mass>2.0</mass>", "<mass>-7.1</mass>", 1))
+    for uri in ("child", f"file://{tmp_path / 'child' / 'model.sdf'}"):
+        (tmp_path / "r.sdf").write_text(model.replace("</model></sdf>", f"<include><uri>{uri}</uri><name>ch</name>"
+                                                                        "</include></model></sdf>"))
+        capsys.readouterr()
+        assert main(["robot", "init", str(tmp_path / "r.sdf"), "-o", str(tmp_path / "r.yaml")]) == 2
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert len(lines) == 1 and "r.sdf: its included model.sdf: link 'upper' has mass -7.1 kg" in lines[0], lines
+        assert not (tmp_path / "r.yaml").exists()
+    (tmp_path / "child" / "model.sdf").write_text(model)   # the included model's own links are Drake's to scope
+    assert "ch::upper" not in read_description(tmp_path / "r.sdf").links

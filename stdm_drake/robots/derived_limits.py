@@ -19,7 +19,7 @@ from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
 DERIVED_LIMITS = dict(velocity=(np.pi / 2, 0.5), position=(-np.pi, np.pi), acceleration=5.0, margin=2.0,
                       floor=0.1, configurations=200)
 # N m: a joint without a usable effort limit while its derived one is computed (the largest a robot config may give,
-# description.LIMIT_BOUNDS)
+# limit_checks.LIMIT_BOUNDS)
 PROVISIONAL_EFFORT = 1e6
 
 

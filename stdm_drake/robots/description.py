@@ -15,6 +15,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
+from stdm_drake.robots.limit_checks import check_limits
 from stdm_drake.robots.xml_file import ASCII_SPACE, UnreadNumber, WrongCount, check_xml
 
 MOVABLE = ("revolute", "continuous", "prismatic")
@@ -183,21 +184,27 @@ def _sdf(root) -> Description:
     return Description(links, joints, max(1, len(top)), top[0].get("name") or "" if len(top) == 1 else "")
 
 
-def read_description(path: pathlib.Path) -> Description:
+def read_description(path: pathlib.Path, depth: int = 0) -> Description:
     """The links and joints of a URDF or SDF file. InputError (one line) for a file these checks cannot read as
     Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
     (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
-    a "billion laughs" file among them). So no check is skipped for a file Drake then parses."""
+    a "billion laughs" file among them). So no check is skipped for a file Drake then parses, nor for the local files
+    an SDF includes (`xml_file.included_files`; their links' masses checked, not returned: Drake scopes them)."""
     check_xml(path, "a URDF or SDF file is", count_frames=True)
     try:
         description = _sdf(root) if (root := xml_file.parse(path).getroot()).tag == "sdf" else _urdf(root)
         xml_file.check_numbers(root, PLAIN_NUMBER)
-        return description
     except UnreadNumber as error:
         raise InputError(f"{path.name}: {error}, not a number as URDF and SDF write one (decimal digits, an optional "
                          "exponent); these checks cannot read it, and Drake's parser would read it otherwise") from None
     except WrongCount as error:
         raise InputError(f"{path.name}: {error}") from None
+    if root.tag == "sdf" and depth < xml_file.MAX_INCLUDE_DEPTH:
+        for included in xml_file.included_files(root, path):
+            for link, inertial in read_description(included, depth + 1).links.items():
+                if inertial is not None:
+                    check_inertial(inertial, f"{path.name}: its included {included.name}: link {link!r}")
+    return description
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,
@@ -236,24 +243,6 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
             check_limits(joint, f"{where}: {'arm ' if joint.name in arm_joints else ''}joint {joint.name!r}",
                          arm=joint.name in arm_joints, locked=joint.name in locked_joints)
     return description
-
-
-def limit_overrides(position: dict, velocity: dict, effort: dict) -> dict:
-    """Per joint, the limits a robot config gives in place of the file's (its position_limits [lower, upper],
-    velocity_limits, effort_limits): {"lower", "upper", "velocity", "effort"}, the keys it gives."""
-    overrides = {joint: dict(lower=float(low), upper=float(high)) for joint, (low, high) in position.items()}
-    for key, limits in (("velocity", velocity), ("effort", effort)):
-        for joint, value in limits.items():
-            overrides.setdefault(joint, {})[key] = float(value)
-    return overrides
-
-
-def limits_drake_refuses(description: Description) -> set[str]:
-    """The joints whose file limits Drake's parser cannot take (lower position limit above upper, a negative
-    velocity limit: assertions that end the process)."""
-    return {joint.name for joint in description.joints
-            if (joint.lower is not None and joint.upper is not None and joint.lower > joint.upper)
-            or (joint.velocity is not None and joint.velocity < 0)}
 
 
 def check_tree(description: Description, where: str) -> None:
@@ -366,56 +355,3 @@ def check_moved_mass(description: Description, arm_joints, where: str) -> None:
 
 
 # The robot config key that replaces each limit the file states.
-LIMIT_KEYS = {"lower": "position_limits", "upper": "position_limits", "velocity": "velocity_limits",
-              "effort": "effort_limits"}
-# The largest velocity (rad/s or m/s) and effort (N m or N) limit an arm joint may have, and the smallest position
-# range (rad or m) it may move in: beyond any robot's joint by orders of magnitude (the 1,119 files of the robot corpus
-# state at most 1,000 and 10,000; the largest industrial arms' joints hold about 1e4 N m) and what the plans and the
-# MPC can work with (a limit of 1e300 is none, and overflows their arithmetic; a range of 1e-320 rad is none)
-LIMIT_BOUNDS = {"velocity": 1e4, "effort": 1e6}
-MIN_POSITION_RANGE = 1e-6
-# ... and the smallest velocity and effort limit (rad/s or m/s, N m or N): a limit of 1e-320 is 0 in all but name
-MIN_LIMIT = 1e-6
-
-
-def check_config_limit(field: str, joint: str, value, arm_joints) -> None:
-    """InputError unless `joint` is one of `arm_joints` and a robot config's `velocity_limits` or `effort_limits`
-    (`field`) value for it lies in [MIN_LIMIT, LIMIT_BOUNDS] (rad/s or m/s, N m or N), as a file's limits of an arm
-    joint must."""
-    if joint not in arm_joints:
-        raise InputError(f"robot config {field}: {joint!r} is not an arm joint")
-    bound = LIMIT_BOUNDS[field.split("_")[0]]
-    if not MIN_LIMIT <= value <= bound:   # (NaN too)
-        raise InputError(f"robot config {field}[{joint!r}] must be in [{MIN_LIMIT:g}, {bound:g}], got {value!r}")
-
-
-def check_limits(joint: Joint, where: str, arm: bool, locked: bool = False) -> None:
-    """InputError for lower position limit > upper or a negative velocity limit; for an `arm` joint also
-    a non-finite limit, a zero velocity limit or an empty position range (it could not move). Each
-    message names the robot config key that replaces the file's value where there is one (arm joints; a
-    locked joint's position_limits), else says to edit the file."""
-    given = {key: getattr(joint, key) for key in ("lower", "upper", "velocity") if getattr(joint, key) is not None}
-
-    def override(key: str) -> str:
-        if arm or (locked and LIMIT_KEYS[key] == "position_limits"):
-            return f"; give {LIMIT_KEYS[key]}[{joint.name!r}] in the robot config to replace it"
-        return "; correct it in the file (the robot config replaces limits of arm joints only)"
-
-    if arm:
-        for key, value in given.items():
-            if not math.isfinite(value):
-                raise InputError(f"{where} has a non-finite {key} limit ({value}){override(key)}")
-    if joint.lower is not None and joint.upper is not None and joint.lower > joint.upper:
-        raise InputError(f"{where} has its lower position limit {joint.lower:g} above its upper limit "
-                         f"{joint.upper:g}{override('lower')}")
-    if arm and joint.lower is not None and joint.upper is not None and joint.upper - joint.lower < MIN_POSITION_RANGE:
-        raise InputError(f"{where} has the position range [{joint.lower:g}, {joint.upper:g}], so it cannot move"
-                         f"{override('lower')}")
-    if joint.velocity is not None and (joint.velocity < 0 or (arm and joint.velocity == 0)):
-        raise InputError(f"{where} has velocity limit {joint.velocity:g}; a velocity limit is > 0 (rad/s or m/s)"
-                         f"{override('velocity')}")
-    for key, bound in LIMIT_BOUNDS.items():
-        value = getattr(joint, key)
-        if arm and value is not None and math.isfinite(value) and (value > bound or 0 < value < MIN_LIMIT):
-            raise InputError(f"{where} has {key} limit {value:g}; an arm joint's is in [{MIN_LIMIT:g}, {bound:g}] "
-                             f"({'rad/s or m/s' if key == 'velocity' else 'N m or N'}){override(key)}")

@@ -23,8 +23,8 @@ from stdm_drake.config import one_line, require
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
 from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,
-                                           check_config_limit, inertia_substitutions, limit_overrides,
-                                           limits_drake_refuses)
+                                           inertia_substitutions)
+from stdm_drake.robots.limit_checks import check_config_limit, limit_overrides, limits_drake_refuses
 from stdm_drake.robots.meshes import mesh_cache_dir
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)

@@ -316,3 +316,26 @@ def ascii_words(text: str) -> list[str]:
 def _numbers(text: str, rule, what: str, error) -> None:
     if not all(rule.fullmatch(part) for part in ascii_words(text)):
         raise error(f"{what} is {text.strip(ASCII_SPACE)!r}")
+
+
+MAX_INCLUDE_DEPTH = 8   # SDF <include>s followed from one file (a file that includes itself stops here)
+
+
+def included_files(root, path: pathlib.Path) -> list[pathlib.Path]:
+    """The local files the <include>s of an SDF's tree `root` (read from `path`) name: a relative path or a file://
+    URI, of an SDF file or of a model folder (its model.config's first <sdf> file). Other URIs (package://,
+    model://, a web address) are Drake's to resolve, and the files they name are not read here."""
+    found = []
+    for include in root.iter("include"):
+        uri = (include.findtext("uri") or "").strip(ASCII_SPACE)
+        if not uri or ("://" in uri and not uri.startswith("file://")):
+            continue
+        target = pathlib.Path(uri.removeprefix("file://"))
+        target = target if target.is_absolute() else pathlib.Path(path).parent / target
+        if target.is_dir() and (config := target / "model.config").is_file():
+            check_xml(config, "a model.config is")
+            name = (parse(config).getroot().findtext("sdf") or "").strip(ASCII_SPACE)
+            target = target / name if name else target
+        if target.is_file():
+            found.append(target)
+    return found
