@@ -256,7 +256,7 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
         if is_collision_free is not None and not is_collision_free(q_initial):
             raise PlanningError(f"{what} is in self-collision at q={np.round(q_initial, 3).tolist()} rad")
         for plan_index in range(sampling_config.num_final_per_initial):
-            reason, rejected = "", []
+            rejected = []   # (each rejected draw's reason)
             for attempt in range(sampling_config.max_resample_attempts + 1):
                 X_goal = sample_final_pose(X_initial, sampling_config, rng)
                 try:
@@ -268,16 +268,16 @@ def sample_task_plans(kinematics: RobotKinematics, sampling_config: TaskSpaceSam
                                 raise PlanningError(f"{plan.planner} plan to goal pose {pose_text(X_goal)}: "
                                                     f"self-collision at t={plan.t[k]:.3f} s")
                 except PlanningError as error:
-                    reason = str(error)
-                    rejected.append(reason)
+                    rejected.append(str(error))
                     continue
-                for number, why in enumerate(rejected[:REPORTED_REJECTIONS], 1):   # (after the plan is found: a
-                    more = (f" (and {len(rejected) - number} more)" if number == REPORTED_REJECTIONS   # refusal is one
-                            and len(rejected) > number else "")                                       # line)
+                # the rejections named once the plan is found, so that a refusal stays its one line
+                for number, why in enumerate(rejected[:REPORTED_REJECTIONS], 1):
+                    more = (f" (and {len(rejected) - number} more)" if number == REPORTED_REJECTIONS
+                            and len(rejected) > number else "")
                     report(f"{what}, plan {plan_index}, attempt {number}: rejected, resampled{more}: {why}")
                 plans.append((index, plan))
                 break
             else:
                 raise PlanningError(f"{what}: no feasible final pose for plan {plan_index} after "
-                                    f"{sampling_config.max_resample_attempts + 1} attempts; last: {reason}")
+                                    f"{sampling_config.max_resample_attempts + 1} attempts; last: {rejected[-1]}")
     return plans

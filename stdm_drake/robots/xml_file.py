@@ -249,7 +249,7 @@ SHAPE_DIMENSIONS = {"box": ("size",), "cylinder": ("radius", "length"), "capsule
 def _check_shapes(geometry, owner: str, sdf: bool) -> None:
     """WrongCount for a shape of the <geometry> element whose dimensions SHAPE_DIMENSIONS refuses."""
     for shape in geometry:
-        kind = shape.tag.rsplit("}", 1)[-1].rsplit(":", 1)[-1]
+        kind = shape.tag.rsplit(":", 1)[-1]   # (`drake:capsule` too: names as written, `parse`)
         for name in SHAPE_DIMENSIONS.get(kind, ()):
             if sdf:
                 found = next((child for child in shape if child.tag == name), None)
@@ -261,7 +261,7 @@ def _check_shapes(geometry, owner: str, sdf: bool) -> None:
             except ValueError:
                 continue   # (the number check says why)
             zero = kind == "sphere" and not sdf   # (a URDF sphere of radius 0 is a point to Drake; SDFormat makes it 1 m)
-            lowest = 0.0 if zero else math.nextafter(0.0, 1.0)
+            lowest = 0.0 if zero else math.ulp(0.0)
             if not all(math.isfinite(value) and lowest <= value <= MAX_OFFSET for value in values):
                 bound = ">= 0" if zero else "> 0"
                 raise WrongCount(f"{owner}: its <{kind}> {name} is {(text or '').strip(ASCII_SPACE)!r}; a shape's "

@@ -82,8 +82,9 @@ def import_job(job: ImportJob) -> dict:
     if mapping.joint_names and len(mapping.joint_names) != robot.num_joints:
         raise InputError(f"joint_names names {len(mapping.joint_names):,} joints, robot {robot.name} has "
                          f"{robot.num_joints}")
-    record = import_log(log, robot, mapping, output)   # (no line before it: a refusal found reading the log is the
-    pieces, resampling = record["trajectories"], record["resampling"]   # only line then)
+    # no line before the import: a refusal found reading the log is then the only line
+    record = import_log(log, robot, mapping, output)
+    pieces, resampling = record["trajectories"], record["resampling"]
     if job.progress:
         print(f"wrote {line_text(output)} from the {mapping.format} log {line_text(log.name)} of a {line_text(robot.name)}: "
               f"{pieces['kept']} trajectories from {pieces['rows']} rows at a sample period of "
