@@ -268,6 +268,51 @@ def test_training_settings_file_with_flags_over_it(tiny, tmp_path, capsys):
                  str(settings), "--lr", "0.001", "--quiet"]) == 0
 
 
+def test_train_flags_are_the_settings_fields(tmp_path):
+    """`train`'s flags are generated from TrainSettings (issue 60): one flag per field, the defaults the settings'
+    (nothing restated in the command), each default given back as its own flag text parses to the same value, and
+    a new field is a new flag with its help, choices and type, and no other code."""
+    import argparse
+    import dataclasses
+    import typing
+    from stdm_drake.commands import train
+    from stdm_drake.commands.arguments import _shown, add_settings_flags
+    from stdm_drake.learning.settings import TrainSettings, setting
+    parser = argparse.ArgumentParser()
+    train.add_arguments(parser)
+    flags = {action.dest: action for action in parser._actions}
+    fields = dataclasses.fields(TrainSettings)
+    assert all(field.name in flags for field in fields)
+    args = parser.parse_args(["data.h5", "-o", str(tmp_path / "run")])
+    assert train.training_settings(args) == (TrainSettings(), set())   # no flag given: the settings' defaults
+    for field in fields:   # each default written as a flag reads back as itself
+        value = getattr(TrainSettings(), field.name)
+        if value is None or isinstance(value, bool):
+            continue
+        text = [str(item) for item in value] if isinstance(value, list) else [str(value)]
+        if not text:
+            continue
+        given = parser.parse_args(["data.h5", "-o", "x", "--" + field.name.replace("_", "-"), *text])
+        assert getattr(given, field.name) == value, field.name
+        shown = " ".join(map(_shown, value)) if isinstance(value, list) else _shown(value)
+        assert f"default {shown}" in flags[field.name].help, field.name   # the help states the settings' default
+
+    @dataclasses.dataclass
+    class WithDropout(TrainSettings):
+        dropout: float = setting(0.1, "dropout of the hidden layers")
+        norm: typing.Optional[str] = setting(None, "layer normalization (unset: none)", choices=("layer", "rms"))
+    extended = argparse.ArgumentParser()
+    add_settings_flags(extended, WithDropout)
+    parsed = extended.parse_args(["--dropout", "0.25", "--norm", "rms"])
+    assert (parsed.dropout, parsed.norm) == (0.25, "rms") and not hasattr(parsed, "epochs")
+    help_text = extended.format_help()
+    assert "dropout of the hidden layers (default 0.1)" in help_text and "{layer,rms}" in help_text
+    with pytest.raises(SystemExit):
+        extended.parse_args(["--norm", "batch"])
+    with pytest.raises(Exception, match="must be one of"):   # validate checks the same choices
+        WithDropout(norm="batch").validate()
+
+
 @pytest.mark.parametrize("setting", [["--lr", "1e9"], ["--lr", "1e9", "--model", "DE", "--ensemble-size", "2"]])
 def test_diverged_training_is_an_error_not_a_result(tiny, tmp_path, capsys, monkeypatch, setting):
     """Training whose every loss turns NaN or inf ends train with one line (exit 2): no checkpoint of untrained

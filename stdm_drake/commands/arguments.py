@@ -1,10 +1,10 @@
 """What several commands' command lines share: the `--robot` option (when absent: the shipped preset a dataset
 was collected with, else the UR-10's), the
-`--visualization` option of the commands that record Meshcat animations, and the `--alpha` value type."""
+`--visualization` option of the commands that record Meshcat animations, and the flags of a settings dataclass."""
 import argparse
+import dataclasses
 import pathlib
-
-import numpy as np
+import typing
 
 
 def add_robot_argument(parser: argparse.ArgumentParser, role: str) -> None:
@@ -36,14 +36,38 @@ def add_plant_effects_argument(parser: argparse.ArgumentParser, role: str) -> No
                              f"models/ur10_effects.yaml): {role}; the robot file stays the nominal model")
 
 
-def parse_alpha(text: str):
-    """--alpha: a number >= 0 or the word 'auto'."""
-    if text.strip().lower() == "auto":
-        return "auto"
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
-    if not (np.isfinite(value) and value >= 0):
-        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}")
-    return value
+def add_settings_flags(parser: argparse.ArgumentParser, settings_class) -> None:
+    """One flag per field of a settings dataclass (`learning.settings.TrainSettings`): `--hidden-width` for
+    `hidden_width`, its help, choices and conversion from the field's `setting` metadata, its type from the field's
+    annotation (a list: one or more values; a bool: a switch). A flag left out stays absent from the parsed
+    arguments (argparse.SUPPRESS), so the settings file, or the field's default, decides."""
+    hints = typing.get_type_hints(settings_class)
+    for field in dataclasses.fields(settings_class):
+        meta, annotation = field.metadata, hints[field.name]
+        default = field.default_factory() if field.default is dataclasses.MISSING else field.default
+        options = dict(default=argparse.SUPPRESS, help=meta["help"])
+        if annotation is bool:
+            options["action"] = "store_true"
+        else:
+            options["type"] = meta.get("parse") or _flag_type(annotation)
+            if typing.get_origin(annotation) in (list, typing.List):
+                options["nargs"] = "+"
+            if meta.get("choices"):
+                options["choices"] = tuple(meta["choices"])
+            shown = " ".join(map(_shown, default)) if isinstance(default, list) else _shown(default)
+            if "{default}" in meta["help"]:
+                options["help"] = meta["help"].replace("{default}", shown)
+            elif default is not None and default != []:
+                options["help"] = f"{meta['help']} (default {shown})"
+        parser.add_argument("--" + field.name.replace("_", "-"), **options)
+
+
+def _shown(value) -> str:
+    """A default as its flag would take it: 0.001 as 1e-3, 0.0 as 0."""
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _flag_type(annotation):
+    """The value type of a settings field's annotation: int for Optional[int] or List[int], and so on."""
+    arguments = [a for a in typing.get_args(annotation) if a is not type(None)]
+    return arguments[0] if arguments else annotation

@@ -6,7 +6,7 @@ import dataclasses
 import os
 import pathlib
 
-from stdm_drake.commands.arguments import parse_alpha
+from stdm_drake.learning.settings import parse_alpha
 from stdm_drake.errors import InputError
 from stdm_drake.experiments.sine_sum import FULL, QUICK, headline, run_specs, run_study, table1_rows, write_reports
 from stdm_drake.learning.activations import ACTIVATION_NAMES

@@ -1,6 +1,7 @@
 """Training settings: `TrainingConfig` (how one model is fitted), the paper's alpha, and the
 `stdm-drake train` settings file (`TrainSettings`, typed YAML; command-line flags override it)."""
 
+import argparse
 import dataclasses
 import math
 import typing
@@ -8,7 +9,7 @@ import typing
 import numpy as np
 import torch
 
-from stdm_drake.data.dataset import DERIVATIVE_SOURCES
+from stdm_drake.data.dataset import ACTION_RATE_SCHEMES, DERIVATIVE_SOURCES
 from stdm_drake import files
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
@@ -137,64 +138,100 @@ class TrainingConfig:
             1.0 + math.cos(math.pi * progress))
 
 
+def parse_alpha(text: str):
+    """The flag --alpha's value: a number >= 0 or the word 'auto'."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
+    if not (np.isfinite(value) and value >= 0):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}")
+    return value
+
+
+def setting(default=dataclasses.MISSING, help: str = "", *, choices: tuple | None = None, parse=None, factory=None):
+    """A `TrainSettings` field and its command-line flag (`commands.arguments.add_settings_flags`): help, the flag's
+    text ("{default}" in it: the default's value; otherwise "(default ...)" is added, unless the default is None or
+    empty, whose meaning the text states); choices, the values accepted (by the flag and by `validate`); parse, the
+    flag's conversion of its text (default: the field's type)."""
+    metadata = dict(help=help, choices=choices, parse=parse)
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
 @dataclasses.dataclass
 class TrainSettings:
-    """Everything `stdm-drake train` takes besides the dataset and the output folder, as a typed YAML
-    file (`--config FILE`; keys left out keep these defaults; a command-line flag overrides its key).
-    Field names are the flags' names with "_" for "-"; see `stdm-drake train --help` for each.
-
-    model: "D", "P", "DE", "PE" (naive) or "DD", "PD", "DED", "PED" (derivative loss), "G" / "GD" (the
-    grey box: D / DD with inputs "plant_step"); derivative:
-    "on"/"off" overrides what the model type implies; alpha: eq. 9 weight >= 0 or "auto" (the default:
-    chosen by validation from alpha_grid, 0 included, with the derivative source; see `derivative_sources`);
-    alpha_grid: alphas tried by "auto" (empty: the alpha scale's, TRAIN_ALPHA_GRID or RELATIVE_ALPHA_GRID); alpha_scale:
-    "raw" (paper eq. 9) or "relative" (`TrainingConfig.alpha_scale`); network: its kind (a name registered in
-    `trainable.NETWORK_KINDS`, default "ensemble_mlp", the paper's MLPs) and its options activation, hidden_width,
-    hidden_layers, ensemble_size (DE/PE types), direct (the prediction itself instead of its delta); structure:
-    predicts ("velocity": v_{t+1}, q by the trapezoid rule; "state": x_{t+1}, the paper's; None: "state" for a
-    grey box, "velocity" otherwise) and inputs
-    ("nominal_acceleration": [q, v, τ] and the robot's nominal acceleration; "period_acceleration":
-    its mean over the sample period instead; "raw": [q, v, τ], the paper's; "plant_step": the grey box), see
-    `learning.structure`; losses: state_loss,
-    derivative_loss ("mse", "mae", "huber"); seeds: one model each; split: train / val / test
-    trajectories (per group with per_group "on"; None: 60/20/20 %), split_seed; derivative targets:
-    derivative_source ("true", "planned", "measured", "smoothed"; None: chosen from the data, see
-    `learning.problem.candidate_sources`), action_rate ("forward_difference",
-    "zero_order_hold"); optimization: epochs, patience, batch_size, lr, lr_schedule ("constant",
-    "cosine"), min_lr, weight_decay; checkpoint_every (epochs); threads (torch CPU threads).
-    """
-    model: str = DEFAULT_MODEL_TYPE
-    derivative: typing.Optional[str] = None
-    alpha: typing.Union[float, str] = "auto"
-    alpha_grid: typing.List[float] = dataclasses.field(default_factory=list)
-    alpha_scale: str = DEFAULT_ALPHA_SCALE
-    network: str = "ensemble_mlp"
-    activation: str = "swish"
-    hidden_width: int = 100
-    hidden_layers: int = 3
-    ensemble_size: int = DEFAULT_ENSEMBLE_SIZE
-    direct: bool = False
-    predicts: typing.Optional[str] = None
-    inputs: str = "nominal_acceleration"
-    state_loss: str = "mse"
-    derivative_loss: str = "mse"
-    seeds: typing.List[int] = dataclasses.field(default_factory=lambda: [0])
-    train: typing.Optional[int] = None
-    val: typing.Optional[int] = None
-    test: typing.Optional[int] = None
-    per_group: typing.Optional[str] = None
-    split_seed: int = 0
-    derivative_source: typing.Optional[str] = None
-    action_rate: str = "forward_difference"
-    epochs: int = 500
-    patience: int = 50
-    batch_size: int = 64
-    lr: float = 1e-3
-    lr_schedule: str = "constant"
-    min_lr: float = 0.0
-    weight_decay: float = 0.0
-    checkpoint_every: int = 10
-    threads: int = 1
+    """Everything `stdm-drake train` takes besides the dataset and the output folder, as a typed YAML file
+    (`--config FILE`; keys left out keep these defaults; a command-line flag overrides its key). Each field is a
+    flag of the same name with "-" for "_", whose help text is the field's `setting` (the one place a default is
+    stated)."""
+    model: str = setting(DEFAULT_MODEL_TYPE, "model type: D/P/DE/PE naive, DD/PD/DED/PED with the derivative loss "
+                         "(alpha and derivative targets chosen by validation, naive among them); default {default}: "
+                         "derivative learning helped in no cell of the settling experiment (docs/settling.md); G/GD "
+                         "the grey box: a D/DD whose delta adds to the plant model's next state (inputs plant_step; "
+                         "the plant: the robot's description, or --physics)",
+                         choices=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES), parse=str.upper)
+    derivative: typing.Optional[str] = setting(None, "override the derivative loss the model type implies",
+                                               choices=("on", "off"))
+    alpha: typing.Union[float, str] = setting(
+        "auto", "derivative loss weight as in the paper's eq. 9 (e.g. 1e-3, the paper's number), or 'auto': "
+        "chosen by validation state MSE from --alpha-grid, 0 (naive training) included, so the model is "
+        "at worst naive on validation", parse=parse_alpha)
+    alpha_grid: typing.List[float] = setting(
+        help="alphas tried by --alpha auto (unset: 0 and, for the raw scale, "
+             f"{', '.join(f'{a:g}' for a in TRAIN_ALPHA_GRID[1:])} (docs/settling.md); for the relative scale "
+             f"{RELATIVE_ALPHA_GRID[1]:g} ... {RELATIVE_ALPHA_GRID[-1]:g})", factory=list)
+    alpha_scale: str = setting(DEFAULT_ALPHA_SCALE, "raw: alpha as in the paper's eq. 9; relative: each output's "
+                               "derivative residual over its own target's spread, so alpha 1 weighs the derivative "
+                               "and state terms of every joint alike (default {default}: docs/settling.md)",
+                               choices=ALPHA_SCALES)
+    network: str = setting("ensemble_mlp", "network kind (default {default}: the paper's MLPs; a registered kind, "
+                           "stdm_drake.learning.trainable)", choices=NETWORK_KINDS)
+    activation: str = setting("swish", "hidden activation; tanh or relu for a model Drake's MultilayerPerceptron can "
+                              "hold (`export --target drake`); `export` to ONNX takes every one",
+                              choices=ACTIVATION_NAMES)
+    hidden_width: int = setting(100, "units per hidden layer")
+    hidden_layers: int = setting(3, "hidden layers")
+    ensemble_size: int = setting(DEFAULT_ENSEMBLE_SIZE, "members of DE/PE-type models")
+    direct: bool = setting(False, "predict the next state (or velocity) directly instead of its delta from the "
+                           "current one")
+    predicts: typing.Optional[str] = setting(
+        None, "velocity: the network predicts v_{t+1} and q_{t+1} follows by the trapezoid rule (unset: velocity, "
+        "except for the grey box G/GD); state: it predicts x_{t+1} (the paper's; the grey box's, whose delta then "
+        "adds to the plant's whole next state)", choices=PREDICTS)
+    inputs: str = setting("nominal_acceleration", "nominal_acceleration: [q, v, tau] and the acceleration the "
+                          "robot's nominal model (--robot) gives; period_acceleration: that model's mean "
+                          "acceleration over the sample period instead (for joints damped faster than the period); "
+                          "raw: [q, v, tau] (the paper's); plant_step: the grey box (the network's delta adds to the "
+                          "plant model's next state; what --model G/GD use)", choices=INPUT_SETS)
+    state_loss: str = setting("mse", "the next-state term's loss", choices=LOSS_KINDS)
+    derivative_loss: str = setting("mse", "the derivative term's loss", choices=LOSS_KINDS)
+    seeds: typing.List[int] = setting(help="one model per seed", factory=lambda: [0])
+    train: typing.Optional[int] = setting(None, "training trajectories (per group with --per-group on; unset: 60 %%)")
+    val: typing.Optional[int] = setting(None, "validation trajectories (per group with --per-group on; unset: 20 %%)")
+    test: typing.Optional[int] = setting(None, "test trajectories (unset: all the rest)")
+    per_group: typing.Optional[str] = setting(None, "split per initial-pose group (unset: on for tracking data, off "
+                                              "otherwise)", choices=("on", "off"))
+    split_seed: int = setting(0, "seed of the trajectory split")
+    derivative_source: typing.Optional[str] = setting(
+        None, "derivative targets (unset: with --alpha auto chosen by validation from the plan, where the data have "
+        "one and its accelerations are within 0.5 (relative RMS) of the recorded ones, and the recorded motion: the "
+        "simulation's truth, or a log's smoothed angles; with a fixed alpha the first of these; measured: a log's "
+        "velocities and their smoothed derivative)", choices=DERIVATIVE_SOURCES)
+    action_rate: str = setting("forward_difference", "how Δa/Δt is formed", choices=ACTION_RATE_SCHEMES)
+    epochs: int = setting(500, "maximum epochs")
+    patience: int = setting(50, "early-stopping patience in epochs")
+    batch_size: int = setting(64, "transitions per minibatch")
+    lr: float = setting(1e-3, "Adam learning rate")
+    lr_schedule: str = setting("constant", "constant, or cosine decay to --min-lr over the --epochs budget",
+                               choices=LR_SCHEDULES)
+    min_lr: float = setting(0.0, "final learning rate of the cosine schedule")
+    weight_decay: float = setting(0.0, "decoupled weight decay (AdamW; default {default}: plain Adam)")
+    checkpoint_every: int = setting(10, "epochs between checkpoint writes")
+    threads: int = setting(1, "torch CPU threads (default {default}: bitwise-reproducible on any machine)")
 
     def validate(self, given: typing.Collection[str] | None = None) -> None:
         """InputError (one line, naming the key and its flag) on a value no flag would accept, or on a setting
@@ -221,12 +258,9 @@ class TrainSettings:
                 raise InputError(f"{key('model')} {self.model} is the grey box: its inputs are plant_step, not "
                                  f"{self.inputs}")
             self.inputs = "plant_step"
-        choices = dict(model=tuple(MODEL_TYPES) + tuple(GREY_BOX_TYPES), derivative=(None, "on", "off"), activation=ACTIVATION_NAMES,
-                       state_loss=LOSS_KINDS, derivative_loss=LOSS_KINDS, per_group=(None, "on", "off"),
-                       derivative_source=(None, *DERIVATIVE_SOURCES),
-                       action_rate=("forward_difference", "zero_order_hold"), lr_schedule=LR_SCHEDULES,
-                       alpha_scale=ALPHA_SCALES,
-                       predicts=(None, *PREDICTS), inputs=INPUT_SETS, network=tuple(NETWORK_KINDS))
+        # each field's choices as they are now (network kinds registered after import count), None where unset is
+        choices = {field.name: (*field.metadata["choices"], *((None,) if field.default is None else ()))
+                   for field in dataclasses.fields(self) if field.metadata.get("choices")}
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise InputError(f"{key(name)} must be one of {[a for a in allowed if a is not None]}, "
