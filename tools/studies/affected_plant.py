@@ -3,14 +3,16 @@ robot and its effects file, workers, --quick; and the robot and effects they nam
 import argparse
 import pathlib
 
+from stdm_drake.paths import MODELS_DIR
+
 ROOT = pathlib.Path(__file__).resolve().parents[2]
+EFFECTS_PRESET = MODELS_DIR / "ur10_effects.yaml"   # the UR-10's affected plant (the studies' default)
 
 
 def add_affected_plant_arguments(parser: argparse.ArgumentParser, name: str, quick_minutes: int) -> None:
     """The shared options: -o (docs/results/NAME), --data (out/NAME_data), --robot, --plant-effects, --workers,
     --quick."""
     from stdm_drake.robots.robot import UR10_CONFIG
-    from studies.reality_gap import EFFECTS_PRESET
     parser.add_argument("-o", "--output", type=pathlib.Path, default=ROOT / "docs" / "results" / name)
     parser.add_argument("--data", type=pathlib.Path, default=ROOT / "out" / f"{name}_data")
     parser.add_argument("--robot", type=pathlib.Path, default=UR10_CONFIG, help="robot config (the nominal model)")

@@ -7,7 +7,7 @@ import pathlib
 
 import numpy as np
 
-from studies.identification import grey_box_folders, interval_text
+from studies.identification_boxes import grey_box_folders, in_data, interval_text
 from stdm_drake.robots.robot import Robot
 
 # the closed loop's question (issue 23): does this model track with the lowest error of all models a user has
@@ -29,7 +29,6 @@ def run_closed_loop(profile: dict, folder: pathlib.Path, robot: Robot, white_box
     size, seeds, grid = max(profile["grey_sizes"]), profile["seeds"], tuple(map(tuple, profile["closed_loop_grid"]))
     names = tuple(dict.fromkeys(["D", *profile["closed_loop_models"]]))
     folders = grey_box_folders(profile, folder, robot, white_box, names, (size,), workers)
-    from studies.identification import in_data
     specs = {sensor: [("plant", None), ("true-plant", "true"),
                       ("identified", in_data(folder, white_box["identified_files"][sensor][str(size)]))]
              + [(f"{name} seed {seed}", str(pathlib.Path(folders[(sensor, name, size)]) / f"seed{seed}" / "checkpoint.pt"))

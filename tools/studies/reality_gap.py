@@ -25,11 +25,9 @@ import numpy as np
 
 from stdm_drake.closed_loop.tuning import MPC_GRID, SHIPPED, best_setting, finite_mse, with_setting
 from stdm_drake.errors import InputError
-from stdm_drake.paths import MODELS_DIR
 from stdm_drake.robots.robot import Robot
 
 TYPES = ("D", "DD")
-EFFECTS_PRESET = MODELS_DIR / "ur10_effects.yaml"
 # (plans per start pose: train / val / test, seeds, max epochs) of the two parts, full and --quick (the
 # UR-10's 4 start poses: 100 and 40 plans)
 # every prediction model's MPC setting comes from closed_loop.tuning.MPC_GRID (QUICK: two of them)
