@@ -25,15 +25,16 @@ FORBIDDEN = {
 }
 
 
-def imported_modules(path: pathlib.Path) -> set[str]:
-    """Every stdm_drake module `path` imports, at module level or inside functions."""
+def imported_modules(path: pathlib.Path, prefix: str = "stdm_drake") -> set[str]:
+    """Every module whose name starts with `prefix` ("": any) that `path` imports, at module level or inside
+    functions (`from a import b`: a and a.b)."""
     names = set()
     for node in ast.walk(ast.parse(path.read_text())):
-        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("stdm_drake"):
+        if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith(prefix):
             names.add(node.module)
             names.update(f"{node.module}.{alias.name}" for alias in node.names)
         elif isinstance(node, ast.Import):
-            names.update(alias.name for alias in node.names if alias.name.startswith("stdm_drake"))
+            names.update(alias.name for alias in node.names if alias.name.startswith(prefix))
     return names
 
 
@@ -46,18 +47,20 @@ def test_imports_point_down_the_data_flow(stage):
     assert not edges, f"{stage} imports from a later stage: {edges}"
 
 
-def module_graph() -> dict[str, set[str]]:
-    """Every stdm_drake module (top level included) -> the stdm_drake modules it imports anywhere in it."""
-    paths = {".".join(path.relative_to(ROOT).with_suffix("").parts).removesuffix(".__init__"): path
-             for path in PACKAGE.rglob("*.py")}
-    return {name: {module for module in imported_modules(path) if module in paths and module != name}
+def module_graph(top: pathlib.Path = ROOT, folder: pathlib.Path = PACKAGE) -> dict[str, set[str]]:
+    """Every module under `folder`, named as imported from `top` (stdm_drake.x.y; tools/'s as studies.x) -> the
+    modules of that folder it imports anywhere in it."""
+    paths = {".".join(path.relative_to(top).with_suffix("").parts).removesuffix(".__init__"): path
+             for path in folder.rglob("*.py")}
+    return {name: {module for module in imported_modules(path, "") if module in paths and module != name}
             for name, path in paths.items()}
 
 
-def test_no_module_imports_itself_back():
-    """No import cycle among the package's modules, function-level and type-checking imports counted
-    (strongly connected components of the import graph, Tarjan's algorithm)."""
-    graph = module_graph()
+@pytest.mark.parametrize("where", ["stdm_drake", "tools"])
+def test_no_module_imports_itself_back(where):
+    """No import cycle among the package's modules, nor among tools/' (benchmarks, studies), function-level and
+    type-checking imports counted (strongly connected components of the import graph, Tarjan's algorithm)."""
+    graph = module_graph() if where == "stdm_drake" else module_graph(ROOT / "tools", ROOT / "tools")
     index, low, stack, on_stack, cycles = {}, {}, [], set(), []
 
     def visit(node):
