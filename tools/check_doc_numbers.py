@@ -8,7 +8,7 @@ A number on a page names its source with an HTML comment right after it (not sho
     r["periods"]["2 ms"]["runs"] if run["model"] == "D") -->
 
 The expression after the colon is evaluated with `r`, the file's content (a JSON file's value; a CSV file's
-rows as dicts of strings; with several files, comma separated, `r` is the first and `r0`, `r1`, ... each), and `len sum min max abs round sorted any all float int math geomean`. Its value is
+rows as dicts of strings; with several files, comma separated, `r` is the first and `r0`, `r1`, ... each), and `len sum min max abs round sorted any all float int math geomean next` (and zip, range, list, set, dict, tuple). Its value is
 a number, or a tuple of numbers for a range ("0.75-1.22x") or an interval ("1.28x [1.26, 1.30]"), and must
 equal the number(s) written just before the comment to the digits written (590 matches 590.3; 1.10 does not
 match 1.097). A comment may span lines. Exit status 0 when every quoted number matches, 1 otherwise (each
@@ -41,7 +41,8 @@ def geomean(values) -> float:
 
 
 NAMES = dict(len=len, sum=sum, min=min, max=max, abs=abs, round=round, sorted=sorted, any=any, all=all, float=float,
-             int=int, math=math, geomean=geomean, zip=zip, range=range, list=list, set=set, dict=dict, tuple=tuple)
+             int=int, math=math, geomean=geomean, zip=zip, range=range, list=list, set=set, dict=dict, tuple=tuple,
+             next=next)
 
 
 def load(path: pathlib.Path):
