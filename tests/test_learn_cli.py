@@ -165,6 +165,27 @@ def test_benchmark_report_writer_keeps_other_sections(tmp_path):
     assert "new" in text and "old" not in text and text.rstrip().endswith("## Data collection\n\nkeep")
 
 
+def test_a_benchmark_section_has_its_results_file(tmp_path):
+    """Each benchmark's section of BENCHMARKS.md comes with docs/results/benchmarks/TOOL.json (issue 55): the run's
+    provenance, its text and its tables as rows, which the pages quoting a benchmark name as their source."""
+    import json
+    from tools_import import benchmark_report
+    path = tmp_path / "BENCHMARKS.md"
+    origin = dict(commit="1" * 40, clean=True, command="python tools/bench_x.py --rounds 3 --write", machine="M")
+    body = ("Goal: <= 1 ms.\n\n| case | ms / step | met |\n|---|---|---|\n| **compiled** | 0.436 | no |\n"
+            "| numpy | 2.884 | no |\n\nsecond table:\n\n| a | b |\n|:--|--:|\n| 1 | 2 |\n")
+    written = benchmark_report.write_benchmark_section("Learning library", "Rollout (tools/bench_x.py)", body, origin, path)
+    assert written == tmp_path / "docs" / "results" / "benchmarks" / "bench_x.json"
+    record = json.loads(written.read_text())
+    assert record["provenance"] == origin and record["title"] == "Rollout (tools/bench_x.py)"
+    assert record["tables"] == [[{"case": "compiled", "ms / step": "0.436", "met": "no"},
+                                 {"case": "numpy", "ms / step": "2.884", "met": "no"}], [{"a": "1", "b": "2"}]]
+    assert "Command: `python tools/bench_x.py --rounds 3 --write` (commit 1111111, clean tree)." in path.read_text()
+    assert benchmark_report.write_benchmark_section("Learning library", "Other", "x\n", origin, path, record=False) is None
+    assert benchmark_report.write_benchmark_section("Learning library", "Two", "x\n", origin, path,
+                                                    name="bench_x_2_thread").name == "bench_x_2_thread.json"
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize("model_type", ["DD", "DED"])
 def test_train_alpha_auto_keeps_the_validation_best_and_records_the_grid(tiny, tmp_path, capsys, model_type):

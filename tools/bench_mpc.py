@@ -195,7 +195,7 @@ def main():
         from stdm_drake.files import write_text_atomic
         compiled = args.baseline == "numpy"
         write_benchmark_section("Deployment", "The compiled MPC control step against the numpy reference (tools/bench_mpc.py)"
-                                if compiled else "MPC control step (tools/bench_mpc.py)", text, origin)
+                                if compiled else "MPC control step (tools/bench_mpc.py)", text, origin, record=False)
         folder = ROOT / "docs" / "results" / ("compiled_step" if compiled else "realtime")
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder / "bench_mpc.json", json.dumps(dict(baseline=args.baseline, plans=args.plans,

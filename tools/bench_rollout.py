@@ -192,7 +192,8 @@ def main(argv=None) -> int:
     text = report(medians, agreement, args.threads)
     print(text)
     if args.write:
-        write_benchmark_section("Learning library", "Open-loop rollout (tools/bench_rollout.py)", text, origin)
+        write_benchmark_section("Learning library", "Open-loop rollout (tools/bench_rollout.py)", text, origin,
+                                record=False)   # (its own results file below)
         folder = ROOT / "docs" / "results" / "compiled_step"
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder / "bench_rollout.json", json.dumps(dict(

@@ -145,7 +145,7 @@ def main() -> int:
         import json
         from stdm_drake.files import write_text_atomic
         write_benchmark_section("Deployment", "Sampling MPC, time per control step (tools/bench_sampling.py)",
-                                "\n".join(text), origin)
+                                "\n".join(text), origin, record=False)   # (its own results file below)
         folder = pathlib.Path(__file__).resolve().parents[1] / "docs" / "results" / "compiled_step"
         folder.mkdir(parents=True, exist_ok=True)
         write_text_atomic(folder / "bench_sampling.json", json.dumps(dict(

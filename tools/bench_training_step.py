@@ -136,7 +136,7 @@ def main(argv=None) -> int:
     if args.write:
         threads = f"{args.threads} thread" + ("s" if args.threads > 1 else "")
         title = f"Training step with the derivative loss (tools/bench_training_step.py, {threads})"
-        write_benchmark_section(SECTION, title, text, origin)
+        write_benchmark_section(SECTION, title, text, origin, name=f"bench_training_step_{args.threads}_thread")
         print(f"updated {BENCHMARKS_FILE}")
     return 0
 

@@ -58,10 +58,30 @@ def command_line(origin: dict) -> str:
     return f"Command: `{origin['command']}` (commit {commit}, {state})."
 
 
+def markdown_tables(body: str) -> list[list[dict]]:
+    """Every Markdown table of `body` as its rows, each a dict from the header's cells to the row's (strings as
+    printed, the bold marks taken off)."""
+    tables, header = [], None
+    for line in body.splitlines() + [""]:
+        cells = [cell.strip().strip("*").strip() for cell in line.strip().strip("|").split("|")]
+        if not line.lstrip().startswith("|"):
+            header = None
+        elif header is None:
+            header = cells
+            tables.append([])
+        elif not all(set(cell) <= set("-: ") for cell in cells):
+            tables[-1].append(dict(zip(header, cells)))
+    return tables
+
+
 def write_benchmark_section(section: str, title: str, body: str, origin: dict,
-                            path: pathlib.Path = BENCHMARKS_FILE) -> None:
+                            path: pathlib.Path = BENCHMARKS_FILE, record: bool = True,
+                            name: str | None = None) -> pathlib.Path | None:
     """Replace (or add) the subsection '### title' under '## section' of BENCHMARKS.md with `body` and the line
-    naming the run's command and commit (`origin`: start_benchmark's), leaving every other part as it is."""
+    naming the run's command and commit (`origin`: start_benchmark's), leaving every other part as it is; with
+    `record` also the run's results file beside the other results, docs/results/benchmarks/NAME.json (NAME: `name`,
+    else the benchmark's file name): its provenance, the section's text and its tables as rows (what the pages that
+    quote a benchmark name as their source). Returns that file's path (None without `record`)."""
     heading = f"## {section}"
     text = path.read_text() if path.exists() else "# Benchmarks\n"
     lines = text.splitlines()
@@ -79,3 +99,12 @@ def write_benchmark_section(section: str, title: str, body: str, origin: dict,
             stop = next((i for i in range(start + 1, end) if lines[i].startswith("### ")), end)
             lines[start:stop] = block
     write_text_atomic(path, "\n".join(lines).rstrip("\n") + "\n")
+    if not record:
+        return None
+    import json
+    name = name or pathlib.Path(origin["command"].split()[1]).stem   # "python tools/bench_x.py ...": bench_x
+    results = path.parent / "docs" / "results" / "benchmarks" / f"{name}.json"
+    results.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(results, json.dumps(dict(provenance=origin, section=section, title=title, text=body.strip("\n"),
+                                               tables=markdown_tables(body)), indent=1, ensure_ascii=False) + "\n")
+    return results
