@@ -100,9 +100,11 @@ def check_nesting(path, what: str) -> None:
 
 
 def check_quoted_numbers(path, schema) -> None:
-    """InputError (one line naming the setting) where `path` quotes the value of a numeric field of `schema` (a
-    dataclass; nested dataclasses and tagged variants followed): `samples: "100"` is a string in YAML, which
-    Drake's typed load would read as the number; an unreadable file is left to the typed load."""
+    """InputError (one line naming the setting) where `path` quotes the value of a numeric or boolean field of
+    `schema` (a dataclass; nested dataclasses and tagged variants followed): `samples: "100"` and `enabled: "false"`
+    are strings in YAML, which Drake's typed load would read as the number or the boolean; also a number YAML 1.1
+    reads otherwise (`024`), or a tagged number in digits of another script; an unreadable file is left to the
+    typed load."""
     try:
         text = pathlib.Path(path).read_text(encoding="utf-8-sig")
         node = yaml.compose(text, Loader=YAML_LOADER)
@@ -119,7 +121,10 @@ def check_quoted_numbers(path, schema) -> None:
         where, value, how = found
         if how.startswith("which YAML reads as"):
             raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
-        fix = {"in quotes": "without quotes", "read by YAML as text": "in ASCII digits"}.get(
+        if how.endswith(", not a boolean"):
+            raise InputError(f"{path}: {where} is {value!r} {how}; write true or false without quotes or a tag")
+        fix = "in ASCII digits" if how.endswith("another script") else {
+            "in quotes": "without quotes", "read by YAML as text": "in ASCII digits"}.get(
             how, "without the tag" if how.startswith("tagged") else "in digits")
         raise InputError(f"{path}: {where} is {value!r} {how}, not a number; write the number {fix}")
 
@@ -204,9 +209,8 @@ def _numeric_scalars(annotation, node, where: str):
             name = getattr(key, "value", None)
             if name in hints:
                 yield from _numeric_scalars(hints[name], value, f"{where}.{name}" if where else name)
-    elif (isinstance(annotation, type) and issubclass(annotation, (int, float)) and annotation is not bool
-          and isinstance(node, yaml.ScalarNode)):
-        yield where, node
+    elif isinstance(annotation, type) and issubclass(annotation, (int, float)) and isinstance(node, yaml.ScalarNode):
+        yield where, node, annotation is bool   # (a bool field's too: `true` or `false`, never text)
 
 
 # numbers YAML 1.1 reads other than as their decimal digits say: octal (`024` is 20), binary, hexadecimal,
@@ -227,9 +231,15 @@ def _quoted_number(node, schema, prefix: str, text: str):
     """(the setting's dotted name, its text, how it is not a number) of the first scalar where `schema` holds a
     number that the file writes as something else YAML reads as text or a boolean: quoted, tagged (`!!str 3`,
     also behind an anchor), or digits of another script (`５`), or None."""
-    for where, item in _numeric_scalars(schema, node, prefix.rstrip(".")):
+    for where, item, boolean in _numeric_scalars(schema, node, prefix.rstrip(".")):
         written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
         tag = next((word for word in written.split() if word.startswith("!")), None)
+        if boolean:   # (`"false"` or `!!str true`: text, which the typed load would read as the boolean)
+            if item.style in ("'", '"') or (tag is not None and not item.tag.endswith(":bool")):
+                return where, item.value, ("in quotes" if item.style else f"tagged {tag}") + ", not a boolean"
+            continue
+        if item.tag in NUMBER_TAGS[:2] and not item.value.isascii():   # (`!!int 0２４`: int() reads any script)
+            return where, item.value, f"tagged {tag or item.tag.rsplit(':', 1)[-1]} in digits of another script"
         if item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):   # (tagged `!!int 024` too)
             try:   # (as its number tag reads it)
                 read = yaml.safe_load(f"!!{item.tag.rsplit(':', 1)[-1]} {item.value}")

@@ -290,6 +290,20 @@ def write_issue_25_inputs(box) -> None:
     (box / "max_plan.yaml").write_text(tracking.replace("num_steps: 100", "num_steps: 100000"))
     (box / "long_plan.yaml").write_text(tracking.replace("num_steps: 100", "num_steps: 10000000"))
     (box / "redraw_plan.yaml").write_text(tracking.replace("max_resample_attempts: 20", "max_resample_attempts: 1000000000"))
+    # (held-out run 20: a URDF acceleration limit below 0, a mesh resolution hint and a box side of 1e-320, an SDF that
+    # includes itself through another)
+    (box / "negative_acceleration.urdf").write_text(urdf.replace(
+        '<limit lower="-6.283185307179586"', '<limit drake:acceleration="-5" lower="-6.283185307179586"', 1))
+    (box / "tiny_hint.urdf").write_text(urdf.replace(
+        '<geometry><cylinder radius="0.075" length="0.038"/></geometry></collision>',
+        '<geometry><cylinder radius="0.075" length="0.038"/></geometry><drake:proximity_properties>'
+        '<drake:mesh_resolution_hint value="1e-320"/></drake:proximity_properties></collision>', 1))
+    (box / "tiny_box.urdf").write_text(urdf.replace('<cylinder radius="0.075" length="0.038"/>',
+                                                    '<box size="0.1 0.1 1e-300"/>', 1))
+    (box / "cycle_a.sdf").write_text('<sdf version="1.9"><model name="a"><link name="l"/><include><uri>cycle_b.sdf</uri>'
+                                     '</include></model></sdf>')
+    (box / "cycle_b.sdf").write_text('<sdf version="1.9"><model name="b"><link name="k"/><include><uri>cycle_a.sdf</uri>'
+                                     '</include></model></sdf>')
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -942,6 +956,24 @@ CASES = [
                                                                                              "than the 1,000,000"),
     ([*C, "--config", "unreachable_plan.yaml", "-o", "NEW.h5"], "after 4 attempts"),
     (yaml_case("mpc", "position_weight: [1.0e-320]\nvelocity_weight: [0.0]\n"), "position_weight must be at least 1e-12"),
+    # (held-out run 20)
+    (yaml_case("mpc", "horizon: !!int 0\uff12\uff14\n"), "horizon is '0\uff12\uff14' tagged !!int in digits of another script"),
+    (yaml_case("train", "hidden_width: !!int 0\u0661\u0662\n"), "tagged !!int in digits of another script"),
+    (yaml_case("ctrl", "controller: !Pid\n  kp: [1]\n  ki: [0]\n  kd: [1]\n  gravity_feedforward: \"false\"\n"),
+     "gravity_feedforward is 'false' in quotes, not a boolean"),
+    (yaml_case("ctrl", "controller: !Pid\n  kp: [1]\n  ki: [0]\n  kd: [1]\n  <<: {gravity_feedforward: !!str true}\n"),
+     "gravity_feedforward is 'true' tagged !!str, not a boolean"),
+    (yaml_case("effects", "coulomb_friction: [1]\ncoulomb_velocity_scale: [1.0e-320]\n"),
+     "raise its coulomb_velocity_scale to at least 0.000"),
+    (yaml_case("mpc", "constraints: {penalty_weight: 1.0e-320}\n"), "penalty_weight must be in [1e-12, 1e+12]"),
+    (yaml_case("mpc", "optimizer: !Icem {propagation: tsinf, particles: 5}\n"),
+     "has one deterministic member; use propagation: mean"),
+    ([*T, "--lr", "1e-320", "-o", "NEW"], "lr (--lr) must be at least 1e-10"),
+    (["robot", "init", "negative_acceleration.urdf", "-o", "NEW.yaml"], "its <limit> drake:acceleration is '-5'"),
+    (["robot", "init", "tiny_hint.urdf", "-o", "NEW.yaml"], "Drake's mesh_resolution_hint is in [1e-06, 1e+06] m"),
+    (["robot", "init", "tiny_box.urdf", "-o", "NEW.yaml"], "a shape's dimensions are finite, at least 1e-06 m"),
+    (["robot", "init", "cycle_a.sdf", "-o", "NEW.yaml"], "includes itself (cycle_a.sdf -> cycle_b.sdf -> cycle_a.sdf)"),
+    (["collect", "--count", "1", "--workers", "1", "--config", "unreachable_plan.yaml", "-o", "NEW.h5"], "after 4 attempts"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -448,3 +448,52 @@ def test_an_sdf_limit_below_zero_is_none_as_sdformat_reads_it(tmp_path, capsys):
     assert "effort_limits of j0 derived" in out
     config = (tmp_path / "arm.yaml").read_text()
     assert "j0: 1.5707963267948966  # derived" in config
+
+
+def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
+    """An SDF arm that <include>s a tool model welded to its last link (Drake: instances arm and arm::tip; held-out
+    run 20 found it refused as "2 models") loads: `robot init` keeps the tool frame in the arm's own model, the
+    tool's mass is in the dynamics, and its collisions with the arm are filtered as the arm's own. A nested model
+    that moves, and two models side by side, are one line each."""
+    from stdm_drake.robots.plant import Dynamics
+    link = ('<link name="{name}"><pose>0 0 {z} 0 0 0</pose><inertial><mass>{mass}</mass><inertia><ixx>0.01</ixx>'
+            '<iyy>0.01</iyy><izz>0.005</izz><ixy>0</ixy><ixz>0</ixz><iyz>0</iyz></inertia></inertial>'
+            '<collision name="c"><geometry><sphere><radius>0.05</radius></sphere></geometry></collision></link>')
+    joint = ('<joint name="{name}" type="{kind}"><parent>{parent}</parent><child>{child}</child><axis><xyz>0 1 0</xyz>'
+             '<limit><lower>-2</lower><upper>2</upper><effort>50</effort><velocity>2</velocity></limit></axis></joint>')
+    arm = (link.format(name="base", z=0, mass=5) + link.format(name="upper", z=0.2, mass=2)
+           + link.format(name="fore", z=0.5, mass=1) + joint.format(name="shoulder", kind="revolute", parent="base",
+                                                                      child="upper")
+           + joint.format(name="elbow", kind="revolute", parent="upper", child="fore"))
+    (tmp_path / "tip.sdf").write_text('<sdf version="1.9"><model name="tip">' + link.format(name="tip_link", z=0, mass=3)
+                                      + "</model></sdf>")
+    include = '<include><uri>tip.sdf</uri><name>tip</name><pose>0 0 0.7 0 0 0</pose></include>'
+    weld = '<joint name="mount" type="fixed"><parent>fore</parent><child>tip::tip_link</child></joint>'
+    for name, body in (("bare", arm), ("tooled", arm + include + weld)):
+        (tmp_path / f"{name}.sdf").write_text(f'<sdf version="1.9"><model name="arm">{body}</model></sdf>')
+        assert main(["robot", "init", str(tmp_path / f"{name}.sdf"), "-o", str(tmp_path / f"{name}.yaml")]) == 0
+    assert "tool_frame: fore" in (tmp_path / "tooled.yaml").read_text()
+    bare, tooled = (Dynamics(load_robot(tmp_path / f"{name}.yaml")) for name in ("bare", "tooled"))
+    home = np.array([0.3, -0.6])
+    assert tooled.mass_matrix(home)[0, 0] > bare.mass_matrix(home)[0, 0] + 0.5   # 3 kg at 0.5-0.7 m from the shoulder
+    from pydrake.systems.framework import DiagramBuilder
+    from stdm_drake.robots.plant import PlantConfig, make_plant
+    plant, scene_graph = make_plant(PlantConfig(self_collision=False), DiagramBuilder(),
+                                    robot=load_robot(tmp_path / "tooled.yaml"))
+    inspector = scene_graph.model_inspector()
+    tool, base = (plant.GetCollisionGeometriesForBody(plant.GetBodyByName(name))[0] for name in ("tip_link", "base"))
+    assert inspector.CollisionFiltered(tool, base)   # (self-collision off: the tool is one of the robot's links)
+    capsys.readouterr()
+    moving = include + weld.replace('type="fixed"', 'type="revolute"').replace("</child>", "</child><axis><xyz>0 1 0</xyz>"
+                                                                              "<limit><lower>-1</lower><upper>1</upper>"
+                                                                              "</limit></axis>")
+    (tmp_path / "moving.sdf").write_text(f'<sdf version="1.9"><model name="arm">{arm}{moving}</model></sdf>')
+    (tmp_path / "moving.yaml").write_text((tmp_path / "tooled.yaml").read_text().replace("tooled.sdf", "moving.sdf"))
+    assert main(["robot", "check", str(tmp_path / "moving.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and "its nested model 'arm::tip' moves 1 degree of freedom" in err, err
+    (tmp_path / "world.sdf").write_text(f'<sdf version="1.9"><world name="w"><model name="arm">{arm}</model>'
+                                        f'<model name="other">{link.format(name="box", z=2, mass=1)}</model></world></sdf>')
+    (tmp_path / "world.yaml").write_text((tmp_path / "bare.yaml").read_text().replace("bare.sdf", "world.sdf"))
+    assert main(["robot", "check", str(tmp_path / "world.yaml")]) == 2
+    assert "holds 2 models (arm, other), expected one" in capsys.readouterr().err

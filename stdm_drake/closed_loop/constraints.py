@@ -29,6 +29,8 @@ from stdm_drake.errors import InputError
 
 MODES = ("soft", "hard", "off")
 MAX_PENALTY = 1e12          # a penalty weight beyond this swamps every other term of the cost
+# the smallest: a weight of 1e-320 (0 in all but name) switches the soft limits off, which mode: off says openly
+MIN_PENALTY = 1e-12
 ACTIVE_TOLERANCE = 1e-9     # a torque within this of its bound (N m), a state row within it (rad, rad/s): active
 SLACK_TOLERANCE = 1e-7      # slack beyond this (rad, rad/s) counts as used
 MAX_ROUNDS = 20             # constraint-generation rounds of one QP (rows are only added: it ends far sooner)
@@ -53,7 +55,7 @@ class Constraints:
 
     def validate(self) -> None:
         """InputError (one line) for settings no optimizer can use: an unknown mode, margins negative or not
-        finite, a penalty weight not in (0, MAX_PENALTY]. A mode of false (YAML's reading of a bare `off`) becomes
+        finite, a penalty weight not in [MIN_PENALTY, MAX_PENALTY]. A mode of false (YAML's reading of a bare `off`) becomes
         "off"."""
         if self.mode is False:
             self.mode = "off"
@@ -65,8 +67,8 @@ class Constraints:
                 raise InputError(f"mpc constraints {name} must be a number >= 0, got {value!r}")
         weight = self.penalty_weight
         if isinstance(weight, bool) or not isinstance(weight, (int, float)) or not (
-                np.isfinite(weight) and 0 < weight <= MAX_PENALTY):
-            raise InputError(f"mpc constraints penalty_weight must be in (0, {MAX_PENALTY:g}], got {weight!r}")
+                np.isfinite(weight) and MIN_PENALTY <= weight <= MAX_PENALTY):
+            raise InputError(f"mpc constraints penalty_weight must be in [{MIN_PENALTY:g}, {MAX_PENALTY:g}], got {weight!r}")
 
     def bounds(self, position_lower, position_upper, velocity, names=None) -> "StateBounds | None":
         """The state bounds of these settings for a robot's limits: position_lower/upper (n,) rad, velocity (n,)

@@ -147,6 +147,7 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     limits = joint_limits(Dynamics(robot).plant)
     for model in models:   # (settings a model cannot be solved with, e.g. a PyTorch device for the plant: refused now)
         config.solver(model, limits, robot.joint_names)
+    check_particles_used(config.optimizer, models)
     references = held_out_references(dataset, [model.checkpoint for model in learned], study.plans)
     if len(references) < study.plans:
         raise InputError(f"--plans {study.plans}: {study.dataset} has only {len(references)} held-out plans")
@@ -170,6 +171,20 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
                   mpc_settings=dict(file=_text(mpc_settings_file(robot, study.settings)),
                                     optimizer_given=study.optimizer is not None, settings=config.record()))
     return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config.constraints)
+
+
+def check_particles_used(optimizer, models) -> None:
+    """InputError where a sampling optimizer's propagation over particles (`tsinf`, `ts1`) has no model of the run
+    to act on: each has one deterministic member (the plant, D, DD), so every one would run as mean. (With one
+    ensemble among them the others run as mean, said on their real-time line.)"""
+    propagation = getattr(optimizer, "propagation", "mean")
+    if propagation == "mean" or any(int(getattr(model, "ensemble_size", 1)) > 1 or getattr(model, "probabilistic", False)
+                                    for model in models):
+        return
+    names = ", ".join(getattr(model, "name", "?") for model in models)
+    raise InputError(f"{optimizer.tag()} propagation {propagation} with {optimizer.particles} particles samples an "
+                     f"ensemble's members, and every model of this run ({names}) has one deterministic member; use "
+                     "propagation: mean")
 
 
 def say(line: str) -> None:

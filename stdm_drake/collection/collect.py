@@ -244,8 +244,7 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
     if request.protocol == "tracking":   # (excitation has no tracking controller)
         settings.controller.validate()
         check_plant_steps(request.count, request.count * request.tracking_spec.sampling.num_steps, settings)
-    bar = tqdm(total=request.count, desc=f"collect {request.protocol}", unit="traj", disable=not progress,
-               file=sys.stderr)
+    bar = None   # (started once every plan is found and the sizes checked: a refusal before it is its one line)
     trajectories, excitation_parameters = [], []
 
     def finished(arrays: dict) -> None:
@@ -273,10 +272,12 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
                              f"{files.size_text(available)} is available; collect fewer (--count) or shorter ones")
         if check_size is not None:
             check_size(size)
+        bar = tqdm(total=request.count, desc=f"collect {request.protocol}", unit="traj", disable=not progress,
+                   file=sys.stderr)
         jobs = [TrajectoryJob(request.protocol, i, request.seed, payload) for i, payload in enumerate(payloads)]
         for traj in pool.map(_collect_one, jobs, chunksize=max(1, len(jobs) // (4 * workers))):
             finished(traj)
-    bar.close()
+        bar.close()
     metadata = collection_metadata(request)
     if request.protocol == "excitation":
         metadata["excitation_parameters"] = excitation_parameters

@@ -32,6 +32,7 @@ MAX_SEEDS = 1000
 # of years); a million epochs in all is days of the default model on this kind of machine
 MAX_TOTAL_EPOCHS = 1_000_000
 MAX_LR = 1.0        # Adam's step is about lr per weight
+MIN_LR = 1e-10      # ... so below it no float32 weight of 1e-3 or more changes (1e-320: no training at all)
 MAX_ALPHA = 1e6     # beyond it the next-state term is below float32's resolution of the summed loss
 MAX_ALPHA_GRID = 100
 LR_SCHEDULES = ("constant", "cosine")
@@ -318,6 +319,9 @@ class TrainSettings:
             if not (math.isfinite(value) and (value > 0 if name == "lr" else value >= 0)):
                 bound = "> 0" if name == "lr" else ">= 0"
                 raise InputError(f"{key(name)} must be a finite number {bound}, got {value}")
+        if self.lr < MIN_LR:
+            raise InputError(f"{key('lr')} must be at least {MIN_LR:g} (Adam moves each weight by about lr per step, "
+                             f"so no float32 weight would change), got {self.lr:g}")
         if self.lr > MAX_LR:
             raise InputError(f"{key('lr')} must be at most {MAX_LR:g} (Adam's steps would be as large as the "
                              f"weights), got {self.lr:g}")

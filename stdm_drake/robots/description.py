@@ -184,12 +184,14 @@ def _sdf(root) -> Description:
     return Description(links, joints, max(1, len(top)), top[0].get("name") or "" if len(top) == 1 else "")
 
 
-def read_description(path: pathlib.Path, depth: int = 0) -> Description:
+def read_description(path: pathlib.Path, including: tuple = ()) -> Description:
     """The links and joints of a URDF or SDF file. InputError (one line) for a file these checks cannot read as
     Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
     (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
     a "billion laughs" file among them). So no check is skipped for a file Drake then parses, nor for the local files
-    an SDF includes (`xml_file.included_files`; their links' masses checked, not returned: Drake scopes them)."""
+    an SDF includes (`xml_file.included_files`; their links' masses checked, not returned: Drake scopes them), and an
+    SDF that includes itself, directly or through others (`including`: the files whose includes led here), is refused
+    (Drake's parser would recurse until the process crashes)."""
     check_xml(path, "a URDF or SDF file is", count_frames=True)
     try:
         description = _sdf(root) if (root := xml_file.parse(path).getroot()).tag == "sdf" else _urdf(root)
@@ -199,9 +201,13 @@ def read_description(path: pathlib.Path, depth: int = 0) -> Description:
                          "exponent); these checks cannot read it, and Drake's parser would read it otherwise") from None
     except WrongCount as error:
         raise InputError(f"{path.name}: {error}") from None
-    if root.tag == "sdf" and depth < xml_file.MAX_INCLUDE_DEPTH:
+    if root.tag == "sdf" and len(including) < xml_file.MAX_INCLUDE_DEPTH:
+        chain = (*including, pathlib.Path(path).resolve())
         for included in xml_file.included_files(root, path):
-            for link, inertial in read_description(included, depth + 1).links.items():
+            if included.resolve() in chain:
+                names = " -> ".join(item.name for item in (*chain[chain.index(included.resolve()):], included))
+                raise InputError(f"{chain[0].name}: includes itself ({names}); Drake's parser would not end")
+            for link, inertial in read_description(included, chain).links.items():
                 if inertial is not None:
                     check_inertial(inertial, f"{path.name}: its included {included.name}: link {link!r}")
     return description

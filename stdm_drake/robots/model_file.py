@@ -314,7 +314,7 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
     file's (`set_joint_limits`; Drake's parser asserts on some that the config replaces): visuals whose mesh file is missing are left
     out, collision meshes in a format Drake does not read (STL, COLLADA, ...) and visuals Meshcat does
     not show (STL, ...) point to OBJ copies (`mesh_as_obj`), every other mesh path becomes a file:// URI
-    (Drake resolves only URIs in a model parsed from text). A mesh file that is missing is left out
+    (Drake resolves only URIs in a model parsed from text), and an SDF's relative <include> an absolute path. A mesh file that is missing is left out
     (visual or collision: the dynamics need neither); a collision mesh in a format neither Drake nor
     trimesh reads is an InputError naming robot `name`."""
     import xml.etree.ElementTree as ElementTree
@@ -362,7 +362,12 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
         else:
             uri_element.text = uri
     unknown = remove_undefined_sdf_elements(root, package_paths) if root.tag == "sdf" else []
-    if not (missing or missing_collisions or converted or limits or renamed or undefined or massless or unknown):
+    relative = []   # (a relative <include>: from the file's folder, where SDFormat would look in the working folder)
+    for uri in (include.find("uri") for include in root.iter("include")) if root.tag == "sdf" else ():
+        if uri is not None and uri.text and "://" not in uri.text and not pathlib.Path(uri.text.strip()).is_absolute():
+            uri.text, relative = str((model_path.parent / uri.text.strip()).resolve()), [*relative, uri.text]
+    if not (missing or missing_collisions or converted or limits or renamed or undefined or massless or unknown
+            or relative):
         return LoadableModel(None, [], [])
     return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted, renamed + undefined, massless,
                          missing_collisions, unknown, sorted(unmapped))

@@ -12,6 +12,7 @@ from stdm_drake.errors import InputError
 from stdm_drake.files import names_text
 from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,
                                        set_effect_parameters)
+from stdm_drake.robots.nested_models import nested_instances
 from stdm_drake.robots.robot import Robot
 
 
@@ -203,10 +204,9 @@ class PlantSimulator:
 
 
 def _filter_self_collisions(plant, scene_graph, instance):
-    """Exclude contact among all of the robot's collision geometries."""
-    geometry_ids = []
-    for body_index in plant.GetBodyIndices(instance):
-        geometry_ids.extend(plant.GetCollisionGeometriesForBody(plant.get_body(body_index)))
+    """Exclude contact among all of the robot's collision geometries (the models nested in it too: a welded tool)."""
+    geometry_ids = [geometry for model in (instance, *nested_instances(plant, instance)) for body in
+                    plant.GetBodyIndices(model) for geometry in plant.GetCollisionGeometriesForBody(plant.get_body(body))]
     scene_graph.collision_filter_manager().Apply(
         CollisionFilterDeclaration().ExcludeWithin(GeometrySet(geometry_ids)))
 
@@ -384,11 +384,12 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
         friction, scale = effects.coulomb(n)
         if np.any(gain > 1.0):
             joint = int(np.argmax(gain))
+            smallest = coulomb_stability_gains(dataclasses.replace(effects, coulomb_velocity_scale=[1.0]), robot,
+                                               time_step)[joint]   # (h F_c / M_eff: the smallest stable v_s)
             raise InputError(f"plant effects: Coulomb friction {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
-                             f"raise its coulomb_velocity_scale to at least {scale[joint] * gain[joint]:.3g} rad/s or "
-                             "lower the plant step")
+                             f"raise its coulomb_velocity_scale to at least {smallest:.3g} rad/s or lower the plant step")
 
 
 def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:
@@ -401,7 +402,8 @@ def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: floa
         return None
     inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[])).effective_inertia(robot.home)
     friction, scale = coulomb
-    return time_step * friction / (scale * inertia)
+    with np.errstate(over="ignore"):   # (a v_s of 1e-320 gives inf: unstable, as it is)
+        return time_step * friction / inertia / scale
 
 
 def plant_effects_for(effects, robot: Robot, time_step: float) -> PlantEffects | None:

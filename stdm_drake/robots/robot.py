@@ -28,6 +28,7 @@ from stdm_drake.robots.limit_checks import check_config_limit, limit_overrides, 
 from stdm_drake.robots.meshes import mesh_cache_dir
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
+from stdm_drake.robots.nested_models import check_nested_fixed, robot_instance
 from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
@@ -296,9 +297,7 @@ class Robot:
                              else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))
         except (RuntimeError, ValueError) as error:   # (ValueError: a number Drake's parser cannot read, "nan")
             raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}") from None
-        if len(instances) != 1:
-            raise InputError(f"robot {self.name}: {self.model_path.name} holds {len(instances)} models, expected one")
-        (instance,) = instances
+        instance = robot_instance(plant, instances, f"robot {self.name}: {self.model_path.name}")
         config = self.config
         if config.weld_frame is not None:
             if not plant.HasFrameNamed(config.weld_frame, instance):
@@ -385,6 +384,7 @@ class Robot:
                                                               for b in plant.GetBodyIndices(instance)) else names
             raise InputError(f"robot {self.name}: the model moves {plant.num_velocities(instance)} degrees of "
                              f"freedom ({free}); list the others under locked_joints")
+        check_nested_fixed(plant, instance, f"robot {self.name}: {self.model_path.name}")
         order = sorted(config.arm_joints, key=lambda name: plant.GetJointByName(name, instance).velocity_start())
         if order != list(config.arm_joints):
             raise InputError(f"robot {self.name}: list arm_joints in the model's order: {order}")

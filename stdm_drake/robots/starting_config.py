@@ -103,7 +103,8 @@ def arm_chain(description: Description, mimics: list) -> ArmChain:
                          f"{', '.join(joint.name for joint in children.get(root, [])) or 'none'})")
     tool = arm[-1].child
     while True:
-        fixed = [joint for joint in children.get(tool, []) if joint.kind not in MOVABLE]
+        fixed = [joint for joint in children.get(tool, []) if joint.kind not in MOVABLE
+                 and "::" not in joint.child]   # (not into a model nested in the arm: its frames are its own)
         if len(fixed) > 1:   # (several frames: the one that carries the gripper, when one does)
             fixed = [joint for joint in fixed if count(joint.child) > 0]
         if len(fixed) != 1:

@@ -37,7 +37,8 @@ MAX_DEPTH = 64   # elements nested in each other (a URDF nests 5 deep, an SDF of
 # attributes, SDF elements whose text is numbers (an SDF <friction> with child elements is a surface's, not these)
 NUMBER_ATTRIBUTES = {"xyz", "rpy", "lower", "upper", "effort", "velocity", "damping", "friction", "ixx", "ixy", "ixz",
                      "iyy", "iyz", "izz", "multiplier", "offset", "size", "radius", "length", "scale",
-                     "soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity", "rising", "falling"}
+                     "soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity", "rising", "falling",
+                     "drake:acceleration"}
 NUMBER_ELEMENTS = {"pose", "xyz", "lower", "upper", "effort", "velocity", "damping", "friction", "spring_reference",
                    "spring_stiffness", "mass", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "radius", "length", "size",
                    "scale", "stiffness", "dissipation"}
@@ -194,6 +195,10 @@ def check_numbers(root, rule) -> None:
                     _numbers(text, rule, f"{owner}: its <{element.tag}> {attribute}", UnreadNumber)
             if element.tag == "origin" and element.get("xyz") is not None:
                 _check_offset(ascii_words(element.get("xyz")), f"{owner}: its <origin> xyz")
+            acceleration = element.get("drake:acceleration") if element.tag == "limit" else None
+            if acceleration is not None and not 0 <= float(acceleration) < math.inf:   # (Drake asserts on < 0)
+                raise WrongCount(f"{owner}: its <limit> drake:acceleration is {acceleration.strip(ASCII_SPACE)!r}; an "
+                                 "acceleration limit is a finite number >= 0 (rad/s² or m/s²)")
         pending += [(child, owner) for child in element]
 
 
@@ -240,8 +245,10 @@ def _check_offset(words: list, what: str) -> None:
 
 # A visual's or collision's shape: its dimensions (m) as Drake's shape constructors assert on them (a negative
 # cylinder radius or a box of size 0 ended `robot init` and `collect` with Drake's assertion text, exit 1; SDFormat
-# replaces a sphere radius of 0 or less by 1 m with a warning): finite, above 0 (a URDF sphere's radius may be 0, a
-# point), and within MAX_OFFSET. URDF: attributes (Drake's <drake:capsule> and <drake:ellipsoid> too); SDF: child elements.
+# replaces a sphere radius of 0 or less by 1 m with a warning): finite, at least MIN_LENGTH (a URDF sphere's radius
+# may be 0, a point), and within MAX_OFFSET. URDF: attributes (Drake's <drake:capsule> and <drake:ellipsoid> too); SDF:
+# child elements.
+MIN_LENGTH = 1e-6   # m: a micrometre, far below any part of a robot (a side of 1e-300 m has a volume of 0 in doubles)
 SHAPE_DIMENSIONS = {"box": ("size",), "cylinder": ("radius", "length"), "capsule": ("radius", "length"),
                     "sphere": ("radius",), "ellipsoid": ("a", "b", "c", "radii")}
 
@@ -261,9 +268,9 @@ def _check_shapes(geometry, owner: str, sdf: bool) -> None:
             except ValueError:
                 continue   # (the number check says why)
             zero = kind == "sphere" and not sdf   # (a URDF sphere of radius 0 is a point to Drake; SDFormat makes it 1 m)
-            lowest = 0.0 if zero else math.ulp(0.0)
-            if not all(math.isfinite(value) and lowest <= value <= MAX_OFFSET for value in values):
-                bound = ">= 0" if zero else "> 0"
+            if not all(math.isfinite(value) and (MIN_LENGTH <= value <= MAX_OFFSET or (zero and value == 0))
+                       for value in values):
+                bound = f"0 or at least {MIN_LENGTH:g} m" if zero else f"at least {MIN_LENGTH:g} m"
                 raise WrongCount(f"{owner}: its <{kind}> {name} is {(text or '').strip(ASCII_SPACE)!r}; a shape's "
                                  f"dimensions are finite, {bound} and at most {MAX_OFFSET:g} m")
 
@@ -287,8 +294,8 @@ def _check_subnormal(text: str, what: str) -> None:
 DRAKE_VALUES = {"rotor_inertia": (0.0, 1e3, "kg m²"), "gear_ratio": (math.ulp(0.0), 1e5, ""),
                 "mu_dynamic": (0.0, 1e3, ""), "mu_static": (0.0, 1e3, ""),
                 "hydroelastic_modulus": (math.ulp(0.0), 1e15, "Pa"), "hunt_crossley_dissipation": (0.0, 1e6, "s/m"),
-                "relaxation_time": (0.0, 1e6, "s"), "mesh_resolution_hint": (math.ulp(0.0), 1e6, "m"),
-                "point_contact_stiffness": (0.0, 1e15, "N/m")}
+                "relaxation_time": (0.0, 1e6, "s"), "mesh_resolution_hint": (MIN_LENGTH, 1e6, "m"),
+                "point_contact_stiffness": (0.0, 1e15, "N/m"), "acceleration": (0.0, 1e300, "rad/s² or m/s²")}
 
 
 def _check_drake_value(element, owner: str, rule, sdf: bool) -> None:
@@ -303,7 +310,7 @@ def _check_drake_value(element, owner: str, rule, sdf: bool) -> None:
     words = ascii_words(text)
     low, high, unit = DRAKE_VALUES[name]
     if len(words) == 1 and not (low <= float(words[0]) <= high):   # (NaN too)
-        bounds = f"(0, {high:g}]" if low > 0 else f"[{low:g}, {high:g}]"
+        bounds = f"(0, {high:g}]" if low == math.ulp(0.0) else f"[{low:g}, {high:g}]"
         raise WrongCount(f"{what} is {words[0]}; Drake's {name} is in {bounds}{' ' + unit if unit else ''}")
 
 
