@@ -241,6 +241,30 @@ def printable_output():
         sys.stdout = stream
 
 
+def decimal_numbers_only(parser: argparse.ArgumentParser) -> None:
+    """Every int or float option of `parser` (and of its subcommands) read in ASCII decimal digits only
+    (`config.decimal_number`): `--epochs 1_0` or `--count ٢` is argparse's one-line error, not 10 or 2."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for subparser in action.choices.values():
+                decimal_numbers_only(subparser)
+        elif action.type in (int, float):
+            action.type = _DECIMAL[action.type]
+
+
+def _decimal(kind: type):
+    def read(text: str):
+        from stdm_drake.config import decimal_number   # (a command's own imports bring it: nothing more to load)
+        try:
+            return decimal_number(text, kind)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"invalid {kind.__name__} value: {text!r} (ASCII decimal digits)") from None
+    return read
+
+
+_DECIMAL = {int: _decimal(int), float: _decimal(float)}
+
+
 def run_command(name: str, argv: list[str]) -> int:
     """Parse `argv` for command `name` and run it: its exit status; bad input is one line and status 2."""
     try:  # stdm-drake:controllers/pid.yaml names a shipped file, from any folder
@@ -251,6 +275,7 @@ def run_command(name: str, argv: list[str]) -> int:
     module = importlib.import_module(COMMANDS[name][0])   # (a signal inside an import waits for its end)
     command_parser = CommandParser(prog=f"stdm-drake {name}", description=COMMANDS[name][1])
     module.add_arguments(command_parser)
+    decimal_numbers_only(command_parser)
     interrupts.raise_deferred()   # (a signal inside the imports: before any argument error is printed)
     try:
         args = command_parser.parse_args(argv)

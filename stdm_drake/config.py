@@ -22,6 +22,22 @@ from stdm_drake.paths import check_input_file
 YAML_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
+# A number on a command line as its digits say it: ASCII decimal digits (Python's int() and float() also read `1_0` as 10,
+# `٢` as 2 and `０.５` as 0.5, which no one means as the number)
+DECIMAL_INT = re.compile(r"[-+]?[0-9]+", re.ASCII)
+DECIMAL_FLOAT = re.compile(r"[-+]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][-+]?[0-9]+)?|inf|infinity|nan)",
+                           re.ASCII | re.IGNORECASE)
+
+
+def decimal_number(text: str, kind: type = float):
+    """`text` as an int or float (`kind`) where it is written in ASCII decimal digits (an optional sign, point and
+    exponent; inf and nan for a float), padded with spaces or tabs at most; ValueError otherwise."""
+    written = text.strip(" \t")
+    if not (DECIMAL_INT if kind is int else DECIMAL_FLOAT).fullmatch(written):
+        raise ValueError(f"{text!r} is not a number in decimal ASCII digits")
+    return kind(written)
+
+
 def one_line(error: BaseException) -> str:
     """An exception's message squeezed onto one line (its type name if it has none)."""
     return " ".join(str(error).split()) or type(error).__name__

@@ -304,6 +304,15 @@ def write_issue_25_inputs(box) -> None:
                                      '</include></model></sdf>')
     (box / "cycle_b.sdf").write_text('<sdf version="1.9"><model name="b"><link name="k"/><include><uri>cycle_a.sdf</uri>'
                                      '</include></model></sdf>')
+    (box / "flat_box.sdf").write_text(link.format("", "0 0 0.1 0 0 0").replace(
+        "</link>", '<collision name="c"><geometry><box><size>0.1 0.1</size></box></geometry></collision></link>'))
+    joint = ('<sdf version="1.9"><model name="arm"><link name="a"/><link name="b"/><link name="c"/><joint name="j" '
+             'type="revolute"><parent>a</parent><child>b</child><axis><xyz>0 0 1</xyz></axis>{}</joint><joint name="k" '
+             'type="revolute"><parent>b</parent><child>c</child><axis><xyz>0 0 1</xyz></axis>{}</joint></model></sdf>')
+    (box / "tiny_gear.sdf").write_text(joint.format("<drake:rotor_inertia>0.1</drake:rotor_inertia>"
+                                                    "<drake:gear_ratio>1e-320</drake:gear_ratio>", ""))
+    (box / "huge_mimic.sdf").write_text(joint.format("", '<drake:mimic joint="j" multiplier="1e300" offset="0"/>'))
+    (box / "icem_tsinf.yaml").write_text("optimizer: !Icem {propagation: tsinf, particles: 5}\n")
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -421,7 +430,7 @@ PLACEHOLDERS = {"DATA": "data.h5", "TRACK": "track.h5", "CK": "ck.pt", "NOTES": 
                 "IDREPORT": "id_report.json", "IMPORTED": "imported.h5", "COLLECTHTML": "collect.html",
                 "OLDREPRO": "oldrepro", "MPCOUT": "mpcout", "TRAINOUT": "trainout", "OUTLOOP": "out_loop_a",
                 "OLDMARKED": "oldmarked", "CACHELINK": "cache_link", "FOREIGNONNX": "foreign.onnx",
-                "MBRLLOOP": "mbrlloop", "MBRLCFG": "mbrlcfg", "BIGSETTINGS": "big_settings.yaml",
+                "MBRLLOOP": "mbrlloop", "MBRLCFG": "mbrlcfg", "BIGSETTINGS": "big_settings.yaml", "ICEM_TSINF": "icem_tsinf.yaml",
                 **{name.upper().replace("_", ""): f"{name}.h5" for name in (
                     "meta_int", "meta_null", "meta_period", "meta_robot", "meta_names", "attr_version", "attr_group",
                     "attr_count", "sub_group", "flat_trajectory", "attr_period", "empty_trajectory")}}
@@ -974,6 +983,21 @@ CASES = [
     (["robot", "init", "tiny_box.urdf", "-o", "NEW.yaml"], "a shape's dimensions are finite, at least 1e-06 m"),
     (["robot", "init", "cycle_a.sdf", "-o", "NEW.yaml"], "includes itself (cycle_a.sdf -> cycle_b.sdf -> cycle_a.sdf)"),
     (["collect", "--count", "1", "--workers", "1", "--config", "unreachable_plan.yaml", "-o", "NEW.h5"], "after 4 attempts"),
+    (yaml_case("mpc", "horizon: !!int \uff12\uff14\n"), "tagged !!int in digits of another script"),
+    (yaml_case("spec", "protocol: !Excitation\n  check_self_collision: \"false\"\n"),
+     "protocol.check_self_collision is 'false' in quotes, not a boolean"),
+    (yaml_case("tspec", (ROOT / "trajectories" / "tracking.yaml").read_text().replace("velocity_scale: 0.5",
+                                                                                     "velocity_scale: 1.0e-320")),
+     "velocity_scale must be in [1e-06, 1]"),
+    (yaml_case("effects", "payload: {mass: 1.0e-320}\n"), "payload mass must be 0 (none) or at least 1e-06 kg"),
+    (["robot", "init", "flat_box.sdf", "-o", "NEW.yaml"], "its <box> size holds 2 values; a box's size is 3"),
+    (["robot", "init", "tiny_gear.sdf", "-o", "NEW.yaml"], "its <drake:gear_ratio> holds 1e-320"),
+    (["robot", "init", "huge_mimic.sdf", "-o", "NEW.yaml"], "its <drake:mimic> multiplier is '1e300'"),
+    (["mbrl", "--rounds", "100", "--epochs", "1000000", "-o", "NEW"], "are 101,000,000 epochs, more than the 1,000,000"),
+    (["mbrl", "--config", "ICEM_TSINF", "-o", "NEW"], "--model D has one deterministic member; use propagation: mean"),
+    ([*T, "--epochs", "1_0", "-o", "NEW"], "argument --epochs: invalid int value: '1_0' (ASCII decimal digits)"),
+    (["collect", "--count", "\u0662", "-o", "NEW.h5"], "argument --count: invalid int value: '\u0662'"),
+    ([*T, "--lr", "\uff10.\uff10\uff10\uff11", "-o", "NEW"], "argument --lr: invalid float value"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

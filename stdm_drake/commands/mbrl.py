@@ -51,10 +51,12 @@ def run(args: argparse.Namespace) -> int:
     summary = run_loop(config, say=(lambda line: None) if args.quiet else print, progress=not args.quiet)
     last = summary["rounds"][-1]
     first = summary["rounds"][0]
+    from stdm_drake.files import line_text
     from stdm_drake.learning.evaluate import times_better
     print(f"round 0 -> {last['round']}: closed-loop q MSE {first['q_mse_geometric_mean']:.3g} -> "
           f"{last['q_mse_geometric_mean']:.3g} rad² "
-          f"({times_better(first['q_mse_geometric_mean'] / last['q_mse_geometric_mean'])}); {args.output / 'summary.json'}")
+          f"({times_better(first['q_mse_geometric_mean'] / last['q_mse_geometric_mean'])}); "
+          f"{line_text(args.output / 'summary.json')}")
     if last["steps_outside_limits"]:
         print(f"stdm-drake mbrl: error: the last round's closed loops left the robot's limits on "
               f"{last['steps_outside_limits']} steps", file=__import__("sys").stderr)

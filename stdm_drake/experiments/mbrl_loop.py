@@ -97,6 +97,16 @@ class LoopConfig:
         if getattr(optimizer, "propagation", "mean") != "mean" and optimizer.particles % members:
             raise InputError(f"mpc optimizer particles ({optimizer.particles}) must be a multiple of the model's {members} "
                              "ensemble members")
+        if getattr(optimizer, "propagation", "mean") != "mean" and members == 1 and not settings.model.startswith("P"):
+            raise InputError(f"mpc optimizer propagation {optimizer.propagation} with {optimizer.particles} particles "
+                             f"samples an ensemble's members, and --model {self.model} has one deterministic member; "
+                             "use propagation: mean")
+        from stdm_drake.learning.settings import MAX_TOTAL_EPOCHS
+        fits = (self.rounds + 1) * (2 if self.open_loop else 1)   # (a model per round, and the open-loop twin's)
+        if settings.epochs * fits > MAX_TOTAL_EPOCHS:
+            raise InputError(f"--epochs {settings.epochs:,} for each of the loop's {fits} trainings (--rounds "
+                             f"{self.rounds}{' with --open-loop' if self.open_loop else ''}) are "
+                             f"{settings.epochs * fits:,} epochs, more than the {MAX_TOTAL_EPOCHS:,} one run may train")
 
 
 def collection(config: LoopConfig, count: int, seed: int):

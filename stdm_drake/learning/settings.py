@@ -11,6 +11,7 @@ import torch
 
 from stdm_drake.data.dataset import ACTION_RATE_SCHEMES, DERIVATIVE_SOURCES
 from stdm_drake import files
+from stdm_drake.config import decimal_number
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.loss import LOSS_KINDS
@@ -144,7 +145,7 @@ def parse_alpha(text: str):
     if text.strip().lower() == "auto":
         return "auto"
     try:
-        value = float(text)
+        value = decimal_number(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number >= 0 or 'auto', got {text!r}") from None
     if not (np.isfinite(value) and value >= 0):

@@ -8,7 +8,7 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.files import atomic_path, write_text_atomic
+from stdm_drake.files import atomic_path, line_text, write_text_atomic
 from stdm_drake.learning.alpha_selection import AlphaSelection
 from stdm_drake.learning.checkpoint import HISTORY_COLUMNS
 
@@ -108,5 +108,5 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
             print(f"seed {seed}: {selection.label(selection.index)}: validation state MSE {chosen:.4g} against naive "
                   f"training's {naive:.4g}, a gain of {100 * (1 - chosen / naive):+.3g} %")
     print(f"seed {seed}: {result.epochs_run} epochs, best validation MSE (standardized) "
-          f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {folder / 'checkpoint.pt'}")
+          f"{np.mean(result.best_scores):.4g} at epoch(s) {result.best_epochs} -> {line_text(folder / 'checkpoint.pt')}")
     return entry

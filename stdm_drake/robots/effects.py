@@ -15,8 +15,11 @@ import dataclasses
 import numpy as np
 from pydrake.systems.framework import BasicVector, LeafSystem
 
-from stdm_drake.config import check_joint_vector, load_yaml_config, require
+from stdm_drake.config import check_joint_vector, load_yaml_config, one_line, require
 from stdm_drake.errors import InputError
+
+
+MIN_MASS = 1e-6   # kg: a milligram, the smallest payload or link mass (1e-320 kg is no body, and breaks Drake's inertia)
 
 
 @dataclasses.dataclass
@@ -28,7 +31,8 @@ class RigidInertia:
     inertia: list[float] = dataclasses.field(default_factory=lambda: [0.0] * 6)
 
     def validate(self, what: str = "payload") -> None:
-        require(np.isfinite(self.mass) and self.mass >= 0, f"{what} mass must be a finite number >= 0 kg", self.mass)
+        require(np.isfinite(self.mass) and (self.mass == 0 or self.mass >= MIN_MASS),
+                f"{what} mass must be 0 (none) or at least {MIN_MASS:g} kg", self.mass)
         check_effect_bound(f"{what} mass", np.array([self.mass]), "mass")
         require(self.mass > 0 or not any(self.inertia), f"{what} inertia needs a mass > 0", self.inertia)
         require(len(self.center_of_mass) == 3 and np.all(np.isfinite(self.center_of_mass)),
@@ -42,6 +46,12 @@ class RigidInertia:
             if not RotationalInertia(*self.inertia).CouldBePhysicallyValid():
                 raise InputError(f"{what} inertia {self.inertia} is not physically valid (positive moments that "
                                  "satisfy the triangle inequality)")
+        if self.mass > 0:
+            try:   # (Drake's own check: principal moments it cannot compute, of 1e-320 kg m², are an error there)
+                self.spatial_inertia()
+            except RuntimeError as error:
+                raise InputError(f"{what} mass {self.mass:g} kg with inertia {self.inertia} is no rigid body Drake "
+                                 f"can simulate ({one_line(error)[:120]})") from None
 
     def spatial_inertia(self):
         """Drake's SpatialInertia about the body frame's origin."""

@@ -163,6 +163,8 @@ def check_numbers(root, rule) -> None:
             _check_shapes(element, owner, sdf)
         if element.tag.startswith("drake:"):
             _check_drake_value(element, owner, rule, sdf)
+        if element.tag in ("mimic", "drake:mimic"):
+            _check_mimic(element, owner, rule)
         if sdf:
             if element.tag == "dynamics":
                 _check_joint_dynamics({child.tag: child.text for child in element}, owner)
@@ -267,6 +269,8 @@ def _check_shapes(geometry, owner: str, sdf: bool) -> None:
                 values = [float(word) for word in ascii_words(text or "")]
             except ValueError:
                 continue   # (the number check says why)
+            if kind == "box" and len(values) != 3:   # (SDFormat's error for 2 came in several lines of its own)
+                raise WrongCount(f"{owner}: its <box> size holds {len(values)} values; a box's size is 3 (x y z in m)")
             zero = kind == "sphere" and not sdf   # (a URDF sphere of radius 0 is a point to Drake; SDFormat makes it 1 m)
             if not all(math.isfinite(value) and (MIN_LENGTH <= value <= MAX_OFFSET or (zero and value == 0))
                        for value in values):
@@ -291,7 +295,7 @@ def _check_subnormal(text: str, what: str) -> None:
 # Drake's own elements (its URDF and SDF extensions, `drake:NAME`) whose one value Drake's parser reads as a number
 # and puts in the plant without a check of its own (a negative rotor inertia, a gear ratio of 1e300 or `0x1p3` were
 # accepted): (the lowest value, the highest, its unit); the bounds as the plant effects' (effects.EFFECT_BOUNDS)
-DRAKE_VALUES = {"rotor_inertia": (0.0, 1e3, "kg m²"), "gear_ratio": (math.ulp(0.0), 1e5, ""),
+DRAKE_VALUES = {"rotor_inertia": (0.0, 1e3, "kg m²"), "gear_ratio": (1e-6, 1e5, ""),   # (1e-320: no gear at all)
                 "mu_dynamic": (0.0, 1e3, ""), "mu_static": (0.0, 1e3, ""),
                 "hydroelastic_modulus": (math.ulp(0.0), 1e15, "Pa"), "hunt_crossley_dissipation": (0.0, 1e6, "s/m"),
                 "relaxation_time": (0.0, 1e6, "s"), "mesh_resolution_hint": (MIN_LENGTH, 1e6, "m"),
@@ -307,11 +311,32 @@ def _check_drake_value(element, owner: str, rule, sdf: bool) -> None:
         return
     what = f"{owner}: its <{element.tag}>"
     _numbers(text, rule, what, UnreadNumber)
+    if sdf:
+        _check_subnormal(text, what)
     words = ascii_words(text)
     low, high, unit = DRAKE_VALUES[name]
     if len(words) == 1 and not (low <= float(words[0]) <= high):   # (NaN too)
         bounds = f"(0, {high:g}]" if low == math.ulp(0.0) else f"[{low:g}, {high:g}]"
         raise WrongCount(f"{what} is {words[0]}; Drake's {name} is in {bounds}{' ' + unit if unit else ''}")
+
+
+MAX_MIMIC_MULTIPLIER = 1e5   # a coupled joint's ratio to its leader, as a gear ratio (1e300 overflows the coupler)
+
+
+def _check_mimic(element, owner: str, rule) -> None:
+    """UnreadNumber or WrongCount for a joint coupling (URDF <mimic>, Drake's SDF <drake:mimic>) whose multiplier or
+    offset is not a plain number, or whose multiplier's magnitude is above MAX_MIMIC_MULTIPLIER or offset above
+    MAX_OFFSET."""
+    for name, bound in (("multiplier", MAX_MIMIC_MULTIPLIER), ("offset", MAX_OFFSET)):
+        text = element.get(name)
+        if text is None:
+            continue
+        what = f"{owner}: its <{element.tag}> {name}"
+        _numbers(text, rule, what, UnreadNumber)
+        words = ascii_words(text)
+        if len(words) != 1 or not abs(float(words[0])) <= bound:   # (NaN too)
+            raise WrongCount(f"{what} is {text.strip(ASCII_SPACE)!r}; a joint coupling's {name} is one number of "
+                             f"magnitude at most {bound:g}")
 
 
 def ascii_words(text: str) -> list[str]:
