@@ -94,21 +94,35 @@ class RepeatedWarnings(logging.Filter):
         return True
 
 
+class HeldLines(logging.Handler):
+    """The robot's own load-time lines as `errors.warn` lines: printed when the command succeeds (a refusal for
+    another reason is its one line). (The records still reach the root logger's handlers, a test's too.)"""
+
+    def __init__(self):
+        super().__init__(logging.WARNING)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        from stdm_drake.errors import warn
+        warn(record.getMessage())
+
+
 @contextlib.contextmanager
 def drake_warnings_once(command: str):
     """While a command runs, Drake's parser warnings (it builds several plants from one description) are
     shown once each; afterwards one line says how many repeats were left out. The robot's own load-time lines
     (`robots.robot`: a replaced inertia, unmodelled joint effects, missing meshes), said each time the robot is
-    built, are shown once each too."""
+    built, are shown once each too, when the command succeeds (`HeldLines`)."""
     logger, repeated = logging.getLogger("drake"), RepeatedWarnings()
-    robot_logger, robot_lines = logging.getLogger("stdm_drake.robots.robot"), RepeatedWarnings()
+    robot_logger, robot_lines, held = logging.getLogger("stdm_drake.robots.robot"), RepeatedWarnings(), HeldLines()
     logger.addFilter(repeated)
     robot_logger.addFilter(robot_lines)
+    robot_logger.addHandler(held)
     try:
         yield repeated
     finally:
         logger.removeFilter(repeated)
         robot_logger.removeFilter(robot_lines)
+        robot_logger.removeHandler(held)
         if repeated.left_out:
             print(f"stdm-drake {command}: {repeated.left_out} repeats of Drake's warnings above left out",
                   file=sys.stderr)

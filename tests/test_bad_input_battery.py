@@ -313,6 +313,10 @@ def write_issue_25_inputs(box) -> None:
                                                     "<drake:gear_ratio>1e-320</drake:gear_ratio>", ""))
     (box / "huge_mimic.sdf").write_text(joint.format("", '<drake:mimic joint="j" multiplier="1e300" offset="0"/>'))
     (box / "icem_tsinf.yaml").write_text("optimizer: !Icem {propagation: tsinf, particles: 5}\n")
+    (box / "sphere_and_loose.urdf").write_text(urdf.replace('ixx="0.0004" ixy="0" ixz="0" iyy="0.00041"',
+                                                            'ixx="-0.0004" ixy="0" ixz="0" iyy="0.00041"').replace(
+        "</robot>", '<link name="loose"><inertial><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" '
+                    'iyz="0" izz="0.01"/></inertial></link></robot>'))
     # (issue 58: robot init --update) a YAML that is no mapping, and a config naming joints the description lacks
     (box / "update_list.yaml").write_text("- name\n- model\n")
     (box / "update_unknown.yaml").write_text(ur10_config("ur10.urdf").replace("wrist_3_joint]", "wrist_9_joint]"))
@@ -998,6 +1002,7 @@ CASES = [
     ([*T, "--epochs", "1_0", "-o", "NEW"], "argument --epochs: invalid int value: '1_0' (ASCII decimal digits)"),
     (["collect", "--count", "\u0662", "-o", "NEW.h5"], "argument --count: invalid int value: '\u0662'"),
     ([*T, "--lr", "\uff10.\uff10\uff10\uff11", "-o", "NEW"], "argument --lr: invalid float value"),
+    (["robot", "init", "sphere_and_loose.urdf", "-o", "NEW.yaml"], "the model moves 12 degrees of freedom"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in
