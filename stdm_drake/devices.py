@@ -1,5 +1,6 @@
 """The PyTorch device a setting names, checked before any work (sampling MPC's `device`, the particles of
-`learning.particles`): one small utility below every stage, so the closed loop need not reach into learning."""
+`learning.particles`), and the CPU threads a computation uses: small utilities below every stage, so the closed loop
+need not reach into learning."""
 from __future__ import annotations
 
 from stdm_drake.errors import InputError
@@ -22,3 +23,14 @@ def torch_device(name: str):
     elif device.type != "cpu":
         raise InputError(f"device {name!r}: sampling MPC runs on cpu or cuda, not {device.type}")
     return device
+
+
+def compute_threads(threads: int) -> None:
+    """Run this process's arithmetic on `threads` CPU threads: PyTorch's and those of the BLAS and OpenMP libraries
+    numpy and torch load (threadpoolctl). The same count gives the same numbers on any machine: a float32 matrix
+    product summed by two threads differs in its last bits from one thread's (held-out benchmark: the evaluation of
+    the same weights on a Ray worker and in a 2-core driver differed at 1e-8)."""
+    import threadpoolctl
+    import torch
+    torch.set_num_threads(threads)
+    threadpoolctl.threadpool_limits(threads)

@@ -187,8 +187,8 @@ def grid_variants(alphas) -> dict:
 
 def run_job(job: TrainJob, cache: pathlib.Path) -> list[TrainingResult]:
     """Train (or reuse) one job; return one result per model it yields (test metrics, curves)."""
-    import torch
-    torch.set_num_threads(1)
+    from stdm_drake.devices import compute_threads
+    compute_threads(1)
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.learning.checkpoint import save_checkpoint
     from stdm_drake.learning.models import parse_model_type

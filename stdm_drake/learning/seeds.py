@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pathlib
 
-import torch
 
+from stdm_drake.devices import compute_threads
 from stdm_drake.files import atomic_path
 from stdm_drake.learning.settings import TrainSettings
 from stdm_drake.learning.alpha_selection import fit_model
@@ -22,7 +22,7 @@ def fit_seed(model_config, training_config, train_data, val_data, fit_options: d
     import tempfile
 
     from tqdm import tqdm
-    torch.set_num_threads(threads)
+    compute_threads(threads)
     if checkpoint_path is not None:
         resume = checkpoint_path.exists()  # (only with --resume: checked before any work)
         bar = tqdm(total=training_config.max_epochs, desc=progress, unit="epoch", disable=progress is None,

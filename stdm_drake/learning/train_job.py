@@ -13,9 +13,9 @@ import pathlib
 import sys
 
 import numpy as np
-import torch
 
 from stdm_drake.cluster import RunnerConfig, connect
+from stdm_drake.devices import compute_threads
 from stdm_drake.errors import InputError
 from stdm_drake.files import check_free_space, write_text_atomic
 from stdm_drake.learning.problem import training_problem
@@ -263,7 +263,7 @@ def train_job(job: TrainJob) -> dict:
     settings, output = job.settings, pathlib.Path(job.output)
     settings.validate(given=job.given)
     settings.check_alpha(job.given)
-    torch.set_num_threads(settings.threads)
+    compute_threads(settings.threads)
     check_output_folder("-o/--output", output, inputs=[job.dataset, job.robot, job.physics, *job.inputs],
                         force=job.force)
     if job.runner.backend == "ray" and job.resume:
