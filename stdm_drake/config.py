@@ -194,10 +194,10 @@ def _pairs(node):
 
 
 def _numeric_scalars(annotation, node, where: str):
-    """(the setting's dotted name, scalar node) of every scalar of `node` that a value of type `annotation` holds
-    as a number: a numeric field, the items of a list of them, the values of a mapping of them (a robot config's
-    limits), and the numeric fields of a dataclass (a Union of dataclasses by the node's tag, `!Name`, else its
-    first member); a Drake config type's fields as a dataclass's."""
+    """(the setting's dotted name, scalar node, whether the field is a bool) of every scalar of `node` that a value
+    of type `annotation` holds as a number or a boolean: a numeric field, the items of a list of them, the values of
+    a mapping of them (a robot config's limits), and the numeric fields of a dataclass (a Union of dataclasses by the
+    node's tag, `!Name`, else its first member); a Drake config type's fields as a dataclass's."""
     import types
     import typing
     origin, arguments = typing.get_origin(annotation), typing.get_args(annotation)
