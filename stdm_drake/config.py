@@ -137,6 +137,8 @@ def check_quoted_numbers(path, schema) -> None:
         where, value, how = found
         if how.startswith("which YAML reads as"):
             raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
+        if how == "which only YAML 1.1 reads as a boolean":
+            raise InputError(f"{path}: {where} is written {value}, {how}; write true or false")
         if how.endswith(", not a boolean"):
             raise InputError(f"{path}: {where} is {value!r} {how}; write true or false without quotes or a tag")
         fix = "in ASCII digits" if how.endswith("another script") else {
@@ -253,6 +255,8 @@ def _quoted_number(node, schema, prefix: str, text: str):
         if boolean:   # (`"false"` or `!!str true`: text, which the typed load would read as the boolean)
             if item.style in ("'", '"') or (tag is not None and not item.tag.endswith(":bool")):
                 return where, item.value, ("in quotes" if item.style else f"tagged {tag}") + ", not a boolean"
+            if item.tag.endswith(":bool") and item.value.lower() not in ("true", "false"):   # (YAML 1.1's `yes`, `on`)
+                return where, item.value, "which only YAML 1.1 reads as a boolean"
             continue
         if item.tag in NUMBER_TAGS[:2] and not item.value.isascii():   # (`!!int 0２４`: int() reads any script)
             return where, item.value, f"tagged {tag or item.tag.rsplit(':', 1)[-1]} in digits of another script"

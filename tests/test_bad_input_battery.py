@@ -313,6 +313,10 @@ def write_issue_25_inputs(box) -> None:
                                                     "<drake:gear_ratio>1e-320</drake:gear_ratio>", ""))
     (box / "huge_mimic.sdf").write_text(joint.format("", '<drake:mimic joint="j" multiplier="1e300" offset="0"/>'))
     (box / "icem_tsinf.yaml").write_text("optimizer: !Icem {propagation: tsinf, particles: 5}\n")
+    # (held-out run 21: a xacro macro in a .urdf, an SDF that includes itself through a folder that is not there)
+    (box / "macro.urdf").write_text(urdf.replace("</robot>", '<xacro:macro name="m"><link name="x"/></xacro:macro></robot>'))
+    (box / "self_dotdot.sdf").write_text('<sdf version="1.9"><model name="a"><link name="l"/><include><uri>./none/../'
+                                         'self_dotdot.sdf</uri></include></model></sdf>')
     (box / "sphere_and_loose.urdf").write_text(urdf.replace('ixx="0.0004" ixy="0" ixz="0" iyy="0.00041"',
                                                             'ixx="-0.0004" ixy="0" ixz="0" iyy="0.00041"').replace(
         "</robot>", '<link name="loose"><inertial><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" '
@@ -1003,6 +1007,12 @@ CASES = [
     (["collect", "--count", "\u0662", "-o", "NEW.h5"], "argument --count: invalid int value: '\u0662'"),
     ([*T, "--lr", "\uff10.\uff10\uff10\uff11", "-o", "NEW"], "argument --lr: invalid float value"),
     (["robot", "init", "sphere_and_loose.urdf", "-o", "NEW.yaml"], "the model moves 12 degrees of freedom"),
+    (yaml_case("ctrl", "controller: !Pid\n  kp: [1]\n  ki: [0]\n  kd: [1]\n  gravity_feedforward: on\n"),
+     "gravity_feedforward is written on, which only YAML 1.1 reads as a boolean"),
+    (["robot", "init", "macro.urdf", "-o", "NEW.yaml"], "is a xacro template (its <xacro:macro>)"),
+    (["robot", "init", "self_dotdot.sdf", "-o", "NEW.yaml"], "includes itself (self_dotdot.sdf -> self_dotdot.sdf)"),
+    (yaml_case("robot", ROBOT_TEXT + "position_limits: {elbow_joint: [-1.0e300, 1.0e300]}\n"),
+     "position_limits['elbow_joint'] must be [lower, upper], lower < upper, within 1e6"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

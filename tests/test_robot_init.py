@@ -483,6 +483,12 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
     inspector = scene_graph.model_inspector()
     tool, base = (plant.GetCollisionGeometriesForBody(plant.GetBodyByName(name))[0] for name in ("tip_link", "base"))
     assert inspector.CollisionFiltered(tool, base)   # (self-collision off: the tool is one of the robot's links)
+    from stdm_drake.robots.kinematics import RobotKinematics   # (a frame of the welded tool as the tool frame, scoped)
+    (tmp_path / "tip_tool.yaml").write_text((tmp_path / "tooled.yaml").read_text().replace("tool_frame: fore",
+                                                                                           "tool_frame: tip::tip_link"))
+    at_tip = RobotKinematics(robot=load_robot(tmp_path / "tip_tool.yaml")).tool_pose(home)
+    at_fore = RobotKinematics(robot=load_robot(tmp_path / "tooled.yaml")).tool_pose(home)
+    assert np.linalg.norm(at_tip.translation() - at_fore.translation()) == pytest.approx(0.2)   # (0.7 m against 0.5 m)
     capsys.readouterr()
     moving = include + weld.replace('type="fixed"', 'type="revolute"').replace("</child>", "</child><axis><xyz>0 1 0</xyz>"
                                                                               "<limit><lower>-1</lower><upper>1</upper>"
@@ -492,6 +498,10 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
     assert main(["robot", "check", str(tmp_path / "moving.yaml")]) == 2
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and "its nested model 'arm::tip' moves 1 degree of freedom" in err, err
+    (tmp_path / "moving_arm.yaml").write_text((tmp_path / "moving.yaml").read_text().replace(
+        "arm_joints: [shoulder, elbow]", "arm_joints: [shoulder, elbow, mount]").replace("home: [0.0, 0.0]", "home: [0.0, 0.0, 0.0]"))
+    assert main(["robot", "check", str(tmp_path / "moving_arm.yaml")]) == 2
+    assert "joint 'mount' is not in moving.sdf's own model but moves its nested model 'arm::tip'" in capsys.readouterr().err
     (tmp_path / "world.sdf").write_text(f'<sdf version="1.9"><world name="w"><model name="arm">{arm}</model>'
                                         f'<model name="other">{link.format(name="box", z=2, mass=1)}</model></world></sdf>')
     (tmp_path / "world.yaml").write_text((tmp_path / "bare.yaml").read_text().replace("bare.sdf", "world.sdf"))

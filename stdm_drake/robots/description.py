@@ -184,7 +184,7 @@ def _sdf(root) -> Description:
     return Description(links, joints, max(1, len(top)), top[0].get("name") or "" if len(top) == 1 else "")
 
 
-def read_description(path: pathlib.Path, including: tuple = ()) -> Description:
+def read_description(path: pathlib.Path, including: tuple = (), packages: dict | None = None) -> Description:
     """The links and joints of a URDF or SDF file. InputError (one line) for a file these checks cannot read as
     Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
     (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
@@ -193,8 +193,18 @@ def read_description(path: pathlib.Path, including: tuple = ()) -> Description:
     SDF that includes itself, directly or through others (`including`: the files whose includes led here), is refused
     (Drake's parser would recurse until the process crashes)."""
     check_xml(path, "a URDF or SDF file is", count_frames=True)
+    root = xml_file.parse(path).getroot()
+    # a xacro template's macros and substitutions, which Drake's parser skips or reads as written (the links a macro
+    # makes would be missing); an unused <xacro:property> or <xacro:arg> changes nothing and loads
+    template = next((f"<{element.tag}>" for element in root.iter() if element.tag.startswith("xacro:")
+                     and element.tag not in ("xacro:property", "xacro:arg")), None) or next(
+        (f"{value!r}" for element in root.iter() for value in element.attrib.values() if "${" in value or "$(" in value),
+        None)
+    if template is not None:
+        raise InputError(f"{path.name} is a xacro template (its {template}): expand it first (`xacro {path.name} > "
+                         "robot.urdf`; xacro: pip install xacro, or your ROS distribution's)")
     try:
-        description = _sdf(root) if (root := xml_file.parse(path).getroot()).tag == "sdf" else _urdf(root)
+        description = _sdf(root) if root.tag == "sdf" else _urdf(root)
         xml_file.check_numbers(root, PLAIN_NUMBER)
     except UnreadNumber as error:
         raise InputError(f"{path.name}: {error}, not a number as URDF and SDF write one (decimal digits, an optional "
@@ -203,18 +213,20 @@ def read_description(path: pathlib.Path, including: tuple = ()) -> Description:
         raise InputError(f"{path.name}: {error}") from None
     if root.tag == "sdf" and len(including) < xml_file.MAX_INCLUDE_DEPTH:
         chain = (*including, pathlib.Path(path).resolve())
-        for included in xml_file.included_files(root, path):
+        for included in xml_file.included_files(root, path, packages):
             if included.resolve() in chain:
-                names = " -> ".join(item.name for item in (*chain[chain.index(included.resolve()):], included))
-                raise InputError(f"{chain[0].name}: includes itself ({names}); Drake's parser would not end")
-            for link, inertial in read_description(included, chain).links.items():
+                start = chain.index(included.resolve())
+                names = " -> ".join(item.name for item in (*chain[start:], included))
+                who = "" if start == 0 else f" its included {included.name}"
+                raise InputError(f"{chain[0].name}:{who} includes itself ({names}); Drake's parser would not end")
+            for link, inertial in read_description(included, chain, packages).links.items():
                 if inertial is not None:
                     check_inertial(inertial, f"{path.name}: its included {included.name}: link {link!r}")
     return description
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,
-                      locked_joints=()) -> Description:
+                      locked_joints=(), packages: dict | None = None) -> Description:
     """InputError naming robot `robot` and the link or joint, before Drake parses the file, for: a kinematic
     loop (a link that is the child of two joints, or joints in a cycle); a negative or non-finite mass or
     inertia on any link; an arm joint that moves no mass at all; a movable joint whose lower position
@@ -225,10 +237,11 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
     moves inertia about its own axis is checked on the plant (M(home) positive definite,
     `Robot.check_plant`). overrides: per joint name, the limits the robot config gives instead of the
     file's ({"lower", "upper", "velocity"}: rad or m, rad/s or m/s), applied before the checks. Returns the
-    description read; a file that is not well-formed XML or declares entities is refused (`read_description`)."""
+    description read; a file that is not well-formed XML or declares entities is refused (`read_description`, which
+    follows the SDF includes of `packages`, the robot config's package_paths, too)."""
     where = f"robot {robot}: {path.name}"
     try:
-        description = read_description(path)
+        description = read_description(path, packages=packages)
     except InputError as error:
         raise InputError(f"robot {robot}: {error}") from None
     check_tree(description, where)

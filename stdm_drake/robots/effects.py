@@ -17,6 +17,7 @@ from pydrake.systems.framework import BasicVector, LeafSystem
 
 from stdm_drake.config import check_joint_vector, load_yaml_config, one_line, require
 from stdm_drake.errors import InputError
+from stdm_drake.robots.nested_models import frame_by_name
 
 
 MIN_MASS = 1e-6   # kg: a milligram, the smallest payload or link mass (1e-320 kg is no body, and breaks Drake's inertia)
@@ -225,7 +226,7 @@ def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
     payload = effects.payload
     if payload.mass > 0:
         body = plant.AddRigidBody("payload", instance, payload.spatial_inertia())
-        plant.WeldFrames(plant.GetFrameByName(robot.tool_frame, instance), body.body_frame(), RigidTransform())
+        plant.WeldFrames(frame_by_name(plant, robot.tool_frame, instance), body.body_frame(), RigidTransform())
 
 
 def set_effect_parameters(plant, context, effects: PlantEffects) -> None:

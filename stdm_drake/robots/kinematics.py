@@ -26,6 +26,7 @@ from pydrake.multibody.tree import JacobianWrtVariable
 from pydrake.solvers import Solve
 
 from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.robots.nested_models import frame_by_name
 from stdm_drake.robots.plant import PlantConfig, joint_limits, make_plant
 from stdm_drake.robots.robot import POSE_DIM, Robot
 
@@ -84,7 +85,7 @@ class RobotKinematics:
         self.joint_names = robot.joint_names
         self.plant = plant
         self.context = plant.CreateDefaultContext()
-        self.tool_frame = plant.GetFrameByName(robot.tool_frame)
+        self.tool_frame = frame_by_name(plant, robot.tool_frame)
         self.world_frame = plant.world_frame()
         self.limits = joint_limits(plant)
         self._origin = np.zeros(3)

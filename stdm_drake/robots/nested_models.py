@@ -34,3 +34,29 @@ def check_nested_fixed(plant: MultibodyPlant, instance, where: str) -> None:
             raise InputError(f"{where}: its nested model {plant.GetModelInstanceName(nested)!r} moves {count} "
                              f"degree{'s' * (count > 1)} of freedom; a model nested in the robot is fixed to it (its "
                              "joints of type fixed, one fixing it to the arm)")
+
+
+def frame_by_name(plant: MultibodyPlant, name: str, instance=None):
+    """The frame `name` of the robot: its own model's (in `instance`, or the plant's one frame of that name), or
+    one of a model nested in it by its scoped name ("tip::tool0": frame tool0 of the nested model tip); None where
+    there is none."""
+    if "::" not in name:
+        if instance is None:
+            return plant.GetFrameByName(name) if plant.HasFrameNamed(name) else None
+        return plant.GetFrameByName(name, instance) if plant.HasFrameNamed(name, instance) else None
+    scope, local = name.rsplit("::", 1)
+    owners = [index for index in map(type(plant.world_frame().model_instance()), range(plant.num_model_instances()))
+              if plant.GetModelInstanceName(index).endswith("::" + scope)
+              and (instance is None or plant.GetModelInstanceName(index).startswith(plant.GetModelInstanceName(instance)))]
+    found = [plant.GetFrameByName(local, owner) for owner in owners if plant.HasFrameNamed(local, owner)]
+    return found[0] if len(found) == 1 else None
+
+
+def nested_joint_note(plant: MultibodyPlant, name: str, instance) -> str:
+    """What follows "joint NAME is not in FILE" where the joint moves a model nested in the robot's `instance` (Drake
+    puts a joint in its child link's model): a robot's joints are its own model's; else nothing."""
+    for nested in nested_instances(plant, instance):
+        if plant.HasJointNamed(name, nested):
+            return (f"'s own model but moves its nested model {plant.GetModelInstanceName(nested)!r}: a robot's joints "
+                    "are its own model's (write the nested model into it, or include it with merge=\"true\")")
+    return ""

@@ -28,7 +28,7 @@ from stdm_drake.robots.limit_checks import check_config_limit, limit_overrides, 
 from stdm_drake.robots.meshes import mesh_cache_dir
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
-from stdm_drake.robots.nested_models import check_nested_fixed, robot_instance
+from stdm_drake.robots.nested_models import check_nested_fixed, frame_by_name, nested_joint_note, robot_instance
 from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file
 
 UR10_CONFIG = MODELS_DIR / "ur10.yaml"
@@ -115,8 +115,8 @@ class RobotConfig:
         for joint, values in self.position_limits.items():
             if joint not in self.arm_joints and joint not in self.locked_joints:
                 raise InputError(f"robot config position_limits: {joint!r} is not an arm or locked joint")
-            require(len(values) == 2 and all(map(math.isfinite, values)) and values[0] < values[1],
-                    f"robot config position_limits[{joint!r}] must be [lower, upper], finite, lower < upper (rad or m)", values)
+            require(len(values) == 2 and all(abs(value) <= 1e6 for value in values) and values[0] < values[1], f"robot "
+                    f"config position_limits[{joint!r}] must be [lower, upper], lower < upper, within 1e6 (rad or m)", values)
 
 
 class Robot:
@@ -140,9 +140,9 @@ class Robot:
         if self.model_path.suffix.lower() not in SUFFIXES:
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
         overrides = limit_overrides(config.position_limits, config.velocity_limits, config.effort_limits)
-        description = check_description(self.model_path, self.name, config.arm_joints,
-                                        {joint: {key: value for key, value in values.items() if key != "effort"}
-                                         for joint, values in overrides.items()}, config.locked_joints)
+        given = {joint: {key: value for key, value in values.items() if key != "effort"} for joint, values in overrides.items()}
+        description = check_description(self.model_path, self.name, config.arm_joints, given, config.locked_joints,
+                                        self.package_paths)
         self.inertia_substitutions = inertia_substitutions(description)
         for link, substitute in self.inertia_substitutions.items():
             logger.warning("robot %s: %s: link %r has %s", self.name, self.model_path.name, link, substitute)
@@ -307,14 +307,15 @@ class Robot:
             except RuntimeError as error:
                 raise InputError(f"robot {self.name}: cannot weld {config.weld_frame!r} to the world, the model already "
                                  f"fixes it there ({one_line(error)}); leave weld_frame out") from None
-        if not plant.HasFrameNamed(config.tool_frame, instance):
+        if frame_by_name(plant, config.tool_frame, instance) is None:
             links = [plant.get_body(index).name() for index in plant.GetBodyIndices(instance)]
             shown = f"its {len(links)} links end with " if len(links) > 5 else "its links: "
             raise InputError(f"robot {self.name}: tool_frame {config.tool_frame!r} is not a frame of "
                              f"{self.model_path.name} ({shown}{', '.join(links[-5:])})")
         for name in list(config.arm_joints) + list(config.locked_joints):
             if not plant.HasJointNamed(name, instance):
-                raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}")
+                raise InputError(f"robot {self.name}: joint {name!r} is not in {self.model_path.name}"
+                                 f"{nested_joint_note(plant, name, instance)}")
         self._remove_mimic_constraints(plant)
         for name, (lower, upper) in config.position_limits.items():
             if name in config.arm_joints:

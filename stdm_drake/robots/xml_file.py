@@ -4,6 +4,7 @@ have. Used by `robots.description` (and the SRDF readers)."""
 from __future__ import annotations
 
 import math
+import os
 import pathlib
 import re
 import sys
@@ -353,17 +354,22 @@ def _numbers(text: str, rule, what: str, error) -> None:
 MAX_INCLUDE_DEPTH = 8   # SDF <include>s followed from one file (a file that includes itself stops here)
 
 
-def included_files(root, path: pathlib.Path) -> list[pathlib.Path]:
-    """The local files the <include>s of an SDF's tree `root` (read from `path`) name: a relative path or a file://
-    URI, of an SDF file or of a model folder (its model.config's first <sdf> file). Other URIs (package://,
-    model://, a web address) are Drake's to resolve, and the files they name are not read here."""
+def included_files(root, path: pathlib.Path, packages: dict | None = None) -> list[pathlib.Path]:
+    """The local files the <include>s of an SDF's tree `root` (read from `path`) name: a relative path, a file:// URI
+    or a package:// URI of one of `packages` (name -> folder: the robot config's package_paths), of an SDF file or
+    of a model folder (its model.config's first <sdf> file). Other URIs (another package, model://, a web address)
+    are Drake's to resolve, and the files they name are not read here."""
     found = []
     for include in root.iter("include"):
         uri = (include.findtext("uri") or "").strip(ASCII_SPACE)
+        package, _, rest = uri.removeprefix("package://").partition("/")
+        if uri.startswith("package://") and package in (packages or {}):
+            uri = str(pathlib.Path(packages[package]) / rest)
         if not uri or ("://" in uri and not uri.startswith("file://")):
             continue
         target = pathlib.Path(uri.removeprefix("file://"))
-        target = target if target.is_absolute() else pathlib.Path(path).parent / target
+        # (as SDFormat joins it: `./sub/../arm.sdf` is arm.sdf, whether or not a folder `sub` exists)
+        target = pathlib.Path(os.path.normpath(target if target.is_absolute() else pathlib.Path(path).parent / target))
         if target.is_dir() and (config := target / "model.config").is_file():
             check_xml(config, "a model.config is")
             name = (parse(config).getroot().findtext("sdf") or "").strip(ASCII_SPACE)
