@@ -1013,6 +1013,9 @@ CASES = [
     (["robot", "init", "self_dotdot.sdf", "-o", "NEW.yaml"], "includes itself (self_dotdot.sdf -> self_dotdot.sdf)"),
     (yaml_case("robot", ROBOT_TEXT + "position_limits: {elbow_joint: [-1.0e300, 1.0e300]}\n"),
      "position_limits['elbow_joint'] must be [lower, upper], lower < upper, within 1e6"),
+    (yaml_case("tspec", (ROOT / "trajectories" / "tracking.yaml").read_text().replace(
+        "acceleration_limits: [4.0, 4.0, 5.0, 5.0, 5.0, 5.0]", "acceleration_limits: [1.0e300]")),
+     "acceleration_limits must be numbers in [1e-06, 1e+06]"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -8,8 +8,9 @@ from stdm_drake.config import require
 from stdm_drake.errors import InputError
 from stdm_drake.robots.robot import Robot
 
-# the smallest velocity scale and joint or task-space limit: one of 1e-320 (0 in all but name) lets no plan move
-MIN_LIMIT = 1e-6
+# the smallest velocity scale and joint or task-space limit: one of 1e-320 (0 in all but name) lets no plan move;
+# the largest joint or task-space limit (rad/s², rad/s³, m/s, m/s², rad/s, rad/s²): beyond any arm's by orders of magnitude
+MIN_LIMIT, MAX_LIMIT = 1e-6, 1e6
 
 
 @dataclasses.dataclass
@@ -74,8 +75,8 @@ class PlannerLimits:
                 self.velocity_scale)
         for name in self.joint_lists():
             values = getattr(self, name)
-            require(len(values) >= 1 and all(math.isfinite(v) and v >= MIN_LIMIT for v in values),
-                    f"{name} must be numbers of at least {MIN_LIMIT:g} (one per joint, or one for all)", values)
+            require(len(values) >= 1 and all(MIN_LIMIT <= v <= MAX_LIMIT for v in values),
+                    f"{name} must be numbers in [{MIN_LIMIT:g}, {MAX_LIMIT:g}] (one per joint, or one for all)", values)
         for name in ("ik_tolerance", "ik_continuity_tolerance"):
             value = getattr(self, name)
             require(math.isfinite(value) and value > 0, f"{name} must be positive", value)
@@ -108,7 +109,7 @@ class Quintic(PlannerLimits):
         require(0.0 <= self.duration_fraction <= 1.0, "duration_fraction must be in [0, 1]", self.duration_fraction)
         for name in ("max_linear_speed", "max_linear_acceleration", "max_angular_speed", "max_angular_acceleration"):
             value = getattr(self, name)
-            require(math.isfinite(value) and value >= MIN_LIMIT, f"{name} must be at least {MIN_LIMIT:g}", value)
+            require(MIN_LIMIT <= value <= MAX_LIMIT, f"{name} must be in [{MIN_LIMIT:g}, {MAX_LIMIT:g}]", value)
 
 
 @dataclasses.dataclass

@@ -59,6 +59,7 @@ class Description:
     joints: list
     models: int = 1
     name: str = ""
+    included: dict = dataclasses.field(default_factory=dict)   # the included files' links: "file: link" -> Inertial
 
     def children(self) -> dict:
         """Link name -> the joints whose parent it is."""
@@ -219,9 +220,12 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
                 names = " -> ".join(item.name for item in (*chain[start:], included))
                 who = "" if start == 0 else f" its included {included.name}"
                 raise InputError(f"{chain[0].name}:{who} includes itself ({names}); Drake's parser would not end")
-            for link, inertial in read_description(included, chain, packages).links.items():
+            inner = read_description(included, chain, packages)
+            for link, inertial in [*inner.links.items(), *inner.included.items()]:
+                name = f"{included.name}: {link}" if link in inner.links else link
                 if inertial is not None:
                     check_inertial(inertial, f"{path.name}: its included {included.name}: link {link!r}")
+                    description.included[name] = inertial
     return description
 
 
@@ -351,8 +355,10 @@ def drake_inertia_warnings_left_out(leave_out: bool):
 
 
 def inertia_substitutions(description: Description) -> dict[str, str]:
-    """Per link whose inertia Drake replaces, what it uses instead (`inertia_substitution`)."""
-    found = {link: inertia_substitution(inertial) for link, inertial in description.links.items() if inertial}
+    """Per link whose inertia Drake replaces, what it uses instead (`inertia_substitution`); an included file's link
+    as "file: link"."""
+    found = {link: inertia_substitution(inertial) for link, inertial in [*description.links.items(),
+                                                                         *description.included.items()] if inertial}
     return {link: text for link, text in found.items() if text is not None}
 
 
