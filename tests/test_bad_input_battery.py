@@ -314,6 +314,8 @@ def write_issue_25_inputs(box) -> None:
     (box / "huge_mimic.sdf").write_text(joint.format("", '<drake:mimic joint="j" multiplier="1e300" offset="0"/>'))
     (box / "icem_tsinf.yaml").write_text("optimizer: !Icem {propagation: tsinf, particles: 5}\n")
     # (held-out run 21: a xacro macro in a .urdf, an SDF that includes itself through a folder that is not there)
+    (box / "huge_range.urdf").write_text(urdf.replace('lower="-6.283185307179586" upper="6.283185307179586"',
+                                                      'lower="-1e300" upper="1e300"', 1))
     (box / "macro.urdf").write_text(urdf.replace("</robot>", '<xacro:macro name="m"><link name="x"/></xacro:macro></robot>'))
     (box / "self_dotdot.sdf").write_text('<sdf version="1.9"><model name="a"><link name="l"/><include><uri>./none/../'
                                          'self_dotdot.sdf</uri></include></model></sdf>')
@@ -751,8 +753,8 @@ CASES = [
     (yaml_case("tspec", "sampling:\n  initial_poses: []\n"), "initial_poses"),
     (yaml_case("tspec", "planner:\n  velocity_scale: 2.0\n"), "velocity_scale"),
     (yaml_case("mpc", "horizon: 0\n"), "horizon"), (yaml_case("mpc", "effort_weight: [0.0]\n"), "effort_weight"),
-    (yaml_case("mpc", "optimizer: !Ilqr {line_search: [0]}\n"), "line_search steps must be in (0, 1]"),
-    (yaml_case("mpc", "optimizer: !Ilqr {line_search: [-1]}\n"), "line_search steps must be in (0, 1]"),
+    (yaml_case("mpc", "optimizer: !Ilqr {line_search: [0]}\n"), "line_search steps must be in [1e-06, 1]"),
+    (yaml_case("mpc", "optimizer: !Ilqr {line_search: [-1]}\n"), "line_search steps must be in [1e-06, 1]"),
     (yaml_case("mpc", "optimizer: !Rti {regularization: -1}\n"), "regularization must be in [0, 1e6]"),
     (yaml_case("mpc", "terminal_factor: -10\n"), "terminal_factor must be in"),
     (yaml_case("mpc", "velocity_weight: [1e300]\n"), "velocity_weight must be at most"),
@@ -763,7 +765,7 @@ CASES = [
      "would evaluate about 8e+08 model steps per control step, beyond the budget of 1e+07"),
     (yaml_case("mpc", "horizon: 1000\noptimizer: !Ilqr {max_iterations: 100}\n"),
      "would evaluate about 1.04e+07 model steps per control step (a node's linearization counted as 100)"),
-    (yaml_case("mpc", "optimizer: !Mppi {temperature: 1.0e300}\n"), "temperature must be in (0, 1e+12]"),
+    (yaml_case("mpc", "optimizer: !Mppi {temperature: 1.0e300}\n"), "temperature must be in [1e-12, 1e+12]"),
     (yaml_case("mpc", "optimizer: !Mppi {feedback_kd: 1.0e300}\n"), "feedback_kd must be in [0, 1e+06]"),
     (yaml_case("mpc", "optimizer: !Icem {propagation: tsinf, particles: 5, variance_weight: 1.0e300}\n"),
      "variance_weight must be in [0, 1e+12]"),
@@ -1016,6 +1018,20 @@ CASES = [
     (yaml_case("tspec", (ROOT / "trajectories" / "tracking.yaml").read_text().replace(
         "acceleration_limits: [4.0, 4.0, 5.0, 5.0, 5.0, 5.0]", "acceleration_limits: [1.0e300]")),
      "acceleration_limits must be numbers in [1e-06, 1e+06]"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--regularizations", "1e300"], "regularizations must be in [0, 1e6]"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--velocity-scales", "0.05", "4.9e-324"],
+     "velocity scales must be in [1e-06, 1000] rad/s"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--derivatives", "smoothed", "--windows", "1000001"],
+     "no smoothing window of [1000001] fits trajectories of"),
+    ([*I, "LOG", "--torque-source", "current", "--torque-constants", *["0.1"] * 5, "1e-320", "-o", "NEW.h5"],
+     "torque_constants must be in [1e-06, 1e4) N m / A"),
+    (yaml_case("mpc", "optimizer: !Mppi {temperature: 1.0e-320}\n"), "temperature must be in [1e-12, 1e+12]"),
+    (yaml_case("mpc", "optimizer: !Icem {noise_std: 1.0e-320}\n"), "noise_std must be in [1e-12, 10000] rad/s^2"),
+    (yaml_case("mpc", "optimizer: !Ilqr {line_search: [1.0, 1.0e-320]}\n"), "line_search steps must be in [1e-06, 1]"),
+    (yaml_case("ctrl", "controller: !Pid\n  kp: [1.0e300]\n  ki: [0]\n  kd: [1]\n"), "controller gain kp 1e+300 is beyond"),
+    (yaml_case("ctrl", "controller: !Pid\n  kp: [100]\n  ki: [0]\n  kd: [1]\n  dither_std: [1.0e6]\n"),
+     "controller dither_std 1e+06 N m on wrist_1_joint is beyond its effort limit 56 N m"),
+    (["robot", "init", "huge_range.urdf", "-o", "NEW.yaml"], "has the lower position limit -1e+300, beyond 1e+06"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

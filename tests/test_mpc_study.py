@@ -55,7 +55,7 @@ def test_each_tag_loads_and_runs_one_plan(tmp_path, plant_model, text, kind, sol
     ("optimizer: !Pets {samples: 100}\n", "unknown optimizer !Pets; the MPC's optimizers are !Rti, !Ilqr"),
     ("optimizer: !Ilqr\n", "optimizer !Ilqr takes its settings as a mapping: write `optimizer: !Ilqr {}`"),
     ("optimizer: !Rti {max_iterations: 2}\n", "write `iterations:` for its `max_iterations:`"),
-    ("optimizer: !Ilqr {line_search: [0]}\n", "mpc optimizer !Ilqr line_search steps must be in (0, 1]"),
+    ("optimizer: !Ilqr {line_search: [0]}\n", "mpc optimizer !Ilqr line_search steps must be in [1e-06, 1]"),
     ("optimizer: !Rti {iterations: 0}\n", "mpc optimizer !Rti iterations must be in 1..100"),
     # the flat layout before the tag: the tagged value to write, from the file's own values
     ("horizon: 5\nmax_iterations: 1\n", "replace `max_iterations:` with `optimizer: !Rti {iterations: 1}`"),

@@ -211,14 +211,14 @@ def test_colored_noise_has_unit_variance_and_more_low_frequency_power():
 @pytest.mark.parametrize("text, message", [
     ("optimizer: !Icem {samples: 0}\n", "mpc optimizer !Icem samples must be an integer in 1..100000, got 0"),
     ("optimizer: !Cem {samples: 50, elites: 60}\n", "mpc optimizer !Cem elites must be an integer in 1..50"),
-    ("optimizer: !Mppi {temperature: -1.0}\n", "mpc optimizer !Mppi temperature must be in (0, 1e+12]"),
+    ("optimizer: !Mppi {temperature: -1.0}\n", "mpc optimizer !Mppi temperature must be in [1e-12, 1e+12]"),
     ("optimizer: !Icem {framework: torch, device: cuda:7}\n", "mpc optimizer !Icem device 'cuda:7'"),
     ("optimizer: !Icem {framework: torch, device: gpu}\n", "device 'gpu' is not a PyTorch device"),
     ("optimizer: !Icem {device: cuda}\n", "device 'cuda' needs `framework: torch`"),
     ("optimizer: !Mppi {propagation: ts2}\n", "propagation must be one of mean, ts1, tsinf"),
-    ("optimizer: !Icem {noise_std: 0.0}\n", "noise_std must be in (0, 10000] rad/s^2"),
+    ("optimizer: !Icem {noise_std: 0.0}\n", "noise_std must be in [1e-12, 10000] rad/s^2"),
     # settings that mean nothing (issue 56): a spread that only clips, what `propagation: mean` would ignore
-    ("optimizer: !Icem {noise_std: 1.0e+300}\n", "noise_std must be in (0, 10000] rad/s^2"),
+    ("optimizer: !Icem {noise_std: 1.0e+300}\n", "noise_std must be in [1e-12, 10000] rad/s^2"),
     ("optimizer: !Icem {particles: 5}\n", "particles 5 need `propagation: ts1` or `tsinf`"),
     ("optimizer: !Icem {samples: \"100\"}\n", "optimizer.samples is '100' in quotes, not a number; write the number without quotes"),
     ("horizon: '20'\n", "horizon is '20' in quotes, not a number"),

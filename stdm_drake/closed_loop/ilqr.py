@@ -50,8 +50,8 @@ class Ilqr(OptimizerSettings):
             raise InputError(f"mpc optimizer !Ilqr line_search lists {len(self.line_search)} steps, at most "
                              f"{MAX_LINE_SEARCH} (each is a rollout of the horizon in every iteration)")
         steps = np.asarray(self.line_search, dtype=float)
-        if not np.all(np.isfinite(steps) & (steps > 0) & (steps <= 1)):
-            raise InputError(f"mpc optimizer !Ilqr line_search steps must be in (0, 1], got {self.line_search}")
+        if not np.all(np.isfinite(steps) & (steps >= 1e-6) & (steps <= 1)):   # (a step of 1e-320 moves nothing)
+            raise InputError(f"mpc optimizer !Ilqr line_search steps must be in [1e-06, 1], got {self.line_search}")
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
             raise InputError(f"mpc optimizer !Ilqr regularization must be in [0, 1e6], got {self.regularization}")
 

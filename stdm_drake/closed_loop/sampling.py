@@ -54,6 +54,7 @@ MAX_SAMPLED_VALUES = 50_000_000   # samples x horizon x joints: each array of th
 MAX_NOISE_STD = 1e4         # rad/s^2: residual accelerations spread wider (1000 g at 1 m) only clip at the limits
 MAX_GAIN = 1e6              # the ancillary law's feedback_kp (1/s^2) and feedback_kd (1/s): beyond, no sample period keeps it stable
 MAX_SCALE = 1e12            # variance_weight and MPPI's temperature (cost units), as the MPC's weights (mpc.MAX_WEIGHT)
+MIN_SCALE = 1e-12           # ... and the smallest noise or temperature: 1e-320 is 0 in all but name (a draw of nothing)
 FRAMEWORKS = ("numpy", "torch")
 
 
@@ -100,9 +101,9 @@ class SamplingSettings(OptimizerSettings):
             raise InputError(f"{tag} seed must be an integer in 0..2^63-1, got {self.seed!r}")
         if self.samples * self.particles > MAX_ROWS:
             raise InputError(f"{tag} samples x particles must be at most {MAX_ROWS}, got {self.samples * self.particles}")
-        if not (np.isfinite(self.noise_std) and 0 < self.noise_std <= MAX_NOISE_STD):
-            raise InputError(f"{tag} noise_std must be in (0, {MAX_NOISE_STD:g}] rad/s^2 (a wider spread of residual "
-                             f"accelerations only drives every sample into the torque limits), got {self.noise_std}")
+        if not (np.isfinite(self.noise_std) and MIN_SCALE <= self.noise_std <= MAX_NOISE_STD):
+            raise InputError(f"{tag} noise_std must be in [{MIN_SCALE:g}, {MAX_NOISE_STD:g}] rad/s^2 (a wider spread of "
+                             f"residual accelerations only drives every sample into the torque limits), got {self.noise_std}")
         if self.propagation not in PROPAGATIONS:
             raise InputError(f"{tag} propagation must be one of {', '.join(PROPAGATIONS)}, got {self.propagation!r}")
         if self.propagation == "mean" and self.particles > 1:
@@ -390,8 +391,9 @@ class Mppi(SamplingSettings):
 
     def validate(self) -> None:
         super().validate()
-        if not (np.isfinite(self.temperature) and 0 < self.temperature <= MAX_SCALE):
-            raise InputError(f"{self.tag()} temperature must be in (0, {MAX_SCALE:g}] (cost units), got {self.temperature}")
+        if not (np.isfinite(self.temperature) and MIN_SCALE <= self.temperature <= MAX_SCALE):
+            raise InputError(f"{self.tag()} temperature must be in [{MIN_SCALE:g}, {MAX_SCALE:g}] (cost units), got "
+                             f"{self.temperature}")
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
                bounds: StateBounds | None = None) -> "MppiSolver":

@@ -45,12 +45,27 @@ class IdentifySettings:
                 raise InputError(f"identify: {name.replace('_', ' ')} must be a non-empty list of numbers")
             if len(values) > MAX_CANDIDATES:   # (each is a fit of its own: thousands would run for hours)
                 raise InputError(f"identify: at most {MAX_CANDIDATES} {name.replace('_', ' ')}, got {len(values)}")
-        if min(self.velocity_scales) <= 0 or min(self.regularizations) < 0:
-            raise InputError("identify: velocity scales must be > 0 rad/s and regularizations >= 0")
+        if not (1e-6 <= min(self.velocity_scales) and max(self.velocity_scales) <= 1e3):   # (1e-320: a sign function;
+            raise InputError("identify: velocity scales must be in [1e-06, 1000] rad/s")   # 1e300: no friction at all)
+        if min(self.regularizations) < 0 or max(self.regularizations) > 1e6:
+            raise InputError("identify: regularizations must be in [0, 1e6] (beyond, the fit is the description's)")
         for window in self.windows:
             if window != 1 and (window < 5 or window % 2 == 0):
                 raise InputError(f"identify: smoothing windows must be 1 (no smoothing) or odd numbers of samples "
                                  f">= 5, got {window}")
+
+
+def usable_windows(dataset, split, settings: IdentifySettings) -> tuple:
+    """The smoothing windows of `settings` that leave samples inside the split's shortest trajectory ((0,): no
+    smoothing, for true derivatives); InputError (one line) where none does."""
+    if settings.derivative_source != "smoothed":
+        return (0,)
+    shortest = min(dataset.trajectory(int(i)).num_steps for i in [*split.train, *split.val, *split.test])
+    windows = tuple(window for window in settings.windows if fits_window(shortest, window))
+    if not windows:
+        raise InputError(f"identify: no smoothing window of {list(settings.windows)} fits trajectories of {shortest} "
+                         "steps")
+    return windows
 
 
 def _stable(scale: float, parameters: np.ndarray, regressor, robot, time_step: float) -> bool:
@@ -79,13 +94,7 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
     regressor = InverseDynamicsRegressor(robot)
     prior = regressor.parameters()
     time_step = dataset.metadata.plant_time_step or DEFAULT_PLANT_TIME_STEP
-    windows = (0,)
-    if source == "smoothed":    # the windows that leave samples inside the shortest trajectory
-        shortest = min(dataset.trajectory(int(i)).num_steps for i in [*split.train, *split.val, *split.test])
-        windows = tuple(window for window in settings.windows if fits_window(shortest, window))
-        if not windows:
-            raise InputError(f"identify: no smoothing window of {list(settings.windows)} fits trajectories of "
-                             f"{shortest} steps")
+    windows = usable_windows(dataset, split, settings)
     candidates, best = [], None
     for window in windows:
         train = identification_data(regressor, dataset, split.train, source, window or None)

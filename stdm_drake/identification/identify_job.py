@@ -57,7 +57,7 @@ def identify_job(job: IdentifyJob) -> dict:
     from stdm_drake.data.compatibility import resolve_robot
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.identification.identified import identified_text
-    from stdm_drake.identification.identify import IdentifySettings, identify
+    from stdm_drake.identification.identify import IdentifySettings, identify, usable_windows
     from stdm_drake.data.dataset import dataset_split
     output = pathlib.Path(job.output)
     if output.suffix.lower() not in (".yaml", ".yml"):
@@ -79,6 +79,7 @@ def identify_job(job: IdentifyJob) -> dict:
     robot = resolve_robot(job.robot, dataset)
     robot.check_fully_actuated("identification")
     split, _ = dataset_split(dataset, job)   # (the job's train, val, test, per_group and split_seed)
+    usable_windows(dataset, split, settings)   # (before the first line: a window no trajectory fits is the refusal)
     if job.progress:
         print(f"identify {robot.name} from {job.dataset}: train {len(split.train)} / val {len(split.val)} / "
               f"test {len(split.test)} trajectories, derivatives {settings.derivative_source}", file=sys.stderr)

@@ -25,6 +25,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import Dynamics, joint_limits
 from stdm_drake.robots.robot import Robot
 
+MAX_GAIN = 1e9   # a PID gain (N m/rad, N m/(rad s), N m s/rad): beyond any joint servo's by orders of magnitude
+
 @dataclasses.dataclass
 class JointGains:
     """What both tracking controllers share: gains per joint (in the robot's arm-joint order), or one
@@ -89,6 +91,15 @@ class JointGains:
                 acceleration = check_joint_vector("controller dither_acceleration", self.dither_acceleration, count=n)
                 config = dataclasses.replace(config, dither_std=(acceleration * inertia).tolist(), dither_acceleration=[])
         kp, ki, kd, dither_std = config.gains(n)
+        for name, values in (("kp", kp), ("ki", ki), ("kd", kd)):
+            if np.any(values > MAX_GAIN):   # (1e300 overflows the first control step; no servo's gain is near)
+                raise InputError(f"controller gain {name} {float(values.max()):g} is beyond any joint's (at most {MAX_GAIN:g})")
+        if np.any(dither_std > 0):   # (a dither beyond the motor's torque is saturation, not a dither)
+            effort = joint_limits(Dynamics(robot, effects).plant).effort
+            joint = int(np.argmax(dither_std - effort))
+            if dither_std[joint] > effort[joint]:
+                raise InputError(f"controller dither_std {dither_std[joint]:g} N m on {robot.joint_names[joint]} is beyond "
+                                 f"its effort limit {effort[joint]:g} N m")
         return dataclasses.replace(config, kp=kp.tolist(), ki=ki.tolist(), kd=kd.tolist(), dither_std=dither_std.tolist())
 
     def gains(self, joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -34,6 +34,7 @@ LIMIT_KEYS = {"lower": "position_limits", "upper": "position_limits", "velocity"
 # MPC can work with (a limit of 1e300 is none, and overflows their arithmetic; a range of 1e-320 rad is none)
 LIMIT_BOUNDS = {"velocity": 1e4, "effort": 1e6}
 MIN_POSITION_RANGE = 1e-6
+MAX_POSITION_LIMIT = 1e6   # ... and the largest position limit's magnitude (the corpus states at most 1e3)
 # ... and the smallest velocity and effort limit (rad/s or m/s, N m or N): a limit of 1e-320 is 0 in all but name
 MIN_LIMIT = 1e-6
 
@@ -65,6 +66,9 @@ def check_limits(joint, where: str, arm: bool, locked: bool = False) -> None:
         for key, value in given.items():
             if not math.isfinite(value):
                 raise InputError(f"{where} has a non-finite {key} limit ({value}){override(key)}")
+            if key in ("lower", "upper") and abs(value) > MAX_POSITION_LIMIT:
+                raise InputError(f"{where} has the {key} position limit {value:g}, beyond {MAX_POSITION_LIMIT:g} rad or m "
+                                 f"(a limit of 1e300 is none){override(key)}")
     if joint.lower is not None and joint.upper is not None and joint.lower > joint.upper:
         raise InputError(f"{where} has its lower position limit {joint.lower:g} above its upper limit "
                          f"{joint.upper:g}{override('lower')}")

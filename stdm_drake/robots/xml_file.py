@@ -356,14 +356,15 @@ MAX_INCLUDE_DEPTH = 8   # SDF <include>s followed from one file (a file that inc
 
 def included_files(root, path: pathlib.Path, packages: dict | None = None) -> list[pathlib.Path]:
     """The local files the <include>s of an SDF's tree `root` (read from `path`) name: a relative path, a file:// URI
-    or a package:// URI of one of `packages` (name -> folder: the robot config's package_paths), of an SDF file or
-    of a model folder (its model.config's first <sdf> file). Other URIs (another package, model://, a web address)
+    or a package:// or model:// URI of one of `packages` (name -> folder: the robot config's package_paths), of an
+    SDF file or of a model folder (its model.config's first <sdf> file). Other URIs (another package, a web address)
     are Drake's to resolve, and the files they name are not read here."""
     found = []
     for include in root.iter("include"):
         uri = (include.findtext("uri") or "").strip(ASCII_SPACE)
-        package, _, rest = uri.removeprefix("package://").partition("/")
-        if uri.startswith("package://") and package in (packages or {}):
+        scheme = next((scheme for scheme in ("package://", "model://") if uri.startswith(scheme)), None)
+        package, _, rest = uri.removeprefix(scheme or "").partition("/")
+        if scheme is not None and package in (packages or {}):   # (Drake reads model://NAME as package://NAME)
             uri = str(pathlib.Path(packages[package]) / rest)
         if not uri or ("://" in uri and not uri.startswith("file://")):
             continue

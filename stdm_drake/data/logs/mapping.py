@@ -57,8 +57,8 @@ class LogMapping:
                              f"({', '.join(TORQUE_SOURCES[self.format])})")
         if self.torque_source == "current" and not self.torque_constants:
             raise InputError("torque_source current needs torque_constants (N m / A, one per joint)")
-        if any(not (constant > 0 and constant < 1e4) for constant in self.torque_constants):
-            raise InputError(f"torque_constants must be positive N m / A, got {self.torque_constants}")
+        if any(not (1e-6 <= constant < 1e4) for constant in self.torque_constants):   # (1e-320: no torque at all)
+            raise InputError(f"torque_constants must be in [1e-06, 1e4) N m / A, got {self.torque_constants}")
         if len(set(self.joint_names)) != len(self.joint_names):
             raise InputError(f"joint_names must be distinct, got {self.joint_names}")
         for name, low, high in (("sample_period", 0.0, 10.0), ("gap_factor", 1.0, 1e3), ("pause_velocity", 0.0, 10.0),
