@@ -22,7 +22,7 @@ from pydrake.systems.controllers import InverseDynamicsController, PidController
 
 from stdm_drake.config import check_joint_vector, load_yaml_config
 from stdm_drake.errors import InputError
-from stdm_drake.robots.plant import Dynamics, joint_limits
+from stdm_drake.robots.plant import Dynamics, joint_limits, robot_joint_limits
 from stdm_drake.robots.robot import Robot
 
 MAX_GAIN = 1e9   # a PID gain (N m/rad, N m/(rad s), N m s/rad): beyond any joint servo's by orders of magnitude
@@ -95,7 +95,7 @@ class JointGains:
             if np.any(values > MAX_GAIN):   # (1e300 overflows the first control step; no servo's gain is near)
                 raise InputError(f"controller gain {name} {float(values.max()):g} is beyond any joint's (at most {MAX_GAIN:g})")
         if np.any(dither_std > 0):   # (a dither beyond the motor's torque is saturation, not a dither)
-            effort = joint_limits(Dynamics(robot, effects).plant).effort
+            effort = robot_joint_limits(robot).effort   # (the plant effects leave the effort limits as they are)
             joint = int(np.argmax(dither_std - effort))
             if dither_std[joint] > effort[joint]:
                 raise InputError(f"controller dither_std {dither_std[joint]:g} N m on {robot.joint_names[joint]} is beyond "

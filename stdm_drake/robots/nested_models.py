@@ -2,6 +2,7 @@
 or <include>d models, "arm::tool", a tool welded to the arm). Used by `robots.robot` (loading and checking the
 robot) and `robots.plant` (its collision filters)."""
 from pydrake.multibody.plant import MultibodyPlant
+from pydrake.multibody.tree import ModelInstanceIndex
 
 from stdm_drake.errors import InputError
 
@@ -21,7 +22,7 @@ def robot_instance(plant: MultibodyPlant, instances, where: str):
 def nested_instances(plant: MultibodyPlant, instance) -> list:
     """The model instances nested in the robot's `instance` (an SDF's inner or <include>d models: "arm::tool")."""
     prefix = plant.GetModelInstanceName(instance) + "::"
-    return [index for index in map(type(instance), range(plant.num_model_instances()))
+    return [index for index in map(ModelInstanceIndex, range(plant.num_model_instances()))
             if plant.GetModelInstanceName(index).startswith(prefix)]
 
 
@@ -29,8 +30,7 @@ def check_nested_fixed(plant: MultibodyPlant, instance, where: str) -> None:
     """After Finalize: InputError where a model nested in the robot's `instance` moves (a joint of its own, or no
     joint to the arm at all): the robot's state is its own joints'."""
     for nested in nested_instances(plant, instance):
-        if plant.num_velocities(nested):
-            count = plant.num_velocities(nested)
+        if count := plant.num_velocities(nested):
             raise InputError(f"{where}: its nested model {plant.GetModelInstanceName(nested)!r} moves {count} "
                              f"degree{'s' * (count > 1)} of freedom; a model nested in the robot is fixed to it (its "
                              "joints of type fixed, one fixing it to the arm)")
@@ -45,9 +45,9 @@ def frame_by_name(plant: MultibodyPlant, name: str, instance=None):
             return plant.GetFrameByName(name) if plant.HasFrameNamed(name) else None
         return plant.GetFrameByName(name, instance) if plant.HasFrameNamed(name, instance) else None
     scope, local = name.rsplit("::", 1)
-    owners = [index for index in map(type(plant.world_frame().model_instance()), range(plant.num_model_instances()))
-              if plant.GetModelInstanceName(index).endswith("::" + scope)
-              and (instance is None or plant.GetModelInstanceName(index).startswith(plant.GetModelInstanceName(instance)))]
+    candidates = (map(ModelInstanceIndex, range(plant.num_model_instances())) if instance is None
+                  else nested_instances(plant, instance))
+    owners = [index for index in candidates if plant.GetModelInstanceName(index).endswith("::" + scope)]
     found = [plant.GetFrameByName(local, owner) for owner in owners if plant.HasFrameNamed(local, owner)]
     return found[0] if len(found) == 1 else None
 
