@@ -502,29 +502,52 @@ struct PlantModel : Model {
 
 // ------------------------------------------------------------------------------------------------------------
 // A strictly convex QP by the dual active-set method of Goldfarb & Idnani (1983):
-//   min 1/2 y^T G y + a^T y   s.t.  C^T y >= b   (G (N, N) positive definite, C (N, P))
-// From the unconstrained minimum, the most violated constraint enters; partial steps drop the constraints whose
-// multiplier would turn negative. J = L^-T (L L^T = G) and the upper-triangular R (with J's first columns
-// spanning the active constraints' normals) are updated by Givens rotations. Exact to round-off; finite.
+//   min 1/2 y^T G y + a^T y   s.t.  lower <= y <= upper (each side may be infinite),  C^T y >= b
+// (G (N, N) positive definite, given by J0 = L^-T (L L^T = G) and the unconstrained minimum y0 = -G^-1 a; C
+// (N, P)). From the unconstrained minimum, the most violated constraint enters (violations measured along each
+// normal; the bounds first, lower then upper of each variable in turn, then C's columns); partial steps drop the
+// constraints whose multiplier would turn negative. J (J0 to start) and the upper-triangular R (with J's first
+// columns spanning the active constraints' normals) are updated by Givens rotations. The bounds are rows of the
+// identity: their values, J^T c and z^T c are single entries, so a scan over them costs N, not N^2. Exact to
+// round-off; finite.
 
 struct DualActiveSet {
   enum Status { optimal = 1, infeasible = -1, iteration_limit = -4, not_positive_definite = -6 };
 
-  // y (N,) and the status; `iterations` counts the constraints added and dropped; at most `limit` of them
-  static Status solve(const Eigen::MatrixXd& G, const VectorXd& a, const Eigen::MatrixXd& C, const VectorXd& b,
-                      VectorXd& y, int limit, int& iterations) {
-    const int N = int(G.rows()), P = int(C.cols());
-    iterations = 0;
+  // J0 = L^-T and y0 = -G^-1 a of G (N, N); false where G is not positive definite
+  static bool factor(const Eigen::MatrixXd& G, const VectorXd& a, Eigen::MatrixXd& J0, VectorXd& y0) {
+    const int N = int(G.rows());
     Eigen::LLT<Eigen::MatrixXd> llt(G);
-    if (llt.info() != Eigen::Success) return not_positive_definite;
-    Eigen::MatrixXd J = llt.matrixL().solve(Eigen::MatrixXd::Identity(N, N)).transpose();   // L^-T
-    y = -llt.solve(a);
+    if (llt.info() != Eigen::Success) return false;
+    J0 = llt.matrixL().solve(Eigen::MatrixXd::Identity(N, N)).transpose();
+    y0 = -llt.solve(a);
+    return true;
+  }
+
+  // y (N,) and the status; `iterations` counts the constraints added and dropped; at most `limit` of them
+  static Status solve(const Eigen::MatrixXd& J0, const VectorXd& y0, const VectorXd& lower, const VectorXd& upper,
+                      const Eigen::MatrixXd& C, const VectorXd& b, VectorXd& y, int limit, int& iterations) {
+    const int N = int(J0.rows()), P = int(C.cols()), bounds = 2 * N;
+    iterations = 0;
+    Eigen::MatrixXd J = J0;
+    y = y0;
     Eigen::MatrixXd R = Eigen::MatrixXd::Zero(N, N);
-    std::vector<int> active;
-    std::vector<char> is_active(P, 0);
-    VectorXd u(0), d(N), z(N), r;
+    std::vector<int> active;                            // constraint p: bound p (< 2 N: variable p / 2, lower if
+    std::vector<char> is_active(bounds + P, 0);         // p even, upper if odd), or C's column p - 2 N
+    VectorXd u(0), d(N), z(N), r, values(P);
+    VectorXd inverse_norm(P);
+    for (int j = 0; j < P; ++j) inverse_norm[j] = 1.0 / std::max(C.col(j).norm(), 1e-300);
     const double tolerance = 1e-12;
-    auto norm_of = [&](int p) { return std::max(C.col(p).norm(), 1e-300); };
+    // c_p^T y - b_p (the constraint's slack) and its normal's norm
+    auto slack_of = [&](int p) {
+      if (p >= bounds) return C.col(p - bounds).dot(y) - b[p - bounds];
+      return p % 2 == 0 ? y[p / 2] - lower[p / 2] : upper[p / 2] - y[p / 2];
+    };
+    auto along = [&](int p, const VectorXd& v) {       // c_p^T v
+      if (p >= bounds) return C.col(p - bounds).dot(v);
+      return p % 2 == 0 ? v[p / 2] : -v[p / 2];
+    };
+    auto normal_norm = [&](int p) { return p >= bounds ? 1.0 / inverse_norm[p - bounds] : 1.0; };
 
     auto givens = [](double& x, double& w, double& c, double& s) {
       const double h = std::hypot(x, w);
@@ -560,13 +583,26 @@ struct DualActiveSet {
     };
 
     while (true) {
-      // 1. the most violated constraint (violation measured along its normal)
+      // 1. the most violated constraint (violation measured along its normal), in the order of the indices
       int p = -1;
       double worst = -tolerance;
-      for (int i = 0; i < P; ++i) {
-        if (is_active[i]) continue;
-        const double s = (C.col(i).dot(y) - b[i]) / norm_of(i);
-        if (s < worst) { worst = s; p = i; }
+      for (int i = 0; i < N; ++i) {
+        if (!is_active[2 * i]) {
+          const double s = y[i] - lower[i];
+          if (s < worst) { worst = s; p = 2 * i; }
+        }
+        if (!is_active[2 * i + 1]) {
+          const double s = upper[i] - y[i];
+          if (s < worst) { worst = s; p = 2 * i + 1; }
+        }
+      }
+      if (P) {
+        values.noalias() = C.transpose() * y;
+        for (int j = 0; j < P; ++j) {
+          if (is_active[bounds + j]) continue;
+          const double s = (values[j] - b[j]) * inverse_norm[j];
+          if (s < worst) { worst = s; p = bounds + j; }
+        }
       }
       if (p < 0) return optimal;
       VectorXd u_plus(active.size() + 1);
@@ -576,7 +612,9 @@ struct DualActiveSet {
         if (iterations >= limit) return iteration_limit;
         const int q = int(active.size());
         // 2(a) directions: primal z in the null space of the active normals, dual r
-        d.noalias() = J.transpose() * C.col(p);
+        if (p >= bounds) d.noalias() = J.transpose() * C.col(p - bounds);
+        else if (p % 2 == 0) d = J.row(p / 2).transpose();
+        else d = -J.row(p / 2).transpose();
         z.noalias() = J.rightCols(N - q) * d.tail(N - q);
         r = R.topLeftCorner(q, q).triangularView<Eigen::Upper>().solve(d.head(q));
         // 2(b) the partial step (a multiplier reaching zero) and the full step (constraint p met)
@@ -584,9 +622,9 @@ struct DualActiveSet {
         int l = -1;
         for (int j = 0; j < q; ++j)
           if (r[j] > tolerance && u_plus[j] / r[j] < t1) { t1 = u_plus[j] / r[j]; l = j; }
-        const double curvature = z.dot(C.col(p));
-        const double slack = C.col(p).dot(y) - b[p];
-        const bool moves = z.norm() > 1e-14 * std::max(1.0, C.col(p).norm()) && curvature > 0.0;
+        const double curvature = along(p, z);
+        const double slack = slack_of(p);
+        const bool moves = z.norm() > 1e-14 * std::max(1.0, normal_norm(p)) && curvature > 0.0;
         const double t2 = moves ? -slack / curvature : std::numeric_limits<double>::infinity();
         const double t = std::min(t1, t2);
         if (!std::isfinite(t)) return infeasible;
@@ -840,9 +878,8 @@ struct RealTimeIteration {
 
   // The condensed problem of the torque steps, for the constrained QP: Gamma (H S, N) block lower triangular,
   // the states at du = 0 (H S,), the Hessian Gamma^T W Gamma + diag(R) + mu (N, N) and the gradient (N,) at
-  // du = 0 (the QP's variable is du; `rti.RtiSolver._step`'s condensing). False where the Hessian is not
-  // positive definite.
-  bool condense(const RowMatrixXd& x, const RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
+  // du = 0 (the QP's variable is du; `rti.RtiSolver._step`'s condensing); `ScaledHessian` factors it.
+  void condense(const RowMatrixXd& x, const RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
                 const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B, double mu,
                 Eigen::MatrixXd& gamma, VectorXd& base, Eigen::MatrixXd& hessian, VectorXd& gradient) const {
     const int H = int(u.rows()), s = S(), mm = m(), N = H * mm;
@@ -881,9 +918,19 @@ struct RealTimeIteration {
     hessian.triangularView<Eigen::StrictlyUpper>() = hessian.transpose();
     gradient = gamma.transpose() * state_weight.cwiseProduct(error) + effort_weight.cwiseProduct(change);
     base = Eigen::Map<const VectorXd>(x.data() + s, Eigen::Index(H) * s) + drift;
-    Eigen::LLT<Eigen::MatrixXd> llt(hessian);
-    return llt.info() == Eigen::Success;
   }
+
+  // The condensed Hessian and gradient Jacobi-scaled (y = du / scale, scale = diag(hessian)^-1/2) and factored
+  // for the dual active-set method: one factorization per control step, whatever rows the QP's rounds take.
+  struct ScaledHessian {
+    VectorXd scale, y0;
+    Eigen::MatrixXd J0;
+    bool factor(const Eigen::MatrixXd& hessian, const VectorXd& gradient) {
+      scale = hessian.diagonal().cwiseSqrt().cwiseInverse();
+      const Eigen::MatrixXd scaled = scale.asDiagonal() * hessian * scale.asDiagonal();
+      return DualActiveSet::factor(scaled, gradient.cwiseProduct(scale), J0, y0);
+    }
+  };
 
   // one Gauss-Newton step in place; false where the Hessian is not positive definite (u, x untouched)
   bool step(RowMatrixXd& x, RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
@@ -909,14 +956,16 @@ struct RealTimeIteration {
     } else {                           // a limit binds: the condensed QP
       Eigen::MatrixXd gamma, hessian;
       VectorXd base, gradient;
-      if (!condense(x, u, reference, u_ff, predicted, A, B, mu, gamma, base, hessian, gradient)) return false;
+      condense(x, u, reference, u_ff, predicted, A, B, mu, gamma, base, hessian, gradient);
+      ScaledHessian scaled;
+      if (!scaled.factor(hessian, gradient)) return false;     // not positive definite
       VectorXd lower_step(N), upper_step(N);
       for (int i = 0; i < N; ++i) {
         lower_step[i] = -effort_limit[i % mm] - flat_u[i];
         upper_step[i] = effort_limit[i % mm] - flat_u[i];
       }
       VectorXd delta;
-      if (!constrained_step(hessian, gradient, lower_step, upper_step, gamma, base, delta, now_active, now_slack))
+      if (!constrained_step(scaled, lower_step, upper_step, gamma, base, delta, now_active, now_slack))
         return false;
       u_new = flat_u + delta;
       for (int i = 0; i < N; ++i) u_new[i] = std::clamp(u_new[i], -effort_limit[i % mm], effort_limit[i % mm]);
@@ -942,7 +991,7 @@ struct RealTimeIteration {
   }
 
   // the box- and state-constrained step (constraints.CondensedQp.solve); false where no QP can be solved
-  bool constrained_step(const Eigen::MatrixXd& hessian, const VectorXd& gradient, const VectorXd& lower_step,
+  bool constrained_step(const ScaledHessian& scaled, const VectorXd& lower_step,
                         const VectorXd& upper_step, const Eigen::MatrixXd& gamma, const VectorXd& base,
                         VectorXd& delta, bool& now_active, double& now_slack) {
     const int s = S(), total = int(base.size());
@@ -959,7 +1008,7 @@ struct RealTimeIteration {
     VectorXd states;
     bool settled = false;
     for (int round = 0; round < kMaxRounds; ++round) {
-      int status = solve_rows(hessian, gradient, lower_step, upper_step, gamma, base, rows, soft, budget, delta,
+      int status = solve_rows(scaled, lower_step, upper_step, gamma, base, rows, soft, budget, delta,
                               now_slack);
       if (status == 0) {               // the hard rows cannot be met: the soft problem
         soft = true;
@@ -983,7 +1032,7 @@ struct RealTimeIteration {
     if (!settled) {                    // the torque box alone, its crossings reported as slack
       ++unsettled;
       budget = kMaxQpIterations;
-      if (solve_rows(hessian, gradient, lower_step, upper_step, gamma, base, {}, false, budget, delta, now_slack) < 0)
+      if (solve_rows(scaled, lower_step, upper_step, gamma, base, {}, false, budget, delta, now_slack) < 0)
         return false;
       states = base + gamma * delta;
       now_slack = 0.0;
@@ -1007,61 +1056,51 @@ struct RealTimeIteration {
   }
 
   // the QP over [delta, slack of each row] (soft) or delta alone (hard), Jacobi-scaled: 1 solved, 0 the hard rows
-  // infeasible, -1 not solved (within the budget)
-  int solve_rows(const Eigen::MatrixXd& hessian, const VectorXd& gradient, const VectorXd& lower_step,
-                 const VectorXd& upper_step, const Eigen::MatrixXd& gamma, const VectorXd& base,
-                 const std::vector<int>& rows, bool soft, int& budget, VectorXd& delta, double& used_slack) const {
-    const int N = int(gradient.size()), chosen = int(rows.size()), s = S();
+  // infeasible, -1 not solved (within the budget). `scaled` is the Hessian's part of the scaled problem (from
+  // `ScaledHessian`): the slacks' part is diagonal, so the Hessian is factored once per control step.
+  int solve_rows(const ScaledHessian& scaled, const VectorXd& lower_step, const VectorXd& upper_step,
+                 const Eigen::MatrixXd& gamma, const VectorXd& base, const std::vector<int>& rows, bool soft,
+                 int& budget, VectorXd& delta, double& used_slack) const {
+    const int N = int(scaled.scale.size()), chosen = int(rows.size()), s = S();
     const int slacks = soft ? chosen : 0, variables = N + slacks;
     const double weight = 0.5 * penalty_weight;
-    Eigen::MatrixXd G = Eigen::MatrixXd::Zero(variables, variables);
-    G.topLeftCorner(N, N) = hessian;
-    VectorXd a(variables);
-    a.head(N) = gradient;
-    for (int j = 0; j < slacks; ++j) { G(N + j, N + j) = weight; a[N + j] = weight; }
-    VectorXd scale = G.diagonal().cwiseSqrt().cwiseInverse();     // y = scaled variables / scale
-    // constraints C^T y >= b in the unscaled variables first: box (2 N), slacks >= 0, rows' two sides
-    std::vector<VectorXd> normals;
-    std::vector<double> bounds;
-    auto add = [&](const VectorXd& c, double value) { normals.push_back(c); bounds.push_back(value); };
+    // y = scaled variables / scale; the slacks' scale 1 / sqrt(weight): their Hessian 1, their gradient sqrt(weight)
+    VectorXd scale(variables);
+    scale.head(N) = scaled.scale;
+    scale.tail(slacks).setConstant(1.0 / std::sqrt(weight));
+    Eigen::MatrixXd J0 = Eigen::MatrixXd::Identity(variables, variables);
+    J0.topLeftCorner(N, N) = scaled.J0;
+    VectorXd y0(variables);
+    y0.head(N) = scaled.y0;
+    y0.tail(slacks).setConstant(-weight * scale[variables - 1]);
+    // bounds: the torque box on delta, slacks >= 0
+    VectorXd lower_bound(variables), upper_bound(variables);
     for (int i = 0; i < N; ++i) {
-      VectorXd c = VectorXd::Zero(variables);
-      c[i] = 1.0;
-      add(c, lower_step[i]);
-      c[i] = -1.0;
-      add(c, -upper_step[i]);
+      lower_bound[i] = lower_step[i] / scale[i];
+      upper_bound[i] = upper_step[i] / scale[i];
     }
-    for (int j = 0; j < slacks; ++j) {
-      VectorXd c = VectorXd::Zero(variables);
-      c[N + j] = 1.0;
-      add(c, 0.0);
-    }
-    for (int j = 0; j < chosen; ++j) {
+    lower_bound.tail(slacks).setZero();
+    upper_bound.tail(slacks).setConstant(std::numeric_limits<double>::infinity());
+    // the rows' two sides, C^T x >= b in the unscaled variables, then scaled: c^T x = (c .* scale)^T y
+    int sides = 0;
+    for (int j = 0; j < chosen; ++j)
+      sides += std::isfinite(lower[rows[j] % s]) + std::isfinite(upper[rows[j] % s]);
+    Eigen::MatrixXd C = Eigen::MatrixXd::Zero(variables, sides);
+    VectorXd b(sides);
+    for (int j = 0, column = 0; j < chosen; ++j) {
       const int row = rows[j];
       const double lo = lower[row % s] - base[row], hi = upper[row % s] - base[row];
-      if (std::isfinite(lo)) {
-        VectorXd c = VectorXd::Zero(variables);
-        c.head(N) = gamma.row(row).transpose();
-        if (soft) c[N + j] = 1.0;
-        add(c, lo);
-      }
-      if (std::isfinite(hi)) {
-        VectorXd c = VectorXd::Zero(variables);
-        c.head(N) = -gamma.row(row).transpose();
-        if (soft) c[N + j] = 1.0;
-        add(c, -hi);
+      for (int side = 0; side < 2; ++side) {
+        const double bound = side == 0 ? lo : -hi;
+        if (!std::isfinite(side == 0 ? lo : hi)) continue;
+        C.col(column).head(N) = (side == 0 ? 1.0 : -1.0) * gamma.row(row).transpose().cwiseProduct(scale.head(N));
+        if (soft) C(N + j, column) = scale[N + j];
+        b[column++] = bound;
       }
     }
-    Eigen::MatrixXd C(variables, normals.size());
-    VectorXd b(normals.size());
-    for (size_t i = 0; i < normals.size(); ++i) {
-      C.col(i) = normals[i].cwiseProduct(scale);    // c^T x = (c .* scale)^T y with x = scale .* y
-      b[i] = bounds[i];
-    }
-    Eigen::MatrixXd G_scaled = scale.asDiagonal() * G * scale.asDiagonal();
-    VectorXd a_scaled = a.cwiseProduct(scale), y;
+    VectorXd y;
     int used = 0;
-    const auto status = DualActiveSet::solve(G_scaled, a_scaled, C, b, y, std::max(budget, 1), used);
+    const auto status = DualActiveSet::solve(J0, y0, lower_bound, upper_bound, C, b, y, std::max(budget, 1), used);
     budget -= used;
     if (status == DualActiveSet::infeasible && !soft && chosen) return 0;
     if (status == DualActiveSet::iteration_limit && !soft && chosen) return 0;
