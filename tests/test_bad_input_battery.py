@@ -188,6 +188,8 @@ BROKEN_UR10 = {  # bad_NAME.urdf: ur10.urdf with (regular expression, replacemen
     "nbsp_mass": ('<mass value="4.27"/>', '<mass value="4.27\u00a0"/>'),   # (shown as \xa0, not invisible)
     # (held-out run 16: a second <mass>, negative, which Drake ignores without a word)
     "two_masses": ('<mass value="4.27"/>', '<mass value="4.27"/><mass value="-4.27"/>'),
+    # (held-out run 22: a mass below the smallest normal double, whose inertia per unit mass Drake makes inf)
+    "subnormal_mass": ('<mass value="4.27"/>', '<mass value="2e-320"/>'),
 }
 
 
@@ -313,6 +315,13 @@ def write_issue_25_inputs(box) -> None:
                                                     "<drake:gear_ratio>1e-320</drake:gear_ratio>", ""))
     (box / "huge_mimic.sdf").write_text(joint.format("", '<drake:mimic joint="j" multiplier="1e300" offset="0"/>'))
     (box / "icem_tsinf.yaml").write_text("optimizer: !Icem {propagation: tsinf, particles: 5}\n")
+    # (held-out run 22: SDF shapes that leave a dimension out, a world that includes a file it cannot find)
+    (box / "no_radius.sdf").write_text(link.format("", "0 0 0.1 0 0 0").replace(
+        "</link>", '<collision name="c"><geometry><sphere></sphere></geometry></collision></link>'))
+    (box / "no_cylinder_radius.sdf").write_text(link.format("", "0 0 0.1 0 0 0").replace(
+        "</link>", '<collision name="c"><geometry><cylinder><length>0.3</length></cylinder></geometry></collision></link>'))
+    (box / "world_remote.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>https://example.invalid/arm.sdf'
+                                          '</uri></include></world></sdf>')
     # (held-out run 21: a xacro macro in a .urdf, an SDF that includes itself through a folder that is not there)
     (box / "huge_range.urdf").write_text(urdf.replace('lower="-6.283185307179586" upper="6.283185307179586"',
                                                       'lower="-1e300" upper="1e300"', 1))
@@ -1032,6 +1041,22 @@ CASES = [
     (yaml_case("ctrl", "controller: !Pid\n  kp: [100]\n  ki: [0]\n  kd: [1]\n  dither_std: [1.0e6]\n"),
      "controller dither_std 1e+06 N m on wrist_1_joint is beyond its effort limit 56 N m"),
     (["robot", "init", "huge_range.urdf", "-o", "NEW.yaml"], "has the lower position limit -1e+300, beyond 1e+06"),
+    # (held-out run 22: a link mass below 2.2e-308 kg, an identify window dropped among others, particles or a
+    # variance weight written with mean propagation at their default values, SDF shapes without a dimension, a
+    # world's include these checks cannot find)
+    (["robot", "init", "bad_subnormal_mass.urdf", "-o", "NEW.yaml"],
+     "a mass is 0 (a massless frame) or at least 2.23e-308 kg"),
+    ([*E, "--robot", "bad_subnormal_mass.yaml", "-o", "NEW.h5"], "a mass is 0 (a massless frame) or at least 2.23e-308 kg"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--derivatives", "smoothed", "--windows", "5", "1000001"],
+     "smoothing window [1000001] of --windows [5, 1000001] leaves no sample inside trajectories of"),
+    (yaml_case("mpc", "optimizer: !Icem {propagation: mean, particles: 1}\n"),
+     "optimizer !Icem's particles needs `propagation: ts1` or `tsinf`"),
+    (yaml_case("mpc", "optimizer: !Mppi {variance_weight: 0.0}\n"),
+     "optimizer !Mppi's variance_weight needs `propagation: ts1` or `tsinf`"),
+    (["robot", "init", "no_radius.sdf", "-o", "NEW.yaml"], "its <sphere> gives no <radius>; SDFormat would read its default"),
+    (["robot", "init", "no_cylinder_radius.sdf", "-o", "NEW.yaml"], "its <cylinder> gives no <radius>"),
+    (["robot", "init", "world_remote.sdf", "-o", "NEW.yaml"],
+     "its world includes 'https://example.invalid/arm.sdf', a file these checks cannot find"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -520,3 +520,15 @@ def test_an_sdf_include_is_read_with_the_same_checks(tmp_path, capsys):
         assert not (tmp_path / "r.yaml").exists()
     (tmp_path / "child" / "model.sdf").write_text(model)   # the included model's own links are Drake's to scope
     assert "ch::upper" not in read_description(tmp_path / "r.sdf").links
+
+
+def test_a_link_mass_drake_would_divide_into_inf_is_refused():
+    """(held-out run 22) A mass between 0 and the smallest normal double, or one whose inertia divided by it overflows
+    (Drake's plant holds inertia per unit mass: inf, simulated without a word), is one line; a tiny mass whose
+    inertia per unit mass is finite is Drake's to take."""
+    from stdm_drake.robots.description import Inertial, check_inertial
+    with pytest.raises(InputError, match=r"a mass is 0 \(a massless frame\) or at least 2.23e-308 kg"):
+        check_inertial(Inertial(2e-320, np.diag([0.01] * 3)), "link 'x'")
+    with pytest.raises(InputError, match="per unit mass they overflow a double"):
+        check_inertial(Inertial(3e-308, np.diag([10.0] * 3)), "link 'x'")
+    check_inertial(Inertial(1e-300, np.diag([0.01] * 3)), "link 'x'")

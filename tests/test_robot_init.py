@@ -507,3 +507,10 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
     (tmp_path / "world.yaml").write_text((tmp_path / "bare.yaml").read_text().replace("bare.sdf", "world.sdf"))
     assert main(["robot", "check", str(tmp_path / "world.yaml")]) == 2
     assert "holds 2 models (arm, other), expected one" in capsys.readouterr().err
+    # (held-out run 22: refused as "no root link") a world that <include>s the arm's file: the file is its model
+    (tmp_path / "world_include.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>bare.sdf</uri>'
+                                                '<name>arm</name></include></world></sdf>')
+    assert main(["robot", "init", str(tmp_path / "world_include.sdf"), "-o", str(tmp_path / "world_include.yaml")]) == 0
+    assert main(["robot", "check", str(tmp_path / "world_include.yaml")]) == 0
+    np.testing.assert_allclose(Dynamics(load_robot(tmp_path / "world_include.yaml")).mass_matrix(home),
+                               bare.mass_matrix(home))

@@ -169,13 +169,15 @@ def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
     return load_yaml_config(path, MpcConfig, what="MPC config")
 
 
+
 OLD_OPTIMIZER_KEYS = ("max_iterations", "line_search", "regularization")   # top-level keys before the tag
 
 
 def _check_optimizer_layout(path) -> None:
     """InputError naming the tagged `optimizer:` to write when the file at `path` sets the optimizer the old
     way (its name as a plain value, its settings at the top level), names an unknown tag or gives a tag no
-    mapping (Drake's typed load would read a plain value into the default optimizer's first field)."""
+    mapping (Drake's typed load would read a plain value into the default optimizer's first field); and for a
+    sampler's particle settings that its mean propagation would ignore."""
     document = read_yaml_document(path)
     if not isinstance(document, dict):
         return   # (missing, unreadable, not a mapping: the typed load says why)
@@ -191,6 +193,15 @@ def _check_optimizer_layout(path) -> None:
     if tag == "Rti" and any(key.value == "max_iterations" for key, _ in node.value):
         raise InputError(f"{path}: optimizer !Rti runs a fixed number of iterations per control step: write "
                          "`iterations:` for its `max_iterations:`")
+    # a sampler's particle settings with mean propagation (written or by default), which would ignore them: refused
+    # at any value, their defaults too
+    settings = document.get("optimizer") if tag in ("Cem", "Icem", "Mppi") else None
+    ignored = [key for key in ("particles", "variance_weight") if key in settings] if isinstance(settings, dict) and \
+        settings.get("propagation", "mean") == "mean" else []
+    if ignored:
+        raise InputError(f"{path}: optimizer !{tag}'s {' and '.join(ignored)} {'need' if len(ignored) > 1 else 'needs'} "
+                         "`propagation: ts1` or `tsinf`; with `propagation: mean` each sample rolls out one particle (the "
+                         "ensemble's mean) and would ignore them, whatever their value")
     old = [key for key in OLD_OPTIMIZER_KEYS if key in document]
     if not old and (node is None or isinstance(node, yaml.MappingNode)):
         return

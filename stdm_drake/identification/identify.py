@@ -55,13 +55,22 @@ class IdentifySettings:
                                  f">= 5, got {window}")
 
 
-def usable_windows(dataset, split, settings: IdentifySettings) -> tuple:
+def usable_windows(dataset, split, settings: IdentifySettings, given: bool = False) -> tuple:
     """The smoothing windows of `settings` that leave samples inside the split's shortest trajectory ((0,): no
-    smoothing, for true derivatives); InputError (one line) where none does."""
+    smoothing, for true derivatives); InputError (one line) where none does, or where `given` (the user's
+    --windows, not the default candidates) and any one does not: a candidate is refused, never dropped."""
     if settings.derivative_source != "smoothed":
         return (0,)
     shortest = min(dataset.trajectory(int(i)).num_steps for i in [*split.train, *split.val, *split.test])
     windows = tuple(window for window in settings.windows if fits_window(shortest, window))
+    if given and windows and len(windows) < len(settings.windows):
+        longer = [window for window in settings.windows if window not in windows]
+        widest = 2 * ((shortest - 2) // 2) + 1
+        fix = f"give windows of at most {widest}" if widest >= 5 else "give 1 (no smoothing)"
+        several = len(longer) > 1
+        raise InputError(f"identify: smoothing window{'s' if several else ''} {longer} of --windows "
+                         f"{list(settings.windows)} leave{'' if several else 's'} no sample inside trajectories of "
+                         f"{shortest} steps (the split's shortest); {fix}")
     if not windows:
         raise InputError(f"identify: no smoothing window of {list(settings.windows)} fits trajectories of {shortest} "
                          "steps")

@@ -79,7 +79,7 @@ def identify_job(job: IdentifyJob) -> dict:
     robot = resolve_robot(job.robot, dataset)
     robot.check_fully_actuated("identification")
     split, _ = dataset_split(dataset, job)   # (the job's train, val, test, per_group and split_seed)
-    usable_windows(dataset, split, settings)   # (before the first line: a window no trajectory fits is the refusal)
+    usable_windows(dataset, split, settings, given=job.windows is not None)   # (before the first line: a window no trajectory fits is the refusal)
     if job.progress:
         print(f"identify {robot.name} from {job.dataset}: train {len(split.train)} / val {len(split.val)} / "
               f"test {len(split.test)} trajectories, derivatives {settings.derivative_source}", file=sys.stderr)

@@ -10,6 +10,7 @@ import logging
 import math
 import pathlib
 import re
+import sys
 
 import numpy as np
 
@@ -138,12 +139,13 @@ def _urdf(root) -> Description:
     return Description(links, joints, name=root.get("name") or "")
 
 
-def _sdf(root) -> Description:
+def _sdf(root, included_models: int = 0) -> Description:
     """SDFormat's defaults: a link without <inertial> has mass 1 kg and unit inertia; a velocity or effort
     limit below 0 means none. Names are scoped as SDFormat scopes them: a nested model's links and joints are
     "inner::name", and where the file holds several models (a world of two arms) every name is "model::name",
     so two models that both have a link "base" are two links, not one link with two parents; a joint placed in
-    the world itself names its links scoped ("arm::tool")."""
+    the world itself names its links scoped ("arm::tool"). `included_models`: the models the file's worlds
+    <include> (`read_description` reads them), counted among the top-level ones."""
     links, joints = {}, []
     defaults = dict(mass=1.0, ixx=1.0, iyy=1.0, izz=1.0, ixy=0.0, ixz=0.0, iyz=0.0)
 
@@ -175,14 +177,16 @@ def _sdf(root) -> Description:
         read_joints(model, prefix)
 
     top = list(models(root))
-    pending = [(model, f"{model.get('name', '')}::" if len(top) > 1 else "") for model in reversed(top)]
+    several = len(top) + included_models > 1
+    pending = [(model, f"{model.get('name', '')}::" if several else "") for model in reversed(top)]
     while pending:   # (depth first, without recursion: a file may nest thousands of models)
         model, prefix = pending.pop()
         read_model(model, prefix)
         pending += [(nested, f"{prefix}{nested.get('name', '')}::") for nested in reversed(model.findall("model"))]
     for world in root.iter("world"):
         read_joints(world, "")
-    return Description(links, joints, max(1, len(top)), top[0].get("name") or "" if len(top) == 1 else "")
+    return Description(links, joints, max(1, len(top) + included_models),
+                       top[0].get("name") or "" if len(top) == 1 and not included_models else "")
 
 
 def read_description(path: pathlib.Path, including: tuple = (), packages: dict | None = None) -> Description:
@@ -204,8 +208,10 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
     if template is not None:
         raise InputError(f"{path.name} is a xacro template (its {template}): expand it first (`xacro {path.name} > "
                          "robot.urdf`; xacro: pip install xacro, or your ROS distribution's)")
+    # a world's <include>s are its models (a model's own are nested in it: Drake scopes them)
+    world_includes = [include for world in root.iter("world") for include in world.findall("include")]
     try:
-        description = _sdf(root) if root.tag == "sdf" else _urdf(root)
+        description = _sdf(root, len(world_includes)) if root.tag == "sdf" else _urdf(root)
         xml_file.check_numbers(root, PLAIN_NUMBER)
     except UnreadNumber as error:
         raise InputError(f"{path.name}: {error}, not a number as URDF and SDF write one (decimal digits, an optional "
@@ -214,19 +220,43 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
         raise InputError(f"{path.name}: {error}") from None
     if root.tag == "sdf" and len(including) < xml_file.MAX_INCLUDE_DEPTH:
         chain = (*including, pathlib.Path(path).resolve())
-        for included in xml_file.included_files(root, path, packages):
+
+        def read_included(included: pathlib.Path) -> Description:
             if included.resolve() in chain:
                 start = chain.index(included.resolve())
                 names = " -> ".join(item.name for item in (*chain[start:], included))
                 who = "" if start == 0 else f" its included {included.name}"
                 raise InputError(f"{chain[0].name}:{who} includes itself ({names}); Drake's parser would not end")
-            inner = read_description(included, chain, packages)
+            return read_description(included, chain, packages)
+
+        for include in world_includes:
+            included = xml_file.include_target(include, path, packages)
+            if included is None:
+                raise InputError(f"{path.name}: its world includes {(include.findtext('uri') or '').strip()!r}, a file "
+                                 "these checks cannot find (give a path, file://, or package:// or model:// of the "
+                                 "robot config's package_paths)")
+            _add_world_model(description, read_included(included), include, several=description.models > 1)
+        model_includes = [include for include in root.iter("include") if all(include is not w for w in world_includes)]
+        for included in xml_file.included_files(root, path, packages, model_includes):
+            inner = read_included(included)
             for link, inertial in [*inner.links.items(), *inner.included.items()]:
                 name = f"{included.name}: {link}" if link in inner.links else link
                 if inertial is not None:
                     check_inertial(inertial, f"{path.name}: its included {included.name}: link {link!r}")
                     description.included[name] = inertial
     return description
+
+
+def _add_world_model(description: Description, model: Description, include, several: bool) -> None:
+    """The links and joints of a model a world includes (`model`, read from its file) into the world's
+    `description`, scoped "name::" (the include's <name>, else the model's) where the world holds several models."""
+    name = (include.findtext("name") or "").strip() or model.name
+    prefix, description.name = (f"{name}::", "") if several else ("", name)
+    description.links.update({prefix + link: inertial for link, inertial in model.links.items()})
+    description.joints += [dataclasses.replace(joint, name=prefix + joint.name, child=joint.child and prefix + joint.child,
+                                               parent=joint.parent if joint.parent in ("world", "") else prefix + joint.parent)
+                           for joint in model.joints]
+    description.included.update(model.included)
 
 
 def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dict | None = None,
@@ -305,8 +335,14 @@ def check_inertial(inertial: Inertial, where: str) -> None:
         return
     if not math.isfinite(mass) or mass < 0:
         raise InputError(f"{where} has mass {mass:g} kg; a mass is a finite number >= 0")
+    if 0 < mass < sys.float_info.min:   # (Drake divides the inertia by it: inf, and the plant simulates inf)
+        raise InputError(f"{where} has mass {mass:g} kg; a mass is 0 (a massless frame) or at least "
+                         f"{sys.float_info.min:.3g} kg")
     if not np.isfinite(inertia).all():
         raise InputError(f"{where} has a non-finite inertia entry; give finite ixx, ixy, ixz, iyy, iyz, izz (kg m²)")
+    if mass > 0 and not np.isfinite(inertia / mass).all():
+        raise InputError(f"{where} has inertia entries up to {np.abs(inertia).max():g} kg m² for a mass of {mass:g} "
+                         "kg: per unit mass they overflow a double (Drake's plant would hold inf)")
 
 
 def inertia_substitution(inertial: Inertial) -> str | None:

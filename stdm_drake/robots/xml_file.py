@@ -254,6 +254,9 @@ def _check_offset(words: list, what: str) -> None:
 MIN_LENGTH = 1e-6   # m: a micrometre, far below any part of a robot (a side of 1e-300 m has a volume of 0 in doubles)
 SHAPE_DIMENSIONS = {"box": ("size",), "cylinder": ("radius", "length"), "capsule": ("radius", "length"),
                     "sphere": ("radius",), "ellipsoid": ("a", "b", "c", "radii")}
+# an SDF shape's dimensions that SDFormat fills with a default (1 m) where the file leaves them out
+SDF_DIMENSIONS = {"box": ("size",), "cylinder": ("radius", "length"), "capsule": ("radius", "length"),
+                  "sphere": ("radius",), "ellipsoid": ("radii",)}
 
 
 def _check_shapes(geometry, owner: str, sdf: bool) -> None:
@@ -264,6 +267,9 @@ def _check_shapes(geometry, owner: str, sdf: bool) -> None:
             if sdf:
                 found = next((child for child in shape if child.tag == name), None)
                 text = None if found is None else found.text
+                if name in SDF_DIMENSIONS.get(kind, ()) and not ascii_words(text or ""):
+                    raise WrongCount(f"{owner}: its <{kind}> gives no <{name}>; SDFormat would read its default, 1 m "
+                                     "(give it in m)")
             else:
                 text = shape.get(name)
             try:
@@ -354,27 +360,31 @@ def _numbers(text: str, rule, what: str, error) -> None:
 MAX_INCLUDE_DEPTH = 8   # SDF <include>s followed from one file (a file that includes itself stops here)
 
 
-def included_files(root, path: pathlib.Path, packages: dict | None = None) -> list[pathlib.Path]:
-    """The local files the <include>s of an SDF's tree `root` (read from `path`) name: a relative path, a file:// URI
-    or a package:// or model:// URI of one of `packages` (name -> folder: the robot config's package_paths), of an
-    SDF file or of a model folder (its model.config's first <sdf> file). Other URIs (another package, a web address)
-    are Drake's to resolve, and the files they name are not read here."""
-    found = []
-    for include in root.iter("include"):
-        uri = (include.findtext("uri") or "").strip(ASCII_SPACE)
-        scheme = next((scheme for scheme in ("package://", "model://") if uri.startswith(scheme)), None)
-        package, _, rest = uri.removeprefix(scheme or "").partition("/")
-        if scheme is not None and package in (packages or {}):   # (Drake reads model://NAME as package://NAME)
-            uri = str(pathlib.Path(packages[package]) / rest)
-        if not uri or ("://" in uri and not uri.startswith("file://")):
-            continue
-        target = pathlib.Path(uri.removeprefix("file://"))
-        # (as SDFormat joins it: `./sub/../arm.sdf` is arm.sdf, whether or not a folder `sub` exists)
-        target = pathlib.Path(os.path.normpath(target if target.is_absolute() else pathlib.Path(path).parent / target))
-        if target.is_dir() and (config := target / "model.config").is_file():
-            check_xml(config, "a model.config is")
-            name = (parse(config).getroot().findtext("sdf") or "").strip(ASCII_SPACE)
-            target = target / name if name else target
-        if target.is_file():
-            found.append(target)
-    return found
+def included_files(root, path: pathlib.Path, packages: dict | None = None, includes=None) -> list[pathlib.Path]:
+    """The local files the <include>s of an SDF's tree `root` (read from `path`; `includes`: these <include>
+    elements only) name, as `include_target` finds them; the others are Drake's to resolve, not read here."""
+    found = [include_target(include, path, packages)
+             for include in (root.iter("include") if includes is None else includes)]
+    return [target for target in found if target is not None]
+
+
+def include_target(include, path: pathlib.Path, packages: dict | None = None) -> pathlib.Path | None:
+    """The local file an SDF <include> element (of the file at `path`) names: a relative path, a file:// URI or a
+    package:// or model:// URI of one of `packages` (name -> folder: the robot config's package_paths), of an SDF
+    file or of a model folder (its model.config's first <sdf> file); None for another URI (another package, a web
+    address) or a file that is not there."""
+    uri = (include.findtext("uri") or "").strip(ASCII_SPACE)
+    scheme = next((scheme for scheme in ("package://", "model://") if uri.startswith(scheme)), None)
+    package, _, rest = uri.removeprefix(scheme or "").partition("/")
+    if scheme is not None and package in (packages or {}):   # (Drake reads model://NAME as package://NAME)
+        uri = str(pathlib.Path(packages[package]) / rest)
+    if not uri or ("://" in uri and not uri.startswith("file://")):
+        return None
+    target = pathlib.Path(uri.removeprefix("file://"))
+    # (as SDFormat joins it: `./sub/../arm.sdf` is arm.sdf, whether or not a folder `sub` exists)
+    target = pathlib.Path(os.path.normpath(target if target.is_absolute() else pathlib.Path(path).parent / target))
+    if target.is_dir() and (config := target / "model.config").is_file():
+        check_xml(config, "a model.config is")
+        name = (parse(config).getroot().findtext("sdf") or "").strip(ASCII_SPACE)
+        target = target / name if name else target
+    return target if target.is_file() else None
