@@ -219,11 +219,11 @@ def test_colored_noise_has_unit_variance_and_more_low_frequency_power():
     ("optimizer: !Icem {noise_std: 0.0}\n", "noise_std must be in [1e-12, 10000] rad/s^2"),
     # settings that mean nothing (issue 56): a spread that only clips, what `propagation: mean` would ignore
     ("optimizer: !Icem {noise_std: 1.0e+300}\n", "noise_std must be in [1e-12, 10000] rad/s^2"),
-    ("optimizer: !Icem {particles: 5}\n", "particles 5 need `propagation: ts1` or `tsinf`"),
+    ("optimizer: !Icem {particles: 5}\n", "optimizer !Icem's particles needs `propagation: ts1` or `tsinf`"),
     ("optimizer: !Icem {samples: \"100\"}\n", "optimizer.samples is '100' in quotes, not a number; write the number without quotes"),
     ("horizon: '20'\n", "horizon is '20' in quotes, not a number"),
     ("position_weight: [1.0e4, '10']\n", "position_weight is '10' in quotes"),
-    ("optimizer: !Mppi {propagation: mean, variance_weight: 1.0}\n", "variance_weight 1 needs `propagation: ts1`"),
+    ("optimizer: !Mppi {propagation: mean, variance_weight: 1.0}\n", "optimizer !Mppi's variance_weight needs `propagation: ts1`"),
     ("optimizer: !Icem {population_decay: 0.5}\n", "population_decay must be >= 1"),
     ("optimizer: !Pets {}\n", "unknown optimizer !Pets; the MPC's optimizers are !Rti, !Ilqr, !Icem, !Mppi, !Cem"),
     ("optimizer: !Ilqr {line_search: [" + ", ".join(["0.5"] * 31) + "]}\n", "line_search lists 31 steps, at most 30"),

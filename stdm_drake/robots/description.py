@@ -340,7 +340,9 @@ def check_inertial(inertial: Inertial, where: str) -> None:
                          f"{sys.float_info.min:.3g} kg")
     if not np.isfinite(inertia).all():
         raise InputError(f"{where} has a non-finite inertia entry; give finite ixx, ixy, ixz, iyy, iyz, izz (kg m²)")
-    if mass > 0 and not np.isfinite(inertia / mass).all():
+    with np.errstate(over="ignore"):   # (the overflow is the refusal's, not a warning of its own)
+        per_unit_mass = inertia / mass if mass > 0 else np.zeros(3)
+    if not np.isfinite(per_unit_mass).all():
         raise InputError(f"{where} has inertia entries up to {np.abs(inertia).max():g} kg m² for a mass of {mass:g} "
                          "kg: per unit mass they overflow a double (Drake's plant would hold inf)")
 
