@@ -489,6 +489,10 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
     at_tip = RobotKinematics(robot=load_robot(tmp_path / "tip_tool.yaml")).tool_pose(home)
     at_fore = RobotKinematics(robot=load_robot(tmp_path / "tooled.yaml")).tool_pose(home)
     assert np.linalg.norm(at_tip.translation() - at_fore.translation()) == pytest.approx(0.2)   # (0.7 m against 0.5 m)
+    (tmp_path / "scoped_tool.yaml").write_text((tmp_path / "tip_tool.yaml").read_text().replace(
+        "tool_frame: tip::tip_link", "tool_frame: arm::tip::tip_link"))   # (also with the arm's own model name first)
+    at_scoped = RobotKinematics(robot=load_robot(tmp_path / "scoped_tool.yaml")).tool_pose(home)
+    np.testing.assert_allclose(at_scoped.translation(), at_tip.translation())
     capsys.readouterr()
     moving = include + weld.replace('type="fixed"', 'type="revolute"').replace("</child>", "</child><axis><xyz>0 1 0</xyz>"
                                                                               "<limit><lower>-1</lower><upper>1</upper>"

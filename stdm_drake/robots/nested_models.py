@@ -38,8 +38,10 @@ def check_nested_fixed(plant: MultibodyPlant, instance, where: str) -> None:
 
 def frame_by_name(plant: MultibodyPlant, name: str, instance=None):
     """The frame `name` of the robot: its own model's (in `instance`, or the plant's one frame of that name), or
-    one of a model nested in it by its scoped name ("tip::tool0": frame tool0 of the nested model tip); None where
-    there is none."""
+    one of a model nested in it by its scoped name ("tip::tool0": frame tool0 of the nested model tip), either also
+    written with the robot's own model name first ("arm::tool0", "arm::tip::tool0"); None where there is none."""
+    if instance is not None and name.startswith(plant.GetModelInstanceName(instance) + "::"):
+        name = name.removeprefix(plant.GetModelInstanceName(instance) + "::")
     if "::" not in name:
         if instance is None:
             return plant.GetFrameByName(name) if plant.HasFrameNamed(name) else None
@@ -47,7 +49,8 @@ def frame_by_name(plant: MultibodyPlant, name: str, instance=None):
     scope, local = name.rsplit("::", 1)
     candidates = (map(ModelInstanceIndex, range(plant.num_model_instances())) if instance is None
                   else nested_instances(plant, instance))
-    owners = [index for index in candidates if plant.GetModelInstanceName(index).endswith("::" + scope)]
+    owners = [index for index in candidates if plant.GetModelInstanceName(index) == scope
+              or plant.GetModelInstanceName(index).endswith("::" + scope)]
     found = [plant.GetFrameByName(local, owner) for owner in owners if plant.HasFrameNamed(local, owner)]
     return found[0] if len(found) == 1 else None
 
