@@ -20,6 +20,7 @@ results go to out/) and a study that writes no results (`WRITES_RESULTS = False`
 from __future__ import annotations
 
 import ast
+import functools
 import importlib
 import os
 import pathlib
@@ -39,6 +40,7 @@ def on_path() -> None:
             sys.path.insert(0, str(folder))
 
 
+@functools.cache
 def studies() -> dict[str, str]:
     """NAME -> the first line of its docstring, for every study module of tools/studies/ (one that defines
     add_arguments and run; read without importing it). NAME is the module's name with '-' for '_'."""
