@@ -320,6 +320,19 @@ def write_issue_25_inputs(box) -> None:
         "</link>", '<collision name="c"><geometry><sphere></sphere></geometry></collision></link>'))
     (box / "no_cylinder_radius.sdf").write_text(link.format("", "0 0 0.1 0 0 0").replace(
         "</link>", '<collision name="c"><geometry><cylinder><length>0.3</length></cylinder></geometry></collision></link>'))
+    # (held-out run 23: a second <mass> in an SDF link, a world holding an inertia SDFormat refuses there, an arm
+    # inside a wrapper model)
+    arm_sdf = joint.format("", "")
+    (box / "sdf_two_masses.sdf").write_text(arm_sdf.replace('<link name="b"/>', '<link name="b"><inertial><mass>1</mass>'
+                                                            '<mass>2</mass></inertial></link>'))
+    bad_inertia = ('<link name="b"><inertial><mass>1</mass><inertia><ixx>1</ixx><iyy>0.01</iyy><izz>0.01</izz><ixy>0</ixy>'
+                   '<ixz>0</ixz><iyz>0</iyz></inertia></inertial></link>')
+    (box / "world_bad_inertia.sdf").write_text(arm_sdf.replace('<link name="b"/>', bad_inertia).replace(
+        '<sdf version="1.9"><model', '<sdf version="1.9"><world name="w"><model').replace("</model></sdf>",
+                                                                                       "</model></world></sdf>"))
+    (box / "wrapped_arm.sdf").write_text(arm_sdf)
+    (box / "wrapper.sdf").write_text('<sdf version="1.9"><model name="mid"><include><uri>wrapped_arm.sdf</uri></include>'
+                                     '</model></sdf>')
     (box / "world_remote.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>https://example.invalid/arm.sdf'
                                           '</uri></include></world></sdf>')
     # (held-out run 21: a xacro macro in a .urdf, an SDF that includes itself through a folder that is not there)
@@ -807,9 +820,9 @@ CASES = [
     (["robot", "init", "ur10.urdf", "-o", "NEW.yaml", "--density", "1000"], "--density sets the masses from geometry: "
                                                                             "it needs --masses-from-geometry"),
     (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--density", "-5"],
-     "--density must be in (0, 100000], got -5.0"),
+     "--density must be in [0.001, 100000], got -5.0"),
     (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--total-mass", "nan"],
-     "--total-mass must be in (0, 100000], got nan"),
+     "--total-mass must be in [1e-06, 100000], got nan"),
     (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--density", "1000",
       "--total-mass", "30"], "--density and --total-mass both set the masses from geometry: give one"),
     (["robot", "init", "ur10.urdf", "-o", "NEW.yaml", "--masses-from-geometry"],
@@ -1057,6 +1070,13 @@ CASES = [
     (["robot", "init", "no_cylinder_radius.sdf", "-o", "NEW.yaml"], "its <cylinder> gives no <radius>"),
     (["robot", "init", "world_remote.sdf", "-o", "NEW.yaml"],
      "its world includes 'https://example.invalid/arm.sdf', a file these checks cannot find"),
+    # (held-out run 23: a training seed beyond torch's 64-bit generator, refused after the first seed had trained)
+    ([*T, "--seeds", "0", "18446744073709551616", "-o", "NEW"], "seeds (--seeds) must be distinct integers in 0..2^64-1"),
+    (["robot", "init", "sdf_two_masses.sdf", "-o", "NEW.yaml"], "link 'b': its <inertial> states 2 <mass> elements; SDF gives one"),
+    (["robot", "init", "world_bad_inertia.sdf", "-o", "NEW.yaml"], "(SDFormat refuses a world holding link 'b': principal moments"),
+    (["robot", "init", "wrapper.sdf", "-o", "NEW.yaml"], "its model 'mid' holds no link of its own, only the nested model wrapped_arm"),
+    (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--density", "1e-320"],
+     "--density must be in [0.001, 100000], got 1e-320"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -297,8 +297,9 @@ class TrainSettings:
             raise InputError(f"{key('epochs')} {self.epochs:,} for each of {len(self.seeds)} {key('seeds')} are "
                              f"{self.epochs * len(self.seeds):,} epochs, more than the {MAX_TOTAL_EPOCHS:,} one run may "
                              "train: fewer epochs (early stopping ends most runs far sooner) or fewer seeds per run")
-        if any(seed < 0 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
-            raise InputError(f"{key('seeds')} must be distinct non-negative integers, got {list(self.seeds)}")
+        if any(not 0 <= seed < 2 ** 64 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
+            # (torch's generator takes an unsigned 64-bit seed: 2^64 failed after the first seeds had trained)
+            raise InputError(f"{key('seeds')} must be distinct integers in 0..2^64-1, got {list(self.seeds)}")
         if self.split_seed < 0:   # (numpy's generators take non-negative seeds only)
             raise InputError(f"{key('split_seed')} must be a non-negative integer, got {self.split_seed}")
         for name in ("hidden_width", "hidden_layers", "ensemble_size", "epochs", "patience", "batch_size",

@@ -4,9 +4,7 @@ or makes late (a kinematic loop: when the plant is finalized; reversed limits: a
 the process). Each is an InputError naming the link or joint. Used by `stdm_drake.robots.robot`."""
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import logging
 import math
 import pathlib
 import re
@@ -21,11 +19,6 @@ from stdm_drake.robots.xml_file import ASCII_SPACE, UnreadNumber, WrongCount, ch
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
-# What Drake's parsers put in place of a rotational inertia no body has (a negative principal moment, moments
-# that break the triangle inequality; `RotationalInertia.CouldBePhysicallyValid`): a solid sphere of the link's
-# mass at the density of water about the link's centre of mass (drake/multibody/parsing/detail_common.cc,
-# ParseSpatialInertia). The toolbox simulates what Drake simulates, and says so in one line per link.
-SUBSTITUTE_DENSITY = 1000.0   # kg/m³
 
 
 @dataclasses.dataclass
@@ -61,6 +54,7 @@ class Description:
     models: int = 1
     name: str = ""
     included: dict = dataclasses.field(default_factory=dict)   # the included files' links: "file: link" -> Inertial
+    nested: list = dataclasses.field(default_factory=list)     # a lone top model's nested models (inline, included)
 
     def children(self) -> dict:
         """Link name -> the joints whose parent it is."""
@@ -229,14 +223,35 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
                 raise InputError(f"{chain[0].name}:{who} includes itself ({names}); Drake's parser would not end")
             return read_description(included, chain, packages)
 
-        for include in world_includes:
-            included = xml_file.include_target(include, path, packages)
-            if included is None:
-                raise InputError(f"{path.name}: its world includes {(include.findtext('uri') or '').strip()!r}, a file "
+        def target(include, where: str) -> pathlib.Path:
+            found = xml_file.include_target(include, path, packages)
+            if found is None:
+                raise InputError(f"{path.name}: {where} includes {(include.findtext('uri') or '').strip()!r}, a file "
                                  "these checks cannot find (give a path, file://, or package:// or model:// of the "
                                  "robot config's package_paths)")
-            _add_world_model(description, read_included(included), include, several=description.models > 1)
-        model_includes = [include for include in root.iter("include") if all(include is not w for w in world_includes)]
+            return found
+
+        several = description.models > 1
+        for include in world_includes:
+            model = read_included(target(include, "its world"))
+            name = (include.findtext("name") or "").strip() or model.name
+            _check_own_links(model, pathlib.Path(target(include, "its world")).name)
+            description.name = "" if several else name
+            _add_model(description, model, f"{name}::" if several else "")
+        # a top-level model's <include merge="true">: the included links and joints are that model's own
+        tops = [*root.findall("model"), *(model for world in root.iter("world") for model in world.findall("model"))]
+        merged = [(model, include) for model in tops for include in model.findall("include") if include.get("merge") == "true"]
+        for model, include in merged:
+            prefix = f"{model.get('name', '')}::" if several else ""
+            _add_model(description, read_included(target(include, f"its model {model.get('name')!r}")), prefix)
+        done = [*world_includes, *(include for _, include in merged)]
+        model_includes = [include for include in root.iter("include") if all(include is not d for d in done)]
+        if len(tops) == 1 and not several:
+            description.nested = sorted({model.get("name", "") for model in tops[0].findall("model")} | {
+                (include.findtext("name") or "").strip() or pathlib.Path((include.findtext("uri") or "").strip()).stem
+                for include in tops[0].findall("include") if include.get("merge") != "true"})
+        if not including:
+            _check_own_links(description, path.name)
         for included in xml_file.included_files(root, path, packages, model_includes):
             inner = read_included(included)
             for link, inertial in [*inner.links.items(), *inner.included.items()]:
@@ -247,11 +262,18 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
     return description
 
 
-def _add_world_model(description: Description, model: Description, include, several: bool) -> None:
-    """The links and joints of a model a world includes (`model`, read from its file) into the world's
-    `description`, scoped "name::" (the include's <name>, else the model's) where the world holds several models."""
-    name = (include.findtext("name") or "").strip() or model.name
-    prefix, description.name = (f"{name}::", "") if several else ("", name)
+def _check_own_links(description: Description, where: str) -> None:
+    """InputError for a lone model with no link of its own, only nested models (an arm inside a wrapper model: Drake
+    loads the arm as the nested instance, and a robot's links and joints are its own model's)."""
+    if description.nested and not any("::" not in link for link in description.links):
+        raise InputError(f"{where}: its model {description.name!r} holds no link of its own, only the nested model"
+                         f"{'s' if len(description.nested) > 1 else ''} {', '.join(description.nested)}: a robot's links "
+                         "and joints are its own model's (write the arm into it, or include it with merge=\"true\")")
+
+
+def _add_model(description: Description, model: Description, prefix: str) -> None:
+    """The links and joints of an included `model` (read from its file) into `description`, scoped `prefix`: a
+    world's model ("name::" where the world holds several), or a model's merged include (its own scope)."""
     description.links.update({prefix + link: inertial for link, inertial in model.links.items()})
     description.joints += [dataclasses.replace(joint, name=prefix + joint.name, child=joint.child and prefix + joint.child,
                                                parent=joint.parent if joint.parent in ("world", "") else prefix + joint.parent)
@@ -345,64 +367,6 @@ def check_inertial(inertial: Inertial, where: str) -> None:
     if not np.isfinite(per_unit_mass).all():
         raise InputError(f"{where} has inertia entries up to {np.abs(inertia).max():g} kg m² for a mass of {mass:g} "
                          "kg: per unit mass they overflow a double (Drake's plant would hold inf)")
-
-
-def inertia_substitution(inertial: Inertial) -> str | None:
-    """What Drake's parser simulates in place of a link's rotational inertia that fails Drake's own test
-    (`RotationalInertia.CouldBePhysicallyValid`: a negative principal moment, or moments that break the
-    triangle inequality beyond Drake's round-off): the file's moments, why no body has them, and the solid
-    sphere Drake uses (the link's mass m kg at SUBSTITUTE_DENSITY: I = 2/5 m r² about each axis through the
-    centre of mass, r = (3 m / (4 pi density))^(1/3) m). None for an inertia Drake takes as written, a massless
-    frame, or a mass these checks cannot read."""
-    from pydrake.multibody.tree import RotationalInertia
-    mass, inertia = inertial.mass, inertial.inertia
-    if mass is None or not mass > 0 or not np.isfinite(inertia).all():
-        return None
-    if RotationalInertia(inertia[0, 0], inertia[1, 1], inertia[2, 2], inertia[0, 1], inertia[0, 2],
-                         inertia[1, 2]).CouldBePhysicallyValid():
-        return None
-    moments = np.linalg.eigvalsh(inertia)
-    why = ("one of them negative" if moments[0] < 0 else
-           f"breaking the triangle inequality by {(moments[2] - moments[0] - moments[1]) / moments[2]:.1%} of the largest")
-    radius = (3.0 * mass / (4.0 * math.pi * SUBSTITUTE_DENSITY)) ** (1.0 / 3.0)
-    sphere = 0.4 * mass * radius ** 2
-    return (f"principal moments {_moments_text(inertia)} kg m², {why}: no rigid body has them, and Drake simulates "
-            f"the link as a solid sphere of its {mass:g} kg at {SUBSTITUTE_DENSITY:g} kg/m³ instead ({sphere:.4g} kg m² "
-            "about each axis through the centre of mass)")
-
-
-# Drake's parser warnings for an inertia it replaces (several lines each; the robot's own line says it once)
-DRAKE_INERTIA_WARNINGS = ("While parsing inertia matrix", "has invalid inertia")
-
-
-@contextlib.contextmanager
-def drake_inertia_warnings_left_out(leave_out: bool):
-    """While Drake parses a description whose replaced inertias were reported (`leave_out`), its own warnings for
-    them are left out; every other warning passes."""
-    drake = logging.getLogger("drake")
-
-    def keep(record) -> bool:
-        return not any(text in record.getMessage() for text in DRAKE_INERTIA_WARNINGS)
-
-    if leave_out:   # (first, so that no other filter counts them: `cli.drake_warnings_once`)
-        drake.filters.insert(0, keep)
-    try:
-        yield
-    finally:
-        drake.removeFilter(keep)
-
-
-def inertia_substitutions(description: Description) -> dict[str, str]:
-    """Per link whose inertia Drake replaces, what it uses instead (`inertia_substitution`); an included file's link
-    as "file: link"."""
-    found = {link: inertia_substitution(inertial) for link, inertial in [*description.links.items(),
-                                                                         *description.included.items()] if inertial}
-    return {link: text for link, text in found.items() if text is not None}
-
-
-def _moments_text(inertia: np.ndarray) -> str:
-    """The principal moments (ascending) of a finite (3, 3) inertia, as "[a, b, c]"."""
-    return "[" + ", ".join(f"{value:.4g}" for value in np.linalg.eigvalsh(inertia)) + "]"
 
 
 def check_moved_mass(description: Description, arm_joints, where: str) -> None:

@@ -28,6 +28,8 @@ from stdm_drake.robots import xml_file
 from stdm_drake.robots.xml_file import ASCII_SPACE
 
 DEFAULT_DENSITY = 1300.0    # kg/m³: between the UR-10's 1,570 and the Panda's 1,120 (tests/test_geometry_masses.py)
+MIN_DENSITY = 1e-3   # kg/m³: far below any solid's (air is 1.2)
+MIN_TOTAL_MASS = 1e-6   # kg: a milligram, as a payload's or link's smallest mass
 MAX_DENSITY = 1e5           # kg/m³ (osmium: 22,590)
 MAX_TOTAL_MASS = 1e5        # kg
 MESH_SUFFIXES = (".stl", ".obj", ".dae", ".ply", ".off")   # (trimesh's readers: `meshes.read_mesh`)
@@ -54,10 +56,11 @@ class MassesFromGeometry:
     def validate(self) -> None:
         if self.density is not None and self.total_mass is not None:
             raise InputError("--density and --total-mass both set the masses from geometry: give one")
-        for option, value, top in (("--density", self.density, MAX_DENSITY),
-                                   ("--total-mass", self.total_mass, MAX_TOTAL_MASS)):
-            if value is not None and not (np.isfinite(value) and 0 < value <= top):
-                raise InputError(f"{option} must be in (0, {top:g}], got {value}")
+        # (lower bounds: a density of 1e-320 kg/m³ gave links of no mass, whose centres came out nan)
+        for option, value, low, top in (("--density", self.density, MIN_DENSITY, MAX_DENSITY),
+                                        ("--total-mass", self.total_mass, MIN_TOTAL_MASS, MAX_TOTAL_MASS)):
+            if value is not None and not (np.isfinite(value) and low <= value <= top):
+                raise InputError(f"{option} must be in [{low:g}, {top:g}], got {value}")
 
     def copy_path(self, model: pathlib.Path, folder: pathlib.Path) -> pathlib.Path:
         """Where the description with masses goes: beside the robot config."""

@@ -22,8 +22,8 @@ from pydrake.multibody.plant import MultibodyPlant
 from stdm_drake.config import one_line, require
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
-from stdm_drake.robots.description import (SUFFIXES, check_description, drake_inertia_warnings_left_out,
-                                           inertia_substitutions)
+from stdm_drake.robots.description import SUFFIXES, check_description
+from stdm_drake.robots.inertia_substitution import drake_inertia_warnings_left_out, inertia_substitutions
 from stdm_drake.robots.limit_checks import check_config_limit, limit_overrides, limits_drake_refuses
 from stdm_drake.robots.meshes import mesh_cache_dir
 from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
@@ -124,8 +124,7 @@ class Robot:
     joint_names: the arm joints in order; num_joints; home (n,) rad; tool_frame; model_path and
     model_sha256 (of the description file, recorded in datasets); config_path: the YAML it was loaded
     from (`load_robot`; None in code); inertia_substitutions: per link, what Drake simulates in place of its
-    inertia (`description.inertia_substitution`, also recorded in datasets).
-    """
+    inertia (`inertia_substitution.inertia_substitution`, also recorded in datasets)."""
     config_path: pathlib.Path | None = None
 
     def __init__(self, config: RobotConfig, folder: pathlib.Path):
@@ -284,9 +283,8 @@ class Robot:
         return hashlib.sha256(self.model_path.read_bytes()).hexdigest()
 
     def add_to(self, plant: MultibodyPlant, model_name_prefix: str = ""):
-        """Parse the model into `plant` (not finalized), weld its base, lock the locked joints and add
-        missing arm actuators; return the model instance. model_name_prefix scopes the instance's
-        name ("ghost" gives "ghost::ur10"), so that several copies can share a plant."""
+        """Parse the model into `plant` (not finalized), weld its base, lock the locked joints, add missing arm
+        actuators; return its instance, named with model_name_prefix ("ghost::ur10": copies sharing a plant)."""
         parser = offline_parser(plant, model_name_prefix)
         for name, path in self.package_paths.items():
             parser.package_map().Add(name, str(path))
@@ -296,7 +294,9 @@ class Robot:
                 instances = (parser.AddModels(str(self.model_path)) if text is None
                              else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))
         except (RuntimeError, ValueError) as error:   # (ValueError: a number Drake's parser cannot read, "nan")
-            raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}") from None
+            why = next((f" (SDFormat refuses a world holding link {link!r}: {text.split(':')[0]})" for link, text in
+                        self.inertia_substitutions.items() if "world" in str(error)), "")   # (a model alone: replaced)
+            raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}{why}") from None
         instance = robot_instance(plant, instances, f"robot {self.name}: {self.model_path.name}")
         config = self.config
         if config.weld_frame is not None:

@@ -57,6 +57,9 @@ POSE_VALUE_COUNTS = {"euler_rpy": (6,), "quat_xyzw": (7,)}   # by the <pose>'s r
 # so a second <mass> (a negative one, say) would be a physics nobody checked. (Other elements stated twice are left
 # as Drake reads them: a published quadruped states a joint's <axis> twice.)
 URDF_SINGLE_CHILDREN = {"inertial": ("mass", "origin", "inertia"), "link": ("inertial",)}
+# and SDF's (SDFormat reads one of each; a second, a mass of another value, went unread without a word)
+SDF_SINGLE_CHILDREN = {"inertial": ("mass", "pose", "inertia"), "link": ("inertial",),
+                       "inertia": ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
 
 
 def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None:
@@ -166,6 +169,12 @@ def check_numbers(root, rule) -> None:
             _check_drake_value(element, owner, rule, sdf)
         if element.tag in ("mimic", "drake:mimic"):
             _check_mimic(element, owner, rule)
+        single = (SDF_SINGLE_CHILDREN if sdf else URDF_SINGLE_CHILDREN).get(element.tag, ())
+        for tag in single:
+            if (found := len(element.findall(tag))) > 1:
+                itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
+                raise WrongCount(f"{owner}: {itself} states {found} <{tag}> elements; {'SDF' if sdf else 'URDF'} gives "
+                                 "one (Drake's parser reads the first and ignores the others)")
         if sdf:
             if element.tag == "dynamics":
                 _check_joint_dynamics({child.tag: child.text for child in element}, owner)
@@ -188,11 +197,6 @@ def check_numbers(root, rule) -> None:
         else:
             if element.tag == "dynamics":
                 _check_joint_dynamics(dict(element.attrib), owner)
-            for tag in URDF_SINGLE_CHILDREN.get(element.tag, ()):
-                if (found := len(element.findall(tag))) > 1:
-                    itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
-                    raise WrongCount(f"{owner}: {itself} states {found} <{tag}> elements; URDF gives one "
-                                     "(Drake's parser reads the first and ignores the others)")
             for attribute, text in element.attrib.items():
                 if attribute in NUMBER_ATTRIBUTES or (element.tag == "mass" and attribute == "value"):
                     _numbers(text, rule, f"{owner}: its <{element.tag}> {attribute}", UnreadNumber)
