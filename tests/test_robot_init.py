@@ -493,6 +493,10 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
         "tool_frame: tip::tip_link", "tool_frame: arm::tip::tip_link"))   # (also with the arm's own model name first)
     at_scoped = RobotKinematics(robot=load_robot(tmp_path / "scoped_tool.yaml")).tool_pose(home)
     np.testing.assert_allclose(at_scoped.translation(), at_tip.translation())
+    from pydrake.multibody.plant import MultibodyPlant   # (and in a copy named with a prefix, as replay's ghost)
+    (tmp_path / "own_prefix.yaml").write_text((tmp_path / "tooled.yaml").read_text().replace("tool_frame: fore",
+                                                                                             "tool_frame: arm::fore"))
+    load_robot(tmp_path / "own_prefix.yaml").add_to(MultibodyPlant(0.0), model_name_prefix="ghost")
     capsys.readouterr()
     moving = include + weld.replace('type="fixed"', 'type="revolute"').replace("</child>", "</child><axis><xyz>0 1 0</xyz>"
                                                                               "<limit><lower>-1</lower><upper>1</upper>"
@@ -524,3 +528,5 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
                                          '</include></model></sdf>')
     assert main(["robot", "init", str(tmp_path / "merged.sdf"), "-o", str(tmp_path / "merged.yaml")]) == 0
     np.testing.assert_allclose(Dynamics(load_robot(tmp_path / "merged.yaml")).mass_matrix(home), bare.mass_matrix(home))
+    (tmp_path / "merged_one.sdf").write_text((tmp_path / "merged.sdf").read_text().replace('merge="true"', 'merge=" 1"'))
+    assert main(["robot", "init", str(tmp_path / "merged_one.sdf"), "-o", str(tmp_path / "merged_one.yaml")]) == 0

@@ -26,8 +26,18 @@ def rendered_pixels(recorder: TrajectoryRecorder, folder) -> np.ndarray:
     recorder.publish()
     html, screenshot = folder / "run.html", folder / "shot.png"
     recorder.write_html(html)
-    subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={folder / 'profile'}",
-                    f"--screenshot={screenshot}", html.as_uri()], check=True, capture_output=True, timeout=120)
+    # (headless Chromium now and then hangs on a loaded machine, before or after writing its screenshot: a hung
+    # browser is retried once with a fresh profile; the page and the pixels are checked as ever)
+    for attempt in range(2):
+        try:
+            subprocess.run([chromium(), *CHROMIUM_FLAGS, f"--user-data-dir={folder / f'profile{attempt}'}",
+                            f"--screenshot={screenshot}", html.as_uri()], check=True, capture_output=True, timeout=90)
+            break
+        except subprocess.TimeoutExpired:
+            if screenshot.is_file() and screenshot.stat().st_size > 0:
+                break
+            if attempt:
+                raise
     return matplotlib.image.imread(screenshot)[..., :3]
 
 

@@ -169,7 +169,6 @@ def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
     return load_yaml_config(path, MpcConfig, what="MPC config")
 
 
-
 OLD_OPTIMIZER_KEYS = ("max_iterations", "line_search", "regularization")   # top-level keys before the tag
 
 

@@ -1072,7 +1072,7 @@ struct RealTimeIteration {
     J0.topLeftCorner(N, N) = scaled.J0;
     VectorXd y0(variables);
     y0.head(N) = scaled.y0;
-    y0.tail(slacks).setConstant(-weight * scale[variables - 1]);
+    y0.tail(slacks).setConstant(-std::sqrt(weight));   // (-weight times the slacks' scale)
     // bounds: the torque box on delta, slacks >= 0
     VectorXd lower_bound(variables), upper_bound(variables);
     for (int i = 0; i < N; ++i) {
@@ -1082,9 +1082,9 @@ struct RealTimeIteration {
     lower_bound.tail(slacks).setZero();
     upper_bound.tail(slacks).setConstant(std::numeric_limits<double>::infinity());
     // the rows' two sides, C^T x >= b in the unscaled variables, then scaled: c^T x = (c .* scale)^T y
-    int sides = 0;
+    int sides = 0;   // (counted as the columns are filled below: a side whose bound is finite)
     for (int j = 0; j < chosen; ++j)
-      sides += std::isfinite(lower[rows[j] % s]) + std::isfinite(upper[rows[j] % s]);
+      sides += std::isfinite(lower[rows[j] % s] - base[rows[j]]) + std::isfinite(upper[rows[j] % s] - base[rows[j]]);
     Eigen::MatrixXd C = Eigen::MatrixXd::Zero(variables, sides);
     VectorXd b(sides);
     for (int j = 0, column = 0; j < chosen; ++j) {

@@ -240,7 +240,7 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
             _add_model(description, model, f"{name}::" if several else "")
         # a top-level model's <include merge="true">: the included links and joints are that model's own
         tops = [*root.findall("model"), *(model for world in root.iter("world") for model in world.findall("model"))]
-        merged = [(model, include) for model in tops for include in model.findall("include") if include.get("merge") == "true"]
+        merged = [(model, include) for model in tops for include in model.findall("include") if _merged(include)]
         for model, include in merged:
             prefix = f"{model.get('name', '')}::" if several else ""
             _add_model(description, read_included(target(include, f"its model {model.get('name')!r}")), prefix)
@@ -249,7 +249,7 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
         if len(tops) == 1 and not several:
             description.nested = sorted({model.get("name", "") for model in tops[0].findall("model")} | {
                 (include.findtext("name") or "").strip() or pathlib.Path((include.findtext("uri") or "").strip()).stem
-                for include in tops[0].findall("include") if include.get("merge") != "true"})
+                for include in tops[0].findall("include") if not _merged(include)})
         if not including:
             _check_own_links(description, path.name)
         for included in xml_file.included_files(root, path, packages, model_includes):
@@ -260,6 +260,11 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
                     check_inertial(inertial, f"{path.name}: its included {included.name}: link {link!r}")
                     description.included[name] = inertial
     return description
+
+
+def _merged(include) -> bool:
+    """Whether an SDF <include> merges its model into the including one (SDFormat's booleans: true or 1)."""
+    return (include.get("merge") or "").strip().lower() in ("true", "1")
 
 
 def _check_own_links(description: Description, where: str) -> None:
@@ -288,7 +293,7 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
     inertia on any link; an arm joint that moves no mass at all; a movable joint whose lower position
     limit is above its upper one or whose velocity limit is negative (Drake's assertions end the process);
     an arm joint with a non-finite or zero limit. Principal moments no body has are Drake's to replace
-(`inertia_substitutions` says with what). Massless frames (no <inertial>, or mass 0 and no inertia:
+(`inertia_substitution.inertia_substitutions` says with what). Massless frames (no <inertial>, or mass 0 and no inertia:
     a flange or tool frame), point masses and thin rods are valid bodies and pass; whether each arm joint
     moves inertia about its own axis is checked on the plant (M(home) positive definite,
     `Robot.check_plant`). overrides: per joint name, the limits the robot config gives instead of the
@@ -350,7 +355,7 @@ def check_inertial(inertial: Inertial, where: str) -> None:
     """InputError for a negative or non-finite mass (kg) or a non-finite inertia entry (kg m²): numbers no body
     has and Drake's parser would not use as written (it replaces a negative mass by 1 kg). Principal moments no
     body has (one negative, or breaking the triangle inequality) are Drake's to replace, not refused here:
-    `inertia_substitution` says what Drake uses instead. A mass of 0 is a massless frame whatever its inertia
+    `inertia_substitution.inertia_substitution` says what Drake uses instead. A mass of 0 is a massless frame whatever its inertia
     entries say (they are zeroed before Drake parses the file, `model_file.zero_massless_inertia`)."""
     mass, inertia = inertial.mass, inertial.inertia
     if mass is None:

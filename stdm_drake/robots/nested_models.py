@@ -40,8 +40,12 @@ def frame_by_name(plant: MultibodyPlant, name: str, instance=None):
     """The frame `name` of the robot: its own model's (in `instance`, or the plant's one frame of that name), or
     one of a model nested in it by its scoped name ("tip::tool0": frame tool0 of the nested model tip), either also
     written with the robot's own model name first ("arm::tool0", "arm::tip::tool0"); None where there is none."""
-    if instance is not None and name.startswith(plant.GetModelInstanceName(instance) + "::"):
-        name = name.removeprefix(plant.GetModelInstanceName(instance) + "::")
+    if instance is not None:   # (the instance's name, or its last part: "ghost::arm" for a copy named with a prefix)
+        own = plant.GetModelInstanceName(instance)
+        for prefix in (own + "::", own.rsplit("::", 1)[-1] + "::"):
+            if name.startswith(prefix):
+                name = name.removeprefix(prefix)
+                break
     if "::" not in name:
         if instance is None:
             return plant.GetFrameByName(name) if plant.HasFrameNamed(name) else None

@@ -295,7 +295,7 @@ class Robot:
                              else parser.AddModelsFromString(text, self.model_path.suffix.lower().lstrip(".")))
         except (RuntimeError, ValueError) as error:   # (ValueError: a number Drake's parser cannot read, "nan")
             why = next((f" (SDFormat refuses a world holding link {link!r}: {text.split(':')[0]})" for link, text in
-                        self.inertia_substitutions.items() if "world" in str(error)), "")   # (a model alone: replaced)
+                        self.inertia_substitutions.items() if "Failed to load a world" in str(error)), "")
             raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}{why}") from None
         instance = robot_instance(plant, instances, f"robot {self.name}: {self.model_path.name}")
         config = self.config
