@@ -363,7 +363,7 @@ def check_inertial(inertial: Inertial, where: str) -> None:
     if not math.isfinite(mass) or mass < 0:
         raise InputError(f"{where} has mass {mass:g} kg; a mass is a finite number >= 0")
     if 0 < mass < sys.float_info.min:   # (Drake divides the inertia by it: inf, and the plant simulates inf)
-        raise InputError(f"{where} has mass {mass:g} kg; a mass is 0 (a massless frame) or at least "
+        raise InputError(f"{where} has mass {mass!r} kg; a mass is 0 (a massless frame) or at least "
                          f"{sys.float_info.min:.3g} kg")
     if not np.isfinite(inertia).all():
         raise InputError(f"{where} has a non-finite inertia entry; give finite ixx, ixy, ixz, iyy, iyz, izz (kg m²)")
