@@ -54,7 +54,7 @@ from stdm_drake.closed_loop.optimizer import (LINEARIZATION_STEPS, MAX_WORK_PER_
 from stdm_drake.closed_loop.policy import MpcStep, StepMemory
 from stdm_drake.closed_loop.push import JointPush, add_push
 from stdm_drake.closed_loop.rti import Rti
-from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi
+from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi, SamplingSettings
 from stdm_drake.config import YAML_LOADER, check_joint_vector, load_yaml_config, read_yaml_document
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
@@ -70,6 +70,7 @@ MAX_HORIZON = 1000     # sample periods predicted per control step (10 s at 0.01
 # default: a new optimizer is one `OptimizerSettings` class added here.
 OptimizerConfig = typing.Union[Rti, Ilqr, Icem, Mppi, Cem]
 OPTIMIZER_TAGS = tuple(f"!{cls.__name__}" for cls in typing.get_args(OptimizerConfig))
+SAMPLER_TAGS = tuple(cls.__name__ for cls in typing.get_args(OptimizerConfig) if issubclass(cls, SamplingSettings))
 
 
 @dataclasses.dataclass
@@ -194,7 +195,7 @@ def _check_optimizer_layout(path) -> None:
                          "`iterations:` for its `max_iterations:`")
     # a sampler's particle settings with mean propagation (written or by default), which would ignore them: refused
     # at any value, their defaults too
-    settings = document.get("optimizer") if tag in ("Cem", "Icem", "Mppi") else None
+    settings = document.get("optimizer") if tag in SAMPLER_TAGS else None
     ignored = [key for key in ("particles", "variance_weight") if key in settings] if isinstance(settings, dict) and \
         settings.get("propagation", "mean") == "mean" else []
     if ignored:

@@ -233,9 +233,10 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
 
         several = description.models > 1
         for include in world_includes:
-            model = read_included(target(include, "its world"))
+            included = target(include, "its world")
+            model = read_included(included)
             name = (include.findtext("name") or "").strip() or model.name
-            _check_own_links(model, pathlib.Path(target(include, "its world")).name)
+            _check_own_links(model, included.name)
             description.name = "" if several else name
             _add_model(description, model, f"{name}::" if several else "")
         # a top-level model's <include merge="true">: the included links and joints are that model's own
