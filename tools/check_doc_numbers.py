@@ -1,6 +1,6 @@
 """Check that every number the docs quote from a committed results file equals what the file holds.
 
-    python tools/check_doc_numbers.py [PAGE ...]        (default: README.md, BENCHMARKS.md and docs/**/*.md)
+    python tools/check_doc_numbers.py [PAGE ...]        (default: README.md, BENCHMARKS.md and docs/**/*.md but docs/results/)
 
 A number on a page names its source with an HTML comment right after it (not shown on the rendered page):
 
@@ -125,7 +125,11 @@ def check_page(page: pathlib.Path, root: pathlib.Path = ROOT) -> tuple[int, list
 
 
 def pages(root: pathlib.Path = ROOT) -> list[pathlib.Path]:
-    return [root / "README.md", root / "BENCHMARKS.md", *sorted((root / "docs").rglob("*.md"))]
+    """The pages: README.md, BENCHMARKS.md and docs/**/*.md, not the results under docs/results/ (sources, whose
+    reports, e.g. an audit's, may quote this tool's comments)."""
+    results = root / "docs" / "results"
+    return [root / "README.md", root / "BENCHMARKS.md",
+            *sorted(path for path in (root / "docs").rglob("*.md") if not path.is_relative_to(results))]
 
 
 def main(argv: list[str] | None = None) -> int:
