@@ -87,7 +87,7 @@ class BuildCore(build_ext):
 core = Extension(
     "stdm_drake._core",
     sources=[f"{CORE}/bindings.cpp", f"{CORE}/rigid_body.cpp"],
-    depends=[f"{CORE}/control_step.hpp", f"{CORE}/rigid_body.hpp"],
+    depends=[f"{CORE}/control_step.hpp", f"{CORE}/rigid_body.hpp", f"{CORE}/small_gemm.hpp"],
     language="c++",
     define_macros=[("BOOST_MPL_LIMIT_LIST_SIZE", "30"),
                    ("BOOST_MPL_LIMIT_VECTOR_SIZE", "30"), ("BOOST_MPL_CFG_NO_PREPROCESSED_HEADERS", None),

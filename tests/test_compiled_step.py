@@ -63,6 +63,24 @@ def test_the_compiled_networks_step_and_linearization_are_the_numpy_models(tmp_p
                                    atol=1e-7 * np.abs(expected).max())
 
 
+@pytest.mark.parametrize("width, structure, kind", [(29, DEFAULT, "D"), (100, PAPER, "PE"), (3, PAPER, "D")])
+def test_the_compiled_linearization_holds_at_every_width(tmp_path, width, structure, kind):
+    """The hidden layers' products in register blocks of 16, 8 and 4 columns and one by one (core/small_gemm.hpp):
+    29 = 16 + 8 + 4 + 1 columns, the default width of 100 (6 x 16 + 4), 3 (one by one only); the horizon's 20 input
+    rows times 6 or 12 outputs are 120 or 240 rows, 20 not a multiple of the blocks' 6 rows."""
+    model = LearnedModel(synthetic_checkpoint(tmp_path / "model.pt", structure, model_type=kind, hidden_width=width),
+                         robot=UR10)
+    core, why_not = compiled_core.compiled_model(model)
+    assert core is not None, why_not
+    x, a = random_rows(20, 5)
+    expected, A, B = model.linearize(x, a)
+    following, core_A, core_B = core.linearize(x, a)
+    np.testing.assert_allclose(following, expected, rtol=0, atol=1e-6 * np.abs(expected).max())
+    np.testing.assert_allclose(core_A.reshape(A.shape), A, rtol=0, atol=1e-5 * np.abs(A).max())
+    np.testing.assert_allclose(core_B.reshape(B.shape), B, rtol=0, atol=1e-5 * np.abs(B).max())
+    np.testing.assert_allclose(core.step_rows(x, a), expected, rtol=0, atol=1e-6 * np.abs(expected).max())
+
+
 @pytest.mark.parametrize("which", ["plant_model", "affected_plant_model"])
 def test_the_compiled_plant_model_is_the_numpy_plant_model(request, which):
     """The plant as model (RK4 over Pinocchio's ABA and its analytic derivatives; damping and Coulomb friction in

@@ -42,11 +42,12 @@ STRUCTURES = {
 TYPES = {"D": (1, False), "DE": (3, False), "P": (1, True), "PE": (3, True)}
 
 
-def synthetic_checkpoint(path, structure, *, model_type="D", activation="swish", residual=True, seed=0):
-    """A checkpoint of random weights and non-trivial normalizers (what is compared does not depend on training)."""
+def synthetic_checkpoint(path, structure, *, model_type="D", activation="swish", residual=True, seed=0, hidden_width=16):
+    """A checkpoint of random weights and non-trivial normalizers (what is compared does not depend on training),
+    hidden layers of `hidden_width`."""
     members, probabilistic = TYPES[model_type]
     inputs, outputs = structure.network_sizes(2 * UR10.num_joints, UR10.action_dim)
-    config = ModelConfig(input_dim=inputs, output_dim=outputs, residual=residual, hidden_width=16, hidden_layers=3,
+    config = ModelConfig(input_dim=inputs, output_dim=outputs, residual=residual, hidden_width=hidden_width, hidden_layers=3,
                          activation=activation, ensemble_size=members, probabilistic=probabilistic)
     network = EnsembleMLP(config, generator=torch.Generator().manual_seed(seed)).double()
     rng = np.random.default_rng(seed)

@@ -68,6 +68,7 @@ stdm::Network make_network(const std::vector<RowMatrixXf>& first, const std::vec
     for (const auto& bias : hidden_bias[layer]) biases.push_back(bias.row(0));
     network.hidden_bias.push_back(biases);
   }
+  network.finish();
   return network;
 }
 

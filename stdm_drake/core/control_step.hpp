@@ -38,6 +38,7 @@
 #include <Eigen/Core>
 
 #include "rigid_body.hpp"
+#include "small_gemm.hpp"
 
 namespace stdm {
 
@@ -99,6 +100,7 @@ struct Network {
   Activation activation = Activation::swish;
   std::vector<RowMatrixXf> first;                          // per member (K + 1, W): inputs then the bias row
   std::vector<std::vector<RowMatrixXf>> hidden_weight;     // per layer, per member (W, W)
+  std::vector<std::vector<RowMatrixXf>> hidden_transposed; // their transposes, row-major (`finish`): reverse mode
   std::vector<std::vector<Eigen::RowVectorXf>> hidden_bias;  // per layer, per member (W,)
   std::vector<RowMatrixXf> mean_weight;                    // per member (W, outputs)
   std::vector<Eigen::RowVectorXf> mean_bias;               // per member (outputs,)
@@ -111,13 +113,28 @@ struct Network {
 
   bool probabilistic() const { return !variance_weight.empty(); }
 
+  // after the weights are set: the transposed hidden weights reverse mode multiplies by
+  void finish() {
+    hidden_transposed.assign(hidden_weight.size(), {});
+    for (size_t layer = 0; layer < hidden_weight.size(); ++layer)
+      for (const RowMatrixXf& weight : hidden_weight[layer]) hidden_transposed[layer].push_back(weight.transpose());
+  }
+
+  // out (N, W) = in (N, W) times a hidden layer's weight (W, W) of member e: `small_gemm`
+  static void product(const RowMatrixXf& in, const RowMatrixXf& weight, RowMatrixXf& out,
+                      const RowMatrixXf* scale = nullptr, int group = 1) {
+    out.resize(in.rows(), weight.cols());
+    small_gemm(in.data(), in.cols(), weight.data(), weight.cols(), out.data(), out.cols(), int(in.rows()),
+               int(in.cols()), int(weight.cols()), scale ? scale->data() : nullptr, scale ? scale->cols() : 0, group);
+  }
+
   // the last hidden layer (N, W) of member e at input rows z (N, K); `pre` scratch
   void last_hidden(const RowMatrixXf& z, int e, RowMatrixXf& pre, RowMatrixXf& value) const {
     pre.noalias() = z * first[e].topRows(inputs);
     pre.rowwise() += first[e].row(inputs);
     activate_all(pre, value, nullptr);
     for (size_t layer = 0; layer < hidden_weight.size(); ++layer) {
-      pre.noalias() = value * hidden_weight[layer][e];
+      product(value, hidden_weight[layer][e], pre);
       pre.rowwise() += hidden_bias[layer][e];
       activate_all(pre, value, nullptr);
     }
@@ -205,7 +222,7 @@ struct Network {
       pre.rowwise() += first[e].row(inputs);
       for (int layer = 0; layer <= layers; ++layer) {
         if (layer > 0) {
-          pre.noalias() = value * hidden_weight[layer - 1][e];
+          product(value, hidden_weight[layer - 1][e], pre);
           pre.rowwise() += hidden_bias[layer - 1][e];
         }
         activate_all(pre, value, jacobian ? &slopes[layer] : nullptr);
@@ -219,10 +236,8 @@ struct Network {
       for (int row = 0; row < count; ++row)
         for (int out = 0; out < outputs; ++out)
           adjoint.row(row * outputs + out) = mean_weight[e].col(out).transpose().cwiseProduct(slopes[layers].row(row));
-      for (int layer = layers; layer >= 1; --layer) {
-        next.noalias() = adjoint * hidden_weight[layer - 1][e].transpose();
-        for (int row = 0; row < count; ++row)
-          next.middleRows(row * outputs, outputs).array().rowwise() *= slopes[layer - 1].row(row).array();
+      for (int layer = layers; layer >= 1; --layer) {   // (each input row's `outputs` rows times its slopes)
+        product(adjoint, hidden_transposed[layer - 1][e], next, &slopes[layer - 1], outputs);
         adjoint.swap(next);
       }
       jacobian->noalias() += adjoint * first[e].topRows(inputs).transpose();

@@ -131,6 +131,7 @@ inline std::shared_ptr<Model> load_model(const ControllerFile& file) {
   network.inputs = int(network.first[0].rows()) - 1;
   network.width = int(network.first[0].cols());
   network.outputs = int(network.mean_weight[0].cols());
+  network.finish();
   model->state_dim = S;
   model->action_dim = m;
   model->predicts_velocity = file.scalar("predicts_velocity") != 0.0;

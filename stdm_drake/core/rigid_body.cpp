@@ -1,5 +1,6 @@
-// The rigid-body dynamics of control_step.hpp on Pinocchio (its precompiled algorithms, libpinocchio_default):
-// the one translation unit that includes Pinocchio, compiled for the instruction set that library was built for.
+// The rigid-body dynamics of control_step.hpp on Pinocchio, the one translation unit that includes it: header-only in
+// the extension (compiled for the installing CPU, setup.py), libpinocchio_default's precompiled algorithms in the
+// controller program (closed_loop/compiled.py builds it for generic x86-64).
 #include <pinocchio/algorithm/aba-derivatives.hpp>
 #include <pinocchio/algorithm/aba.hpp>
 #include <pinocchio/algorithm/rnea.hpp>
