@@ -3,7 +3,8 @@
 // `scale` (row i by scale's row i / group): the reverse-mode adjoint times a layer's transposed weights, then the
 // layer's activation slopes of the input row it belongs to. With AVX2 and FMA: register blocks of 6 rows by 16, 8
 // or 4 columns, no packing of the operands (Eigen's general product packs both per call, a large share of its
-// time at these sizes); without them (the controller program's generic build), Eigen's product.
+// time at these sizes), the rows left over each by Eigen's matrix-vector product; without them (the controller
+// program's generic build), Eigen's product.
 #pragma once
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
@@ -59,35 +60,39 @@ inline void gemm_block(const float* A, long lda, const float* B, long ldb, float
 // C = A B (C not aliasing A or B); lda, ldb, ldc: the row strides; scale (R / group rows, N, stride lds) or null
 inline void small_gemm(const float* A, long lda, const float* B, long ldb, float* C, long ldc, int R, int K, int N,
                        const float* scale = nullptr, long lds = 0, int group = 1) {
+  using Matrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+  using Stride = Eigen::OuterStride<>;
+  const Eigen::Map<const Matrix, 0, Stride> right(B, K, N, Stride(ldb));
 #if defined(__AVX2__) && defined(__FMA__)
+  const int blocked = R - R % 6;   // rows in blocks of 6
   int j = 0;
   auto columns = [&](auto width) {
-    for (; j + decltype(width)::value <= N; j += decltype(width)::value) {
-      int i = 0;
-      for (; i + 6 <= R; i += 6)
+    for (; j + decltype(width)::value <= N; j += decltype(width)::value)
+      for (int i = 0; i < blocked; i += 6)
         detail::gemm_block<decltype(width)::value, 6>(A, lda, B, ldb, C, ldc, K, i, j, scale, lds, group);
-      for (; i < R; ++i)
-        detail::gemm_block<decltype(width)::value, 1>(A, lda, B, ldb, C, ldc, K, i, j, scale, lds, group);
-    }
   };
   columns(std::integral_constant<int, 16>{});
   columns(std::integral_constant<int, 8>{});
   columns(std::integral_constant<int, 4>{});
-  for (int i = 0; i < R; ++i)   // (the columns left of fewer than 4, one by one)
+  for (int i = 0; i < blocked; ++i)   // (the columns left of fewer than 4, one by one)
     for (int col = j; col < N; ++col) {
       float sum = 0.0f;
       for (int k = 0; k < K; ++k) sum += A[i * lda + k] * B[k * ldb + col];
       C[i * ldc + col] = scale ? sum * scale[(i / group) * lds + col] : sum;
     }
-#else   // (a build without AVX2, as the controller program's generic one: Eigen's product)
-  using Matrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
-  using Stride = Eigen::OuterStride<>;
-  Eigen::Map<Matrix, 0, Stride> out(C, R, N, Stride(ldc));
-  out.noalias() = Eigen::Map<const Matrix, 0, Stride>(A, R, K, Stride(lda)) *
-                  Eigen::Map<const Matrix, 0, Stride>(B, K, N, Stride(ldb));
+  // the rows left (fewer than 6) one by one, each Eigen's matrix-vector product (which keeps several sums apart: one
+  // row in a register block would wait on its two sums' latency at every k; a general product of a few rows packs)
+  for (int i = blocked; i < R; ++i) {
+    Eigen::Map<Eigen::RowVectorXf> out(C + i * ldc, N);
+    out.noalias() = Eigen::Map<const Eigen::RowVectorXf>(A + i * lda, K) * right;
+    if (scale) out.array() *= Eigen::Map<const Eigen::RowVectorXf>(scale + (i / group) * lds, N).array();
+  }
+#else   // (a build without AVX2, as the controller program's generic one: Eigen's product of all rows)
+  Eigen::Map<Matrix, 0, Stride> all(C, R, N, Stride(ldc));
+  all.noalias() = Eigen::Map<const Matrix, 0, Stride>(A, R, K, Stride(lda)) * right;
   if (scale)
     for (int i = 0; i < R; ++i)
-      out.row(i).array() *= Eigen::Map<const Eigen::RowVectorXf>(scale + (i / group) * lds, N).array();
+      all.row(i).array() *= Eigen::Map<const Eigen::RowVectorXf>(scale + (i / group) * lds, N).array();
 #endif
 }
 
