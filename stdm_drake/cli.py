@@ -22,7 +22,7 @@ import sys
 from stdm_drake import interrupts
 from stdm_drake.errors import InputError, deferred_warnings
 from stdm_drake.files import line_text, printable_text
-from stdm_drake.outputs import command_outputs
+from stdm_drake.outputs import command_outputs, release_locks
 from stdm_drake.paths import expand_shipped
 
 # name -> (module, one-line help)
@@ -222,6 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         if interrupts.received() is None:
             raise
         status, what = interrupts.ending()   # a library turned the signal into its own error (pydrake: ImportError)
+    release_locks()   # (a signal as the run ended may have cut its own release short; signals are ignored now)
     close_progress_bars()
     print(f"stdm-drake {name}: {what}", file=sys.stderr)
     return status

@@ -365,6 +365,17 @@ def check_joint_vector(label: str, values, *, count: int | None = None, nonnegat
     return array
 
 
+SEED_LIMIT = 2 ** 64   # seeds are integers in 0..2^64-1: what numpy's and torch's generators both take
+
+
+def check_seed(label: str, value) -> int:
+    """`value` as a seed, or InputError (one line) unless it is an integer in 0..2^64-1: numpy's generators take
+    any non-negative integer, torch's an unsigned 64-bit one, and a seed means the same wherever it is given."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= int(value) < SEED_LIMIT:
+        raise InputError(f"{label} must be an integer in 0..2^64-1, got {value!r}")
+    return int(value)
+
+
 # The characters of a refused value `require` shows: a list of 40,000 joint names was one line of 400 kB
 MAX_SHOWN_VALUE = 300
 

@@ -74,6 +74,20 @@ def check_free_space(path, needed: int, grown_size: int | None = None) -> None:
                          f"size limit of {size_text(file_size_limit())} (ulimit -f)")
 
 
+# An output is refused at once where less than this is free: a command would fail on its first write (and
+# leave a half-filled folder) on a disk that full.
+MIN_FREE_BYTES = 1 << 20
+
+
+def check_room(option: str, path: pathlib.Path, folder: pathlib.Path) -> None:
+    """InputError unless MIN_FREE_BYTES are free in `folder` (or the nearest folder above it), where the output
+    `path` (given as `option`) goes."""
+    free = free_bytes(folder)
+    if free < MIN_FREE_BYTES:
+        raise InputError(f"{option} {path}: only {size_text(free)} free there; stdm-drake needs at least "
+                         f"{size_text(MIN_FREE_BYTES)} free to write an output")
+
+
 def no_room_error(path, error: OSError) -> InputError:
     """The one line for a write to `path` that failed for lack of room (`NO_ROOM`): with the free space, the
     file size limit, or the file system's lack of inodes, whichever it was."""

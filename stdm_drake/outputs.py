@@ -21,7 +21,7 @@ import shutil
 import stat
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import NO_ROOM, free_bytes, nearest_existing, no_room_error, remove_stale_temporaries, size_text
+from stdm_drake.files import NO_ROOM, check_room, nearest_existing, no_room_error, remove_stale_temporaries
 from stdm_drake.interrupts import protected
 
 # Written into every output folder a command fills, and looked for before replacing one.
@@ -43,6 +43,7 @@ COMMAND_LINE = "command: "  # the folder marker's line naming the command
 # while a command runs: {"command": name, "arguments": the rest of its line, "locks": {path: (fd, lock file, the
 # folders made for it)}, "made": output folders (and parents) that `mark_output_folder` created, deepest first}
 _running: dict | None = None
+_held_locks: dict = {}   # every lock this process holds (as "locks" above): `release_locks`
 
 
 @contextlib.contextmanager
@@ -61,13 +62,21 @@ def command_outputs(command: str, arguments: list[str] = ()):
         raise
     finally:
         running, _running = _running, outer
-        with protected():   # (a signal here is raised once every lock file is gone, not between two of them)
-            for fd, lock_file, _ in running["locks"].values():
-                with contextlib.suppress(OSError):
-                    os.unlink(lock_file)
-                os.close(fd)
-            for _, _, made in running["locks"].values():   # (after every lock file: two outputs may share a folder)
-                _remove_empty(made)
+        release_locks(running["locks"])
+
+
+def release_locks(locks: dict | None = None) -> None:
+    """Remove the lock files of `locks` (a run's, path -> entry; None: every one this process holds, as the CLI does
+    after a signal, which may have cut a run's own release short) still held, then the folders made for them that
+    stayed empty; a signal meanwhile is raised once every lock file is gone, not between two of them."""
+    with protected():
+        released = [_held_locks.pop(key) for key in list(_held_locks if locks is None else locks) if key in _held_locks]
+        for fd, lock_file, _ in released:
+            with contextlib.suppress(OSError):
+                os.unlink(lock_file)
+            os.close(fd)
+        for _, _, made in released:   # (after every lock file: two outputs may share a folder)
+            _remove_empty(made)
 
 
 def _remove_empty(folders) -> None:
@@ -92,19 +101,6 @@ def written_by() -> str:
 def html_marker() -> str:
     """The first line of an HTML file written now."""
     return f"{HTML_PREFIX} {running_command()} -->" if running_command() else HTML_MARKER
-
-
-# An output is refused at once where less than this is free: a command would fail on its first write (and
-# leave a half-filled folder) on a disk that full.
-MIN_FREE_BYTES = 1 << 20
-
-
-def _check_room(option: str, path: pathlib.Path, folder: pathlib.Path) -> None:
-    """InputError unless MIN_FREE_BYTES are free in `folder` (or the nearest folder above it), where `path` goes."""
-    free = free_bytes(folder)
-    if free < MIN_FREE_BYTES:
-        raise InputError(f"{option} {path}: only {size_text(free)} free there; stdm-drake needs at least "
-                         f"{size_text(MIN_FREE_BYTES)} free to write an output")
 
 
 def lock_output(option: str, path) -> None:
@@ -151,7 +147,7 @@ def lock_output(option: str, path) -> None:
             fd = open_lock_file()
         os.ftruncate(fd, 0)
         os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-        _running["locks"][key] = (fd, lock_file, made)
+        _running["locks"][key] = _held_locks[key] = (fd, lock_file, made)
     if (path / FOLDER_MARKER).is_file():   # (only in a folder stdm-drake wrote: never a user's files)
         remove_stale_temporaries(path, recursive=True)
     remove_stale_temporaries(path.parent, path.name)
@@ -271,7 +267,7 @@ def check_output_file(option: str, path, *, kind: str, inputs=(), force: bool = 
         if not os.access(path, os.W_OK) and not os.access(path.parent, os.W_OK):
             raise InputError(f"{option} {path}: cannot replace it (permission denied)")
     _check_parent(option, path)
-    _check_room(option, path, path.absolute().parent)
+    check_room(option, path, path.absolute().parent)
     lock_output(option, path)
     return path
 
@@ -358,7 +354,7 @@ def check_output_folder(option: str, path, *, inputs=(), force: bool = False) ->
             raise InputError(f"{option} {path}: cannot write in it (permission denied)")
     else:
         _check_parent(option, path, folder=path.absolute())
-    _check_room(option, path, path.absolute())
+    check_room(option, path, path.absolute())
     lock_output(option, path)
     return path
 

@@ -427,3 +427,33 @@ def test_a_signal_while_the_locks_are_released_leaves_no_lock_file(tmp_path):
     assert result.returncode == 130 and result.stderr.strip() == "stdm-drake export: interrupted", result.stderr
     assert not list(tmp_path.glob(".*.lock")), sorted(p.name for p in tmp_path.iterdir())
     assert (tmp_path / "model.onnx").exists() and (tmp_path / "model.jacobian.onnx").exists()
+
+
+@pytest.mark.slow   # (a real process: about 5 s)
+def test_a_signal_as_the_run_ends_before_its_locks_are_released_leaves_no_lock_file(tmp_path):
+    """Held-out run 24: Ctrl-C as `export` renamed its pair, raised as the run's own release of its lock files began
+    (before any was removed), left both lock files. Signalled there, the program ends as interrupted (130), its pair
+    written, no lock file left."""
+    import signal
+    path = synthetic_checkpoint(tmp_path / "model.pt", STRUCTURES["velocity-raw"], model_type="D", activation="tanh")
+    script = tmp_path / "cut_release.py"
+    script.write_text(
+        "import os, signal, sys\n"
+        "from stdm_drake import outputs\n"
+        "original = outputs.release_locks\n"
+        "def cut(locks=None):\n"
+        "    if locks and not getattr(cut, 'done', False):\n"
+        "        cut.done = True\n"
+        "        os.kill(os.getpid(), signal.SIGINT)   # (raised here, at the next call: the release never starts)\n"
+        "        len(locks)\n"
+        "    return original(locks)\n"
+        "outputs.release_locks = cut\n"
+        "from stdm_drake.cli import main\n"
+        "sys.argv = ['stdm-drake', 'export', sys.argv[1], '-o', sys.argv[2]]\n"
+        "sys.exit(main())\n")
+    result = subprocess.run([sys.executable, str(script), str(path), str(tmp_path / "model.onnx")], capture_output=True,
+                            text=True, env=dict(os.environ, DRAKE_ALLOW_NETWORK="meshcat"), timeout=300,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert result.returncode == 130 and result.stderr.strip() == "stdm-drake export: interrupted", result.stderr
+    assert not list(tmp_path.glob(".*.lock")), sorted(p.name for p in tmp_path.iterdir())
+    assert (tmp_path / "model.onnx").exists() and (tmp_path / "model.jacobian.onnx").exists()

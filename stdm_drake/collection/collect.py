@@ -28,7 +28,7 @@ from stdm_drake.cluster import RunnerConfig, check_workers, job_pool
 from stdm_drake.collection.excitation import Excitation, excitation_trajectory
 from stdm_drake.collection.plan import Tracking, derived_tracking_spec
 from stdm_drake.collection.protocols import PROTOCOLS, load_excitation, load_tracking_spec, protocol_named_in
-from stdm_drake.config import load_yaml_config
+from stdm_drake.config import check_seed, load_yaml_config
 from stdm_drake.data.dataset import Trajectory
 from stdm_drake.data.writer import package_versions
 from stdm_drake.errors import InputError, PlanningError, warn
@@ -359,8 +359,7 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
     if count is not None and not 1 <= count <= MAX_COUNT:
         raise InputError(f"--count must be in 1..{MAX_COUNT}, got {count}")
     check_workers(workers)
-    if seed < 0:
-        raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {seed}")
+    check_seed("--seed", seed)
     request = CollectionRequest(protocol=protocol, count=PAPER_COUNTS[protocol] if count is None else count, seed=seed,
                                 settings=settings, workers=workers)
     if protocol == "excitation":

@@ -7,7 +7,7 @@ import time
 
 from stdm_drake.cluster import add_runner_arguments, check_workers, runner_config_from_args
 from stdm_drake.commands.arguments import add_plant_effects_argument, add_robot_argument, command_robot
-from stdm_drake.errors import InputError
+from stdm_drake.config import check_seed
 from stdm_drake.experiments.jobs import FULL, QUICK
 from stdm_drake.experiments.reproduce import reproduce
 from stdm_drake.files import line_text
@@ -36,8 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     check_workers(args.workers)
-    if args.seed < 0:
-        raise InputError(f"--seed must be a non-negative integer (numpy seeds are), got {args.seed}")
+    check_seed("--seed", args.seed)
     robot = command_robot(args)
     robot.check_can_track()
     effects = plant_effects_for(args.plant_effects, robot, DEFAULT_PLANT_TIME_STEP)

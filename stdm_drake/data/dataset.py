@@ -315,6 +315,17 @@ def split_trajectories(groups, n_train: int, n_val: int, n_test: int | None, see
     return Split(*(np.sort(np.concatenate(part)).astype(int) for part in (train, val, test)))
 
 
+def check_split_options(train: int | None, val: int | None, test: int | None, split_seed: int,
+                        key=lambda name: f"--{name.replace('_', '-')}") -> None:
+    """InputError (one line, before any work) unless the split's given sizes are counts (training and validation at
+    least 1, test at least 0; None: the default) and its seed a seed; key: an option's name as the message gives it."""
+    from stdm_drake.config import check_seed
+    for name, value, least in (("train", train, 1), ("val", val, 1), ("test", test, 0)):
+        if value is not None and value < least:
+            raise InputError(f"{key(name)} must be >= {least}, got {value}")
+    check_seed(key("split_seed"), split_seed)
+
+
 def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
     """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation,
     20 % test, the rest training; n_test None means "all the rest" for split_trajectories."""

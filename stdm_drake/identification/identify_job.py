@@ -58,7 +58,7 @@ def identify_job(job: IdentifyJob) -> dict:
     from stdm_drake.data.dataset import load_dataset
     from stdm_drake.identification.identified import identified_text
     from stdm_drake.identification.identify import IdentifySettings, identify, usable_windows
-    from stdm_drake.data.dataset import dataset_split
+    from stdm_drake.data.dataset import check_split_options, dataset_split
     output = pathlib.Path(job.output)
     if output.suffix.lower() not in (".yaml", ".yml"):
         raise InputError(f"-o/--output {job.output}: an identified robot is a .yaml file")
@@ -70,6 +70,7 @@ def identify_job(job: IdentifyJob) -> dict:
                                 regularizations=tuple(job.regularizations),
                                 windows=tuple(job.windows or SMOOTHING_WINDOWS))   # (None: not given)
     settings.validate()     # (before any work: windows, scales and weights)
+    check_split_options(job.train, job.val, job.test, job.split_seed)
     dataset = load_dataset(job.dataset)
     if job.derivatives is None and not dataset.is_simulated:
         settings.derivative_source = "smoothed"     # (a log has no true accelerations)

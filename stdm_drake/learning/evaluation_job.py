@@ -8,6 +8,7 @@ import pathlib
 
 import numpy as np
 
+from stdm_drake.config import check_seed
 from stdm_drake.errors import InputError
 from stdm_drake.files import finite_json, line_text, write_text_atomic
 from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS
@@ -79,6 +80,7 @@ def evaluate_job(job: EvaluationJob) -> dict:
         raise InputError("--particles and --seed are for --propagation ts1 or tsinf (trajectory sampling); mean "
                          "propagation uses neither")
     particles, seed = (20 if job.particles is None else job.particles), (0 if job.seed is None else job.seed)
+    check_seed("--seed", seed)
     if job.implementation not in IMPLEMENTATIONS:
         raise InputError(f"--implementation must be one of {', '.join(IMPLEMENTATIONS)}, got {job.implementation!r}")
     check_output_file("--json", job.json, kind="json", inputs=[job.model, job.dataset, job.robot],

@@ -11,7 +11,8 @@ import torch
 
 from stdm_drake.data.dataset import ACTION_RATE_SCHEMES, DERIVATIVE_SOURCES
 from stdm_drake import files
-from stdm_drake.config import decimal_number
+from stdm_drake.config import SEED_LIMIT, decimal_number
+from stdm_drake.data.dataset import check_split_options
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.loss import LOSS_KINDS
@@ -297,11 +298,10 @@ class TrainSettings:
             raise InputError(f"{key('epochs')} {self.epochs:,} for each of {len(self.seeds)} {key('seeds')} are "
                              f"{self.epochs * len(self.seeds):,} epochs, more than the {MAX_TOTAL_EPOCHS:,} one run may "
                              "train: fewer epochs (early stopping ends most runs far sooner) or fewer seeds per run")
-        if any(not 0 <= seed < 2 ** 64 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
+        if any(not 0 <= seed < SEED_LIMIT for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             # (torch's generator takes an unsigned 64-bit seed: 2^64 failed after the first seeds had trained)
             raise InputError(f"{key('seeds')} must be distinct integers in 0..2^64-1, got {list(self.seeds)}")
-        if self.split_seed < 0:   # (numpy's generators take non-negative seeds only)
-            raise InputError(f"{key('split_seed')} must be a non-negative integer, got {self.split_seed}")
+        check_split_options(self.train, self.val, self.test, self.split_seed, key)
         for name in ("hidden_width", "hidden_layers", "ensemble_size", "epochs", "patience", "batch_size",
                      "checkpoint_every", "threads"):
             if int(getattr(self, name)) < 1:
@@ -313,9 +313,6 @@ class TrainSettings:
             raise InputError(f"the network would hold about {weights:.3g} weights ({key('ensemble_size')} x "
                              f"{key('hidden_layers')} x {key('hidden_width')}²), more than {MAX_WEIGHTS:.0e} "
                              "(a few GB with the optimizer's state)")
-        for name in ("train", "val", "test"):
-            if getattr(self, name) is not None and getattr(self, name) < (0 if name == "test" else 1):
-                raise InputError(f"{key(name)} must be >= {0 if name == 'test' else 1}, got {getattr(self, name)}")
         for name in ("lr", "min_lr", "weight_decay"):
             value = getattr(self, name)
             if not (math.isfinite(value) and (value > 0 if name == "lr" else value >= 0)):
