@@ -365,14 +365,11 @@ def check_joint_vector(label: str, values, *, count: int | None = None, nonnegat
     return array
 
 
-SEED_LIMIT = 2 ** 64   # seeds are integers in 0..2^64-1: what numpy's and torch's generators both take
-
-
 def check_seed(label: str, value) -> int:
-    """`value` as a seed, or InputError (one line) unless it is an integer in 0..2^64-1: numpy's generators take
-    any non-negative integer, torch's an unsigned 64-bit one, and a seed means the same wherever it is given."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 0 <= int(value) < SEED_LIMIT:
-        raise InputError(f"{label} must be an integer in 0..2^64-1, got {value!r}")
+    """`value` as a seed of numpy's generators, or InputError (one line) unless it is a non-negative integer (they
+    take any; torch's seeds, train's --seeds, have their own bound: 2^64-1)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < 0:
+        raise InputError(f"{label} must be a non-negative integer (numpy's generators take any), got {value!r}")
     return int(value)
 
 

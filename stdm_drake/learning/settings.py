@@ -11,7 +11,7 @@ import torch
 
 from stdm_drake.data.dataset import ACTION_RATE_SCHEMES, DERIVATIVE_SOURCES
 from stdm_drake import files
-from stdm_drake.config import SEED_LIMIT, decimal_number
+from stdm_drake.config import decimal_number
 from stdm_drake.data.dataset import check_split_options
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
@@ -298,7 +298,7 @@ class TrainSettings:
             raise InputError(f"{key('epochs')} {self.epochs:,} for each of {len(self.seeds)} {key('seeds')} are "
                              f"{self.epochs * len(self.seeds):,} epochs, more than the {MAX_TOTAL_EPOCHS:,} one run may "
                              "train: fewer epochs (early stopping ends most runs far sooner) or fewer seeds per run")
-        if any(not 0 <= seed < SEED_LIMIT for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
+        if any(not 0 <= seed < 2 ** 64 for seed in self.seeds) or len(set(self.seeds)) != len(self.seeds):
             # (torch's generator takes an unsigned 64-bit seed: 2^64 failed after the first seeds had trained)
             raise InputError(f"{key('seeds')} must be distinct integers in 0..2^64-1, got {list(self.seeds)}")
         check_split_options(self.train, self.val, self.test, self.split_seed, key)
