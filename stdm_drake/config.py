@@ -135,6 +135,9 @@ def check_quoted_numbers(path, schema) -> None:
     found = _quoted_number(node, schema, "", text)
     if found is not None:
         where, value, how = found
+        if how == "a single value where a list goes":
+            raise InputError(f"{path}: {where} is {value}, {how}; write it as a list (a per-joint setting takes "
+                             "[x] for one value x on every joint)")
         if how.startswith("which YAML reads as"):
             raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
         if how == "which only YAML 1.1 reads as a boolean":
@@ -211,6 +214,8 @@ def _numeric_scalars(annotation, node, where: str):
     elif origin in (list, tuple) and isinstance(node, yaml.SequenceNode):
         for item in node.value:
             yield from _numeric_scalars(arguments[0] if arguments else None, item, where)
+    elif origin in (list, tuple) and isinstance(node, yaml.ScalarNode) and not node.tag.endswith(":null"):
+        yield where, node, "list"   # (a single value where the typed load wants a list: its error names no field)
     elif getattr(annotation, "__name__", "") == "ndarray" and isinstance(node, yaml.SequenceNode):
         for item in node.value:   # (a Drake config's array field, Rgba's `rgba`: numbers, nested or not)
             yield from _numeric_scalars(annotation if isinstance(item, yaml.SequenceNode) else float, item, where)
@@ -252,6 +257,8 @@ def _quoted_number(node, schema, prefix: str, text: str):
     for where, item, boolean in _numeric_scalars(schema, node, prefix.rstrip(".")):
         written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
         tag = next((word for word in written.split() if word.startswith("!")), None)
+        if boolean == "list":
+            return where, written.strip(), "a single value where a list goes"
         if boolean:   # (`"false"` or `!!str true`: text, which the typed load would read as the boolean)
             if item.style in ("'", '"') or (tag is not None and not item.tag.endswith(":bool")):
                 return where, item.value, ("in quotes" if item.style else f"tagged {tag}") + ", not a boolean"
@@ -363,14 +370,6 @@ def check_joint_vector(label: str, values, *, count: int | None = None, nonnegat
                              "for all)")
         array = np.broadcast_to(array, (count,)).copy()
     return array
-
-
-def check_seed(label: str, value) -> int:
-    """`value` as a seed of numpy's generators, or InputError (one line) unless it is a non-negative integer (they
-    take any; torch's seeds, train's --seeds, have their own bound: 2^64-1)."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or int(value) < 0:
-        raise InputError(f"{label} must be a non-negative integer (numpy's generators take any), got {value!r}")
-    return int(value)
 
 
 # The characters of a refused value `require` shows: a list of 40,000 joint names was one line of 400 kB

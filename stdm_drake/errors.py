@@ -1,6 +1,7 @@
 """Errors that mean "bad input": the CLI prints them as one line and exits with status 2; warnings a
-command owes are held until it has succeeded."""
+command owes are held until it has succeeded; `check_seed`, every seed option's one check."""
 import contextlib
+import operator
 import sys
 
 
@@ -37,3 +38,15 @@ def deferred_warnings():
         _DEFERRED = outer
     for line in held:
         warn(line)
+
+
+def check_seed(label: str, value) -> int:
+    """`value` as a seed of numpy's generators, or InputError (one line) unless it is a non-negative integer (they
+    take any; torch's seeds, train's --seeds, have their own bound: 2^64-1)."""
+    try:
+        seed = None if isinstance(value, bool) else operator.index(value)
+    except TypeError:
+        seed = None
+    if seed is None or seed < 0:
+        raise InputError(f"{label} must be a non-negative integer (numpy's generators take any), got {value!r}")
+    return seed

@@ -333,6 +333,18 @@ def write_issue_25_inputs(box) -> None:
     (box / "wrapped_arm.sdf").write_text(arm_sdf)
     (box / "wrapper.sdf").write_text('<sdf version="1.9"><model name="mid"><include><uri>wrapped_arm.sdf</uri></include>'
                                      '</model></sdf>')
+    # (held-out run 24: a value's text split by a comment or CDATA section: Drake's parser reads its first piece)
+    for name, mass in (("split_mass", "0<!-- c -->.5"), ("cdata_mass", "0<![CDATA[.5]]>"), ("comment_first", "<!-- c -->0<!-- c -->.5")):
+        (box / f"{name}.sdf").write_text(arm_sdf.replace('<link name="b"/>', f'<link name="b"><inertial><mass>{mass}'
+                                                         '</mass></inertial></link>'))
+    (box / "split_lower.sdf").write_text(arm_sdf.replace("<xyz>0 0 1</xyz></axis>", "<xyz>0 0 1</xyz><limit><lower>-2<!-- c "
+                                                         "-->0</lower><upper>2</upper></limit></axis>", 1))
+    # (held-out run 24: what a joint states once, stated twice and differing; twice the same loads)
+    (box / "two_axes.urdf").write_text(urdf.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 0 1"/><axis xyz="0 1 0"/>', 1))
+    (box / "two_parents.sdf").write_text(arm_sdf.replace("<parent>a</parent>", "<parent>a</parent><parent>c</parent>", 1))
+    (box / "two_efforts.sdf").write_text(arm_sdf.replace("<xyz>0 0 1</xyz></axis>", "<xyz>0 0 1</xyz><limit><lower>-1</lower>"
+                                                         "<upper>1</upper><effort>5</effort><effort>50</effort></limit>"
+                                                         "</axis>", 1))
     (box / "world_remote.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>https://example.invalid/arm.sdf'
                                           '</uri></include></world></sdf>')
     # (held-out run 21: a xacro macro in a .urdf, an SDF that includes itself through a folder that is not there)
@@ -1083,6 +1095,18 @@ CASES = [
     (["identify", "DATA", "-o", "NEW.yaml", "--train", "4", "--val", "-1"], "--val must be >= 1, got -1"),
     (["identify", "DATA", "-o", "NEW.yaml", "--train", "2", "--test", "-1"], "--test must be >= 0, got -1"),
     (["identify", "DATA", "-o", "NEW.yaml", "--train", "0"], "--train must be >= 1, got 0"),
+    (["robot", "init", "split_mass.sdf", "-o", "NEW.yaml"],
+     "split_mass.sdf: the text of <mass> (line 1) is split by a comment: '0.5' to these checks, '0' to Drake's parser"),
+    (["robot", "init", "cdata_mass.sdf", "-o", "NEW.yaml"], "the text of <mass> (line 1) is split by a CDATA section"),
+    (["robot", "init", "comment_first.sdf", "-o", "NEW.yaml"], "is split by a comment: '0.5' to these checks, '0' to Drake's"),
+    (["robot", "init", "split_lower.sdf", "-o", "NEW.yaml"], "the text of <lower> (line 1) is split by a comment: '-20'"),
+    (["robot", "init", "two_axes.urdf", "-o", "NEW.yaml"],
+     "joint 'shoulder_pan_joint': it states 2 <axis> elements that differ; Drake's parser reads the first"),
+    (["robot", "init", "two_parents.sdf", "-o", "NEW.yaml"], "joint 'j': it states 2 <parent> elements that differ"),
+    (["robot", "init", "two_efforts.sdf", "-o", "NEW.yaml"], "joint 'j': its <limit> states 2 <effort> elements that differ"),
+    (yaml_case("effects", "viscous_friction: 2.5\n"), "viscous_friction is 2.5, a single value where a list goes"),
+    (yaml_case("effects", "coulomb_friction: 1e3\n"), "coulomb_friction is 1e3, a single value where a list goes"),
+    (yaml_case("ctrl", "controller: !Pid {kp: 100, ki: [1], kd: [1]}\n"), "controller.kp is 100, a single value where a list goes"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

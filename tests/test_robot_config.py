@@ -417,6 +417,31 @@ def test_an_sdf_world_of_two_models_is_two_trees_not_a_loop(tmp_path):
         check_description(path, "two", ["arm::shoulder"])
 
 
+def test_what_drakes_parser_reads_as_written_passes_the_one_reading_checks(tmp_path):
+    """Held-out run 24's rules refuse a value whose text Drake's parser reads otherwise (split by a comment or CDATA
+    section) and a joint's element stated twice with other content; what reads the same both ways loads: a value in
+    one CDATA section, a comment before or after the value or between elements (as SDFormat reads them, measured), the
+    same <axis> twice (a published quadruped)."""
+    from stdm_drake.robots.description import read_description
+    path = tmp_path / "arm.sdf"
+    for mass in ("<![CDATA[2.0]]>", "2.0<!-- kg -->", "<!-- kg -->2.0", "<!-- a --><![CDATA[2.0]]>",
+                 "\n  <!-- measured -->\n  2.0\n"):
+        path.write_text(SDF.format(mass=mass, lower=-1).replace("<link name=\"tip\"/>", "<!-- a tip --><link name=\"tip\"/>"))
+        assert read_description(path).links["upper"].mass == 2.0, mass
+    path.write_text(SDF.format(mass=2.0, lower=-1).replace("<xyz>0 1 0</xyz>", "<xyz>0 1 0</xyz><xyz> 0 1 0 </xyz>"))
+    read_description(path)
+    urdf = tmp_path / "arm.urdf"
+    urdf.write_text('<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/><inertia ixx="0.1" '
+                    'iyy="0.1" izz="0.1" ixy="0" ixz="0" iyz="0"/></inertial></link><joint name="j" type="revolute">'
+                    '<parent link="a"/><child link="b"/><axis xyz="0 0 1"/><axis xyz="0 0 1 "/><limit lower="-1" '
+                    'upper="1" effort="1" velocity="1"/></joint></robot>')
+    assert [joint.name for joint in read_description(urdf).joints] == ["j"]
+    for split in ("2<!-- -->.0", "<!-- kg -->2<!-- -->.0", "2.<![CDATA[0]]>", "<![CDATA[2]]>.0"):
+        path.write_text(SDF.format(mass=split, lower=-1))
+        with pytest.raises(InputError, match="the text of <mass> .* is split by"):
+            read_description(path)
+
+
 def test_a_long_chain_of_frames_is_checked_in_one_pass(tmp_path):
     """The tree check walks each link once: a chain of 4,900 massless frames (9,799 links and joints, within the
     budget of 10,000) is checked in a few hundredths of a second, where walking up from every link took about 3 s

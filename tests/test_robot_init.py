@@ -530,3 +530,15 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
     np.testing.assert_allclose(Dynamics(load_robot(tmp_path / "merged.yaml")).mass_matrix(home), bare.mass_matrix(home))
     (tmp_path / "merged_one.sdf").write_text((tmp_path / "merged.sdf").read_text().replace('merge="true"', 'merge=" 1"'))
     assert main(["robot", "init", str(tmp_path / "merged_one.sdf"), "-o", str(tmp_path / "merged_one.yaml")]) == 0
+    # (held-out run 24: "a file these checks cannot find") the same world and merge through package:// and model://
+    # URIs of a package `robot init --package` names
+    (tmp_path / "pkg").mkdir()
+    (tmp_path / "pkg" / "bare.sdf").write_text((tmp_path / "bare.sdf").read_text())
+    for name, text in (("world_package.sdf", (tmp_path / "world_include.sdf").read_text().replace(
+            "<uri>bare.sdf", "<uri>package://myarm/bare.sdf")), ("world_model.sdf", (tmp_path / "world_include.sdf")
+            .read_text().replace("<uri>bare.sdf", "<uri>model://myarm/bare.sdf")), ("merged_package.sdf", (
+            tmp_path / "merged.sdf").read_text().replace("<uri>bare.sdf", "<uri>package://myarm/bare.sdf"))):
+        (tmp_path / name).write_text(text)
+        out = tmp_path / name.replace(".sdf", ".yaml")
+        assert main(["robot", "init", str(tmp_path / name), "--package", f"myarm={tmp_path / 'pkg'}", "-o", str(out)]) == 0
+        np.testing.assert_allclose(Dynamics(load_robot(out)).mass_matrix(home), bare.mass_matrix(home))

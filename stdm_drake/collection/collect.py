@@ -28,10 +28,10 @@ from stdm_drake.cluster import RunnerConfig, check_workers, job_pool
 from stdm_drake.collection.excitation import Excitation, excitation_trajectory
 from stdm_drake.collection.plan import Tracking, derived_tracking_spec
 from stdm_drake.collection.protocols import PROTOCOLS, load_excitation, load_tracking_spec, protocol_named_in
-from stdm_drake.config import check_seed, load_yaml_config
+from stdm_drake.config import load_yaml_config
 from stdm_drake.data.dataset import Trajectory
 from stdm_drake.data.writer import package_versions
-from stdm_drake.errors import InputError, PlanningError, warn
+from stdm_drake.errors import InputError, PlanningError, check_seed, warn
 from stdm_drake import files
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, friction_bound_joints, load_controller_config

@@ -7,7 +7,7 @@ import time
 
 from stdm_drake.cluster import add_runner_arguments, check_workers, runner_config_from_args
 from stdm_drake.commands.arguments import add_plant_effects_argument, add_robot_argument, command_robot
-from stdm_drake.config import check_seed
+from stdm_drake.errors import check_seed
 from stdm_drake.experiments.jobs import FULL, QUICK
 from stdm_drake.experiments.reproduce import reproduce
 from stdm_drake.files import line_text

@@ -39,7 +39,7 @@ import h5py
 import numpy as np
 
 from stdm_drake.data.schema import PROTOCOLS, SIMULATED_PROTOCOLS, attribute_number, check_record, check_trajectory
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, check_seed
 from stdm_drake.outputs import DATASET_FORMAT
 from stdm_drake.paths import check_input_file
 from stdm_drake.robots.effects import PlantEffects
@@ -319,7 +319,6 @@ def check_split_options(train: int | None, val: int | None, test: int | None, sp
                         key=lambda name: f"--{name.replace('_', '-')}") -> None:
     """InputError (one line, before any work) unless the split's given sizes are counts (training and validation at
     least 1, test at least 0; None: the default) and its seed a seed; key: an option's name as the message gives it."""
-    from stdm_drake.config import check_seed
     for name, value, least in (("train", train, 1), ("val", val, 1), ("test", test, 0)):
         if value is not None and value < least:
             raise InputError(f"{key(name)} must be >= {least}, got {value}")

@@ -8,8 +8,7 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.config import check_seed
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, check_seed
 from stdm_drake.files import finite_json, line_text, write_text_atomic
 from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS
 from stdm_drake.learning.evaluate import REPORT_STEPS, compare_with_baselines, physics_baselines, trajectory_rollout_data

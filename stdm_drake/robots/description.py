@@ -13,7 +13,7 @@ import sys
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.robots import xml_file
+from stdm_drake.robots import sdf_includes, xml_file
 from stdm_drake.robots.limit_checks import check_limits
 from stdm_drake.robots.xml_file import ASCII_SPACE, UnreadNumber, WrongCount, check_xml
 
@@ -188,7 +188,7 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
     Drake's parser would: XML that is not well-formed (an undefined entity included) and entity declarations
     (a DTD's `<!ENTITY>`: Python's parser expands them, Drake's does not, so the two would see different files;
     a "billion laughs" file among them). So no check is skipped for a file Drake then parses, nor for the local files
-    an SDF includes (`xml_file.included_files`; their links' masses checked, not returned: Drake scopes them), and an
+    an SDF includes (`sdf_includes.included_files`; their links' masses checked, not returned: Drake scopes them), and an
     SDF that includes itself, directly or through others (`including`: the files whose includes led here), is refused
     (Drake's parser would recurse until the process crashes)."""
     check_xml(path, "a URDF or SDF file is", count_frames=True)
@@ -212,7 +212,7 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
                          "exponent); these checks cannot read it, and Drake's parser would read it otherwise") from None
     except WrongCount as error:
         raise InputError(f"{path.name}: {error}") from None
-    if root.tag == "sdf" and len(including) < xml_file.MAX_INCLUDE_DEPTH:
+    if root.tag == "sdf" and len(including) < sdf_includes.MAX_INCLUDE_DEPTH:
         chain = (*including, pathlib.Path(path).resolve())
 
         def read_included(included: pathlib.Path) -> Description:
@@ -224,7 +224,7 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
             return read_description(included, chain, packages)
 
         def target(include, where: str) -> pathlib.Path:
-            found = xml_file.include_target(include, path, packages)
+            found = sdf_includes.include_target(include, path, packages)
             if found is None:
                 raise InputError(f"{path.name}: {where} includes {(include.findtext('uri') or '').strip()!r}, a file "
                                  "these checks cannot find (give a path, file://, or package:// or model:// of the "
@@ -253,7 +253,7 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
                 for include in tops[0].findall("include") if not _merged(include)})
         if not including:
             _check_own_links(description, path.name)
-        for included in xml_file.included_files(root, path, packages, model_includes):
+        for included in sdf_includes.included_files(root, path, packages, model_includes):
             inner = read_included(included)
             for link, inertial in [*inner.links.items(), *inner.included.items()]:
                 name = f"{included.name}: {link}" if link in inner.links else link

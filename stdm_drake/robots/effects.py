@@ -1,7 +1,7 @@
 """Plant effects: what a real robot has and its description leaves out, simulated on top of the
 nominal model (the robot file, which stays what a user has).
 
-`PlantEffects` is the typed YAML a `--plant-effects FILE` names (per-joint lists, or one value for all
+`PlantEffects` is the typed YAML a `--plant-effects FILE` names (per-joint lists, or a list of one value for all
 joints): viscous friction (added to the description's joint damping, which Drake's discrete plant
 integrates implicitly), Coulomb friction smoothed near zero velocity, -F_c tanh(v / v_s) (a
 `plant.JointFriction` system feeding the plant's applied generalized force, sampled every plant step),

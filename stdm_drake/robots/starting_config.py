@@ -201,7 +201,9 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
     file that is no arm. packages_near: the file beside which its packages are looked for (default: model_path;
     a copy written elsewhere names its original); packages: package name -> folder, given by the user; keep: the
     fields an existing YAML sets that `--update` keeps (`config_update.kept_fields`), in place of the rules'."""
-    description = read_description(model_path)
+    xml_file.check_xml(model_path, "a URDF or SDF file is", count_frames=True)   # (its size first: then its packages)
+    packages, missing, located = find_packages(packages_near or model_path, given=packages)
+    description = read_description(model_path, packages=packages)   # (an SDF's package:// includes: these folders)
     check_tree(description, f"{model_path.name}")   # (a loop: no chain to follow)
     _, continuous, mimics = joint_facts(model_path)
     chain = arm_chain(description, mimics)
@@ -212,7 +214,6 @@ def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | 
         raise InputError(f"{model_path.name} holds {description.models} models; a robot config describes one arm: "
                          "give a file of that arm's model")
     joints = {joint.name: joint for joint in description.joints}
-    packages, missing, located = find_packages(packages_near or model_path, given=packages)
     notes = [f"package {package!r} not found near {(packages_near or model_path).name}: map it under package_paths"
              for package in missing]
     notes += [f"package {package!r}: no folder of that name; mapped to {packages[package].name}/, which holds every "

@@ -4,7 +4,6 @@ have. Used by `robots.description` (and the SRDF readers)."""
 from __future__ import annotations
 
 import math
-import os
 import pathlib
 import re
 import sys
@@ -54,9 +53,15 @@ MAX_ATTRIBUTES = 100
 SDF_VALUE_COUNTS = {"xyz": (3,)}
 POSE_VALUE_COUNTS = {"euler_rpy": (6,), "quat_xyzw": (7,)}   # by the <pose>'s rotation_format
 # The mass properties a URDF link states once: Drake's parser reads the first and ignores the rest without a word,
-# so a second <mass> (a negative one, say) would be a physics nobody checked. (Other elements stated twice are left
-# as Drake reads them: a published quadruped states a joint's <axis> twice.)
+# so a second <mass> (a negative one, say) would be a physics nobody checked.
 URDF_SINGLE_CHILDREN = {"inertial": ("mass", "origin", "inertia"), "link": ("inertial",)}
+# What a joint states once, read as the first by Drake's parser too: a second one is refused where it differs from
+# the first (two equal ones say the same; a published quadruped states a joint's <axis> twice)
+URDF_SAME_CHILDREN = {"joint": ("origin", "parent", "child", "axis", "limit", "dynamics", "mimic", "calibration",
+                                "safety_controller")}
+SDF_SAME_CHILDREN = {"joint": ("parent", "child", "pose", "axis", "axis2"), "axis": ("xyz", "limit", "dynamics"),
+                     "axis2": ("xyz", "limit", "dynamics"), "limit": ("lower", "upper", "effort", "velocity"),
+                     "dynamics": ("damping", "friction", "spring_reference", "spring_stiffness")}
 # and SDF's (SDFormat reads one of each; a second, a mass of another value, went unread without a word)
 SDF_SINGLE_CHILDREN = {"inertial": ("mass", "pose", "inertia"), "link": ("inertial",),
                        "inertia": ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
@@ -76,14 +81,33 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
                          "so write their text out in the file")
 
     frames = sdf_frames = depth = 0
+    # per open element: [tag, line, has a child element, its nodes [kind, text]] (`split_text`); in a CDATA section,
+    # whether the next text starts a node (after a comment, a CDATA section's start or end, ...)
+    open_elements, state = [], dict(cdata=False, new=True)
+
+    def node(kind: str, text: str = "", new: bool = True) -> None:
+        nodes = open_elements[-1][3] if open_elements else []
+        if kind in ("text", "cdata") and not state["new"] and nodes and nodes[-1][0] == kind:
+            nodes[-1][1] += text
+        else:
+            nodes.append([kind, text])
+        state["new"] = new
 
     def ended(_tag):
         nonlocal depth
         depth -= 1
+        tag, line, parent, nodes = open_elements.pop()
+        state["new"] = True
+        if not parent and any(kind != "text" for kind, _ in nodes):
+            split_text(path, tag, line, nodes)
 
     def started(tag, attributes):
         nonlocal frames, sdf_frames, depth
         depth += 1
+        if open_elements:
+            open_elements[-1][2] = True
+        open_elements.append([tag, checker.CurrentLineNumber, False, []])
+        state["new"] = True
         if len(attributes) > MAX_ATTRIBUTES:
             raise InputError(f"{path.name}: an element <{tag}> carries {len(attributes):,} attributes (line "
                              f"{checker.CurrentLineNumber}); a description's elements carry a handful, at most "
@@ -112,12 +136,33 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
     checker = expat.ParserCreate()
     checker.EntityDeclHandler = declared
     checker.StartElementHandler, checker.EndElementHandler = started, ended
+    checker.CharacterDataHandler = lambda text: node("cdata" if state["cdata"] else "text", text, new=False)
+    checker.CommentHandler = lambda _text: node("comment")
+    checker.ProcessingInstructionHandler = lambda _target, _data: node("instruction")
+    checker.StartCdataSectionHandler = lambda: (state.update(cdata=True), node("cdata", new=False))
+    checker.EndCdataSectionHandler = lambda: state.update(cdata=False, new=True)
     data, skipped = _text(path)
     try:
         checker.Parse(data, True)
     except expat.ExpatError as error:
         raise InputError(f"{path.name} is not well-formed XML ({expat.ErrorString(error.code)}: line "
                          f"{error.lineno + skipped}, column {error.offset}); {kind}") from None
+
+
+def split_text(path: pathlib.Path, tag: str, line: int, nodes: list) -> None:
+    """InputError where the text of element `tag` (no child elements; `nodes`: its [kind, text] in order, the kinds
+    "text", "cdata", "comment", "instruction") reads otherwise as Drake's parser reads it: SDFormat takes an element's
+    first text node (a CDATA section is one of its own; text of white space alone is none; comments before it are
+    passed over), while Python's reading joins all its text: `<mass>0<!-- -->.5</mass>` is 0 to Drake (measured)."""
+    read = [text for kind, text in nodes if kind in ("text", "cdata") and text.strip()]
+    first = read[0] if read else ""
+    joined = "".join(text for kind, text in nodes if kind in ("text", "cdata"))
+    if first.strip() != joined.strip():
+        splitter = next(kind for kind, _ in nodes if kind != "text")
+        what = {"cdata": "a CDATA section", "comment": "a comment", "instruction": "a processing instruction"}[splitter]
+        raise InputError(f"{path.name}: the text of <{tag}> (line {line}) is split by {what}: {joined.strip()!r} "
+                         f"to these checks, {first.strip()!r} to Drake's parser (TinyXML2 reads an element's first "
+                         "text node only); write the value in one piece")
 
 
 def _text(path: pathlib.Path) -> tuple[bytes, int]:
@@ -175,6 +220,12 @@ def check_numbers(root, rule) -> None:
                 itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
                 raise WrongCount(f"{owner}: {itself} states {found} <{tag}> elements; {'SDF' if sdf else 'URDF'} gives "
                                  "one (Drake's parser reads the first and ignores the others)")
+        for tag in (SDF_SAME_CHILDREN if sdf else URDF_SAME_CHILDREN).get(element.tag, ()):
+            found = [_content(child) for child in element.findall(tag)]
+            if len(set(found)) > 1:
+                itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
+                raise WrongCount(f"{owner}: {itself} states {len(found)} <{tag}> elements that differ; Drake's parser "
+                                 "reads the first and ignores the others: keep the one meant")
         if sdf:
             if element.tag == "dynamics":
                 _check_joint_dynamics({child.tag: child.text for child in element}, owner)
@@ -216,6 +267,13 @@ def check_numbers(root, rule) -> None:
 # (the lowest value, the highest, its unit)
 JOINT_DYNAMICS = {"damping": (0.0, 1e6, "N m s/rad or N s/m"), "friction": (0.0, 1e6, "N m or N"),
                   "spring_stiffness": (0.0, 1e8, "N m/rad or N/m"), "spring_reference": (-1e6, 1e6, "rad or m")}
+
+
+def _content(element) -> tuple:
+    """What an element states, to compare two of them: its tag, attributes and text (white space around them
+    aside) and its children's, in order."""
+    return (element.tag, tuple(sorted((key, value.strip()) for key, value in element.attrib.items())),
+            (element.text or "").strip(), tuple(_content(child) for child in element))
 
 
 def _check_joint_dynamics(texts: dict, owner: str) -> None:
@@ -359,36 +417,3 @@ def ascii_words(text: str) -> list[str]:
 def _numbers(text: str, rule, what: str, error) -> None:
     if not all(rule.fullmatch(part) for part in ascii_words(text)):
         raise error(f"{what} is {text.strip(ASCII_SPACE)!r}")
-
-
-MAX_INCLUDE_DEPTH = 8   # SDF <include>s followed from one file (a file that includes itself stops here)
-
-
-def included_files(root, path: pathlib.Path, packages: dict | None = None, includes=None) -> list[pathlib.Path]:
-    """The local files the <include>s of an SDF's tree `root` (read from `path`; `includes`: these <include>
-    elements only) name, as `include_target` finds them; the others are Drake's to resolve, not read here."""
-    found = [include_target(include, path, packages)
-             for include in (root.iter("include") if includes is None else includes)]
-    return [target for target in found if target is not None]
-
-
-def include_target(include, path: pathlib.Path, packages: dict | None = None) -> pathlib.Path | None:
-    """The local file an SDF <include> element (of the file at `path`) names: a relative path, a file:// URI or a
-    package:// or model:// URI of one of `packages` (name -> folder: the robot config's package_paths), of an SDF
-    file or of a model folder (its model.config's first <sdf> file); None for another URI (another package, a web
-    address) or a file that is not there."""
-    uri = (include.findtext("uri") or "").strip(ASCII_SPACE)
-    scheme = next((scheme for scheme in ("package://", "model://") if uri.startswith(scheme)), None)
-    package, _, rest = uri.removeprefix(scheme or "").partition("/")
-    if scheme is not None and package in (packages or {}):   # (Drake reads model://NAME as package://NAME)
-        uri = str(pathlib.Path(packages[package]) / rest)
-    if not uri or ("://" in uri and not uri.startswith("file://")):
-        return None
-    target = pathlib.Path(uri.removeprefix("file://"))
-    # (as SDFormat joins it: `./sub/../arm.sdf` is arm.sdf, whether or not a folder `sub` exists)
-    target = pathlib.Path(os.path.normpath(target if target.is_absolute() else pathlib.Path(path).parent / target))
-    if target.is_dir() and (config := target / "model.config").is_file():
-        check_xml(config, "a model.config is")
-        name = (parse(config).getroot().findtext("sdf") or "").strip(ASCII_SPACE)
-        target = target / name if name else target
-    return target if target.is_file() else None
