@@ -161,8 +161,8 @@ def split_text(path: pathlib.Path, tag: str, line: int, nodes: list) -> None:
         splitter = next(kind for kind, _ in nodes if kind != "text")
         what = {"cdata": "a CDATA section", "comment": "a comment", "instruction": "a processing instruction"}[splitter]
         raise InputError(f"{path.name}: the text of <{tag}> (line {line}) is split by {what}: {joined.strip()!r} "
-                         f"to these checks, {first.strip()!r} to Drake's parser (TinyXML2 reads an element's first "
-                         "text node only); write the value in one piece")
+                         f"to these checks, {first.strip()!r} to Drake's parser (SDFormat reads an element's first "
+                         "text node); write the value in one piece")
 
 
 def _text(path: pathlib.Path) -> tuple[bytes, int]:
