@@ -136,8 +136,8 @@ def check_quoted_numbers(path, schema) -> None:
     if found is not None:
         where, value, how = found
         if how == "a single value where a list goes":
-            raise InputError(f"{path}: {where} is {value}, {how}; write it as a list (a per-joint setting takes "
-                             "[x] for one value x on every joint)")
+            raise InputError(f"{path}: {where} is {line_text(value[:80])}, {how}; write it as a list ([x]; a "
+                             "per-joint setting takes one value x for every joint that way)")
         if how.startswith("which YAML reads as"):
             raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
         if how == "which only YAML 1.1 reads as a boolean":

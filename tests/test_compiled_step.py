@@ -50,18 +50,18 @@ def test_the_compiled_networks_step_and_linearization_are_the_numpy_models(tmp_p
     sums in another order: reverse mode here, forward mode in numpy)."""
     model = LearnedModel(synthetic_checkpoint(tmp_path / "model.pt", structure, model_type=kind, activation=activation),
                          robot=UR10)
-    core, x, a, expected = linearizations_agree(model, 3, 1e-7)
+    core, x, a, expected = linearizations_agree(model, 3, 1e-7, UR10.num_joints)
     for row in range(3):
         np.testing.assert_allclose(core.step(x[row], a[row]), model.step_single(x[row], a[row]), rtol=0,
                                    atol=1e-7 * np.abs(expected).max())
 
 
-def linearizations_agree(model, seed: int, tolerance: float):
-    """The compiled core of `model` linearizes 20 random rows (seed) as the numpy model does: next states to
-    `tolerance` of their scale, Jacobians to 10 x `tolerance` of theirs; (core, x, a, next states)."""
+def linearizations_agree(model, seed: int, tolerance: float, joints: int):
+    """The compiled core of `model` (of an arm of `joints`) linearizes 20 random rows (seed) as the numpy model does:
+    next states to `tolerance` of their scale, Jacobians to 10 x `tolerance` of theirs; (core, x, a, next states)."""
     core, why_not = compiled_core.compiled_model(model)
     assert core is not None, why_not
-    x, a = random_rows(20, seed)
+    x, a = random_rows(20, seed, joints)
     expected, A, B = model.linearize(x, a)
     following, core_A, core_B = core.linearize(x, a)
     np.testing.assert_allclose(following, expected, rtol=0, atol=tolerance * np.abs(expected).max())
@@ -70,14 +70,19 @@ def linearizations_agree(model, seed: int, tolerance: float):
     return core, x, a, expected
 
 
-@pytest.mark.parametrize("width, structure, kind", [(29, DEFAULT, "D"), (100, PAPER, "PE"), (3, PAPER, "D")])
-def test_the_compiled_linearization_holds_at_every_width(tmp_path, width, structure, kind):
+@pytest.mark.parametrize("width, structure, kind, arm", [(29, DEFAULT, "D", "ur10"), (100, PAPER, "PE", "ur10"),
+                                                       (3, PAPER, "D", "ur10"), (13, DEFAULT, "D", "panda")])
+def test_the_compiled_linearization_holds_at_every_width(tmp_path, width, structure, kind, arm):
     """The hidden layers' products in register blocks of 16, 8 and 4 columns and one by one (core/small_gemm.hpp):
     29 = 16 + 8 + 4 + 1 columns, the default width of 100 (6 x 16 + 4), 3 (one by one only); the horizon's 20 input
-    rows times 6 or 12 outputs are 120 or 240 rows, 20 not a multiple of the blocks' 6 rows."""
-    model = LearnedModel(synthetic_checkpoint(tmp_path / "model.pt", structure, model_type=kind, hidden_width=width),
-                         robot=UR10)
-    core, x, a, expected = linearizations_agree(model, 5, 1e-6)   # (a width of 100 sums more float32 terms)
+    rows (the forward pass: 3 blocks of 6 rows and 2 rows left) times the outputs, 120 or 240 rows for the UR-10,
+    140 for the Panda's 7 velocities (23 blocks and 2 rows left, each scaled by its slopes)."""
+    from stdm_drake.paths import MODELS_DIR
+    from stdm_drake.robots.robot import load_robot
+    robot = UR10 if arm == "ur10" else load_robot(MODELS_DIR / "panda.yaml")
+    model = LearnedModel(synthetic_checkpoint(tmp_path / "model.pt", structure, model_type=kind, hidden_width=width,
+                                              robot=robot), robot=robot)
+    core, x, a, expected = linearizations_agree(model, 5, 1e-6, robot.num_joints)   # (width 100: more float32 terms)
     np.testing.assert_allclose(core.step_rows(x, a), expected, rtol=0, atol=1e-6 * np.abs(expected).max())
 
 

@@ -42,11 +42,12 @@ STRUCTURES = {
 TYPES = {"D": (1, False), "DE": (3, False), "P": (1, True), "PE": (3, True)}
 
 
-def synthetic_checkpoint(path, structure, *, model_type="D", activation="swish", residual=True, seed=0, hidden_width=16):
-    """A checkpoint of random weights and non-trivial normalizers (what is compared does not depend on training),
-    hidden layers of `hidden_width`."""
+def synthetic_checkpoint(path, structure, *, model_type="D", activation="swish", residual=True, seed=0, hidden_width=16,
+                         robot=UR10):
+    """A checkpoint of `robot` (default the UR-10) of random weights and non-trivial normalizers (what is compared does
+    not depend on training), hidden layers of `hidden_width`."""
     members, probabilistic = TYPES[model_type]
-    inputs, outputs = structure.network_sizes(2 * UR10.num_joints, UR10.action_dim)
+    inputs, outputs = structure.network_sizes(2 * robot.num_joints, robot.action_dim)
     config = ModelConfig(input_dim=inputs, output_dim=outputs, residual=residual, hidden_width=hidden_width, hidden_layers=3,
                          activation=activation, ensemble_size=members, probabilistic=probabilistic)
     network = EnsembleMLP(config, generator=torch.Generator().manual_seed(seed)).double()
@@ -54,9 +55,9 @@ def synthetic_checkpoint(path, structure, *, model_type="D", activation="swish",
     with torch.no_grad():
         for bias in network.biases:
             bias.copy_(torch.from_numpy(rng.normal(0.0, 0.1, bias.shape)))
-        x, a = random_rows(256, seed + 7)       # the inputs' own spread, as training sets it, then perturbed
-        n = UR10.num_joints
-        features = structure.nominal_features(UR10, 0.01)
+        x, a = random_rows(256, seed + 7, robot.num_joints)   # the inputs' own spread, as training sets it, perturbed
+        n = robot.num_joints
+        features = structure.nominal_features(robot, 0.01)
         phi = None if features is None else features.values(x[:, :n], x[:, n:], a)
         rows = np.hstack(structure.split(x, a, phi))
         network.input_normalizer.mean.copy_(torch.from_numpy(rows.mean(axis=0) + rng.normal(0.0, 0.1, inputs) * rows.std(axis=0)))
@@ -68,15 +69,16 @@ def synthetic_checkpoint(path, structure, *, model_type="D", activation="swish",
             network.max_logvar.copy_(torch.from_numpy(rng.uniform(-1.0, 0.5, network.max_logvar.shape)))
     return save_checkpoint(path, network.float(), metadata=dict(model_type=model_type, sample_period=0.01,
                                                                 structure=structure.as_dict(),
-                                                                joint_names=list(UR10.joint_names)))
+                                                                joint_names=list(robot.joint_names)))
 
 
-def random_rows(count=64, seed=1):
-    """States inside the UR-10's limits and torques of its effort scale: x (N, 12), τ (N, 6)."""
+def random_rows(count=64, seed=1, joints=6):
+    """States inside the UR-10's limits and torques of its effort scale (of another arm's `joints`): x (N, 2 joints),
+    τ (N, joints)."""
     rng = np.random.default_rng(seed)
-    q = rng.uniform(-2.0, 2.0, (count, 6))
-    v = rng.uniform(-1.0, 1.0, (count, 6))
-    return np.hstack([q, v]), rng.uniform(-50.0, 50.0, (count, 6))
+    q = rng.uniform(-2.0, 2.0, (count, joints))
+    v = rng.uniform(-1.0, 1.0, (count, joints))
+    return np.hstack([q, v]), rng.uniform(-50.0, 50.0, (count, joints))
 
 
 def session(path_or_model):

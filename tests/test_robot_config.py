@@ -428,7 +428,7 @@ def test_what_drakes_parser_reads_as_written_passes_the_one_reading_checks(tmp_p
                  "\n  <!-- measured -->\n  2.0\n"):
         path.write_text(SDF.format(mass=mass, lower=-1).replace("<link name=\"tip\"/>", "<!-- a tip --><link name=\"tip\"/>"))
         assert read_description(path).links["upper"].mass == 2.0, mass
-    path.write_text(SDF.format(mass=2.0, lower=-1).replace("<xyz>0 1 0</xyz>", "<xyz>0 1 0</xyz><xyz> 0 1 0 </xyz>"))
+    path.write_text(SDF.format(mass=2.0, lower=-1).replace("<xyz>0 1 0</xyz>", "<xyz>0 1 0</xyz><xyz> 0 1.0 0 </xyz>"))
     read_description(path)
     urdf = tmp_path / "arm.urdf"
     urdf.write_text('<robot name="r"><link name="a"/><link name="b"><inertial><mass value="1"/><inertia ixx="0.1" '
@@ -436,10 +436,15 @@ def test_what_drakes_parser_reads_as_written_passes_the_one_reading_checks(tmp_p
                     '<parent link="a"/><child link="b"/><axis xyz="0 0 1"/><axis xyz="0 0 1 "/><limit lower="-1" '
                     'upper="1" effort="1" velocity="1"/></joint></robot>')
     assert [joint.name for joint in read_description(urdf).joints] == ["j"]
-    for split in ("2<!-- -->.0", "<!-- kg -->2<!-- -->.0", "2.<![CDATA[0]]>", "<![CDATA[2]]>.0"):
+    for split in ("2<!-- -->.0", "<!-- kg -->2<!-- -->.0", "2.<![CDATA[0]]>", "<![CDATA[2]]>.0", "<?x?>2.0",
+                  "<![CDATA[ ]]>2.0"):
         path.write_text(SDF.format(mass=split, lower=-1))
         with pytest.raises(InputError, match="the text of <mass> .* is split by"):
             read_description(path)
+    path.write_text("\n\n" + SDF.format(mass="2<!-- -->.0", lower=-1))   # (the line counts blank lines before the file)
+    with pytest.raises(InputError, match=r"the text of <mass> \(line 6\) is split by a comment: '2.0' to these checks, "
+                                         "'2' to Drake's parser"):
+        read_description(path)
 
 
 def test_a_long_chain_of_frames_is_checked_in_one_pass(tmp_path):

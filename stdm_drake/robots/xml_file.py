@@ -9,6 +9,7 @@ import re
 import sys
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots import xml_readings
 
 
 class WrongCount(ValueError):
@@ -55,13 +56,6 @@ POSE_VALUE_COUNTS = {"euler_rpy": (6,), "quat_xyzw": (7,)}   # by the <pose>'s r
 # The mass properties a URDF link states once: Drake's parser reads the first and ignores the rest without a word,
 # so a second <mass> (a negative one, say) would be a physics nobody checked.
 URDF_SINGLE_CHILDREN = {"inertial": ("mass", "origin", "inertia"), "link": ("inertial",)}
-# What a joint states once, read as the first by Drake's parser too: a second one is refused where it differs from
-# the first (two equal ones say the same; a published quadruped states a joint's <axis> twice)
-URDF_SAME_CHILDREN = {"joint": ("origin", "parent", "child", "axis", "limit", "dynamics", "mimic", "calibration",
-                                "safety_controller")}
-SDF_SAME_CHILDREN = {"joint": ("parent", "child", "pose", "axis", "axis2"), "axis": ("xyz", "limit", "dynamics"),
-                     "axis2": ("xyz", "limit", "dynamics"), "limit": ("lower", "upper", "effort", "velocity"),
-                     "dynamics": ("damping", "friction", "spring_reference", "spring_stiffness")}
 # and SDF's (SDFormat reads one of each; a second, a mass of another value, went unread without a word)
 SDF_SINGLE_CHILDREN = {"inertial": ("mass", "pose", "inertia"), "link": ("inertial",),
                        "inertia": ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
@@ -81,51 +75,53 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
                          "so write their text out in the file")
 
     frames = sdf_frames = depth = 0
-    # per open element: [tag, line, has a child element, its nodes [kind, text]] (`split_text`); in a CDATA section,
-    # whether the next text starts a node (after a comment, a CDATA section's start or end, ...)
+    # per open element: [tag, line, its nodes [kind, [pieces of text]] until it has a child element (then None)]
+    # (`split_text`); whether in a CDATA section, and whether the next text starts a node (after a comment, ...)
     open_elements, state = [], dict(cdata=False, new=True)
 
     def node(kind: str, text: str = "", new: bool = True) -> None:
-        nodes = open_elements[-1][3] if open_elements else []
+        nodes = open_elements[-1][2] if open_elements else None
+        if nodes is None:
+            return
         if kind in ("text", "cdata") and not state["new"] and nodes and nodes[-1][0] == kind:
-            nodes[-1][1] += text
+            nodes[-1][1].append(text)
         else:
-            nodes.append([kind, text])
+            nodes.append([kind, [text]])
         state["new"] = new
 
     def ended(_tag):
         nonlocal depth
         depth -= 1
-        tag, line, parent, nodes = open_elements.pop()
+        tag, line, nodes = open_elements.pop()
         state["new"] = True
-        if not parent and any(kind != "text" for kind, _ in nodes):
-            split_text(path, tag, line, nodes)
+        if nodes and any(kind != "text" for kind, _ in nodes):
+            xml_readings.split_text(path, tag, line, [(kind, "".join(pieces)) for kind, pieces in nodes])
 
     def started(tag, attributes):
         nonlocal frames, sdf_frames, depth
         depth += 1
         if open_elements:
-            open_elements[-1][2] = True
-        open_elements.append([tag, checker.CurrentLineNumber, False, []])
+            open_elements[-1][2] = None
+        open_elements.append([tag, checker.CurrentLineNumber + skipped, []])
         state["new"] = True
         if len(attributes) > MAX_ATTRIBUTES:
             raise InputError(f"{path.name}: an element <{tag}> carries {len(attributes):,} attributes (line "
-                             f"{checker.CurrentLineNumber}); a description's elements carry a handful, at most "
+                             f"{checker.CurrentLineNumber + skipped}); a description's elements carry a handful, at most "
                              f"{MAX_ATTRIBUTES} are read")
         if depth > MAX_DEPTH:
-            raise InputError(f"{path.name} nests elements more than {MAX_DEPTH} deep (line {checker.CurrentLineNumber}); "
+            raise InputError(f"{path.name} nests elements more than {MAX_DEPTH} deep (line {checker.CurrentLineNumber + skipped}); "
                              "a robot description nests 5 to 10 (SDF models inside models: a few)")
         if count_frames and tag in FRAME_TAGS:
             frames += 1
             sdf_frames += tag == "frame"
             if sdf_frames > MAX_SDF_FRAMES:
                 raise InputError(f"{path.name} states more than {MAX_SDF_FRAMES:,} <frame>s (line "
-                                 f"{checker.CurrentLineNumber}); an arm states tens, and the work grows "
+                                 f"{checker.CurrentLineNumber + skipped}); an arm states tens, and the work grows "
                                  "faster than their count (2,000 in a chain: 50 s); keep in the file what the robot "
                                  "is made of")
             if frames > MAX_FRAMES:
                 raise InputError(f"{path.name} states more than {MAX_FRAMES:,} links, joints and frames (line "
-                                 f"{checker.CurrentLineNumber}); a robot has tens to hundreds, and every command reads "
+                                 f"{checker.CurrentLineNumber + skipped}); a robot has tens to hundreds, and every command reads "
                                  "and builds each of them several times (about 1.2 ms each); keep in the file what "
                                  "the robot is made of")
 
@@ -133,7 +129,9 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
         raise InputError(f"{path.name} is {pathlib.Path(path).stat().st_size / 2**20:.1f} MB, more than the "
                          f"{MAX_DESCRIPTION_BYTES >> 20} MB a robot description or SRDF here may be (they are kilobytes, "
                          "with meshes in files of their own); every command reads it several times")
+    data, skipped = _text(path)
     checker = expat.ParserCreate()
+    checker.buffer_text = True   # (a text's lines in one call)
     checker.EntityDeclHandler = declared
     checker.StartElementHandler, checker.EndElementHandler = started, ended
     checker.CharacterDataHandler = lambda text: node("cdata" if state["cdata"] else "text", text, new=False)
@@ -141,28 +139,11 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
     checker.ProcessingInstructionHandler = lambda _target, _data: node("instruction")
     checker.StartCdataSectionHandler = lambda: (state.update(cdata=True), node("cdata", new=False))
     checker.EndCdataSectionHandler = lambda: state.update(cdata=False, new=True)
-    data, skipped = _text(path)
     try:
         checker.Parse(data, True)
     except expat.ExpatError as error:
         raise InputError(f"{path.name} is not well-formed XML ({expat.ErrorString(error.code)}: line "
                          f"{error.lineno + skipped}, column {error.offset}); {kind}") from None
-
-
-def split_text(path: pathlib.Path, tag: str, line: int, nodes: list) -> None:
-    """InputError where the text of element `tag` (no child elements; `nodes`: its [kind, text] in order, the kinds
-    "text", "cdata", "comment", "instruction") reads otherwise as Drake's parser reads it: SDFormat takes an element's
-    first text node (a CDATA section is one of its own; text of white space alone is none; comments before it are
-    passed over), while Python's reading joins all its text: `<mass>0<!-- -->.5</mass>` is 0 to Drake (measured)."""
-    read = [text for kind, text in nodes if kind in ("text", "cdata") and text.strip()]
-    first = read[0] if read else ""
-    joined = "".join(text for kind, text in nodes if kind in ("text", "cdata"))
-    if first.strip() != joined.strip():
-        splitter = next(kind for kind, _ in nodes if kind != "text")
-        what = {"cdata": "a CDATA section", "comment": "a comment", "instruction": "a processing instruction"}[splitter]
-        raise InputError(f"{path.name}: the text of <{tag}> (line {line}) is split by {what}: {joined.strip()!r} "
-                         f"to these checks, {first.strip()!r} to Drake's parser (SDFormat reads an element's first "
-                         "text node); write the value in one piece")
 
 
 def _text(path: pathlib.Path) -> tuple[bytes, int]:
@@ -220,8 +201,8 @@ def check_numbers(root, rule) -> None:
                 itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
                 raise WrongCount(f"{owner}: {itself} states {found} <{tag}> elements; {'SDF' if sdf else 'URDF'} gives "
                                  "one (Drake's parser reads the first and ignores the others)")
-        for tag in (SDF_SAME_CHILDREN if sdf else URDF_SAME_CHILDREN).get(element.tag, ()):
-            found = [_content(child) for child in element.findall(tag)]
+        for tag in (xml_readings.SDF_SAME_CHILDREN if sdf else xml_readings.URDF_SAME_CHILDREN).get(element.tag, ()):
+            found = [xml_readings.content(child) for child in element.findall(tag)]
             if len(set(found)) > 1:
                 itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
                 raise WrongCount(f"{owner}: {itself} states {len(found)} <{tag}> elements that differ; Drake's parser "
@@ -267,13 +248,6 @@ def check_numbers(root, rule) -> None:
 # (the lowest value, the highest, its unit)
 JOINT_DYNAMICS = {"damping": (0.0, 1e6, "N m s/rad or N s/m"), "friction": (0.0, 1e6, "N m or N"),
                   "spring_stiffness": (0.0, 1e8, "N m/rad or N/m"), "spring_reference": (-1e6, 1e6, "rad or m")}
-
-
-def _content(element) -> tuple:
-    """What an element states, to compare two of them: its tag, attributes and text (white space around them
-    aside) and its children's, in order."""
-    return (element.tag, tuple(sorted((key, value.strip()) for key, value in element.attrib.items())),
-            (element.text or "").strip(), tuple(_content(child) for child in element))
 
 
 def _check_joint_dynamics(texts: dict, owner: str) -> None:

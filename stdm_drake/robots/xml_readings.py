@@ -1,0 +1,52 @@
+"""What Drake's parser reads of an XML element where a reader that joins or merges would read otherwise: an element's
+first text node (`split_text`), the first of elements stated twice (`content`, to compare them). Used by
+`robots.xml_file`'s checks."""
+from __future__ import annotations
+
+import pathlib
+
+from stdm_drake.errors import InputError
+
+# What a joint states once, read as the first by Drake's parser too: a second one is refused where it differs from
+# the first (two equal ones say the same; a published quadruped states a joint's <axis> twice)
+URDF_SAME_CHILDREN = {"joint": ("origin", "parent", "child", "axis", "limit", "dynamics", "mimic", "calibration",
+                                "safety_controller")}
+SDF_SAME_CHILDREN = {"joint": ("parent", "child", "pose", "axis", "axis2"), "axis": ("xyz", "limit", "dynamics"),
+                     "axis2": ("xyz", "limit", "dynamics"), "limit": ("lower", "upper", "effort", "velocity"),
+                     "dynamics": ("damping", "friction", "spring_reference", "spring_stiffness")}
+
+FREE_TEXT = {"description", "author", "email", "maintainer", "license"}   # (a model.config's: no value Drake reads)
+
+
+def split_text(path: pathlib.Path, tag: str, line: int, nodes: list) -> None:
+    """InputError where the text of element `tag` (no child elements; `nodes`: its (kind, text), kinds "text", "cdata",
+    "comment", "instruction") reads otherwise to Drake: SDFormat takes an element's first text node (CDATA its own, of
+    white space too; blank text none; comments passed over, not an instruction), Python joins them all (measured)."""
+    if tag in FREE_TEXT:
+        return
+    first = next((text if kind != "instruction" else "" for kind, text in nodes
+                  if kind in ("cdata", "instruction") or (kind == "text" and text.strip())), "")
+    joined = "".join(text for kind, text in nodes if kind in ("text", "cdata"))
+    if first.strip() != joined.strip():
+        kinds = {kind for kind, _ in nodes}
+        what = ("a CDATA section" if "cdata" in kinds else "a processing instruction" if "instruction" in kinds
+                else "a comment")
+        raise InputError(f"{path.name}: the text of <{tag}> (line {line}) is split by {what}: {joined.strip()[:80]!r} "
+                         f"to these checks, {first.strip()[:80]!r} to Drake's parser (SDFormat reads an element's first "
+                         "text node); write the value in one piece")
+
+
+def content(element) -> tuple:
+    """What an element states, to compare two of them: its tag, attributes and text (their words, numbers as numbers:
+    "0 1 0" and "0 1 0.0" say the same) and its children's, in order."""
+    return (element.tag, tuple(sorted((key, _words(value)) for key, value in element.attrib.items())),
+            _words(element.text or ""), tuple(content(child) for child in element))
+
+
+def _words(text: str) -> tuple:
+    def word(item: str):
+        try:
+            return float(item)
+        except ValueError:
+            return item
+    return tuple(word(item) for item in text.split())
