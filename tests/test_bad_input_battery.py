@@ -1084,7 +1084,7 @@ CASES = [
      "its world includes 'https://example.invalid/arm.sdf', a file these checks cannot find"),
     # (held-out run 23: a training seed beyond torch's 64-bit generator, refused after the first seed had trained)
     ([*T, "--seeds", "0", "18446744073709551616", "-o", "NEW"], "seeds (--seeds) must be distinct integers in 0..2^64-1"),
-    (["robot", "init", "sdf_two_masses.sdf", "-o", "NEW.yaml"], "link 'b': its <inertial> states 2 <mass> elements; SDF gives one"),
+    (["robot", "init", "sdf_two_masses.sdf", "-o", "NEW.yaml"], "link 'b': its <inertial> states 2 <mass> elements that differ; SDF gives one"),
     (["robot", "init", "world_bad_inertia.sdf", "-o", "NEW.yaml"], "(SDFormat refuses a world holding link 'b': principal moments"),
     (["robot", "init", "wrapper.sdf", "-o", "NEW.yaml"], "its model 'mid' holds no link of its own, only the nested model wrapped_arm"),
     (["robot", "init", "kinematic.urdf", "-o", "NEW.yaml", "--masses-from-geometry", "--density", "1e-320"],
@@ -1101,12 +1101,19 @@ CASES = [
     (["robot", "init", "comment_first.sdf", "-o", "NEW.yaml"], "is split by a comment: '0.5' to these checks, '0' to Drake's"),
     (["robot", "init", "split_lower.sdf", "-o", "NEW.yaml"], "the text of <lower> (line 1) is split by a comment: '-20'"),
     (["robot", "init", "two_axes.urdf", "-o", "NEW.yaml"],
-     "joint 'shoulder_pan_joint': it states 2 <axis> elements that differ; Drake's parser reads the first"),
+     "joint 'shoulder_pan_joint': it states 2 <axis> elements that differ; URDF gives one (Drake's parser reads the first"),
     (["robot", "init", "two_parents.sdf", "-o", "NEW.yaml"], "joint 'j': it states 2 <parent> elements that differ"),
     (["robot", "init", "two_efforts.sdf", "-o", "NEW.yaml"], "joint 'j': its <limit> states 2 <effort> elements that differ"),
     (yaml_case("effects", "viscous_friction: 2.5\n"), "viscous_friction is 2.5, a single value where a list goes"),
     (yaml_case("effects", "coulomb_friction: 1e3\n"), "coulomb_friction is 1e3, a single value where a list goes"),
     (yaml_case("ctrl", "controller: !Pid {kp: 100, ki: [1], kd: [1]}\n"), "controller.kp is 100, a single value where a list goes"),
+    # (held-out run 25: null, a mapping or a nested list where a settings list goes; a mapping where a list goes)
+    (yaml_case("effects", "viscous_friction: null\n"), "viscous_friction is null, null where a list goes"),
+    (yaml_case("effects", "viscous_friction: [[1.0, 2.0], [3.0]]\n"), "viscous_friction is [1.0, 2.0], a list where a number goes"),
+    (yaml_case("effects", "rotor_inertia: {a: 1.0}\n"), "rotor_inertia is {a: 1.0}, a mapping where a list goes"),
+    (yaml_case("effects", "mass_scale: [1.0, 2.0]\n"), "mass_scale is [1.0, 2.0], a list where a mapping goes"),
+    (yaml_case("train", "seeds: {0: 1}\n"), "seeds is {0: 1}, a mapping where a list goes"),
+    (yaml_case("mpc", "position_weight: null\n"), "position_weight is null, null where a list goes"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -53,12 +53,6 @@ MAX_ATTRIBUTES = 100
 # rotation_format="quat_xyzw"; both finite
 SDF_VALUE_COUNTS = {"xyz": (3,)}
 POSE_VALUE_COUNTS = {"euler_rpy": (6,), "quat_xyzw": (7,)}   # by the <pose>'s rotation_format
-# The mass properties a URDF link states once: Drake's parser reads the first and ignores the rest without a word,
-# so a second <mass> (a negative one, say) would be a physics nobody checked.
-URDF_SINGLE_CHILDREN = {"inertial": ("mass", "origin", "inertia"), "link": ("inertial",)}
-# and SDF's (SDFormat reads one of each; a second, a mass of another value, went unread without a word)
-SDF_SINGLE_CHILDREN = {"inertial": ("mass", "pose", "inertia"), "link": ("inertial",),
-                       "inertia": ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
 
 
 def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None:
@@ -195,18 +189,14 @@ def check_numbers(root, rule) -> None:
             _check_drake_value(element, owner, rule, sdf)
         if element.tag in ("mimic", "drake:mimic"):
             _check_mimic(element, owner, rule)
-        single = (SDF_SINGLE_CHILDREN if sdf else URDF_SINGLE_CHILDREN).get(element.tag, ())
-        for tag in single:
-            if (found := len(element.findall(tag))) > 1:
-                itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
-                raise WrongCount(f"{owner}: {itself} states {found} <{tag}> elements; {'SDF' if sdf else 'URDF'} gives "
-                                 "one (Drake's parser reads the first and ignores the others)")
         for tag in (xml_readings.SDF_SAME_CHILDREN if sdf else xml_readings.URDF_SAME_CHILDREN).get(element.tag, ()):
-            found = [xml_readings.content(child) for child in element.findall(tag)]
-            if len(set(found)) > 1:
+            children = list(element) if tag == "*" else element.findall(tag)
+            if len({xml_readings.content(child) for child in children}) > 1:
                 itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
-                raise WrongCount(f"{owner}: {itself} states {len(found)} <{tag}> elements that differ; Drake's parser "
-                                 "reads the first and ignores the others: keep the one meant")
+                what = (f"{len(children)} shapes ({', '.join(f'<{child.tag}>' for child in children)})" if tag == "*"
+                        else f"{len(children)} <{tag}> elements")
+                raise WrongCount(f"{owner}: {itself} states {what} that differ; {'SDF' if sdf else 'URDF'} gives one "
+                                 "(Drake's parser reads the first and ignores the others): keep the one meant")
         if sdf:
             if element.tag == "dynamics":
                 _check_joint_dynamics({child.tag: child.text for child in element}, owner)
