@@ -342,6 +342,12 @@ def write_issue_25_inputs(box) -> None:
     # (held-out run 24: what a joint states once, stated twice and differing; twice the same loads)
     (box / "two_axes.urdf").write_text(urdf.replace('<axis xyz="0 0 1"/>', '<axis xyz="0 0 1"/><axis xyz="0 1 0"/>', 1))
     (box / "two_parents.sdf").write_text(arm_sdf.replace("<parent>a</parent>", "<parent>a</parent><parent>c</parent>", 1))
+    (box / "two_poses.sdf").write_text(arm_sdf.replace('<model name="arm">', '<model name="arm"><pose>0 0 0 0 0 0</pose>'
+                                                       '<pose>0 0 1 0 0 0</pose>', 1))
+    (box / "two_gravities.sdf").write_text(arm_sdf.replace('<link name="b"/>', '<link name="b"><gravity>true</gravity>'
+                                                           '<gravity>false</gravity></link>'))
+    (box / "two_shapes.urdf").write_text(urdf.replace('<cylinder radius="0.075" length="0.038"/>',
+                                                      '<cylinder radius="0.075" length="0.038"/><box size="1 1 1"/>', 1))
     (box / "two_efforts.sdf").write_text(arm_sdf.replace("<xyz>0 0 1</xyz></axis>", "<xyz>0 0 1</xyz><limit><lower>-1</lower>"
                                                          "<upper>1</upper><effort>5</effort><effort>50</effort></limit>"
                                                          "</axis>", 1))
@@ -1104,6 +1110,9 @@ CASES = [
      "joint 'shoulder_pan_joint': it states 2 <axis> elements that differ; URDF gives one (Drake's parser reads the first"),
     (["robot", "init", "two_parents.sdf", "-o", "NEW.yaml"], "joint 'j': it states 2 <parent> elements that differ"),
     (["robot", "init", "two_efforts.sdf", "-o", "NEW.yaml"], "joint 'j': its <limit> states 2 <effort> elements that differ"),
+    (["robot", "init", "two_poses.sdf", "-o", "NEW.yaml"], "model 'arm': it states 2 <pose> elements that differ"),
+    (["robot", "init", "two_gravities.sdf", "-o", "NEW.yaml"], "link 'b': it states 2 <gravity> elements that differ"),
+    (["robot", "init", "two_shapes.urdf", "-o", "NEW.yaml"], "its <geometry> states 2 shapes (<cylinder>, <box>) that differ"),
     (yaml_case("effects", "viscous_friction: 2.5\n"), "viscous_friction is 2.5, a single value where a list goes"),
     (yaml_case("effects", "coulomb_friction: 1e3\n"), "coulomb_friction is 1e3, a single value where a list goes"),
     (yaml_case("ctrl", "controller: !Pid {kp: 100, ki: [1], kd: [1]}\n"), "controller.kp is 100, a single value where a list goes"),

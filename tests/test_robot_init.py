@@ -530,6 +530,12 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
     np.testing.assert_allclose(Dynamics(load_robot(tmp_path / "merged.yaml")).mass_matrix(home), bare.mass_matrix(home))
     (tmp_path / "merged_one.sdf").write_text((tmp_path / "merged.sdf").read_text().replace('merge="true"', 'merge=" 1"'))
     assert main(["robot", "init", str(tmp_path / "merged_one.sdf"), "-o", str(tmp_path / "merged_one.yaml")]) == 0
+    # (held-out run 25: "holds 0 models") a world that <include>s a URDF arm: Drake adds its model and returns none
+    (tmp_path / "bare.urdf").write_text((MODELS_DIR / "ur10.urdf").read_text())
+    (tmp_path / "world_urdf.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>bare.urdf</uri></include>'
+                                             '</world></sdf>')
+    assert main(["robot", "init", str(tmp_path / "world_urdf.sdf"), "-o", str(tmp_path / "world_urdf.yaml")]) == 0
+    assert main(["robot", "check", str(tmp_path / "world_urdf.yaml")]) == 0
     # (held-out run 24: "a file these checks cannot find") the same world and merge through package:// and model://
     # URIs of a package `robot init --package` names
     (tmp_path / "pkg").mkdir()

@@ -7,11 +7,14 @@ from pydrake.multibody.tree import ModelInstanceIndex
 from stdm_drake.errors import InputError
 
 
-def robot_instance(plant: MultibodyPlant, instances, where: str):
+def robot_instance(plant: MultibodyPlant, instances, where: str, added_from: int | None = None):
     """The robot's model instance among the `instances` Drake's parser added for its one file: the first, the others
     nested in it (an SDF model's <include>d or inner models, "arm::tool": part of the robot, their joints fixed:
     `check_nested_fixed`). InputError (one line, `where`: the robot and file) for a file of several models side by
-    side, or of none."""
+    side, or of none. added_from: the plant's count of instances before the parse, whose new ones stand in for an
+    empty `instances` (an SDF world that <include>s a URDF: Drake adds its model and returns none)."""
+    if not instances and added_from is not None:
+        instances = [ModelInstanceIndex(index) for index in range(added_from, plant.num_model_instances())]
     names = [plant.GetModelInstanceName(instance) for instance in instances]
     if not names or any(not name.startswith(names[0] + "::") for name in names[1:]):
         raise InputError(f"{where} holds {len(names)} models ({', '.join(names[:5])}), expected one (with the models "

@@ -288,7 +288,7 @@ class Robot:
         parser = offline_parser(plant, model_name_prefix)
         for name, path in self.package_paths.items():
             parser.package_map().Add(name, str(path))
-        text = self._model_text
+        text, before = self._model_text, plant.num_model_instances()
         try:
             with drake_inertia_warnings_left_out(bool(self.inertia_substitutions)):
                 instances = (parser.AddModels(str(self.model_path)) if text is None
@@ -297,7 +297,7 @@ class Robot:
             why = next((f" (SDFormat refuses a world holding link {link!r}: {text.split(':')[0]})" for link, text in
                         self.inertia_substitutions.items() if "Failed to load a world" in str(error)), "")
             raise InputError(f"robot {self.name}: {self.model_path.name} does not load: {one_line(error)}{why}") from None
-        instance = robot_instance(plant, instances, f"robot {self.name}: {self.model_path.name}")
+        instance = robot_instance(plant, instances, f"robot {self.name}: {self.model_path.name}", added_from=before)
         config = self.config
         if config.weld_frame is not None:
             if not plant.HasFrameNamed(config.weld_frame, instance):

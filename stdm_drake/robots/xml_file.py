@@ -190,9 +190,10 @@ def check_numbers(root, rule) -> None:
         if element.tag in ("mimic", "drake:mimic"):
             _check_mimic(element, owner, rule)
         for tag in (xml_readings.SDF_SAME_CHILDREN if sdf else xml_readings.URDF_SAME_CHILDREN).get(element.tag, ()):
-            children = list(element) if tag == "*" else element.findall(tag)
+            children = [child for child in element if child.tag in xml_readings.SHAPES] if tag == "*" else \
+                element.findall(tag)
             if len({xml_readings.content(child) for child in children}) > 1:
-                itself = "it" if element.tag in ("link", "joint") else f"its <{element.tag}>"
+                itself = "it" if element.tag in ("link", "joint", "model") else f"its <{element.tag}>"
                 what = (f"{len(children)} shapes ({', '.join(f'<{child.tag}>' for child in children)})" if tag == "*"
                         else f"{len(children)} <{tag}> elements")
                 raise WrongCount(f"{owner}: {itself} states {what} that differ; {'SDF' if sdf else 'URDF'} gives one "

@@ -9,14 +9,20 @@ from stdm_drake.errors import InputError
 
 # What a joint, a link's inertia, a shape... states once, read as the first by Drake's parser (the others ignored
 # without a word): a second one is refused where it differs from the first (two equal ones say the same; a published
-# quadruped states a joint's <axis> twice). "*": every child (a <geometry> holds one shape).
+# quadruped states a joint's <axis> twice). "*": every shape of SHAPES (a <geometry> holds one; a published racecar's
+# also holds a <material>, which Drake's parser passes over).
+SHAPES = {"box", "cylinder", "sphere", "mesh", "capsule", "ellipsoid", "plane", "heightmap", "polyline", "empty",
+          "drake:capsule", "drake:ellipsoid"}
 URDF_SAME_CHILDREN = {"joint": ("origin", "parent", "child", "axis", "limit", "dynamics", "mimic", "calibration",
                                 "safety_controller"), "inertial": ("mass", "origin", "inertia"), "link": ("inertial",),
                       "visual": ("origin", "geometry"), "collision": ("origin", "geometry"), "geometry": ("*",)}
 SDF_SAME_CHILDREN = {"joint": ("parent", "child", "pose", "axis", "axis2"), "axis": ("xyz", "limit", "dynamics"),
                      "axis2": ("xyz", "limit", "dynamics"), "limit": ("lower", "upper", "effort", "velocity"),
                      "dynamics": ("damping", "friction", "spring_reference", "spring_stiffness"),
-                     "inertial": ("mass", "pose", "inertia"), "link": ("inertial", "pose"),
+                     "inertial": ("mass", "pose", "inertia"), "model": ("pose", "static", "self_collide",
+                                                                         "allow_auto_disable", "enable_wind"),
+                     "link": ("inertial", "pose", "gravity", "self_collide", "kinematic", "must_be_base_link",
+                              "enable_wind"),
                      "inertia": ("ixx", "iyy", "izz", "ixy", "ixz", "iyz"), "visual": ("pose", "geometry"),
                      "collision": ("pose", "geometry"), "geometry": ("*",), "box": ("size",), "sphere": ("radius",),
                      "cylinder": ("radius", "length"), "capsule": ("radius", "length"), "ellipsoid": ("radii",)}
