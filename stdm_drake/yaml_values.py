@@ -186,8 +186,8 @@ def _quoted_number(node, schema, prefix: str, text: str):
         written = text[item.start_mark.index:item.end_mark.index]   # (with its anchor and tag, if any)
         tag = next((word for word in written.split() if word.startswith("!")), None)
         if boolean in ("a list", "a mapping", "a number"):
-            shape = ("null" if item.tag.endswith(":null") else "a mapping" if isinstance(item, yaml.MappingNode) else
-                     "a list" if isinstance(item, yaml.SequenceNode) else "a single value")
+            shape = "null" if item.tag.endswith(":null") else {"list": "a list", "mapping": "a mapping"}.get(
+                _shape(item), "a single value")
             return where, written.strip(), f"{shape} where {boolean} goes"
         if boolean:   # (`"false"` or `!!str true`: text, which the typed load would read as the boolean)
             if item.style in ("'", '"') or (tag is not None and not item.tag.endswith(":bool")):

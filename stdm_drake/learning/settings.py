@@ -9,10 +9,9 @@ import typing
 import numpy as np
 import torch
 
-from stdm_drake.data.dataset import ACTION_RATE_SCHEMES, DERIVATIVE_SOURCES
+from stdm_drake.data.dataset import ACTION_RATE_SCHEMES, DERIVATIVE_SOURCES, check_split_options
 from stdm_drake import files
 from stdm_drake.config import decimal_number
-from stdm_drake.data.dataset import check_split_options
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.loss import LOSS_KINDS

@@ -96,26 +96,27 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
         depth += 1
         if open_elements:
             open_elements[-1][2] = None
-        open_elements.append([tag, checker.CurrentLineNumber + skipped, []])
+        line = checker.CurrentLineNumber + skipped
+        open_elements.append([tag, line, []])
         state["new"] = True
         if len(attributes) > MAX_ATTRIBUTES:
             raise InputError(f"{path.name}: an element <{tag}> carries {len(attributes):,} attributes (line "
-                             f"{checker.CurrentLineNumber + skipped}); a description's elements carry a handful, at most "
+                             f"{line}); a description's elements carry a handful, at most "
                              f"{MAX_ATTRIBUTES} are read")
         if depth > MAX_DEPTH:
-            raise InputError(f"{path.name} nests elements more than {MAX_DEPTH} deep (line {checker.CurrentLineNumber + skipped}); "
+            raise InputError(f"{path.name} nests elements more than {MAX_DEPTH} deep (line {line}); "
                              "a robot description nests 5 to 10 (SDF models inside models: a few)")
         if count_frames and tag in FRAME_TAGS:
             frames += 1
             sdf_frames += tag == "frame"
             if sdf_frames > MAX_SDF_FRAMES:
                 raise InputError(f"{path.name} states more than {MAX_SDF_FRAMES:,} <frame>s (line "
-                                 f"{checker.CurrentLineNumber + skipped}); an arm states tens, and the work grows "
+                                 f"{line}); an arm states tens, and the work grows "
                                  "faster than their count (2,000 in a chain: 50 s); keep in the file what the robot "
                                  "is made of")
             if frames > MAX_FRAMES:
                 raise InputError(f"{path.name} states more than {MAX_FRAMES:,} links, joints and frames (line "
-                                 f"{checker.CurrentLineNumber + skipped}); a robot has tens to hundreds, and every command reads "
+                                 f"{line}); a robot has tens to hundreds, and every command reads "
                                  "and builds each of them several times (about 1.2 ms each); keep in the file what "
                                  "the robot is made of")
 
