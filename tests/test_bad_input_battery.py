@@ -796,6 +796,8 @@ CASES = [
     (yaml_case("mpc", "optimizer: !Ilqr {line_search: [0]}\n"), "line_search steps must be in [1e-06, 1]"),
     (yaml_case("mpc", "optimizer: !Ilqr {line_search: [-1]}\n"), "line_search steps must be in [1e-06, 1]"),
     (yaml_case("mpc", "optimizer: !Rti {regularization: -1}\n"), "regularization must be in [0, 1e6]"),
+    (yaml_case("mpc", "optimizer: !Rti {jacobian_refresh: 0}\n"), "jacobian_refresh must be all or a number of nodes"),
+    (yaml_case("mpc", "optimizer: !Rti {jacobian_refresh: 40}\n"), "jacobian_refresh 40 is beyond the horizon's 20"),
     (yaml_case("mpc", "terminal_factor: -10\n"), "terminal_factor must be in"),
     (yaml_case("mpc", "velocity_weight: [1e300]\n"), "velocity_weight must be at most"),
     (yaml_case("mpc", "horizon: 100000\n"), "horizon must be in 1..1000"),

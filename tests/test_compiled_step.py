@@ -102,12 +102,14 @@ def test_the_compiled_plant_model_is_the_numpy_plant_model(request, which):
 
 
 def recorded_comparison(model, mode: str, iterations: int, steps: int = 12, seed: int = 0, limits=TIGHT,
-                        start=(0.7, 0.95), target=0.9):
+                        start=(0.7, 0.95), target=0.9, jacobian_refresh="all"):
     """Both implementations on the same recorded inputs: the states of a loop that the numpy reference closes
     (the plant stepped by its torque, with noise, near tight limits), each step started from the reference's own
-    warm start. Returns [(numpy result, compiled result, whether either QP fell back to the box)] per step."""
+    warm start (each solver keeping its own Jacobians under a partial `jacobian_refresh`). Returns [(numpy result,
+    compiled result, whether either QP fell back to the box)] per step."""
     base = load_mpc_config()
-    configs = [dataclasses.replace(base, optimizer=Rti(iterations=iterations, implementation=implementation),
+    configs = [dataclasses.replace(base, optimizer=Rti(iterations=iterations, implementation=implementation,
+                                                       jacobian_refresh=jacobian_refresh),
                                    constraints=Constraints(mode=mode)) for implementation in ("numpy", "compiled")]
     reference_solver, compiled_solver = (config.solver(model, limits) for config in configs)
     assert isinstance(reference_solver, RtiSolver) and compiled_solver.implementation == "compiled"
@@ -261,7 +263,13 @@ def test_trained_networks_compiled_torques_are_the_references_on_recorded_states
     recorded (a test trajectory, tracking its own recorded states as the plan), position limits 0.01 rad inside
     the trajectory's range (so that the QP's rows bind where it turns, with slack), one iteration: the torques agree to 1e-5 of
     the effort limit (float32 networks: their Jacobians agree to 2e-7, and the QP's Hessian amplifies that), on
-    every step where neither QP fell back to the torque box."""
+    every step where neither QP fell back to the torque box. The multi-level iteration (`jacobian_refresh: 5`,
+    each solver keeping its own Jacobians) on the same states with the numpy reference over the compiled network's
+    own steps and Jacobians (`CoreAsModel`: the same float32 numbers, so that only the algorithm is compared; end
+    to end, its inexact steps amplify float32's differences beyond what a tolerance can state): to 1e-9 of the
+    effort limit on every step where neither QP fell back."""
+    from test_multilevel_iteration import CoreAsModel
+    from stdm_drake.dynamics.compiled_core import compiled_model
     from stdm_drake.cli import main
     from stdm_drake.data.dataset import load_dataset
     options = [] if kind == "D" else ["--predicts", "state", "--inputs", "raw", "--ensemble-size", "5"]
@@ -275,10 +283,14 @@ def test_trained_networks_compiled_torques_are_the_references_on_recorded_states
     limits = JointLimits(np.minimum(low + 0.01, middle - 0.05), np.maximum(high - 0.01, middle + 0.05), np.full(6, 3.0),
                          EFFORT)
     horizon = load_mpc_config().horizon
-    for mode in ("soft", "off"):
-        configs = [dataclasses.replace(load_mpc_config(), optimizer=Rti(implementation=implementation),
+    core_model, _ = compiled_model(model)
+    for mode, refresh in (("soft", "all"), ("off", "all"), ("soft", 5)):
+        configs = [dataclasses.replace(load_mpc_config(), optimizer=Rti(implementation=implementation,
+                                                                        jacobian_refresh=refresh),
                                        constraints=Constraints(mode=mode)) for implementation in ("numpy", "compiled")]
-        reference_solver, compiled_solver = (config.solver(model, limits) for config in configs)
+        reference_solver, compiled_solver = (config.solver(model if refresh == "all" or name == "compiled" else
+                                                           CoreAsModel(core_model, model), limits)
+                                             for config, name in zip(configs, ("numpy", "compiled")))
         warm, nodes, compared, active = np.zeros((horizon, 6)), None, 0, 0
         for step in range(0, len(states) - horizon - 1, 3):
             reference = states[step:step + horizon + 1]
@@ -291,11 +303,13 @@ def test_trained_networks_compiled_torques_are_the_references_on_recorded_states
             # settled with 1.2e-16 where the reference fell back with 0.029, and the two were compared)
             if compiled_solver._core.unsettled > before or (expected.slack > SLACK_ROUNDING) != (result.slack > SLACK_ROUNDING):
                 continue
-            np.testing.assert_allclose(result.u, expected.u, rtol=0, atol=1e-5 * EFFORT.max())
+            np.testing.assert_allclose(result.u, expected.u, rtol=0, atol=(1e-5 if refresh == "all" else 1e-9)
+                                       * EFFORT.max())
             assert result.cost == pytest.approx(expected.cost, rel=1e-4)
             compared += 1
             active += expected.constraint_active
-        assert compared >= 8
+        # (the inexact steps leave more QPs unsettled at these tight limits: 4-6 of 26 steps compared, not 8+)
+        assert compared >= (8 if refresh == "all" else 4)
         if mode == "soft":
             assert active >= 1
 

@@ -40,9 +40,14 @@ def program_torques(program, controller, reference, states) -> np.ndarray:
     return np.loadtxt(result.stdout.splitlines(), ndmin=2)
 
 
-def test_the_program_applies_the_python_controllers_torques_with_the_plant_as_model(program, tmp_path):
+@pytest.mark.parametrize("refresh", ["all", 5])
+def test_the_program_applies_the_python_controllers_torques_with_the_plant_as_model(program, tmp_path, refresh):
+    """Also under the multi-level iteration (`jacobian_refresh: 5`: the file carries K, the program keeps its
+    Jacobians from step to step as the extension does)."""
+    import dataclasses
     model = PlantModel(0.01, robot=UR10, integrator="rk4")
     reference, config = quintic_reference(40), load_mpc_config()
+    config = dataclasses.replace(config, optimizer=dataclasses.replace(config.optimizer, jacobian_refresh=refresh))
     log = run_closed_loop(model, reference, config, robot=UR10)
     assert log.implementation == "compiled"
     controller = tmp_path / "plant.controller"

@@ -16,7 +16,13 @@ Goals (issue 54): mean control step <= 0.3 ms and p95 <= 0.5 ms for the plant as
 mean <= 0.6 ms for PE (a 5-member ensemble); each model's tracking q MSE within 2 % of its baseline's. A row is
 "met" only when its time goals and its tracking goal all hold.
 
-Usage: python tools/bench_mpc.py [--dataset D.h5 --checkpoint C.pt ... --identified I.yaml] [--plans 3] [--write]
+With `--jacobian-refresh all 5 2` (the multi-level iteration, docs/realtime.md's design) both run once per K
+(`Rti(jacobian_refresh=K)`, the numpy reference with the same K as its baseline) and a row is "met" where its time
+goals hold and its q MSE is within 2 % of the exact step's (K = all, compiled) in the same run, no limit crossed;
+the smallest K meeting both is named per model.
+
+Usage: python tools/bench_mpc.py [--dataset D.h5 --checkpoint C.pt ... --identified I.yaml] [--plans 3]
+       [--jacobian-refresh all 5 2] [--write]
 Without them it collects the identification dataset (100 tracked plans, dithered PID, ideal sensor),
 trains DD and PE (the paper's structure, DD with the true held-torque derivative targets and α 1e-3, as
 the committed runs) and a default D on 20 plans (seed 0), and identifies the robot, in a temporary folder.
@@ -38,10 +44,11 @@ TYPES = {"DD": "learned (DD)", "PE": "learned (PE)", "D": "learned (D, default)"
 
 
 def closed_loops(code_root: pathlib.Path, dataset_path, checkpoints, identified, plans: int,
-                 implementation: str | None = None) -> list[dict]:
+                 implementation: str | None = None, jacobian_refresh=None, exact: bool = True) -> list[dict]:
     """The `summarize` rows of every model's closed loop with the stdm_drake found at code_root (this
     checkout, or the baseline's worktree): plant, identified robot, then the checkpoints; implementation: the
-    real-time iteration's ("compiled", "numpy"; None: the code's default)."""
+    real-time iteration's ("compiled", "numpy"; None: the code's default); jacobian_refresh: its K (None: the
+    settings file's); exact: also the simulator's plant with exact Jacobians (the tracking reference)."""
     sys.path.insert(0, str(code_root))
     import torch
     torch.set_num_threads(1)
@@ -67,11 +74,16 @@ def closed_loops(code_root: pathlib.Path, dataset_path, checkpoints, identified,
         plant, robot = plant.for_control(), robot.for_control()
     references = held_out_references(dataset, [model.checkpoint for model in learned], plans)
     config = load_mpc_config()
+    import dataclasses
     if implementation is not None:
-        import dataclasses
         config = dataclasses.replace(config, optimizer=dataclasses.replace(config.optimizer, implementation=implementation))
         if implementation == "numpy":
             extra = []      # (the tracking reference runs once, in the compiled run)
+    if jacobian_refresh is not None:
+        config = dataclasses.replace(config, optimizer=dataclasses.replace(config.optimizer,
+                                                                           jacobian_refresh=jacobian_refresh))
+    if not exact:
+        extra = []
     results = compare_controllers([plant, robot, *learned, *extra], references, config, progress=False,
                                   robot=ur10)
     return summarize(results, dataset.sample_period)
@@ -156,6 +168,50 @@ def report(now: list[dict], baseline: list[dict], plans: int, revision: str) -> 
                       "", *lines, *notes])
 
 
+def multilevel_report(runs: list[dict], plans: int) -> str:
+    """The multi-level iteration's table and verdict (docs/realtime.md's design): runs [{K, baseline rows, now
+    rows}], the first K "all" (the exact step, the tracking reference)."""
+    goals = {"plant": (0.3, 0.5), "identified": (0.3, 0.5), TYPES["D"]: (0.3, 0.5), TYPES["DD"]: (0.3, 0.5),
+             TYPES["PE"]: (0.6, None)}
+    exact = {row["model"]: row for row in runs[0]["now"]}
+    header = ("| model | K | numpy mean (ms) | compiled mean (ms) | compiled p95 (ms) | goal mean / p95 (ms) | "
+              "q MSE (rad²) | q MSE / exact step's | limit violations | fallbacks | verdict |")
+    lines = [header, "|" + "---|" * (header.count("|") - 1)]
+    smallest = {}
+    for model in exact:
+        if model not in goals:
+            continue
+        mean_goal, p95_goal = goals[model]
+        for run in runs:
+            row = next(r for r in run["now"] if r["model"] == model)
+            old = next(r for r in run["baseline"] if r["model"] == model)
+            ratio = row["q_mse_rad2"] / exact[model]["q_mse_rad2"]
+            fast = row["solve_ms_mean"] <= mean_goal and (p95_goal is None or row["solve_ms_p95"] <= p95_goal)
+            safe = row["limit_violations"] == 0 and row["fallbacks"] == 0
+            tracks = ratio <= 1.02
+            verdict = ("fails (a limit crossed or a fallback)" if not safe else "met" if fast and tracks else
+                       f"faster but tracks worse ({ratio:.3f}x)" if fast else "time goal not met")
+            if verdict == "met":
+                smallest[model] = run["K"]
+            lines.append("| " + " | ".join([
+                model, str(run["K"]), f"{old['solve_ms_mean']:.3f}", f"{row['solve_ms_mean']:.3f}",
+                f"{row['solve_ms_p95']:.3f}", f"{mean_goal:g} / {p95_goal:g}" if p95_goal else f"{mean_goal:g} / -",
+                f"{row['q_mse_rad2']:.4g}", f"{ratio:.4f}", str(row["limit_violations"]), str(row["fallbacks"]),
+                verdict]) + " |")
+    met = [f"{model}: K = {k}" for model, k in smallest.items()]
+    summary = ("Met (the smallest K meeting the time and the tracking goal): " + "; ".join(met) + "."
+               if met else "No model meets both goals at any K tried.")
+    missing = [model for model in goals if model in exact and model not in smallest]
+    if missing:
+        summary += " Not met: " + ", ".join(missing) + "."
+    return "\n".join([f"{plans} held-out plans of identification.h5 (1 s each, 100 control steps), horizon 20, one "
+                      "iteration per control step, disturbance gain 1.0, limits on (`constraints: soft`), one thread; "
+                      "per K of `jacobian_refresh` the numpy reference (same K) and the compiled step in the same "
+                      "process. Tracking: the compiled step's q MSE against the exact step's (K = all) on the same "
+                      "plans. Met: mean and p95 goals (issue 54), q MSE within 2 % of the exact step's, no limit "
+                      "crossed, no fallback.", "", *lines, "", summary])
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dataset", type=pathlib.Path)
@@ -165,6 +221,8 @@ def main():
     parser.add_argument("--baseline", default=BASELINE, help="the baseline: 'numpy' (the numpy reference of this checkout, "
                         "the default) or a git revision")
     parser.add_argument("--keep", type=pathlib.Path, help="make the data and checkpoints in this folder (kept)")
+    parser.add_argument("--jacobian-refresh", nargs="+", metavar="K", help="the multi-level iteration: run every "
+                        "controller once per K (all, or a number of nodes; the first must be all, the exact step)")
     parser.add_argument("--child", nargs=2, metavar=("CODE", "OUTPUT"), help=argparse.SUPPRESS)
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md and docs/results/realtime/")
     sys.path.insert(0, str(ROOT / "tools"))
@@ -175,6 +233,11 @@ def main():
         rows = closed_loops(code, args.dataset, args.checkpoint, args.identified, args.plans)
         output.write_text(json.dumps(rows))
         return
+    refresh = None
+    if args.jacobian_refresh:
+        refresh = [value if value == "all" else int(value) for value in args.jacobian_refresh]
+        if refresh[0] != "all" or args.baseline != "numpy":
+            parser.error("--jacobian-refresh: the first K is all (the exact step), against the numpy baseline")
     given = args.dataset is not None
     if given:
         dataset, checkpoints, identified = args.dataset, args.checkpoint, args.identified
@@ -182,6 +245,21 @@ def main():
         folder = args.keep or pathlib.Path(tempfile.mkdtemp(prefix="bench_mpc_"))
         folder.mkdir(parents=True, exist_ok=True)
         dataset, checkpoints, identified = prepare(folder)
+    if refresh is not None:
+        runs = [dict(K=k, baseline=closed_loops(ROOT, dataset, checkpoints, identified, args.plans, "numpy", k),
+                     now=closed_loops(ROOT, dataset, checkpoints, identified, args.plans, "compiled", k,
+                                      exact=k == "all")) for k in refresh]
+        text = multilevel_report(runs, args.plans) + (f"\n\nMachine: {machine_description(threads=1)}."
+                                                      + (" Data and checkpoints from an earlier default run, passed "
+                                                         "in." if given else "") + "\n")
+        print(text)
+        if args.write:
+            from stdm_drake.files import write_text_atomic
+            write_benchmark_section("Deployment", "The multi-level iteration (tools/bench_mpc.py --jacobian-refresh)",
+                                    text, origin, record=False)
+            write_text_atomic(ROOT / "docs" / "results" / "compiled_step" / "bench_mpc_multilevel.json",
+                              json.dumps(dict(plans=args.plans, provenance=origin, runs=runs), indent=1))
+        return
     if args.baseline == "numpy":
         old = closed_loops(ROOT, dataset, checkpoints, identified, args.plans, implementation="numpy")
     else:

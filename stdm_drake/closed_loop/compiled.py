@@ -39,7 +39,8 @@ class CompiledRtiSolver(TrajectoryOptimizer):
             core_model, int(config.iterations), float(config.regularization), np.diag(cost.Q).astype(float),
             np.diag(cost.R).astype(float), float(cost.terminal_factor), self.effort_limit.astype(float),
             bounds is not None, bool(bounds is not None and bounds.hard), np.asarray(lower, dtype=float),
-            np.asarray(upper, dtype=float), float(bounds.penalty_weight) if bounds is not None else 1.0)
+            np.asarray(upper, dtype=float), float(bounds.penalty_weight) if bounds is not None else 1.0,
+            config.refresh_count())
 
     def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
               offset: np.ndarray | None = None, x_init: np.ndarray | None = None) -> OptimizerResult:

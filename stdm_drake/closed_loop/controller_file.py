@@ -7,8 +7,8 @@ What the file holds (text; its first line `# stdm-drake controller 1 ...`, then 
     text model              "network" (an ensemble MLP `train` wrote) or "plant" (the plant as model, RK4)
     state_dim, action_dim   S and m
     sample_period           s; the controller's period
-    horizon, iterations, regularization, terminal_factor, disturbance_gain
-                            the MPC settings (`closed_loop.mpc.MpcConfig`, `rti.Rti`)
+    horizon, iterations, jacobian_refresh, regularization, terminal_factor, disturbance_gain
+                            the MPC settings (`closed_loop.mpc.MpcConfig`, `rti.Rti`; jacobian_refresh 0: all)
     Q (S,), R (m,)          the tracking cost's diagonals
     effort_limit (m,)       N m: the torque box
     constrained, hard, lower (S,), upper (S,), penalty_weight
@@ -72,6 +72,7 @@ def controller_text(model, config, robot, written_by: str = "stdm-drake export")
              "text model " + ("plant" if isinstance(model, PlantModel) else "network")]
     scalars = dict(state_dim=S, action_dim=model.action_dim, sample_period=model.sample_period,
                    horizon=config.horizon, iterations=config.optimizer.iterations,
+                   jacobian_refresh=config.optimizer.refresh_count(),
                    regularization=config.optimizer.regularization, terminal_factor=cost.terminal_factor,
                    disturbance_gain=config.disturbance_gain, constrained=int(bounds is not None),
                    hard=int(bounds is not None and bounds.hard),

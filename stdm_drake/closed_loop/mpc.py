@@ -121,6 +121,7 @@ class MpcConfig:
             raise InputError(f"mpc optimizer must be one of {', '.join(OPTIMIZER_TAGS)} (an OptimizerSettings), got "
                              f"{self.optimizer!r}")
         self.optimizer.validate()
+        self.optimizer.check_horizon(self.horizon)
         work = self.optimizer.work_per_step(self.horizon)
         if work > MAX_WORK_PER_STEP:
             raise InputError(f"mpc optimizer !{type(self.optimizer).__name__} over horizon {self.horizon} would evaluate "

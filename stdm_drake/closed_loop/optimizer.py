@@ -80,6 +80,9 @@ class OptimizerSettings(abc.ABC):
         controller before constraints, torques clipped after the step and no state limit) (InputError where it
         cannot solve that problem)."""
 
+    def check_horizon(self, horizon: int) -> None:
+        """InputError (one line) for settings that do not fit a horizon of `horizon` sample periods; none here."""
+
     def record(self) -> dict:
         """What an output records of these settings: its tag ("type", the class name) and its fields."""
         return dict(type=type(self).__name__, **dataclasses.asdict(self))

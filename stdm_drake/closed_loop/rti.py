@@ -19,13 +19,22 @@ from the measurement, which the disturbance observer compares with the next meas
 the next control step. More iterations per step (`iterations`) repeat linearize + solve on the updated
 nodes (a full SQP).
 
-Its settings: `Rti` (`optimizer: !Rti {iterations: 1, regularization: 1.0e-6, implementation: compiled}` in the
-MPC settings). `implementation: compiled` (the default) runs the whole control step in C++ (`compiled.py`) for
+The multi-level iteration (`jacobian_refresh: K`; default `all`, the exact step above): each iteration computes
+the Jacobians (A_k, B_k) of the nodes `refreshed_nodes` names only, about K of the H (every k with k mod P = 0, P
+= ceil(H / K), and the newest node), and keeps the others' from the last solve, shifted by one period as the
+warm start shifts the nodes; the predictions F_k come from the model's forward step at every node. Each node's
+Jacobians are at most P - 1 periods old; the Gauss-Newton step is then inexact (level B of the multi-level
+iterations of Bock, Diehl, Kirches & Schlöder), its predictions exact. A solve without a warm start (the first
+control step, after a fallback) computes every node's. docs/realtime.md measures what it saves and costs.
+
+Its settings: `Rti` (`optimizer: !Rti {iterations: 1, regularization: 1.0e-6, jacobian_refresh: all,
+implementation: compiled}` in the MPC settings). `implementation: compiled` (the default) runs the whole control step in C++ (`compiled.py`) for
 the models it covers; `numpy` runs this module, the reference the compiled step is tested equal to.
 Shapes for n joints, m actuated, horizon H as in `optimizer`. Horizons with H m > `MAX_CONDENSED` use
 the iLQR (`optimizer: !Ilqr {...}`), whose Riccati recursion is linear in H.
 """
 import dataclasses
+import typing
 
 import numpy as np
 from scipy.linalg.lapack import dpotrf as cholesky, dpotrs as cholesky_solve
@@ -47,10 +56,17 @@ class Rti(OptimizerSettings):
     Gauss-Newton iterations per control step (1: the real-time iteration), the initial Levenberg-Marquardt
     regularization added to the Hessian's diagonal (multiplied by 10 until it is positive definite), and the
     implementation: "compiled" (C++, `compiled.CompiledRtiSolver`, for the models it covers; the others run the
-    numpy step and the solver's `implementation` says why) or "numpy" (`RtiSolver`, the reference)."""
+    numpy step and the solver's `implementation` says why) or "numpy" (`RtiSolver`, the reference); and the
+    Jacobians each iteration computes: "all" (every node's, the exact step) or a number K of the horizon's H nodes
+    (1..H; the multi-level iteration of the module docstring)."""
     iterations: int = 1
     regularization: float = 1e-6
+    jacobian_refresh: typing.Union[int, str] = "all"
     implementation: str = "compiled"
+
+    def refresh_count(self) -> int:
+        """K as the compiled step takes it: 0 for "all"."""
+        return 0 if self.jacobian_refresh == "all" else int(self.jacobian_refresh)
 
     def work_per_step(self, horizon: int) -> int:
         """Each iteration linearizes every node."""
@@ -63,9 +79,19 @@ class Rti(OptimizerSettings):
             raise InputError(f"mpc optimizer !Rti iterations must be in 1..{MAX_ITERATIONS}, got {self.iterations}")
         if not (np.isfinite(self.regularization) and 0 <= self.regularization <= 1e6):
             raise InputError(f"mpc optimizer !Rti regularization must be in [0, 1e6], got {self.regularization}")
+        refresh = self.jacobian_refresh
+        if refresh != "all" and (isinstance(refresh, (bool, str)) or not isinstance(refresh, int) or refresh < 1):
+            raise InputError(f"mpc optimizer !Rti jacobian_refresh must be all or a number of nodes from 1 to the "
+                             f"horizon, got {refresh!r}")
         if self.implementation not in IMPLEMENTATIONS:
             raise InputError(f"mpc optimizer !Rti implementation must be one of {', '.join(IMPLEMENTATIONS)}, got "
                              f"{self.implementation!r}")
+
+    def check_horizon(self, horizon: int) -> None:
+        """InputError for a jacobian_refresh beyond the horizon's nodes."""
+        if self.refresh_count() > horizon:
+            raise InputError(f"mpc optimizer !Rti jacobian_refresh {self.jacobian_refresh} is beyond the horizon's "
+                             f"{horizon} nodes (all: every node)")
 
     def solver(self, model, cost: TrackingCost, effort_limit: np.ndarray, horizon: int,
                bounds: StateBounds | None = None) -> TrajectoryOptimizer:
@@ -73,6 +99,7 @@ class Rti(OptimizerSettings):
         `model`, else an RtiSolver (its `implementation` says why); InputError for a horizon whose dense system is
         beyond MAX_CONDENSED unknowns, or a compiled step that is not built."""
         joints = len(effort_limit)
+        self.check_horizon(horizon)
         if horizon * joints > MAX_CONDENSED:
             raise InputError(f"mpc horizon {horizon} x {joints} joints = {horizon * joints} torques is beyond the "
                              f"real-time iteration's {MAX_CONDENSED}; use `optimizer: !Ilqr {{}}` for long horizons")
@@ -108,6 +135,26 @@ class RtiSolver(TrajectoryOptimizer):
         self.config.validate()
         self._weights = {}     # horizon -> (state weights (H 2n,), effort weights (H m,))
         self.qp = None if bounds is None else CondensedQp(bounds, self.joints)
+        self._kept = None      # the last solve's Jacobians (A (H, S, S), B (H, S, m)) where the refresh is partial
+
+    def refreshed_nodes(self, horizon: int) -> np.ndarray:
+        """The nodes (indices < H) whose Jacobians an iteration computes: every k with k mod P = 0, P = ceil(H / K),
+        and the newest, H - 1 (each node moves down one position per control step, so it is refreshed at least
+        every P steps); all H for "all"."""
+        count = self.config.refresh_count()
+        period = -(-horizon // count) if count else 1
+        nodes = np.arange(horizon)
+        return nodes[(nodes % period == 0) | (nodes == horizon - 1)]
+
+    def _linearize_nodes(self, x, u, nodes, A, B):
+        """Predictions F (H, S) at every node of x (H+1, S), u (H, m) (the model's forward step; the linearization's
+        own at `nodes`), and A (H, S, S), B (H, S, m) with the Jacobians of `nodes` replaced, in place."""
+        others = np.setdiff1d(np.arange(len(u)), nodes)
+        following = np.empty((len(u), self.state_dim))
+        following[nodes], A[nodes], B[nodes] = self.linearize(x[nodes], u[nodes])
+        if len(others):
+            following[others] = self.model.step(x[others], u[others])
+        return following
 
     def solve(self, x0: np.ndarray, u_init: np.ndarray, reference: np.ndarray, u_ff: np.ndarray,
               offset: np.ndarray | None = None, x_init: np.ndarray | None = None) -> OptimizerResult:
@@ -115,11 +162,21 @@ class RtiSolver(TrajectoryOptimizer):
         x0 gives the first nodes); reference (H+1, 2n); u_ff (H, m); offset (2n,) added to every prediction."""
         offset = np.zeros(self.state_dim) if offset is None else np.asarray(offset, dtype=float)
         u = np.clip(u_init, -self.effort_limit, self.effort_limit)
-        if x_init is None or not np.all(np.isfinite(x_init)):
+        warm = x_init is not None and bool(np.all(np.isfinite(x_init)))
+        if not warm:
             x = self.rollout(x0, u, offset)
         else:
             x = np.array(x_init, dtype=float)
             x[0] = x0
+        horizon = len(u)
+        nodes = self.refreshed_nodes(horizon)
+        partial = len(nodes) < horizon
+        kept, self._kept = self._kept, None
+        # the kept Jacobians shifted by one period (node k's are the last solve's node k + 1's), from a warm start only
+        reuse = partial and warm and kept is not None and kept[0].shape == (horizon, self.state_dim, self.state_dim)
+        if reuse:
+            A, B = np.empty_like(kept[0]), np.empty_like(kept[1])
+            A[:-1], B[:-1] = kept[0][1:], kept[1][1:]
         if not np.all(np.isfinite(x)):
             return OptimizerResult(u, x, np.inf, 0, False)
         mu = self.config.regularization
@@ -127,7 +184,12 @@ class RtiSolver(TrajectoryOptimizer):
         active, slack = False, 0.0
         for iterations in range(1, self.config.iterations + 1):
             step = None
-            following, A, B = self.linearize(x[:-1], u)
+            if partial and (iterations > 1 or reuse):
+                following = self._linearize_nodes(x, u, nodes, A, B)
+            else:
+                following, A, B = self.linearize(x[:-1], u)
+                if partial:     # (kept and refreshed in place)
+                    A, B = np.array(A, dtype=float), np.array(B, dtype=float)
             if np.all(np.isfinite(following)) and np.all(np.isfinite(A)) and np.all(np.isfinite(B)):
                 for _ in range(12):    # raise the regularization until the system is positive definite
                     step = self._step(x, u, reference, u_ff, following + offset, A, B, mu)
@@ -138,6 +200,8 @@ class RtiSolver(TrajectoryOptimizer):
                 return OptimizerResult(u, x, np.inf, iterations, False)
             u, x, active, slack = step
             x[1] = self.predict(x0, u[0], offset)     # the first node: the model's own step from the measurement
+        if partial:
+            self._kept = (A, B)
         cost = self.cost(x, u, reference, u_ff)
         return OptimizerResult(u, x, cost, iterations, bool(np.all(np.isfinite(x)) and np.isfinite(cost)),
                                active, slack)

@@ -186,7 +186,7 @@ NB_MODULE(_core, module) {
       .def("__init__", [](stdm::RealTimeIteration* self, std::shared_ptr<stdm::Model> model, int iterations,
                           double regularization, const VectorXd& Q, const VectorXd& R, double terminal_factor,
                           const VectorXd& effort_limit, bool constrained, bool hard, const VectorXd& lower,
-                          const VectorXd& upper, double penalty_weight) {
+                          const VectorXd& upper, double penalty_weight, int jacobian_refresh) {
         new (self) stdm::RealTimeIteration();
         self->model = model;
         self->iterations = iterations;
@@ -200,8 +200,9 @@ NB_MODULE(_core, module) {
         self->lower = lower;
         self->upper = upper;
         self->penalty_weight = penalty_weight;
+        self->jacobian_refresh = jacobian_refresh;
       }, "model"_a, "iterations"_a, "regularization"_a, "Q"_a, "R"_a, "terminal_factor"_a, "effort_limit"_a,
-         "constrained"_a, "hard"_a, "lower"_a, "upper"_a, "penalty_weight"_a)
+         "constrained"_a, "hard"_a, "lower"_a, "upper"_a, "penalty_weight"_a, "jacobian_refresh"_a = 0)
       .def("solve", [](stdm::RealTimeIteration& self, const VectorXd& x0, const RowMatrixXd& u_init,
                        const RowMatrixXd& reference, const RowMatrixXd& u_ff, const VectorXd& offset,
                        std::optional<RowMatrixXd> x_init) {

@@ -717,6 +717,11 @@ struct RealTimeIteration {
   double penalty_weight = 1e5;
   std::vector<int> working_rows;   // the last solve's state rows near or beyond their bounds (warm start)
   long unsettled = 0;              // QPs whose state rows did not settle within the budget (the box alone kept)
+  // The multi-level iteration (rti.Rti.jacobian_refresh): 0 computes every node's Jacobians in every iteration
+  // (the exact step); K > 0 those of `refreshed_nodes` only, the others kept from the last solve shifted by one
+  // period (kept_A_ (H S, S), kept_B_ (H S, m); empty: none to reuse, as after a failed or cold solve).
+  int jacobian_refresh = 0;
+  RowMatrixXd kept_A_, kept_B_;
 
   int S() const { return model->state_dim; }
   int m() const { return model->action_dim; }
@@ -766,16 +771,63 @@ struct RealTimeIteration {
     return x;
   }
 
+  // The nodes whose Jacobians an iteration computes under jacobian_refresh K over H nodes: every k with k mod P = 0,
+  // P = ceil(H / K), and the newest, H - 1 (whose shifted predecessor does not exist). A node moves down one
+  // position per control step, so each is refreshed at least every P steps. All H where K is 0 or P is 1.
+  std::vector<int> refreshed_nodes(int H) const {
+    const int period = jacobian_refresh > 0 ? (H + jacobian_refresh - 1) / jacobian_refresh : 1;
+    std::vector<int> nodes;
+    for (int k = 0; k < H; ++k)
+      if (k % period == 0 || k == H - 1) nodes.push_back(k);
+    return nodes;
+  }
+
+  // The predictions F (H, S) at every node of x (H+1, S), u (H, m) (the model's forward step; the linearization's
+  // own at the refreshed `nodes`) and the Jacobians of `nodes` written into A (H S, S), B (H S, m).
+  void linearize_nodes(const RowMatrixXd& x, const RowMatrixXd& u, const std::vector<int>& nodes,
+                       RowMatrixXd& following, RowMatrixXd& A, RowMatrixXd& B) const {
+    const int H = int(u.rows()), s = S();
+    std::vector<int> others;
+    for (int k = 0, i = 0; k < H; ++k) {
+      if (i < int(nodes.size()) && nodes[i] == k) ++i;
+      else others.push_back(k);
+    }
+    RowMatrixXd next, nodes_A, nodes_B;
+    model->linearize(x(nodes, Eigen::all), u(nodes, Eigen::all), next, nodes_A, nodes_B);
+    following.resize(H, s);
+    following(nodes, Eigen::all) = next;
+    if (!others.empty()) following(others, Eigen::all) = model->step_rows(x(others, Eigen::all), u(others, Eigen::all));
+    for (size_t i = 0; i < nodes.size(); ++i) {
+      A.middleRows(Eigen::Index(nodes[i]) * s, s) = nodes_A.middleRows(Eigen::Index(i) * s, s);
+      B.middleRows(Eigen::Index(nodes[i]) * s, s) = nodes_B.middleRows(Eigen::Index(i) * s, s);
+    }
+  }
+
   StepResult solve(const VectorXd& x0, const RowMatrixXd& u_init, const RowMatrixXd& reference,
                    const RowMatrixXd& u_ff, const VectorXd& offset, const RowMatrixXd* x_init) {
     StepResult result;
     RowMatrixXd u = clip(u_init), x;
-    if (x_init == nullptr || !x_init->allFinite()) {
+    const bool warm = x_init != nullptr && x_init->allFinite();
+    if (!warm) {
       x = rollout(x0, u, offset);
     } else {
       x = *x_init;
       x.row(0) = x0.transpose();
     }
+    const int H = int(u.rows()), s = S();
+    const std::vector<int> nodes = refreshed_nodes(H);
+    const bool partial = int(nodes.size()) < H;
+    RowMatrixXd following, A, B;
+    // the kept Jacobians shifted by one period (node k's are the last solve's node k + 1's), from a warm start only
+    const bool reuse = partial && warm && kept_A_.rows() == Eigen::Index(H) * s && kept_A_.cols() == s;
+    if (reuse) {
+      A.resize(Eigen::Index(H) * s, s);
+      B.resize(Eigen::Index(H) * s, m());
+      A.topRows(Eigen::Index(H - 1) * s) = kept_A_.bottomRows(Eigen::Index(H - 1) * s);
+      B.topRows(Eigen::Index(H - 1) * s) = kept_B_.bottomRows(Eigen::Index(H - 1) * s);
+    }
+    kept_A_.resize(0, 0);
+    kept_B_.resize(0, 0);
     if (!x.allFinite()) {
       result.u = u; result.x = x; result.iterations = 0;
       return result;
@@ -784,10 +836,12 @@ struct RealTimeIteration {
     int iteration = 0;
     bool active = false;
     double slack = 0.0;
-    RowMatrixXd following, A, B;
     for (iteration = 1; iteration <= iterations; ++iteration) {
       bool stepped = false;
-      model->linearize(x.topRows(x.rows() - 1), u, following, A, B);
+      if (partial && (iteration > 1 || reuse))
+        linearize_nodes(x, u, nodes, following, A, B);
+      else
+        model->linearize(x.topRows(x.rows() - 1), u, following, A, B);
       if (following.allFinite() && A.allFinite() && B.allFinite()) {
         following.rowwise() += offset.transpose();
         for (int attempt = 0; attempt < 12; ++attempt) {
@@ -800,6 +854,10 @@ struct RealTimeIteration {
         return result;
       }
       x.row(1) = (model->step(x0, u.row(0).transpose()) + offset).transpose();
+    }
+    if (partial) {
+      kept_A_ = A;
+      kept_B_ = B;
     }
     result.u = u;
     result.x = x;

@@ -158,6 +158,8 @@ struct Controller {
     rti.model = load_model(file);
     rti.iterations = int(file.scalar("iterations"));
     rti.regularization = file.scalar("regularization");
+    // (a file written before the multi-level iteration has no entry: the exact step)
+    rti.jacobian_refresh = file.has("jacobian_refresh") ? int(file.scalar("jacobian_refresh")) : 0;
     rti.Q = file.vector("Q");
     rti.R = file.vector("R");
     rti.terminal_factor = file.scalar("terminal_factor");
@@ -184,6 +186,8 @@ struct Controller {
     k = 0;
     memory = control.first_memory(rti.S());
     rti.working_rows.clear();
+    rti.kept_A_.resize(0, 0);
+    rti.kept_B_.resize(0, 0);
   }
 
   // the torque (m,) N m for the measured state x (S,) at the next sample
