@@ -48,7 +48,7 @@ def check_quoted_numbers(path, schema) -> None:
         if how.endswith(" goes"):
             raise InputError(f"{path}: {where} is {line_text(value[:80])}, {how}; leave the setting out for its "
                              "default, or write it in that form")
-        if how.startswith("which YAML reads as"):
+        if how.startswith(("which YAML reads as", "which YAML cannot read")):
             raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
         if how == "which only YAML 1.1 reads as a boolean":
             raise InputError(f"{path}: {where} is written {value}, {how}; write true or false")
@@ -146,6 +146,9 @@ def _numeric_scalars(annotation, node, where: str):
             name = getattr(key, "value", None)
             if name in hints:
                 yield from _numeric_scalars(hints[name], value, f"{where}.{name}" if where else name)
+    elif (dataclasses.is_dataclass(annotation) or hasattr(annotation, "__fields__")) and where and node is not None \
+            and not (isinstance(node, yaml.ScalarNode) and node.tag.startswith("!") and not node.value):
+        yield where, node, "a mapping"   # (null, a single value or a list where settings go; `!Rti` alone is empty)
     elif isinstance(annotation, type) and issubclass(annotation, (int, float)) and isinstance(node, yaml.ScalarNode):
         yield where, node, annotation is bool   # (a bool field's too: `true` or `false`, never text)
     elif isinstance(annotation, type) and issubclass(annotation, (int, float)) and node is not None:
@@ -200,8 +203,8 @@ def _quoted_number(node, schema, prefix: str, text: str):
         if item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):   # (tagged `!!int 024` too)
             try:   # (as its number tag reads it)
                 read = yaml.safe_load(f"!!{item.tag.rsplit(':', 1)[-1]} {item.value}")
-            except (ValueError, yaml.YAMLError):
-                continue   # (`!!float 0x10`: no number to YAML at all; the typed load's own one-line error)
+            except (ValueError, yaml.YAMLError):   # (`!!float 0x10`: no number to YAML at all)
+                return where, item.value, f"which YAML cannot read under its tag (a {_form(item.value)})"
             return where, item.value, f"which YAML reads as {read!r} (a {_form(item.value)})"
         if tag is None and (item.tag in NUMBER_TAGS or (not item.style and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):

@@ -346,6 +346,11 @@ def write_issue_25_inputs(box) -> None:
                                                        '<pose>0 0 1 0 0 0</pose>', 1))
     (box / "two_gravities.sdf").write_text(arm_sdf.replace('<link name="b"/>', '<link name="b"><gravity>true</gravity>'
                                                            '<gravity>false</gravity></link>'))
+    # (held-out run 26: a visual's two materials, a material's two colours, differing)
+    (box / "two_materials.urdf").write_text(urdf.replace('</material></visual>', '</material><material name="red">'
+                                                         '<color rgba="1 0 0 1"/></material></visual>', 1))
+    (box / "two_colors.urdf").write_text(urdf.replace('<color rgba="0.2 0.2 0.2 1"/>',
+                                                      '<color rgba="0.2 0.2 0.2 1"/><color rgba="1 0 0 1"/>', 1))
     (box / "two_shapes.urdf").write_text(urdf.replace('<cylinder radius="0.075" length="0.038"/>',
                                                       '<cylinder radius="0.075" length="0.038"/><box size="1 1 1"/>', 1))
     (box / "two_efforts.sdf").write_text(arm_sdf.replace("<xyz>0 0 1</xyz></axis>", "<xyz>0 0 1</xyz><limit><lower>-1</lower>"
@@ -1001,7 +1006,8 @@ CASES = [
     (yaml_case("robot", ROBOT_TEXT + "unactuated_joints: [" + ", ".join(["elbow_joint"] * 40_000) + "]\n"),
      "(40,000 entries)"),
     (yaml_case("mpc", "horizon: 20\nhorizon: 30\n"), "horizon is given twice in one mapping (lines 1 and 2)"),
-    (yaml_case("mpc", "terminal_factor: !!float 0x10\n"), "malformed MPC config: could not convert string to float"),
+    (yaml_case("mpc", "terminal_factor: !!float 0x10\n"),
+     "terminal_factor is written 0x10, which YAML cannot read under its tag (a YAML 1.1 hexadecimal number)"),
     # (held-out run 19)
     (yaml_case("mpc", "horizon: !!int 0O24\n"), "horizon is written 0O24, which YAML reads as 20 (a YAML 1.2 octal"),
     (yaml_case("mpc", "optimizer: !Rti\n  <<: {iterations: 1}\n  <<: {iterations: 2}\n"),
@@ -1125,6 +1131,17 @@ CASES = [
     (yaml_case("effects", "mass_scale: [1.0, 2.0]\n"), "mass_scale is [1.0, 2.0], a list where a mapping goes"),
     (yaml_case("train", "seeds: {0: 1}\n"), "seeds is {0: 1}, a mapping where a list goes"),
     (yaml_case("mpc", "position_weight: null\n"), "position_weight is null, null where a list goes"),
+    # (held-out run 26: a setting of settings (a mapping) of another shape; a tagged number YAML cannot read; a
+    # visual's doubled material or colour)
+    (yaml_case("mpc", "constraints: null\n"), "constraints is null, null where a mapping goes"),
+    (yaml_case("mpc", "constraints: [soft]\n"), "constraints is [soft], a list where a mapping goes"),
+    (yaml_case("mpc", "optimizer: null\n"), "replace `optimizer:` with `optimizer: !Rti {}`"),   # (the layout check's)
+    (yaml_case("tspec", "protocol: !Tracking\n  sampling:\n    initial_poses: [[{xyz: [0.6, 0.3, 0.4], rpy: [3.14, 0, 0]}]]\n"),
+     "protocol.sampling.initial_poses is [{xyz: [0.6, 0.3, 0.4], rpy: [3.14, 0, 0]}], a list where a mapping goes"),
+    (yaml_case("mpc", "disturbance_gain: !!float 0O1\n"),
+     "disturbance_gain is written 0O1, which YAML cannot read under its tag (a YAML 1.2 octal number)"),
+    (["robot", "init", "two_materials.urdf", "-o", "NEW.yaml"], "its <visual> states 2 <material> elements that differ"),
+    (["robot", "init", "two_colors.urdf", "-o", "NEW.yaml"], "its <material> states 2 <color> elements that differ"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -436,6 +436,16 @@ def test_what_drakes_parser_reads_as_written_passes_the_one_reading_checks(tmp_p
                     '<parent link="a"/><child link="b"/><axis xyz="0 0 1"/><axis xyz="0 0 1 "/><limit lower="-1" '
                     'upper="1" effort="1" velocity="1"/></joint></robot>')
     assert [joint.name for joint in read_description(urdf).joints] == ["j"]
+    # (held-out run 26: equal in meaning, refused as differing) an attribute left at its default, a boolean as 1/0
+    urdf.write_text(urdf.read_text().replace('<axis xyz="0 0 1 "/>', '').replace(
+        '<axis xyz="0 0 1"/>', '<origin xyz="0 0 0.2" rpy="0 0 0"/><origin xyz="0 0 0.2"/><axis xyz="0 0 1"/>'))
+    assert [joint.name for joint in read_description(urdf).joints] == ["j"]
+    path.write_text(SDF.format(mass=2.0, lower=-1).replace("<link name=\"tip\"/>", "<link name=\"tip\"><gravity>true"
+                                                           "</gravity><gravity>1</gravity></link>"))
+    read_description(path)
+    urdf.write_text(urdf.read_text().replace('<origin xyz="0 0 0.2"/>', '<origin xyz="0 0 0.3"/>'))
+    with pytest.raises(InputError, match="joint 'j': it states 2 <origin> elements that differ"):
+        read_description(urdf)
     for split in ("2<!-- -->.0", "<!-- kg -->2<!-- -->.0", "2.<![CDATA[0]]>", "<![CDATA[2]]>.0", "<?x?>2.0",
                   "<![CDATA[ ]]>2.0"):
         path.write_text(SDF.format(mass=split, lower=-1))

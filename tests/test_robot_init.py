@@ -536,6 +536,18 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
                                              '</world></sdf>')
     assert main(["robot", "init", str(tmp_path / "world_urdf.sdf"), "-o", str(tmp_path / "world_urdf.yaml")]) == 0
     assert main(["robot", "check", str(tmp_path / "world_urdf.yaml")]) == 0
+    # (held-out run 26: "has no effort limit") the same with a URDF arm without <transmission>s: its joints' effort
+    # limits are in the included URDF, which the world's limits now read
+    (tmp_path / "plain.urdf").write_text(re.sub(r"<transmission.*?</transmission>", "", (MODELS_DIR / "ur10.urdf")
+                                                .read_text(), flags=re.DOTALL))
+    (tmp_path / "world_plain.sdf").write_text((tmp_path / "world_urdf.sdf").read_text().replace("bare.urdf",
+                                                                                                 "plain.urdf"))
+    assert main(["robot", "init", str(tmp_path / "world_plain.sdf"), "-o", str(tmp_path / "world_plain.yaml")]) == 0
+    from stdm_drake.robots.plant import joint_limits
+    efforts = [joint_limits(Dynamics(load_robot(tmp_path / name)).plant).effort
+               for name in ("world_plain.yaml", "world_urdf.yaml")]
+    np.testing.assert_allclose(efforts[0], efforts[1])
+    assert efforts[0].max() == 330.0
     # (held-out run 24: "a file these checks cannot find") the same world and merge through package:// and model://
     # URIs of a package `robot init --package` names
     (tmp_path / "pkg").mkdir()

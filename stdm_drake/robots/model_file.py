@@ -22,16 +22,20 @@ from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, 
                                       collada_in_metres, mesh_as_obj)
 
 
-def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
+def joint_facts(path: pathlib.Path, packages: dict | None = None, depth: int = 0) -> tuple[dict, set, list]:
     """(per joint name, the limits the description file states: {"effort": N m, "velocity": ...}
     (URDF <limit effort= velocity=>, SDF <axis><limit><effort>/<velocity>); the names of URDF
     "continuous" joints, which have no position limits; the URDF <mimic> pairs (follower, leader)).
-    An unparsable file gives ({}, set(), [])."""
+    An SDF's included files (`sdf_includes.included_files`, `packages` its package:// folders) add theirs: a world
+    that includes a URDF arm states that arm's limits in the URDF. An unparsable file gives ({}, set(), [])."""
     import xml.etree.ElementTree as ElementTree
+    from stdm_drake.robots.sdf_includes import MAX_INCLUDE_DEPTH, included_files
     try:
         root = xml_file.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
         return {}, set(), []
+    included = ([joint_facts(target, packages, depth + 1) for target in included_files(root, path, packages)]
+                if root.tag == "sdf" and depth < MAX_INCLUDE_DEPTH else [])
     limits = {}
     continuous = {joint.get("name") for joint in root.iter("joint") if joint.get("type") == "continuous"}
     mimics = [(joint.get("name"), joint.find("mimic").get("joint")) for joint in root.iter("joint")
@@ -47,6 +51,11 @@ def joint_facts(path: pathlib.Path) -> tuple[dict, set, list]:
         values = {key: value for key, value in values.items() if value is not None}
         if name and values:  # (a URDF <transmission> names its joint too, without limits)
             limits[name] = values
+    for their_limits, their_continuous, their_mimics in included:
+        for name, values in their_limits.items():
+            limits.setdefault(name, values)
+        continuous |= their_continuous
+        mimics += their_mimics
     return limits, continuous, mimics
 
 

@@ -145,7 +145,7 @@ class Robot:
         self.inertia_substitutions = inertia_substitutions(description)
         for link, substitute in self.inertia_substitutions.items():
             logger.warning("robot %s: %s: link %r has %s", self.name, self.model_path.name, link, substitute)
-        self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path)
+        self.file_limits, self.continuous_joints, self.mimic_pairs = joint_facts(self.model_path, self.package_paths)
         for effect in unmodelled_joint_effects(self.model_path, config.arm_joints):
             logger.warning("robot %s: %s states %s", self.name, self.model_path.name, effect)
         self.srdf_path = self._model_file(config.srdf, "srdf") if config.srdf else None

@@ -15,7 +15,8 @@ SHAPES = {"box", "cylinder", "sphere", "mesh", "capsule", "ellipsoid", "plane", 
           "drake:capsule", "drake:ellipsoid"}
 URDF_SAME_CHILDREN = {"joint": ("origin", "parent", "child", "axis", "limit", "dynamics", "mimic", "calibration",
                                 "safety_controller"), "inertial": ("mass", "origin", "inertia"), "link": ("inertial",),
-                      "visual": ("origin", "geometry"), "collision": ("origin", "geometry"), "geometry": ("*",)}
+                      "visual": ("origin", "geometry", "material"), "collision": ("origin", "geometry"),
+                      "geometry": ("*",), "material": ("color", "texture")}
 SDF_SAME_CHILDREN = {"joint": ("parent", "child", "pose", "axis", "axis2"), "axis": ("xyz", "limit", "dynamics"),
                      "axis2": ("xyz", "limit", "dynamics"), "limit": ("lower", "upper", "effort", "velocity"),
                      "dynamics": ("damping", "friction", "spring_reference", "spring_stiffness"),
@@ -48,10 +49,19 @@ def split_text(path: pathlib.Path, tag: str, line: int, nodes: list) -> None:
                          "text node); write the value in one piece")
 
 
+# URDF attributes with a default (the URDF specification's, as Drake's parser reads them): stated or left out, the
+# same element
+URDF_DEFAULT_ATTRIBUTES = {"origin": {"xyz": "0 0 0", "rpy": "0 0 0"}, "axis": {"xyz": "1 0 0"},
+                           "limit": {"lower": "0", "upper": "0"}, "dynamics": {"damping": "0", "friction": "0"}}
+BOOLEAN_WORDS = {"true": 1.0, "false": 0.0}   # (SDFormat reads a boolean as true/false or 1/0)
+
+
 def content(element) -> tuple:
-    """What an element states, to compare two of them: its tag, attributes and text (their words, numbers as numbers:
-    "0 1 0" and "0 1 0.0" say the same) and its children's, in order."""
-    return (element.tag, tuple(sorted((key, _words(value)) for key, value in element.attrib.items())),
+    """What an element states, to compare two of them: its tag, attributes (those left out at their default as
+    stated) and text (their words, numbers as numbers: "0 1 0" and "0 1 0.0" say the same, and booleans: "true" and
+    "1") and its children's, in order."""
+    attributes = {**URDF_DEFAULT_ATTRIBUTES.get(element.tag, {}), **element.attrib}
+    return (element.tag, tuple(sorted((key, _words(value)) for key, value in attributes.items())),
             _words(element.text or ""), tuple(content(child) for child in element))
 
 
@@ -60,5 +70,5 @@ def _words(text: str) -> tuple:
         try:
             return float(item)
         except ValueError:
-            return item
+            return BOOLEAN_WORDS.get(item.lower(), item)
     return tuple(word(item) for item in text.split())
