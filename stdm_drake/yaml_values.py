@@ -43,10 +43,10 @@ def check_quoted_numbers(path, schema) -> None:
     if found is not None:
         where, value, how = found
         if how == "a single value where a list goes":
-            raise InputError(f"{path}: {where} is {line_text(value[:80])}, {how}; write it as a list ([x]; a "
+            raise InputError(f"{path}: {where} is {line_text(_shortened(value))}, {how}; write it as a list ([x]; a "
                              "per-joint setting takes one value x for every joint that way)")
         if how.endswith(" goes"):
-            raise InputError(f"{path}: {where} is {line_text(value[:80])}, {how}; leave the setting out for its "
+            raise InputError(f"{path}: {where} is {line_text(_shortened(value))}, {how}; leave the setting out for its "
                              "default, or write it in that form")
         if how.startswith(("which YAML reads as", "which YAML cannot read")):
             raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
@@ -58,6 +58,11 @@ def check_quoted_numbers(path, schema) -> None:
             "in quotes": "without quotes", "read by YAML as text": "in ASCII digits"}.get(
             how, "without the tag" if how.startswith("tagged") else "in digits")
         raise InputError(f"{path}: {where} is {value!r} {how}, not a number; write the number {fix}")
+
+
+def _shortened(value: str, width: int = 80) -> str:
+    """`value` cut to `width` characters, "..." marking a cut."""
+    return value if len(value) <= width else value[:width - 3] + "..."
 
 
 def _repeated_key(node):
