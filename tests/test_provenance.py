@@ -11,7 +11,7 @@ import subprocess
 import pytest
 
 from stdm_drake.provenance import provenance, source_state
-from tools_import import benchmark_report, study
+from tools_import import benchmark_report, results_provenance, study
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 
@@ -188,3 +188,25 @@ def test_every_results_file_committed_since_provenance_names_a_clean_commit():
         record = json.loads((ROOT / name).read_text()).get("provenance") or {}
         assert re.fullmatch(r"[0-9a-f]{40}", record.get("commit") or ""), name
         assert record.get("clean") is True or record.get("allow_dirty") is True, name
+
+
+def test_every_committed_results_file_names_its_commit_or_is_in_the_index():
+    """A results file names the commit its run ran on (its provenance), or it is one of the files written before the
+    studies recorded it, each listed in docs/results/provenance_index.json with the commit that first added it; a new
+    file without provenance, or an index entry for a file that now names its commit, fails here."""
+    assert results_provenance.problems() == []
+    index = json.loads(results_provenance.INDEX.read_text())["files"]
+    assert all(re.fullmatch(r"[0-9a-f]{40}", entry["committed_in"]) for entry in index.values())
+
+
+def test_a_results_file_names_its_commit_in_any_of_the_recorded_forms(tmp_path):
+    names = results_provenance.names_commit
+    for name, text in (("a.json", '{"provenance": {"commit": "abc", "clean": true}}'), ("b.json", '{"commit": "abc"}'),
+                       ("c.jsonl", '{"provenance": {"frozen_copy_of": "abc"}}\n{"id": 1}\n'),
+                       ("d.csv", "run,commit\n1,abc\n")):
+        (tmp_path / name).write_text(text)
+        assert names(tmp_path / name), name
+    for name, text in (("e.json", '{"provenance": {"command": "x"}}'), ("f.jsonl", '{"id": 1}\n'),
+                       ("g.csv", "run,value\n1,2\n"), ("h.json", "[1, 2]")):
+        (tmp_path / name).write_text(text)
+        assert not names(tmp_path / name), name

@@ -17,6 +17,7 @@ def _load(name):
 generate_ur10_urdf = _load("generate_ur10_urdf")
 benchmark_report = _load("benchmark_report")
 generate_panda_urdf = _load("generate_panda_urdf")
+results_provenance = _load("results_provenance")
 study = _load("study")   # the studies' launcher, tools/study.py: study.main(["NAME", ...]) runs one
 # the study modules of tools/studies/, imported as `studies.<name>` (the launcher puts tools/ on the path, so
 # their pools' spawned workers import them too)
