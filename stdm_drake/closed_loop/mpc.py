@@ -58,6 +58,7 @@ from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi, SamplingSettings
 from stdm_drake.config import YAML_LOADER, check_joint_vector, load_yaml_config, read_yaml_document
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
+from stdm_drake.robots.effect_systems import TorqueNoise, actuation_input, start_actuators
 from stdm_drake.robots.plant import Dynamics, JointLimits, PlantConfig, joint_limits
 from stdm_drake.robots.robot import Robot
 
@@ -370,7 +371,6 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
     torque noise, a `TorqueNoise` (seeded by `noise_seed`, one draw per control period over the
     reference) between them; with `push`, that push on the plant (`push.add_push`). Returns (diagram, plant,
     controller)."""
-    from stdm_drake.robots.effects import TorqueNoise
     from stdm_drake.robots.plant import make_plant
     plant_config = plant_config or PlantConfig()
     builder = DiagramBuilder()
@@ -386,9 +386,9 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
                                               len(reference.q), noise_seed))
         noise.set_name("torque_noise")
         builder.Connect(controller.get_torque_output_port(), noise.get_input_port())
-        builder.Connect(noise.get_output_port(), plant.get_actuation_input_port())
+        builder.Connect(noise.get_output_port(), actuation_input(builder, plant))
     else:
-        builder.Connect(controller.get_torque_output_port(), plant.get_actuation_input_port())
+        builder.Connect(controller.get_torque_output_port(), actuation_input(builder, plant))
     if push is not None:
         add_push(builder, plant, robot, push)
     if meshcat is not None:
@@ -412,6 +412,7 @@ def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config
     plant_context = plant.GetMyContextFromRoot(context)
     (plant_config or PlantConfig()).set_parameters(plant, plant_context)
     plant.SetPositionsAndVelocities(plant_context, x0)
+    start_actuators(diagram, context, lambda: Dynamics(robot).gravity_torque(reference.q[0]))   # (at rest)
     period = model.sample_period
     duration = (len(reference.q) - 1) * period if duration is None else duration
     simulator.Initialize()

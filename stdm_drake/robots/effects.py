@@ -4,16 +4,22 @@ nominal model (the robot file, which stays what a user has).
 `PlantEffects` is the typed YAML a `--plant-effects FILE` names (per-joint lists, or a list of one value for all
 joints): viscous friction (added to the description's joint damping, which Drake's discrete plant
 integrates implicitly), Coulomb friction smoothed near zero velocity, -F_c tanh(v / v_s) (a
-`plant.JointFriction` system feeding the plant's applied generalized force, sampled every plant step),
+`effect_systems.JointFriction` system feeding the plant's applied generalized force, sampled every plant step),
 reflected rotor inertia (Drake's JointActuator rotor inertia and gear ratio: G² I_r on the mass
 matrix's diagonal), a payload rigidly attached to the tool frame, per-link mass scales (parameters in
 the plant's Context), and white torque noise added to the held action each sample period (process
 noise: not recorded, so a re-simulation from the recorded (x_k, a_k) is exact only without it).
+
+Effects no rigid-body model has (issue 59), each a system of the plant's diagram between the command and the
+joints: Stribeck friction (the breakaway friction F_s above Coulomb's near zero velocity, in `JointFriction`),
+actuator lag (a first-order lag of each joint's torque behind its command, time constant T s) and a transport
+delay (the command reaches the actuators whole plant steps later), in `effect_systems.ActuatorDynamics`. The torque and the
+state the data record are the command and the joints' state: a model of (q, v) sees these effects only through
+their consequences.
 """
 import dataclasses
 
 import numpy as np
-from pydrake.systems.framework import BasicVector, LeafSystem
 
 from stdm_drake.config import check_joint_vector, load_yaml_config, one_line, require
 from stdm_drake.errors import InputError
@@ -70,9 +76,11 @@ class Payload(RigidInertia):
 # magnitude (the largest industrial arms' joints hold about 1e4 N m, their gear ratios are at most a few hundred),
 # and small enough that the simulation's arithmetic stays finite; a value beyond is a mistake, refused in one line
 EFFECT_BOUNDS = dict(viscous_friction=1e6, coulomb_friction=1e6, torque_noise_std=1e6, joint_damping=1e6,
-                     rotor_inertia=1e3, gear_ratio=1e5, mass_scale=1e6, mass=1e6)
+                     rotor_inertia=1e3, gear_ratio=1e5, mass_scale=1e6, mass=1e6, stribeck_friction=1e6,
+                     actuator_time_constant=10.0, actuation_delay=1.0)
 EFFECT_UNITS = dict(viscous_friction="N m s/rad", coulomb_friction="N m", torque_noise_std="N m",
-                    joint_damping="N m s/rad", rotor_inertia="kg m²", gear_ratio="", mass_scale="", mass="kg")
+                    joint_damping="N m s/rad", rotor_inertia="kg m²", gear_ratio="", mass_scale="", mass="kg",
+                    stribeck_friction="N m", actuator_time_constant="s", actuation_delay="s")
 
 
 def check_effect_bound(label: str, values: np.ndarray, kind: str | None = None) -> None:
@@ -103,6 +111,11 @@ class PlantEffects:
         (viscous_friction is added to it); an identified robot's total viscous friction.
     link_inertia: link name -> RigidInertia (in the link's frame) replacing the description's (Context
         parameters, like the mass scales): an identified robot's links.
+    stribeck_friction: F_s N m per joint, the breakaway friction at rest, at least coulomb_friction's F_c:
+        -(F_c + (F_s - F_c) exp(-(v / v_st)²)) tanh(v / v_s); stribeck_velocity: v_st rad/s (per joint or one).
+    actuator_time_constant: T s per joint (or one value): each joint's torque follows its command through a
+        first-order lag, dτ/dt = (command - τ) / T (0: none).
+    actuation_delay: s, a transport delay of the command, a whole number of plant steps.
     """
     source: str = ""
     viscous_friction: list[float] = dataclasses.field(default_factory=list)
@@ -115,6 +128,10 @@ class PlantEffects:
     torque_noise_std: list[float] = dataclasses.field(default_factory=list)
     joint_damping: list[float] = dataclasses.field(default_factory=list)
     link_inertia: dict[str, RigidInertia] = dataclasses.field(default_factory=dict)
+    stribeck_friction: list[float] = dataclasses.field(default_factory=list)
+    stribeck_velocity: list[float] = dataclasses.field(default_factory=lambda: [0.1])
+    actuator_time_constant: list[float] = dataclasses.field(default_factory=list)
+    actuation_delay: float = 0.0
 
     def validate(self) -> None:
         for name in ("viscous_friction", "coulomb_friction", "rotor_inertia", "torque_noise_std", "joint_damping"):
@@ -136,6 +153,38 @@ class PlantEffects:
             require(inertia.mass > 0, f"link_inertia of {link}: mass must be > 0 kg", inertia.mass)
         both = sorted(set(self.link_inertia) & set(self.mass_scale))
         require(not both, "a link has either link_inertia or a mass_scale, not both", both)
+        if self.stribeck_friction:
+            check_effect_bound("stribeck_friction", check_joint_vector("stribeck_friction", self.stribeck_friction,
+                                                                       nonnegative=True))
+            require(self.is_on("coulomb_friction"), "stribeck_friction needs coulomb_friction (the friction it "
+                    "breaks away to)", self.stribeck_friction)
+            breakaway, coulomb = np.asarray(self.stribeck_friction, float), np.asarray(self.coulomb_friction, float)
+            if len(breakaway) in (1, len(coulomb)) or len(coulomb) == 1:
+                require(bool(np.all(breakaway >= coulomb)), f"stribeck_friction must be at least coulomb_friction "
+                        f"{self.coulomb_friction} on every joint (the breakaway friction at rest)", self.stribeck_friction)
+        velocity = check_joint_vector("stribeck_velocity", self.stribeck_velocity)
+        require(bool(np.all(velocity > 0)), "stribeck_velocity must be > 0 rad/s", self.stribeck_velocity)
+        if self.actuator_time_constant:
+            check_effect_bound("actuator_time_constant", check_joint_vector(
+                "actuator_time_constant", self.actuator_time_constant, nonnegative=True))
+        require(np.isfinite(self.actuation_delay) and 0 <= self.actuation_delay <= EFFECT_BOUNDS["actuation_delay"],
+                f"actuation_delay must be in [0, {EFFECT_BOUNDS['actuation_delay']:g}] s", self.actuation_delay)
+
+    def beyond_rigid_bodies(self) -> list[str]:
+        """The effects that are on and that no rigid-body model (the RK4 plant model, identification) holds."""
+        return [name for name in ("stribeck_friction", "actuator_time_constant") if self.is_on(name)] + (
+            ["actuation_delay"] if self.actuation_delay > 0 else [])
+
+    def stribeck(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(F_s (joints,) N m, v_st (joints,) rad/s), or None without Stribeck friction."""
+        if not self.stribeck_friction:
+            return None
+        breakaway = self.joint_values("stribeck_friction", joints)
+        coulomb = self.joint_values("coulomb_friction", joints)
+        if np.any(breakaway < coulomb):
+            raise InputError(f"plant effects stribeck_friction {breakaway.tolist()} must be at least coulomb_friction "
+                             f"{coulomb.tolist()} on every joint (the breakaway friction at rest)")
+        return breakaway, self.joint_values("stribeck_velocity", joints)
 
     def joint_values(self, name: str, joints: int) -> np.ndarray:
         """Field `name` as (joints,) values (zeros when empty; one value broadcast); InputError when a
@@ -160,8 +209,11 @@ class PlantEffects:
 
     def summary(self) -> str:
         """One line naming the effects that are on (and the source)."""
-        parts = [name.replace("_", " ") for name in ("viscous_friction", "coulomb_friction", "rotor_inertia",
-                                                     "torque_noise_std") if self.is_on(name)]
+        parts = [name.replace("_", " ") for name in ("viscous_friction", "coulomb_friction", "stribeck_friction",
+                                                     "rotor_inertia", "torque_noise_std", "actuator_time_constant")
+                 if self.is_on(name)]
+        if self.actuation_delay > 0:
+            parts.append(f"actuation delay {self.actuation_delay:g} s")
         if self.payload.mass > 0:
             parts.append(f"payload {self.payload.mass:g} kg")
         if self.joint_damping:
@@ -176,9 +228,13 @@ class PlantEffects:
         """What a dataset or checkpoint records of the effects (every field; joint_damping and link_inertia
         only when given, so files of effects without them read as before)."""
         record = dataclasses.asdict(self)
-        for name in ("joint_damping", "link_inertia"):
+        for name in ("joint_damping", "link_inertia", "stribeck_friction", "actuator_time_constant"):
             if not record[name]:
                 del record[name]
+        if not self.stribeck_friction:
+            del record["stribeck_velocity"]
+        if not self.actuation_delay:
+            del record["actuation_delay"]
         return record
 
     @classmethod
@@ -241,38 +297,11 @@ def set_effect_parameters(plant, context, effects: PlantEffects) -> None:
                                                                  nominal.get_unit_inertia()))
 
 
-def coulomb_torque(velocity: np.ndarray, friction: np.ndarray, velocity_scale: np.ndarray) -> np.ndarray:
-    """-F_c tanh(v / v_s) (n,) N m for joint velocities v (n,) rad/s, F_c (n,) N m, v_s (n,) rad/s."""
+def coulomb_torque(velocity: np.ndarray, friction: np.ndarray, velocity_scale: np.ndarray,
+                   stribeck: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """-F_c tanh(v / v_s) (n,) N m for joint velocities v (n,) rad/s, F_c (n,) N m, v_s (n,) rad/s; with
+    `stribeck` (F_s (n,) N m, v_st (n,) rad/s) the friction's magnitude F_c + (F_s - F_c) exp(-(v / v_st)²)."""
+    if stribeck is not None:
+        breakaway, stribeck_velocity = stribeck
+        friction = friction + (breakaway - friction) * np.exp(-(velocity / stribeck_velocity) ** 2)
     return -friction * np.tanh(velocity / velocity_scale)
-
-
-class TorqueNoise(LeafSystem):
-    """The plant effects' torque noise inside a diagram: input "torque" (m,) N m, output "noisy_torque"
-    (m,) = clip(torque + n_k, -effort, effort), n_k = std * z_k with z_k the rows of
-    numpy.random.default_rng(seed).standard_normal((steps, m)), one per sample period and held over it,
-    like the action (the same process as `Station`'s data: white, zero-order hold). Row k applies from the
-    update at k period + offset s (the controller's update times), row 0 from initialization; past
-    the last row the noise is 0. The rows are fixed at construction, so the output is a function of
-    the Context (its discrete state: the current row)."""
-
-    def __init__(self, std, effort_limit, period: float, offset: float, steps: int, seed: int):
-        super().__init__()
-        self._std = np.asarray(std, dtype=float)
-        self._limit = np.asarray(effort_limit, dtype=float)
-        self._period = period
-        m = len(self._std)
-        self._rows = self._std * np.random.default_rng(seed).standard_normal((steps, m))
-        self._input = self.DeclareVectorInputPort("torque", m)
-        self._noise = self.DeclareDiscreteState(m)
-        self.DeclareVectorOutputPort("noisy_torque", BasicVector(m), self._output)
-        self.DeclareInitializationDiscreteUpdateEvent(self._draw)
-        self.DeclarePeriodicDiscreteUpdateEvent(period, offset, self._draw)
-
-    def _draw(self, context, discrete_state):
-        k = int(np.floor(context.get_time() / self._period + 0.5 + 1e-9))   # as MpcController's update
-        row = self._rows[k] if k < len(self._rows) else np.zeros(len(self._std))
-        discrete_state.get_mutable_vector(int(self._noise)).SetFromVector(row)
-
-    def _output(self, context, output) -> None:
-        noisy = self._input.Eval(context) + context.get_discrete_state(int(self._noise)).get_value()
-        output.SetFromVector(np.clip(noisy, -self._limit, self._limit))

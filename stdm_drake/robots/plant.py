@@ -6,10 +6,11 @@ import numpy as np
 
 from pydrake.geometry import CollisionFilterDeclaration, GeometrySet
 from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, MultibodyPlantConfig
-from pydrake.systems.framework import BasicVector, DiagramBuilder, LeafSystem
+from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import names_text
+from stdm_drake.robots.effect_systems import actuation_input, add_effect_systems, start_actuators
 from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,
                                        set_effect_parameters)
 from stdm_drake.robots.nested_models import nested_instances
@@ -98,9 +99,10 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
 
     Returns (plant, scene_graph). With builder=None a bare plant without SceneGraph is returned
     as (plant, None), for kinematics and dynamics queries. With `config.effects`: the viscous friction,
-    rotor inertia and payload in the plant and, in a diagram (`builder`), the Coulomb friction system
-    driving the plant's applied generalized force; the mass scales are Context parameters
-    (`config.set_parameters` on every context made of the diagram).
+    rotor inertia and payload in the plant and, in a diagram (`builder`), the friction system driving the
+    plant's applied generalized force and the actuators between a command and the plant's actuation
+    (`effects.add_effect_systems`; connect a command to `effects.actuation_input(builder, plant)`); the mass
+    scales are Context parameters (`config.set_parameters` on every context made of the diagram).
     """
     config = config or PlantConfig()
     if config.time_step < 0:
@@ -115,40 +117,14 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
         add_effects_to_plant(plant, instance, robot, config.effects)
     plant.Finalize()
     robot.check_plant(plant, instance)
-    coulomb = config.effects.coulomb(robot.num_joints) if config.effects is not None else None
-    if builder is not None and coulomb is not None:
-        indices = [plant.GetJointByName(name, instance).velocity_start() for name in robot.joint_names]
-        friction = builder.AddSystem(JointFriction(plant, indices, *coulomb))
-        friction.set_name("joint_friction")
-        builder.Connect(plant.get_state_output_port(), friction.get_input_port())
-        builder.Connect(friction.get_output_port(), plant.get_applied_generalized_force_input_port())
+    if builder is not None and config.effects is not None:
+        add_effect_systems(builder, plant, instance, robot, config.effects, config.time_step)
     if scene_graph is not None:
         if config.self_collision:
             _filter_disabled_collisions(plant, scene_graph, instance, robot)
         else:
             _filter_self_collisions(plant, scene_graph, instance)
     return plant, scene_graph
-
-
-class JointFriction(LeafSystem):
-    """Coulomb joint friction of the arm joints as a generalized force: input "state" (the plant's
-    [q, v]), output "generalized_force" (the plant's velocities), -F_c tanh(v / v_s) on each arm
-    joint's velocity, 0 elsewhere. Direct feedthrough: a discrete plant samples it every step."""
-
-    def __init__(self, plant, joint_velocity_indices, friction: np.ndarray, velocity_scale: np.ndarray):
-        super().__init__()
-        self._indices = np.asarray(joint_velocity_indices, dtype=int)
-        self._friction = np.asarray(friction, dtype=float)
-        self._scale = np.asarray(velocity_scale, dtype=float)
-        self._nq, self._nv = plant.num_positions(), plant.num_velocities()
-        self._state = self.DeclareVectorInputPort("state", self._nq + self._nv)
-        self.DeclareVectorOutputPort("generalized_force", BasicVector(self._nv), self._output)
-
-    def _output(self, context, output) -> None:
-        v = self._state.Eval(context)[self._nq:]
-        force = np.zeros(self._nv)
-        force[self._indices] = coulomb_torque(v[self._indices], self._friction, self._scale)
-        output.SetFromVector(force)
 
 
 class PlantSimulator:
@@ -165,7 +141,7 @@ class PlantSimulator:
         builder = DiagramBuilder()
         plant_config = plant_config or PlantConfig()
         self.plant, _ = make_plant(plant_config, builder=builder, robot=robot)
-        builder.ExportInput(self.plant.get_actuation_input_port(), "actuation")
+        builder.ExportInput(actuation_input(builder, self.plant), "actuation")
         self.diagram = builder.Build()
         self.simulator = Simulator(self.diagram)
         self.context = self.simulator.get_mutable_context()
@@ -190,6 +166,7 @@ class PlantSimulator:
         self.context.get_mutable_abstract_state().SetFrom(initial.get_abstract_state())
         self.context.SetTime(0.0)
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
+        start_actuators(self.diagram, self.context, tau)   # (as if tau had been held before t = 0)
         self.hold(tau)
         self.simulator.Initialize()
 

@@ -236,6 +236,10 @@ def robot_dynamics(robot, effects=None) -> RigidBodyDynamics:
     the affected plant with `effects` (`robots.effects.PlantEffects`: friction, rotor inertia, payload,
     link inertias and mass scales, as the simulator applies them), built from the plant `make_plant` makes."""
     from stdm_drake.robots.plant import PlantConfig, make_plant
+    beyond = effects.beyond_rigid_bodies() if effects is not None else []
+    if beyond:
+        raise InputError(f"the rigid-body model of the affected plant does not hold its {', '.join(beyond)} (effects "
+                         "beyond rigid bodies, between the command and the joints): use the description's plant")
     config = PlantConfig.continuous()
     config.effects = effects
     plant, _ = make_plant(config, robot=robot)
