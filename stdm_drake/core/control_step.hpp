@@ -876,9 +876,6 @@ struct RealTimeIteration {
   VectorXd p_, Pcp_, qu_, e_, du_, next_e_;
   Eigen::LLT<Eigen::MatrixXd> quu_llt_;
 
-  // (Its matrix products are of S x S and S x m blocks: lazyProduct evaluates them coefficient by coefficient, in
-  // vector registers, where Eigen's general product would pack the operands for a cache-blocked kernel meant for
-  // large matrices: the recursion took 39 % of a plant-model control step that way, measured by perf.)
   // The unconstrained Gauss-Newton step by the Riccati recursion over the nodes (O(H (S^3 + m^3)); the same
   // minimizer as the condensed Cholesky solve of `rti.RtiSolver._step`, to round-off): with the state deviations
   // e_k+1 = A_k e_k + B_k du_k + c_k (e_0 = 0, c_k the gap F_k - X_k+1) it minimizes
@@ -898,11 +895,11 @@ struct RealTimeIteration {
       const auto Bk = B.middleRows(Eigen::Index(k) * s, s);
       Pcp_.noalias() = P_ * (predicted.row(k) - x.row(k + 1)).transpose();
       Pcp_ += p_;
-      PA_.noalias() = P_.lazyProduct(Ak);
-      PB_.noalias() = P_.lazyProduct(Bk);
-      Quu_.noalias() = Bk.transpose().lazyProduct(PB_);
+      PA_.noalias() = P_ * Ak;
+      PB_.noalias() = P_ * Bk;
+      Quu_.noalias() = Bk.transpose() * PB_;
       Quu_.diagonal() += R + VectorXd::Constant(mm, mu);
-      Qux_.noalias() = Bk.transpose().lazyProduct(PA_);
+      Qux_.noalias() = Bk.transpose() * PA_;
       qu_ = R.cwiseProduct((u.row(k) - u_ff.row(k)).transpose());
       qu_.noalias() += Bk.transpose() * Pcp_;
       quu_llt_.compute(Quu_);
@@ -912,8 +909,8 @@ struct RealTimeIteration {
       feedforward_[k] = -qu_;
       quu_llt_.solveInPlace(feedforward_[k]);
       if (k == 0) break;
-      P_.noalias() = Ak.transpose().lazyProduct(PA_);
-      P_.noalias() += Qux_.transpose().lazyProduct(gains_[k]);
+      P_.noalias() = Ak.transpose() * PA_;
+      P_.noalias() += Qux_.transpose() * gains_[k];
       P_ = 0.5 * (P_ + P_.transpose()).eval();
       p_.noalias() = Ak.transpose() * Pcp_;
       p_.noalias() += Qux_.transpose() * feedforward_[k];
