@@ -304,6 +304,8 @@ def run_command(name: str, argv: list[str]) -> int:
         return 128 + signal.SIGPIPE
     except (ValueError, OSError) as error:  # InputError is a ValueError; OSError: files, folders, HDF5
         close_progress_bars()
+        interrupts.raise_deferred()   # (a signal that arrived before the refusal ends the run: its one line only)
+        interrupts.raise_if_received()
         print(f"stdm-drake {name}: error: {error_line(error)}", file=sys.stderr)
         return 2
 

@@ -131,6 +131,23 @@ def _plain(loader, suffix, node):
 _TagsAsPlainValues.add_multi_constructor("!", _plain)
 
 
+def _number_or_text(kind):
+    """The standard number constructor of `kind` ("int", "float"), the scalar's text where YAML cannot read it so
+    (`!!float 0o1`): the layout is seen, and the setting's check names the value."""
+    standard = getattr(yaml.SafeLoader, f"construct_yaml_{kind}")
+
+    def construct(loader, node):
+        try:
+            return standard(loader, node)
+        except ValueError:
+            return loader.construct_scalar(node)
+    return construct
+
+
+for _kind in ("int", "float"):
+    _TagsAsPlainValues.add_constructor(f"tag:yaml.org,2002:{_kind}", _number_or_text(_kind))
+
+
 def read_yaml_document(path):
     """A YAML file's document as plain Python values, tags ignored (to see its layout before the typed
     load); None when it cannot be read or parsed, is no regular file (a FIFO: reading would block) or is

@@ -48,6 +48,8 @@ def check_quoted_numbers(path, schema) -> None:
         if how.endswith(" goes"):
             raise InputError(f"{path}: {where} is {line_text(_shortened(value))}, {how}; leave the setting out for its "
                              "default, or write it in that form")
+        if how.endswith("under its tag !!int"):   # (`!!int 20.0`)
+            raise InputError(f"{path}: {where} is written {value}, {how}; write a whole number, or leave out the tag")
         if how.startswith(("which YAML reads as", "which YAML cannot read")):
             raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
         if how == "which only YAML 1.1 reads as a boolean":
@@ -205,12 +207,15 @@ def _quoted_number(node, schema, prefix: str, text: str):
             continue
         if item.tag in NUMBER_TAGS[:2] and not item.value.isascii():   # (`!!int 0２４`: int() reads any script)
             return where, item.value, f"tagged {tag or item.tag.rsplit(':', 1)[-1]} in digits of another script"
-        if item.tag in NUMBER_TAGS[:2] and YAML11_FORM.match(item.value):   # (tagged `!!int 024` too)
-            try:   # (as its number tag reads it)
-                read = yaml.safe_load(f"!!{item.tag.rsplit(':', 1)[-1]} {item.value}")
-            except (ValueError, yaml.YAMLError):   # (`!!float 0x10`: no number to YAML at all)
-                return where, item.value, f"which YAML cannot read under its tag (a {_form(item.value)})"
-            return where, item.value, f"which YAML reads as {read!r} (a {_form(item.value)})"
+        if item.tag in NUMBER_TAGS[:2] and (tag is not None or YAML11_FORM.match(item.value)):
+            kind = item.tag.rsplit(":", 1)[-1]
+            form = f" (a {_form(item.value)})" if YAML11_FORM.match(item.value) else ""
+            try:   # (as its number tag reads it; tagged `!!int 024` too)
+                read = yaml.safe_load(f"!!{kind} {item.value}")
+            except (ValueError, yaml.YAMLError):   # (`!!float 0x10`, `!!int 20.0`: no such number to YAML)
+                return where, item.value, f"which YAML cannot read under its tag !!{kind}{form}"
+            if form and not (kind == "float" and ASCII_NUMBER.fullmatch(item.value)):   # (`!!float 01`: 1.0 to all)
+                return where, item.value, f"which YAML reads as {read!r}{form}"
         if tag is None and (item.tag in NUMBER_TAGS or (not item.style and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):
             continue   # (`1e-4`: text to PyYAML, a number to the typed load; `many`: the typed load's own error)

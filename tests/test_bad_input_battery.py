@@ -257,6 +257,7 @@ def write_issue_25_inputs(box) -> None:
     (box / "bad_spring_reference.sdf").write_text(spring.format("<spring_reference>inf</spring_reference>"))
     (box / "bad_damping.urdf").write_text(urdf.replace("    <limit lower=", '    <dynamics damping="1e300"/><limit lower=', 1))
     (box / "bad_visualization.yaml").write_text("publish_period: !!str 0.5\n")
+    (box / "nan_visualization.yaml").write_text("publish_period: !!float .NaN\n")   # (held-out run 27: ignored, unsaid)
     (box / "far_origin.urdf").write_text(urdf.replace('<origin xyz="0 0 0.019"/>',
                                                       '<origin xyz="1e300 0 0.019"/>', 1))
     (box / "bad_locked.yaml").write_text(ur10_config("ur10.urdf").replace(", wrist_3_joint]", "]").replace(
@@ -346,6 +347,15 @@ def write_issue_25_inputs(box) -> None:
                                                        '<pose>0 0 1 0 0 0</pose>', 1))
     (box / "two_gravities.sdf").write_text(arm_sdf.replace('<link name="b"/>', '<link name="b"><gravity>true</gravity>'
                                                            '<gravity>false</gravity></link>'))
+    # (held-out run 27: an SDF visual's two materials, differing; a world including a URDF whose transmission's joint
+    # has effort 0)
+    (box / "sdf_two_materials.sdf").write_text(arm_sdf.replace('<link name="b"/>', '<link name="b"><visual name="v">'
+                                                               '<geometry><box><size>1 1 1</size></box></geometry>'
+                                                               '<material><diffuse>1 0 0 1</diffuse></material><material>'
+                                                               '<diffuse>0 1 0 1</diffuse></material></visual></link>'))
+    (box / "effort0.urdf").write_text(urdf.replace('effort="330"', 'effort="0"', 1))
+    (box / "world_effort0.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>effort0.urdf</uri>'
+                                           '</include></world></sdf>')
     # (held-out run 26: a visual's two materials, a material's two colours, differing)
     (box / "two_materials.urdf").write_text(urdf.replace('</material></visual>', '</material><material name="red">'
                                                          '<color rgba="1 0 0 1"/></material></visual>', 1))
@@ -1007,7 +1017,7 @@ CASES = [
      "(40,000 entries)"),
     (yaml_case("mpc", "horizon: 20\nhorizon: 30\n"), "horizon is given twice in one mapping (lines 1 and 2)"),
     (yaml_case("mpc", "terminal_factor: !!float 0x10\n"),
-     "terminal_factor is written 0x10, which YAML cannot read under its tag (a YAML 1.1 hexadecimal number)"),
+     "terminal_factor is written 0x10, which YAML cannot read under its tag !!float (a YAML 1.1 hexadecimal number)"),
     # (held-out run 19)
     (yaml_case("mpc", "horizon: !!int 0O24\n"), "horizon is written 0O24, which YAML reads as 20 (a YAML 1.2 octal"),
     (yaml_case("mpc", "optimizer: !Rti\n  <<: {iterations: 1}\n  <<: {iterations: 2}\n"),
@@ -1139,9 +1149,20 @@ CASES = [
     (yaml_case("tspec", "protocol: !Tracking\n  sampling:\n    initial_poses: [[{xyz: [0.6, 0.3, 0.4], rpy: [3.14, 0, 0]}]]\n"),
      "protocol.sampling.initial_poses is [{xyz: [0.6, 0.3, 0.4], rpy: [3.14, 0, 0]}], a list where a mapping goes"),
     (yaml_case("mpc", "disturbance_gain: !!float 0O1\n"),
-     "disturbance_gain is written 0O1, which YAML cannot read under its tag (a YAML 1.2 octal number)"),
+     "disturbance_gain is written 0O1, which YAML cannot read under its tag !!float (a YAML 1.2 octal number)"),
     (["robot", "init", "two_materials.urdf", "-o", "NEW.yaml"], "its <visual> states 2 <material> elements that differ"),
     (["robot", "init", "two_colors.urdf", "-o", "NEW.yaml"], "its <material> states 2 <color> elements that differ"),
+    # (held-out run 27: numbers their tag cannot read; an SDF visual's doubled material; a world's URDF with a
+    # transmission on a joint of effort 0; a recording's publish period)
+    (yaml_case("mpc", "horizon: !!int 20.0\n"),
+     "horizon is written 20.0, which YAML cannot read under its tag !!int; write a whole number, or leave out the tag"),
+    (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    max_linear_speed: !!float 0o1\n"),
+     "protocol.planner.max_linear_speed is written 0o1, which YAML cannot read under its tag !!float"),
+    ([*E, "--visualization", "nan_visualization.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "publish_period: a recording shows every sample period of the data, so the file's nan would be ignored"),
+    (["robot", "init", "sdf_two_materials.sdf", "-o", "NEW.yaml"], "its <visual> states 2 <material> elements that differ"),
+    (["robot", "init", "world_effort0.sdf", "-o", "NEW.yaml"],
+     "world_effort0.sdf: its included effort0.urdf: joint 'shoulder_pan_joint' has a <transmission> and effort limit 0"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in
@@ -1197,3 +1218,18 @@ def test_bad_input_is_one_line_exit_2_and_touches_nothing(sandbox, capsys, monke
     after = snapshot(sandbox)
     after.pop("case.yaml", None), before.pop("case.yaml", None)
     assert after == before, sorted(set(after.items()) ^ set(before.items()))
+
+
+def test_numbers_every_yaml_reads_alike_load(tmp_path):
+    """Valid input is not refused for its spelling (held-out run 27): `!!float 01` is 1.0 to YAML 1.1, YAML 1.2 and
+    Drake, so it loads; `!!int 20` and `!!float 3` too; what reads otherwise somewhere stays refused."""
+    from stdm_drake.closed_loop.mpc import load_mpc_config
+    from stdm_drake.errors import InputError
+    path = tmp_path / "mpc.yaml"
+    for text, value in (("!!float 01", 1.0), ("!!float 3", 3.0), ("!!int 20", 20.0), ("007.5", 7.5)):
+        path.write_text(f"terminal_factor: {text}\n")
+        assert load_mpc_config(path).terminal_factor == value, text
+    for text in ("!!int 024", "024", "!!float 0x10", "!!int 2e1"):
+        path.write_text(f"terminal_factor: {text}\n")
+        with pytest.raises(InputError, match="terminal_factor is written"):
+            load_mpc_config(path)

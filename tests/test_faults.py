@@ -558,6 +558,23 @@ def test_a_signal_held_during_the_imports_ends_the_command_before_an_argument_er
     assert capsys.readouterr().err == "" and interrupts._deferred == []
 
 
+@pytest.mark.parametrize("state", ["_deferred", "_received"])
+def test_a_signal_before_a_refusal_ends_the_command_with_its_own_line_only(monkeypatch, capsys, state):
+    """Held-out run 27: a SIGTERM that arrived during the run (still waiting after an import, or swallowed by a
+    library) and a refusal reached after it: the run ends as terminated (143) in one line, not the refusal's line
+    and then the signal's."""
+    from stdm_drake.commands import inspect as inspect_command
+    from stdm_drake.errors import InputError
+
+    def run(args):
+        getattr(interrupts, state).append(signal.SIGTERM)
+        raise InputError("x.h5: no such dataset")
+
+    monkeypatch.setattr(inspect_command, "run", run)
+    assert main(["inspect", "x.h5"]) == 143
+    assert capsys.readouterr().err.strip() == "stdm-drake inspect: terminated (SIGTERM)"
+
+
 def test_a_signal_inside_a_logging_call_is_sent_again_later():
     """Drake's C++ log calls into Python's logging: an exception raised there is printed by its logger as a
     "LOG ERROR" with a stack, so a signal inside logging waits like one inside an import."""

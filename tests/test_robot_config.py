@@ -443,6 +443,17 @@ def test_what_drakes_parser_reads_as_written_passes_the_one_reading_checks(tmp_p
     path.write_text(SDF.format(mass=2.0, lower=-1).replace("<link name=\"tip\"/>", "<link name=\"tip\"><gravity>true"
                                                            "</gravity><gravity>1</gravity></link>"))
     read_description(path)
+    # (held-out run 27: a material and a reference to it by name say the same; an SDF material's doubled colour not)
+    visual = ('<visual><geometry><box size="1 1 1"/></geometry><material name="grey"><color rgba="0.2 0.2 0.2 1"/>'
+              '</material><material name="grey"/></visual>')
+    urdf.write_text(urdf.read_text().replace('<link name="b">', f'<link name="b">{visual}'))
+    assert [joint.name for joint in read_description(urdf).joints] == ["j"]
+    path.write_text(SDF.format(mass=2.0, lower=-1).replace("<link name=\"tip\"/>", "<link name=\"tip\"><visual name="
+                                                           "\"v\"><geometry><box><size>1 1 1</size></box></geometry>"
+                                                           "<material><ambient>1 0 0 1</ambient><ambient>0 1 0 1</ambient>"
+                                                           "</material></visual></link>"))
+    with pytest.raises(InputError, match="its <material> states 2 <ambient> elements that differ"):
+        read_description(path)
     urdf.write_text(urdf.read_text().replace('<origin xyz="0 0 0.2"/>', '<origin xyz="0 0 0.3"/>'))
     with pytest.raises(InputError, match="joint 'j': it states 2 <origin> elements that differ"):
         read_description(urdf)

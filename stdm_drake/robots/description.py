@@ -234,6 +234,7 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
         several = description.models > 1
         for include in world_includes:
             included = target(include, "its world")
+            _check_transmissions_in_world(included, path.name)
             model = read_included(included)
             name = (include.findtext("name") or "").strip() or model.name
             _check_own_links(model, included.name)
@@ -261,6 +262,25 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
                     check_inertial(inertial, f"{path.name}: its included {included.name}: link {link!r}")
                     description.included[name] = inertial
     return description
+
+
+def _check_transmissions_in_world(included: pathlib.Path, world: str) -> None:
+    """InputError where a URDF a world includes has a <transmission> on a joint of effort limit 0: Drake's parser
+    skips that transmission with a warning, then fails on the world with "Failed to load a world", naming neither
+    (measured; the URDF alone loads)."""
+    root = xml_file.parse(included).getroot()
+    if root.tag != "robot":
+        return
+    efforts = {joint.get("name"): (joint.find("limit").get("effort") if joint.find("limit") is not None else None)
+               for joint in root.findall("joint")}   # (not a transmission's <joint>, which names one)
+    for transmission in root.iter("transmission"):
+        for joint in transmission.findall("joint"):
+            effort = file_number(efforts.get(joint.get("name")))
+            if effort == 0:
+                raise InputError(f"{world}: its included {included.name}: joint {joint.get('name')!r} has a "
+                                 "<transmission> and effort limit 0, which Drake's parser cannot load inside a world "
+                                 "(it skips the transmission, then fails on the world); give the joint its effort "
+                                 "limit, or leave out its transmission")
 
 
 def _merged(include) -> bool:

