@@ -28,10 +28,11 @@ def plant_model():
 
 def test_the_shipped_settings_are_the_default_real_time_iteration():
     """controllers/mpc.yaml names the RTI with the numbers it always had: one iteration, regularization 1e-6, and the
-    compiled control step (the default)."""
+    compiled control step (the default), every node's Jacobians in every step (the exact step)."""
     config = load_mpc_config()
     assert config.optimizer == Rti(iterations=1, regularization=1e-6, implementation="compiled") == MpcConfig().optimizer
-    assert config.record()["optimizer"] == dict(type="Rti", iterations=1, regularization=1e-6, implementation="compiled")
+    assert config.record()["optimizer"] == dict(type="Rti", iterations=1, regularization=1e-6, jacobian_refresh="all",
+                                                implementation="compiled")
 
 
 @pytest.mark.parametrize("text, kind, solver", [

@@ -239,8 +239,8 @@ def study_models(study: MpcStudy, dataset, robot, plant_config) -> tuple[list, l
         models.append(PlantModel(dataset.sample_period, robot=robot, integrator="rk4"))
         records.append(dict(name=models[-1].name, kind="plant", file=str(robot.model_path), sha256=robot.model_sha256(),
                             description=models[-1].describe()))
-        if plant_config.effects is not None:
-            models.append(PlantModel(dataset.sample_period, plant_config, robot=robot, integrator="rk4"))
+        if plant_config.effects is not None and not plant_config.effects.beyond_rigid_bodies():   # (lag, delay,
+            models.append(PlantModel(dataset.sample_period, plant_config, robot=robot, integrator="rk4"))  # Stribeck: none)
             records.append(dict(name=models[-1].name, kind="plant with effects",
                                 file=_text(study.plant_effects), sha256=None, description=models[-1].describe()))
     for name, path in study.models:

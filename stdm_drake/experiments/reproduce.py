@@ -127,7 +127,8 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.closed_loop.mpc import Reference
     from stdm_drake.closed_loop.comparison import closed_loop_failures, held_out_references, plot_results, summarize
-    specs = [("plant", None)] + ([("true-plant", "true")] if plant_effects is not None else [])
+    oracle = plant_effects is not None and not plant_effects.beyond_rigid_bodies()   # (no rigid-body model holds those)
+    specs = [("plant", None)] + ([("true-plant", "true")] if oracle else [])
     for model_type in CONTROL_MODEL_TYPES:
         for match in sorted(select_rows(results, experiment="control", model_type=model_type), key=lambda r: r.seed):
             specs.append((f"{model_type} seed {match.seed}", str(cache / f"{match.key}.pt")))
