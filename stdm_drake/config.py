@@ -139,7 +139,7 @@ def _number_or_text(kind):
     def construct(loader, node):
         try:
             return standard(loader, node)
-        except ValueError:
+        except (ValueError, IndexError):   # (`!!int ""`: PyYAML indexes the empty text)
             return loader.construct_scalar(node)
     return construct
 
@@ -157,7 +157,7 @@ def read_yaml_document(path):
     try:
         text = pathlib.Path(path).read_text()
         return yaml.load(text, Loader=_TagsAsPlainValues) if not nested_too_deep(text) else None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError):   # (ValueError: `!!float 0x10`, no float)
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, ValueError, IndexError):   # (`!!float 0x10`, `!!int ""`)
         return None
 
 

@@ -49,9 +49,11 @@ def check_quoted_numbers(path, schema) -> None:
             raise InputError(f"{path}: {where} is {line_text(_shortened(value))}, {how}; leave the setting out for its "
                              "default, or write it in that form")
         if how.endswith("under its tag !!int"):   # (`!!int 20.0`)
-            raise InputError(f"{path}: {where} is written {value}, {how}; write a whole number, or leave out the tag")
+            raise InputError(f"{path}: {where} is written {value or repr(value)}, {how}; write a whole number, or leave "
+                             "out the tag")
         if how.startswith(("which YAML reads as", "which YAML cannot read")):
-            raise InputError(f"{path}: {where} is written {value}, {how}; write the number in plain decimal digits")
+            raise InputError(f"{path}: {where} is written {value or repr(value)}, {how}; write the number in plain "
+                             "decimal digits")
         if how == "which only YAML 1.1 reads as a boolean":
             raise InputError(f"{path}: {where} is written {value}, {how}; write true or false")
         if how.endswith(", not a boolean"):
@@ -127,6 +129,8 @@ def _numeric_scalars(annotation, node, where: str):
         if getattr(node, "tag", "").endswith(":null") and type(None) in arguments:
             return   # (None is one of the field's values)
         members = [member for member in arguments if member is not type(None)]
+        if str in members and isinstance(node, yaml.ScalarNode) and node.tag.endswith(":str"):
+            return   # (text is one of the field's values: `jacobian_refresh: "all"`)
         tagged = [member for member in members if getattr(node, "tag", "") == f"!{getattr(member, '__name__', '')}"]
         shaped = [member for member in members if _shape(member) == _shape(node)]   # (`float | list[float]`)
         if tagged or shaped or members:
@@ -212,7 +216,7 @@ def _quoted_number(node, schema, prefix: str, text: str):
             form = f" (a {_form(item.value)})" if YAML11_FORM.match(item.value) else ""
             try:   # (as its number tag reads it; tagged `!!int 024` too)
                 read = yaml.safe_load(f"!!{kind} {item.value}")
-            except (ValueError, yaml.YAMLError):   # (`!!float 0x10`, `!!int 20.0`: no such number to YAML)
+            except (ValueError, IndexError, yaml.YAMLError):   # (`!!float 0x10`, `!!int 20.0`, `!!int ""`)
                 return where, item.value, f"which YAML cannot read under its tag !!{kind}{form}"
             if form and not (kind == "float" and ASCII_NUMBER.fullmatch(item.value)):   # (`!!float 01`: 1.0 to all)
                 return where, item.value, f"which YAML reads as {read!r}{form}"

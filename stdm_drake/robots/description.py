@@ -234,8 +234,8 @@ def read_description(path: pathlib.Path, including: tuple = (), packages: dict |
         several = description.models > 1
         for include in world_includes:
             included = target(include, "its world")
+            model = read_included(included)   # (its XML checked before anything here reads it)
             _check_transmissions_in_world(included, path.name)
-            model = read_included(included)
             name = (include.findtext("name") or "").strip() or model.name
             _check_own_links(model, included.name)
             description.name = "" if several else name
@@ -273,7 +273,7 @@ def _check_transmissions_in_world(included: pathlib.Path, world: str) -> None:
         return
     efforts = {joint.get("name"): (joint.find("limit").get("effort") if joint.find("limit") is not None else None)
                for joint in root.findall("joint")}   # (not a transmission's <joint>, which names one)
-    for transmission in root.iter("transmission"):
+    for transmission in root.findall("transmission"):   # (Drake reads the robot's own, not nested ones)
         for joint in transmission.findall("joint"):
             effort = file_number(efforts.get(joint.get("name")))
             if effort == 0:

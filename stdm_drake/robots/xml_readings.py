@@ -55,8 +55,9 @@ def split_text(path: pathlib.Path, tag: str, line: int, nodes: list) -> None:
 
 # URDF attributes with a default (the URDF specification's, as Drake's parser reads them): stated or left out, the
 # same element
+# (not <limit>'s lower and upper: the specification says 0, Drake's parser reads them as unbounded)
 URDF_DEFAULT_ATTRIBUTES = {"origin": {"xyz": "0 0 0", "rpy": "0 0 0"}, "axis": {"xyz": "1 0 0"},
-                           "limit": {"lower": "0", "upper": "0"}, "dynamics": {"damping": "0", "friction": "0"}}
+                           "dynamics": {"damping": "0", "friction": "0"}}
 BOOLEAN_WORDS = {"true": 1.0, "false": 0.0}   # (SDFormat reads a boolean as true/false or 1/0)
 
 
