@@ -1,5 +1,7 @@
 """Plant effects no rigid-body model has (issue 59, robots/effect_systems.py): each against its analytic response,
 in the plant's diagram, in a closed loop, and refused where a model that cannot hold it is asked for."""
+import dataclasses
+
 import numpy as np
 import pytest
 from pydrake.systems.analysis import Simulator
@@ -121,3 +123,58 @@ def test_a_closed_loop_on_a_lagging_plant_runs_and_tracks_worse_than_on_the_plai
         errors[name] = float(np.mean((states[:, :6] - reference.q[:len(states)]) ** 2))
         assert np.all(np.isfinite(states)) and not any(log.fallback)
     assert errors["lagging"] > errors["plain"]
+
+
+def test_collection_records_the_acceleration_of_the_torque_that_acts():
+    """Held-out review: on a plant with a lag and a delay the station starts its actuators holding the first action
+    (the arm at rest does not sag), and the recorded true accelerations are those of the actuators' torque, not of
+    the command (with Stribeck friction in the dynamics too); without these effects, the command's, as before."""
+    from stdm_drake.robots.control import JointSensor, SensorConfig
+    from stdm_drake.robots.plant import Dynamics
+    from stdm_drake.robots.station import Station, StationConfig
+    effects = PlantEffects(actuator_time_constant=[0.004], actuation_delay=0.002, coulomb_friction=[2.0],
+                           stribeck_friction=[3.0])
+    station = Station(StationConfig(robot=UR10, plant=PlantConfig.discrete(STEP, effects=effects),
+                                    sensor=SensorConfig()))
+    gravity = Dynamics(UR10).gravity_torque(UR10.home)
+    kick = np.array([30.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    control = lambda k, t, q, v: gravity + (kick if k >= 2 else 0.0)   # noqa: E731
+    rng = np.random.default_rng(0)
+    traj = station.run(UR10.home, 5, control, JointSensor(SensorConfig(), rng), rng)
+    true = Dynamics(UR10, effects)
+    # at rest holding the first action: no acceleration but friction's (none at rest) and the rest of gravity's
+    np.testing.assert_allclose(traj["qdd"][0], true.acceleration(UR10.home, np.zeros(6), gravity), atol=1e-9)
+    # the kick is commanded at sample 2; its torque acts 2 ms later and through the lag: less than the command
+    commanded = true.acceleration(traj["q_true"][2], traj["v_true"][2], gravity + kick)
+    assert abs(traj["qdd"][2][0]) < 0.5 * abs(commanded[0])
+    plain = Station(StationConfig(robot=UR10, plant=PlantConfig.discrete(STEP), sensor=SensorConfig()))
+    traj = plain.run(UR10.home, 3, control, JointSensor(SensorConfig(), rng), rng)
+    np.testing.assert_allclose(traj["qdd"][2], Dynamics(UR10).acceleration(traj["q_true"][2], traj["v_true"][2],
+                                                                          gravity + kick), atol=1e-9)
+
+
+def test_a_one_step_plant_model_of_a_lagging_plant_is_refused_and_stribeck_counts_in_the_stability_check():
+    lagged = PlantConfig.discrete(STEP, effects=PlantEffects(actuator_time_constant=[0.004]))
+    with pytest.raises(InputError, match="a one-step plant model cannot hold the affected plant's actuator_time_constant"):
+        PlantModel(0.01, lagged, robot=UR10)
+    PlantModel(0.01, PlantConfig.discrete(STEP, effects=PlantEffects(coulomb_friction=[1.0], stribeck_friction=[2.0])),
+               robot=UR10)   # (Stribeck friction is a function of (q, v): the simulator's step holds it)
+    from stdm_drake.robots.plant import coulomb_stability_gains
+    plain = PlantEffects(coulomb_friction=[1.0], coulomb_velocity_scale=[0.01])
+    breaking = dataclasses.replace(plain, stribeck_friction=[3.0])
+    np.testing.assert_allclose(coulomb_stability_gains(breaking, UR10, STEP),
+                               3.0 * coulomb_stability_gains(plain, UR10, STEP))
+
+
+def test_the_actuators_hold_what_they_were_started_with_until_the_delay_passes():
+    simulation = PlantSimulator(PlantConfig.discrete(STEP, effects=PlantEffects(actuation_delay=2 * STEP)), robot=UR10)
+    before, after = np.full(6, 1.0), np.full(6, 2.0)
+    simulation.start(np.concatenate([UR10.home, np.zeros(6)]), before)
+    simulation.hold(after)
+    np.testing.assert_array_equal(simulation.applied_torque(), before)
+    simulation.advance_to(2.5 * STEP)
+    np.testing.assert_array_equal(simulation.applied_torque(), after)
+    plain = PlantSimulator(PlantConfig.discrete(STEP), robot=UR10)
+    plain.start(np.concatenate([UR10.home, np.zeros(6)]), before)
+    plain.hold(after)
+    np.testing.assert_array_equal(plain.applied_torque(), after)

@@ -43,6 +43,7 @@ from stdm_drake.config import load_yaml_config  # noqa: E402
 from stdm_drake.robots.control import SensorConfig, load_controller_config  # noqa: E402
 from stdm_drake.collection.protocols import load_tracking_spec  # noqa: E402
 from stdm_drake.paths import CONTROLLERS_DIR, MODELS_DIR, TRAJECTORIES_DIR  # noqa: E402
+from stdm_drake.robots.effect_systems import actuation_input  # noqa: E402
 from stdm_drake.robots.effects import load_plant_effects  # noqa: E402
 from stdm_drake.robots.plant import PlantConfig, make_plant  # noqa: E402
 from stdm_drake.robots.robot import UR10_CONFIG, load_robot  # noqa: E402
@@ -67,7 +68,7 @@ def bare_drake_seconds(plans, settings) -> float:
     builder.Connect(plant.get_state_output_port(), gravity.get_input_port_estimated_state())
     builder.Connect(pid.get_output_port_control(), adder.get_input_port(0))
     builder.Connect(gravity.get_output_port_generalized_force(), adder.get_input_port(1))
-    builder.Connect(adder.get_output_port(), plant.get_actuation_input_port())
+    builder.Connect(adder.get_output_port(), actuation_input(builder, plant))
     diagram = builder.Build()
     simulator = Simulator(diagram)
     context = simulator.get_mutable_context()

@@ -38,8 +38,10 @@ class ActuatorDynamics(LeafSystem):
     commands, w_k = command_(k - d)); joint j's torque follows w through a first-order lag of time constant T_j,
     discretized exactly for a command held over each step: τ_(k+1) = τ_k + (1 - exp(-h / T_j)) (w_k - τ_k), the
     output τ_k (a joint with T_j = 0: w_k). A step of the command from rest reaches u (1 - exp(-(t - d h) / T))
-    at t = k h, k >= d: the lag's continuous response, sampled. `start` sets every state to one torque, as if it
-    had been held before (the robot at rest holding it)."""
+    at t = k h, k >= d: the lag's continuous response, sampled at the start of each plant step, where the discrete
+    plant samples its input (so a lagged joint, however small T, answers a change of command from the next plant
+    step on; a joint with T = 0 at once). `start` sets every state to one torque, as if it had been held before (the
+    robot at rest holding it)."""
 
     def __init__(self, time_constant: np.ndarray, delay_steps: int, step: float):
         super().__init__()

@@ -253,6 +253,9 @@ def load_plant_effects(path) -> PlantEffects:
     if "coulomb_velocity_scale" in file_keys(path) and not effects.is_on("coulomb_friction"):
         raise InputError(f"{path}: coulomb_velocity_scale smooths coulomb_friction, which is zero or not given, so "
                          "it would be ignored")
+    if "stribeck_velocity" in file_keys(path) and not effects.stribeck_friction:
+        raise InputError(f"{path}: stribeck_velocity shapes stribeck_friction, which is not given, so it would be "
+                         "ignored")
     return effects
 
 

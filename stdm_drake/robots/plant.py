@@ -174,6 +174,11 @@ class PlantSimulator:
         """Hold the action tau (m,) N m from now on."""
         self._actuation.FixValue(self.context, tau)
 
+    def applied_torque(self) -> np.ndarray:
+        """The torque (m,) N m the joints get now: the actuators' output where the effects have them (lag, delay),
+        else the held action."""
+        return self.plant.get_actuation_input_port().Eval(self.plant_context)
+
     def advance_to(self, time: float) -> np.ndarray:
         """Simulate to `time` s and return the state [q, v] (2n,)."""
         self.simulator.AdvanceTo(time)
@@ -247,6 +252,7 @@ class Dynamics:
             start = joint.velocity_start()
             self._damping[start:start + joint.num_velocities()] = joint.default_damping_vector()
         self._coulomb = effects.coulomb(robot.num_joints) if effects is not None else None   # (F_c, v_s)
+        self._stribeck = effects.stribeck(robot.num_joints) if effects is not None else None   # (F_s, v_st)
 
     @property
     def damping(self) -> np.ndarray:
@@ -297,7 +303,7 @@ class Dynamics:
         if self._damping.any():
             rhs = rhs - self._damping * v
         if self._coulomb is not None:
-            rhs = rhs + coulomb_torque(v, *self._coulomb)
+            rhs = rhs + coulomb_torque(v, *self._coulomb, self._stribeck)
         return np.linalg.solve(plant.CalcMassMatrix(context), rhs)
 
 
@@ -359,26 +365,32 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     gain = coulomb_stability_gains(effects, robot, time_step)
     if gain is not None:
         friction, scale = effects.coulomb(n)
+        if effects.stribeck(n) is not None:
+            friction = np.maximum(friction, effects.stribeck(n)[0])
         if np.any(gain > 1.0):
             joint = int(np.argmax(gain))
             smallest = coulomb_stability_gains(dataclasses.replace(effects, coulomb_velocity_scale=[1.0]), robot,
                                                time_step)[joint]   # (h F_c / M_eff: the smallest stable v_s)
-            raise InputError(f"plant effects: Coulomb friction {friction[joint]:g} "
+            raise InputError(f"plant effects: Coulomb friction (at rest) {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
                              f"raise its coulomb_velocity_scale to at least {smallest:.3g} rad/s or lower the plant step")
 
 
 def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:
-    """h F_c / (v_s M_eff) per arm joint (n,): the explicit Coulomb term is stable at the plant step h s where
-    it is <= 1; M_eff the joint's effective inertia at the robot's home on the affected plant (reflected
+    """h F_c / (v_s M_eff) per arm joint (n,) (F_s, the breakaway friction, for F_c with Stribeck friction): the
+    explicit Coulomb term is stable at the plant step h s where it is <= 1; M_eff the joint's effective inertia at the robot's home on the affected plant (reflected
     inertia, payload, link inertias and mass scales included). None without Coulomb friction or for a
     continuous plant (h = 0)."""
     coulomb = effects.coulomb(robot.num_joints)
     if coulomb is None or time_step <= 0:
         return None
-    inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[])).effective_inertia(robot.home)
+    inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[], stribeck_friction=[])
+                       ).effective_inertia(robot.home)
     friction, scale = coulomb
+    stribeck = effects.stribeck(robot.num_joints)
+    if stribeck is not None:   # (the friction's slope at rest is F_s / v_s: the breakaway, not F_c)
+        friction = np.maximum(friction, stribeck[0])
     with np.errstate(over="ignore"):   # (a v_s of 1e-320 gives inf: unstable, as it is)
         return time_step * friction / inertia / scale
 

@@ -90,9 +90,9 @@ class Station:
         dt = self.settings.sample_period
         simulation = self.simulation
         n = self.robot.num_joints
-        simulation.start(np.concatenate([q0, np.zeros(n)]), np.zeros(self.robot.action_dim))
-        x = simulation.plant.GetPositionsAndVelocities(simulation.plant_context)
-        q_true, v_true, q_meas, v_meas, tau, applied = [], [], [], [], [], []
+        started = False
+        x = np.concatenate([q0, np.zeros(n)])
+        q_true, v_true, q_meas, v_meas, tau, applied, ending = [], [], [], [], [], [], []
         for k in range(num_steps + 1):
             q_true.append(x[:n])
             v_true.append(x[n:])
@@ -104,13 +104,17 @@ class Station:
             if self._torque_noise is not None:
                 tau_k = np.clip(tau_k + self._torque_noise * rng.standard_normal(len(tau_k)), -self.limits.effort,
                                 self.limits.effort)
-            applied.append(tau_k)
+            if not started:   # (at rest holding the first action: the actuators, where the effects have them, too)
+                simulation.start(x, tau_k)
+                started = True
+            simulation.hold(tau_k)
+            applied.append(simulation.applied_torque())   # (the actuators' output, lagging or delayed: what acts)
             if k < num_steps:
-                simulation.hold(tau_k)
                 x = simulation.advance_to((k + 1) * dt)
+                ending.append(simulation.applied_torque())
         acceleration = self.true_dynamics.acceleration
         qdd = [acceleration(q_true[k], v_true[k], applied[k]) for k in range(num_steps + 1)]
-        qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], applied[k]) for k in range(num_steps)]
+        qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], ending[k]) for k in range(num_steps)]
         return dict(q=np.array(q_meas), v=np.array(v_meas), tau=np.array(tau[:-1]), tau_next=tau[-1],
                     q_true=np.array(q_true), v_true=np.array(v_true), qdd=np.array(qdd), qdd_end=np.array(qdd_end))
 
