@@ -354,6 +354,9 @@ def write_issue_25_inputs(box) -> None:
                                                                '<material><diffuse>1 0 0 1</diffuse></material><material>'
                                                                '<diffuse>0 1 0 1</diffuse></material></visual></link>'))
     (box / "effort0.urdf").write_text(urdf.replace('effort="330"', 'effort="0"', 1))
+    (box / "truncated_arm.urdf").write_text('<robot name="arm"><link name="base"/>')
+    (box / "world_truncated.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>truncated_arm.urdf</uri>'
+                                             '</include></world></sdf>')
     (box / "world_effort0.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>effort0.urdf</uri>'
                                            '</include></world></sdf>')
     # (held-out run 26: a visual's two materials, a material's two colours, differing)
@@ -1158,6 +1161,9 @@ CASES = [
      "horizon is written 20.0, which YAML cannot read under its tag !!int; write a whole number, or leave out the tag"),
     (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    max_linear_speed: !!float 0o1\n"),
      "protocol.planner.max_linear_speed is written 0o1, which YAML cannot read under its tag !!float"),
+    # (the review of run 27's fixes: an empty tagged number; a world including a truncated URDF)
+    (yaml_case("mpc", 'horizon: !!int ""\n'), "horizon is written '', which YAML cannot read under its tag !!int"),
+    (["robot", "init", "world_truncated.sdf", "-o", "NEW.yaml"], "truncated_arm.urdf is not well-formed XML"),
     ([*E, "--visualization", "nan_visualization.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
      "publish_period: a recording shows every sample period of the data, so the file's nan would be ignored"),
     (["robot", "init", "sdf_two_materials.sdf", "-o", "NEW.yaml"], "its <visual> states 2 <material> elements that differ"),

@@ -198,6 +198,10 @@ def test_the_compiled_multilevel_step_is_the_reference_for_every_network_kind(tm
     ("optimizer: !Rti {jacobian_refresh: 21}\n", "jacobian_refresh 21 is beyond the horizon's 20 nodes"),
     ("horizon: 4\noptimizer: !Rti {jacobian_refresh: 5}\n", "jacobian_refresh 5 is beyond the horizon's 4 nodes")])
 def test_a_refresh_setting_the_step_cannot_run_is_one_line(tmp_path, text, message):
+    """(and "all", quoted or not, loads: the setting takes text)"""
+    for written in ("all", '"all"', "!!str all"):
+        (tmp_path / "all.yaml").write_text(f"optimizer: !Rti {{jacobian_refresh: {written}}}\n")
+        assert load_mpc_config(tmp_path / "all.yaml").optimizer.jacobian_refresh == "all"
     path = tmp_path / "mpc.yaml"
     path.write_text(text)
     with pytest.raises(InputError, match=message) as error:

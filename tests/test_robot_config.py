@@ -454,7 +454,14 @@ def test_what_drakes_parser_reads_as_written_passes_the_one_reading_checks(tmp_p
                                                            "</material></visual></link>"))
     with pytest.raises(InputError, match="its <material> states 2 <ambient> elements that differ"):
         read_description(path)
-    urdf.write_text(urdf.read_text().replace('<origin xyz="0 0 0.2"/>', '<origin xyz="0 0 0.3"/>'))
+    # (a <limit> without lower and upper is unbounded to Drake, not the specification's 0: it differs from one of 0)
+    unbounded = urdf.read_text()
+    urdf.write_text(unbounded.replace('<limit lower="-1" upper="1" effort="1" velocity="1"/>',
+                                      '<limit effort="1" velocity="1"/><limit lower="0" upper="0" effort="1" '
+                                      'velocity="1"/>'))
+    with pytest.raises(InputError, match="it states 2 <limit> elements that differ"):
+        read_description(urdf)
+    urdf.write_text(unbounded.replace('<origin xyz="0 0 0.2"/>', '<origin xyz="0 0 0.3"/>'))
     with pytest.raises(InputError, match="joint 'j': it states 2 <origin> elements that differ"):
         read_description(urdf)
     for split in ("2<!-- -->.0", "<!-- kg -->2<!-- -->.0", "2.<![CDATA[0]]>", "<![CDATA[2]]>.0", "<?x?>2.0",
