@@ -77,6 +77,14 @@ def problems() -> list[str]:
 
 
 def write_index() -> int:
+    """Rewrite the index from git; its own provenance names the commit it was made on (a clean checkout: refused
+    otherwise, in one line)."""
+    sys.path.insert(0, str(ROOT))
+    from stdm_drake.provenance import dirty_refusal, provenance
+    record = provenance("python tools/results_provenance.py --write", root=ROOT)
+    refusal = dirty_refusal(record)
+    if refusal is not None:
+        raise SystemExit(f"results_provenance.py: error: {refusal}")
     files = {}
     for path in results_files():
         if not names_commit(path):
@@ -87,7 +95,7 @@ def write_index() -> int:
                  "provenance); committed_in: the commit that first added the file to git, so the code of its run "
                  "was that commit or an earlier one, with whatever the working tree held then. Regenerate with "
                  "python tools/results_provenance.py --write.",
-        "files": files}, indent=1, sort_keys=True) + "\n")
+        "provenance": record, "files": files}, indent=1, sort_keys=True) + "\n")
     return len(files)
 
 
