@@ -132,8 +132,7 @@ class PlantModel(DynamicsModel):
         if source is not None:   # an identified robot: fitted to data, rated against the physics-free baselines
             self.checkpoint, self.learned = source, True
         self._plant_config = plant_config
-        lagging = [name for name in (self.effects.beyond_rigid_bodies() if self.effects is not None else [])
-                   if name != "stribeck_friction"]
+        lagging = self.effects.acting_later() if self.effects is not None else []
         if lagging and integrator == "simulator":   # (the rk4 plant refuses every effect it does not hold)
             raise InputError(f"a one-step plant model cannot hold the affected plant's {', '.join(lagging)}: the "
                              "torque acting depends on earlier commands, not on (x, u); use the description's plant")

@@ -170,10 +170,21 @@ class PlantEffects:
         require(np.isfinite(self.actuation_delay) and 0 <= self.actuation_delay <= EFFECT_BOUNDS["actuation_delay"],
                 f"actuation_delay must be in [0, {EFFECT_BOUNDS['actuation_delay']:g}] s", self.actuation_delay)
 
+    def acting_later(self) -> list[str]:
+        """The effects that are on and make the torque acting depend on earlier commands (lag, delay): no model of
+        (x, u) holds them."""
+        return (["actuator_time_constant"] if self.is_on("actuator_time_constant") else []) + (
+            ["actuation_delay"] if self.actuation_delay > 0 else [])
+
     def beyond_rigid_bodies(self) -> list[str]:
         """The effects that are on and that no rigid-body model (the RK4 plant model, identification) holds."""
-        return [name for name in ("stribeck_friction", "actuator_time_constant") if self.is_on(name)] + (
-            ["actuation_delay"] if self.actuation_delay > 0 else [])
+        return (["stribeck_friction"] if self.is_on("stribeck_friction") else []) + self.acting_later()
+
+    def friction_at_rest(self, joints: int) -> np.ndarray:
+        """The friction's magnitude at rest (joints,) N m: F_c, or F_s with Stribeck friction (the smoothed friction's
+        slope at zero velocity is this over v_s)."""
+        stribeck = self.stribeck(joints)
+        return self.joint_values("coulomb_friction", joints) if stribeck is None else stribeck[0]
 
     def stribeck(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(F_s (joints,) N m, v_st (joints,) rad/s), or None without Stribeck friction."""

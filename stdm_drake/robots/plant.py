@@ -101,8 +101,8 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
     as (plant, None), for kinematics and dynamics queries. With `config.effects`: the viscous friction,
     rotor inertia and payload in the plant and, in a diagram (`builder`), the friction system driving the
     plant's applied generalized force and the actuators between a command and the plant's actuation
-    (`effects.add_effect_systems`; connect a command to `effects.actuation_input(builder, plant)`); the mass
-    scales are Context parameters (`config.set_parameters` on every context made of the diagram).
+    (`effect_systems.add_effect_systems`; connect a command to `effect_systems.actuation_input(builder, plant)`);
+    the mass scales are Context parameters (`config.set_parameters` on every context made of the diagram).
     """
     config = config or PlantConfig()
     if config.time_step < 0:
@@ -364,9 +364,7 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
                          f"{names_text(unknown)} (its links: {names_text(sorted(links), 50)})")
     gain = coulomb_stability_gains(effects, robot, time_step)
     if gain is not None:
-        friction, scale = effects.coulomb(n)
-        if effects.stribeck(n) is not None:
-            friction = np.maximum(friction, effects.stribeck(n)[0])
+        friction, scale = effects.friction_at_rest(n), effects.coulomb(n)[1]
         if np.any(gain > 1.0):
             joint = int(np.argmax(gain))
             smallest = coulomb_stability_gains(dataclasses.replace(effects, coulomb_velocity_scale=[1.0]), robot,
@@ -378,19 +376,16 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
 
 
 def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:
-    """h F_c / (v_s M_eff) per arm joint (n,) (F_s, the breakaway friction, for F_c with Stribeck friction): the
-    explicit Coulomb term is stable at the plant step h s where it is <= 1; M_eff the joint's effective inertia at the robot's home on the affected plant (reflected
-    inertia, payload, link inertias and mass scales included). None without Coulomb friction or for a
-    continuous plant (h = 0)."""
+    """h F_c / (v_s M_eff) per arm joint (n,) (F_c the friction at rest: the breakaway F_s with Stribeck friction):
+    the explicit Coulomb term is stable at the plant step h s where it is <= 1; M_eff the joint's effective inertia
+    at the robot's home on the affected plant (reflected inertia, payload, link inertias and mass scales included).
+    None without Coulomb friction or for a continuous plant (h = 0)."""
     coulomb = effects.coulomb(robot.num_joints)
     if coulomb is None or time_step <= 0:
         return None
     inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[], stribeck_friction=[])
                        ).effective_inertia(robot.home)
-    friction, scale = coulomb
-    stribeck = effects.stribeck(robot.num_joints)
-    if stribeck is not None:   # (the friction's slope at rest is F_s / v_s: the breakaway, not F_c)
-        friction = np.maximum(friction, stribeck[0])
+    friction, scale = effects.friction_at_rest(robot.num_joints), coulomb[1]
     with np.errstate(over="ignore"):   # (a v_s of 1e-320 gives inf: unstable, as it is)
         return time_step * friction / inertia / scale
 

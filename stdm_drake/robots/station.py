@@ -90,7 +90,6 @@ class Station:
         dt = self.settings.sample_period
         simulation = self.simulation
         n = self.robot.num_joints
-        started = False
         x = np.concatenate([q0, np.zeros(n)])
         q_true, v_true, q_meas, v_meas, tau, applied, ending = [], [], [], [], [], [], []
         for k in range(num_steps + 1):
@@ -104,9 +103,8 @@ class Station:
             if self._torque_noise is not None:
                 tau_k = np.clip(tau_k + self._torque_noise * rng.standard_normal(len(tau_k)), -self.limits.effort,
                                 self.limits.effort)
-            if not started:   # (at rest holding the first action: the actuators, where the effects have them, too)
+            if k == 0:   # (at rest holding the first action: the actuators, where the effects have them, too)
                 simulation.start(x, tau_k)
-                started = True
             simulation.hold(tau_k)
             applied.append(simulation.applied_torque())   # (the actuators' output, lagging or delayed: what acts)
             if k < num_steps:

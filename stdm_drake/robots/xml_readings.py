@@ -31,7 +31,6 @@ SDF_SAME_CHILDREN = {"joint": ("parent", "child", "pose", "axis", "axis2"), "axi
                      "collision": ("pose", "geometry"), "geometry": ("*",), "box": ("size",), "sphere": ("radius",),
                      "cylinder": ("radius", "length"), "capsule": ("radius", "length"), "ellipsoid": ("radii",)}
 
-
 FREE_TEXT = {"description", "author", "email", "maintainer", "license"}   # (a model.config's: no value Drake reads)
 
 
