@@ -58,7 +58,7 @@ from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi, SamplingSettings
 from stdm_drake.config import YAML_LOADER, check_joint_vector, load_yaml_config, read_yaml_document
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
-from stdm_drake.robots.effect_systems import TorqueNoise, actuation_input, start_actuators
+from stdm_drake.robots.effect_systems import TorqueNoise, actuation_input, measured_state_output, start_actuators
 from stdm_drake.robots.plant import Dynamics, JointLimits, PlantConfig, joint_limits
 from stdm_drake.robots.robot import Robot
 
@@ -377,7 +377,7 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
     plant, scene_graph = make_plant(plant_config, builder=builder, robot=robot)
     controller = builder.AddSystem(MpcController(model, reference, config, plant_config.time_step, robot, optimizer))
     controller.set_name("mpc")
-    builder.Connect(plant.get_state_output_port(), controller.get_state_input_port())
+    builder.Connect(measured_state_output(builder, plant), controller.get_state_input_port())   # (delayed: the effects')
     effects = plant_config.effects
     if effects is not None and effects.has_torque_noise():
         period = model.sample_period

@@ -240,7 +240,8 @@ def study_models(study: MpcStudy, dataset, robot, plant_config) -> tuple[list, l
         records.append(dict(name=models[-1].name, kind="plant", file=str(robot.model_path), sha256=robot.model_sha256(),
                             description=models[-1].describe()))
         if plant_config.effects is not None and not plant_config.effects.beyond_rigid_bodies():   # (lag, delay,
-            models.append(PlantModel(dataset.sample_period, plant_config, robot=robot, integrator="rk4"))  # Stribeck: none)
+            models.append(PlantModel(dataset.sample_period, plant_config, robot=robot, integrator="rk4"))  # elasticity,
+            # Stribeck friction, ripple: the RK4 model holds none)
             records.append(dict(name=models[-1].name, kind="plant with effects",
                                 file=_text(study.plant_effects), sha256=None, description=models[-1].describe()))
     for name, path in study.models:

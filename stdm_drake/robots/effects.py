@@ -13,9 +13,13 @@ noise: not recorded, so a re-simulation from the recorded (x_k, a_k) is exact on
 Effects no rigid-body model has (issue 59), each a system of the plant's diagram between the command and the
 joints: Stribeck friction (the breakaway friction F_s above Coulomb's near zero velocity, in `JointFriction`),
 actuator lag (a first-order lag of each joint's torque behind its command, time constant T s) and a transport
-delay (the command reaches the actuators whole plant steps later), in `effect_systems.ActuatorDynamics`. The torque and the
-state the data record are the command and the joints' state: a model of (q, v) sees these effects only through
-their consequences.
+delay (the command reaches the actuators whole plant steps later), in `effect_systems.ActuatorDynamics`; elastic
+transmissions (a motor of inertia G² I_r behind a spring-damper k, d on each elastic joint, in
+`effect_systems.ElasticTransmissions`: the motors are integrated exactly, the plant's own implicit PD actuator applies
+the spring's torque); friction ripple (the Coulomb friction's magnitude varying with the joint's position,
+F_c (1 + r sin(2 pi q / P))); and a measurement delay (the state a controller and the data see is the plant's of whole
+plant steps earlier, a Drake `DiscreteTimeDelay`). The torque and the state the data record are the command and the
+joints' (link-side, measured) state: a model of (q, v) sees these effects only through their consequences.
 """
 import dataclasses
 
@@ -77,10 +81,13 @@ class Payload(RigidInertia):
 # and small enough that the simulation's arithmetic stays finite; a value beyond is a mistake, refused in one line
 EFFECT_BOUNDS = dict(viscous_friction=1e6, coulomb_friction=1e6, torque_noise_std=1e6, joint_damping=1e6,
                      rotor_inertia=1e3, gear_ratio=1e5, mass_scale=1e6, mass=1e6, stribeck_friction=1e6,
-                     actuator_time_constant=10.0, actuation_delay=1.0)
+                     actuator_time_constant=10.0, actuation_delay=1.0, transmission_stiffness=1e8,
+                     transmission_damping=1e6, friction_ripple=1.0, friction_ripple_period=1e3, measurement_delay=1.0)
 EFFECT_UNITS = dict(viscous_friction="N m s/rad", coulomb_friction="N m", torque_noise_std="N m",
                     joint_damping="N m s/rad", rotor_inertia="kg m²", gear_ratio="", mass_scale="", mass="kg",
-                    stribeck_friction="N m", actuator_time_constant="s", actuation_delay="s")
+                    stribeck_friction="N m", actuator_time_constant="s", actuation_delay="s",
+                    transmission_stiffness="N m/rad", transmission_damping="N m s/rad", friction_ripple="",
+                    friction_ripple_period="rad", measurement_delay="s")
 
 
 def check_effect_bound(label: str, values: np.ndarray, kind: str | None = None) -> None:
@@ -116,6 +123,13 @@ class PlantEffects:
     actuator_time_constant: T s per joint (or one value): each joint's torque follows its command through a
         first-order lag, dτ/dt = (command - τ) / T (0: none).
     actuation_delay: s, a transport delay of the command, a whole number of plant steps.
+    transmission_stiffness: k N m/rad per joint (or one value; 0: a rigid joint): an elastic transmission between the
+        joint and its motor, whose inertia is the joint's G² I_r (rotor_inertia, gear_ratio: needed on each elastic
+        joint, and then on the motor's side of the spring only); transmission_damping: d N m s/rad (per joint or one)
+        in parallel with the spring. Link torque k (theta - q) + d (theta' - q'), motor J theta'' = u - that torque.
+    friction_ripple: r per joint (or one), 0 <= r <= 1: the Coulomb (and Stribeck) friction's magnitude times
+        1 + r sin(2 pi q / P); friction_ripple_period: P rad per joint (or one), link side.
+    measurement_delay: s, the age of the state the controller and the data see, a whole number of plant steps.
     """
     source: str = ""
     viscous_friction: list[float] = dataclasses.field(default_factory=list)
@@ -132,6 +146,11 @@ class PlantEffects:
     stribeck_velocity: list[float] = dataclasses.field(default_factory=lambda: [0.1])
     actuator_time_constant: list[float] = dataclasses.field(default_factory=list)
     actuation_delay: float = 0.0
+    transmission_stiffness: list[float] = dataclasses.field(default_factory=list)
+    transmission_damping: list[float] = dataclasses.field(default_factory=list)
+    friction_ripple: list[float] = dataclasses.field(default_factory=list)
+    friction_ripple_period: list[float] = dataclasses.field(default_factory=list)
+    measurement_delay: float = 0.0
 
     def validate(self) -> None:
         for name in ("viscous_friction", "coulomb_friction", "rotor_inertia", "torque_noise_std", "joint_damping"):
@@ -167,24 +186,61 @@ class PlantEffects:
         if self.actuator_time_constant:
             check_effect_bound("actuator_time_constant", check_joint_vector(
                 "actuator_time_constant", self.actuator_time_constant, nonnegative=True))
-        require(np.isfinite(self.actuation_delay) and 0 <= self.actuation_delay <= EFFECT_BOUNDS["actuation_delay"],
-                f"actuation_delay must be in [0, {EFFECT_BOUNDS['actuation_delay']:g}] s", self.actuation_delay)
+        for name in ("actuation_delay", "measurement_delay"):
+            require(np.isfinite(getattr(self, name)) and 0 <= getattr(self, name) <= EFFECT_BOUNDS[name],
+                    f"{name} must be in [0, {EFFECT_BOUNDS[name]:g}] s", getattr(self, name))
+        for name, needs in (("transmission_stiffness", "rotor_inertia"), ("transmission_damping", "transmission_stiffness"),
+                            ("friction_ripple", "coulomb_friction"), ("friction_ripple_period", "friction_ripple")):
+            if getattr(self, name):
+                check_effect_bound(name, check_joint_vector(name, getattr(self, name), nonnegative=True))
+                require(self.is_on(needs), f"{name} needs {needs} (without it there is nothing it acts on, so it "
+                        "would be ignored)", getattr(self, name))
+        require(not self.is_on("friction_ripple") or bool(self.friction_ripple_period), "friction_ripple needs "
+                "friction_ripple_period (rad, the ripple's period in the joint's position)", self.friction_ripple)
+        if self.friction_ripple_period:
+            require(bool(np.all(np.asarray(self.friction_ripple_period, float) > 0)), "friction_ripple_period must be "
+                    "> 0 rad", self.friction_ripple_period)
 
     def acting_later(self) -> list[str]:
         """The effects that are on and make the torque acting depend on earlier commands (lag, delay): no model of
         (x, u) holds them."""
-        return (["actuator_time_constant"] if self.is_on("actuator_time_constant") else []) + (
-            ["actuation_delay"] if self.actuation_delay > 0 else [])
+        """The effects that are on and make the torque acting depend on earlier commands (lag, delay, the motors of
+        elastic transmissions): no model of (x, u) holds them."""
+        return [name for name in ("actuator_time_constant", "actuation_delay", "transmission_stiffness")
+                if self.is_on(name)]
 
     def beyond_rigid_bodies(self) -> list[str]:
-        """The effects that are on and that no rigid-body model (the RK4 plant model, identification) holds."""
-        return (["stribeck_friction"] if self.is_on("stribeck_friction") else []) + self.acting_later()
+        """The effects that are on and that no rigid-body model (the RK4 plant model, identification) holds (the
+        measurement delay is the loop's, not the plant's: a plant model holds the plant without it)."""
+        return [name for name in ("stribeck_friction", "friction_ripple") if self.is_on(name)] + self.acting_later()
 
     def friction_at_rest(self, joints: int) -> np.ndarray:
-        """The friction's magnitude at rest (joints,) N m: F_c, or F_s with Stribeck friction (the smoothed friction's
-        slope at zero velocity is this over v_s)."""
+        """The friction's largest magnitude at rest (joints,) N m: F_c, or F_s with Stribeck friction, times 1 + r
+        with friction ripple (the smoothed friction's slope at zero velocity is this over v_s)."""
         stribeck = self.stribeck(joints)
-        return self.joint_values("coulomb_friction", joints) if stribeck is None else stribeck[0]
+        friction = self.joint_values("coulomb_friction", joints) if stribeck is None else stribeck[0]
+        return friction * (1.0 + self.joint_values("friction_ripple", joints))
+
+    def elastic(self, joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """(k (joints,) N m/rad, d (joints,) N m s/rad, the motors' inertia G² I_r (joints,) kg m²) of the elastic
+        transmissions (k = 0: a rigid joint), or None without any; InputError (one line) for an elastic joint without
+        a motor inertia."""
+        if not self.is_on("transmission_stiffness"):
+            return None
+        stiffness = self.joint_values("transmission_stiffness", joints)
+        ratio = self.joint_values("gear_ratio", joints) if self.gear_ratio else np.ones(joints)
+        motor = self.joint_values("rotor_inertia", joints) * ratio ** 2
+        if np.any((stiffness > 0) & (motor <= 0)):
+            joint = int(np.argmax((stiffness > 0) & (motor <= 0)))
+            raise InputError(f"plant effects transmission_stiffness on joint {joint + 1} needs a rotor_inertia > 0 there "
+                             "(the motor behind the spring)")
+        return stiffness, self.joint_values("transmission_damping", joints), motor
+
+    def ripple(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """(r (joints,), P (joints,) rad) of the friction ripple, or None without it."""
+        if not self.is_on("friction_ripple"):
+            return None
+        return self.joint_values("friction_ripple", joints), self.joint_values("friction_ripple_period", joints)
 
     def stribeck(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(F_s (joints,) N m, v_st (joints,) rad/s), or None without Stribeck friction."""
@@ -206,8 +262,9 @@ class PlantEffects:
         return check_joint_vector(name, values, count=joints, nonnegative=True)
 
     def is_on(self, name: str) -> bool:
-        """Whether the per-joint field `name` is non-zero on some joint."""
-        return any(float(value) > 0 for value in getattr(self, name))
+        """Whether the field `name` (per joint, or one number) is non-zero (on some joint)."""
+        values = getattr(self, name)
+        return any(float(value) > 0 for value in (values if isinstance(values, list) else [values]))
 
     def coulomb(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(F_c (joints,) N m, v_s (joints,) rad/s) of the Coulomb friction, or None without it."""
@@ -221,10 +278,11 @@ class PlantEffects:
     def summary(self) -> str:
         """One line naming the effects that are on (and the source)."""
         parts = [name.replace("_", " ") for name in ("viscous_friction", "coulomb_friction", "stribeck_friction",
-                                                     "rotor_inertia", "torque_noise_std", "actuator_time_constant")
-                 if self.is_on(name)]
-        if self.actuation_delay > 0:
-            parts.append(f"actuation delay {self.actuation_delay:g} s")
+                                                     "friction_ripple", "rotor_inertia", "transmission_stiffness",
+                                                     "torque_noise_std", "actuator_time_constant") if self.is_on(name)]
+        for name in ("actuation_delay", "measurement_delay"):
+            if getattr(self, name) > 0:
+                parts.append(f"{name.replace('_', ' ')} {getattr(self, name):g} s")
         if self.payload.mass > 0:
             parts.append(f"payload {self.payload.mass:g} kg")
         if self.joint_damping:
@@ -239,13 +297,13 @@ class PlantEffects:
         """What a dataset or checkpoint records of the effects (every field; joint_damping and link_inertia
         only when given, so files of effects without them read as before)."""
         record = dataclasses.asdict(self)
-        for name in ("joint_damping", "link_inertia", "stribeck_friction", "actuator_time_constant"):
+        for name in ("joint_damping", "link_inertia", "stribeck_friction", "actuator_time_constant", "actuation_delay",
+                     "transmission_stiffness", "transmission_damping", "friction_ripple", "friction_ripple_period",
+                     "measurement_delay"):
             if not record[name]:
                 del record[name]
         if not self.stribeck_friction:
             del record["stribeck_velocity"]
-        if not self.actuation_delay:
-            del record["actuation_delay"]
         return record
 
     @classmethod
@@ -270,11 +328,33 @@ def load_plant_effects(path) -> PlantEffects:
     return effects
 
 
+def elastic_step(stiffness: float, damping: float, motor_inertia: float, step: float) -> tuple[np.ndarray, float]:
+    """An elastic transmission's motor over a plant step of `step` s (`effect_systems.ElasticTransmissions`): the
+    deflection e = theta - q(s) against a joint moving at constant velocity obeys J e'' + d e' + k e = u (k
+    `stiffness` N m/rad, d `damping` N m s/rad, J `motor_inertia` kg m², u the command held). Returns (S (3, 3), Kp):
+    [e(h), e'(h), the integral of e over the step] = S [e(0), e'(0), u] exactly (the matrix exponential), and the PD
+    stiffness Kp N m/rad = beta / h with beta = (k S[2, 1] + d S[0, 1]) / h > 0, the slope of the spring's mean
+    torque in e'(0) (about k h / 2 + d for small h): the plant's PD actuator with Kp and Kd = 0 then applies the
+    spring's mean torque over the step whatever velocity the step finds."""
+    from scipy.linalg import expm
+    system = np.zeros((4, 4))   # d/dt [e, e', u, integral of e]
+    system[0, 1], system[3, 0] = 1.0, 1.0
+    system[1, :3] = -stiffness / motor_inertia, -damping / motor_inertia, 1.0 / motor_inertia
+    exact = expm(system * step)[[0, 1, 3], :3]
+    slope = (stiffness * exact[2, 1] + damping * exact[0, 1]) / step
+    return exact, slope / step
+
+
 def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
     """Before `plant.Finalize()`: the joint damping (replaced) and viscous friction (added) on the arm
-    joints, rotor inertia and gear ratio on their actuators, the payload welded to the tool frame."""
+    joints, rotor inertia and gear ratio on their actuators (on a rigid joint's: an elastic one's motor is behind its
+    spring, `effect_systems.ElasticTransmissions`), on a discrete plant the elastic joints' springs as their
+    actuators' PD gains (`elastic_step`'s; Drake's SAP applies them implicitly), the payload welded to the tool frame."""
     from pydrake.math import RigidTransform
+    from pydrake.multibody.tree import PdControllerGains
     n = robot.num_joints
+    elastic = effects.elastic(n)
+    stiffness = elastic[0] if elastic is not None else np.zeros(n)
     damping = effects.joint_values("joint_damping", n) if effects.joint_damping else None
     viscous = effects.joint_values("viscous_friction", n)
     rotor = effects.joint_values("rotor_inertia", n)
@@ -291,8 +371,11 @@ def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
         if viscous[i] > 0:
             joint.set_default_damping(joint.default_damping() + viscous[i])
         if effects.rotor_inertia:   # (replaces the description's, also by 0)
-            actuators[name].set_default_rotor_inertia(rotor[i])
+            actuators[name].set_default_rotor_inertia(0.0 if stiffness[i] > 0 else rotor[i])
             actuators[name].set_default_gear_ratio(ratio[i])
+        if stiffness[i] > 0 and plant.time_step() > 0:   # (the spring's mean torque over a step: `elastic_step`)
+            gain = elastic_step(stiffness[i], elastic[1][i], elastic[2][i], plant.time_step())[1]
+            actuators[name].set_controller_gains(PdControllerGains(p=gain, d=0.0))
     payload = effects.payload
     if payload.mass > 0:
         body = plant.AddRigidBody("payload", instance, payload.spatial_inertia())
@@ -312,10 +395,16 @@ def set_effect_parameters(plant, context, effects: PlantEffects) -> None:
 
 
 def coulomb_torque(velocity: np.ndarray, friction: np.ndarray, velocity_scale: np.ndarray,
-                   stribeck: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+                   stribeck: tuple[np.ndarray, np.ndarray] | None = None, ripple: tuple[np.ndarray, np.ndarray] | None = None,
+                   position: np.ndarray | None = None) -> np.ndarray:
     """-F_c tanh(v / v_s) (n,) N m for joint velocities v (n,) rad/s, F_c (n,) N m, v_s (n,) rad/s; with
-    `stribeck` (F_s (n,) N m, v_st (n,) rad/s) the friction's magnitude F_c + (F_s - F_c) exp(-(v / v_st)²)."""
+    `stribeck` (F_s (n,) N m, v_st (n,) rad/s) the friction's magnitude F_c + (F_s - F_c) exp(-(v / v_st)²); with
+    `ripple` (r (n,), P (n,) rad) that magnitude times 1 + r sin(2 pi q / P) at the joint positions `position` q (n,)
+    rad."""
     if stribeck is not None:
         breakaway, stribeck_velocity = stribeck
         friction = friction + (breakaway - friction) * np.exp(-(velocity / stribeck_velocity) ** 2)
+    if ripple is not None:
+        amplitude, period = ripple
+        friction = friction * (1.0 + amplitude * np.sin(2.0 * np.pi * position / period))
     return -friction * np.tanh(velocity / velocity_scale)

@@ -10,7 +10,8 @@ from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import names_text
-from stdm_drake.robots.effect_systems import actuation_input, add_effect_systems, start_actuators
+from stdm_drake.robots.effect_systems import (actuation_input, add_effect_systems, link_torque, measured_state_output,
+                                              start_actuators)
 from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,
                                        set_effect_parameters)
 from stdm_drake.robots.nested_models import nested_instances
@@ -142,6 +143,7 @@ class PlantSimulator:
         plant_config = plant_config or PlantConfig()
         self.plant, _ = make_plant(plant_config, builder=builder, robot=robot)
         builder.ExportInput(actuation_input(builder, self.plant), "actuation")
+        builder.ExportOutput(measured_state_output(builder, self.plant), "measured_state")
         self.diagram = builder.Build()
         self.simulator = Simulator(self.diagram)
         self.context = self.simulator.get_mutable_context()
@@ -166,7 +168,7 @@ class PlantSimulator:
         self.context.get_mutable_abstract_state().SetFrom(initial.get_abstract_state())
         self.context.SetTime(0.0)
         self.plant.SetPositionsAndVelocities(self.plant_context, x)
-        start_actuators(self.diagram, self.context, tau)   # (as if tau had been held before t = 0)
+        start_actuators(self.diagram, self.context, tau)   # (as if at rest holding tau before t = 0)
         self.hold(tau)
         self.simulator.Initialize()
 
@@ -175,9 +177,13 @@ class PlantSimulator:
         self._actuation.FixValue(self.context, tau)
 
     def applied_torque(self) -> np.ndarray:
-        """The torque (m,) N m the joints get now: the actuators' output where the effects have them (lag, delay),
-        else the held action."""
-        return self.plant.get_actuation_input_port().Eval(self.plant_context)
+        """The torque (m,) N m the joints get now: the elastic transmissions' springs' or the actuators' output where
+        the effects have them (lag, delay), else the held action."""
+        return link_torque(self.diagram, self.plant, self.plant_context, self.context)
+
+    def measured_state(self) -> np.ndarray:
+        """The state [q, v] (2n,) a sensor reads now: the plant's, of `measurement_delay` earlier with that effect."""
+        return self.diagram.GetOutputPort("measured_state").Eval(self.context)
 
     def advance_to(self, time: float) -> np.ndarray:
         """Simulate to `time` s and return the state [q, v] (2n,)."""
@@ -253,6 +259,7 @@ class Dynamics:
             self._damping[start:start + joint.num_velocities()] = joint.default_damping_vector()
         self._coulomb = effects.coulomb(robot.num_joints) if effects is not None else None   # (F_c, v_s)
         self._stribeck = effects.stribeck(robot.num_joints) if effects is not None else None   # (F_s, v_st)
+        self._ripple = effects.ripple(robot.num_joints) if effects is not None else None   # (r, P)
 
     @property
     def damping(self) -> np.ndarray:
@@ -303,7 +310,7 @@ class Dynamics:
         if self._damping.any():
             rhs = rhs - self._damping * v
         if self._coulomb is not None:
-            rhs = rhs + coulomb_torque(v, *self._coulomb, self._stribeck)
+            rhs = rhs + coulomb_torque(v, *self._coulomb, self._stribeck, self._ripple, q)
         return np.linalg.solve(plant.CalcMassMatrix(context), rhs)
 
 
@@ -344,7 +351,8 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     n = robot.num_joints
     effects.validate()
     for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio",
-                 "joint_damping"):
+                 "joint_damping", "transmission_stiffness", "transmission_damping", "friction_ripple",
+                 "friction_ripple_period"):
         try:
             effects.joint_values(name, n)
         except InputError as error:
@@ -353,6 +361,7 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
         effects.joint_values("torque_noise_std", robot.action_dim)
     except InputError as error:
         raise InputError(f"plant effects {error} (torque_noise_std: one per actuated joint)") from None
+    effects.elastic(n)   # (an elastic joint without a motor inertia)
     if effects.rotor_inertia and not robot.fully_actuated:
         raise InputError(f"plant effects rotor_inertia: robot {robot.name} has unactuated arm joints")
     bare = MultibodyPlant(0.0)

@@ -95,7 +95,8 @@ class Station:
         for k in range(num_steps + 1):
             q_true.append(x[:n])
             v_true.append(x[n:])
-            q_k, v_k, v_filtered = sensor.measure(q_true[-1], v_true[-1])
+            measured = x if k == 0 else simulation.measured_state()   # (with the effects' measurement delay: older)
+            q_k, v_k, v_filtered = sensor.measure(measured[:n], measured[n:])
             q_meas.append(q_k)
             v_meas.append(v_filtered)
             tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
