@@ -38,6 +38,8 @@ COMMANDS = {
                  "identify the robot's link inertias and joint friction from a dataset (physically consistent)"),
     "evaluate": ("stdm_drake.commands.evaluate", "one-step and multi-step test errors of a trained model on a dataset"),
     "sine-sum": ("stdm_drake.commands.sine_sum", "the paper's sine-sum activation study (Fig. 6-8, Table 1)"),
+    "compare": ("stdm_drake.commands.compare",
+                "which model for this robot: every kind fitted on its data, open and closed loop, a recommendation"),
     "mpc": ("stdm_drake.commands.mpc",
             "closed-loop MPC of the plant with the plant itself and learned models as predictors"),
     "mbrl": ("stdm_drake.commands.mbrl",

@@ -287,7 +287,7 @@ def folder_writer(path) -> str | None:
 # The result files each command's folder holds (runs before the folder marker named its command are known by
 # them): a folder holding another command's is that command's.
 COMMAND_RESULTS = {"train": ("summary.json",), "sine-sum": ("results.json", "summary.md", "table1.csv"),
-                   "mpc": ("mpc.json", "mpc.csv"), "reproduce": ("report.md", "cache", "sine_sum", "results.json")}
+                   "mpc": ("mpc.json", "mpc.csv"), "compare": ("compare.json", "compare.csv"), "reproduce": ("report.md", "cache", "sine_sum", "results.json")}
 # (a reproduce run's report: what makes its folder a finished run's for `fresh_default_folder`; its cache is work)
 FINISHED_RESULTS = {**COMMAND_RESULTS, "reproduce": ("report.md", "report.html")}
 
