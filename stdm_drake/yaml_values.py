@@ -3,6 +3,7 @@ typed load would read them otherwise or fail without naming the setting: a numbe
 tagged, another script's digits, a YAML 1.1 form), a key stated twice in one mapping, a value of another shape than
 the setting (a single value, null or a mapping where a list goes; a list where a number goes)."""
 import dataclasses
+import math
 import pathlib
 import re
 
@@ -45,6 +46,8 @@ def check_quoted_numbers(path, schema) -> None:
         if how == "a single value where a list goes":
             raise InputError(f"{path}: {where} is {line_text(_shortened(value))}, {how}; write it as a list ([x]; a "
                              "per-joint setting takes one value x for every joint that way)")
+        if "where a whole number goes" in how:   # (`_whole_number`'s)
+            raise InputError(f"{path}: {where} is written {how}")
         if how.endswith(" goes"):
             raise InputError(f"{path}: {where} is {line_text(_shortened(value))}, {how}; leave the setting out for its "
                              "default, or write it in that form")
@@ -161,7 +164,8 @@ def _numeric_scalars(annotation, node, where: str):
             and not (isinstance(node, yaml.ScalarNode) and node.tag.startswith("!") and not node.value):
         yield where, node, "a mapping"   # (null, a single value or a list where settings go; `!Rti` alone is empty)
     elif isinstance(annotation, type) and issubclass(annotation, (int, float)) and isinstance(node, yaml.ScalarNode):
-        yield where, node, annotation is bool   # (a bool field's too: `true` or `false`, never text)
+        # (a bool field's too: `true` or `false`, never text; an int field's marked: a whole number goes there)
+        yield where, node, True if annotation is bool else WHOLE if issubclass(annotation, int) else False
     elif isinstance(annotation, type) and issubclass(annotation, (int, float)) and node is not None:
         yield where, node, "a number"   # (a list or a mapping where a number goes)
 
@@ -192,6 +196,27 @@ def _form(value: str) -> str:
                           if digits.lower().startswith("0x") else "octal number")
 
 
+WHOLE = "a whole number"   # (`_numeric_scalars`' mark of an int field's scalar)
+
+
+def _whole_number(item, tag: str | None) -> str | None:
+    """How an int field's plain or number-tagged (`tag`) scalar `item` is no whole number the typed load reads, or
+    None: a fraction (`0.5`, which the typed load's error would name `'_'` in a list), infinite or not a number, or
+    untagged in exponent form (`2e1`: text to YAML 1.1, 20.0 to YAML 1.2; the typed load cannot read it)."""
+    if not ASCII_NUMBER.fullmatch(item.value):
+        return None
+    try:
+        number = yaml.safe_load(f"!!float {item.value}")
+    except (ValueError, yaml.YAMLError):
+        return None
+    if not math.isfinite(number) or number != int(number):
+        return f"{item.value}, not a whole number, where a whole number goes"
+    if tag is None and "e" in item.value.lower():
+        return f"{item.value}, a number in exponent form (text to YAML 1.1, {number!r} to YAML 1.2), where a whole " \
+               f"number goes: write {int(number)}"
+    return None
+
+
 def _quoted_number(node, schema, prefix: str, text: str):
     """(the setting's dotted name, its text, how it is not a number) of the first scalar where `schema` holds a
     number that the file writes as something else YAML reads as text or a boolean: quoted, tagged (`!!str 3`,
@@ -203,6 +228,9 @@ def _quoted_number(node, schema, prefix: str, text: str):
             shape = "null" if item.tag.endswith(":null") else {"list": "a list", "mapping": "a mapping"}.get(
                 _shape(item), "a single value")
             return where, written.strip(), f"{shape} where {boolean} goes"
+        whole, boolean = boolean == WHOLE, boolean is True
+        if whole and not item.style and (tag is None or item.tag in NUMBER_TAGS[:2]) and _whole_number(item, tag):
+            return where, item.value, _whole_number(item, tag)
         if boolean:   # (`"false"` or `!!str true`: text, which the typed load would read as the boolean)
             if item.style in ("'", '"') or (tag is not None and not item.tag.endswith(":bool")):
                 return where, item.value, ("in quotes" if item.style else f"tagged {tag}") + ", not a boolean"
@@ -218,7 +246,8 @@ def _quoted_number(node, schema, prefix: str, text: str):
                 read = yaml.safe_load(f"!!{kind} {item.value}")
             except (ValueError, IndexError, yaml.YAMLError):   # (`!!float 0x10`, `!!int 20.0`, `!!int ""`)
                 return where, item.value, f"which YAML cannot read under its tag !!{kind}{form}"
-            if form and not (kind == "float" and ASCII_NUMBER.fullmatch(item.value)):   # (`!!float 01`: 1.0 to all)
+            alike = ASCII_NUMBER.fullmatch(item.value) and (kind == "float" or read == int(item.value, 10))
+            if form and not alike:   # (`!!float 01`: 1.0 to all; `05` and `!!int 05`: 5 to all, `010` 8 or 10)
                 return where, item.value, f"which YAML reads as {read!r}{form}"
         if tag is None and (item.tag in NUMBER_TAGS or (not item.style and item.tag.endswith(":str") and (
                 ASCII_NUMBER.fullmatch(item.value) or not any(character.isnumeric() for character in item.value)))):

@@ -353,6 +353,20 @@ def write_issue_25_inputs(box) -> None:
                                                                '<geometry><box><size>1 1 1</size></box></geometry>'
                                                                '<material><diffuse>1 0 0 1</diffuse></material><material>'
                                                                '<diffuse>0 1 0 1</diffuse></material></visual></link>'))
+    # (held-out run 28: colours not written as numbers; a named material's reference beside a differing definition
+    # of that name; a proximity opacity beyond [0, 1], and one with the collision geometry off)
+    (box / "sdf_diffuse_fullwidth.sdf").write_text(arm_sdf.replace('<link name="b"/>', '<link name="b"><visual name="v">'
+                                                                   '<geometry><box><size>1 1 1</size></box></geometry>'
+                                                                   '<material><diffuse>\uff10.5 0.5 0.5 1</diffuse>'
+                                                                   '</material></visual></link>'))
+    visual = '<visual><geometry><box size="0.1 0.1 0.1"/></geometry>{}</visual></link>'
+    (box / "rgba_junk.urdf").write_text(urdf.replace('</link>', visual.format(
+        '<material name="c"><color rgba="0.5 0.5 0.5 1junk"/></material>'), 1))
+    (box / "material_beside_reference.urdf").write_text(urdf.replace('</link>', visual.format(
+        '<material name="grey"/><material name="grey"><color rgba="1 0 0 1"/></material>'), 1).replace(
+        '<link ', '<material name="grey"><color rgba="0.5 0.5 0.5 1"/></material><link ', 1))
+    (box / "alpha_visualization.yaml").write_text("publish_proximity: true\ninitial_proximity_alpha: 2.0\n")
+    (box / "alpha_unshown.yaml").write_text("initial_proximity_alpha: 0.3\n")
     (box / "effort0.urdf").write_text(urdf.replace('effort="330"', 'effort="0"', 1))
     (box / "truncated_arm.urdf").write_text('<robot name="arm"><link name="base"/>')
     (box / "world_truncated.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>truncated_arm.urdf</uri>'
@@ -1169,6 +1183,30 @@ CASES = [
     (["robot", "init", "sdf_two_materials.sdf", "-o", "NEW.yaml"], "its <visual> states 2 <material> elements that differ"),
     (["robot", "init", "world_effort0.sdf", "-o", "NEW.yaml"],
      "world_effort0.sdf: its included effort0.urdf: joint 'shoulder_pan_joint' has a <transmission> and effort limit 0"),
+    # (held-out run 28: whole numbers in exponent form or fractions; colours; a reference beside a differing material;
+    # NaN excitation limits; proximity opacities; constraint settings an optimizer would not use; both dithers; and
+    # `compare`'s request)
+    (yaml_case("mpc", "horizon: 2e1\n"), "horizon is written 2e1, a number in exponent form (text to YAML 1.1, 20.0 "
+                                        "to YAML 1.2), where a whole number goes: write 20"),
+    (yaml_case("train", "seeds: [0.5]\n"), "seeds is written 0.5, not a whole number, where a whole number goes"),
+    (yaml_case("spec", "velocity_fraction: .nan\n"), "excitation velocity_fraction must be a finite number > 0"),
+    (yaml_case("spec", "position_margin: .nan\n"), "excitation position_margin must be a finite number >= 0 rad"),
+    (["robot", "init", "rgba_junk.urdf", "-o", "NEW.yaml"], "its <color> rgba is '0.5 0.5 0.5 1junk', not a number"),
+    (["robot", "init", "sdf_diffuse_fullwidth.sdf", "-o", "NEW.yaml"], "its <diffuse> is"),
+    (["robot", "init", "material_beside_reference.urdf", "-o", "NEW.yaml"],
+     "its <visual> states 2 <material> elements that differ"),
+    ([*E, "--visualization", "alpha_visualization.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "initial_proximity_alpha must be an opacity in [0, 1], got 2.0"),
+    ([*E, "--visualization", "alpha_unshown.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "initial_proximity_alpha shape the collision geometry, which publish_proximity false leaves out"),
+    (yaml_case("mpc", "optimizer: !Ilqr {max_iterations: 1}\nconstraints: {mode: hard}\n"),
+     "constraints mode hard makes the real-time iteration's state limits hard; !Ilqr prices crossings"),
+    (yaml_case("mpc", "constraints: {mode: 'off', penalty_weight: 10.0}\n"),
+     "constraints mode off leaves the state limits out of the optimizer, so its penalty_weight would be ignored"),
+    (yaml_case("ctrl", "controller: !Pid\n  kp: [100]\n  ki: [0]\n  kd: [1]\n  dither_std: [1.0]\n"
+                       "  dither_acceleration: [4.0]\n"), "give dither_std or dither_acceleration, not both"),
+    (["compare", "TRACK", "--kinds", "plant", "XL", "-o", "NEW"], "--kinds must be distinct names among plant"),
+    (["compare", "TRACK", "--kinds", "G", "-o", "NEW"], "--kinds G is the grey box on the identified robot"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in
@@ -1235,6 +1273,9 @@ def test_numbers_every_yaml_reads_alike_load(tmp_path):
     for text, value in (("!!float 01", 1.0), ("!!float 3", 3.0), ("!!int 20", 20.0), ("007.5", 7.5)):
         path.write_text(f"terminal_factor: {text}\n")
         assert load_mpc_config(path).terminal_factor == value, text
+    for text, value in (("!!int 05", 5), ("05", 5), ("!!float 2e1", 20), ("20.0", 20)):   # (held-out run 28: 5 to all)
+        path.write_text(f"horizon: {text}\n")
+        assert load_mpc_config(path).horizon == value, text
     for text in ("!!int 024", "024", "!!float 0x10", "!!int 2e1"):
         path.write_text(f"terminal_factor: {text}\n")
         with pytest.raises(InputError, match="terminal_factor is written"):

@@ -190,3 +190,23 @@ def test_a_bad_study_is_refused_before_any_work(tracking_dataset, tmp_path):
         with pytest.raises(InputError, match=re.escape(message)):
             run_mpc_study(study)
     assert not (tmp_path / "never").exists()
+
+
+def test_a_rerun_stopped_while_writing_its_report_replaces_none_of_it(tracking_dataset, tmp_path, monkeypatch):
+    """Held-out run 28: mpc.md, mpc.json, mpc.csv and mpc.png are one set; a rerun into the folder that a signal stops
+    as it draws the figure (the last of them) leaves the first run's four files as they were, the new ones' temporary
+    files gone."""
+    import stdm_drake.closed_loop.study as study_module
+    settings = short_settings(tmp_path)
+    study = MpcStudy(dataset=tracking_dataset, plans=1, settings=settings, progress=False, output=tmp_path / "study")
+    run_mpc_study(study)
+    names = ("mpc.md", "mpc.json", "mpc.csv", "mpc.png")
+    before = {name: (tmp_path / "study" / name).read_bytes() for name in names}
+
+    def stopped(*arguments):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(study_module, "draw_results", stopped)
+    with pytest.raises(KeyboardInterrupt):
+        run_mpc_study(dataclasses.replace(study, optimizer=Ilqr(max_iterations=2), force=True))
+    assert {name: (tmp_path / "study" / name).read_bytes() for name in names} == before
+    assert sorted(path.name for path in (tmp_path / "study").iterdir() if path.name.startswith(".mpc")) == []

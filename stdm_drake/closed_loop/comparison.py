@@ -177,12 +177,18 @@ def summary_table(rows: list[dict]) -> str:
 
 
 def plot_results(results: list[ClosedLoopResult], sample_period: float, path) -> None:
-    """Per-step RMS joint-angle error of the first reference, one line per model (PNG)."""
+    """Per-step RMS joint-angle error of the first reference, one line per model (PNG at `path`, atomically)."""
+    from stdm_drake.files import atomic_path
+    with atomic_path(path) as temp:
+        draw_results(results, sample_period, temp)
+
+
+def draw_results(results: list[ClosedLoopResult], sample_period: float, file) -> None:
+    """`plot_results`' figure written to `file` as it is (a temporary file of a set written as one)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from stdm_drake.files import atomic_path
     first = results[0].trajectory
     figure, axes = plt.subplots(1, 2, figsize=(11, 4))
     for result in results:
@@ -196,8 +202,7 @@ def plot_results(results: list[ClosedLoopResult], sample_period: float, path) ->
     axes[1].bar(names, means)
     axes[1].set(yscale="log", ylabel="q MSE (rad²)", title="mean over held-out plans")
     figure.tight_layout()
-    with atomic_path(path) as temp:
-        figure.savefig(temp, format="png", dpi=110)
+    figure.savefig(file, format="png", dpi=110)
     plt.close(figure)
 
 

@@ -70,6 +70,22 @@ class Constraints:
                 np.isfinite(weight) and MIN_PENALTY <= weight <= MAX_PENALTY):
             raise InputError(f"mpc constraints penalty_weight must be in [{MIN_PENALTY:g}, {MAX_PENALTY:g}], got {weight!r}")
 
+    def check_used(self, path, optimizer, hard_capable: bool) -> None:
+        """InputError (one line) where the MPC settings file at `path` sets what its `optimizer` (hard_capable: the
+        real-time iteration) would not use: mode hard with an optimizer that runs it as soft, or a margin or the
+        penalty weight with mode off (held-out run 28)."""
+        from stdm_drake.config import read_yaml_document
+        given = (read_yaml_document(path) or {}).get("constraints")
+        ignored = sorted((set(given) if isinstance(given, dict) else set())
+                         & {"position_margin", "velocity_margin", "penalty_weight"})
+        if self.mode == "hard" and not hard_capable:
+            raise InputError(f"{path}: constraints mode hard makes the real-time iteration's state limits hard; "
+                             f"!{type(optimizer).__name__} prices crossings the same way in both modes, so it would "
+                             "run as soft: write mode: soft")
+        if self.mode == "off" and ignored:
+            raise InputError(f"{path}: constraints mode off leaves the state limits out of the optimizer, so its "
+                             f"{', '.join(ignored)} would be ignored; leave them out, or use mode soft or hard")
+
     def bounds(self, position_lower, position_upper, velocity, names=None) -> "StateBounds | None":
         """The state bounds of these settings for a robot's limits: position_lower/upper (n,) rad, velocity (n,)
         rad/s (inf or -inf: none); None with mode off. InputError where a margin leaves a joint no room (its

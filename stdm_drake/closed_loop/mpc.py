@@ -1,5 +1,4 @@
-"""Model predictive control of a robot arm (any robot config: the UR-10 by default) with a pluggable prediction
-model.
+"""Model predictive control of a robot arm (any robot config: the UR-10 by default), any prediction model.
 
 The optimizer is a tagged value of the settings (`optimizer: !Rti {...}` in controllers/mpc.yaml; the Union
 `OptimizerConfig` lists those a file may name, each settings class builds its solver): the default is the
@@ -165,11 +164,12 @@ class MpcConfig:
 
 
 def load_mpc_config(path=DEFAULT_MPC_CONFIG) -> MpcConfig:
-    """The MPC settings of a YAML file (`MpcConfig`); a file in the layout before the optimizer's tag (flat
-    `optimizer: ilqr`, `max_iterations`, `line_search`, `regularization`) is an InputError of one line that
-    gives the tagged value to write instead."""
+    """The MPC settings of a YAML file (`MpcConfig`; InputError, one line, for the layout before the optimizer's tag,
+    naming the tagged value to write, and for constraint settings the optimizer would not use)."""
     _check_optimizer_layout(path)
-    return load_yaml_config(path, MpcConfig, what="MPC config")
+    config = load_yaml_config(path, MpcConfig, what="MPC config")
+    config.constraints.check_used(path, config.optimizer, hard_capable=isinstance(config.optimizer, Rti))
+    return config
 
 
 OLD_OPTIMIZER_KEYS = ("max_iterations", "line_search", "regularization")   # top-level keys before the tag

@@ -15,7 +15,7 @@ import sys
 
 from stdm_drake.closed_loop.comparison import (ClosedLoopResult, closed_loop_failures, compare_controllers,
                                                constraint_lines,
-                                               held_out_references, plot_results, real_time_lines, summarize,
+                                               draw_results, held_out_references, real_time_lines, summarize,
                                                summary_table)
 from stdm_drake.closed_loop.optimizer import OptimizerSettings
 from stdm_drake.errors import InputError
@@ -282,7 +282,7 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     file; the result."""
     import json
 
-    from stdm_drake.files import escaped_names, write_text_atomic
+    from stdm_drake.files import atomic_paths, escaped_names
     from stdm_drake.outputs import mark_output_folder
     from stdm_drake.provenance import results_header
     rows = summarize(results, sample_period)
@@ -297,12 +297,14 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     record = dict(**results_header(), inputs=inputs, summary=rows,
                   runs=[dataclasses.asdict(result) for result in results], tuning=tuning)
     mark_output_folder(output)
-    write_text_atomic(output / "mpc.md", table + "\n")
-    write_text_atomic(output / "mpc.json", json.dumps(escaped_names(record), indent=1))   # (file names as `ls -b`)
     columns = [field.name for field in dataclasses.fields(ClosedLoopResult) if field.name != "q_error"]
-    write_text_atomic(output / "mpc.csv", "\n".join([",".join(columns)] + [
-        ",".join(str(getattr(result, column)) for column in columns) for result in results]) + "\n")
-    plot_results(results, sample_period, output / "mpc.png")
+    names = ("mpc.md", "mpc.json", "mpc.csv", "mpc.png")   # (one set: a signal replaces none of them)
+    with atomic_paths([output / name for name in names]) as (markdown, data, table_file, figure):
+        markdown.write_text(table + "\n")
+        data.write_text(json.dumps(escaped_names(record), indent=1))   # (file names as `ls -b`)
+        table_file.write_text("\n".join([",".join(columns)] + [
+            ",".join(str(getattr(result, column)) for column in columns) for result in results]) + "\n")
+        draw_results(results, sample_period, figure)
     print(f"wrote {line_text(output)}: mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
         recorder.finish(study.html, what="robot: plant under MPC; translucent orange: the reference")

@@ -56,6 +56,11 @@ class Excitation:
             raise InputError("excitation initial_position_lower must be <= initial_position_upper")
         if self.num_steps < 2 or self.max_attempts < 1:
             raise InputError("excitation num_steps must be >= 2 and max_attempts >= 1")
+        if not (np.isfinite(self.position_margin) and self.position_margin >= 0):   # (a NaN makes every check pass)
+            raise InputError(f"excitation position_margin must be a finite number >= 0 rad, got {self.position_margin}")
+        if not (np.isfinite(self.velocity_fraction) and self.velocity_fraction > 0):
+            raise InputError(f"excitation velocity_fraction must be a finite number > 0 (of each velocity limit), got "
+                             f"{self.velocity_fraction}")
 
     @classmethod
     def derived_for(cls, robot: Robot, acceleration: float = 0.5, box: float = 0.5) -> "Excitation":

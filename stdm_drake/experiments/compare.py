@@ -33,7 +33,7 @@ import sys
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import finite_json, line_text, write_text_atomic
+from stdm_drake.files import atomic_paths, finite_json, line_text, write_text_atomic
 
 KINDS = ("plant", "identified", "G", "D", "DD", "PE")   # in order of cost
 LEARNED_KINDS = ("G", "D", "DD", "PE")
@@ -365,8 +365,9 @@ def _write(output: pathlib.Path, record: dict) -> None:
                     if line and not line.startswith("|"))
     page = (f"<!doctype html>\n<html lang=\"en\"><head><meta charset=\"utf-8\"><title>stdm-drake compare</title></head>"
             f"<body>\n<h1>Which model for this robot</h1>\n<table>\n<tr>{head}</tr>\n{rows}</table>\n{notes}</body></html>\n")
-    write_text_atomic(output / "compare.json", json.dumps(finite_json(record), indent=1) + "\n")
-    write_text_atomic(output / "compare.csv", buffer.getvalue())
-    write_text_atomic(output / "compare.html", page)
-    write_text_atomic(output / "compare.md", text)
+    texts = {"compare.json": json.dumps(finite_json(record), indent=1) + "\n", "compare.csv": buffer.getvalue(),
+             "compare.html": page, "compare.md": text}
+    with atomic_paths([output / name for name in texts]) as temps:   # (one set: a signal replaces none of them)
+        for temp, content in zip(temps, texts.values()):
+            temp.write_text(content)
     print(f"wrote {line_text(output)}: compare.md, compare.csv, compare.html, compare.json")

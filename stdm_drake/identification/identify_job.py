@@ -12,7 +12,7 @@ import pathlib
 import sys
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import json_default, line_text, write_text_atomic
+from stdm_drake.files import atomic_paths, json_default, line_text
 from stdm_drake.identification.identify import REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES
 from stdm_drake.outputs import check_output_file
 
@@ -88,8 +88,9 @@ def identify_job(job: IdentifyJob) -> dict:
     identified, report = identify(dataset, robot, split, settings, announce=announce)
     text, report_text = identified_text(identified), json.dumps(report, indent=1, default=json_default) + "\n"
     print(report_summary(report))
-    write_text_atomic(report_path, report_text)
-    write_text_atomic(output, text)
+    with atomic_paths([report_path, output]) as (report_temp, temp):   # (the pair as one: a signal replaces neither)
+        report_temp.write_text(report_text)
+        temp.write_text(text)
     print(f"wrote {line_text(job.output)} (use it as a model: evaluate/view {line_text(job.output)}, mpc --model "
           f"NAME={line_text(job.output)}) "
           f"and {report_path}")

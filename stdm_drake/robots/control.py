@@ -70,6 +70,9 @@ class JointGains:
             check_joint_vector(f"controller gain {name}", getattr(self, name), nonnegative=True)
         if self.dither_acceleration:
             check_joint_vector("controller dither_acceleration", self.dither_acceleration, nonnegative=True)
+            if any(float(value) > 0 for value in self.dither_std):   # (it replaces dither_std: held-out run 28)
+                raise InputError("controller: give dither_std or dither_acceleration, not both (dither_acceleration "
+                                 "sizes dither_std from the robot's inertia, so the dither_std given would be ignored)")
 
     def for_robot(self, robot: Robot, effects=None):
         """This config with kp, ki, kd and dither_std of the robot's length (one value broadcast, or

