@@ -1198,7 +1198,7 @@ CASES = [
     ([*E, "--visualization", "alpha_visualization.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
      "initial_proximity_alpha must be an opacity in [0, 1], got 2.0"),
     ([*E, "--visualization", "alpha_unshown.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
-     "initial_proximity_alpha shape the collision geometry, which publish_proximity false leaves out"),
+     "initial_proximity_alpha shapes the collision geometry, which publish_proximity false leaves out"),
     (yaml_case("mpc", "optimizer: !Ilqr {max_iterations: 1}\nconstraints: {mode: hard}\n"),
      "constraints mode hard makes the real-time iteration's state limits hard; !Ilqr prices crossings"),
     (yaml_case("mpc", "constraints: {mode: 'off', penalty_weight: 10.0}\n"),

@@ -45,7 +45,8 @@ def load_visualization_config(path) -> VisualizationConfig:
                          f"{config.initial_proximity_alpha!r}")
     ignored = [key for key in ("initial_proximity_alpha", "default_proximity_color") if key in file_keys(path)]
     if ignored and not config.publish_proximity:
-        raise InputError(f"{path}: {' and '.join(ignored)} shape the collision geometry, which publish_proximity false "
+        raise InputError(f"{path}: {' and '.join(ignored)} {'shape' if len(ignored) > 1 else 'shapes'} the collision "
+                         "geometry, which publish_proximity false "
                          "leaves out, so it would be ignored; set publish_proximity: true, or leave it out")
     return config
 
