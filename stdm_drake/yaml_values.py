@@ -202,7 +202,7 @@ WHOLE = "a whole number"   # (`_numeric_scalars`' mark of an int field's scalar)
 def _whole_number(item, tag: str | None) -> str | None:
     """How an int field's plain or number-tagged (`tag`) scalar `item` is no whole number the typed load reads, or
     None: a fraction (`0.5`, which the typed load's error would name `'_'` in a list), infinite or not a number, or
-    untagged in exponent form (`2e1`: text to YAML 1.1, 20.0 to YAML 1.2; the typed load cannot read it)."""
+    untagged in an exponent form YAML 1.1 reads as text (`2e1`: 20.0 to YAML 1.2; the typed load cannot read it)."""
     if not ASCII_NUMBER.fullmatch(item.value):
         return None
     try:
@@ -211,7 +211,7 @@ def _whole_number(item, tag: str | None) -> str | None:
         return None
     if not math.isfinite(number) or number != int(number):
         return f"{item.value}, not a whole number, where a whole number goes"
-    if tag is None and "e" in item.value.lower():
+    if tag is None and item.tag.endswith(":str") and "e" in item.value.lower():   # (`1.0e+1`: 10.0 to every YAML)
         return f"{item.value}, a number in exponent form (text to YAML 1.1, {number!r} to YAML 1.2), where a whole " \
                f"number goes: write {int(number)}"
     return None

@@ -38,6 +38,24 @@ def test_a_request_no_comparison_can_run_is_refused_before_any_work(tmp_path):
         with pytest.raises(InputError, match=message):
             run_compare(CompareJob(dataset=tmp_path / "missing.h5", kinds=kinds, output=tmp_path / "out"))
     assert not (tmp_path / "out").exists()
+    job = CompareJob(dataset=tmp_path / "missing.h5", kinds=("PE", "plant", "identified", "G"))
+    job.validate()
+    assert job.kinds == ("plant", "identified", "G", "PE")   # (in order of cost: the same request however given)
+
+
+def test_a_folder_of_another_request_or_of_stages_without_one_is_refused(tmp_path):
+    """Review: stages are reused only for the same request; a folder holding stage files without the request.json
+    that names theirs is refused (with --force too), and the message names what differs."""
+    from stdm_drake.experiments.compare import _check_same_request
+    folder = tmp_path / "c"
+    folder.mkdir()
+    (folder / "identified.yaml").write_text("name: other\n")
+    with pytest.raises(InputError, match="holds identified.yaml without the request.json"):
+        _check_same_request(folder, dict(kinds=["plant"]))
+    (folder / "request.json").write_text(json.dumps(dict(kinds=["plant"], profile={"seeds": 1})))
+    _check_same_request(folder, dict(kinds=["plant"], profile={"seeds": 1}))
+    with pytest.raises(InputError, match="holds a comparison of another dataset_sha256, profile"):
+        _check_same_request(folder, dict(kinds=["plant"], profile={"seeds": 3}, dataset_sha256="x"))
 
 
 @pytest.mark.slow

@@ -18,7 +18,7 @@ there are closed loops, else on the open-loop error at the longest horizon (RMS 
 the candidate of the lowest mean; the recommendation is the cheapest candidate not shown worse than the best: the
 paired differences to the best over the plans (trajectories) have a 95 % interval that reaches 0 or below. With
 fewer than two units there is no interval: the best, marked inconclusive. A kind whose loops left the robot's
-limits or fell back is no candidate.
+limits or fell back, or whose error is not finite on some unit (a diverged rollout), is no candidate.
 """
 from __future__ import annotations
 
@@ -83,6 +83,7 @@ class CompareJob:
             raise InputError(f"--kinds must be distinct names among {', '.join(KINDS)}, got {', '.join(self.kinds)}")
         if "G" in self.kinds and "identified" not in self.kinds:
             raise InputError("--kinds G is the grey box on the identified robot: list identified too")
+        self.kinds = tuple(kind for kind in KINDS if kind in self.kinds)   # (in order of cost, however given)
 
 
 def say(line: str) -> None:
@@ -131,17 +132,17 @@ def run_compare(job: CompareJob) -> dict:
     input."""
     from stdm_drake.data.compatibility import resolve_robot
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.outputs import check_output_folder, fresh_default_folder, mark_output_folder
+    from stdm_drake.outputs import check_output_folder, mark_output_folder
     job.validate()
-    output = pathlib.Path(job.output) if job.output is not None else fresh_default_folder(DEFAULT_OUTPUT, "compare")
-    check_output_folder("-o/--output", output, inputs=[job.dataset, job.robot], force=job.force)
     dataset = load_dataset(job.dataset)
     robot = resolve_robot(job.robot, dataset)
     loops = job.closed_loop and dataset.is_simulated and dataset.has_plan
     if loops:
         robot.check_fully_actuated("the closed loops (--no-closed-loop leaves them out)")
-    request = dict(dataset_sha256=dataset.sha256, robot=robot.record(), profile=dataclasses.asdict(job.profile),
-                   kinds=list(job.kinds))
+    request = json.loads(json.dumps(finite_json(dict(dataset_sha256=dataset.sha256, robot=robot.record(),
+                                                     profile=dataclasses.asdict(job.profile), kinds=list(job.kinds)))))
+    output = pathlib.Path(job.output) if job.output is not None else _default_folder(request)
+    check_output_folder("-o/--output", output, inputs=[job.dataset, job.robot], force=job.force)
     _check_same_request(output, request)
     mark_output_folder(output)
     write_text_atomic(output / "request.json", json.dumps(finite_json(request), indent=1) + "\n")
@@ -157,14 +158,39 @@ def run_compare(job: CompareJob) -> dict:
     return record
 
 
+STAGES = ("identified.yaml", "identified.json", "models", "mpc")   # what a comparison's stages leave in its folder
+
+
+def _previous_request(output: pathlib.Path) -> dict | None:
+    path = output / "request.json"
+    return json.loads(path.read_text()) if path.exists() else None
+
+
+def _default_folder(request: dict) -> pathlib.Path:
+    """Without -o: out/compare, or the first of out/compare-2, -3, ... that holds no finished comparison and no other
+    request's stages (a stopped run of this request continues in its folder)."""
+    from stdm_drake.outputs import FINISHED_RESULTS
+    candidate, number = DEFAULT_OUTPUT, 1
+    while candidate.exists() and (not candidate.is_dir() or any((candidate / name).exists() for name in
+                                  FINISHED_RESULTS["compare"]) or _previous_request(candidate) not in (None, request)):
+        number += 1
+        candidate = DEFAULT_OUTPUT.with_name(f"{DEFAULT_OUTPUT.name}-{number}")
+    return candidate
+
+
 def _check_same_request(output: pathlib.Path, request: dict) -> None:
-    previous = output / "request.json"
-    if previous.exists():
-        before = json.loads(previous.read_text())
-        if before != json.loads(json.dumps(finite_json(request))):
-            changed = sorted(key for key in request if before.get(key) != json.loads(json.dumps(finite_json(request)))[key])
-            raise InputError(f"-o/--output {line_text(output)} holds a comparison of another {', '.join(changed)}; "
-                             "choose another folder (its stages are reused only for the same request)")
+    """InputError (one line) where `output` holds another request's stages (their files are reused only for the same
+    dataset, robot, profile and kinds), or stages without the request that made them."""
+    before = _previous_request(output)
+    if before is None:
+        found = [name for name in STAGES if (output / name).exists()]
+        if found:
+            raise InputError(f"-o/--output {line_text(output)} holds {', '.join(found)} without the request.json of the "
+                             "comparison that made them, so they cannot be reused; choose another folder")
+    elif before != request:
+        changed = sorted(key for key in set(before) | set(request) if before.get(key) != request.get(key))
+        raise InputError(f"-o/--output {line_text(output)} holds a comparison of another {', '.join(changed)}; "
+                         "choose another folder (its stages are reused only for the same request)")
 
 
 def _identified(job: CompareJob, output: pathlib.Path, dataset) -> pathlib.Path:
@@ -308,6 +334,7 @@ def _summary(job: CompareJob, dataset, robot, files: dict, open_loop: dict, clos
                          fallbacks=int(sum(r["fallbacks"] for r in flat)),
                          solve_ms_mean=float(np.mean([r["solve_ms_mean"] for r in flat])))
     candidates = [entry["kind"] for entry in table if entry["kind"] in KINDS and entry["kind"] in scores
+                  and bool(np.all(np.isfinite(scores[entry["kind"]])))   # (a diverged rollout or loop: none)
                   and (entry["kind"] in ("plant", "identified") or entry["learned_every_seed"])
                   and not entry.get("limit_violations") and not entry.get("fallbacks")]
     choice = recommend({kind: scores[kind] for kind in candidates}, candidates)

@@ -90,9 +90,9 @@ class ElasticTransmissions(LeafSystem):
     """The motors of elastic transmissions: input "command" (m,) N m (the actuators' torque), input "state" (the
     plant's [q, v]); outputs "desired_state" (2 m,) (what the plant's PD-actuated elastic joints are pulled toward),
     "feedforward" (m,) N m (the command on the rigid joints, 0 on the elastic ones: the plant's actuation input) and
-    "link_torque" (m,) N m (what the joints get now: k (theta - q) + d (theta' - q') on an elastic joint, clipped to
-    its effort limit as the plant clips its actuation; the command on a rigid one). Actuator order throughout (the
-    order of the plant's actuation input).
+    "link_torque" (m,) N m (what the joints get now: k (theta - q) + d (theta' - q') on an elastic joint, unclipped:
+    the plant's elastic actuators have no effort limit, the motors' clips the command; the command on a rigid one).
+    Actuator order throughout (the order of the plant's actuation input).
 
     Motor j: J theta'' = u - k (theta - q) - d (theta' - q'). Over a plant step of h the discrete plant moves each
     joint along a line, q(s) = q_k + w s with w = v_(k+1) its velocity after the step, so the deflection
@@ -101,8 +101,8 @@ class ElasticTransmissions(LeafSystem):
     unknown w; the plant's implicit PD actuator, with the stiffness `effects.elastic_step` gives (Kp = beta / h,
     Kd = 0) and the desired position q_k + h theta'_k + c / Kp, applies exactly that torque for whatever w its step
     finds. So the link gets the impulse the motor gives (the pair's momentum holds to rounding), and the spring is
-    implicit on both sides: stable at any stiffness on the lightest link. The price is Drake's first-order step of
-    the link (it moves at its end-of-step velocity): the spring loses energy at about h k / (2 I) per second (I the
+    implicit on both sides: stable at any stiffness on the lightest link, where the plant step resolves the motor
+    (sqrt(k / J) h < pi, else refused). The price is Drake's first-order step of the link (end-of-step velocity): the spring loses energy at about h k / (2 I) per second (I the
     link's inertia about the joint), a numerical damping ratio below 0.25 omega h at the pair's frequency omega (tested);
     choose the plant step so that omega h is small. (Drake's discrete plant steps before this system's update, which
     sees the joints after the step: (q_k, w) = (q_(k+1) - h v_(k+1), v_(k+1)).)"""
@@ -112,7 +112,7 @@ class ElasticTransmissions(LeafSystem):
         self._q = np.array([joint.position_start() for joint in actuator_joints])
         self._v = np.array([plant.num_positions() + joint.velocity_start() for joint in actuator_joints])
         self._k, self._d = np.asarray(stiffness, float), np.asarray(damping, float)
-        self._elastic, self._effort, self._h = self._k > 0, np.asarray(effort, float), step
+        self._elastic, self._effort, self._h = self._k > 0, np.asarray(effort, float), step   # (effort: the motors')
         m = len(self._k)
         self._step, self._gain = np.zeros((m, 3, 3)), np.ones(m)   # (rigid joints: unused, kept finite)
         for j in np.flatnonzero(self._elastic):
@@ -137,7 +137,7 @@ class ElasticTransmissions(LeafSystem):
     def _update(self, context, discrete_state) -> None:
         theta, rate = self._motors(context)
         q_after, w = self._joints(context)   # (after the plant's step)
-        start = np.stack([theta - (q_after - self._h * w), rate - w, self._command.Eval(context)], axis=1)
+        start = np.stack([theta - (q_after - self._h * w), rate - w, self._motor_torque(context)], axis=1)
         end = np.einsum("jab,jb->ja", self._step[:, :2], start)   # [e(h), e'(h)] (m, 2)
         new = np.concatenate([q_after + end[:, 0], w + end[:, 1]])
         discrete_state.get_mutable_vector(self._motor).SetFromVector(np.where(np.tile(self._elastic, 2), new, 0.0))
@@ -146,10 +146,15 @@ class ElasticTransmissions(LeafSystem):
         theta, rate = self._motors(context)
         q, _ = self._joints(context)   # (before the plant's step: it asks now)
         step, k, d, h = self._step, self._k, self._d, self._h
-        e0, u = theta - q, self._command.Eval(context)
+        e0, u = theta - q, self._motor_torque(context)
         # c: the spring's mean torque over the step at e'(0) = 0, (k integral of e + d (e(h) - e(0))) / h
         mean = (k * (step[:, 2, 0] * e0 + step[:, 2, 2] * u) + d * ((step[:, 0, 0] - 1.0) * e0 + step[:, 0, 2] * u)) / h
         output.SetFromVector(np.concatenate([q + h * rate + mean / self._gain, rate]))   # (rate: Kd = 0, unused)
+
+    def _motor_torque(self, context) -> np.ndarray:
+        """The command (m,) N m clipped to the motors' effort limits (the plant clips no elastic joint's torque: its
+        spring may carry more than the motor gives)."""
+        return np.clip(self._command.Eval(context), -self._effort, self._effort)
 
     def _feedforward(self, context, output) -> None:
         output.SetFromVector(np.where(self._elastic, 0.0, self._command.Eval(context)))
@@ -157,7 +162,7 @@ class ElasticTransmissions(LeafSystem):
     def _link_torque(self, context, output) -> None:
         theta, rate = self._motors(context)
         q, v = self._joints(context)
-        spring = np.clip(self._k * (theta - q) + self._d * (rate - v), -self._effort, self._effort)
+        spring = self._k * (theta - q) + self._d * (rate - v)
         output.SetFromVector(np.where(self._elastic, spring, self._command.Eval(context)))
 
     def start(self, context, torque: np.ndarray) -> None:
@@ -173,13 +178,15 @@ MOTORS = "elastic_transmissions"   # the ElasticTransmissions system's
 MEASUREMENT = "measurement_delay"   # the measurement delay's (a DiscreteTimeDelay of the plant's state)
 
 
-def add_effect_systems(builder, plant, instance, robot, effects: PlantEffects, time_step: float) -> None:
+def add_effect_systems(builder, plant, instance, robot, effects: PlantEffects, time_step: float,
+                       motors: dict | None = None) -> None:
     """The effects' systems in the diagram of `plant` (finalized): the joint friction driving its applied
     generalized force; the actuators (`ActuatorDynamics`, named ACTUATORS) and the motors of elastic transmissions
     (`ElasticTransmissions`, MOTORS) between a command and its actuation, the first of them taking the "command"
     `actuation_input` returns; the measurement delay (MEASUREMENT) on its state, which `measured_state_output`
-    returns. InputError (one line) for a delay that is no whole number of plant steps, or an effect that acts every
-    plant step (lag, delays, elastic transmissions) on a continuous plant."""
+    returns; motors: the elastic joints' effort limits by name (`effects.add_effects_to_plant`'s: their motors'). InputError
+    (one line) for a delay that is no whole number of plant steps, or an effect that acts every plant step (lag,
+    delays, elastic transmissions) on a continuous plant."""
     n = robot.num_joints
     coulomb = effects.coulomb(n)
     joints = [plant.GetJointByName(name, instance) for name in robot.joint_names]
@@ -208,7 +215,7 @@ def add_effect_systems(builder, plant, instance, robot, effects: PlantEffects, t
         order = [robot.joint_names.index(actuator.joint().name()) for actuator in actuated]
         motors = builder.AddSystem(ElasticTransmissions(
             plant, [actuator.joint() for actuator in actuated], *(values[order] for values in elastic),
-            [actuator.effort_limit() for actuator in actuated], time_step))
+            [(motors or {}).get(actuator.joint().name(), actuator.effort_limit()) for actuator in actuated], time_step))
         motors.set_name(MOTORS)
         builder.Connect(plant.get_state_output_port(), motors.GetInputPort("state"))
         builder.Connect(motors.GetOutputPort("desired_state"), plant.get_desired_state_input_port(instance))

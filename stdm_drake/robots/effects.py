@@ -329,27 +329,28 @@ def load_plant_effects(path) -> PlantEffects:
 
 
 def elastic_step(stiffness: float, damping: float, motor_inertia: float, step: float) -> tuple[np.ndarray, float]:
-    """An elastic transmission's motor over a plant step of `step` s (`effect_systems.ElasticTransmissions`): the
-    deflection e = theta - q(s) against a joint moving at constant velocity obeys J e'' + d e' + k e = u (k
-    `stiffness` N m/rad, d `damping` N m s/rad, J `motor_inertia` kg m², u the command held). Returns (S (3, 3), Kp):
-    [e(h), e'(h), the integral of e over the step] = S [e(0), e'(0), u] exactly (the matrix exponential), and the PD
-    stiffness Kp N m/rad = beta / h with beta = (k S[2, 1] + d S[0, 1]) / h > 0, the slope of the spring's mean
-    torque in e'(0) (about k h / 2 + d for small h): the plant's PD actuator with Kp and Kd = 0 then applies the
-    spring's mean torque over the step whatever velocity the step finds."""
+    """A motor behind an elastic transmission over a plant step h = `step` s (`effect_systems.ElasticTransmissions`):
+    against a joint moving at constant velocity the deflection e obeys J e'' + d e' + k e = u (k `stiffness` N m/rad,
+    d `damping` N m s/rad, J `motor_inertia` kg m², u held). Returns (S (3, 3): [e(h), e'(h), the integral of e over
+    the step] = S [e(0), e'(0), u], exact; Kp N m/rad = beta / h, beta = (k S[2, 1] + d S[0, 1]) / h the slope of the
+    spring's mean torque in e'(0), about k h / 2 + d, > 0 where sqrt(k / J) h < pi): the plant's PD actuator with Kp
+    and Kd = 0 applies the spring's mean torque over the step whatever velocity the step finds."""
     from scipy.linalg import expm
     system = np.zeros((4, 4))   # d/dt [e, e', u, integral of e]
     system[0, 1], system[3, 0] = 1.0, 1.0
     system[1, :3] = -stiffness / motor_inertia, -damping / motor_inertia, 1.0 / motor_inertia
     exact = expm(system * step)[[0, 1, 3], :3]
-    slope = (stiffness * exact[2, 1] + damping * exact[0, 1]) / step
-    return exact, slope / step
+    return exact, (stiffness * exact[2, 1] + damping * exact[0, 1]) / step ** 2
 
 
-def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
+def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> dict:
     """Before `plant.Finalize()`: the joint damping (replaced) and viscous friction (added) on the arm
     joints, rotor inertia and gear ratio on their actuators (on a rigid joint's: an elastic one's motor is behind its
     spring, `effect_systems.ElasticTransmissions`), on a discrete plant the elastic joints' springs as their
-    actuators' PD gains (`elastic_step`'s; Drake's SAP applies them implicitly), the payload welded to the tool frame."""
+    actuators' PD gains (`elastic_step`'s; Drake's SAP applies them implicitly) with no effort limit (a spring may
+    carry more than its motor gives, up to twice a step's torque: the motor's limit clips the command instead), the
+    payload welded to the tool frame. Returns the elastic joints' effort limits N m by joint name (the motors'),
+    empty without; InputError (one line) for a motor whose spring rings faster than the plant step resolves."""
     from pydrake.math import RigidTransform
     from pydrake.multibody.tree import PdControllerGains
     n = robot.num_joints
@@ -359,7 +360,7 @@ def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
     viscous = effects.joint_values("viscous_friction", n)
     rotor = effects.joint_values("rotor_inertia", n)
     ratio = effects.joint_values("gear_ratio", n) if effects.gear_ratio else np.ones(n)
-    actuators = {}   # (GetJointActuatorIndices(instance) lists none before Finalize)
+    actuators, motors = {}, {}   # (GetJointActuatorIndices(instance) lists none before Finalize)
     for index in plant.GetJointActuatorIndices():
         actuator = plant.get_joint_actuator(index)
         if actuator.model_instance() == instance:
@@ -374,12 +375,21 @@ def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> None:
             actuators[name].set_default_rotor_inertia(0.0 if stiffness[i] > 0 else rotor[i])
             actuators[name].set_default_gear_ratio(ratio[i])
         if stiffness[i] > 0 and plant.time_step() > 0:   # (the spring's mean torque over a step: `elastic_step`)
-            gain = elastic_step(stiffness[i], elastic[1][i], elastic[2][i], plant.time_step())[1]
-            actuators[name].set_controller_gains(PdControllerGains(p=gain, d=0.0))
+            step, ringing = plant.time_step(), np.sqrt(stiffness[i] / elastic[2][i])
+            if ringing * step >= np.pi:   # (there the spring's mean torque no longer depends on the link's motion)
+                raise InputError(f"plant effects transmission_stiffness {stiffness[i]:g} N m/rad on {name} against its "
+                                 f"motor's {elastic[2][i]:g} kg m² rings at {ringing / (2 * np.pi):.3g} Hz, which the "
+                                 f"plant step {step:g} s cannot resolve (omega h = {ringing * step:.3g} >= pi); lower "
+                                 f"--plant-time-step below {np.pi / ringing:.3g} s")
+            actuators[name].set_controller_gains(PdControllerGains(
+                p=elastic_step(stiffness[i], elastic[1][i], elastic[2][i], step)[1], d=0.0))
+            motors[name] = actuators[name].effort_limit()
+            actuators[name].set_effort_limit(np.inf)
     payload = effects.payload
     if payload.mass > 0:
         body = plant.AddRigidBody("payload", instance, payload.spatial_inertia())
         plant.WeldFrames(frame_by_name(plant, robot.tool_frame, instance), body.body_frame(), RigidTransform())
+    return motors
 
 
 def set_effect_parameters(plant, context, effects: PlantEffects) -> None:

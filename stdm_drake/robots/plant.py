@@ -114,12 +114,11 @@ def make_plant(config: PlantConfig | None = None, builder: DiagramBuilder | None
     else:
         plant, scene_graph = AddMultibodyPlant(config.multibody, builder)
     instance = robot.add_to(plant)
-    if config.effects is not None:
-        add_effects_to_plant(plant, instance, robot, config.effects)
+    motors = add_effects_to_plant(plant, instance, robot, config.effects) if config.effects is not None else {}
     plant.Finalize()
     robot.check_plant(plant, instance)
     if builder is not None and config.effects is not None:
-        add_effect_systems(builder, plant, instance, robot, config.effects, config.time_step)
+        add_effect_systems(builder, plant, instance, robot, config.effects, config.time_step, motors)
     if scene_graph is not None:
         if config.self_collision:
             _filter_disabled_collisions(plant, scene_graph, instance, robot)

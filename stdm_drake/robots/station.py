@@ -57,8 +57,8 @@ class Station:
         self.robot = settings.robot
         self.simulation = PlantSimulator(settings.plant, robot=settings.robot)
         self.plant = self.simulation.plant
-        self.limits = joint_limits(self.plant)
         self.dynamics = Dynamics(settings.robot)   # the nominal model: what controllers and protocols know
+        self.limits = joint_limits(self.dynamics.plant)   # (the description's: an elastic joint's plant has none)
         effects = settings.plant.effects
         # the simulated plant's own dynamics: the recorded true accelerations
         self.true_dynamics = self.dynamics if effects is None else Dynamics(settings.robot, effects)
