@@ -366,6 +366,10 @@ def write_issue_25_inputs(box) -> None:
         '<material name="grey"/><material name="grey"><color rgba="1 0 0 1"/></material>'), 1).replace(
         '<link ', '<material name="grey"><color rgba="0.5 0.5 0.5 1"/></material><link ', 1))
     (box / "alpha_visualization.yaml").write_text("publish_proximity: true\ninitial_proximity_alpha: 2.0\n")
+    # (held-out run 29: a colour out of [0, 1] named; a colour of geometry left out)
+    (box / "rgba_out.yaml").write_text("publish_proximity: true\ndefault_proximity_color: {rgba: [2.0, 0, 0, 1]}\n")
+    (box / "illustration_off.yaml").write_text("publish_illustration: false\n"
+                                               "default_illustration_color: {rgba: [0.5, 0.5, 0.5, 1]}\n")
     (box / "alpha_unshown.yaml").write_text("initial_proximity_alpha: 0.3\n")
     (box / "effort0.urdf").write_text(urdf.replace('effort="330"', 'effort="0"', 1))
     (box / "truncated_arm.urdf").write_text('<robot name="arm"><link name="base"/>')
@@ -1189,7 +1193,7 @@ CASES = [
     (yaml_case("mpc", "horizon: 2e1\n"), "horizon is written 2e1, a number in exponent form (text to YAML 1.1, 20.0 "
                                         "to YAML 1.2), where a whole number goes: write 20"),
     (yaml_case("train", "seeds: [0.5]\n"), "seeds is written 0.5, not a whole number, where a whole number goes"),
-    (yaml_case("spec", "velocity_fraction: .nan\n"), "excitation velocity_fraction must be a finite number > 0"),
+    (yaml_case("spec", "velocity_fraction: .nan\n"), "excitation velocity_fraction must be in (0, 1]"),
     (yaml_case("spec", "position_margin: .nan\n"), "excitation position_margin must be a finite number >= 0 rad"),
     (["robot", "init", "rgba_junk.urdf", "-o", "NEW.yaml"], "its <color> rgba is '0.5 0.5 0.5 1junk', not a number"),
     (["robot", "init", "sdf_diffuse_fullwidth.sdf", "-o", "NEW.yaml"], "its <diffuse> is"),
@@ -1207,6 +1211,29 @@ CASES = [
                        "  dither_acceleration: [4.0]\n"), "give dither_std or dither_acceleration, not both"),
     (["compare", "TRACK", "--kinds", "plant", "XL", "-o", "NEW"], "--kinds must be distinct names among plant"),
     (["compare", "TRACK", "--kinds", "G", "-o", "NEW"], "--kinds G is the grey box on the identified robot"),
+    # (held-out run 29: bounds where a value means nothing (past the robot's limits, beyond Nyquist, an IK that stops
+    # or is a centimetre off), NaN noise named, sized gains that overflow, colours, delays under one plant step,
+    # effects that act on nothing there, a transmission too soft to carry its motor, a ripple finer than the step)
+    (yaml_case("spec", "velocity_fraction: 2.0\n"), "excitation velocity_fraction must be in (0, 1]"),
+    (yaml_case("spec", "frequency_range: [1.0, 1000.0]\n"), "rad/s, the Nyquist frequency of the 0.01 s sample period"),
+    (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    ik_damping: 1.0e+300\n"),
+     "ik_damping must be in [0, 1]"),
+    (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    ik_tolerance: 1.0e+300\n"),
+     "ik_tolerance must be in (0, 0.01]"),
+    (yaml_case("sensor", "position_noise_std: .nan\n"), "sensor position_noise_std must be a number >= 0, got nan"),
+    (yaml_case("ctrl", "controller: !Pid\n  bandwidth: [1.0e+300]\n"), "controller bandwidth [1e+300] rad/s sizes a kp"),
+    ([*E, "--visualization", "rgba_out.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "default_proximity_color rgba must be numbers in [0, 1], got [2.0, 0, 0, 1]"),
+    ([*E, "--visualization", "illustration_off.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "default_illustration_color colours the illustration geometry, which publish_illustration false leaves out"),
+    (yaml_case("effects", "measurement_delay: 1.0e-300\n"),
+     "plant effects measurement_delay 1e-300 s is not a whole number of plant steps of 0.001 s"),
+    (yaml_case("effects", "coulomb_friction: [1, 1, 0, 1, 1, 1]\nfriction_ripple: [0.2]\nfriction_ripple_period: [0.1]\n"),
+     "friction_ripple on elbow_joint, whose coulomb_friction is 0, acts on nothing there"),
+    (yaml_case("effects", "rotor_inertia: [0.5]\ntransmission_stiffness: [1.0e-300]\n"),
+     "winds up 3.3e+302 rad at its motor's effort limit 330 N m, more than half a turn"),
+    (yaml_case("effects", "coulomb_friction: [1]\nfriction_ripple: [0.2]\nfriction_ripple_period: [1.0e-300]\n"),
+     "friction_ripple_period 1e-300 rad on shoulder_pan_joint passes in under two plant steps"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

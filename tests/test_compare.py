@@ -43,6 +43,18 @@ def test_a_request_no_comparison_can_run_is_refused_before_any_work(tmp_path):
     assert job.kinds == ("plant", "identified", "G", "PE")   # (in order of cost: the same request however given)
 
 
+def test_a_dataset_too_small_for_the_split_is_refused_before_any_folder_or_line(tmp_path, capsys):
+    """Held-out run 29: two trajectories leave the split no training one; refused in one line, no folder made."""
+    from stdm_drake.cli import main
+    data = tmp_path / "tiny.h5"
+    assert main(["collect", "--protocol", "tracking", "--count", "2", "--quiet", "-o", str(data)]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(data), "--quick", "-o", str(tmp_path / "c")]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.count("\n") == 1 and "the split leaves" in captured.err and not captured.out
+    assert not (tmp_path / "c").exists()
+
+
 def test_a_folder_of_another_request_or_of_stages_without_one_is_refused(tmp_path):
     """Review: stages are reused only for the same request; a folder holding stage files without the request.json
     that names theirs is refused (with --force too), and the message names what differs."""

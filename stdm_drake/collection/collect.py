@@ -365,11 +365,15 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
     if protocol == "excitation":
         if excitation is not None:
             request.excitation = excitation.for_robot(robot)
-            return request
-        if config_path is None:
+        elif config_path is None:
             request.excitation = Excitation.derived_for(robot)
-            return request
-        request.excitation = load_excitation(config_path, robot=robot)
+        else:
+            request.excitation = load_excitation(config_path, robot=robot)
+        try:
+            request.excitation.check_sampled(sample_period)
+        except InputError as error:
+            raise InputError(f"{config_path}: {error}" if config_path is not None else str(error)) from None
+        return request
     else:
         if config_path is None:
             request.tracking_spec = derived_tracking_spec(robot, sample_period=sample_period)

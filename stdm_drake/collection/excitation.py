@@ -58,9 +58,19 @@ class Excitation:
             raise InputError("excitation num_steps must be >= 2 and max_attempts >= 1")
         if not (np.isfinite(self.position_margin) and self.position_margin >= 0):   # (a NaN makes every check pass)
             raise InputError(f"excitation position_margin must be a finite number >= 0 rad, got {self.position_margin}")
-        if not (np.isfinite(self.velocity_fraction) and self.velocity_fraction > 0):
-            raise InputError(f"excitation velocity_fraction must be a finite number > 0 (of each velocity limit), got "
+        if not 0 < self.velocity_fraction <= 1:   # (beyond 1: past the robot's limits; a NaN too)
+            raise InputError(f"excitation velocity_fraction must be in (0, 1] (of each velocity limit), got "
                              f"{self.velocity_fraction}")
+        if not all(np.isfinite(self.frequency_range)) or self.frequency_range[0] < 0:
+            raise InputError(f"excitation frequency_range must be finite numbers >= 0 rad/s, got {self.frequency_range}")
+
+    def check_sampled(self, sample_period: float) -> None:
+        """InputError (one line) where a sine of frequency_range (rad/s) is beyond what the held torque samples at
+        `sample_period` s carry (the Nyquist frequency pi / period: beyond it the torque aliases to another sine)."""
+        if self.frequency_range[1] > np.pi / sample_period:
+            raise InputError(f"excitation frequency_range {self.frequency_range} rad/s reaches beyond {np.pi / sample_period:.4g} "
+                             f"rad/s, the Nyquist frequency of the {sample_period:g} s sample period (the held torque would "
+                             "alias); keep its upper end at most that")
 
     @classmethod
     def derived_for(cls, robot: Robot, acceleration: float = 0.5, box: float = 0.5) -> "Excitation":

@@ -77,12 +77,14 @@ class PlannerLimits:
             values = getattr(self, name)
             require(len(values) >= 1 and all(MIN_LIMIT <= v <= MAX_LIMIT for v in values),
                     f"{name} must be numbers in [{MIN_LIMIT:g}, {MAX_LIMIT:g}] (one per joint, or one for all)", values)
-        for name in ("ik_tolerance", "ik_continuity_tolerance"):
+        # (beyond these bounds a plan is not the plan: an IK a centimetre off, a jump of more than half a turn between
+        # samples, a damping that stops the IK's steps, joint speeds a million times the tool's near a singularity)
+        for name, largest, unit in (("ik_tolerance", 1e-2, " (m and rad)"), ("ik_continuity_tolerance", math.pi, " rad")):
             value = getattr(self, name)
-            require(math.isfinite(value) and value > 0, f"{name} must be positive", value)
-        require(self.ik_damping >= 0, "ik_damping must be >= 0", self.ik_damping)
+            require(0 < value <= largest, f"{name} must be in (0, {largest:g}]{unit}", value)
+        require(0 <= self.ik_damping <= 1.0, "ik_damping must be in [0, 1]", self.ik_damping)
         require(self.ik_max_iterations >= 1, "ik_max_iterations must be >= 1", self.ik_max_iterations)
-        require(self.max_jacobian_condition > 1, "max_jacobian_condition must be > 1",
+        require(1 < self.max_jacobian_condition <= 1e6, "max_jacobian_condition must be in (1, 1e6]",
                 self.max_jacobian_condition)
         require(0.0 <= self.limit_tolerance < 0.1, "limit_tolerance must be in [0, 0.1)",
                 self.limit_tolerance)

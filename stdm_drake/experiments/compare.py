@@ -139,6 +139,9 @@ def run_compare(job: CompareJob) -> dict:
     loops = job.closed_loop and dataset.is_simulated and dataset.has_plan
     if loops:
         robot.check_fully_actuated("the closed loops (--no-closed-loop leaves them out)")
+    from stdm_drake.data.dataset import dataset_split
+    from stdm_drake.learning.settings import TrainSettings
+    dataset_split(dataset, TrainSettings())   # (a dataset too small for the split: refused before any folder or line)
     request = json.loads(json.dumps(finite_json(dict(dataset_sha256=dataset.sha256, robot=robot.record(),
                                                      profile=dataclasses.asdict(job.profile), kinds=list(job.kinds)))))
     output = pathlib.Path(job.output) if job.output is not None else _default_folder(request)

@@ -87,7 +87,11 @@ class JointGains:
             inertia = smallest_effective_inertia(robot, effects)
             if self.sizing():
                 w = check_joint_vector("controller bandwidth", self.sizing(), count=n)
-                kp = inertia * w**2
+                with np.errstate(over="ignore"):   # (a bandwidth whose gains overflow: refused below, naming it)
+                    kp = inertia * w**2
+                if not np.all(kp <= MAX_GAIN):
+                    raise InputError(f"controller bandwidth {self.sizing()} rad/s sizes a kp of {float(np.max(kp)):g} "
+                                     f"on the arm's inertia, beyond any joint's gain (at most {MAX_GAIN:g})")
                 config = dataclasses.replace(config, kp=kp.tolist(), ki=(2.0 * kp).tolist(),
                                              kd=(2.0 * inertia * w).tolist(), bandwidth=[])
             if self.dither_acceleration:
@@ -101,8 +105,9 @@ class JointGains:
             effort = robot_joint_limits(robot).effort   # (the plant effects leave the effort limits as they are)
             joint = int(np.argmax(dither_std - effort))
             if dither_std[joint] > effort[joint]:
-                raise InputError(f"controller dither_std {dither_std[joint]:g} N m on {robot.joint_names[joint]} is beyond "
-                                 f"its effort limit {effort[joint]:g} N m")
+                sized = " (dither_acceleration times the joint's inertia)" if self.dither_acceleration else ""
+                raise InputError(f"controller dither_std {dither_std[joint]:g} N m{sized} on {robot.joint_names[joint]} is "
+                                 f"beyond its effort limit {effort[joint]:g} N m")
         return dataclasses.replace(config, kp=kp.tolist(), ki=ki.tolist(), kd=kd.tolist(), dither_std=dither_std.tolist())
 
     def gains(self, joints: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -220,8 +225,9 @@ class SensorConfig:
     MAX_POSITION_NOISE_STD, MAX_VELOCITY_NOISE_STD, MAX_FILTER_WINDOW = np.pi, 100.0, 1000
 
     def validate(self) -> None:
-        if not (self.position_noise_std >= 0 and self.velocity_noise_std >= 0):
-            raise InputError("sensor noise standard deviations must be >= 0")
+        for name in ("position_noise_std", "velocity_noise_std"):
+            if not getattr(self, name) >= 0:   # (a NaN too)
+                raise InputError(f"sensor {name} must be a number >= 0, got {getattr(self, name)}")
         if not (self.position_noise_std <= self.MAX_POSITION_NOISE_STD
                 and self.velocity_noise_std <= self.MAX_VELOCITY_NOISE_STD):
             raise InputError(f"sensor noise standard deviations must be at most pi rad (position) and "

@@ -204,7 +204,7 @@ def add_effect_systems(builder, plant, instance, robot, effects: PlantEffects, t
     if time_step <= 0:
         raise InputError(f"plant effects {' and '.join(stepped)} act every plant step: they need a discrete plant "
                          "(--plant-time-step > 0)")
-    delays = {name: _plant_steps(effects, name, time_step) for name in ("actuation_delay", "measurement_delay")}
+    delays = {name: plant_steps(effects, name, time_step) for name in ("actuation_delay", "measurement_delay")}
     command = plant.get_actuation_input_port()
     elastic = effects.elastic(n)
     if elastic is not None:
@@ -232,10 +232,11 @@ def add_effect_systems(builder, plant, instance, robot, effects: PlantEffects, t
         builder.Connect(plant.get_state_output_port(), measurement.get_input_port())
 
 
-def _plant_steps(effects: PlantEffects, name: str, time_step: float) -> int:
-    """The delay `name` of `effects` in whole plant steps of `time_step` s; InputError (one line) where it is none."""
+def plant_steps(effects: PlantEffects, name: str, time_step: float) -> int:
+    """The delay `name` of `effects` in whole plant steps of `time_step` s; InputError (one line) where it is none (a
+    delay shorter than one step too: it would be no delay)."""
     steps = getattr(effects, name) / time_step
-    if abs(steps - round(steps)) > 1e-6:
+    if abs(steps - round(steps)) > 1e-6 or (steps > 0 and round(steps) < 1):
         raise InputError(f"plant effects {name} {getattr(effects, name):g} s is not a whole number of plant steps of "
                          f"{time_step:g} s")
     return int(round(steps))

@@ -10,6 +10,7 @@ from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import names_text
+from stdm_drake.robots.effect_checks import check_beyond_rigid_bodies
 from stdm_drake.robots.effect_systems import (actuation_input, add_effect_systems, link_torque, measured_state_output,
                                               start_actuators)
 from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,
@@ -370,6 +371,7 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     if unknown:
         raise InputError(f"plant effects mass_scale or link_inertia names links robot {robot.name} does not have: "
                          f"{names_text(unknown)} (its links: {names_text(sorted(links), 50)})")
+    check_beyond_rigid_bodies(effects, robot, time_step, robot_joint_limits(robot))
     gain = coulomb_stability_gains(effects, robot, time_step)
     if gain is not None:
         friction, scale = effects.friction_at_rest(n), effects.coulomb(n)[1]

@@ -7,6 +7,7 @@ With `ghost=True` a second, translucent copy of the robot shows another trajecto
 learned model's open-loop prediction from the same initial state and actions, or an MPC reference.
 """
 import copy
+import pathlib
 import logging
 import time
 
@@ -32,8 +33,16 @@ def load_visualization_config(path) -> VisualizationConfig:
     the collision geometry, `default_illustration_color`, `initial_proximity_alpha`, ...); fields left
     out keep the recording's defaults (RECORDING). InputError for a missing or malformed file, or one that sets
     what a recording sets itself (publish_period: the data's sample period; lcm_bus)."""
-    from stdm_drake.config import file_keys, load_yaml_config
+    from stdm_drake.config import file_keys, load_yaml_config, read_yaml_document
     from stdm_drake.errors import InputError
+    document = read_yaml_document(path) if pathlib.Path(path).is_file() else None
+    for key in ("default_illustration_color", "default_proximity_color"):   # (Drake's own error names no field)
+        rgba = (document.get(key) or {}).get("rgba") if isinstance(document, dict) and isinstance(
+            document.get(key), dict) else None
+        numbers = rgba if isinstance(rgba, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool)
+                                                          for x in rgba) else []
+        if any(not 0.0 <= x <= 1.0 for x in numbers):
+            raise InputError(f"{path}: {key} rgba must be numbers in [0, 1], got {rgba}")
     config = load_yaml_config(path, VisualizationConfig, what="visualization config", defaults=RECORDING)
     if "publish_period" in file_keys(path):   # (a NaN one too: held-out run 27)
         raise InputError(f"{path}: publish_period: a recording shows every sample period of the data, so the file's "
@@ -43,6 +52,12 @@ def load_visualization_config(path) -> VisualizationConfig:
     if not 0.0 <= config.initial_proximity_alpha <= 1.0:   # (a NaN too: an opacity; held-out run 28)
         raise InputError(f"{path}: initial_proximity_alpha must be an opacity in [0, 1], got "
                          f"{config.initial_proximity_alpha!r}")
+    if "default_illustration_color" in file_keys(path) and not config.publish_illustration:
+        raise InputError(f"{path}: default_illustration_color colours the illustration geometry, which "
+                         "publish_illustration false leaves out, so it would be ignored; leave one of them out")
+    if "enable_meshcat_creation" in file_keys(path):
+        raise InputError(f"{path}: enable_meshcat_creation: a recording makes its own Meshcat, so the file's "
+                         f"{config.enable_meshcat_creation!r} would be ignored; leave it out")
     ignored = [key for key in ("initial_proximity_alpha", "default_proximity_color") if key in file_keys(path)]
     if ignored and not config.publish_proximity:
         raise InputError(f"{path}: {' and '.join(ignored)} {'shape' if len(ignored) > 1 else 'shapes'} the collision "
