@@ -1215,6 +1215,9 @@ CASES = [
     # or is a centimetre off), NaN noise named, sized gains that overflow, colours, delays under one plant step,
     # effects that act on nothing there, a transmission too soft to carry its motor, a ripple finer than the step)
     (yaml_case("spec", "velocity_fraction: 2.0\n"), "excitation velocity_fraction must be in (0, 1]"),
+    (yaml_case("spec", "phase_range: [-1.0, 1.0e+300]\n"), "excitation phase_range must be numbers within +-1e9 rad"),
+    (yaml_case("spec", "amplitude_max: [1.0e+300]\n"),
+     "excitation amplitude_max 1e+300 N m on shoulder_pan_joint is beyond its effort limit 330 N m"),
     (yaml_case("spec", "frequency_range: [1.0, 1000.0]\n"), "rad/s, the Nyquist frequency of the 0.01 s sample period"),
     (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    ik_damping: 1.0e+300\n"),
      "ik_damping must be in [0, 1]"),

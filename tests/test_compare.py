@@ -51,7 +51,7 @@ def test_a_dataset_too_small_for_the_split_is_refused_before_any_folder_or_line(
     capsys.readouterr()
     assert main(["compare", str(data), "--quick", "-o", str(tmp_path / "c")]) == 2
     captured = capsys.readouterr()
-    assert captured.err.count("\n") == 1 and "the split leaves" in captured.err and not captured.out
+    assert captured.err.count("\n") == 1 and "leaves no training trajectory" in captured.err and not captured.out
     assert not (tmp_path / "c").exists()
 
 

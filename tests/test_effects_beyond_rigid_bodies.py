@@ -438,3 +438,19 @@ def test_a_spring_may_carry_more_than_its_motor_gives_and_the_motor_clips_the_co
                                          r"--plant-time-step below 0.000702"):
         PlantSimulator(PlantConfig.discrete(1e-3, effects=PlantEffects(rotor_inertia=[motor],
                                                                        transmission_stiffness=[2e5])), robot=wheel)
+
+
+@pytest.mark.slow
+def test_identify_on_a_plant_no_rigid_body_model_holds_fits_and_says_what_it_misses(tmp_path, capsys):
+    """Held-out run 29: identification of data from a plant with friction ripple runs (a real arm has such effects
+    too) and says in one warning line that the identified robot is a rigid-body fit, not a model of them."""
+    from stdm_drake.cli import main
+    (tmp_path / "e.yaml").write_text("coulomb_friction: [2.0, 2.0, 1.0, 0, 0, 0]\nfriction_ripple: [0.3, 0.3, 0.3, 0, 0, 0]\n"
+                                     "friction_ripple_period: [0.2]\n")   # (the light wrists: no friction, stable)
+    data = tmp_path / "d.h5"
+    assert main(["collect", "--protocol", "tracking", "--count", "16", "--quiet", "--plant-effects",
+                 str(tmp_path / "e.yaml"), "-o", str(data)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(data), "-o", str(tmp_path / "i.yaml"), "--quiet"]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "friction_ripple, which no rigid-body" in line]
+    assert len(warnings) == 1 and (tmp_path / "i.yaml").exists()

@@ -445,7 +445,7 @@ def test_planners_are_tagged_and_the_old_kind_layout_loads_with_a_warning(tmp_pa
     ("planner: !Quintic\n  jerk_limits: [1.0]\n", r"The fields \['jerk_limits'\] were unknown"),
     ("planner:\n  knd: quintic\n", r"planner: unknown fields \['knd'\]"),
     ("planner:\n  velocity_scale: fast\n", r"planner: could not convert string to float"),
-    ("sampling:\n  num_steps: 1.5\n", r"malformed tracking spec: Expected a <class 'int'> value for 'num_steps'"),
+    ("sampling:\n  num_steps: 1.5\n", r"sampling.num_steps is written 1.5, not a whole number, where a whole number goes"),
     ("planner: {kind: quintic\n", r"malformed tracking spec: while parsing a flow mapping"),
     ("- 1\n- 2\n", r"malformed tracking spec: YAML root was a <class 'list'>"),
     ("", r"malformed tracking spec"),

@@ -63,6 +63,9 @@ class Excitation:
                              f"{self.velocity_fraction}")
         if not all(np.isfinite(self.frequency_range)) or self.frequency_range[0] < 0:
             raise InputError(f"excitation frequency_range must be finite numbers >= 0 rad/s, got {self.frequency_range}")
+        if not all(abs(value) <= 1e9 for value in self.phase_range):   # (a NaN too)
+            raise InputError(f"excitation phase_range must be numbers within +-1e9 rad (beyond, a double holds no "
+                             f"fraction of a turn), got {self.phase_range}")
 
     def check_sampled(self, sample_period: float) -> None:
         """InputError (one line) where a sine of frequency_range (rad/s) is beyond what the held torque samples at
@@ -88,9 +91,16 @@ class Excitation:
                    initial_position_upper=upper.tolist())
 
     def check_start_poses(self, robot: Robot) -> None:
-        """InputError naming the joint if the start-pose box is not `position_margin` inside its limits
-        (every start would be rejected, after the simulation, as a limit violation)."""
+        """InputError naming the joint if the start-pose box is not `position_margin` inside its limits (every start
+        would be rejected, after the simulation, as a limit violation), or an amplitude or offset is beyond its
+        effort limit."""
         limits = robot_joint_limits(robot)
+        for name, values in (("amplitude_max", self.amplitude_max), ("offset_max", self.offset_max)):
+            beyond = np.asarray(values, dtype=float) > limits.effort   # (a sine past the motor's torque is clipped flat)
+            if np.any(beyond):
+                j = int(np.argmax(beyond))
+                raise InputError(f"excitation {name} {values[j]:g} N m on {robot.joint_names[robot.actuated_indices[j]]} "
+                                 f"is beyond its effort limit {limits.effort[j]:g} N m")
         lower, upper = np.asarray(self.initial_position_lower), np.asarray(self.initial_position_upper)
         for j, name in enumerate(robot.joint_names):
             low, high = limits.position_lower[j] + self.position_margin, limits.position_upper[j] - self.position_margin

@@ -332,7 +332,9 @@ def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_tes
     if n_train is None:
         n_train = pool - n_val - (n_test if n_test is not None else max(1, round(0.2 * pool)))
     if n_train < 1:
-        raise InputError(f"the split leaves {n_train} training trajectories (of {pool} per split unit)")
+        raise InputError(f"{pool} trajector{'y' if pool == 1 else 'ies'} per split unit leave{'s' if pool == 1 else ''} no "
+                         f"training trajectory after {n_val} for validation and {pool - n_val - n_train} for test; "
+                         "collect more, or give --train, --val and --test")
     return n_train, n_val, n_test
 
 

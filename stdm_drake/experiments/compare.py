@@ -106,8 +106,7 @@ def recommend(scores: dict, candidates: list[str]) -> dict:
     the same order for every kind); candidates: the kinds that may be recommended, in order of cost. Returns
     {"kind", "best", "why", "intervals": kind -> (mean, low, high) of kind - best, "inconclusive"}."""
     if not candidates:
-        return dict(kind=None, best=None, why="no kind qualifies (none beat the physics-free baselines, and neither "
-                    "physics model was compared)", intervals={}, inconclusive=True)
+        return dict(kind=None, best=None, why="no kind qualifies", intervals={}, inconclusive=True)
     means = {kind: float(np.mean(scores[kind])) for kind in candidates}
     best = min(candidates, key=lambda kind: means[kind])
     intervals = {kind: interval(np.asarray(scores[kind]) - np.asarray(scores[best])) for kind in candidates
@@ -336,11 +335,20 @@ def _summary(job: CompareJob, dataset, robot, files: dict, open_loop: dict, clos
                          limit_violations=int(sum(r["limit_violations"] for r in flat)),
                          fallbacks=int(sum(r["fallbacks"] for r in flat)),
                          solve_ms_mean=float(np.mean([r["solve_ms_mean"] for r in flat])))
-    candidates = [entry["kind"] for entry in table if entry["kind"] in KINDS and entry["kind"] in scores
-                  and bool(np.all(np.isfinite(scores[entry["kind"]])))   # (a diverged rollout or loop: none)
-                  and (entry["kind"] in ("plant", "identified") or entry["learned_every_seed"])
-                  and not entry.get("limit_violations") and not entry.get("fallbacks")]
+    excluded = {}   # kind -> why it is no candidate
+    for entry in (entry for entry in table if entry["kind"] in KINDS):
+        kind = entry["kind"]
+        reasons = ([] if kind in scores else ["no closed loop"]) + (
+            ["its error is not finite (diverged)"] if kind in scores and not np.all(np.isfinite(scores[kind])) else []) + (
+            [] if kind in ("plant", "identified") or entry["learned_every_seed"] else ["not every seed learned"]) + (
+            [f"its loops left the robot's limits on {entry['limit_violations']} steps"] if entry.get("limit_violations")
+            else []) + ([f"its loops fell back {entry['fallbacks']} times"] if entry.get("fallbacks") else [])
+        if reasons:
+            excluded[kind] = ", ".join(reasons)
+    candidates = [entry["kind"] for entry in table if entry["kind"] in KINDS and entry["kind"] not in excluded]
     choice = recommend({kind: scores[kind] for kind in candidates}, candidates)
+    if not candidates:
+        choice["why"] = "no kind qualifies: " + "; ".join(f"{kind}: {why}" for kind, why in excluded.items())
     choice["unit"] = unit
     choice["intervals"] = {kind: None if value is None else dict(mean=value[0], low=value[1], high=value[2])
                            for kind, value in choice["intervals"].items()}
@@ -350,7 +358,7 @@ def _summary(job: CompareJob, dataset, robot, files: dict, open_loop: dict, clos
                 closed_loop_why_not=None if loops else ("left out" if not job.closed_loop else
                                                          "the dataset's plant is not simulated or it has no plans"),
                 models={kind: [str(path) for path in paths] for kind, paths in files.items()},
-                table=table, candidates=candidates, recommendation=choice)
+                table=table, candidates=candidates, excluded=excluded, recommendation=choice)
 
 
 def _markdown(record: dict) -> str:
