@@ -1231,7 +1231,8 @@ CASES = [
      "default_illustration_color colours the illustration geometry, which publish_illustration false leaves out"),
     (yaml_case("effects", "measurement_delay: 1.0e-300\n"),
      "plant effects measurement_delay 1e-300 s is not a whole number of plant steps of 0.001 s"),
-    (yaml_case("effects", "coulomb_friction: [1, 1, 0, 1, 1, 1]\nfriction_ripple: [0.2]\nfriction_ripple_period: [0.1]\n"),
+    (yaml_case("effects", "coulomb_friction: [1, 1, 0, 1, 1, 1]\nfriction_ripple: [0.2, 0.2, 0.2, 0, 0, 0]\n"
+                          "friction_ripple_period: [0.1]\n"),
      "friction_ripple on elbow_joint, whose coulomb_friction is 0, acts on nothing there"),
     (yaml_case("effects", "rotor_inertia: [0.5]\ntransmission_stiffness: [1.0e-300]\n"),
      "winds up 3.3e+302 rad at its motor's effort limit 330 N m, more than half a turn"),

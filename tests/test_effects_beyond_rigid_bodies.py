@@ -384,8 +384,6 @@ def test_the_new_effects_are_checked_and_recorded(wheel):
             (PlantEffects(transmission_stiffness=[1e4]), "transmission_stiffness needs rotor_inertia"),
             (PlantEffects(coulomb_friction=[1.0], friction_ripple=[0.2]), "friction_ripple needs friction_ripple_period"),
             (PlantEffects(friction_ripple=[0.2], friction_ripple_period=[0.1]), "friction_ripple needs coulomb_friction"),
-            (PlantEffects(coulomb_friction=[1.0], friction_ripple=[0.2], friction_ripple_period=[0.0]),
-             "friction_ripple_period must be > 0"),
             (PlantEffects(coulomb_friction=[1.0], friction_ripple=[2.0], friction_ripple_period=[0.1]),
              "friction_ripple 2 is beyond any robot's"),
             (PlantEffects(measurement_delay=2.0), "measurement_delay must be in")):
@@ -393,6 +391,18 @@ def test_the_new_effects_are_checked_and_recorded(wheel):
             effects.validate()
     with pytest.raises(InputError, match="transmission_stiffness on joint 1 needs a rotor_inertia > 0 there"):
         PlantEffects(rotor_inertia=[0.0, 1.0, 1.0, 1.0, 1.0, 1.0], transmission_stiffness=[1e4]).elastic(6)
+    from stdm_drake.robots.plant import plant_effects_for
+    with pytest.raises(InputError, match="friction_ripple_period must be > 0 rad where friction_ripple is on"):
+        plant_effects_for(PlantEffects(coulomb_friction=[1.0], friction_ripple=[0.2], friction_ripple_period=[0.0]),
+                          UR10, STEP)
+    broadcast = PlantEffects(coulomb_friction=[1.0, 1.0, 1.0, 0.0, 0.0, 0.0], friction_ripple=[0.2],
+                             friction_ripple_period=[0.1, 0.1, 0.1, 0.0, 0.0, 0.0], coulomb_velocity_scale=[1.0])
+    with pytest.raises(InputError, match="friction_ripple on wrist_1_joint, whose coulomb_friction is 0"):
+        plant_effects_for(dataclasses.replace(broadcast, friction_ripple=[0.2, 0.2, 0.2, 0.2, 0.0, 0.0]), UR10, STEP)
+    assert plant_effects_for(broadcast, UR10, STEP) is broadcast   # (one ripple for all: where it can; period 0: none)
+    np.testing.assert_array_equal(coulomb_torque(np.full(2, 0.5), np.ones(2), np.ones(2), None,
+                                                 (np.array([0.0, 0.2]), np.array([0.0, 0.1])), np.zeros(2)),
+                                  -np.tanh(0.5) * np.ones(2))
     with pytest.raises(InputError, match="measurement_delay 0.0015 s is not a whole number of plant steps"):
         PlantSimulator(PlantConfig.discrete(STEP, effects=PlantEffects(measurement_delay=0.0015)), robot=UR10)
     with pytest.raises(InputError, match="transmission_stiffness act every plant step: they need a discrete plant"):

@@ -20,15 +20,22 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
     for name in ("actuation_delay", "measurement_delay"):
         if getattr(effects, name) > 0:
             plant_steps(effects, name, time_step)
-    coulomb = effects.joint_values("coulomb_friction", n)
-    for field, companion, values in (("friction_ripple", "coulomb_friction", coulomb),
+    ripple = effects.joint_values("friction_ripple", n)
+    for field, companion, values in (("friction_ripple", "coulomb_friction", effects.joint_values("coulomb_friction", n)),
                                      ("transmission_damping", "transmission_stiffness",
-                                      effects.joint_values("transmission_stiffness", n))):
-        idle = (effects.joint_values(field, n) > 0) & (values <= 0)
-        if getattr(effects, field) and np.any(idle):
+                                      effects.joint_values("transmission_stiffness", n)),
+                                     ("friction_ripple_period", "friction_ripple", ripple * (
+                                         effects.joint_values("coulomb_friction", n) > 0))):
+        # (a per-joint list's value where its companion is 0; one value for all joints applies where it can)
+        idle = (effects.joint_values(field, n) > 0) & (values <= 0) if len(getattr(effects, field)) > 1 else False
+        if np.any(idle):
             joint = robot.joint_names[int(np.argmax(idle))]
             raise InputError(f"plant effects {field} on {joint}, whose {companion} is 0, acts on nothing there, so it "
                              "would be ignored; give it 0 on that joint")
+    acting = (ripple > 0) & (effects.joint_values("coulomb_friction", n) > 0)
+    if effects.friction_ripple_period and np.any(acting & (effects.joint_values("friction_ripple_period", n) <= 0)):
+        joint = robot.joint_names[int(np.argmax(acting & (effects.joint_values("friction_ripple_period", n) <= 0)))]
+        raise InputError(f"plant effects friction_ripple_period must be > 0 rad where friction_ripple is on ({joint})")
     elastic = effects.elastic(n)
     if elastic is not None and robot.fully_actuated:   # (a spring wound past half a turn at full torque: no transmission)
         windup = np.where(elastic[0] > 0, limits.effort / np.where(elastic[0] > 0, elastic[0], 1.0), 0.0)
@@ -38,13 +45,13 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
                              f"{robot.joint_names[joint]} winds up {windup[joint]:.3g} rad at its motor's effort limit "
                              f"{limits.effort[joint]:g} N m, more than half a turn: no transmission carries torque so; "
                              f"give at least {limits.effort[joint] / np.pi:.3g} N m/rad")
-    ripple = effects.ripple(n)
-    if ripple is not None and time_step > 0:   # (a period crossed within two plant steps at top speed aliases)
+    rippled = effects.ripple(n)
+    if rippled is not None and time_step > 0:   # (a period crossed within two plant steps at top speed aliases)
         finest = 2.0 * time_step * limits.velocity
-        short = (ripple[0] > 0) & (ripple[1] < finest)
+        short = acting & (rippled[1] < finest)
         if np.any(short):
             joint = int(np.argmax(short))
-            raise InputError(f"plant effects friction_ripple_period {ripple[1][joint]:g} rad on {robot.joint_names[joint]} "
+            raise InputError(f"plant effects friction_ripple_period {rippled[1][joint]:g} rad on {robot.joint_names[joint]} "
                              f"passes in under two plant steps of {time_step:g} s at its velocity limit "
                              f"{limits.velocity[joint]:g} rad/s, so the plant cannot resolve it; give at least "
                              f"{finest[joint]:.3g} rad, or a finer plant step")

@@ -197,9 +197,9 @@ class PlantEffects:
                         "would be ignored)", getattr(self, name))
         require(not self.is_on("friction_ripple") or bool(self.friction_ripple_period), "friction_ripple needs "
                 "friction_ripple_period (rad, the ripple's period in the joint's position)", self.friction_ripple)
-        if self.friction_ripple_period:
-            require(bool(np.all(np.asarray(self.friction_ripple_period, float) > 0)), "friction_ripple_period must be "
-                    "> 0 rad", self.friction_ripple_period)
+        if self.friction_ripple_period:   # (0 on a joint without ripple: `effect_checks`)
+            require(bool(np.all(np.asarray(self.friction_ripple_period, float) >= 0)), "friction_ripple_period must be "
+                    ">= 0 rad", self.friction_ripple_period)
 
     def acting_later(self) -> list[str]:
         """The effects that are on and make the torque acting depend on earlier commands (lag, delay): no model of
@@ -415,6 +415,8 @@ def coulomb_torque(velocity: np.ndarray, friction: np.ndarray, velocity_scale: n
         breakaway, stribeck_velocity = stribeck
         friction = friction + (breakaway - friction) * np.exp(-(velocity / stribeck_velocity) ** 2)
     if ripple is not None:
-        amplitude, period = ripple
-        friction = friction * (1.0 + amplitude * np.sin(2.0 * np.pi * position / period))
+        amplitude, period = ripple   # (a joint without ripple may have period 0)
+        rippled = (amplitude > 0) & (period > 0)
+        friction = friction * (1.0 + np.where(rippled, amplitude * np.sin(2.0 * np.pi * position / np.where(
+            rippled, period, 1.0)), 0.0))
     return -friction * np.tanh(velocity / velocity_scale)
