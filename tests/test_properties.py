@@ -159,7 +159,8 @@ def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypat
                                                      step):
     """With an output that would be accepted, the simulation is reached exactly when every number is
     valid (count in 1..100000, workers >= 1; seed >= 0; period and plant step finite > 0, the period a whole
-    multiple of the step, at most 10000 of them); otherwise exit 2 with one line and no file."""
+    multiple of the step, at most 10000 of them, the shipped excitation's highest frequency, 10 rad/s, within the
+    period's Nyquist frequency pi / period); otherwise exit 2 with one line and no file."""
     import math
 
     from stdm_drake.cli import main
@@ -179,7 +180,7 @@ def test_collect_numbers_are_checked_before_any_work(tmp_path, capsys, monkeypat
     ratio = period / step if math.isfinite(period) and math.isfinite(step) and step > 0 else math.nan
     valid = (1 <= count <= 100_000 and workers >= 1 and seed >= 0 and math.isfinite(period) and period > 0
              and math.isfinite(step) and step > 0 and ratio <= 10_000 and abs(ratio - round(ratio)) <= 1e-9
-             and round(ratio) >= 1)
+             and round(ratio) >= 1 and 10.0 <= math.pi / period)
     try:
         status = main(argv)
     except ReachedTheWork:

@@ -238,9 +238,8 @@ class PlantEffects:
 
     def ripple(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(r (joints,), P (joints,) rad) of the friction ripple, or None without it."""
-        if not self.is_on("friction_ripple"):
-            return None
-        return self.joint_values("friction_ripple", joints), self.joint_values("friction_ripple_period", joints)
+        on = self.is_on("friction_ripple")
+        return (self.joint_values("friction_ripple", joints), self.joint_values("friction_ripple_period", joints)) if on else None
 
     def stribeck(self, joints: int) -> tuple[np.ndarray, np.ndarray] | None:
         """(F_s (joints,) N m, v_st (joints,) rad/s), or None without Stribeck friction."""
@@ -415,8 +414,7 @@ def coulomb_torque(velocity: np.ndarray, friction: np.ndarray, velocity_scale: n
         breakaway, stribeck_velocity = stribeck
         friction = friction + (breakaway - friction) * np.exp(-(velocity / stribeck_velocity) ** 2)
     if ripple is not None:
-        amplitude, period = ripple   # (a joint without ripple may have period 0)
+        amplitude, period = ripple   # (a joint without ripple may have period 0: no ripple there)
         rippled = (amplitude > 0) & (period > 0)
-        friction = friction * (1.0 + np.where(rippled, amplitude * np.sin(2.0 * np.pi * position / np.where(
-            rippled, period, 1.0)), 0.0))
+        friction = friction * (1.0 + np.where(rippled, amplitude * np.sin(2 * np.pi * position / np.where(rippled, period, 1)), 0))
     return -friction * np.tanh(velocity / velocity_scale)
