@@ -20,21 +20,21 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
     for name in ("actuation_delay", "measurement_delay"):
         if getattr(effects, name) > 0:
             plant_steps(effects, name, time_step)
-    ripple = effects.joint_values("friction_ripple", n)
-    for field, companion, values in (("friction_ripple", "coulomb_friction", effects.joint_values("coulomb_friction", n)),
+    ripple, coulomb = effects.joint_values("friction_ripple", n), effects.joint_values("coulomb_friction", n)
+    period = effects.joint_values("friction_ripple_period", n)
+    for field, companion, values in (("friction_ripple", "coulomb_friction", coulomb),
                                      ("transmission_damping", "transmission_stiffness",
                                       effects.joint_values("transmission_stiffness", n)),
-                                     ("friction_ripple_period", "friction_ripple", ripple * (
-                                         effects.joint_values("coulomb_friction", n) > 0))):
+                                     ("friction_ripple_period", "friction_ripple", ripple * (coulomb > 0))):
         # (a per-joint list's value where its companion is 0; one value for all joints applies where it can)
         idle = (effects.joint_values(field, n) > 0) & (values <= 0) if len(getattr(effects, field)) > 1 else False
         if np.any(idle):
             joint = robot.joint_names[int(np.argmax(idle))]
             raise InputError(f"plant effects {field} on {joint}, whose {companion} is 0, acts on nothing there, so it "
                              "would be ignored; give it 0 on that joint")
-    acting = (ripple > 0) & (effects.joint_values("coulomb_friction", n) > 0)
-    if effects.friction_ripple_period and np.any(acting & (effects.joint_values("friction_ripple_period", n) <= 0)):
-        joint = robot.joint_names[int(np.argmax(acting & (effects.joint_values("friction_ripple_period", n) <= 0)))]
+    acting = (ripple > 0) & (coulomb > 0)
+    if effects.friction_ripple_period and np.any(acting & (period <= 0)):
+        joint = robot.joint_names[int(np.argmax(acting & (period <= 0)))]
         raise InputError(f"plant effects friction_ripple_period must be > 0 rad where friction_ripple is on ({joint})")
     elastic = effects.elastic(n)
     if elastic is not None and robot.fully_actuated:   # (a spring wound past half a turn at full torque: no transmission)
