@@ -189,7 +189,8 @@ def test_the_decisive_experiment_runs_on_ray_with_the_local_results(head, tmp_pa
     from stdm_drake.cluster import RunnerConfig
     from tools_import import decisive   # (tools/studies/decisive.py: its functions travel to the workers by value)
     address, _ = head
-    options = dict(cells=decisive.CELLS[:1], data_seeds=1, inits=2, sizes=(6, 4, 6), progress=lambda text: None)
+    options = dict(cells=decisive.CELLS[:1], data_seeds=1, inits=2, sizes=(6, 4, 6), max_epochs=5,
+                   progress=lambda text: None)
     local = decisive.run_study(tmp_path / "local", RunnerConfig(workers=1), **options)
     remote = decisive.run_study(tmp_path / "ray", RunnerConfig(backend="ray", ray_address=address), **options)
     strip = lambda rows: [{k: v for k, v in dataclasses.asdict(row).items() if k != "train_seconds"}  # noqa: E731

@@ -269,12 +269,23 @@ def test_pid_gains_sized_from_the_effective_inertia(tmp_path, panda):
 
 
 @pytest.mark.slow
-def test_reproduce_quick_on_the_affected_panda(tmp_path, capsys):
+def test_reproduce_quick_on_the_affected_panda(tmp_path, capsys, monkeypatch):
     """`reproduce --quick --robot panda --plant-effects`: every stage on the 7-joint arm with its derived
     protocols, on the plant with models/panda_effects.yaml (the MPC with the nominal and the true plant). The
-    underactuated Acrobot is refused before any work."""
+    underactuated Acrobot is refused before any work. The stages run at a smaller size than the quick profile's
+    (fewer trajectories, epochs and sine-sum networks): the robot's path through every stage is what this test
+    checks; the quick profile's own size runs in the README's main job (tests/test_reproduce.py)."""
     from stdm_drake.cli import main
+    from stdm_drake.commands import reproduce as reproduce_command
     from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.experiments import sine_sum
+    from stdm_drake.experiments.jobs import QUICK
+    monkeypatch.setattr(reproduce_command, "QUICK", dataclasses.replace(
+        QUICK, excitation_count=12, tracking_count=20, sim_train_sizes=(2, 4), sim_val=2, sim_test=4, real_val=1,
+        real_test=2, max_epochs=4, patience=4, horizon=20, default_model_seeds=2,
+        default_model_epochs=4))
+    monkeypatch.setattr(sine_sum, "QUICK", dataclasses.replace(sine_sum.QUICK, seeds=2, headline_seeds=2, epochs=200,
+                                                               table_seeds=2))
     out = tmp_path / "reproduce"
     code = main(["reproduce", "--quick", "--robot", str(PANDA_CONFIG), "--quiet", "--plant-effects",
                  str(MODELS_DIR / "panda_effects.yaml"), "-o", str(out)])

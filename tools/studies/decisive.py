@@ -36,6 +36,7 @@ SCALED = [6.0, 6.0, 2.0, 0.015, 0.002, 0.00015]           # excitation.yaml's pe
 SPEED_BOUND = 3000.0                                      # rad/s: faster trajectories are redrawn
 ALPHA = 1e-3
 HORIZON = 20
+QUICK_EPOCHS = 20   # the quick profile's epoch budget per model: a pipeline check, no verdict read from it
 TRAIN, VALIDATION, TEST = 40, 40, 120
 
 
@@ -141,13 +142,13 @@ class DecisiveRun:
     verdict: str
 
 
-def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, path: str,
+def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, max_epochs: int | None, path: str,
             content: bytes | None = None, sha256: str | None = None, half_path: str | None = None,
             half_content: bytes | None = None, half_sha256: str | None = None) -> DecisiveRun:
     """Train and evaluate one model on the cell's dataset `path` (on a Ray cluster its bytes `content`
     and their `sha256`; top-level arguments, so Ray hands the task the bytes, not a reference). D-half
     trains on the half-period dataset (`half_*`, the same way) and is tested, like every model, on
-    `path`'s test trajectories."""
+    `path`'s test trajectories. max_epochs: None trains to the design's budget (TrainingConfig's default)."""
     import torch
 
     from stdm_drake.cluster import file_on_this_node
@@ -173,7 +174,9 @@ def run_job(cell: Cell, data_seed: int, init: int, model: str, sizes: tuple, pat
     problem = training_problem(training_data, split, model_type="DD" if alpha else "D", delta=cell.delta,
                                structure=structure, robot=robot)
     started = time.perf_counter()
-    result, _ = fit_model(problem.model_config, TrainingConfig(alpha=alpha, seed=init), problem.train, problem.val)
+    budget = {} if max_epochs is None else dict(max_epochs=max_epochs, patience=min(max_epochs, 50))
+    result, _ = fit_model(problem.model_config, TrainingConfig(alpha=alpha, seed=init, **budget), problem.train,
+                          problem.val)
     seconds = time.perf_counter() - started
     learned = LearnedModel(result.model, name=model, robot=robot, structure=structure,
                            sample_period=training_data.sample_period)
@@ -247,11 +250,12 @@ def summarize(cells, rows: list[DecisiveRun]) -> list[dict]:
 
 def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, inits: int = 5,
               sizes: tuple = (TRAIN, VALIDATION, TEST), models=tuple(MODELS), done: list[DecisiveRun] = (),
-              progress=print) -> dict:
+              max_epochs: int | None = None, progress=print) -> dict:
     """Collect every cell's datasets into `data` (once; cells that share data share the files), train and
     evaluate every model on `runner` (`cluster.RunnerConfig`: local processes or Ray; on Ray each dataset
     travels once through the object store); rows in `done` (from an earlier run of the same design) are
-    kept and their models not trained again. Returns {"summary", "runs", "seconds", "reused"}."""
+    kept and their models not trained again. max_epochs: each model's epoch budget (None: the design's, 500;
+    the quick profile's pipeline check trains QUICK_EPOCHS). Returns {"summary", "runs", "seconds", "reused"}."""
     from stdm_drake.cluster import job_pool, shared_file, task_error
     from stdm_drake.files import atomic_path
     if runner.backend == "ray":   # a cluster's workers have the package, not tools/studies: this module's
@@ -293,7 +297,8 @@ def run_study(data: pathlib.Path, runner, *, cells=CELLS, data_seeds: int = 3, i
         progress(f"{len(paths)} datasets in {time.perf_counter() - started:.0f} s")
         # Ray: the bytes once into the object store, a scratch file per node
         sources = {name: (path, *shared_file(pool, path)) for name, path in paths.items()}
-        jobs = {pool.submit(run_job, cell, seed, init, model, sizes, *sources[dataset_name(cell, seed, count)],
+        jobs = {pool.submit(run_job, cell, seed, init, model, sizes, max_epochs,
+                            *sources[dataset_name(cell, seed, count)],
                             *(sources[dataset_name(cell, seed, count, half=True)] if MODELS[model][2] else ())):
                 (cell.name, seed, init, model) for cell, seed, init, model in todo}
         rows = [kept[(cell.name, *rest)] for cell, *rest in wanted if (cell.name, *rest) in kept]
@@ -318,7 +323,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--quick", action="store_true",
                         help="the literal and learned-structure cells, 2 data seeds x 2 inits, 50 trajectories "
-                             "(pipeline check, ~2 min)")
+                             "(pipeline check, 20 epochs per model)")
     parser.add_argument("--resume", action="store_true",
                         help="keep the output folder's rows of the same design; train only the missing models")
     add_runner_arguments(parser)
@@ -328,14 +333,15 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.cluster import runner_config_from_args
     from stdm_drake.files import json_default, rows_csv, write_text_atomic
     runner = runner_config_from_args(args)
-    cells, data_seeds, inits, sizes = CELLS, 3, 5, (TRAIN, VALIDATION, TEST)
+    cells, data_seeds, inits, sizes, max_epochs = CELLS, 3, 5, (TRAIN, VALIDATION, TEST), None
     if args.quick:
-        cells, data_seeds, inits, sizes = (CELLS[0], CELLS[-1]), 2, 2, (10, 10, 20)
+        cells, data_seeds, inits, sizes, max_epochs = (CELLS[0], CELLS[-1]), 2, 2, (10, 10, 20), QUICK_EPOCHS
     design = dict(quick=args.quick, data_seeds=data_seeds, inits=inits,
-                  split=dict(zip(("train", "validation", "test"), sizes)), alpha=ALPHA, horizon=HORIZON)
+                  split=dict(zip(("train", "validation", "test"), sizes)), alpha=ALPHA, horizon=HORIZON,
+                  **({"max_epochs": max_epochs} if args.quick else {}))
     done = earlier_rows(args.output / "results.json", design, cells) if args.resume else []
     study = run_study(args.data, runner, cells=cells, data_seeds=data_seeds, inits=inits, sizes=sizes, done=done,
-                      progress=lambda text: print(text, flush=True))
+                      max_epochs=max_epochs, progress=lambda text: print(text, flush=True))
     summary, rows = study["summary"], study["runs"]
     args.output.mkdir(parents=True, exist_ok=True)
     ratios = ["D_over_DD"] + [f"{control}_over_DD" for control in CONTROLS]
