@@ -371,6 +371,17 @@ def write_issue_25_inputs(box) -> None:
     (box / "illustration_off.yaml").write_text("publish_illustration: false\n"
                                                "default_illustration_color: {rgba: [0.5, 0.5, 0.5, 1]}\n")
     (box / "alpha_unshown.yaml").write_text("initial_proximity_alpha: 0.3\n")
+    # (held-out run 30: a colour channel YAML 1.1 reads as text, five channels; a quaternion in degrees; 101 joints)
+    (box / "rgba_text.yaml").write_text("publish_proximity: true\ndefault_proximity_color: {rgba: [0.5, 1e300, 0.5, 1]}\n")
+    (box / "rgba_five.yaml").write_text("default_illustration_color: {rgba: [0.5, 0.5, 0.5, 1, 1]}\n")
+    (box / "quat_degrees.sdf").write_text(
+        '<sdf version="1.9"><model name="arm"><link name="l1"><inertial><mass>1</mass></inertial></link>'
+        '<link name="l2"><pose rotation_format="quat_xyzw" degrees="true">0 0 0.1 0 0 0 1</pose><inertial><mass>1</mass>'
+        '</inertial></link><joint name="j1" type="revolute"><parent>l1</parent><child>l2</child><axis><xyz>0 0 1</xyz>'
+        '<limit><lower>-1</lower><upper>1</upper><effort>10</effort><velocity>1</velocity></limit></axis></joint>'
+        '</model></sdf>')
+    (box / "chain101.yaml").write_text(ROBOT_TEXT.replace("arm_joints: [", "arm_joints: [" + "".join(
+        f"extra_{i}, " for i in range(95))).replace("home: [", "home: [" + "0.0, " * 95))
     (box / "effort0.urdf").write_text(urdf.replace('effort="330"', 'effort="0"', 1))
     (box / "truncated_arm.urdf").write_text('<robot name="arm"><link name="base"/>')
     (box / "world_truncated.sdf").write_text('<sdf version="1.9"><world name="w"><include><uri>truncated_arm.urdf</uri>'
@@ -1222,11 +1233,12 @@ CASES = [
     (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    ik_damping: 1.0e+300\n"),
      "ik_damping must be in [0, 1]"),
     (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    ik_tolerance: 1.0e+300\n"),
-     "ik_tolerance must be in (0, 0.01]"),
+     "ik_tolerance must be in [1e-12, 1e-2]"),
     (yaml_case("sensor", "position_noise_std: .nan\n"), "sensor position_noise_std must be a number >= 0, got nan"),
     (yaml_case("ctrl", "controller: !Pid\n  bandwidth: [1.0e+300]\n"), "controller bandwidth [1e+300] rad/s sizes a kp"),
     ([*E, "--visualization", "rgba_out.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
-     "default_proximity_color rgba must be numbers in [0, 1], got [2.0, 0, 0, 1]"),
+     "default_proximity_color rgba must be 3 or 4 numbers in [0, 1] (red, green, blue and an optional opacity), got "
+     "[2.0, 0, 0, 1]"),
     ([*E, "--visualization", "illustration_off.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
      "default_illustration_color colours the illustration geometry, which publish_illustration false leaves out"),
     (yaml_case("effects", "measurement_delay: 1.0e-300\n"),
@@ -1238,6 +1250,60 @@ CASES = [
      "winds up 3.3e+302 rad at its motor's effort limit 330 N m, more than half a turn"),
     (yaml_case("effects", "coulomb_friction: [1]\nfriction_ripple: [0.2]\nfriction_ripple_period: [1.0e-300]\n"),
      "friction_ripple_period 1e-300 rad on shoulder_pan_joint passes in under two plant steps"),
+    # (held-out run 30: tolerances finer than double precision, angles and lengths past their meaning, a filter that
+    # never updates, a saturated iCEM decay and one no iteration uses, effects that act on nothing or nothing
+    # resolvable, colours in Drake's words, a quaternion in degrees, a chain beyond the arm budget)
+    (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    ik_tolerance: 1.0e-300\n"),
+     "ik_tolerance must be in [1e-12, 1e-2] (m and rad; finer is below double precision"),
+    (yaml_case("tspec", "protocol: !Tracking\n  planner: !Quintic\n    ik_continuity_tolerance: 1.0e-300\n"),
+     "ik_continuity_tolerance must be in [ik_tolerance (1e-10), pi] rad"),
+    (yaml_case("tspec", "protocol: !Tracking\n  sampling:\n    initial_poses:\n      - {xyz: [0.6, 0.3, 0.4], "
+                        "rpy: [3.14, 0, 0], q_seed: [0, -1.5, 1.5, -1.6, -1.6, 0]}\n"
+                        "    position_offset: [0.1, 1.0e+300, 0.1]\n"),
+     "position_offset must be 3 numbers in [0, 1000] m"),
+    (yaml_case("tspec", "protocol: !Tracking\n  sampling:\n    initial_poses:\n      - {xyz: [0.6, 0.3, 0.4], "
+                        "rpy: [3.14, 1.0e+300, 0], q_seed: [0, -1.5, 1.5, -1.6, -1.6, 0]}\n"),
+     "initial_poses[0].rpy must be 3 numbers within +-1e+09 rad"),
+    (yaml_case("tspec", "protocol: !Tracking\n  sampling:\n    initial_poses:\n      - {xyz: [0.6, 0.3, 0.4], "
+                        "rpy: [3.14, 0, 0], q_seed: [0, -1.5, 7.0, -1.6, -1.6, 0]}\n"),
+     "initial_poses[0].q_seed[2] 7 rad is outside elbow_joint's position limits"),
+    (yaml_case("ctrl", "controller: !Pid\n  bandwidth: [25.0]\n  velocity_filter_time_constant: .inf\n"),
+     "velocity_filter_time_constant must be a finite number >= 0 s, got inf"),
+    (yaml_case("mpc", "optimizer: !Icem {samples: 20, elites: 4, population_decay: 1.0e+300}\n"),
+     "population_decay must be in [1, 2.5] (beyond samples / (2 elites)"),
+    (yaml_case("mpc", "optimizer: !Icem {samples: 20, elites: 4, iterations: 1, population_decay: 2.0}\n"),
+     "!Icem's population_decay acts between iterations, so with iterations: 1 it is ignored"),
+    (yaml_case("effects", "coulomb_friction: [1.0]\ncoulomb_velocity_scale: [1.0e+300]\n"),
+     "coulomb_velocity_scale 1e+300 rad/s on shoulder_pan_joint is wider than the joint's whole speed range"),
+    (yaml_case("effects", "coulomb_friction: [1.0]\nstribeck_friction: [1.5]\nstribeck_velocity: [1.0e+300]\n"),
+     "stribeck_velocity 1e+300 rad/s on shoulder_pan_joint is wider than the joint's whole speed range"),
+    (yaml_case("effects", "rotor_inertia: [0.01]\ngear_ratio: [1.0e-300]\n"),
+     "gear_ratio 1e-300 on shoulder_pan_joint reflects its rotor_inertia 0.01 kg m² as 0 kg m², less than 1e-12"),
+    (yaml_case("effects", "rotor_inertia: [0.0]\ngear_ratio: [50.0]\n"),
+     "gear_ratio acts on nothing: rotor_inertia is 0 on every joint"),
+    (yaml_case("effects", "rotor_inertia: [0.01, 0, 0.01, 0.01, 0.01, 0.01]\ngear_ratio: [50, 50, 50, 50, 50, 50]\n"),
+     "gear_ratio on shoulder_lift_joint, whose rotor_inertia is 0, acts on nothing there"),
+    (yaml_case("effects", "coulomb_friction: [1, 0, 1, 1, 1, 1]\ncoulomb_velocity_scale: [0.05, 0.05, 0.05, 0.05, 0.05, "
+                          "0.05]\n"), "coulomb_velocity_scale on shoulder_lift_joint, whose friction at rest is 0"),
+    (yaml_case("effects", "coulomb_friction: [1.0]\nstribeck_friction: [2, 1, 2, 2, 2, 2]\n"
+                          "stribeck_velocity: [0.2, 0.2, 0.2, 0.2, 0.2, 0.2]\n"),
+     "stribeck_velocity on shoulder_lift_joint, whose stribeck_friction above coulomb_friction is 0"),
+    (yaml_case("effects", "actuator_time_constant: [1.0e-300]\n"),
+     "actuator_time_constant 1e-300 s on shoulder_pan_joint decays below double precision within one plant step"),
+    (yaml_case("effects", "mass_scale: {forearm_link: 1.0e-300}\n"),
+     "mass_scale 1e-300 of forearm_link makes it 4.27e-300 kg, less than 1e-06 kg: no body"),
+    (yaml_case("effects", "payload: {mass: 1.0, center_of_mass: [0, 0, 1.0e+300]}\n"),
+     "payload center_of_mass must be 3 numbers within +-100 m of its frame"),
+    ([*E, "--visualization", "rgba_text.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "default_proximity_color rgba must be 3 or 4 numbers in [0, 1] (red, green, blue and an optional opacity), got "
+     "[0.5, '1e300', 0.5, 1]"),
+    ([*E, "--visualization", "rgba_five.yaml", "--html", "NEW.html", "-o", "NEW.h5"],
+     "default_illustration_color rgba must be 3 or 4 numbers in [0, 1]"),
+    (["robot", "init", "quat_degrees.sdf", "-o", "NEW.yaml"],
+     "its <pose> states degrees true with rotation_format quat_xyzw, which SDFormat refuses"),
+    ([*E, "--robot", "chain101.yaml", "-o", "NEW.h5"], "its config names 101 arm joints; an arm here has at most 100"),
+    (["identify", "DATA", "-o", "NEW.yaml", "--velocity-scales", "0.05", "5"],
+     "--velocity-scales 5 rad/s is wider than shoulder_pan_joint's whole speed range (velocity limit 2.0944 rad/s)"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

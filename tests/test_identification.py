@@ -272,3 +272,25 @@ def test_the_summary_says_what_its_torque_errors_mean_and_when_the_description_i
     report["test"].update(torque_error=0.5)
     assert "warning: the identified robot predicts the test torques no better than the description (0.5 against " \
         "0.45)" in report_summary(report)
+
+
+def test_a_light_joint_with_viscous_friction_identifies_with_its_coulomb_friction_held_at_zero(tmp_path, capsys):
+    """Held-out run 30: on a plant with 5 N m s/rad of viscous friction on every joint (a term the identified model
+    holds) the fit shared the light wrist's damping between viscous and Coulomb friction, whose explicit term the
+    plant step cannot integrate there, so every candidate was refused. That joint's Coulomb friction is now held at 0
+    and the fit refitted; the summary names the joint, and the identified viscous friction of the heavy joints is the
+    plant's."""
+    (tmp_path / "e.yaml").write_text("viscous_friction: [5.0]\n")
+    data = tmp_path / "d.h5"
+    assert main(["collect", "--protocol", "excitation", "--count", "5", "--quiet", "--plant-effects",
+                 str(tmp_path / "e.yaml"), "-o", str(data)]) == 0
+    capsys.readouterr()
+    assert main(["identify", str(data), "-o", str(tmp_path / "i.yaml"), "--train", "3", "--val", "1", "--test", "1",
+                 "--quiet"]) == 0
+    out = capsys.readouterr().out
+    report = json.loads((tmp_path / "i.json").read_text())
+    held = report["chosen"]["coulomb_held_at_zero"]
+    assert "wrist_3_joint" in held and f"Coulomb friction held at 0 on {', '.join(held)}" in out
+    assert report["truth"]["joints"]["viscous"]["identified"][:3] == pytest.approx([5.0] * 3, rel=1e-3)
+    coulomb = dict(zip(UR10.joint_names, report["truth"]["joints"]["coulomb"]["identified"]))
+    assert all(coulomb[joint] == 0 for joint in held)

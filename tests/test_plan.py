@@ -449,7 +449,7 @@ def test_planners_are_tagged_and_the_old_kind_layout_loads_with_a_warning(tmp_pa
     ("planner: {kind: quintic\n", r"malformed tracking spec: while parsing a flow mapping"),
     ("- 1\n- 2\n", r"malformed tracking spec: YAML root was a <class 'list'>"),
     ("", r"malformed tracking spec"),
-    ("sampling:\n  initial_poses:\n    - xyz: [1, 2]\n", r"sampling: initial_poses\[0\]\.xyz must be 3 finite numbers"),
+    ("sampling:\n  initial_poses:\n    - xyz: [1, 2]\n", r"sampling: initial_poses\[0\]\.xyz must be 3 numbers within \+-1000 m"),
     ("planner:\n  acceleration_limits: [1, 2]\n", r"planner: planner acceleration_limits has 2 values; the robot has 6 joints"),
 ])
 def test_malformed_spec_is_an_input_error_naming_the_file(tmp_path, text, message):

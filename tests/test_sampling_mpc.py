@@ -224,7 +224,7 @@ def test_colored_noise_has_unit_variance_and_more_low_frequency_power():
     ("horizon: '20'\n", "horizon is '20' in quotes, not a number"),
     ("position_weight: [1.0e4, '10']\n", "position_weight is '10' in quotes"),
     ("optimizer: !Mppi {propagation: mean, variance_weight: 1.0}\n", "optimizer !Mppi's variance_weight needs `propagation: ts1`"),
-    ("optimizer: !Icem {population_decay: 0.5}\n", "population_decay must be >= 1"),
+    ("optimizer: !Icem {population_decay: 0.5}\n", "population_decay must be in [1, 5]"),
     ("optimizer: !Pets {}\n", "unknown optimizer !Pets; the MPC's optimizers are !Rti, !Ilqr, !Icem, !Mppi, !Cem"),
     ("optimizer: !Ilqr {line_search: [" + ", ".join(["0.5"] * 31) + "]}\n", "line_search lists 31 steps, at most 30"),
 ])

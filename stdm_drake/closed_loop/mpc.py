@@ -1,15 +1,14 @@
 """Model predictive control of a robot arm (any robot config: the UR-10 by default), any prediction model.
 
 The optimizer is a tagged value of the settings (`optimizer: !Rti {...}` in controllers/mpc.yaml; the Union
-`OptimizerConfig` lists those a file may name, each settings class builds its solver): the default is the
-real-time iteration (`rti.Rti`: one multiple-shooting Gauss-Newton step per control step on the model's
-Jacobians, every node linearized in one batched call, in C++ by default: `compiled`); the iLQR (`ilqr.Ilqr`:
-single shooting with a line search) and the sampling optimizers iCEM, MPPI and CEM (`sampling`) are the others;
-any `optimizer.TrajectoryOptimizer` can replace them. The gradient-based default: the learned models are smooth,
-their Jacobians cost one pass, and derivative training is what makes those Jacobians right, so the controller
-uses what the method improves; the sampling optimizers need no Jacobian and serve models without one (how they
-compare on learned models: docs/sampling_mpc.md); and the plant itself serves as the reference model (its
-continuous dynamics in RK4 steps with exact Jacobians, `PlantModel(integrator="rk4")`).
+`OptimizerConfig` lists those a file may name, each settings class builds its solver): the default is the real-time
+iteration (`rti.Rti`: one multiple-shooting Gauss-Newton step per control step on the model's Jacobians, every node
+linearized in one batched call, in C++ by default: `compiled`); the iLQR (`ilqr.Ilqr`: single shooting with a line
+search) and the sampling optimizers iCEM, MPPI and CEM (`sampling`) are the others; any `optimizer.TrajectoryOptimizer`
+can replace them. The gradient-based default: the learned models are smooth, their Jacobians cost one pass, and
+derivative training is what makes those Jacobians right, so the controller uses what the method improves; the sampling
+optimizers need no Jacobian and serve models without one (how they compare on learned models: docs/sampling_mpc.md); and
+the plant itself is the reference model (its dynamics in RK4 steps, exact Jacobians: `PlantModel(integrator="rk4")`).
 
 Cost over the horizon H (k = 0..H-1, reference r from a planner, u_ff = g(q_ref) the static
 gravity torque at the reference):
@@ -21,20 +20,19 @@ constraints of every optimizer's problem (`constraints`: the settings' `constrai
 solve; by default one iteration per control step (the real-time iteration: with the warm start, more
 iterations changed the closed-loop tracking by less than 0.5 %).
 
-Offset-free MPC: every prediction over the horizon is shifted by a disturbance estimate d, the
-model's latest one-step error x_k - f(x_k-1, u_k-1) (filtered by `disturbance_gain`), so a model's
-slowly varying bias does not become a tracking error. For the plant as model d is ~0.
+Offset-free MPC: every prediction over the horizon is shifted by a disturbance estimate d, the model's latest one-step
+error x_k - f(x_k-1, u_k-1) (filtered by `disturbance_gain`), so a model's slowly varying bias does not become a
+tracking error. For the plant as model d is ~0.
 
-Every prediction model is a `DynamicsModel` (`dynamics.model`) with its `sample_period` (s); the
-optimizers call its one-row `step_single` and its batched `linearize(x (H, 2n), u (H, m)) -> (x_next (H, 2n),
-A (H, 2n, 2n), B (H, 2n, m))`; a model with only `step` and `jacobians` gets both from those.
+Every prediction model is a `DynamicsModel` (`dynamics.model`) with its `sample_period` (s); the optimizers call its
+one-row `step_single` and its batched `linearize(x (H, 2n), u (H, m)) -> (x_next (H, 2n), A (H, 2n, 2n), B (H, 2n, m))`;
+a model with only `step` and `jacobians` gets both from those.
 
-Modules: the tracking cost and the optimizer interfaces (`optimizer`), the robot's limits as constraints and
-their QPs (`constraints`), the optimizers and their settings
-(`rti`, `compiled`, `ilqr`, `sampling`), these settings, this controller and its closed loop (here), the comparison of prediction
-models (`comparison`), the setting each model is tuned to (`tuning`) and the study `stdm-drake mpc` runs
-(`study`); the plant as a prediction model is `dynamics.physics.PlantModel`.
-"""
+Modules: the tracking cost and the optimizer interfaces (`optimizer`), the robot's limits as constraints and their QPs
+(`constraints`), the optimizers and their settings (`rti`, `compiled`, `ilqr`, `sampling`), these settings, this
+controller and its closed loop (here), the comparison of prediction models (`comparison`), the setting each model is
+tuned to (`tuning`) and the study `stdm-drake mpc` runs (`study`); the plant as a prediction model is
+`dynamics.physics.PlantModel`."""
 import dataclasses
 import inspect
 import pathlib
@@ -200,6 +198,8 @@ def _check_optimizer_layout(path) -> None:
     settings = document.get("optimizer") if tag in SAMPLER_TAGS else None
     ignored = [key for key in ("particles", "variance_weight") if key in settings] if isinstance(settings, dict) and \
         settings.get("propagation", "mean") == "mean" else []
+    if tag == "Icem" and isinstance(settings, dict) and "population_decay" in settings and settings.get("iterations") == 1:
+        raise InputError(f"{path}: !Icem's population_decay acts between iterations, so with iterations: 1 it is ignored")
     if ignored:
         raise InputError(f"{path}: optimizer !{tag}'s {' and '.join(ignored)} {'need' if len(ignored) > 1 else 'needs'} "
                          "`propagation: ts1` or `tsinf`; with `propagation: mean` each sample rolls out one particle (the "

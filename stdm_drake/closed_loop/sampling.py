@@ -10,8 +10,8 @@ horizon step (`sampled_costs.SampledCosts`), no Python loop per sample. How the 
   "ts1"    as tsinf, but the particles are shuffled among the members at every step (TS1).
 A sample's cost is the tracking cost (`optimizer.TrackingCost`) averaged over its particles, plus
 `variance_weight` times the Q-weighted spread of its particles, sum_k w_k tr(Q Var_k): 1 is as much again as
-the spread already costs inside the average (the average is the cost of the particles' mean plus that
-spread), more makes the controller avoid states the model is unsure of.
+the spread already costs inside the average (the average is the cost of the particles' mean plus that spread), more
+makes the controller avoid states the model is unsure of.
 
 What is sampled: residual joint accelerations (rad/s^2, `noise_std` their spread) on top of an ancillary
 control law that every rollout, sampled or applied, runs on its own state: the computed-torque law in the
@@ -33,8 +33,7 @@ model's Gaussian draws come from the device's own generator: the same in distrib
 paper's black box (`LearnedModel.torch_particles`); a model without a PyTorch particle step (a structured
 network, whose inputs need Drake's nominal model, or the plant) is refused with `framework: torch`.
 
-Shapes for n joints, m actuated, horizon H, K samples, P particles, state S = 2n: torques (K, H, m) N m.
-"""
+Shapes for n joints, m actuated, horizon H, K samples, P particles, state S = 2n: torques (K, H, m) N m."""
 
 import dataclasses
 
@@ -312,8 +311,10 @@ class Icem(SamplingSettings):
     def validate(self) -> None:
         super().validate()
         check_elites(self)
-        if not (np.isfinite(self.population_decay) and self.population_decay >= 1):
-            raise InputError(f"{self.tag()} population_decay must be >= 1, got {self.population_decay}")
+        top = max(self.samples / (2 * self.elites), 1.0) if self.iterations > 1 else np.inf   # (beyond: at the floor)
+        if not (np.isfinite(self.population_decay) and 1 <= self.population_decay <= top):
+            raise InputError(f"{self.tag()} population_decay must be in [1, {top:g}] (beyond samples / (2 elites) the "
+                             f"population is at its floor of 2 x elites after one iteration), got {self.population_decay}")
         if not (np.isfinite(self.colored_noise_exponent) and 0 <= self.colored_noise_exponent <= 10):
             raise InputError(f"{self.tag()} colored_noise_exponent must be in [0, 10], got {self.colored_noise_exponent}")
         if not 0 <= self.keep_elites <= 1:

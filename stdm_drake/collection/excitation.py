@@ -152,5 +152,7 @@ def excitation_trajectory(rig: Station, config: Excitation, rng: np.random.Gener
         key = reason.split(" at step")[0]
         reasons[key] = reasons.get(key, 0) + 1
     summary = ", ".join(f"{name} x{count}" for name, count in sorted(reasons.items(), key=lambda item: -item[1]))
-    raise InputError(f"excitation: no trajectory within limits after {config.max_attempts} attempts "
-                     f"({summary}); lower the torque ranges")
+    hint = "lower the torque ranges"
+    if config.velocity_fraction < 1 and any("velocity limit" in name for name in reasons):
+        hint += f" or raise velocity_fraction ({config.velocity_fraction:g} of each velocity limit)"
+    raise InputError(f"excitation: no trajectory within limits after {config.max_attempts} attempts ({summary}); {hint}")

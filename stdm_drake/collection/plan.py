@@ -14,7 +14,8 @@ from stdm_drake.robots.kinematics import RobotKinematics, pose_text, rotation_ex
 from stdm_drake.collection.planner_configs import PlannerConfig, Quintic
 from stdm_drake.collection.planners import PlannedTrajectory, plan_trajectory, quintic_shortest_times
 from stdm_drake.config import require
-from stdm_drake.errors import PlanningError
+from stdm_drake.errors import InputError, PlanningError
+from stdm_drake.robots.plant import robot_joint_limits
 from stdm_drake.robots.robot import Robot
 
 logger = logging.getLogger(__name__)
@@ -22,6 +23,8 @@ logger = logging.getLogger(__name__)
 # One plan's steps: a plan is seconds of motion (100 steps in the paper); 100,000 steps are 1,000 s at the default
 # 10 ms, and a plan of 1e7 steps (28 hours) planned and simulated for minutes without a line. More data is more plans.
 MAX_PLAN_STEPS = 100_000
+MAX_REACH = 1000.0   # m: a pose or an offset beyond a kilometre (no arm reaches it)
+MAX_ANGLE = 1e9      # rad: beyond, a double holds no fraction of a turn (as the excitation's phases)
 # Redraws of a rejected goal pose: a goal box from which 1,000 draws are all unreachable or in collision is one to
 # move, not to draw from again (1e9 redraws of an unreachable box went on for minutes, a line per draw)
 MAX_RESAMPLE_ATTEMPTS = 1_000
@@ -68,24 +71,35 @@ class TaskSpaceSamplingConfig:
 
     def for_robot(self, robot: Robot) -> "TaskSpaceSamplingConfig":
         """This config after checking each IK seed has one position per arm joint of `robot`."""
+        limits = robot_joint_limits(robot)
         for index, pose in enumerate(self.initial_poses):
             require(len(pose.q_seed) == robot.num_joints,
                     f"initial_poses[{index}].q_seed must have {robot.num_joints} positions (robot {robot.name})",
                     pose.q_seed)
+            outside = (np.asarray(pose.q_seed) < limits.position_lower) | (np.asarray(pose.q_seed) > limits.position_upper)
+            if np.any(outside):   # (the IK starts from a pose the arm cannot take)
+                joint = int(np.argmax(outside))
+                raise InputError(f"initial_poses[{index}].q_seed[{joint}] {pose.q_seed[joint]:g} rad is outside "
+                                 f"{robot.joint_names[joint]}'s position limits [{limits.position_lower[joint]:g}, "
+                                 f"{limits.position_upper[joint]:g}] rad: no pose the IK can start from")
         return self
 
     def validate(self) -> None:
         """Raise InputError (one line) on a malformed configuration."""
         require(len(self.initial_poses) >= 1, "initial_poses must list at least one pose",
                  len(self.initial_poses))
+        # (bounds past which a number means nothing here: no arm reaches a kilometre, and beyond 1e9 rad a double
+        # holds no fraction of a turn)
         for index, pose in enumerate(self.initial_poses):
-            for name, size in (("xyz", 3), ("rpy", 3), ("q_seed", None)):
+            for name, size, bound, unit in (("xyz", 3, MAX_REACH, "m"), ("rpy", 3, MAX_ANGLE, "rad"),
+                                            ("q_seed", None, MAX_ANGLE, "rad")):
                 values = getattr(pose, name)
-                require(len(values) == (size or len(values)) and len(values) and all(math.isfinite(v) for v in values),
-                         f"initial_poses[{index}].{name} must be {size or 'joint-count'} finite numbers", values)
-        require(len(self.position_offset) == 3 and all(
-            math.isfinite(v) and v >= 0 for v in self.position_offset),
-            "position_offset must be 3 non-negative numbers (m)", self.position_offset)
+                require(len(values) == (size or len(values)) and len(values) and all(abs(v) <= bound for v in values),
+                        f"initial_poses[{index}].{name} must be {size or 'joint-count'} numbers within +-{bound:g} "
+                        f"{unit}", values)
+        require(len(self.position_offset) == 3 and all(0 <= v <= MAX_REACH for v in self.position_offset),
+                f"position_offset must be 3 numbers in [0, {MAX_REACH:g}] m (no arm reaches farther)",
+                self.position_offset)
         require(0.0 <= self.orientation_max_angle <= math.pi,
                  "orientation_max_angle must be in [0, pi] rad", self.orientation_max_angle)
         require(self.num_final_per_initial >= 1, "num_final_per_initial must be >= 1",

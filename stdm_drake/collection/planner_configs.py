@@ -79,9 +79,12 @@ class PlannerLimits:
                     f"{name} must be numbers in [{MIN_LIMIT:g}, {MAX_LIMIT:g}] (one per joint, or one for all)", values)
         # (beyond these bounds a plan is not the plan: an IK a centimetre off, a jump of more than half a turn between
         # samples, a damping that stops the IK's steps, joint speeds a million times the tool's near a singularity)
-        for name, largest, unit in (("ik_tolerance", 1e-2, " (m and rad)"), ("ik_continuity_tolerance", math.pi, " rad")):
-            value = getattr(self, name)
-            require(0 < value <= largest, f"{name} must be in (0, {largest:g}]{unit}", value)
+        # (and below 1e-12 m or rad double precision at an arm's scale, which no IK meets; a continuity tolerance finer
+        # than the IK's own flags every sample)
+        require(1e-12 <= self.ik_tolerance <= 1e-2, "ik_tolerance must be in [1e-12, 1e-2] (m and rad; finer is "
+                "below double precision at an arm's scale)", self.ik_tolerance)
+        require(self.ik_tolerance <= self.ik_continuity_tolerance <= math.pi, f"ik_continuity_tolerance must be in "
+                f"[ik_tolerance ({self.ik_tolerance:g}), pi] rad", self.ik_continuity_tolerance)
         require(0 <= self.ik_damping <= 1.0, "ik_damping must be in [0, 1]", self.ik_damping)
         require(self.ik_max_iterations >= 1, "ik_max_iterations must be >= 1", self.ik_max_iterations)
         require(1 < self.max_jacobian_condition <= 1e6, "max_jacobian_condition must be in (1, 1e6]",

@@ -176,7 +176,7 @@ def _ik_step(kinematics: RobotKinematics, line: _TaskLine, s: float, q_predicted
     j = int(np.argmax(jump))
     if jump[j] > config.ik_continuity_tolerance:
         raise PlanningError(f"{label}: IK discontinuity {where}: {kinematics.joint_names[j]} jumps {jump[j]:.4f} rad "
-                            f"from its prediction (> {config.ik_continuity_tolerance} rad; branch switch)")
+                            f"from its prediction (> ik_continuity_tolerance {config.ik_continuity_tolerance:g} rad; branch switch)")
     return q
 
 

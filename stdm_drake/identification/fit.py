@@ -163,10 +163,11 @@ def least_squares(rows: np.ndarray, target: np.ndarray, tolerance: float = 1e-9)
 
 
 def consistent_fit(rows: np.ndarray, target: np.ndarray, prior: np.ndarray, num_links: int,
-                   regularization: float, minimum_mass: float = 1e-6) -> np.ndarray:
+                   regularization: float, minimum_mass: float = 1e-6, zero=()) -> np.ndarray:
     """Parameters (P,) minimizing ‖rows pi − target‖² / M + lambda ‖s ⊙ (pi − prior)‖² (s: `column_scales`,
     lambda: `regularization` >= 0) with each of the `num_links` links' pseudo-inertia PSD and mass >=
-    `minimum_mass` kg, and the 3n joint parameters after them >= 0. InputError when the solver fails."""
+    `minimum_mass` kg, the 3n joint parameters after them >= 0, and the parameters of indices `zero` 0.
+    InputError when the solver fails."""
     from pydrake.solvers import ClarabelSolver, MathematicalProgram
     if not (np.isfinite(regularization) and regularization >= 0):
         raise InputError(f"regularization must be a finite number >= 0, got {regularization}")
@@ -188,6 +189,8 @@ def consistent_fit(rows: np.ndarray, target: np.ndarray, prior: np.ndarray, num_
         program.AddLinearConstraint(z[10 * link] >= minimum_mass * scale[10 * link])
     joints = np.arange(10 * num_links, count)
     program.AddBoundingBoxConstraint(0.0, np.inf, z[joints])
+    if len(zero):
+        program.AddBoundingBoxConstraint(0.0, 0.0, z[np.asarray(zero, dtype=int)])
     result = ClarabelSolver().Solve(program)
     if not result.is_success():
         raise InputError(f"the physically consistent fit failed ({result.get_solution_result()}); the data may not "
@@ -196,6 +199,7 @@ def consistent_fit(rows: np.ndarray, target: np.ndarray, prior: np.ndarray, num_
     for link in range(num_links):   # onto the constraints exactly (the solver meets them to its tolerance)
         solution[10 * link:10 * link + 10] = nearest_physical(solution[10 * link:10 * link + 10])
     solution[joints] = np.maximum(solution[joints], 0.0)
+    solution[np.asarray(zero, dtype=int)] = 0.0
     return solution
 
 

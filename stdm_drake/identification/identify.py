@@ -77,11 +77,26 @@ def usable_windows(dataset, split, settings: IdentifySettings, given: bool = Fal
     return windows
 
 
-def _stable(scale: float, parameters: np.ndarray, regressor, robot, time_step: float) -> bool:
-    """Whether the identified Coulomb term of velocity scale `scale` is stable at the plant step."""
+def _unstable_joints(scale: float, parameters: np.ndarray, regressor, robot, time_step: float) -> np.ndarray:
+    """The joints (indices) whose identified Coulomb term of velocity scale `scale` is unstable at the plant step."""
     from stdm_drake.robots.plant import coulomb_stability_gains
     gains = coulomb_stability_gains(_effects(parameters, regressor, scale, ""), robot, time_step)
-    return gains is None or bool(np.all(gains <= 1.0))
+    return np.zeros(0, dtype=int) if gains is None else np.flatnonzero(gains > 1.0)
+
+
+def _stable_fit(rows, target, prior, regressor, robot, time_step: float, scale: float, regularization: float):
+    """(parameters, the joints whose Coulomb friction is held at 0): the consistent fit, refitted with the Coulomb
+    friction of each joint whose explicit Coulomb term the plant step cannot integrate held at 0 (there the data cannot
+    tell it from viscous friction: on a light joint with viscous friction and no Coulomb friction, the fit shares the
+    one between both), until none is unstable."""
+    n, offset, zero = regressor.num_joints, 10 * len(regressor.links), np.zeros(0, dtype=int)
+    while True:
+        parameters = consistent_fit(rows, target, prior, len(regressor.links), regularization,
+                                    zero=offset + n + zero)
+        unstable = _unstable_joints(scale, parameters, regressor, robot, time_step)
+        if not len(unstable) or set(unstable) <= set(zero):
+            return parameters, zero
+        zero = np.union1d(zero, unstable)
 
 
 def _effects(parameters: np.ndarray, regressor: InverseDynamicsRegressor, scale: float, source: str):
@@ -93,12 +108,25 @@ def _effects(parameters: np.ndarray, regressor: InverseDynamicsRegressor, scale:
                         link_inertia={link: link_inertia(parameters[10 * k:10 * k + 10]) for k, link in enumerate(links)})
 
 
+def check_velocity_scales(settings: IdentifySettings, robot) -> None:
+    """InputError (one line) where a Coulomb velocity scale is wider than an arm joint's whole speed range (its
+    velocity limit): there the friction would never reach its level (the plant effects' own rule)."""
+    from stdm_drake.robots.plant import robot_joint_limits
+    speed = robot_joint_limits(robot).velocity
+    if max(settings.velocity_scales) > speed.min():
+        joint = int(np.argmin(speed))
+        raise InputError(f"identify: --velocity-scales {max(settings.velocity_scales):g} rad/s is wider than "
+                         f"{robot.joint_names[joint]}'s whole speed range (velocity limit {speed[joint]:g} rad/s), so its "
+                         f"Coulomb friction would never reach its level; give scales of at most {speed[joint]:g}")
+
+
 def identify(dataset, robot, split, settings: IdentifySettings | None = None, announce=lambda line: None):
     """(IdentifiedRobot, report dict) of `dataset` (of `robot`) with `split` (train / val / test indices)."""
     settings = settings or IdentifySettings()
     settings.validate()
     if not len(split.train) or not len(split.val):
         raise InputError("identify needs training and validation trajectories")
+    check_velocity_scales(settings, robot)
     source = settings.derivative_source
     regressor = InverseDynamicsRegressor(robot)
     prior = regressor.parameters()
@@ -113,25 +141,22 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
             for regularization in settings.regularizations:
                 setting = dict(window=window, velocity_scale=scale, regularization=regularization)
                 try:
-                    parameters = consistent_fit(rows, target, prior, len(regressor.links), regularization)
+                    parameters, zero = _stable_fit(rows, target, prior, regressor, robot, time_step, scale,
+                                                   regularization)
                 except InputError as error:
                     candidates.append(dict(setting, val_torque_error=None, skipped=str(error)))
                     continue
-                if not _stable(scale, parameters, regressor, robot, time_step):
-                    candidates.append(dict(setting, val_torque_error=None,
-                                           skipped="Coulomb term unstable at the plant step"))
-                    continue
                 error = relative_torque_error(val.predicted_torque(regressor, parameters, scale), val.torque)[0]
-                candidates.append(dict(setting, val_torque_error=error))
+                candidates.append(dict(setting, val_torque_error=error,
+                                       coulomb_held_at_zero=[robot.joint_names[j] for j in zero]))
                 if best is None or error < best[0]:
-                    best = (error, window, scale, regularization, parameters, train)
+                    best = (error, window, scale, regularization, parameters, train, candidates[-1]["coulomb_held_at_zero"])
         announce(f"identify: window {window or '-'}: best validation torque error so far "
                  f"{best[0] if best else float('nan'):.3g}")
     if best is None:
         raise InputError("identify: no candidate setting gave a usable fit (" + "; ".join(
-            sorted({candidate["skipped"] for candidate in candidates})) + "); larger --velocity-scales make the "
-            "Coulomb term stable")
-    val_error, window, scale, regularization, parameters, train = best
+            sorted({candidate["skipped"] for candidate in candidates})) + ")")
+    val_error, window, scale, regularization, parameters, train, held = best
     rows, target = train.system(regressor, scale)
     ordinary = least_squares(rows, target)
     report = dict(written_by="stdm-drake identify", robot=robot.name, dataset=str(dataset.path),
@@ -139,7 +164,8 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
                   split={key: [int(i) for i in value] for key, value in split.as_dict().items()},
                   samples_train=int(len(target) // regressor.num_joints), parameters=list(regressor.names),
                   links=list(regressor.links), candidates=candidates,
-                  chosen=dict(velocity_scale=scale, regularization=regularization, val_torque_error=val_error),
+                  chosen=dict(velocity_scale=scale, regularization=regularization, val_torque_error=val_error,
+                              coulomb_held_at_zero=held),
                   least_squares=dict(base_parameters=int(len(ordinary.base)), condition_number=ordinary.condition,
                                      residual_std=ordinary.residual_std,
                                      base=[regressor.names[i] for i in ordinary.base],

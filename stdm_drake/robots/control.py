@@ -54,8 +54,8 @@ class JointGains:
         return []
 
     def validate(self) -> None:
-        if not self.velocity_filter_time_constant >= 0:
-            raise InputError("controller velocity_filter_time_constant must be >= 0 s, "
+        if not (np.isfinite(self.velocity_filter_time_constant) and self.velocity_filter_time_constant >= 0):
+            raise InputError("controller velocity_filter_time_constant must be a finite number >= 0 s, "
                              f"got {self.velocity_filter_time_constant}")
         check_joint_vector("controller dither_std", self.dither_std, nonnegative=True)
         given = [name for name in ("kp", "ki", "kd") if getattr(self, name)]

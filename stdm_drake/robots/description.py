@@ -19,6 +19,9 @@ from stdm_drake.robots.xml_file import ASCII_SPACE, UnreadNumber, WrongCount, ch
 
 MOVABLE = ("revolute", "continuous", "prismatic")
 SUFFIXES = (".urdf", ".sdf")    # the descriptions Drake's parsers read, and these checks with them
+# movable joints of one arm: `robot init`'s home search took 47 s for 3000, and Drake's contact solver does not converge
+# on a 101-joint chain's plant
+MAX_ARM_JOINTS = 100
 
 
 @dataclasses.dataclass
@@ -322,6 +325,9 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
     description read; a file that is not well-formed XML or declares entities is refused (`read_description`, which
     follows the SDF includes of `packages`, the robot config's package_paths, too)."""
     where = f"robot {robot}: {path.name}"
+    if len(arm_joints) > MAX_ARM_JOINTS:   # (before any work that grows with them; `robot init` refuses the same)
+        raise InputError(f"robot {robot}: its config names {len(arm_joints)} arm joints; an arm here has at most "
+                         f"{MAX_ARM_JOINTS} (a humanoid's limbs are several arms: describe one)")
     try:
         description = read_description(path, packages=packages)
     except InputError as error:

@@ -5,7 +5,13 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots.effect_systems import plant_steps
-from stdm_drake.robots.effects import PlantEffects
+from stdm_drake.robots.effects import MIN_MASS, PlantEffects
+
+# kg m²: a milligram a millimetre from its axis, the smallest reflected rotor inertia G² I_r that is a motor (below,
+# e.g. a gear ratio of 1e-300, it adds nothing to the joint)
+MIN_REFLECTED_INERTIA = MIN_MASS * 1e-6
+# h / T beyond which a first-order lag exp(-h / T) is below double precision (2^-53) within one plant step h
+UNRESOLVED_LAG = 53 * np.log(2.0)
 
 
 def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, limits) -> None:
@@ -21,17 +27,53 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
         if getattr(effects, name) > 0:
             plant_steps(effects, name, time_step)
     ripple, coulomb = effects.joint_values("friction_ripple", n), effects.joint_values("coulomb_friction", n)
-    period = effects.joint_values("friction_ripple_period", n)
+    period, rotor = effects.joint_values("friction_ripple_period", n), effects.joint_values("rotor_inertia", n)
+    stribeck = effects.stribeck(n)
+    above_coulomb = stribeck[0] - coulomb if stribeck is not None else np.zeros(n)
+    at_rest = effects.friction_at_rest(n)   # (the breakaway where Stribeck friction is on: tanh(v / v_s) shapes it too)
     for field, companion, values in (("friction_ripple", "coulomb_friction", coulomb),
                                      ("transmission_damping", "transmission_stiffness",
                                       effects.joint_values("transmission_stiffness", n)),
-                                     ("friction_ripple_period", "friction_ripple", ripple * (coulomb > 0))):
-        # (a per-joint list's value where its companion is 0; one value for all joints applies where it can)
-        idle = (effects.joint_values(field, n) > 0) & (values <= 0) if len(getattr(effects, field)) > 1 else False
-        if np.any(idle):
+                                     ("friction_ripple_period", "friction_ripple", ripple * (coulomb > 0)),
+                                     ("gear_ratio", "rotor_inertia", rotor),
+                                     ("coulomb_velocity_scale", "friction at rest", at_rest),
+                                     ("stribeck_velocity", "stribeck_friction above coulomb_friction", above_coulomb)):
+        # (a per-joint list's value where its companion is 0; one value for all joints applies where it can, and
+        # acts on nothing where its companion is 0 on every joint: a gear ratio beside rotor inertias all 0)
+        given = effects.joint_values(field, n) > 0 if getattr(effects, field) else np.zeros(n, bool)
+        idle = given & (values <= 0) if len(getattr(effects, field)) > 1 or field == "gear_ratio" else False
+        if np.any(idle) and (len(getattr(effects, field)) > 1 or np.all(idle)):
             joint = robot.joint_names[int(np.argmax(idle))]
             raise InputError(f"plant effects {field} on {joint}, whose {companion} is 0, acts on nothing there, so it "
-                             "would be ignored; give it 0 on that joint")
+                             "would be ignored; give it 0 on that joint" if len(getattr(effects, field)) > 1 else
+                             f"plant effects {field} acts on nothing: {companion} is 0 on every joint, so it would be "
+                             "ignored; leave it out")
+    # (a gear ratio that makes a motor's reflected inertia vanish; a rotor inertia itself below the floor, as a fit
+    # leaves one that is 0 to its solver's tolerance, adds nothing and loads)
+    reflected = effects.joint_values("gear_ratio", n) ** 2 * rotor if effects.gear_ratio else rotor
+    faint = (rotor >= MIN_REFLECTED_INERTIA) & (reflected < MIN_REFLECTED_INERTIA)
+    if np.any(faint):
+        joint = int(np.argmax(faint))
+        raise InputError(f"plant effects gear_ratio {effects.joint_values('gear_ratio', n)[joint]:g} on "
+                         f"{robot.joint_names[joint]} reflects its rotor_inertia {rotor[joint]:g} kg m² as "
+                         f"{reflected[joint]:g} kg m², less than {MIN_REFLECTED_INERTIA:g} kg m² (a milligram a "
+                         "millimetre from its axis): no motor; give the gear ratio it has")
+    for field, acting, what in (("coulomb_velocity_scale", at_rest > 0, "its torque would never reach coulomb_friction"),
+                                ("stribeck_velocity", above_coulomb > 0, "the breakaway would reach past it")):
+        width = effects.joint_values(field, n)
+        wide = acting & (width > limits.velocity)
+        if np.any(wide):
+            joint = int(np.argmax(wide))
+            raise InputError(f"plant effects {field} {width[joint]:g} rad/s on {robot.joint_names[joint]} is wider "
+                             f"than the joint's whole speed range (velocity limit {limits.velocity[joint]:g} rad/s): "
+                             f"{what}; give at most {limits.velocity[joint]:g} rad/s")
+    lag = effects.joint_values("actuator_time_constant", n) if effects.actuator_time_constant else np.zeros(n)
+    unresolved = (lag > 0) & (time_step > UNRESOLVED_LAG * lag)
+    if np.any(unresolved):
+        joint = int(np.argmax(unresolved))
+        raise InputError(f"plant effects actuator_time_constant {lag[joint]:g} s on {robot.joint_names[joint]} decays "
+                         f"below double precision within one plant step of {time_step:g} s, so the plant shows no lag; "
+                         f"give 0 for none, or at least {time_step / UNRESOLVED_LAG:.3g} s")
     acting = (ripple > 0) & (coulomb > 0)
     if effects.friction_ripple_period and np.any(acting & (period <= 0)):
         joint = robot.joint_names[int(np.argmax(acting & (period <= 0)))]

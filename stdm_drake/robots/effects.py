@@ -46,8 +46,8 @@ class RigidInertia:
                 f"{what} mass must be 0 (none) or at least {MIN_MASS:g} kg", self.mass)
         check_effect_bound(f"{what} mass", np.array([self.mass]), "mass")
         require(self.mass > 0 or not any(self.inertia), f"{what} inertia needs a mass > 0", self.inertia)
-        require(len(self.center_of_mass) == 3 and np.all(np.isfinite(self.center_of_mass)),
-                f"{what} center_of_mass must be 3 finite numbers (m)", self.center_of_mass)
+        require(len(self.center_of_mass) == 3 and np.all(np.abs(self.center_of_mass) <= 100.0), f"{what} center_of_mass "
+                "must be 3 numbers within +-100 m of its frame (no robot's body reaches farther)", self.center_of_mass)
         require(self.mass > 0 or not any(self.center_of_mass), f"{what} center_of_mass needs a mass > 0 (without "
                 "one there is no body, so it would be ignored)", self.center_of_mass)
         require(len(self.inertia) == 6 and np.all(np.isfinite(self.inertia)),

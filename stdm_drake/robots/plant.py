@@ -13,8 +13,8 @@ from stdm_drake.files import names_text
 from stdm_drake.robots.effect_checks import check_beyond_rigid_bodies
 from stdm_drake.robots.effect_systems import (actuation_input, add_effect_systems, link_torque, measured_state_output,
                                               start_actuators)
-from stdm_drake.robots.effects import (PlantEffects, add_effects_to_plant, coulomb_torque, load_plant_effects,
-                                       set_effect_parameters)
+from stdm_drake.robots.effects import (MIN_MASS, PlantEffects, add_effects_to_plant, coulomb_torque,
+                                       load_plant_effects, set_effect_parameters)
 from stdm_drake.robots.nested_models import nested_instances
 from stdm_drake.robots.robot import Robot
 
@@ -371,6 +371,11 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     if unknown:
         raise InputError(f"plant effects mass_scale or link_inertia names links robot {robot.name} does not have: "
                          f"{names_text(unknown)} (its links: {names_text(sorted(links), 50)})")
+    for link, factor in effects.mass_scale.items():   # (a link lighter than a milligram is no body; MIN_MASS)
+        mass = bare.GetBodyByName(link, instance).default_mass()
+        if mass * factor < MIN_MASS:
+            raise InputError(f"plant effects mass_scale {factor:g} of {link} " + (f"makes it {mass * factor:g} kg, less "
+                             f"than {MIN_MASS:g} kg: no body" if mass > 0 else "acts on nothing: the link has no mass"))
     check_beyond_rigid_bodies(effects, robot, time_step, robot_joint_limits(robot))
     gain = coulomb_stability_gains(effects, robot, time_step)
     if gain is not None:

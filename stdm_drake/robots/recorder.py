@@ -39,10 +39,10 @@ def load_visualization_config(path) -> VisualizationConfig:
     for key in ("default_illustration_color", "default_proximity_color"):   # (Drake's own error names no field)
         rgba = (document.get(key) or {}).get("rgba") if isinstance(document, dict) and isinstance(
             document.get(key), dict) else None
-        numbers = rgba if isinstance(rgba, list) and all(isinstance(x, (int, float)) and not isinstance(x, bool)
-                                                          for x in rgba) else []
-        if any(not 0.0 <= x <= 1.0 for x in numbers):
-            raise InputError(f"{path}: {key} rgba must be numbers in [0, 1], got {rgba}")
+        if rgba is not None and not (isinstance(rgba, list) and len(rgba) in (3, 4)
+                                     and all(0.0 <= _colour_value(x) <= 1.0 for x in rgba)):
+            raise InputError(f"{path}: {key} rgba must be 3 or 4 numbers in [0, 1] (red, green, blue and an optional "
+                             f"opacity), got {rgba}")
     config = load_yaml_config(path, VisualizationConfig, what="visualization config", defaults=RECORDING)
     if "publish_period" in file_keys(path):   # (a NaN one too: held-out run 27)
         raise InputError(f"{path}: publish_period: a recording shows every sample period of the data, so the file's "
@@ -64,6 +64,18 @@ def load_visualization_config(path) -> VisualizationConfig:
                          "geometry, which publish_proximity false "
                          "leaves out, so it would be ignored; set publish_proximity: true, or leave it out")
     return config
+
+
+def _colour_value(item) -> float:
+    """A colour channel as Drake's YAML reads it: a number, or a number YAML 1.1 reads as text (`1e300`, no point);
+    NaN (outside every range) for a word or another type."""
+    from stdm_drake.config import decimal_number
+    if isinstance(item, (int, float)) and not isinstance(item, bool):
+        return float(item)
+    try:
+        return decimal_number(item) if isinstance(item, str) else float("nan")
+    except ValueError:
+        return float("nan")
 
 
 def recording_visualization(path, recording: bool, options: str = "--html FILE or --meshcat"):

@@ -40,7 +40,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
-from stdm_drake.robots.description import MOVABLE, Description, check_tree, read_description
+from stdm_drake.robots.description import MAX_ARM_JOINTS, MOVABLE, Description, check_tree, read_description
 from stdm_drake.robots.derived_limits import (derive_kinematic_limits,
                                               mount_joints)
 from stdm_drake.robots.model_file import joint_facts
@@ -190,7 +190,6 @@ def relative_to(path: pathlib.Path, folder: pathlib.Path) -> str:
 
 # notes whose fix goes into the YAML: `robot init` writes it and exits 1 even though it does not pass yet
 YAML_FIXES = ("no configuration near the middle of the ranges",)
-MAX_ARM_JOINTS = 100   # movable joints of one arm's chain: `robot init`'s home search took 47 s for 3000
 
 
 def starting_config(model_path: pathlib.Path, folder: pathlib.Path, name: str | None = None,

@@ -211,6 +211,9 @@ def check_numbers(root, rule) -> None:
                 if element.tag == "pose":   # (other rotation formats: SDFormat's own error)
                     rotation = element.get("rotation_format", "euler_rpy")
                     counts, form = POSE_VALUE_COUNTS.get(rotation, ()), f" for rotation_format {rotation}"
+                    if rotation == "quat_xyzw" and element.get("degrees", "").strip(ASCII_SPACE) in ("true", "1"):
+                        raise WrongCount(f"{owner}: its <pose> states degrees true with rotation_format quat_xyzw, "
+                                         "which SDFormat refuses (a quaternion holds no angles): leave degrees out")
                 values = ascii_words(element.text)
                 if counts and len(values) not in counts:
                     raise WrongCount(f"{owner}: its <{element.tag}> holds {len(values)} values, SDFormat reads "
