@@ -298,3 +298,13 @@ def test_the_command_refuses_a_pytorch_optimizer_for_the_plant_model_before_any_
     error = capsys.readouterr().err
     assert error.count("\n") == 1 and "framework torch: model plant has no PyTorch particle step" in error
     assert not any((tmp_path / "m").glob("mpc.*"))
+
+
+def test_icem_population_decay_is_bounded_where_it_stops_acting_and_its_default_always_loads():
+    """Held-out run 30: a decay of 1e300 was run as any decay past samples / (2 elites), where the population is at its
+    floor of 2 x elites after one iteration; the default (1.25) loads for any population."""
+    Icem(samples=20, elites=10).validate()
+    Icem(samples=20, elites=4, population_decay=2.5).validate()
+    for settings in (Icem(samples=20, elites=4, population_decay=1e300), Icem(samples=20, elites=10, population_decay=1.3)):
+        with pytest.raises(InputError, match="population_decay must be in"):
+            settings.validate()

@@ -34,7 +34,6 @@ paper's black box (`LearnedModel.torch_particles`); a model without a PyTorch pa
 network, whose inputs need Drake's nominal model, or the plant) is refused with `framework: torch`.
 
 Shapes for n joints, m actuated, horizon H, K samples, P particles, state S = 2n: torques (K, H, m) N m."""
-
 import dataclasses
 
 import numpy as np
@@ -311,7 +310,8 @@ class Icem(SamplingSettings):
     def validate(self) -> None:
         super().validate()
         check_elites(self)
-        top = max(self.samples / (2 * self.elites), 1.0) if self.iterations > 1 else np.inf   # (beyond: at the floor)
+        # (beyond samples / (2 elites), or the default, the population is at its floor after one iteration)
+        top = max(self.samples / (2 * self.elites), Icem.population_decay) if self.iterations > 1 else np.inf
         if not (np.isfinite(self.population_decay) and 1 <= self.population_decay <= top):
             raise InputError(f"{self.tag()} population_decay must be in [1, {top:g}] (beyond samples / (2 elites) the "
                              f"population is at its floor of 2 x elites after one iteration), got {self.population_decay}")

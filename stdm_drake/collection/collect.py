@@ -70,7 +70,7 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
     traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng), rng)
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
     if reason is not None:
-        smoothing = getattr(controller.config, "velocity_filter_time_constant", 0.0)
+        smoothing = getattr(getattr(controller, "config", None), "velocity_filter_time_constant", 0.0)
         raise PlanningError(f"tracking left the limits ({reason}); check the controller gains" + (
             f" and its velocity_filter_time_constant ({smoothing:g} s)" if smoothing > 0 else ""))
     traj.update(q_planned=plan.q, v_planned=plan.qd, qdd_planned=plan.qdd)

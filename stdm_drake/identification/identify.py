@@ -87,8 +87,8 @@ def _unstable_joints(scale: float, parameters: np.ndarray, regressor, robot, tim
 def _stable_fit(rows, target, prior, regressor, robot, time_step: float, scale: float, regularization: float):
     """(parameters, the joints whose Coulomb friction is held at 0): the consistent fit, refitted with the Coulomb
     friction of each joint whose explicit Coulomb term the plant step cannot integrate held at 0 (there the data cannot
-    tell it from viscous friction: on a light joint with viscous friction and no Coulomb friction, the fit shares the
-    one between both), until none is unstable."""
+    tell it from viscous friction: on a light joint with viscous friction and no Coulomb friction, the fit splits the
+    damping between both), until none is unstable."""
     n, offset, zero = regressor.num_joints, 10 * len(regressor.links), np.zeros(0, dtype=int)
     while True:
         parameters = consistent_fit(rows, target, prior, len(regressor.links), regularization,
@@ -108,16 +108,19 @@ def _effects(parameters: np.ndarray, regressor: InverseDynamicsRegressor, scale:
                         link_inertia={link: link_inertia(parameters[10 * k:10 * k + 10]) for k, link in enumerate(links)})
 
 
-def check_velocity_scales(settings: IdentifySettings, robot) -> None:
-    """InputError (one line) where a Coulomb velocity scale is wider than an arm joint's whole speed range (its
-    velocity limit): there the friction would never reach its level (the plant effects' own rule)."""
+def usable_scales(settings: IdentifySettings, robot, given: bool = False) -> tuple:
+    """The Coulomb velocity scales of `settings` within every arm joint's speed range (its velocity limit; a wider one
+    never lets the friction reach its level: the plant effects' own rule); InputError (one line) where none is, or where
+    `given` (the user's --velocity-scales, not the defaults) and one is not: a given candidate is refused, not dropped."""
     from stdm_drake.robots.plant import robot_joint_limits
     speed = robot_joint_limits(robot).velocity
-    if max(settings.velocity_scales) > speed.min():
-        joint = int(np.argmin(speed))
+    joint = int(np.argmin(speed))
+    scales = tuple(scale for scale in settings.velocity_scales if scale <= speed[joint])
+    if not scales or (given and len(scales) < len(settings.velocity_scales)):
         raise InputError(f"identify: --velocity-scales {max(settings.velocity_scales):g} rad/s is wider than "
                          f"{robot.joint_names[joint]}'s whole speed range (velocity limit {speed[joint]:g} rad/s), so its "
                          f"Coulomb friction would never reach its level; give scales of at most {speed[joint]:g}")
+    return scales
 
 
 def identify(dataset, robot, split, settings: IdentifySettings | None = None, announce=lambda line: None):
@@ -126,7 +129,7 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
     settings.validate()
     if not len(split.train) or not len(split.val):
         raise InputError("identify needs training and validation trajectories")
-    check_velocity_scales(settings, robot)
+    scales = usable_scales(settings, robot)
     source = settings.derivative_source
     regressor = InverseDynamicsRegressor(robot)
     prior = regressor.parameters()
@@ -136,7 +139,7 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
     for window in windows:
         train = identification_data(regressor, dataset, split.train, source, window or None)
         val = identification_data(regressor, dataset, split.val, source, window or None)
-        for scale in settings.velocity_scales:
+        for scale in scales:
             rows, target = train.system(regressor, scale)
             for regularization in settings.regularizations:
                 setting = dict(window=window, velocity_scale=scale, regularization=regularization)

@@ -13,7 +13,7 @@ import sys
 
 from stdm_drake.errors import InputError, warn
 from stdm_drake.files import atomic_paths, json_default, line_text
-from stdm_drake.identification.identify import REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES, check_velocity_scales
+from stdm_drake.identification.identify import REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES, usable_scales
 from stdm_drake.outputs import check_output_file
 
 
@@ -79,7 +79,7 @@ def identify_job(job: IdentifyJob) -> dict:
                          "derivatives they would be ignored")
     robot = resolve_robot(job.robot, dataset)
     robot.check_fully_actuated("identification")
-    check_velocity_scales(settings, robot)
+    usable_scales(settings, robot, given=tuple(job.velocity_scales) != VELOCITY_SCALES)
     beyond = dataset.metadata.plant_effects.beyond_rigid_bodies() if dataset.metadata.plant_effects else []
     if beyond:   # (held-out run 29: a real arm has such effects too, so the fit runs; the user hears what it misses)
         warn(f"stdm-drake identify: warning: {job.dataset}'s plant has {', '.join(beyond)}, which no rigid-body model "
@@ -112,7 +112,7 @@ def report_summary(report: dict) -> str:
              f"chosen on validation: Coulomb velocity scale {chosen['velocity_scale']:g} rad/s, regularization "
              f"{chosen['regularization']:g} (validation torque error {chosen['val_torque_error']:.3g})"]
     if chosen.get("coulomb_held_at_zero"):   # (held-out run 30: viscous friction on a light joint)
-        lines.append(f"  Coulomb friction held at 0 on {', '.join(chosen['coulomb_held_at_zero'])}: fitted, its explicit "
+        lines.append(f"  Coulomb friction held at 0 on {', '.join(chosen['coulomb_held_at_zero'])}: its fitted explicit "
                      "term was unstable at the plant step (there the data do not tell it from viscous friction)")
     test = report.get("test")
     if test:

@@ -1,6 +1,8 @@
 """Checks of the plant effects beyond rigid bodies against a robot and its plant step (`plant.check_plant_effects`
 runs them before any work): settings that act on nothing, delays that are no whole number of plant steps, a
-transmission too soft to carry its motor's torque, a friction ripple the plant step cannot resolve."""
+transmission too soft to carry its motor's torque, a friction ripple the plant step cannot resolve, and values the
+plant cannot show (a gear ratio that makes a motor vanish, a Coulomb or Stribeck width past the joint's speed range, a
+lag that decays below double precision within one plant step)."""
 import numpy as np
 
 from stdm_drake.errors import InputError
@@ -67,11 +69,13 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
             raise InputError(f"plant effects {field} {width[joint]:g} rad/s on {robot.joint_names[joint]} is wider "
                              f"than the joint's whole speed range (velocity limit {limits.velocity[joint]:g} rad/s): "
                              f"{what}; give at most {limits.velocity[joint]:g} rad/s")
-    lag = effects.joint_values("actuator_time_constant", n) if effects.actuator_time_constant else np.zeros(n)
+    m = robot.action_dim   # (a lag per actuated joint)
+    lag = effects.joint_values("actuator_time_constant", m) if effects.actuator_time_constant else np.zeros(m)
     unresolved = (lag > 0) & (time_step > UNRESOLVED_LAG * lag)
     if np.any(unresolved):
         joint = int(np.argmax(unresolved))
-        raise InputError(f"plant effects actuator_time_constant {lag[joint]:g} s on {robot.joint_names[joint]} decays "
+        raise InputError(f"plant effects actuator_time_constant {lag[joint]:g} s on "
+                         f"{robot.joint_names[robot.actuated_indices[joint]]} decays "
                          f"below double precision within one plant step of {time_step:g} s, so the plant shows no lag; "
                          f"give 0 for none, or at least {time_step / UNRESOLVED_LAG:.3g} s")
     acting = (ripple > 0) & (coulomb > 0)
