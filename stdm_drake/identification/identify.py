@@ -150,10 +150,10 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
                     candidates.append(dict(setting, val_torque_error=None, skipped=str(error)))
                     continue
                 error = relative_torque_error(val.predicted_torque(regressor, parameters, scale), val.torque)[0]
-                candidates.append(dict(setting, val_torque_error=error,
-                                       coulomb_held_at_zero=[robot.joint_names[j] for j in zero]))
+                held = [robot.joint_names[j] for j in zero]
+                candidates.append(dict(setting, val_torque_error=error, coulomb_held_at_zero=held))
                 if best is None or error < best[0]:
-                    best = (error, window, scale, regularization, parameters, train, candidates[-1]["coulomb_held_at_zero"])
+                    best = (error, window, scale, regularization, parameters, train, held)
         announce(f"identify: window {window or '-'}: best validation torque error so far "
                  f"{best[0] if best else float('nan'):.3g}")
     if best is None:

@@ -42,13 +42,14 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
                                      ("stribeck_velocity", "stribeck_friction above coulomb_friction", above_coulomb)):
         # (a per-joint list's value where its companion is 0; one value for all joints applies where it can, and
         # acts on nothing where its companion is 0 on every joint: a gear ratio beside rotor inertias all 0)
-        given = effects.joint_values(field, n) > 0 if getattr(effects, field) else np.zeros(n, bool)
-        idle = given & (values <= 0) if len(getattr(effects, field)) > 1 or field == "gear_ratio" else False
-        if np.any(idle) and (len(getattr(effects, field)) > 1 or np.all(idle)):
-            joint = robot.joint_names[int(np.argmax(idle))]
-            raise InputError(f"plant effects {field} on {joint}, whose {companion} is 0, acts on nothing there, so it "
-                             "would be ignored; give it 0 on that joint" if len(getattr(effects, field)) > 1 else
-                             f"plant effects {field} acts on nothing: {companion} is 0 on every joint, so it would be "
+        if not getattr(effects, field):
+            continue
+        idle = (effects.joint_values(field, n) > 0) & (values <= 0)
+        if len(getattr(effects, field)) > 1 and np.any(idle):
+            raise InputError(f"plant effects {field} on {robot.joint_names[int(np.argmax(idle))]}, whose {companion} is "
+                             "0, acts on nothing there, so it would be ignored; give it 0 on that joint")
+        if field == "gear_ratio" and np.all(idle):
+            raise InputError(f"plant effects {field} acts on nothing: {companion} is 0 on every joint, so it would be "
                              "ignored; leave it out")
     # (a gear ratio that makes a motor's reflected inertia vanish; a rotor inertia itself below the floor, as a fit
     # leaves one that is 0 to its solver's tolerance, adds nothing and loads)
