@@ -14,6 +14,8 @@ import pathlib
 import tempfile
 
 from stdm_drake.errors import InputError
+from stdm_drake.interrupts import group_signals_blocked, protected, mark_worker, ignore_interrupts_in_worker
+from stdm_drake.files import atomic_path
 
 MAX_WORKERS = 256   # worker processes (each a Python with PyTorch or Drake, 0.2-0.5 GB: 256 is past any one machine)
 
@@ -181,7 +183,6 @@ class ProcessPool:
             manager.join(timeout=10)
 
     def submit(self, function, *arguments):
-        from stdm_drake.interrupts import group_signals_blocked, protected
         # The executor starts its workers inside submit: blocked signals reach none of them while they start, and
         # `protected` holds a signal another thread took until every started worker has been handed its start-up
         # data (cut in the middle, the worker printed an EOFError traceback)
@@ -189,7 +190,6 @@ class ProcessPool:
             return self.executor.submit(function, *arguments)
 
     def map(self, function, iterable, chunksize: int = 1):
-        from stdm_drake.interrupts import group_signals_blocked, protected
         with group_signals_blocked(), protected():
             return self.executor.map(function, iterable, chunksize=chunksize)
 
@@ -231,7 +231,6 @@ def _ray_task(setup, function, *arguments):
     if marker and not os.path.exists(marker):  # fault injection for the retry test: die once, like a lost node
         pathlib.Path(marker).write_text(str(os.getpid()))
         os._exit(1)
-    from stdm_drake.interrupts import mark_worker
     mark_worker()
     if setup is not None and setup[0] not in _RAY_INITIALIZED:
         setup[1](*setup[2])
@@ -301,7 +300,6 @@ def job_pool(config: RunnerConfig, initializer=None, initargs=()):
     try:
         yield pool
     except KeyboardInterrupt:   # Ctrl-C or SIGTERM: stop now, nothing left running (a second Ctrl-C waits)
-        from stdm_drake.interrupts import protected
         with protected():
             pool.stop()
         raise
@@ -324,7 +322,6 @@ def _start_resource_tracker() -> None:
     import sys
     from multiprocessing import resource_tracker
 
-    from stdm_drake.interrupts import group_signals_blocked
     quiet = "ignore:resource_tracker:UserWarning"
     sys.warnoptions.append(quiet)
     try:
@@ -340,7 +337,6 @@ def _start_worker(initializer, initargs) -> None:
     each warning once: `cli.drake_warnings_once`; a worker's errors still reach stderr), then the pool's own
     initializer."""
     import logging
-    from stdm_drake.interrupts import ignore_interrupts_in_worker
     ignore_interrupts_in_worker()
     logging.getLogger("drake").addFilter(lambda record: record.levelno >= logging.ERROR)
     if initializer is not None:
@@ -379,7 +375,6 @@ def node_local_dataset(content: bytes, sha256: str) -> pathlib.Path:
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{sha256}.h5"
     if not path.exists():
-        from stdm_drake.files import atomic_path
         with atomic_path(path) as temp:
             temp.write_bytes(content)
     return path

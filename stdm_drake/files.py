@@ -12,6 +12,7 @@ import re
 import tempfile
 
 from stdm_drake.errors import InputError
+from stdm_drake.interrupts import protected, raise_if_received
 
 # A write that fails for lack of room (full disk, quota, file size limit, read-only file system).
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS)
@@ -151,7 +152,6 @@ def atomic_paths(paths):
     A command that a signal interrupted replaces nothing, even where a library swallowed the signal
     (`interrupts.raise_if_received`); a write that runs out of room (`NO_ROOM`) is an InputError naming the file.
     """
-    from stdm_drake.interrupts import protected, raise_if_received
     paths = [pathlib.Path(path) for path in paths]
     umask = os.umask(0)
     os.umask(umask)

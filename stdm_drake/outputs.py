@@ -21,7 +21,8 @@ import shutil
 import stat
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import NO_ROOM, check_room, nearest_existing, no_room_error, remove_stale_temporaries
+from stdm_drake.files import (NO_ROOM, check_room, nearest_existing, no_room_error, remove_stale_temporaries,
+                              write_text_atomic)
 from stdm_drake.interrupts import protected
 
 # Written into every output folder a command fills, and looked for before replacing one.
@@ -385,7 +386,6 @@ def mark_output_folder(path) -> None:
     command = running_command()
     if (path / FOLDER_MARKER).exists() and (command is None or folder_writer(path) == command):
         return
-    from stdm_drake.files import write_text_atomic
     try:
         write_text_atomic(path / FOLDER_MARKER, "This folder holds stdm-drake outputs; stdm-drake may replace what "
                           "is in it.\n" + (f"{COMMAND_LINE}{command}\n" if command else ""))

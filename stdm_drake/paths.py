@@ -6,6 +6,7 @@ check of a file a command reads (`check_input_file`)."""
 import errno
 import pathlib
 import stat
+from stdm_drake.errors import InputError
 
 SHIPPED_PREFIX = "stdm-drake:"
 
@@ -65,7 +66,6 @@ def check_input_file(path, what: str, missing=None) -> pathlib.Path:
     folder, not a regular file (a FIFO, socket or device, which reading would block on or consume),
     a symlink loop, or not there. missing: the exception type for a path that is not there (default
     InputError; FileNotFoundError where callers catch that); the others are InputError."""
-    from stdm_drake.errors import InputError
     path = pathlib.Path(path)
     try:
         mode = path.stat().st_mode

@@ -14,6 +14,7 @@ import platform
 import re
 import subprocess
 from importlib.metadata import PackageNotFoundError, version
+from stdm_drake.outputs import running_command, written_by
 
 PACKAGE_FOLDER = pathlib.Path(__file__).resolve().parent
 DIRTY_HINT = ("commit them (the results then name the code that made them) or pass --allow-dirty "
@@ -98,7 +99,6 @@ def command_provenance() -> dict:
     """The provenance of the stdm-drake command now running (`stdm-drake NAME ARGS`, as recorded_command
     writes it; "stdm-drake" alone when used as a library), for the results files of `reproduce`, the main
     job and the MPC study."""
-    from stdm_drake.outputs import running_command
     line = running_command(with_arguments=True)
     return provenance(recorded_command("stdm-drake", line or []))
 
@@ -106,7 +106,6 @@ def command_provenance() -> dict:
 def results_header() -> dict:
     """What the results file of a stdm-drake command opens with: {"written_by": "stdm-drake COMMAND",
     "provenance": command_provenance()}."""
-    from stdm_drake.outputs import written_by
     return dict(written_by=written_by(), provenance=command_provenance())
 
 

@@ -214,3 +214,19 @@ def test_the_linter_finds_nothing():
     run = subprocess.run([sys.executable, "-m", "ruff", "check", "--no-cache", "stdm_drake", "tools", "tests"],
                          cwd=ROOT, capture_output=True, text=True)
     assert run.returncode == 0, run.stdout[-3000:] + run.stderr[-1000:]
+
+
+def test_own_modules_are_imported_at_the_top():
+    """Issue 60: outside the command line's boundary (`cli.py` loads a command by name; a command's `run` imports
+    its stage, so `--help` and argument errors load none), the package's own modules are imported at the top of a
+    module, except where the imported module loads a heavy library (PyTorch, Drake, h5py, matplotlib, ONNX, Ray) or
+    the compiled extension that the importing one does not: such an import names it, `# lazy: LIBRARY`, on its
+    line or the line above (`tools/check_lazy_imports.py` checks that each named library is true)."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    from check_lazy_imports import MARK, checked_files, function_level_own_imports
+    unmarked = [f"{path.relative_to(ROOT)}:{statement.lineno}" for path in checked_files()
+                for statement, text in function_level_own_imports(path) if MARK not in text]
+    assert not unmarked, f"function-level imports of the package's own modules without `{MARK} ...`: {unmarked}"
+    files = checked_files()
+    assert PACKAGE / "learning" / "train_job.py" in files and PACKAGE / "cli.py" not in files
+    assert not any("commands" in path.relative_to(PACKAGE).parts for path in files)

@@ -13,6 +13,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.report import markdown_table
 from stdm_drake.robots.plant import Dynamics, PlantConfig, joint_limits
 from stdm_drake.robots.robot import Robot
+from stdm_drake.files import atomic_path
+from stdm_drake.dynamics.model_files import load_model
 
 
 @dataclasses.dataclass
@@ -178,7 +180,6 @@ def summary_table(rows: list[dict]) -> str:
 
 def plot_results(results: list[ClosedLoopResult], sample_period: float, path) -> None:
     """Per-step RMS joint-angle error of the first reference, one line per model (PNG at `path`, atomically)."""
-    from stdm_drake.files import atomic_path
     with atomic_path(path) as temp:
         draw_results(results, sample_period, temp)
 
@@ -246,7 +247,6 @@ def spec_models(specs: list, sample_period: float, plant_config: PlantConfig, *,
     None for the robot's description as a plant model ("plant") and "true" for the plant of `plant_config`
     itself ("true-plant")); plant models and identified robots predict with the "rk4" integrator (exact
     Jacobians, microseconds per step: `PlantModel`)."""
-    from stdm_drake.dynamics.model_files import load_model
     return [PlantModel(sample_period, robot=robot, integrator="rk4") if path is None else
             PlantModel(sample_period, plant_config, robot=robot, integrator="rk4") if path == "true" else
             load_model(path, robot, name=name, for_control=True) for name, path in specs]

@@ -74,7 +74,7 @@ class Constraints:
         """InputError (one line) where the MPC settings file at `path` sets what its `optimizer` (hard_capable: the
         real-time iteration) would not use: mode hard with an optimizer that runs it as soft, or a margin or the
         penalty weight with mode off (held-out run 28)."""
-        from stdm_drake.config import read_yaml_document
+        from stdm_drake.config import read_yaml_document   # lazy: pydrake
         given = (read_yaml_document(path) or {}).get("constraints")
         ignored = sorted((set(given) if isinstance(given, dict) else set())
                          & {"position_margin", "velocity_margin", "penalty_weight"})

@@ -30,9 +30,14 @@ import pathlib
 import numpy as np
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import line_text
+from stdm_drake.files import line_text, atomic_path
 
 from stdm_drake.outputs import CONTROLLER_MARKER as MARKER   # (the first line `outputs` recognizes)
+from stdm_drake.dynamics.compiled_core import compiled_model, rigid_body_arrays
+from stdm_drake.dynamics.physics import PlantModel
+from stdm_drake.closed_loop.rti import Rti
+from stdm_drake.dynamics.model_files import load_model, model_file_kinds
+from stdm_drake.outputs import check_output_file
 
 
 def _array(name: str, values) -> str:
@@ -52,15 +57,12 @@ def controller_text(model, config, robot, written_by: str = "stdm-drake export")
     """The controller file of `model` (a checkpoint's `LearnedModel` or a `PlantModel`) under the MPC settings
     `config` (`MpcConfig`) for `robot` (its plant's limits, its description's gravity); InputError for a model the
     compiled controller does not cover (`compiled_core.compiled_model`)."""
-    from stdm_drake.dynamics.compiled_core import compiled_model, rigid_body_arrays
-    from stdm_drake.dynamics.physics import PlantModel
-    from stdm_drake.robots.plant import Dynamics, joint_limits
-    from stdm_drake.robots.rigid_body import robot_dynamics
+    from stdm_drake.robots.plant import Dynamics, joint_limits   # lazy: pydrake
+    from stdm_drake.robots.rigid_body import robot_dynamics   # lazy: pydrake
     config.validate()
     core, why_not = compiled_model(model)
     if core is None:
         raise InputError(f"the compiled controller does not cover {why_not}")
-    from stdm_drake.closed_loop.rti import Rti
     if not isinstance(config.optimizer, Rti):   # (the samplers have an `implementation` too: of their model steps)
         raise InputError(f"the compiled controller runs the real-time iteration (`optimizer: !Rti {{}}`), not "
                          f"!{type(config.optimizer).__name__}")
@@ -108,11 +110,8 @@ def export_controller(checkpoint: pathlib.Path, output: pathlib.Path, robot_conf
     """`export --target controller`: the controller file of a `train` checkpoint (.pt) for the robot config
     `robot_config` (None: the UR-10's) under the MPC settings `mpc_config` (None: controllers/mpc.yaml), written
     atomically to `output` (.controller); every check before any work (InputError, nothing written)."""
-    from stdm_drake.closed_loop.mpc import DEFAULT_MPC_CONFIG, load_mpc_config
-    from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.files import atomic_path
-    from stdm_drake.dynamics.model_files import load_model, model_file_kinds
-    from stdm_drake.outputs import check_output_file
+    from stdm_drake.closed_loop.mpc import DEFAULT_MPC_CONFIG, load_mpc_config   # lazy: pydrake
+    from stdm_drake.data.compatibility import resolve_robot   # lazy: pydrake
     if pathlib.Path(output).suffix.lower() != ".controller":
         raise InputError(f"-o/--output {output}: the controller target writes a .controller file")
     inputs = [path for path in (checkpoint, robot_config, mpc_config) if path is not None]

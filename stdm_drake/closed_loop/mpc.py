@@ -56,7 +56,7 @@ from stdm_drake.config import YAML_LOADER, check_joint_vector, load_yaml_config,
 from stdm_drake.errors import InputError
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.effect_systems import TorqueNoise, actuation_input, measured_state_output, start_actuators
-from stdm_drake.robots.plant import Dynamics, JointLimits, PlantConfig, joint_limits
+from stdm_drake.robots.plant import Dynamics, JointLimits, PlantConfig, joint_limits, make_plant
 from stdm_drake.robots.robot import Robot
 
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
@@ -371,7 +371,6 @@ def build_closed_loop(model, reference: Reference, config: MpcConfig, plant_conf
     torque noise, a `TorqueNoise` (seeded by `noise_seed`, one draw per control period over the
     reference) between them; with `push`, that push on the plant (`push.add_push`). Returns (diagram, plant,
     controller)."""
-    from stdm_drake.robots.plant import make_plant
     plant_config = plant_config or PlantConfig()
     builder = DiagramBuilder()
     plant, scene_graph = make_plant(plant_config, builder=builder, robot=robot)

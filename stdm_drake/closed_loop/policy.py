@@ -124,7 +124,7 @@ class MpcPolicy:
 
     def __init__(self, model, reference, config, robot, optimizer=None):
         import inspect
-        from stdm_drake.robots.plant import Dynamics, joint_limits
+        from stdm_drake.robots.plant import Dynamics, joint_limits   # lazy: pydrake
         dynamics = Dynamics(robot)
         limits = joint_limits(dynamics.plant)
         solver = optimizer or config.solver(model, limits, robot.joint_names)

@@ -15,6 +15,9 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import check_output_file
+from stdm_drake.dynamics.model_files import load_model
+from stdm_drake.report import open_loop_error_line
+from stdm_drake.dynamics.physics import PlantModel
 
 DEFAULT_TRAJECTORIES = 3
 
@@ -61,10 +64,9 @@ def replay_job(job: ReplayJob) -> dict:
     open-loop error line (and the nominal plant's, for data of an affected plant) and the recording; returns
     dict(model=its name, trajectories=the indices replayed, diverged={index: the step its rollout diverged}).
     InputError (one line) for a bad input."""
-    from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.dynamics.model_files import load_model
-    from stdm_drake.report import open_loop_error_line
+    from stdm_drake.data.compatibility import resolve_robot   # lazy: pydrake
+    from stdm_drake.data.dataset import load_dataset   # lazy: pydrake, h5py
+    # lazy: pydrake, matplotlib
     from stdm_drake.robots.recorder import TrajectoryRecorder, check_meshcat_allowed, recording_visualization
 
     if not (job.html or job.meshcat):
@@ -90,7 +92,6 @@ def replay_job(job: ReplayJob) -> dict:
         indices = pool[:count]
     nominal = None
     if dataset.metadata.plant_effects is not None:   # data of an affected plant: the user's model beside the learned
-        from stdm_drake.dynamics.physics import PlantModel
         nominal = PlantModel(dataset.sample_period, dataset.metadata.plant_config(effects=False), robot=robot)
         print(f"plant effects of the data: {dataset.metadata.plant_effects.summary()}; 'nominal plant': the robot's "
               "description stepping the same torques")

@@ -8,6 +8,7 @@ import numpy as np
 
 from stdm_drake.closed_loop.optimizer import TrackingCost
 from stdm_drake.errors import InputError
+from stdm_drake.dynamics.compiled_core import compiled_model
 
 
 class SampledCosts:
@@ -46,7 +47,6 @@ class SampledCosts:
             elif settings.implementation == "numpy":
                 self.steps = "the model's steps numpy"
             else:
-                from stdm_drake.dynamics.compiled_core import compiled_model
                 self.compiled, why_not = compiled_model(model)
                 self.steps = ("the model's steps compiled" if self.compiled is not None else
                               f"the model's steps numpy: the compiled core does not cover {why_not}")

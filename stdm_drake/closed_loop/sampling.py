@@ -44,6 +44,7 @@ from stdm_drake.closed_loop.sampled_costs import SampledCosts
 from stdm_drake.dynamics.model import PROPAGATIONS
 from stdm_drake.errors import InputError
 from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS
+from stdm_drake.devices import torch_device
 
 MAX_SAMPLES = 100_000       # torque sequences per iteration
 MAX_ROWS = 2_000_000        # samples x particles held at once (S float64 each)
@@ -125,7 +126,6 @@ class SamplingSettings(OptimizerSettings):
         if self.framework == "numpy" and self.device != "cpu":
             raise InputError(f"{tag} device {self.device!r} needs `framework: torch` (NumPy runs on the cpu)")
         if self.framework == "torch":
-            from stdm_drake.devices import torch_device
             try:
                 torch_device(self.device)
             except InputError as error:

@@ -19,7 +19,17 @@ from stdm_drake.closed_loop.comparison import (ClosedLoopResult, closed_loop_fai
                                                summary_table)
 from stdm_drake.closed_loop.optimizer import OptimizerSettings
 from stdm_drake.errors import InputError
-from stdm_drake.files import line_text
+from stdm_drake.files import line_text, atomic_paths, escaped_names
+from stdm_drake.closed_loop.mpc import mpc_config_for, mpc_settings_file
+from stdm_drake.data.compatibility import resolve_robot
+from stdm_drake.outputs import check_output_file, check_output_folder, fresh_default_folder, mark_output_folder
+from stdm_drake.config import file_keys
+from stdm_drake.robots.plant import Dynamics, joint_limits, plant_effects_for
+from stdm_drake.dynamics.model_files import kind_of, load_model
+from stdm_drake.dynamics.physics import PlantModel
+from stdm_drake.closed_loop.comparison import tuning_references
+from stdm_drake.closed_loop.tuning import tune, with_setting
+from stdm_drake.provenance import results_header
 
 DEFAULT_OUTPUT = pathlib.Path("out/mpc")   # without an output folder: this one, or out/mpc-2, -3, ... (a fresh one)
 MODEL_NAME = re.compile(r"[A-Za-z0-9_.+-]{1,40}")   # a model's name: a column of mpc.csv and mpc.md
@@ -116,11 +126,8 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     table printed and the outputs written. InputError (one line) for a bad input."""
     import torch
 
-    from stdm_drake.closed_loop.mpc import mpc_config_for, mpc_settings_file
-    from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.outputs import check_output_file, check_output_folder, fresh_default_folder
-    from stdm_drake.robots.recorder import check_meshcat_allowed, recording_visualization
+    from stdm_drake.data.dataset import load_dataset   # lazy: h5py
+    from stdm_drake.robots.recorder import check_meshcat_allowed, recording_visualization   # lazy: matplotlib
     study.validate()
     output = pathlib.Path(study.output) if study.output is not None else fresh_default_folder(DEFAULT_OUTPUT, "mpc")
     check_output_folder("-o/--output", output, inputs=study.inputs(), force=study.force)
@@ -136,14 +143,12 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     if study.optimizer is not None:
         config = dataclasses.replace(config, optimizer=study.optimizer)
     if study.tune:
-        from stdm_drake.config import file_keys
         if "disturbance_gain" in file_keys(study.settings):
             raise InputError(f"--tune chooses the observer gain (0, 0.3 or 1 per model), so the disturbance_gain of "
                              f"{study.settings} would be ignored; leave it out of the file, or leave out --tune")
     plant_config, effects_record = study_plant(study, dataset, robot)
     plants, learned, model_records = study_models(study, dataset, robot, plant_config)
     models = plants + learned
-    from stdm_drake.robots.plant import Dynamics, joint_limits
     limits = joint_limits(Dynamics(robot).plant)
     for model in models:   # (settings a model cannot be solved with, e.g. a PyTorch device for the plant: refused now)
         config.solver(model, limits, robot.joint_names)
@@ -153,7 +158,7 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
         raise InputError(f"--plans {study.plans}: {study.dataset} has only {len(references)} held-out plans")
     recorder = None
     if study.html:
-        from stdm_drake.robots.recorder import TrajectoryRecorder
+        from stdm_drake.robots.recorder import TrajectoryRecorder   # lazy: matplotlib
         recorder = TrajectoryRecorder(dataset.sample_period, ghost=True, robot=robot, visualization=visualization)
     threads = torch.get_num_threads()
     torch.set_num_threads(1)  # the solver makes many small calls; threads only add overhead
@@ -212,7 +217,6 @@ def study_plant(study: MpcStudy, dataset, robot):
     """(The PlantConfig the loops run on: the plant the dataset records (its plant step, self-contact and contact
     settings) with the study's plant effects, else those the dataset records; what mpc.json records of the
     effects, None without)."""
-    from stdm_drake.robots.plant import plant_effects_for
     config = dataset.metadata.plant_config(effects=False)   # the data's plant, simulated as they were
     time_step = config.time_step
     given = study.plant_effects is not None
@@ -231,9 +235,7 @@ def study_plant(study: MpcStudy, dataset, robot):
 def study_models(study: MpcStudy, dataset, robot, plant_config) -> tuple[list, list, list]:
     """(The plant models unless left out, the models of the study's model files, each checked against the
     dataset; one record per model, in that order, for mpc.json: name, kind, file, its sha256 and what it is)."""
-    from stdm_drake.data.dataset import file_sha256
-    from stdm_drake.dynamics.model_files import kind_of, load_model
-    from stdm_drake.dynamics.physics import PlantModel
+    from stdm_drake.data.dataset import file_sha256   # lazy: h5py
     models, learned, records = [], [], []
     if study.plant:
         models.append(PlantModel(dataset.sample_period, robot=robot, integrator="rk4"))
@@ -260,8 +262,6 @@ def tuned_settings(study: MpcStudy, dataset, models, learned, references, config
     all with `config`, or with `study.tune` each with the setting chosen for it on tuning plans, `tuning.tune`)."""
     if not study.tune:
         return None, [(models, config)]
-    from stdm_drake.closed_loop.comparison import tuning_references
-    from stdm_drake.closed_loop.tuning import tune, with_setting
     plans = tuning_references(dataset, [model.checkpoint for model in learned], study.tune,
                               [index for index, _ in references])
     chosen, tried = tune(models, plans, config, plant_config, robot=robot, progress=study.progress)
@@ -282,9 +282,6 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     file; the result."""
     import json
 
-    from stdm_drake.files import atomic_paths, escaped_names
-    from stdm_drake.outputs import mark_output_folder
-    from stdm_drake.provenance import results_header
     rows = summarize(results, sample_period)
     table = summary_table(rows)
     if tuning is not None:

@@ -60,7 +60,7 @@ def tune(models: list, references: list, config, plant_config, *, robot, grid=MP
     """Each model's setting from `grid`, chosen on the closed loops of `references` ((index, Reference)
     validation plans) on the plant of `plant_config`: ({model name: setting}, every tuning run as
     (setting, ClosedLoopResult))."""
-    from stdm_drake.closed_loop.comparison import compare_controllers
+    from stdm_drake.closed_loop.comparison import compare_controllers   # lazy: pydrake
     tried = []
     for number, setting in enumerate(grid, 1):   # (one bar per setting, titled with it)
         results = compare_controllers(models, references, with_setting(config, setting), plant_config,

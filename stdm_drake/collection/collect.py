@@ -26,7 +26,7 @@ import numpy as np
 
 from stdm_drake.cluster import RunnerConfig, check_workers, job_pool
 from stdm_drake.collection.excitation import Excitation, excitation_trajectory
-from stdm_drake.collection.plan import Tracking, derived_tracking_spec
+from stdm_drake.collection.plan import Tracking, derived_tracking_spec, sample_task_plans
 from stdm_drake.collection.protocols import PROTOCOLS, load_excitation, load_tracking_spec, protocol_named_in
 from stdm_drake.config import load_yaml_config
 from stdm_drake.data.dataset import Trajectory
@@ -38,6 +38,7 @@ from stdm_drake.robots.control import JointSensor, SensorConfig, friction_bound_
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker, plant_effects_for
 from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
+from stdm_drake.robots.kinematics import RobotKinematics
 
 DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
 DEFAULT_SENSOR = CONTROLLERS_DIR / "sensor.yaml"
@@ -162,8 +163,6 @@ def _plan_pose(job: PoseJob) -> list[PlanSamples]:
     Pose p draws from numpy.random.default_rng([seed, 2**31, p]); plan k of a pose does not
     depend on how many plans are requested after it.
     """
-    from stdm_drake.robots.kinematics import RobotKinematics
-    from stdm_drake.collection.plan import sample_task_plans
 
     sampling, pose_index = job.spec.sampling, job.pose_index
     one_pose = dataclasses.replace(sampling, initial_poses=[sampling.initial_poses[pose_index]],

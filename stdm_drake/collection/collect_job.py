@@ -20,6 +20,7 @@ from stdm_drake.outputs import check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 from stdm_drake.robots.robot import UR10_CONFIG
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD
+from stdm_drake.collection.export import check_export_folder, export_plans
 
 
 @dataclasses.dataclass
@@ -72,7 +73,6 @@ def job_request(job: CollectJob) -> CollectionRequest:
 
 def check_export_plans(job: CollectJob, protocol: str) -> None:
     """The checks of `job.export_plans` (before the outputs' locks, which would put files in a new folder)."""
-    from stdm_drake.collection.export import check_export_folder
     if protocol != "tracking":
         raise InputError("--export-plans: plans exist only with --protocol tracking")
     if pathlib.Path(job.output).absolute().is_relative_to(pathlib.Path(job.export_plans).absolute()):
@@ -87,7 +87,7 @@ def collect_job(job: CollectJob) -> dict:
     on it, the plans exported and the recording finished; returns dict(path=the dataset written,
     protocol, trajectories=their number, simulated_s, elapsed_s, plans=the files exported or None).
     InputError (one line) for a bad input."""
-    from stdm_drake.robots.recorder import check_meshcat_allowed, recording_visualization
+    from stdm_drake.robots.recorder import check_meshcat_allowed, recording_visualization   # lazy: matplotlib
     request = job_request(job)
     robot = request.settings.robot
     inputs = [job.config, job.controller, job.sensor, job.robot, robot.model_path, job.visualization,
@@ -100,7 +100,7 @@ def collect_job(job: CollectJob) -> dict:
     recorder = None
     if job.meshcat or job.html:
         check_meshcat_allowed("--meshcat" if job.meshcat else "--html")
-        from stdm_drake.robots.recorder import TrajectoryRecorder
+        from stdm_drake.robots.recorder import TrajectoryRecorder   # lazy: matplotlib
         recorder = TrajectoryRecorder(request.settings.sample_period, robot=robot, visualization=visualization)
         if job.meshcat:
             print(f"Meshcat: {recorder.meshcat.web_url()}", file=sys.stderr)
@@ -120,7 +120,6 @@ def collect_job(job: CollectJob) -> dict:
           f"in {elapsed:.1f} s ({simulated / elapsed:.1f}x real time)")
     written = None
     if job.export_plans is not None:
-        from stdm_drake.collection.export import export_plans
         written = export_plans(job.export_plans, trajectories, metadata, robot, job.force)
         print(f"wrote {len(trajectories)} plans to {line_text(job.export_plans)} ({len(written)} files: CSV, a ROS 2 bag, "
               "plans.json); run them on the robot, then `stdm-drake import` its log")

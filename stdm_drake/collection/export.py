@@ -11,6 +11,7 @@ import pathlib
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.outputs import check_output_folder
 
 PLAN_TOPIC = "/scaled_joint_trajectory_controller/joint_trajectory"
 PLAN_TYPE = "trajectory_msgs/msg/JointTrajectory"
@@ -23,7 +24,6 @@ def check_export_folder(folder, force: bool = False) -> pathlib.Path:
     if folder.exists() and (not folder.is_dir() or any(folder.iterdir())):
         raise InputError(f"--export-plans {folder}: {'not a folder' if not folder.is_dir() else 'not empty'}; give a "
                          "new or empty folder")
-    from stdm_drake.outputs import check_output_folder
     return check_output_folder("--export-plans", folder, force=force)
 
 
@@ -58,7 +58,7 @@ def export_plans(folder, trajectories: list, metadata: dict, robot, force: bool 
 def _write_plans(folder: pathlib.Path, trajectories: list, metadata: dict, robot) -> list[pathlib.Path]:
     from rosbags.rosbag2 import Writer
     from rosbags.typesys import Stores, get_typestore
-    from stdm_drake.robots.plant import robot_joint_limits
+    from stdm_drake.robots.plant import robot_joint_limits   # lazy: pydrake
     if not trajectories or trajectories[0].q_planned is None:
         raise InputError("--export-plans needs tracking data (plans)")
     sample_period = float(metadata["sample_period"])

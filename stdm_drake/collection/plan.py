@@ -15,8 +15,9 @@ from stdm_drake.collection.planner_configs import PlannerConfig, Quintic
 from stdm_drake.collection.planners import PlannedTrajectory, plan_trajectory, quintic_shortest_times
 from stdm_drake.config import require
 from stdm_drake.errors import InputError, PlanningError
-from stdm_drake.robots.plant import robot_joint_limits
+from stdm_drake.robots.plant import robot_joint_limits, Dynamics, SelfCollisionChecker, joint_limits
 from stdm_drake.robots.robot import Robot
+from stdm_drake.robots.starting_config import check_holds_home
 
 logger = logging.getLogger(__name__)
 
@@ -138,8 +139,6 @@ def derived_tracking_spec(robot: Robot, *, num_initial_poses: int = 4, box: floa
 
     Raises PlanningError when fewer than `num_initial_poses` usable configurations are found.
     """
-    from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker, joint_limits
-    from stdm_drake.robots.starting_config import check_holds_home
 
     robot.check_can_track()
     dynamics = Dynamics(robot)

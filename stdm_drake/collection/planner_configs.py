@@ -4,7 +4,7 @@ import dataclasses
 import math
 import typing
 
-from stdm_drake.config import require
+from stdm_drake.config import require, check_joint_vector
 from stdm_drake.errors import InputError
 from stdm_drake.robots.robot import Robot
 
@@ -47,7 +47,6 @@ class PlannerLimits:
 
     def for_robot(self, robot: Robot):
         """This config with the per-joint limits of the robot's length (one value broadcast)."""
-        from stdm_drake.config import check_joint_vector
         return dataclasses.replace(self, **{
             name: check_joint_vector(f"planner {name}", getattr(self, name), count=robot.num_joints).tolist()
             for name in self.joint_lists()})

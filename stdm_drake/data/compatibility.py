@@ -6,7 +6,8 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots.plant import JointLimits, SelfCollisionChecker, joint_limits
-from stdm_drake.robots.robot import Robot, load_robot
+from stdm_drake.robots.robot import Robot, load_robot, UR10_CONFIG
+from stdm_drake.paths import MODELS_DIR
 
 
 def shipped_preset_of(dataset):
@@ -14,8 +15,6 @@ def shipped_preset_of(dataset):
     description file (SHA-256), the UR-10's first and then by name (so a preset's plant-effects variant, which
     shares its description, is never picked over it); None when no preset matches (a user's own robot). A user's
     own config on a shipped description file gets the preset: the nominal model is the description, the same."""
-    from stdm_drake.paths import MODELS_DIR
-    from stdm_drake.robots.robot import UR10_CONFIG
     recorded = dataset.metadata
     if recorded.robot_model_sha256 is None:
         return None
@@ -35,7 +34,6 @@ def resolve_robot(path=None, dataset=None) -> Robot:
     """The robot a job runs with: the config YAML at `path`, else the shipped preset `dataset` was collected with
     (`shipped_preset_of`), else the UR-10's (the toolbox's default robot); loaded and checked by `robot_for`
     (with `dataset`: InputError unless the dataset was collected with it)."""
-    from stdm_drake.robots.robot import UR10_CONFIG
     return robot_for(path or (shipped_preset_of(dataset) if dataset is not None else None) or UR10_CONFIG, dataset)
 
 

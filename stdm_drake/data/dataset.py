@@ -43,6 +43,7 @@ from stdm_drake.errors import InputError, check_seed
 from stdm_drake.outputs import DATASET_FORMAT
 from stdm_drake.paths import check_input_file
 from stdm_drake.robots.effects import PlantEffects
+from stdm_drake.robots.plant import PlantConfig
 
 FORMAT = DATASET_FORMAT
 FORMAT_VERSION = 2
@@ -171,7 +172,6 @@ class DatasetMetadata:
         section: the plant step, self-contact, Drake's contact settings, the effects); effects=False: the robot's
         description as it is, simulated as the data were (the nominal plant the physics baseline steps). A file
         that records no plant (an imported log): the default plant."""
-        from stdm_drake.robots.plant import PlantConfig
         return PlantConfig.from_record(self.record.get("plant"), effects=effects)
 
     def section(self, name: str) -> dict:

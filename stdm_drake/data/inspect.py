@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from stdm_drake.data.dataset import Dataset
+from stdm_drake.data.dataset import Dataset, derivative_arrays
 from stdm_drake.files import line_text
 
 
@@ -50,7 +50,6 @@ def plan_mismatch(dataset: Dataset, indices=None) -> dict | None:
     accelerations (torque dithered every sample, poor tracking, a coarse reference). Returns
     dict(recorded=source, acceleration=mean over joints, velocity=mean over joints, acceleration_per_joint=(n,)
     list, velocity_per_joint=(n,) list), or None without a plan."""
-    from stdm_drake.data.dataset import derivative_arrays
     if not dataset.has_plan:
         return None
     recorded = "true" if dataset.is_simulated else "smoothed"

@@ -28,6 +28,7 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
 from stdm_drake.outputs import NATIVE_MARKER  # (the first line, how `export` knows its own file)
+from stdm_drake.paths import check_input_file
 
 DRAKE_ACTIVATIONS = ("tanh", "relu")
 
@@ -70,9 +71,9 @@ class NativeModelFile:
 
 def native_model(checkpoint) -> NativeModelFile:
     """The Drake-native model of a loaded checkpoint; InputError when Drake's perceptron cannot represent it."""
-    from stdm_drake.deploy.onnx_export import FEATURE_INPUTS, ExportLayout
-    from stdm_drake.deploy.onnx_graph import NetworkArrays
-    from stdm_drake.learning.models import EnsembleMLP
+    from stdm_drake.deploy.onnx_export import FEATURE_INPUTS, ExportLayout   # lazy: torch, onnx
+    from stdm_drake.deploy.onnx_graph import NetworkArrays   # lazy: torch, onnx
+    from stdm_drake.learning.models import EnsembleMLP   # lazy: torch
     config = checkpoint.model_config
     if type(checkpoint.model) is not EnsembleMLP:   # (a subclass kind may compute otherwise)
         raise InputError(f"{checkpoint.path}: a {checkpoint.model.kind!r} network has no Drake-native form")
@@ -122,7 +123,6 @@ def native_text(model: NativeModelFile) -> str:
 def load_native_model(path) -> NativeModelFile:
     """Read a Drake-native model file (InputError if it is not one)."""
     from pydrake.common.yaml import yaml_load_typed
-    from stdm_drake.paths import check_input_file
     path = check_input_file(path, "Drake-native model", missing=FileNotFoundError)
     text = path.read_text(encoding="utf-8", errors="replace")
     if not text.startswith(NATIVE_MARKER):

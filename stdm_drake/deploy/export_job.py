@@ -4,6 +4,9 @@ import dataclasses
 import pathlib
 
 from stdm_drake.errors import InputError
+from stdm_drake.files import atomic_paths, line_text
+from stdm_drake.outputs import check_output_file
+from stdm_drake.deploy.drake_native import native_model, native_text
 
 TARGETS = ("onnx", "drake")
 
@@ -30,9 +33,7 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
     """Run the export; returns the files written. InputError (nothing written) for a checkpoint that is not one,
     an output that exists and stdm-drake's export did not write (without force), or a model the target cannot
     represent."""
-    from stdm_drake.files import atomic_paths, line_text
-    from stdm_drake.learning.checkpoint import load_checkpoint
-    from stdm_drake.outputs import check_output_file
+    from stdm_drake.learning.checkpoint import load_checkpoint   # lazy: torch, pydrake, h5py
     if job.target not in TARGETS:
         raise InputError(f"--target must be one of {', '.join(TARGETS)}, got {job.target!r}")
     if job.mean_only and job.target != "onnx":
@@ -57,11 +58,10 @@ def export_job(job: ExportJob, say=print) -> list[pathlib.Path]:
         raise InputError(f"--mean-only: {job.checkpoint} is one deterministic network, whose graph gives the mean "
                          "alone already (no variance or member outputs to leave out); export it without the flag")
     if job.target == "onnx":
-        from stdm_drake.deploy.onnx_export import checkpoint_graphs
+        from stdm_drake.deploy.onnx_export import checkpoint_graphs   # lazy: torch, onnx
         model, jacobian, features = checkpoint_graphs(checkpoint, mean_only=job.mean_only)
         contents = [model.SerializeToString(), jacobian.SerializeToString()]
     else:
-        from stdm_drake.deploy.drake_native import native_model, native_text
         native = native_model(checkpoint)
         features = native.feature_input and f"input {native.feature_input!r} ({native.feature_width})"
         contents = [native_text(native).encode("utf-8")]

@@ -28,6 +28,8 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.files import path_text
 from stdm_drake.deploy.onnx_graph import GraphBuilder, NetworkArrays, network_jacobian, network_outputs, tensor_info
+from stdm_drake import __version__
+from stdm_drake.learning.models import EnsembleMLP
 
 BATCH = "batch"
 # structure inputs -> (graph input name, values per joint, unit, how to compute it)
@@ -168,7 +170,6 @@ def jacobian_graph(net: NetworkArrays, layout: ExportLayout, structure, metadata
 
 def export_metadata(checkpoint, layout: ExportLayout, source_sha256: str) -> dict:
     """The string metadata both graphs carry: units, the sample period, the structure and the feature recipe."""
-    from stdm_drake import __version__
     structure, recorded = checkpoint.structure, checkpoint.metadata
     config = checkpoint.model_config
     n = layout.joints
@@ -203,7 +204,6 @@ def checkpoint_graphs(checkpoint, *, mean_only: bool = False):
     """(model graph, Jacobian graph, feature note or None) of a loaded checkpoint (mean_only: `model_graph`'s);
     InputError for a network the ONNX export does not represent (another registered network kind than the ensemble
     MLP)."""
-    from stdm_drake.learning.models import EnsembleMLP
     if type(checkpoint.model) is not EnsembleMLP:   # (a subclass kind may compute otherwise)
         raise InputError(f"{checkpoint.path}: a {checkpoint.model.kind!r} network cannot be exported to ONNX "
                          "(the export represents stdm-drake's ensemble MLP)")

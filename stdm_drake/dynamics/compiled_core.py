@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.dynamics.physics import PlantModel
 
 IMPLEMENTATIONS = ("compiled", "numpy")
 
@@ -30,7 +31,7 @@ IMPLEMENTATIONS = ("compiled", "numpy")
 def core_module():
     """The extension module `stdm_drake._core`; InputError (one line) where it was not built."""
     try:
-        from stdm_drake import _core
+        from stdm_drake import _core   # lazy: the compiled extension, absent where its build failed
     except ImportError as error:
         raise InputError(f"the compiled core is not built ({error}): reinstall the package on a machine with a C++ "
                          "compiler (pip install -e .), or choose implementation numpy (the MPC settings' `optimizer: "
@@ -88,7 +89,6 @@ def compiled_model(model):
     """(the `_core` model of `model`, "") where the compiled core covers it, else (None, why not) (module
     docstring). InputError where the extension is not built."""
     core = core_module()
-    from stdm_drake.dynamics.physics import PlantModel
     if isinstance(model, PlantModel):
         if model.integrator != "rk4":
             return None, "a plant model of the simulator's integrator (control uses rk4)"

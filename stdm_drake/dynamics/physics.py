@@ -137,10 +137,10 @@ class PlantModel(DynamicsModel):
             raise InputError(f"a one-step plant model cannot hold the affected plant's {', '.join(lagging)}: the "
                              "torque acting depends on earlier commands, not on (x, u); use the description's plant")
         if integrator == "simulator":
-            from stdm_drake.robots.plant import PlantSimulator
+            from stdm_drake.robots.plant import PlantSimulator   # lazy: pydrake
             self.simulation = PlantSimulator(plant_config, robot=self.robot)
         else:
-            from stdm_drake.robots.rigid_body import robot_dynamics
+            from stdm_drake.robots.rigid_body import robot_dynamics   # lazy: pydrake
             self.dynamics = robot_dynamics(robot, self.effects)
             self.substeps = rk4_substeps(self.dynamics, robot.home, self.sample_period)
 
@@ -315,7 +315,7 @@ class NominalAcceleration:
     """
 
     def __init__(self, robot):
-        from stdm_drake.robots.rigid_body import robot_dynamics
+        from stdm_drake.robots.rigid_body import robot_dynamics   # lazy: pydrake
         self.robot = robot
         self.num_joints, self.action_dim = self.robot.num_joints, self.robot.action_dim
         self.width = self.num_joints      # values per row

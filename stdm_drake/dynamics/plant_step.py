@@ -20,7 +20,7 @@ class PlantStep:
 
     def __init__(self, robot, sample_period: float, effects=None, plant_time_step: float | None = None, *,
                  integrator: str = "simulator"):
-        from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig
+        from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig   # lazy: pydrake
         config = None
         if effects is not None:
             config = PlantConfig.discrete(plant_time_step or DEFAULT_PLANT_TIME_STEP, effects=effects)

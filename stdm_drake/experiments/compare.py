@@ -34,6 +34,9 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_paths, finite_json, line_text, write_text_atomic
+from stdm_drake.outputs import check_output_folder, mark_output_folder, FINISHED_RESULTS
+from stdm_drake.dynamics.model_files import load_model, load_model_file
+from stdm_drake.provenance import results_header
 
 KINDS = ("plant", "identified", "G", "D", "DD", "PE")   # in order of cost
 LEARNED_KINDS = ("G", "D", "DD", "PE")
@@ -129,17 +132,16 @@ def run_compare(job: CompareJob) -> dict:
     comparison refused), then each stage not done before (identify, train per kind, the open-loop table, the
     closed loops), the tables printed and written; returns what compare.json holds. InputError (one line) for a bad
     input."""
-    from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.outputs import check_output_folder, mark_output_folder
+    from stdm_drake.data.compatibility import resolve_robot   # lazy: pydrake
+    from stdm_drake.data.dataset import load_dataset   # lazy: pydrake, h5py
     job.validate()
     dataset = load_dataset(job.dataset)
     robot = resolve_robot(job.robot, dataset)
     loops = job.closed_loop and dataset.is_simulated and dataset.has_plan
     if loops:
         robot.check_fully_actuated("the closed loops (--no-closed-loop leaves them out)")
-    from stdm_drake.data.dataset import dataset_split
-    from stdm_drake.learning.settings import TrainSettings
+    from stdm_drake.data.dataset import dataset_split   # lazy: pydrake, h5py
+    from stdm_drake.learning.settings import TrainSettings   # lazy: torch, pydrake, h5py
     dataset_split(dataset, TrainSettings())   # (a dataset too small for the split: refused before any folder or line)
     request = json.loads(json.dumps(finite_json(dict(dataset_sha256=dataset.sha256, robot=robot.record(),
                                                      profile=dataclasses.asdict(job.profile), kinds=list(job.kinds)))))
@@ -171,7 +173,6 @@ def _previous_request(output: pathlib.Path) -> dict | None:
 def _default_folder(request: dict) -> pathlib.Path:
     """Without -o: out/compare, or the first of out/compare-2, -3, ... that holds no finished comparison and no other
     request's stages (a stopped run of this request continues in its folder)."""
-    from stdm_drake.outputs import FINISHED_RESULTS
     candidate, number = DEFAULT_OUTPUT, 1
     while candidate.exists() and (not candidate.is_dir() or any((candidate / name).exists() for name in
                                   FINISHED_RESULTS["compare"]) or _previous_request(candidate) not in (None, request)):
@@ -198,7 +199,7 @@ def _check_same_request(output: pathlib.Path, request: dict) -> None:
 def _identified(job: CompareJob, output: pathlib.Path, dataset) -> pathlib.Path:
     """The identified robot of the dataset's train split (identify's defaults: the same split as train's), reused
     where a run before wrote it."""
-    from stdm_drake.identification.identify_job import IdentifyJob, identify_job
+    from stdm_drake.identification.identify_job import IdentifyJob, identify_job   # lazy: pydrake
     path = output / "identified.yaml"
     if path.exists() and (output / "identified.json").exists():
         say(f"compare: identified robot: reused {line_text(path)}")
@@ -212,8 +213,8 @@ def _identified(job: CompareJob, output: pathlib.Path, dataset) -> pathlib.Path:
 def _trained(job: CompareJob, output: pathlib.Path, kind: str, dataset, identified) -> list[pathlib.Path]:
     """The checkpoints (one per seed) of `kind` trained at the profile's size on the dataset's default split,
     reused where a finished run wrote them (its summary.json), continued where one stopped."""
-    from stdm_drake.learning.settings import TrainSettings
-    from stdm_drake.learning.train_job import TrainJob, train_job
+    from stdm_drake.learning.settings import TrainSettings   # lazy: torch, pydrake, h5py
+    from stdm_drake.learning.train_job import TrainJob, train_job   # lazy: torch, pydrake, h5py
     profile, folder = job.profile, output / "models" / kind
     seeds = list(range(profile.seeds))
     paths = [folder / f"seed{seed}" / "checkpoint.pt" for seed in seeds]
@@ -234,11 +235,11 @@ def _trained(job: CompareJob, output: pathlib.Path, kind: str, dataset, identifi
 def _open_loop(job: CompareJob, dataset, robot, files: dict) -> dict:
     """Every model's and baseline's one-step MSE and open-loop q MSE at HORIZONS on the test split, and its q RMS
     over the longest horizon per test trajectory (the units of the rule without closed loops)."""
-    from stdm_drake.data.inspect import noise_floor
-    from stdm_drake.dynamics.model_files import load_model, load_model_file
+    from stdm_drake.data.inspect import noise_floor   # lazy: pydrake, h5py
+    # lazy: torch
     from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines, trajectory_rollout_data
-    from stdm_drake.data.dataset import dataset_split
-    from stdm_drake.learning.settings import TrainSettings
+    from stdm_drake.data.dataset import dataset_split   # lazy: pydrake, h5py
+    from stdm_drake.learning.settings import TrainSettings   # lazy: torch, pydrake, h5py
     test = np.asarray(dataset_split(dataset, TrainSettings())[0].test, dtype=int)
     models, kinds = [], []
     for kind, paths in files.items():
@@ -273,8 +274,8 @@ def _open_loop(job: CompareJob, dataset, robot, files: dict) -> dict:
 def _closed_loop(job: CompareJob, output: pathlib.Path, files: dict) -> list[dict]:
     """The runs of `mpc` on held-out plans with every model (and the description, "plant"), each model's MPC setting
     tuned first where the profile says; reused where a run before closed them on the same model files."""
-    from stdm_drake.closed_loop.study import MpcStudy, run_mpc_study
-    from stdm_drake.data.dataset import file_sha256
+    from stdm_drake.closed_loop.study import MpcStudy, run_mpc_study   # lazy: pydrake
+    from stdm_drake.data.dataset import file_sha256   # lazy: pydrake, h5py
     folder = output / "mpc"
     models = [(kind if kind == "identified" else f"{kind}-s{seed}", path) for kind, paths in files.items()
               for seed, path in enumerate(paths)]
@@ -296,7 +297,6 @@ def _closed_loop(job: CompareJob, output: pathlib.Path, files: dict) -> list[dic
 def _summary(job: CompareJob, dataset, robot, files: dict, open_loop: dict, closed: list | None, loops: bool) -> dict:
     """compare.json: per kind its open-loop errors (mean over seeds, with the spread of seeds), its closed-loop
     tracking and cost per control step, the candidates and the recommendation (`recommend`)."""
-    from stdm_drake.provenance import results_header
     rows, horizon = open_loop["rows"], open_loop["horizon"]
     steps = [step for step in HORIZONS if step <= horizon]
     table = []

@@ -9,8 +9,8 @@ from stdm_drake.errors import InputError
 def _reusable_dataset(path: pathlib.Path, request):
     """The dataset at `path` if it is readable and was collected exactly as `request` asks (count, seed,
     robot, plant, sensor, controller, plan or excitation settings; package versions aside), else None."""
-    from stdm_drake.collection.collect import collection_metadata
-    from stdm_drake.data.dataset import load_dataset
+    from stdm_drake.collection.collect import collection_metadata   # lazy: pydrake, h5py
+    from stdm_drake.data.dataset import load_dataset   # lazy: pydrake, h5py
     if not path.exists():
         return None
     try:
@@ -43,9 +43,9 @@ def ensure_dataset(protocol: str, count: int, seed: int, folder: pathlib.Path, p
                    name: str | None = None, **settings):
     """Collect the dataset (`collection_request` with its defaults plus `settings`, e.g. controller=PATH)
     unless a file of that name collected with exactly these settings exists."""
-    from stdm_drake.collection.collect import collect, collection_request
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.data.writer import write_dataset
+    from stdm_drake.collection.collect import collect, collection_request   # lazy: pydrake, h5py
+    from stdm_drake.data.dataset import load_dataset   # lazy: pydrake, h5py
+    from stdm_drake.data.writer import write_dataset   # lazy: pydrake, h5py
     path = folder / f"{name or protocol}_n{count}_seed{seed}.h5"
     request = collection_request(protocol, count=count, seed=seed, **settings)
     dataset = _reusable_dataset(path, request)

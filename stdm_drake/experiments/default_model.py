@@ -2,13 +2,13 @@
 (`train`'s default structure, alpha scale and grid on the excitation data; D against DD with alpha by validation,
 paired by seed; `jobs.run_job` trains and tests them like any grid job)."""
 from stdm_drake.experiments.jobs import Profile, TrainJob
+from stdm_drake.data.dataset import split_trajectories
+from stdm_drake.learning.settings import TrainSettings
 
 
 def default_model_jobs(profile: Profile, excitation, robot_config: str) -> list[TrainJob]:
     """One grid job per seed (`profile.default_model_seeds`) on the excitation data's largest simulated split, with
     `train`'s default structure, activation, alpha scale, alpha grid (0 included) and patience."""
-    from stdm_drake.data.dataset import split_trajectories
-    from stdm_drake.learning.settings import TrainSettings
     defaults = TrainSettings()
     largest = max(profile.sim_train_sizes)
     jobs = []

@@ -12,12 +12,24 @@ import numpy as np
 
 from stdm_drake.experiments.datasets import ensure_dataset  # noqa: F401  (stage 1, where the stages' callers find it)
 from stdm_drake.experiments.results import TrainingResult
-from stdm_drake.files import json_default, write_text_atomic
-from stdm_drake.learning.checkpoint import CHECKPOINT_VERSION
+from stdm_drake.files import json_default, write_text_atomic, atomic_path
+from stdm_drake.learning.checkpoint import CHECKPOINT_VERSION, save_checkpoint
 from stdm_drake.learning.activations import ACTIVATION_NAMES
-from stdm_drake.learning.models import MODEL_TYPES
-from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID
+from stdm_drake.learning.models import MODEL_TYPES, parse_model_type
+from stdm_drake.learning.settings import DEFAULT_ALPHA, DEFAULT_ALPHA_GRID, TrainingConfig
 from stdm_drake.paths import CONTROLLERS_DIR
+from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
+from stdm_drake.learning.predict import InferenceModel, rollout
+from stdm_drake.dynamics.physics import ConstantVelocity, StaysPut
+from stdm_drake.data.inspect import noise_floor
+from stdm_drake.learning.structure import DEFAULT, PAPER
+from stdm_drake.robots.robot import load_robot
+from stdm_drake.learning.learned_model import LearnedModel
+from stdm_drake.devices import compute_threads
+from stdm_drake.data.dataset import load_dataset, split_trajectories
+from stdm_drake.learning.problem import training_problem
+from stdm_drake.learning.alpha_selection import fit_model, train_alpha_grid
+from stdm_drake.cluster import file_on_this_node, RunnerConfig, job_pool, shared_file, task_error
 
 CONTROL_MODEL_TYPES = ("D", "DD", "PE", "PED")  # compared in closed loop (MPC)
 
@@ -115,17 +127,13 @@ class TrainJob:
 def _evaluate(model, dataset, job: TrainJob) -> dict:
     """One-step test MSE (q, v) and, for multistep jobs, the open-loop curves and (bare networks) rollout time."""
     import torch
-    from stdm_drake.learning.evaluate import multi_step_errors, one_step_errors, trajectory_rollout_data
-    from stdm_drake.learning.predict import InferenceModel, rollout
 
-    from stdm_drake.dynamics.physics import ConstantVelocity, StaysPut
 
     test = dataset.transitions(list(job.test))
     errors = one_step_errors(model, test.state, test.action, test.next_state)
     state_dim, action_dim = test.state.shape[1], test.action.shape[1]
     euler = one_step_errors(ConstantVelocity(state_dim, action_dim, dataset.sample_period), test.state, test.action,
                             test.next_state)
-    from stdm_drake.data.inspect import noise_floor
     floor = noise_floor(dataset, job.test) or dict(q=float("nan"), v=float("nan"))   # (a log: no truth, no floor)
     result = dict(q_mse=errors.angle_mse, v_mse=errors.velocity_mse, euler_q_mse=euler.angle_mse,
                   unchanged_v_mse=euler.velocity_mse, noise_floor_q=floor["q"], noise_floor_v=floor["v"])
@@ -151,20 +159,16 @@ def _evaluate(model, dataset, job: TrainJob) -> dict:
 
 def job_structure(job: TrainJob):
     """(ModelStructure, Robot or None) of a job: the paper's black box, or the default structure on its robot."""
-    from stdm_drake.learning.structure import DEFAULT, PAPER
     if job.structure == "paper":
         return PAPER, None
-    from stdm_drake.robots.robot import load_robot
     return DEFAULT, load_robot(job.robot_config)
 
 
 def as_model(network, structure, robot, dataset):
     """A trained network as what `_evaluate` tests: the bare network (the paper's black box, whose rollout time
     is measured) or, for another structure, its `LearnedModel`."""
-    from stdm_drake.learning.structure import PAPER
     if structure == PAPER:
         return network
-    from stdm_drake.learning.learned_model import LearnedModel
     return LearnedModel(network, robot=robot, structure=structure, sample_period=dataset.sample_period)
 
 
@@ -187,14 +191,7 @@ def grid_variants(alphas) -> dict:
 
 def run_job(job: TrainJob, cache: pathlib.Path) -> list[TrainingResult]:
     """Train (or reuse) one job; return one result per model it yields (test metrics, curves)."""
-    from stdm_drake.devices import compute_threads
     compute_threads(1)
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.checkpoint import save_checkpoint
-    from stdm_drake.learning.models import parse_model_type
-    from stdm_drake.learning.settings import TrainingConfig
-    from stdm_drake.learning.problem import training_problem
-    from stdm_drake.learning.alpha_selection import fit_model, train_alpha_grid
 
     key = job.key()
     result_path = cache / f"{key}.json"
@@ -275,7 +272,6 @@ def run_job_anywhere(job: TrainJob, cache: pathlib.Path | None, dataset_content:
     import shutil
     import tempfile
 
-    from stdm_drake.cluster import file_on_this_node
     local = dataclasses.replace(job, dataset=file_on_this_node(job.dataset, dataset_content, dataset_sha256))
     scratch = pathlib.Path(tempfile.mkdtemp(prefix="stdm-drake-job-"))
     try:
@@ -292,7 +288,6 @@ JOB_COST = {"control": 20.0, "default_model": 15.0, "sim_local": 15.0, "multiste
 
 
 def job_cost(job: TrainJob) -> float:
-    from stdm_drake.learning.models import parse_model_type
     kind = parse_model_type(job.model_type)
     members = len(job.alphas) if job.alphas else (job.ensemble_size if kind.ensemble else 1)
     derivative = 1.5 if job.alphas or kind.derivative else 1.0
@@ -308,8 +303,6 @@ def run_jobs(jobs: list[TrainJob], cache: pathlib.Path, workers: int, progress: 
 
     from tqdm import tqdm
 
-    from stdm_drake.cluster import RunnerConfig, job_pool, shared_file, task_error
-    from stdm_drake.files import atomic_path
     runner = runner or RunnerConfig(workers=workers)
     remote = runner.backend == "ray"
     rows_of, missing = {}, []
@@ -349,7 +342,6 @@ def plan_jobs(profile: Profile, excitation, local, tracking, identification) -> 
     seeds vary initialization. Naive/derivative comparisons are grid jobs (TrainJob.alphas): the paper's
     alpha beside naive for every activation, and the full alpha grid (alpha chosen by validation) for swish
     (the toolbox's default model's jobs: `default_model.default_model_jobs`)."""
-    from stdm_drake.data.dataset import split_trajectories
     common = dict(max_epochs=profile.max_epochs, patience=profile.patience, ensemble_size=profile.ensemble_size)
 
     def comparison(experiment, dataset, sizes, n_val, n_test, per_group, multistep=False):

@@ -25,6 +25,11 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.files import write_text_atomic
 from stdm_drake.interrupts import protected
+from stdm_drake.paths import CONTROLLERS_DIR
+from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.closed_loop.policy import MpcPolicy
+from stdm_drake.dynamics.model_files import load_model
+from stdm_drake.closed_loop.tuning import finite_mse
 
 MAX_ROUNDS = 100
 
@@ -60,7 +65,7 @@ class LoopConfig:
         """InputError (one line) for counts the loop cannot run, before any work."""
         if not 1 <= self.rounds <= MAX_ROUNDS:
             raise InputError(f"--rounds must be in 1..{MAX_ROUNDS}, got {self.rounds}")
-        from stdm_drake.collection.collect import MAX_COUNT
+        from stdm_drake.collection.collect import MAX_COUNT   # lazy: pydrake, h5py
         for name in ("initial_plans", "plans_per_round", "evaluation_plans"):
             if not 1 <= getattr(self, name) <= MAX_COUNT:
                 raise InputError(f"--{name.replace('_', '-')} must be in 1..{MAX_COUNT} (collect's limit), got "
@@ -72,8 +77,8 @@ class LoopConfig:
             top = 2 ** 63 - 1 - (self.rounds if name == "plan_seed" else 0)   # (round r plans with plan_seed + r)
             if not 0 <= getattr(self, name) <= top:
                 raise InputError(f"--{name.replace('_', '-')} must be in 0..{top}, got {getattr(self, name)}")
-        from stdm_drake.learning.models import GREY_BOX_TYPES
-        from stdm_drake.learning.settings import TrainSettings
+        from stdm_drake.learning.models import GREY_BOX_TYPES   # lazy: torch
+        from stdm_drake.learning.settings import TrainSettings   # lazy: torch, pydrake, h5py
         if str(self.model).upper() in GREY_BOX_TYPES:
             raise InputError(f"--model {self.model}: a grey box needs an identified robot (train --physics), which the "
                              "loop does not refit; use D, P, DE, PE or their derivative-trained twins")
@@ -101,7 +106,7 @@ class LoopConfig:
             raise InputError(f"mpc optimizer propagation {optimizer.propagation} with {optimizer.particles} particles "
                              f"samples an ensemble's members, and --model {self.model} has one deterministic member; "
                              "use propagation: mean")
-        from stdm_drake.learning.settings import MAX_TOTAL_EPOCHS
+        from stdm_drake.learning.settings import MAX_TOTAL_EPOCHS   # lazy: torch, pydrake, h5py
         fits = (self.rounds + 1) * (2 if self.open_loop else 1)   # (a model per round, and the open-loop twin's)
         if settings.epochs * fits > MAX_TOTAL_EPOCHS:
             raise InputError(f"--epochs {settings.epochs:,} for each of the loop's {fits} trainings (--rounds "
@@ -111,9 +116,8 @@ class LoopConfig:
 
 def collection(config: LoopConfig, count: int, seed: int):
     """The tracking `CollectionRequest` of `count` plans of `seed` on the loop's plant (its controller and sensor)."""
-    from stdm_drake.collection.collect import collection_request
-    from stdm_drake.experiments.jobs import IDENTIFICATION_SETTINGS
-    from stdm_drake.paths import CONTROLLERS_DIR
+    from stdm_drake.collection.collect import collection_request   # lazy: pydrake, h5py
+    from stdm_drake.experiments.jobs import IDENTIFICATION_SETTINGS   # lazy: torch, pydrake, h5py
     return collection_request("tracking", count=count, seed=seed, robot=config.robot,
                               controller=config.controller or CONTROLLERS_DIR / "pid_dither_sized.yaml",
                               sensor=config.sensor or IDENTIFICATION_SETTINGS["sensor"],
@@ -122,8 +126,7 @@ def collection(config: LoopConfig, count: int, seed: int):
 
 def planned(request):
     """(plans, groups) of a tracking request (`collect.plan_tracking`, in this process)."""
-    from stdm_drake.cluster import RunnerConfig, job_pool
-    from stdm_drake.collection.collect import init_station_worker, plan_tracking
+    from stdm_drake.collection.collect import init_station_worker, plan_tracking   # lazy: pydrake, h5py
     with job_pool(RunnerConfig(workers=1), initializer=init_station_worker, initargs=(request.settings,)) as pool:
         return plan_tracking(request, pool)
 
@@ -132,9 +135,8 @@ def track_with_mpc(station, model, plans, config: LoopConfig, seed: int) -> tupl
     """The trajectories (dataset arrays) of `plans` tracked on the station's plant by the MPC of `model`, their
     start poses' indices, and counts. A closed loop that leaves the robot's limits is cut at its last sample
     inside them (a robot's safety stop: what it recorded up to there is kept; fewer than 2 periods, nothing)."""
-    from stdm_drake.closed_loop.mpc import Reference
-    from stdm_drake.closed_loop.policy import MpcPolicy
-    from stdm_drake.robots.control import JointSensor
+    from stdm_drake.closed_loop.mpc import Reference   # lazy: pydrake
+    from stdm_drake.robots.control import JointSensor   # lazy: pydrake
     trajectories, kept, stopped, fallbacks, steps = [], [], 0, 0, 0
     limits = station.limits
     for index, plan in enumerate(plans):
@@ -169,7 +171,7 @@ def cut(traj: dict, last: int) -> dict | None:
 
 def write_trajectories(path: pathlib.Path, trajectories: list, groups: list, metadata: dict) -> None:
     """A dataset of `trajectories` (Trajectory) with `metadata` (its count set), unless it exists."""
-    from stdm_drake.data.writer import write_dataset
+    from stdm_drake.data.writer import write_dataset   # lazy: pydrake, h5py
     if not path.exists():
         path.parent.mkdir(parents=True, exist_ok=True)
         write_dataset(path, trajectories, groups, dict(metadata, num_trajectories=len(trajectories)))
@@ -179,9 +181,9 @@ def train_round(config: LoopConfig, data_path: pathlib.Path, folder: pathlib.Pat
     """`train` of the loop's model on a round's data (as many plans as there are start poses validate, drawn by the
     split seed, the others train); returns the checkpoint and the validation verdict against the physics-free
     baselines."""
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.learning.settings import TrainSettings
-    from stdm_drake.learning.train_job import TrainJob, train_job
+    from stdm_drake.data.dataset import load_dataset   # lazy: pydrake, h5py
+    from stdm_drake.learning.settings import TrainSettings   # lazy: torch, pydrake, h5py
+    from stdm_drake.learning.train_job import TrainJob, train_job   # lazy: torch, pydrake, h5py
     checkpoint = folder / f"seed{config.seed}" / "checkpoint.pt"
     summary_path = folder / "summary.json"
     if not summary_path.exists():
@@ -211,11 +213,9 @@ def validation_verdict(entry: dict) -> dict:
 def evaluate(config: LoopConfig, checkpoint: pathlib.Path, references: list, plant_config) -> dict:
     """The round's model under the loop's MPC on the evaluation references: per plan q MSE (rad²), steps outside
     the limits, fallbacks, mean solve ms."""
-    from stdm_drake.closed_loop.comparison import compare_controllers
-    from stdm_drake.dynamics.model_files import load_model
+    from stdm_drake.closed_loop.comparison import compare_controllers   # lazy: pydrake
     model = load_model(checkpoint, config.robot, name=config.model, for_control=True)
     results = compare_controllers([model], references, config.mpc, plant_config, progress=False, robot=config.robot)
-    from stdm_drake.closed_loop.tuning import finite_mse
     mse = [result.q_mse_rad2 for result in results]
     return dict(q_mse_per_plan=mse,   # (a diverged plan counts as tuning.DIVERGED_Q_MSE in the geometric mean)
                 q_mse_geometric_mean=float(np.exp(np.mean(np.log([max(finite_mse(value), 1e-300) for value in mse])))),
@@ -229,11 +229,10 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print, prog
     `evaluation_plans` plans of `evaluation_seed`); progress: a bar of the rounds on stderr. Returns the summary
     (also in output/summary.json)."""
     from tqdm import tqdm
-    from stdm_drake.closed_loop.mpc import Reference
-    from stdm_drake.collection.collect import collect, collection_metadata
-    from stdm_drake.data.dataset import Trajectory, load_dataset
-    from stdm_drake.dynamics.model_files import load_model
-    from stdm_drake.robots.station import Station
+    from stdm_drake.closed_loop.mpc import Reference   # lazy: pydrake
+    from stdm_drake.collection.collect import collect, collection_metadata   # lazy: pydrake, h5py
+    from stdm_drake.data.dataset import Trajectory, load_dataset   # lazy: pydrake, h5py
+    from stdm_drake.robots.station import Station   # lazy: pydrake
     config.validate()
     started = time.perf_counter()
     output = pathlib.Path(config.output)
@@ -356,8 +355,8 @@ def check_same_loop(output: pathlib.Path, config: LoopConfig, references: list) 
 def open_loop_round(config: LoopConfig, round_index: int, references: list, plant_config, station, metadata) -> dict:
     """The same budget collected open loop: the initial data plus rounds 0..round_index-1's plans tracked by the
     collection controller, trained and evaluated as the loop's rounds."""
-    from stdm_drake.collection.collect import tracking_trajectory
-    from stdm_drake.data.dataset import Trajectory, load_dataset
+    from stdm_drake.collection.collect import tracking_trajectory   # lazy: pydrake, h5py
+    from stdm_drake.data.dataset import Trajectory, load_dataset   # lazy: pydrake, h5py
     folder = pathlib.Path(config.output) / f"open_loop{round_index}"
     data_path = folder / "data.h5"
     if not data_path.exists():

@@ -30,6 +30,12 @@ from stdm_drake.outputs import mark_output_folder
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.plant import PlantConfig
 from stdm_drake.robots.robot import Robot
+from stdm_drake.collection.excitation import Excitation
+from stdm_drake.experiments import sine_sum
+from stdm_drake.learning.learned_model import LearnedModel
+from stdm_drake.closed_loop.mpc import Reference, mpc_config_for
+from stdm_drake.closed_loop.comparison import (closed_loop_failures, held_out_references, plot_results, summarize,
+                                               compare_controllers, spec_models)
 
 def dataset_settings(robot: Robot, plant_effects=None) -> dict:
     """`ensure_dataset` settings of the four datasets for `robot`: the files its config's `defaults` names
@@ -40,7 +46,6 @@ def dataset_settings(robot: Robot, plant_effects=None) -> dict:
     description as it is). On a plant with effects the identification data's PID gains and dither are
     sized from that plant's inertia (a servo is tuned on the robot it drives; gains sized for the
     description leave a geared wrist held by its friction: docs/reality_gap.md)."""
-    from stdm_drake.collection.excitation import Excitation
     excitation, local = robot.default_file("excitation"), robot.default_file("excitation_local")
     controller = None if plant_effects is not None else robot.default_file("identification_controller")
     common = dict(robot=robot, plant_effects=plant_effects)
@@ -61,7 +66,6 @@ def reproduce(profile: Profile, output: pathlib.Path, seed: int = 0, workers: in
     back). runner: a RunnerConfig for the training jobs (default: the local pool of `workers` processes).
     plant_effects: a checked PlantEffects: every dataset and closed loop on that affected plant, the MPC
     stage's plant model the robot's description (nominal) beside the affected plant ("true-plant")."""
-    from stdm_drake.experiments import sine_sum
     robot.check_can_track()  # the tracked-plan experiments and MPC need it (before any work)
     settings = dataset_settings(robot, plant_effects)
     output = pathlib.Path(output)
@@ -124,9 +128,6 @@ def run_mpc(profile, identification, results, cache, folder, progress, workers: 
     plans of the identification dataset, the models split over `workers` processes, on the plant with
     `plant_effects` (then "plant" is the nominal model and "true-plant" the affected one); returns
     {"runs": per model instance, "types": mpc_statistics, "failures": one line per failed closed loop}."""
-    from stdm_drake.learning.learned_model import LearnedModel
-    from stdm_drake.closed_loop.mpc import Reference
-    from stdm_drake.closed_loop.comparison import closed_loop_failures, held_out_references, plot_results, summarize
     oracle = plant_effects is not None and not plant_effects.beyond_rigid_bodies()   # (no rigid-body model holds those)
     specs = [("plant", None)] + ([("true-plant", "true")] if oracle else [])
     for model_type in CONTROL_MODEL_TYPES:
@@ -168,8 +169,6 @@ def _mpc_group(group: MpcGroup) -> list:
     """The ClosedLoopResults of one MpcGroup."""
     import torch
     torch.set_num_threads(1)
-    from stdm_drake.closed_loop.comparison import compare_controllers, spec_models
-    from stdm_drake.closed_loop.mpc import mpc_config_for
     robot = group.robot
     models = spec_models(group.specs, group.sample_period, group.plant_config, robot=robot)
     return compare_controllers(models, group.references, mpc_config_for(robot), group.plant_config,

@@ -3,6 +3,7 @@
 import numpy as np
 
 from stdm_drake.experiments.results import select_rows
+from stdm_drake.files import atomic_path
 
 
 def figure_path(folder, name):
@@ -12,7 +13,6 @@ def figure_path(folder, name):
 def _save(figure, path):
     import matplotlib.pyplot as plt
 
-    from stdm_drake.files import atomic_path
     with atomic_path(path) as temp:
         figure.savefig(temp, format="png", dpi=100)
     plt.close(figure)

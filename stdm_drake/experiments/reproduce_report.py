@@ -9,6 +9,9 @@ from stdm_drake.experiments.reproduce_figures import (figure_path, plot_activati
                                                       plot_sizes)
 from stdm_drake.learning.models import MODEL_TYPES
 from stdm_drake.stats import paired_ratio
+from stdm_drake.dynamics.physics import learning_verdict
+from stdm_drake.data.inspect import tracking_errors
+from stdm_drake.experiments.sine_sum import headline, table1_rows
 
 # The paper's reported values (numbers stated in its text), shown in "paper" columns only.
 PAPER = {
@@ -68,7 +71,6 @@ def learned_ratios(results, experiment: str, size: int, activation: str, model_t
 
 def baseline_learned(found: dict) -> bool:
     """Whether a model type's `learned_ratios` pass `physics.learning_verdict` (the gate every learned model meets)."""
-    from stdm_drake.dynamics.physics import learning_verdict
     return learning_verdict(found["q"], found["v"], found.get("q_over_floor"),
                             found.get("v_over_floor")).startswith("learned")
 
@@ -253,7 +255,6 @@ def add_coverage_section(report, rows):
 def add_data_section(report, excitation, local, tracking, identification, controller_file: str) -> None:
     """The datasets: sizes and tracking errors beside the paper's, and what the identification data are
     (tracked with the controller file `controller_file`)."""
-    from stdm_drake.data.inspect import tracking_errors
     report.heading("Data")
     if excitation.metadata.plant_effects is not None:
         effects = excitation.metadata.plant_effects.summary()
@@ -381,7 +382,6 @@ def add_multistep_section(report, results, profile: Profile, figures) -> list:
 
 def add_sine_sum_section(report, sine: dict) -> None:
     """The sine-sum study's headline and Table 1 (full figures in sine_sum/)."""
-    from stdm_drake.experiments.sine_sum import headline, table1_rows
     report.heading("Sine-sum study (section III.B)")
     top = headline(sine)
     report.text(f"Profile '{sine['profile']}', {len(sine['runs'])} runs in {sine['wall_seconds']:.0f} s; "

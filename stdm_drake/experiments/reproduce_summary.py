@@ -6,6 +6,7 @@ import numpy as np
 from stdm_drake.experiments.jobs import Profile
 from stdm_drake.experiments.reproduce_report import BASELINE_NOTE, ONE_STEP, baseline_learned, comparison_row, ratio_text
 from stdm_drake.experiments.results import select_rows
+from stdm_drake.experiments.sine_sum import headline
 
 
 # The settled answers the summary's verdicts point to (a test holds each to the committed file named here).
@@ -87,7 +88,6 @@ def sine_sum_text(top: dict, quick: bool) -> str:
 def add_summary_section(report, results, sine: dict, default_row: dict | None, profile: Profile) -> None:
     """What this run shows, first: the default model's verdicts, the sine-sum's, whether the paper's black box
     learned the UR-10 here, and which results need the full profile."""
-    from stdm_drake.experiments.sine_sum import headline
     report.heading("Summary: what this run shows")
     lines = []
     if default_row is not None:

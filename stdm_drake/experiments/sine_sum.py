@@ -48,6 +48,7 @@ from stdm_drake.learning.models import ModelConfig
 from stdm_drake.provenance import results_header
 from stdm_drake.report import markdown_table
 from stdm_drake.stats import paired_ratio
+from stdm_drake.cluster import RunnerConfig, job_pool, task_error
 
 PAPER_TABLE1 = {  # paper Table 1: 5 hidden layers, derivative learning, average of 3 runs
     ("mae", "tanh"): 0.0682, ("mae", "relu"): 0.0530, ("mae", "swish"): 0.0962,
@@ -235,7 +236,6 @@ def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True, r
     `workers` or the backend."""
     from tqdm import tqdm
 
-    from stdm_drake.cluster import RunnerConfig, job_pool, task_error
     runner = runner or RunnerConfig(workers=workers)
 
     specs = run_specs(config)

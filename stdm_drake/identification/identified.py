@@ -18,6 +18,9 @@ from stdm_drake.data.schema import check_split
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import IDENTIFIED_MARKER
 from stdm_drake.robots.effects import PlantEffects, RigidInertia
+from stdm_drake.robots.plant import check_plant_effects, PlantConfig
+from stdm_drake.dynamics.physics import PlantModel
+from stdm_drake.config import load_yaml_config
 
 IDENTIFIED_SUFFIXES = (".yaml", ".yml")
 HEADER = (f"{IDENTIFIED_MARKER}: the robot's description with these parameters\n"
@@ -93,7 +96,6 @@ class IdentifiedRobot:
 
     def check_robot(self, robot) -> None:
         """InputError unless `robot`'s description is the identified one and the parameters fit it."""
-        from stdm_drake.robots.plant import check_plant_effects
         where = self.path or "identified robot"
         if robot is None or self.identification.robot_model_sha256 != robot.model_sha256():
             raise InputError(f"{where}: identified on another robot description than "
@@ -113,8 +115,6 @@ class IdentifiedRobot:
 
     def model(self, robot, name: str = "identified"):
         """The identified robot as a `PlantModel` of `robot` (its description must be the identified one)."""
-        from stdm_drake.dynamics.physics import PlantModel
-        from stdm_drake.robots.plant import PlantConfig
         record = self.identification
         self.check_robot(robot)
         return PlantModel(record.sample_period, PlantConfig.discrete(record.plant_time_step, effects=self.effects),
@@ -139,7 +139,6 @@ def is_identified_file(path) -> bool:
 
 def load_identified(path) -> IdentifiedRobot:
     """The IdentifiedRobot of a file `identify` wrote (InputError with one line otherwise)."""
-    from stdm_drake.config import load_yaml_config
     identified = load_yaml_config(path, IdentifiedRobot, what="identified robot")
     identified.path = pathlib.Path(path)
     return identified

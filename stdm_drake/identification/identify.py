@@ -21,7 +21,8 @@ from stdm_drake.identification.fit import (
 )
 from stdm_drake.identification.identified import Identification, IdentifiedRobot, link_inertia
 from stdm_drake.identification.regressor import LINK_PARAMETERS, InverseDynamicsRegressor
-from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, coulomb_stability_gains, robot_joint_limits
+from stdm_drake.robots.effects import PlantEffects
 
 VELOCITY_SCALES = (0.01, 0.05, 0.2)            # rad/s: the Coulomb term's tanh smoothing
 REGULARIZATIONS = (1e-8, 1e-6, 1e-4, 1e-2)     # toward the description's parameters (relative)
@@ -79,7 +80,6 @@ def usable_windows(dataset, split, settings: IdentifySettings, given: bool = Fal
 
 def _unstable_joints(scale: float, parameters: np.ndarray, regressor, robot, time_step: float) -> np.ndarray:
     """The joints (indices) whose identified Coulomb term of velocity scale `scale` is unstable at the plant step."""
-    from stdm_drake.robots.plant import coulomb_stability_gains
     gains = coulomb_stability_gains(_effects(parameters, regressor, scale, ""), robot, time_step)
     return np.zeros(0, dtype=int) if gains is None else np.flatnonzero(gains > 1.0)
 
@@ -100,7 +100,6 @@ def _stable_fit(rows, target, prior, regressor, robot, time_step: float, scale: 
 
 
 def _effects(parameters: np.ndarray, regressor: InverseDynamicsRegressor, scale: float, source: str):
-    from stdm_drake.robots.effects import PlantEffects
     n, links = regressor.num_joints, regressor.links
     joint = parameters[10 * len(links):]
     return PlantEffects(source=source, joint_damping=joint[:n].tolist(), coulomb_friction=joint[n:2 * n].tolist(),
@@ -112,7 +111,6 @@ def usable_scales(settings: IdentifySettings, robot, given: bool = False) -> tup
     """The Coulomb velocity scales of `settings` within every arm joint's speed range (its velocity limit; a wider one
     never lets the friction reach its level: the plant effects' own rule); InputError (one line) where none is, or where
     `given` (the user's --velocity-scales, not the defaults) and one is not: a given candidate is refused, not dropped."""
-    from stdm_drake.robots.plant import robot_joint_limits
     speed = robot_joint_limits(robot).velocity
     joint = int(np.argmin(speed))
     scales = tuple(scale for scale in settings.velocity_scales if scale <= speed[joint])

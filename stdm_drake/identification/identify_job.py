@@ -13,8 +13,11 @@ import sys
 
 from stdm_drake.errors import InputError, warn
 from stdm_drake.files import atomic_paths, json_default, line_text
-from stdm_drake.identification.identify import REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES, usable_scales
+from stdm_drake.identification.identify import (REGULARIZATIONS, SMOOTHING_WINDOWS, VELOCITY_SCALES, usable_scales,
+                                                IdentifySettings, identify, usable_windows)
 from stdm_drake.outputs import check_output_file
+from stdm_drake.data.compatibility import resolve_robot
+from stdm_drake.identification.identified import identified_text
 
 
 @dataclasses.dataclass
@@ -54,11 +57,8 @@ def identify_job(job: IdentifyJob) -> dict:
     the dataset, the derivative source against the windows, the robot fully actuated, the split), then the
     identification, its summary printed and both files written; returns the report (what the .json holds).
     InputError (one line) for a bad input."""
-    from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.identification.identified import identified_text
-    from stdm_drake.identification.identify import IdentifySettings, identify, usable_windows
-    from stdm_drake.data.dataset import check_split_options, dataset_split
+    from stdm_drake.data.dataset import load_dataset   # lazy: h5py
+    from stdm_drake.data.dataset import check_split_options, dataset_split   # lazy: h5py
     output = pathlib.Path(job.output)
     if output.suffix.lower() not in (".yaml", ".yml"):
         raise InputError(f"-o/--output {job.output}: an identified robot is a .yaml file")

@@ -117,7 +117,7 @@ class InverseDynamicsRegressor:
         group hold fixed in tau_0; each joint's total damping (the description's, or the effects'
         joint_damping, plus viscous friction), Coulomb friction and reflected rotor inertia."""
         from pydrake.multibody.plant import MultibodyPlant
-        from stdm_drake.robots.effects import add_effects_to_plant, set_effect_parameters
+        from stdm_drake.robots.effects import add_effects_to_plant, set_effect_parameters   # lazy: pydrake
 
         def plant_of(plant_effects):
             plant = MultibodyPlant(0.0)

@@ -15,6 +15,8 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.dynamics.model import DynamicsModel
 from stdm_drake.learning.predict import as_inference_model
+from stdm_drake.learning.learned_model import LearnedModel
+from stdm_drake.dynamics.physics import ConstantVelocity, PlantModel, StaysPut, learning_verdict
 
 REPORT_STEPS = (1, 5, 10, 20, 50, 100)
 
@@ -85,7 +87,6 @@ def times_better(ratio: float, digits: int = 3) -> str:
 def as_dynamics_model(model):
     """A DynamicsModel as it is; a bare network (a `TrainableModel` or its engine) as a LearnedModel of the
     paper's structure (next state from [x, a])."""
-    from stdm_drake.learning.learned_model import LearnedModel
     if isinstance(model, DynamicsModel):
         return model
     return LearnedModel(as_inference_model(model))
@@ -117,7 +118,6 @@ def multi_step_errors(model, initial_states, actions, true_states, *, propagatio
     model = as_dynamics_model(model)
     joints = _halves(model.state_dim)
     truth = np.asarray(true_states, dtype=np.float64)
-    from stdm_drake.learning.learned_model import LearnedModel
     options = dict(implementation=implementation) if isinstance(model, LearnedModel) else {}
     result = model.rollout(initial_states, actions, propagation=propagation, particles=particles, seed=seed,
                            **options)
@@ -177,7 +177,6 @@ def physics_baselines(sample_period: float, state_dim: int, action_dim: int, rob
     `DatasetMetadata.plant_config(effects=False)`; None: the default plant)."""
     if plant and robot is None:
         raise ValueError("the plant baseline needs the robot (or plant=False)")
-    from stdm_drake.dynamics.physics import ConstantVelocity, PlantModel, StaysPut
     models = [ConstantVelocity(state_dim, action_dim, sample_period), StaysPut(state_dim, action_dim, sample_period)]
     if plant:
         models.append(PlantModel(sample_period, plant_config, robot=robot))
@@ -191,7 +190,6 @@ def compare_with_baselines(models, transitions, rollout_data, *, propagation: st
     one-step errors only; implementation: the networks' rollout code); learned models are rated against the first
     ConstantVelocity among them and, given the sensor's noise_floor ({"q", "v"} one-step MSE,
     `data.inspect.noise_floor`), against it."""
-    from stdm_drake.dynamics.physics import ConstantVelocity, learning_verdict
     rows = []
     for model in models:
         one = one_step_errors(model, transitions.state, transitions.action, transitions.next_state)

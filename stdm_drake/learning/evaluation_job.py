@@ -11,8 +11,12 @@ import numpy as np
 from stdm_drake.errors import InputError, check_seed
 from stdm_drake.files import finite_json, line_text, write_text_atomic
 from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS
-from stdm_drake.learning.evaluate import REPORT_STEPS, compare_with_baselines, physics_baselines, trajectory_rollout_data
+from stdm_drake.learning.evaluate import (REPORT_STEPS, compare_with_baselines, physics_baselines,
+                                          trajectory_rollout_data, times_better)
 from stdm_drake.outputs import check_output_file
+from stdm_drake.learning.learned_model import LearnedModel
+from stdm_drake.dynamics.model_files import load_model, load_model_file
+from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, PlantModel
 
 
 @dataclasses.dataclass
@@ -57,7 +61,6 @@ def control_plant_difference(simulator, rk4, transitions, count: int = 2000) -> 
 def rollout_code(model, propagation: str, implementation: str) -> str:
     """Which code ran a model's open-loop rollouts: "compiled", or "numpy" with why where the compiled core was
     not asked for or does not cover the model or the propagation (`LearnedModel.rollout_implementation`)."""
-    from stdm_drake.learning.learned_model import LearnedModel
     if not isinstance(model, LearnedModel):
         return f"numpy ({type(model).__name__})"
     if implementation == "numpy":
@@ -69,11 +72,8 @@ def rollout_code(model, propagation: str, implementation: str) -> str:
 
 def evaluate_job(job: EvaluationJob) -> dict:
     """Run `job` (checks first), print its tables and verdict, and return the report (what --json writes)."""
-    from stdm_drake.data.compatibility import resolve_robot, robot_for
-    from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.dynamics.model_files import load_model, load_model_file
-    from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR
-    from stdm_drake.learning.evaluate import times_better
+    from stdm_drake.data.compatibility import resolve_robot, robot_for   # lazy: pydrake
+    from stdm_drake.data.dataset import load_dataset   # lazy: pydrake, h5py
 
     if job.propagation == "mean" and (job.particles is not None or job.seed is not None):
         raise InputError("--particles and --seed are for --propagation ts1 or tsinf (trajectory sampling); mean "
@@ -116,9 +116,8 @@ def evaluate_job(job: EvaluationJob) -> dict:
     baselines = physics_baselines(dataset.sample_period, model.state_dim, model.action_dim, robot=robot, plant=plant,
                                   plant_config=dataset.metadata.plant_config(effects=False))
     if plant:   # the plant model the MPC predicts with, beside the simulator's
-        from stdm_drake.dynamics.physics import PlantModel
         baselines.append(PlantModel(dataset.sample_period, robot=robot, integrator="rk4", name="plant (RK4)"))
-    from stdm_drake.data.inspect import noise_floor
+    from stdm_drake.data.inspect import noise_floor   # lazy: pydrake, h5py
     floor = noise_floor(dataset, indices)
     rows = compare_with_baselines([model] + baselines, transitions, rollout_data, propagation=job.propagation,
                                   particles=particles, seed=seed, noise_floor=floor,

@@ -18,6 +18,8 @@ from stdm_drake.dynamics.model import DynamicsModel, Prediction, Rollout, check_
 from stdm_drake.dynamics.compiled_core import IMPLEMENTATIONS, compiled_model, compiled_rollout
 from stdm_drake.learning.predict import as_inference_model, predict, rollout
 from stdm_drake.learning.structure import PAPER, ModelStructure
+from stdm_drake.learning.particles import TorchParticles
+from stdm_drake.learning.models import parse_model_type
 
 
 class LearnedModel(DynamicsModel):
@@ -34,7 +36,7 @@ class LearnedModel(DynamicsModel):
 
     def __init__(self, source, name: str | None = None, robot=None, *, structure: ModelStructure | None = None,
                  sample_period: float | None = None, check_robot: bool = True):
-        from stdm_drake.learning.checkpoint import Checkpoint, load_checkpoint
+        from stdm_drake.learning.checkpoint import Checkpoint, load_checkpoint   # lazy: pydrake, h5py
         self.checkpoint = None
         if not isinstance(source, (str, pathlib.Path, Checkpoint)):   # a bare network or its engine
             self.structure = structure or PAPER
@@ -174,7 +176,6 @@ class LearnedModel(DynamicsModel):
     def torch_particles(self, device: str):
         """This model's particle step in PyTorch on `device` (`learning.particles.TorchParticles`), for sampling
         MPC on a GPU; InputError for a model whose inputs need the robot's nominal model (Drake, on the CPU)."""
-        from stdm_drake.learning.particles import TorchParticles
         if self.structure != PAPER or not hasattr(self.engine, "member_block_outputs"):
             raise InputError(f"{self.name}: only the paper's black box (an ensemble MLP of raw inputs predicting the "
                              f"state) runs on a PyTorch device; this one is {self.structure.label}: use device cpu")
@@ -322,7 +323,6 @@ def trained_name(checkpoint) -> str:
     """What a checkpoint is, as tables name it: its model type ("model" where it has none), and for a derivative
     type whose alpha grid kept naive training (alpha 0) that type with "-naive" ("DD-naive": trained like a D), so
     that no table calls a network "DD" that never saw the derivative loss."""
-    from stdm_drake.learning.models import parse_model_type
     model_type = checkpoint.metadata.model_type or "model"
     alpha = checkpoint.training_config.alpha if checkpoint.training_config else None
     try:

@@ -31,6 +31,8 @@ from stdm_drake.learning.activations import get_activation
 from stdm_drake.learning.tangent import TangentPropagation
 from stdm_drake.learning.loss import LossTerms, member_gaussian_nll, member_point_loss
 from stdm_drake.learning.trainable import TrainableModel
+from stdm_drake.learning.regression import StandardizedData
+from stdm_drake.learning.predict import InferenceModel
 
 # A delta model's output spread is at least this fraction of its targets' own spread: a grey box on an exact
 # plant model has residual targets of rounding size (1e-10 rad/s), which standardized would be fitted as
@@ -292,7 +294,6 @@ class EnsembleMLP(TrainableModel):
     def standardize(self, data):
         """Raw arrays -> network units with the normalizers (computed in float64, then cast): z_n, y_n, and
         for derivative learning ż_n = ż/σ_z and (ẏ - r(ż))/σ_y (see the module docstring)."""
-        from stdm_drake.learning.regression import StandardizedData
         dtype = next(self.parameters()).dtype
         z_mean, z_std = (value.double().numpy() for value in (self.input_normalizer.mean, self.input_normalizer.std))
         y_mean, y_std = (value.double().numpy() for value in (self.output_normalizer.mean, self.output_normalizer.std))
@@ -367,5 +368,4 @@ class EnsembleMLP(TrainableModel):
 
     def inference(self):
         """The fast float32 NumPy engine (`predict.InferenceModel`)."""
-        from stdm_drake.learning.predict import InferenceModel
         return InferenceModel(self)

@@ -27,7 +27,7 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.learning.activations import get_activation
 from stdm_drake.dynamics.model import PROPAGATIONS, Prediction, Rollout
-from stdm_drake.learning.trainable import input_rows
+from stdm_drake.learning.trainable import input_rows, TrainableModel
 
 MAX_PARTICLES = 10_000   # particles per trajectory (their states are held at once)
 
@@ -210,7 +210,6 @@ class _Workspace:
 
 def as_inference_model(model):
     """The inference engine of a network (`TrainableModel.inference`: extracted now), or the engine itself."""
-    from stdm_drake.learning.trainable import TrainableModel
     if isinstance(model, TrainableModel):
         return model.inference()
     if hasattr(model, "mean_and_jacobian") and hasattr(model, "hidden_features"):

@@ -14,6 +14,8 @@ from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, parse_model_type
 from stdm_drake.learning.trainable import DEFAULT_NETWORK, network_class
 from stdm_drake.learning.regression import RegressionData
 from stdm_drake.learning.structure import PAPER, ModelStructure
+from stdm_drake.data.inspect import plan_mismatch
+from stdm_drake import __version__
 
 
 # A plan whose accelerations are further than this from the recorded ones (relative RMS difference, mean over
@@ -52,7 +54,6 @@ def candidate_sources(dataset, indices) -> SourceChoice:
     validation only, never the test split): the plan (the paper's real-robot protocol) where the data have one
     and its accelerations are within PLAN_MISMATCH_LIMIT of the recorded motion, then the recorded motion's own
     (the simulation's truth, or a log's smoothed angles)."""
-    from stdm_drake.data.inspect import plan_mismatch
     mismatch = plan_mismatch(dataset, indices)
     if mismatch is None:
         return SourceChoice(sources=(dataset.default_derivative_source,), mismatch=None)
@@ -128,7 +129,6 @@ def dataset_metadata(dataset, split, *, model_type: str, derivative_source: str,
                      **fields) -> CheckpointMetadata:
     """Checkpoint metadata of a model trained on `dataset` (a loaded Dataset) with `split` (a Split or
     {"train", "val", "test"} -> indices); `fields`: further CheckpointMetadata fields."""
-    from stdm_drake import __version__
     parts = split.as_dict() if hasattr(split, "as_dict") else split
     return CheckpointMetadata(model_type=model_type, dataset_path=str(dataset.path), dataset_sha256=dataset.sha256,
                               protocol=dataset.protocol, sample_period=dataset.sample_period,

@@ -10,6 +10,7 @@ from stdm_drake.devices import compute_threads
 from stdm_drake.files import atomic_path
 from stdm_drake.learning.settings import TrainSettings
 from stdm_drake.learning.alpha_selection import fit_model
+from stdm_drake.cluster import RunnerConfig, job_pool, shared, task_error
 
 
 def fit_seed(model_config, training_config, train_data, val_data, fit_options: dict, threads: int,
@@ -54,7 +55,6 @@ def fit_seeds(problem, settings: TrainSettings, fit_options: dict, runner, outpu
     written here as they come back). Yields (seed, result, selection) as each finishes."""
     from tqdm import tqdm
 
-    from stdm_drake.cluster import RunnerConfig, job_pool, shared, task_error
     remote = runner.backend == "ray"
     name = settings.model_name()
     bar = tqdm(total=len(settings.seeds), desc=f"train {name} (ray)", unit="seed", disable=quiet or not remote)

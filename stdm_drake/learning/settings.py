@@ -17,7 +17,7 @@ from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.loss import LOSS_KINDS
 from stdm_drake.learning.trainable import NETWORK_KINDS
 from stdm_drake.learning.models import DEFAULT_ENSEMBLE_SIZE, GREY_BOX_TYPES, MODEL_TYPES, parse_model_type
-from stdm_drake.learning.structure import INPUT_SETS, PREDICTS
+from stdm_drake.learning.structure import INPUT_SETS, PREDICTS, ModelStructure
 
 def network_weights(ensemble_size: int, hidden_layers: int, hidden_width: int) -> int:
     """About how many weights a network of these sizes holds (its hidden layers' matrices dominate)."""
@@ -383,7 +383,6 @@ class TrainSettings:
 
     def structure(self, physics: dict | None = None):
         """The `ModelStructure` of predicts and inputs (and a grey box's `physics` record, see there)."""
-        from stdm_drake.learning.structure import ModelStructure
         return ModelStructure(predicts=self.predicted(), inputs=self.inputs, physics=physics,
                               plant_integrator="rk4" if self.inputs == "plant_step" else None)
 

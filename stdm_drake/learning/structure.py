@@ -42,6 +42,8 @@ import dataclasses
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.dynamics.physics import NominalAcceleration, PeriodAcceleration
+from stdm_drake.dynamics.plant_step import PlantStep
 
 PREDICTS = ("state", "velocity")
 INPUT_SETS = ("raw", "nominal_acceleration", "period_acceleration", "plant_step")
@@ -99,8 +101,6 @@ class ModelStructure:
     def nominal_features(self, robot, sample_period: float):
         """The nominal-model input of this structure for `robot` at `sample_period` s (None for raw
         inputs): a `NominalAcceleration`, a `PeriodAcceleration` or a `PlantStep`."""
-        from stdm_drake.dynamics.physics import NominalAcceleration, PeriodAcceleration
-        from stdm_drake.dynamics.plant_step import PlantStep
         if self.inputs == "raw":
             return None
         if self.inputs == "period_acceleration":
@@ -109,7 +109,7 @@ class ModelStructure:
             integrator = self.plant_integrator or "simulator"
             if self.physics is None:
                 return PlantStep(robot, sample_period, integrator=integrator)
-            from stdm_drake.robots.effects import PlantEffects
+            from stdm_drake.robots.effects import PlantEffects   # lazy: pydrake
             return PlantStep(robot, sample_period, PlantEffects.from_record(self.physics["effects"]),
                              self.physics["plant_time_step"], integrator=integrator)
         return NominalAcceleration(robot)
@@ -163,7 +163,7 @@ class ModelStructure:
         """Training pairs (`RegressionData`) of dataset `Transitions` in the network's layout; `features`
         (a `NominalAcceleration`) is needed for nominal-acceleration inputs; rates=False leaves out the
         derivative tangents and targets (validation data)."""
-        from stdm_drake.learning.regression import RegressionData
+        from stdm_drake.learning.regression import RegressionData   # lazy: torch
         x, a = np.asarray(transitions.state, dtype=np.float64), np.asarray(transitions.action, dtype=np.float64)
         joints = x.shape[1] // 2
         q, v = x[:, :joints], x[:, joints:]

@@ -18,13 +18,20 @@ from stdm_drake.cluster import RunnerConfig, connect
 from stdm_drake.devices import compute_threads
 from stdm_drake.errors import InputError
 from stdm_drake.files import check_free_space, write_text_atomic
-from stdm_drake.learning.problem import training_problem
-from stdm_drake.data.dataset import dataset_split
+from stdm_drake.learning.problem import training_problem, PLAN_MISMATCH_LIMIT, candidate_sources
+from stdm_drake.data.dataset import dataset_split, load_dataset
 from stdm_drake.learning.seeds import fit_seeds
 from stdm_drake.learning.settings import TrainSettings
 from stdm_drake.learning.trainable import network_class
 from stdm_drake.learning.train_outputs import write_seed_files
 from stdm_drake.outputs import check_output_folder, mark_output_folder, written_by
+from stdm_drake.robots.plant import Dynamics
+from stdm_drake.data.inspect import noise_floor
+from stdm_drake.learning.evaluate import compare_with_baselines, times_better, physics_baselines
+from stdm_drake.learning.learned_model import LearnedModel
+from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
+from stdm_drake.dynamics.model_files import kind_of, load_model_file
+from stdm_drake.data.compatibility import resolve_robot
 
 CHECKPOINT_RESERVE_BYTES = 1 << 20   # a checkpoint's history, metadata and the seed's curves, beyond its weights
 
@@ -61,7 +68,6 @@ def warn_about_fast_damped_joints(robot, sample_period: float) -> None:
     damping stops them faster than the sample period (`Dynamics.damping_time_constants` at home): on
     such an arm the derivative targets are the fast decay itself, and a DD trained on the ABB IRB 1200's
     identification data did not learn (docs/published_arms.md)."""
-    from stdm_drake.robots.plant import Dynamics
     constants = Dynamics(robot).damping_time_constants()
     fast = [(name, value) for name, value in zip(robot.joint_names, constants) if value < sample_period]
     if fast:
@@ -78,7 +84,6 @@ def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
     mismatch); else `learning.problem.candidate_sources` on the training and validation trajectories: all of
     them (a tuple, chosen by validation) with alpha "auto", their first with a fixed alpha. A model without the
     derivative loss uses none (None, None, the mismatch)."""
-    from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT, candidate_sources
     choice = candidate_sources(dataset, np.concatenate([split.train, split.val]))
     if not settings.uses_derivative():
         return None, None, choice.mismatch
@@ -113,7 +118,6 @@ class LearningVerdict:
 
     def __init__(self, dataset, split, robot, structure, name: str, settings: TrainSettings, transitions: int,
                  sources, mismatch: dict | None):
-        from stdm_drake.data.inspect import noise_floor
         self.dataset, self.robot, self.structure, self.name, self.settings = dataset, robot, structure, name, settings
         self.training_transitions, self.sources, self.mismatch = transitions, sources, mismatch
         self.val = dataset.transitions(split.val)
@@ -133,9 +137,6 @@ class LearningVerdict:
     def report(self, seed: int, checkpoint: pathlib.Path, naive, selection) -> dict:
         """Print seed `seed`'s verdict (its checkpoint; naive: the grid's alpha = 0 network or None) and return
         its summary entries: {"validation": ..., "test": ...} (no "test" without a test split)."""
-        from stdm_drake.learning.evaluate import compare_with_baselines, times_better
-        from stdm_drake.learning.learned_model import LearnedModel
-        from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
         kept_naive = selection is not None and selection.alpha == 0
         label = self.name + ("" if selection is None else " (alpha 0: naive training)" if kept_naive
                              else f" ({selection.label(selection.index)})")
@@ -186,7 +187,6 @@ class LearningVerdict:
         description missing the motors' rotor inertia does; None otherwise (or without a robot)."""
         if not self.structure.grey_box or self.structure.physics or self.robot is None:
             return None
-        from stdm_drake.learning.evaluate import compare_with_baselines, physics_baselines
         baselines = physics_baselines(self.dataset.sample_period, 2 * self.robot.num_joints, self.robot.num_joints,
                                       robot=self.robot, plant=True,
                                       plant_config=self.dataset.metadata.plant_config(effects=False))
@@ -201,7 +201,6 @@ class LearningVerdict:
 
     def likely_cause(self, selection, rows) -> str:
         """The first of the usual reasons that fits this run."""
-        from stdm_drake.learning.problem import PLAN_MISMATCH_LIMIT
         settings, chosen = self.settings, (selection.source if selection is not None else None) or self.sources
         targets_used = selection is None or selection.alpha > 0
         if settings.uses_derivative() and targets_used and chosen == "planned" and self.mismatch is not None and \
@@ -235,7 +234,6 @@ def grey_box_physics(path, robot, settings, dataset, split) -> dict | None:
         return None
     if settings.inputs != "plant_step":
         raise InputError("--physics is the grey box's plant: use it with --model G/GD (or --inputs plant_step)")
-    from stdm_drake.dynamics.model_files import kind_of, load_model_file
     if kind_of(path).name != "identified robot":
         raise InputError(f"--physics {path}: not an identified robot (`stdm-drake identify`'s .yaml)")
     identified = load_model_file(path)
@@ -257,8 +255,6 @@ def train_job(job: TrainJob) -> dict:
     seed, each seed's verdict against the physics baselines on the validation split printed, and the summary
     written to `job.output / "summary.json"`; returns that summary (dataset, split, per seed its checkpoint,
     epochs, alpha selection and validation rows)."""
-    from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.data.dataset import load_dataset
 
     settings, output = job.settings, pathlib.Path(job.output)
     settings.validate(given=job.given)

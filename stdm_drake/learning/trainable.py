@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from stdm_drake.errors import InputError
+from stdm_drake.learning.loss import member_point_loss
 
 # network kind -> "module:Class" of its TrainableModel (imported when first used)
 NETWORK_KINDS: dict[str, str] = {"ensemble_mlp": "stdm_drake.learning.models:EnsembleMLP"}
@@ -80,7 +81,6 @@ class TrainableModel(nn.Module, abc.ABC):
         """The derivative term per member (E,): training.derivative_loss of the standardized time derivative
         (E, B, out) against its target (E, B, out), each output's residual times `derivative_scale` (the
         relative alpha). Kinds call this in `loss` and `eval_score` so that both alpha scales apply to them."""
-        from stdm_drake.learning.loss import member_point_loss
         if self.derivative_scale is not None:
             scale = self.derivative_scale.to(tangents.dtype)
             tangents, target_rates = tangents * scale, target_rates * scale

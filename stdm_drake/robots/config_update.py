@@ -60,8 +60,8 @@ def kept_fields(text: str, fields: dict) -> dict:
 def read_for_update(path) -> dict:
     """kept_fields of the robot config YAML at `path`, read first as a RobotConfig (its one-line errors: an unknown
     key, a value of the wrong type); the config's own checks run on the updated config."""
-    from stdm_drake.config import load_yaml_config, read_yaml_document
-    from stdm_drake.robots.robot import RobotConfig
+    from stdm_drake.config import load_yaml_config, read_yaml_document   # lazy: pydrake
+    from stdm_drake.robots.robot import RobotConfig   # lazy: pydrake
     load_yaml_config(path, RobotConfig, what="robot config", validate=False)
     document = read_yaml_document(path)
     if not isinstance(document, dict):

@@ -12,6 +12,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
+from stdm_drake.robots.plant import Dynamics, joint_limits
 
 # the rule for limits an arm joint's file lacks (module docstring): velocity rad/s (revolute) or m/s
 # (prismatic), the revolute range (rad), the reference acceleration (rad/s² or m/s²), the margin, the floor as
@@ -73,7 +74,6 @@ def derive_kinematic_limits(config: RobotConfig, joints: dict) -> list[str]:
 def derive_effort_limits(robot: Robot, config: RobotConfig) -> list[str]:
     """Into `config`, in place of each PROVISIONAL_EFFORT, the derived effort limit (N m or N; `DERIVED_LIMITS`,
     3 significant digits) of `robot` (built from `config`); the note saying so."""
-    from stdm_drake.robots.plant import Dynamics, joint_limits
     derived = [name for name, value in config.effort_limits.items() if value == PROVISIONAL_EFFORT]
     if not derived:
         return []

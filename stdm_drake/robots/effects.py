@@ -25,7 +25,7 @@ import dataclasses
 
 import numpy as np
 
-from stdm_drake.config import check_joint_vector, load_yaml_config, one_line, require
+from stdm_drake.config import check_joint_vector, load_yaml_config, one_line, require, file_keys
 from stdm_drake.errors import InputError
 from stdm_drake.robots.nested_models import frame_by_name
 
@@ -316,7 +316,6 @@ class PlantEffects:
 def load_plant_effects(path) -> PlantEffects:
     """The PlantEffects of a YAML file (InputError with one line for a missing or malformed one, or one that
     sets a key the plant would not use: the Coulomb smoothing scale without Coulomb friction)."""
-    from stdm_drake.config import file_keys
     effects = load_yaml_config(path, PlantEffects, what="plant effects")
     if "coulomb_velocity_scale" in file_keys(path) and not effects.is_on("coulomb_friction"):
         raise InputError(f"{path}: coulomb_velocity_scale smooths coulomb_friction, which is zero or not given, so "

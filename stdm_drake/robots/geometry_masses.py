@@ -26,6 +26,9 @@ import numpy as np
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
 from stdm_drake.robots.xml_file import ASCII_SPACE
+from stdm_drake.robots.meshes import read_mesh
+from stdm_drake.robots.description import read_description
+from stdm_drake.files import write_text_atomic
 
 DEFAULT_DENSITY = 1300.0    # kg/m³: between the UR-10's 1,570 and the Panda's 1,120 (tests/test_geometry_masses.py)
 MIN_DENSITY = 1e-3   # kg/m³: far below any solid's (air is 1.2)
@@ -117,7 +120,6 @@ def _pose(element, what: str):
 def read_triangles(path: pathlib.Path, what: str) -> tuple[np.ndarray, np.ndarray]:
     """(vertices (V, 3), triangles (T, 3) indices) of a mesh file as `meshes.read_mesh` reads it (trimesh), its
     coincident vertices merged (a closed surface shares them)."""
-    from stdm_drake.robots.meshes import read_mesh
     vertices, triangles = read_mesh(path, what)
     merged, index = np.unique(vertices, axis=0, return_inverse=True)
     return merged, index.reshape(-1)[triangles]
@@ -209,7 +211,7 @@ def mesh_resolver(model: pathlib.Path, packages: dict):
     """resolve(filename, what) -> the mesh file's path, as the robot's loading resolves it (`model_file.mesh_path`:
     package:// or model:// in `packages`, name -> folder; file:// or a path relative to the description);
     InputError for one that is missing or of a format not in MESH_SUFFIXES."""
-    from stdm_drake.robots.model_file import mesh_path
+    from stdm_drake.robots.model_file import mesh_path   # lazy: pydrake
     folders = {name: pathlib.Path(folder) for name, folder in packages.items()}
 
     def resolve(filename: str, what: str) -> pathlib.Path:
@@ -234,7 +236,6 @@ def geometry_masses(model: pathlib.Path, packages: dict, density: float | None =
     DEFAULT_DENSITY) or scaled so that their masses sum to `total_mass` kg. InputError for an SDF file, a shape
     these rules cannot read, or no link to give a mass."""
     from pydrake.multibody.tree import SpatialInertia
-    from stdm_drake.robots.description import read_description
     if model.suffix.lower() != ".urdf":
         raise InputError(f"{model.name}: --masses-from-geometry reads URDF files (an SDF link without <inertial> has "
                          "SDFormat's 1 kg and unit inertia: give its links <inertial> elements)")
@@ -276,7 +277,6 @@ def write_with_masses(model: pathlib.Path, output: pathlib.Path, masses: list[Li
     package_paths resolve it)."""
     import os
     import xml.etree.ElementTree as ElementTree
-    from stdm_drake.files import write_text_atomic
     tree = xml_file.parse(model)
     by_link = {mass.link: mass for mass in masses}
     for link in tree.getroot().findall("link"):

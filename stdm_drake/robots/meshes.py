@@ -7,6 +7,7 @@ import pathlib
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.files import write_text_atomic
 
 
 # Mesh formats Drake reads as collision geometry (it takes their convex hull), and as visuals Meshcat shows.
@@ -38,7 +39,6 @@ def mesh_as_obj(path: pathlib.Path, what: str) -> pathlib.Path:
     if target.is_file():
         return target
     import trimesh
-    from stdm_drake.files import write_text_atomic
     vertices, faces = read_mesh(path, what)
     lines = [f"# {path.name} converted by stdm-drake (trimesh {trimesh.__version__})"]
     lines += [f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices]

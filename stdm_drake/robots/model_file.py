@@ -20,6 +20,8 @@ from stdm_drake.robots import xml_file
 from stdm_drake.robots.description import file_number
 from stdm_drake.robots.meshes import (CONVERTED_MESHES, DRAKE_COLLISION_MESHES, MESHCAT_VISUAL_MESHES,
                                       collada_in_metres, mesh_as_obj)
+from stdm_drake.robots.sdf_includes import MAX_INCLUDE_DEPTH, included_files
+from stdm_drake.robots.xml_file import check_xml
 
 
 def joint_facts(path: pathlib.Path, packages: dict | None = None, depth: int = 0) -> tuple[dict, set, list]:
@@ -29,7 +31,6 @@ def joint_facts(path: pathlib.Path, packages: dict | None = None, depth: int = 0
     An SDF's included files (`sdf_includes.included_files`, `packages` its package:// folders) add theirs: a world
     that includes a URDF arm states that arm's limits in the URDF. An unparsable file gives ({}, set(), [])."""
     import xml.etree.ElementTree as ElementTree
-    from stdm_drake.robots.sdf_includes import MAX_INCLUDE_DEPTH, included_files
     try:
         root = xml_file.parse(path).getroot()
     except (ElementTree.ParseError, OSError):
@@ -97,7 +98,6 @@ def unmodelled_joint_effects(path: pathlib.Path, joints) -> list[str]:
 def srdf_disabled_collisions(path: pathlib.Path, name: str) -> list[tuple[str, str]]:
     """The (link1, link2) pairs of a MoveIt SRDF's <disable_collisions> elements; InputError naming robot
     `name` for a missing or unparsable file."""
-    from stdm_drake.robots.xml_file import check_xml
     check_input_file(path, f"robot {name}: srdf file")
     check_xml(path, "an SRDF file is")     # (entities refused: a "billion laughs" file among them)
     root = xml_file.parse(path).getroot()

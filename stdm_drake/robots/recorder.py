@@ -18,9 +18,12 @@ from pydrake.multibody.plant import AddMultibodyPlantSceneGraph
 from pydrake.systems.framework import DiagramBuilder
 from pydrake.visualization import ApplyVisualizationConfig, VisualizationConfig
 
-from stdm_drake.files import write_text_atomic
+from stdm_drake.files import write_text_atomic, line_text
 from stdm_drake.robots.robot import Robot
-from stdm_drake.files import line_text
+from stdm_drake.config import file_keys, load_yaml_config, read_yaml_document, decimal_number
+from stdm_drake.errors import InputError
+from stdm_drake.outputs import html_marker
+from stdm_drake import interrupts
 
 GHOST_COLOR = Rgba(1.0, 0.55, 0.1, 0.35)  # translucent orange
 # what a recording shows unless told otherwise: the illustration geometry only (no collision shapes,
@@ -33,8 +36,6 @@ def load_visualization_config(path) -> VisualizationConfig:
     the collision geometry, `default_illustration_color`, `initial_proximity_alpha`, ...); fields left
     out keep the recording's defaults (RECORDING). InputError for a missing or malformed file, or one that sets
     what a recording sets itself (publish_period: the data's sample period; lcm_bus)."""
-    from stdm_drake.config import file_keys, load_yaml_config, read_yaml_document
-    from stdm_drake.errors import InputError
     document = read_yaml_document(path) if pathlib.Path(path).is_file() else None
     for key in ("default_illustration_color", "default_proximity_color"):   # (Drake's own error names no field)
         rgba = (document.get(key) or {}).get("rgba") if isinstance(document, dict) and isinstance(
@@ -69,7 +70,6 @@ def load_visualization_config(path) -> VisualizationConfig:
 def _colour_value(item) -> float:
     """A colour channel as Drake's YAML reads it: a number, or a number YAML 1.1 reads as text (`1e300`, no point);
     NaN (outside every range) for a word or another type."""
-    from stdm_drake.config import decimal_number
     if isinstance(item, (int, float)) and not isinstance(item, bool):
         return float(item)
     try:
@@ -85,7 +85,6 @@ def recording_visualization(path, recording: bool, options: str = "--html FILE o
     if path is None:
         return None
     if not recording:
-        from stdm_drake.errors import InputError
         raise InputError(f"--visualization configures the Meshcat recording: give {options} too, or leave it out")
     return load_visualization_config(path)
 
@@ -96,7 +95,6 @@ def check_meshcat_allowed(option: str) -> None:
     import os
     allowed = os.environ.get("DRAKE_ALLOW_NETWORK", "")
     if allowed and "meshcat" not in allowed.split(":"):
-        from stdm_drake.errors import InputError
         raise InputError(f"{option} needs Meshcat, which DRAKE_ALLOW_NETWORK={allowed} turns off; set "
                          "DRAKE_ALLOW_NETWORK=meshcat (Meshcat serves on this machine only)")
 
@@ -166,7 +164,6 @@ class TrajectoryRecorder:
 
     def write_html(self, path) -> None:
         """Save Meshcat's self-contained HTML page (with the published recording) atomically."""
-        from stdm_drake.outputs import html_marker
         write_text_atomic(path, html_marker() + "\n" + self.meshcat.StaticHtml())
 
     def finish(self, html=None, keep_serving: bool = False, what: str = "") -> None:
@@ -206,7 +203,6 @@ def wait_for_interrupt(url: str) -> None:
     if not sys.stdin.isatty():
         return
     print(f"Meshcat stays up at {url}: replay with its Animation controls; Ctrl+C to quit", file=sys.stderr)
-    from stdm_drake import interrupts
     try:
         while True:
             time.sleep(1.0)

@@ -22,6 +22,7 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots.effects import coulomb_torque
+from stdm_drake.robots.plant import PlantConfig, make_plant
 
 
 def _rotation_to_axis(axis: np.ndarray) -> np.ndarray:
@@ -235,7 +236,6 @@ def robot_dynamics(robot, effects=None) -> RigidBodyDynamics:
     """The `RigidBodyDynamics` of `robot`'s description (effects None: the nominal model a user has) or of
     the affected plant with `effects` (`robots.effects.PlantEffects`: friction, rotor inertia, payload,
     link inertias and mass scales, as the simulator applies them), built from the plant `make_plant` makes."""
-    from stdm_drake.robots.plant import PlantConfig, make_plant
     beyond = effects.beyond_rigid_bodies() if effects is not None else []
     if beyond:
         raise InputError(f"the rigid-body model of the affected plant does not hold its {', '.join(beyond)} (effects "

@@ -19,7 +19,7 @@ import numpy as np
 from pydrake.math import RigidTransform
 from pydrake.multibody.plant import MultibodyPlant
 
-from stdm_drake.config import one_line, require
+from stdm_drake.config import one_line, require, load_yaml_config
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
 from stdm_drake.robots.description import SUFFIXES, check_description
@@ -410,7 +410,6 @@ class Robot:
 def load_robot(path) -> Robot:
     """The Robot of a robot config YAML (the UR-10 preset: `UR10_CONFIG`, models/ur10.yaml); a URDF or SDF given in
     its place is an InputError naming `robot init`, which writes the config of one."""
-    from stdm_drake.config import load_yaml_config
     path = pathlib.Path(path)
     if path.suffix.lower() in (*SUFFIXES, ".xml", ".srdf"):
         raise InputError(f"{line_text(path)} is a robot description, not a robot config (a YAML naming it, its arm "

@@ -9,13 +9,15 @@ import os
 import pathlib
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import line_text
+from stdm_drake.files import line_text, write_text_atomic
 from stdm_drake.robots.derived_limits import PROVISIONAL_EFFORT, derive_effort_limits
 from stdm_drake.robots.description import SUFFIXES
-from stdm_drake.robots.geometry_masses import MassesFromGeometry
-from stdm_drake.robots.robot import Robot, RobotConfig
+from stdm_drake.robots.geometry_masses import MassesFromGeometry, geometry_masses, write_with_masses
+from stdm_drake.robots.robot import Robot, RobotConfig, load_robot
 from stdm_drake.robots.starting_config import (YAML_FIXES, relative_to, check_robot, find_packages, srdf_home,
                                                starting_config, starting_home)
+from stdm_drake.robots.config_update import mark, read_for_update
+from stdm_drake.paths import check_input_file
 
 
 def config_yaml(config: RobotConfig, source: str, notes: list, derived: dict | None = None,
@@ -23,7 +25,6 @@ def config_yaml(config: RobotConfig, source: str, notes: list, derived: dict | N
     """The robot config YAML text of `config`, with a header naming the description `source` and the `notes`;
     derived: per limit field, the joints whose values robot init derived, and chosen_home: whether it chose home:
     those values are marked on their lines (`config_update`)."""
-    from stdm_drake.robots.config_update import mark
     derived = derived or {}
     lines = [f"# Robot config written by `stdm-drake robot init` from {line_text(source)} (fields: RobotConfig in",
              "# stdm_drake/robots/robot.py; how each was chosen: docs/guides/robots.md, 'A robot from a description').",
@@ -69,7 +70,6 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path,
     existing file unless `options.force`, or `options.update` where it is one robot init wrote), with a home from
     `starting_home` unless the SRDF names one; returns (the config, notes, "" when it passes `check_robot`, else
     the one-line reason)."""
-    from stdm_drake.paths import check_input_file
     options = options or InitOptions()
     srdf, masses = options.srdf, options.masses
     model = check_input_file(model, "model file")
@@ -84,7 +84,6 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path,
         raise InputError(f"--output {output} is an input file; choose another path")
     keep = {}
     if options.update:
-        from stdm_drake.robots.config_update import read_for_update
         if options.force:
             raise InputError("--update keeps the edits in the existing output, --force would write over them: give one")
         if not output.is_file():
@@ -96,7 +95,6 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path,
     folder = output.absolute().parent
     if masses is None:
         return _write_starting_config(model, output, folder, options, model, [], keep)
-    from stdm_drake.robots.geometry_masses import geometry_masses, write_with_masses
     masses.validate()
     final = masses.copy_path(model, folder)
     if final.resolve() in {model.resolve(), output.resolve(), *([srdf.resolve()] if srdf else [])}:
@@ -116,8 +114,6 @@ def write_starting_config(model: pathlib.Path, output: pathlib.Path,
 def _write_starting_config(model, output, folder, options, original, notes, keep, final=None):
     """write_starting_config's work on description `model` (a copy with masses, to be renamed `final`, or the
     `original` itself), the fields `keep` of an existing YAML kept."""
-    from stdm_drake.files import write_text_atomic
-    from stdm_drake.robots.robot import load_robot
     srdf = options.srdf
     if final is not None and "model" in keep:   # (the kept YAML names the copy: the copy being made now)
         keep = {field: value for field, value in keep.items() if field != "model"}

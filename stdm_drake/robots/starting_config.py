@@ -40,11 +40,15 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.robots import xml_file
-from stdm_drake.robots.description import MAX_ARM_JOINTS, MOVABLE, Description, check_tree, read_description
+from stdm_drake.robots.description import (MAX_ARM_JOINTS, MOVABLE, Description, check_tree, read_description,
+                                           PLAIN_NUMBER)
 from stdm_drake.robots.derived_limits import (derive_kinematic_limits,
                                               mount_joints)
 from stdm_drake.robots.model_file import joint_facts
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
+from stdm_drake.robots.xml_file import check_xml
+from stdm_drake.robots.kinematics import RobotKinematics
+from stdm_drake.robots.plant import SelfCollisionChecker, joint_limits, Dynamics
 
 HOME_STATE_NAMES = ("home", "ready", "zero", "default")
 WORLD = "world"
@@ -160,8 +164,6 @@ def srdf_home(srdf: pathlib.Path, arm_joints: list) -> list | None:
     """The first SRDF <group_state> named in HOME_STATE_NAMES that gives every arm joint, as positions, or None.
     InputError for a file that is no XML as MoveIt reads it (entities: `xml_file.check_xml`) and for a home
     value that is no number (it would be skipped silently)."""
-    from stdm_drake.robots.description import PLAIN_NUMBER
-    from stdm_drake.robots.xml_file import check_xml
     check_xml(srdf, "an SRDF file is")
     root = xml_file.parse(srdf).getroot()
     states = {state.get("name"): {joint.get("name"): joint.get("value") for joint in state.iter("joint")}
@@ -263,8 +265,6 @@ def starting_home(robot: Robot, attempts: int = 200) -> tuple[list | None, list]
     more joints the one whose task Jacobian is best conditioned (task-space plans start there: the middle
     of the ranges is often a stretched, singular arm), else the config's home when free, else the first
     free one. Home None when none is free."""
-    from stdm_drake.robots.kinematics import RobotKinematics
-    from stdm_drake.robots.plant import SelfCollisionChecker, joint_limits
     checker = SelfCollisionChecker(robot, check_home=False)
     limits = joint_limits(checker.plant)
     lower, upper = limits.position_lower, limits.position_upper
@@ -288,7 +288,6 @@ def check_robot(robot: Robot) -> list[str]:
     """What stands between `robot` and data, beyond what loading it checks (the description's checks,
     limits, M(home) positive definite): home free of self-collision, gravity at home within each actuated
     joint's effort limit. Raises InputError for the first problem; returns one line of facts per joint."""
-    from stdm_drake.robots.plant import Dynamics, SelfCollisionChecker, joint_limits
     checker = SelfCollisionChecker(robot)
     limits = joint_limits(checker.plant)
     dynamics = Dynamics(robot)

@@ -12,6 +12,7 @@ import pathlib
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text
 from stdm_drake.outputs import check_output_file
+from stdm_drake.data.logs.mapping import LogMapping, check_settings_used, load_mapping
 
 
 @dataclasses.dataclass
@@ -46,9 +47,8 @@ def job_mapping(job: ImportJob, log):
     """The LogMapping of `job.mapping` (defaults without it) with the job's settings that are given applied
     over it, for the format of `log`, checked (a setting given, as the job's or a file's key, must be one the
     import uses)."""
-    from stdm_drake.config import file_keys
-    from stdm_drake.data.logs.importer import detect_format
-    from stdm_drake.data.logs.mapping import LogMapping, check_settings_used, load_mapping
+    from stdm_drake.config import file_keys   # lazy: pydrake
+    from stdm_drake.data.logs.importer import detect_format   # lazy: pydrake, h5py
     mapping = load_mapping(job.mapping) if job.mapping is not None else LogMapping()
     options = dict(format=job.format, sample_period=job.sample_period, torque_source=job.torque_source,
                    torque_constants=job.torque_constants, joint_states_topic=job.joint_states_topic,
@@ -65,8 +65,8 @@ def import_job(job: ImportJob) -> dict:
     """Run `job`: every check first (the log there, the output an .h5 file outside a bag folder and free to
     write, the mapping, the robot), then the import and two lines on it; returns the dataset's "import"
     record (`importer.import_log`). InputError (one line) for a bad input; then nothing is written."""
-    from stdm_drake.data.compatibility import resolve_robot
-    from stdm_drake.data.logs.importer import import_log
+    from stdm_drake.data.compatibility import resolve_robot   # lazy: pydrake
+    from stdm_drake.data.logs.importer import import_log   # lazy: pydrake, h5py
     log, output = pathlib.Path(job.log), pathlib.Path(job.output)
     if not (log.exists() or log.is_symlink()):
         raise InputError(f"log not found: {log}")

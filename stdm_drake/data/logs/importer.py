@@ -10,11 +10,14 @@ import pathlib
 
 import numpy as np
 
-from stdm_drake.data.writer import DatasetWriter
-from stdm_drake.data.logs import resample as resampling
+from stdm_drake.data.writer import DatasetWriter, package_versions
+from stdm_drake.data.logs import resample as resampling, rtde, ros2
 from stdm_drake.data.logs.mapping import LogMapping
 from stdm_drake.data.logs.rows import Rows
 from stdm_drake.errors import InputError
+from stdm_drake.data.logs.rtde import looks_like_rtde
+from stdm_drake.robots.plant import robot_joint_limits
+from stdm_drake.data.dataset import file_sha256
 
 POSITION_MARGIN = 0.02      # of each joint's range: logged angles beyond the limits by more are not this robot's
 LIMIT_FACTOR = 1.5          # logged velocities and torques beyond this times the limits are not in SI units
@@ -24,7 +27,6 @@ VELOCITY_RATIO = (0.5, 2.0)  # RMS of the logged q̇ over RMS of the angles' own
 def detect_format(path, given: str = "") -> str:
     """"ros2_bag" (a bag folder with metadata.yaml, or a .db3 / .mcap file) or "rtde_csv" (a text file whose
     header names RTDE fields); `given` (the mapping's or --format) wins."""
-    from stdm_drake.data.logs.rtde import looks_like_rtde
     path = pathlib.Path(path)
     if given:
         return given
@@ -45,10 +47,8 @@ def log_rows(path, robot, mapping: LogMapping):
         if constants.shape != (robot.num_joints,):
             raise InputError(f"torque_constants has {len(constants)} values, the robot has {robot.num_joints} joints")
     if mapping.format == "rtde_csv":
-        from stdm_drake.data.logs import rtde
         blocks = rtde.rows(path, robot.num_joints, mapping)
     else:
-        from stdm_drake.data.logs import ros2
         blocks = ros2.rows(path, robot, mapping)
     for block in blocks:
         if constants is not None:
@@ -217,7 +217,6 @@ class LimitCheck:
     logged velocities against the angles' own rate of change over the whole log."""
 
     def __init__(self, robot, source: str, place: str):
-        from stdm_drake.robots.plant import robot_joint_limits
         self.robot, self.source, self.place = robot, source, place
         self.limits = robot_joint_limits(robot)
         self.sums = np.zeros(3)   # sums of squares of the logged q̇ and the angles' rate, and their count
@@ -258,8 +257,6 @@ class LimitCheck:
 def import_log(path, robot, mapping: LogMapping, output, announce=None) -> dict:
     """Import the log at `path` of `robot` (a Robot) with `mapping` into the dataset file `output`; returns the
     metadata's "import" record. InputError (one line) for any problem; then nothing is written."""
-    from stdm_drake.data.dataset import file_sha256
-    from stdm_drake.data.writer import package_versions
     path = pathlib.Path(path)
     robot.check_fully_actuated("importing a log")
     mapping = mapping.with_format(detect_format(path, mapping.format))

@@ -105,5 +105,5 @@ def check_settings_used(mapping: LogMapping, given) -> None:
 
 def load_mapping(path) -> LogMapping:
     """The LogMapping of a YAML file (InputError with one line for a bad file)."""
-    from stdm_drake.config import load_yaml_config
+    from stdm_drake.config import load_yaml_config   # lazy: pydrake
     return load_yaml_config(path, LogMapping, what="log mapping")

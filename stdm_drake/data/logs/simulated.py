@@ -15,6 +15,7 @@ import numpy as np
 
 from stdm_drake.data.logs.resample import hermite3
 from stdm_drake.errors import InputError
+from stdm_drake.data.logs.ros2 import CONTROLLER_STATE, CONTROLLER_STATE_DEFINITION, JOINT_STATE, typestore
 
 JOINT_STATE_RATE_DIVIDER = 5      # bags: a controller-state message every this many joint states (and at the end)
 LOG_CLOCK_START = 1234.5          # s: the RTDE controller's time at the first row
@@ -155,7 +156,6 @@ def write_ros2_bag(dataset, path, joint_names: list, *, storage: str = "sqlite3"
     reference_accelerations False: the reference carries no accelerations (a controller without an acceleration
     interface, as UR's scaled trajectory controller)."""
     from rosbags.rosbag2 import StoragePlugin, Writer
-    from stdm_drake.data.logs.ros2 import CONTROLLER_STATE, CONTROLLER_STATE_DEFINITION, JOINT_STATE, typestore
     if not dataset.is_simulated:
         raise InputError("a simulated log needs simulated data (its true motion)")
     timing = timing or log_timing(dataset, clock_start=0.5)
