@@ -120,7 +120,8 @@ struct Network {
       for (const RowMatrixXf& weight : hidden_weight[layer]) hidden_transposed[layer].push_back(weight.transpose());
   }
 
-  // out (N, W) = in (N, W) times a hidden layer's weight (W, W) of member e: `small_gemm`
+  // out (N, C) = in (N, K) times a layer's weight (K, C) (its first K rows: the first layer's bias row left out):
+  // `small_gemm`
   static void product(const RowMatrixXf& in, const RowMatrixXf& weight, RowMatrixXf& out,
                       const RowMatrixXf* scale = nullptr, int group = 1) {
     out.resize(in.rows(), weight.cols());
@@ -128,10 +129,15 @@ struct Network {
                int(in.cols()), int(weight.cols()), scale ? scale->data() : nullptr, scale ? scale->cols() : 0, group);
   }
 
+  // the first layer's pre-activation (N, W) of member e at input rows z (N, K), its bias row added
+  void first_layer(const RowMatrixXf& z, int e, RowMatrixXf& pre) const {
+    product(z, first[e], pre);
+    pre.rowwise() += first[e].row(inputs);
+  }
+
   // the last hidden layer (N, W) of member e at input rows z (N, K); `pre` scratch
   void last_hidden(const RowMatrixXf& z, int e, RowMatrixXf& pre, RowMatrixXf& value) const {
-    pre.noalias() = z * first[e].topRows(inputs);
-    pre.rowwise() += first[e].row(inputs);
+    first_layer(z, e, pre);
     activate_all(pre, value, nullptr);
     for (size_t layer = 0; layer < hidden_weight.size(); ++layer) {
       product(value, hidden_weight[layer][e], pre);
@@ -157,12 +163,12 @@ struct Network {
     s.member.resize(members);
     for (int e = 0; e < members; ++e) {
       last_hidden(z, e, s.pre, s.value);
-      s.member[e].noalias() = s.value * mean_weight[e];
+      product(s.value, mean_weight[e], s.member[e]);
       s.member[e].rowwise() += mean_bias[e];
       mean += s.member[e];
       if (!spread || !probabilistic()) continue;
       // logvar = min + softplus(max - softplus(max - raw) - min), in float32
-      s.raw.noalias() = s.value * variance_weight[e];
+      product(s.value, variance_weight[e], s.raw);
       s.raw.rowwise() += variance_bias[e];
       for (Eigen::Index row = 0; row < count; ++row)
         for (int out = 0; out < outputs; ++out) {
@@ -218,8 +224,7 @@ struct Network {
     RowMatrixXf pre, value, adjoint, next;
     const float share = 1.0f / float(members);
     for (int e = 0; e < members; ++e) {
-      pre.noalias() = z * first[e].topRows(inputs);
-      pre.rowwise() += first[e].row(inputs);
+      first_layer(z, e, pre);
       for (int layer = 0; layer <= layers; ++layer) {
         if (layer > 0) {
           product(value, hidden_weight[layer - 1][e], pre);
@@ -227,7 +232,8 @@ struct Network {
         }
         activate_all(pre, value, jacobian ? &slopes[layer] : nullptr);
       }
-      RowMatrixXf member = value * mean_weight[e];
+      RowMatrixXf member;
+      product(value, mean_weight[e], member);
       member.rowwise() += mean_bias[e];
       mean += member;
       if (!jacobian) continue;
@@ -372,36 +378,42 @@ struct NetworkModel : Model {
     }
   }
 
+  // The buffers of `step_batch`, kept by the caller across the steps of a rollout (no allocation per step).
+  struct BatchScratch {
+    Network::Scratch network;
+    RowMatrixXd rows, outputs;
+    RowMatrixXf z, mean, spread;
+    VectorXd xk, uk, phi, mean64;
+  };
+
   // The next states (N, S) of finite rows x (N, S) under u (N, m), one matrix product per layer for all rows,
   // and with `variance` their one-step predictive variance (N, S) (zero for one deterministic member).
   void step_batch(const RowMatrixXd& x, const RowMatrixXd& u, RowMatrixXd& next, RowMatrixXd* variance,
-                  Network::Scratch& scratch) const {
+                  BatchScratch& s) const {
     const int N = int(x.rows()), n = joints();
-    RowMatrixXd rows(N, network.inputs);
-    VectorXd xk, uk, phi;
+    s.rows.resize(N, network.inputs);
     for (int i = 0; i < N; ++i) {
-      xk = x.row(i).transpose();
-      uk = u.row(i).transpose();
-      if (nominal) phi = nominal->acceleration(xk.head(n), xk.tail(n), uk);
-      input_row(xk, uk, nominal ? &phi : nullptr, rows.row(i).data());
+      s.xk = x.row(i).transpose();
+      s.uk = u.row(i).transpose();
+      if (nominal) s.phi = nominal->acceleration(s.xk.head(n), s.xk.tail(n), s.uk);
+      input_row(s.xk, s.uk, nominal ? &s.phi : nullptr, s.rows.row(i).data());
     }
-    RowMatrixXf z = rows.cast<float>(), mean, spread;
-    network.mean_and_variance(z, mean, variance ? &spread : nullptr, scratch);
+    s.z = s.rows.cast<float>();
+    network.mean_and_variance(s.z, s.mean, variance ? &s.spread : nullptr, s.network);
     next.resize(N, state_dim);
-    VectorXd mean64;
     for (int i = 0; i < N; ++i) {
-      xk = x.row(i).transpose();
-      mean64 = mean.row(i).transpose().cast<double>();
-      assemble(xk, mean64.data(), next.row(i).data());
+      s.xk = x.row(i).transpose();
+      s.mean64 = s.mean.row(i).transpose().cast<double>();
+      assemble(s.xk, s.mean64.data(), next.row(i).data());
     }
     if (!variance) return;
-    const RowMatrixXd outputs = spread.cast<double>();   // the velocity's, or the state's
+    s.outputs = s.spread.cast<double>();   // the velocity's, or the state's
     variance->resize(N, state_dim);
     if (predicts_velocity) {
-      variance->leftCols(n) = (0.25 * sample_period * sample_period) * outputs;
-      variance->rightCols(n) = outputs;
+      variance->leftCols(n) = (0.25 * sample_period * sample_period) * s.outputs;
+      variance->rightCols(n) = s.outputs;
     } else {
-      *variance = outputs;
+      *variance = s.outputs;
     }
   }
 
@@ -411,7 +423,7 @@ struct NetworkModel : Model {
     for (Eigen::Index row = 0; row < x.rows(); ++row)
       if (x.row(row).allFinite() && u.row(row).allFinite()) finite.push_back(int(row));
     RowMatrixXd next = RowMatrixXd::Constant(x.rows(), state_dim, std::numeric_limits<double>::quiet_NaN()), stepped;
-    Network::Scratch scratch;
+    BatchScratch scratch;
     step_batch(x(finite, Eigen::all), u(finite, Eigen::all), stepped, nullptr, scratch);
     next(finite, Eigen::all) = stepped;
     return next;
@@ -424,25 +436,33 @@ struct NetworkModel : Model {
   // together (`step_batch`).
   void rollout(const RowMatrixXd& x0, const RowMatrixXd& actions, int T, RowMatrixXd& mean,
                RowMatrixXd& variance) const {
-    const int B = int(x0.rows());
+    const int B = int(x0.rows()), m = action_dim;
     const double nan = std::numeric_limits<double>::quiet_NaN();
     mean.setConstant(Eigen::Index(B) * T, state_dim, nan);
     variance.setConstant(Eigen::Index(B) * T, state_dim, nan);
-    std::vector<int> going(B), rows;
+    std::vector<int> going(B), still;
     for (int b = 0; b < B; ++b) going[b] = b;
-    RowMatrixXd current = x0, next, spread;
-    Network::Scratch scratch;
+    RowMatrixXd current = x0, u, next, spread;
+    BatchScratch scratch;
     for (int k = 0; k < T && !going.empty(); ++k) {
-      rows.resize(going.size());
-      for (size_t i = 0; i < going.size(); ++i) rows[i] = going[i] * T + k;
-      step_batch(current(going, Eigen::all), actions(rows, Eigen::all), next, &spread, scratch);
-      mean(rows, Eigen::all) = next;
-      variance(rows, Eigen::all) = spread;
-      current(going, Eigen::all) = next;
-      std::vector<int> still;
-      for (size_t i = 0; i < going.size(); ++i)
-        if (next.row(Eigen::Index(i)).allFinite()) still.push_back(going[i]);
+      const int G = int(going.size());
+      if (current.rows() != G) {   // (rows left the finite numbers: the others' states, in order)
+        RowMatrixXd kept(G, state_dim);
+        for (int i = 0; i < G; ++i) kept.row(i) = mean.row(Eigen::Index(going[i]) * T + k - 1);
+        current.swap(kept);
+      }
+      u.resize(G, m);
+      for (int i = 0; i < G; ++i) u.row(i) = actions.row(Eigen::Index(going[i]) * T + k);
+      step_batch(current, u, next, &spread, scratch);
+      still.clear();
+      for (int i = 0; i < G; ++i) {
+        const Eigen::Index row = Eigen::Index(going[i]) * T + k;
+        mean.row(row) = next.row(i);
+        variance.row(row) = spread.row(i);
+        if (next.row(i).allFinite()) still.push_back(going[i]);
+      }
       going.swap(still);
+      current.swap(next);
     }
   }
 };

@@ -3,12 +3,13 @@
 // `scale` (row i by scale's row i / group): the reverse-mode adjoint times a layer's transposed weights, then the
 // layer's activation slopes of the input row it belongs to. With AVX2 and FMA: register blocks of 6 rows by 16, 8
 // or 4 columns, no packing of the operands (Eigen's general product packs both per call, a large share of its
-// time at these sizes), the rows left over each by Eigen's matrix-vector product; without them (the controller
-// program's generic build), Eigen's product.
+// time at these sizes), the rows left over (a rollout's single row) each in one pass over its columns; without
+// them (the controller program's generic build), Eigen's product.
 #pragma once
 #if defined(__AVX2__) && defined(__FMA__)
 #include <immintrin.h>
 #endif
+#include <algorithm>
 #include <type_traits>
 
 #include <Eigen/Core>
@@ -54,6 +55,69 @@ inline void gemm_block(const float* A, long lda, const float* B, long ldb, float
     }
   }
 }
+
+// One row, c (N) = a (K) B (K, N) (times scale (N) where given), columns j.. j + 8 V (the last vector's `tail`
+// columns, 1-8, through a mask): V vectors of sums, each split over U sums of every U-th k, so that a few
+// columns do not wait on one sum's latency at every k (U V <= 13 registers, besides a and the load).
+template <int V, int U>
+inline void row_block(const float* a, int K, const float* B, long ldb, float* c, const float* scale, int j,
+                      int tail) {
+  const __m256i lanes = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+  const __m256i mask = _mm256_cmpgt_epi32(_mm256_set1_epi32(tail), lanes);
+  const float* last = B + j + 8 * (V - 1);
+  __m256 sum[U][V];
+  for (int u = 0; u < U; ++u)
+    for (int v = 0; v < V; ++v) sum[u][v] = _mm256_setzero_ps();
+  int k = 0;
+  for (; k + U <= K; k += U)
+    for (int u = 0; u < U; ++u) {
+      const __m256 x = _mm256_broadcast_ss(a + k + u);
+      const float* row = B + (k + u) * ldb + j;
+      for (int v = 0; v < V - 1; ++v) sum[u][v] = _mm256_fmadd_ps(x, _mm256_loadu_ps(row + 8 * v), sum[u][v]);
+      sum[u][V - 1] = _mm256_fmadd_ps(x, _mm256_maskload_ps(last + (k + u) * ldb, mask), sum[u][V - 1]);
+    }
+  for (; k < K; ++k) {
+    const __m256 x = _mm256_broadcast_ss(a + k);
+    const float* row = B + k * ldb + j;
+    for (int v = 0; v < V - 1; ++v) sum[0][v] = _mm256_fmadd_ps(x, _mm256_loadu_ps(row + 8 * v), sum[0][v]);
+    sum[0][V - 1] = _mm256_fmadd_ps(x, _mm256_maskload_ps(last + k * ldb, mask), sum[0][V - 1]);
+  }
+  for (int v = 0; v < V; ++v) {
+    __m256 value = sum[0][v];
+    for (int u = 1; u < U; ++u) value = _mm256_add_ps(value, sum[u][v]);
+    if (v < V - 1) {
+      if (scale) value = _mm256_mul_ps(value, _mm256_loadu_ps(scale + j + 8 * v));
+      _mm256_storeu_ps(c + j + 8 * v, value);
+    } else {
+      if (scale) value = _mm256_mul_ps(value, _mm256_maskload_ps(scale + j + 8 * v, mask));
+      _mm256_maskstore_ps(c + j + 8 * v, mask, value);
+    }
+  }
+}
+
+// c (N) = a (K) B (K, N) (times scale (N)): the columns in passes of at most 13 vectors of 8
+inline void row_product(const float* a, int K, const float* B, long ldb, float* c, int N, const float* scale) {
+  for (int j = 0; j < N;) {
+    const int vectors = std::min(13, (N - j + 7) / 8);
+    const int tail = std::min(8, N - j - 8 * (vectors - 1));
+    switch (vectors) {
+      case 1: row_block<1, 4>(a, K, B, ldb, c, scale, j, tail); break;
+      case 2: row_block<2, 4>(a, K, B, ldb, c, scale, j, tail); break;
+      case 3: row_block<3, 4>(a, K, B, ldb, c, scale, j, tail); break;
+      case 4: row_block<4, 2>(a, K, B, ldb, c, scale, j, tail); break;
+      case 5: row_block<5, 2>(a, K, B, ldb, c, scale, j, tail); break;
+      case 6: row_block<6, 2>(a, K, B, ldb, c, scale, j, tail); break;
+      case 7: row_block<7, 1>(a, K, B, ldb, c, scale, j, tail); break;
+      case 8: row_block<8, 1>(a, K, B, ldb, c, scale, j, tail); break;
+      case 9: row_block<9, 1>(a, K, B, ldb, c, scale, j, tail); break;
+      case 10: row_block<10, 1>(a, K, B, ldb, c, scale, j, tail); break;
+      case 11: row_block<11, 1>(a, K, B, ldb, c, scale, j, tail); break;
+      case 12: row_block<12, 1>(a, K, B, ldb, c, scale, j, tail); break;
+      default: row_block<13, 1>(a, K, B, ldb, c, scale, j, tail); break;
+    }
+    j += 8 * vectors;
+  }
+}
 #endif
 }  // namespace detail
 
@@ -62,7 +126,6 @@ inline void small_gemm(const float* A, long lda, const float* B, long ldb, float
                        const float* scale = nullptr, long lds = 0, int group = 1) {
   using Matrix = Eigen::Matrix<float, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
   using Stride = Eigen::OuterStride<>;
-  const Eigen::Map<const Matrix, 0, Stride> right(B, K, N, Stride(ldb));
 #if defined(__AVX2__) && defined(__FMA__)
   const int blocked = R - R % 6;   // rows in blocks of 6
   int j = 0;
@@ -80,16 +143,14 @@ inline void small_gemm(const float* A, long lda, const float* B, long ldb, float
       for (int k = 0; k < K; ++k) sum += A[i * lda + k] * B[k * ldb + col];
       C[i * ldc + col] = scale ? sum * scale[(i / group) * lds + col] : sum;
     }
-  // the rows left (fewer than 6) one by one, each Eigen's matrix-vector product (which keeps several sums apart: one
-  // row in a register block would wait on its two sums' latency at every k; a general product of a few rows packs)
-  for (int i = blocked; i < R; ++i) {
-    Eigen::Map<Eigen::RowVectorXf> out(C + i * ldc, N);
-    out.noalias() = Eigen::Map<const Eigen::RowVectorXf>(A + i * lda, K) * right;
-    if (scale) out.array() *= Eigen::Map<const Eigen::RowVectorXf>(scale + (i / group) * lds, N).array();
-  }
+  // the rows left (fewer than 6) one by one: `detail::row_product`, all of a row's columns in one pass of up to 13
+  // vectors, a few columns' sums split over k (one row in the 6-row blocks would wait on its sums' latency at every
+  // k; Eigen's matrix-vector product took about 1.6x as long at batch one)
+  for (int i = blocked; i < R; ++i)
+    detail::row_product(A + i * lda, K, B, ldb, C + i * ldc, N, scale ? scale + (i / group) * lds : nullptr);
 #else   // (a build without AVX2, as the controller program's generic one: Eigen's product of all rows)
   Eigen::Map<Matrix, 0, Stride> all(C, R, N, Stride(ldc));
-  all.noalias() = Eigen::Map<const Matrix, 0, Stride>(A, R, K, Stride(lda)) * right;
+  all.noalias() = Eigen::Map<const Matrix, 0, Stride>(A, R, K, Stride(lda)) * Eigen::Map<const Matrix, 0, Stride>(B, K, N, Stride(ldb));
   if (scale)
     for (int i = 0; i < R; ++i)
       all.row(i).array() *= Eigen::Map<const Eigen::RowVectorXf>(scale + (i / group) * lds, N).array();
