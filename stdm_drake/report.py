@@ -69,9 +69,9 @@ def open_loop_error_line(name: str, q: np.ndarray, v0: np.ndarray, predicted: np
                          steps=(1, 10, 50)) -> str:
     """One line of open-loop joint-angle errors: the RMS over joints of predicted - q at a few steps
     (those of `steps` within the trajectory, and its last), beside the physics-free rollouts from the
-    same start, "stays put" (q_0 held) and "v unchanged" (q_0 + k h v_0), and the first step from which
-    the model is further off than staying put (a rollout's error grows with the horizon, so a long
-    trajectory's whole-length figure alone says little).
+    same start, "stays put" (q_0 held) and "v unchanged" (q_0 + k h v_0), and the step from which on the model
+    is further off than staying put, or the first such step and how many there are where it is closer again (a
+    rollout's error grows with the horizon, so a long trajectory's whole-length figure alone says little).
 
     q, predicted: (T + 1, n) rad, both starting at q_0; v0: (n,) rad/s; sample_period h: s."""
     last = len(q) - 1
@@ -83,7 +83,11 @@ def open_loop_error_line(name: str, q: np.ndarray, v0: np.ndarray, predicted: np
     table = "; ".join(f"{label} " + " / ".join(f"{error[step]:.3g}" for step in shown)
                       for label, error in errors.items())
     worse = np.flatnonzero(errors[name][1:] > errors["stays put"][1:])
-    verdict = (f"further off than staying put from step {worse[0] + 1}" if len(worse)
-               else "closer than staying put throughout")
+    if not len(worse):
+        verdict = "closer than staying put throughout"
+    elif len(worse) == last - worse[0]:   # (every step from the first worse one to the end)
+        verdict = f"further off than staying put from step {worse[0] + 1} on"
+    else:
+        verdict = f"further off than staying put first at step {worse[0] + 1} (on {len(worse)} of {last} steps)"
     return (f"open-loop RMS joint-angle error (rad) at steps {' / '.join(map(str, shown))}: {table}; "
             f"{name} {verdict}")

@@ -16,6 +16,19 @@ import numpy as np
 CONFIDENCE = 0.95
 
 
+def ratio_interval_text(ratio: float, low: float, high: float) -> str:
+    """'3.1x [2.2, 4.4]': 3 significant digits, more (up to 6) where 3 would print a number that is not 1 as 1
+    ("1x [1, 1]" for 1.004x [1.001, 1.008], an interval that excludes 1) or an interval's two ends alike."""
+    digits = 3
+    while digits < 6:
+        shown = [f"{value:.{digits}g}" for value in (ratio, low, high)]
+        hides_one = any(text == "1" and value != 1.0 for text, value in zip(shown, (ratio, low, high)))
+        if not hides_one and (shown[1] != shown[2] or low == high):
+            break
+        digits += 1
+    return f"{ratio:.{digits}g}x [{low:.{digits}g}, {high:.{digits}g}]"
+
+
 @dataclasses.dataclass(frozen=True)
 class PairedRatio:
     """Geometric-mean ratio baseline/method over n pairs and its 95 % interval (low, high)."""
@@ -36,7 +49,7 @@ class PairedRatio:
         """e.g. '3.1x [2.2, 4.4]' (ratio > 1: the method's MSE is lower)."""
         if self.pairs < 2:
             return f"{self.ratio:.3g}x (1 pair, no interval)"
-        return f"{self.ratio:.3g}x [{self.low:.3g}, {self.high:.3g}]"
+        return ratio_interval_text(self.ratio, self.low, self.high)
 
     def as_dict(self) -> dict:
         return dict(ratio=self.ratio, low=self.low, high=self.high, pairs=self.pairs, verdict=self.verdict)

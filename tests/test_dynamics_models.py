@@ -127,11 +127,20 @@ def test_evaluate_prints_the_baselines_and_the_verdict(excitation, tmp_path, cap
 
 
 def test_the_gate_counts_a_model_at_the_noise_floor_as_learned():
-    from stdm_drake.dynamics.physics import learning_verdict
+    from stdm_drake.dynamics.verdict import learning_verdict
     assert learning_verdict(3.0, 2.5) == "learned"
     assert learning_verdict(1.1, 1.9) == "has not learned the dynamics"
     assert learning_verdict(1.1, 1.9, floor_ratio_q=1.3, floor_ratio_v=1.0) == "learned (at the noise floor)"
     assert learning_verdict(1.1, 1.9, floor_ratio_q=1.6, floor_ratio_v=1.0) == "has not learned the dynamics"
+    # worse than the baseline, within 1.5x of the floor: not learned (the floor counts only for a model that beats it)
+    assert learning_verdict(0.9, 2.5, floor_ratio_q=1.2) == "has not learned the dynamics"
+    # a "floor" 10x above 'v unchanged''s MSE (a sensor's moving average over a torque dithered every sample; the
+    # deploy guide's data): the model is 1.2x better than 'v unchanged' and at 0.07x of it, but that is no floor
+    assert learning_verdict(2.5, 1.2, floor_ratio_v=0.072) == "has not learned the dynamics"
+    assert learning_verdict(2.5, 1.2, floor_ratio_v=1.2) == "learned (at the noise floor)"   # the floor below v's baseline
+    from stdm_drake.dynamics.verdict import floor_not_held_note
+    assert "noise floor of v is above the 'v unchanged''s MSE" in floor_not_held_note(2.5, 1.2, 0.5, 0.072)
+    assert floor_not_held_note(2.5, 1.2, 0.5, 1.2) == floor_not_held_note(2.5, 1.2, None, None) == ""
 
 
 def test_ratios_read_as_better_or_worse_by_their_value():
@@ -155,6 +164,20 @@ def test_a_derivative_checkpoint_that_kept_naive_training_is_named_for_it():
     assert trained_name(checkpoint("DD", 0.0)) == "DD-naive" and trained_name(checkpoint("PED", 0.0)) == "PED-naive"
     assert trained_name(checkpoint("DD", 1e-3)) == "DD" and trained_name(checkpoint("D", 0.0)) == "D"
     assert trained_name(checkpoint("GD", 0.0)) == "GD-naive" and trained_name(checkpoint(None, 0.0)) == "model"
+
+
+def test_a_model_named_for_its_type_takes_its_trained_name(monkeypatch):
+    """`mpc --model DD=FILE` on a DD whose alpha grid kept naive training names it "DD-naive" in the tables (the
+    newcomer pass saw plain "DD" in mpc.md while `view` said "DD-naive"); any other name is the user's."""
+    import types
+    from stdm_drake.learning import learned_model
+    monkeypatch.setattr(learned_model, "LearnedModel", lambda checkpoint, name, robot, **options:
+                        types.SimpleNamespace(name=name))
+    kept_naive = types.SimpleNamespace(metadata=types.SimpleNamespace(model_type="DD"),
+                                       training_config=types.SimpleNamespace(alpha=0.0))
+    assert learned_model.checkpoint_model(kept_naive, None, name="DD").name == "DD-naive"
+    assert learned_model.checkpoint_model(kept_naive, None).name == "DD-naive"
+    assert learned_model.checkpoint_model(kept_naive, None, name="mine").name == "mine"
 
 
 @pytest.mark.slow

@@ -92,6 +92,10 @@ def test_view_reports_open_loop_errors_at_steps_beside_the_physics_free_rollouts
     assert "stays put " + " / ".join(f"{value:.3g}" for value in stays) + ";" in line
     unchanged = [np.sqrt(np.mean((q[k] - k * 0.01 * np.array([0.5, 1.0])) ** 2)) for k in (1, 10, 50, 200)]
     assert "v unchanged " + " / ".join(f"{value:.3g}" for value in unchanged) + ";" in line
-    assert line.endswith("DD further off than staying put from step 120")
+    assert line.endswith("DD further off than staying put from step 120 on")
+    early = q.copy()
+    early[1:3] += 10.0                                       # off at steps 1 and 2 only (the newcomer pass's case)
+    assert open_loop_error_line("DD", q, np.array([0.5, 1.0]), early, 0.01).endswith(
+        "DD further off than staying put first at step 1 (on 2 of 200 steps)")
     exact = open_loop_error_line("DD", q[:6], np.array([0.5, 1.0]), q[:6], 0.01)
     assert "at steps 1 / 5:" in exact and exact.endswith("DD closer than staying put throughout")

@@ -12,6 +12,7 @@ from stdm_drake.experiments.sine_sum import FULL, QUICK, headline, run_specs, ru
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.settings import UPPER_BOUNDS as TRAIN_BOUNDS
 from stdm_drake.outputs import fresh_default_folder, add_force_argument, check_output_folder, mark_output_folder
+from stdm_drake.stats import ratio_interval_text
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -76,9 +77,10 @@ def run(args: argparse.Namespace) -> int:
     written = write_reports(study, args.output, quick=args.quick, partial=bool(overrides))
     print(f"{len(study['runs'])} runs in {study['wall_seconds']:.1f} s; wrote {len(written)} files to {args.output}")
     top = headline(study)
-    print(f"  {top['layers']} layers swish (alpha {top['alpha']:g}): derivative {top['derivative_mean_test_mse']:.3g}, "
-          f"naive {top['naive_mean_test_mse']:.3g} (paired ratio {top['ratio']:.3g}x "
-          f"[{top['ratio_low']:.3g}, {top['ratio_high']:.3g}], {top['verdict']}; paper {top['paper_derivative']:g})")
+    print(f"  {top['layers']} layers swish (alpha {top['alpha']:g}): test MSE derivative "
+          f"{top['derivative_mean_test_mse']:.3g}, naive {top['naive_mean_test_mse']:.3g} (paired ratio "
+          f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])}, {top['verdict']}; paper "
+          f"{top['paper_derivative']:g})")
     for row in table1_rows(study):
         print(f"  table 1  {row['loss']:>5} {row['activation']:>6}: test MSE {row['mean_test_mse']:.4g} "
               f"(paper {row['paper']:.4g})")

@@ -11,8 +11,8 @@ take as an input.
     NominalAcceleration  q̈ = M(q)⁻¹(B τ + τ_g(q) − C(q, v) v − D v) of the robot's description, with its
                        time derivative along a tangent and its Jacobian (`robots.rigid_body`, analytic)
 
-A learned model that does not beat ConstantVelocity by `LEARNED_FACTOR` in both one-step q and v has
-not learned the dynamics (`learning_verdict`).
+A learned model that does not beat ConstantVelocity by `verdict.LEARNED_FACTOR` in both one-step q and v has
+not learned the dynamics (`verdict.learning_verdict`).
 """
 from __future__ import annotations
 
@@ -22,26 +22,6 @@ import numpy as np
 
 from stdm_drake.errors import InputError
 from stdm_drake.dynamics.model import DynamicsModel
-
-# A learned model must beat the physics-free baselines by this factor (one-step MSE) to count as
-# having learned the dynamics; comparisons between models that do not are uninformative. Where the
-# sensor's noise floor leaves no room for that factor, a model within FLOOR_FACTOR of the floor counts.
-LEARNED_FACTOR = 2.0
-FLOOR_FACTOR = 1.5
-
-
-def learning_verdict(ratio_q: float, ratio_v: float, floor_ratio_q: float | None = None,
-                     floor_ratio_v: float | None = None) -> str:
-    """"learned" when, for q and for v, the one-step MSE ratio baseline/model (q: the Euler step; v: "v
-    unchanged") is >= LEARNED_FACTOR or the model's MSE is within FLOOR_FACTOR of the sensor noise floor
-    (floor_ratio = model MSE / floor; None: no floor known, an ideal sensor); else "has not learned the
-    dynamics". "learned (at the noise floor)" when the floor decided it for q or v."""
-    at_floor = [ratio is not None and ratio <= FLOOR_FACTOR for ratio in (floor_ratio_q, floor_ratio_v)]
-    beats = [ratio_q >= LEARNED_FACTOR, ratio_v >= LEARNED_FACTOR]
-    if all(b or f for b, f in zip(beats, at_floor)):
-        return "learned" if all(beats) else "learned (at the noise floor)"
-    return "has not learned the dynamics"
-
 
 class _Kinematic(DynamicsModel):
     """Baselines that only integrate the current state (no action)."""

@@ -364,8 +364,9 @@ def _summary(job: CompareJob, dataset, robot, files: dict, open_loop: dict, clos
 def _markdown(record: dict) -> str:
     steps = [str(step) for step in HORIZONS if step <= record["horizon"]]
     closed = record["closed_loop"]
-    header = (["kind", "seeds", "one-step q MSE", "one-step v MSE"] + [f"q RMS @{step}" for step in steps]
-              + ["learned"] + (["closed-loop q RMS", "limits left", "fallbacks", "solve ms"] if closed else []))
+    header = (["kind", "seeds", "one-step q MSE (rad²)", "one-step v MSE ((rad/s)²)"]
+              + [f"q RMS @{step} (rad)" for step in steps]
+              + ["learned"] + (["closed-loop q RMS (rad)", "limits left", "fallbacks", "solve ms"] if closed else []))
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for entry in record["table"]:
         cells = [entry["kind"], str(entry["seeds"]), f"{entry['one_step_q_mse']:.3e}", f"{entry['one_step_v_mse']:.3e}"]

@@ -8,8 +8,8 @@ from stdm_drake.experiments.results import select_rows
 from stdm_drake.experiments.reproduce_figures import (figure_path, plot_activations, plot_learning_curves, plot_multistep,
                                                       plot_sizes)
 from stdm_drake.learning.models import MODEL_TYPES
-from stdm_drake.stats import paired_ratio
-from stdm_drake.dynamics.physics import learning_verdict
+from stdm_drake.stats import paired_ratio, ratio_interval_text
+from stdm_drake.dynamics.verdict import learning_verdict
 from stdm_drake.data.inspect import tracking_errors
 from stdm_drake.experiments.sine_sum import headline, table1_rows
 
@@ -137,7 +137,7 @@ def ratio_text(ratio: dict | None, learned: bool = True) -> str:
     if ratio["pairs"] < 2:
         return f"{ratio['ratio']:.3g}x (1 pair)"
     reading = ratio["verdict"] if learned else "uninformative"
-    return f"{ratio['ratio']:.3g}x [{ratio['low']:.3g}, {ratio['high']:.3g}] {reading}"
+    return f"{ratio_interval_text(ratio['ratio'], ratio['low'], ratio['high'])} {reading}"
 
 
 def _flat(row: dict) -> dict:
@@ -391,7 +391,7 @@ def add_sine_sum_section(report, sine: dict) -> None:
     report.table(["5 layers, swish", "naive", "derivative", "naive/derivative (paired, 95 % CI)", "paper (derivative)"],
                  [[f"mean of {top['networks']} networks", _g(top["naive_mean_test_mse"]),
                    _g(top["derivative_mean_test_mse"]),
-                   f"{top['ratio']:.3g}x [{top['ratio_low']:.3g}, {top['ratio_high']:.3g}] {top['verdict']}",
+                   f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])} {top['verdict']}",
                    top["paper_derivative"]]])
     report.table(["loss", "activation", "ours (test MSE)", "paper"],
                  [[r["loss"], r["activation"], _g(r["mean_test_mse"]), r["paper"]] for r in table1_rows(sine)])

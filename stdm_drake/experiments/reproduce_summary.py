@@ -7,6 +7,7 @@ from stdm_drake.experiments.jobs import Profile
 from stdm_drake.experiments.reproduce_report import BASELINE_NOTE, ONE_STEP, baseline_learned, comparison_row, ratio_text
 from stdm_drake.experiments.results import select_rows
 from stdm_drake.experiments.sine_sum import headline
+from stdm_drake.stats import ratio_interval_text
 
 
 # The settled answers the summary's verdicts point to (a test holds each to the committed file named here).
@@ -75,14 +76,15 @@ def sine_sum_text(top: dict, quick: bool) -> str:
     answer it should be read against."""
     settled = SETTLED_SINE_SUM
     return (f"Sine-sum (section III.B, 5 layers, swish, {top['networks']} networks): naive / derivative test MSE "
-            f"{top['ratio']:.3g}x [{top['ratio_low']:.3g}, {top['ratio_high']:.3g}] ({top['verdict']}; the paper "
+            f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])} ({top['verdict']}; the paper "
             f"reports derivative learning's test MSE {top['paper_derivative']}). The settled answer: derivative "
             f"learning {settled['verdict']} on the sine-sum, {settled['ratio']:g}x [{settled['low']:g}, "
             f"{settled['high']:g}] over {settled['networks']} networks in the full profile (docs/learning.md, "
             f"\"Sine-sum study\")." + (f" With its {QUICK_SINE_SUM['networks']} networks the quick stage's interval lay "
                                          f"above 1 on {QUICK_SINE_SUM['helps']} of {QUICK_SINE_SUM['seeds']} seeds "
-                                         "(docs/learning.md, \"The quick report's sine-sum\"), so \"no clear "
-                                         "difference\" here is the exception, not the answer." if quick else ""))
+                                         "(docs/learning.md, \"The quick report's sine-sum\"), so this run's \""
+                                         f"{top['verdict']}\" is the exception, not the answer."
+                                         if quick and top["verdict"] != settled["verdict"] else ""))
 
 
 def add_summary_section(report, results, sine: dict, default_row: dict | None, profile: Profile) -> None:
@@ -109,7 +111,7 @@ def add_summary_section(report, results, sine: dict, default_row: dict | None, p
         lines.append("Quick profile: small data, few seeds and epochs, so intervals are wide and the sections "
                      "below are a check that every stage runs. The paper-figure comparisons (activations, sample "
                      "efficiency, tracked plans, multi-step), the UR-10 intervals over 5 seeds and the closed-loop MPC "
-                     "statistics (here 2 plans of 20 steps) need the full profile (`stdm-drake reproduce`, about "
-                     "30 min on 2 cores).")
+                     "statistics (here 2 plans of 20 steps) need the full profile (`stdm-drake reproduce`, 46.5 min "
+                     "on 2 cores in docs/guides/reproduce.md).")
     for line in lines:
         report.text(line)

@@ -47,7 +47,7 @@ from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.models import ModelConfig
 from stdm_drake.provenance import results_header
 from stdm_drake.report import markdown_table
-from stdm_drake.stats import paired_ratio
+from stdm_drake.stats import paired_ratio, ratio_interval_text
 from stdm_drake.cluster import RunnerConfig, job_pool, task_error
 
 PAPER_TABLE1 = {  # paper Table 1: 5 hidden layers, derivative learning, average of 3 runs
@@ -536,8 +536,8 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
              f"worker(s) ({study['run_seconds']:.1f} s of training in total).", "",
              f"**Headline ({config['table_layers']} layers, swish, mean of {top['networks']} networks):** derivative "
              f"learning {top['derivative_mean_test_mse']:.3g} against naive {top['naive_mean_test_mse']:.3g} "
-             f"({top['ratio_of_means']:.3g}x lower; paired ratio {top['ratio']:.3g}x, 95 % interval "
-             f"[{top['ratio_low']:.3g}, {top['ratio_high']:.3g}]: {top['verdict']}); the paper reports "
+             f"({top['ratio_of_means']:.3g}x lower; paired ratio and 95 % interval "
+             f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])}: {top['verdict']}); the paper reports "
              f"{top['paper_derivative']:g}.", ""]
     if sweep:
         lines += ["## Alpha chosen by validation", "", markdown_table(
@@ -550,7 +550,7 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
          "naive / derivative (paired, 95 % CI)", "verdict"],
         [[row["layers"], row["activation"], f"{row['naive_mean_test_mse']:.4g}", f"{row['naive_best_test_mse']:.4g}",
           f"{row['derivative_mean_test_mse']:.4g}", f"{row['derivative_best_test_mse']:.4g}",
-          f"{row['ratio']:.3g}x [{row['ratio_low']:.3g}, {row['ratio_high']:.3g}]", row["verdict"]] for row in fig6])]
+          ratio_interval_text(row['ratio'], row['ratio_low'], row['ratio_high']), row["verdict"]] for row in fig6])]
     deepest = [row for row in fig6 if row["layers"] == config["table_layers"]]
     winner = min(deepest, key=lambda row: row["derivative_mean_test_mse"])
     counts = {verdict: sum(row["verdict"] == verdict for row in fig6) for verdict in ("helps", "hurts")}

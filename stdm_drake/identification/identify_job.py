@@ -102,6 +102,9 @@ def identify_job(job: IdentifyJob) -> dict:
     return report
 
 
+EXACT_TORQUE_ERROR = 1e-9   # a relative torque RMS error at rounding: the model that simulated the data
+
+
 def report_summary(report: dict) -> str:
     """The report's numbers as lines: the excitation, the chosen setting, the test torque errors and, for
     simulated data, each friction coefficient against the truth."""
@@ -124,7 +127,11 @@ def report_summary(report: dict) -> str:
             lines.append(f"  on the true states and accelerations: {test['torque_error_on_true_states']:.3g}")
         lines.append("  (least squares fits the torques best but may give a body no physics has, e.g. a negative "
                      "mass; the identified robot is the best fit among physically consistent ones, the one written)")
-        if test["torque_error"] >= test["description_torque_error"]:
+        if max(test["torque_error"], test["description_torque_error"]) <= EXACT_TORQUE_ERROR:
+            lines.append(f"  both the identified robot and the description predict the test torques to rounding "
+                         f"({test['torque_error']:.3g} and {test['description_torque_error']:.3g}): data the "
+                         "description simulated, which identification cannot improve on")
+        elif test["torque_error"] >= test["description_torque_error"]:
             lines.append(f"warning: the identified robot predicts the test torques no better than the description "
                          f"({test['torque_error']:.3g} against {test['description_torque_error']:.3g}): more or richer "
                          "data (excitation), or keep the description")

@@ -16,7 +16,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.dynamics.model import DynamicsModel
 from stdm_drake.learning.predict import as_inference_model
 from stdm_drake.learning.learned_model import LearnedModel
-from stdm_drake.dynamics.physics import ConstantVelocity, PlantModel, StaysPut, learning_verdict
+from stdm_drake.dynamics.physics import ConstantVelocity, PlantModel, StaysPut
+from stdm_drake.dynamics.verdict import learning_verdict
 
 REPORT_STEPS = (1, 5, 10, 20, 50, 100)
 

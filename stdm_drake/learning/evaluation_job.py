@@ -16,7 +16,8 @@ from stdm_drake.learning.evaluate import (REPORT_STEPS, compare_with_baselines, 
 from stdm_drake.outputs import check_output_file
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.dynamics.model_files import load_model, load_model_file
-from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, PlantModel
+from stdm_drake.dynamics.physics import PlantModel
+from stdm_drake.dynamics.verdict import FLOOR_FACTOR, LEARNED_FACTOR, floor_not_held_note
 
 
 @dataclasses.dataclass
@@ -154,6 +155,9 @@ def evaluate_job(job: EvaluationJob) -> dict:
         print(f"  {'noise floor':<12} {floor['q']:>10.3e} {floor['v']:>13.3e}  (a model that knows the true change "
               f"of state, from the recorded state; {model.name} is at {learned.floor_ratio_q or 0:.3g}x / "
               f"{learned.floor_ratio_v or 0:.3g}x of it)")
+        note = floor_not_held_note(learned.ratio_q, learned.ratio_v, learned.floor_ratio_q, learned.floor_ratio_v)
+        if note:
+            print(f"  {note}")
     print(f"{model.name} against the physics-free baselines: one-step q {times_better(learned.ratio_q)} than the Euler "
           f"step, v {times_better(learned.ratio_v)} than 'v unchanged' -> {learned.verdict}"
           + ("" if learned.verdict.startswith("learned") else

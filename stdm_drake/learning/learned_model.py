@@ -311,10 +311,11 @@ class LearnedModel(DynamicsModel):
 
 def checkpoint_model(checkpoint, robot, *, name: str | None = None, for_control: bool = False, **options) -> LearnedModel:
     """A checkpoint's model (the "checkpoint" kind of `dynamics.model_files`): a `LearnedModel` of `robot`
-    named `name` or, without one, `trained_name(checkpoint)`; the same model for control and evaluation;
-    options: `LearnedModel`'s."""
+    named `name` or, without one, `trained_name(checkpoint)` (a `name` that is the checkpoint's model type, as
+    `mpc --model DD=...`, becomes its trained name too: "DD-naive" where the alpha grid kept naive training); the
+    same model for control and evaluation; options: `LearnedModel`'s."""
     model = LearnedModel(checkpoint, name=name, robot=robot, **options)
-    if name is None:
+    if name is None or name == checkpoint.metadata.model_type:
         model.name = trained_name(checkpoint)
     return model
 

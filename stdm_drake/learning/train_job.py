@@ -29,7 +29,8 @@ from stdm_drake.robots.plant import Dynamics
 from stdm_drake.data.inspect import noise_floor
 from stdm_drake.learning.evaluate import compare_with_baselines, times_better, physics_baselines
 from stdm_drake.learning.learned_model import LearnedModel
-from stdm_drake.dynamics.physics import FLOOR_FACTOR, LEARNED_FACTOR, ConstantVelocity
+from stdm_drake.dynamics.physics import ConstantVelocity
+from stdm_drake.dynamics.verdict import FLOOR_FACTOR, LEARNED_FACTOR, floor_not_held_note
 from stdm_drake.dynamics.model_files import kind_of, load_model_file
 from stdm_drake.data.compatibility import resolve_robot
 
@@ -162,6 +163,9 @@ class LearningVerdict:
               "  (q + dt v; 'v unchanged')")
         if self.floor and (self.floor["q"] > 0 or self.floor["v"] > 0):
             print(f"  {'noise floor':<{width}}{self.floor['q']:>11.3e} {self.floor['v']:>14.3e}  (the sensor's)")
+            note = floor_not_held_note(rows[0].ratio_q, rows[0].ratio_v, rows[0].floor_ratio_q, rows[0].floor_ratio_v)
+            if note:
+                print(f"  {note}")
         if kept_naive and self.settings.uses_derivative():
             print(f"  (the alpha grid kept naive training: this {self.name} checkpoint is a naive "
                   f"{self.name[:-1]}, trained without the derivative loss)")

@@ -104,7 +104,8 @@ def closed_loop_group(job: dict, cache: str) -> list:
 def one_step_gate(dataset_path: str, checkpoint: str, robot_path: str) -> dict:
     """A model's one-step test MSE (q rad², v (rad/s)²) against the physics-free baselines and its verdict."""
     from stdm_drake.data.dataset import load_dataset
-    from stdm_drake.dynamics.physics import ConstantVelocity, learning_verdict
+    from stdm_drake.dynamics.physics import ConstantVelocity
+    from stdm_drake.dynamics.verdict import learning_verdict
     from stdm_drake.learning.learned_model import LearnedModel
     from stdm_drake.robots.robot import load_robot
     data = load_dataset(dataset_path)
