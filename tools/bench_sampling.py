@@ -87,6 +87,8 @@ def cases(device: str | None):
             ("RTI, 1 iteration (baseline)", "D (default structure)", Rti(), ""),
             ("iCEM 100 x 3", "D (default structure)", Icem(), ""),
             ("iCEM 100 x 3, numpy steps (baseline)", "D (default structure)", Icem(implementation="numpy"), ""),
+            ("MPPI 100 x 1", "D (default structure)", Mppi(), ""),
+            ("CEM 400 x 5", "D (default structure)", Cem(), ""),
             ("RTI, 1 iteration (baseline)", "PE", Rti(), ""),
             ("iCEM 100 x 3, TS-inf 5 particles", "PE", Icem(particles=5, **tsinf), "stated"),
             ("iCEM 100 x 3, TS-inf 5 particles, PyTorch cpu", "PE", Icem(particles=5, framework="torch", **tsinf), ""),
