@@ -69,6 +69,25 @@ def test_same_seed_same_bytes_any_worker_count(tmp_path):
     assert (tmp_path / "a.h5").read_bytes() != (tmp_path / "c.h5").read_bytes()
 
 
+def test_the_default_worker_count_is_one_for_a_small_job(monkeypatch):
+    """Issue 57: two workers made a 4-plan collect slower than one (a second process's start-up outweighs the work
+    it takes over): without --workers a job under 25,000 plant steps runs in one process, a larger one in
+    min(2, cores) (tools/bench_collect_workers.py measured the threshold)."""
+    from stdm_drake.collection import collect as collect_module
+    monkeypatch.setattr(collect_module.os, "cpu_count", lambda: 8)
+    assert collect_module.default_workers(16 * 100 * 10) == 1          # 16 tracked plans of 100 samples at 1 ms
+    assert collect_module.default_workers(25_000) == collect_module.default_workers(48 * 100 * 10) == 2
+    monkeypatch.setattr(collect_module.os, "cpu_count", lambda: 1)
+    assert collect_module.default_workers(10 ** 6) == 1
+    seen = []
+    monkeypatch.setattr(collect_module, "job_pool", lambda config, **options: seen.append(config.workers) or
+                        (_ for _ in ()).throw(RuntimeError("stop")))
+    request = collect_module.collection_request("excitation", count=3, robot=UR10)
+    with pytest.raises(RuntimeError, match="stop"):
+        collect_module.collect(request, progress=False)
+    assert request.workers is None and seen == [1]                     # 3 x 50 samples x 10 plant steps
+
+
 def test_tracking_dataset_tracks_tightly(tracking_dataset):
     dataset = load_dataset(tracking_dataset)
     assert dataset.protocol == "tracking" and dataset.num_trajectories == 8

@@ -143,7 +143,7 @@ class CollectionRequest:
     settings: StationConfig
     excitation: Excitation | None = None
     tracking_spec: Tracking | None = None
-    workers: int = 1
+    workers: int | None = 1   # None: `default_workers` of the job's plant steps
 
 
 @dataclasses.dataclass(frozen=True)
@@ -213,6 +213,19 @@ def estimated_dataset_bytes(payloads, num_joints: int) -> int:
     return sum(map(payload_samples, payloads)) * num_joints * 8 * ARRAYS_PER_SAMPLE
 
 
+# Two worker processes from this many plant steps of simulation (sample periods x plant steps per period) on: below
+# it the second process's start-up (imports, its Station) outweighs the work it takes over (`tools/
+# bench_collect_workers.py`: 16 tracked plans, 16,000 plant steps, took 0.82x as long with 1 worker as with 2;
+# 48 plans 1.20x as long; 50 excitation trajectories, 25,000 steps, 1.23x).
+DEFAULT_WORKERS_PLANT_STEPS = 25_000
+
+
+def default_workers(plant_steps: int) -> int:
+    """`collect`'s worker processes where none are asked for: min(2, cores) for a job of at least
+    DEFAULT_WORKERS_PLANT_STEPS plant steps, else 1."""
+    return min(2, os.cpu_count() or 1) if plant_steps >= DEFAULT_WORKERS_PLANT_STEPS else 1
+
+
 def check_plant_steps(count: int, periods: int, settings) -> None:
     """InputError (one line, with the estimate) where simulating `count` trajectories of `periods` sample periods in
     all takes more than MAX_PLANT_STEPS plant steps (sample periods x the plant steps per sample period): checked
@@ -257,7 +270,12 @@ def collect(request: CollectionRequest, progress: bool = True, on_trajectory=Non
             on_trajectory(traj)
         bar.update()
 
-    workers = max(1, min(request.workers, request.count))
+    workers = request.workers
+    if workers is None:
+        samples = (request.tracking_spec.sampling.num_steps if request.protocol == "tracking"
+                   else request.excitation.num_steps)
+        workers = default_workers(request.count * samples * settings.substeps())
+    workers = max(1, min(workers, request.count))
     # in this process (1 worker) or in `workers` spawned processes that each build their own Station
     with job_pool(RunnerConfig(workers=workers), initializer=init_station_worker, initargs=(settings,)) as pool:
         if request.protocol == "excitation":
@@ -315,7 +333,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
 def collection_request(protocol: str | None = None, *, count: int | None = None, seed: int = 0, config=None,
                        controller=None, sensor=None, sample_period: float = DEFAULT_SAMPLE_PERIOD,
                        plant_time_step: float = DEFAULT_PLANT_TIME_STEP, robot,
-                       workers: int = min(2, os.cpu_count() or 1),
+                       workers: int | None = None,
                        excitation: Excitation | None = None, plant_effects=None) -> CollectionRequest:
     """What `stdm-drake collect` does with these settings (its options as keywords; config, controller,
     sensor: YAML paths, None for the defaults (a controller only with the tracking protocol: the
@@ -359,7 +377,8 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
                  "affected plant's inertia"))
     if count is not None and not 1 <= count <= MAX_COUNT:
         raise InputError(f"--count must be in 1..{MAX_COUNT}, got {count}")
-    check_workers(workers)
+    if workers is not None:
+        check_workers(workers)
     check_seed("--seed", seed)
     request = CollectionRequest(protocol=protocol, count=PAPER_COUNTS[protocol] if count is None else count, seed=seed,
                                 settings=settings, workers=workers)

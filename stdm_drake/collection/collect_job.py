@@ -7,7 +7,6 @@ where asked, every tracking plan for a real controller and a Meshcat recording o
 from __future__ import annotations
 
 import dataclasses
-import os
 import pathlib
 import sys
 import time
@@ -35,7 +34,8 @@ class CollectJob:
     only); sensor: the sensor noise/filter YAML (None: controllers/sensor.yaml for tracking, an ideal
     sensor for excitation); robot: the robot config YAML (None: the UR-10's); sample_period: the data's
     sample period, s; plant_time_step: the discrete plant's step, s (the period a whole multiple of it);
-    workers: worker processes (>= 1; the data do not depend on it); plant_effects: the plant effects YAML
+    workers: worker processes (>= 1; the data do not depend on it; None: `collect.default_workers`, 1 for a small
+    job, 2 from 25,000 plant steps); plant_effects: the plant effects YAML
     the data come from (None: the robot's description as it is); meshcat: show each trajectory live in
     Meshcat as it is collected (prints the URL; from a terminal it serves until Ctrl+C); html: a standalone
     Meshcat HTML file replaying every trajectory (None: none); visualization: Drake's VisualizationConfig
@@ -52,7 +52,7 @@ class CollectJob:
     robot: pathlib.Path | None = None
     sample_period: float = DEFAULT_SAMPLE_PERIOD
     plant_time_step: float = DEFAULT_PLANT_TIME_STEP
-    workers: int = dataclasses.field(default_factory=lambda: min(2, os.cpu_count() or 1))
+    workers: int | None = None
     plant_effects: pathlib.Path | None = None
     meshcat: bool = False
     html: pathlib.Path | None = None

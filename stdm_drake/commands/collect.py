@@ -1,7 +1,6 @@
 """`stdm-drake collect`: simulate a robot under a data protocol (excitation or tracking) and write a
 dataset (the job: `collection.collect_job`)."""
 import argparse
-import os
 import pathlib
 
 from stdm_drake.collection.protocols import PROTOCOLS
@@ -32,8 +31,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="data sample period in s (default 0.01; the learned model steps at this period)")
     parser.add_argument("--plant-time-step", type=float, default=DEFAULT_PLANT_TIME_STEP,
                         help="discrete plant step in s (default 0.001)")
-    parser.add_argument("--workers", type=int, default=min(2, os.cpu_count() or 1),
-                        help="worker processes (default: min(2, cores)); the data do not depend on it")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="worker processes (default: 1 for a job under 25,000 plant steps, e.g. 24 tracked "
+                             "plans, else min(2, cores)); the data do not depend on it")
     parser.add_argument("--meshcat", action="store_true",
                         help="show each trajectory in Meshcat at real time as it is collected (prints the URL; "
                              "from a terminal, the server stays up until Ctrl+C)")
