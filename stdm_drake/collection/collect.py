@@ -215,8 +215,8 @@ def estimated_dataset_bytes(payloads, num_joints: int) -> int:
 
 # Two worker processes from this many plant steps of simulation (sample periods x plant steps per period) on: below
 # it the second process's start-up (imports, its Station) outweighs the work it takes over (`tools/
-# bench_collect_workers.py`: 16 tracked plans, 16,000 plant steps, took 0.82x as long with 1 worker as with 2;
-# 48 plans 1.20x as long; 50 excitation trajectories, 25,000 steps, 1.23x).
+# bench_collect_workers.py`, BENCHMARKS.md: 16 tracked plans, 16,000 plant steps, faster with 1 worker; 50
+# excitation trajectories, 25,000 steps, about even; 48 plans and more faster with 2).
 DEFAULT_WORKERS_PLANT_STEPS = 25_000
 
 
