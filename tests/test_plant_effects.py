@@ -440,3 +440,15 @@ def test_a_slow_control_step_gets_its_rate_not_zero_hz():
     slow, fast = real_time_lines(rows, 0.01)
     assert slow.endswith("real time at 5.1 Hz by its p95") and "not real time (p95 19.6x the period)" in slow
     assert fast.endswith("real time at 830 Hz by its p95")
+
+
+def test_values_held_out_run_31_found_refused_are_accepted_as_documented():
+    """A rigid transmission (`transmission_stiffness: [0]`, documented as rigid) loads without a rotor inertia (it was
+    refused as needing one); a rotor inertia below 1e-12 kg m² with no gear ratio, as a fit leaves one, loads and adds
+    nothing (documented beside the gear-ratio rule, which refuses only a gear ratio that makes a motor vanish)."""
+    from stdm_drake.robots.plant import check_plant_effects
+    for effects in (PlantEffects(transmission_stiffness=[0.0]), PlantEffects(rotor_inertia=[1e-300])):
+        effects.validate()
+        check_plant_effects(effects, UR10, 0.001)
+    with pytest.raises(InputError, match="transmission_damping needs transmission_stiffness"):
+        PlantEffects(transmission_stiffness=[0.0], transmission_damping=[5.0]).validate()

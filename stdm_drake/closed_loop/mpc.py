@@ -58,6 +58,7 @@ from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.effect_systems import TorqueNoise, actuation_input, measured_state_output, start_actuators
 from stdm_drake.robots.plant import Dynamics, JointLimits, PlantConfig, joint_limits, make_plant
 from stdm_drake.robots.robot import Robot
+from stdm_drake.robots.simulation_errors import simulation_errors
 
 DEFAULT_MPC_CONFIG = CONTROLLERS_DIR / "mpc.yaml"
 MAX_WEIGHT = 1e12      # a cost weight (and the terminal factor) beyond this swamps every other term
@@ -88,8 +89,7 @@ class MpcConfig:
     horizon: int = 20
     position_weight: list[float] = dataclasses.field(default_factory=lambda: [1e4] * 6)
     velocity_weight: list[float] = dataclasses.field(default_factory=lambda: [10.0] * 6)
-    effort_weight: list[float] = dataclasses.field(
-        default_factory=lambda: [1e-4, 1e-4, 1e-3, 0.1, 1.0, 100.0])
+    effort_weight: list[float] = dataclasses.field(default_factory=lambda: [1e-4, 1e-4, 1e-3, 0.1, 1.0, 100.0])
     terminal_factor: float = 10.0
     disturbance_gain: float = 1.0
     constraints: Constraints = dataclasses.field(default_factory=Constraints)
@@ -415,5 +415,6 @@ def run_closed_loop(model, reference: Reference, config: MpcConfig, plant_config
     period = model.sample_period
     duration = (len(reference.q) - 1) * period if duration is None else duration
     simulator.Initialize()
-    simulator.AdvanceTo(duration - 0.25 * period)  # the last update (t = duration - h/2) included
+    with simulation_errors():
+        simulator.AdvanceTo(duration - 0.25 * period)  # the last update (t = duration - h/2) included
     return controller.log

@@ -10,8 +10,8 @@ horizon step (`sampled_costs.SampledCosts`), no Python loop per sample. How the 
   "ts1"    as tsinf, but the particles are shuffled among the members at every step (TS1).
 A sample's cost is the tracking cost (`optimizer.TrackingCost`) averaged over its particles, plus
 `variance_weight` times the Q-weighted spread of its particles, sum_k w_k tr(Q Var_k): 1 is as much again as
-the spread already costs inside the average (the average is the cost of the particles' mean plus that spread), more
-makes the controller avoid states the model is unsure of.
+the spread already costs inside the average (the cost of the particles' mean plus that spread), more avoids states
+the model is unsure of.
 
 What is sampled: residual joint accelerations (rad/s^2, `noise_std` their spread) on top of an ancillary
 control law that every rollout, sampled or applied, runs on its own state: the computed-torque law in the
@@ -19,14 +19,12 @@ model's own inertia, with the reference's acceleration as feedforward and the dr
 at the measured state cancelled (`SamplingSolver.control_law`). A residual acceleration a becomes the torque
 dt B_v^+ a, B_v the model's torque Jacobian of the next velocity, so one noise level fits every joint of any
 robot, friction and rotor inertia included. Why: sampled raw torques meet a tracking cost whose curvature
-spans the UR-10's heavy shoulder and light wrists; 10,000 samples of a 0.1 rad move then stayed at 100x the
-optimum's cost, and on the affected UR-10 the wrists' friction (2.3 N m) lies far beyond any torque noise
-that leaves the shoulder usable. Every rollout's torques are kept in the box of the effort limits (each sample's
-torques projected onto it, so the costs are those of torques the robot can apply), and with the robot's limits
-on (`constraints.py`) every rollout pays the state limits' exact penalty for its crossings; the warm start (the previous
-residuals shifted by one period) is always one of the samples.
-
-Where it runs: NumPy on the CPU (`framework: numpy`, the default), or PyTorch (`framework: torch`) on
+spans the UR-10's heavy shoulder and light wrists (10,000 samples of a 0.1 rad move stayed at 100x the optimum's
+cost; the affected UR-10's wrist friction, 2.3 N m, is far beyond any torque noise that leaves the shoulder
+usable). Every rollout's torques are projected onto the box of the effort limits (the costs of torques the robot
+can apply); with the robot's limits on (`constraints.py`) every rollout pays the state limits' exact penalty for
+its crossings; the warm start (the previous residuals shifted by one period) is always one of the samples. Where
+it runs: NumPy on the CPU (`framework: numpy`, the default), or PyTorch (`framework: torch`) on
 `device` cpu or cuda; both draw the torque samples and particle shuffles from one NumPy generator seeded
 by `seed`, so for the same settings they return the same torques to float tolerance (a probabilistic
 model's Gaussian draws come from the device's own generator: the same in distribution). PyTorch runs the
@@ -89,8 +87,7 @@ class SamplingSettings(OptimizerSettings):
     def validate(self) -> None:
         """InputError (one line) for settings no sampling optimizer can run, before any work: samples, iterations or
         particles out of range, noise not positive or beyond MAX_NOISE_STD, an unknown propagation or framework,
-        particles or a variance weight that `propagation: mean` would ignore, a negative variance weight, a device
-        that does not exist here."""
+        particles or a variance weight that `propagation: mean` would ignore, a device that does not exist here."""
         tag = self.tag()
         for name, top in (("samples", MAX_SAMPLES), ("iterations", MAX_ITERATIONS), ("particles", MAX_ROWS)):
             value = getattr(self, name)
@@ -116,8 +113,6 @@ class SamplingSettings(OptimizerSettings):
                 raise InputError(f"{tag} {name} must be in [0, {MAX_GAIN:g}], got {getattr(self, name)}")
         if not (np.isfinite(self.variance_weight) and 0 <= self.variance_weight <= MAX_SCALE):
             raise InputError(f"{tag} variance_weight must be in [0, {MAX_SCALE:g}], got {self.variance_weight}")
-        if not (np.isfinite(self.variance_weight) and self.variance_weight >= 0):
-            raise InputError(f"{tag} variance_weight must be >= 0, got {self.variance_weight}")
         if self.implementation not in IMPLEMENTATIONS:
             raise InputError(f"{tag} implementation must be one of {', '.join(IMPLEMENTATIONS)}, got "
                              f"{self.implementation!r}")
@@ -147,6 +142,11 @@ class SamplingSolver(TrajectoryOptimizer):
                  bounds: StateBounds | None = None):
         super().__init__(model, cost, effort_limit, bounds)
         settings.validate()
+        h = getattr(model, "sample_period", None) or 0.0   # (the law's explicit velocity update: unstable from here)
+        if h * settings.feedback_kd >= 2 or h ** 2 * settings.feedback_kp >= 4:
+            raise InputError(f"{settings.tag()} feedback_kp {settings.feedback_kp:g} 1/s² or feedback_kd {settings.feedback_kd:g}"
+                             f" 1/s makes each rollout's control law unstable at the model's period {h:g} s: give kp h² < 4 "
+                             f"and kd h < 2 (kp < {4 / h ** 2:.3g}, kd < {2 / h:.3g})")
         self.settings = settings
         self.rng = np.random.default_rng(int(settings.seed))
         self.costs = SampledCosts(model, cost, effort_limit, settings, self.rng, bounds)

@@ -57,6 +57,23 @@ class PlanSamples:
     qdd: np.ndarray
 
 
+def loop_settings_text(controller, effects) -> str:
+    """" and ..." naming what besides the gains shapes a tracking loop, where on: the controller's velocity filter, the
+    plant effects' delays, lag and torque noise (held-out run 31: all were blamed on the gains); "" where none is."""
+    parts = []
+    smoothing = getattr(controller, "velocity_filter_time_constant", 0.0) or 0.0
+    if smoothing > 0:
+        parts.append(f"its velocity_filter_time_constant ({smoothing:g} s)")
+    if effects is not None:
+        for name, unit in (("actuation_delay", "s"), ("measurement_delay", "s"), ("actuator_time_constant", "s"),
+                           ("torque_noise_std", "N m")):
+            values = getattr(effects, name)
+            largest = max(values, default=0.0) if isinstance(values, list) else values
+            if largest > 0:
+                parts.append(f"the plant effects' {name} ({largest:g} {unit})")
+    return "" if not parts else " and " + ", ".join(parts)
+
+
 def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generator) -> dict:
     """Track one planned trajectory from rest at its start with the configured controller."""
     controller = rig.controller
@@ -71,9 +88,8 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
     traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng), rng)
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
     if reason is not None:
-        smoothing = getattr(getattr(controller, "config", None), "velocity_filter_time_constant", 0.0)
-        raise PlanningError(f"tracking left the limits ({reason}); check the controller gains" + (
-            f" and its velocity_filter_time_constant ({smoothing:g} s)" if smoothing > 0 else ""))
+        raise PlanningError(f"tracking left the limits ({reason}); check the controller gains"
+                            + loop_settings_text(rig.settings.controller, rig.settings.plant.effects))
     traj.update(q_planned=plan.q, v_planned=plan.qd, qdd_planned=plan.qdd)
     return traj
 
@@ -93,16 +109,18 @@ def tracking_mse(trajectories: list) -> np.ndarray:
     return np.mean(error**2, axis=0)
 
 
-def tracking_warning(trajectories: list, joint_names) -> str | None:
+def tracking_warning(trajectories: list, joint_names, settings: str = "") -> str | None:
     """One warning line naming the joints whose `tracking_mse` exceeds TRACKING_MSE_WARNING over tracked
-    `trajectories`, or None. Exit 0 does not mean usable data: this says when it is not."""
+    `trajectories`, or None (settings: `loop_settings_text`'s, named beside the gains). Exit 0 does not mean usable
+    data: this says when it is not."""
     mse = tracking_mse(trajectories)
     far = [f"{name} ({value:.2g} rad²)" for name, value in zip(joint_names, mse) if value > TRACKING_MSE_WARNING]
     if not far:
         return None
     return (f"stdm-drake: warning: the tracked data are far from the plans on {len(far)} joint(s), angle MSE "
             f"{'; '.join(far)} against {TRACKING_MSE_WARNING:g} rad²; the controller does not follow this plant "
-            "(gains, effort limits, or damping and friction it does not know): see docs/guides/robots.md, "
+            f"(gains{settings.replace(' and ', ', ', 1)}, effort limits, or damping and friction it does not know): see "
+            "docs/guides/robots.md, "
             "'Tracking quality'")
 
 

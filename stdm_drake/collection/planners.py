@@ -164,8 +164,7 @@ def _checked_jacobian(kinematics: RobotKinematics, q: np.ndarray, config: Planne
 
 def _ik_step(kinematics: RobotKinematics, line: _TaskLine, s: float, q_predicted: np.ndarray,
              config: PlannerConfig, label: str, where: str) -> np.ndarray:
-    """IK of the line's task coordinates at path parameter s, seeded with a first-order prediction,
-    with the continuity check."""
+    """IK of the line's task coordinates at path parameter s, seeded with a first-order prediction, continuity checked."""
     try:
         q = kinematics.inverse_kinematics(line.pose(s), q_predicted, tolerance=config.ik_tolerance,
                                           max_iterations=config.ik_max_iterations, damping=config.ik_damping,
@@ -175,8 +174,9 @@ def _ik_step(kinematics: RobotKinematics, line: _TaskLine, s: float, q_predicted
     jump = np.abs(q - q_predicted)
     j = int(np.argmax(jump))
     if jump[j] > config.ik_continuity_tolerance:
-        raise PlanningError(f"{label}: IK discontinuity {where}: {kinematics.joint_names[j]} jumps {jump[j]:.4f} rad "
-                            f"from its prediction (> ik_continuity_tolerance {config.ik_continuity_tolerance:g} rad; branch switch)")
+        raise PlanningError(f"{label}: IK discontinuity {where}: {kinematics.joint_names[j]} jumps {jump[j]:.3g} rad from "
+                            f"its prediction (> ik_continuity_tolerance {config.ik_continuity_tolerance:g} rad: a branch "
+                            "switch, or a tolerance finer than the first-order prediction's own error along the path)")
     return q
 
 

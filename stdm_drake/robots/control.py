@@ -26,6 +26,7 @@ from stdm_drake.robots.plant import Dynamics, joint_limits, robot_joint_limits
 from stdm_drake.robots.robot import Robot
 
 MAX_GAIN = 1e9   # a PID gain (N m/rad, N m/(rad s), N m s/rad): beyond any joint servo's by orders of magnitude
+MAX_FILTER_TIME_CONSTANT = 10.0   # s: a velocity filter slower than this passes none of a tracked motion (a few seconds)
 
 @dataclasses.dataclass
 class JointGains:
@@ -54,9 +55,10 @@ class JointGains:
         return []
 
     def validate(self) -> None:
-        if not (np.isfinite(self.velocity_filter_time_constant) and self.velocity_filter_time_constant >= 0):
-            raise InputError("controller velocity_filter_time_constant must be a finite number >= 0 s, "
-                             f"got {self.velocity_filter_time_constant}")
+        if not (0 <= self.velocity_filter_time_constant <= MAX_FILTER_TIME_CONSTANT):   # (NaN fails too)
+            raise InputError(f"controller velocity_filter_time_constant must be in [0, {MAX_FILTER_TIME_CONSTANT:g}] s "
+                             f"(a slower filter passes none of a tracked motion to the D term), got "
+                             f"{self.velocity_filter_time_constant}")
         check_joint_vector("controller dither_std", self.dither_std, nonnegative=True)
         given = [name for name in ("kp", "ki", "kd") if getattr(self, name)]
         if self.sizing():

@@ -2,7 +2,8 @@
 runs them before any work): settings that act on nothing, delays that are no whole number of plant steps, a
 transmission too soft to carry its motor's torque, a friction ripple the plant step cannot resolve, and values the
 plant cannot show (a gear ratio that makes a motor vanish, a Coulomb or Stribeck width past the joint's speed range, a
-lag that decays below double precision within one plant step)."""
+Stribeck width so narrow that the friction never exceeds Coulomb's, a torque noise beyond the effort limit, a lag that
+decays below double precision within one plant step)."""
 import numpy as np
 
 from stdm_drake.errors import InputError
@@ -14,6 +15,16 @@ from stdm_drake.robots.effects import MIN_MASS, PlantEffects
 MIN_REFLECTED_INERTIA = MIN_MASS * 1e-6
 # h / T beyond which a first-order lag exp(-h / T) is below double precision (2^-53) within one plant step h
 UNRESOLVED_LAG = 53 * np.log(2.0)
+
+
+def breakaway_shows(coulomb: np.ndarray, breakaway: np.ndarray, width: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Per joint (arrays of one length), whether the friction's magnitude (F_c + (F_s - F_c) exp(-(v / v_st)²))
+    tanh(v / v_s) exceeds F_c at some velocity v > 0 (on a grid of 2001 velocities from 1e-6 to 1e3 times the larger
+    of v_st and v_s): a Stribeck breakaway the plant shows."""
+    velocity = np.logspace(-6, 3, 2001)[:, None] * np.maximum(width, scale)
+    with np.errstate(over="ignore", under="ignore"):
+        magnitude = (coulomb + (breakaway - coulomb) * np.exp(-(velocity / width) ** 2)) * np.tanh(velocity / scale)
+    return np.any(magnitude > coulomb * (1 + 1e-9), axis=0)
 
 
 def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, limits) -> None:
@@ -39,16 +50,18 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
                                      ("friction_ripple_period", "friction_ripple", ripple * (coulomb > 0)),
                                      ("gear_ratio", "rotor_inertia", rotor),
                                      ("coulomb_velocity_scale", "friction at rest", at_rest),
-                                     ("stribeck_velocity", "stribeck_friction above coulomb_friction", above_coulomb)):
+                                     ("stribeck_velocity", "stribeck_friction above coulomb_friction", above_coulomb),
+                                     ("stribeck_friction", "excess over coulomb_friction", above_coulomb)):
         # (a per-joint list's value where its companion is 0; one value for all joints applies where it can, and
-        # acts on nothing where its companion is 0 on every joint: a gear ratio beside rotor inertias all 0)
+        # acts on nothing where its companion is 0 on every joint: a gear ratio beside rotor inertias all 0, a
+        # Stribeck friction equal to Coulomb's on every joint)
         if not getattr(effects, field):
             continue
         idle = (effects.joint_values(field, n) > 0) & (values <= 0)
-        if len(getattr(effects, field)) > 1 and np.any(idle):
+        if len(getattr(effects, field)) > 1 and np.any(idle) and field != "stribeck_friction":   # (F_s = F_c: none)
             raise InputError(f"plant effects {field} on {robot.joint_names[int(np.argmax(idle))]}, whose {companion} is "
                              "0, acts on nothing there, so it would be ignored; give it 0 on that joint")
-        if field == "gear_ratio" and np.all(idle):
+        if field in ("gear_ratio", "stribeck_friction") and np.all(values <= 0):
             raise InputError(f"plant effects {field} acts on nothing: {companion} is 0 on every joint, so it would be "
                              "ignored; leave it out")
     # (a gear ratio that makes a motor's reflected inertia vanish; a rotor inertia itself below the floor, as a fit
@@ -70,7 +83,23 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
             raise InputError(f"plant effects {field} {width[joint]:g} rad/s on {robot.joint_names[joint]} is wider "
                              f"than the joint's whole speed range (velocity limit {limits.velocity[joint]:g} rad/s): "
                              f"{what}; give at most {limits.velocity[joint]:g} rad/s")
-    m = robot.action_dim   # (a lag per actuated joint)
+    if stribeck is not None and np.any(above_coulomb > 0):   # (a breakaway over before tanh(v / v_s) rises: none)
+        hidden = above_coulomb > 0
+        scale = effects.joint_values("coulomb_velocity_scale", n)
+        hidden[hidden] = ~breakaway_shows(coulomb[hidden], stribeck[0][hidden], stribeck[1][hidden], scale[hidden])
+        if np.any(hidden):
+            joint = int(np.argmax(hidden))
+            raise InputError(f"plant effects stribeck_velocity {stribeck[1][joint]:g} rad/s on {robot.joint_names[joint]} "
+                             "ends the breakaway before the smoothed friction tanh(v / coulomb_velocity_scale) rises, so "
+                             "the friction never exceeds coulomb_friction there and the plant shows no Stribeck effect; "
+                             f"give a Stribeck velocity of the order of coulomb_velocity_scale ({scale[joint]:g} rad/s)")
+    m = robot.action_dim   # (a lag and a torque noise per actuated joint)
+    noise = effects.joint_values("torque_noise_std", m) if effects.torque_noise_std else np.zeros(m)
+    if robot.fully_actuated and np.any(noise > limits.effort):   # (beyond it every sample clips: saturation, no noise)
+        joint = int(np.argmax(noise - limits.effort))
+        raise InputError(f"plant effects torque_noise_std {noise[joint]:g} N m on "
+                         f"{robot.joint_names[robot.actuated_indices[joint]]} is beyond its effort limit "
+                         f"{limits.effort[joint]:g} N m: the held torque would clip at the limit every sample")
     lag = effects.joint_values("actuator_time_constant", m) if effects.actuator_time_constant else np.zeros(m)
     unresolved = (lag > 0) & (time_step > UNRESOLVED_LAG * lag)
     if np.any(unresolved):

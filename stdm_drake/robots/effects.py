@@ -31,6 +31,7 @@ from stdm_drake.robots.nested_models import frame_by_name
 
 
 MIN_MASS = 1e-6   # kg: a milligram, the smallest payload or link mass (1e-320 kg is no body, and breaks Drake's inertia)
+MAX_MASS_RADIUS = 100.0   # m: the farthest a body's mass lies from its frame (centre of mass, radius of gyration)
 
 
 @dataclasses.dataclass
@@ -46,13 +47,16 @@ class RigidInertia:
                 f"{what} mass must be 0 (none) or at least {MIN_MASS:g} kg", self.mass)
         check_effect_bound(f"{what} mass", np.array([self.mass]), "mass")
         require(self.mass > 0 or not any(self.inertia), f"{what} inertia needs a mass > 0", self.inertia)
-        require(len(self.center_of_mass) == 3 and np.all(np.abs(self.center_of_mass) <= 100.0), f"{what} center_of_mass "
-                "must be 3 numbers within +-100 m of its frame (no robot's body reaches farther)", self.center_of_mass)
-        require(self.mass > 0 or not any(self.center_of_mass), f"{what} center_of_mass needs a mass > 0 (without "
-                "one there is no body, so it would be ignored)", self.center_of_mass)
+        require(len(self.center_of_mass) == 3 and np.linalg.norm(self.center_of_mass) <= MAX_MASS_RADIUS,
+                f"{what} center_of_mass must be 3 numbers within {MAX_MASS_RADIUS:g} m of its frame", self.center_of_mass)
+        require(self.mass > 0 or not any(self.center_of_mass), f"{what} center_of_mass needs a mass > 0 (no body)",
+                self.center_of_mass)
         require(len(self.inertia) == 6 and np.all(np.isfinite(self.inertia)),
                 f"{what} inertia must be 6 finite numbers [Ixx, Iyy, Izz, Ixy, Ixz, Iyz] (kg m²)", self.inertia)
-        if self.mass > 0 and any(self.inertia):
+        if self.mass > 0 and any(self.inertia):   # (a moment beyond m (100 m)²: mass farther out than any body reaches)
+            largest = self.mass * MAX_MASS_RADIUS ** 2
+            require(max(self.inertia[:3]) <= largest, f"{what} inertia must be at most mass x ({MAX_MASS_RADIUS:g} m)² = "
+                    f"{largest:g} kg m² about each axis (its mass farther out than any robot's body)", self.inertia)
             from pydrake.multibody.tree import RotationalInertia
             if not RotationalInertia(*self.inertia).CouldBePhysicallyValid():
                 raise InputError(f"{what} inertia {self.inertia} is not physically valid (positive moments that "
@@ -109,9 +113,8 @@ class PlantEffects:
     coulomb_friction: N m per joint; coulomb_velocity_scale: v_s rad/s of the tanh smoothing (per joint
         or one value; 2/phi_2 for the sigmoid model phi_1 / (1 + exp(-phi_2 v)) of Gaz et al., whose
         amplitude is then F_c = phi_1 / 2).
-    rotor_inertia: motor-side kg m² per joint, replacing the description's; gear_ratio: per joint
-        (reflected inertia G² I_r).
-    payload: a Payload on the tool frame.
+    rotor_inertia: motor-side kg m² per joint, replacing the description's; gear_ratio: per joint (reflected inertia
+        G² I_r). payload: a Payload on the tool frame.
     mass_scale: link name -> factor on that link's mass and rotational inertia (centre of mass kept).
     torque_noise_std: N m per joint, white noise on the held action, one draw per sample period.
     joint_damping: N m s/rad per joint (or one value): replaces the description's joint damping
@@ -122,14 +125,14 @@ class PlantEffects:
         -(F_c + (F_s - F_c) exp(-(v / v_st)²)) tanh(v / v_s); stribeck_velocity: v_st rad/s (per joint or one).
     actuator_time_constant: T s per joint (or one value): each joint's torque follows its command through a
         first-order lag, dτ/dt = (command - τ) / T (0: none).
-    actuation_delay: s, a transport delay of the command, a whole number of plant steps.
     transmission_stiffness: k N m/rad per joint (or one value; 0: a rigid joint): an elastic transmission between the
         joint and its motor, whose inertia is the joint's G² I_r (rotor_inertia, gear_ratio: needed on each elastic
         joint, and then on the motor's side of the spring only); transmission_damping: d N m s/rad (per joint or one)
         in parallel with the spring. Link torque k (theta - q) + d (theta' - q'), motor J theta'' = u - that torque.
     friction_ripple: r per joint (or one), 0 <= r <= 1: the Coulomb (and Stribeck) friction's magnitude times
         1 + r sin(2 pi q / P); friction_ripple_period: P rad per joint (or one), link side.
-    measurement_delay: s, the age of the state the controller and the data see, a whole number of plant steps.
+    actuation_delay, measurement_delay: s, whole numbers of plant steps: a transport delay of the command, and the age
+        of the state the controller and the data see.
     """
     source: str = ""
     viscous_friction: list[float] = dataclasses.field(default_factory=list)
@@ -193,8 +196,8 @@ class PlantEffects:
                             ("friction_ripple", "coulomb_friction"), ("friction_ripple_period", "friction_ripple")):
             if getattr(self, name):
                 check_effect_bound(name, check_joint_vector(name, getattr(self, name), nonnegative=True))
-                require(self.is_on(needs), f"{name} needs {needs} (without it there is nothing it acts on, so it "
-                        "would be ignored)", getattr(self, name))
+                require(self.is_on(needs) or not self.is_on(name), f"{name} needs {needs} (without it there is "
+                        "nothing it acts on, so it would be ignored)", getattr(self, name))
         require(not self.is_on("friction_ripple") or bool(self.friction_ripple_period), "friction_ripple needs "
                 "friction_ripple_period (rad, the ripple's period in the joint's position)", self.friction_ripple)
         if self.friction_ripple_period:   # (0 on a joint without ripple: `effect_checks`)
@@ -202,8 +205,6 @@ class PlantEffects:
                     ">= 0 rad", self.friction_ripple_period)
 
     def acting_later(self) -> list[str]:
-        """The effects that are on and make the torque acting depend on earlier commands (lag, delay): no model of
-        (x, u) holds them."""
         """The effects that are on and make the torque acting depend on earlier commands (lag, delay, the motors of
         elastic transmissions): no model of (x, u) holds them."""
         return [name for name in ("actuator_time_constant", "actuation_delay", "transmission_stiffness")

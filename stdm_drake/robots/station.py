@@ -14,6 +14,7 @@ from stdm_drake.errors import InputError
 from stdm_drake.robots.control import ControllerConfig, InverseDynamics, JointSensor, SampledJointController, SensorConfig
 from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
 from stdm_drake.robots.robot import Robot
+from stdm_drake.robots.simulation_errors import simulation_failure
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 MAX_SUBSTEPS = 10_000        # plant steps per sample period
@@ -92,25 +93,29 @@ class Station:
         n = self.robot.num_joints
         x = np.concatenate([q0, np.zeros(n)])
         q_true, v_true, q_meas, v_meas, tau, applied, ending = [], [], [], [], [], [], []
-        for k in range(num_steps + 1):
-            q_true.append(x[:n])
-            v_true.append(x[n:])
-            measured = x if k == 0 else simulation.measured_state()   # (with the effects' measurement delay: older)
-            q_k, v_k, v_filtered = sensor.measure(measured[:n], measured[n:])
-            q_meas.append(q_k)
-            v_meas.append(v_filtered)
-            tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
-            tau.append(tau_k)
-            if self._torque_noise is not None:
-                tau_k = np.clip(tau_k + self._torque_noise * rng.standard_normal(len(tau_k)), -self.limits.effort,
-                                self.limits.effort)
-            if k == 0:   # (at rest holding the first action: the actuators, where the effects have them, too)
-                simulation.start(x, tau_k)
-            simulation.hold(tau_k)
-            applied.append(simulation.applied_torque())   # (the actuators' output, lagging or delayed: what acts)
-            if k < num_steps:
-                x = simulation.advance_to((k + 1) * dt)
-                ending.append(simulation.applied_torque())
+        k = 0
+        try:   # (Drake's failure to step the plant as one line: robots/simulation_errors.py)
+            for k in range(num_steps + 1):
+                q_true.append(x[:n])
+                v_true.append(x[n:])
+                measured = x if k == 0 else simulation.measured_state()   # (with the effects' measurement delay: older)
+                q_k, v_k, v_filtered = sensor.measure(measured[:n], measured[n:])
+                q_meas.append(q_k)
+                v_meas.append(v_filtered)
+                tau_k = np.clip(control(k, k * dt, q_k, v_k), -self.limits.effort, self.limits.effort)
+                tau.append(tau_k)
+                if self._torque_noise is not None:
+                    tau_k = np.clip(tau_k + self._torque_noise * rng.standard_normal(len(tau_k)), -self.limits.effort,
+                                    self.limits.effort)
+                if k == 0:   # (at rest holding the first action: the actuators, where the effects have them, too)
+                    simulation.start(x, tau_k)
+                simulation.hold(tau_k)
+                applied.append(simulation.applied_torque())   # (the actuators' output, lagging or delayed: what acts)
+                if k < num_steps:
+                    x = simulation.advance_to((k + 1) * dt)
+                    ending.append(simulation.applied_torque())
+        except RuntimeError as error:
+            raise simulation_failure(error, k * dt) from None
         acceleration = self.true_dynamics.acceleration
         qdd = [acceleration(q_true[k], v_true[k], applied[k]) for k in range(num_steps + 1)]
         qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], ending[k]) for k in range(num_steps)]
