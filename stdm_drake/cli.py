@@ -110,18 +110,21 @@ class HeldLines(logging.Handler):
 
 @contextlib.contextmanager
 def drake_warnings_once(command: str):
-    """While a command runs, Drake's parser warnings (it builds several plants from one description) are
-    shown once each; afterwards one line says how many repeats were left out. The robot's own load-time lines
+    """While a command runs, Drake's INFO lines are left out and its parser warnings (it builds several plants from
+    one description) are shown once each; afterwards one line says how many repeats were left out. The robot's own load-time lines
     (`robots.robot`: a replaced inertia, unmodelled joint effects, missing meshes), said each time the robot is
     built, are shown once each too, when the command succeeds (`HeldLines`)."""
     logger, repeated = logging.getLogger("drake"), RepeatedWarnings()
     robot_logger, robot_lines, held = logging.getLogger("stdm_drake.robots.robot"), RepeatedWarnings(), HeldLines()
+    level = logger.level   # (Drake's INFO lines, a solver's progress such as Clarabel's, are not the user's)
+    logger.setLevel(max(level, logging.WARNING))
     logger.addFilter(repeated)
     robot_logger.addFilter(robot_lines)
     robot_logger.addHandler(held)
     try:
         yield repeated
     finally:
+        logger.setLevel(level)
         logger.removeFilter(repeated)
         robot_logger.removeFilter(robot_lines)
         robot_logger.removeHandler(held)

@@ -50,3 +50,15 @@ def test_an_error_in_the_caller_cancels_the_tasks_not_started():
             futures = [pool.submit(task, x) for x in range(200)]
             raise RuntimeError("stop")
     assert any(future.cancelled() for future in futures)
+
+
+def test_a_command_leaves_out_drakes_info_lines_and_restores_its_logger():
+    """Held-out run 31: `identify --quiet` printed "INFO:drake:Clarabel returns InsufficientProgress", a solver's
+    progress line. While a command runs Drake's logger passes warnings and errors only; afterwards it is as it was."""
+    import logging
+    from stdm_drake.cli import drake_warnings_once
+    logger = logging.getLogger("drake")
+    before = logger.level
+    with drake_warnings_once("identify"):
+        assert not logger.isEnabledFor(logging.INFO) and logger.isEnabledFor(logging.WARNING)
+    assert logger.level == before
