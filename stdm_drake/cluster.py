@@ -113,20 +113,34 @@ def connect(config: RunnerConfig):
     return ray
 
 
+HTTP2_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])   # and an empty SETTINGS frame
+
+
 def _check_reachable(address: str, timeout: float = 3.0) -> None:
-    """InputError unless a TCP connection to the head's GCS port opens within `timeout` s (ray.init itself
-    retries a wrong address for minutes)."""
+    """InputError unless a TCP connection to the head's GCS port opens within `timeout` s and, without TLS
+    (RAY_USE_TLS), the port answers HTTP/2's connection preface with a SETTINGS frame as a gRPC server does: ray.init
+    itself retries a wrong address for minutes, and a port that answers but is no Ray head for 20 s of Ray's log lines
+    (the newcomer pass)."""
     import socket
     host, _, port = address.removeprefix("ray://").rpartition(":")
+    answer = b"\0\0\0\4"   # (with TLS, taken as a gRPC server's)
     try:
-        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout):
-            return
+        with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout) as connection:
+            if os.environ.get("RAY_USE_TLS", "0").lower() in ("0", "false", ""):
+                connection.sendall(HTTP2_PREFACE)
+                answer = b""
+                with contextlib.suppress(OSError):
+                    while len(answer) < 9 and (chunk := connection.recv(9 - len(answer))):
+                        answer += chunk
     except ValueError:
         raise InputError(f"--ray-address must be HOST:PORT (the head's GCS port, 6379 by default), got {address!r}") \
             from None
     except OSError as error:
         raise InputError(f"cannot reach the Ray cluster at {address}: {error.strerror or error} (is `ray start "
                          "--head` running there?)") from None
+    if len(answer) < 4 or answer[3] != 4:   # (a frame header: 3 bytes length, 1 byte type; SETTINGS is 4)
+        raise InputError(f"cannot join the Ray cluster at {address}: the port answers, but not as a Ray head (no gRPC "
+                         f"reply within {timeout:g} s; `ray start --head` prints the address to join)")
 
 
 class InProcessPool:

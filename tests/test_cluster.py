@@ -62,3 +62,31 @@ def test_a_command_leaves_out_drakes_info_lines_and_restores_its_logger():
     with drake_warnings_once("identify"):
         assert not logger.isEnabledFor(logging.INFO) and logger.isEnabledFor(logging.WARNING)
     assert logger.level == before
+
+
+def test_a_port_that_answers_but_is_no_ray_head_is_one_line_at_once():
+    """The newcomer pass: --ray-address at a port that accepts connections but is no Ray head (a web server, any
+    service) gave 20 s of Ray's own log lines before the error. The address check now asks for a gRPC server's
+    answer to HTTP/2's preface first: a server that answers otherwise, or not at all, is refused in one line."""
+    import socket
+    import threading
+    from stdm_drake.cluster import _check_reachable
+    from stdm_drake.errors import InputError
+
+    for reply in (b"HTTP/1.1 400 Bad Request\r\n\r\n", None):
+        server = socket.create_server(("127.0.0.1", 0))
+
+        def serve(server=server, reply=reply):
+            connection, _ = server.accept()
+            with connection:
+                connection.recv(64)
+                if reply is not None:
+                    connection.sendall(reply)
+                else:
+                    connection.recv(64)   # (silent until the client gives up)
+
+        thread = threading.Thread(target=serve, daemon=True)
+        thread.start()
+        with server, pytest.raises(InputError, match="the port answers, but not as a Ray head"):
+            _check_reachable(f"127.0.0.1:{server.getsockname()[1]}", timeout=0.5)
+        thread.join(5)
