@@ -321,6 +321,16 @@ def test_tracking_warning_names_the_joints_far_from_the_plan():
     line = tracking_warning([good, bad], ["a", "b"])
     assert line.startswith("stdm-drake: warning: the tracked data are far from the plans on 1 joint(s), angle MSE a "
                            "(0.0013 rad²) against 0.0001 rad²") and "\n" not in line
+    assert "(gains, effort limits," in line
+    # held-out run 31: the filter and the plant effects that shape the loop are named beside the gains
+    from stdm_drake.collection.collect import loop_settings
+    from stdm_drake.robots.control import InverseDynamics
+    from stdm_drake.robots.effects import PlantEffects
+    named = loop_settings(InverseDynamics(velocity_filter_time_constant=5.0), PlantEffects(actuation_delay=1.0))
+    assert named == ["its velocity_filter_time_constant (5 s)", "the plant effects' actuation_delay (1 s)"]
+    assert "(gains, its velocity_filter_time_constant (5 s), the plant effects' actuation_delay (1 s), effort limits" \
+        in tracking_warning([bad], ["a", "b"], named)
+    assert loop_settings(InverseDynamics(), None) == []
 
 
 @pytest.mark.slow

@@ -57,9 +57,9 @@ class PlanSamples:
     qdd: np.ndarray
 
 
-def loop_settings_text(controller, effects) -> str:
-    """" and ..." naming what besides the gains shapes a tracking loop, where on: the controller's velocity filter, the
-    plant effects' delays, lag and torque noise (held-out run 31: all were blamed on the gains); "" where none is."""
+def loop_settings(controller, effects) -> list[str]:
+    """What besides the gains shapes a tracking loop, where on, as phrases: the controller's velocity filter, the plant
+    effects' delays, lag and torque noise (held-out run 31: all were blamed on the gains alone)."""
     parts = []
     smoothing = getattr(controller, "velocity_filter_time_constant", 0.0) or 0.0
     if smoothing > 0:
@@ -71,7 +71,7 @@ def loop_settings_text(controller, effects) -> str:
             largest = max(values, default=0.0) if isinstance(values, list) else values
             if largest > 0:
                 parts.append(f"the plant effects' {name} ({largest:g} {unit})")
-    return "" if not parts else " and " + ", ".join(parts)
+    return parts
 
 
 def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generator) -> dict:
@@ -88,8 +88,9 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
     traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng), rng)
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
     if reason is not None:
+        named = loop_settings(rig.settings.controller, rig.settings.plant.effects)
         raise PlanningError(f"tracking left the limits ({reason}); check the controller gains"
-                            + loop_settings_text(rig.settings.controller, rig.settings.plant.effects))
+                            + (" and " + ", ".join(named) if named else ""))
     traj.update(q_planned=plan.q, v_planned=plan.qd, qdd_planned=plan.qdd)
     return traj
 
@@ -109,9 +110,9 @@ def tracking_mse(trajectories: list) -> np.ndarray:
     return np.mean(error**2, axis=0)
 
 
-def tracking_warning(trajectories: list, joint_names, settings: str = "") -> str | None:
+def tracking_warning(trajectories: list, joint_names, settings=()) -> str | None:
     """One warning line naming the joints whose `tracking_mse` exceeds TRACKING_MSE_WARNING over tracked
-    `trajectories`, or None (settings: `loop_settings_text`'s, named beside the gains). Exit 0 does not mean usable
+    `trajectories`, or None (settings: `loop_settings`' phrases, named beside the gains). Exit 0 does not mean usable
     data: this says when it is not."""
     mse = tracking_mse(trajectories)
     far = [f"{name} ({value:.2g} rad²)" for name, value in zip(joint_names, mse) if value > TRACKING_MSE_WARNING]
@@ -119,9 +120,8 @@ def tracking_warning(trajectories: list, joint_names, settings: str = "") -> str
         return None
     return (f"stdm-drake: warning: the tracked data are far from the plans on {len(far)} joint(s), angle MSE "
             f"{'; '.join(far)} against {TRACKING_MSE_WARNING:g} rad²; the controller does not follow this plant "
-            f"(gains{settings.replace(' and ', ', ', 1)}, effort limits, or damping and friction it does not know): see "
-            "docs/guides/robots.md, "
-            "'Tracking quality'")
+            f"(gains{''.join(', ' + phrase for phrase in settings)}, effort limits, or damping and friction it does not "
+            "know): see docs/guides/robots.md, 'Tracking quality'")
 
 
 # ---- worker processes -------------------------------------------------------------------------

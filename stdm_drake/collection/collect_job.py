@@ -11,7 +11,7 @@ import pathlib
 import sys
 import time
 
-from stdm_drake.collection.collect import CollectionRequest, collect, collection_request, loop_settings_text, tracking_warning
+from stdm_drake.collection.collect import CollectionRequest, collect, collection_request, loop_settings, tracking_warning
 from stdm_drake.data.writer import HDF5_RESERVE_BYTES, write_dataset
 from stdm_drake.errors import InputError, warn
 from stdm_drake.files import check_free_space, line_text
@@ -113,7 +113,7 @@ def collect_job(job: CollectJob) -> dict:
     path = write_dataset(job.output, trajectories, groups, metadata)
     if request.protocol == "tracking" and not any(request.settings.controller.dither_std):   # (dithered data
         line = tracking_warning(trajectories, robot.joint_names,                            # leave it by design)
-                                loop_settings_text(request.settings.controller, request.settings.plant.effects))
+                                loop_settings(request.settings.controller, request.settings.plant.effects))
         if line:
             warn(line)
     simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period
