@@ -150,6 +150,7 @@ def test_inspect_prints_summary(tracking_dataset, capsys):
     out = capsys.readouterr().out
     assert "protocol        tracking" in out and "tracking error" in out and "groups          0: 2" in out
     assert "dv sign flips" in out and "v error rms" in out
+    assert "v error rms in rad/s, dv sign flips as a fraction of sample pairs, |qdd| peaks in rad/s^2" in out   # (units)
     for key, words in (("q rad", 2), ("v rad/s", 2), ("tau N m", 3), ("qdd rad/s^2", 2)):   # one cell per joint,
         (row,) = [line for line in out.splitlines() if line.startswith(key + " ")]       # never run together
         cells = row.split()[words:]

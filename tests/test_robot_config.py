@@ -590,3 +590,13 @@ def test_a_link_mass_drake_would_divide_into_inf_is_refused():
     with pytest.raises(InputError, match="per unit mass they overflow a double"):
         check_inertial(Inertial(3e-308, np.diag([10.0] * 3)), "link 'x'")
     check_inertial(Inertial(1e-300, np.diag([0.01] * 3)), "link 'x'")
+
+
+def test_robot_check_lines_carry_their_units():
+    """The newcomer pass: `robot check`'s per-joint lines gave numbers without units; a revolute joint's are rad,
+    rad/s, N m and kg m² (a prismatic one's m, m/s, N and kg)."""
+    from stdm_drake.robots.starting_config import check_robot
+    from presets import UR10
+    lines = check_robot(UR10)
+    assert lines[1].startswith("shoulder_lift_joint: range [-6.283, 6.283] rad, velocity 2.094 rad/s, home -1.2 rad, "
+                               "gravity at home 68.9 N m, effective inertia 4.44 kg m²")

@@ -144,7 +144,8 @@ def summary(dataset: Dataset) -> str:
                   f"measured        q {errors['measured_q']:.3e} rad^2   v {errors['measured_v']:.3e} (rad/s)^2",
                   f"true            q {errors['true_q']:.3e} rad^2   v {errors['true_v']:.3e} (rad/s)^2"]
         smooth = tracking_smoothness(dataset)
-        lines += ["", "smoothness of the true motion (per joint)", header]
+        lines += ["", "smoothness of the true motion (per joint; v error rms in rad/s, dv sign flips as a fraction of "
+                  "sample pairs, |qdd| peaks in rad/s^2)", header]
         for key, label in (("velocity_error_rms", "v error rms"), ("sign_flip_rate", "dv sign flips"),
                            ("peak_acceleration", "|qdd| peak"), ("peak_planned_acceleration", "plan |qdd| pk")):
             lines.append(f"{label:14s}" + "".join(f"{value:>17.3g}" for value in smooth[key]))

@@ -152,8 +152,8 @@ def identify(dataset, robot, split, settings: IdentifySettings | None = None, an
                 candidates.append(dict(setting, val_torque_error=error, coulomb_held_at_zero=held))
                 if best is None or error < best[0]:
                     best = (error, window, scale, regularization, parameters, train, held)
-        announce(f"identify: window {window or '-'}: best validation torque error so far "
-                 f"{best[0] if best else float('nan'):.3g}")
+        announce(f"identify: {f'smoothing window {window} samples' if window else 'no smoothing'}: best validation torque "
+                 f"error so far {best[0] if best else float('nan'):.3g}")
     if best is None:
         raise InputError("identify: no candidate setting gave a usable fit (" + "; ".join(
             sorted({candidate["skipped"] for candidate in candidates})) + ")")

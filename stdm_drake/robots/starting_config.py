@@ -295,10 +295,12 @@ def check_robot(robot: Robot) -> list[str]:
     gravity = np.abs(dynamics.gravity_torque(robot.home))
     inertia = dynamics.effective_inertia(robot.home)
     lines = []
-    for j, joint in enumerate(robot.joint_names):
-        lines.append(f"{joint}: range [{limits.position_lower[j]:.4g}, {limits.position_upper[j]:.4g}], velocity "
-                     f"{limits.velocity[j]:.4g}, home {robot.home[j]:.4g}, gravity at home {gravity[j]:.3g}, "
-                     f"effective inertia {inertia[j]:.3g}")
+    for j, joint in enumerate(robot.joint_names):   # (units of a revolute joint, or of a prismatic one)
+        turns = checker.plant.GetJointByName(joint).type_name() != "prismatic"
+        q, v, f, m = ("rad", "rad/s", "N m", "kg m²") if turns else ("m", "m/s", "N", "kg")
+        lines.append(f"{joint}: range [{limits.position_lower[j]:.4g}, {limits.position_upper[j]:.4g}] {q}, velocity "
+                     f"{limits.velocity[j]:.4g} {v}, home {robot.home[j]:.4g} {q}, gravity at home {gravity[j]:.3g} {f}, "
+                     f"effective inertia {inertia[j]:.3g} {m}")
     return lines
 
 
