@@ -1318,12 +1318,20 @@ CASES = [
      "payload center_of_mass must be 3 numbers within 100 m of its frame, got [60.0, 60.0, 60.0]"),
     (yaml_case("effects", "coulomb_friction: [0.01]\nstribeck_friction: [0.01]\n"),
      "plant effects stribeck_friction acts on nothing: excess over coulomb_friction is 0 on every joint"),
-    (yaml_case("effects", "coulomb_friction: [0.01]\nstribeck_friction: [0.02]\nstribeck_velocity: [1.0e-300]\n"),
-     "stribeck_velocity 1e-300 rad/s on shoulder_pan_joint ends the breakaway before the smoothed friction"),
     (yaml_case("effects", "torque_noise_std: [100.0]\n"),
      "plant effects torque_noise_std 100 N m on wrist_1_joint is beyond its effort limit 56 N m"),
     (yaml_case("ctrl", "controller: !Pid\n  bandwidth: [25.0]\n  velocity_filter_time_constant: 1.0e6\n"),
      "velocity_filter_time_constant must be in [0, 10] s"),
+    # (held-out run 32: a Stribeck refusal whose advice was refused too, numpy's overflow lines before a refusal, a
+    # link mass refused as "0 (none) or" where 0 is refused next)
+    (yaml_case("effects", "coulomb_friction: [0.01]\nstribeck_friction: [0.010000000001]\nstribeck_velocity: [0.5]\n"),
+     "stribeck_friction 0.01 N m on shoulder_pan_joint exceeds its coulomb_friction by 1e-12 N m, too little"),
+    (yaml_case("effects", "coulomb_friction: [0.01]\nstribeck_friction: [0.02]\nstribeck_velocity: [1.0e-300]\n"),
+     "shows no Stribeck effect; give at least 0.0477 rad/s there"),
+    (yaml_case("effects", "payload: {mass: 1.0, center_of_mass: [1.0e300, 0, 0]}\n"),
+     "payload center_of_mass must be 3 numbers within 100 m of its frame, got [1e+300, 0.0, 0.0]"),
+    (yaml_case("effects", "link_inertia:\n  forearm_link: {mass: 9.0e-7}\n"),
+     "link_inertia of forearm_link: mass must be at least 1e-06 kg, got 9e-07"),
     (yaml_case("mpc", "optimizer: !Mppi {feedback_kp: 1.0e6}\n"),
      "!Mppi feedback_kp 1e+06 1/s² or feedback_kd 30 1/s makes each rollout's control law unstable at the model's "
      "period 0.01 s"),

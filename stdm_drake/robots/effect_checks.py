@@ -87,12 +87,20 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
         hidden = above_coulomb > 0
         scale = effects.joint_values("coulomb_velocity_scale", n)
         hidden[hidden] = ~breakaway_shows(coulomb[hidden], stribeck[0][hidden], stribeck[1][hidden], scale[hidden])
-        if np.any(hidden):
+        if np.any(hidden):   # (the advice: the narrowest width that shows, on a grid up to 1000 v_s; none: the excess)
             joint = int(np.argmax(hidden))
+            widths = scale[joint] * np.logspace(-2, 3, 251)
+            shows = breakaway_shows(*(np.full(len(widths), value) for value in (coulomb[joint], stribeck[0][joint])),
+                                    widths, np.full(len(widths), scale[joint]))
+            if not np.any(shows):
+                raise InputError(f"plant effects stribeck_friction {stribeck[0][joint]:g} N m on {robot.joint_names[joint]} "
+                                 f"exceeds its coulomb_friction by {above_coulomb[joint]:.3g} N m, too little for the "
+                                 "friction to rise above Coulomb's at any Stribeck velocity: give a larger breakaway, or "
+                                 "none there")
             raise InputError(f"plant effects stribeck_velocity {stribeck[1][joint]:g} rad/s on {robot.joint_names[joint]} "
                              "ends the breakaway before the smoothed friction tanh(v / coulomb_velocity_scale) rises, so "
                              "the friction never exceeds coulomb_friction there and the plant shows no Stribeck effect; "
-                             f"give a Stribeck velocity of the order of coulomb_velocity_scale ({scale[joint]:g} rad/s)")
+                             f"give at least {widths[int(np.argmax(shows))]:.3g} rad/s there")
     m = robot.action_dim   # (a lag and a torque noise per actuated joint)
     noise = effects.joint_values("torque_noise_std", m) if effects.torque_noise_std else np.zeros(m)
     if robot.fully_actuated and np.any(noise > limits.effort):   # (beyond it every sample clips: saturation, no noise)

@@ -44,10 +44,10 @@ class RigidInertia:
 
     def validate(self, what: str = "payload") -> None:
         require(np.isfinite(self.mass) and (self.mass == 0 or self.mass >= MIN_MASS),
-                f"{what} mass must be 0 (none) or at least {MIN_MASS:g} kg", self.mass)
+                f"{what} mass must be {'0 (none) or ' if what == 'payload' else ''}at least {MIN_MASS:g} kg", self.mass)
         check_effect_bound(f"{what} mass", np.array([self.mass]), "mass")
         require(self.mass > 0 or not any(self.inertia), f"{what} inertia needs a mass > 0", self.inertia)
-        require(len(self.center_of_mass) == 3 and np.linalg.norm(self.center_of_mass) <= MAX_MASS_RADIUS,
+        require(len(self.center_of_mass) == 3 and np.hypot.reduce(np.abs(self.center_of_mass)) <= MAX_MASS_RADIUS,
                 f"{what} center_of_mass must be 3 numbers within {MAX_MASS_RADIUS:g} m of its frame", self.center_of_mass)
         require(self.mass > 0 or not any(self.center_of_mass), f"{what} center_of_mass needs a mass > 0 (no body)",
                 self.center_of_mass)
