@@ -123,12 +123,12 @@ def _check_reachable(address: str, timeout: float = 3.0) -> None:
     (the newcomer pass)."""
     import socket
     host, _, port = address.removeprefix("ray://").rpartition(":")
-    answer = b"\0\0\0\4"   # (with TLS, taken as a gRPC server's)
+    plain = os.environ.get("RAY_USE_TLS", "0").lower() in ("0", "false", "")   # (with TLS Ray's own check answers)
+    answer = b""
     try:
         with socket.create_connection((host or "127.0.0.1", int(port)), timeout=timeout) as connection:
-            if os.environ.get("RAY_USE_TLS", "0").lower() in ("0", "false", ""):
+            if plain:
                 connection.sendall(HTTP2_PREFACE)
-                answer = b""
                 with contextlib.suppress(OSError):
                     while len(answer) < 9 and (chunk := connection.recv(9 - len(answer))):
                         answer += chunk
@@ -138,7 +138,7 @@ def _check_reachable(address: str, timeout: float = 3.0) -> None:
     except OSError as error:
         raise InputError(f"cannot reach the Ray cluster at {address}: {error.strerror or error} (is `ray start "
                          "--head` running there?)") from None
-    if len(answer) < 4 or answer[3] != 4:   # (a frame header: 3 bytes length, 1 byte type; SETTINGS is 4)
+    if plain and (len(answer) < 4 or answer[3] != 4):   # (a frame header: 3 bytes length, 1 byte type; SETTINGS 4)
         raise InputError(f"cannot join the Ray cluster at {address}: the port answers, but not as a Ray head (no gRPC "
                          f"reply within {timeout:g} s; `ray start --head` prints the address to join)")
 

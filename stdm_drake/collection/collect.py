@@ -61,9 +61,8 @@ def loop_settings(controller, effects) -> list[str]:
     """What besides the gains shapes a tracking loop, where on, as phrases: the controller's velocity filter, the plant
     effects' delays, lag and torque noise (held-out run 31: all were blamed on the gains alone)."""
     parts = []
-    smoothing = getattr(controller, "velocity_filter_time_constant", 0.0) or 0.0
-    if smoothing > 0:
-        parts.append(f"its velocity_filter_time_constant ({smoothing:g} s)")
+    if controller.velocity_filter_time_constant > 0:
+        parts.append(f"its velocity_filter_time_constant ({controller.velocity_filter_time_constant:g} s)")
     if effects is not None:
         for name, unit in (("actuation_delay", "s"), ("measurement_delay", "s"), ("actuator_time_constant", "s"),
                            ("torque_noise_std", "N m")):

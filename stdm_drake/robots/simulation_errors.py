@@ -20,9 +20,10 @@ def simulation_failure(error: RuntimeError, time: float | None = None) -> InputE
 
 
 @contextlib.contextmanager
-def simulation_errors():
-    """Drake's RuntimeError inside the block as `simulation_failure`'s InputError."""
+def simulation_errors(time=None):
+    """Drake's RuntimeError inside the block as `simulation_failure`'s InputError; time: a callable giving the
+    simulated time s when it failed (None: not known)."""
     try:
         yield
     except RuntimeError as error:
-        raise simulation_failure(error) from None
+        raise simulation_failure(error, None if time is None else time()) from None

@@ -14,7 +14,7 @@ from stdm_drake.errors import InputError
 from stdm_drake.robots.control import ControllerConfig, InverseDynamics, JointSensor, SampledJointController, SensorConfig
 from stdm_drake.robots.plant import Dynamics, PlantConfig, PlantSimulator, SelfCollisionChecker, joint_limits
 from stdm_drake.robots.robot import Robot
-from stdm_drake.robots.simulation_errors import simulation_failure
+from stdm_drake.robots.simulation_errors import simulation_errors
 
 DEFAULT_SAMPLE_PERIOD = 0.01  # s: 100 Hz, the rate of the learned model, the LeafSystem and MPC
 MAX_SUBSTEPS = 10_000        # plant steps per sample period
@@ -94,7 +94,7 @@ class Station:
         x = np.concatenate([q0, np.zeros(n)])
         q_true, v_true, q_meas, v_meas, tau, applied, ending = [], [], [], [], [], [], []
         k = 0
-        try:   # (Drake's failure to step the plant as one line: robots/simulation_errors.py)
+        with simulation_errors(lambda: k * dt):   # (Drake's failure to step the plant: one line)
             for k in range(num_steps + 1):
                 q_true.append(x[:n])
                 v_true.append(x[n:])
@@ -114,8 +114,6 @@ class Station:
                 if k < num_steps:
                     x = simulation.advance_to((k + 1) * dt)
                     ending.append(simulation.applied_torque())
-        except RuntimeError as error:
-            raise simulation_failure(error, k * dt) from None
         acceleration = self.true_dynamics.acceleration
         qdd = [acceleration(q_true[k], v_true[k], applied[k]) for k in range(num_steps + 1)]
         qdd_end = [acceleration(q_true[k + 1], v_true[k + 1], ending[k]) for k in range(num_steps)]
