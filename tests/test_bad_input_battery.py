@@ -1333,8 +1333,14 @@ CASES = [
     (yaml_case("effects", "link_inertia:\n  forearm_link: {mass: 9.0e-7}\n"),
      "link_inertia of forearm_link: mass must be at least 1e-06 kg, got 9e-07"),
     (yaml_case("mpc", "optimizer: !Mppi {feedback_kp: 1.0e6}\n"),
-     "!Mppi feedback_kp 1e+06 1/s² or feedback_kd 30 1/s makes each rollout's control law unstable at the model's "
-     "period 0.01 s"),
+     "!Mppi feedback_kp 1e+06 1/s² makes each rollout's control law unstable at the model's period 0.01 s"),
+    # (held-out run 32: a link_inertia leaving wrist 3 nothing to turn, a sampler's law inside the old bound kp h² < 4
+    # and unstable under the held torque)
+    (yaml_case("effects", "link_inertia:\n  wrist_3_link: {mass: 0.2, center_of_mass: [0, 0, 0.05]}\n"),
+     "plant effects on robot ur10: arm joint 'wrist_3_joint' moves no inertia about its axis at home"),
+    (yaml_case("mpc", "optimizer: !Mppi {feedback_kp: 30000.0}\n"),
+     "feedback_kp 30000 1/s² with feedback_kd 30 1/s makes each rollout's control law unstable at the model's period "
+     "0.01 s (the torque held over a period): give kp h < 2 kd (kp below 6000 with this kd, or kd in (150, 200) 1/s)"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in

@@ -37,7 +37,8 @@ def plant_model():
 def affected_plant_model():
     """The plant with the shipped effects file's friction (viscous and Coulomb), rotor inertia and payload."""
     from stdm_drake.paths import MODELS_DIR
-    from stdm_drake.robots.plant import PlantConfig, plant_effects_for
+    from stdm_drake.robots.plant import PlantConfig
+    from stdm_drake.robots.plant_effects_check import plant_effects_for
     config = PlantConfig.discrete(0.001, effects=plant_effects_for(MODELS_DIR / "ur10_effects.yaml", UR10, 0.001))
     model = PlantModel(0.01, config, robot=UR10, integrator="rk4")
     assert model.dynamics.coulomb is not None and np.any(model.dynamics.damping > 0)

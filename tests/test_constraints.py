@@ -323,7 +323,8 @@ def test_a_push_acts_beside_the_actuators_and_keeps_the_plant_effects_friction(p
     same input still acts, through the adder); a push on the wrist moves it, beyond what its effort limit allows."""
     from stdm_drake.closed_loop.push import JointPush
     from stdm_drake.paths import MODELS_DIR
-    from stdm_drake.robots.plant import PlantConfig, plant_effects_for
+    from stdm_drake.robots.plant import PlantConfig
+    from stdm_drake.robots.plant_effects_check import plant_effects_for
     reference, config = quintic_reference(10), load_mpc_config()
     affected = PlantConfig.discrete(0.001, effects=plant_effects_for(MODELS_DIR / "ur10_effects.yaml", UR10, 0.001))
     plain = run_closed_loop(plant_model, reference, config, affected, robot=UR10)

@@ -159,7 +159,7 @@ def test_a_one_step_plant_model_of_a_lagging_plant_is_refused_and_stribeck_count
         PlantModel(0.01, lagged, robot=UR10)
     PlantModel(0.01, PlantConfig.discrete(STEP, effects=PlantEffects(coulomb_friction=[1.0], stribeck_friction=[2.0])),
                robot=UR10)   # (Stribeck friction is a function of (q, v): the simulator's step holds it)
-    from stdm_drake.robots.plant import coulomb_stability_gains
+    from stdm_drake.robots.plant_effects_check import coulomb_stability_gains
     plain = PlantEffects(coulomb_friction=[1.0], coulomb_velocity_scale=[0.01])
     breaking = dataclasses.replace(plain, stribeck_friction=[3.0])
     np.testing.assert_allclose(coulomb_stability_gains(breaking, UR10, STEP),
@@ -391,7 +391,7 @@ def test_the_new_effects_are_checked_and_recorded(wheel):
             effects.validate()
     with pytest.raises(InputError, match="transmission_stiffness on joint 1 needs a rotor_inertia > 0 there"):
         PlantEffects(rotor_inertia=[0.0, 1.0, 1.0, 1.0, 1.0, 1.0], transmission_stiffness=[1e4]).elastic(6)
-    from stdm_drake.robots.plant import plant_effects_for
+    from stdm_drake.robots.plant_effects_check import plant_effects_for
     with pytest.raises(InputError, match="friction_ripple_period must be > 0 rad where friction_ripple is on"):
         plant_effects_for(PlantEffects(coulomb_friction=[1.0], friction_ripple=[0.2], friction_ripple_period=[0.0]),
                           UR10, STEP)
@@ -417,7 +417,7 @@ def test_the_new_effects_are_checked_and_recorded(wheel):
     for effects in (UR10_ELASTIC, rippled, PlantEffects(measurement_delay=0.002)):
         assert PlantEffects.from_record(effects.record()) == effects
     assert not {"transmission_stiffness", "friction_ripple", "measurement_delay"} & set(PlantEffects().record())
-    from stdm_drake.robots.plant import coulomb_stability_gains   # (the ripple's peak friction counts)
+    from stdm_drake.robots.plant_effects_check import coulomb_stability_gains   # (the ripple's peak friction counts)
     plain = PlantEffects(coulomb_friction=[1.0], coulomb_velocity_scale=[0.01])
     np.testing.assert_allclose(coulomb_stability_gains(dataclasses.replace(plain, friction_ripple=[0.5],
                                                                            friction_ripple_period=[0.1]), UR10, STEP),

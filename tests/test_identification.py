@@ -218,7 +218,7 @@ def test_effects_replace_link_inertias_and_joint_damping():
     impossible = PlantEffects(link_inertia={"forearm_link": RigidInertia(1.0, [0, 0, 0], [1.0, 0.1, 0.1, 0, 0, 0])})
     with pytest.raises(InputError, match="not physically valid"):
         impossible.validate()
-    from stdm_drake.robots.plant import check_plant_effects
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
     with pytest.raises(InputError, match="does not have: hand"):
         check_plant_effects(PlantEffects(link_inertia={"hand": heavy}), UR10, 0.001)
     assert PlantConfig.discrete(0.001, effects=effects).record()["effects"]["link_inertia"]["forearm_link"]["mass"] == 20.0

@@ -13,7 +13,8 @@ from stdm_drake.errors import InputError
 from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.paths import MODELS_DIR
 from stdm_drake.robots.effects import Payload, PlantEffects, load_plant_effects
-from stdm_drake.robots.plant import Dynamics, PlantConfig, make_plant, plant_effects_for
+from stdm_drake.robots.plant import Dynamics, PlantConfig, make_plant
+from stdm_drake.robots.plant_effects_check import plant_effects_for
 
 Q = np.array([0.3, -1.1, 1.4, -1.6, -1.4, 0.4])
 V = np.array([0.4, -0.3, 0.5, 0.8, -0.6, 0.9])
@@ -446,9 +447,37 @@ def test_values_held_out_run_31_found_refused_are_accepted_as_documented():
     """A rigid transmission (`transmission_stiffness: [0]`, documented as rigid) loads without a rotor inertia (it was
     refused as needing one); a rotor inertia below 1e-12 kg m² with no gear ratio, as a fit leaves one, loads and adds
     nothing (documented beside the gear-ratio rule, which refuses only a gear ratio that makes a motor vanish)."""
-    from stdm_drake.robots.plant import check_plant_effects
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
     for effects in (PlantEffects(transmission_stiffness=[0.0]), PlantEffects(rotor_inertia=[1e-300])):
         effects.validate()
         check_plant_effects(effects, UR10, 0.001)
     with pytest.raises(InputError, match="transmission_damping needs transmission_stiffness"):
         PlantEffects(transmission_stiffness=[0.0], transmission_damping=[5.0]).validate()
+
+
+@pytest.mark.parametrize("inertia, payload, refused", [
+    ([0.0] * 6, None, True),                                  # a point mass on wrist 3's axis
+    ([0.01, 0.01, 0.0, 0.0, 0.0, 0.0], None, True),           # a rod along it
+    ([0.01, 0.01, 0.0, 0.0, 0.0, 0.0], Payload(mass=1.0, center_of_mass=[0.05, 0.0, 0.1]), False),   # + a payload off it
+    ([0.01, 0.01, 0.0, 0.0, 0.0, 0.0], Payload(mass=1.0), True),   # + a payload on it
+])
+def test_the_affected_plants_mass_matrix_is_checked_before_any_work(inertia, payload, refused):
+    """Held-out run 32: a link_inertia that leaves wrist 3 turning nothing about its axis ended in "Singular matrix",
+    a sized gain refused, or Drake's "not positive-definite" blamed on a heavy body. The affected plant's M(home) is
+    now checked as a description's is; a payload off the axis gives the joint its inertia back, and loads."""
+    from stdm_drake.robots.effects import RigidInertia
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
+    effects = PlantEffects(link_inertia={"wrist_3_link": RigidInertia(mass=0.2, center_of_mass=[0.0, 0.0, 0.05],
+                                                                      inertia=inertia)},
+                           **({} if payload is None else {"payload": payload}))
+    effects.validate()
+    if not refused:
+        check_plant_effects(effects, UR10, 0.001)
+        return
+    with pytest.raises(InputError) as error:
+        check_plant_effects(effects, UR10, 0.001)
+    message = str(error.value)
+    assert message.startswith("plant effects on robot ur10: arm joint 'wrist_3_joint' moves no inertia about its axis "
+                              "at home (the mass matrix M(home) is singular, smallest eigenvalue ")
+    assert message.endswith("the links it moves need a mass, and for a revolute joint an inertia about the axis or a "
+                            "centre of mass off it") and "\n" not in message

@@ -114,6 +114,48 @@ def test_a_joint_that_moves_no_inertia_is_refused_by_name(tmp_path, capsys):
     assert "arm joint 'wrist_3_joint' moves no inertia about its axis at home" in capsys.readouterr().err
 
 
+FOREARM = r'(<link name="forearm_link">\s*<inertial>.*?)<mass [^/]*/>\s*(<origin [^/]*/>)?\s*<inertia [^/]*/>'
+
+
+@pytest.mark.parametrize("mass, moment, message", [
+    (4.27, "42701", "link 'forearm_link' has a principal moment of inertia 42701 kg m², beyond its mass x (100 m)² "
+                    "= 42700 kg m²"),
+    (4.27, "1e300", "link 'forearm_link' has a principal moment of inertia 1e+300 kg m², beyond"),
+    (1e6, "1e10", "the mass matrix M(home) spans 5.88e+13x between its eigenvalues, beyond the 1e+10x that double "
+                  "precision keeps solvable: arm joint 'wrist_3_joint' moves 0.00034 kg m² and 'shoulder_lift_joint' "
+                  "1e+10 kg m² with the others held"),
+])
+def test_inertias_beyond_a_bodys_reach_or_the_solvers_are_refused_for_what_they_are(tmp_path, capsys, mass, moment,
+                                                                                      message):
+    """Held-out run 32: a forearm of 42,701 or 1e300 kg m² loaded (the mass x (100 m)² bound held only for the plant
+    effects; the published files of pybullet_data and rtb-data reach 10 m), and one of 1e10 kg m² on 1e6 kg was
+    called wrist 3 "moving no inertia". Now the bound holds for descriptions, and an M(home) whose eigenvalues span
+    beyond 1e10 says so, naming the joints with the least and most inertia."""
+    inertia = f'<inertia ixx="{moment}" ixy="0" ixz="0" iyy="{moment}" iyz="0" izz="{moment}"/>'
+    config = ur10_copy(tmp_path, [(FOREARM, rf'\1<mass value="{mass}"/>\2{inertia}')])
+    assert check(config) == 2
+    error = capsys.readouterr().err
+    assert error.count("\n") == 1 and message in error, error
+
+
+def test_two_joints_that_move_the_same_inertia_are_refused_by_name(tmp_path, capsys):
+    """A revolute joint coaxial with wrist_3 on a massless link between them: each joint alone turns the wrist's
+    inertia, but turning one against the other moves nothing (M(home) singular, its unit-diagonal form too)."""
+    extra = ('<link name="spin_link"><inertial><mass value="0.5"/><origin xyz="0.05 0 0"/><inertia ixx="1e-3" ixy="0" '
+             'ixz="0" iyy="1e-3" iyz="0" izz="1e-3"/></inertial></link><joint name="spin_joint" type="revolute">'
+             '<parent link="massless_link"/><child link="spin_link"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" '
+             'effort="10" velocity="1"/></joint><link name="massless_link"/><joint name="hub_joint" type="revolute">'
+             '<parent link="tool0"/><child link="massless_link"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" '
+             'effort="10" velocity="1"/></joint>')
+    joints = UR10_JOINTS + ["hub_joint", "spin_joint"]
+    config = ur10_copy(tmp_path, extra=extra)
+    config.write_text(config.read_text().replace(str(UR10_JOINTS), str(joints)).replace("-1.57, 0.0]",
+                                                                                         "-1.57, 0.0, 0.0, 0.0]"))
+    assert check(config) == 2
+    error = capsys.readouterr().err
+    assert "arm joints 'hub_joint' and 'spin_joint' move the same inertia at home" in error, error
+
+
 def test_the_configs_limits_replace_the_files_before_it_is_checked(tmp_path, capsys):
     """Zero velocity and effort limits and a [0, 0] position range in the file: refused naming the config key
     that replaces each, then loaded with velocity_limits, effort_limits and position_limits."""

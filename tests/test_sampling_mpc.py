@@ -10,6 +10,7 @@ import torch
 from presets import UR10
 from test_mpc import LinearModel, exact_lqr_controls, quintic_reference
 from stdm_drake.cli import main
+from stdm_drake.closed_loop.ancillary_law import computed_torque_law
 from stdm_drake.closed_loop.mpc import MpcConfig, load_mpc_config, run_closed_loop
 from stdm_drake.closed_loop.sampled_costs import SampledCosts
 from stdm_drake.closed_loop.sampling import Cem, Icem, Mppi, colored_noise
@@ -234,6 +235,33 @@ def test_bad_sampling_settings_are_one_line(tmp_path, text, message):
     with pytest.raises(InputError) as error:
         load_mpc_config(path).validate()
     assert message in str(error.value) and "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("kp, kd", [(225.0, 30.0), (2.0e4, 150.0), (3.0e4, 151.0), (225.0, 199.0), (0.0, 30.0),
+                                     (3.0e4, 149.0), (3.0e4, 30.0), (225.0, 0.0), (3.9e4, 199.0), (225.0, 201.0)])
+def test_the_law_is_refused_exactly_where_its_closed_loop_grows_on_a_held_torque_arm(kp, kd):
+    """Held-out run 32: kp 30,000-39,999 1/s² passed the old bound (kp h² < 4) and made the rollouts diverge. On a
+    double integrator under held torques (`LinearArm`, h = 10 ms) the law's own closed loop, run for 2000 periods
+    from a 0.1 rad error, stays within it where `check_law_stable` accepts the gains and grows where it refuses them."""
+    model, n = LinearArm(), 6
+    settings = Mppi(feedback_kp=kp, feedback_kd=kd)
+    try:
+        solver = settings.solver(model, MpcConfig().cost(n), np.full(n, 1e9), 5)
+    except InputError as error:
+        refused = str(error)
+        assert "\n" not in refused and "unstable at the model's period 0.01 s" in refused
+    else:
+        refused = None
+    x = np.hstack([np.full(n, 0.1), np.zeros(n)])
+    with np.errstate(all="ignore"):
+        for _ in range(2000):
+            _, gain, _ = computed_torque_law(model.A @ x, model.B, x, np.zeros((2, 2 * n)), np.zeros((1, n)),
+                                             np.zeros(2 * n), settings, model.sample_period, n)
+            x = model.A @ x + model.B @ (gain @ -x)
+    held = np.abs(x[:n]).max() <= 0.1 * (1 + 1e-9)
+    assert (refused is None) == held, (refused, np.abs(x[:n]).max())
+    if refused is None:
+        assert solver.settings.feedback_kp == kp
 
 
 def test_work_beyond_the_sampling_budget_is_refused_before_it_starts():

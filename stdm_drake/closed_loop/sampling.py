@@ -36,6 +36,7 @@ import dataclasses
 
 import numpy as np
 
+from stdm_drake.closed_loop.ancillary_law import check_law_stable, computed_torque_law
 from stdm_drake.closed_loop.constraints import StateBounds, limits_status
 from stdm_drake.closed_loop.optimizer import OptimizerResult, OptimizerSettings, TrackingCost, TrajectoryOptimizer
 from stdm_drake.closed_loop.sampled_costs import SampledCosts
@@ -142,11 +143,7 @@ class SamplingSolver(TrajectoryOptimizer):
                  bounds: StateBounds | None = None):
         super().__init__(model, cost, effort_limit, bounds)
         settings.validate()
-        h = getattr(model, "sample_period", None) or 0.0   # (the law's explicit velocity update: unstable from here)
-        if h * settings.feedback_kd >= 2 or h ** 2 * settings.feedback_kp >= 4:
-            raise InputError(f"{settings.tag()} feedback_kp {settings.feedback_kp:g} 1/s² or feedback_kd {settings.feedback_kd:g}"
-                             f" 1/s makes each rollout's control law unstable at the model's period {h:g} s: give kp h² < 4 "
-                             f"and kd h < 2 (kp < {4 / h ** 2:.3g}, kd < {2 / h:.3g})")
+        check_law_stable(settings, getattr(model, "sample_period", None) or 0.0)
         self.settings = settings
         self.rng = np.random.default_rng(int(settings.seed))
         self.costs = SampledCosts(model, cost, effort_limit, settings, self.rng, bounds)
@@ -163,24 +160,12 @@ class SamplingSolver(TrajectoryOptimizer):
         return self.rng.standard_normal((count, horizon, self.state_dim // 2))
 
     def control_law(self, x0: np.ndarray, reference: np.ndarray, u_ff: np.ndarray, offset: np.ndarray):
-        """The ancillary law at the measured state (class docstring): (feedforward (H, m) N m, gain (m, 2n) N m per
-        (rad, rad/s), acceleration map (n, m) N m per rad/s^2). With the model's step from x0 under u_ff,0 and
-        its velocity rows B_v = d v_1 / d u there, the drift it predicts without the torque beyond gravity,
-        c = f_v(x0, u_ff,0) + d_v - v_0 (Coriolis, friction, its own gravity, the disturbance estimate d),
-        is taken as constant over the horizon and cancelled: feedforward_k = u_ff,k + B_v^+ (v_ref,k+1 - v_ref,k
-        - c); gain = B_v^+ dt [kp I, kd I]; map = dt B_v^+^T. A model whose B_v is not finite gets u_ff, no
-        gain and the identity map."""
-        settings, n = self.settings, self.state_dim // 2
+        """The ancillary law at the measured state x0 (S,): `ancillary_law.computed_torque_law` on the model's
+        step from x0 under u_ff,0."""
         with np.errstate(all="ignore"):
             following, _, B = self.linearize(x0[None], u_ff[:1])
-        velocity = B[0, n:]                                                   # (n, m): d v_1 / d u
-        if not (np.all(np.isfinite(velocity)) and np.all(np.isfinite(following))):
-            return u_ff, np.zeros((self.joints, self.state_dim)), np.eye(n, self.joints)
-        inverse = np.linalg.pinv(velocity)                                    # (m, n)
-        period = getattr(self.model, "sample_period", None) or 1.0
-        drift = following[0, n:] + offset[n:] - x0[n:]
-        law = period * np.hstack([settings.feedback_kp * np.eye(n), settings.feedback_kd * np.eye(n)])
-        return (u_ff + (np.diff(reference[:, n:], axis=0) - drift) @ inverse.T, inverse @ law, period * inverse.T)
+        return computed_torque_law(following[0], B[0], x0, reference, u_ff, offset, self.settings,
+                                   getattr(self.model, "sample_period", None) or 1.0, self.joints)
 
     def start(self, x0, reference, u_ff, offset, x_init):
         """The residual plan (H, n) rad/s^2 to search from (the last solve's, shifted; zero on a first step or after

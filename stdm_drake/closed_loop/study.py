@@ -24,7 +24,8 @@ from stdm_drake.closed_loop.mpc import mpc_config_for, mpc_settings_file
 from stdm_drake.data.compatibility import resolve_robot
 from stdm_drake.outputs import check_output_file, check_output_folder, fresh_default_folder, mark_output_folder
 from stdm_drake.config import file_keys
-from stdm_drake.robots.plant import Dynamics, joint_limits, plant_effects_for
+from stdm_drake.robots.plant import Dynamics, joint_limits
+from stdm_drake.robots.plant_effects_check import plant_effects_for
 from stdm_drake.dynamics.model_files import kind_of, load_model
 from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.closed_loop.comparison import tuning_references

@@ -35,7 +35,8 @@ from stdm_drake.errors import InputError, PlanningError, check_seed, warn
 from stdm_drake import files
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.robots.control import JointSensor, SensorConfig, friction_bound_joints, load_controller_config
-from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker, plant_effects_for
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker
+from stdm_drake.robots.plant_effects_check import plant_effects_for
 from stdm_drake.robots.robot import Robot, load_robot
 from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
 from stdm_drake.robots.kinematics import RobotKinematics

@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
     from stdm_drake.data.compatibility import resolve_robot
     from stdm_drake.experiments.mbrl_loop import LoopConfig, check_loop_folder, run_loop
     from stdm_drake.outputs import check_output_folder, mark_output_folder
-    from stdm_drake.robots.plant import plant_effects_for
+    from stdm_drake.robots.plant_effects_check import plant_effects_for
     robot = resolve_robot(args.robot)
     config = LoopConfig(output=args.output, robot=robot, mpc=mpc_config_for(robot, args.config),
                         plant_effects=plant_effects_for(args.plant_effects, robot, 0.001), model=args.model,

@@ -12,7 +12,8 @@ from stdm_drake.experiments.jobs import FULL, QUICK
 from stdm_drake.experiments.reproduce import reproduce
 from stdm_drake.files import line_text
 from stdm_drake.outputs import add_force_argument, check_output_folder, fresh_default_folder
-from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, plant_effects_for
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
+from stdm_drake.robots.plant_effects_check import plant_effects_for
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

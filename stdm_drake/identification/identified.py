@@ -18,7 +18,8 @@ from stdm_drake.data.schema import check_split
 from stdm_drake.errors import InputError
 from stdm_drake.outputs import IDENTIFIED_MARKER
 from stdm_drake.robots.effects import PlantEffects, RigidInertia
-from stdm_drake.robots.plant import check_plant_effects, PlantConfig
+from stdm_drake.robots.plant import PlantConfig
+from stdm_drake.robots.plant_effects_check import check_plant_effects
 from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.config import load_yaml_config
 

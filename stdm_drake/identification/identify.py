@@ -21,7 +21,8 @@ from stdm_drake.identification.fit import (
 )
 from stdm_drake.identification.identified import Identification, IdentifiedRobot, link_inertia
 from stdm_drake.identification.regressor import LINK_PARAMETERS, InverseDynamicsRegressor
-from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, coulomb_stability_gains, robot_joint_limits
+from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, robot_joint_limits
+from stdm_drake.robots.plant_effects_check import coulomb_stability_gains
 from stdm_drake.robots.effects import PlantEffects
 
 VELOCITY_SCALES = (0.01, 0.05, 0.2)            # rad/s: the Coulomb term's tanh smoothing

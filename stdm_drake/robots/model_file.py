@@ -127,28 +127,6 @@ def weld_joint_at(plant: MultibodyPlant, joint, position: float) -> None:
     plant.WeldFrames(parent, child, X_FM)
 
 
-# M(home)'s smallest eigenvalue over its largest at or below which the arm is taken to move no inertia
-SINGULAR_MASS_MATRIX = 1e-10
-
-
-def check_mass_matrix(plant: MultibodyPlant, instance, home: np.ndarray, where: str) -> None:
-    """InputError naming the arm joint unless the finalized plant's M(home) (home: (n,) rad or m) is positive
-    definite: every joint moves mass (and a revolute joint inertia about its axis), whatever the file's
-    links are (massless frames, point masses, thin rods); `where` names the robot."""
-    context = plant.CreateDefaultContext()
-    plant.SetPositions(context, instance, home)
-    eigenvalues, eigenvectors = np.linalg.eigh(plant.CalcMassMatrix(context))
-    if np.isfinite(eigenvalues).all() and eigenvalues[0] > SINGULAR_MASS_MATRIX * max(eigenvalues[-1], 0.0):
-        return
-    joints = [plant.get_joint(index) for index in plant.GetJointIndices(instance)
-              if plant.get_joint(index).num_velocities() > 0]
-    names = [joint.name() for joint in sorted(joints, key=lambda joint: joint.velocity_start())]
-    joint = names[int(np.argmax(np.abs(eigenvectors[:, 0])))] if np.isfinite(eigenvectors).all() else names[0]
-    raise InputError(f"{where}: arm joint {joint!r} moves no inertia about its axis at home (the mass matrix "
-                     f"M(home) is singular, smallest eigenvalue {eigenvalues[0]:.3g}); the links it moves need a "
-                     "mass, and for a revolute joint an inertia about the axis or a centre of mass off it")
-
-
 def offline_parser(plant: MultibodyPlant, model_name_prefix: str = "") -> Parser:
     """A Parser whose package map holds no remote packages.
 

@@ -1,5 +1,5 @@
-"""Drake plants and simulators of a Robot: the plant + scene-graph builder,
-the held-torque simulator, joint limits, rigid-body dynamics and the self-collision check."""
+"""Drake plants and simulators of a Robot: the plant + scene-graph builder, the held-torque simulator, joint
+limits, rigid-body dynamics and the self-collision check."""
 import dataclasses
 
 import numpy as np
@@ -9,12 +9,9 @@ from pydrake.multibody.plant import AddMultibodyPlant, MultibodyPlant, Multibody
 from pydrake.systems.framework import DiagramBuilder
 
 from stdm_drake.errors import InputError
-from stdm_drake.files import names_text
-from stdm_drake.robots.effect_checks import check_beyond_rigid_bodies
 from stdm_drake.robots.effect_systems import (actuation_input, add_effect_systems, link_torque, measured_state_output,
                                               start_actuators)
-from stdm_drake.robots.effects import (MIN_MASS, PlantEffects, add_effects_to_plant, coulomb_torque,
-                                       load_plant_effects, set_effect_parameters)
+from stdm_drake.robots.effects import PlantEffects, add_effects_to_plant, coulomb_torque, set_effect_parameters
 from stdm_drake.robots.nested_models import nested_instances
 from stdm_drake.robots.robot import Robot
 
@@ -341,79 +338,3 @@ class SelfCollisionChecker:
     def is_collision_free(self, q: np.ndarray) -> bool:
         self.plant.SetPositions(self.plant_context, q)
         return not self.plant.get_geometry_query_input_port().Eval(self.plant_context).HasCollisions()
-
-
-def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
-    """InputError unless `effects` fit `robot` (per-joint lists of its length, links it has) and the
-    explicit Coulomb term is stable at the plant step: h F_c / (v_s M_eff) <= 1 on every joint, with
-    M_eff the joint's effective inertia at the robot's home on the affected plant (reflected inertia,
-    payload and mass scales included; checked at home only)."""
-    n = robot.num_joints
-    effects.validate()
-    for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio",
-                 "joint_damping", "transmission_stiffness", "transmission_damping", "friction_ripple",
-                 "friction_ripple_period"):
-        try:
-            effects.joint_values(name, n)
-        except InputError as error:
-            raise InputError(f"plant effects {error}") from None
-    try:   # noise on the action: one value per actuated joint
-        effects.joint_values("torque_noise_std", robot.action_dim)
-    except InputError as error:
-        raise InputError(f"plant effects {error} (torque_noise_std: one per actuated joint)") from None
-    effects.elastic(n)   # (an elastic joint without a motor inertia)
-    if effects.rotor_inertia and not robot.fully_actuated:
-        raise InputError(f"plant effects rotor_inertia: robot {robot.name} has unactuated arm joints")
-    bare = MultibodyPlant(0.0)
-    instance = robot.add_to(bare)
-    links = {bare.get_body(index).name() for index in bare.GetBodyIndices(instance)}
-    unknown = sorted((set(effects.mass_scale) | set(effects.link_inertia)) - links)
-    if unknown:
-        raise InputError(f"plant effects mass_scale or link_inertia names links robot {robot.name} does not have: "
-                         f"{names_text(unknown)} (its links: {names_text(sorted(links), 50)})")
-    for link, factor in effects.mass_scale.items():   # (a link lighter than a milligram is no body; MIN_MASS)
-        mass = bare.GetBodyByName(link, instance).default_mass()
-        if mass * factor < MIN_MASS:
-            raise InputError(f"plant effects mass_scale {factor:g} of {link} " + (f"makes it {mass * factor:g} kg, less "
-                             f"than {MIN_MASS:g} kg: no body" if mass > 0 else "acts on nothing: the link has no mass"))
-    check_beyond_rigid_bodies(effects, robot, time_step, robot_joint_limits(robot))
-    gain = coulomb_stability_gains(effects, robot, time_step)
-    if gain is not None:
-        friction, scale = effects.friction_at_rest(n), effects.coulomb(n)[1]
-        if np.any(gain > 1.0):
-            joint = int(np.argmax(gain))
-            smallest = coulomb_stability_gains(dataclasses.replace(effects, coulomb_velocity_scale=[1.0]), robot,
-                                               time_step)[joint]   # (h F_c / M_eff: the smallest stable v_s)
-            raise InputError(f"plant effects: Coulomb friction (at rest) {friction[joint]:g} "
-                             f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
-                             f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
-                             f"raise its coulomb_velocity_scale to at least {smallest:.3g} rad/s or lower the plant step")
-
-
-def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:
-    """h F_c / (v_s M_eff) per arm joint (n,) (F_c the friction at rest: the breakaway F_s with Stribeck friction):
-    the explicit Coulomb term is stable at the plant step h s where it is <= 1; M_eff the joint's effective inertia
-    at the robot's home on the affected plant (reflected inertia, payload, link inertias and mass scales included).
-    None without Coulomb friction or for a continuous plant (h = 0)."""
-    coulomb = effects.coulomb(robot.num_joints)
-    if coulomb is None or time_step <= 0:
-        return None
-    inertia = Dynamics(robot, dataclasses.replace(effects, coulomb_friction=[], stribeck_friction=[])
-                       ).effective_inertia(robot.home)
-    friction, scale = effects.friction_at_rest(robot.num_joints), coulomb[1]
-    with np.errstate(over="ignore"):   # (a v_s of 1e-320 gives inf: unstable, as it is)
-        return time_step * friction / inertia / scale
-
-
-def plant_effects_for(effects, robot: Robot, time_step: float) -> PlantEffects | None:
-    """`effects` (a PlantEffects, its YAML path, or None for the robot's description as it is) checked
-    against `robot` and the plant step `time_step` s (`check_plant_effects`)."""
-    if effects is None:
-        return None
-    path = None if isinstance(effects, PlantEffects) else effects     # (a file's errors name it)
-    effects = effects if path is None else load_plant_effects(path)
-    try:
-        check_plant_effects(effects, robot, time_step)
-    except InputError as error:
-        raise InputError(str(error) if path is None else f"{path}: {error}") from None
-    return effects

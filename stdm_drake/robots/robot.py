@@ -25,8 +25,9 @@ from stdm_drake.files import line_text
 from stdm_drake.robots.description import SUFFIXES, check_description
 from stdm_drake.robots.inertia_substitution import drake_inertia_warnings_left_out, inertia_substitutions
 from stdm_drake.robots.limit_checks import check_config_limit, limit_overrides, limits_drake_refuses
+from stdm_drake.robots.mass_matrix import check_arm_inertias
 from stdm_drake.robots.meshes import mesh_cache_dir
-from stdm_drake.robots.model_file import (check_mass_matrix, joint_facts, loadable_model, offline_parser,
+from stdm_drake.robots.model_file import (joint_facts, loadable_model, offline_parser,
                                    srdf_disabled_collisions, unmodelled_joint_effects, weld_joint_at)
 from stdm_drake.robots.nested_models import check_nested_fixed, frame_by_name, nested_joint_note, robot_instance
 from stdm_drake.paths import MODELS_DIR, SHIPPED_PREFIX, check_input_file, shipped_file
@@ -404,7 +405,7 @@ class Robot:
                                  f"[{lower:g}, {upper:g}]")
             if name in config.velocity_limits:
                 joint.set_velocity_limits([-velocity], [velocity])
-        check_mass_matrix(plant, instance, self.home, f"robot {self.name}")
+        check_arm_inertias(plant, instance, self.home, f"robot {self.name}")
 
 
 def load_robot(path) -> Robot:

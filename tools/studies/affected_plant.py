@@ -25,7 +25,7 @@ def add_affected_plant_arguments(parser: argparse.ArgumentParser, name: str, qui
 
 def robot_and_effects(args: argparse.Namespace):
     """(Robot, PlantEffects) of --robot and --plant-effects (an InputError of one line where they are bad)."""
-    from stdm_drake.robots.plant import plant_effects_for
+    from stdm_drake.robots.plant_effects_check import plant_effects_for
     from stdm_drake.robots.robot import load_robot
     robot = load_robot(args.robot)
     return robot, plant_effects_for(args.plant_effects, robot, 0.001)

@@ -238,8 +238,8 @@ def run_cell_loops(robot, prepared: dict, profile: dict, say, design: int) -> di
     from stdm_drake.dynamics.physics import PlantModel
     from stdm_drake.learning.checkpoint import load_checkpoint
     from stdm_drake.robots.effects import Payload, PlantEffects
-    from stdm_drake.robots.plant import (DEFAULT_PLANT_TIME_STEP, Dynamics, PlantConfig, plant_effects_for,
-                                         robot_joint_limits)
+    from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, Dynamics, PlantConfig, robot_joint_limits
+    from stdm_drake.robots.plant_effects_check import plant_effects_for
     torch.set_num_threads(1)
     data = load_dataset(prepared["data"])
     period = data.sample_period
