@@ -9,7 +9,9 @@ import torch
 from presets import UR10
 from stdm_drake.cli import main
 from stdm_drake.errors import InputError
+from stdm_drake.data.dataset import load_dataset
 from stdm_drake.learning.checkpoint import load_checkpoint
+from stdm_drake.learning.evaluate import compare_with_baselines
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.models import EnsembleMLP, ModelConfig
 from stdm_drake.dynamics.physics import PlantModel
@@ -125,7 +127,19 @@ def test_train_g_and_gd_record_the_grey_box_and_its_plant(affected, tmp_path, ca
     data, identified = affected
     common = ["--train", "1", "--val", "1", "--test", "0", "--epochs", "2", "--hidden-width", "16", "--quiet"]
     assert main(["train", str(data), "--model", "G", "-o", str(tmp_path / "g"), *common]) == 0
-    warning = capsys.readouterr().err
+    printed = capsys.readouterr()
+    warning = printed.err
+    # its plant alone beside it (the newcomer pass: a grey box's own physics was in no table): the description's
+    # plant in RK4 steps, as `evaluate`'s "plant (RK4)" row, on the same split
+    assert "plant alone" in printed.out and "(the grey box's physics without its network: the robot's description)" \
+        in printed.out
+    summary = json.loads((tmp_path / "g" / "summary.json").read_text())
+    alone = summary["seeds"]["0"]["validation"]["plant_alone"]
+    dataset = load_dataset(data)
+    rk4 = compare_with_baselines([PlantModel(dataset.sample_period, robot=UR10, integrator="rk4")],
+                                 dataset.transitions(summary["split"]["val"]), None)
+    assert alone["source"] == "the robot's description"
+    assert alone["one_step"]["angle_mse"] == pytest.approx(rk4[0].one_step.angle_mse, rel=1e-9)
     # 2 epochs on the description of a plant with rotor inertia: the cause named is the description, with its error
     assert "has not learned the dynamics" in warning and "likely cause: the robot's description: the plant it " \
         "describes predicts q" in warning and "(`stdm-drake identify`)" in warning, warning

@@ -161,6 +161,10 @@ class LearningVerdict:
                   f"{times_better(row.ratio_q)} / {times_better(row.ratio_v)} -> {row.verdict}")
         print(f"  {'Euler step':<{width}}{rows[-1].one_step.angle_mse:>11.3e} {rows[-1].one_step.velocity_mse:>14.3e}"
               "  (q + dt v; 'v unchanged')")
+        alone = self.plant_alone()
+        if alone is not None:
+            print(f"  {'plant alone':<{width}}{alone.one_step.angle_mse:>11.3e} {alone.one_step.velocity_mse:>14.3e}  "
+                  f"(the grey box's physics without its network: {self.plant_source})")
         if self.floor and (self.floor["q"] > 0 or self.floor["v"] > 0):
             print(f"  {'noise floor':<{width}}{self.floor['q']:>11.3e} {self.floor['v']:>14.3e}  (the sensor's)")
             note = floor_not_held_note(rows[0].ratio_q, rows[0].ratio_v, rows[0].floor_ratio_q, rows[0].floor_ratio_v)
@@ -177,13 +181,39 @@ class LearningVerdict:
                   + (f", or within {FLOOR_FACTOR:g}x of the noise floor" if self.floor and self.floor["v"] > 0 else "")
                   + f"); likely cause: {self.likely_cause(selection, rows)}", file=sys.stderr)
 
+        worse = [] if alone is None else [
+            f"{name} {f'{model_mse / plant_mse:.3g}x ' if plant_mse > 0 else ''}worse ({model_mse:.3g} against "
+            f"{plant_mse:.3g} {unit})"
+            for name, model_mse, plant_mse, unit in (
+                ("q", model.one_step.angle_mse, alone.one_step.angle_mse, "rad^2"),
+                ("v", model.one_step.velocity_mse, alone.one_step.velocity_mse, "(rad/s)^2")) if model_mse > plant_mse]
+        if worse:
+            print(f"stdm-drake train: warning: seed {seed}'s {self.name} predicts {' and '.join(worse)} than its plant "
+                  f"alone ({self.plant_source}) on the {self.split_name} split: the network's correction costs "
+                  "accuracy on these data, so the plant alone is the better model here (`stdm-drake compare` weighs "
+                  "both); more data or epochs may let the network add what the plant lacks", file=sys.stderr)
+
         def entry(found, trajectories, floor):
             return dict(transitions=found[0].one_step.transitions, trajectories=trajectories, noise_floor=floor,
                         models=[row.as_dict() for row in found])
         entries = dict(validation=entry(validation, self.val_trajectories, self.val_floor))
         if self.split_name == "test":
             entries["test"] = entry(rows, self.judged_trajectories, self.floor)
+        if alone is not None:
+            entries[self.split_name]["plant_alone"] = dict(alone.as_dict(), source=self.plant_source)
         return entries
+
+    @property
+    def plant_source(self) -> str:
+        return "the identified robot" if self.structure.physics else "the robot's description"
+
+    def plant_alone(self):
+        """For a grey box (plant-step inputs): the one-step errors (`ModelErrors`) of its plant model alone, the
+        physics its network corrects, on the judged split; None for another structure or without a robot."""
+        if not self.structure.grey_box or self.robot is None:
+            return None
+        plant = self.structure.nominal_features(self.robot, self.dataset.sample_period).model
+        return compare_with_baselines([plant], self.judged, None)[0]
 
     def description_error(self, rows) -> str | None:
         """For a grey box on the robot's description (no identified robot as --physics): the cause line when the
