@@ -1327,7 +1327,7 @@ CASES = [
     (yaml_case("effects", "coulomb_friction: [0.01]\nstribeck_friction: [0.010000000001]\nstribeck_velocity: [0.5]\n"),
      "stribeck_friction 0.01 N m on shoulder_pan_joint exceeds its coulomb_friction by 1e-12 N m, too little"),
     (yaml_case("effects", "coulomb_friction: [0.01]\nstribeck_friction: [0.02]\nstribeck_velocity: [1.0e-300]\n"),
-     "shows no Stribeck effect; give at least 0.0477 rad/s there"),
+     "shows no Stribeck effect; give at least 0.0478 rad/s there"),
     (yaml_case("effects", "payload: {mass: 1.0, center_of_mass: [1.0e300, 0, 0]}\n"),
      "payload center_of_mass must be 3 numbers within 100 m of its frame, got [1e+300, 0.0, 0.0]"),
     (yaml_case("effects", "link_inertia:\n  forearm_link: {mass: 9.0e-7}\n"),
@@ -1338,6 +1338,11 @@ CASES = [
     # and unstable under the held torque)
     (yaml_case("effects", "link_inertia:\n  wrist_3_link: {mass: 0.2, center_of_mass: [0, 0, 0.05]}\n"),
      "plant effects on robot ur10: arm joint 'wrist_3_joint' moves no inertia about its axis at home"),
+    # (held-out run 33: an excitation whose joint drifts under gravity the compensation does not hold, advised to
+    # lower its ranges)
+    (yaml_case("effects", "payload: {mass: 1.0, center_of_mass: [0.05, 0, 0.1]}\n"),
+     "the plant effects pull wrist_3_joint with up to 0.489 N m of gravity that the compensation (the robot's "
+     "description) does not hold"),
     (yaml_case("mpc", "optimizer: !Mppi {feedback_kp: 30000.0}\n"),
      "feedback_kp 30000 1/s² with feedback_kd 30 1/s makes each rollout's control law unstable at the model's period "
      "0.01 s (the torque held over a period): give kp h < 2 kd (kp below 6000 with this kd, or kd in (150, 200) 1/s)"),

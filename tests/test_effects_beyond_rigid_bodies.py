@@ -464,3 +464,29 @@ def test_identify_on_a_plant_no_rigid_body_model_holds_fits_and_says_what_it_mis
     assert main(["identify", str(data), "-o", str(tmp_path / "i.yaml"), "--quiet"]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines() if "friction_ripple, which no rigid-body" in line]
     assert len(warnings) == 1 and (tmp_path / "i.yaml").exists()
+
+
+@pytest.mark.parametrize("effects, field, advice", [
+    (dict(coulomb_friction=[0.02], coulomb_velocity_scale=[0.05]), "coulomb_velocity_scale",
+     "coulomb_velocity_scale to at least "),
+    (dict(actuator_time_constant=[1e-6]), "actuator_time_constant", "or at least "),
+    (dict(transmission_stiffness=[100.0], rotor_inertia=[0.1]), "transmission_stiffness", "give at least "),
+])
+def test_an_advised_bound_typed_back_as_printed_is_accepted(effects, field, advice):
+    """Held-out run 33: a floor printed at 3 digits and rounded down ("at least 0.0588" for 0.05880...; 2.72e-05 s for
+    a lag of 2.7207e-05; 105 N m/rad for 330 / pi) was refused again when typed back. Each printed bound is now
+    rounded away from the refused side (`errors.bound_text`); the value given once holds for every joint, the one
+    the refusal names the most demanding."""
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
+    first = PlantEffects(**effects)
+    with pytest.raises(InputError) as refused:
+        check_plant_effects(first, UR10, 0.001)
+    value = float(str(refused.value).split(advice)[1].split(" ")[0])
+    check_plant_effects(dataclasses.replace(first, **{field: [value]}), UR10, 0.001)
+
+
+def test_bound_text_rounds_away_from_the_refused_side():
+    from stdm_drake.errors import bound_text
+    assert bound_text(0.058800004, at_least=True) == "0.0589" and bound_text(0.058800004, at_least=False) == "0.0588"
+    assert bound_text(330 / np.pi, at_least=True) == "106" and bound_text(np.pi / 0.01, at_least=False, digits=4) == "314.1"
+    assert bound_text(6000.0, at_least=False) == "6e+03" and bound_text(0.0, at_least=True) == "0"

@@ -92,6 +92,23 @@ def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_pat
     assert error.count("\n") == 1 and "--rounds must be in 1..100" in error and not (tmp_path / "other").exists()
 
 
+@pytest.mark.parametrize("law, message", [
+    ("{feedback_kp: 6000.0}", "!Mppi feedback_kp 6000 1/s² with feedback_kd 30 1/s makes each rollout's control law "
+                              "unstable at the model's period 0.01 s"),
+    ("{feedback_kd: 200.0}", "!Mppi feedback_kd 200 1/s makes each rollout's control law unstable"),
+])
+def test_a_samplers_unstable_law_is_refused_before_round_0(tmp_path, capsys, law, message):
+    """Held-out run 33: `mbrl` collected and trained round 0, printed its table and wrote the loop folder before the
+    sampler's law was refused (it was checked when round 0's model was made); the data's period is known first."""
+    config = tmp_path / "m.yaml"
+    config.write_text(f"optimizer: !Mppi {law}\n")
+    assert main(["mbrl", "--config", str(config), "--rounds", "1", "--epochs", "2", "--initial-plans", "8",
+                 "--plans-per-round", "2", "--evaluation-plans", "1", "--quiet", "-o", str(tmp_path / "loop")]) == 2
+    printed = capsys.readouterr()
+    assert printed.out == "" and printed.err.count("\n") == 1 and message in printed.err, printed
+    assert not (tmp_path / "loop").exists()
+
+
 @pytest.mark.slow   # (a loop's round: about 15 s)
 def test_a_signal_in_a_rounds_data_write_leaves_the_summary_naming_that_round(tmp_path, monkeypatch):
     """Held-out run 13: a signal landing while a round's data were written left that round's folder with data.h5

@@ -264,6 +264,25 @@ def test_the_law_is_refused_exactly_where_its_closed_loop_grows_on_a_held_torque
         assert solver.settings.feedback_kp == kp
 
 
+def test_a_failed_loop_names_a_samplers_law_that_barely_settles():
+    """Held-out run 33: kp 30,000 and kd 199.99 1/s at 10 ms pass the stability bound (spectral radius 0.9996) and
+    left the limits with a near-exact model, the failure naming only the model. Such a law is now named on the
+    failure line; the defaults (0.886) and a law that settles (kp 20,000, kd 150: 0.707) are not."""
+    from stdm_drake.closed_loop.ancillary_law import law_note, law_radius
+    from stdm_drake.closed_loop.comparison import ClosedLoopResult, closed_loop_failures
+    assert law_radius(225.0, 30.0, 0.01) == pytest.approx(0.8858, abs=1e-4)
+    assert law_radius(2e4, 150.0, 0.01) == pytest.approx(np.sqrt(0.5))
+    assert law_note(Mppi(), 0.01) == law_note(Mppi(feedback_kp=2e4, feedback_kd=150.0), 0.01) == ""
+    assert law_note(Mppi(feedback_kp=0.0, feedback_kd=30.0), 0.01) == ""    # (kp 0: position left to the sampler)
+    note = law_note(Icem(feedback_kp=3e4, feedback_kd=199.99), 0.01)
+    assert note == ("the sampler's law (feedback_kp 30000 1/s², feedback_kd 199.99 1/s) barely settles at the model's "
+                    "period 0.01 s (spectral radius 0.9996 of its held-torque map, the defaults' 0.886): lower its gains")
+    run = ClosedLoopResult("I", 0, 1.0, 1.0, 1.0, 1.0, limit_violations=74, fallbacks=0, constraint_active_steps=0,
+                           slack_steps=0, solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[])
+    assert closed_loop_failures([run], note=note) == [f"model I left the robot's joint limits on 74 of 100 steps (1 of 1 "
+                                                      f"plans); {note}"]
+
+
 def test_work_beyond_the_sampling_budget_is_refused_before_it_starts():
     """Horizon 1000 with 100,000 samples (issue 56: a memory traceback after minutes): one line with the estimate
     when the solver is made, before any rollout; the largest budgeted size is accepted."""

@@ -263,10 +263,11 @@ def reference_of(dataset, index: int) -> Reference:
     return Reference(q=traj.q, v=traj.v)
 
 
-def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5) -> list[str]:
+def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5, note: str = "") -> list[str]:
     """One line per model whose closed loop is not a result: it left the robot's limits (a state outside
     the position or velocity limits, or not finite, on any step of any plan) or fell back to gravity
-    compensation (non-finite predictions) on more than `fraction` of its steps."""
+    compensation (non-finite predictions) on more than `fraction` of its steps; `note` (a setting the failure may
+    come from, `ancillary_law.law_note`) ends each line."""
     failures = []
     for name in dict.fromkeys(result.model for result in results):
         runs = [result for result in results if result.model == name]
@@ -275,8 +276,8 @@ def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5)
         plans = sum(1 for run in runs if run.limit_violations)
         if violations:
             failures.append(f"model {name} left the robot's joint limits on {violations} of {steps} steps "
-                            f"({plans} of {len(runs)} plans)")
+                            f"({plans} of {len(runs)} plans)" + (f"; {note}" if note else ""))
         if fallbacks > fraction * steps:
             failures.append(f"model {name} fell back to gravity compensation on {fallbacks} of {steps} steps "
-                            "(its predictions were not finite); its row is not a result")
+                            "(its predictions were not finite); its row is not a result" + (f"; {note}" if note else ""))
     return failures

@@ -13,6 +13,7 @@ import pathlib
 import re
 import sys
 
+from stdm_drake.closed_loop.ancillary_law import law_note
 from stdm_drake.closed_loop.comparison import (ClosedLoopResult, closed_loop_failures, compare_controllers,
                                                constraint_lines,
                                                draw_results, held_out_references, real_time_lines, summarize,
@@ -176,7 +177,7 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
                   plant_effects=effects_record, models=model_records,
                   mpc_settings=dict(file=_text(mpc_settings_file(robot, study.settings)),
                                     optimizer_given=study.optimizer is not None, settings=config.record()))
-    return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config.constraints)
+    return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config)
 
 
 def check_particles_used(optimizer, models) -> None:
@@ -278,9 +279,10 @@ def tuned_settings(study: MpcStudy, dataset, models, learned, references, config
 
 
 def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: float, inputs: dict,
-           tuning: dict | None, recorder, constraints) -> MpcStudyResult:
-    """The table printed (with the constraint summary of `constraints`, the MPC settings'), mpc.md, mpc.json, mpc.csv and mpc.png written to `output`, the recording to the HTML
-    file; the result."""
+           tuning: dict | None, recorder, config) -> MpcStudyResult:
+    """The table printed (with the constraint summary of `config`'s constraints), mpc.md, mpc.json, mpc.csv and
+    mpc.png written to `output`, the recording to the HTML file; the result (its failures naming a sampler's law
+    that barely settles, `ancillary_law.law_note`)."""
     import json
 
     rows = summarize(results, sample_period)
@@ -290,7 +292,7 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
                   + "; ".join(f"{name} effort x {setting[0]:g}, observer gain {setting[1]:g}"
                               for name, setting in tuning["chosen"].items()))
     table += "\n\n" + "\n".join(f"- {line}" for line in real_time_lines(rows, sample_period))
-    table += "\n\n" + "\n".join(f"- {line}" for line in constraint_lines(rows, constraints))
+    table += "\n\n" + "\n".join(f"- {line}" for line in constraint_lines(rows, config.constraints))
     print(table)
     record = dict(**results_header(), inputs=inputs, summary=rows,
                   runs=[dataclasses.asdict(result) for result in results], tuning=tuning)
@@ -306,5 +308,5 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     print(f"wrote {line_text(output)}: mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
         recorder.finish(study.html, what="robot: plant under MPC; translucent orange: the reference")
-    return MpcStudyResult(results=results, summary=rows, table=table, failures=closed_loop_failures(results),
-                          folder=output, record=record)
+    failures = closed_loop_failures(results, note=law_note(config.optimizer, sample_period))
+    return MpcStudyResult(results=results, summary=rows, table=table, failures=failures, folder=output, record=record)

@@ -27,6 +27,7 @@ from stdm_drake.files import write_text_atomic
 from stdm_drake.interrupts import protected
 from stdm_drake.paths import CONTROLLERS_DIR
 from stdm_drake.cluster import RunnerConfig, job_pool
+from stdm_drake.closed_loop.ancillary_law import check_law_stable
 from stdm_drake.closed_loop.policy import MpcPolicy
 from stdm_drake.dynamics.model_files import load_model
 from stdm_drake.closed_loop.tuning import finite_mse
@@ -89,7 +90,10 @@ class LoopConfig:
         if getattr(optimizer, "framework", "numpy") == "torch" and (settings.predicts, settings.inputs) != ("state", "raw"):
             raise InputError(f"mpc optimizer framework torch runs the paper's black box only (train predicts: state, "
                              f"inputs: raw); --model {self.model} here is structured: use framework numpy")
-        sampling = collection(self, self.initial_plans, self.data_seed).tracking_spec.sampling
+        request = collection(self, self.initial_plans, self.data_seed)
+        if hasattr(optimizer, "feedback_kp"):   # (a sampler's law at the data's period, which the model will have)
+            check_law_stable(optimizer, request.settings.sample_period)
+        sampling = request.tracking_spec.sampling
         poses, capacity = len(sampling.initial_poses), len(sampling.initial_poses) * sampling.num_final_per_initial
         for name in ("initial_plans", "plans_per_round", "evaluation_plans"):   # (collect's own check, before round 0)
             if getattr(self, name) > capacity:

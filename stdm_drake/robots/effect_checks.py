@@ -6,7 +6,7 @@ Stribeck width so narrow that the friction never exceeds Coulomb's, a torque noi
 decays below double precision within one plant step)."""
 import numpy as np
 
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, bound_text
 from stdm_drake.robots.effect_systems import plant_steps
 from stdm_drake.robots.effects import MIN_MASS, PlantEffects
 
@@ -100,7 +100,7 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
             raise InputError(f"plant effects stribeck_velocity {stribeck[1][joint]:g} rad/s on {robot.joint_names[joint]} "
                              "ends the breakaway before the smoothed friction tanh(v / coulomb_velocity_scale) rises, so "
                              "the friction never exceeds coulomb_friction there and the plant shows no Stribeck effect; "
-                             f"give at least {widths[int(np.argmax(shows))]:.3g} rad/s there")
+                             f"give at least {bound_text(widths[int(np.argmax(shows))], at_least=True)} rad/s there")
     m = robot.action_dim   # (a lag and a torque noise per actuated joint)
     noise = effects.joint_values("torque_noise_std", m) if effects.torque_noise_std else np.zeros(m)
     if robot.fully_actuated and np.any(noise > limits.effort):   # (beyond it every sample clips: saturation, no noise)
@@ -115,7 +115,7 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
         raise InputError(f"plant effects actuator_time_constant {lag[joint]:g} s on "
                          f"{robot.joint_names[robot.actuated_indices[joint]]} decays "
                          f"below double precision within one plant step of {time_step:g} s, so the plant shows no lag; "
-                         f"give 0 for none, or at least {time_step / UNRESOLVED_LAG:.3g} s")
+                         f"give 0 for none, or at least {bound_text(time_step / UNRESOLVED_LAG, at_least=True)} s")
     acting = (ripple > 0) & (coulomb > 0)
     if effects.friction_ripple_period and np.any(acting & (period <= 0)):
         joint = robot.joint_names[int(np.argmax(acting & (period <= 0)))]
@@ -126,9 +126,9 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
         if np.any(windup > np.pi):
             joint = int(np.argmax(windup))
             raise InputError(f"plant effects transmission_stiffness {elastic[0][joint]:g} N m/rad on "
-                             f"{robot.joint_names[joint]} winds up {windup[joint]:.3g} rad at its motor's effort limit "
+                             f"{robot.joint_names[joint]} winds up {windup[joint]:.5g} rad at its motor's effort limit "
                              f"{limits.effort[joint]:g} N m, more than half a turn: no transmission carries torque so; "
-                             f"give at least {limits.effort[joint] / np.pi:.3g} N m/rad")
+                             f"give at least {bound_text(limits.effort[joint] / np.pi, at_least=True)} N m/rad")
     rippled = effects.ripple(n)
     if rippled is not None and time_step > 0:   # (a period crossed within two plant steps at top speed aliases)
         finest = 2.0 * time_step * limits.velocity
@@ -138,4 +138,4 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
             raise InputError(f"plant effects friction_ripple_period {rippled[1][joint]:g} rad on {robot.joint_names[joint]} "
                              f"passes in under two plant steps of {time_step:g} s at its velocity limit "
                              f"{limits.velocity[joint]:g} rad/s, so the plant cannot resolve it; give at least "
-                             f"{finest[joint]:.3g} rad, or a finer plant step")
+                             f"{bound_text(finest[joint], at_least=True)} rad, or a finer plant step")

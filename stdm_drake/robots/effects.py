@@ -26,7 +26,7 @@ import dataclasses
 import numpy as np
 
 from stdm_drake.config import check_joint_vector, load_yaml_config, one_line, require, file_keys
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, bound_text
 from stdm_drake.robots.nested_models import frame_by_name
 
 
@@ -379,7 +379,7 @@ def add_effects_to_plant(plant, instance, robot, effects: PlantEffects) -> dict:
                 raise InputError(f"plant effects transmission_stiffness {stiffness[i]:g} N m/rad on {name} against its "
                                  f"motor's {elastic[2][i]:g} kg m² rings at {ringing / (2 * np.pi):.3g} Hz, which the "
                                  f"plant step {step:g} s cannot resolve (omega h = {ringing * step:.3g} >= pi); lower "
-                                 f"--plant-time-step below {np.pi / ringing:.3g} s")
+                                 f"--plant-time-step below {bound_text(np.pi / ringing, at_least=False)} s")
             actuators[name].set_controller_gains(PdControllerGains(
                 p=elastic_step(stiffness[i], elastic[1][i], elastic[2][i], step)[1], d=0.0))
             motors[name] = actuators[name].effort_limit()

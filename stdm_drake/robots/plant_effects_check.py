@@ -8,7 +8,7 @@ import numpy as np
 
 from pydrake.multibody.plant import MultibodyPlant
 
-from stdm_drake.errors import InputError
+from stdm_drake.errors import InputError, bound_text
 from stdm_drake.files import names_text
 from stdm_drake.robots.effect_checks import check_beyond_rigid_bodies
 from stdm_drake.robots.effects import MIN_MASS, PlantEffects, load_plant_effects
@@ -59,14 +59,15 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
     gain = coulomb_stability_gains(effects, robot, time_step)
     if gain is not None:
         friction, scale = effects.friction_at_rest(n), effects.coulomb(n)[1]
-        if np.any(gain > 1.0):
+        if np.any(gain > 1.0 + 1e-9):   # (the advised bound itself, typed back, sits at 1 up to rounding)
             joint = int(np.argmax(gain))
             smallest = coulomb_stability_gains(dataclasses.replace(effects, coulomb_velocity_scale=[1.0]), robot,
                                                time_step)[joint]   # (h F_c / M_eff: the smallest stable v_s)
             raise InputError(f"plant effects: Coulomb friction (at rest) {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
-                             f"raise its coulomb_velocity_scale to at least {smallest:.3g} rad/s or lower the plant step")
+                             f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s or lower the "
+                             "plant step")
 
 
 def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:
