@@ -47,7 +47,7 @@ def law_note(settings, h: float) -> str:
     if h <= 0 or kp == 0 or law_radius(kp, kd, h) < SLOW_LAW:
         return ""
     return (f"the sampler's law (feedback_kp {kp:g} 1/s², feedback_kd {kd:g} 1/s) barely settles at the model's period "
-            f"{h:g} s (spectral radius {law_radius(kp, kd, h):.4g} of its held-torque map, the defaults' "
+            f"{h:g} s (spectral radius {law_radius(kp, kd, h):.6g} of its held-torque map, the defaults' "
             f"{law_radius(225.0, 30.0, h):.3g}): lower its gains")
 
 

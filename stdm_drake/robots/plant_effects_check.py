@@ -65,7 +65,7 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
                                                time_step)[joint]   # (h F_c / M_eff: the smallest stable v_s)
             raise InputError(f"plant effects: Coulomb friction (at rest) {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
-                             f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.3g} > 1); "
+                             f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.6g} > 1); "
                              f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s or lower the "
                              "plant step")
 
