@@ -1283,7 +1283,7 @@ CASES = [
      "gear_ratio acts on nothing: rotor_inertia is 0 on every joint"),
     (yaml_case("effects", "rotor_inertia: [0.01, 0, 0.01, 0.01, 0.01, 0.01]\ngear_ratio: [50, 50, 50, 50, 50, 50]\n"),
      "gear_ratio on shoulder_lift_joint, whose rotor_inertia is 0, acts on nothing there"),
-    (yaml_case("effects", "coulomb_friction: [1, 0, 1, 1, 1, 1]\ncoulomb_velocity_scale: [0.05, 0.05, 0.05, 0.05, 0.05, "
+    (yaml_case("effects", "coulomb_friction: [1, 0, 1, 1, 1, 1]\ncoulomb_velocity_scale: [0.05, 0.3, 0.05, 0.05, 0.05, "
                           "0.05]\n"), "coulomb_velocity_scale on shoulder_lift_joint, whose friction at rest is 0"),
     (yaml_case("effects", "coulomb_friction: [1.0]\nstribeck_friction: [2, 1, 2, 2, 2, 2]\n"
                           "stribeck_velocity: [0.2, 0.2, 0.2, 0.2, 0.2, 0.2]\n"),
@@ -1343,6 +1343,12 @@ CASES = [
     (yaml_case("effects", "payload: {mass: 1.0, center_of_mass: [0.05, 0, 0.1]}\n"),
      "the plant effects pull wrist_3_joint with up to 0.489 N m of gravity that the compensation (the robot's "
      "description) does not hold"),
+    # (held-out run 34: tracking on such a plant, or on one no torque can hold, named only the gains)
+    (yaml_case("teffects", "payload: {mass: 1.0, center_of_mass: [0.05, 0, 0.1]}\n"),
+     "the plant effects pull wrist_3_joint with up to 0.0735 N m of gravity that the compensation (the robot's "
+     "description) does not hold; check the controller gains"),
+    (yaml_case("teffects", "payload: {mass: 200.0, center_of_mass: [0.05, 0, 0.1]}\n"),
+     "gravity pulls elbow_joint with up to 1.3e+03 N m there, beyond its effort limit 150 N m: no torque holds the arm"),
     (yaml_case("mpc", "optimizer: !Mppi {feedback_kp: 30000.0}\n"),
      "feedback_kp 30000 1/s² with feedback_kd 30 1/s makes each rollout's control law unstable at the model's period "
      "0.01 s (the torque held over a period): give kp h < 2 kd (kp below 6000 with this kd, or kd in (150, 200) 1/s)"),
@@ -1352,6 +1358,7 @@ YAML_COMMANDS = {  # where a written YAML case goes in
     "spec": [*E, "--config", "CASE", "-o", "NEW.h5"], "ctrl": [*C, "--controller", "CASE", "-o", "NEW.h5"],
     "tspec": [*C, "--config", "CASE", "-o", "NEW.h5"], "mpc": [*M, "--config", "CASE", "-o", "NEW"],
     "robot": [*E, "--robot", "CASE", "-o", "NEW.h5"], "effects": [*E, "--plant-effects", "CASE", "-o", "NEW.h5"],
+    "teffects": [*C, "--plant-effects", "CASE", "-o", "NEW.h5"],
     "train": [*T, "--config", "CASE", "-o", "NEW"], "sensor": [*C, "--sensor", "CASE", "-o", "NEW.h5"],
 }
 

@@ -490,3 +490,36 @@ def test_bound_text_rounds_away_from_the_refused_side():
     assert bound_text(0.058800004, at_least=True) == "0.0589" and bound_text(0.058800004, at_least=False) == "0.0588"
     assert bound_text(330 / np.pi, at_least=True) == "106" and bound_text(np.pi / 0.01, at_least=False, digits=4) == "314.1"
     assert bound_text(6000.0, at_least=False) == "6e+03" and bound_text(0.0, at_least=True) == "0"
+
+
+def test_a_per_joint_field_that_must_be_positive_takes_its_neutral_value_where_its_companion_is_off():
+    """Held-out run 34: a per-joint gear_ratio (or velocity scale) on a joint whose rotor_inertia (friction) is 0 was
+    refused with "give it 0 on that joint", and 0 was refused as not > 0, so no per-joint list could load. The
+    neutral value (a gear ratio of 1, the scales' defaults) stands for none there, and the advice names it."""
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
+    rotor = [0.0, 3.7434, 0.0, 0.0708, 0.2342, 0.4365]
+    check_plant_effects(PlantEffects(rotor_inertia=rotor, gear_ratio=[1, 101, 1, 101, 101, 101]), UR10, 0.001)
+    with pytest.raises(InputError, match="give it 1 on that joint"):
+        check_plant_effects(PlantEffects(rotor_inertia=rotor, gear_ratio=[7, 101, 1, 101, 101, 101]), UR10, 0.001)
+    friction = [0.0, 1.0, 1.0, 0.1, 0.1, 0.05]
+    check_plant_effects(PlantEffects(coulomb_friction=friction, coulomb_velocity_scale=[0.05, 1, 1, 1, 1, 1]), UR10,
+                        0.001)
+    with pytest.raises(InputError, match="give it 0.05 on that joint"):
+        check_plant_effects(PlantEffects(coulomb_friction=friction, coulomb_velocity_scale=[0.3, 1, 1, 1, 1, 1]),
+                            UR10, 0.001)
+
+
+def test_coulomb_advice_beyond_the_speed_range_gives_the_plant_step_or_friction_that_holds_it():
+    """Held-out run 34: "raise its coulomb_velocity_scale to at least 6.77 rad/s" on a wrist whose velocity limit is
+    3.14 rad/s, refused when followed. The refusal now gives the plant step (at this scale) and the friction that
+    hold it, and each typed back loads."""
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
+    effects = PlantEffects(coulomb_friction=[2.3], coulomb_velocity_scale=[0.2])
+    with pytest.raises(InputError) as refused:
+        check_plant_effects(effects, UR10, 0.001)
+    message = str(refused.value)
+    assert "is wider than the joint's speed range (3.1416 rad/s)" in message, message
+    step = float(message.split("lower the plant step to at most ")[1].split(" ")[0])
+    friction = float(message.split("or the friction to at most ")[1].split(" ")[0])
+    check_plant_effects(effects, UR10, step)
+    check_plant_effects(dataclasses.replace(effects, coulomb_friction=[friction]), UR10, 0.001)

@@ -185,7 +185,7 @@ def test_effects_files_are_checked_against_the_robot(tmp_path):
            "mass_scale: {elbow_link: 2}\n": "does not have: elbow_link",
            "mass_scale: {forearm_link: 0}\n": "> 0",
            "payload: {mass: 1, inertia: [1, 0, 0, 0, 0, 0]}\n": "not physically valid",
-           "coulomb_friction: [40]\ncoulomb_velocity_scale: [0.001]\n": "raise its coulomb_velocity_scale",
+           "coulomb_friction: [40]\ncoulomb_velocity_scale: [0.001]\n": "is wider than the joint's speed range",
            "viscous_fiction: [1]\n": "malformed plant effects"}
     for number, (text, message) in enumerate(bad.items()):
         path = tmp_path / f"bad{number}.yaml"

@@ -89,8 +89,9 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
     if reason is not None:
         named = loop_settings(rig.settings.controller, rig.settings.plant.effects)
-        raise PlanningError(f"tracking left the limits ({reason}); check the controller gains"
-                            + (" and " + ", ".join(named) if named else ""))
+        cause = rig.gravity_beyond(plan.q, joint_name=reason.split()[0])   # (held-out run 34: only the gains named)
+        raise PlanningError(f"tracking left the limits ({reason}); " + (cause if cause.startswith("gravity") else (
+            f"{cause}; " if cause else "") + "check the controller gains" + (" and " + ", ".join(named) if named else "")))
     traj.update(q_planned=plan.q, v_planned=plan.qd, qdd_planned=plan.qdd)
     return traj
 
@@ -330,8 +331,7 @@ def collection_metadata(request: CollectionRequest) -> dict:
         num_trajectories=request.count, robot_model_sha256=settings.robot.model_sha256(),
         joint_names=list(settings.robot.joint_names), robot=dataclasses.asdict(settings.robot.config),
         robot_inertia_substitutions=dict(settings.robot.inertia_substitutions),   # (link: what Drake simulates)
-        plant=settings.plant.record(), sensor=dataclasses.asdict(settings.sensor),
-        package_versions=package_versions(),
+        plant=settings.plant.record(), sensor=dataclasses.asdict(settings.sensor), package_versions=package_versions(),
         torque_hold="zero-order hold over each sample period; plant integrates at plant.time_step")
     if request.protocol == "excitation":
         metadata["excitation"] = dataclasses.asdict(request.excitation)

@@ -122,7 +122,7 @@ def excitation_trajectory(rig: Station, config: Excitation, rng: np.random.Gener
     """Sample eq. (10) parameters and q0 until a trajectory stays inside the limits."""
     lower, upper = np.asarray(config.initial_position_lower), np.asarray(config.initial_position_upper)
     reasons: dict[str, int] = {}
-    starts = []   # the start poses simulated (`unheld_gravity`)
+    starts = []   # the start poses simulated (`Station.gravity_beyond`)
     sensor_config = rig.settings.sensor
     for _ in range(config.max_attempts):
         amplitude = rng.uniform(0.0, config.amplitude_max)
@@ -158,27 +158,12 @@ def excitation_trajectory(rig: Station, config: Excitation, rng: np.random.Gener
     hint = "lower the torque ranges"
     if config.velocity_fraction < 1 and any("velocity limit" in name for name in reasons):
         hint += f" or raise velocity_fraction ({config.velocity_fraction:g} of each velocity limit)"
-    unheld = unheld_gravity(rig, config, starts)
-    if unheld:
-        hint = unheld
+    cause = rig.gravity_beyond(starts, np.asarray(config.amplitude_max) + np.asarray(config.offset_max)
+                               if config.gravity_compensation else np.zeros(rig.robot.action_dim))
+    if cause.startswith("the plant effects"):   # (beyond the excitation's torques: the ranges cannot help)
+        hint = (f"{cause}, beyond its excitation torques, so it drifts whatever the ranges; collect these data with "
+                "--protocol tracking and a controller sized for the plant (stdm-drake:controllers/pid_dither_sized.yaml)")
+    elif cause:
+        hint = cause
     raise InputError(f"excitation: no trajectory within limits after {config.max_attempts} attempts ({summary}); {hint}")
 
-
-def unheld_gravity(rig: Station, config: Excitation, starts: list) -> str:
-    """For an affected plant (a payload, link inertias or mass scales the description lacks): the cause of a failed
-    excitation when the plant's own gravity at the start poses tried (`starts`: (n,) rad each) differs from the
-    compensation, the description's, by more than an actuated joint's excitation torques reach (amplitude_max +
-    offset_max): that joint drifts whatever the ranges, so lower ranges cannot help (held-out run 33: a 1 kg payload
-    5 cm off the wrist axis); "" otherwise."""
-    if rig.true_dynamics is rig.dynamics or not config.gravity_compensation or not starts:
-        return ""
-    unheld = np.max([np.abs(rig.true_dynamics.actuated_gravity_torque(q) - rig.dynamics.actuated_gravity_torque(q))
-                     for q in starts], axis=0)
-    reach = np.asarray(config.amplitude_max) + np.asarray(config.offset_max)
-    if not np.any(unheld > reach):
-        return ""
-    joint = int(np.argmax(unheld / np.maximum(reach, 1e-300)))
-    return (f"the plant effects pull {rig.robot.joint_names[rig.robot.actuated_indices[joint]]} with up to "
-            f"{unheld[joint]:.3g} N m of gravity that the compensation (the robot's description) does not hold, beyond "
-            f"its excitation torques' {reach[joint]:.3g} N m, so it drifts whatever the ranges; collect these data with "
-            "--protocol tracking and a controller sized for the plant (stdm-drake:controllers/pid_dither_sized.yaml)")

@@ -63,11 +63,20 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
             joint = int(np.argmax(gain))
             smallest = coulomb_stability_gains(dataclasses.replace(effects, coulomb_velocity_scale=[1.0]), robot,
                                                time_step)[joint]   # (h F_c / M_eff: the smallest stable v_s)
+            # (the gain scales as h F_c / v_s: at the widest scale the joint's speed range allows, the plant step or
+            # the friction that holds it; held-out run 34: the advised scale lay beyond the velocity limit)
+            widest = robot_joint_limits(robot).velocity[joint]
+            fixes = (f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s or lower the "
+                     "plant step" if smallest <= widest else
+                     f"the coulomb_velocity_scale that holds it ({bound_text(smallest, at_least=True)} rad/s) is wider than "
+                     f"the joint's speed range ({widest:g} rad/s): lower the plant step to at most "
+                     f"{bound_text(time_step * scale[joint] / smallest, at_least=False)} s at this scale (at most "
+                     f"{bound_text(time_step * widest / smallest, at_least=False)} s with the scale at {widest:g} rad/s), "
+                     f"or the friction to at most {bound_text(friction[joint] * scale[joint] / smallest, at_least=False)} N m")
             raise InputError(f"plant effects: Coulomb friction (at rest) {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.6g} > 1); "
-                             f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s or lower the "
-                             "plant step")
+                             + fixes)
 
 
 def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:

@@ -137,3 +137,32 @@ class Station:
                     links = self.collision_checker.colliding_links(q_step)
                     return f"self-collision {links[0][0]}/{links[0][1]} at step {step}"
         return None
+
+    def gravity_beyond(self, positions, reach: np.ndarray | None = None, joint_name: str = "") -> str:
+        """Why a protocol's arm may drift at `positions` ((n,) rad each), from gravity alone: the plant's own gravity
+        (effects included) beyond an actuated joint's effort limit, so that no torque holds it; else, on an affected
+        plant, the gravity the compensation (the description's) does not hold, beyond `reach` (N m per actuated joint:
+        the excitation's torques; None: 1e-3 of the effort limit, what any feedback must then hold), naming
+        `joint_name` (the joint that left its limits) where it is one of those pulled. "" where neither."""
+        if not len(positions):
+            return ""
+        actuated = self.robot.actuated_indices
+        pull = np.max([np.abs(self.true_dynamics.actuated_gravity_torque(q)) for q in positions], axis=0)
+        effort = self.limits.effort[actuated] if len(self.limits.effort) > len(actuated) else self.limits.effort
+        if np.any(pull > effort):
+            joint = int(np.argmax(pull / effort))
+            return (f"gravity pulls {self.robot.joint_names[actuated[joint]]} with up to {pull[joint]:.3g} N m there, beyond "
+                    f"its effort limit {effort[joint]:g} N m: no torque holds the arm; lighten the bodies it carries")
+        if self.true_dynamics is self.dynamics:
+            return ""
+        unheld = np.max([np.abs(self.true_dynamics.actuated_gravity_torque(q) - self.dynamics.actuated_gravity_torque(q))
+                         for q in positions], axis=0)
+        reach = 1e-3 * effort if reach is None else np.asarray(reach, dtype=float)
+        if not np.any(unheld > reach):
+            return ""
+        beyond = [self.robot.joint_names[index] for index, far in zip(actuated, unheld > reach) if far]
+        joint = ([self.robot.joint_names[index] for index in actuated].index(joint_name) if joint_name in beyond
+                 else int(np.argmax(unheld / np.maximum(reach, 1e-300))))
+        return (f"the plant effects pull {self.robot.joint_names[actuated[joint]]} with up to {unheld[joint]:.3g} N m of "
+                "gravity that the compensation (the robot's description) does not hold")
+
