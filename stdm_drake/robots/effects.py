@@ -161,11 +161,11 @@ class PlantEffects:
                 check_effect_bound(name, check_joint_vector(name, getattr(self, name), nonnegative=True))
         if self.gear_ratio:
             ratio = check_joint_vector("gear_ratio", self.gear_ratio)
-            require(bool(np.all(ratio > 0)), "gear_ratio must be > 0", self.gear_ratio)
+            require(bool(np.all(ratio > 0)), "gear_ratio must be > 0 (1 for no gear)", self.gear_ratio)
             check_effect_bound("gear_ratio", ratio)
         require(bool(self.rotor_inertia) or not self.gear_ratio, "gear_ratio needs rotor_inertia", self.gear_ratio)
         scale = check_joint_vector("coulomb_velocity_scale", self.coulomb_velocity_scale)
-        require(bool(np.all(scale > 0)), "coulomb_velocity_scale must be > 0 rad/s", self.coulomb_velocity_scale)
+        require(bool(np.all(scale > 0)), "coulomb_velocity_scale must be > 0 rad/s (0.05: none)", self.coulomb_velocity_scale)
         for link, factor in self.mass_scale.items():
             require(np.isfinite(factor) and factor > 0, f"mass_scale of {link} must be a finite number > 0", factor)
             check_effect_bound(f"mass_scale of {link}", np.array([factor]), "mass_scale")
@@ -185,7 +185,7 @@ class PlantEffects:
                 require(bool(np.all(breakaway >= coulomb)), f"stribeck_friction must be at least coulomb_friction "
                         f"{self.coulomb_friction} on every joint (the breakaway friction at rest)", self.stribeck_friction)
         velocity = check_joint_vector("stribeck_velocity", self.stribeck_velocity)
-        require(bool(np.all(velocity > 0)), "stribeck_velocity must be > 0 rad/s", self.stribeck_velocity)
+        require(bool(np.all(velocity > 0)), "stribeck_velocity must be > 0 rad/s (0.1: none)", self.stribeck_velocity)
         if self.actuator_time_constant:
             check_effect_bound("actuator_time_constant", check_joint_vector(
                 "actuator_time_constant", self.actuator_time_constant, nonnegative=True))
