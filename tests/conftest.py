@@ -26,9 +26,10 @@ import pytest  # noqa: E402
 _SHARED_WORKER_MODULES = {"test_ray_backend.py", "test_reproduce.py"}
 _SHARED_WORKER_GROUP = "ray-and-quick-report"
 # Test modules whose module-scoped fixtures collect data for seconds (40 excitation trajectories, a log to import, an
-# identified robot): each kept on one worker, so that the fixture is built once, not once per worker (the fast tier
-# built the dynamics models' dataset on both workers: 8.6 and 6.8 s)
-_ONE_WORKER_MODULES = {"test_dynamics_models.py", "test_import.py", "test_identification.py"}
+# identified robot, the C++ controller program): each kept on one worker, so that the fixture is built once, not once
+# per worker (the fast tier built the dynamics models' dataset on both workers: 8.6 and 6.8 s; the suite built the
+# controller program on both: 127 and 118 s of setup)
+_ONE_WORKER_MODULES = {"test_dynamics_models.py", "test_import.py", "test_identification.py", "test_controller_program.py"}
 _MAX_AUTO_WORKERS = 4
 
 
