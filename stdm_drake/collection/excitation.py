@@ -159,7 +159,7 @@ def excitation_trajectory(rig: Station, config: Excitation, rng: np.random.Gener
     if config.velocity_fraction < 1 and any("velocity limit" in name for name in reasons):
         hint += f" or raise velocity_fraction ({config.velocity_fraction:g} of each velocity limit)"
     cause = rig.gravity_beyond(starts, np.asarray(config.amplitude_max) + np.asarray(config.offset_max)
-                               if config.gravity_compensation else np.zeros(rig.robot.action_dim))
+                               if config.gravity_compensation else np.full(rig.robot.action_dim, np.inf))
     if cause.startswith("the plant effects"):   # (beyond the excitation's torques: the ranges cannot help)
         hint = (f"{cause}, beyond its excitation torques, so it drifts whatever the ranges; collect these data with "
                 "--protocol tracking and a controller sized for the plant (stdm-drake:controllers/pid_dither_sized.yaml)")

@@ -148,7 +148,7 @@ class Station:
             return ""
         actuated = self.robot.actuated_indices
         pull = np.max([np.abs(self.true_dynamics.actuated_gravity_torque(q)) for q in positions], axis=0)
-        effort = self.limits.effort[actuated] if len(self.limits.effort) > len(actuated) else self.limits.effort
+        effort = self.limits.effort   # (m,): per actuated joint
         if np.any(pull > effort):
             joint = int(np.argmax(pull / effort))
             return (f"gravity pulls {self.robot.joint_names[actuated[joint]]} with up to {pull[joint]:.3g} N m there, beyond "
