@@ -18,7 +18,8 @@ def check_law_stable(settings, h: float) -> None:
         return
     unstable = f"makes each rollout's control law unstable at the model's period {h:g} s (the torque held over a period)"
     if h * kd >= 2:
-        raise InputError(f"{settings.tag()} feedback_kd {kd:g} 1/s {unstable}: give kd h < 2 (kd < {bound_text(2 / h, at_least=False)})")
+        raise InputError(f"{settings.tag()} feedback_kd {kd:g} 1/s {unstable}: give kd h < 2 "
+                         f"(kd < {bound_text(2 / h, at_least=False)})")
     if kp * h ** 2 >= 4:
         raise InputError(f"{settings.tag()} feedback_kp {kp:g} 1/s² {unstable} with any feedback_kd: give kp h² < 4 "
                          f"(kp < {bound_text(4 / h ** 2, at_least=False)}) and kp h < 2 kd < 4 / h")
@@ -42,11 +43,15 @@ def law_note(settings, h: float) -> str:
     ring: held-out runs 33 and 34 saw a near-exact model leave the limits at radii 0.90-0.99997 (0.886 for the
     defaults at 10 ms), and hold them at 0.707 and 0.84; "" otherwise."""
     kp, kd = getattr(settings, "feedback_kp", 0.0), getattr(settings, "feedback_kd", 0.0)
-    if h <= 0 or kp == 0 or law_radius(kp, kd, h) <= law_radius(225.0, 30.0, h):
+    if h <= 0 or kp == 0:
+        return ""
+    defaults = type(settings)()   # (the settings' own defaults, not restated here)
+    radius, default_radius = law_radius(kp, kd, h), law_radius(defaults.feedback_kp, defaults.feedback_kd, h)
+    if radius <= default_radius:
         return ""
     return (f"the sampler's law (feedback_kp {kp:g} 1/s², feedback_kd {kd:g} 1/s) settles slower than the defaults' at "
-            f"the model's period {h:g} s (spectral radius {law_radius(kp, kd, h):.6g} of its held-torque map, the "
-            f"defaults' {law_radius(225.0, 30.0, h):.3g}): try the defaults, or gains that settle faster")
+            f"the model's period {h:g} s (spectral radius {radius:.6g} of its held-torque map, the defaults' "
+            f"{default_radius:.3g}): try the defaults, or gains that settle faster")
 
 
 def computed_torque_law(following: np.ndarray, B: np.ndarray, x0: np.ndarray, reference: np.ndarray,

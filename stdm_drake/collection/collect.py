@@ -89,8 +89,8 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
     if reason is not None:
         named = loop_settings(rig.settings.controller, rig.settings.plant.effects)
-        cause = rig.gravity_beyond(plan.q, joint_name=reason.split()[0])   # (held-out run 34: only the gains named)
-        raise PlanningError(f"tracking left the limits ({reason}); " + (cause if cause.startswith("gravity") else (
+        unholdable, cause = rig.gravity_beyond(plan.q, joint_name=reason.split()[0])   # (run 34: only gains named)
+        raise PlanningError(f"tracking left the limits ({reason}); " + (cause if unholdable else (
             f"{cause}; " if cause else "") + "check the controller gains" + (" and " + ", ".join(named) if named else "")))
     traj.update(q_planned=plan.q, v_planned=plan.qd, qdd_planned=plan.qdd)
     return traj

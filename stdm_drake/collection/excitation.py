@@ -72,8 +72,9 @@ class Excitation:
         `sample_period` s carry (the Nyquist frequency pi / period: beyond it the torque aliases to another sine)."""
         if self.frequency_range[1] > np.pi / sample_period:
             raise InputError(f"excitation frequency_range {self.frequency_range} rad/s reaches beyond "
-                             f"{bound_text(np.pi / sample_period, at_least=False, digits=4)} rad/s, the Nyquist frequency of the {sample_period:g} s sample period (the held torque would "
-                             "alias); keep its upper end at most that")
+                             f"{bound_text(np.pi / sample_period, at_least=False, digits=4)} rad/s, the Nyquist "
+                             f"frequency of the {sample_period:g} s sample period (the held torque would alias); keep "
+                             "its upper end at most that")
 
     @classmethod
     def derived_for(cls, robot: Robot, acceleration: float = 0.5, box: float = 0.5) -> "Excitation":
@@ -158,12 +159,10 @@ def excitation_trajectory(rig: Station, config: Excitation, rng: np.random.Gener
     hint = "lower the torque ranges"
     if config.velocity_fraction < 1 and any("velocity limit" in name for name in reasons):
         hint += f" or raise velocity_fraction ({config.velocity_fraction:g} of each velocity limit)"
-    cause = rig.gravity_beyond(starts, np.asarray(config.amplitude_max) + np.asarray(config.offset_max)
-                               if config.gravity_compensation else np.full(rig.robot.action_dim, np.inf))
-    if cause.startswith("the plant effects"):   # (beyond the excitation's torques: the ranges cannot help)
-        hint = (f"{cause}, beyond its excitation torques, so it drifts whatever the ranges; collect these data with "
-                "--protocol tracking and a controller sized for the plant (stdm-drake:controllers/pid_dither_sized.yaml)")
-    elif cause:
-        hint = cause
+    unholdable, cause = rig.gravity_beyond(starts, np.asarray(config.amplitude_max) + np.asarray(config.offset_max)
+                                           if config.gravity_compensation else np.full(rig.robot.action_dim, np.inf))
+    if cause:   # (unheld beyond the excitation's torques: the ranges cannot help)
+        hint = cause if unholdable else (
+            f"{cause}, beyond its excitation torques, so it drifts whatever the ranges; collect these data with "
+            "--protocol tracking and a controller sized for the plant (stdm-drake:controllers/pid_dither_sized.yaml)")
     raise InputError(f"excitation: no trajectory within limits after {config.max_attempts} attempts ({summary}); {hint}")
-

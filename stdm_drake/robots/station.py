@@ -138,31 +138,30 @@ class Station:
                     return f"self-collision {links[0][0]}/{links[0][1]} at step {step}"
         return None
 
-    def gravity_beyond(self, positions, reach: np.ndarray | None = None, joint_name: str = "") -> str:
-        """Why a protocol's arm may drift at `positions` ((n,) rad each), from gravity alone: the plant's own gravity
-        (effects included) beyond an actuated joint's effort limit, so that no torque holds it; else, on an affected
-        plant, the gravity the compensation (the description's) does not hold, beyond `reach` (N m per actuated joint:
-        the excitation's torques; None: 1e-3 of the effort limit, what any feedback must then hold), naming
-        `joint_name` (the joint that left its limits) where it is one of those pulled. "" where neither."""
+    def gravity_beyond(self, positions, reach: np.ndarray | None = None, joint_name: str = "") -> tuple[bool, str]:
+        """(whether no torque can hold the arm, why) a protocol's arm may drift at `positions` ((n,) rad each) from
+        gravity alone: the plant's own gravity (effects included) beyond an actuated joint's effort limit (True); else,
+        on an affected plant, the gravity the compensation (the description's) does not hold, beyond `reach` (N m per
+        actuated joint: the excitation's torques; None: 1e-3 of the effort limit, what any feedback must then hold),
+        naming `joint_name` (the joint that left its limits) where it is one of those pulled. (False, "") where
+        neither."""
         if not len(positions):
-            return ""
-        actuated = self.robot.actuated_indices
+            return False, ""
+        names = [self.robot.joint_names[index] for index in self.robot.actuated_indices]
         pull = np.max([np.abs(self.true_dynamics.actuated_gravity_torque(q)) for q in positions], axis=0)
         effort = self.limits.effort   # (m,): per actuated joint
         if np.any(pull > effort):
             joint = int(np.argmax(pull / effort))
-            return (f"gravity pulls {self.robot.joint_names[actuated[joint]]} with up to {pull[joint]:.3g} N m there, beyond "
-                    f"its effort limit {effort[joint]:g} N m: no torque holds the arm; lighten the bodies it carries")
+            return True, (f"gravity pulls {names[joint]} with up to {pull[joint]:.3g} N m there, beyond its effort limit "
+                          f"{effort[joint]:g} N m: no torque holds the arm; lighten the bodies it carries")
         if self.true_dynamics is self.dynamics:
-            return ""
+            return False, ""
         unheld = np.max([np.abs(self.true_dynamics.actuated_gravity_torque(q) - self.dynamics.actuated_gravity_torque(q))
                          for q in positions], axis=0)
         reach = 1e-3 * effort if reach is None else np.asarray(reach, dtype=float)
         if not np.any(unheld > reach):
-            return ""
-        beyond = [self.robot.joint_names[index] for index, far in zip(actuated, unheld > reach) if far]
-        joint = ([self.robot.joint_names[index] for index in actuated].index(joint_name) if joint_name in beyond
-                 else int(np.argmax(unheld / np.maximum(reach, 1e-300))))
-        return (f"the plant effects pull {self.robot.joint_names[actuated[joint]]} with up to {unheld[joint]:.3g} N m of "
-                "gravity that the compensation (the robot's description) does not hold")
-
+            return False, ""
+        joint = names.index(joint_name) if joint_name in names and unheld[names.index(joint_name)] > reach[
+            names.index(joint_name)] else int(np.argmax(unheld / np.maximum(reach, 1e-300)))
+        return False, (f"the plant effects pull {names[joint]} with up to {unheld[joint]:.3g} N m of gravity that the "
+                       "compensation (the robot's description) does not hold")
