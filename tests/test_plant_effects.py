@@ -230,7 +230,8 @@ def test_mpc_on_the_affected_plant_compares_the_nominal_and_the_true_plant_model
     code = main(["mpc", str(affected_dataset.path), "--plans", "1", "--quiet", "-o", str(tmp_path / "mpc")])
     rows = {row["model"]: row for row in json.loads((tmp_path / "mpc" / "mpc.json").read_text())["summary"]}
     assert code == 0 and set(rows) == {"plant", "true-plant"}
-    assert "plant effects: as recorded in" in capsys.readouterr().err
+    out, err = capsys.readouterr()
+    assert "plant effects: as recorded in" in out and "plant effects" not in err   # quiet: in the table only
     for row in rows.values():
         assert row["q_mse_rad2"] < 1e-2 and row["limit_violations"] == 0
     assert rows["plant"]["q_mse_rad2"] != rows["true-plant"]["q_mse_rad2"]
@@ -406,8 +407,9 @@ def test_mpc_tunes_each_model_on_validation_plans_before_tracking_the_held_out_o
     assert record["tuning"]["plans"] == split and record["runs"][0]["trajectory"] not in split
     assert len(record["tuning"]["runs"]) == 9 and chosen in {(r["effort_scale"], r["observer_gain"])
                                                              for r in record["tuning"]["runs"]}
-    err = capsys.readouterr().err
-    assert f"MPC setting of D (chosen on 1 tuning plans): effort weights x {chosen[0]:g}" in err
+    out, err = capsys.readouterr()
+    assert "MPC setting of D" not in err   # quiet: the chosen settings are in the table
+    assert f"D effort x {chosen[0]:g}, observer gain {chosen[1]:g}" in out
     assert "MPC settings chosen on the tuning plans (indices" in (tmp_path / "mpc" / "mpc.md").read_text()
 
 

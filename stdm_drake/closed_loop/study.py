@@ -225,13 +225,15 @@ def study_plant(study: MpcStudy, dataset, robot):
     effects = plant_effects_for(study.plant_effects if given else dataset.metadata.plant_effects, robot, time_step)
     if effects is None:
         return config, None
-    say(f"plant effects: {study.plant_effects if given else 'as recorded in ' + str(study.dataset)}: {effects.summary()}"
-        + ("; torque noise seeded by plan index: every model meets the same draws on a plan"
-           if effects.has_torque_noise() else ""))
+    line = (f"plant effects: {study.plant_effects if given else 'as recorded in ' + str(study.dataset)}: "
+            f"{effects.summary()}" + ("; torque noise seeded by plan index: every model meets the same draws on a "
+                                      "plan" if effects.has_torque_noise() else ""))
+    if study.progress:   # (quiet: the line is in the table, so that a failure of the loops is the only line)
+        say(line)
     config.effects = effects
     return (config,
             dict(file=str(study.plant_effects) if given else None, recorded_in_dataset=not given,
-                 summary=effects.summary()))
+                 summary=effects.summary(), line=line))
 
 
 def study_models(study: MpcStudy, dataset, robot, plant_config) -> tuple[list, list, list]:
@@ -267,7 +269,7 @@ def tuned_settings(study: MpcStudy, dataset, models, learned, references, config
     plans = tuning_references(dataset, [model.checkpoint for model in learned], study.tune,
                               [index for index, _ in references])
     chosen, tried = tune(models, plans, config, plant_config, robot=robot, progress=study.progress)
-    for name, setting in chosen.items():
+    for name, setting in chosen.items() if study.progress else ():   # (quiet: in the table)
         say(f"MPC setting of {name} (chosen on {len(plans)} tuning plans): effort weights x {setting[0]:g}, "
             f"observer gain {setting[1]:g}")
     configs = [with_setting(config, chosen[model.name]) for model in models]
@@ -293,6 +295,8 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
                               for name, setting in tuning["chosen"].items()))
     table += "\n\n" + "\n".join(f"- {line}" for line in real_time_lines(rows, sample_period))
     table += "\n\n" + "\n".join(f"- {line}" for line in constraint_lines(rows, config.constraints))
+    if inputs.get("plant_effects"):
+        table += f"\n- {inputs['plant_effects']['line']}"
     print(table)
     record = dict(**results_header(), inputs=inputs, summary=rows,
                   runs=[dataclasses.asdict(result) for result in results], tuning=tuning)
