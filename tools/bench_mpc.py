@@ -223,6 +223,9 @@ def main():
     parser.add_argument("--keep", type=pathlib.Path, help="make the data and checkpoints in this folder (kept)")
     parser.add_argument("--jacobian-refresh", nargs="+", metavar="K", help="the multi-level iteration: run every "
                         "controller once per K (all, or a number of nodes; the first must be all, the exact step)")
+    parser.add_argument("--result", default="bench_mpc_multilevel.json",
+                        help="with --jacobian-refresh and --write: the results file under docs/results/compiled_step/ "
+                             "(a new name per run keeps the earlier runs' files)")
     parser.add_argument("--child", nargs=2, metavar=("CODE", "OUTPUT"), help=argparse.SUPPRESS)
     parser.add_argument("--write", action="store_true", help="update BENCHMARKS.md and docs/results/realtime/")
     sys.path.insert(0, str(ROOT / "tools"))
@@ -233,6 +236,8 @@ def main():
         rows = closed_loops(code, args.dataset, args.checkpoint, args.identified, args.plans)
         output.write_text(json.dumps(rows))
         return
+    if pathlib.Path(args.result).name != args.result or not args.result.endswith(".json"):
+        parser.error(f"--result {args.result!r}: a file name ending .json (written under docs/results/compiled_step/)")
     refresh = None
     if args.jacobian_refresh:
         refresh = [value if value == "all" else int(value) for value in args.jacobian_refresh]
@@ -257,7 +262,7 @@ def main():
             from stdm_drake.files import write_text_atomic
             write_benchmark_section("Deployment", "The multi-level iteration (tools/bench_mpc.py --jacobian-refresh)",
                                     text, origin, record=False)
-            write_text_atomic(ROOT / "docs" / "results" / "compiled_step" / "bench_mpc_multilevel.json",
+            write_text_atomic(ROOT / "docs" / "results" / "compiled_step" / args.result,
                               json.dumps(dict(plans=args.plans, provenance=origin, runs=runs), indent=1))
         return
     if args.baseline == "numpy":

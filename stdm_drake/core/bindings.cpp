@@ -107,7 +107,8 @@ NB_MODULE(_core, module) {
   nb::set_leak_warnings(false);
 
   nb::class_<stdm::RigidBody>(module, "RigidBody")
-      .def("acceleration", &stdm::RigidBody::acceleration, "q"_a, "v"_a, "tau"_a)
+      .def("acceleration", nb::overload_cast<const VectorXd&, const VectorXd&, const VectorXd&>(
+                               &stdm::RigidBody::acceleration, nb::const_), "q"_a, "v"_a, "tau"_a)
       .def("acceleration_and_jacobian", [](const stdm::RigidBody& body, const VectorXd& q, const VectorXd& v,
                                            const VectorXd& tau) {
         VectorXd out;

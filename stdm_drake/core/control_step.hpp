@@ -473,24 +473,60 @@ struct PlantModel : Model {
   int substeps = 1;
 
   VectorXd step(const VectorXd& x, const VectorXd& u) const override {
-    const int n = state_dim / 2;
-    const double h = sample_period / substeps;
-    VectorXd q = x.head(n), v = x.tail(n);
-    for (int s = 0; s < substeps; ++s) {
-      VectorXd a1 = dynamics->acceleration(q, v, u);
-      VectorXd v2 = v + 0.5 * h * a1;
-      VectorXd a2 = dynamics->acceleration(q + 0.5 * h * v, v2, u);
-      VectorXd v3 = v + 0.5 * h * a2;
-      VectorXd a3 = dynamics->acceleration(q + 0.5 * h * v2, v3, u);
-      VectorXd v4 = v + h * a3;
-      VectorXd a4 = dynamics->acceleration(q + h * v3, v4, u);
-      q = q + h / 6.0 * (v + 2.0 * v2 + 2.0 * v3 + v4);
-      v = v + h / 6.0 * (a1 + 2.0 * a2 + 2.0 * a3 + a4);
-    }
     VectorXd out(state_dim);
-    out << q, v;
+    step_into(x, u, out);
     return out;
   }
+
+  RowMatrixXd step_rows(const RowMatrixXd& x, const RowMatrixXd& u) const override {
+    RowMatrixXd next(x.rows(), state_dim);
+    for (Eigen::Index row = 0; row < x.rows(); ++row) {
+      if (!x.row(row).allFinite() || !u.row(row).allFinite()) {
+        next.row(row).setConstant(std::numeric_limits<double>::quiet_NaN());
+        continue;
+      }
+      step_into(x.row(row).transpose(), u.row(row).transpose(), next.row(row).transpose());
+    }
+    return next;
+  }
+
+  // `step` into out (S,) with no allocation once the workspace is sized (the predictions at every node)
+  void step_into(const Eigen::Ref<const VectorXd>& x, const Eigen::Ref<const VectorXd>& u,
+                 Eigen::Ref<VectorXd> out) const {
+    const int n = state_dim / 2;
+    const double h = sample_period / substeps;
+    Stages& w = stages_;
+    w.resize(n);
+    w.q = x.head(n);
+    w.v = x.tail(n);
+    for (int s = 0; s < substeps; ++s) {
+      dynamics->acceleration(w.q, w.v, u, w.a1);
+      w.v2 = w.v + 0.5 * h * w.a1;
+      w.at = w.q + 0.5 * h * w.v;
+      dynamics->acceleration(w.at, w.v2, u, w.a2);
+      w.v3 = w.v + 0.5 * h * w.a2;
+      w.at = w.q + 0.5 * h * w.v2;
+      dynamics->acceleration(w.at, w.v3, u, w.a3);
+      w.v4 = w.v + h * w.a3;
+      w.at = w.q + h * w.v3;
+      dynamics->acceleration(w.at, w.v4, u, w.a4);
+      w.q += h / 6.0 * (w.v + 2.0 * w.v2 + 2.0 * w.v3 + w.v4);
+      w.v += h / 6.0 * (w.a1 + 2.0 * w.a2 + 2.0 * w.a3 + w.a4);
+    }
+    out.head(n) = w.q;
+    out.tail(n) = w.v;
+  }
+
+  // the RK4 stages' vectors (n,) of `step_into`, kept between calls (the model is used by one thread, as the
+  // rigid-body workspace it steps)
+  struct Stages {
+    VectorXd q, v, at, v2, v3, v4, a1, a2, a3, a4;
+    void resize(int n) {
+      if (q.size() == n) return;
+      for (VectorXd* vector : {&q, &v, &at, &v2, &v3, &v4, &a1, &a2, &a3, &a4}) vector->resize(n);
+    }
+  };
+  mutable Stages stages_;
 
   // x' = f(x) and d x' / d(x0, u) through the chain d x / d(x0, u) (S, S + m)
   void slope(const VectorXd& state, const VectorXd& u, const RowMatrixXd& chain, VectorXd& rate,
@@ -889,66 +925,106 @@ struct RealTimeIteration {
     return result;
   }
 
-  // Workspace of the Riccati recursion (kept between steps: no allocation once sized).
-  std::vector<Eigen::MatrixXd> gains_;       // K_k (m, S)
-  std::vector<VectorXd> feedforward_;        // k_k (m,)
-  Eigen::MatrixXd P_, PA_, PB_, Quu_, Qux_;
-  VectorXd p_, Pcp_, qu_, e_, du_, next_e_;
-  Eigen::LLT<Eigen::MatrixXd> quu_llt_;
+  // The Riccati recursion's workspace for S states and m torques (sizes fixed at compile time for the arms of 6
+  // and 7 joints, `riccati`; Eigen::Dynamic for any other), kept between steps: no allocation once sized.
+  // (Aligned storage, on the heap by C++17's aligned new (`riccati`): Eigen's sums over unaligned data start where
+  // the data align, so their order, and the last bits of the torques, would follow the solver's address.)
+  template <int SS, int MM>
+  struct RiccatiWork {
+    using MatS = Eigen::Matrix<double, SS, SS>;
+    using MatSM = Eigen::Matrix<double, SS, MM>;
+    using MatMS = Eigen::Matrix<double, MM, SS>;
+    using MatM = Eigen::Matrix<double, MM, MM>;
+    using VecS = Eigen::Matrix<double, SS, 1>;
+    using VecM = Eigen::Matrix<double, MM, 1>;
+    std::vector<MatMS> gains;          // K_k (m, S)
+    std::vector<VecM> feedforward;     // k_k (m,)
+    MatS P, PA;
+    MatSM PB;
+    MatM Quu;
+    MatMS Qux;
+    VecS p, Pcp, e, next_e;
+    VecM qu, du;
+    Eigen::LLT<MatM> llt;
+  };
+  std::shared_ptr<RiccatiWork<12, 6>> riccati6_;
+  std::shared_ptr<RiccatiWork<14, 7>> riccati7_;
+  std::shared_ptr<RiccatiWork<Eigen::Dynamic, Eigen::Dynamic>> riccati_any_;
+  VectorXd e_, next_e_;   // (S,) of `linear_states`
 
   // The unconstrained Gauss-Newton step by the Riccati recursion over the nodes (O(H (S^3 + m^3)); the same
   // minimizer as the condensed Cholesky solve of `rti.RtiSolver._step`, to round-off): with the state deviations
   // e_k+1 = A_k e_k + B_k du_k + c_k (e_0 = 0, c_k the gap F_k - X_k+1) it minimizes
   //   sum_k |X_k+1 + e_k+1 - ref_k+1|^2_W_k + |u_k + du_k - u_ff,k|^2_R + mu |du_k|^2.
-  // du (H m,) and the predicted states (H S,); false where a node's Q_uu is not positive definite.
+  // du (H m,) and the predicted states (H S,); false where a node's Q_uu is not positive definite. One recursion
+  // (`riccati_in`), with matrices of sizes fixed at compile time for 6 and 7 joints (its small products unrolled
+  // and vectorized; Eigen's general product, meant for large matrices, otherwise).
   bool riccati(const RowMatrixXd& x, const RowMatrixXd& u, const RowMatrixXd& reference, const RowMatrixXd& u_ff,
                const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B, double mu, VectorXd& du,
                VectorXd& states) {
+    if (S() == 12 && m() == 6) return riccati_in(work(riccati6_), x, u, reference, u_ff, predicted, A, B, mu, du, states);
+    if (S() == 14 && m() == 7) return riccati_in(work(riccati7_), x, u, reference, u_ff, predicted, A, B, mu, du, states);
+    return riccati_in(work(riccati_any_), x, u, reference, u_ff, predicted, A, B, mu, du, states);
+  }
+
+  template <typename Work>
+  static Work& work(std::shared_ptr<Work>& kept) {
+    if (!kept) kept = std::shared_ptr<Work>(new Work());   // (aligned new: Work's alignment is its matrices')
+    return *kept;
+  }
+
+  template <int SS, int MM>
+  bool riccati_in(RiccatiWork<SS, MM>& w, const RowMatrixXd& x, const RowMatrixXd& u, const RowMatrixXd& reference,
+                  const RowMatrixXd& u_ff, const RowMatrixXd& predicted, const RowMatrixXd& A, const RowMatrixXd& B,
+                  double mu, VectorXd& du, VectorXd& states) {
     const int H = int(u.rows()), s = S(), mm = m();
-    gains_.resize(H);
-    feedforward_.resize(H);
+    w.gains.resize(H);
+    w.feedforward.resize(H);
     auto weight = [&](int k) { return k == H - 1 ? terminal_factor : 1.0; };   // of the state at node k + 1
-    P_ = (weight(H - 1) * Q).asDiagonal();
-    p_ = weight(H - 1) * Q.cwiseProduct((x.row(H) - reference.row(H)).transpose());
+    auto A_k = [&](int k) { return A.template block<SS, SS>(Eigen::Index(k) * s, 0, s, s); };
+    auto B_k = [&](int k) { return B.template block<SS, MM>(Eigen::Index(k) * s, 0, s, mm); };
+    auto gap = [&](int k) { return (predicted.row(k) - x.row(k + 1)).transpose(); };   // c_k (S,)
+    w.P = (weight(H - 1) * Q).asDiagonal();
+    w.p = weight(H - 1) * Q.cwiseProduct((x.row(H) - reference.row(H)).transpose());
     for (int k = H - 1; k >= 0; --k) {
-      const auto Ak = A.middleRows(Eigen::Index(k) * s, s);
-      const auto Bk = B.middleRows(Eigen::Index(k) * s, s);
-      Pcp_.noalias() = P_ * (predicted.row(k) - x.row(k + 1)).transpose();
-      Pcp_ += p_;
-      PA_.noalias() = P_ * Ak;
-      PB_.noalias() = P_ * Bk;
-      Quu_.noalias() = Bk.transpose() * PB_;
-      Quu_.diagonal() += R + VectorXd::Constant(mm, mu);
-      Qux_.noalias() = Bk.transpose() * PA_;
-      qu_ = R.cwiseProduct((u.row(k) - u_ff.row(k)).transpose());
-      qu_.noalias() += Bk.transpose() * Pcp_;
-      quu_llt_.compute(Quu_);
-      if (quu_llt_.info() != Eigen::Success) return false;
-      gains_[k] = -Qux_;
-      quu_llt_.solveInPlace(gains_[k]);
-      feedforward_[k] = -qu_;
-      quu_llt_.solveInPlace(feedforward_[k]);
+      const auto Ak = A_k(k);
+      const auto Bk = B_k(k);
+      w.Pcp.noalias() = w.P * gap(k);
+      w.Pcp += w.p;
+      w.PA.noalias() = w.P * Ak;
+      w.PB.noalias() = w.P * Bk;
+      w.Quu.noalias() = Bk.transpose() * w.PB;
+      w.Quu.diagonal() += R + VectorXd::Constant(mm, mu);
+      w.Qux.noalias() = Bk.transpose() * w.PA;
+      w.qu = R.cwiseProduct((u.row(k) - u_ff.row(k)).transpose());
+      w.qu.noalias() += Bk.transpose() * w.Pcp;
+      w.llt.compute(w.Quu);
+      if (w.llt.info() != Eigen::Success) return false;
+      w.gains[k] = -w.Qux;
+      w.llt.solveInPlace(w.gains[k]);
+      w.feedforward[k] = -w.qu;
+      w.llt.solveInPlace(w.feedforward[k]);
       if (k == 0) break;
-      P_.noalias() = Ak.transpose() * PA_;
-      P_.noalias() += Qux_.transpose() * gains_[k];
-      P_ = 0.5 * (P_ + P_.transpose()).eval();
-      p_.noalias() = Ak.transpose() * Pcp_;
-      p_.noalias() += Qux_.transpose() * feedforward_[k];
-      P_.diagonal() += weight(k - 1) * Q;
-      p_ += weight(k - 1) * Q.cwiseProduct((x.row(k) - reference.row(k)).transpose());
+      w.P.noalias() = Ak.transpose() * w.PA;
+      w.P.noalias() += w.Qux.transpose() * w.gains[k];
+      w.P = 0.5 * (w.P + w.P.transpose()).eval();
+      w.p.noalias() = Ak.transpose() * w.Pcp;
+      w.p.noalias() += w.Qux.transpose() * w.feedforward[k];
+      w.P.diagonal() += weight(k - 1) * Q;
+      w.p += weight(k - 1) * Q.cwiseProduct((x.row(k) - reference.row(k)).transpose());
     }
     du.resize(Eigen::Index(H) * mm);
     states.resize(Eigen::Index(H) * s);
-    e_ = VectorXd::Zero(s);
+    w.e.setZero(s);
     for (int k = 0; k < H; ++k) {
-      du_ = feedforward_[k];
-      du_.noalias() += gains_[k] * e_;
-      du.segment(Eigen::Index(k) * mm, mm) = du_;
-      next_e_.noalias() = A.middleRows(Eigen::Index(k) * s, s) * e_;
-      next_e_.noalias() += B.middleRows(Eigen::Index(k) * s, s) * du_;
-      next_e_ += (predicted.row(k) - x.row(k + 1)).transpose();
-      e_.swap(next_e_);
-      states.segment(Eigen::Index(k) * s, s) = x.row(k + 1).transpose() + e_;
+      w.du = w.feedforward[k];
+      w.du.noalias() += w.gains[k] * w.e;
+      du.segment(Eigen::Index(k) * mm, mm) = w.du;
+      w.next_e.noalias() = A_k(k) * w.e;
+      w.next_e.noalias() += B_k(k) * w.du;
+      w.next_e += gap(k);
+      w.e.swap(w.next_e);
+      states.segment(Eigen::Index(k) * s, s) = x.row(k + 1).transpose() + w.e;
     }
     return du.allFinite();
   }

@@ -40,6 +40,9 @@ struct RigidBody {
 
   // q'' (n,) rad/s^2
   VectorXd acceleration(const VectorXd& q, const VectorXd& v, const VectorXd& tau) const;
+  // the same into out (n,), with no allocation (the RK4 stages of the plant model's predictions)
+  void acceleration(const Eigen::Ref<const VectorXd>& q, const Eigen::Ref<const VectorXd>& v,
+                    const Eigen::Ref<const VectorXd>& tau, Eigen::Ref<VectorXd> out) const;
   // the torque (n,) N m on every joint that holds the arm still at q (n,) rad: -tau_g(q)
   VectorXd gravity_torque(const VectorXd& q) const;
   // q'' (n,) and d q'' / d(q, v, tau) (n, 2n + m)
