@@ -14,7 +14,7 @@ from pydrake.common.yaml import yaml_load_typed
 from stdm_drake.errors import InputError, warn
 from stdm_drake.files import size_text
 from stdm_drake.paths import check_input_file
-from stdm_drake.yaml_values import MAX_SETTINGS_DEPTH, YAML_LOADER, check_quoted_numbers
+from stdm_drake.yaml_values import MAX_SETTINGS_DEPTH, YAML_LOADER, boolean_words_as_text, check_quoted_numbers
 
 
 
@@ -62,9 +62,10 @@ def load_yaml_config(path, schema, what: str = "config", old_layouts: dict | Non
     check_quoted_numbers(path, schema)
     config = _load_old_layout(path, schema, what, old_layouts) if old_layouts else None
     if config is None:
+        text = boolean_words_as_text(path, schema)   # (`per_group: on`: the words as written, not YAML 1.1's True)
         try:
-            config = yaml_load_typed(schema=schema, filename=str(path),
-                                     defaults=schema() if defaults is None else defaults)
+            config = yaml_load_typed(schema=schema, defaults=schema() if defaults is None else defaults,
+                                     **(dict(filename=str(path)) if text is None else dict(data=text)))
         except Exception as error:  # the YAML parser and Drake's schema checks raise several types
             raise InputError(f"{path}: malformed {what}: {one_line(error)}") from None
         if not isinstance(config, schema):

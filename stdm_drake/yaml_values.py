@@ -260,3 +260,52 @@ def _quoted_number(node, schema, prefix: str, text: str):
             continue   # (`!!float 3`)
         return where, item.value, f"read by YAML as {'a boolean' if item.tag.endswith(':bool') else 'text'}"
     return None
+
+
+# the words YAML 1.1 (PyYAML, which Drake's typed load reads files with) takes for booleans
+YAML11_BOOLEAN_WORDS = {"y", "yes", "n", "no", "true", "false", "on", "off"}
+
+
+def boolean_words_as_text(path, schema) -> str | None:
+    """The text of settings file `path` with every choice of a text setting that YAML 1.1 reads as a boolean quoted
+    (`per_group: on`, where the setting's choices are "on" and "off": the flag's own words, which YAML 1.1 reads as
+    True), so that the typed load reads the words as written; None where there is none (or the file does not parse:
+    the typed load says why). The settings are `schema`'s dataclass fields with `choices` in their metadata
+    (`learning.settings.setting`), nested dataclasses followed."""
+    try:
+        text = pathlib.Path(path).read_text(encoding="utf-8-sig")
+        node = yaml.compose(text, Loader=YAML_LOADER)
+    except (yaml.YAMLError, OSError, UnicodeDecodeError, RecursionError):
+        return None
+    spans = sorted((start, end, word) for start, end, word in _boolean_choices(schema, node)
+                   if text[start:end] == word)   # (untagged: `!!bool on` is the boolean asked for)
+    spans.reverse()
+    for start, end, value in spans:
+        text = text[:start] + f'"{value}"' + text[end:]
+    return text if spans else None
+
+
+def _boolean_choices(schema, node):
+    """(start, end, word) in the text of every plain scalar of mapping `node` that YAML 1.1 reads as a boolean where
+    `schema`'s field takes text among its choices."""
+    import typing
+    if not dataclasses.is_dataclass(schema) or not isinstance(node, yaml.MappingNode):
+        return
+    try:
+        hints = typing.get_type_hints(schema)
+    except Exception:   # (annotations that do not resolve: nothing to read against)
+        return
+    fields = {field.name: field for field in dataclasses.fields(schema)}
+    for key, value in _pairs(node):
+        field = fields.get(getattr(key, "value", None))
+        if field is None:
+            continue
+        kind = hints.get(field.name)
+        members = [member for member in typing.get_args(kind) if member is not type(None)] or [kind]
+        if dataclasses.is_dataclass(members[0]):
+            yield from _boolean_choices(members[0], value)
+            continue
+        choices = field.metadata.get("choices") or ()
+        if (str in members and isinstance(value, yaml.ScalarNode) and not value.style and value.tag.endswith(":bool")
+                and value.value in choices and value.value.lower() in YAML11_BOOLEAN_WORDS):
+            yield value.start_mark.index, value.end_mark.index, value.value

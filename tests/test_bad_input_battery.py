@@ -1352,6 +1352,12 @@ CASES = [
     (yaml_case("mpc", "optimizer: !Mppi {feedback_kp: 30000.0}\n"),
      "feedback_kp 30000 1/s² with feedback_kd 30 1/s makes each rollout's control law unstable at the model's period "
      "0.01 s (the torque held over a period): give kp h < 2 kd (kp below 6000 with this kd, or kd in (150, 200) 1/s)"),
+    # (held-out run 35: advised plant steps that no sample period takes, advice of options compare does not have)
+    (yaml_case("effects", "coulomb_friction: [0, 0, 0, 0, 0, 3]\ncoulomb_velocity_scale: [0.05, 0.05, 0.05, 0.05, 0.05, "
+                          "0.001]\n"),
+     "lower the plant step to 0.0003125 s with the scale at 3.1416 rad/s, or the friction to at most 0.000339 N m"),
+    (["compare", "SLOW", "-o", "NEW"], "leave no training trajectory after 1 for validation and 1 for test; collect "
+                                       "more (compare splits every dataset by train's default rule, with no options"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in
@@ -1426,3 +1432,23 @@ def test_numbers_every_yaml_reads_alike_load(tmp_path):
         path.write_text(f"terminal_factor: {text}\n")
         with pytest.raises(InputError, match="terminal_factor is written"):
             load_mpc_config(path)
+
+
+def test_the_flags_own_words_load_unquoted_in_a_training_settings_file(tmp_path):
+    """Held-out run 35: `per_group: on` and `derivative: off`, the words the flags take, were refused: YAML 1.1 reads
+    them as booleans, and the typed load wanted text. Such a word loads as written where the setting's choices hold
+    it; one tagged as a boolean (`!!bool on`), and one no choice holds, stay refused."""
+    from stdm_drake.config import load_yaml_config
+    from stdm_drake.errors import InputError
+    from stdm_drake.learning.settings import TrainSettings
+    path = tmp_path / "train.yaml"
+    for text, per_group, derivative in (("per_group: on\nderivative: off\n", "on", "off"),
+                                        ("per_group: off\nderivative: 'on'\n", "off", "on"),
+                                        ("{per_group: on, seeds: [0, 1]}\n", "on", None)):
+        path.write_text(text)
+        settings = load_yaml_config(path, TrainSettings, "training settings")
+        assert (settings.per_group, settings.derivative) == (per_group, derivative), text
+    for text in ("per_group: !!bool on\n", "per_group: yes\n", "per_group: On\n"):
+        path.write_text(text)
+        with pytest.raises(InputError, match="per_group"):
+            load_yaml_config(path, TrainSettings, "training settings")

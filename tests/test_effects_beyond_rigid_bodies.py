@@ -16,6 +16,7 @@ from stdm_drake.errors import InputError
 from stdm_drake.robots.effect_systems import ActuatorDynamics
 from stdm_drake.robots.effects import PlantEffects, coulomb_torque
 from stdm_drake.robots.plant import PlantConfig, PlantSimulator
+from stdm_drake.robots.station import StationConfig
 
 STEP = 0.001
 
@@ -519,7 +520,34 @@ def test_coulomb_advice_beyond_the_speed_range_gives_the_plant_step_or_friction_
         check_plant_effects(effects, UR10, 0.001)
     message = str(refused.value)
     assert "is wider than the joint's speed range (3.1416 rad/s)" in message, message
-    step = float(message.split("lower the plant step to at most ")[1].split(" ")[0])
+    step = float(message.split("lower the plant step to ")[1].split(" ")[0])
     friction = float(message.split("or the friction to at most ")[1].split(" ")[0])
     check_plant_effects(effects, UR10, step)
     check_plant_effects(dataclasses.replace(effects, coulomb_friction=[friction]), UR10, 0.001)
+    assert StationConfig(robot=UR10, plant=PlantConfig.discrete(step)).substeps() >= 1   # (it divides 10 ms)
+
+
+def test_an_advised_plant_step_divides_the_sample_period_within_the_step_budget():
+    """Held-out run 35: "lower the plant step to at most 1.13e-07 s at this scale (at most 0.000356 s with the scale
+    at 3.1416 rad/s)": the first is 88,500 steps per 10 ms sample (at most 10,000 run), the second no whole fraction
+    of 10 ms; both refused when typed back. A step is advised now only where one divides the sample period within
+    the budget, as printed, and each advised step loads with its scale and runs."""
+    from stdm_drake.robots.plant_effects_check import check_plant_effects, stable_plant_step
+    assert stable_plant_step(0.000356, 0.01) == 0.0003125 and stable_plant_step(1.13e-7, 0.01) is None
+    assert stable_plant_step(0.001, 0.01) == 0.001 and stable_plant_step(0.0004, 0.002) == 0.0004
+    friction = [0, 0, 0, 0, 0, 3.0]
+    for scale, period in ((0.001, 0.01), (3.1416, 0.01), (3.1416, 0.002)):
+        effects = PlantEffects(coulomb_friction=friction, coulomb_velocity_scale=[0.05] * 5 + [scale])
+        with pytest.raises(InputError) as refused:
+            check_plant_effects(effects, UR10, 0.001, period)
+        message = str(refused.value)
+        advised = [float(part.split(" ")[0]) for part in message.split("the plant step to ")[1:]]
+        assert advised and (scale == 3.1416 or "with the scale at 3.1416 rad/s" in message), message
+        step = advised[-1]
+        check_plant_effects(dataclasses.replace(effects, coulomb_velocity_scale=[0.05] * 5 + [3.1416]), UR10, step,
+                            period)
+        assert StationConfig(robot=UR10, sample_period=period, plant=PlantConfig.discrete(step)).substeps() >= 1
+    with pytest.raises(InputError, match=r"lower the friction to at most .* \(no plant step within 10000 per sample "
+                                         r"period of 0.01 s holds it\)"):
+        check_plant_effects(PlantEffects(coulomb_friction=[0, 0, 0, 0, 0, 3e5],
+                                         coulomb_velocity_scale=[0.05] * 5 + [3.1416]), UR10, 0.001)

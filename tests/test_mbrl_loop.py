@@ -134,3 +134,25 @@ def test_a_signal_in_a_rounds_data_write_leaves_the_summary_naming_that_round(tm
     summary = json.loads((folder / "summary.json").read_text())
     assert [row["round"] for row in summary["rounds"]] == [0] and summary["pending_round"]["round"] == 1
     assert "collection" in summary["rounds"][0]
+
+
+def test_a_failed_last_round_names_what_the_run_shows_of_the_cause(tmp_path, capsys, monkeypatch):
+    """Held-out run 35: "the last round's closed loops left the robot's limits on 98 steps", nothing more, where
+    round 1's model had not learned (train warned) on an off-axis payload. The line now names that verdict, with the
+    options that give the model more, and gravity beyond an effort limit where the run found it."""
+    import stdm_drake.experiments.mbrl_loop as loop
+    rows = [dict(round=0, q_mse_geometric_mean=1.0, steps_outside_limits=90),
+            dict(round=1, q_mse_geometric_mean=1.0, steps_outside_limits=98,
+                 learned=dict(ratio_q=1.64, ratio_v=1.63, verdict="has not learned the dynamics"),
+                 gravity="gravity pulls elbow_joint with up to 1.3e+03 N m there, beyond its effort limit 150 N m: no "
+                         "torque holds the arm; lighten the bodies it carries")]
+    monkeypatch.setattr(loop, "run_loop", lambda *arguments, **options: dict(rounds=rows))
+    assert main(["mbrl", "-o", str(tmp_path / "loop"), "--rounds", "1", "--quiet"]) == 1
+    error = capsys.readouterr().err.strip().splitlines()
+    assert error == ["stdm-drake mbrl: error: the last round's closed loops left the robot's limits on 98 steps; "
+                     f"{rows[1]['gravity']}; its model has not learned the dynamics (validation: one-step q 1.64x "
+                     "better, v 1.63x better than the physics-free steps; learned is 2x better in both): more plans "
+                     "(--initial-plans, --plans-per-round) or epochs (--epochs)"], error
+    rows[1].pop("gravity"), rows[1].update(learned=dict(ratio_q=40.0, ratio_v=30.0, verdict="learned"))
+    assert main(["mbrl", "-o", str(tmp_path / "loop2"), "--rounds", "1", "--quiet"]) == 1
+    assert capsys.readouterr().err.strip().endswith("left the robot's limits on 98 steps")

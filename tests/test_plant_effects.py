@@ -483,3 +483,20 @@ def test_the_affected_plants_mass_matrix_is_checked_before_any_work(inertia, pay
                               "at home (the mass matrix M(home) is singular, smallest eigenvalue ")
     assert message.endswith("the links it moves need a mass, and for a revolute joint an inertia about the axis or a "
                             "centre of mass off it") and "\n" not in message
+
+
+@pytest.mark.slow
+def test_mpc_on_a_plant_no_torque_holds_names_gravity(tracking_dataset, tmp_path, capsys):
+    """Held-out run 35: with a 200 kg payload every loop left the limits (the true plant's too) and each line named
+    only its model; `collect` names gravity beyond the effort limit for the same plant. Each failure line of `mpc`
+    now ends with it, on stderr alone under --quiet."""
+    effects = tmp_path / "heavy.yaml"
+    effects.write_text("payload: {mass: 200.0}\n")
+    capsys.readouterr()
+    code = main(["mpc", str(tracking_dataset), "--plans", "1", "--plant-effects", str(effects), "--quiet",
+                 "-o", str(tmp_path / "mpc")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and lines and all(line.startswith("stdm-drake mpc: error: model ") for line in lines), lines
+    for line in lines:
+        assert "; gravity pulls elbow_joint with up to " in line and "N m on the plans, beyond its effort limit 150 N m: " \
+               "no torque holds the arm" in line, line

@@ -287,6 +287,28 @@ def test_a_failed_loop_names_a_samplers_law_that_settles_slower_than_the_default
                                                       f"plans); {note}"]
 
 
+def test_the_law_is_named_only_where_the_run_cannot_show_it_holds():
+    """Held-out run 35: a barely trained model failed under a slow law and under the defaults alike, and the line
+    said "try the defaults". A plant model that held the limits under the same law clears the law (no clause); where
+    the plant model also failed, the clause stands; where none ran (--no-plant), it names the law or the model."""
+    from stdm_drake.closed_loop.ancillary_law import law_note
+    from stdm_drake.closed_loop.comparison import ClosedLoopResult
+    from stdm_drake.closed_loop.study import failure_law_note
+
+    def run(name, violations):
+        return ClosedLoopResult(name, 0, 1.0, 1.0, 1.0, 1.0, limit_violations=violations, fallbacks=0,
+                                constraint_active_steps=0, slack_steps=0, solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100,
+                                q_error=[])
+    slow = Mppi(feedback_kp=100.0, feedback_kd=20.0)   # (radius 0.92 at 10 ms)
+    plant, learned = dict(name="plant", kind="plant"), dict(name="D", kind="D")
+    assert failure_law_note(slow, 0.01, [run("plant", 0), run("D", 97)], [plant, learned]) == ""
+    assert failure_law_note(slow, 0.01, [run("plant", 5), run("D", 97)], [plant, learned]) == law_note(slow, 0.01)
+    untold = failure_law_note(slow, 0.01, [run("D", 97)], [learned])
+    assert untold == law_note(slow, 0.01, untold=True) and "try the defaults" not in untold
+    assert untold.endswith("; that or the model: keep the plant model in the run (leave out --no-plant) to see "
+                           "whether the law holds a near-exact model")
+
+
 def test_work_beyond_the_sampling_budget_is_refused_before_it_starts():
     """Horizon 1000 with 100,000 samples (issue 56: a memory traceback after minutes): one line with the estimate
     when the solver is made, before any rollout; the largest budgeted size is accepted."""

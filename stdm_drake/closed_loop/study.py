@@ -26,6 +26,7 @@ from stdm_drake.data.compatibility import resolve_robot
 from stdm_drake.outputs import check_output_file, check_output_folder, fresh_default_folder, mark_output_folder
 from stdm_drake.config import file_keys
 from stdm_drake.robots.plant import Dynamics, joint_limits
+from stdm_drake.robots.station import gravity_beyond_effort
 from stdm_drake.robots.plant_effects_check import plant_effects_for
 from stdm_drake.dynamics.model_files import kind_of, load_model
 from stdm_drake.dynamics.physics import PlantModel
@@ -177,7 +178,19 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
                   plant_effects=effects_record, models=model_records,
                   mpc_settings=dict(file=_text(mpc_settings_file(robot, study.settings)),
                                     optimizer_given=study.optimizer is not None, settings=config.record()))
-    return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config)
+    gravity = "" if plant_config.effects is None else gravity_beyond_effort(   # (a plant no torque holds)
+        Dynamics(robot, plant_config.effects), limits.effort, [q for _, reference in references for q in reference.q],
+        [robot.joint_names[index] for index in robot.actuated_indices], where="on the plans")
+    return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config, gravity)
+
+
+def failure_law_note(optimizer, sample_period: float, results: list, models: list[dict]) -> str:
+    """The clause of `ancillary_law.law_note` for failed loops, unless a plant model of the run held the limits under
+    the same law (then the law is not why another model failed); naming the model too where no plant model ran."""
+    plants = [model["name"] for model in models if model["kind"].startswith("plant")]
+    if any(not any(result.limit_violations for result in results if result.model == name) for name in plants):
+        return ""
+    return law_note(optimizer, sample_period, untold=not plants)
 
 
 def check_particles_used(optimizer, models) -> None:
@@ -222,7 +235,8 @@ def study_plant(study: MpcStudy, dataset, robot):
     config = dataset.metadata.plant_config(effects=False)   # the data's plant, simulated as they were
     time_step = config.time_step
     given = study.plant_effects is not None
-    effects = plant_effects_for(study.plant_effects if given else dataset.metadata.plant_effects, robot, time_step)
+    effects = plant_effects_for(study.plant_effects if given else dataset.metadata.plant_effects, robot, time_step,
+                                dataset.sample_period)
     if effects is None:
         return config, None
     line = (f"plant effects: {study.plant_effects if given else 'as recorded in ' + str(study.dataset)}: "
@@ -281,10 +295,10 @@ def tuned_settings(study: MpcStudy, dataset, models, learned, references, config
 
 
 def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: float, inputs: dict,
-           tuning: dict | None, recorder, config) -> MpcStudyResult:
+           tuning: dict | None, recorder, config, gravity: str = "") -> MpcStudyResult:
     """The table printed (with the constraint summary of `config`'s constraints), mpc.md, mpc.json, mpc.csv and
-    mpc.png written to `output`, the recording to the HTML file; the result (its failures naming a sampler's law
-    that barely settles, `ancillary_law.law_note`)."""
+    mpc.png written to `output`, the recording to the HTML file; the result (its failures naming `gravity`, why no
+    torque holds the arm on the plans, else a sampler's law that barely settles, `failure_law_note`)."""
     import json
 
     rows = summarize(results, sample_period)
@@ -312,5 +326,6 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     print(f"wrote {line_text(output)}: mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
         recorder.finish(study.html, what="robot: plant under MPC; translucent orange: the reference")
-    failures = closed_loop_failures(results, note=law_note(config.optimizer, sample_period))
+    failures = closed_loop_failures(results, note=gravity or failure_law_note(config.optimizer, sample_period, results,
+                                                                              inputs["models"]))
     return MpcStudyResult(results=results, summary=rows, table=table, failures=failures, folder=output, record=record)

@@ -376,7 +376,7 @@ def collection_request(protocol: str | None = None, *, count: int | None = None,
     SelfCollisionChecker(robot)  # a model that does not load, or a home in self-collision, fails before any worker
     # the protocol file: --config, else the one the robot's config names, else derived from the robot
     config_path = config or robot.default_file(protocol)
-    effects = plant_effects_for(plant_effects, robot, plant_time_step)
+    effects = plant_effects_for(plant_effects, robot, plant_time_step, sample_period)
     settings = StationConfig(sample_period=sample_period, plant=PlantConfig.discrete(plant_time_step, effects=effects),
                              sensor=sensor_config, controller=load_controller_config(controller), robot=robot)
     settings.substeps()  # the sample period and the plant step, before any work

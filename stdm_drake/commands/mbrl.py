@@ -58,7 +58,14 @@ def run(args: argparse.Namespace) -> int:
           f"({times_better(first['q_mse_geometric_mean'] / last['q_mse_geometric_mean'])}); "
           f"{line_text(args.output / 'summary.json')}")
     if last["steps_outside_limits"]:
+        verdict = last.get("learned") or {}
+        causes = [last.get("gravity", "")] + ([
+            f"its model has not learned the dynamics (validation: one-step q {times_better(verdict['ratio_q'])}, v "
+            f"{times_better(verdict['ratio_v'])} than the physics-free steps; learned is 2x better in both): more plans "
+            "(--initial-plans, --plans-per-round) or epochs (--epochs)"]
+            if "ratio_q" in verdict and not str(verdict.get("verdict", "")).startswith("learned") else [])
         print(f"stdm-drake mbrl: error: the last round's closed loops left the robot's limits on "
-              f"{last['steps_outside_limits']} steps", file=__import__("sys").stderr)
+              f"{last['steps_outside_limits']} steps" + "".join(f"; {cause}" for cause in causes if cause),
+              file=__import__("sys").stderr)
         return 1
     return 0

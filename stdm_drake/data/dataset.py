@@ -325,26 +325,30 @@ def check_split_options(train: int | None, val: int | None, test: int | None, sp
     check_seed(key("split_seed"), split_seed)
 
 
-def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None):
-    """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation,
-    20 % test, the rest training; n_test None means "all the rest" for split_trajectories."""
+SPLIT_ADVICE = "collect more, or give --train, --val and --test"
+
+
+def default_split_sizes(pool: int, n_train: int | None, n_val: int | None, n_test: int | None,
+                        advice: str = SPLIT_ADVICE):
+    """Fill unset split sizes from `pool` trajectories (per group with --per-group): 20 % validation, 20 % test,
+    the rest training; n_test None: "all the rest". advice: what a pool too small is told (the command's options)."""
     n_val = n_val if n_val is not None else max(1, round(0.2 * pool))
     if n_train is None:
         n_train = pool - n_val - (n_test if n_test is not None else max(1, round(0.2 * pool)))
     if n_train < 1:
         raise InputError(f"{pool} trajector{'y' if pool == 1 else 'ies'} per split unit leave{'s' if pool == 1 else ''} no "
                          f"training trajectory after {n_val} for validation and {pool - n_val - n_train} for test; "
-                         "collect more, or give --train, --val and --test")
+                         + advice)
     return n_train, n_val, n_test
 
 
-def dataset_split(dataset, settings) -> tuple[Split, bool]:
+def dataset_split(dataset, settings, advice: str = SPLIT_ADVICE) -> tuple[Split, bool]:
     """(Split, per_group) of `dataset` by `settings` (its train, val, test, split_seed and per_group "on", "off"
     or None: a training's or an identification's): per initial-pose group by default on tracking data, the
     sizes `default_split_sizes` fills in, the split seed's shuffle."""
     per_group = (dataset.protocol == "tracking") if settings.per_group is None else settings.per_group == "on"
     pool = int(np.unique(dataset.groups, return_counts=True)[1].min()) if per_group else dataset.num_trajectories
-    n_train, n_val, n_test = default_split_sizes(pool, settings.train, settings.val, settings.test)
+    n_train, n_val, n_test = default_split_sizes(pool, settings.train, settings.val, settings.test, advice)
     return split_trajectories(dataset.groups, n_train, n_val, n_test, settings.split_seed, per_group), per_group
 
 

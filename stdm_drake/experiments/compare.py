@@ -142,7 +142,9 @@ def run_compare(job: CompareJob) -> dict:
         robot.check_fully_actuated("the closed loops (--no-closed-loop leaves them out)")
     from stdm_drake.data.dataset import dataset_split   # lazy: pydrake, h5py
     from stdm_drake.learning.settings import TrainSettings   # lazy: torch, pydrake, h5py
-    dataset_split(dataset, TrainSettings())   # (a dataset too small for the split: refused before any folder or line)
+    dataset_split(dataset, TrainSettings(),   # (a dataset too small for the split: refused before any folder or line)
+                  advice="collect more (compare splits every dataset by train's default rule, with no options to "
+                         "change it)")
     request = json.loads(json.dumps(finite_json(dict(dataset_sha256=dataset.sha256, robot=robot.record(),
                                                      profile=dataclasses.asdict(job.profile), kinds=list(job.kinds)))))
     output = pathlib.Path(job.output) if job.output is not None else _default_folder(request)

@@ -300,6 +300,10 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print, prog
         row["collection"] = json.loads((folder / "collection.json").read_text())
     bar.update()
     bar.close()
+    if rows and rows[-1]["steps_outside_limits"]:   # (a plant no torque holds: named with the failure)
+        unholdable, why = station.gravity_beyond(np.vstack([reference.q for _, reference in references]))
+        if unholdable:
+            rows[-1]["gravity"] = why
     return write_summary(output, config, references, rows, started)
 
 

@@ -3,6 +3,7 @@ command that builds an affected plant calls): lists of the robot's length, links
 the affected plant's M(home) (`mass_matrix`), the effects beyond rigid bodies (`effect_checks`) and the explicit
 Coulomb term's stability at the plant step."""
 import dataclasses
+import math
 
 import numpy as np
 
@@ -15,14 +16,16 @@ from stdm_drake.robots.effects import MIN_MASS, PlantEffects, load_plant_effects
 from stdm_drake.robots.mass_matrix import check_arm_inertias
 from stdm_drake.robots.plant import Dynamics, robot_joint_limits
 from stdm_drake.robots.robot import Robot
+from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, MAX_SUBSTEPS
 
 
-def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
+def check_plant_effects(effects: PlantEffects, robot, time_step: float,
+                        sample_period: float = DEFAULT_SAMPLE_PERIOD) -> None:
     """InputError unless `effects` fit `robot` (per-joint lists of its length, links it has), the plant they make
     has an invertible M(home) (`mass_matrix.check_arm_inertias`, where link inertias or mass scales change it) and the
     explicit Coulomb term is stable at the plant step: h F_c / (v_s M_eff) <= 1 on every joint, with
     M_eff the joint's effective inertia at the robot's home on the affected plant (reflected inertia,
-    payload and mass scales included; checked at home only)."""
+    payload and mass scales included; checked at home only). sample_period: s, what an advised plant step divides."""
     n = robot.num_joints
     effects.validate()
     for name in ("viscous_friction", "coulomb_friction", "coulomb_velocity_scale", "rotor_inertia", "gear_ratio",
@@ -66,17 +69,37 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float) -> None:
             # (the gain scales as h F_c / v_s: at the widest scale the joint's speed range allows, the plant step or
             # the friction that holds it; held-out run 34: the advised scale lay beyond the velocity limit)
             widest = robot_joint_limits(robot).velocity[joint]
+            # (an advised plant step divides the sample period, within MAX_SUBSTEPS steps: held-out run 35 typed back
+            # bounds that were neither)
+            here = stable_plant_step(time_step * scale[joint] / smallest, sample_period)
+            wide = stable_plant_step(time_step * widest / smallest, sample_period)
+            steps = [f"the plant step to {step:g} s{where}" for step, where in (
+                (here, " at this scale"), (wide, f" with the scale at {widest:g} rad/s")) if step is not None]
+            steps = steps[:1] if here is not None and wide is not None and f"{here:g}" == f"{wide:g}" else steps
+            friction_fix = f"the friction to at most {bound_text(friction[joint] * scale[joint] / smallest, at_least=False)} N m"
             fixes = (f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s or lower the "
                      "plant step" if smallest <= widest else
                      f"the coulomb_velocity_scale that holds it ({bound_text(smallest, at_least=True)} rad/s) is wider than "
-                     f"the joint's speed range ({widest:g} rad/s): lower the plant step to at most "
-                     f"{bound_text(time_step * scale[joint] / smallest, at_least=False)} s at this scale (at most "
-                     f"{bound_text(time_step * widest / smallest, at_least=False)} s with the scale at {widest:g} rad/s), "
-                     f"or the friction to at most {bound_text(friction[joint] * scale[joint] / smallest, at_least=False)} N m")
+                     f"the joint's speed range ({widest:g} rad/s): lower " + " (or ".join(steps) + ")" * (len(steps) - 1)
+                     + (", or " if steps else "") + friction_fix
+                     + ("" if steps else f" (no plant step within {MAX_SUBSTEPS} per sample period of "
+                                         f"{sample_period:g} s holds it)"))
             raise InputError(f"plant effects: Coulomb friction (at rest) {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.6g} > 1); "
                              + fixes)
+
+
+def stable_plant_step(bound: float, sample_period: float) -> float | None:
+    """The largest plant step <= `bound` s that divides `sample_period` s into at most MAX_SUBSTEPS steps and prints
+    exactly in 6 digits (so that typed back as printed it still divides the period), None where none does."""
+    if not (math.isfinite(bound) and bound > 0):
+        return None
+    for steps in range(max(1, math.ceil(sample_period / bound - 1e-9)), MAX_SUBSTEPS + 1):
+        step = float(f"{sample_period / steps:.6g}")
+        if step <= bound and abs(sample_period / step - steps) <= 1e-9 * steps:
+            return step
+    return None
 
 
 def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: float) -> np.ndarray | None:
@@ -94,15 +117,16 @@ def coulomb_stability_gains(effects: PlantEffects, robot: Robot, time_step: floa
         return time_step * friction / inertia / scale
 
 
-def plant_effects_for(effects, robot: Robot, time_step: float) -> PlantEffects | None:
+def plant_effects_for(effects, robot: Robot, time_step: float,
+                      sample_period: float = DEFAULT_SAMPLE_PERIOD) -> PlantEffects | None:
     """`effects` (a PlantEffects, its YAML path, or None for the robot's description as it is) checked
-    against `robot` and the plant step `time_step` s (`check_plant_effects`)."""
+    against `robot`, the plant step `time_step` s and the sample period s (`check_plant_effects`)."""
     if effects is None:
         return None
     path = None if isinstance(effects, PlantEffects) else effects     # (a file's errors name it)
     effects = effects if path is None else load_plant_effects(path)
     try:
-        check_plant_effects(effects, robot, time_step)
+        check_plant_effects(effects, robot, time_step, sample_period)
     except InputError as error:
         raise InputError(str(error) if path is None else f"{path}: {error}") from None
     return effects

@@ -148,12 +148,10 @@ class Station:
         if not len(positions):
             return False, ""
         names = [self.robot.joint_names[index] for index in self.robot.actuated_indices]
-        pull = np.max([np.abs(self.true_dynamics.actuated_gravity_torque(q)) for q in positions], axis=0)
         effort = self.limits.effort   # (m,): per actuated joint
-        if np.any(pull > effort):
-            joint = int(np.argmax(pull / effort))
-            return True, (f"gravity pulls {names[joint]} with up to {pull[joint]:.3g} N m there, beyond its effort limit "
-                          f"{effort[joint]:g} N m: no torque holds the arm; lighten the bodies it carries")
+        beyond = gravity_beyond_effort(self.true_dynamics, effort, positions, names)
+        if beyond:
+            return True, beyond
         if self.true_dynamics is self.dynamics:
             return False, ""
         unheld = np.max([np.abs(self.true_dynamics.actuated_gravity_torque(q) - self.dynamics.actuated_gravity_torque(q))
@@ -165,3 +163,17 @@ class Station:
             names.index(joint_name)] else int(np.argmax(unheld / np.maximum(reach, 1e-300)))
         return False, (f"the plant effects pull {names[joint]} with up to {unheld[joint]:.3g} N m of gravity that the "
                        "compensation (the robot's description) does not hold")
+
+
+def gravity_beyond_effort(dynamics: Dynamics, effort: np.ndarray, positions, names: list[str],
+                          where: str = "there") -> str:
+    """Why no torque holds the arm of `dynamics` (a plant, effects included) at `positions` ((n,) rad each): the
+    gravity on an actuated joint (`names`, m) beyond its effort limit (m,) N m; "" where it holds everywhere."""
+    if not len(positions):
+        return ""
+    pull = np.max([np.abs(dynamics.actuated_gravity_torque(q)) for q in positions], axis=0)
+    if not np.any(pull > effort):
+        return ""
+    joint = int(np.argmax(pull / effort))
+    return (f"gravity pulls {names[joint]} with up to {pull[joint]:.3g} N m {where}, beyond its effort limit "
+            f"{effort[joint]:g} N m: no torque holds the arm; lighten the bodies it carries")
