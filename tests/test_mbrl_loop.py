@@ -153,6 +153,11 @@ def test_a_failed_last_round_names_what_the_run_shows_of_the_cause(tmp_path, cap
                      f"{rows[1]['gravity']}; its model has not learned the dynamics (validation: one-step q 1.64x "
                      "better, v 1.63x better than the physics-free steps; learned is 2x better in both): more plans "
                      "(--initial-plans, --plans-per-round) or epochs (--epochs)"], error
+    rows[1].update(learned=dict(verdict="has not learned the dynamics"))   # (a verdict without its ratios, as the
+    assert main(["mbrl", "-o", str(tmp_path / "loop1"), "--rounds", "1", "--quiet"]) == 1   # loop records it)
+    assert capsys.readouterr().err.strip().endswith("its model has not learned the dynamics (train's validation "
+                                                    "verdict): more plans (--initial-plans, --plans-per-round) or "
+                                                    "epochs (--epochs)")
     rows[1].pop("gravity"), rows[1].update(learned=dict(ratio_q=40.0, ratio_v=30.0, verdict="learned"))
     assert main(["mbrl", "-o", str(tmp_path / "loop2"), "--rounds", "1", "--quiet"]) == 1
     assert capsys.readouterr().err.strip().endswith("left the robot's limits on 98 steps")
