@@ -209,8 +209,9 @@ def validation_verdict(entry: dict) -> dict:
     """The model's line of `train`'s validation comparison with the physics-free baselines (a summary.json entry)."""
     for value in entry.values():
         if isinstance(value, dict) and "models" in value:
-            first = value["models"][0]
-            return {key: first[key] for key in ("ratio_q", "ratio_v", "verdict") if key in first}
+            first = value["models"][0]   # (train's names: the ratios to the Euler step and to 'v unchanged')
+            names = dict(ratio_q="ratio_to_euler_q", ratio_v="ratio_to_velocity_unchanged_v", verdict="verdict")
+            return {key: first[name] for key, name in names.items() if name in first}
     return {}
 
 
