@@ -535,6 +535,8 @@ def test_an_advised_plant_step_divides_the_sample_period_within_the_step_budget(
     from stdm_drake.robots.plant_effects_check import check_plant_effects, stable_plant_step
     assert stable_plant_step(0.000356, 0.01) == 0.0003125 and stable_plant_step(1.13e-7, 0.01) is None
     assert stable_plant_step(0.001, 0.01) == 0.001 and stable_plant_step(0.0004, 0.002) == 0.0004
+    assert stable_plant_step(1e-6, 0.01) == 1e-6 and stable_plant_step(1e-320, 0.01) is None   # (the budget's edge;
+    assert stable_plant_step(0.0, 0.01) is None and stable_plant_step(float("nan"), 0.01) is None   # no quotient)
     friction = [0, 0, 0, 0, 0, 3.0]
     for scale, period in ((0.001, 0.01), (3.1416, 0.01), (3.1416, 0.002)):
         effects = PlantEffects(coulomb_friction=friction, coulomb_velocity_scale=[0.05] * 5 + [scale])

@@ -93,8 +93,8 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float,
 def stable_plant_step(bound: float, sample_period: float) -> float | None:
     """The largest plant step <= `bound` s that divides `sample_period` s into at most MAX_SUBSTEPS steps and prints
     exactly in 6 digits (so that typed back as printed it still divides the period), None where none does."""
-    if not (math.isfinite(bound) and bound > 0):
-        return None
+    if not (math.isfinite(bound) and bound * MAX_SUBSTEPS >= sample_period * (1 - 1e-9)):
+        return None   # (no step within the budget; also a bound of 1e-320, whose quotient is not finite)
     for steps in range(max(1, math.ceil(sample_period / bound - 1e-9)), MAX_SUBSTEPS + 1):
         step = float(f"{sample_period / steps:.6g}")
         if step <= bound and abs(sample_period / step - steps) <= 1e-9 * steps:
