@@ -270,15 +270,20 @@ def boolean_words_as_text(path, schema) -> str | None:
     """The text of settings file `path` with every choice of a text setting that YAML 1.1 reads as a boolean quoted
     (`per_group: on`, where the setting's choices are "on" and "off": the flag's own words, which YAML 1.1 reads as
     True), so that the typed load reads the words as written; None where there is none (or the file does not parse:
-    the typed load says why). The settings are `schema`'s dataclass fields with `choices` in their metadata
+    the typed load says why). InputError (one line naming the setting and its choices) for a boolean there that is
+    no choice as written (`Off`, `No`, `!!bool off`). The settings are `schema`'s dataclass fields with `choices` in their metadata
     (`learning.settings.setting`), nested dataclasses followed."""
     try:
         text = pathlib.Path(path).read_text(encoding="utf-8-sig")
         node = yaml.compose(text, Loader=YAML_LOADER)
     except (yaml.YAMLError, OSError, UnicodeDecodeError, RecursionError):
         return None
-    spans = sorted((start, end, word) for start, end, word in _boolean_choices(schema, node)
-                   if text[start:end] == word)   # (untagged: `!!bool on` is the boolean asked for)
+    found = list(_boolean_choices(schema, node))
+    for start, end, word, name, choices in found:
+        if text[start:end] != word or word not in choices:   # (`!!bool on`, `Off`, `No`: a boolean, no choice)
+            raise InputError(f"{path}: {name} is written {text[start:end]}, which YAML 1.1 reads as a boolean; write "
+                             f"one of {', '.join(choices)}")
+    spans = sorted((start, end, word) for start, end, word, _, _ in found)
     spans.reverse()
     for start, end, value in spans:
         text = text[:start] + f'"{value}"' + text[end:]
@@ -286,8 +291,8 @@ def boolean_words_as_text(path, schema) -> str | None:
 
 
 def _boolean_choices(schema, node):
-    """(start, end, word) in the text of every plain scalar of mapping `node` that YAML 1.1 reads as a boolean where
-    `schema`'s field takes text among its choices."""
+    """(start, end, word, field name, choices) of every plain scalar of mapping `node` that YAML 1.1 reads as a
+    boolean where `schema`'s field takes text among its choices."""
     import typing
     if not dataclasses.is_dataclass(schema) or not isinstance(node, yaml.MappingNode):
         return
@@ -306,6 +311,6 @@ def _boolean_choices(schema, node):
             yield from _boolean_choices(members[0], value)
             continue
         choices = field.metadata.get("choices") or ()
-        if (str in members and isinstance(value, yaml.ScalarNode) and not value.style and value.tag.endswith(":bool")
-                and value.value in choices and value.value.lower() in YAML11_BOOLEAN_WORDS):
-            yield value.start_mark.index, value.end_mark.index, value.value
+        if str in members and choices and isinstance(value, yaml.ScalarNode) and not value.style \
+                and value.tag.endswith(":bool"):
+            yield value.start_mark.index, value.end_mark.index, value.value, field.name, tuple(choices)

@@ -1358,6 +1358,11 @@ CASES = [
      "lower the plant step to 0.0003125 s with the scale at 3.1416 rad/s, or the friction to at most 0.000339 N m"),
     (["compare", "SLOW", "-o", "NEW"], "leave no training trajectory after 1 for validation and 1 for test; collect "
                                        "more (compare splits every dataset by train's default rule, with no options"),
+    # (held-out run 36: YAML 1.1's other false words ran the MPC with its constraints off)
+    (yaml_case("mpc", "constraints:\n  mode: No\n"), "mode is written No, which YAML 1.1 reads as a boolean; write one "
+                                                     "of soft, hard, off"),
+    (yaml_case("mpc", "constraints: {mode: !!bool off}\n"), "mode is written !!bool off, which YAML 1.1 reads as a "
+                                                            "boolean"),
 ]
 
 YAML_COMMANDS = {  # where a written YAML case goes in
@@ -1450,5 +1455,13 @@ def test_the_flags_own_words_load_unquoted_in_a_training_settings_file(tmp_path)
         assert (settings.per_group, settings.derivative) == (per_group, derivative), text
     for text in ("per_group: !!bool on\n", "per_group: yes\n", "per_group: On\n"):
         path.write_text(text)
-        with pytest.raises(InputError, match="per_group"):
+        with pytest.raises(InputError, match="per_group is written .*, which YAML 1.1 reads as a boolean; write one "
+                                             "of on, off"):
             load_yaml_config(path, TrainSettings, "training settings")
+    from stdm_drake.closed_loop.mpc import load_mpc_config   # (held-out run 36: `mode: No` ran with constraints off)
+    path.write_text("constraints: {mode: off}\n")
+    assert load_mpc_config(path).constraints.mode == "off"
+    for word in ("No", "false", "Off", "OFF", "!!bool off"):
+        path.write_text(f"constraints:\n  mode: {word}\n")
+        with pytest.raises(InputError, match=f"mode is written {word}, which YAML 1.1 reads as a boolean"):
+            load_mpc_config(path)

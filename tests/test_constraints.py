@@ -275,8 +275,9 @@ def test_the_settings_file_sets_the_constraints(tmp_path):
     config.validate()
     assert config.constraints.mode == "off" and config.record()["constraints"]["mode"] == "off"
     assert config.solver(LinearModel(), free_limits(10.0)).bounds is None
-    path.write_text("constraints: {mode: on}\n")
-    with pytest.raises(InputError, match="constraints mode must be one of"):
+    path.write_text("constraints: {mode: on}\n")              # (YAML 1.1's true, no mode)
+    with pytest.raises(InputError, match="mode is written on, which YAML 1.1 reads as a boolean; write one of soft, "
+                                         "hard, off"):
         load_mpc_config(path).validate()
     path.write_text("constraints: {mode: sometimes}\n")
     with pytest.raises(InputError, match="constraints mode must be one of"):

@@ -21,7 +21,6 @@ shifted by one period. Shapes for n joints, m actuated, horizon H, state S = 2n.
 """
 
 import dataclasses
-import typing
 
 import numpy as np
 
@@ -48,18 +47,17 @@ class Constraints:
     samplers price crossings the same way in both modes) or "off" (torques clipped after an unconstrained
     step, state limits ignored); the margins (rad, rad/s) inside the plant's position and velocity limits;
     penalty_weight: the exact penalty's weight per rad (rad/s) of slack and node (and of half its square)."""
-    mode: typing.Union[str, bool] = "soft"    # (YAML reads a bare `off` as false: `validate` makes it "off")
+    # (a bare `off` loads as written: `yaml_values.boolean_words_as_text` reads the choices; YAML 1.1's other
+    # boolean words, `No`, `false`, `Off`, stay booleans and are refused: held-out run 36 found them run as "off")
+    mode: str = dataclasses.field(default="soft", metadata=dict(choices=MODES))
     position_margin: float = 0.02
     velocity_margin: float = 0.05
     penalty_weight: float = 1e5
 
     def validate(self) -> None:
         """InputError (one line) for settings no optimizer can use: an unknown mode, margins negative or not
-        finite, a penalty weight not in [MIN_PENALTY, MAX_PENALTY]. A mode of false (YAML's reading of a bare `off`) becomes
-        "off"."""
-        if self.mode is False:
-            self.mode = "off"
-        if self.mode is True or self.mode not in MODES:
+        finite, a penalty weight not in [MIN_PENALTY, MAX_PENALTY]."""
+        if isinstance(self.mode, bool) or self.mode not in MODES:
             raise InputError(f"mpc constraints mode must be one of {', '.join(MODES)}, got {self.mode!r}")
         for name in ("position_margin", "velocity_margin"):
             value = getattr(self, name)
