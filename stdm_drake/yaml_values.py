@@ -262,10 +262,6 @@ def _quoted_number(node, schema, prefix: str, text: str):
     return None
 
 
-# the words YAML 1.1 (PyYAML, which Drake's typed load reads files with) takes for booleans
-YAML11_BOOLEAN_WORDS = {"y", "yes", "n", "no", "true", "false", "on", "off"}
-
-
 def boolean_words_as_text(path, schema) -> str | None:
     """The text of settings file `path` with every choice of a text setting that YAML 1.1 reads as a boolean quoted
     (`per_group: on`, where the setting's choices are "on" and "off": the flag's own words, which YAML 1.1 reads as

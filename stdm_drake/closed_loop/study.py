@@ -178,7 +178,8 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
                   plant_effects=effects_record, models=model_records,
                   mpc_settings=dict(file=_text(mpc_settings_file(robot, study.settings)),
                                     optimizer_given=study.optimizer is not None, settings=config.record()))
-    gravity = "" if plant_config.effects is None else gravity_beyond_effort(   # (a plant no torque holds)
+    failed = any(result.limit_violations for result in results)
+    gravity = "" if plant_config.effects is None or not failed else gravity_beyond_effort(   # (a plant no torque holds)
         Dynamics(robot, plant_config.effects), limits.effort, [q for _, reference in references for q in reference.q],
         [robot.joint_names[index] for index in robot.actuated_indices], where="on the plans")
     return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config, gravity)
