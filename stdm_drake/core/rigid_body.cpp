@@ -51,10 +51,8 @@ VectorXd RigidBody::acceleration(const VectorXd& q, const VectorXd& v, const Vec
 void RigidBody::acceleration(const Eigen::Ref<const VectorXd>& q, const Eigen::Ref<const VectorXd>& v,
                              const Eigen::Ref<const VectorXd>& tau, Eigen::Ref<VectorXd> out) const {
   Pinocchio& p = *pinocchio_;
-  VectorXd& force_drake = p.force;             // force(v, tau), in place
-  force_drake.noalias() = actuation * tau;
-  force_drake -= damping.cwiseProduct(v);
-  if (friction.size()) force_drake -= friction.cwiseProduct((v.array() / friction_scale.array()).tanh().matrix());
+  VectorXd& force_drake = p.force;
+  force(v, tau, force_drake);
   for (int i = 0; i < joints; ++i) {
     p.q[i] = q[to_pin[i]];
     p.v[i] = v[to_pin[i]];
@@ -80,7 +78,8 @@ void RigidBody::acceleration_and_jacobian(const VectorXd& q, const VectorXd& v, 
   Pinocchio& p = *pinocchio_;
   pinocchio::Data& data = *p.data;
   const int n = joints;
-  const VectorXd force_drake = force(v, tau);
+  VectorXd force_drake;
+  force(v, tau, force_drake);
   for (int i = 0; i < n; ++i) {
     p.q[i] = q[to_pin[i]];
     p.v[i] = v[to_pin[i]];

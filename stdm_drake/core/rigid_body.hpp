@@ -31,11 +31,11 @@ struct RigidBody {
              const RowMatrixXd& translations, const VectorXd& masses, const RowMatrixXd& centers,
              const RowMatrixXd& inertias, const VectorXd& armature, const VectorXd& gravity);
 
-  // the generalized force B tau - D v + tau_c(v) (n,), Drake order
-  VectorXd force(const VectorXd& v, const VectorXd& tau) const {
-    VectorXd f = actuation * tau - damping.cwiseProduct(v);
-    if (friction.size()) f -= friction.cwiseProduct((v.array() / friction_scale.array()).tanh().matrix());
-    return f;
+  // the generalized force B tau - D v + tau_c(v) (n,), Drake order, into out (sized once, then no allocation)
+  void force(const Eigen::Ref<const VectorXd>& v, const Eigen::Ref<const VectorXd>& tau, VectorXd& out) const {
+    out.noalias() = actuation * tau;
+    out -= damping.cwiseProduct(v);
+    if (friction.size()) out -= friction.cwiseProduct((v.array() / friction_scale.array()).tanh().matrix());
   }
 
   // q'' (n,) rad/s^2
