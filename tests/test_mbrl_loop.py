@@ -53,7 +53,8 @@ def test_the_loop_command_runs_its_rounds_resumes_and_refuses_bad_counts(tmp_pat
                  "--evaluation-plans", "2", "--epochs", "2", "--open-loop", "--quiet"]
     status = main(arguments)
     summary = json.loads((folder / "summary.json").read_text())
-    assert status in (0, 1) and [row["round"] for row in summary["rounds"]] == [0, 1]
+    assert [row["round"] for row in summary["rounds"]] == [0, 1]
+    assert status == (2 if summary["rounds"][-1]["steps_outside_limits"] else 0)   # (as `mpc`: the limits left)
     first, second = summary["rounds"]
     assert first["trajectories"] == 8 and 8 <= second["trajectories"] <= 12   # (closed loops that left the limits early: dropped)
     assert first["collection"]["plans"] == 4 and first["collection"]["kept"] == second["trajectories"] - 8
@@ -147,17 +148,17 @@ def test_a_failed_last_round_names_what_the_run_shows_of_the_cause(tmp_path, cap
                  gravity="gravity pulls elbow_joint with up to 1.3e+03 N m there, beyond its effort limit 150 N m: no "
                          "torque holds the arm; lighten the bodies it carries")]
     monkeypatch.setattr(loop, "run_loop", lambda *arguments, **options: dict(rounds=rows))
-    assert main(["mbrl", "-o", str(tmp_path / "loop"), "--rounds", "1", "--quiet"]) == 1
+    assert main(["mbrl", "-o", str(tmp_path / "loop"), "--rounds", "1", "--quiet"]) == 2
     error = capsys.readouterr().err.strip().splitlines()
     assert error == ["stdm-drake mbrl: error: the last round's closed loops left the robot's limits on 98 steps; "
                      f"{rows[1]['gravity']}; its model has not learned the dynamics (validation: one-step q 1.64x "
                      "better, v 1.63x better than the physics-free steps; learned is 2x better in both): more plans "
                      "(--initial-plans, --plans-per-round) or epochs (--epochs)"], error
     rows[1].update(learned=dict(verdict="has not learned the dynamics"))   # (a verdict without its ratios, as the
-    assert main(["mbrl", "-o", str(tmp_path / "loop1"), "--rounds", "1", "--quiet"]) == 1   # loop records it)
+    assert main(["mbrl", "-o", str(tmp_path / "loop1"), "--rounds", "1", "--quiet"]) == 2   # loop records it)
     assert capsys.readouterr().err.strip().endswith("its model has not learned the dynamics (train's validation "
                                                     "verdict): more plans (--initial-plans, --plans-per-round) or "
                                                     "epochs (--epochs)")
     rows[1].pop("gravity"), rows[1].update(learned=dict(ratio_q=40.0, ratio_v=30.0, verdict="learned"))
-    assert main(["mbrl", "-o", str(tmp_path / "loop2"), "--rounds", "1", "--quiet"]) == 1
+    assert main(["mbrl", "-o", str(tmp_path / "loop2"), "--rounds", "1", "--quiet"]) == 2
     assert capsys.readouterr().err.strip().endswith("left the robot's limits on 98 steps")

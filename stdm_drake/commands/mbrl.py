@@ -68,5 +68,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"stdm-drake mbrl: error: the last round's closed loops left the robot's limits on "
               f"{last['steps_outside_limits']} steps" + "".join(f"; {cause}" for cause in causes if cause),
               file=__import__("sys").stderr)
-        return 1
+        return 2   # (as `mpc` and `reproduce` where a closed loop leaves the limits)
     return 0
