@@ -365,14 +365,26 @@ def test_tracking_warning_names_the_joints_far_from_the_plan():
                            "(0.0013 rad²) against 0.0001 rad²") and "\n" not in line
     assert "(gains, effort limits," in line
     # held-out run 31: the filter and the plant effects that shape the loop are named beside the gains
-    from stdm_drake.collection.collect import loop_settings
     from stdm_drake.robots.control import InverseDynamics
     from stdm_drake.robots.effects import PlantEffects
-    named = loop_settings(InverseDynamics(velocity_filter_time_constant=5.0), PlantEffects(actuation_delay=1.0))
+    from stdm_drake.robots.plant import PlantConfig
+    from stdm_drake.robots.station import StationConfig, loop_settings
+    robot = load_robot(MODELS_DIR / "ur10.yaml")
+
+    def settings(controller, effects):
+        return StationConfig(robot, plant=PlantConfig(effects=effects), controller=controller)
+
+    named = loop_settings(settings(InverseDynamics(velocity_filter_time_constant=5.0), PlantEffects(actuation_delay=1.0)))
     assert named == ["its velocity_filter_time_constant (5 s)", "the plant effects' actuation_delay (1 s)"]
     assert "(gains, its velocity_filter_time_constant (5 s), the plant effects' actuation_delay (1 s), effort limits" \
         in tracking_warning([bad], ["a", "b"], named)
-    assert loop_settings(InverseDynamics(), None) == []
+    assert loop_settings(settings(InverseDynamics(), None)) == []
+    # held-out run 36: elastic transmissions, by the least damped spring (sqrt(20000 / 0.5) / 2 pi = 31.8 Hz)
+    springs = PlantEffects(transmission_stiffness=[20000.0, 20000.0, 0, 0, 0, 0], rotor_inertia=[0.5, 0.5, 0, 0, 0, 0],
+                           transmission_damping=[50.0, 0, 0, 0, 0, 0])
+    assert loop_settings(settings(InverseDynamics(), springs)) == [
+        "the plant effects' transmission springs on shoulder_pan_joint, shoulder_lift_joint (shoulder_lift_joint's "
+        "motor rings at 31.8 Hz with damping ratio 0 (transmission_damping); a ring shakes the joints it carries)"]
 
 
 @pytest.mark.slow
@@ -612,3 +624,27 @@ def test_a_tool_nested_in_an_sdf_arm_is_part_of_the_robot(tmp_path, capsys):
         out = tmp_path / name.replace(".sdf", ".yaml")
         assert main(["robot", "init", str(tmp_path / name), "--package", f"myarm={tmp_path / 'pkg'}", "-o", str(out)]) == 0
         np.testing.assert_allclose(Dynamics(load_robot(out)).mass_matrix(home), bare.mass_matrix(home))
+
+
+@pytest.mark.parametrize("effort", ["2e6", "1e-320"])
+def test_an_effort_limit_beyond_an_arm_joints_is_replaced_by_the_config_and_derived_by_robot_init(tmp_path, capsys,
+                                                                                                  effort):
+    """Held-out run 36: the file's elbow effort of 2e6 N m (or 1e-320) is refused with "give effort_limits['elbow_joint']
+    in the robot config to replace it"; following that advice loads the robot with the config's value, and
+    `robot init` (no config yet) derives the limit as for a file that gives none, saying so."""
+    import yaml
+    from stdm_drake.robots.plant import robot_joint_limits
+    elbow = [(r'(<joint name="elbow_joint".*?)effort="150"', rf'\1effort="{effort}"')]
+    assert check(ur10_copy(tmp_path, elbow)) == 2
+    assert "give effort_limits['elbow_joint'] in the robot config to replace it" in capsys.readouterr().err
+    given = ur10_copy(tmp_path, elbow, name="given", config_extra="effort_limits: {elbow_joint: 150}\n")
+    assert check(given) == 0
+    assert robot_joint_limits(load_robot(given)).effort[2] == 150
+    output = tmp_path / "init.yaml"
+    capsys.readouterr()
+    assert main(["robot", "init", str(tmp_path / "arm.urdf"), "-o", str(output)]) == 0
+    out = capsys.readouterr().out
+    assert f"the file's effort limit {float(effort):g} of elbow_joint is beyond an arm joint's" in out, out
+    assert "effort_limits of elbow_joint derived" in out
+    written = yaml.safe_load(output.read_text())["effort_limits"]
+    assert list(written) == ["elbow_joint"] and 10 < written["elbow_joint"] < 1000 and check(output) == 0

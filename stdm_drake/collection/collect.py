@@ -38,7 +38,7 @@ from stdm_drake.robots.control import JointSensor, SensorConfig, friction_bound_
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP, PlantConfig, SelfCollisionChecker
 from stdm_drake.robots.plant_effects_check import plant_effects_for
 from stdm_drake.robots.robot import Robot, load_robot
-from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig
+from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, Station, StationConfig, loop_settings
 from stdm_drake.robots.kinematics import RobotKinematics
 
 DEFAULT_CONTROLLER = CONTROLLERS_DIR / "inverse_dynamics.yaml"
@@ -58,22 +58,6 @@ class PlanSamples:
     qdd: np.ndarray
 
 
-def loop_settings(controller, effects) -> list[str]:
-    """What besides the gains shapes a tracking loop, where on, as phrases: the controller's velocity filter, the plant
-    effects' delays, lag and torque noise (held-out run 31: all were blamed on the gains alone)."""
-    parts = []
-    if controller.velocity_filter_time_constant > 0:
-        parts.append(f"its velocity_filter_time_constant ({controller.velocity_filter_time_constant:g} s)")
-    if effects is not None:
-        for name, unit in (("actuation_delay", "s"), ("measurement_delay", "s"), ("actuator_time_constant", "s"),
-                           ("torque_noise_std", "N m")):
-            values = getattr(effects, name)
-            largest = max(values, default=0.0) if isinstance(values, list) else values
-            if largest > 0:
-                parts.append(f"the plant effects' {name} ({largest:g} {unit})")
-    return parts
-
-
 def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generator) -> dict:
     """Track one planned trajectory from rest at its start with the configured controller."""
     controller = rig.controller
@@ -88,7 +72,7 @@ def tracking_trajectory(rig: Station, plan: PlanSamples, rng: np.random.Generato
     traj = rig.run(plan.q[0], len(plan.q) - 1, control, JointSensor(rig.settings.sensor, rng), rng)
     reason = rig.limit_violation(traj, 0.0, 1.0, check_self_collision=False)
     if reason is not None:
-        named = loop_settings(rig.settings.controller, rig.settings.plant.effects)
+        named = loop_settings(rig.settings)
         unholdable, cause = rig.gravity_beyond(plan.q, joint_name=reason.split()[0])   # (run 34: only gains named)
         raise PlanningError(f"tracking left the limits ({reason}); " + (cause if unholdable else (
             f"{cause}; " if cause else "") + "check the controller gains" + (" and " + ", ".join(named) if named else "")))

@@ -11,14 +11,14 @@ import pathlib
 import sys
 import time
 
-from stdm_drake.collection.collect import CollectionRequest, collect, collection_request, loop_settings, tracking_warning
+from stdm_drake.collection.collect import CollectionRequest, collect, collection_request, tracking_warning
 from stdm_drake.data.writer import HDF5_RESERVE_BYTES, write_dataset
 from stdm_drake.errors import InputError, warn
 from stdm_drake.files import check_free_space, line_text
 from stdm_drake.outputs import check_output_file
 from stdm_drake.robots.plant import DEFAULT_PLANT_TIME_STEP
 from stdm_drake.robots.robot import UR10_CONFIG
-from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD
+from stdm_drake.robots.station import DEFAULT_SAMPLE_PERIOD, loop_settings
 from stdm_drake.collection.export import check_export_folder, export_plans
 
 
@@ -112,8 +112,7 @@ def collect_job(job: CollectJob) -> dict:
     elapsed = time.perf_counter() - started
     path = write_dataset(job.output, trajectories, groups, metadata)
     if request.protocol == "tracking" and not any(request.settings.controller.dither_std):   # (dithered data
-        line = tracking_warning(trajectories, robot.joint_names,                            # leave it by design)
-                                loop_settings(request.settings.controller, request.settings.plant.effects))
+        line = tracking_warning(trajectories, robot.joint_names, loop_settings(request.settings))   # leave it by design)
         if line:
             warn(line)
     simulated = sum(len(t.tau) for t in trajectories) * request.settings.sample_period

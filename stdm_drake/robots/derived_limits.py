@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots.limit_checks import LIMIT_BOUNDS, MIN_LIMIT
 from stdm_drake.robots.robot import POSE_DIM, Robot, RobotConfig
 from stdm_drake.robots.plant import Dynamics, joint_limits
 
@@ -41,12 +42,19 @@ def usable(value) -> bool:
     return value is not None and np.isfinite(value) and value > 0
 
 
+def within_bounds(value, key: str) -> bool:
+    """Whether a limit the file states (`key`: "velocity" or "effort") is one an arm joint can have: usable and in
+    [MIN_LIMIT, LIMIT_BOUNDS[key]] (limit_checks: rad/s or m/s, N m or N)."""
+    return usable(value) and MIN_LIMIT <= value <= LIMIT_BOUNDS[key]
+
+
 def derive_kinematic_limits(config: RobotConfig, joints: dict) -> list[str]:
     """Into `config`, per arm joint (`joints`: the description's, by name), the velocity limit and revolute
     position range its file lacks and `config` does not give (`DERIVED_LIMITS`), and PROVISIONAL_EFFORT where it
-    lacks an effort limit (`derive_effort_limits` replaces it once the robot loads); the notes saying so. A negative
-    or non-finite velocity or effort limit is no missing one: InputError (one line) unless `config` replaces it."""
-    notes, velocity, ranges = [], [], []
+    lacks an effort limit (`derive_effort_limits` replaces it once the robot loads); the notes saying so. A velocity
+    or effort limit beyond an arm joint's bounds (2e6 N m, 1e-320: `within_bounds`) is derived the same way, a note
+    naming it. A negative or non-finite one is no missing one: InputError (one line) unless `config` replaces it."""
+    notes, velocity, ranges, beyond = [], [], [], []
     for name in config.arm_joints:
         joint = joints[name]
         for key, value in (("velocity", joint.velocity), ("effort", joint.effort)):
@@ -54,14 +62,20 @@ def derive_kinematic_limits(config: RobotConfig, joints: dict) -> list[str]:
             if value is not None and (value < 0 or not np.isfinite(value)) and not replaced:
                 raise InputError(f"joint {name!r} states {key} limit {value:g}; a limit is > 0 ({key} limits the file "
                                  "lacks, or gives as 0, are derived): correct it in the file")
-        if not usable(joint.velocity) and name not in config.velocity_limits:
+            if usable(value) and not within_bounds(value, key) and not replaced:
+                beyond.append(f"{key} limit {value:g} of {name}")
+        if not within_bounds(joint.velocity, "velocity") and name not in config.velocity_limits:
             config.velocity_limits[name] = DERIVED_LIMITS["velocity"][joint.kind == "prismatic"]
             velocity.append(name)
         if joint.kind == "revolute" and joint.lower == joint.upper == 0 and name not in config.position_limits:
             config.position_limits[name] = list(DERIVED_LIMITS["position"])
             ranges.append(name)
-        if not usable(joint.effort) and name not in config.effort_limits:
+        if not within_bounds(joint.effort, "effort") and name not in config.effort_limits:
             config.effort_limits[name] = PROVISIONAL_EFFORT
+    if beyond:
+        notes.append(f"the file's {', '.join(beyond)} {'are' if len(beyond) > 1 else 'is'} beyond an arm joint's ([{MIN_LIMIT:g}, "
+                     f"{LIMIT_BOUNDS['velocity']:g}] rad/s or m/s, [{MIN_LIMIT:g}, {LIMIT_BOUNDS['effort']:g}] N m or N):"
+                     " derived as if the file gave none")
     if velocity:
         notes.append(f"velocity_limits of {', '.join(velocity)} derived (the file gives none or 0; in SDFormat, below 0 is none): pi/2 rad/s, 0.5 m/s "
                      "prismatic; replace them with the maker's ratings")

@@ -321,8 +321,8 @@ def check_description(path: pathlib.Path, robot: str, arm_joints, overrides: dic
     a flange or tool frame), point masses and thin rods are valid bodies and pass; whether each arm joint
     moves inertia about its own axis is checked on the plant (M(home) positive definite,
     `Robot.check_plant`). overrides: per joint name, the limits the robot config gives instead of the
-    file's ({"lower", "upper", "velocity"}: rad or m, rad/s or m/s), applied before the checks. Returns the
-    description read; a file that is not well-formed XML or declares entities is refused (`read_description`, which
+    file's ({"lower", "upper", "velocity", "effort"}: rad or m, rad/s or m/s, N m or N), applied before the checks.
+    Returns the description read; a file that is not well-formed XML or declares entities is refused (`read_description`, which
     follows the SDF includes of `packages`, the robot config's package_paths, too)."""
     where = f"robot {robot}: {path.name}"
     if len(arm_joints) > MAX_ARM_JOINTS:   # (before any work that grows with them; `robot init` refuses the same)

@@ -140,8 +140,7 @@ class Robot:
         if self.model_path.suffix.lower() not in SUFFIXES:
             raise InputError(f"robot {config.name}: model must be a .urdf or .sdf file, got {self.model_path.name}")
         overrides = limit_overrides(config.position_limits, config.velocity_limits, config.effort_limits)
-        given = {joint: {key: value for key, value in values.items() if key != "effort"} for joint, values in overrides.items()}
-        description = check_description(self.model_path, self.name, config.arm_joints, given, config.locked_joints,
+        description = check_description(self.model_path, self.name, config.arm_joints, overrides, config.locked_joints,
                                         self.package_paths)
         self.inertia_substitutions = inertia_substitutions(description)
         for link, substitute in self.inertia_substitutions.items():

@@ -45,6 +45,36 @@ class StationConfig:
         return int(round(ratio))
 
 
+def loop_settings(settings: StationConfig) -> list[str]:
+    """What besides the gains shapes a tracking loop of `settings`, where on, as phrases: the controller's velocity
+    filter, the plant effects' delays, lag and torque noise (held-out run 31: all were blamed on the gains alone), and
+    elastic transmissions, by the least damped: its motor rings on the spring at sqrt(k / J) with damping ratio
+    d / (2 sqrt(k J)) (held-out run 36: an undamped shoulder spring shook the wrists out of their limits)."""
+    controller, effects = settings.controller, settings.plant.effects
+    parts = []
+    if controller.velocity_filter_time_constant > 0:
+        parts.append(f"its velocity_filter_time_constant ({controller.velocity_filter_time_constant:g} s)")
+    if effects is None:
+        return parts
+    for name, unit in (("actuation_delay", "s"), ("measurement_delay", "s"), ("actuator_time_constant", "s"),
+                       ("torque_noise_std", "N m")):
+        values = getattr(effects, name)
+        largest = max(values, default=0.0) if isinstance(values, list) else values
+        if largest > 0:
+            parts.append(f"the plant effects' {name} ({largest:g} {unit})")
+    names = list(settings.robot.joint_names)   # (plant effects give one value per joint)
+    elastic = effects.elastic(len(names))
+    if elastic is not None and np.any(elastic[0] > 0):
+        stiffness, damping, motor = (values[elastic[0] > 0] for values in elastic)
+        ratio = damping / (2.0 * np.sqrt(stiffness * motor))
+        least = int(np.argmin(ratio))
+        springs = [name for name, k in zip(names, elastic[0]) if k > 0]
+        parts.append(f"the plant effects' transmission springs on {', '.join(springs)} ({springs[least]}'s motor rings "
+                     f"at {np.sqrt(stiffness[least] / motor[least]) / (2 * np.pi):.3g} Hz with damping ratio "
+                     f"{ratio[least]:.2g} (transmission_damping); a ring shakes the joints it carries)")
+    return parts
+
+
 class Station:
     """The collection diagram (plant + scene graph) and a simulator stepped sample by sample.
 
