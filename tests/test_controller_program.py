@@ -18,7 +18,7 @@ from stdm_drake.dynamics.physics import PlantModel
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.learning.structure import DEFAULT
 
-pytestmark = pytest.mark.slow     # (the program's build: about a minute on 2 cores)
+pytestmark = pytest.mark.slow     # (the program's build: about 80 s of one core)
 EFFORT = 330.0
 
 

@@ -65,7 +65,7 @@ def build_controller_program(output, compiler: str = "c++") -> None:
     """Compile the controller program (core/mpc_controller.cpp: reads a controller file and a plan, then a state per
     line on standard input, writes a torque per line) to the executable `output`, with this environment's Eigen
     (cmeel-eigen), Pinocchio (its headers and libpinocchio_default) and `compiler`; InputError (one line) where the
-    compiler or the headers are missing or the build fails (about a minute on 2 cores)."""
+    compiler or the headers are missing or the build fails (about 80 s of one core)."""
     import pathlib
     import shutil
     import subprocess
