@@ -908,7 +908,7 @@ CASES = [
     ([*E, "--robot", "bad_junk_damping.yaml", "-o", "NEW.h5"], "joint 'elbow_joint': its <dynamics> damping is '8junk'"),
     ([*E, "--robot", "bad_wide_origin.yaml", "-o", "NEW.h5"], "its <origin> xyz is '-0.232 ٠ 0.158', not a number"),
     ([*E, "--robot", "bad_nbsp_mass.yaml", "-o", "NEW.h5"], "its mass is '4.27\\xa0', not a number"),
-    (["robot", "init", "bad_bytes.urdf", "-o", "NEW.yaml"], "is 5.0 MB, more than the 4 MB a robot description"),
+    (["robot", "init", "bad_bytes.urdf", "-o", "NEW.yaml"], "is 5.0 MiB, more than the 4 MiB a robot description"),
     (["robot", "init", "nested.sdf", "-o", "NEW.yaml"], "nests elements more than 64 deep"),
     # (held-out run 16)
     (["robot", "init", "bad_pose.sdf", "-o", "NEW.yaml"],
@@ -1043,7 +1043,7 @@ CASES = [
     (["robot", "init", "tiny_range.urdf", "-o", "NEW.yaml"], "has the position range [-9.99989e-321, 9.99989e-321], so it "
                                                            "cannot move"),
     (["robot", "init", "tiny_range.sdf", "-o", "NEW.yaml"], "SDFormat reads numbers of magnitude 0 or at least 2.23e-308"),
-    (["robot", "init", "ur10.urdf", "--srdf", "big.srdf", "-o", "NEW.yaml"], "big.srdf is 5.0 MB, more than the 4 MB"),
+    (["robot", "init", "ur10.urdf", "--srdf", "big.srdf", "-o", "NEW.yaml"], "big.srdf is 5.0 MiB, more than the 4 MiB"),
     ([*C, "--protocol", "tracking", "--config", "long_plan.yaml", "-o", "NEW.h5"], "num_steps must be in [1, 100,000]"),
     ([*C, "--protocol", "tracking", "--config", "redraw_plan.yaml", "-o", "NEW.h5"],
      "max_resample_attempts must be in [0, 1,000]"),

@@ -537,6 +537,14 @@ def test_an_advised_plant_step_divides_the_sample_period_within_the_step_budget(
     assert stable_plant_step(0.001, 0.01) == 0.001 and stable_plant_step(0.0004, 0.002) == 0.0004
     assert stable_plant_step(1e-6, 0.01) == 1e-6 and stable_plant_step(1e-320, 0.01) is None   # (the budget's edge;
     assert stable_plant_step(0.0, 0.01) is None and stable_plant_step(float("nan"), 0.01) is None   # no quotient)
+    # (held-out run 37: 0.01 / 2997 printed as 3.33667e-06 s is 2997.000003 steps, which the station refuses: every
+    # step advised is one the station takes, by the same test)
+    assert stable_plant_step(0.01 / 2997 * (1 + 1e-12), 0.01) != 3.33667e-06
+    for period in (0.01, 0.007, 0.02, 0.004):
+        for steps in range(1, 10_001, 13):
+            step = stable_plant_step(period / steps, period)
+            assert step is None or StationConfig(robot=UR10, sample_period=period,
+                                                 plant=PlantConfig.discrete(step)).substeps() >= steps
     friction = [0, 0, 0, 0, 0, 3.0]
     for scale, period in ((0.001, 0.01), (3.1416, 0.01), (3.1416, 0.002)):
         effects = PlantEffects(coulomb_friction=friction, coulomb_velocity_scale=[0.05] * 5 + [scale])

@@ -500,3 +500,21 @@ def test_mpc_on_a_plant_no_torque_holds_names_gravity(tracking_dataset, tmp_path
     for line in lines:
         assert "; gravity pulls elbow_joint with up to " in line and "N m on the plans, beyond its effort limit 150 N m: " \
                "no torque holds the arm" in line, line
+
+
+@pytest.mark.slow
+def test_mpc_on_elastic_transmissions_names_the_springs(tracking_dataset, tmp_path, capsys):
+    """Held-out run 37: undamped springs of 20,000 N m/rad behind motors of 0.5 kg m² on both shoulders; every loop
+    left the limits and each line named only its model, where `collect` names the springs. Each line now names them
+    with the least damped spring's ring and damping ratio, as `collect` does."""
+    effects = tmp_path / "springs.yaml"
+    effects.write_text("transmission_stiffness: [20000, 20000, 0, 0, 0, 0]\nrotor_inertia: [0.5, 0.5, 0, 0, 0, 0]\n")
+    capsys.readouterr()
+    code = main(["mpc", str(tracking_dataset), "--plans", "1", "--plant-effects", str(effects), "--quiet",
+                 "-o", str(tmp_path / "mpc")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and lines and all(line.startswith("stdm-drake mpc: error: model ") for line in lines), lines
+    for line in lines:
+        assert line.endswith("; the loops ran with the plant effects' transmission springs on shoulder_pan_joint, "
+                             "shoulder_lift_joint (shoulder_pan_joint's motor rings at 31.8 Hz with damping ratio 0 "
+                             "(transmission_damping); a ring shakes the joints it carries)"), line

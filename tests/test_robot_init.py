@@ -508,7 +508,7 @@ def test_an_sdf_limit_below_zero_is_none_as_sdformat_reads_it(tmp_path, capsys):
         + "</model></sdf>")
     assert main(["robot", "init", str(tmp_path / "arm.sdf"), "-o", str(tmp_path / "arm.yaml")]) == 0
     out = capsys.readouterr().out
-    assert "velocity_limits of j0 derived (the file gives none or 0; in SDFormat, below 0 is none)" in out
+    assert "velocity_limits of j0 derived (the file gives none, 0 or one beyond an arm joint's; in SDFormat, below 0 is none)" in out
     assert "effort_limits of j0 derived" in out
     config = (tmp_path / "arm.yaml").read_text()
     assert "j0: 1.5707963267948966  # derived" in config
@@ -648,3 +648,21 @@ def test_an_effort_limit_beyond_an_arm_joints_is_replaced_by_the_config_and_deri
     assert "effort_limits of elbow_joint derived" in out
     written = yaml.safe_load(output.read_text())["effort_limits"]
     assert list(written) == ["elbow_joint"] and 10 < written["elbow_joint"] < 1000 and check(output) == 0
+
+
+def test_a_material_named_before_its_definition_takes_that_definition(tmp_path):
+    """Held-out run 37: a visual naming a material whose definition comes in a later link was refused by Drake's
+    parser ("Material 'base_color' not previously defined"), which reads definitions in file order; the guide says a
+    name-only material says what the file's first definition of that name says. It loads, with that colour."""
+    from stdm_drake.robots.model_file import repair_materials
+    import xml.etree.ElementTree as ElementTree
+    defined = '<material name="base_color"><color rgba="0.2 0.2 0.2 1"/></material>'
+    config = ur10_copy(tmp_path, [(re.escape(defined), '<material name="base_color"/>')],
+                       extra=f'<link name="late"><visual><geometry><box size="0.01 0.01 0.01"/></geometry>{defined}'
+                             '</visual></link><joint name="late_mount" type="fixed"><parent link="tool0"/><child '
+                             'link="late"/></joint>')
+    assert check(config) == 0
+    root = ElementTree.parse(config.with_suffix(".urdf")).getroot()
+    assert repair_materials(root) == ([], [], ["base_color"])
+    first = next(root.iter("material"))
+    assert first.get("name") == "base_color" and first.find("color").get("rgba") == "0.2 0.2 0.2 1"

@@ -58,15 +58,8 @@ def run(args: argparse.Namespace) -> int:
           f"({times_better(first['q_mse_geometric_mean'] / last['q_mse_geometric_mean'])}); "
           f"{line_text(args.output / 'summary.json')}")
     if last["steps_outside_limits"]:
-        verdict = last.get("learned") or {}
-        ratios = (f"validation: one-step q {times_better(verdict['ratio_q'])}, v {times_better(verdict['ratio_v'])} "
-                  "than the physics-free steps; learned is 2x better in both" if "ratio_q" in verdict and
-                  "ratio_v" in verdict else "train's validation verdict")
-        causes = [last.get("gravity", "")] + ([
-            f"its model has not learned the dynamics ({ratios}): more plans (--initial-plans, --plans-per-round) or "
-            "epochs (--epochs)"] if verdict.get("verdict") and not str(verdict["verdict"]).startswith("learned") else [])
-        print(f"stdm-drake mbrl: error: the last round's closed loops left the robot's limits on "
-              f"{last['steps_outside_limits']} steps" + "".join(f"; {cause}" for cause in causes if cause),
-              file=__import__("sys").stderr)
+        from stdm_drake.experiments.mbrl_causes import failure_line
+        print(f"stdm-drake mbrl: error: {failure_line(last)}", file=__import__("sys").stderr)
         return 2   # (as `mpc` and `reproduce` where a closed loop leaves the limits)
     return 0
+

@@ -31,6 +31,7 @@ from stdm_drake.closed_loop.ancillary_law import check_law_stable
 from stdm_drake.closed_loop.policy import MpcPolicy
 from stdm_drake.dynamics.model_files import load_model
 from stdm_drake.closed_loop.tuning import finite_mse
+from stdm_drake.experiments.mbrl_causes import description_model_loops
 
 MAX_ROUNDS = 100
 
@@ -305,6 +306,9 @@ def run_loop(config: LoopConfig, references: list | None = None, say=print, prog
         unholdable, why = station.gravity_beyond(np.vstack([reference.q for _, reference in references]))
         if unholdable:
             rows[-1]["gravity"] = why
+        elif str((rows[-1].get("learned") or {}).get("verdict", "learned")).startswith("learned"):
+            # (held-out run 37: a model train judged learned left the limits, no cause named)
+            rows[-1]["description_model"] = description_model_loops(config, references, station)
     return write_summary(output, config, references, rows, started)
 
 

@@ -77,7 +77,7 @@ def derive_kinematic_limits(config: RobotConfig, joints: dict) -> list[str]:
                      f"{LIMIT_BOUNDS['velocity']:g}] rad/s or m/s, [{MIN_LIMIT:g}, {LIMIT_BOUNDS['effort']:g}] N m or N):"
                      " derived as if the file gave none")
     if velocity:
-        notes.append(f"velocity_limits of {', '.join(velocity)} derived (the file gives none or 0; in SDFormat, below 0 is none): pi/2 rad/s, 0.5 m/s "
+        notes.append(f"velocity_limits of {', '.join(velocity)} derived (the file gives none, 0 or one beyond an arm joint's; in SDFormat, below 0 is none): pi/2 rad/s, 0.5 m/s "
                      "prismatic; replace them with the maker's ratings")
     if ranges:
         notes.append(f"position_limits of {', '.join(ranges)} derived (the file's range is [0, 0]): [-pi, pi]; replace "
@@ -105,6 +105,6 @@ def derive_effort_limits(robot: Robot, config: RobotConfig) -> list[str]:
     for j, name in enumerate(robot.joint_names):
         if name in derived:
             config.effort_limits[name] = float(f"{needed[j]:.3g}")
-    return [f"effort_limits of {', '.join(derived)} derived (the file gives none or 0; in SDFormat, below 0 is none): twice the largest |gravity "
+    return [f"effort_limits of {', '.join(derived)} derived (the file gives none, 0 or one beyond an arm joint's; in SDFormat, below 0 is none): twice the largest |gravity "
             "torque| + 5 rad/s² x M_jj over 200 configurations, at least a tenth of the largest; replace them with "
             "the maker's ratings"]

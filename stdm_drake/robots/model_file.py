@@ -234,14 +234,15 @@ def set_joint_limits(root, limits: dict) -> None:
                 limit.set(key, repr(float(value)))
 
 
-def repair_materials(root) -> tuple[list[str], list[str]]:
+def repair_materials(root) -> tuple[list[str], list[str], list[str]]:
     """URDF materials (visual only) as Drake's parser takes them: a name defined twice with different colours
     or textures has each later definition renamed NAME~2, NAME~3, ... (a visual that names a material
-    without defining it keeps the first definition); a visual naming a material that is defined nowhere
-    loses its <material> (the default colour). Returns (the names renamed, the names undefined)."""
+    without defining it keeps the first definition, also where that comes later in the file); a visual naming a
+    material that is defined nowhere loses its <material> (the default colour). Returns (the names renamed, the
+    names undefined, the names given their later definition)."""
     import xml.etree.ElementTree as ElementTree
     if root.tag == "sdf":
-        return [], []
+        return [], [], []
     definitions, renamed = {}, []
     for material in root.iter("material"):
         name = material.get("name")
@@ -254,13 +255,20 @@ def repair_materials(root) -> tuple[list[str], list[str]]:
         if versions.index(content) > 0:
             material.set("name", f"{name}~{versions.index(content) + 1}")
             renamed += [name] if name not in renamed else []
-    undefined = []
+    undefined, forward, seen = [], [], set()
+    for material in list(root.iter("material")):   # (in file order: Drake's parser, as urdfdom, reads a name-only
+        name = material.get("name")                # material by the definitions before it; held-out run 37)
+        if len(material):
+            seen.add(name)
+        elif name in definitions and name not in seen:
+            material.extend(ElementTree.fromstring(f"<m>{definitions[name][0]}</m>"))   # (the first definition's)
+            forward += [name] if name not in forward else []
     for visual in root.iter("visual"):
         for material in visual.findall("material"):
             if len(material) == 0 and material.get("name") not in definitions:
                 visual.remove(material)
                 undefined += [material.get("name")] if material.get("name") not in undefined else []
-    return renamed, undefined
+    return renamed, undefined, forward
 
 
 def zero_massless_inertia(root) -> list[str]:
@@ -338,7 +346,7 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
                 path = mesh_as_obj(path, f"robot {name}")
                 converted += [uri] if uri not in converted else []
             references.append((mesh, uri_element, path))
-    (renamed, undefined), massless = repair_materials(root), zero_massless_inertia(root)
+    (renamed, undefined, forward), massless = repair_materials(root), zero_massless_inertia(root)
     set_joint_limits(root, limits or {})
     for element in dropped:
         parents[element].remove(element)
@@ -353,8 +361,8 @@ def loadable_model(name: str, model_path: pathlib.Path, package_paths: dict, lim
     for uri in (include.find("uri") for include in root.iter("include")) if root.tag == "sdf" else ():
         if uri is not None and uri.text and "://" not in uri.text and not pathlib.Path(uri.text.strip()).is_absolute():
             uri.text, relative = str((model_path.parent / uri.text.strip()).resolve()), [*relative, uri.text]
-    if not (missing or missing_collisions or converted or limits or renamed or undefined or massless or unknown
-            or relative):
+    if not (missing or missing_collisions or converted or limits or renamed or undefined or forward or massless
+            or unknown or relative):
         return LoadableModel(None, [], [])
     return LoadableModel(ElementTree.tostring(root, encoding="unicode"), missing, converted, renamed + undefined, massless,
                          missing_collisions, unknown, sorted(unmapped))

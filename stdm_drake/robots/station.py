@@ -39,10 +39,19 @@ class StationConfig:
         if ratio > MAX_SUBSTEPS:
             raise InputError(f"plant step {self.plant.time_step} s is {ratio:.3g} steps per sample period; at most "
                              f"{MAX_SUBSTEPS} (a finer step is a run that does not end)")
-        if abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        steps = whole_substeps(self.sample_period, self.plant.time_step)
+        if steps is None:
             raise InputError(f"sample period {self.sample_period} s is not a whole multiple of the plant "
                              f"step {self.plant.time_step} s")
-        return int(round(ratio))
+        return steps
+
+
+def whole_substeps(sample_period: float, time_step: float) -> int | None:
+    """The plant steps of `time_step` s per sample period of `sample_period` s where the period is a whole multiple
+    of the step (to 1e-9 of a step), else None: the one test of `StationConfig.substeps` and of the plant steps the
+    checks advise (`plant_effects_check.stable_plant_step`)."""
+    ratio = sample_period / time_step
+    return int(round(ratio)) if abs(ratio - round(ratio)) <= 1e-9 and round(ratio) >= 1 else None
 
 
 def loop_settings(settings: StationConfig) -> list[str]:
@@ -50,10 +59,18 @@ def loop_settings(settings: StationConfig) -> list[str]:
     filter, the plant effects' delays, lag and torque noise (held-out run 31: all were blamed on the gains alone), and
     elastic transmissions, by the least damped: its motor rings on the spring at sqrt(k / J) with damping ratio
     d / (2 sqrt(k J)) (held-out run 36: an undamped shoulder spring shook the wrists out of their limits)."""
-    controller, effects = settings.controller, settings.plant.effects
+    controller = settings.controller
     parts = []
     if controller.velocity_filter_time_constant > 0:
         parts.append(f"its velocity_filter_time_constant ({controller.velocity_filter_time_constant:g} s)")
+    return parts + loop_effects(settings.plant.effects, list(settings.robot.joint_names))
+
+
+def loop_effects(effects, names: list[str]) -> list[str]:
+    """The plant effects (`robots.effects.PlantEffects` or None) that shape a closed loop, where on, as phrases
+    (`loop_settings`; `mpc`'s failure lines): delays, lag, torque noise and, by the least damped, elastic
+    transmissions. names: the robot's joints (plant effects give one value per joint)."""
+    parts = []
     if effects is None:
         return parts
     for name, unit in (("actuation_delay", "s"), ("measurement_delay", "s"), ("actuator_time_constant", "s"),
@@ -62,7 +79,6 @@ def loop_settings(settings: StationConfig) -> list[str]:
         largest = max(values, default=0.0) if isinstance(values, list) else values
         if largest > 0:
             parts.append(f"the plant effects' {name} ({largest:g} {unit})")
-    names = list(settings.robot.joint_names)   # (plant effects give one value per joint)
     elastic = effects.elastic(len(names))
     if elastic is not None and np.any(elastic[0] > 0):
         stiffness, damping, motor = (values[elastic[0] > 0] for values in elastic)

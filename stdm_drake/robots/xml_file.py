@@ -122,8 +122,8 @@ def check_xml(path: pathlib.Path, kind: str, count_frames: bool = False) -> None
                                  "the robot is made of")
 
     if pathlib.Path(path).stat().st_size > MAX_DESCRIPTION_BYTES:   # (an SRDF too: 100,000 pairs, 8 MB, took 12 s)
-        raise InputError(f"{path.name} is {pathlib.Path(path).stat().st_size / 2**20:.1f} MB, more than the "
-                         f"{MAX_DESCRIPTION_BYTES >> 20} MB a robot description or SRDF here may be (they are kilobytes, "
+        raise InputError(f"{path.name} is {pathlib.Path(path).stat().st_size / 2**20:.1f} MiB, more than the "
+                         f"{MAX_DESCRIPTION_BYTES >> 20} MiB a robot description or SRDF here may be (they are kilobytes, "
                          "with meshes in files of their own); every command reads it several times")
     data, skipped = _text(path)
     checker = expat.ParserCreate()
