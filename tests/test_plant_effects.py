@@ -490,14 +490,7 @@ def test_mpc_on_a_plant_no_torque_holds_names_gravity(tracking_dataset, tmp_path
     """Held-out run 35: with a 200 kg payload every loop left the limits (the true plant's too) and each line named
     only its model; `collect` names gravity beyond the effort limit for the same plant. Each failure line of `mpc`
     now ends with it, on stderr alone under --quiet."""
-    effects = tmp_path / "heavy.yaml"
-    effects.write_text("payload: {mass: 200.0}\n")
-    capsys.readouterr()
-    code = main(["mpc", str(tracking_dataset), "--plans", "1", "--plant-effects", str(effects), "--quiet",
-                 "-o", str(tmp_path / "mpc")])
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and lines and all(line.startswith("stdm-drake mpc: error: model ") for line in lines), lines
-    for line in lines:
+    for line in mpc_failure_lines(tracking_dataset, tmp_path, capsys, "payload: {mass: 200.0}\n"):
         assert "; gravity pulls elbow_joint with up to " in line and "N m on the plans, beyond its effort limit 150 N m: " \
                "no torque holds the arm" in line, line
 
@@ -507,14 +500,21 @@ def test_mpc_on_elastic_transmissions_names_the_springs(tracking_dataset, tmp_pa
     """Held-out run 37: undamped springs of 20,000 N m/rad behind motors of 0.5 kg m² on both shoulders; every loop
     left the limits and each line named only its model, where `collect` names the springs. Each line now names them
     with the least damped spring's ring and damping ratio, as `collect` does."""
-    effects = tmp_path / "springs.yaml"
-    effects.write_text("transmission_stiffness: [20000, 20000, 0, 0, 0, 0]\nrotor_inertia: [0.5, 0.5, 0, 0, 0, 0]\n")
-    capsys.readouterr()
-    code = main(["mpc", str(tracking_dataset), "--plans", "1", "--plant-effects", str(effects), "--quiet",
-                 "-o", str(tmp_path / "mpc")])
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and lines and all(line.startswith("stdm-drake mpc: error: model ") for line in lines), lines
-    for line in lines:
+    springs = "transmission_stiffness: [20000, 20000, 0, 0, 0, 0]\nrotor_inertia: [0.5, 0.5, 0, 0, 0, 0]\n"
+    for line in mpc_failure_lines(tracking_dataset, tmp_path, capsys, springs):
         assert line.endswith("; the loops ran with the plant effects' transmission springs on shoulder_pan_joint, "
                              "shoulder_lift_joint (shoulder_pan_joint's motor rings at 31.8 Hz with damping ratio 0 "
                              "(transmission_damping); a ring shakes the joints it carries)"), line
+
+
+def mpc_failure_lines(dataset, tmp_path, capsys, effects_text: str) -> list[str]:
+    """`mpc --quiet` on one plan of `dataset` with the plant effects `effects_text` (YAML): its stderr lines, each
+    asserted a model's failure line, with exit status 2."""
+    effects = tmp_path / "effects.yaml"
+    effects.write_text(effects_text)
+    capsys.readouterr()
+    code = main(["mpc", str(dataset), "--plans", "1", "--plant-effects", str(effects), "--quiet",
+                 "-o", str(tmp_path / "mpc")])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and lines and all(line.startswith("stdm-drake mpc: error: model ") for line in lines), lines
+    return lines
