@@ -23,6 +23,8 @@ DERIVED_LIMITS = dict(velocity=(np.pi / 2, 0.5), position=(-np.pi, np.pi), accel
 # N m: a joint without a usable effort limit while its derived one is computed (the largest a robot config may give,
 # limit_checks.LIMIT_BOUNDS)
 PROVISIONAL_EFFORT = 1e6
+# what the notes of derived limits say of the file's
+NONE_GIVEN = "the file gives none, 0 or one beyond an arm joint's; in SDFormat, below 0 is none"
 
 
 def mount_joints(arm_joints: list, joints: dict) -> list:
@@ -73,11 +75,11 @@ def derive_kinematic_limits(config: RobotConfig, joints: dict) -> list[str]:
         if not within_bounds(joint.effort, "effort") and name not in config.effort_limits:
             config.effort_limits[name] = PROVISIONAL_EFFORT
     if beyond:
-        notes.append(f"the file's {', '.join(beyond)} {'are' if len(beyond) > 1 else 'is'} beyond an arm joint's ([{MIN_LIMIT:g}, "
-                     f"{LIMIT_BOUNDS['velocity']:g}] rad/s or m/s, [{MIN_LIMIT:g}, {LIMIT_BOUNDS['effort']:g}] N m or N):"
-                     " derived as if the file gave none")
+        notes.append(f"the file's {', '.join(beyond)} {'are' if len(beyond) > 1 else 'is'} beyond an arm joint's "
+                     f"([{MIN_LIMIT:g}, {LIMIT_BOUNDS['velocity']:g}] rad/s or m/s, [{MIN_LIMIT:g}, "
+                     f"{LIMIT_BOUNDS['effort']:g}] N m or N): derived as if the file gave none")
     if velocity:
-        notes.append(f"velocity_limits of {', '.join(velocity)} derived (the file gives none, 0 or one beyond an arm joint's; in SDFormat, below 0 is none): pi/2 rad/s, 0.5 m/s "
+        notes.append(f"velocity_limits of {', '.join(velocity)} derived ({NONE_GIVEN}): pi/2 rad/s, 0.5 m/s "
                      "prismatic; replace them with the maker's ratings")
     if ranges:
         notes.append(f"position_limits of {', '.join(ranges)} derived (the file's range is [0, 0]): [-pi, pi]; replace "
@@ -105,6 +107,6 @@ def derive_effort_limits(robot: Robot, config: RobotConfig) -> list[str]:
     for j, name in enumerate(robot.joint_names):
         if name in derived:
             config.effort_limits[name] = float(f"{needed[j]:.3g}")
-    return [f"effort_limits of {', '.join(derived)} derived (the file gives none, 0 or one beyond an arm joint's; in SDFormat, below 0 is none): twice the largest |gravity "
+    return [f"effort_limits of {', '.join(derived)} derived ({NONE_GIVEN}): twice the largest |gravity "
             "torque| + 5 rad/s² x M_jj over 200 configurations, at least a tenth of the largest; replace them with "
             "the maker's ratings"]
