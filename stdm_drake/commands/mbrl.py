@@ -62,4 +62,3 @@ def run(args: argparse.Namespace) -> int:
         print(f"stdm-drake mbrl: error: {failure_line(last)}", file=__import__("sys").stderr)
         return 2   # (as `mpc` and `reproduce` where a closed loop leaves the limits)
     return 0
-
