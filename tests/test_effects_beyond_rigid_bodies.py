@@ -561,3 +561,22 @@ def test_an_advised_plant_step_divides_the_sample_period_within_the_step_budget(
                                          r"period of 0.01 s holds it\)"):
         check_plant_effects(PlantEffects(coulomb_friction=[0, 0, 0, 0, 0, 3e5],
                                          coulomb_velocity_scale=[0.05] * 5 + [3.1416]), UR10, 0.001)
+
+
+def test_a_transmission_the_plant_step_cannot_resolve_is_refused_with_a_step_that_divides_the_period():
+    """Held-out run 38: "lower --plant-time-step below 3.14e-05 s" for a 1e7 N m/rad spring behind 0.001 kg m² (at
+    1.59e4 Hz), which divides none of 7, 10 and 20 ms: typed back, refused. The advice is now a step that divides
+    the sample period and resolves the ring, or the stiffness the plant step resolves; both load as printed."""
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
+    stiff = PlantEffects(rotor_inertia=[0, 0, 0, 0, 0, 0.001], transmission_stiffness=[0, 0, 0, 0, 0, 1e7])
+    for period in (0.01, 0.007, 0.02):
+        with pytest.raises(InputError) as refused:
+            check_plant_effects(stiff, UR10, 0.001, period)
+        message = str(refused.value)
+        assert "rings at 1.59e+04 Hz, which the plant step 0.001 s cannot resolve (omega h = 100 >= pi)" in message
+        step = float(message.split("lower --plant-time-step to ")[1].split(" ")[0])
+        stiffness = float(message.split("give a transmission_stiffness below ")[1].split(" ")[0])
+        check_plant_effects(stiff, UR10, step, period)
+        assert StationConfig(robot=UR10, sample_period=period, plant=PlantConfig.discrete(step)).substeps() >= 1
+        check_plant_effects(dataclasses.replace(stiff, transmission_stiffness=[0, 0, 0, 0, 0, stiffness]), UR10,
+                            0.001, period)

@@ -518,3 +518,20 @@ def mpc_failure_lines(dataset, tmp_path, capsys, effects_text: str) -> list[str]
     lines = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and lines and all(line.startswith("stdm-drake mpc: error: model ") for line in lines), lines
     return lines
+
+
+def test_a_learned_models_failure_line_names_the_model_where_the_plant_model_held_the_limits():
+    """Held-out run 38: D left the limits on 195 of 200 steps and its line named nothing, while the table's plant row
+    held them under the same MPC on the same plans. The line now names the model as the cause."""
+    from types import SimpleNamespace
+    from stdm_drake.closed_loop.comparison import closed_loop_failures
+    from stdm_drake.closed_loop.study import model_notes
+    results = [SimpleNamespace(model="plant", limit_violations=0, fallbacks=0, steps=100),
+               SimpleNamespace(model="D", limit_violations=95, fallbacks=0, steps=100)]
+    models = [dict(name="plant", kind="plant"), dict(name="D", kind="D")]
+    lines = closed_loop_failures(results, note="the loops ran with X", model_notes=model_notes(results, models))
+    assert lines == ["model D left the robot's joint limits on 95 of 100 steps (1 of 1 plans); the MPC with the plant "
+                     "model plant held the limits on the same plans, so this model is not accurate enough for the "
+                     "closed loop (train's one-step verdict is no closed-loop one); the loops ran with X"]
+    results[0].limit_violations = 3   # (the plant model left them too: the model is not singled out)
+    assert model_notes(results, models) == {}

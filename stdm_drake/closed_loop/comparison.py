@@ -263,21 +263,23 @@ def reference_of(dataset, index: int) -> Reference:
     return Reference(q=traj.q, v=traj.v)
 
 
-def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5, note: str = "") -> list[str]:
+def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5, note: str = "",
+                         model_notes: dict | None = None) -> list[str]:
     """One line per model whose closed loop is not a result: it left the robot's limits (a state outside
     the position or velocity limits, or not finite, on any step of any plan) or fell back to gravity
     compensation (non-finite predictions) on more than `fraction` of its steps; `note` (a setting the failure may
-    come from, `ancillary_law.law_note`) ends each line."""
+    come from, `ancillary_law.law_note`) ends each line, after the model's own in `model_notes` (name: clause)."""
     failures = []
     for name in dict.fromkeys(result.model for result in results):
+        said = "; ".join(filter(None, [(model_notes or {}).get(name, ""), note]))
         runs = [result for result in results if result.model == name]
         violations, fallbacks = sum(run.limit_violations for run in runs), sum(run.fallbacks for run in runs)
         steps = sum(run.steps for run in runs)
         plans = sum(1 for run in runs if run.limit_violations)
         if violations:
             failures.append(f"model {name} left the robot's joint limits on {violations} of {steps} steps "
-                            f"({plans} of {len(runs)} plans)" + (f"; {note}" if note else ""))
+                            f"({plans} of {len(runs)} plans)" + (f"; {said}" if said else ""))
         if fallbacks > fraction * steps:
             failures.append(f"model {name} fell back to gravity compensation on {fallbacks} of {steps} steps "
-                            "(its predictions were not finite); its row is not a result" + (f"; {note}" if note else ""))
+                            "(its predictions were not finite); its row is not a result" + (f"; {said}" if said else ""))
     return failures

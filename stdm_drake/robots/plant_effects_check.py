@@ -59,6 +59,7 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float,
         check_arm_inertias(affected.plant, affected.plant.GetJointByName(robot.joint_names[0]).model_instance(),
                            robot.home, f"plant effects on robot {robot.name}", affected.context)
     check_beyond_rigid_bodies(effects, robot, time_step, robot_joint_limits(robot))
+    check_transmission_ringing(effects, robot, time_step, sample_period)
     gain = coulomb_stability_gains(effects, robot, time_step)
     if gain is not None:
         friction, scale = effects.friction_at_rest(n), effects.coulomb(n)[1]
@@ -88,6 +89,28 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float,
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.6g} > 1); "
                              + fixes)
+
+
+def check_transmission_ringing(effects: PlantEffects, robot, time_step: float, sample_period: float) -> None:
+    """InputError where an elastic transmission's motor rings on its spring faster than the plant step resolves
+    (omega h >= pi, omega = sqrt(k / J); `effects.add_effects_to_plant` holds the same guard), advising the largest
+    plant step that resolves it and divides the sample period (held-out run 38: "below 3.14e-05 s", which divides
+    none of 7, 10 or 20 ms), else the stiffness that the step resolves."""
+    elastic = effects.elastic(robot.num_joints)
+    if elastic is None or time_step <= 0:
+        return
+    stiffness, motor = elastic[0], np.where(elastic[2] > 0, elastic[2], 1.0)
+    ringing = np.sqrt(np.where(stiffness > 0, stiffness / motor, 0.0))
+    if not np.any(ringing * time_step >= np.pi):
+        return
+    joint = int(np.argmax(ringing * time_step))
+    step = stable_plant_step(np.pi / ringing[joint] * (1 - 1e-9), sample_period)
+    softest = motor[joint] * (np.pi / time_step) ** 2   # (N m/rad: omega h = pi at this step)
+    raise InputError(f"plant effects transmission_stiffness {stiffness[joint]:g} N m/rad on {robot.joint_names[joint]} "
+                     f"against its motor's {motor[joint]:g} kg m² rings at {ringing[joint] / (2 * np.pi):.3g} Hz, "
+                     f"which the plant step {time_step:g} s cannot resolve (omega h = {ringing[joint] * time_step:.3g} "
+                     ">= pi); " + (f"lower --plant-time-step to {step:g} s, or " if step is not None else "")
+                     + f"give a transmission_stiffness below {bound_text(softest, at_least=False)} N m/rad")
 
 
 def stable_plant_step(bound: float, sample_period: float) -> float | None:
