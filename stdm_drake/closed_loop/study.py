@@ -188,21 +188,25 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config, gravity, effects)
 
 
+def plants_that_held(results: list, models: list[dict]) -> list[str]:
+    """The plant models of the run (`models`' kind "plant...") whose loops held the limits on every plan."""
+    return [model["name"] for model in models if model["kind"].startswith("plant")
+            and not any(result.limit_violations for result in results if result.model == model["name"])]
+
+
 def failure_law_note(optimizer, sample_period: float, results: list, models: list[dict]) -> str:
     """The clause of `ancillary_law.law_note` for failed loops, unless a plant model of the run held the limits under
     the same law (then the law is not why another model failed); naming the model too where no plant model ran."""
-    plants = [model["name"] for model in models if model["kind"].startswith("plant")]
-    if any(not any(result.limit_violations for result in results if result.model == name) for name in plants):
+    if plants_that_held(results, models):
         return ""
-    return law_note(optimizer, sample_period, untold=not plants)
+    return law_note(optimizer, sample_period, untold=not any(model["kind"].startswith("plant") for model in models))
 
 
 def model_notes(results: list, models: list[dict]) -> dict:
-    """Per learned model whose loops left the limits where a plant model's (`models`' kind "plant...") held them
-    under the same MPC on the same plans: the clause naming the model as the cause (held-out run 38: such lines named
-    nothing, though the table showed the plant row within the limits)."""
-    held = [model["name"] for model in models if model["kind"].startswith("plant")
-            and not any(result.limit_violations for result in results if result.model == model["name"])]
+    """Per learned model whose loops left the limits where a plant model held them (`plants_that_held`) under the
+    same MPC on the same plans: the clause naming the model as the cause (held-out run 38: such lines named nothing,
+    though the table showed the plant row within the limits)."""
+    held = plants_that_held(results, models)
     if not held:
         return {}
     return {model["name"]: f"the MPC with the plant model {held[0]} held the limits on the same plans, so this model "

@@ -105,12 +105,12 @@ def check_transmission_ringing(effects: PlantEffects, robot, time_step: float, s
         return
     joint = int(np.argmax(ringing * time_step))
     step = stable_plant_step(np.pi / ringing[joint] * (1 - 1e-9), sample_period)
-    softest = motor[joint] * (np.pi / time_step) ** 2   # (N m/rad: omega h = pi at this step)
+    stiffest = motor[joint] * (np.pi / time_step) ** 2   # (N m/rad: omega h = pi at this step)
     raise InputError(f"plant effects transmission_stiffness {stiffness[joint]:g} N m/rad on {robot.joint_names[joint]} "
                      f"against its motor's {motor[joint]:g} kg m² rings at {ringing[joint] / (2 * np.pi):.3g} Hz, "
                      f"which the plant step {time_step:g} s cannot resolve (omega h = {ringing[joint] * time_step:.3g} "
                      ">= pi); " + (f"lower --plant-time-step to {step:g} s, or " if step is not None else "")
-                     + f"give a transmission_stiffness below {bound_text(softest, at_least=False)} N m/rad")
+                     + f"give a transmission_stiffness below {bound_text(stiffest, at_least=False)} N m/rad")
 
 
 def stable_plant_step(bound: float, sample_period: float) -> float | None:
