@@ -525,7 +525,7 @@ def test_a_learned_models_failure_line_names_the_model_where_the_plant_model_hel
     held them under the same MPC on the same plans. The line now names the model as the cause."""
     from types import SimpleNamespace
     from stdm_drake.closed_loop.comparison import closed_loop_failures
-    from stdm_drake.closed_loop.study import model_notes
+    from stdm_drake.closed_loop.failure_causes import model_notes
     results = [SimpleNamespace(model="plant", limit_violations=0, fallbacks=0, steps=100),
                SimpleNamespace(model="D", limit_violations=95, fallbacks=0, steps=100)]
     models = [dict(name="plant", kind="plant"), dict(name="D", kind="D")]

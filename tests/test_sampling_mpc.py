@@ -264,49 +264,106 @@ def test_the_law_is_refused_exactly_where_its_closed_loop_grows_on_a_held_torque
         assert solver.settings.feedback_kp == kp
 
 
-def test_a_failed_loop_names_a_samplers_law_that_settles_slower_than_the_defaults():
-    """Held-out runs 33 and 34: laws inside the stability bound (kp 30,000 and kd 199.99 1/s at 10 ms: spectral
-    radius 0.9996; others at 0.90-0.975) left the limits with a near-exact model, the failure naming only the model.
-    A law that settles slower than the defaults' (0.886 at 10 ms) is now named on the failure line; the defaults, kp
-    0, and a law that settles faster (kp 20,000, kd 150: 0.707) are not."""
-    from stdm_drake.closed_loop.ancillary_law import law_note, law_radius
-    from stdm_drake.closed_loop.comparison import ClosedLoopResult, closed_loop_failures
+def test_the_law_is_described_against_the_defaults_by_its_error_map():
+    """A failing loop's line describes a sampler's law by its held-torque error map: spectral radius and, where the
+    dominant eigenvalue is negative, an error changing sign each period (held-out run 39: kp 35,000, kd 199 at 10 ms,
+    radius 0.872, inside the defaults' 0.886, rang at the Nyquist frequency and left the limits)."""
+    from stdm_drake.closed_loop.ancillary_law import law_radius
+    from stdm_drake.closed_loop.failure_causes import default_law, law_description
+    from stdm_drake.closed_loop.rti import Rti
     assert law_radius(225.0, 30.0, 0.01) == pytest.approx(0.8858, abs=1e-4)
     assert law_radius(2e4, 150.0, 0.01) == pytest.approx(np.sqrt(0.5))
-    assert law_note(Mppi(), 0.01) == law_note(Mppi(feedback_kp=2e4, feedback_kd=150.0), 0.01) == ""
-    assert law_note(Mppi(), 0.001) == ""                                     # (the defaults at 1 kHz too)
-    assert law_note(Mppi(feedback_kp=0.0, feedback_kd=30.0), 0.01) == ""    # (kp 0: position left to the sampler)
-    assert law_note(Mppi(feedback_kp=3000.0, feedback_kd=30.0), 0.01) != ""   # (radius 0.922)
-    note = law_note(Icem(feedback_kp=3e4, feedback_kd=199.99), 0.01)
-    assert note == ("the sampler's law (feedback_kp 30000 1/s², feedback_kd 199.99 1/s) settles slower than the "
-                    "defaults' at the model's period 0.01 s (spectral radius 0.9996 of its held-torque map, the "
-                    "defaults' 0.886): try the defaults, or gains that settle faster")
-    run = ClosedLoopResult("I", 0, 1.0, 1.0, 1.0, 1.0, limit_violations=74, fallbacks=0, constraint_active_steps=0,
-                           slack_steps=0, solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[])
-    assert closed_loop_failures([run], note=note) == [f"model I left the robot's joint limits on 74 of 100 steps (1 of 1 "
-                                                      f"plans); {note}"]
+    assert law_description(Mppi(feedback_kp=35000.0, feedback_kd=199.0), 0.01) == (
+        "the sampler's law (feedback_kp 35000 1/s², feedback_kd 199 1/s; spectral radius 0.872 of its held-torque error "
+        "map at the model's period 0.01 s, its error changing sign each period; the defaults' kp 225, kd 30: 0.886)")
+    assert "changing sign" not in law_description(Mppi(feedback_kp=3000.0, feedback_kd=30.0), 0.01)   # (0.922)
+    assert default_law(Mppi()) is None and default_law(Rti()) is None
+    assert default_law(Icem(feedback_kp=3e4, feedback_kd=199.99, samples=50)) == Icem(samples=50)
 
 
-def test_the_law_is_named_only_where_the_run_cannot_show_it_holds():
-    """Held-out run 35: a barely trained model failed under a slow law and under the defaults alike, and the line
-    said "try the defaults". A plant model that held the limits under the same law clears the law (no clause); where
-    the plant model also failed, the clause stands; where none ran (--no-plant), it names the law or the model."""
-    from stdm_drake.closed_loop.ancillary_law import law_note
-    from stdm_drake.closed_loop.comparison import ClosedLoopResult
-    from stdm_drake.closed_loop.study import failure_law_note
+def test_the_failure_line_names_what_the_checks_show(monkeypatch):
+    """Where no plant model held the limits, the failing plans are run again and the line names what they show:
+    with the plant model where the run left it out (`--no-plant`: it holds, so the learned model is why; held-out run
+    39), under the defaults' law where a sampler ran another (it holds, so the law is why; held-out run 39: radius
+    0.872 inside the defaults' named nothing), or neither (the MPC's settings, the plans or the plant). A plant model
+    that held the limits in the run, or gravity beyond an effort limit, needs no check."""
+    from types import SimpleNamespace
+    from stdm_drake.closed_loop import failure_causes
+    from stdm_drake.closed_loop.comparison import ClosedLoopResult, closed_loop_failures
+    from stdm_drake.closed_loop.rti import Rti
 
     def run(name, violations):
         return ClosedLoopResult(name, 0, 1.0, 1.0, 1.0, 1.0, limit_violations=violations, fallbacks=0,
                                 constraint_active_steps=0, slack_steps=0, solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100,
                                 q_error=[])
-    slow = Mppi(feedback_kp=100.0, feedback_kd=20.0)   # (radius 0.92 at 10 ms)
+    checks = []
+
+    def lines(results, models, optimizer, outcomes, **clauses):
+        """The failure lines, with each check (in order) leaving the limits on the steps `outcomes` gives."""
+        checks.clear()
+        scripted = iter(outcomes)
+        monkeypatch.setattr(failure_causes, "check_model", lambda *arguments: SimpleNamespace(name="plant"))
+        monkeypatch.setattr(failure_causes, "_steps_outside",
+                            lambda model, plans, config, *rest: checks.append(config.optimizer) or next(scripted))
+        causes = failure_causes.loop_causes(results, models, [(0, None)], MpcConfig(optimizer=optimizer), None, None,
+                                            0.01, **clauses)
+        return closed_loop_failures(results, note=causes.note, model_notes=causes.model_notes)
+
     plant, learned = dict(name="plant", kind="plant"), dict(name="D", kind="D")
-    assert failure_law_note(slow, 0.01, [run("plant", 0), run("D", 97)], [plant, learned]) == ""
-    assert failure_law_note(slow, 0.01, [run("plant", 5), run("D", 97)], [plant, learned]) == law_note(slow, 0.01)
-    untold = failure_law_note(slow, 0.01, [run("D", 97)], [learned])
-    assert untold == law_note(slow, 0.01, untold=True) and "try the defaults" not in untold
-    assert untold.endswith("; that or the model: keep the plant model in the run (leave out --no-plant) to see "
-                           "whether the law holds a near-exact model")
+    ringing = Mppi(feedback_kp=35000.0, feedback_kd=199.0)
+    model_is_why = ", so this model is not accurate enough for the closed loop (train's one-step verdict is no closed-loop one)"
+    assert lines([run("plant", 0), run("D", 97)], [plant, learned], ringing, []) == [
+        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the MPC with the plant model plant held "
+        "the limits on the same plans" + model_is_why] and checks == []
+    assert lines([run("D", 97)], [learned], Rti(), [0]) == [
+        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the same MPC with the plant model plant "
+        "held the limits on these plans (a check run once the loops had failed)" + model_is_why] and checks == [Rti()]
+    settings_are_why = ", so the MPC's settings (--config), the plans or the plant are why, not a learned model's accuracy"
+    assert lines([run("D", 97)], [learned], Rti(), [40], effects="the loops ran with X") == [
+        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the loops ran with X; the same MPC with "
+        "the plant model plant left them too (40 steps, a check run once the loops had failed)" + settings_are_why]
+    law = failure_causes.law_description(ringing, 0.01)
+    assert lines([run("plant", 78)], [plant], ringing, [0]) == [
+        f"model plant left the robot's joint limits on 78 of 100 steps (1 of 1 plans); {law} is why: under the "
+        "defaults' law the same MPC with the plant model plant held the limits on these plans; use the defaults, or "
+        "gains that settle like them"] and checks == [Mppi()]
+    assert lines([run("D", 97)], [learned], ringing, [50, 60]) == [
+        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the same MPC with the plant model "
+        "plant left them too (50 steps, a check run once the loops had failed) and the plant model plant left them "
+        f"under the defaults' law too, not only under {law}" + settings_are_why] and checks == [ringing, Mppi()]
+    assert lines([run("plant", 5), run("D", 97)], [plant, learned], Rti(), []) == [
+        f"model {name} left the robot's joint limits on {steps} of 100 steps (1 of 1 plans); the plant model's own loops "
+        "left them too under this MPC" + settings_are_why for name, steps in (("plant", 5), ("D", 97))]
+    assert lines([run("plant", 5)], [plant], Rti(), []) == [
+        "model plant left the robot's joint limits on 5 of 100 steps (1 of 1 plans); with the robot's own dynamics as "
+        "the MPC's model: the MPC's settings (--config) or the plans are why"]
+    assert lines([run("D", 97)], [learned], ringing, [], gravity="gravity beyond X") == [
+        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); gravity beyond X"] and checks == []
+
+
+@pytest.mark.slow
+def test_mpc_names_a_ringing_law_and_a_model_run_without_the_plant(tracking_dataset, tmp_path, capsys):
+    """Held-out run 39's two kinds, through the command: MPPI whose law rings (kp 35,000, kd 199 at 10 ms) left the
+    limits with the plant as its model and named nothing; a model trained for one epoch, run with --no-plant, left them
+    and named nothing. Each line now names the cause its check shows."""
+    settings = tmp_path / "mpc.yaml"
+    settings.write_text("optimizer: !Mppi {samples: 50, feedback_kp: 35000.0, feedback_kd: 199.0}\n")
+    capsys.readouterr()
+    assert main(["mpc", str(tracking_dataset), "--plans", "1", "--config", str(settings), "--quiet",
+                 "-o", str(tmp_path / "law")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("stdm-drake mpc: error: model plant left the robot's joint limits") and line.endswith(
+        "is why: under the defaults' law the same MPC with the plant model plant held the limits on these plans; use "
+        "the defaults, or gains that settle like them"), line
+    assert main(["train", str(tracking_dataset), "--model", "D", "--epochs", "1", "--per-group", "off", "--quiet",
+                 "-o", str(tmp_path / "weak")]) == 0
+    capsys.readouterr()
+    assert main(["mpc", str(tracking_dataset), "--no-plant", "--model", f"W={tmp_path / 'weak' / 'seed0' / 'checkpoint.pt'}",
+                 "--plans", "1", "--quiet", "-o", str(tmp_path / "model")]) == 2
+    line = capsys.readouterr().err.strip().splitlines()[0]   # (then its fallbacks' line, with the same cause)
+    assert line.startswith("stdm-drake mpc: error: model W left the robot's joint limits") and line.endswith(
+        "the same MPC with the plant model plant held the limits on these plans (a check run once the loops had failed)"
+        ", so this model is not accurate enough for the closed loop (train's one-step verdict is no closed-loop one)"), line
 
 
 def test_work_beyond_the_sampling_budget_is_refused_before_it_starts():

@@ -36,28 +36,6 @@ def law_radius(kp: float, kd: float, h: float) -> float:
     return float(np.abs(np.linalg.eigvals(np.array([[1 - a / 2, 1 - b / 2], [-a, 1 - b]]))).max())
 
 
-def law_note(settings, h: float, untold: bool = False) -> str:
-    """A clause for a closed loop that failed under a sampler whose law settles slower than the defaults' (kp 225, kd
-    30) at the model's period h s: a larger spectral radius of the held-torque map (kp 0 excepted, whose position
-    error is left to the sampler by design). Such gains pass `check_law_stable` yet can let a torque-limited loop
-    ring: held-out runs 33 and 34 saw a near-exact model leave the limits at radii 0.90-0.99997 (0.886 for the
-    defaults at 10 ms), and hold them at 0.707 and 0.84; "" otherwise. untold: no near-exact model ran beside the
-    failing one (`mpc --no-plant`), so nothing tells the law from the model (held-out run 35: a barely trained model
-    failed under the defaults as under slower gains); the clause then names both."""
-    kp, kd = getattr(settings, "feedback_kp", 0.0), getattr(settings, "feedback_kd", 0.0)
-    if h <= 0 or kp == 0:
-        return ""
-    defaults = type(settings)()   # (the settings' own defaults, not restated here)
-    radius, default_radius = law_radius(kp, kd, h), law_radius(defaults.feedback_kp, defaults.feedback_kd, h)
-    if radius <= default_radius:
-        return ""
-    return (f"the sampler's law (feedback_kp {kp:g} 1/s², feedback_kd {kd:g} 1/s) settles slower than the defaults' at "
-            f"the model's period {h:g} s (spectral radius {radius:.6g} of its held-torque map, the defaults' "
-            f"{default_radius:.3g})" + ("; that or the model: keep the plant model in the run (leave out --no-plant) "
-                                         "to see whether the law holds a near-exact model" if untold else
-                                         ": try the defaults, or gains that settle faster"))
-
-
 def computed_torque_law(following: np.ndarray, B: np.ndarray, x0: np.ndarray, reference: np.ndarray,
                         u_ff: np.ndarray, offset: np.ndarray, settings, period: float, joints: int):
     """(feedforward (H, m) N m, gain (m, S) N m per (rad, rad/s), acceleration map (n, m) N m per rad/s^2) of the

@@ -268,7 +268,7 @@ def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5,
     """One line per model whose closed loop is not a result: it left the robot's limits (a state outside
     the position or velocity limits, or not finite, on any step of any plan) or fell back to gravity
     compensation (non-finite predictions) on more than `fraction` of its steps; `note` (a setting the failure may
-    come from, `ancillary_law.law_note`) ends each line, after the model's own in `model_notes` (name: clause)."""
+    come from, `failure_causes.loop_causes`) ends each line, after the model's own in `model_notes` (name: clause)."""
     failures = []
     for name in dict.fromkeys(result.model for result in results):
         said = "; ".join(filter(None, [(model_notes or {}).get(name, ""), note]))

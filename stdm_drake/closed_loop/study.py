@@ -13,11 +13,11 @@ import pathlib
 import re
 import sys
 
-from stdm_drake.closed_loop.ancillary_law import law_note
 from stdm_drake.closed_loop.comparison import (ClosedLoopResult, closed_loop_failures, compare_controllers,
                                                constraint_lines,
                                                draw_results, held_out_references, real_time_lines, summarize,
                                                summary_table)
+from stdm_drake.closed_loop.failure_causes import loop_causes
 from stdm_drake.closed_loop.optimizer import OptimizerSettings
 from stdm_drake.errors import InputError
 from stdm_drake.files import line_text, atomic_paths, escaped_names
@@ -185,33 +185,11 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     # (held-out run 37: loops on elastic transmissions failed with no cause named, where `collect` names the springs)
     shaping = loop_effects(plant_config.effects, list(robot.joint_names)) if failed and not gravity else []
     effects = f"the loops ran with {', '.join(shaping)}" if shaping else ""
-    return finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config, gravity, effects)
-
-
-def plants_that_held(results: list, models: list[dict]) -> list[str]:
-    """The plant models of the run (`models`' kind "plant...") whose loops held the limits on every plan."""
-    return [model["name"] for model in models if model["kind"].startswith("plant")
-            and not any(result.limit_violations for result in results if result.model == model["name"])]
-
-
-def failure_law_note(optimizer, sample_period: float, results: list, models: list[dict]) -> str:
-    """The clause of `ancillary_law.law_note` for failed loops, unless a plant model of the run held the limits under
-    the same law (then the law is not why another model failed); naming the model too where no plant model ran."""
-    if plants_that_held(results, models):
-        return ""
-    return law_note(optimizer, sample_period, untold=not any(model["kind"].startswith("plant") for model in models))
-
-
-def model_notes(results: list, models: list[dict]) -> dict:
-    """Per learned model whose loops left the limits where a plant model held them (`plants_that_held`) under the
-    same MPC on the same plans: the clause naming the model as the cause (held-out run 38: such lines named nothing,
-    though the table showed the plant row within the limits)."""
-    held = plants_that_held(results, models)
-    if not held:
-        return {}
-    return {model["name"]: f"the MPC with the plant model {held[0]} held the limits on the same plans, so this model "
-                           "is not accurate enough for the closed loop (train's one-step verdict is no closed-loop one)"
-            for model in models if not model["kind"].startswith("plant")}
+    result = finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config)
+    causes = loop_causes(results, inputs["models"], references, config, plant_config, robot, dataset.sample_period,
+                         gravity=gravity, effects=effects, say=say if study.progress else None)
+    result.failures = closed_loop_failures(results, note=causes.note, model_notes=causes.model_notes)
+    return result
 
 
 def check_particles_used(optimizer, models) -> None:
@@ -316,11 +294,10 @@ def tuned_settings(study: MpcStudy, dataset, models, learned, references, config
 
 
 def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: float, inputs: dict,
-           tuning: dict | None, recorder, config, gravity: str = "", effects: str = "") -> MpcStudyResult:
+           tuning: dict | None, recorder, config) -> MpcStudyResult:
     """The table printed (with the constraint summary of `config`'s constraints), mpc.md, mpc.json, mpc.csv and
-    mpc.png written to `output`, the recording to the HTML file; the result (its failures naming `gravity`, why no
-    torque holds the arm on the plans, else the plant `effects` that shape the loops and a sampler's law that barely
-    settles, `failure_law_note`)."""
+    mpc.png written to `output`, the recording to the HTML file; the result, its failure lines left to the caller
+    (`failure_causes.loop_causes` may run checks to name their causes)."""
     import json
 
     rows = summarize(results, sample_period)
@@ -348,6 +325,4 @@ def finish(study: MpcStudy, output: pathlib.Path, results: list, sample_period: 
     print(f"wrote {line_text(output)}: mpc.md, mpc.csv, mpc.json, mpc.png")
     if recorder is not None:
         recorder.finish(study.html, what="robot: plant under MPC; translucent orange: the reference")
-    failures = closed_loop_failures(results, note=gravity or "; ".join(filter(None, [effects, failure_law_note(
-        config.optimizer, sample_period, results, inputs["models"])])), model_notes=model_notes(results, inputs["models"]))
-    return MpcStudyResult(results=results, summary=rows, table=table, failures=failures, folder=output, record=record)
+    return MpcStudyResult(results=results, summary=rows, table=table, failures=[], folder=output, record=record)
