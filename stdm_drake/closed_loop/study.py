@@ -187,7 +187,7 @@ def run_mpc_study(study: MpcStudy) -> MpcStudyResult:
     effects = f"the loops ran with {', '.join(shaping)}" if shaping else ""
     result = finish(study, output, results, dataset.sample_period, inputs, tuning, recorder, config)
     causes = loop_causes(results, inputs["models"], references, config, plant_config, robot, dataset.sample_period,
-                         gravity=gravity, effects=effects, say=say if study.progress else None)
+                         gravity=gravity, effects=effects, say=say if study.progress else None, learned_models=learned)
     result.failures = closed_loop_failures(results, note=causes.note, model_notes=causes.model_notes)
     return result
 
