@@ -302,7 +302,8 @@ def run_command(name: str, argv: list[str]) -> int:
     except SystemExit as exit_:  # --help (0) or a malformed command line (2, one line printed)
         return int(exit_.code or 0)
     try:
-        with command_outputs(name, argv), drake_warnings_once(name), deferred_warnings(), printable_output():
+        with command_outputs(name, argv, options=frozenset(command_parser._option_string_actions)), \
+                drake_warnings_once(name), deferred_warnings(), printable_output():
             return int(module.run(args) or 0)   # (a failing command prints its one error line only)
     except BrokenPipeError:   # the reader of the output went away (`stdm-drake inspect x.h5 | head -2`): quietly
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())   # (no second error when Python flushes)

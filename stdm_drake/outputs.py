@@ -48,12 +48,12 @@ _held_locks: dict = {}   # every lock this process holds (as "locks" above): `re
 
 
 @contextlib.contextmanager
-def command_outputs(command: str, arguments: list[str] = ()):
-    """While `command` (a CLI command's name; `arguments`: the rest of its line) runs: outputs are checked against
-    the command that wrote them, marked with it, locked until the block ends. A command that fails (an exception:
-    an error, a signal) leaves no output folder it made that holds nothing but the marker and empty folders."""
+def command_outputs(command: str, arguments: list[str] = (), options=None):
+    """While `command` (a CLI command's name; `arguments`: its line's rest; `options`: its option strings) runs:
+    outputs are checked against the command that wrote them, marked with it, locked until the block ends. A failed
+    command (an error, a signal) leaves no output folder it made that holds nothing but the marker and empty folders."""
     global _running
-    outer, _running = _running, dict(command=command, arguments=list(arguments), locks={}, made=[])
+    outer, _running = _running, dict(command=command, arguments=list(arguments), locks={}, made=[], options=options)
     try:
         yield
     except BaseException:
@@ -91,6 +91,11 @@ def running_command(with_arguments: bool = False):
     """The CLI command now running (None: used as a library); `with_arguments`: its line after `stdm-drake`, a list."""
     line = None if _running is None else [_running["command"], *_running["arguments"]]
     return line if with_arguments or line is None else line[0]
+
+
+def running_options() -> frozenset | None:
+    """The option strings of the CLI command now running ("--train", "-o", ...); None as a library or unknown."""
+    return None if _running is None else _running.get("options")
 
 
 def written_by() -> str:

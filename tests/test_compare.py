@@ -55,6 +55,31 @@ def test_a_dataset_too_small_for_the_split_is_refused_before_any_folder_or_line(
     assert not (tmp_path / "c").exists()
 
 
+@pytest.mark.slow
+def test_its_training_warnings_name_only_options_compare_takes_or_trains_own(tmp_path, capsys):
+    """Held-out run 40: on 4 excitation trajectories the training warning of `compare` advised "--train", which
+    compare refuses. An option of `stdm-drake train` that compare lacks is named as train's; under `train` itself,
+    as it is."""
+    import re
+    from stdm_drake.cli import main
+    from stdm_drake.learning.train_job import train_option
+    data = tmp_path / "small.h5"
+    assert main(["collect", "--protocol", "excitation", "--count", "4", "--quiet", "-o", str(data)]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(data), "--quick", "--kinds", "D", "--no-closed-loop", "-o", str(tmp_path / "c")]) in (0, 1)
+    err = capsys.readouterr().err
+    assert "likely cause: the data size" in err and "train on more of them (`stdm-drake train --train`)" in err, err
+    taken = {"--robot", "--output", "--quick", "--kinds", "--no-closed-loop", "--quiet", "--force", "--help"}
+    bare = [flag for flag in re.findall(r"(?<![\w`-])(--[a-z][a-z-]*)", re.sub(r"`stdm-drake \w+ [^`]*`", "", err))
+            if flag not in taken and flag != "--count"]   # (collect --count: another command, named with it)
+    assert not bare, (bare, err)
+    with command_outputs("train", [], options=frozenset({"--train", "--epochs"})):
+        assert train_option("--train") == "--train"
+    with command_outputs("mbrl", [], options=frozenset({"--epochs"})):
+        assert train_option("--epochs") == "--epochs" and train_option("--patience") == "`stdm-drake train --patience`"
+    assert train_option("--train") == "--train"   # (the library: no command)
+
+
 def test_a_folder_of_another_request_or_of_stages_without_one_is_refused(tmp_path):
     """Review: stages are reused only for the same request; a folder holding stage files without the request.json
     that names theirs is refused (with --force too), and the message names what differs."""

@@ -24,7 +24,7 @@ from stdm_drake.learning.seeds import fit_seeds
 from stdm_drake.learning.settings import TrainSettings
 from stdm_drake.learning.trainable import network_class
 from stdm_drake.learning.train_outputs import write_seed_files
-from stdm_drake.outputs import check_output_folder, mark_output_folder, written_by
+from stdm_drake.outputs import check_output_folder, mark_output_folder, running_options, written_by
 from stdm_drake.robots.plant import Dynamics
 from stdm_drake.data.inspect import noise_floor
 from stdm_drake.learning.evaluate import compare_with_baselines, times_better, physics_baselines
@@ -231,7 +231,7 @@ class LearningVerdict:
         return (f"the robot's description: the plant it describes predicts q {ratio:.3g}x worse than the Euler step "
                 f"one step ahead on these data ({plant.one_step.angle_mse:.3g} against "
                 f"{euler.one_step.angle_mse:.3g} rad^2), so the grey box starts from physics that mislead it; "
-                "identify the robot from the data (`stdm-drake identify`) and train on it (--physics)")
+                f"identify the robot from the data (`stdm-drake identify`) and train on it ({train_option('--physics')})")
 
     def likely_cause(self, selection, rows) -> str:
         """The first of the usual reasons that fits this run."""
@@ -240,9 +240,10 @@ class LearningVerdict:
         if settings.uses_derivative() and targets_used and chosen == "planned" and self.mismatch is not None and \
                 self.mismatch["acceleration"] > PLAN_MISMATCH_LIMIT:
             return (f"the derivative targets: the plan's accelerations are {self.mismatch['acceleration']:.2f} "
-                    "(relative RMS) from the recorded ones; leave out --derivative-source planned")
+                    f"(relative RMS) from the recorded ones; leave out {train_option('--derivative-source')} planned")
         if settings.uses_derivative() and selection is None:
-            return (f"alpha {settings.alpha:g}, fixed: --alpha auto chooses it by validation, 0 (naive) included")
+            return (f"alpha {settings.alpha:g}, fixed: {train_option('--alpha')} auto chooses it by validation, 0 (naive) "
+                    "included")
         if len(rows) > 2 and rows[1].verdict.startswith("learned"):
             return "the derivative loss: the naive member learned; train --model " + self.name[:-1]
         description = self.description_error(rows)
@@ -252,12 +253,22 @@ class LearningVerdict:
             more = ("collect more trajectories (collect --count)" if self.dataset.is_simulated else
                     "record and import a longer log of the robot")
             return (f"the data size: {self.training_transitions} training transitions; {more} or train on more of "
-                    "them (--train)")
+                    f"them ({train_option('--train')})")
         if not self.structure.grey_box and (self.structure.inputs == "raw" or self.structure.predicts == "state"):
-            return ("the model structure: the paper's black box (--inputs raw, --predicts state) did not learn on "
-                    "the shipped protocols (docs/learning.md); leave --inputs and --predicts at their defaults")
+            inputs, predicts = train_option("--inputs"), train_option("--predicts")
+            return (f"the model structure: the paper's black box ({inputs} raw, {predicts} state) did not learn on "
+                    f"the shipped protocols (docs/learning.md); leave {inputs} and {predicts} at their defaults")
         return ("the data or the training budget: check the data with `stdm-drake inspect` and the learning curves "
-                "(curves.csv); raise --epochs or --patience if the validation error was still falling")
+                f"(curves.csv); raise {train_option('--epochs')} or {train_option('--patience')} if the validation "
+                "error was still falling")
+
+
+def train_option(flag: str) -> str:
+    """`flag`, an option of `stdm-drake train`, as advice names it under the running command: as it is where that
+    command takes it (train, mbrl's --epochs; the library), else as `stdm-drake train FLAG` (held-out run 40:
+    compare's training warning advised --train, which compare refuses)."""
+    options = running_options()
+    return flag if options is None or flag in options else f"`stdm-drake train {flag}`"
 
 
 def grey_box_physics(path, robot, settings, dataset, split) -> dict | None:
