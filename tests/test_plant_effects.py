@@ -531,7 +531,7 @@ def test_a_learned_models_failure_line_names_the_model_where_the_plant_model_hel
     models = [dict(name="plant", kind="plant"), dict(name="D", kind="D")]
     lines = closed_loop_failures(results, note="the loops ran with X", model_notes=model_notes(results, models))
     assert lines == ["model D left the robot's joint limits on 95 of 100 steps (1 of 1 plans); the MPC with the plant "
-                     "model plant held the limits on the same plans, so this model is not accurate enough for the "
+                     "model held the limits on the same plans, so this model is not accurate enough for the "
                      "closed loop (train's one-step verdict is no closed-loop one); the loops ran with X"]
     results[0].limit_violations = 3   # (the plant model left them too: the model is not singled out)
     assert model_notes(results, models) == {}

@@ -303,7 +303,7 @@ def test_the_failure_line_names_what_the_checks_show(monkeypatch):
         checks.clear()
         scripted = iter(outcomes)
         monkeypatch.setattr(failure_causes, "check_model", lambda *arguments: SimpleNamespace(name="plant"))
-        monkeypatch.setattr(failure_causes, "_steps_outside",
+        monkeypatch.setattr(failure_causes, "_failed_steps",
                             lambda model, plans, config, *rest: checks.append(config.optimizer) or next(scripted))
         causes = failure_causes.loop_causes(results, models, [(0, None)], MpcConfig(optimizer=optimizer), None, None,
                                             0.01, learned_models=[SimpleNamespace(name=model["name"]) for model in models
@@ -314,18 +314,18 @@ def test_the_failure_line_names_what_the_checks_show(monkeypatch):
     ringing = Mppi(feedback_kp=35000.0, feedback_kd=199.0)
     model_is_why = ", so this model is not accurate enough for the closed loop (train's one-step verdict is no closed-loop one)"
     assert lines([run("plant", 0), run("D", 97)], [plant, learned], ringing, []) == [
-        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the MPC with the plant model plant held "
+        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the MPC with the plant model held "
         "the limits on the same plans" + model_is_why] and checks == []
     assert lines([run("D", 97)], [learned], Rti(), [0]) == [
-        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the same MPC with the plant model plant "
+        "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the same MPC with the plant model "
         "held the limits on these plans (a check run once the loops had failed)" + model_is_why] and checks == [Rti()]
     settings_are_why = ", so the MPC's settings (--config), the plans or the plant are why, not a learned model's accuracy"
     assert lines([run("D", 97)], [learned], Rti(), [40], effects="the loops ran with X") == [
         "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the loops ran with X; the same MPC with "
-        "the plant model plant left them too (40 steps, a check run once the loops had failed)" + settings_are_why]
+        "the plant model left the limits too (40 steps, a check run once the loops had failed)" + settings_are_why]
     law = failure_causes.law_description(ringing, 0.01)
-    law_is_why = (f"{law} makes the loops leave them: under the defaults' law the same MPC with the plant model plant "
-                  "held the limits on these plans; use the defaults, or gains that settle like them")
+    law_is_why = (f"{law} makes the loops leave the robot's limits: under the defaults' law the same MPC with the plant "
+                  "model held them on these plans; use the defaults, or gains that settle like them")
     assert lines([run("plant", 78)], [plant], ringing, [0]) == [
         f"model plant left the robot's joint limits on 78 of 100 steps (1 of 1 plans); {law_is_why}"] and \
         checks == [Mppi()]
@@ -333,17 +333,22 @@ def test_the_failure_line_names_what_the_checks_show(monkeypatch):
     # the model does not: both are named on its line, the law alone where the model holds them under the defaults')
     assert lines([run("D", 97)], [learned], ringing, [30, 0, 12]) == [
         "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); under the defaults' law too this "
-        "model left them where the plant model held them (a check run once the loops had failed)" + model_is_why +
+        "model's loops failed where the plant model held the limits (a check run once the loops had failed)" + model_is_why +
         f"; {law_is_why}"] and checks == [ringing, Mppi(), Mppi()]
+    fallback_only = dataclasses.replace(run("D", 0), fallbacks=100)   # (held-out run 41: a row that only fell back)
+    assert lines([fallback_only], [learned], ringing, [30, 0, 81]) == [
+        "model D fell back to gravity compensation on 100 of 100 steps (its predictions were not finite); its row is "
+        "not a result; under the defaults' law too this model's loops failed where the plant model held the limits (a "
+        "check run once the loops had failed)" + model_is_why + f"; {law_is_why}"]
     assert lines([run("D", 97)], [learned], ringing, [30, 0, 0]) == [
         f"model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); {law_is_why}"]
     assert lines([run("D", 97)], [learned], ringing, [50, 60]) == [
         "model D left the robot's joint limits on 97 of 100 steps (1 of 1 plans); the same MPC with the plant model "
-        "plant left them too (50 steps, a check run once the loops had failed) and the plant model plant left them "
+        "left the limits too (50 steps, a check run once the loops had failed) and the plant model left the limits "
         f"under the defaults' law too, not only under {law}" + settings_are_why] and checks == [ringing, Mppi()]
     assert lines([run("plant", 5), run("D", 97)], [plant, learned], Rti(), []) == [
         f"model {name} left the robot's joint limits on {steps} of 100 steps (1 of 1 plans); the plant model's own loops "
-        "left them too under this MPC" + settings_are_why for name, steps in (("plant", 5), ("D", 97))]
+        "left the limits too under this MPC" + settings_are_why for name, steps in (("plant", 5), ("D", 97))]
     assert lines([run("plant", 5)], [plant], Rti(), []) == [
         "model plant left the robot's joint limits on 5 of 100 steps (1 of 1 plans); with the robot's own dynamics as "
         "the MPC's model: the MPC's settings (--config) or the plans are why"]
@@ -363,8 +368,8 @@ def test_mpc_names_a_ringing_law_and_a_model_run_without_the_plant(tracking_data
                  "-o", str(tmp_path / "law")]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith("stdm-drake mpc: error: model plant left the robot's joint limits") and line.endswith(
-        "makes the loops leave them: under the defaults' law the same MPC with the plant model plant held the limits on "
-        "these plans; use the defaults, or gains that settle like them"), line
+        "makes the loops leave the robot's limits: under the defaults' law the same MPC with the plant model held them "
+        "on these plans; use the defaults, or gains that settle like them"), line
     assert main(["train", str(tracking_dataset), "--model", "D", "--epochs", "1", "--per-group", "off", "--quiet",
                  "-o", str(tmp_path / "weak")]) == 0
     capsys.readouterr()
@@ -372,7 +377,7 @@ def test_mpc_names_a_ringing_law_and_a_model_run_without_the_plant(tracking_data
                  "--plans", "1", "--quiet", "-o", str(tmp_path / "model")]) == 2
     line = capsys.readouterr().err.strip().splitlines()[0]   # (then its fallbacks' line, with the same cause)
     assert line.startswith("stdm-drake mpc: error: model W left the robot's joint limits") and line.endswith(
-        "the same MPC with the plant model plant held the limits on these plans (a check run once the loops had failed)"
+        "the same MPC with the plant model held the limits on these plans (a check run once the loops had failed)"
         ", so this model is not accurate enough for the closed loop (train's one-step verdict is no closed-loop one)"), line
 
 
