@@ -17,6 +17,7 @@ mismatch one line: page:line, the number written, what the file gives).
 from __future__ import annotations
 
 import csv
+import functools
 import json
 import math
 import pathlib
@@ -46,7 +47,14 @@ NAMES = dict(len=len, sum=sum, min=min, max=max, abs=abs, round=round, sorted=so
 
 
 def load(path: pathlib.Path):
-    """A results file's content: JSON's value, or a CSV file's rows (dicts of strings)."""
+    """A results file's content: JSON's value, or a CSV file's rows (dicts of strings); read once while it is
+    unchanged (the expressions only read it: none sorts, pops or assigns in place)."""
+    status = path.stat()
+    return _read(path, status.st_mtime_ns, status.st_size)
+
+
+@functools.lru_cache(maxsize=None)
+def _read(path: pathlib.Path, modified_ns: int, size: int):
     if path.suffix == ".csv":
         with path.open(newline="") as stream:
             return list(csv.DictReader(stream))
