@@ -277,6 +277,7 @@ def test_the_law_is_described_against_the_defaults_by_its_error_map():
         "the sampler's law (feedback_kp 35000 1/s², feedback_kd 199 1/s; spectral radius 0.872 of its held-torque error "
         "map at the model's period 0.01 s, its error changing sign each period; the defaults' kp 225, kd 30: 0.886)")
     assert "changing sign" not in law_description(Mppi(feedback_kp=3000.0, feedback_kd=30.0), 0.01)   # (0.922)
+    assert "spectral radius 0.9996 " in law_description(Icem(feedback_kp=3e4, feedback_kd=199.99), 0.01)   # (not "1")
     assert default_law(Mppi()) is None and default_law(Rti()) is None
     assert default_law(Icem(feedback_kp=3e4, feedback_kd=199.99, samples=50)) == Icem(samples=50)
 

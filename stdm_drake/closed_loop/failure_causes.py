@@ -67,8 +67,9 @@ def law_description(settings, h: float) -> str:
     a, b = kp * h ** 2, kd * h
     dominant = max(np.linalg.eigvals(np.array([[1 - a / 2, 1 - b / 2], [-a, 1 - b]])), key=abs)
     sign = ", its error changing sign each period" if dominant.real < 0 else ""
+    radius = law_radius(kp, kd, h)
     return (f"the sampler's law (feedback_kp {kp:g} 1/s², feedback_kd {kd:g} 1/s; spectral radius "
-            f"{law_radius(kp, kd, h):.3g} of its held-torque error map at the model's period {h:g} s{sign}; the "
+            f"{radius:.{3 if radius < 0.9995 else 6}g} of its held-torque error map at the model's period {h:g} s{sign}; the "
             f"defaults' kp {defaults.feedback_kp:g}, kd {defaults.feedback_kd:g}: "
             f"{law_radius(defaults.feedback_kp, defaults.feedback_kd, h):.3g})")
 
