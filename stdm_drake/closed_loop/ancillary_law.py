@@ -29,11 +29,16 @@ def check_law_stable(settings, h: float) -> None:
                      f"{bound_text(2 / h, at_least=False, digits=6)}) 1/s)")
 
 
-def law_radius(kp: float, kd: float, h: float) -> float:
-    """The spectral radius of the law's held-torque error map at period h s (`check_law_stable`'s map); below 1
-    the tracking error settles, each period by about this factor (the defaults, kp 225 and kd 30 at 10 ms: 0.886)."""
+def law_eigenvalues(kp: float, kd: float, h: float) -> np.ndarray:
+    """The eigenvalues (2,) of the law's held-torque error map at period h s (`check_law_stable`'s map)."""
     a, b = kp * h ** 2, kd * h
-    return float(np.abs(np.linalg.eigvals(np.array([[1 - a / 2, 1 - b / 2], [-a, 1 - b]]))).max())
+    return np.linalg.eigvals(np.array([[1 - a / 2, 1 - b / 2], [-a, 1 - b]]))
+
+
+def law_radius(kp: float, kd: float, h: float) -> float:
+    """The spectral radius of the law's held-torque error map at period h s (`law_eigenvalues`); below 1 the
+    tracking error settles, each period by about this factor (the defaults, kp 225 and kd 30 at 10 ms: 0.886)."""
+    return float(np.abs(law_eigenvalues(kp, kd, h)).max())
 
 
 def computed_torque_law(following: np.ndarray, B: np.ndarray, x0: np.ndarray, reference: np.ndarray,

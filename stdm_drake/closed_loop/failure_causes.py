@@ -12,9 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 
-import numpy as np
-
-from stdm_drake.closed_loop.ancillary_law import law_radius
+from stdm_drake.closed_loop.ancillary_law import law_eigenvalues, law_radius
 from stdm_drake.closed_loop.comparison import compare_controllers
 from stdm_drake.dynamics.physics import PlantModel
 
@@ -64,8 +62,7 @@ def law_description(settings, h: float) -> str:
     its held-torque error map (`ancillary_law.check_law_stable`'s) settles against the defaults'."""
     kp, kd = settings.feedback_kp, settings.feedback_kd
     defaults = type(settings)()   # (the settings' own defaults, not restated here)
-    a, b = kp * h ** 2, kd * h
-    dominant = max(np.linalg.eigvals(np.array([[1 - a / 2, 1 - b / 2], [-a, 1 - b]])), key=abs)
+    dominant = max(law_eigenvalues(kp, kd, h), key=abs)
     sign = ", its error changing sign each period" if dominant.real < 0 else ""
     radius = law_radius(kp, kd, h)
     return (f"the sampler's law (feedback_kp {kp:g} 1/s², feedback_kd {kd:g} 1/s; spectral radius "
