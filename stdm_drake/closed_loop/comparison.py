@@ -263,7 +263,18 @@ def reference_of(dataset, index: int) -> Reference:
     return Reference(q=traj.q, v=traj.v)
 
 
-def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = 0.5, note: str = "",
+FALLBACK_FRACTION = 0.5   # a model's loops on gravity compensation on more of their steps than this are no result
+
+
+def failed_steps(results: list, fraction: float = FALLBACK_FRACTION) -> int:
+    """Steps of `results` (one model's loops) that make them no result (`closed_loop_failures`): outside the limits,
+    and on gravity compensation where that is more than `fraction` of them."""
+    steps = sum(result.steps for result in results)
+    fallbacks = sum(result.fallbacks for result in results)
+    return int(sum(result.limit_violations for result in results) + (fallbacks if fallbacks > fraction * steps else 0))
+
+
+def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = FALLBACK_FRACTION, note: str = "",
                          model_notes: dict | None = None) -> list[str]:
     """One line per model whose closed loop is not a result: it left the robot's limits (a state outside
     the position or velocity limits, or not finite, on any step of any plan) or fell back to gravity

@@ -13,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from stdm_drake.closed_loop.ancillary_law import law_eigenvalues, law_radius
-from stdm_drake.closed_loop.comparison import compare_controllers
+from stdm_drake.closed_loop.comparison import compare_controllers, failed_steps
 from stdm_drake.dynamics.physics import PlantModel
 
 MODEL_CAUSE = ("{evidence}, so this model is not accurate enough for the closed loop (train's one-step verdict is no "
@@ -49,14 +49,6 @@ def plant_phrase(name: str) -> str:
     return "the plant model" if name == "plant" else f"the plant model ({name})"
 
 
-def failed_steps(results: list) -> int:
-    """Steps of `results` (one model's loops) that make them no result (`comparison.closed_loop_failures`): outside the
-    limits, and on gravity compensation where that is most of them (held-out run 41: a model that only fell back)."""
-    steps = sum(result.steps for result in results)
-    fallbacks = sum(result.fallbacks for result in results)
-    return int(sum(result.limit_violations for result in results) + (fallbacks if fallbacks > 0.5 * steps else 0))
-
-
 def law_description(settings, h: float) -> str:
     """The sampler's law (feedback_kp 1/s², feedback_kd 1/s) at the model's period h s, as a phrase: its gains and how
     its held-torque error map (`ancillary_law.check_law_stable`'s) settles against the defaults'."""
@@ -64,7 +56,7 @@ def law_description(settings, h: float) -> str:
     defaults = type(settings)()   # (the settings' own defaults, not restated here)
     dominant = max(law_eigenvalues(kp, kd, h), key=abs)
     sign = ", its error changing sign each period" if dominant.real < 0 else ""
-    radius = law_radius(kp, kd, h)
+    radius = abs(dominant)
     return (f"the sampler's law (feedback_kp {kp:g} 1/s², feedback_kd {kd:g} 1/s; spectral radius "
             f"{radius:.{3 if radius < 0.9995 else 6}g} of its held-torque error map at the model's period {h:g} s{sign}; the "
             f"defaults' kp {defaults.feedback_kp:g}, kd {defaults.feedback_kd:g}: "
@@ -109,9 +101,10 @@ def loop_causes(results: list, models: list[dict], references: list, config, pla
         return LoopCauses(gravity or effects, notes)
     plans = [(index, reference) for index, reference in references if index in failing]
     learned = [model["name"] for model in models if not model["kind"].startswith("plant")]
-    checked = []
-    model = check_model(plant_config, sample_period, robot)
-    if not any(record["kind"].startswith("plant") for record in models):   # (--no-plant)
+    checked, law = [], default_law(config.optimizer)
+    plant_ran = any(record["kind"].startswith("plant") for record in models)
+    model = check_model(plant_config, sample_period, robot) if law is not None or not plant_ran else None   # (checks)
+    if not plant_ran:   # (--no-plant)
         steps = _failed_steps(model, plans, config, plant_config, robot, say, "the same MPC with the plant model")
         if not steps:
             evidence = (f"the same MPC with {plant_phrase(model.name)} held the limits on these plans (a check run "
@@ -119,7 +112,6 @@ def loop_causes(results: list, models: list[dict], references: list, config, pla
             return LoopCauses(effects, {name: MODEL_CAUSE.format(evidence=evidence) for name in learned})
         checked.append(f"the same MPC with {plant_phrase(model.name)} left the limits too ({steps} steps, a check run "
                        "once the loops had failed)")
-    law = default_law(config.optimizer)
     if law is not None:
         steps = _failed_steps(model, plans, dataclasses.replace(config, optimizer=law), plant_config, robot, say,
                               "the plant model under the defaults' law")
