@@ -137,17 +137,21 @@ def test_no_command_and_file_system_errors_are_one_line_exit_2(capsys, tmp_path,
 
 def test_closed_loops_that_fall_back_or_leave_the_limits_are_failures():
     """MPC that fell back on most steps, or whose arm left its limits on any step, is not a result: one line
-    per model (`mpc` prints them and exits 2)."""
+    per model, both causes in it where both hold (`mpc` prints them and exits 2)."""
     from stdm_drake.closed_loop.comparison import ClosedLoopResult, closed_loop_failures
     row = dict(trajectory=0, q_mse_rad2=1.0, v_mse=1.0, torque_rms_nm=1.0, effort_beyond_gravity_rms_nm=1.0,
                solve_ms_mean=1.0, solve_ms_p95=1.0, steps=100, q_error=[], constraint_active_steps=0, slack_steps=0)
     results = [ClosedLoopResult(model="plant", fallbacks=0, limit_violations=0, **row),
                ClosedLoopResult(model="NaN", fallbacks=100, limit_violations=0, **row),
                ClosedLoopResult(model="wild", fallbacks=10, limit_violations=0, **row),
-               ClosedLoopResult(model="wild", fallbacks=10, limit_violations=3, **row)]
-    assert closed_loop_failures(results) == [
+               ClosedLoopResult(model="wild", fallbacks=10, limit_violations=3, **row),
+               ClosedLoopResult(model="both", fallbacks=90, limit_violations=5, **row)]
+    assert closed_loop_failures(results, note="the note") == [
         "model NaN fell back to gravity compensation on 100 of 100 steps (its predictions were not finite); "
-        "its row is not a result", "model wild left the robot's joint limits on 3 of 200 steps (1 of 2 plans)"]
+        "its row is not a result; the note",
+        "model wild left the robot's joint limits on 3 of 200 steps (1 of 2 plans); the note",
+        "model both left the robot's joint limits on 5 of 100 steps (1 of 1 plans) and fell back to gravity "
+        "compensation on 90 of 100 steps (its predictions were not finite); its row is not a result; the note"]
 
 
 @pytest.mark.slow

@@ -276,9 +276,9 @@ def failed_steps(results: list, fraction: float = FALLBACK_FRACTION) -> int:
 
 def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = FALLBACK_FRACTION, note: str = "",
                          model_notes: dict | None = None) -> list[str]:
-    """One line per model whose closed loop is not a result: it left the robot's limits (a state outside
-    the position or velocity limits, or not finite, on any step of any plan) or fell back to gravity
-    compensation (non-finite predictions) on more than `fraction` of its steps; `note` (a setting the failure may
+    """One line per model whose closed loop is not a result: it left the robot's limits (a state outside the
+    position or velocity limits, or not finite, on any step of any plan) or fell back to gravity compensation
+    (non-finite predictions) on more than `fraction` of its steps, both in one line where both hold; `note` (a setting the failure may
     come from, `failure_causes.loop_causes`) ends each line, after the model's own in `model_notes` (name: clause)."""
     failures = []
     for name in dict.fromkeys(result.model for result in results):
@@ -287,10 +287,13 @@ def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = FALL
         violations, fallbacks = sum(run.limit_violations for run in runs), sum(run.fallbacks for run in runs)
         steps = sum(run.steps for run in runs)
         plans = sum(1 for run in runs if run.limit_violations)
+        clauses = []
         if violations:
-            failures.append(f"model {name} left the robot's joint limits on {violations} of {steps} steps "
-                            f"({plans} of {len(runs)} plans)" + (f"; {said}" if said else ""))
+            clauses.append(f"left the robot's joint limits on {violations} of {steps} steps "
+                           f"({plans} of {len(runs)} plans)")
         if fallbacks > fraction * steps:
-            failures.append(f"model {name} fell back to gravity compensation on {fallbacks} of {steps} steps "
-                            "(its predictions were not finite); its row is not a result" + (f"; {said}" if said else ""))
+            clauses.append(f"fell back to gravity compensation on {fallbacks} of {steps} steps (its predictions were "
+                           "not finite); its row is not a result")
+        if clauses:
+            failures.append(f"model {name} " + " and ".join(clauses) + (f"; {said}" if said else ""))
     return failures
