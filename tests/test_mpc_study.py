@@ -172,7 +172,7 @@ def test_the_study_records_its_inputs_and_the_optimizer_it_ran(tracking_dataset,
     assert "| plant | 1 |" in printed
     # the constraint summary: the settings' mode, the steps with a constraint active and with slack, the crossings
     steps = result.results[0].steps
-    assert (f"- plant: constraints soft (torque box in the optimizer; position and velocity limits 0.02 rad and "
+    assert (f"- plant: torques a hard box in the optimizer, position and velocity limits soft (0.02 rad and "
             f"0.05 rad/s inside): a limit active on 0 of {steps} control steps, slack used on 0; the plant's limits "
             f"crossed on 0") in printed
     assert inputs["mpc_settings"]["settings"]["constraints"] == dict(mode="soft", position_margin=0.02,

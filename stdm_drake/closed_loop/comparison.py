@@ -157,8 +157,8 @@ def constraint_lines(rows: list[dict], constraints) -> list[str]:
     if constraints.mode == "off":
         how = "constraints off (torques clipped after the solve, state limits not in the optimizer)"
     else:
-        how = (f"constraints {constraints.mode} (torque box in the optimizer; position and velocity limits "
-               f"{constraints.position_margin:g} rad and {constraints.velocity_margin:g} rad/s inside)")
+        how = (f"torques a hard box in the optimizer, position and velocity limits {constraints.mode} "
+               f"({constraints.position_margin:g} rad and {constraints.velocity_margin:g} rad/s inside)")
     return [f"{row['model']}: {how}: a limit active on {row['constraint_active_steps']} of {row['steps']} control "
             f"steps, slack used on {row['slack_steps']}; the plant's limits crossed on {row['limit_violations']}"
             for row in rows]
