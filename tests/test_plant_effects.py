@@ -437,12 +437,15 @@ def test_each_tuning_bar_names_its_setting(monkeypatch):
 
 
 def test_a_slow_control_step_gets_its_rate_not_zero_hz():
-    """A p95 of 195.5 ms allows 5.1 Hz, not "real time at 0 Hz" (issue 57: the sampling recipe printed that)."""
+    """A p95 of 195.5 ms allows 5.1 Hz, not "real time at 0 Hz" (issue 57: the sampling recipe printed that); one of
+    50.91 ms allows 19 Hz, not "10 Hz" (newcomer pass 2): two digits at least, rounded down."""
     from stdm_drake.closed_loop.comparison import real_time_lines
-    rows = [dict(model="D", solve_ms_mean=154.8, solve_ms_p95=195.5), dict(model="P", solve_ms_mean=1.0, solve_ms_p95=1.2)]
-    slow, fast = real_time_lines(rows, 0.01)
+    rows = [dict(model="D", solve_ms_mean=154.8, solve_ms_p95=195.5), dict(model="P", solve_ms_mean=1.0, solve_ms_p95=1.2),
+            dict(model="S", solve_ms_mean=31.6, solve_ms_p95=50.91), dict(model="T", solve_ms_mean=20.0, solve_ms_p95=10.0)]
+    slow, fast, sampler, exact = real_time_lines(rows, 0.01)
     assert slow.endswith("real time at 5.1 Hz by its p95") and "not real time (p95 19.6x the period)" in slow
     assert fast.endswith("real time at 830 Hz by its p95")
+    assert sampler.endswith("real time at 19 Hz by its p95") and exact.endswith("real time at 100 Hz by its p95")
 
 
 def test_values_held_out_run_31_found_refused_are_accepted_as_documented():

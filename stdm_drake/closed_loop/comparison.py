@@ -135,12 +135,14 @@ def summarize(results: list[ClosedLoopResult], sample_period: float) -> list[dic
 def real_time_lines(rows: list[dict], sample_period: float) -> list[str]:
     """One line per model: its control step's implementation, its solve time per control step against the control
     period, "real time" when every plan's p95 is within the period, else "not real time", and the fastest rate
-    its measured p95 allows ("real time at N Hz": 1 / p95, rounded down to 10 Hz; below 10 Hz to 0.1 Hz)."""
+    its measured p95 allows ("real time at N Hz": 1 / p95 rounded down to two digits at least: to 10 Hz from 100 Hz,
+    to 1 Hz from 10 Hz, to 0.1 Hz below)."""
     period = 1e3 * sample_period
     lines = []
     for row in rows:
         hertz = 1e3 / row["solve_ms_p95"] if row["solve_ms_p95"] > 0 else 0.0
-        rate = f"{int(hertz // 10 * 10)}" if hertz >= 10 else f"{math.floor(hertz * 10) / 10:g}"   # (never "0 Hz")
+        step_hz = 10.0 if hertz >= 100 else 1.0 if hertz >= 10 else 0.1   # (never "0 Hz", nor 19.6 Hz as "10")
+        rate = f"{math.floor(round(hertz / step_hz, 9)) * step_hz:.{1 if step_hz < 1 else 0}f}"
         step = f" ({row['control_step']} control step)" if row.get("control_step") else ""
         lines.append(f"{row['model']}{step}: solve {row['solve_ms_mean']:.2f} ms mean, {row['solve_ms_p95']:.2f} ms p95 "
                      f"per control step against the {period:g} ms control period: "
