@@ -131,6 +131,19 @@ def test_default_train_leaves_out_a_far_plan_and_ends_with_the_verdict(dithered_
 
 
 @pytest.mark.slow
+def test_a_model_stopped_by_its_epoch_budget_is_told_to_train_longer(tracking_dataset, tmp_path, capsys):
+    """Newcomer pass 2: a 2-epoch run whose model has not learned was told "the data size" (collect more) while its
+    validation error was still falling at the budget's end; the warning names the budget and the flag that raises it."""
+    from stdm_drake.cli import main
+    assert main(["train", str(tracking_dataset), "--epochs", "2", "--hidden-width", "16", "--hidden-layers", "1",
+                 "--per-group", "off", "--train", "4", "--val", "2", "--quiet", "-o", str(tmp_path / "short")]) == 0
+    err = capsys.readouterr().err
+    assert "has not learned the dynamics" in err, err
+    assert ("likely cause: the training budget: training ended at its 2 epochs with the validation error still "
+            "falling (its best at epoch 2); raise --epochs") in err, err
+
+
+@pytest.mark.slow
 def test_default_alpha_auto_does_not_refuse_a_naive_model(excitation_dataset, tmp_path, capsys):
     """alpha's default "auto" is for derivative models: D trains without it; an alpha or grid given to D is
     refused as before."""

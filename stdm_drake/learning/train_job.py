@@ -108,6 +108,9 @@ def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
     return choice.sources[0], choice.describe(), choice.mismatch
 
 
+BUDGET_END_FRACTION = 0.9   # a kept epoch past this fraction of a run that ran out its epochs: still improving
+
+
 class LearningVerdict:
     """What `train` ends with, per seed: the verdict of `physics.learning_verdict` on the **test split**, the one
     `evaluate` reads by default, so that both commands say the same of one checkpoint: the model's one-step MSE
@@ -135,9 +138,11 @@ class LearningVerdict:
         tried = list(self.sources) if isinstance(self.sources, tuple) else [self.sources] if self.sources else []
         return dict(tried=tried, plan_mismatch=self.mismatch)
 
-    def report(self, seed: int, checkpoint: pathlib.Path, naive, selection) -> dict:
-        """Print seed `seed`'s verdict (its checkpoint; naive: the grid's alpha = 0 network or None) and return
-        its summary entries: {"validation": ..., "test": ...} (no "test" without a test split)."""
+    def report(self, seed: int, checkpoint: pathlib.Path, result, selection) -> dict:
+        """Print seed `seed`'s verdict (its checkpoint; result: its `trainer.TrainResult`, whose naive member is the
+        grid's alpha = 0 network or None) and return its summary entries: {"validation": ..., "test": ...} (no "test"
+        without a test split)."""
+        naive = result.naive
         kept_naive = selection is not None and selection.alpha == 0
         label = self.name + ("" if selection is None else " (alpha 0: naive training)" if kept_naive
                              else f" ({selection.label(selection.index)})")
@@ -179,7 +184,7 @@ class LearningVerdict:
                   f"split: one-step q {times_better(model.ratio_q)} than the Euler step, v "
                   f"{times_better(model.ratio_v)} than 'v unchanged'; it needs {LEARNED_FACTOR:g}x better in both"
                   + (f", or within {FLOOR_FACTOR:g}x of the noise floor" if self.floor and self.floor["v"] > 0 else "")
-                  + f"); likely cause: {self.likely_cause(selection, rows)}", file=sys.stderr)
+                  + f"); likely cause: {self.likely_cause(selection, rows, result)}", file=sys.stderr)
 
         worse = [] if alone is None else [
             f"{name} {f'{model_mse / plant_mse:.3g}x ' if plant_mse > 0 else ''}worse ({model_mse:.3g} against "
@@ -233,8 +238,8 @@ class LearningVerdict:
                 f"{euler.one_step.angle_mse:.3g} rad^2), so the grey box starts from physics that mislead it; "
                 f"identify the robot from the data (`stdm-drake identify`) and train on it ({train_option('--physics')})")
 
-    def likely_cause(self, selection, rows) -> str:
-        """The first of the usual reasons that fits this run."""
+    def likely_cause(self, selection, rows, result) -> str:
+        """The first of the usual reasons that fits this run (result: its `trainer.TrainResult`)."""
         settings, chosen = self.settings, (selection.source if selection is not None else None) or self.sources
         targets_used = selection is None or selection.alpha > 0
         if settings.uses_derivative() and targets_used and chosen == "planned" and self.mismatch is not None and \
@@ -249,15 +254,19 @@ class LearningVerdict:
         description = self.description_error(rows)
         if description is not None:
             return description
+        if not self.structure.grey_box and (self.structure.inputs == "raw" or self.structure.predicts == "state"):
+            inputs, predicts = train_option("--inputs"), train_option("--predicts")
+            return (f"the model structure: the paper's black box ({inputs} raw, {predicts} state) did not learn on "
+                    f"the shipped protocols (docs/learning.md); leave {inputs} and {predicts} at their defaults")
+        best = int(selection.best_epochs[selection.index] if selection is not None else max(result.best_epochs))
+        if not result.stopped_early and best > BUDGET_END_FRACTION * result.epochs_run:
+            return (f"the training budget: training ended at its {result.epochs_run} epochs with the validation error "
+                    f"still falling (its best at epoch {best}); raise {train_option('--epochs')}")
         if self.training_transitions < 2000:
             more = ("collect more trajectories (collect --count)" if self.dataset.is_simulated else
                     "record and import a longer log of the robot")
             return (f"the data size: {self.training_transitions} training transitions; {more} or train on more of "
                     f"them ({train_option('--train')})")
-        if not self.structure.grey_box and (self.structure.inputs == "raw" or self.structure.predicts == "state"):
-            inputs, predicts = train_option("--inputs"), train_option("--predicts")
-            return (f"the model structure: the paper's black box ({inputs} raw, {predicts} state) did not learn on "
-                    f"the shipped protocols (docs/learning.md); leave {inputs} and {predicts} at their defaults")
         return ("the data or the training budget: check the data with `stdm-drake inspect` and the learning curves "
                 f"(curves.csv); raise {train_option('--epochs')} or {train_option('--patience')} if the validation "
                 "error was still falling")
@@ -359,7 +368,7 @@ def train_job(job: TrainJob) -> dict:
     entries = {}
     for seed, result, selection in fit_seeds(problem, settings, fit_options, job.runner, output, not job.progress):
         entries[seed] = write_seed_files(output / f"seed{seed}", name, seed, result, selection)
-        entries[seed].update(verdict.report(seed, output / f"seed{seed}" / "checkpoint.pt", result.naive, selection))
+        entries[seed].update(verdict.report(seed, output / f"seed{seed}" / "checkpoint.pt", result, selection))
     summary = dict(written_by=written_by(), model_type=name, structure=structure.as_dict(), dataset=str(job.dataset),
                    dataset_sha256=dataset.sha256, robot=None if robot is None else robot.record(),
                    physics=None if job.physics is None else str(job.physics), network=settings.network,
