@@ -142,7 +142,9 @@ def test_train_g_and_gd_record_the_grey_box_and_its_plant(affected, tmp_path, ca
     assert alone["one_step"]["angle_mse"] == pytest.approx(rk4[0].one_step.angle_mse, rel=1e-9)
     # 2 epochs on the description of a plant with rotor inertia: the cause named is the description, with its error
     assert "has not learned the dynamics" in warning and "likely cause: the robot's description: the plant it " \
-        "describes predicts q" in warning and "(`stdm-drake identify`)" in warning, warning
+        "describes (the plant alone row) predicts q" in warning and "(`stdm-drake identify`)" in warning, warning
+    # ... with the plant alone row's own error (newcomer pass 2: the line quoted the simulator's plant, another number)
+    assert f"({alone['one_step']['angle_mse']:.3g} against" in warning, warning
     checkpoint = load_checkpoint(tmp_path / "g" / "seed0" / "checkpoint.pt")
     assert checkpoint.metadata.model_type == "G" and checkpoint.structure.inputs == "plant_step"
     assert checkpoint.structure.physics is None and checkpoint.structure.predicts == "state"   # the plant's whole x̂

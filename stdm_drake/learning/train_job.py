@@ -27,7 +27,7 @@ from stdm_drake.learning.train_outputs import write_seed_files
 from stdm_drake.outputs import check_output_folder, mark_output_folder, running_options, written_by
 from stdm_drake.robots.plant import Dynamics
 from stdm_drake.data.inspect import noise_floor
-from stdm_drake.learning.evaluate import compare_with_baselines, times_better, physics_baselines
+from stdm_drake.learning.evaluate import compare_with_baselines, times_better
 from stdm_drake.learning.learned_model import LearnedModel
 from stdm_drake.dynamics.physics import ConstantVelocity
 from stdm_drake.dynamics.verdict import FLOOR_FACTOR, LEARNED_FACTOR, floor_not_held_note
@@ -221,20 +221,18 @@ class LearningVerdict:
         return compare_with_baselines([plant], self.judged, None)[0]
 
     def description_error(self, rows) -> str | None:
-        """For a grey box on the robot's description (no identified robot as --physics): the cause line when the
-        plant the description makes predicts these data worse than the Euler step one step ahead (q), as a
-        description missing the motors' rotor inertia does; None otherwise (or without a robot)."""
+        """For a grey box on the robot's description (no identified robot as --physics): the cause line when its
+        plant alone (the `plant alone` row: the description's step the network corrects) predicts these data worse
+        than the Euler step one step ahead (q; rows[-1]), as a description missing the motors' rotor inertia does;
+        None otherwise (or without a robot)."""
         if not self.structure.grey_box or self.structure.physics or self.robot is None:
             return None
-        baselines = physics_baselines(self.dataset.sample_period, 2 * self.robot.num_joints, self.robot.num_joints,
-                                      robot=self.robot, plant=True,
-                                      plant_config=self.dataset.metadata.plant_config(effects=False))
-        euler, _, plant = compare_with_baselines(baselines, self.judged, None)
+        plant, euler = self.plant_alone(), rows[-1]
         ratio = plant.one_step.angle_mse / max(euler.one_step.angle_mse, 1e-300)
         if ratio <= 1.0:
             return None
-        return (f"the robot's description: the plant it describes predicts q {ratio:.3g}x worse than the Euler step "
-                f"one step ahead on these data ({plant.one_step.angle_mse:.3g} against "
+        return (f"the robot's description: the plant it describes (the plant alone row) predicts q {ratio:.3g}x worse "
+                f"than the Euler step one step ahead on these data ({plant.one_step.angle_mse:.3g} against "
                 f"{euler.one_step.angle_mse:.3g} rad^2), so the grey box starts from physics that mislead it; "
                 f"identify the robot from the data (`stdm-drake identify`) and train on it ({train_option('--physics')})")
 
