@@ -118,6 +118,31 @@ def test_a_five_step_study_writes_every_report_file(tmp_path, capsys):
     assert curves[0] == "mode,epoch,train_loss,val_loss,val_mse_standardized"
     assert {line.split(",")[0] for line in curves[1:]} == {"naive", "derivative"}
     assert all(line.split(",")[1] == "5" for line in curves[1:])   # validated at the last of the 5 steps
+    # 5 steps learn nothing: the comparison is "uninformative", with the learning-free baseline, not "helps"/"hurts"
+    assert "uninformative: neither mode learned, both within 2x of the test MSE of predicting the mean, 1.5" in printed
+    assert "uninformative: neither mode learned" in (output / "summary.md").read_text()
+
+
+def test_a_comparison_of_networks_that_learned_nothing_is_uninformative():
+    """Newcomer pass 2: 20 full-batch steps printed "helps" for a ratio of 1.001 [1, 1.002] at a test MSE of 1.3,
+    where predicting the mean scores 1.5. A mode that learned (below half the mean's MSE) makes the row a verdict."""
+    from stdm_drake.experiments.sine_sum import fig6_rows, mean_baseline_mse
+    config = dataclasses.asdict(dataclasses.replace(QUICK, layers=(5,), activations=("swish",)))
+    baseline = mean_baseline_mse(config)
+    assert baseline == pytest.approx(1.5, rel=1e-3)    # three sines of variance 1/2 each, nearly uncorrelated
+
+    def study(naive, derivative):
+        return dict(config=config, runs=[
+            dict(spec=dict(layers=5, activation="swish", derivative=mode, loss="mse", members=len(mse)),
+                 member_test_mse=mse, mean_test_mse=float(np.mean(mse)), best_test_mse=min(mse))
+            for mode, mse in ((False, naive), (True, derivative))])
+    members = QUICK.headline_seeds
+    rng = np.random.default_rng(0)
+    unlearned = [1.3 * (1 + 0.001 * k) for k in range(members)]
+    assert fig6_rows(study(unlearned, [m / 1.001 for m in unlearned]))[0]["verdict"] == "uninformative"
+    learned = list(1e-3 * np.exp(rng.normal(size=members)))
+    assert fig6_rows(study(unlearned, learned))[0]["verdict"] == "helps"
+    assert fig6_rows(study(learned, unlearned))[0]["verdict"] == "hurts"
 
 
 @pytest.mark.slow

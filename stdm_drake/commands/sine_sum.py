@@ -8,7 +8,8 @@ import pathlib
 
 from stdm_drake.learning.settings import parse_alpha
 from stdm_drake.errors import InputError
-from stdm_drake.experiments.sine_sum import FULL, QUICK, headline, run_specs, run_study, table1_rows, write_reports
+from stdm_drake.experiments.sine_sum import (FULL, QUICK, headline, run_specs, run_study, table1_rows, verdict_text,
+                                             write_reports)
 from stdm_drake.learning.activations import ACTIVATION_NAMES
 from stdm_drake.learning.settings import UPPER_BOUNDS as TRAIN_BOUNDS
 from stdm_drake.outputs import fresh_default_folder, add_force_argument, check_output_folder, mark_output_folder
@@ -79,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     top = headline(study)
     print(f"  {top['layers']} layers swish (alpha {top['alpha']:g}): test MSE derivative "
           f"{top['derivative_mean_test_mse']:.3g}, naive {top['naive_mean_test_mse']:.3g} (paired ratio "
-          f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])}, {top['verdict']}; paper "
+          f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])}, {verdict_text(top)}; paper "
           f"{top['paper_derivative']:g})")
     for row in table1_rows(study):
         print(f"  table 1  {row['loss']:>5} {row['activation']:>6}: test MSE {row['mean_test_mse']:.4g} "

@@ -11,7 +11,7 @@ from stdm_drake.learning.models import MODEL_TYPES
 from stdm_drake.stats import paired_ratio, ratio_interval_text
 from stdm_drake.dynamics.verdict import learning_verdict
 from stdm_drake.data.inspect import tracking_errors
-from stdm_drake.experiments.sine_sum import headline, table1_rows
+from stdm_drake.experiments.sine_sum import headline, table1_rows, verdict_text
 
 # The paper's reported values (numbers stated in its text), shown in "paper" columns only.
 PAPER = {
@@ -391,7 +391,7 @@ def add_sine_sum_section(report, sine: dict) -> None:
     report.table(["5 layers, swish", "naive", "derivative", "naive/derivative (paired, 95 % CI)", "paper (derivative)"],
                  [[f"mean of {top['networks']} networks", _g(top["naive_mean_test_mse"]),
                    _g(top["derivative_mean_test_mse"]),
-                   f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])} {top['verdict']}",
+                   f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])} {verdict_text(top)}",
                    top["paper_derivative"]]])
     report.table(["loss", "activation", "ours (test MSE)", "paper"],
                  [[r["loss"], r["activation"], _g(r["mean_test_mse"]), r["paper"]] for r in table1_rows(sine)])

@@ -6,7 +6,7 @@ import numpy as np
 from stdm_drake.experiments.jobs import Profile
 from stdm_drake.experiments.reproduce_report import BASELINE_NOTE, ONE_STEP, baseline_learned, comparison_row, ratio_text
 from stdm_drake.experiments.results import select_rows
-from stdm_drake.experiments.sine_sum import headline
+from stdm_drake.experiments.sine_sum import headline, verdict_text
 from stdm_drake.stats import ratio_interval_text
 
 
@@ -76,7 +76,7 @@ def sine_sum_text(top: dict, quick: bool) -> str:
     answer it should be read against."""
     settled = SETTLED_SINE_SUM
     return (f"Sine-sum (section III.B, 5 layers, swish, {top['networks']} networks): naive / derivative test MSE "
-            f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])} ({top['verdict']}; the paper "
+            f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])} ({verdict_text(top)}; the paper "
             f"reports derivative learning's test MSE {top['paper_derivative']}). The settled answer: derivative "
             f"learning {settled['verdict']} on the sine-sum, {settled['ratio']:g}x [{settled['low']:g}, "
             f"{settled['high']:g}] over {settled['networks']} networks in the full profile (docs/learning.md, "

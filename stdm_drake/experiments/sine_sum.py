@@ -37,6 +37,7 @@ import time
 import numpy as np
 import torch
 
+from stdm_drake.dynamics.verdict import LEARNED_FACTOR
 from stdm_drake.errors import InputError
 from stdm_drake.files import atomic_path, rows_csv, write_text_atomic
 from stdm_drake.learning.regression import RegressionData
@@ -303,10 +304,20 @@ def _networks(config: dict, layers: int, activation: str) -> int:
     return config["headline_seeds"] if headline else config["seeds"]
 
 
+def mean_baseline_mse(config: dict) -> float:
+    """The learning-free baseline's test MSE (y units): every test point predicted as the training targets' mean."""
+    train, test = sample(config["train_points"]), sample(config["test_points"])
+    return float(np.mean((test.targets - train.targets.mean()) ** 2))
+
+
 def fig6_rows(study: dict) -> list[dict]:
     """Per (layers, activation): mean and best-by-validation test MSE, naive and derivative, and the
-    paired ratio naive/derivative over the shared initializations with its 95 % interval."""
+    paired ratio naive/derivative over the shared initializations with its 95 % interval. Its verdict is
+    "uninformative" where neither mode learned: both mean test MSEs within LEARNED_FACTOR of the learning-free
+    baseline (`mean_baseline_mse`), as a too short a run leaves them (newcomer pass 2: 20 steps read "helps" at
+    1.3 against the paper's 6e-4)."""
     config = study["config"]
+    baseline = mean_baseline_mse(config)
     rows = []
     for layers in config["layers"]:
         for activation in config["activations"]:
@@ -318,7 +329,9 @@ def fig6_rows(study: dict) -> list[dict]:
                              naive_mean_test_mse=naive["mean_test_mse"], naive_best_test_mse=naive["best_test_mse"],
                              derivative_mean_test_mse=derivative["mean_test_mse"],
                              derivative_best_test_mse=derivative["best_test_mse"],
-                             ratio=ratio.ratio, ratio_low=ratio.low, ratio_high=ratio.high, verdict=ratio.verdict))
+                             ratio=ratio.ratio, ratio_low=ratio.low, ratio_high=ratio.high, baseline_test_mse=baseline,
+                             verdict=ratio.verdict if min(naive["mean_test_mse"], derivative["mean_test_mse"])
+                             < baseline / LEARNED_FACTOR else "uninformative"))
     return rows
 
 
@@ -339,6 +352,14 @@ def table1_rows(study: dict) -> list[dict]:
             rows.append(dict(loss=loss, activation=activation, mean_test_mse=float(np.mean(member_mse)),
                              member_test_mse=list(member_mse), paper=PAPER_TABLE1.get((loss, activation))))
     return rows
+
+
+def verdict_text(row: dict) -> str:
+    """A Fig. 6 row's verdict for a sentence: "uninformative" with the reason (`fig6_rows`)."""
+    if row["verdict"] != "uninformative":
+        return row["verdict"]
+    return (f"uninformative: neither mode learned, both within {LEARNED_FACTOR:g}x of the test MSE of predicting the "
+            f"mean, {row['baseline_test_mse']:.3g}")
 
 
 def headline(study: dict) -> dict:
@@ -537,7 +558,7 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
              f"**Headline ({config['table_layers']} layers, swish, mean of {top['networks']} networks):** derivative "
              f"learning {top['derivative_mean_test_mse']:.3g} against naive {top['naive_mean_test_mse']:.3g} "
              f"({top['ratio_of_means']:.3g}x lower; paired ratio and 95 % interval "
-             f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])}: {top['verdict']}); the paper reports "
+             f"{ratio_interval_text(top['ratio'], top['ratio_low'], top['ratio_high'])}: {verdict_text(top)}); the paper reports "
              f"{top['paper_derivative']:g}.", ""]
     if sweep:
         lines += ["## Alpha chosen by validation", "", markdown_table(
@@ -553,9 +574,12 @@ def summary_markdown(study: dict, fig6: list[dict], table: list[dict], quick: bo
           ratio_interval_text(row['ratio'], row['ratio_low'], row['ratio_high']), row["verdict"]] for row in fig6])]
     deepest = [row for row in fig6 if row["layers"] == config["table_layers"]]
     winner = min(deepest, key=lambda row: row["derivative_mean_test_mse"])
-    counts = {verdict: sum(row["verdict"] == verdict for row in fig6) for verdict in ("helps", "hurts")}
+    counts = {verdict: sum(row["verdict"] == verdict for row in fig6) for verdict in ("helps", "hurts", "uninformative")}
     lines += ["", f"Derivative learning helps (whole 95 % interval of the paired ratio above 1) in {counts['helps']} "
-              f"of {len(fig6)} configurations and hurts in {counts['hurts']}; at {config['table_layers']} layers the "
+              f"of {len(fig6)} configurations and hurts in {counts['hurts']}"
+              + (f"; {counts['uninformative']} are uninformative (neither mode within {LEARNED_FACTOR:g}x below the "
+                 f"test MSE of predicting the mean, {fig6[0]['baseline_test_mse']:.3g}: no network learned)"
+                 if counts["uninformative"] else "") + f"; at {config['table_layers']} layers the "
               f"best activation with derivative learning is {winner['activation']} "
               f"({winner['derivative_mean_test_mse']:.4g}, naive {winner['naive_mean_test_mse']:.4g}).", "",
               f"## Table 1: test MSE, derivative learning, {config['table_layers']} layers, "
