@@ -368,13 +368,13 @@ def _markdown(record: dict) -> str:
     closed = record["closed_loop"]
     header = (["kind", "seeds", "one-step q MSE (rad²)", "one-step v MSE ((rad/s)²)"]
               + [f"q RMS @{step} (rad)" for step in steps]
-              + ["learned"] + (["closed-loop q RMS (rad)", "limits left", "fallbacks", "solve ms"] if closed else []))
+              + ["learned (one step, every seed)"] + (["closed-loop q RMS (rad)", "limits left", "fallbacks", "solve ms"] if closed else []))
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for entry in record["table"]:
         cells = [entry["kind"], str(entry["seeds"]), f"{entry['one_step_q_mse']:.3e}", f"{entry['one_step_v_mse']:.3e}"]
         cells += [f"{entry['open_loop_q_rms'][step]:.3g}" for step in steps]
-        cells.append("yes" if entry["learned_every_seed"] and entry["verdicts"] else
-                     ("no" if entry["verdicts"] else "(physics)"))
+        cells.append("(physics)" if entry["kind"] in ("plant", "identified") or not entry["verdicts"] else
+                     "yes" if entry["learned_every_seed"] else "no")
         if closed:
             cells += ([f"{entry['closed_loop_q_rms']:.3g}", str(entry["limit_violations"]), str(entry["fallbacks"]),
                        f"{entry['solve_ms_mean']:.2f}"] if "closed_loop_q_rms" in entry else ["", "", "", ""])
