@@ -127,7 +127,17 @@ def test_compare_fits_every_kind_rates_them_and_reuses_its_stages(tmp_path, caps
     assert err.count("reused") == 6 and again["table"] == record["table"]
     assert json.loads((output / "compare.json").read_text())["recommendation"]["kind"] == choice["kind"]
     with pytest.raises(InputError, match="holds a comparison of another profile"), as_command():
-        run_compare(CompareJob(dataset=data, output=output, profile=CompareProfile("other", seeds=1), progress=False))
+        run_compare(CompareJob(dataset=data, output=output, profile=CompareProfile("other", seeds=1, plans=2, tune=0),
+                                progress=False))
     alone = run_compare(CompareJob(dataset=data, output=tmp_path / "open", profile=TINY, kinds=("plant", "D"),
                                    closed_loop=False, progress=False))
     assert not alone["closed_loop"] and alone["recommendation"]["unit"].startswith("test trajectory")
+    # the full size tracks 5 held-out plans, more than the 4 of this split: refused before any work (newcomer pass 2:
+    # the which-model guide's full-size line trained every kind for minutes, then failed on "--plans 5")
+    capsys.readouterr()
+    assert main(["compare", str(data), "-o", str(tmp_path / "full")]) == 2
+    captured = capsys.readouterr()
+    assert captured.err.count("\n") == 1 and not captured.out and not (tmp_path / "full").exists()
+    assert ("the full size's closed loops track 5 held-out plans and tune on 2 validation plans, and train's split of "
+            "its 16 trajectories leaves 4 test and 4 validation ones; collect more plans, or leave the closed loops out "
+            "(--no-closed-loop) or run the quick size (--quick)") in captured.err, captured.err

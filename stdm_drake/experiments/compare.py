@@ -142,9 +142,15 @@ def run_compare(job: CompareJob) -> dict:
         robot.check_fully_actuated("the closed loops (--no-closed-loop leaves them out)")
     from stdm_drake.data.dataset import dataset_split   # lazy: pydrake, h5py
     from stdm_drake.learning.settings import TrainSettings   # lazy: torch, pydrake, h5py
-    dataset_split(dataset, TrainSettings(),   # (a dataset too small for the split: refused before any folder or line)
-                  advice="collect more (compare splits every dataset by train's default rule, with no options to "
-                         "change it)")
+    split, _ = dataset_split(dataset, TrainSettings(), advice="collect more (compare splits every dataset by train's "
+                             "default rule, with no options to change it)")   # (refused before any work)
+    size = job.profile   # the closed loops track test plans and tune on validation ones: checked before any training
+    if loops and (len(split.test) < size.plans or len(split.val) < size.tune):
+        raise InputError(f"{line_text(job.dataset)}: the {size.name} size's closed loops track {size.plans} held-out plans"
+                         + (f" and tune on {size.tune} validation plans" if size.tune else "") + f", and train's split of "
+                         f"its {dataset.num_trajectories} trajectories leaves {len(split.test)} test and {len(split.val)} "
+                         "validation ones; collect more plans, or leave the closed loops out (--no-closed-loop)"
+                         + (" or run the quick size (--quick)" if size.name == "full" else ""))
     request = json.loads(json.dumps(finite_json(dict(dataset_sha256=dataset.sha256, robot=robot.record(),
                                                      profile=dataclasses.asdict(job.profile), kinds=list(job.kinds)))))
     output = pathlib.Path(job.output) if job.output is not None else _default_folder(request)
