@@ -248,3 +248,34 @@ def test_an_alpha_replaces_naive_training_only_with_a_gain_beyond_validations_no
     assert len(selection.gain_low) == 3 and selection.gain_low[0] == 0
     clear = [i for i, low in enumerate(selection.gain_low) if low > 0]
     assert selection.index == (min(clear, key=lambda i: selection.val_mse[i]) if clear else 0)
+
+
+def test_the_likely_cause_follows_the_run_and_the_command_it_runs_under():
+    """The cause lines in their order (newcomer pass 2): the paper's black box is named before the data size (it did
+    not learn at full size either); a run that ended at its epoch budget still improving is told to train longer;
+    the data size advises what the running command can do: `collect --count`, or under `mbrl` its rounds and plans."""
+    import types
+
+    from stdm_drake.learning.structure import ModelStructure
+    from stdm_drake.learning.settings import TrainSettings
+    from stdm_drake.learning.train_job import LearningVerdict
+    from stdm_drake.outputs import command_outputs
+
+    def cause(structure=ModelStructure(), epochs_run=500, stopped_early=True, best=400):
+        verdict = object.__new__(LearningVerdict)
+        verdict.settings, verdict.sources, verdict.mismatch, verdict.structure = TrainSettings(), "true", None, structure
+        verdict.training_transitions, verdict.robot = 400, None
+        verdict.dataset = types.SimpleNamespace(is_simulated=True)
+        result = types.SimpleNamespace(epochs_run=epochs_run, stopped_early=stopped_early, best_epochs=[best])
+        return verdict.likely_cause(None, [], result)
+
+    black_box = ModelStructure(inputs="raw", predicts="state")
+    assert cause(black_box, epochs_run=2, stopped_early=False, best=2).startswith("the model structure: the paper's")
+    assert cause(epochs_run=2, stopped_early=False, best=2) == (
+        "the training budget: training ended at its 2 epochs with the validation error still falling (its best at "
+        "epoch 2); raise --epochs")
+    assert cause(epochs_run=300, stopped_early=False, best=120).startswith("the data size")   # (its best long before)
+    assert "collect more trajectories (collect --count)" in cause()
+    with command_outputs("mbrl", options={"--rounds", "--initial-plans", "--plans-per-round", "--epochs"}):
+        assert "more rounds or plans (--rounds, --initial-plans, --plans-per-round)" in cause()
+        assert "collect" not in cause()

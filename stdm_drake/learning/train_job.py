@@ -24,7 +24,7 @@ from stdm_drake.learning.seeds import fit_seeds
 from stdm_drake.learning.settings import TrainSettings
 from stdm_drake.learning.trainable import network_class
 from stdm_drake.learning.train_outputs import write_seed_files
-from stdm_drake.outputs import check_output_folder, mark_output_folder, running_options, written_by
+from stdm_drake.outputs import check_output_folder, mark_output_folder, running_command, running_options, written_by
 from stdm_drake.robots.plant import Dynamics
 from stdm_drake.data.inspect import noise_floor
 from stdm_drake.learning.evaluate import compare_with_baselines, times_better
@@ -261,7 +261,8 @@ class LearningVerdict:
             return (f"the training budget: training ended at its {result.epochs_run} epochs with the validation error "
                     f"still falling (its best at epoch {best}); raise {train_option('--epochs')}")
         if self.training_transitions < 2000:
-            more = ("collect more trajectories (collect --count)" if self.dataset.is_simulated else
+            more = ("more rounds or plans (--rounds, --initial-plans, --plans-per-round)" if running_command() == "mbrl"
+                    else "collect more trajectories (collect --count)" if self.dataset.is_simulated else
                     "record and import a longer log of the robot")
             return (f"the data size: {self.training_transitions} training transitions; {more} or train on more of "
                     f"them ({train_option('--train')})")
