@@ -193,15 +193,15 @@ def _test_mse(model, test: RegressionData) -> np.ndarray:
     return ((predicted - test.targets[None, :, 0]) ** 2).mean(axis=1), predicted
 
 
-def train_run(spec: RunSpec, config: StudyConfig, alpha: float) -> dict:
+def train_run(spec: RunSpec, config: StudyConfig, alpha: float, on_epoch=None) -> dict:
     """Train one stack; test MSE (raw y units) of every member, the best-by-validation member's
-    predictions on the test grid, and the learning curves."""
+    predictions on the test grid, and the learning curves (on_epoch(row): each learning-curve row as it comes)."""
     started = time.perf_counter()
     train, val, test = sample(config.train_points), sample(config.val_points), sample(config.test_points)
     model_config = _model_config(config, spec.layers, spec.activation, spec.members)
     training = _training_config(config, alpha if spec.derivative else 0.0, spec.loss)
     with _numerics(config):
-        result = train_model(model_config, training, train, val)
+        result = train_model(model_config, training, train, val, on_epoch=on_epoch)
         test_mse, predicted = _test_mse(result.model, test)
     best = int(np.argmin(result.best_scores))
     return dict(spec=dataclasses.asdict(spec), label=spec.label, alpha=training.alpha,
@@ -279,8 +279,10 @@ def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True, r
                 sweep = alpha_sweep(config)
                 bar.update(1)
             alpha = sweep["chosen_alpha"] if auto else float(config.alpha)
-            for index, spec in enumerate(specs):
-                results[index] = train_run(spec, config, alpha)
+            for index, spec in enumerate(specs):   # (the bar shows the run's step: a run can take minutes)
+                def show(row, label=spec.label):
+                    bar.set_postfix_str(f"{label}: step {row['epoch']}/{config.epochs}")
+                results[index] = train_run(spec, config, alpha, on_epoch=show)
                 bar.update(1)
     finally:
         bar.close()
