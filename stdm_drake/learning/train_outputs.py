@@ -95,7 +95,10 @@ def write_seed_files(folder: pathlib.Path, name: str, seed: int, result, selecti
         write_text_atomic(folder / "alpha_selection.csv", alpha_selection_csv(selection))
         plot_alpha_selection(selection, folder / "alpha_selection.png", title=f"{name} seed {seed}")
         entry["alpha_selection"] = selection.as_dict()
-        print(f"seed {seed}: chosen by validation: {selection.label(selection.index)} (validation state MSE, "
+        lowest = int(np.argmin(selection.val_mse))
+        kept = "" if lowest == selection.index else (   # (naive kept where the lowest one's gain is within the noise)
+            f", though {selection.label(lowest)} had the lowest validation MSE, its gain within validation's noise (the bounds below)")
+        print(f"seed {seed}: chosen by validation: {selection.label(selection.index)}{kept} (validation state MSE, "
               "standardized: " + "; ".join(f"{selection.label(i)} {v:.3g}" for i, v in enumerate(selection.val_mse))
               + ")")
         if selection.gain_low is not None:
