@@ -111,6 +111,12 @@ def test_every_command_takes_an_imported_log(logs, tmp_path, capsys):
     assert main(["inspect", str(data_path)]) == 0
     text = capsys.readouterr().out
     assert "protocol        logged" in text and "imported from   rtde_csv" in text and "noise floor" not in text
+    # newcomer pass 2: no "seed None", the log's period in the sample period's digits, the ranges' columns aligned
+    assert "seed            (none: a log)" in text and "seed            None" not in text
+    record = load_dataset(data_path).metadata.section("import")["resampling"]["log_period_s"]
+    assert f"log period {record:.6g} s" in text
+    ranges = text.split("ranges (min..max over all samples)\n")[1].split("\n\n")[0].splitlines()
+    assert len({len(line) for line in ranges}) == 1 and ranges[-1].startswith("qdd_smoothed rad/s^2 "), ranges
     assert main(["train", str(data_path), "--epochs", "2", "--train", "2", "--val", "1", "--derivative", "on",
                  "--derivative-source", "smoothed", "--quiet", "-o", str(tmp_path / "run")]) == 0
     checkpoint = tmp_path / "run" / "seed0" / "checkpoint.pt"

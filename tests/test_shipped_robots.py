@@ -148,6 +148,7 @@ def test_panda_collect_train_evaluate_mpc_view(tmp_path, capsys, panda):
     assert main(["inspect", str(data), "--robot", robot]) == 0
     summary = capsys.readouterr().out
     true_q_mse = float(summary.split("true            q ")[1].split()[0])
+    assert "tracking error (MSE against the plan)" in summary and "UR-10" not in summary   # (the paper's arm: the UR-10)
     assert true_q_mse < 1e-5                                             # it tracks its plans
     assert main(["train", str(data), "--robot", robot, "--model", "DD", "--epochs", "3", "--train", "1", "--val", "1",
                  "--test", "1", "--quiet", "-o", str(tmp_path / "dd")]) == 0

@@ -103,7 +103,7 @@ def summary(dataset: Dataset) -> str:
         "groups          " + ", ".join(f"{g}: {c}" for g, c in zip(groups, counts)),
         f"sample period   {dataset.sample_period} s  " + (f"(plant step {meta.plant_time_step} s)" if dataset.is_simulated
                                                         else "(a real robot's log, resampled)"),
-        f"seed            {meta.seed}   robot model sha256 {str(meta.robot_model_sha256)[:16]}…",
+        f"seed            {'(none: a log)' if meta.seed is None else meta.seed}   robot model sha256 {str(meta.robot_model_sha256)[:16]}…",
     ]
     if dataset.protocol == "tracking":
         lines.append(f"planner         {meta.section('planner').get('kind')}   controller "
@@ -119,16 +119,18 @@ def summary(dataset: Dataset) -> str:
     labels = [name.removesuffix("_joint") for name in meta.joint_names or []]
     labels = labels or [f"joint{j}" for j in range(dataset.trajectory(0).q.shape[1])]
     header = f"{'':14s}" + "".join(f"{label:>17s}" for label in labels)
-    lines += ["", "ranges (min..max over all samples)", f"{'':14s}" + "".join(f"{label:>21s}" for label in labels)]
+    acceleration = "qdd" if dataset.is_simulated else "qdd_smoothed"
+    rows = (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), (acceleration, "rad/s^2"))
+    width = max(14, *(len(f"{key} {unit}") + 1 for key, unit in rows))   # (the joints' columns line up on every row)
+    lines += ["", "ranges (min..max over all samples)", f"{'':{width}s}" + "".join(f"{label:>21s}" for label in labels)]
     unactuated = set(meta.section("robot").get("unactuated_joints", []))
     actuated = [j for j, name in enumerate(meta.joint_names or labels) if name not in unactuated]
-    acceleration = "qdd" if dataset.is_simulated else "qdd_smoothed"
-    for key, unit in (("q", "rad"), ("v", "rad/s"), ("tau", "N m"), (acceleration, "rad/s^2")):
+    for key, unit in rows:
         values = np.concatenate([getattr(dataset.trajectory(i), key) for i in range(dataset.num_trajectories)])
         columns = actuated if key == "tau" and len(actuated) == values.shape[1] else range(values.shape[1])
         ranges = {j: f"{f'{lo:.3g}..{hi:.3g}':>21s}" for j, lo, hi in zip(columns, values.min(0), values.max(0))}
         cells = "".join(ranges.get(j, f"{'(none)':>21s}") for j in range(len(labels)))   # 2 spaces at least
-        lines.append(f"{key + ' ' + unit:14s}{cells}")
+        lines.append(f"{key + ' ' + unit:{width}s}{cells}")
     floor = noise_floor(dataset)
     if floor is not None:
         lines += ["", "sensor noise floor (one-step MSE of a model that knows the true change of state, from the "
@@ -140,7 +142,8 @@ def summary(dataset: Dataset) -> str:
                   f"measured        q {errors['measured_q']:.3e} rad^2   v {errors['measured_v']:.3e} (rad/s)^2"]
     if dataset.protocol == "tracking":
         errors = tracking_errors(dataset)
-        lines += ["", "tracking error (MSE against the plan; paper's real UR-10: q 1.818e-5 rad^2, v 0.029 (rad/s)^2)",
+        paper = "; paper's real UR-10: q 1.818e-5 rad^2, v 0.029 (rad/s)^2" if meta.robot_name == "ur10" else ""
+        lines += ["", f"tracking error (MSE against the plan{paper})",
                   f"measured        q {errors['measured_q']:.3e} rad^2   v {errors['measured_v']:.3e} (rad/s)^2",
                   f"true            q {errors['true_q']:.3e} rad^2   v {errors['true_v']:.3e} (rad/s)^2"]
         smooth = tracking_smoothness(dataset)
@@ -159,9 +162,10 @@ def import_lines(record: dict) -> list[str]:
     resampling, pieces = record.get("resampling", {}), record.get("trajectories", {})
     derivatives = record.get("derivatives", {})
     number = lambda value: "-" if value is None else f"{value:.3g}"  # noqa: E731
+    exact = lambda value: "-" if value is None else f"{value:.6g}"  # noqa: E731  (as the sample period is printed)
     return [f"imported from   {record.get('format')} {record.get('source')}",
             f"resampling      cubic Hermite on the log's clock; estimated q error "
-            f"{number(resampling.get('estimated_q_error_rad'))} rad; log period {number(resampling.get('log_period_s'))} s, "
+            f"{number(resampling.get('estimated_q_error_rad'))} rad; log period {exact(resampling.get('log_period_s'))} s, "
             f"stamp jitter RMS {number(resampling.get('jitter_rms_s'))} s",
             f"pieces          {pieces.get('kept')} kept, {pieces.get('dropped_short')} too short dropped; split at "
             f"{pieces.get('gaps')} gaps, {pieces.get('pauses')} pauses, {pieces.get('mode_changes')} mode changes, "
