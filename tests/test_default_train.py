@@ -251,8 +251,8 @@ def test_an_alpha_replaces_naive_training_only_with_a_gain_beyond_validations_no
 
 
 def test_the_likely_cause_follows_the_run_and_the_command_it_runs_under():
-    """The cause lines in their order (newcomer pass 2): the paper's black box is named before the data size (it did
-    not learn at full size either); a run that ended at its epoch budget still improving is told to train longer;
+    """The cause lines in their order (newcomer pass 2, held-out run 42): the paper's black box is named before the
+    data size (it did not learn at full size either); a learning rate 100x below the default's; a run that ended at its epoch budget still improving is told to train longer;
     the data size advises what the running command can do: `collect --count`, or under `mbrl` its rounds and plans."""
     import types
 
@@ -261,9 +261,9 @@ def test_the_likely_cause_follows_the_run_and_the_command_it_runs_under():
     from stdm_drake.learning.train_job import LearningVerdict
     from stdm_drake.outputs import command_outputs
 
-    def cause(structure=ModelStructure(), epochs_run=500, stopped_early=True, best=400):
+    def cause(structure=ModelStructure(), epochs_run=500, stopped_early=True, best=400, lr=1e-3):
         verdict = object.__new__(LearningVerdict)
-        verdict.settings, verdict.sources, verdict.mismatch, verdict.structure = TrainSettings(), "true", None, structure
+        verdict.settings, verdict.sources, verdict.mismatch, verdict.structure = TrainSettings(lr=lr), "true", None, structure
         verdict.training_transitions, verdict.robot = 400, None
         verdict.dataset = types.SimpleNamespace(is_simulated=True)
         result = types.SimpleNamespace(epochs_run=epochs_run, stopped_early=stopped_early, best_epochs=[best])
@@ -275,6 +275,10 @@ def test_the_likely_cause_follows_the_run_and_the_command_it_runs_under():
         "the training budget: training ended at its 2 epochs with the validation error still falling (its best at "
         "epoch 2); raise --epochs")
     assert cause(epochs_run=300, stopped_early=False, best=120).startswith("the data size")   # (its best long before)
+    # held-out run 42: 2 epochs at lr 1e-6 were told "the data size", and more data changed nothing
+    assert cause(epochs_run=2, stopped_early=False, best=2, lr=1e-6) == (
+        "the learning rate: 1e-06, 1,000x below the default 0.001 (Adam moves each weight by about that much per "
+        "step); raise --lr or leave it out")
     assert "collect more trajectories (collect --count)" in cause()
     with command_outputs("mbrl", options={"--rounds", "--initial-plans", "--plans-per-round", "--epochs"}):
         assert "more rounds or plans (--rounds, --initial-plans, --plans-per-round)" in cause()

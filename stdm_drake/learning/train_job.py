@@ -108,6 +108,7 @@ def derivative_sources(dataset, split, settings: TrainSettings) -> tuple:
     return choice.sources[0], choice.describe(), choice.mismatch
 
 
+SLOW_LR_FACTOR = 100   # a learning rate this far below the default's is named as the cause before the budget
 BUDGET_END_FRACTION = 0.9   # a kept epoch past this fraction of a run that ran out its epochs: still improving
 
 
@@ -256,6 +257,10 @@ class LearningVerdict:
             inputs, predicts = train_option("--inputs"), train_option("--predicts")
             return (f"the model structure: the paper's black box ({inputs} raw, {predicts} state) did not learn on "
                     f"the shipped protocols (docs/learning.md); leave {inputs} and {predicts} at their defaults")
+        default_lr = TrainSettings().lr
+        if settings.lr <= default_lr / SLOW_LR_FACTOR:
+            return (f"the learning rate: {settings.lr:g}, {default_lr / settings.lr:,.0f}x below the default {default_lr:g} "
+                    f"(Adam moves each weight by about that much per step); raise {train_option('--lr')} or leave it out")
         best = int(selection.best_epochs[selection.index] if selection is not None else max(result.best_epochs))
         if not result.stopped_early and best > BUDGET_END_FRACTION * result.epochs_run:
             return (f"the training budget: training ended at its {result.epochs_run} epochs with the validation error "
