@@ -527,6 +527,25 @@ def test_coulomb_advice_beyond_the_speed_range_gives_the_plant_step_or_friction_
     assert StationConfig(robot=UR10, plant=PlantConfig.discrete(step)).substeps() >= 1   # (it divides 10 ms)
 
 
+def test_coulomb_advice_names_the_stribeck_velocity_its_scale_needs():
+    """Held-out run 42: "raise its coulomb_velocity_scale to at least 0.0589 rad/s" for a wrist with a Stribeck
+    breakaway at 0.05 rad/s, typed back, was refused for the Stribeck velocity the new scale hides. The advice now
+    names both, and both typed back as printed load."""
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
+    effects = PlantEffects(coulomb_friction=[1, 1, 1, 0.1, 0.1, 0.01], stribeck_friction=[2, 2, 2, 0.2, 0.2, 0.02],
+                           stribeck_velocity=[0.05])
+    with pytest.raises(InputError) as refused:
+        check_plant_effects(effects, UR10, 0.001)
+    message = str(refused.value)
+    assert "on wrist_3_joint" in message and "and, beside that scale, its stribeck_velocity to at least" in message
+    scale = float(message.split("coulomb_velocity_scale to at least ")[1].split(" ")[0])
+    width = float(message.split("its stribeck_velocity to at least ")[1].split(" ")[0])
+    with pytest.raises(InputError, match="stribeck_velocity 0.05 rad/s on wrist_3_joint ends the breakaway"):
+        check_plant_effects(dataclasses.replace(effects, coulomb_velocity_scale=[0.05] * 5 + [scale]), UR10, 0.001)
+    check_plant_effects(dataclasses.replace(effects, coulomb_velocity_scale=[0.05] * 5 + [scale],
+                                            stribeck_velocity=[0.05] * 5 + [width]), UR10, 0.001)
+
+
 def test_an_advised_plant_step_divides_the_sample_period_within_the_step_budget():
     """Held-out run 35: "lower the plant step to at most 1.13e-07 s at this scale (at most 0.000356 s with the scale
     at 3.1416 rad/s)": the first is 88,500 steps per 10 ms sample (at most 10,000 run), the second no whole fraction

@@ -31,6 +31,15 @@ def breakaway_shows(coulomb: np.ndarray, breakaway: np.ndarray, width: np.ndarra
     return np.any(magnitude > coulomb * (1 + 1e-9), axis=0)
 
 
+def narrowest_breakaway(coulomb: float, breakaway: float, scale: float) -> float | None:
+    """The narrowest Stribeck velocity (rad/s), on a grid from 0.01 to 1000 times the velocity scale `scale`, at which
+    a breakaway `breakaway` N m over the Coulomb friction `coulomb` N m shows (`breakaway_shows`); None: at none."""
+    widths = scale * np.logspace(-2, 3, 251)
+    shows = breakaway_shows(np.full(len(widths), coulomb), np.full(len(widths), breakaway), widths,
+                            np.full(len(widths), scale))
+    return float(widths[int(np.argmax(shows))]) if np.any(shows) else None
+
+
 def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, limits) -> None:
     """InputError (one line) where `effects` ask for what `robot`'s plant at `time_step` s (0: continuous) cannot do
     or would ignore; limits: the robot's `plant.JointLimits` (its velocity limits rad/s per arm joint, its effort limits
@@ -97,10 +106,8 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
         hidden[hidden] = ~breakaway_shows(coulomb[hidden], stribeck[0][hidden], stribeck[1][hidden], scale[hidden])
         if np.any(hidden):   # (the advice: the narrowest width that shows, on a grid up to 1000 v_s; none: the excess)
             joint = int(np.argmax(hidden))
-            widths = scale[joint] * np.logspace(-2, 3, 251)
-            shows = breakaway_shows(*(np.full(len(widths), value) for value in (coulomb[joint], stribeck[0][joint])),
-                                    widths, np.full(len(widths), scale[joint]))
-            if not np.any(shows):
+            narrowest = narrowest_breakaway(coulomb[joint], stribeck[0][joint], scale[joint])
+            if narrowest is None:
                 raise InputError(f"plant effects stribeck_friction {stribeck[0][joint]:g} N m on {robot.joint_names[joint]} "
                                  f"exceeds its coulomb_friction by {above_coulomb[joint]:.3g} N m, too little for the "
                                  "friction to rise above Coulomb's at any Stribeck velocity: give a larger breakaway, or "
@@ -108,7 +115,7 @@ def check_beyond_rigid_bodies(effects: PlantEffects, robot, time_step: float, li
             raise InputError(f"plant effects stribeck_velocity {stribeck[1][joint]:g} rad/s on {robot.joint_names[joint]} "
                              "ends the breakaway before the smoothed friction tanh(v / coulomb_velocity_scale) rises, so "
                              "the friction never exceeds coulomb_friction there and the plant shows no Stribeck effect; "
-                             f"give at least {bound_text(widths[int(np.argmax(shows))], at_least=True)} rad/s there")
+                             f"give at least {bound_text(narrowest, at_least=True)} rad/s there")
     m = robot.action_dim   # (a lag and a torque noise per actuated joint)
     noise = effects.joint_values("torque_noise_std", m) if effects.torque_noise_std else np.zeros(m)
     if robot.fully_actuated and np.any(noise > limits.effort):   # (beyond it every sample clips: saturation, no noise)

@@ -36,6 +36,7 @@ LIMIT_BOUNDS = {"velocity": 1e4, "effort": 1e6}
 MIN_POSITION_RANGE = 1e-6
 MAX_POSITION_LIMIT = 1e6   # ... and the largest position limit's magnitude (the corpus states at most 1e3)
 # ... and the smallest velocity and effort limit (rad/s or m/s, N m or N): a limit of 1e-320 is 0 in all but name
+MAX_GYRATION_RADIUS = 100.0   # m: a link's principal moments at most mass x (this)² (the plant effects' bound too)
 MIN_LIMIT = 1e-6
 
 

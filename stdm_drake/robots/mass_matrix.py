@@ -8,8 +8,8 @@ import numpy as np
 from pydrake.multibody.plant import MultibodyPlant
 
 from stdm_drake.errors import InputError
+from stdm_drake.robots.limit_checks import MAX_GYRATION_RADIUS
 
-MAX_GYRATION_RADIUS = 100.0   # m: a link's principal moments at most mass x (this)² (the plant effects' bound too)
 SINGULAR_MASS_MATRIX = 1e-10  # M(home)'s smallest eigenvalue over its largest at or below which it is refused
 NO_INERTIA = 1e-12            # a joint's M_ii over the inertia its links carry about the joint at or below: none
 

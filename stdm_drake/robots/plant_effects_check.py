@@ -11,7 +11,7 @@ from pydrake.multibody.plant import MultibodyPlant
 
 from stdm_drake.errors import InputError, bound_text
 from stdm_drake.files import names_text
-from stdm_drake.robots.effect_checks import check_beyond_rigid_bodies
+from stdm_drake.robots.effect_checks import breakaway_shows, check_beyond_rigid_bodies, narrowest_breakaway
 from stdm_drake.robots.effects import MIN_MASS, PlantEffects, load_plant_effects
 from stdm_drake.robots.mass_matrix import check_arm_inertias
 from stdm_drake.robots.plant import Dynamics, robot_joint_limits
@@ -78,8 +78,9 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float,
                 (here, " at this scale"), (wide, f" with the scale at {widest:g} rad/s")) if step is not None]
             steps = steps[:1] if here is not None and wide is not None and f"{here:g}" == f"{wide:g}" else steps
             friction_fix = f"the friction to at most {bound_text(friction[joint] * scale[joint] / smallest, at_least=False)} N m"
-            fixes = (f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s or lower the "
-                     "plant step" if smallest <= widest else
+            fixes = (f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s"
+                     + breakaway_at(effects, n, joint, float(bound_text(smallest, at_least=True)))
+                     + " or lower the plant step" if smallest <= widest else
                      f"the coulomb_velocity_scale that holds it ({bound_text(smallest, at_least=True)} rad/s) is wider than "
                      f"the joint's speed range ({widest:g} rad/s): lower " + " (or ".join(steps) + ")" * (len(steps) - 1)
                      + (", or " if steps else "") + friction_fix
@@ -89,6 +90,21 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float,
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.6g} > 1); "
                              + fixes)
+
+
+def breakaway_at(effects: PlantEffects, n: int, joint: int, scale: float) -> str:
+    """The clause a Coulomb advice adds where its velocity scale `scale` (rad/s) would hide `joint`'s Stribeck
+    breakaway (held-out run 42: the advised scale, typed back, was refused next for the file's Stribeck velocity)."""
+    stribeck = effects.stribeck(n)
+    if stribeck is None:
+        return ""
+    coulomb, (breakaway, width) = effects.coulomb(n)[0][joint], (stribeck[0][joint], stribeck[1][joint])
+    if breakaway <= coulomb or breakaway_shows(*(np.array([value]) for value in (coulomb, breakaway, width, scale)))[0]:
+        return ""
+    narrowest = narrowest_breakaway(coulomb, breakaway, scale)
+    return (f" (and, beside that scale, its stribeck_velocity to at least {bound_text(narrowest, at_least=True)} rad/s "
+            "for the breakaway to show)" if narrowest is not None else
+            " (a scale that would hide its Stribeck breakaway: give a larger breakaway there, or none)")
 
 
 def check_transmission_ringing(effects: PlantEffects, robot, time_step: float, sample_period: float) -> None:
