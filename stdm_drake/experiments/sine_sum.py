@@ -280,9 +280,8 @@ def run_study(config: StudyConfig, *, workers: int = 1, progress: bool = True, r
                 bar.update(1)
             alpha = sweep["chosen_alpha"] if auto else float(config.alpha)
             for index, spec in enumerate(specs):   # (the bar shows the run's step: a run can take minutes)
-                def show(row, label=spec.label):
-                    bar.set_postfix_str(f"{label}: step {row['epoch']}/{config.epochs}")
-                results[index] = train_run(spec, config, alpha, on_epoch=show)
+                results[index] = train_run(spec, config, alpha, on_epoch=lambda row, label=spec.label:
+                                           bar.set_postfix_str(f"{label}: step {row['epoch']}/{config.epochs}"))
                 bar.update(1)
     finally:
         bar.close()

@@ -379,21 +379,18 @@ def check_tree(description: Description, where: str) -> None:
 
 
 def check_inertial(inertial: Inertial, where: str) -> None:
-    """InputError for a negative or non-finite mass (kg) or a non-finite inertia entry (kg m²): numbers no body
-    has and Drake's parser would not use as written (it replaces a negative mass by 1 kg). Principal moments no
-    body has (one negative, or breaking the triangle inequality) are Drake's to replace, not refused here:
-    `inertia_substitution.inertia_substitution` says what Drake uses instead. A mass of 0 is a massless frame whatever its inertia
-    entries say (they are zeroed before Drake parses the file, `model_file.zero_massless_inertia`)."""
+    """InputError for a negative or non-finite mass (kg) or a non-finite inertia entry (kg m²): numbers no body has and
+    Drake's parser would not use as written (it replaces a negative mass by 1 kg). Principal moments no body has (one
+    negative, or breaking the triangle inequality) are Drake's to replace, not refused here (`inertia_substitution`
+    says what Drake uses). A mass of 0 is a massless frame whatever its inertia says (`model_file.zero_massless_inertia`
+    zeroes it); for a subnormal one, the least mass that keeps the moments in its reach is advised (held-out run 42)."""
     mass, inertia = inertial.mass, inertial.inertia
     if mass is None:
         return
     if not math.isfinite(mass) or mass < 0:
         raise InputError(f"{where} has mass {mass:g} kg; a mass is a finite number >= 0")
     if 0 < mass < sys.float_info.min:   # (Drake divides the inertia by it: inf, and the plant simulates inf)
-        # the least mass that also holds these moments within its reach, as the plant's check asks next (held-out
-        # run 42: 2.23e-308 kg, advised and typed back, was refused there for a moment of 0.003 kg m²)
-        with np.errstate(all="ignore"):
-            top = np.abs(np.linalg.eigvalsh(inertia)).max() if np.isfinite(inertia).all() else 0.0
+        top = np.abs(np.linalg.eigvalsh(inertia)).max() if np.isfinite(inertia).all() else 0.0
         least = max(sys.float_info.min, top / MAX_GYRATION_RADIUS ** 2)
         reach = (f" (its largest principal moment {top:.6g} kg m² within mass x ({MAX_GYRATION_RADIUS:g} m)², as far "
                  "as a body reaches)" if least > sys.float_info.min else "")
