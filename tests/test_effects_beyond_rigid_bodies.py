@@ -546,6 +546,23 @@ def test_coulomb_advice_names_the_stribeck_velocity_its_scale_needs():
                                             stribeck_velocity=[0.05] * 5 + [width]), UR10, 0.001)
 
 
+def test_coulomb_advice_names_every_unstable_joint_with_the_scale_that_holds_it():
+    """Held-out run 42: the line named one joint where three were unstable, so a user fixed them one run at a time.
+    It names each now, with the scale that holds it at this step, and all typed back as printed load."""
+    from stdm_drake.robots.plant_effects_check import check_plant_effects
+    effects = PlantEffects(coulomb_friction=[1, 1, 1, 0.1, 0.1, 0.01], coulomb_velocity_scale=[0.001])
+    with pytest.raises(InputError) as refused:
+        check_plant_effects(effects, UR10, 0.001)
+    message = str(refused.value)
+    scales = [0.001] * 6
+    scales[5] = float(message.split("raise its coulomb_velocity_scale to at least ")[1].split(" ")[0])
+    others = message.split("unstable too at this plant step: ")[1].split("), ")
+    assert [other.split(" ")[0] for other in others] == ["wrist_2_joint", "wrist_1_joint"], message
+    for other in others:
+        scales[UR10.joint_names.index(other.split(" ")[0])] = float(other.split("at least ")[1].split(" ")[0])
+    check_plant_effects(dataclasses.replace(effects, coulomb_velocity_scale=scales), UR10, 0.001)
+
+
 def test_an_advised_plant_step_divides_the_sample_period_within_the_step_budget():
     """Held-out run 35: "lower the plant step to at most 1.13e-07 s at this scale (at most 0.000356 s with the scale
     at 3.1416 rad/s)": the first is 88,500 steps per 10 ms sample (at most 10,000 run), the second no whole fraction

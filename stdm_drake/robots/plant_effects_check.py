@@ -89,7 +89,16 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float,
             raise InputError(f"plant effects: Coulomb friction (at rest) {friction[joint]:g} "
                              f"N m on {robot.joint_names[joint]} with coulomb_velocity_scale {scale[joint]:g} rad/s is "
                              f"unstable at the plant step {time_step:g} s (h F_c / (v_s M_eff) = {gain[joint]:.6g} > 1); "
-                             + fixes)
+                             + fixes + others_unstable(gain, scale, joint, robot.joint_names))
+
+
+def others_unstable(gain: np.ndarray, scale: np.ndarray, joint: int, names: list) -> str:
+    """The clause naming the joints besides `joint` whose Coulomb term is unstable too (gain > 1), each with the
+    velocity scale that holds it at this step (the gain goes as 1 / v_s), so that they are not found one run at a
+    time (held-out run 42: a typed-back file hit the joint the line had not named)."""
+    others = [f"{names[other]} (its coulomb_velocity_scale at least {bound_text(gain[other] * scale[other], at_least=True)} "
+              "rad/s)" for other in np.argsort(-gain) if other != joint and gain[other] > 1.0 + 1e-9]
+    return f"; unstable too at this plant step: {', '.join(others)}" if others else ""
 
 
 def breakaway_at(effects: PlantEffects, n: int, joint: int, scale: float) -> str:
