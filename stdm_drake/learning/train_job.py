@@ -266,8 +266,10 @@ class LearningVerdict:
             return (f"the training budget: training ended at its {result.epochs_run} epochs with the validation error "
                     f"still falling (its best at epoch {best}); raise {train_option('--epochs')}")
         if self.training_transitions < 2000:
-            more = ("more rounds or plans (--rounds, --initial-plans, --plans-per-round)" if running_command() == "mbrl"
-                    else "collect more trajectories (collect --count)" if self.dataset.is_simulated else
+            if running_command() == "mbrl":   # (the loop's data and split are its own: its rounds and plans)
+                return (f"the data size: {self.training_transitions} training transitions; more rounds or plans "
+                        "(--rounds, --initial-plans, --plans-per-round)")
+            more = ("collect more trajectories (collect --count)" if self.dataset.is_simulated else
                     "record and import a longer log of the robot")
             return (f"the data size: {self.training_transitions} training transitions; {more} or train on more of "
                     f"them ({train_option('--train')})")
