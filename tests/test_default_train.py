@@ -283,3 +283,25 @@ def test_the_likely_cause_follows_the_run_and_the_command_it_runs_under():
     with command_outputs("mbrl", options={"--rounds", "--initial-plans", "--plans-per-round", "--epochs"}):
         assert cause() == "the data size: 400 training transitions; more rounds or plans (--rounds, --initial-plans, " \
             "--plans-per-round)"
+
+
+def test_a_grey_box_at_the_noise_floor_is_not_called_worse_than_its_plant():
+    """Held-out run 43: "predicts v 1x worse (5.81e-05 against 5.78e-05) than its plant alone ... more data or epochs
+    may let the network add what the plant lacks", where both sat at the sensor's noise floor (5.79e-05) and neither
+    more data nor more epochs changed a thing. Within FLOOR_FACTOR of the floor there is no difference to name;
+    above it, or without a floor, the warning stands."""
+    import types
+
+    from stdm_drake.learning.train_job import LearningVerdict
+
+    def row(q, v):
+        return types.SimpleNamespace(one_step=types.SimpleNamespace(angle_mse=q, velocity_mse=v))
+
+    verdict = object.__new__(LearningVerdict)
+    verdict.floor = dict(q=7.8e-8, v=5.79e-5)
+    assert verdict.worse_than_plant(row(7.9e-8, 5.81e-5), row(7.8e-8, 5.78e-5)) == []
+    assert verdict.worse_than_plant(row(7.9e-8, 2e-4), row(7.8e-8, 5.78e-5)) == [
+        "v 3.46x worse (0.0002 against 5.78e-05 (rad/s)^2)"]
+    verdict.floor = None
+    assert verdict.worse_than_plant(row(7.9e-8, 5.81e-5), row(7.8e-8, 5.78e-5)) == [
+        "q 1.01x worse (7.9e-08 against 7.8e-08 rad^2)", "v 1.01x worse (5.81e-05 against 5.78e-05 (rad/s)^2)"]
