@@ -280,8 +280,9 @@ def closed_loop_failures(results: list[ClosedLoopResult], fraction: float = FALL
                          model_notes: dict | None = None) -> list[str]:
     """One line per model whose closed loop is not a result: it left the robot's limits (a state outside the
     position or velocity limits, or not finite, on any step of any plan) or fell back to gravity compensation
-    (non-finite predictions) on more than `fraction` of its steps, both in one line where both hold; `note` (a setting the failure may
-    come from, `failure_causes.loop_causes`) ends each line, after the model's own in `model_notes` (name: clause)."""
+    (non-finite predictions) on more than `fraction` of its steps, both in one line where both hold; `note` (a
+    setting the failure may come from, `failure_causes.loop_causes`) ends each line, after the model's own in
+    `model_notes` (name: clause)."""
     failures = []
     for name in dict.fromkeys(result.model for result in results):
         said = "; ".join(filter(None, [(model_notes or {}).get(name, ""), note]))
