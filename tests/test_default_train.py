@@ -305,3 +305,15 @@ def test_a_grey_box_at_the_noise_floor_is_not_called_worse_than_its_plant():
     verdict.floor = None
     assert verdict.worse_than_plant(row(7.9e-8, 5.81e-5), row(7.8e-8, 5.78e-5)) == [
         "q 1.01x worse (7.9e-08 against 7.8e-08 rad^2)", "v 1.01x worse (5.81e-05 against 5.78e-05 (rad/s)^2)"]
+
+
+def test_a_grey_box_that_never_improved_is_not_told_to_train_longer():
+    """Held-out run 44: on data its plant itself made, a grey box 1.23x worse than its plant alone was told "more
+    data or epochs may let the network add what the plant lacks"; 3x the data and 300 epochs changed nothing (best
+    at epoch 1). Where training never did better than after its first epoch, the advice is the plant alone."""
+    import types
+
+    from stdm_drake.learning.train_job import LearningVerdict
+    assert LearningVerdict.plant_alone_advice(types.SimpleNamespace(best_epochs=[1])).endswith("use the plant alone")
+    assert LearningVerdict.plant_alone_advice(types.SimpleNamespace(best_epochs=[40])) == (
+        "more data or epochs may let the network add what the plant lacks")

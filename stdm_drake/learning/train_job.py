@@ -192,7 +192,7 @@ class LearningVerdict:
             print(f"stdm-drake train: warning: seed {seed}'s {self.name} predicts {' and '.join(worse)} than its plant "
                   f"alone ({self.plant_source}) on the {self.split_name} split: the network's correction costs "
                   "accuracy on these data, so the plant alone is the better model here (`stdm-drake compare` weighs "
-                  "both); more data or epochs may let the network add what the plant lacks", file=sys.stderr)
+                  "both); " + self.plant_alone_advice(result), file=sys.stderr)
 
         def entry(found, trajectories, floor):
             return dict(transitions=found[0].one_step.transitions, trajectories=trajectories, noise_floor=floor,
@@ -217,6 +217,17 @@ class LearningVerdict:
                     ("q", model.one_step.angle_mse, alone.one_step.angle_mse, "rad^2"),
                     ("v", model.one_step.velocity_mse, alone.one_step.velocity_mse, "(rad/s)^2"))
                 if model_mse > plant_mse and not at_floor(name, model_mse, plant_mse)]
+
+    @staticmethod
+    def plant_alone_advice(result) -> str:
+        """How a grey box worse than its plant alone may still add to it: more data or epochs, unless training never
+        did better than after its first epoch (`trainer.TrainResult`'s best epochs), where the network has found
+        nothing in these data to add (held-out run 44: on data the plant itself made, 3x the data and 300 epochs
+        kept it 1.23x worse, best at epoch 1)."""
+        if max(result.best_epochs) <= 1:
+            return ("its validation error was lowest after the first epoch, so the network found nothing to add to the "
+                    "plant on these data: use the plant alone")
+        return "more data or epochs may let the network add what the plant lacks"
 
     @property
     def plant_source(self) -> str:
