@@ -8,6 +8,7 @@ learning curves, the alpha selection and summary.json; what `stdm-drake train` a
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import pathlib
 import sys
@@ -167,7 +168,7 @@ class LearningVerdict:
                   f"{times_better(row.ratio_q)} / {times_better(row.ratio_v)} -> {row.verdict}")
         print(f"  {'Euler step':<{width}}{rows[-1].one_step.angle_mse:>11.3e} {rows[-1].one_step.velocity_mse:>14.3e}"
               "  (q + dt v; 'v unchanged')")
-        alone = self.plant_alone()
+        alone = self.plant_alone
         if alone is not None:
             print(f"  {'plant alone':<{width}}{alone.one_step.angle_mse:>11.3e} {alone.one_step.velocity_mse:>14.3e}  "
                   f"(the grey box's physics without its network: {self.plant_source})")
@@ -233,9 +234,11 @@ class LearningVerdict:
     def plant_source(self) -> str:
         return "the identified robot" if self.structure.physics else "the robot's description"
 
+    @functools.cached_property
     def plant_alone(self):
         """For a grey box (plant-step inputs): the one-step errors (`ModelErrors`) of its plant model alone, the
-        physics its network corrects, on the judged split; None for another structure or without a robot."""
+        physics its network corrects, on the judged split; None for another structure or without a robot. Computed
+        once: the report's row and the description's cause line read the same errors."""
         if not self.structure.grey_box or self.robot is None:
             return None
         plant = self.structure.nominal_features(self.robot, self.dataset.sample_period).model
@@ -248,7 +251,7 @@ class LearningVerdict:
         None otherwise (or without a robot)."""
         if not self.structure.grey_box or self.structure.physics or self.robot is None:
             return None
-        plant, euler = self.plant_alone(), rows[-1]
+        plant, euler = self.plant_alone, rows[-1]
         ratio = plant.one_step.angle_mse / max(euler.one_step.angle_mse, 1e-300)
         if ratio <= 1.0:
             return None

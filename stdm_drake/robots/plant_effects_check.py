@@ -78,10 +78,11 @@ def check_plant_effects(effects: PlantEffects, robot, time_step: float,
                 (here, " at this scale"), (wide, f" with the scale at {widest:g} rad/s")) if step is not None]
             steps = steps[:1] if here is not None and wide is not None and f"{here:g}" == f"{wide:g}" else steps
             friction_fix = f"the friction to at most {bound_text(friction[joint] * scale[joint] / smallest, at_least=False)} N m"
-            fixes = (f"raise its coulomb_velocity_scale to at least {bound_text(smallest, at_least=True)} rad/s"
-                     + breakaway_at(effects, n, joint, float(bound_text(smallest, at_least=True)))
-                     + " or lower the plant step" if smallest <= widest else
-                     f"the coulomb_velocity_scale that holds it ({bound_text(smallest, at_least=True)} rad/s) is wider than "
+            advised = bound_text(smallest, at_least=True)   # (the scale as printed: what a user types back)
+            fixes = (f"raise its coulomb_velocity_scale to at least {advised} rad/s"
+                     + breakaway_at(effects, n, joint, float(advised)) + " or lower the plant step"
+                     if smallest <= widest else
+                     f"the coulomb_velocity_scale that holds it ({advised} rad/s) is wider than "
                      f"the joint's speed range ({widest:g} rad/s): lower " + " (or ".join(steps) + ")" * (len(steps) - 1)
                      + (", or " if steps else "") + friction_fix
                      + ("" if steps else f" (no plant step within {MAX_SUBSTEPS} per sample period of "
